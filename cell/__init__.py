@@ -1,0 +1,10 @@
+"""Robot-cell controller for automated disassembly.
+
+Data flow, one module per arrow:
+frame -> contours (vision) -> candidate points (grasp.candidates) -> valid points
+(grasp.learning) -> reachable pairs (grasp.cascade) -> valid sets -> selected grasp
+(grasp.synthesis) -> arm/hand configuration (configuration) -> joint and gripper
+commands (drivers) -> CAN frames.
+"""
+
+__version__ = "0.1.0"

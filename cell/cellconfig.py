@@ -1,0 +1,251 @@
+"""The cell file: the SCARA, the gripper, the tray, the camera and the CAN nodes.
+
+A readable JSON file (`cell/data/default_cell.json` is the default cell of CONTRACT.md).
+`load_cell(path)` validates every key and raises `BadInput` naming the key; `--cell FILE`
+anywhere in the CLI replaces the default.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+from cell.errors import BadInput
+from cell.fileio import read_json
+
+FORMAT = "disassembly-cell/cell"
+JOINTS = ("j1", "j2", "j3", "j4")
+
+
+def default_cell_path() -> Path:
+    return Path(str(resources.files("cell") / "data" / "default_cell.json"))
+
+
+@dataclass(frozen=True)
+class Scara:
+    l1_mm: float
+    l2_mm: float
+    j1_deg: tuple[float, float]
+    j2_deg: tuple[float, float]
+    j3_mm: tuple[float, float]
+    j4_deg: tuple[float, float]
+    link1_width_mm: float
+    link2_width_mm: float
+    link1_bottom_z_mm: float
+    link2_bottom_z_mm: float
+    max_velocity: dict  # per joint, unit/s (deg/s or mm/s)
+    max_acceleration: dict  # per joint, unit/s^2
+    max_step: dict  # per joint, the largest change one move command may ask for
+
+    def limits(self, joint: str) -> tuple[float, float]:
+        return {"j1": self.j1_deg, "j2": self.j2_deg, "j3": self.j3_mm, "j4": self.j4_deg}[joint]
+
+    @property
+    def reach_mm(self) -> tuple[float, float]:
+        return abs(self.l1_mm - self.l2_mm), self.l1_mm + self.l2_mm
+
+
+@dataclass(frozen=True)
+class Gripper:
+    opening_mm: tuple[float, float]
+    pad_width_mm: float  # tangential, across the closing axis
+    pad_thickness_mm: float  # along the closing axis
+    pad_height_mm: float
+    finger_length_mm: float  # pad bottom (finger tip) to palm bottom
+    approach_clearance_mm: float  # each side, before descending
+    palm_length_mm: float  # along the closing axis
+    palm_width_mm: float
+    palm_offset_mm: float  # palm bottom above the finger tip
+    grip_force_n: float
+    max_force_n: float
+    speed_mm_s: float
+
+
+@dataclass(frozen=True)
+class Box2D:
+    x_mm: tuple[float, float]
+    y_mm: tuple[float, float]
+
+    def contains(self, x: float, y: float) -> bool:
+        return self.x_mm[0] <= x <= self.x_mm[1] and self.y_mm[0] <= y <= self.y_mm[1]
+
+
+@dataclass(frozen=True)
+class Motion:
+    safe_z_mm: float
+    dropoff_mm: tuple[float, float, float]
+    home_joints: dict
+
+
+@dataclass(frozen=True)
+class Camera:
+    width_px: int
+    height_px: int
+    height_mm: float
+
+
+@dataclass(frozen=True)
+class CanNode:
+    name: str
+    node_id: int
+    unit: str
+    counts_per_unit: float
+
+
+@dataclass(frozen=True)
+class CanConfig:
+    bitrate: int
+    heartbeat_ms: int
+    host_heartbeat_ms: int
+    nodes: dict  # name -> CanNode
+
+
+@dataclass(frozen=True)
+class Cell:
+    name: str
+    scara: Scara
+    gripper: Gripper
+    tray: Box2D
+    workspace: Box2D
+    motion: Motion
+    camera: Camera
+    can: CanConfig
+    source: str = field(default="<default>", compare=False)
+
+
+_DEFAULT: Cell | None = None
+
+
+def default_cell() -> Cell:
+    global _DEFAULT
+    if _DEFAULT is None:
+        _DEFAULT = load_cell(default_cell_path())
+    return _DEFAULT
+
+
+def load_cell(path: str | Path | None = None) -> Cell:
+    """Read and validate a cell file; None means the shipped default cell."""
+    if path is None:
+        return default_cell()
+    raw = read_json(path, "cell file")
+    return parse_cell(raw, source=str(path))
+
+
+def parse_cell(raw, source: str = "<dict>") -> Cell:
+    r = _Reader(raw, source)
+    if raw.get("format", FORMAT) != FORMAT:
+        raise BadInput(f"cell file {source}: 'format' must be {FORMAT!r}")
+    if r.num(raw, "version", "version") != 1:
+        raise BadInput(f"cell file {source}: unsupported version {raw.get('version')!r} (this build reads 1)")
+    s = r.obj(raw, "scara")
+    scara = Scara(
+        l1_mm=r.pos(s, "l1_mm", "scara"),
+        l2_mm=r.pos(s, "l2_mm", "scara"),
+        j1_deg=r.range(s, "j1_deg", "scara"),
+        j2_deg=r.range(s, "j2_deg", "scara"),
+        j3_mm=r.range(s, "j3_mm", "scara"),
+        j4_deg=r.range(s, "j4_deg", "scara"),
+        link1_width_mm=r.pos(s, "link1_width_mm", "scara"),
+        link2_width_mm=r.pos(s, "link2_width_mm", "scara"),
+        link1_bottom_z_mm=r.num(s, "link1_bottom_z_mm", "scara"),
+        link2_bottom_z_mm=r.num(s, "link2_bottom_z_mm", "scara"),
+        max_velocity=r.per_joint(s, "max_velocity"),
+        max_acceleration=r.per_joint(s, "max_acceleration"),
+        max_step=r.per_joint(s, "max_step"),
+    )
+    g = r.obj(raw, "gripper")
+    gripper = Gripper(
+        opening_mm=r.range(g, "opening_mm", "gripper"),
+        **{k: r.pos(g, k, "gripper") for k in (
+            "pad_width_mm", "pad_thickness_mm", "pad_height_mm", "finger_length_mm", "palm_length_mm",
+            "palm_width_mm", "palm_offset_mm", "grip_force_n", "max_force_n", "speed_mm_s")},
+        approach_clearance_mm=r.nonneg(g, "approach_clearance_mm", "gripper"),
+    )
+    if gripper.opening_mm[0] < 0:
+        raise BadInput(f"cell file {source}: gripper.opening_mm must not be negative")
+    tray = Box2D(r.range(r.obj(raw, "tray"), "x_mm", "tray"), r.range(raw["tray"], "y_mm", "tray"))
+    ws = Box2D(r.range(r.obj(raw, "workspace"), "x_mm", "workspace"), r.range(raw["workspace"], "y_mm", "workspace"))
+    if not (ws.contains(tray.x_mm[0], tray.y_mm[0]) and ws.contains(tray.x_mm[1], tray.y_mm[1])):
+        raise BadInput(f"cell file {source}: the tray must lie inside the workspace")
+    m = r.obj(raw, "motion")
+    home = r.obj(m, "home_joints", "motion")
+    motion = Motion(
+        safe_z_mm=r.num(m, "safe_z_mm", "motion"),
+        dropoff_mm=tuple(r.vec(m, "dropoff_mm", 3, "motion")),
+        home_joints={k: r.num(home, k, "motion.home_joints") for k in ("j1_deg", "j2_deg", "j3_mm", "j4_deg")},
+    )
+    c = r.obj(raw, "camera")
+    camera = Camera(int(r.pos(c, "width_px", "camera")), int(r.pos(c, "height_px", "camera")),
+                    r.pos(c, "height_mm", "camera"))
+    cn = r.obj(raw, "can")
+    nodes_raw = r.obj(cn, "nodes", "can")
+    nodes = {}
+    for name in (*JOINTS, "gripper"):
+        n = r.obj(nodes_raw, name, "can.nodes")
+        node_id = int(r.num(n, "node_id", f"can.nodes.{name}"))
+        if not 1 <= node_id <= 127:
+            raise BadInput(f"cell file {source}: can.nodes.{name}.node_id must be 1..127, got {node_id}")
+        unit = n.get("unit")
+        if unit not in ("deg", "mm"):
+            raise BadInput(f"cell file {source}: can.nodes.{name}.unit must be 'deg' or 'mm'")
+        nodes[name] = CanNode(name, node_id, unit, r.pos(n, "counts_per_unit", f"can.nodes.{name}"))
+    if len({n.node_id for n in nodes.values()}) != len(nodes):
+        raise BadInput(f"cell file {source}: can.nodes have duplicate node ids")
+    can = CanConfig(int(r.pos(cn, "bitrate", "can")), int(r.pos(cn, "heartbeat_ms", "can")),
+                    int(r.pos(cn, "host_heartbeat_ms", "can")), nodes)
+    name = raw.get("name", Path(source).stem)
+    return Cell(str(name), scara, gripper, tray, ws, motion, camera, can, source=source)
+
+
+class _Reader:
+    """Typed access to the raw JSON with messages that name the file and the key."""
+
+    def __init__(self, raw, source: str):
+        if not isinstance(raw, dict):
+            raise BadInput(f"cell file {source}: top level must be a JSON object")
+        self.source = source
+
+    def _fail(self, where: str, key: str, why: str):
+        raise BadInput(f"cell file {self.source}: {where + '.' if where else ''}{key} {why}")
+
+    def obj(self, d, key, where=""):
+        v = d.get(key) if isinstance(d, dict) else None
+        if not isinstance(v, dict):
+            self._fail(where, key, "is missing or not an object")
+        return v
+
+    def num(self, d, key, where=""):
+        v = d.get(key)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            self._fail(where, key, f"must be a finite number, got {v!r}")
+        return float(v)
+
+    def pos(self, d, key, where=""):
+        v = self.num(d, key, where)
+        if v <= 0:
+            self._fail(where, key, f"must be positive, got {v}")
+        return v
+
+    def nonneg(self, d, key, where=""):
+        v = self.num(d, key, where)
+        if v < 0:
+            self._fail(where, key, f"must not be negative, got {v}")
+        return v
+
+    def vec(self, d, key, n, where=""):
+        v = d.get(key)
+        if not isinstance(v, list) or len(v) != n:
+            self._fail(where, key, f"must be a list of {n} numbers, got {v!r}")
+        return [self.num({"_": x}, "_", f"{where}.{key}") for x in v]
+
+    def range(self, d, key, where=""):
+        lo, hi = self.vec(d, key, 2, where)
+        if not lo < hi:
+            self._fail(where, key, f"must be [low, high] with low < high, got {[lo, hi]}")
+        return (lo, hi)
+
+    def per_joint(self, d, key):
+        o = self.obj(d, key, "scara")
+        return {j: self.pos(o, j, f"scara.{key}") for j in JOINTS}

@@ -1,0 +1,93 @@
+"""`cell` command line: a plain table of subcommand -> module, imported only when used.
+
+Each module in `cell.commands` defines `add_arguments(parser)` and `run(args) -> int`.
+Heavy imports (cv2, sklearn, canopen, rerun) belong inside `run`, so `cell --help` is fast.
+Errors of the `CellError` family become a message on stderr and their exit code
+(2 for bad input); no traceback reaches the user for anything the user can fix.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import sys
+
+from cell.errors import BadInput, CellError
+
+# (words, module, one-line help). Two words make a group ("calibrate intrinsics").
+COMMANDS: list[tuple[tuple[str, ...], str, str]] = [
+    (("grasp",), "cell.commands.grasp", "plan a grasp for one or more scene files"),
+    (("rules",), "cell.commands.rules", "print the learned decision trees as if-then rules"),
+    (("plan",), "cell.commands.plan", "plan grasps for every step of a disassembly sequence"),
+    (("study",), "cell.commands.study", "reproduce the paper's learning study (classifier comparison)"),
+    (("examples", "generate"), "cell.commands.examples", "generate teaching examples with the simulated operator"),
+    (("segment",), "cell.commands.segment", "segment camera frames into part contours"),
+    (("render",), "cell.commands.render", "render a camera frame of a scene with the simulated camera"),
+    (("calibrate", "intrinsics"), "cell.commands.calibrate", "camera intrinsics from chessboard/ChArUco images"),
+    (("calibrate", "plane"), "cell.commands.calibrate_plane", "image <-> base-frame mapping from fiducials"),
+    (("map",), "cell.commands.map", "map pixels to mm on a plane, or mm to pixels"),
+    (("run",), "cell.commands.run", "run a disassembly in the cell (simulated by default)"),
+    (("replay",), "cell.commands.replay", "re-run perception and planning on a recorded session"),
+    (("station",), "cell.commands.station", "serve the operator station (local web page)"),
+    (("hw", "status"), "cell.commands.hw", "bring the nodes up and print their state"),
+    (("hw", "sim"), "cell.commands.hw", "serve the simulated drives on a CAN bus until stopped"),
+    (("hw", "home"), "cell.commands.hw", "home the arm (hardware-in-loop)"),
+    (("hw", "jog"), "cell.commands.hw", "jog one joint by a small step (hardware-in-loop)"),
+    (("hw", "gripper"), "cell.commands.hw", "open or close the gripper (hardware-in-loop)"),
+    (("hw", "corner"), "cell.commands.hw", "move to a tray corner and back (hardware-in-loop)"),
+    (("bench", "grasp"), "cell.commands.bench_grasp", "benchmark grasp synthesis: cascade vs brute force"),
+    (("bench", "vision"), "cell.commands.bench_vision", "benchmark segmentation accuracy and speed"),
+    (("bench", "can"), "cell.commands.bench_can", "benchmark CAN round trip and bus load per pick"),
+]
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # argparse's own usage errors are bad input too: exit 2
+        self.print_usage(sys.stderr)
+        raise BadInput(message)
+
+
+def _available() -> list[tuple[tuple[str, ...], str, str]]:
+    out = []
+    for words, module, help_ in COMMANDS:
+        if importlib.util.find_spec(module) is not None:
+            out.append((words, module, help_))
+    return out
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="cell", description="Disassembly cell controller: grasp synthesis learned "
+                     "from examples, vision, CANopen drives.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    groups: dict[str, argparse._SubParsersAction] = {}
+    for words, module, help_ in _available():
+        if len(words) == 1:
+            p = sub.add_parser(words[0], help=help_, description=help_)
+        else:
+            if words[0] not in groups:
+                g = sub.add_parser(words[0], help=f"{words[0]} commands")
+                groups[words[0]] = g.add_subparsers(dest="subcommand", metavar="SUBCOMMAND", parser_class=_Parser)
+            p = groups[words[0]].add_parser(words[1], help=help_, description=help_)
+        p.set_defaults(_module=module, _words=words)
+        importlib.import_module(module).add_arguments(p)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        if not hasattr(args, "_module"):
+            parser.print_help(sys.stderr)
+            return 2
+        return int(importlib.import_module(args._module).run(args) or 0)
+    except CellError as e:
+        print(f"cell: error: {e}", file=sys.stderr)
+        return e.exit_code
+    except KeyboardInterrupt:
+        print("cell: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        return 0

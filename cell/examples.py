@@ -1,0 +1,183 @@
+"""Teaching examples: the operator's grasps, one JSON object per line (JSON Lines).
+
+A line (keys marked * are required):
+
+    {"format": "grasp-example", "version": 1,
+     "id"*: "op-0007",
+     "part"*: {"id", "outline", "holes", "z_bottom", "z_top", ...},   # as in a scene file
+     "contacts"*: [[x, y], [x, y]],          # where the pads touched, mm, base frame
+     "valid"*: true,                          # the operator accepted (true) or rejected the grasp
+     "contact_valid": [true, false],          # optional per-contact verdict (a rejected grasp
+                                              #   may have one good and one bad contact)
+     "obstacles": [{part}, ...],              # optional: the parts around it at the time
+     "grasp_z_mm": 4.0,                       # optional
+     "joints": {"j1_deg", "j2_deg", "j3_mm", "j4_deg"},   # optional arm configuration
+     "source"*: {"kind": "simulated-operator" | "station-teach" | "station-reject" | "manual",
+                 "by": "...", "at": "2026-11-23T10:00:00Z", "note": "why"}}
+
+Files are appended atomically (`append_examples`) and validated line by line on read
+(`load_examples`): a bad line is refused with its line number, never skipped silently.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from cell.errors import BadInput
+from cell.fileio import append_lines_atomic
+from cell.kinematics import Joints
+from cell.scene import Part, parse_part
+
+FORMAT = "grasp-example"
+VERSION = 1
+SOURCE_KINDS = ("simulated-operator", "station-teach", "station-reject", "manual")
+# A contact further than this from the part's outline is not a contact on that part.
+MAX_CONTACT_OFFSET_MM = 5.0
+
+
+def default_examples_path() -> Path:
+    return Path(str(resources.files("cell") / "data" / "default_examples.jsonl"))
+
+
+@dataclass(frozen=True, eq=False)
+class GraspExample:
+    id: str
+    part: Part
+    contacts_mm: np.ndarray  # (n, 2)
+    valid: bool
+    source: dict
+    contact_valid: tuple[bool, ...] | None = None
+    obstacles: tuple[Part, ...] = ()
+    grasp_z_mm: float | None = None
+    joints: Joints | None = None
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def n_contacts(self) -> int:
+        return len(self.contacts_mm)
+
+    def to_json(self) -> dict:
+        d = {"format": FORMAT, "version": VERSION, "id": self.id, "part": self.part.to_json(),
+             "contacts": np.round(self.contacts_mm, 4).tolist(), "valid": bool(self.valid)}
+        if self.contact_valid is not None:
+            d["contact_valid"] = [bool(v) for v in self.contact_valid]
+        if self.obstacles:
+            d["obstacles"] = [o.to_json() for o in self.obstacles]
+        if self.grasp_z_mm is not None:
+            d["grasp_z_mm"] = round(float(self.grasp_z_mm), 4)
+        if self.joints is not None:
+            d["joints"] = {k: round(v, 4) for k, v in self.joints.as_dict().items()}
+        d["source"] = dict(self.source)
+        d.update({k: v for k, v in self.extra.items() if k not in d})
+        return d
+
+
+def parse_example(raw, where: str = "example") -> GraspExample:
+    if not isinstance(raw, dict):
+        raise BadInput(f"{where}: must be a JSON object")
+    if raw.get("format", FORMAT) != FORMAT or raw.get("version", VERSION) != VERSION:
+        raise BadInput(f"{where}: not a {FORMAT} v{VERSION} line (format={raw.get('format')!r}, "
+                       f"version={raw.get('version')!r})")
+    eid = raw.get("id")
+    if not isinstance(eid, str) or not eid:
+        raise BadInput(f"{where}: 'id' must be a non-empty string")
+    where = f"{where} ({eid})"
+    if "part" not in raw:
+        raise BadInput(f"{where}: 'part' is missing")
+    part = parse_part(raw["part"], f"{where}: part")
+    contacts = raw.get("contacts")
+    try:
+        c = np.asarray(contacts, dtype=float)
+    except (TypeError, ValueError):
+        raise BadInput(f"{where}: 'contacts' must be a list of [x, y]") from None
+    if c.ndim != 2 or c.shape[1] != 2 or len(c) < 2 or not np.all(np.isfinite(c)):
+        raise BadInput(f"{where}: 'contacts' must be at least two finite [x, y] points")
+    boundary = part.polygon.boundary
+    from shapely.geometry import Point
+
+    for i, p in enumerate(c):
+        d = boundary.distance(Point(p))
+        if d > MAX_CONTACT_OFFSET_MM:
+            raise BadInput(f"{where}: contact #{i} {p.tolist()} is {d:.1f} mm from the part's outline "
+                           f"(at most {MAX_CONTACT_OFFSET_MM} mm)")
+    valid = raw.get("valid")
+    if not isinstance(valid, bool):
+        raise BadInput(f"{where}: 'valid' must be true or false")
+    cv = raw.get("contact_valid")
+    if cv is not None:
+        if not (isinstance(cv, list) and len(cv) == len(c) and all(isinstance(v, bool) for v in cv)):
+            raise BadInput(f"{where}: 'contact_valid' must be one true/false per contact")
+        cv = tuple(cv)
+    obstacles = raw.get("obstacles", [])
+    if not isinstance(obstacles, list):
+        raise BadInput(f"{where}: 'obstacles' must be a list of parts")
+    obs = tuple(parse_part(o, f"{where}: obstacle #{i}") for i, o in enumerate(obstacles))
+    gz = raw.get("grasp_z_mm")
+    if gz is not None and (isinstance(gz, bool) or not isinstance(gz, (int, float)) or not math.isfinite(gz)):
+        raise BadInput(f"{where}: 'grasp_z_mm' must be a number")
+    joints = raw.get("joints")
+    if joints is not None:
+        try:
+            joints = Joints.from_dict(joints)
+        except (KeyError, TypeError, ValueError):
+            raise BadInput(f"{where}: 'joints' must have numbers j1_deg, j2_deg, j3_mm, j4_deg") from None
+        if not all(math.isfinite(v) for v in joints.as_array()):
+            raise BadInput(f"{where}: 'joints' must be finite")
+    source = raw.get("source")
+    if not isinstance(source, dict) or source.get("kind") not in SOURCE_KINDS:
+        raise BadInput(f"{where}: 'source' must be an object with 'kind' one of {', '.join(SOURCE_KINDS)}")
+    known = {"format", "version", "id", "part", "contacts", "valid", "contact_valid", "obstacles",
+             "grasp_z_mm", "joints", "source"}
+    extra = {k: v for k, v in raw.items() if k not in known}
+    return GraspExample(eid, part, c, valid, dict(source), cv, obs,
+                        None if gz is None else float(gz), joints, extra)
+
+
+def load_examples(path: str | Path | None = None, *, allow_empty: bool = False) -> list[GraspExample]:
+    """Read and validate an example file (None: the shipped default)."""
+    path = Path(path) if path is not None else default_examples_path()
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise BadInput(f"example file {path} does not exist") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise BadInput(f"example file {path} cannot be read: {e}") from None
+    out: list[GraspExample] = []
+    seen: set[str] = set()
+    for lineno, line in enumerate(text.splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            raw = json.loads(line)
+        except json.JSONDecodeError as e:
+            raise BadInput(f"example file {path} line {lineno}: not valid JSON ({e.msg})") from None
+        ex = parse_example(raw, f"example file {path} line {lineno}")
+        if ex.id in seen:
+            raise BadInput(f"example file {path} line {lineno}: duplicate example id {ex.id!r}")
+        seen.add(ex.id)
+        out.append(ex)
+    if not out and not allow_empty:
+        raise BadInput(f"example file {path} holds no examples: the planner learns only from examples")
+    return out
+
+
+def append_examples(path: str | Path, examples: list[GraspExample]) -> None:
+    """Append examples atomically (ids must be new in the file)."""
+    path = Path(path)
+    existing = {e.id for e in load_examples(path, allow_empty=True)} if path.exists() else set()
+    for e in examples:
+        if e.id in existing:
+            raise BadInput(f"example id {e.id!r} is already in {path}")
+        existing.add(e.id)
+    append_lines_atomic(path, [json.dumps(e.to_json(), separators=(",", ":")) for e in examples])
+
+
+def file_sha256(path: str | Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()

@@ -1,0 +1,80 @@
+"""Files are written atomically (temp file + fsync + rename) and read with clear errors.
+
+Every user-facing file (cell files, example files, calibrations, recordings) goes through
+here so that a crash never leaves half a file and a bad file names itself in the error.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import json
+import os
+import tempfile
+from pathlib import Path
+
+from cell.errors import BadInput
+
+
+def write_atomic(path: str | os.PathLike, data: str | bytes) -> None:
+    """Replace `path` with `data` so that readers see the old or the new file, never a mix."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    raw = data.encode("utf-8") if isinstance(data, str) else data
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(raw)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+    _fsync_dir(path.parent)
+
+
+def write_json_atomic(path: str | os.PathLike, obj) -> None:
+    write_atomic(path, json.dumps(obj, indent=2) + "\n")
+
+
+def append_lines_atomic(path: str | os.PathLike, lines: list[str]) -> None:
+    """Append whole lines: the file is rewritten to a temp file and renamed, under a lock,
+    so a crash or a concurrent appender never leaves a torn last line."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lock_path = path.with_name(f".{path.name}.lock")
+    with open(lock_path, "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        old = path.read_bytes() if path.exists() else b""
+        if old and not old.endswith(b"\n"):
+            old += b"\n"
+        new = "".join(line.rstrip("\n") + "\n" for line in lines).encode("utf-8")
+        write_atomic(path, old + new)
+
+
+def read_json(path: str | os.PathLike, what: str):
+    """Parse a JSON file; `what` names the file's role in error messages ("cell file")."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise BadInput(f"{what} {path} does not exist") from None
+    except IsADirectoryError:
+        raise BadInput(f"{what} {path} is a directory, not a file") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise BadInput(f"{what} {path} cannot be read: {e}") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as e:
+        raise BadInput(f"{what} {path} is not valid JSON: {e.msg} at line {e.lineno} column {e.colno}") from None
+
+
+def _fsync_dir(directory: Path) -> None:
+    with contextlib.suppress(OSError):
+        fd = os.open(directory, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)

@@ -1,0 +1,19 @@
+"""The fixed grasp height of the 2D normal grasp.
+
+The finger tips go as low as seats most of the pad on the part (pad top 2 mm above the
+part's top, so the pad's rounded edge is not the contact) but stay 1 mm above the part's
+bottom (the tray). CONTRACT.md: z_bottom <= grasp z <= z_top - 2.
+"""
+
+from __future__ import annotations
+
+from cell.cellconfig import Gripper
+
+TIP_ABOVE_BOTTOM_MM = 1.0
+PAD_ABOVE_TOP_MM = 2.0
+
+
+def grasp_z_mm(z_bottom_mm: float, z_top_mm: float, gripper: Gripper) -> float:
+    z = max(z_bottom_mm + TIP_ABOVE_BOTTOM_MM, z_top_mm - gripper.pad_height_mm + PAD_ABOVE_TOP_MM)
+    z = min(z, z_top_mm - 2.0)
+    return max(z, z_bottom_mm)

@@ -1,0 +1,122 @@
+"""SCARA kinematics in closed form (pure functions, base frame, mm and degrees).
+
+Joints: J1 shoulder and J2 elbow (revolute, about z), J3 finger-tip z (prismatic, mm),
+J4 wrist (revolute). The tool x axis (the jaws' closing axis) points along
+J1 + J2 + J4. The jaws are symmetric, so a closing axis is a direction mod 180 degrees:
+each elbow gives every J4 = axis - J1 - J2 + k * 180 inside the J4 limits.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from cell.cellconfig import Scara
+
+
+@dataclass(frozen=True)
+class Joints:
+    j1_deg: float
+    j2_deg: float
+    j3_mm: float
+    j4_deg: float
+
+    def as_dict(self) -> dict:
+        return {"j1_deg": self.j1_deg, "j2_deg": self.j2_deg, "j3_mm": self.j3_mm, "j4_deg": self.j4_deg}
+
+    def as_array(self) -> np.ndarray:
+        return np.array([self.j1_deg, self.j2_deg, self.j3_mm, self.j4_deg])
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Joints:
+        return cls(float(d["j1_deg"]), float(d["j2_deg"]), float(d["j3_mm"]), float(d["j4_deg"]))
+
+    @property
+    def elbow(self) -> str:
+        """'right' when J2 > 0 (elbow turned counter-clockwise), 'left' otherwise."""
+        return "right" if self.j2_deg > 0 else "left"
+
+    def rounded(self, ndigits: int = 4) -> Joints:
+        return Joints(*(round(v, ndigits) for v in (self.j1_deg, self.j2_deg, self.j3_mm, self.j4_deg)))
+
+
+@dataclass(frozen=True)
+class ToolPose:
+    x_mm: float
+    y_mm: float
+    z_mm: float  # finger-tip z
+    axis_deg: float  # closing-axis direction, in (-90, 90]
+
+
+def normalize_axis_deg(angle_deg: float) -> float:
+    """A closing-axis direction folded into (-90, 90]."""
+    a = math.fmod(angle_deg, 180.0)
+    if a <= -90.0:
+        a += 180.0
+    elif a > 90.0:
+        a -= 180.0
+    return a
+
+
+def forward(j: Joints, scara: Scara) -> ToolPose:
+    t1 = math.radians(j.j1_deg)
+    t12 = math.radians(j.j1_deg + j.j2_deg)
+    x = scara.l1_mm * math.cos(t1) + scara.l2_mm * math.cos(t12)
+    y = scara.l1_mm * math.sin(t1) + scara.l2_mm * math.sin(t12)
+    return ToolPose(x, y, j.j3_mm, normalize_axis_deg(j.j1_deg + j.j2_deg + j.j4_deg))
+
+
+def elbow_points(j: Joints, scara: Scara) -> np.ndarray:
+    """Base, elbow and wrist positions in the plane, shape (3, 2): the links for drawing and
+    for the link collision check."""
+    t1 = math.radians(j.j1_deg)
+    t12 = math.radians(j.j1_deg + j.j2_deg)
+    e = (scara.l1_mm * math.cos(t1), scara.l1_mm * math.sin(t1))
+    w = (e[0] + scara.l2_mm * math.cos(t12), e[1] + scara.l2_mm * math.sin(t12))
+    return np.array([(0.0, 0.0), e, w])
+
+
+def limit_violations(j: Joints, scara: Scara, tol: float = 1e-9) -> list[str]:
+    """Human-readable list of the joint limits `j` violates (empty when it is inside)."""
+    out = []
+    for name, value, (lo, hi), unit in (
+        ("J1", j.j1_deg, scara.j1_deg, "deg"), ("J2", j.j2_deg, scara.j2_deg, "deg"),
+        ("J3", j.j3_mm, scara.j3_mm, "mm"), ("J4", j.j4_deg, scara.j4_deg, "deg"),
+    ):
+        if not math.isfinite(value) or value < lo - tol or value > hi + tol:
+            out.append(f"{name} = {value:.3f} {unit} outside [{lo:g}, {hi:g}]")
+    return out
+
+
+def inverse(x_mm: float, y_mm: float, z_mm: float, axis_deg: float, scara: Scara,
+            *, within_limits: bool = True) -> list[Joints]:
+    """Every joint solution placing the finger tips' centre at (x, y, z) with the closing axis
+    along `axis_deg` (mod 180): both elbows, every admissible J4 turn. Empty when unreachable."""
+    r2 = x_mm * x_mm + y_mm * y_mm
+    l1, l2 = scara.l1_mm, scara.l2_mm
+    c2 = (r2 - l1 * l1 - l2 * l2) / (2 * l1 * l2)
+    if c2 > 1.0 + 1e-12 or c2 < -1.0 - 1e-12:
+        return []
+    c2 = min(1.0, max(-1.0, c2))
+    out: list[Joints] = []
+    for sign in (1.0, -1.0):
+        t2 = sign * math.acos(c2)
+        t1 = math.atan2(y_mm, x_mm) - math.atan2(l2 * math.sin(t2), l1 + l2 * math.cos(t2))
+        j1 = _wrap180(math.degrees(t1))
+        j2 = math.degrees(t2)
+        base = axis_deg - j1 - j2
+        lo4, hi4 = scara.j4_deg if within_limits else (-360.0, 360.0)
+        k_lo, k_hi = math.ceil((lo4 - base) / 180.0 - 1e-9), math.floor((hi4 - base) / 180.0 + 1e-9)
+        for k in range(k_lo, k_hi + 1):
+            cand = Joints(j1, j2, z_mm, base + 180.0 * k)
+            if not within_limits or not limit_violations(cand, scara):
+                out.append(cand)
+        if c2 >= 1.0 - 1e-15:
+            break  # stretched arm: both elbows coincide
+    return out
+
+
+def _wrap180(a: float) -> float:
+    return (a + 180.0) % 360.0 - 180.0

@@ -1,0 +1,253 @@
+"""Scenes and assemblies (CONTRACT.md): parts as 2D outlines with heights, base frame, mm.
+
+`load_scene` / `load_assembly` read and validate the JSON files; every problem is a
+`BadInput` that names the file, the part and what is wrong. Outlines are normalised
+to counter-clockwise outer contours and clockwise holes (shapely's orient), so the
+outward normal of every edge is its direction turned right by 90 degrees.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import shapely
+from shapely.geometry import Polygon
+from shapely.validation import explain_validity
+
+from cell.errors import BadInput
+from cell.fileio import read_json
+
+UP = (0.0, 0.0, 1.0)
+
+
+@dataclass(frozen=True, eq=False)
+class Part:
+    """One part seen from above: outline and holes in mm (base frame), heights in mm."""
+
+    id: str
+    outline_mm: np.ndarray  # (n, 2), counter-clockwise
+    holes_mm: tuple[np.ndarray, ...] = ()  # each (m, 2), clockwise
+    z_bottom_mm: float = 0.0
+    z_top_mm: float = 10.0
+    direction: tuple[float, float, float] = UP
+    meta: dict = field(default_factory=dict)  # free keys kept from the file (family, size ...)
+
+    @cached_property
+    def polygon(self) -> Polygon:
+        return Polygon(self.outline_mm, [h for h in self.holes_mm])
+
+    @property
+    def height_mm(self) -> float:
+        return self.z_top_mm - self.z_bottom_mm
+
+    def moved(self, dx_mm: float, dy_mm: float, dtheta_deg: float = 0.0, about=None) -> Part:
+        """The same part rotated by dtheta about `about` (default: its centroid), then shifted."""
+        c = np.asarray(about if about is not None else self.polygon.centroid.coords[0], float)
+        t = math.radians(dtheta_deg)
+        rot = np.array([[math.cos(t), -math.sin(t)], [math.sin(t), math.cos(t)]])
+
+        def tf(p):
+            return (p - c) @ rot.T + c + (dx_mm, dy_mm)
+
+        return Part(self.id, tf(self.outline_mm), tuple(tf(h) for h in self.holes_mm),
+                    self.z_bottom_mm, self.z_top_mm, self.direction, dict(self.meta))
+
+    def to_json(self) -> dict:
+        d = {"id": self.id, "outline": np.round(self.outline_mm, 4).tolist(),
+             "z_bottom": self.z_bottom_mm, "z_top": self.z_top_mm}
+        if self.holes_mm:
+            d["holes"] = [np.round(h, 4).tolist() for h in self.holes_mm]
+        if tuple(self.direction) != UP:
+            d["direction"] = list(self.direction)
+        d.update({k: v for k, v in self.meta.items() if k not in d})
+        return d
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    parts: tuple[Part, ...]
+    target: str | None = None
+    cell_path: str | None = None
+    source: str = "<scene>"
+
+    def part(self, part_id: str) -> Part:
+        for p in self.parts:
+            if p.id == part_id:
+                return p
+        raise BadInput(f"{self.source}: no part {part_id!r} in the scene (parts: {', '.join(self.ids)})")
+
+    @property
+    def ids(self) -> list[str]:
+        return [p.id for p in self.parts]
+
+    @property
+    def target_part(self) -> Part:
+        if self.target is None:
+            raise BadInput(f"{self.source}: the scene names no 'target'")
+        return self.part(self.target)
+
+    @property
+    def obstacles(self) -> tuple[Part, ...]:
+        return tuple(p for p in self.parts if p.id != self.target)
+
+    def without(self, part_id: str) -> Scene:
+        return Scene(tuple(p for p in self.parts if p.id != part_id), None, self.cell_path, self.source)
+
+    def with_target(self, part_id: str) -> Scene:
+        self.part(part_id)
+        return Scene(self.parts, part_id, self.cell_path, self.source)
+
+    def to_json(self) -> dict:
+        d = {"units": "mm", "parts": [p.to_json() for p in self.parts]}
+        if self.target is not None:
+            d["target"] = self.target
+        if self.cell_path:
+            d["cell"] = self.cell_path
+        return d
+
+
+@dataclass(frozen=True, eq=False)
+class Assembly:
+    parts: tuple[Part, ...]
+    sequence: tuple[str, ...]
+    name: str = "assembly"
+    cell_path: str | None = None
+    source: str = "<assembly>"
+
+    def scene_at(self, step: int) -> Scene:
+        """The scene of step `step`: the parts not yet removed, the step's part as target."""
+        removed = set(self.sequence[:step])
+        parts = tuple(p for p in self.parts if p.id not in removed)
+        return Scene(parts, self.sequence[step], self.cell_path, f"{self.source} step {step}")
+
+    def to_json(self) -> dict:
+        d = {"units": "mm", "name": self.name, "parts": [p.to_json() for p in self.parts],
+             "sequence": list(self.sequence)}
+        if self.cell_path:
+            d["cell"] = self.cell_path
+        return d
+
+
+def load_scene(path: str | Path) -> Scene:
+    raw = read_json(path, "scene file")
+    return parse_scene(raw, str(path), base_dir=Path(path).parent)
+
+
+def load_assembly(path: str | Path) -> Assembly:
+    raw = read_json(path, "assembly file")
+    return parse_assembly(raw, str(path), base_dir=Path(path).parent)
+
+
+def parse_scene(raw, source: str = "<scene>", base_dir: Path | None = None) -> Scene:
+    parts, cell_path = _parse_common(raw, source, base_dir)
+    target = raw.get("target")
+    if target is None:
+        raise BadInput(f"{source}: the scene has no 'target' (the id of the part to grasp)")
+    if not isinstance(target, str):
+        raise BadInput(f"{source}: 'target' must be a part id string, got {target!r}")
+    scene = Scene(parts, target, cell_path, source)
+    scene.part(target)  # a target that is not in the scene is bad input
+    return scene
+
+
+def parse_assembly(raw, source: str = "<assembly>", base_dir: Path | None = None) -> Assembly:
+    parts, cell_path = _parse_common(raw, source, base_dir)
+    seq = raw.get("sequence")
+    if not isinstance(seq, list) or not all(isinstance(s, str) for s in seq):
+        raise BadInput(f"{source}: 'sequence' must be a list of part ids")
+    ids = [p.id for p in parts]
+    unknown = [s for s in seq if s not in ids]
+    if unknown:
+        raise BadInput(f"{source}: sequence names parts that are not in the assembly: {', '.join(unknown)}")
+    if sorted(seq) != sorted(ids):
+        missing = sorted(set(ids) - set(seq))
+        dup = sorted({s for s in seq if seq.count(s) > 1})
+        why = (f"missing {', '.join(missing)}" if missing else "") + ("; " if missing and dup else "") + (
+            f"repeated {', '.join(dup)}" if dup else "")
+        raise BadInput(f"{source}: the sequence must name every part exactly once ({why})")
+    for p in parts:
+        if not np.allclose(p.direction, UP):
+            raise BadInput(
+                f"{source}: part {p.id!r} has disassembly direction {list(p.direction)}; the 2D normal "
+                "grasp supports only straight up [0, 0, 1]")
+    return Assembly(parts, tuple(seq), str(raw.get("name", Path(source).stem)), cell_path, source)
+
+
+def _parse_common(raw, source, base_dir):
+    if not isinstance(raw, dict):
+        raise BadInput(f"{source}: top level must be a JSON object")
+    units = raw.get("units", "mm")
+    if units != "mm":
+        raise BadInput(f"{source}: 'units' must be 'mm', got {units!r}")
+    raw_parts = raw.get("parts")
+    if not isinstance(raw_parts, list) or not raw_parts:
+        raise BadInput(f"{source}: 'parts' must be a non-empty list")
+    parts = tuple(parse_part(p, f"{source}: part #{i}") for i, p in enumerate(raw_parts))
+    ids = [p.id for p in parts]
+    dup = sorted({i for i in ids if ids.count(i) > 1})
+    if dup:
+        raise BadInput(f"{source}: duplicate part ids: {', '.join(dup)}")
+    cell_path = raw.get("cell")
+    if cell_path is not None:
+        if not isinstance(cell_path, str):
+            raise BadInput(f"{source}: 'cell' must be a path string")
+        if base_dir is not None and not Path(cell_path).is_absolute():
+            cell_path = str(base_dir / cell_path)
+    return parts, cell_path
+
+
+def parse_part(raw, where: str = "part") -> Part:
+    if not isinstance(raw, dict):
+        raise BadInput(f"{where}: must be a JSON object")
+    pid = raw.get("id")
+    if not isinstance(pid, str) or not pid:
+        raise BadInput(f"{where}: 'id' must be a non-empty string")
+    where = f"{where.rsplit(':', 1)[0]}: part {pid!r}"
+    outline = _ring(raw.get("outline"), f"{where} outline")
+    holes_raw = raw.get("holes", [])
+    if not isinstance(holes_raw, list):
+        raise BadInput(f"{where}: 'holes' must be a list of rings")
+    holes = [_ring(h, f"{where} hole #{i}") for i, h in enumerate(holes_raw)]
+    zb, zt = _num(raw.get("z_bottom", 0.0), f"{where} z_bottom"), _num(raw.get("z_top"), f"{where} z_top")
+    if zt <= zb:
+        raise BadInput(f"{where}: z_top ({zt}) must be above z_bottom ({zb})")
+    direction = raw.get("direction", list(UP))
+    if not (isinstance(direction, list) and len(direction) == 3):
+        raise BadInput(f"{where}: 'direction' must be [dx, dy, dz]")
+    direction = tuple(_num(d, f"{where} direction") for d in direction)
+    poly = Polygon(outline, holes)
+    if not poly.is_valid:
+        raise BadInput(f"{where}: the outline is not a valid polygon ({explain_validity(poly)})")
+    if poly.area <= 0:
+        raise BadInput(f"{where}: the outline has no area")
+    poly = shapely.geometry.polygon.orient(poly, 1.0)  # outer CCW, holes CW
+    outer = np.asarray(poly.exterior.coords, float)[:-1]
+    inner = tuple(np.asarray(r.coords, float)[:-1] for r in poly.interiors)
+    meta = {k: v for k, v in raw.items() if k not in ("id", "outline", "holes", "z_bottom", "z_top", "direction")}
+    return Part(pid, outer, inner, zb, zt, direction, meta)
+
+
+def _ring(raw, where) -> np.ndarray:
+    if not isinstance(raw, list) or len(raw) < 3:
+        raise BadInput(f"{where}: must be a list of at least 3 [x, y] points")
+    try:
+        arr = np.asarray(raw, dtype=float)
+    except (TypeError, ValueError):
+        raise BadInput(f"{where}: every point must be [x, y] with numbers") from None
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise BadInput(f"{where}: every point must be [x, y], got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise BadInput(f"{where}: coordinates must be finite numbers")
+    if np.allclose(arr[0], arr[-1]) and len(arr) > 3:
+        arr = arr[:-1]  # tolerate a repeated first point
+    return arr
+
+
+def _num(v, where) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise BadInput(f"{where}: must be a finite number, got {v!r}")
+    return float(v)

@@ -1,0 +1,127 @@
+import json
+
+import numpy as np
+import pytest
+
+from cell.cellconfig import default_cell_path, load_cell, parse_cell
+from cell.errors import BadInput
+from cell.examples import GraspExample, append_examples, load_examples
+from cell.fileio import append_lines_atomic, write_atomic
+from cell.scene import parse_assembly, parse_part, parse_scene
+
+SQUARE = [[300, 0], [340, 0], [340, 40], [300, 40]]
+
+
+def test_default_cell_matches_the_contract():
+    c = load_cell(None)
+    assert (c.scara.l1_mm, c.scara.l2_mm) == (325, 275)
+    assert c.scara.j1_deg == (-132, 132) and c.scara.j2_deg == (-150, 150)
+    assert c.scara.j3_mm == (0, 200) and c.scara.j4_deg == (-360, 360)
+    assert c.gripper.opening_mm == (0, 80)
+    assert (c.gripper.pad_width_mm, c.gripper.pad_thickness_mm, c.gripper.pad_height_mm) == (12, 10, 20)
+    assert c.gripper.finger_length_mm == 40 and c.gripper.approach_clearance_mm == 5
+    assert (c.gripper.palm_length_mm, c.gripper.palm_width_mm, c.gripper.palm_offset_mm) == (90, 40, 40)
+    assert c.tray.x_mm == (200, 500) and c.tray.y_mm == (-250, 250)
+    assert (c.camera.width_px, c.camera.height_px) == (1280, 1024)
+
+
+@pytest.mark.parametrize("mutate,match", [
+    (lambda d: d["scara"].pop("l1_mm"), "scara.l1_mm"),
+    (lambda d: d["scara"].__setitem__("j1_deg", [10, -10]), "low < high"),
+    (lambda d: d["gripper"].__setitem__("pad_width_mm", -1), "positive"),
+    (lambda d: d.__setitem__("version", 7), "version"),
+    (lambda d: d["can"]["nodes"]["j2"].__setitem__("node_id", 1), "duplicate"),
+    (lambda d: d["tray"].__setitem__("x_mm", [-900, 500]), "inside the workspace"),
+])
+def test_bad_cell_files_are_refused_with_the_key(mutate, match):
+    d = json.loads(default_cell_path().read_text())
+    mutate(d)
+    with pytest.raises(BadInput, match=match):
+        parse_cell(d, "x.json")
+
+
+def test_cell_file_that_is_not_json(tmp_path):
+    p = tmp_path / "cell.json"
+    p.write_text("{ nope")
+    with pytest.raises(BadInput, match="not valid JSON"):
+        load_cell(p)
+
+
+def test_scene_normalises_orientation_and_keeps_holes():
+    cw = SQUARE[::-1]
+    hole = [[310, 10], [320, 10], [320, 20], [310, 20]]
+    s = parse_scene({"parts": [{"id": "a", "outline": cw, "holes": [hole], "z_top": 5}], "target": "a"})
+    p = s.target_part
+    x, y = p.outline_mm[:, 0], p.outline_mm[:, 1]
+    signed = 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)
+    assert signed > 0  # counter-clockwise
+    assert p.polygon.area == pytest.approx(1600 - 100)
+
+
+@pytest.mark.parametrize("raw,match", [
+    ({"parts": [{"id": "a", "outline": [[0, 0], [1, 1], [0, 1], [1, 0]], "z_top": 1}], "target": "a"},
+     "not a valid polygon"),
+    ({"parts": [{"id": "a", "outline": SQUARE, "z_top": 1}], "target": "b"}, "no part 'b'"),
+    ({"parts": [{"id": "a", "outline": SQUARE, "z_top": 0, "z_bottom": 2}], "target": "a"}, "z_top"),
+    ({"parts": [{"id": "a", "outline": [[0, 0], [1, 1]], "z_top": 1}], "target": "a"}, "at least 3"),
+    ({"parts": [], "target": "a"}, "non-empty"),
+    ({"parts": [{"id": "a", "outline": SQUARE, "z_top": 1}, {"id": "a", "outline": SQUARE, "z_top": 1}],
+      "target": "a"}, "duplicate"),
+])
+def test_bad_scenes(raw, match):
+    with pytest.raises(BadInput, match=match):
+        parse_scene(raw)
+
+
+def test_assembly_refuses_other_directions_and_bad_sequences():
+    parts = [{"id": "a", "outline": SQUARE, "z_top": 1}, {"id": "b", "outline": SQUARE, "z_top": 1,
+                                                          "direction": [1, 0, 0]}]
+    with pytest.raises(BadInput, match="straight up"):
+        parse_assembly({"parts": parts, "sequence": ["a", "b"]})
+    parts[1].pop("direction")
+    with pytest.raises(BadInput, match="exactly once"):
+        parse_assembly({"parts": parts, "sequence": ["a", "a"]})
+    a = parse_assembly({"parts": parts, "sequence": ["b", "a"]})
+    assert a.scene_at(1).ids == ["a"] and a.scene_at(1).target == "a"
+
+
+def _example(eid, valid=True):
+    part = parse_part({"id": "sq", "outline": SQUARE, "z_top": 10})
+    return GraspExample(eid, part, np.array([[300.0, 20.0], [340.0, 20.0]]), valid,
+                        {"kind": "manual", "by": "test"})
+
+
+def test_examples_round_trip_and_append_atomically(tmp_path):
+    p = tmp_path / "ex.jsonl"
+    append_examples(p, [_example("a"), _example("b", valid=False)])
+    append_examples(p, [_example("c")])
+    got = load_examples(p)
+    assert [e.id for e in got] == ["a", "b", "c"] and [e.valid for e in got] == [True, False, True]
+    assert np.allclose(got[0].contacts_mm, [[300, 20], [340, 20]])
+    with pytest.raises(BadInput, match="already"):
+        append_examples(p, [_example("a")])
+    assert len(load_examples(p)) == 3  # the refused append lost nothing
+
+
+def test_bad_example_lines_name_the_line(tmp_path):
+    p = tmp_path / "ex.jsonl"
+    good = json.dumps(_example("a").to_json())
+    far = _example("b").to_json()
+    far["contacts"][0] = [100, 100]
+    p.write_text(good + "\n" + json.dumps(far) + "\n")
+    with pytest.raises(BadInput, match="line 2.*from the part's outline"):
+        load_examples(p)
+    p.write_text(good + "\n{broken\n")
+    with pytest.raises(BadInput, match="line 2: not valid JSON"):
+        load_examples(p)
+    p.write_text("\n")
+    with pytest.raises(BadInput, match="holds no examples"):
+        load_examples(p)
+
+
+def test_atomic_write_leaves_no_temp_files(tmp_path):
+    p = tmp_path / "a.txt"
+    write_atomic(p, "one")
+    append_lines_atomic(p, ["two", "three"])
+    assert p.read_text() == "one\ntwo\nthree\n"
+    assert sorted(x.name for x in tmp_path.iterdir() if not x.name.endswith(".lock")) == ["a.txt"]

@@ -1,0 +1,62 @@
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from cell.cellconfig import default_cell
+from cell.kinematics import Joints, forward, inverse, limit_violations, normalize_axis_deg
+
+SCARA = default_cell().scara
+
+
+@settings(max_examples=200, deadline=None)
+@given(x=st.floats(200, 500), y=st.floats(-250, 250), z=st.floats(0, 200), axis=st.floats(-180, 180))
+def test_ik_then_fk_round_trip_over_the_tray(x, y, z, axis):
+    sols = inverse(x, y, z, axis, SCARA)
+    assert sols, "every tray point is reachable by the default cell"
+    for q in sols:
+        p = forward(q, SCARA)
+        assert math.hypot(p.x_mm - x, p.y_mm - y) < 1e-6
+        assert p.z_mm == z
+        assert abs(normalize_axis_deg(p.axis_deg - axis)) < 1e-6
+        assert not limit_violations(q, SCARA)
+
+
+def test_both_elbows_and_j4_turns_are_offered():
+    sols = inverse(350, 50, 10, 0, SCARA)
+    assert {q.elbow for q in sols} == {"left", "right"}
+    for elbow in ("left", "right"):
+        j4s = sorted(q.j4_deg for q in sols if q.elbow == elbow)
+        assert all(abs((b - a) - 180.0) < 1e-9 for a, b in zip(j4s, j4s[1:]))
+        assert len(j4s) >= 3  # J4 range of 720 deg holds at least three 180-deg turns
+
+
+def test_unreachable_points_have_no_solution():
+    assert inverse(700, 0, 10, 0, SCARA) == []
+    assert inverse(10, 0, 10, 0, SCARA) == []  # inside the inner radius |L1 - L2| = 50
+
+
+def test_joint_limits_remove_solutions():
+    # Behind the robot (negative x) J1 would need > 132 deg for most points.
+    sols = inverse(-400, 10, 10, 0, SCARA)
+    assert all(abs(q.j1_deg) <= 132 for q in sols)
+    assert len(sols) < len(inverse(-400, 10, 10, 0, SCARA, within_limits=False))
+
+
+def test_limit_violations_name_the_joint():
+    bad = Joints(140.0, 0.0, 250.0, 0.0)
+    msgs = limit_violations(bad, SCARA)
+    assert any(m.startswith("J1") for m in msgs) and any(m.startswith("J3") for m in msgs)
+    assert limit_violations(Joints(0, 0, 0, float("nan")), SCARA)
+
+
+@pytest.mark.parametrize("a,expected", [(90, 90), (-90, 90), (180, 0), (270, 90), (-135, 45), (0, 0)])
+def test_axis_folds_into_half_open_interval(a, expected):
+    assert normalize_axis_deg(a) == pytest.approx(expected)
+
+
+def test_forward_of_straight_arm():
+    p = forward(Joints(0, 0, 5, 0), SCARA)
+    assert np.allclose([p.x_mm, p.y_mm], [600, 0])

@@ -39,6 +39,7 @@ class SegmentParams:
     chroma_min: float = 0.035  # L1 change of normalised colour that marks a part
     brighter_min: float = 0.12  # relative brightness above the tray that marks a part
     darker_min: float = 0.45  # relative darkening no shadow reaches: a part for sure
+    hysteresis: float = 0.6  # pixels this fraction of the way to a threshold join a part they touch
     shadow_aware: bool = True  # False: any darkening beyond `brighter_min` is a part
     sharp_edge: float = 0.06  # ratio change per full-res px that counts as a sharp (material) edge
     sharp_fraction: float = 0.6  # share of a shadow-like region's border that must be sharp
@@ -139,6 +140,14 @@ def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int) -> 
     dg = ig / si - bgg / sb
     chroma = np.abs(db) + np.abs(dg) + np.abs(db + dg)  # L1 over b, g, r of the normalised colour
     strong = (chroma > p.chroma_min) | (r > 1.0 + p.brighter_min) | (r < 1.0 - p.darker_min)
+    if p.hysteresis < 1.0:  # weaker evidence counts where it is connected to strong evidence
+        h = p.hysteresis
+        weak = (chroma > h * p.chroma_min) | (r > 1.0 + h * p.brighter_min) | (r < 1.0 - p.darker_min)
+        n, lab = cv2.connectedComponents(weak.astype(np.uint8), connectivity=8)
+        seeded = np.zeros(n, bool)
+        seeded[np.unique(lab[strong])] = True
+        seeded[0] = False
+        strong = seeded[lab]
     darker = (r < 1.0 - p.brighter_min) & ~strong
     if not p.shadow_aware:
         strong |= darker
@@ -166,7 +175,13 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int) -> np.
     n, lab = cv2.connectedComponents(cand, connectivity=4)
     if n <= 1:
         return np.zeros_like(cand)
+    # judge each region by its free border, where it meets the tray (not the part it hangs on):
+    # a wall ends there in a sharp edge, a shadow fades out
+    tray = (~(strong | darker | sharp)).astype(np.uint8)
+    near_tray = cv2.dilate(tray, np.ones((5, 5), np.uint8)) > 0
+    near_part = cv2.dilate(strong.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
     border = cand.astype(bool) & (cv2.dilate((1 - cand).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+    border &= near_tray & ~near_part
     near_sharp = cv2.dilate(sharp.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
     lb = lab[border]
     total = np.bincount(lb, minlength=n).astype(float)
@@ -330,12 +345,16 @@ def _as_bgr(img: np.ndarray) -> np.ndarray:
     raise BadInput(f"the frame must be (h, w, 3) BGR, got shape {img.shape}")
 
 
-def segment_to_mm(seg: Segment, cal, z_mm: float, z_bottom_mm: float | None = None):
+def segment_to_mm(seg: Segment, cal, z_mm: float, z_bottom_mm: float | None = None,
+                  frame: np.ndarray | None = None):
     """Map a segment to the base frame on the plane of the part's top.
 
-    With `z_bottom_mm` (a prism from z_bottom to z_mm), boundary points whose outward normal
-    points towards the image of the vertical (where a wall is seen between the top and the
-    bottom edge) are the bottom edge and are mapped at z_bottom; the rest at the top z.
+    The camera sees a part's walls on the side facing the image of the vertical (the point
+    vertical lines run to, near the image centre). There the outline is the part's bottom
+    edge when the wall shows, its top edge when the wall looks like the tray. With
+    `z_bottom_mm` (the part is a prism from z_bottom to z_mm) those boundary points are mapped
+    at the bottom; with the `frame` as well, each point is checked in the image: if the band
+    where a wall would be has the top face's colour, the point is the top edge after all.
 
     Returns
     -------
@@ -344,17 +363,54 @@ def segment_to_mm(seg: Segment, cal, z_mm: float, z_bottom_mm: float | None = No
     if z_bottom_mm is None or abs(z_bottom_mm - z_mm) < 1e-9:
         return cal.px_to_mm(seg.outline_px, z_mm), [cal.px_to_mm(hh, z_mm) for hh in seg.holes_px]
     vp = cal.vertical_vanishing_px()
+    img = None if frame is None else _as_bgr(frame)
 
     def ring(r: np.ndarray, hole: bool) -> np.ndarray:
+        top = cal.px_to_mm(r, z_mm)
         if len(r) < 5:
-            return cal.px_to_mm(r, z_mm)
+            return top
         tang = np.roll(r, -2, axis=0) - np.roll(r, 2, axis=0)
         normal = np.column_stack([tang[:, 1], -tang[:, 0]]) * (1.0 if _signed_area(r) > 0 else -1.0)
         if hole:
             normal = -normal
-        towards_vp = (normal * (r - vp)).sum(axis=1) < 0
-        top = cal.px_to_mm(r, z_mm)
+        wall_side = (normal * (r - vp)).sum(axis=1) < 0
         bottom = cal.px_to_mm(r, z_bottom_mm)
-        return np.where(towards_vp[:, None], bottom, top)
+        if img is not None and wall_side.any():
+            wall_side &= _wall_visible(img, r, cal.mm_to_px(bottom, z_mm))
+        return np.where(wall_side[:, None], bottom, top)
 
     return ring(seg.outline_px, False), [ring(hh, True) for hh in seg.holes_px]
+
+
+WALL_MIN_PX = 1.0  # narrower walls: the two hypotheses differ by less than half a pixel's mapping
+WALL_CONTRAST = 0.15  # relative colour change that shows a wall
+WALL_DARK_DN = 20.0
+WALL_VOTE_WINDOW = 9
+
+
+def _wall_visible(img: np.ndarray, b: np.ndarray, b_top: np.ndarray) -> np.ndarray:
+    """For boundary points `b` (n, 2) taken as bottom edges, with their top edges at `b_top`:
+    does the band between them differ from the top face beyond it (a wall is seen)?"""
+    d = b_top - b
+    w = np.linalg.norm(d, axis=1)
+    u = d / np.maximum(w, 1e-9)[:, None]
+    t = np.column_stack([-u[:, 1], u[:, 0]])
+
+    def sample(pts):
+        offs = np.array([-1.0, 0.0, 1.0])
+        q = pts[:, None, :] + offs[None, :, None] * t[:, None, :]
+        mx = (q[..., 0] - 0.5).astype(np.float32)
+        my = (q[..., 1] - 0.5).astype(np.float32)
+        return cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float32).mean(
+            axis=1)
+
+    top = sample(b_top + 2.0 * u)
+    # relative to the top face's brightness: a dark part's wall is only a few DN darker than its
+    # top, but brushed metal varies by as many DN from row to row
+    norm = np.linalg.norm(top, axis=1) / np.sqrt(3) + WALL_DARK_DN
+    diff = np.max([np.linalg.norm(sample(b + f * d) - top, axis=1) for f in (0.6, 0.8)], axis=0) / norm
+    vote = (diff > WALL_CONTRAST).astype(float)
+    # a wall's look changes slowly along the part: a running majority removes single misreadings
+    k = WALL_VOTE_WINDOW // 2
+    vote = np.mean([np.roll(vote, s) for s in range(-k, k + 1)], axis=0) > 0.5
+    return (w >= WALL_MIN_PX) & vote

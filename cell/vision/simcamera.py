@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from shapely.geometry import Polygon
+from shapely.ops import unary_union
 
 from calibration.camera import Calibration
 from cell.scene import Part
@@ -104,8 +106,11 @@ class SimCamera:
 
     def project_ring(self, ring_mm: np.ndarray, z_mm: float, step_mm: float = 1.0) -> np.ndarray:
         """A closed ring at height z, densified every `step_mm`, projected to pixels (m, 2)."""
-        dense = densify(ring_mm, step_mm)
-        xyz = np.column_stack([dense, np.full(len(dense), z_mm)])
+        return self.project_points(densify(ring_mm, step_mm), z_mm)
+
+    def project_points(self, xy_mm: np.ndarray, z_mm: float) -> np.ndarray:
+        """Base-frame points (n, 2) at height z -> pixels (n, 2), as this camera renders them."""
+        xyz = np.column_stack([xy_mm, np.full(len(xy_mm), z_mm)])
         if self.options.distortion:
             return self.cal.project(xyz)
         nodist = Calibration(self.cal.width_px, self.cal.height_px, self.cal.camera_matrix, np.zeros(5),
@@ -135,22 +140,29 @@ class SimCamera:
         return ramp * vig
 
     def _shadow_map(self, parts) -> np.ndarray:
-        """Soft shadows on the tray: each part's top shifted away from the light, blurred by height."""
+        """Soft shadows on the tray from a broad light: each part's outline swept from its base
+        to its top's shadow, blurred more for taller parts (a wider penumbra)."""
         o = self.options
         h, w = self.cal.height_px, self.cal.width_px
-        scale = 4  # shadows are soft: a quarter-resolution map is plenty
+        scale = 2  # shadows are soft: a half-resolution map is plenty
         shadow = np.zeros((h // scale, w // scale), np.float32)
         a = math.radians(o.light_azimuth_deg)
         mm_per_px = self.cal.mm_per_px()
         for p in parts:
             height = p.height_mm
-            off = height / math.tan(math.radians(o.light_elevation_deg))
-            ring = p.outline_mm + off * np.array([math.cos(a), math.sin(a)])
+            off = height / math.tan(math.radians(o.light_elevation_deg)) * np.array([math.cos(a), math.sin(a)])
+            dense = densify(p.outline_mm, 2.0)
+            base = self.project_points(dense, p.z_bottom_mm) / scale - 0.5
+            tip = self.project_points(dense + off, p.z_bottom_mm) / scale - 0.5
             layer = np.zeros_like(shadow)
-            for z_ring, shift in ((p.z_bottom_mm, ring), (p.z_bottom_mm, p.outline_mm)):
-                px = (self.project_ring(shift, z_ring, 2.0) / scale) - 0.5
-                cv2.fillPoly(layer, [np.round(px * 16).astype(np.int32)], 1.0, cv2.LINE_AA, 4)
-            sigma = max(1.0, 0.25 * height / mm_per_px / scale)
+            polys = [base, tip] + [np.array([base[i], base[(i + 1) % len(base)], tip[(i + 1) % len(tip)], tip[i]])
+                                   for i in range(len(base))]
+            for poly in polys:
+                cv2.fillPoly(layer, [np.round(poly * 16).astype(np.int32)], 1.0, cv2.LINE_AA, 4)
+            for hole in p.holes_mm:  # light passes through holes
+                hb = self.project_ring(hole + off, p.z_bottom_mm, 2.0) / scale - 0.5
+                cv2.fillPoly(layer, [np.round(hb * 16).astype(np.int32)], 0.0, cv2.LINE_AA, 4)
+            sigma = max(0.5, 0.15 * height / mm_per_px / scale)
             layer = cv2.GaussianBlur(layer, (0, 0), sigma)
             shadow = np.maximum(shadow, layer)
         return cv2.resize(shadow * o.shadow_strength, (w, h), interpolation=cv2.INTER_LINEAR)
@@ -172,29 +184,29 @@ class SimCamera:
         bw, bh = (u1 - u0) * ss, (v1 - v0) * ss
         origin = np.array([u0, v0], float)
 
-        def fill(mask, ring, convex=False):
-            # OpenCV draws with pixel centres at integers, the CONTRACT frame at +0.5: shift by half
-            # a sub-pixel so that INTER_AREA's blocks are exactly the frame's pixels.
-            pts = np.round(((ring - origin) * ss - 0.5) * 16).astype(np.int32)  # 4 fractional bits
-            if convex:
-                cv2.fillConvexPoly(mask, pts, 1, cv2.LINE_8, 4)
-            else:
-                cv2.fillPoly(mask, [pts], 1, cv2.LINE_8, 4)
+        def fill(mask, geom):
+            # OpenCV fills every sub-pixel whose centre is within half a sub-pixel of the shape:
+            # shrink by that half, so coverage is the true area. OpenCV draws with pixel centres
+            # at integers, the CONTRACT frame at +0.5: shift by half a sub-pixel, so that
+            # INTER_AREA's blocks are exactly the frame's pixels.
+            geom = geom.buffer(-0.5 / ss, join_style="mitre")
+            for poly in getattr(geom, "geoms", [geom]):
+                if poly.is_empty or poly.geom_type != "Polygon":
+                    continue
+                rings = [np.asarray(poly.exterior.coords)] + [np.asarray(r.coords) for r in poly.interiors]
+                cv2.fillPoly(mask, [np.round(((r - origin) * ss - 0.5) * 16).astype(np.int32) for r in rings],
+                             1, cv2.LINE_8, 4)
 
+        quads = [Polygon([top[i], top[(i + 1) % len(top)], bottom[(i + 1) % len(top)], bottom[i]]).buffer(0)
+                 for i in range(len(top))]  # walls between the top and the bottom edge
+        silhouette = unary_union([Polygon(top), Polygon(bottom)] + quads)
+        open_holes = [Polygon(ht).intersection(Polygon(hb)) for ht, hb in zip(holes_top, holes_bottom, strict=True)]
+        if open_holes:  # the tray is seen through where both ends of a hole are open
+            silhouette = silhouette.difference(unary_union(open_holes))
         sil = np.zeros((bh, bw), np.uint8)
-        fill(sil, top)
-        fill(sil, bottom)
-        for i in range(len(top)):  # walls: quads between the top and bottom edges
-            j = (i + 1) % len(top)
-            fill(sil, np.array([top[i], top[j], bottom[j], bottom[i]]), convex=True)
+        fill(sil, silhouette)
         topm = np.zeros((bh, bw), np.uint8)
-        fill(topm, top)
-        for ht, hb in zip(holes_top, holes_bottom, strict=True):
-            a, b = np.zeros((bh, bw), np.uint8), np.zeros((bh, bw), np.uint8)
-            fill(a, ht)
-            fill(b, hb)
-            sil[(a & b).astype(bool)] = 0  # the tray is seen through where both ends are open
-            topm[a.astype(bool)] = 0
+        fill(topm, Polygon(top, holes_top))
         cov_sil = cv2.resize(sil.astype(np.float32), (u1 - u0, v1 - v0), interpolation=cv2.INTER_AREA)
         cov_top = cv2.resize(topm.astype(np.float32), (u1 - u0, v1 - v0), interpolation=cv2.INTER_AREA)
         colour, specular = self._material(part)

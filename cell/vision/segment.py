@@ -39,6 +39,7 @@ class SegmentParams:
     chroma_min: float = 0.035  # L1 change of normalised colour that marks a part
     brighter_min: float = 0.12  # relative brightness above the tray that marks a part
     darker_min: float = 0.45  # relative darkening no shadow reaches: a part for sure
+    noise_k: float = 5.0  # ... and the change must stand this many noise spreads above the tray's
     hysteresis: float = 0.6  # pixels this fraction of the way to a threshold join a part they touch
     shadow_aware: bool = True  # False: any darkening beyond `brighter_min` is a part
     sharp_edge: float = 0.06  # ratio change per full-res px that counts as a sharp (material) edge
@@ -139,10 +140,23 @@ def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int) -> 
     db = ib / si - bb / sb
     dg = ig / si - bgg / sb
     chroma = np.abs(db) + np.abs(dg) + np.abs(db + dg)  # L1 over b, g, r of the normalised colour
-    strong = (chroma > p.chroma_min) | (r > 1.0 + p.brighter_min) | (r < 1.0 - p.darker_min)
+    # the same changes in DN, to be compared with the frame's noise (dark trays have noisy chroma)
+    chroma_dn = chroma * si
+    bright_dn = (si - sb) / 3.0
+    # spread from the quietest quarter of the frame (the tray), valid while the tray covers a
+    # quarter of the view: the 25th percentile of |N(0, s)| is 0.32 s
+    noise_c = float(np.percentile(chroma_dn[::4, ::4], 25)) / 0.32 + 1e-3
+    noise_b = float(np.percentile(np.abs(bright_dn[::4, ::4]), 25)) / 0.32 + 1e-3
+
+    def evidence(f: float):
+        k = f * p.noise_k
+        return (((chroma > f * p.chroma_min) & (chroma_dn > k * noise_c))
+                | ((r > 1.0 + f * p.brighter_min) & (bright_dn > k * noise_b))
+                | ((r < 1.0 - p.darker_min) & (-bright_dn > k * noise_b)))
+
+    strong = evidence(1.0)
     if p.hysteresis < 1.0:  # weaker evidence counts where it is connected to strong evidence
-        h = p.hysteresis
-        weak = (chroma > h * p.chroma_min) | (r > 1.0 + h * p.brighter_min) | (r < 1.0 - p.darker_min)
+        weak = evidence(p.hysteresis)
         n, lab = cv2.connectedComponents(weak.astype(np.uint8), connectivity=8)
         seeded = np.zeros(n, bool)
         seeded[np.unique(lab[strong])] = True
@@ -246,6 +260,8 @@ def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.nda
             outline = _orient(outline, ccw=True)
             hole_rings = [_orient(hh, ccw=False) for hh in hole_rings]
             area, cen = _area_centroid(outline, hole_rings)
+            if area < 0.5 * p.min_area_px:
+                continue  # a sliver whose pixels passed the speck filter but whose outline did not
             mean = cv2.mean(det[y0:y1, x0:x1], sub)[:3]
             segs.append(Segment(outline, hole_rings, area, cen, bool(merged), cut, tuple(float(m) for m in mean)))
     return segs

@@ -2,8 +2,8 @@
 
 Recipe (chosen to reproduce OpenCV's own published numbers, see docs/vision.md):
 - chessboard: `findChessboardCorners` + `cornerSubPix` (5 x 5 window, EPS + COUNT, 30,
-  0.1), OpenCV's calibration test recipe. When that classic detector misses the board in
-  any image, every image is detected with `findChessboardCornersSB` instead (already
+  0.1), OpenCV's calibration test recipe. When `findChessboardCornersSB` finds boards that
+  this classic detector missed, every image is detected with SB instead (already
   sub-pixel): one detector per calibration, so that all views have the same corner noise.
 - ChArUco: `CharucoDetector.detectBoard`, then `board.matchImagePoints`; a view needs at
   least 6 corners.
@@ -173,10 +173,15 @@ def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[in
         if order is None:
             raise BadInput(f"unknown chessboard detector {detector!r} (auto, classic, sb)")
         objp = chessboard_object_points(pattern, square_mm)
-        for name in order:
-            found = [detect_chessboard(g, pattern, name, subpix_win) for _, g in images]
-            if all(c is not None for c in found) or name == order[-1]:
-                break
+        name = order[0]
+        found = [detect_chessboard(g, pattern, name, subpix_win) for _, g in images]
+        missed = [i for i, c in enumerate(found) if c is None]
+        if len(order) > 1 and missed:
+            # switch to SB for every view only if it finds boards the classic detector missed
+            # (an image without a board must not change the detector of the others)
+            if any(detect_chessboard(images[i][1], pattern, "sb") is not None for i in missed):
+                name = "sb"
+                found = [detect_chessboard(g, pattern, name) for _, g in images]
         for i, corners in enumerate(found):
             views[i].detector = name
             if corners is None:

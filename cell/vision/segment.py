@@ -27,6 +27,8 @@ import numpy as np
 from cell.errors import BadInput
 from cell.vision.background import estimate_background, reference_background
 
+SMALL_FRAME_PX = 960
+
 
 @dataclass(frozen=True)
 class SegmentParams:
@@ -51,6 +53,7 @@ class SegmentParams:
     neck_split: float = 0.75  # split where the neck is narrower than this x the smaller lobe's width
     neck_flag: float = 0.9  # ... and flag `merged` up to this ratio
     neck_pinch: float = 0.35  # a neck this thin with no visible seam is still flagged `merged`
+    colour_split: float = 30.0  # CIE Lab distance between touching parts told apart by colour
     seam_contrast_dn: float = 12.0  # brightness change along a cut that shows two parts meet there
 
     @classmethod
@@ -110,7 +113,7 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
     p = params or SegmentParams()
     frame = _as_bgr(frame_bgr)
     h, w = frame.shape[:2]
-    s = max(1, int(p.scale))
+    s = max(1, int(p.scale)) if w >= SMALL_FRAME_PX else 1  # small frames are detected at full resolution
     dw, dh = w // s, h // s
     det = cv2.resize(frame, (dw, dh), interpolation=cv2.INTER_AREA) if s > 1 else frame
     det = det.astype(np.float32)
@@ -122,7 +125,7 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
     else:
         bg, _ = estimate_background(det, p.tray)
     mask = part_mask(det, bg, p, s)
-    labels, merged = _split_regions(mask, p, s, cv2.cvtColor(det, cv2.COLOR_BGR2GRAY))
+    labels, merged = _split_regions(mask, p, s, det)
     segs = _regions_to_segments(labels, merged, frame, det, p, s)
     segs.sort(key=lambda g: -g.area_px)
     return segs
@@ -203,6 +206,20 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int) -> np.
     frac = np.divide(sharp_count, total, out=np.zeros(n), where=total > 0)
     keep = frac > p.sharp_fraction
     keep[0] = False
+    # a shadow-like nook between two separate parts is the crevice where they meet, not a wall
+    ns, parts_lab = cv2.connectedComponents(strong.astype(np.uint8), connectivity=8)
+    if ns > 2:
+        pl = parts_lab.astype(np.float32)
+        k3 = np.ones((3, 3), np.uint8)
+        hi = cv2.dilate(pl, k3)
+        lo = -cv2.dilate(np.where(pl > 0, -pl, -1e9).astype(np.float32), k3)
+        inside = lab > 0
+        li = lab[inside]
+        hi_c = np.zeros(n)
+        np.maximum.at(hi_c, li, hi[inside])
+        lo_c = np.full(n, 1e9)
+        np.minimum.at(lo_c, li, np.where(lo[inside] > 0, lo[inside], 1e9))
+        keep &= ~((hi_c > 0) & (lo_c < 1e9) & (hi_c != lo_c))
     out = keep[lab].astype(np.uint8)
     # the sharp edge pixels between kept regions and parts belong to the part
     grown = cv2.dilate(out | strong.astype(np.uint8), np.ones((3, 3), np.uint8))
@@ -210,7 +227,7 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int) -> np.
     return out
 
 
-def _split_regions(mask: np.ndarray, p: SegmentParams, scale: int, grey: np.ndarray | None = None
+def _split_regions(mask: np.ndarray, p: SegmentParams, scale: int, det: np.ndarray | None = None
                    ) -> tuple[np.ndarray, set[int]]:
     """Label image of regions (0 = tray) and the labels flagged merged; touching parts split."""
     n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
@@ -224,7 +241,11 @@ def _split_regions(mask: np.ndarray, p: SegmentParams, scale: int, grey: np.ndar
         return lab, set()
     from cell.vision.touching import split_necks
 
-    return split_necks(lab, p, min_area, grey)
+    grey = lab_img = None
+    if det is not None:
+        grey = cv2.cvtColor(det, cv2.COLOR_BGR2GRAY)
+        lab_img = cv2.cvtColor(np.clip(det / 255.0, 0, 1).astype(np.float32), cv2.COLOR_BGR2LAB)
+    return split_necks(lab, p, min_area, grey, lab_img)
 
 
 def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.ndarray, det: np.ndarray,

@@ -18,10 +18,11 @@ from scipy import ndimage
 
 MIN_LOBE_RADIUS_PX = 6.0  # full-resolution px: teeth and tabs are not lobes
 COVER_MIN = 0.9
+MAX_SPLIT_DEPTH = 6
 
 
-def split_necks(labels: np.ndarray, p, min_area_det: float, grey: np.ndarray | None = None
-                ) -> tuple[np.ndarray, set[int]]:
+def split_necks(labels: np.ndarray, p, min_area_det: float, grey: np.ndarray | None = None,
+                lab_image: np.ndarray | None = None) -> tuple[np.ndarray, set[int]]:
     """Return a label image where touching regions are split, and the labels flagged merged."""
     out = np.zeros_like(labels)
     merged: set[int] = set()
@@ -35,21 +36,74 @@ def split_necks(labels: np.ndarray, p, min_area_det: float, grey: np.ndarray | N
         y0, x0 = max(sl[0].start - 2, 0), max(sl[1].start - 2, 0)
         y1, x1 = min(sl[0].stop + 2, hh), min(sl[1].stop + 2, ww)
         sub = (labels[y0:y1, x0:x1] == lid).astype(np.uint8)
-        decision, parts = _analyse(sub, p, r_min, min_area_det,
-                                   None if grey is None else grey[y0:y1, x0:x1])
+        g = None if grey is None else grey[y0:y1, x0:x1]
+        pieces = None if lab_image is None else split_by_colour(sub, lab_image[y0:y1, x0:x1], min_area_det,
+                                                                p.colour_split)
+        pieces = sub.astype(np.int32) if pieces is None else pieces
         view = out[y0:y1, x0:x1]
-        if decision == "split":
-            for k in range(1, parts.max() + 1):
-                sel = parts == k
-                if sel.any():
-                    view[sel] = next_id
-                    next_id += 1
-        else:
-            view[sub.astype(bool)] = next_id
+        # each colour piece may still hold touching parts; each split lobe is looked at again
+        work = [((pieces == c).astype(np.uint8), 0) for c in range(1, int(pieces.max()) + 1)]
+        while work:
+            piece, depth = work.pop()
+            if not piece.any():
+                continue
+            decision, parts = _analyse(piece, p, r_min, min_area_det, g)
+            if decision == "split" and depth < MAX_SPLIT_DEPTH:
+                work.extend(((parts == k).astype(np.uint8), depth + 1) for k in range(1, int(parts.max()) + 1))
+                continue
+            view[piece.astype(bool)] = next_id
             if decision == "merged":
                 merged.add(next_id)
             next_id += 1
     return out, merged
+
+
+def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_delta_e: float):
+    """Split a region into parts of clearly different colour that each own part of its outline.
+
+    Two colour clusters (k-means in CIE Lab) count as two touching parts only when both form a
+    large connected piece that reaches the region's outline: pills in a blister pack or a
+    highlight on metal lie inside their part and do not split it. Returns a label image
+    (1..k inside the region) or None.
+    """
+    area = int(sub.sum())
+    if area < 2 * min_area:
+        return None
+    mask = sub.astype(bool)
+    px = lab_img[mask].astype(np.float32)
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5)
+    _, lab, centres = cv2.kmeans(px, 2, None, crit, 1, cv2.KMEANS_PP_CENTERS)
+    if np.linalg.norm(centres[0] - centres[1]) < min_delta_e:
+        return None
+    cl = np.zeros(sub.shape, np.uint8)
+    cl[mask] = lab.ravel() + 1
+    outline = mask & (cv2.erode(sub, np.ones((3, 3), np.uint8)) == 0)
+    n_out = int(outline.sum())
+    seeds = np.zeros(sub.shape, np.int32)
+    k = 0
+    for c in (1, 2):
+        piece = cv2.morphologyEx((cl == c).astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+        n, comp, stats, _ = cv2.connectedComponentsWithStats(piece, connectivity=8)
+        for j in range(1, n):
+            sel = comp == j
+            # edge pixels mix with the tray's colour: a piece owns the outline it comes near
+            reach = cv2.dilate(sel.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
+            if stats[j, cv2.CC_STAT_AREA] >= min_area and (outline & reach).sum() >= 0.15 * n_out:
+                k += 1
+                seeds[sel] = k
+    if k < 2:
+        return None
+    return _nearest_label(seeds, sub)  # every pixel of the region goes to the nearest seed
+
+
+def _nearest_label(parts: np.ndarray, region: np.ndarray) -> np.ndarray:
+    """Extend labels (1..k) to every pixel of `region` by nearest labelled pixel."""
+    seeds = parts > 0
+    _, nearest = cv2.distanceTransformWithLabels((~seeds).astype(np.uint8), cv2.DIST_L2, 5,
+                                                 labelType=cv2.DIST_LABEL_PIXEL)
+    lut = np.zeros(int(nearest.max()) + 1, np.int32)
+    lut[nearest[seeds]] = parts[seeds]
+    return np.where(region > 0, lut[nearest], 0)
 
 
 def fill_holes(mask: np.ndarray) -> np.ndarray:
@@ -81,7 +135,9 @@ def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, grey: np.ndarray
                            cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * int(level) + 3,) * 2))
         cover = float((grown.astype(bool) & sub.astype(bool)).sum()) / float(sub.sum())
         if cover < COVER_MIN:
-            return "one", None  # lobes joined by bars or arms: one part with a shape of its own
+            # lobes joined by bars or arms: one part with a shape of its own; but three or more
+            # separate lobes in one region are a heap of parts
+            return ("merged" if len(big) >= 3 else "one"), None
         ratio = level / float(np.sort(lobe_peaks)[-2])
         if ratio >= p.neck_flag:
             return "one", None
@@ -107,21 +163,26 @@ def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, grey: np.ndarray
 
 
 def _seam_visible(parts: np.ndarray, ws: np.ndarray, grey: np.ndarray | None, contrast_dn: float) -> bool:
-    """Is there a line of other brightness along the cut (walls, crease, different colours)?"""
+    """Does the image show where the lobes meet: a thin dark or bright line along the cut (the
+    gap, walls, a crease) or a change of brightness across it (different parts)?"""
     if grey is None:
         return True
     inner = cv2.erode((parts > 0).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0  # away from the outline
     cut = (ws == -1) & inner
     if cut.sum() < 2:
         return True
-    near = (cv2.dilate(cut.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0) & ~(
-        cv2.dilate(cut.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0) & inner
+    near = (cv2.dilate(cut.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0) & ~(
+        cv2.dilate(cut.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0) & inner
     if not near.any():
         return True
-    valley = abs(float(np.median(grey[cut])) - float(np.median(grey[near])))
-    sides = [float(np.median(grey[near & (parts == k)])) for k in np.unique(parts[near]) if k > 0]
+    g = grey.astype(np.float32)
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+    line = np.maximum(cv2.morphologyEx(g, cv2.MORPH_BLACKHAT, k), cv2.morphologyEx(g, cv2.MORPH_TOPHAT, k))
+    on_cut = cv2.dilate(cut.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    valley = float(np.median(np.max([line[on_cut]], axis=0))) - float(np.median(line[near]))
+    sides = [float(np.median(g[near & (parts == k)])) for k in np.unique(parts[near]) if k > 0]
     step = max(sides) - min(sides) if len(sides) > 1 else 0.0
-    return max(valley, step) > contrast_dn
+    return valley > 0.5 * contrast_dn or step > contrast_dn
 
 
 def _fill_lines(parts: np.ndarray, sub: np.ndarray) -> np.ndarray:

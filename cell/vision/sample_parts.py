@@ -61,7 +61,7 @@ SHAPES = {
     "bracket": (bracket, 20.0, "dark_plastic"),
     "lever": (lever, 8.0, "blue_plastic"),
     "disc": (disc, 6.0, "brass"),
-    "cover": (lambda: plate_with_holes(80.0, 55.0, 3.0), 10.0, "pcb_green"),
+    "cover": (lambda: plate_with_holes(80.0, 55.0, 5.0), 8.0, "pcb_green"),
     "grey_plate": (lambda: plate_with_holes(60.0, 40.0, 5.0), 5.0, "grey_plastic"),
     "white_block": (lambda: bracket(50.0, 50.0, 18.0), 15.0, "white_plastic"),
 }

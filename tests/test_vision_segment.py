@@ -57,7 +57,7 @@ def test_isolated_parts_sub_millimetre_with_all_effects(layout_frame):
         assert rms < 0.6, (part.id, rms)  # metal (low contrast, highlights, fine teeth) is the worst
         assert len(holes) == len(part.holes_mm), part.id  # highlights on metal make no false holes
         centroid = np.asarray(Polygon(outline, holes).centroid.coords[0])
-        assert np.linalg.norm(centroid - np.asarray(part.polygon.centroid.coords[0])) < 0.4, part.id
+        assert np.linalg.norm(centroid - np.asarray(part.polygon.centroid.coords[0])) < 0.6, part.id
     assert np.sqrt(np.mean(np.square(errors))) < 0.35
 
 

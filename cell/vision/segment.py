@@ -46,13 +46,13 @@ class SegmentParams:
     shadow_aware: bool = True  # False: any darkening beyond `brighter_min` is a part
     sharp_edge: float = 0.06  # ratio change per full-res px that counts as a sharp (material) edge
     sharp_fraction: float = 0.6  # share of a shadow-like region's border that must be sharp
+    vertical_px: tuple[float, float] | None = None  # image of the vertical (walls face it); None: centre
     refine: bool = True
     refine_range_px: float = 4.0
     min_edge_contrast_dn: float = 10.0
     split_touching: bool = True
     neck_split: float = 0.75  # split where the neck is narrower than this x the smaller lobe's width
     neck_flag: float = 0.9  # ... and flag `merged` up to this ratio
-    neck_pinch: float = 0.35  # a neck this thin with no visible seam is still flagged `merged`
     colour_split: float = 30.0  # CIE Lab distance between touching parts told apart by colour
     seam_contrast_dn: float = 12.0  # brightness change along a cut that shows two parts meet there
 
@@ -60,8 +60,9 @@ class SegmentParams:
     def for_calibration(cls, cal, min_area_mm2: float = 75.0, z_mm: float = 0.0, **kw) -> SegmentParams:
         """Parameters with the speck threshold given in mm^2 on the plane at z."""
         mm_per_px = cal.mm_per_px(z_mm)
+        vp = tuple(float(v) for v in cal.vertical_vanishing_px())
         return cls(min_area_px=min_area_mm2 / mm_per_px ** 2, min_hole_area_px=max(8.0, 5.0 / mm_per_px ** 2),
-                   **kw)
+                   vertical_px=kw.pop("vertical_px", vp), **kw)
 
 
 @dataclass
@@ -158,8 +159,9 @@ def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int) -> 
                 | ((r < 1.0 - p.darker_min) & (-bright_dn > k * noise_b)))
 
     strong = evidence(1.0)
-    if p.hysteresis < 1.0:  # weaker evidence counts where it is connected to strong evidence
-        weak = evidence(p.hysteresis)
+    if p.hysteresis < 1.0:  # weaker evidence counts where it is connected to strong evidence,
+        # but not in shadow (a shadow next to a part mixes with the part's colour at its edge)
+        weak = (evidence(p.hysteresis) & ~(r < 1.0 - p.brighter_min)) | strong
         n, lab = cv2.connectedComponents(weak.astype(np.uint8), connectivity=8)
         seeded = np.zeros(n, bool)
         seeded[np.unique(lab[strong])] = True
@@ -206,9 +208,8 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int) -> np.
     frac = np.divide(sharp_count, total, out=np.zeros(n), where=total > 0)
     keep = frac > p.sharp_fraction
     keep[0] = False
-    # a shadow-like nook between two separate parts is the crevice where they meet, not a wall
-    ns, parts_lab = cv2.connectedComponents(strong.astype(np.uint8), connectivity=8)
-    if ns > 2:
+    ns, parts_lab, _, part_c = cv2.connectedComponentsWithStats(strong.astype(np.uint8), connectivity=8)
+    if ns > 1 and keep.any():
         pl = parts_lab.astype(np.float32)
         k3 = np.ones((3, 3), np.uint8)
         hi = cv2.dilate(pl, k3)
@@ -219,10 +220,22 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int) -> np.
         np.maximum.at(hi_c, li, hi[inside])
         lo_c = np.full(n, 1e9)
         np.minimum.at(lo_c, li, np.where(lo[inside] > 0, lo[inside], 1e9))
+        # a shadow-like nook between two separate parts is the crevice where they meet, not a wall
         keep &= ~((hi_c > 0) & (lo_c < 1e9) & (hi_c != lo_c))
+        # walls are seen only on a part's side that faces the image of the vertical; a sharp
+        # strip on the other side is the part's own short shadow
+        ys, xs = np.nonzero(inside)
+        cnt = np.maximum(np.bincount(li, minlength=n), 1)
+        cx, cy = np.bincount(li, xs, n) / cnt, np.bincount(li, ys, n) / cnt
+        owner = hi_c.astype(int)
+        h_det, w_det = r.shape
+        vp = (np.array(p.vertical_px) / scale) if p.vertical_px is not None else np.array([w_det, h_det]) / 2.0
+        pc = part_c[owner]
+        facing = (cx - pc[:, 0]) * (vp[0] - pc[:, 0]) + (cy - pc[:, 1]) * (vp[1] - pc[:, 1]) > 0
+        keep &= (owner == 0) | facing
     out = keep[lab].astype(np.uint8)
-    # the sharp edge pixels between kept regions and parts belong to the part
-    grown = cv2.dilate(out | strong.astype(np.uint8), np.ones((3, 3), np.uint8))
+    # the sharp edge pixels around kept regions (a wall's outer edge) belong to the part
+    grown = cv2.dilate(out, np.ones((3, 3), np.uint8))
     out |= (darker & sharp & (grown > 0)).astype(np.uint8)
     return out
 
@@ -412,9 +425,10 @@ def segment_to_mm(seg: Segment, cal, z_mm: float, z_bottom_mm: float | None = No
             normal = -normal
         wall_side = (normal * (r - vp)).sum(axis=1) < 0
         bottom = cal.px_to_mm(r, z_bottom_mm)
-        if img is not None and wall_side.any():
-            wall_side &= _wall_visible(img, r, cal.mm_to_px(bottom, z_mm))
-        return np.where(wall_side[:, None], bottom, top)
+        if img is None or not wall_side.any():
+            return np.where(wall_side[:, None], bottom, top)
+        seen = _wall_visible(img, r, cal.mm_to_px(bottom, z_mm))
+        return np.where((wall_side & seen)[:, None], bottom, top)
 
     return ring(seg.outline_px, False), [ring(hh, True) for hh in seg.holes_px]
 

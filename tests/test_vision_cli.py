@@ -1,0 +1,137 @@
+"""The simulated camera, frame sources and the segment / render commands, with bad input."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from conftest import run_cli
+
+from calibration import Calibration, default_calibration_path, save_calibration
+from cell.errors import BadInput
+from cell.vision import FileCamera, SimCamera, SimCameraOptions, read_image
+from cell.vision.sample_parts import make_part
+
+PARTS = [make_part("gear", "gear", 300, -120), make_part("cover", "cover", 420, 100, 30)]
+
+
+def test_sim_camera_is_deterministic_for_a_seed():
+    a = SimCamera(options=SimCameraOptions(seed=4)).render(PARTS)
+    b = SimCamera(options=SimCameraOptions(seed=4)).render(PARTS)
+    c = SimCamera(options=SimCameraOptions(seed=5)).render(PARTS)
+    assert a.shape == (1024, 1280, 3) and a.dtype == np.uint8
+    assert np.array_equal(a, b)
+    assert not np.array_equal(a, c)
+    cam = SimCamera(options=SimCameraOptions(seed=4))
+    assert np.array_equal(cam.read(PARTS), a) and not np.array_equal(cam.read(PARTS), a)  # next frame
+
+
+def test_empty_tray_is_lit_and_noisy_but_plain():
+    frame = SimCamera(options=SimCameraOptions(seed=2)).render([]).astype(float)
+    grey = frame.mean(axis=2)
+    assert 90 < grey.mean() < 170
+    centre, corner = grey[400:600, 500:800].mean(), grey[:100, :100].mean()
+    assert centre > corner  # vignetting
+    assert 0.5 < np.std(grey[500:520, 600:620] - cv2.GaussianBlur(grey, (0, 0), 3)[500:520, 600:620]) < 6
+
+
+def test_parts_appear_where_the_calibration_says():
+    cam = SimCamera(options=SimCameraOptions(seed=1, shadows=False, highlights=False))
+    part = make_part("disc", "d", 380, 150, material="dark_plastic")
+    frame = cam.render([part])
+    u, v = np.round(cam.cal.mm_to_px([[380.0, 150.0]], part.z_top_mm)[0]).astype(int)
+    assert frame[v, u].mean() < 70  # the dark part's top
+    u2, v2 = np.round(cam.cal.mm_to_px([[380.0, 150.0 + 30]], 0.0)[0]).astype(int)
+    assert frame[v2, u2].mean() > 100  # the tray beside it
+
+
+def test_file_camera(tmp_path):
+    paths = []
+    for i in range(2):
+        p = tmp_path / f"f{i}.png"
+        cv2.imwrite(str(p), np.full((20, 30, 3), 40 * i, np.uint8))
+        paths.append(p)
+    with FileCamera(paths) as cam:
+        assert cam.is_connected
+        assert cam.read().mean() == 0 and cam.read().mean() == 40
+        with pytest.raises(BadInput, match="no more frames"):
+            cam.read()
+    bad = tmp_path / "bad.png"
+    bad.write_bytes(b"\x89PNG\r\n\x1a\n truncated")
+    with pytest.raises(BadInput, match="bad.png is not a readable image"):
+        FileCamera([bad]).read()
+
+
+@pytest.fixture
+def frame_file(tmp_path):
+    p = tmp_path / "frame.png"
+    cv2.imwrite(str(p), SimCamera(options=SimCameraOptions(seed=3)).render(PARTS))
+    return p
+
+
+def test_segment_cli_with_calibration_gives_mm(frame_file, capsys):
+    code, out, _ = run_cli("segment", frame_file, "--calibration", default_calibration_path(), "--z", "8",
+                           "--json", capsys=capsys)
+    assert code == 0
+    parts = json.loads(out)["parts"]
+    assert len(parts) == 2
+    cover = min(parts, key=lambda p: abs(p["centroid_mm"][0] - 420) + abs(p["centroid_mm"][1] - 100))
+    assert np.allclose(cover["centroid_mm"], [420, 100], atol=1.0)
+    assert len(cover["holes_mm"]) == 2 and len(cover["outline_mm"]) == len(cover["outline_px"])
+
+
+def test_segment_cli_empty_tray(tmp_path, capsys):
+    p = tmp_path / "empty.png"
+    cv2.imwrite(str(p), SimCamera(options=SimCameraOptions(seed=8)).render([]))
+    code, out, _ = run_cli("segment", p, "--json", capsys=capsys)
+    assert code == 0 and json.loads(out)["parts"] == []
+
+
+def test_segment_cli_refuses_other_resolution(tmp_path, frame_file, capsys):
+    small = Calibration(640, 480, homography=np.eye(3), name="small")
+    save_calibration(small, tmp_path / "small.json")
+    code, _, err = run_cli("segment", frame_file, "--calibration", tmp_path / "small.json", "--json", capsys=capsys)
+    assert code == 2 and "1280 x 1024 px but calibration 'small' is for 640 x 480" in err
+
+
+@pytest.mark.parametrize("content, match", [
+    (b"", "is empty"),
+    (b"this is not an image", "not a readable image"),
+    (b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\x00", "not a readable image"),
+])
+def test_segment_cli_corrupt_images(tmp_path, capsys, content, match):
+    p = tmp_path / "frame.png"
+    p.write_bytes(content)
+    code, out, err = run_cli("segment", p, "--json", capsys=capsys)
+    assert code == 2 and match in err and out == "" and "Traceback" not in err
+
+
+def test_segment_cli_missing_and_directory(tmp_path, capsys):
+    code, _, err = run_cli("segment", tmp_path / "nope.png", "--json", capsys=capsys)
+    assert code == 2 and "does not exist" in err
+    code, _, err = run_cli("segment", tmp_path, "--json", capsys=capsys)
+    assert code == 2 and "is a directory" in err
+
+
+def test_render_cli_writes_frame_and_truth(tmp_path, capsys):
+    scene = {"units": "mm", "parts": [p.to_json() for p in PARTS], "target": "gear"}
+    sp = tmp_path / "scene.json"
+    sp.write_text(json.dumps(scene))
+    out = tmp_path / "frame.png"
+    code, stdout, _ = run_cli("render", sp, "--out", out, "--seed", "2", "--truth", tmp_path / "t.json",
+                              capsys=capsys)
+    assert code == 0 and json.loads(stdout)["parts"] == 2
+    frame = read_image(out)
+    assert frame.shape == (1024, 1280, 3)
+    direct = SimCamera(options=SimCameraOptions(seed=2)).render(PARTS)  # the file rounds outlines to 1e-4 mm
+    assert np.abs(frame.astype(int) - direct).mean() < 0.05
+    truth = json.loads((tmp_path / "t.json").read_text())
+    assert [p["id"] for p in truth["parts"]] == ["gear", "cover"]
+
+
+def test_render_cli_bad_scene(tmp_path, capsys):
+    sp = tmp_path / "scene.json"
+    sp.write_text(json.dumps({"parts": [{"id": "x", "outline": [[0, 0], [1, 1]], "z_top": 3}]}))
+    code, _, err = run_cli("render", sp, "--out", tmp_path / "f.png", capsys=capsys)
+    assert code == 2 and "at least 3" in err
+    assert not (tmp_path / "f.png").exists()

@@ -214,7 +214,7 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int) -> np.
         k3 = np.ones((3, 3), np.uint8)
         hi = cv2.dilate(pl, k3)
         lo = -cv2.dilate(np.where(pl > 0, -pl, -1e9).astype(np.float32), k3)
-        inside = lab > 0
+        inside = keep[lab]  # only the regions still in question
         li = lab[inside]
         hi_c = np.zeros(n)
         np.maximum.at(hi_c, li, hi[inside])
@@ -254,11 +254,8 @@ def _split_regions(mask: np.ndarray, p: SegmentParams, scale: int, det: np.ndarr
         return lab, set()
     from cell.vision.touching import split_necks
 
-    grey = lab_img = None
-    if det is not None:
-        grey = cv2.cvtColor(det, cv2.COLOR_BGR2GRAY)
-        lab_img = cv2.cvtColor(np.clip(det / 255.0, 0, 1).astype(np.float32), cv2.COLOR_BGR2LAB)
-    return split_necks(lab, p, min_area, grey, lab_img)
+    grey = None if det is None else cv2.cvtColor(det, cv2.COLOR_BGR2GRAY)
+    return split_necks(lab, p, min_area, grey, det)
 
 
 def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.ndarray, det: np.ndarray,
@@ -321,7 +318,7 @@ def refine_ring(frame: np.ndarray, ring: np.ndarray, p: SegmentParams, hole: boo
     normal = np.column_stack([tang[:, 1], -tang[:, 0]])  # out of the ring if it is CCW in (u, v)
     sign = 1.0 if _signed_area(ring) > 0 else -1.0
     normal *= sign * (-1.0 if hole else 1.0)  # out of the material
-    rng_px = p.refine_range_px
+    rng_px = max(p.refine_range_px, 2.0 * p.scale)  # the coarse outline is up to a detection pixel off
     ts = np.arange(-rng_px, rng_px + 1e-9, 0.5)
     ks = np.array([-1.0, 0.0, 1.0])
     pts = (ring[:, None, None, :] + ts[None, :, None, None] * normal[:, None, None, :]

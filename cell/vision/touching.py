@@ -22,7 +22,7 @@ MAX_SPLIT_DEPTH = 6
 
 
 def split_necks(labels: np.ndarray, p, min_area_det: float, grey: np.ndarray | None = None,
-                lab_image: np.ndarray | None = None) -> tuple[np.ndarray, set[int]]:
+                bgr: np.ndarray | None = None) -> tuple[np.ndarray, set[int]]:
     """Return a label image where touching regions are split, and the labels flagged merged."""
     out = np.zeros_like(labels)
     merged: set[int] = set()
@@ -37,8 +37,10 @@ def split_necks(labels: np.ndarray, p, min_area_det: float, grey: np.ndarray | N
         y1, x1 = min(sl[0].stop + 2, hh), min(sl[1].stop + 2, ww)
         sub = (labels[y0:y1, x0:x1] == lid).astype(np.uint8)
         g = None if grey is None else grey[y0:y1, x0:x1]
-        pieces = None if lab_image is None else split_by_colour(sub, lab_image[y0:y1, x0:x1], min_area_det,
-                                                                p.colour_split)
+        pieces = None
+        if bgr is not None:
+            lab_img = cv2.cvtColor(np.clip(bgr[y0:y1, x0:x1] / 255.0, 0, 1).astype(np.float32), cv2.COLOR_BGR2LAB)
+            pieces = split_by_colour(sub, lab_img, min_area_det, p.colour_split)
         pieces = sub.astype(np.int32) if pieces is None else pieces
         view = out[y0:y1, x0:x1]
         # each colour piece may still hold touching parts; each split lobe is looked at again

@@ -1,0 +1,64 @@
+"""`cell bench vision`: segmentation accuracy (mm) and speed (ms) on rendered frames with ground truth."""
+
+from __future__ import annotations
+
+import json
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--frames", type=int, default=12, help="rendered frames per condition (default 12)")
+    p.add_argument("--parts", type=int, default=6, help="parts per frame (default 6)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--conditions", nargs="+", default=None, metavar="NAME",
+                   help="conditions to run (default all): " + ", ".join(repr(c) for c in _conditions()))
+    p.add_argument("--repeats", type=int, default=30, help="timing repeats (default 30)")
+    p.add_argument("--json", action="store_true", help="print one JSON object per line")
+
+
+def _conditions():
+    from cell.vision.bench import CONDITIONS
+
+    return list(CONDITIONS)
+
+
+def run(args) -> int:
+    import numpy as np
+
+    from calibration import load_calibration
+    from cell.errors import BadInput
+    from cell.vision.bench import CONDITIONS, run_benchmark, time_segmentation
+    from cell.vision.sample_parts import random_layout
+    from cell.vision.segment import SegmentParams
+    from cell.vision.simcamera import SimCamera, SimCameraOptions
+
+    if args.frames < 1 or args.parts < 1 or args.repeats < 1:
+        raise BadInput("--frames, --parts and --repeats must be at least 1")
+    conditions = args.conditions or list(CONDITIONS)
+    unknown = [c for c in conditions if c not in CONDITIONS]
+    if unknown:
+        raise BadInput(f"unknown condition(s) {unknown}; known: {list(CONDITIONS)}")
+    cal = load_calibration()
+    params = SegmentParams.for_calibration(cal)
+    rows = []
+    for c in conditions:
+        rows.append(run_benchmark(args.frames, args.parts, args.seed, c, cal, params))
+    frame = SimCamera(cal, SimCameraOptions(seed=args.seed)).render(
+        random_layout(np.random.default_rng(args.seed), 8))
+    timing = {"timing": "segment_frame, 8 parts, all effects", **time_segmentation(frame, params, args.repeats)}
+    if args.json:
+        for r in rows + [timing]:
+            print(json.dumps(r))
+        return 0
+    print(f"segmentation accuracy on rendered frames ({args.frames} frames x {args.parts} parts, mm on the part's "
+          "top plane; outline error both ways, every vertex and every 0.5 mm of the true outline)")
+    print(f"{'condition':22s} {'found':>7s} {'flag':>5s} {'extra':>5s} {'mean':>6s} {'rms':>6s} {'p95':>6s} "
+          f"{'part rms med/max':>17s} {'centroid mean/p95':>18s}")
+    for r in rows:
+        print(f"{r['condition']:22s} {r['found']:3d}/{r['parts']:<3d} {r['flagged']:5d} {r['extra_segments']:5d} "
+              f"{r['outline_mean_mm']:6.3f} {r['outline_rms_mm']:6.3f} {r['outline_p95_mm']:6.3f} "
+              f"{r['part_rms_median_mm']:8.3f}/{r['part_rms_max_mm']:<8.3f} "
+              f"{r['centroid_mean_mm']:8.3f}/{r['centroid_p95_mm']:<8.3f}")
+    print(f"time to segment a {timing['frame']} frame: median {timing['median_ms']:.1f} ms wall "
+          f"(p10 {timing['p10_ms']:.1f}, p90 {timing['p90_ms']:.1f}), {timing['cpu_median_ms']:.1f} ms CPU, "
+          f"{timing['repeats']} runs")
+    return 0

@@ -56,9 +56,16 @@ class Context:
     finger_obstacles: object = None  # union of obstacles taller than the grasp z, or None
     palm_obstacles: object = None  # union of obstacles taller than the palm bottom, or None
     finger_obstacle_ids: list = field(default_factory=list)
+    edge_a: np.ndarray = None  # (E, 2) start of every target edge (outline and holes)
+    edge_b: np.ndarray = None  # (E, 2) its end
+    edge_tree: object = None  # STRtree over the edges
+    samples: np.ndarray | None = None  # (N, 2) the target's outline samples, ring after ring
+    sample_ring_first: np.ndarray | None = None  # (N,) index of the first sample of each sample's ring
+    sample_ring_count: np.ndarray | None = None  # (N,) number of samples on that ring
 
     @classmethod
-    def build(cls, target: Part, obstacles, cell: Cell, params: SynthesisParams, grasp_z_mm: float) -> Context:
+    def build(cls, target: Part, obstacles, cell: Cell, params: SynthesisParams, grasp_z_mm: float,
+              samples: np.ndarray | None = None, sample_ring: np.ndarray | None = None) -> Context:
         tall = [o for o in obstacles if o.z_top_mm > grasp_z_mm + Z_EPS_MM]
         palm_z = grasp_z_mm + cell.gripper.palm_offset_mm
         palm = [o for o in obstacles if o.z_top_mm > palm_z + Z_EPS_MM]
@@ -72,7 +79,18 @@ class Context:
 
         tg = shapely.Polygon(target.polygon.exterior, target.polygon.interiors)
         shapely.prepare(tg)
-        return cls(target, cell, params, grasp_z_mm, tg, union(tall), union(palm), [o.id for o in tall])
+        rings = [target.outline_mm, *target.holes_mm]
+        a = np.vstack(rings)
+        b = np.vstack([np.roll(r, -1, axis=0) for r in rings])
+        tree = shapely.STRtree(shapely.linestrings(np.stack([a, b], axis=1)))
+        first = count = None
+        if samples is not None:
+            ring = np.asarray(sample_ring, int)
+            starts = np.searchsorted(ring, np.arange(ring.max() + 1))
+            counts = np.bincount(ring)
+            first, count = starts[ring], counts[ring]
+        return cls(target, cell, params, grasp_z_mm, tg, union(tall), union(palm), [o.id for o in tall],
+                   a, b, tree, samples, first, count)
 
 
 @dataclass
@@ -98,12 +116,15 @@ class Pairs:
     center: np.ndarray = None
     h: np.ndarray = None
     joints: dict = field(default_factory=dict)
+    si: np.ndarray | None = None  # (s, 2) outline-sample index of p_i and p_j
 
     def __len__(self) -> int:
         return len(self.ij)
 
     @classmethod
-    def of(cls, points: np.ndarray, normals: np.ndarray) -> Pairs:
+    def of(cls, points: np.ndarray, normals: np.ndarray, sample_index: np.ndarray | None = None) -> Pairs:
+        """sample_index (z',): each point's index among the target's outline samples (enables the
+        pre-check's look at the outline next to each point)."""
         i, j = np.triu_indices(len(points), k=1)
         pi, pj, ni, nj = points[i], points[j], normals[i], normals[j]
         w = pi - pj
@@ -116,8 +137,9 @@ class Pairs:
         m = 0.5 * (pi + pj)
         t = 0.5 * (w * u).sum(1)
         nan2 = np.full((len(i), 2), np.nan)
+        si = None if sample_index is None else np.column_stack([sample_index[i], sample_index[j]])
         return cls(np.column_stack([i, j]), pi, pj, ni, nj, d, u, m, t, nan2.copy(), nan2.copy(), nan2.copy(),
-                   np.full(len(i), np.nan))
+                   np.full(len(i), np.nan), si=si)
 
     def axis_deg(self, k: int) -> float:
         return normalize_axis_deg(math.degrees(math.atan2(self.u[k, 1], self.u[k, 0])))
@@ -167,42 +189,112 @@ def stage_precheck(ctx: Context, P: Pairs, idx) -> np.ndarray:
         ok &= ~hit.reshape(len(idx), -1).any(1)
     if ctx.palm_obstacles is not None:
         ok &= ~shapely.contains_xy(ctx.palm_obstacles, m[:, 0], m[:, 1])
+    if ctx.samples is not None and P.si is not None:
+        ok &= ~_outline_ahead(ctx, P, idx)
     return ok
+
+
+def _outline_ahead(ctx: Context, P: Pairs, idx) -> np.ndarray:
+    """(k,) True where an outline sample next to p_i or p_j (same ring, within the pad's reach along
+    the outline) lies in that pad's band further out than the candidate point by more than
+    contact_tol: the pad would stop there first, so the `contacts` stage would reject the pair."""
+    g, tol = ctx.cell.gripper, ctx.params.contact_tol_mm
+    hw = g.pad_width_mm / 2 + tol
+    K = int(np.ceil(hw / ctx.params.step_mm)) + 1
+    offs = np.r_[np.arange(-K, 0), np.arange(1, K + 1)]
+    m, u, t = P.m[idx], P.u[idx], P.t[idx]
+    t_max = t + g.approach_clearance_mm + g.pad_thickness_mm
+    hit = np.zeros(len(idx), bool)
+    for col, side in ((0, 1.0), (1, -1.0)):
+        s = P.si[idx, col]
+        first, count = ctx.sample_ring_first[s], ctx.sample_ring_count[s]
+        q = first[:, None] + (s[:, None] - first[:, None] + offs[None, :]) % count[:, None]  # (k, 2K)
+        d = ctx.samples[q] - m[:, None, :]
+        us = side * u
+        tq = (d * us[:, None, :]).sum(-1)
+        lq = d[..., 0] * -us[:, None, 1] + d[..., 1] * us[:, None, 0]
+        hit |= ((np.abs(lq) <= hw) & (tq <= t_max[:, None]) & (tq > t[:, None] + tol)).any(1)
+    return hit
 
 
 # --- exact stages: shapely and IK on the survivors only -------------------------------------
 
+def first_touch(ctx: Context, centers: np.ndarray, us: np.ndarray, t_min: np.ndarray, t_max: np.ndarray,
+                half_width: float):
+    """Where a pad closing along -us towards `centers` first meets the target.
+
+    For each band (b,): the rectangle from t_min to t_max along us from the centre, half_width
+    across (t_min just inside the candidate point: material further in cannot be the first touch
+    when the candidate itself is in the band). The target's material inside it is bounded by the
+    target's edges clipped to the band (Liang-Barsky, vectorised over the (band, edge) pairs whose
+    bounding boxes an STRtree finds overlapping) and, when the band's far corners lie inside the
+    target, by its far side. Returns T (b,), the largest
+    distance along us of material in the band (-inf: none), and the touching point (b, 2): the
+    mean of the material's vertices within PAD_COMPLIANCE_MM of T.
+    """
+    b = len(centers)
+    vs = np.stack([-us[:, 1], us[:, 0]], -1)
+    corners = axis_rects(centers, us, t_min, t_max, half_width)
+    lo, hi = corners.min(axis=1), corners.max(axis=1)
+    bi, ei = ctx.edge_tree.query(shapely.box(lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1]))  # the clip below is exact
+    A, B = ctx.edge_a[ei], ctx.edge_b[ei]
+    c, u, v = centers[bi], us[bi], vs[bi]
+    tA, lA = ((A - c) * u).sum(1), ((A - c) * v).sum(1)
+    dt, dl = ((B - A) * u).sum(1), ((B - A) * v).sum(1)
+    s0, s1 = np.zeros(len(bi)), np.ones(len(bi))
+    inside = np.ones(len(bi), bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for p, q in ((-dt, tA - t_min[bi]), (dt, t_max[bi] - tA), (-dl, lA + half_width), (dl, half_width - lA)):
+            r = q / p
+            s0 = np.where(p < 0, np.maximum(s0, r), s0)
+            s1 = np.where(p > 0, np.minimum(s1, r), s1)
+            inside &= ~((p == 0) & (q < 0))
+    inside &= s0 <= s1
+    bi = np.concatenate([bi[inside]] * 2)
+    s = np.concatenate([s0[inside], s1[inside]])
+    tt = np.concatenate([tA[inside]] * 2) + s * np.concatenate([dt[inside]] * 2)  # along us
+    T = np.full(b, -np.inf)
+    if len(bi):
+        order = np.argsort(bi, kind="stable")
+        bi, s, tt = bi[order], s[order], tt[order]
+        idx = np.concatenate([np.flatnonzero(inside)] * 2)[order]
+        starts = np.flatnonzero(np.r_[True, bi[1:] != bi[:-1]])
+        T[bi[starts]] = np.maximum.reduceat(tt, starts)
+    far = corners[:, 1:3].reshape(-1, 2)
+    far_in = shapely.contains_xy(ctx.target_geom, far[:, 0], far[:, 1]).reshape(b, 2).any(1)
+    T[far_in] = np.maximum(T[far_in], t_max[far_in])
+    touch = np.full((b, 2), np.nan)
+    if len(bi):
+        near = tt >= T[bi] - PAD_COMPLIANCE_MM
+        xy = A[idx[near]] + s[near, None] * (B - A)[idx[near]]
+        cnt = np.bincount(bi[near], minlength=b)
+        with np.errstate(invalid="ignore"):
+            sx, sy = np.bincount(bi[near], xy[:, 0], b), np.bincount(bi[near], xy[:, 1], b)
+            touch = np.column_stack([sx, sy]) / cnt[:, None]
+    return T, touch
+
+
 def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
-    """Close each pad along the axis; it stops at the first material in its band."""
+    """Close each pad along the axis; it stops at the first material in its band. That point must
+    be the candidate's (within contact_tol, along and across the axis)."""
     k = len(idx)
     if k == 0:
         return np.zeros(0, bool)
     g, tol = ctx.cell.gripper, ctx.params.contact_tol_mm
     m, u, t = P.m[idx], P.u[idx], P.t[idx]
     centers, us = np.vstack([m, m]), np.vstack([u, -u])
-    reach = np.concatenate([t, t]) + g.approach_clearance_mm + g.pad_thickness_mm
-    bands = rect_polygons(axis_rects(centers, us, 0.0, reach, g.pad_width_mm / 2 + tol))
-    inter = shapely.intersection(bands, ctx.target_geom)
-    xy, gi = shapely.get_coordinates(inter, return_index=True)
-    # each ring repeats its first point at the end: count every vertex once
-    uq = np.unique(np.column_stack([gi, xy]), axis=0)
-    gi, xy = uq[:, 0].astype(int), uq[:, 1:]
-    proj = ((xy - centers[gi]) * us[gi]).sum(1)
-    T = np.full(2 * k, -np.inf)
-    np.maximum.at(T, gi, proj)
-    near = proj >= T[gi] - PAD_COMPLIANCE_MM
-    sums = np.zeros((2 * k, 2))
-    np.add.at(sums, gi[near], xy[near])
-    cnt = np.bincount(gi[near], minlength=2 * k)
-    c = sums / np.maximum(cnt, 1)[:, None]
+    tt = np.concatenate([t, t])
+    T, c = first_touch(ctx, centers, us, tt - 2 * tol, tt + g.approach_clearance_mm + g.pad_thickness_mm,
+                       g.pad_width_mm / 2 + tol)
     vs = np.stack([-us[:, 1], us[:, 0]], -1)
     lateral = np.abs(((c - centers) * vs).sum(1))
-    tt = np.concatenate([t, t])
-    ok2 = (cnt > 0) & (T <= tt + tol) & (lateral <= tol)
+    with np.errstate(invalid="ignore"):
+        ok2 = np.isfinite(lateral) & (T <= tt + tol) & (lateral <= tol)
     ok = ok2[:k] & ok2[k:]
     ci, cj = c[:k], c[k:]
     h = 0.5 * ((ci - cj) * u).sum(1)
-    ok &= (2 * h >= g.opening_mm[0]) & (2 * h + 2 * g.approach_clearance_mm <= g.opening_mm[1])
+    with np.errstate(invalid="ignore"):
+        ok &= (2 * h >= g.opening_mm[0]) & (2 * h + 2 * g.approach_clearance_mm <= g.opening_mm[1])
     P.ci[idx], P.cj[idx] = ci, cj
     P.center[idx] = 0.5 * (ci + cj)
     P.h[idx] = h
@@ -264,7 +356,7 @@ def run_cascade(ctx: Context, P: Pairs, stages=STAGES) -> CascadeResult:
     alive = np.arange(len(P))
     rejected_by = np.full(len(P), -1)
     kept, times, exact = {}, {}, 0
-    for s, name in enumerate(stages):
+    for name in stages:
         t0 = time.perf_counter()
         if name in EXACT_STAGES:
             exact += len(alive)

@@ -48,3 +48,27 @@ def _place(pid, pts, holes, center, angle_deg, zb, zt) -> Part:
     raw = {"id": pid, "outline": (pts @ rot.T + c).tolist(), "holes": [(h @ rot.T + c).tolist() for h in holes],
            "z_bottom": zb, "z_top": zt}
     return parse_part(raw, f"shape {pid}")
+
+
+def hand_made_examples() -> list:
+    """A few teaching examples given by hand on simple parts (tests and the benchmark use them
+    until the shipped default example file exists): grasps across the middle of flat faces are
+    accepted, grasps at corners and across the long side's ends rejected."""
+    from cell.examples import GraspExample
+
+    src = {"kind": "manual", "by": "cell.grasp.shapes", "note": "hand-made example"}
+    r = rectangle("rect-60x30", 60, 30)
+    big = rectangle("rect-90x40", 90, 40)
+    d = disc("disc-r20", 20)
+    ell = l_shape("ell-60x40")
+    lc = ell.outline_mm
+    return [
+        GraspExample("hm-rect-mid", r, np.array([[350, 15], [350, -15]]), True, src),
+        GraspExample("hm-rect-off", r, np.array([[362, 15], [362, -15]]), True, src),
+        GraspExample("hm-big-mid", big, np.array([[345, 20], [345, -20]]), True, src),
+        GraspExample("hm-disc", d, np.array([[370, 0], [330, 0]]), True, src),
+        GraspExample("hm-rect-corners", r, np.array([[379, 15], [321, -15]]), False, src, (False, False)),
+        GraspExample("hm-rect-ends", r, np.array([[380, 0], [320, 0]]), False, src),
+        GraspExample("hm-big-end", big, np.array([[392, 17], [392, -17]]), False, src, (False, False)),
+        GraspExample("hm-ell-arm", ell, np.array([(lc[1] + lc[2]) / 2 + [0, 0], (lc[0] + lc[5]) / 2]), False, src),
+    ]

@@ -80,6 +80,8 @@ class SynthesisResult:
     reachable_attributes: np.ndarray  # (s', G) global attributes of the reachable pairs
     set_valid: np.ndarray  # (s',) tree-2 verdict
     stage_time_ms: dict = field(default_factory=dict)
+    context: Context | None = None  # the scene as the cascade saw it (obstacles by height, target edges)
+    valid_sample_index: np.ndarray | None = None  # (z',) each valid point's index among the outline samples
 
     @property
     def valid_points(self) -> OutlinePoints:
@@ -130,7 +132,8 @@ class GraspPlanner:
         t0 = time.perf_counter()
         rings = part_rings(target)
         op_all, free = candidate_points(target, obstacles, p, rings)
-        cand = op_all.subset(free)
+        cand_index = np.flatnonzero(free)
+        cand = op_all.subset(cand_index)
         counts["outline_points"] = len(op_all)
         counts["candidates"] = len(cand)
         times["candidates"] = (time.perf_counter() - t0) * 1e3
@@ -149,9 +152,9 @@ class GraspPlanner:
 
         t0 = time.perf_counter()
         gz = grasp_z_mm(target.z_bottom_mm, target.z_top_mm, cell.gripper)
-        P = Pairs.of(vp.points, vp.normals)
+        P = Pairs.of(vp.points, vp.normals, cand_index[point_valid])
         counts["pairs"] = len(P)
-        ctx = Context.build(target, obstacles, cell, p, gz)
+        ctx = Context.build(target, obstacles, cell, p, gz, op_all.points, op_all.ring)
         cr = run_cascade(ctx, P)
         for name in STAGES:
             counts[f"after_{name}"] = cr.kept[name]
@@ -176,15 +179,15 @@ class GraspPlanner:
         sel = np.flatnonzero(set_valid)
         dist, ex_idx = nearest_example(self.model, G[sel])
         order = np.argsort(dist, kind="stable")
+        normals = np.stack([P.ni[k], P.nj[k]], axis=1)
+        centers = 0.5 * (contacts[:, 0] + contacts[:, 1])
+        openings = np.linalg.norm(contacts[:, 0] - contacts[:, 1], axis=1)
         ranked = []
         for o in order:
-            q = sel[o]
-            pk = k[q]
-            c = contacts[q]
-            g = Grasp(target.id, c, np.stack([P.ni[pk], P.nj[pk]]), 0.5 * (c[0] + c[1]), P.axis_deg(pk),
-                      float(np.linalg.norm(c[0] - c[1])), gz, joints_of(P, pk), None, float(dist[o]), G[q],
-                      self.model.example_ids[ex_idx[o]], (int(ij[q, 0]), int(ij[q, 1])))
-            ranked.append(g)
+            q, pk = sel[o], k[sel[o]]
+            ranked.append(Grasp(target.id, contacts[q], normals[q], centers[q], P.axis_deg(pk), float(openings[q]),
+                                gz, joints_of(P, pk), None, float(dist[o]), G[q], self.model.example_ids[ex_idx[o]],
+                                (int(ij[q, 0]), int(ij[q, 1]))))
         best = ranked[0]
         best.joints = self.choose(best, self.examples, cell, scene)
         for g in ranked[1:]:
@@ -192,7 +195,8 @@ class GraspPlanner:
         times["select"] = (time.perf_counter() - t0) * 1e3
         time_ms = (time.perf_counter() - t_start) * 1e3
         return SynthesisResult(best, ranked, counts, time_ms, cand, L, point_valid, P, cr, G, set_valid,
-                               {**times, **{f"cascade_{n}": v for n, v in cr.time_ms.items()}})
+                               {**times, **{f"cascade_{n}": v for n, v in cr.time_ms.items()}}, ctx,
+                               cand_index[point_valid])
 
     def _empty_stage_reason(self, cr: CascadeResult, ctx: Context) -> str:
         g, p = self.cell.gripper, self.params

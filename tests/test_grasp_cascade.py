@@ -124,8 +124,9 @@ def test_a_pad_stops_at_a_protrusion_so_hidden_contacts_are_rejected_and_contact
     target = parse_part({"id": "bump", "outline": outline.tolist(), "z_top": 15})
     P, cr, _ = cascade_for(target)
     vertical = np.abs(P.u[:, 0]) < 1e-6
-    beside = vertical & (np.abs(P.pi[:, 0] - P.pj[:, 0]) < 0.5) & (np.abs(P.m[:, 0] - 350) > 3) & (np.abs(P.m[:, 0] - 350) < 8) & (
-        np.maximum(P.pi[:, 1], P.pj[:, 1]) < 15.5)
+    dx = np.abs(P.m[:, 0] - 350)
+    beside = (vertical & (np.abs(P.pi[:, 0] - P.pj[:, 0]) < 0.5) & (dx > 3) & (dx < 8)
+              & (np.maximum(P.pi[:, 1], P.pj[:, 1]) < 15.5))
     assert beside.any()
     assert set(cr.rejected_by[beside].tolist()) <= {STAGES.index("precheck"), STAGES.index("contacts")}
     planner = permissive_planner()

@@ -9,7 +9,12 @@ How an example teaches (paper: the operator grasps parts in a simulation environ
 - Tree 2 (sets). Each example is one set, labelled by `valid`, with its global attributes
   measured at the contacts projected onto the outline; it is augmented with its
   neighbouring sets (each contact shifted by -k..k steps along the outline, all
-  combinations), which a pad 6 steps wide could not tell apart.
+  combinations), which a pad 6 steps wide could not tell apart. A rejected example that
+  names a bad contact (`contact_valid` has a false) was rejected for that contact: tree 1
+  learns it, and it is not a negative set for tree 2, because its global attributes may be
+  those of a good set (a centred, antipodal grasp across the wrong faces looks, globally,
+  exactly like the centred grasp across the right ones; as a negative set it would
+  contradict the accepted example and cancel it).
 - Selection uses the accepted examples' own (unaugmented) global attributes.
 Trees are rebuilt from the example file on every start (milliseconds): no pickles.
 """
@@ -181,6 +186,8 @@ def fit_model(examples: list[GraspExample], params: SynthesisParams, half_pad_mm
     shifts = tuple(range(-k, k + 1))
     Xs, ys = [], []
     for ex in examples:
+        if not ex.valid and ex.contact_valid is not None and not all(ex.contact_valid):
+            continue  # rejected for a contact: a point label (tree 1), not a set label
         a = set_attributes_of_example(ex, params, shifts)
         Xs.append(a)
         ys.append(np.full(len(a), ex.valid))

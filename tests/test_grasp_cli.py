@@ -5,13 +5,13 @@ import math
 
 import numpy as np
 import pytest
+from conftest import run_cli
 
 from cell.cellconfig import default_cell, default_cell_path
 from cell.examples import append_examples
 from cell.grasp import shapes
 from cell.kinematics import Joints, forward, limit_violations, normalize_axis_deg
 from cell.scene import Scene
-from conftest import run_cli
 
 CELL = default_cell()
 

@@ -121,16 +121,33 @@ class AttributeTree:
         return cls.astype(bool)
 
     def _path_rules(self):
-        """[(leaf node, [condition strings], verdict, n_samples, share of the verdict)]."""
+        """[(leaf nodes, [condition strings], verdict, n_samples, share of the verdict)], one per rule.
+
+        Sibling subtrees whose leaves all give the same verdict are merged into one rule (the
+        split does not change the decision, only the purity), so every printed rule decides."""
         t = self.tree_.tree_
+        cls = self._leaf_class()
+
+        def verdicts(node):
+            if t.children_left[node] == -1:
+                return {bool(cls[node])}
+            return verdicts(t.children_left[node]) | verdicts(t.children_right[node])
+
+        def leaves(node):
+            if t.children_left[node] == -1:
+                return [node]
+            return leaves(t.children_left[node]) + leaves(t.children_right[node])
+
         out = []
 
         def walk(node, conds):
-            if t.children_left[node] == -1:
-                v = t.value[node, 0]
-                k = int(np.argmax(v))
-                out.append((node, conds, bool(self.tree_.classes_[k]), int(t.n_node_samples[node]),
-                            float(v[k] / max(v.sum(), 1e-12))))
+            v = verdicts(node)
+            if len(v) == 1:
+                ls = leaves(node)
+                n = int(t.n_node_samples[node])
+                w = t.value[node, 0]
+                k = int(np.flatnonzero(self.tree_.classes_ == next(iter(v)))[0])
+                out.append((ls, conds, next(iter(v)), n, float(w[k] / max(w.sum(), 1e-12))))
                 return
             name, thr = self.names[t.feature[node]], t.threshold[node]
             walk(t.children_left[node], conds + [f"{name} <= {thr:.3f}"])
@@ -150,15 +167,22 @@ class AttributeTree:
         if self.tree_ is None:
             return self.rules()[0]
         leaf = int(self.tree_.apply(np.asarray(x, np.float32).reshape(1, -1))[0])
-        for node, c, v, n, share in self._path_rules():
-            if node == leaf:
+        for nodes, c, v, n, share in self._path_rules():
+            if leaf in nodes:
                 return self._format(c, v, n, share)
         raise AssertionError("leaf not found")
 
     @staticmethod
     def _format(conds, verdict, n, share) -> str:
+        # one bound per attribute and side: the tightest along the path
+        bounds: dict = {}
+        for c in conds:
+            name, op, thr = c.split(" ")
+            key, thr = (name, op), float(thr)
+            bounds[key] = thr if key not in bounds else (min if op == "<=" else max)(bounds[key], thr)
+        conds = [f"{name} {op} {thr:.3f}" for (name, op), thr in bounds.items()]
         head = "IF " + " AND ".join(conds) if conds else "ALWAYS"
-        return f"{head} THEN {'valid' if verdict else 'invalid'}  ({n} training rows, {share:.0%} weight)"
+        return f"{head} THEN {'valid' if verdict else 'invalid'}  ({n} training rows, {share:.0%} of their weight)"
 
 
 @dataclass

@@ -128,3 +128,30 @@ def test_the_chosen_set_is_the_valid_set_nearest_to_an_accepted_example():
     # the same part as an example: the nearest set is that example's own grasp, at distance ~0
     assert res.grasp.distance_to_example < 0.05
     assert np.allclose(sorted(res.grasp.contacts_mm[:, 0]), [320, 320], atol=2.1)
+
+
+@pytest.mark.parametrize("part", [shapes.l_shape("p", 70, 50, 18), shapes.gear("p", 28, 10, 3),
+                                  shapes.disc("p", 30, hole_r_mm=12)])
+def test_the_plan_moves_with_the_part(part):
+    """Attributes, trees and cascade do not depend on where the part lies on the tray: the same
+    set sizes at every stage and the same best distance to the examples, and the chosen contacts
+    are the first pose's contacts moved along (up to the part's own symmetry)."""
+    planner = GraspPlanner(CELL, shapes.hand_made_examples())
+    ref = None
+    for dx, dy, th in ((0, 0, 0), (-80, 150, 37), (60, -170, -121), (120, 90, 180)):
+        moved = part.moved(dx, dy, th)
+        res = planner.plan(Scene((moved,), "p"))
+        stage_counts = {k: v for k, v in res.counts.items() if k != "exact_checks"}
+        # the chosen contacts, in the part's own frame
+        c0 = np.asarray(part.polygon.centroid.coords[0])
+        t = np.radians(th)
+        rot = np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
+        local = (res.grasp.contacts_mm - c0 - (dx, dy)) @ rot
+        if ref is None:
+            ref = (stage_counts, res.grasp.distance_to_example, res)
+            continue
+        assert stage_counts == ref[0]
+        assert res.grasp.distance_to_example == pytest.approx(ref[1], abs=1e-6)
+        # every ranked grasp of the first pose, moved, has a twin here
+        ref_local = [np.sort((g.contacts_mm - c0).round(3), axis=0) for g in ref[2].ranked]
+        assert any(np.allclose(np.sort(local, axis=0), r, atol=1e-3) for r in ref_local)

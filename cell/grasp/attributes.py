@@ -19,7 +19,6 @@ import numpy as np
 from cell.grasp.outline import Ring, centre_of_gravity, reference_radius_mm
 from cell.scene import Part
 
-
 NORMAL_CHORD_MM = 0.25  # half-length of the chord that gives a point's normal
 
 

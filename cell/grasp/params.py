@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields, replace
 
 from cell.errors import BadInput
@@ -28,8 +29,10 @@ class SynthesisParams:
         for f in fields(self):
             v = getattr(self, f.name)
             if f.name == "scales_mm":
-                if len(v) < 3 or any(s <= 0 for s in v):
+                if len(v) < 3 or any(not (s > 0 and math.isfinite(s)) for s in v):
                     raise BadInput("synthesis parameter scales_mm needs at least three positive scales (mm)")
+            elif isinstance(v, (int, float)) and not math.isfinite(v):
+                raise BadInput(f"synthesis parameter {f.name} must be a finite number, got {v}")
             elif isinstance(v, (int, float)) and v < 0:
                 raise BadInput(f"synthesis parameter {f.name} must not be negative, got {v}")
         if self.step_mm <= 0:

@@ -81,6 +81,8 @@ class SynthesisResult:
     set_valid: np.ndarray  # (s',) tree-2 verdict
     stage_time_ms: dict = field(default_factory=dict)
     context: Context | None = None  # the scene as the cascade saw it (obstacles by height, target edges)
+    outline: OutlinePoints | None = None  # every outline sample, free or not
+    free: np.ndarray | None = None  # (n,) which outline samples are free (the candidates)
     valid_sample_index: np.ndarray | None = None  # (z',) each valid point's index among the outline samples
 
     @property
@@ -195,8 +197,8 @@ class GraspPlanner:
         times["select"] = (time.perf_counter() - t0) * 1e3
         time_ms = (time.perf_counter() - t_start) * 1e3
         return SynthesisResult(best, ranked, counts, time_ms, cand, L, point_valid, P, cr, G, set_valid,
-                               {**times, **{f"cascade_{n}": v for n, v in cr.time_ms.items()}}, ctx,
-                               cand_index[point_valid])
+                               {**times, **{f"cascade_{n}": v for n, v in cr.time_ms.items()}},
+                               context=ctx, outline=op_all, free=free, valid_sample_index=cand_index[point_valid])
 
     def _empty_stage_reason(self, cr: CascadeResult, ctx: Context, P: Pairs) -> str:
         g, p = self.cell.gripper, self.params

@@ -84,6 +84,7 @@ class SynthesisResult:
     outline: OutlinePoints | None = None  # every outline sample, free or not
     free: np.ndarray | None = None  # (n,) which outline samples are free (the candidates)
     valid_sample_index: np.ndarray | None = None  # (z',) each valid point's index among the outline samples
+    global_attribute_names: list = field(default_factory=list)
 
     @property
     def valid_points(self) -> OutlinePoints:
@@ -105,6 +106,9 @@ class SynthesisResult:
         d["counts"] = dict(self.counts)
         d["time_ms"] = round(self.time_ms, 3)
         d["ranked"] = len(self.ranked)
+        if self.global_attribute_names:
+            d["global_attributes"] = {n: round(float(v), 4) for n, v in
+                                      zip(self.global_attribute_names, self.grasp.global_attributes, strict=True)}
         return d
 
 
@@ -198,7 +202,8 @@ class GraspPlanner:
         time_ms = (time.perf_counter() - t_start) * 1e3
         return SynthesisResult(best, ranked, counts, time_ms, cand, L, point_valid, P, cr, G, set_valid,
                                {**times, **{f"cascade_{n}": v for n, v in cr.time_ms.items()}},
-                               context=ctx, outline=op_all, free=free, valid_sample_index=cand_index[point_valid])
+                               context=ctx, outline=op_all, free=free, valid_sample_index=cand_index[point_valid],
+                               global_attribute_names=global_names(p.scales_mm))
 
     def _empty_stage_reason(self, cr: CascadeResult, ctx: Context, P: Pairs) -> str:
         g, p = self.cell.gripper, self.params
@@ -235,7 +240,3 @@ class GraspPlanner:
 
     def rules(self) -> dict:
         return {"points": self.model.point_tree.rules(), "sets": self.model.set_tree.rules()}
-
-
-def global_attribute_dict(values: np.ndarray, params: SynthesisParams) -> dict:
-    return {n: round(float(v), 4) for n, v in zip(global_names(params.scales_mm), values, strict=True)}

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from cell.cellconfig import default_cell
-from cell.errors import BadInput
+from cell.errors import BadInput, NoFeasibleGrasp
 from cell.examples import GraspExample, append_examples, load_examples
 from cell.grasp import shapes
 from cell.grasp.learning import fit_model, point_training, set_attributes_of_example
@@ -155,3 +155,34 @@ def test_the_plan_moves_with_the_part(part):
         # every ranked grasp of the first pose, moved, has a twin here
         ref_local = [np.sort((g.contacts_mm - c0).round(3), axis=0) for g in ref[2].ranked]
         assert any(np.allclose(np.sort(local, axis=0), r, atol=1e-3) for r in ref_local)
+
+
+def test_when_tree_2_rejects_every_reachable_set_there_is_no_grasp():
+    examples = [ex("c", [[350, 15], [350, -15]], True), ex("c2", [[352, 15], [352, -15]], True),
+                ex("off1", [[362, 15], [362, -15]], False), ex("off2", [[372, 15], [372, -15]], False),
+                ex("off3", [[338, 15], [338, -15]], False), ex("ends", [[380, 0], [320, 0]], False, (False, False))]
+    planner = GraspPlanner(CELL, examples)
+    free = Scene((RECT,), "r")
+    assert abs(planner.plan(free).grasp.center_mm[0] - 350) < 2.1  # centred when it can be
+    # posts (finger-high, under the palm) 5 mm off the middle of both long faces: only off-centre grasps remain
+    posts = [shapes.rectangle(f"post{k}", 4, 10, center=(350, s * (15 + 5 + 5)), z_top_mm=30)
+             for k, s in ((0, 1), (1, -1))]
+    blocked = Scene((RECT, *posts), "r")
+    with pytest.raises(NoFeasibleGrasp, match="tree 2 rejects all") as e:
+        planner.plan(blocked)
+    assert e.value.counts["reachable"] > 0 and e.value.counts["valid_sets"] == 0
+
+
+def test_global_attributes_take_any_number_of_contacts():
+    from cell.grasp.attributes import describe_points, global_attributes
+    from cell.grasp.outline import part_rings
+
+    disc = shapes.disc("d", 30, center=(0, 0), n=180)
+    rings = part_rings(disc)
+    L = rings[0].length_mm
+    op = describe_points(rings, [0] * 3, [0, L / 3, 2 * L / 3], PARAMS.scales_mm)
+    G = global_attributes(op.points[None], op.chord_normals[None], disc)
+    G_swapped = global_attributes(op.points[None, ::-1], op.chord_normals[None, ::-1], disc)
+    assert np.allclose(G, G_swapped)
+    assert G[0, 0] == pytest.approx(0, abs=1e-6)  # three contacts 120 degrees apart: centred
+    assert np.all(G[0, 2:] < 1.0)  # each pushes straight at the reference point

@@ -186,3 +186,19 @@ def test_global_attributes_take_any_number_of_contacts():
     assert np.allclose(G, G_swapped)
     assert G[0, 0] == pytest.approx(0, abs=1e-6)  # three contacts 120 degrees apart: centred
     assert np.all(G[0, 2:] < 1.0)  # each pushes straight at the reference point
+
+
+def test_a_step_5_hook_that_refuses_a_grasp_gets_the_next_best():
+    seen = []
+
+    def refuse_first_two(grasp, examples, cell, scene):
+        seen.append(grasp)
+        return None if len(seen) <= 2 else grasp.joint_options[-1]
+
+    base = GraspPlanner(CELL, faces_examples()).plan(Scene((RECT,), "r"))
+    res = GraspPlanner(CELL, faces_examples(), choose=refuse_first_two).plan(Scene((RECT,), "r"))
+    assert res.counts["configuration_refused"] == 2
+    assert np.array_equal(res.grasp.contacts_mm, base.ranked[2].contacts_mm)
+    assert res.grasp.joints == res.grasp.joint_options[-1] and len(res.ranked) == len(base.ranked) - 2
+    with pytest.raises(NoFeasibleGrasp, match="step 5"):
+        GraspPlanner(CELL, faces_examples(), choose=lambda *a: None).plan(Scene((RECT,), "r"))

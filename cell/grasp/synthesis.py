@@ -60,9 +60,10 @@ class Grasp:
         return d
 
 
-def choose_joints(grasp: Grasp, examples: list[GraspExample], cell: Cell, scene: Scene) -> Joints:
-    """Paper step 5 hook: pick one arm configuration among `grasp.joint_options`. For now the
-    first option; replace by passing `choose=` to GraspPlanner."""
+def choose_joints(grasp: Grasp, examples: list[GraspExample], cell: Cell, scene: Scene) -> Joints | None:
+    """Paper step 5 hook: pick one arm configuration among `grasp.joint_options`, or None to refuse
+    the grasp (the planner then takes the next best). For now the first option; replace it by
+    passing `choose=` to GraspPlanner (e.g. around `cell.configuration.choose_configuration`)."""
     return grasp.joint_options[0]
 
 
@@ -194,8 +195,19 @@ class GraspPlanner:
             ranked.append(Grasp(target.id, contacts[q], normals[q], centers[q], P.axis_deg(pk), float(openings[q]),
                                 gz, joints_of(P, pk), None, float(dist[o]), G[q], self.model.example_ids[ex_idx[o]],
                                 (int(ij[q, 0]), int(ij[q, 1]))))
+        # Step 5's hook may refuse a grasp (None: no configuration clears the parts): take the
+        # next best, as the paper's "retry with the next grasp".
+        refused = 0
+        while ranked:
+            ranked[0].joints = self.choose(ranked[0], self.examples, cell, scene)
+            if ranked[0].joints is not None:
+                break
+            ranked.pop(0)
+            refused += 1
+        counts["configuration_refused"] = refused
+        if not ranked:
+            fail(f"no arm configuration for any of the {refused} valid contact sets (step 5 refused them all)")
         best = ranked[0]
-        best.joints = self.choose(best, self.examples, cell, scene)
         for g in ranked[1:]:
             g.joints = g.joint_options[0]
         times["select"] = (time.perf_counter() - t0) * 1e3

@@ -7,6 +7,8 @@ from dataclasses import dataclass, fields, replace
 
 from cell.errors import BadInput
 
+MIN_STEP_MM = 0.5
+
 
 @dataclass(frozen=True)
 class SynthesisParams:
@@ -35,8 +37,9 @@ class SynthesisParams:
                 raise BadInput(f"synthesis parameter {f.name} must be a finite number, got {v}")
             elif isinstance(v, (int, float)) and v < 0:
                 raise BadInput(f"synthesis parameter {f.name} must not be negative, got {v}")
-        if self.step_mm <= 0:
-            raise BadInput("synthesis parameter step_mm must be positive")
+        if self.step_mm < MIN_STEP_MM:
+            raise BadInput(f"synthesis parameter step_mm must be at least {MIN_STEP_MM:g} mm (all pairs of "
+                           f"points are formed: a finer step costs memory with the square), got {self.step_mm:g}")
         if self.n_contacts != 2:
             raise BadInput(f"this cell's gripper has two jaws: n_contacts must be 2, got {self.n_contacts}")
 

@@ -138,12 +138,15 @@ def test_the_plan_moves_with_the_part(part):
     are the first pose's contacts moved along (up to the part's own symmetry)."""
     planner = GraspPlanner(CELL, shapes.hand_made_examples())
     ref = None
+    c0 = np.asarray(part.polygon.centroid.coords[0])
+    # a finger-high neighbour and a palm-high one, moved with the part (rotated about its centre)
+    others = [shapes.rectangle("n1", 12, 30, center=c0 + (48, 10), z_top_mm=25),
+              shapes.rectangle("n2", 30, 20, center=c0 + (-10, -75), z_top_mm=80)]
     for dx, dy, th in ((0, 0, 0), (-80, 150, 37), (60, -170, -121), (120, 90, 180)):
         moved = part.moved(dx, dy, th)
-        res = planner.plan(Scene((moved,), "p"))
+        res = planner.plan(Scene((moved, *(o.moved(dx, dy, th, about=c0) for o in others)), "p"))
         stage_counts = {k: v for k, v in res.counts.items() if k != "exact_checks"}
         # the chosen contacts, in the part's own frame
-        c0 = np.asarray(part.polygon.centroid.coords[0])
         t = np.radians(th)
         rot = np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
         local = (res.grasp.contacts_mm - c0 - (dx, dy)) @ rot

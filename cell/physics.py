@@ -268,6 +268,28 @@ def check_grasp(part: Part, contacts_mm, axis_deg: float | None = None, grasp_z_
                       extra={"ratios": ratios, "grasp_z_mm": grasp_z_mm})
 
 
+def close_jaws(part: Part, centre_mm, axis_deg: float, opening_mm: float, grasp_z_mm: float | None = None,
+               cell: Cell | None = None) -> float | None:
+    """The width the simulated gripper reports when its jaws, open at `opening_mm` around
+    `centre_mm` along `axis_deg`, close on `part` (None: they close on nothing).
+
+    The pads stop at the first material of the part inside their 12 mm band (see
+    `check_grasp`); a part outside the band or above the pads leaves the jaws closing fully.
+    """
+    cell = cell or default_cell()
+    g = cell.gripper
+    a = np.array([math.cos(math.radians(axis_deg)), math.sin(math.radians(axis_deg))])
+    half = max(opening_mm / 2 - g.approach_clearance_mm, 1e-3)
+    c = np.asarray(centre_mm, float)
+    v = check_grasp(part, [c - half * a, c + half * a], axis_deg, grasp_z_mm, (), cell)
+    if v.jaw_width_mm is None:
+        return None
+    zg = default_grasp_z_mm(part.z_bottom_mm, part.z_top_mm, g) if grasp_z_mm is None else grasp_z_mm
+    if min(zg + g.pad_height_mm, part.z_top_mm) <= max(zg, part.z_bottom_mm):
+        return None
+    return v.jaw_width_mm
+
+
 def gripper_footprint(contacts_mm, jaw_width_mm: float | None = None, cell: Cell | None = None):
     """Plan-view footprints (fingers closed at the contacts, palm) of a grasp, base frame.
 

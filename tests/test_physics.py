@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from shapely.geometry import Point
 
-from cell.physics import MU, check_grasp, lift_clear, part_mass_g
+from cell.physics import MU, check_grasp, close_jaws, lift_clear, part_mass_g
 from cell.scene import Part
 
 
@@ -130,3 +130,11 @@ def test_lift_clear():
     # the gripper holding it across x: its right finger (x 340..350) meets the tall neighbour
     g = lift_clear(cover, [base, beside], contacts_mm=[[300, 0], [340, 0]])
     assert not g.ok and "finger" in g.reasons[0]
+
+
+def test_close_jaws_reports_what_the_gripper_would_measure():
+    assert close_jaws(SQUARE, (320, 0), 0.0, 60.0) == pytest.approx(40.0)
+    assert close_jaws(SQUARE, (320, 0), 90.0, 60.0) == pytest.approx(40.0)
+    assert close_jaws(SQUARE, (320, 30), 0.0, 60.0) is None  # band beside the part: closes on air
+    assert close_jaws(SQUARE, (320, 0), 0.0, 60.0, grasp_z_mm=15.0) is None  # pads above the part
+    assert close_jaws(SQUARE.moved(0, 0, 45), (320, 0), 0.0, 70.0) == pytest.approx(40 * np.sqrt(2), abs=1e-6)

@@ -29,13 +29,37 @@ def bench_scenes():
     tall = shapes.rectangle("tall", 40, 40, (300, 150), 0, z_top_mm=40)
     low = shapes.rectangle("low", 30, 60, (250, 100), 0, z_top_mm=0.5)
     wall = shapes.rectangle("wall", 20, 120, (340, 100), 0, z_top_mm=80)
-    return [("bar-300pts", Scene((bar,), "bar")),
+    scenes = [("bar-300pts", Scene((bar,), "bar")),
             ("gear", Scene((gear,), "gear")),
             ("ring-with-hole", Scene((ring,), "ring")),
             ("ell", Scene((ell,), "ell")),
             ("box-among-neighbours", Scene((box, tall, low, wall), "box")),
             ("bar-among-neighbours", Scene((bar, shapes.rectangle("post", 30, 30, (350, 50), 0, z_top_mm=60),
                                             shapes.rectangle("plate", 80, 40, (430, -45), 0, z_top_mm=3)), "bar"))]
+    return scenes + library_scenes()
+
+
+def library_scenes():
+    """Parts of the parts library and the first step of each shipped assembly, when present."""
+    import importlib.util
+    from importlib import resources
+    from pathlib import Path
+
+    from cell.scene import Scene, load_assembly
+
+    out = []
+    if importlib.util.find_spec("cell.parts_library") is not None:
+        from cell import parts_library as lib
+
+        names = {p.id for p in lib.parts()}
+        for name, (x, y, th) in (("plate_holes_l", (330, 40, 25)), ("heatsink_m", (400, -80, -40)),
+                                 ("spur_gear_xl", (300, 120, 10))):
+            if name in names:
+                out.append((f"library:{name}", Scene((lib.place(lib.part(name), x, y, th),), name)))
+    folder = Path(str(resources.files("cell") / "data" / "assemblies"))
+    for path in sorted(folder.glob("*.json")) if folder.is_dir() else []:
+        out.append((f"assembly:{path.stem}:step0", load_assembly(path).scene_at(0)))
+    return out
 
 
 def run(args) -> int:

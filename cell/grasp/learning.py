@@ -9,7 +9,12 @@ How an example teaches (paper: the operator grasps parts in a simulation environ
 - Tree 2 (sets). Each example is one set, labelled by `valid`, with its global attributes
   measured at the contacts projected onto the outline; it is augmented with its
   neighbouring sets (each contact shifted by -k..k steps along the outline, all
-  combinations), which a pad 6 steps wide could not tell apart.
+  combinations), which a pad 6 steps wide could not tell apart. A rejected example that
+  names a bad contact (`contact_valid` has a false) was rejected for that contact: tree 1
+  learns it, and it is not a negative set for tree 2, because its global attributes may be
+  those of a good set (a centred, antipodal grasp across the wrong faces looks, globally,
+  exactly like the centred grasp across the right ones; as a negative set it would
+  contradict the accepted example and cancel it).
 - Selection uses the accepted examples' own (unaugmented) global attributes.
 Trees are rebuilt from the example file on every start (milliseconds): no pickles.
 """
@@ -116,16 +121,33 @@ class AttributeTree:
         return cls.astype(bool)
 
     def _path_rules(self):
-        """[(leaf node, [condition strings], verdict, n_samples, share of the verdict)]."""
+        """[(leaf nodes, [condition strings], verdict, n_samples, share of the verdict)], one per rule.
+
+        Sibling subtrees whose leaves all give the same verdict are merged into one rule (the
+        split does not change the decision, only the purity), so every printed rule decides."""
         t = self.tree_.tree_
+        cls = self._leaf_class()
+
+        def verdicts(node):
+            if t.children_left[node] == -1:
+                return {bool(cls[node])}
+            return verdicts(t.children_left[node]) | verdicts(t.children_right[node])
+
+        def leaves(node):
+            if t.children_left[node] == -1:
+                return [node]
+            return leaves(t.children_left[node]) + leaves(t.children_right[node])
+
         out = []
 
         def walk(node, conds):
-            if t.children_left[node] == -1:
-                v = t.value[node, 0]
-                k = int(np.argmax(v))
-                out.append((node, conds, bool(self.tree_.classes_[k]), int(t.n_node_samples[node]),
-                            float(v[k] / max(v.sum(), 1e-12))))
+            v = verdicts(node)
+            if len(v) == 1:
+                ls = leaves(node)
+                n = int(t.n_node_samples[node])
+                w = t.value[node, 0]
+                k = int(np.flatnonzero(self.tree_.classes_ == next(iter(v)))[0])
+                out.append((ls, conds, next(iter(v)), n, float(w[k] / max(w.sum(), 1e-12))))
                 return
             name, thr = self.names[t.feature[node]], t.threshold[node]
             walk(t.children_left[node], conds + [f"{name} <= {thr:.3f}"])
@@ -145,15 +167,22 @@ class AttributeTree:
         if self.tree_ is None:
             return self.rules()[0]
         leaf = int(self.tree_.apply(np.asarray(x, np.float32).reshape(1, -1))[0])
-        for node, c, v, n, share in self._path_rules():
-            if node == leaf:
+        for nodes, c, v, n, share in self._path_rules():
+            if leaf in nodes:
                 return self._format(c, v, n, share)
         raise AssertionError("leaf not found")
 
     @staticmethod
     def _format(conds, verdict, n, share) -> str:
+        # one bound per attribute and side: the tightest along the path
+        bounds: dict = {}
+        for c in conds:
+            name, op, thr = c.split(" ")
+            key, thr = (name, op), float(thr)
+            bounds[key] = thr if key not in bounds else (min if op == "<=" else max)(bounds[key], thr)
+        conds = [f"{name} {op} {thr:.3f}" for (name, op), thr in bounds.items()]
         head = "IF " + " AND ".join(conds) if conds else "ALWAYS"
-        return f"{head} THEN {'valid' if verdict else 'invalid'}  ({n} training rows, {share:.0%} weight)"
+        return f"{head} THEN {'valid' if verdict else 'invalid'}  ({n} training rows, {share:.0%} of their weight)"
 
 
 @dataclass
@@ -181,6 +210,8 @@ def fit_model(examples: list[GraspExample], params: SynthesisParams, half_pad_mm
     shifts = tuple(range(-k, k + 1))
     Xs, ys = [], []
     for ex in examples:
+        if not ex.valid and ex.contact_valid is not None and not all(ex.contact_valid):
+            continue  # rejected for a contact: a point label (tree 1), not a set label
         a = set_attributes_of_example(ex, params, shifts)
         Xs.append(a)
         ys.append(np.full(len(a), ex.valid))

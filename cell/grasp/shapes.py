@@ -67,8 +67,10 @@ def hand_made_examples() -> list:
         GraspExample("hm-rect-off", r, np.array([[362, 15], [362, -15]]), True, src),
         GraspExample("hm-big-mid", big, np.array([[345, 20], [345, -20]]), True, src),
         GraspExample("hm-disc", d, np.array([[370, 0], [330, 0]]), True, src),
+        GraspExample("hm-ring-wall", disc("ring-r30", 30, hole_r_mm=12), np.array([[380, 0], [362, 0]]), True, src),
         GraspExample("hm-rect-corners", r, np.array([[379, 15], [321, -15]]), False, src, (False, False)),
-        GraspExample("hm-rect-ends", r, np.array([[380, 0], [320, 0]]), False, src),
+        GraspExample("hm-rect-ends", r, np.array([[380, 0], [320, 0]]), False, src, (False, False)),
+        GraspExample("hm-rect-skew", r, np.array([[340, 15], [360, -15]]), False, src),
         GraspExample("hm-big-end", big, np.array([[392, 17], [392, -17]]), False, src, (False, False)),
         GraspExample("hm-ell-arm", ell, np.array([(lc[1] + lc[2]) / 2 + [0, 0], (lc[0] + lc[5]) / 2]), False, src),
     ]

@@ -162,7 +162,7 @@ class GraspPlanner:
         counts["exact_checks"] = cr.exact_checks
         times["cascade"] = (time.perf_counter() - t0) * 1e3
         if len(cr.survivors) == 0:
-            fail(self._empty_stage_reason(cr, ctx))
+            fail(self._empty_stage_reason(cr, ctx, P))
 
         t0 = time.perf_counter()
         k = cr.survivors
@@ -198,7 +198,7 @@ class GraspPlanner:
                                {**times, **{f"cascade_{n}": v for n, v in cr.time_ms.items()}}, ctx,
                                cand_index[point_valid])
 
-    def _empty_stage_reason(self, cr: CascadeResult, ctx: Context) -> str:
+    def _empty_stage_reason(self, cr: CascadeResult, ctx: Context, P: Pairs) -> str:
         g, p = self.cell.gripper, self.params
         first = next(n for n in STAGES if cr.kept[n] == 0)
         why = {
@@ -217,6 +217,18 @@ class GraspPlanner:
                                  f"obstacle taller than the grasp z ({', '.join(ctx.finger_obstacle_ids)})",
             "palm": "every remaining pair collides: the palm overlaps an obstacle taller than its bottom",
         }[first]
+        if STAGES.index(first) > STAGES.index("stroke"):
+            # Facing points exist, but none close enough: say so, it is the usual cause.
+            from cell.grasp.cascade import stage_antipodal, stage_stroke
+
+            every = np.arange(len(P))
+            facing = stage_antipodal(ctx, P, every)
+            if facing.any() and not (facing & stage_stroke(ctx, P, every)).any():
+                closest = float(P.d[facing].min())
+                return (f"the part is wider than the gripper's stroke: facing contact points are at least "
+                        f"{closest:.1f} mm apart, the jaws take at most "
+                        f"{g.opening_mm[1] - 2 * g.approach_clearance_mm:g} mm (opening {g.opening_mm[1]:g} mm "
+                        f"minus 2 x {g.approach_clearance_mm:g} mm approach clearance)")
         return f"no reachable pair ({first} stage): {why}"
 
     def rules(self) -> dict:

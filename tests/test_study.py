@@ -65,3 +65,18 @@ def test_rbf_network_degenerate_input(bad):
     y = np.array([0, 1, 0, 1, 0])
     model = RBFNetwork(n_centres=4).fit(bad, y)  # all points equal: one centre, still predicts
     assert model.predict(bad).shape == (5,)
+
+
+def test_label_noise_flips_the_asked_share(tmp_path, capsys):
+    from cell.study.data import with_label_noise
+
+    ds = point_dataset(200, seed=1)
+    noisy = with_label_noise(ds, 0.2, seed=1)
+    assert 0.1 < np.mean(noisy.y != ds.y) < 0.3 and np.array_equal(noisy.X, ds.X)
+    assert with_label_noise(ds, 0.0) is ds
+    code, _, err = run_cli("study", "--label-noise", "0.7", "--out", tmp_path, capsys=capsys)
+    assert code == 2 and "--label-noise" in err
+    f = tmp_path / "file"
+    f.write_text("x")
+    code, _, err = run_cli("study", "--budget", "tiny", "--out", f, capsys=capsys)
+    assert code == 2 and "not a folder" in err

@@ -17,7 +17,7 @@ of accepted points and sets are reported alongside.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -123,3 +123,12 @@ def set_dataset(n: int = 400, seed: int = 0, cell: Cell | None = None,
     X, y = np.vstack(rows), np.array(labels, bool)
     Xb, yb = _balanced(X, y, n, rng)
     return Dataset("sets", Xb, yb, global_names(params.scales_mm), float(y.mean()), n_parts)
+
+
+def with_label_noise(ds: Dataset, share: float, seed: int = 0) -> Dataset:
+    """The data set with `share` of its labels flipped at random (a less consistent labeller)."""
+    if share <= 0:
+        return ds
+    rng = np.random.default_rng(seed + 7)
+    flip = rng.random(len(ds.y)) < share
+    return replace(ds, y=ds.y ^ flip, name=ds.name)

@@ -154,7 +154,7 @@ def comparison_text(results: dict[str, ProblemResult]) -> str:
 
 
 def write_report(results: dict[str, ProblemResult], out_dir: str | Path, budget: Budget, seed: int,
-                 elapsed_s: float) -> list[Path]:
+                 elapsed_s: float, label_noise: float = 0.0) -> list[Path]:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     pngs = []
@@ -165,7 +165,7 @@ def write_report(results: dict[str, ProblemResult], out_dir: str | Path, budget:
           f"Reproduces the comparison of the paper (sections 4.2 and 6.2) on data labelled by the simulated "
           f"operator. Budget: {budget.n} examples per problem, {budget.folds}-fold cross-validation, "
           f"training sizes {', '.join(map(str, budget.sizes))} ({budget.repeats} draws each), seed {seed}; "
-          f"run time {elapsed_s:.0f} s.", "",
+          f"labels flipped at random: {100 * label_noise:.0f} %; run time {elapsed_s:.0f} s.", "",
           "## Headline", "", headline_table(results), "",
           "## Compared with the paper", "", comparison_text(results), ""]
     for name, r in results.items():
@@ -195,7 +195,7 @@ def write_report(results: dict[str, ProblemResult], out_dir: str | Path, budget:
                                       "size": r.size[m][0], "size_unit": r.size[m][1]} for m in METHODS}}
                for name, r in results.items()}
     summary["budget"] = {"n": budget.n, "folds": budget.folds, "sizes": list(budget.sizes),
-                         "repeats": budget.repeats, "seed": seed}
+                         "repeats": budget.repeats, "seed": seed, "label_noise": label_noise}
     write_json_atomic(out / "results.json", summary)
     return [report, out / "results.json", *(out / p for p in pngs)]
 

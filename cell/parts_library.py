@@ -237,7 +237,7 @@ def rack(size: str, l: float, w: float, t: float) -> Part:
 
 def hex_nut(size: str, af: float, t: float) -> Part:
     """A hex nut (across flats `af`) with its thread bore."""
-    g = _ngon(6, af).difference(_circle(af * 0.42, segs=6))
+    g = _ngon(6, af).difference(_circle(af * 0.32, segs=6))  # bore ~ thread size (M16: 24 AF, 16 bore)
     return _finish(g, f"hex_nut_{size}", "nut", size, t, "steel")
 
 
@@ -256,7 +256,7 @@ def wing_nut(size: str, span: float, t: float) -> Part:
 
 def flange_nut(size: str, af: float, t: float) -> Part:
     """A hex flange nut: the flange's round outline is what shows from above."""
-    g = _circle(af * 0.72, segs=10).difference(_circle(af * 0.42, segs=6))
+    g = _circle(af * 0.72, segs=10).difference(_circle(af * 0.32, segs=6))
     return _finish(g, f"flange_nut_{size}", "nut", size, t, "steel")
 
 

@@ -72,17 +72,17 @@ def _round_part(p: Part) -> Part:
 
 RECIPES: dict[str, dict] = {
     # What `cell run` disassembles: six parts lying side by side on the tray (no stacking, so
-    # the camera sees every outline), gaps of 3-5 mm, tall (dark grey) and flat (light grey)
-    # neighbours mixed.
+    # the camera sees every outline), gaps of 6 mm (tight for the 10 mm fingers, wide enough
+    # for the camera's ~0.9 mm pixels), tall (dark grey) and flat (light grey) neighbours mixed.
     "default": dict(
         name="default: six parts side by side on the tray",
         steps=[
             Step("housing", "box_housing_m", 0.0, at=(360.0, 60.0)),
-            Step("cover", "cover_rect_s", 90.0, beside="housing", direction_deg=180.0, gap_mm=4.0),
-            Step("pcb", "pcb_s", 0.0, beside="housing", direction_deg=-90.0, gap_mm=5.0),
-            Step("washer", "washer_m24", 0.0, beside="pcb", direction_deg=-160.0, gap_mm=3.0),
-            Step("nut", "hex_nut_m16", 15.0, beside="pcb", direction_deg=-40.0, gap_mm=4.0),
-            Step("pulley", "pulley_s", 0.0, beside="housing", direction_deg=0.0, gap_mm=3.0),
+            Step("cover", "cover_rect_s", 90.0, beside="housing", direction_deg=180.0, gap_mm=6.0),
+            Step("pcb", "pcb_s", 0.0, beside="housing", direction_deg=-90.0, gap_mm=6.0),
+            Step("washer", "washer_m24", 0.0, beside="pcb", direction_deg=-160.0, gap_mm=6.0),
+            Step("nut", "hex_nut_m16", 15.0, beside="pcb", direction_deg=-40.0, gap_mm=6.0),
+            Step("pulley", "pulley_s", 0.0, beside="housing", direction_deg=0.0, gap_mm=6.0),
         ],
         sequence=["nut", "pulley", "housing", "pcb", "washer", "cover"],
     ),

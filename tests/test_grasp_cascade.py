@@ -3,6 +3,8 @@ ones would, and what survives is really reachable and collision-free."""
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from shapely.geometry import Point
 
 from cell.cellconfig import default_cell
@@ -195,3 +197,41 @@ def test_a_target_enclosed_by_neighbours_has_no_free_outline():
     with pytest.raises(NoFeasibleGrasp, match="no free outline") as e:
         permissive_planner().plan(ring_scene)
     assert e.value.counts["candidates"] == 0
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(w=st.floats(20, 70), h=st.floats(15, 45), angle=st.floats(-90, 90),
+       obstacles=st.lists(st.tuples(st.floats(-60, 60), st.floats(-60, 60), st.floats(8, 40), st.floats(8, 40),
+                                    st.floats(0.2, 90)), max_size=3))
+def test_random_scenes_survivors_are_collision_free_and_match_the_brute_force(w, h, angle, obstacles):
+    target = shapes.rectangle("t", w, h, center=(350, 0), angle_deg=angle, z_top_mm=15)
+    others = []
+    for n, (dx, dy, ow, oh, top) in enumerate(obstacles):
+        o = shapes.rectangle(f"o{n}", ow, oh, center=(350 + dx, dy), z_top_mm=top)
+        if not o.polygon.intersects(target.polygon):
+            others.append(o)
+    P, cr, ctx = cascade_for(target, others)
+    fresh = Pairs(P.ij, P.pi, P.pj, P.ni, P.nj, P.d, P.u, P.m, P.t, P.ci * np.nan, P.cj * np.nan,
+                  P.center * np.nan, P.h * np.nan, {}, P.si)
+    br = run_brute_force(ctx, fresh)
+    assert np.array_equal(np.sort(cr.survivors), np.sort(br.survivors))
+    gz = ctx.grasp_z_mm
+    tall = [o.polygon for o in others if o.z_top_mm > gz]
+    palm_tall = [o.polygon for o in others if o.z_top_mm > gz + CELL.gripper.palm_offset_mm]
+
+    class G:  # the grasp geometry of a surviving pair, as the footprint functions read it
+        pass
+
+    for k in cr.survivors[:40]:
+        g = G()
+        g.contacts_mm = np.stack([P.ci[k], P.cj[k]])
+        g.center_mm = P.center[k]
+        g.axis_deg = P.axis_deg(k)
+        g.opening_mm = 2 * P.h[k]
+        for c in g.contacts_mm:
+            assert target.polygon.boundary.distance(Point(c)) < 0.6
+        for fp in swept_finger_footprints(g, CELL):
+            assert not any(fp.intersects(o) for o in tall)
+            assert fp.intersection(target.polygon).area < 0.6 * CELL.gripper.pad_width_mm
+        assert not any(palm_footprint(g, CELL).intersects(o) for o in palm_tall)
+        assert P.joints[int(k)]

@@ -168,3 +168,17 @@ def test_bench_grasp_reports_the_cascade_against_the_brute_force(examples, capsy
     assert summary["all_same_pairs"] is True
     done = [r for r in rows[:-1] if "speedup" in r]
     assert done and all(r["exact_checks_cascade"] < r["exact_checks_brute"] for r in done)
+
+
+@pytest.mark.parametrize("opt", [["--step-mm", "0"], ["--step-mm", "nan"], ["--gap-mm", "-1"]])
+def test_bad_synthesis_options_are_bad_input(scene, examples, opt, capsys):
+    code, out, err = run_cli("grasp", scene, "--json", "--examples", examples, *opt, capsys=capsys)
+    assert code == 2 and "synthesis parameter" in err and out == ""
+
+
+def test_explain_names_the_outline_that_touches_a_neighbour(tmp_path, examples, capsys):
+    box = shapes.rectangle("box", 50, 30, (300, 100), 0)
+    touching = shapes.rectangle("n", 20, 30, (300 + 25 + 10 + 0.5, 100), 0, z_top_mm=10)
+    path = write_scene(tmp_path / "touch.json", [box, touching], "box")
+    code, out, err = run_cli("grasp", path, "--examples", examples, "--explain", capsys=capsys)
+    assert code == 0 and "not a candidate: 17 outline points within 1.5 mm" in out  # face + 1 past each corner

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from cell.cellconfig import default_cell
-from cell.errors import BadInput
+from cell.errors import BadInput, NoFeasibleGrasp
 from cell.examples import GraspExample, append_examples, load_examples
 from cell.grasp import shapes
 from cell.grasp.learning import fit_model, point_training, set_attributes_of_example
@@ -128,3 +128,80 @@ def test_the_chosen_set_is_the_valid_set_nearest_to_an_accepted_example():
     # the same part as an example: the nearest set is that example's own grasp, at distance ~0
     assert res.grasp.distance_to_example < 0.05
     assert np.allclose(sorted(res.grasp.contacts_mm[:, 0]), [320, 320], atol=2.1)
+
+
+@pytest.mark.parametrize("part", [shapes.l_shape("p", 70, 50, 18), shapes.gear("p", 28, 10, 3),
+                                  shapes.disc("p", 30, hole_r_mm=12)])
+def test_the_plan_moves_with_the_part(part):
+    """Attributes, trees and cascade do not depend on where the part lies on the tray: the same
+    set sizes at every stage and the same best distance to the examples, and the chosen contacts
+    are the first pose's contacts moved along (up to the part's own symmetry)."""
+    planner = GraspPlanner(CELL, shapes.hand_made_examples())
+    ref = None
+    c0 = np.asarray(part.polygon.centroid.coords[0])
+    # a finger-high neighbour and a palm-high one, moved with the part (rotated about its centre)
+    others = [shapes.rectangle("n1", 12, 30, center=c0 + (48, 10), z_top_mm=25),
+              shapes.rectangle("n2", 30, 20, center=c0 + (-10, -75), z_top_mm=80)]
+    for dx, dy, th in ((0, 0, 0), (-80, 150, 37), (60, -170, -121), (120, 90, 180)):
+        moved = part.moved(dx, dy, th)
+        res = planner.plan(Scene((moved, *(o.moved(dx, dy, th, about=c0) for o in others)), "p"))
+        stage_counts = {k: v for k, v in res.counts.items() if k != "exact_checks"}
+        # the chosen contacts, in the part's own frame
+        t = np.radians(th)
+        rot = np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
+        local = (res.grasp.contacts_mm - c0 - (dx, dy)) @ rot
+        if ref is None:
+            ref = (stage_counts, res.grasp.distance_to_example, res)
+            continue
+        assert stage_counts == ref[0]
+        assert res.grasp.distance_to_example == pytest.approx(ref[1], abs=1e-6)
+        # every ranked grasp of the first pose, moved, has a twin here
+        ref_local = [np.sort((g.contacts_mm - c0).round(3), axis=0) for g in ref[2].ranked]
+        assert any(np.allclose(np.sort(local, axis=0), r, atol=1e-3) for r in ref_local)
+
+
+def test_when_tree_2_rejects_every_reachable_set_there_is_no_grasp():
+    examples = [ex("c", [[350, 15], [350, -15]], True), ex("c2", [[352, 15], [352, -15]], True),
+                ex("off1", [[362, 15], [362, -15]], False), ex("off2", [[372, 15], [372, -15]], False),
+                ex("off3", [[338, 15], [338, -15]], False), ex("ends", [[380, 0], [320, 0]], False, (False, False))]
+    planner = GraspPlanner(CELL, examples)
+    free = Scene((RECT,), "r")
+    assert abs(planner.plan(free).grasp.center_mm[0] - 350) < 2.1  # centred when it can be
+    # posts (finger-high, under the palm) 5 mm off the middle of both long faces: only off-centre grasps remain
+    posts = [shapes.rectangle(f"post{k}", 4, 10, center=(350, s * (15 + 5 + 5)), z_top_mm=30)
+             for k, s in ((0, 1), (1, -1))]
+    blocked = Scene((RECT, *posts), "r")
+    with pytest.raises(NoFeasibleGrasp, match="tree 2 rejects all") as e:
+        planner.plan(blocked)
+    assert e.value.counts["reachable"] > 0 and e.value.counts["valid_sets"] == 0
+
+
+def test_global_attributes_take_any_number_of_contacts():
+    from cell.grasp.attributes import describe_points, global_attributes
+    from cell.grasp.outline import part_rings
+
+    disc = shapes.disc("d", 30, center=(0, 0), n=180)
+    rings = part_rings(disc)
+    L = rings[0].length_mm
+    op = describe_points(rings, [0] * 3, [0, L / 3, 2 * L / 3], PARAMS.scales_mm)
+    G = global_attributes(op.points[None], op.chord_normals[None], disc)
+    G_swapped = global_attributes(op.points[None, ::-1], op.chord_normals[None, ::-1], disc)
+    assert np.allclose(G, G_swapped)
+    assert G[0, 0] == pytest.approx(0, abs=1e-6)  # three contacts 120 degrees apart: centred
+    assert np.all(G[0, 2:] < 1.0)  # each pushes straight at the reference point
+
+
+def test_a_step_5_hook_that_refuses_a_grasp_gets_the_next_best():
+    seen = []
+
+    def refuse_first_two(grasp, examples, cell, scene):
+        seen.append(grasp)
+        return None if len(seen) <= 2 else grasp.joint_options[-1]
+
+    base = GraspPlanner(CELL, faces_examples()).plan(Scene((RECT,), "r"))
+    res = GraspPlanner(CELL, faces_examples(), choose=refuse_first_two).plan(Scene((RECT,), "r"))
+    assert res.counts["configuration_refused"] == 2
+    assert np.array_equal(res.grasp.contacts_mm, base.ranked[2].contacts_mm)
+    assert res.grasp.joints == res.grasp.joint_options[-1] and len(res.ranked) == len(base.ranked) - 2
+    with pytest.raises(NoFeasibleGrasp, match="step 5"):
+        GraspPlanner(CELL, faces_examples(), choose=lambda *a: None).plan(Scene((RECT,), "r"))

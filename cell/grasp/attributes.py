@@ -19,6 +19,8 @@ import numpy as np
 from cell.grasp.outline import Ring, centre_of_gravity, reference_radius_mm
 from cell.scene import Part
 
+NORMAL_CHORD_MM = 0.25  # half-length of the chord that gives a point's normal
+
 
 def local_names(scales_mm) -> list[str]:
     return ["dist_cog_mm", "dist_cog_rel"] + [f"convexity_{s:g}mm" for s in scales_mm]
@@ -35,7 +37,7 @@ def global_names(scales_mm) -> list[str]:
 class OutlinePoints:
     """Points on a part's outline with what the attributes need.
 
-    points (z, 2) mm; normals (z, 2) outward unit normals of the edge under each point;
+    points (z, 2) mm; normals (z, 2) outward unit normals of the outline at each point;
     chord_normals (z, S, 2) outward unit normals of the chord from arc - s to arc + s, one
     per scale s (a smoothed normal at that scale); convexity (z, S); ring (z,) int; arc_mm (z,).
     """
@@ -69,7 +71,12 @@ def describe_points(rings: list[Ring], ring_idx, arc_mm, scales_mm) -> OutlinePo
             continue
         s = arc_mm[m]
         p = ring.at(s)
-        pts[m], nrm[m] = p, ring.edge_normals(s)
+        # the normal of a short chord: the edge's normal, and the mean of both edges' normals at a vertex
+        # (a sample may fall on a vertex; which edge holds it would then be float noise)
+        e = min(NORMAL_CHORD_MM, ring.length_mm / 4)
+        d = ring.at(s + e) - ring.at(s - e)
+        n = np.stack([d[:, 1], -d[:, 0]], -1)
+        pts[m], nrm[m] = p, n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
         # A scale longer than half the ring would wrap round: cap it (small holes).
         sc = np.minimum(scales, ring.length_mm / 2.0 * 0.999)
         a = ring.at(s[:, None] - sc[None, :])  # (k, S, 2)

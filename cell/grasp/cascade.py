@@ -41,6 +41,10 @@ STAGES = ("stroke", "reach", "antipodal", "precheck", "contacts", "ik", "fingers
 EXACT_STAGES = ("contacts", "ik", "fingers_obstacles", "palm")
 PAD_COMPLIANCE_MM = 0.5  # material this close to the first-touch line touches the pad too
 CHEAP_MARGIN_MM = 2.0
+# Comparisons against a tolerance allow this much float noise, so that the verdict on a pair
+# does not depend on where the part lies (mid-step samples on parallel faces sit exactly
+# contact_tol apart across the axis).
+EPS_MM = 1e-6
 Z_EPS_MM = 1e-6
 
 
@@ -150,7 +154,7 @@ class Pairs:
 def stage_stroke(ctx: Context, P: Pairs, idx) -> np.ndarray:
     g = ctx.cell.gripper
     d = P.d[idx]
-    return (d >= g.opening_mm[0]) & (d + 2 * g.approach_clearance_mm <= g.opening_mm[1])
+    return (d >= g.opening_mm[0] - EPS_MM) & (d + 2 * g.approach_clearance_mm <= g.opening_mm[1] + EPS_MM)
 
 
 def stage_reach(ctx: Context, P: Pairs, idx) -> np.ndarray:
@@ -167,13 +171,13 @@ def stage_antipodal(ctx: Context, P: Pairs, idx) -> np.ndarray:
     c = math.cos(math.radians(ctx.params.max_normal_angle_deg))
     u = P.u[idx]
     lateral = 0.5 * np.abs(w[:, 0] * u[:, 1] - w[:, 1] * u[:, 0]) * P.d[idx]
-    return (((P.ni[idx] * w).sum(1) >= c) & ((P.nj[idx] * -w).sum(1) >= c)
-            & (lateral <= ctx.params.contact_tol_mm))
+    return (((P.ni[idx] * w).sum(1) >= c - 1e-9) & ((P.nj[idx] * -w).sum(1) >= c - 1e-9)
+            & (lateral <= ctx.params.contact_tol_mm + EPS_MM))
 
 
 def stage_precheck(ctx: Context, P: Pairs, idx) -> np.ndarray:
     """Conservative: a point that every exact footprint of this pair would cover lies inside
-    material (see the module docstring of the proof sketch in docs/grasp.md)."""
+    material, or the outline next to a point juts out into its pad's band (docs/grasp.md)."""
     g = ctx.cell.gripper
     m, u, t = P.m[idx], P.u[idx], P.t[idx]
     tol = ctx.params.contact_tol_mm
@@ -213,7 +217,8 @@ def _outline_ahead(ctx: Context, P: Pairs, idx) -> np.ndarray:
         us = side * u
         tq = (d * us[:, None, :]).sum(-1)
         lq = d[..., 0] * -us[:, None, 1] + d[..., 1] * us[:, None, 0]
-        hit |= ((np.abs(lq) <= hw) & (tq <= t_max[:, None]) & (tq > t[:, None] + tol)).any(1)
+        hit |= ((np.abs(lq) <= hw - EPS_MM) & (tq <= t_max[:, None] - EPS_MM)
+                & (tq > t[:, None] + tol + EPS_MM)).any(1)
     return hit
 
 
@@ -229,8 +234,8 @@ def first_touch(ctx: Context, centers: np.ndarray, us: np.ndarray, t_min: np.nda
     target's edges clipped to the band (Liang-Barsky, vectorised over the (band, edge) pairs whose
     bounding boxes an STRtree finds overlapping) and, when the band's far corners lie inside the
     target, by its far side. Returns T (b,), the largest
-    distance along us of material in the band (-inf: none), and the touching point (b, 2): the
-    mean of the material's vertices within PAD_COMPLIANCE_MM of T.
+    distance along us of material in the band (-inf: none), and the touching point (b, 2): on the
+    first-touch line, in the middle (across the axis) of the material within PAD_COMPLIANCE_MM of it.
     """
     b = len(centers)
     vs = np.stack([-us[:, 1], us[:, 0]], -1)
@@ -265,12 +270,17 @@ def first_touch(ctx: Context, centers: np.ndarray, us: np.ndarray, t_min: np.nda
     T[far_in] = np.maximum(T[far_in], t_max[far_in])
     touch = np.full((b, 2), np.nan)
     if len(bi):
+        # the touching material: within PAD_COMPLIANCE_MM of the first touch; the contact is the
+        # middle of its extent across the axis, at the first-touch line (robust to edges that
+        # run along the band's side, which a mean of vertices is not)
         near = tt >= T[bi] - PAD_COMPLIANCE_MM
+        nb = bi[near]
         xy = A[idx[near]] + s[near, None] * (B - A)[idx[near]]
-        cnt = np.bincount(bi[near], minlength=b)
-        with np.errstate(invalid="ignore"):
-            sx, sy = np.bincount(bi[near], xy[:, 0], b), np.bincount(bi[near], xy[:, 1], b)
-            touch = np.column_stack([sx, sy]) / cnt[:, None]
+        lat = ((xy - centers[nb]) * vs[nb]).sum(1)
+        starts = np.flatnonzero(np.r_[True, nb[1:] != nb[:-1]])
+        lo_l, hi_l = np.minimum.reduceat(lat, starts), np.maximum.reduceat(lat, starts)
+        g = nb[starts]
+        touch[g] = centers[g] + us[g] * T[g, None] + vs[g] * (0.5 * (lo_l + hi_l))[:, None]
     return T, touch
 
 
@@ -289,12 +299,12 @@ def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     vs = np.stack([-us[:, 1], us[:, 0]], -1)
     lateral = np.abs(((c - centers) * vs).sum(1))
     with np.errstate(invalid="ignore"):
-        ok2 = np.isfinite(lateral) & (T <= tt + tol) & (lateral <= tol)
+        ok2 = np.isfinite(lateral) & (T <= tt + tol + EPS_MM) & (lateral <= tol + EPS_MM)
     ok = ok2[:k] & ok2[k:]
     ci, cj = c[:k], c[k:]
     h = 0.5 * ((ci - cj) * u).sum(1)
     with np.errstate(invalid="ignore"):
-        ok &= (2 * h >= g.opening_mm[0]) & (2 * h + 2 * g.approach_clearance_mm <= g.opening_mm[1])
+        ok &= (2 * h >= g.opening_mm[0] - EPS_MM) & (2 * h + 2 * g.approach_clearance_mm <= g.opening_mm[1] + EPS_MM)
     P.ci[idx], P.cj[idx] = ci, cj
     P.center[idx] = 0.5 * (ci + cj)
     P.h[idx] = h

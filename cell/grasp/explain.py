@@ -30,6 +30,12 @@ def explain(result, planner, n_samples: int = 3, seed: int = 0) -> list[str]:
     lines.append(f"chosen set: tree 2 {st.rule_for(g.global_attributes)}")
     lines.append(f"chosen set: nearest accepted example {g.nearest_example} at distance "
                  f"{g.distance_to_example:.3f} (normalised global attributes)")
+    if result.outline is not None and not result.free.all():
+        blocked = np.flatnonzero(~result.free)
+        i = int(rng.choice(blocked))
+        lines.append(f"not a candidate: {int((~result.free).sum())} outline points within "
+                     f"{planner.params.free_gap_mm:g} mm of another part, e.g. "
+                     f"{np.round(result.outline.points[i], 2).tolist()} (contact is not free area)")
     bad = np.flatnonzero(~result.point_valid)
     for i in rng.choice(bad, size=min(n_samples, len(bad)), replace=False) if len(bad) else []:
         lines.append(f"rejected point {np.round(result.candidates.points[i], 2).tolist()}: tree 1 "

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields, replace
 
 from cell.errors import BadInput
+
+MIN_STEP_MM = 0.5
 
 
 @dataclass(frozen=True)
@@ -28,12 +31,15 @@ class SynthesisParams:
         for f in fields(self):
             v = getattr(self, f.name)
             if f.name == "scales_mm":
-                if len(v) < 3 or any(s <= 0 for s in v):
+                if len(v) < 3 or any(not (s > 0 and math.isfinite(s)) for s in v):
                     raise BadInput("synthesis parameter scales_mm needs at least three positive scales (mm)")
+            elif isinstance(v, (int, float)) and not math.isfinite(v):
+                raise BadInput(f"synthesis parameter {f.name} must be a finite number, got {v}")
             elif isinstance(v, (int, float)) and v < 0:
                 raise BadInput(f"synthesis parameter {f.name} must not be negative, got {v}")
-        if self.step_mm <= 0:
-            raise BadInput("synthesis parameter step_mm must be positive")
+        if self.step_mm < MIN_STEP_MM:
+            raise BadInput(f"synthesis parameter step_mm must be at least {MIN_STEP_MM:g} mm (all pairs of "
+                           f"points are formed: a finer step costs memory with the square), got {self.step_mm:g}")
         if self.n_contacts != 2:
             raise BadInput(f"this cell's gripper has two jaws: n_contacts must be 2, got {self.n_contacts}")
 

@@ -60,9 +60,10 @@ class Grasp:
         return d
 
 
-def choose_joints(grasp: Grasp, examples: list[GraspExample], cell: Cell, scene: Scene) -> Joints:
-    """Paper step 5 hook: pick one arm configuration among `grasp.joint_options`. For now the
-    first option; replace by passing `choose=` to GraspPlanner."""
+def choose_joints(grasp: Grasp, examples: list[GraspExample], cell: Cell, scene: Scene) -> Joints | None:
+    """Paper step 5 hook: pick one arm configuration among `grasp.joint_options`, or None to refuse
+    the grasp (the planner then takes the next best). For now the first option; replace it by
+    passing `choose=` to GraspPlanner (e.g. around `cell.configuration.choose_configuration`)."""
     return grasp.joint_options[0]
 
 
@@ -81,7 +82,10 @@ class SynthesisResult:
     set_valid: np.ndarray  # (s',) tree-2 verdict
     stage_time_ms: dict = field(default_factory=dict)
     context: Context | None = None  # the scene as the cascade saw it (obstacles by height, target edges)
+    outline: OutlinePoints | None = None  # every outline sample, free or not
+    free: np.ndarray | None = None  # (n,) which outline samples are free (the candidates)
     valid_sample_index: np.ndarray | None = None  # (z',) each valid point's index among the outline samples
+    global_attribute_names: list = field(default_factory=list)
 
     @property
     def valid_points(self) -> OutlinePoints:
@@ -103,6 +107,9 @@ class SynthesisResult:
         d["counts"] = dict(self.counts)
         d["time_ms"] = round(self.time_ms, 3)
         d["ranked"] = len(self.ranked)
+        if self.global_attribute_names:
+            d["global_attributes"] = {n: round(float(v), 4) for n, v in
+                                      zip(self.global_attribute_names, self.grasp.global_attributes, strict=True)}
         return d
 
 
@@ -188,15 +195,27 @@ class GraspPlanner:
             ranked.append(Grasp(target.id, contacts[q], normals[q], centers[q], P.axis_deg(pk), float(openings[q]),
                                 gz, joints_of(P, pk), None, float(dist[o]), G[q], self.model.example_ids[ex_idx[o]],
                                 (int(ij[q, 0]), int(ij[q, 1]))))
+        # Step 5's hook may refuse a grasp (None: no configuration clears the parts): take the
+        # next best, as the paper's "retry with the next grasp".
+        refused = 0
+        while ranked:
+            ranked[0].joints = self.choose(ranked[0], self.examples, cell, scene)
+            if ranked[0].joints is not None:
+                break
+            ranked.pop(0)
+            refused += 1
+        counts["configuration_refused"] = refused
+        if not ranked:
+            fail(f"no arm configuration for any of the {refused} valid contact sets (step 5 refused them all)")
         best = ranked[0]
-        best.joints = self.choose(best, self.examples, cell, scene)
         for g in ranked[1:]:
             g.joints = g.joint_options[0]
         times["select"] = (time.perf_counter() - t0) * 1e3
         time_ms = (time.perf_counter() - t_start) * 1e3
         return SynthesisResult(best, ranked, counts, time_ms, cand, L, point_valid, P, cr, G, set_valid,
-                               {**times, **{f"cascade_{n}": v for n, v in cr.time_ms.items()}}, ctx,
-                               cand_index[point_valid])
+                               {**times, **{f"cascade_{n}": v for n, v in cr.time_ms.items()}},
+                               context=ctx, outline=op_all, free=free, valid_sample_index=cand_index[point_valid],
+                               global_attribute_names=global_names(p.scales_mm))
 
     def _empty_stage_reason(self, cr: CascadeResult, ctx: Context, P: Pairs) -> str:
         g, p = self.cell.gripper, self.params
@@ -233,7 +252,3 @@ class GraspPlanner:
 
     def rules(self) -> dict:
         return {"points": self.model.point_tree.rules(), "sets": self.model.set_tree.rules()}
-
-
-def global_attribute_dict(values: np.ndarray, params: SynthesisParams) -> dict:
-    return {n: round(float(v), 4) for n, v in zip(global_names(params.scales_mm), values, strict=True)}

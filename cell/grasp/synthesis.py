@@ -62,9 +62,10 @@ class Grasp:
 
 def choose_joints(grasp: Grasp, examples: list[GraspExample], cell: Cell, scene: Scene) -> Joints | None:
     """Paper step 5 hook: pick one arm configuration among `grasp.joint_options`, or None to refuse
-    the grasp (the planner then takes the next best). For now the first option; replace it by
-    passing `choose=` to GraspPlanner (e.g. around `cell.configuration.choose_configuration`)."""
-    return grasp.joint_options[0]
+    the grasp (the planner then takes the next best). For now the option with the smallest wrist
+    turn |J4| (the first such); replace it by passing `choose=` to GraspPlanner (e.g. around
+    `cell.configuration.choose_configuration`)."""
+    return min(grasp.joint_options, key=lambda q: abs(q.j4_deg))
 
 
 @dataclass(eq=False)
@@ -209,7 +210,7 @@ class GraspPlanner:
             fail(f"no arm configuration for any of the {refused} valid contact sets (step 5 refused them all)")
         best = ranked[0]
         for g in ranked[1:]:
-            g.joints = g.joint_options[0]
+            g.joints = choose_joints(g, self.examples, cell, scene)
         times["select"] = (time.perf_counter() - t0) * 1e3
         time_ms = (time.perf_counter() - t_start) * 1e3
         return SynthesisResult(best, ranked, counts, time_ms, cand, L, point_valid, P, cr, G, set_valid,

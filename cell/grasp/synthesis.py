@@ -211,7 +211,7 @@ class GraspPlanner:
             fail(f"no arm configuration for any of the {refused} valid contact sets (step 5 refused them all)")
         best = ranked[0]
         for g in ranked[1:]:
-            g.joints = g.joint_options[0]
+            g.joints = choose_joints(g, self.examples, cell, scene)
         times["select"] = (time.perf_counter() - t0) * 1e3
         time_ms = (time.perf_counter() - t_start) * 1e3
         return SynthesisResult(best, ranked, counts, time_ms, cand, L, point_valid, P, cr, G, set_valid,

@@ -1,0 +1,47 @@
+"""The driver layer: CANopen CiA 402 drives over python-can, simulated drives, supervision.
+
+    open_bus(interface, channel, bitrate) -> can.BusABC   the bus, built from configuration
+    Arm(bus, cell, clock)                                 the SCARA axes and the gripper
+    sim.serve(bus, cell, clock)                           simulated drives on the same bus
+    clock.SimClock / clock.RealClock                      the time both sides share
+    record.BusRecorder(bus, path)                         python-can logger of all traffic
+
+Data flow: joint command -> limits (drivers.limits) -> counts (codec) -> RPDO / SDO frames
+(drivers.axis) -> bus; TPDO / EMCY / heartbeat frames -> codec -> supervision (drivers.arm).
+"""
+
+from drivers.arm import Arm, Gripper, GripResult
+from drivers.bus import open_bus
+from drivers.clock import RealClock, SimClock
+from drivers.errors import (
+    BusFault,
+    DriveFault,
+    DriverError,
+    FaultLatched,
+    LimitError,
+    MoveTimeout,
+    NodeSilent,
+    NotConnected,
+    SdoError,
+)
+
+CellDrives = Arm
+
+__all__ = [
+    "Arm",
+    "CellDrives",
+    "GripResult",
+    "Gripper",
+    "open_bus",
+    "RealClock",
+    "SimClock",
+    "BusFault",
+    "DriveFault",
+    "DriverError",
+    "FaultLatched",
+    "LimitError",
+    "MoveTimeout",
+    "NodeSilent",
+    "NotConnected",
+    "SdoError",
+]

@@ -1,0 +1,331 @@
+"""Master side of one CiA 402 node: SDO set-up, NMT, the 402 state machine and the
+profile-position handshake, over PDOs, with every frame packed by `drivers.codec`.
+
+Received frames (TPDO1, EMCY, heartbeat) arrive in the bus pump's thread and only update
+this object's view (under a condition variable); every frame is sent from the caller's
+thread. Waiting for an answer that needs no time to pass (an acknowledge, a state change)
+uses a wall-clock timeout; waiting for motion is the arm's business (it sleeps on the
+shared clock).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import canopen
+from canopen.sdo import SdoAbortedError, SdoCommunicationError
+
+from drivers import codec
+from drivers.clock import Clock
+from drivers.errors import DriveFault, NodeSilent, SdoError
+
+ANSWER_TIMEOUT_S = 1.0  # wall time a drive gets to answer a controlword with a TPDO
+
+
+class Axis:
+    """One CiA 402 drive as seen from the host.
+
+    Parameters
+    ----------
+    name : str            'j1' ... 'j4' or 'gripper'
+    node_id : int
+    eds : str             path of the node's EDS file
+    network : canopen.Network
+    clock : Clock         for heartbeat time stamps
+    counts_per_unit : float
+    unit : str            'deg' or 'mm'
+    """
+
+    def __init__(
+        self,
+        name: str,
+        node_id: int,
+        eds: str,
+        network: canopen.Network,
+        clock: Clock,
+        counts_per_unit: float,
+        unit: str,
+        sdo_timeout_s: float = 0.3,
+    ):
+        self.name, self.node_id, self.unit = name, node_id, unit
+        self.counts_per_unit = counts_per_unit
+        self.clock = clock
+        self.network = network
+        self.node = canopen.RemoteNode(node_id, eds)
+        self.node.sdo.RESPONSE_TIMEOUT = sdo_timeout_s
+        network.add_node(self.node)
+        self._cond = threading.Condition()
+        self.status: codec.DriveStatus | None = None
+        self.status_seq = 0
+        self.last_heartbeat_s: float | None = None
+        self.nmt_state: int | None = None
+        self.boot_count = 0
+        self.last_emcy: codec.Emcy | None = None
+        self.emcy_seq = 0
+        self.controlword = 0
+        self._subs = [
+            (codec.TPDO1_BASE + node_id, self._on_tpdo1),
+            (codec.EMCY_BASE + node_id, self._on_emcy),
+            (codec.HEARTBEAT_BASE + node_id, self._on_heartbeat),
+        ]
+        for cob, fn in self._subs:
+            network.subscribe(cob, fn)
+
+    def detach(self) -> None:
+        for cob, fn in self._subs:
+            if fn in self.network.subscribers.get(cob, []):
+                self.network.unsubscribe(cob, fn)
+
+    # --- received frames (bus pump thread) -------------------------------------------------
+    def _on_tpdo1(self, can_id, data, timestamp) -> None:
+        try:
+            status = codec.unpack_tpdo1(data)
+        except ValueError:
+            return
+        with self._cond:
+            self.status = status
+            self.status_seq += 1
+            self._cond.notify_all()
+
+    def _on_emcy(self, can_id, data, timestamp) -> None:
+        try:
+            e = codec.unpack_emcy(data)
+        except ValueError:
+            return
+        with self._cond:
+            self.last_emcy = e
+            self.emcy_seq += 1
+            self._cond.notify_all()
+
+    def _on_heartbeat(self, can_id, data, timestamp) -> None:
+        try:
+            state = codec.unpack_heartbeat(data)
+        except ValueError:
+            return
+        with self._cond:
+            if state == 0:
+                self.boot_count += 1
+            self.nmt_state = state
+            self.last_heartbeat_s = self.clock.now()
+            self._cond.notify_all()
+
+    # --- views -----------------------------------------------------------------------------
+    @property
+    def state(self) -> str:
+        return self.status.state if self.status is not None else "UNKNOWN"
+
+    @property
+    def position(self) -> float | None:
+        if self.status is None:
+            return None
+        return codec.from_counts(self.status.position_counts, self.counts_per_unit)
+
+    def to_counts(self, value: float) -> int:
+        return codec.to_counts(value, self.counts_per_unit)
+
+    def from_counts(self, counts: int) -> float:
+        return codec.from_counts(counts, self.counts_per_unit)
+
+    def fault_text(self) -> str:
+        code = self.last_emcy.code if self.last_emcy is not None and self.last_emcy.code else None
+        if code is None:
+            return "drive in FAULT"
+        return f"EMCY 0x{code:04X} {codec.emcy_text(code)}"
+
+    # --- SDO -------------------------------------------------------------------------------
+    def sdo_read(self, index: int, subindex: int = 0):
+        try:
+            var = (
+                self.node.sdo[index]
+                if subindex == 0 and not _is_compound(self.node, index)
+                else self.node.sdo[index][subindex]
+            )
+            return var.raw
+        except SdoCommunicationError as e:
+            raise SdoError(
+                f"{self.name} (node {self.node_id}): no SDO answer reading 0x{index:04X}:{subindex} ({e})",
+                node=self.name,
+                node_id=self.node_id,
+            ) from None
+        except SdoAbortedError as e:
+            raise SdoError(
+                f"{self.name} (node {self.node_id}): SDO read of 0x{index:04X}:{subindex} aborted: {e}",
+                node=self.name,
+                node_id=self.node_id,
+            ) from None
+
+    def sdo_write(self, index: int, subindex: int, value) -> None:
+        try:
+            var = (
+                self.node.sdo[index]
+                if subindex == 0 and not _is_compound(self.node, index)
+                else self.node.sdo[index][subindex]
+            )
+            var.raw = value
+        except SdoCommunicationError as e:
+            raise SdoError(
+                f"{self.name} (node {self.node_id}): no SDO answer writing 0x{index:04X}:{subindex} ({e})",
+                node=self.name,
+                node_id=self.node_id,
+            ) from None
+        except SdoAbortedError as e:
+            raise SdoError(
+                f"{self.name} (node {self.node_id}): SDO write of 0x{index:04X}:{subindex} = {value} "
+                f"aborted: {e}",
+                node=self.name,
+                node_id=self.node_id,
+            ) from None
+
+    # --- frames out ------------------------------------------------------------------------
+    def nmt(self, command: int) -> None:
+        self.network.send_message(codec.NMT_COB, codec.pack_nmt(command, self.node_id))
+
+    def send_controlword(self, cw: int) -> int:
+        """Send the controlword (RPDO1); returns the status sequence number before sending."""
+        with self._cond:
+            seq = self.status_seq
+        self.controlword = cw
+        self.network.send_message(codec.RPDO1_BASE + self.node_id, codec.pack_controlword(cw))
+        return seq
+
+    def send_target(self, counts: int) -> None:
+        self.network.send_message(codec.RPDO2_BASE + self.node_id, codec.pack_target(counts))
+
+    def send_mode(self, mode: int) -> int:
+        with self._cond:
+            seq = self.status_seq
+        self.network.send_message(codec.RPDO3_BASE + self.node_id, codec.pack_mode(mode))
+        return seq
+
+    # --- waiting ---------------------------------------------------------------------------
+    def wait_status(self, pred, after_seq: int | None, what: str, timeout_s: float = ANSWER_TIMEOUT_S):
+        """Wait (wall time) for a TPDO newer than `after_seq` whose status satisfies `pred`."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while True:
+                st = self.status
+                if st is not None and (after_seq is None or self.status_seq > after_seq) and pred(st):
+                    return st
+                if st is not None and st.state == "FAULT" and "FAULT" not in what:
+                    raise DriveFault(
+                        f"{self.name} (node {self.node_id}): {self.fault_text()} while waiting for {what}",
+                        node=self.name,
+                        node_id=self.node_id,
+                        emcy_code=self.last_emcy.code if self.last_emcy else None,
+                    )
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    got = st.state if st is not None else "no status"
+                    raise NodeSilent(
+                        f"{self.name} (node {self.node_id}): no answer ({what}) within "
+                        f"{timeout_s:g} s, last status: {got}",
+                        node=self.name,
+                        node_id=self.node_id,
+                    )
+                self._cond.wait(left)
+
+    def wait_heartbeat(self, clock: Clock, timeout_s: float, step_s: float) -> None:
+        """Wait for a heartbeat (or boot-up) on the shared clock: the boot-up deadline."""
+        start = clock.now()
+        while self.last_heartbeat_s is None:
+            if clock.now() - start >= timeout_s:
+                raise NodeSilent(
+                    f"{self.name} (node {self.node_id}): no boot-up or heartbeat within {timeout_s:g} s",
+                    node=self.name,
+                    node_id=self.node_id,
+                )
+            clock.sleep(step_s)
+
+    def wait_nmt(self, clock: Clock, nmt_state: int, timeout_s: float, step_s: float) -> None:
+        """Wait (on the shared clock) for a heartbeat reporting `nmt_state`."""
+        start = clock.now()
+        while self.nmt_state != nmt_state:
+            if clock.now() - start >= timeout_s:
+                got = codec.NMT_STATE_NAMES.get(self.nmt_state, "nothing")
+                raise NodeSilent(
+                    f"{self.name} (node {self.node_id}): heartbeat did not report "
+                    f"{codec.NMT_STATE_NAMES.get(nmt_state)} within {timeout_s:g} s (last: {got})",
+                    node=self.name,
+                    node_id=self.node_id,
+                )
+            clock.sleep(step_s)
+
+    # --- CiA 402 state machine -------------------------------------------------------------
+    def enable(self) -> None:
+        """Walk the 402 state machine to OPERATION ENABLED in profile position mode, with the
+        target set to the actual position first so that enabling never jumps."""
+        if self.status is None:
+            self.wait_status(lambda s: True, None, "first TPDO")
+        if self.state == "FAULT":
+            raise DriveFault(
+                f"{self.name} (node {self.node_id}): {self.fault_text()}; reset faults first",
+                node=self.name,
+                node_id=self.node_id,
+                emcy_code=self.last_emcy.code if self.last_emcy else None,
+            )
+        if self.status.mode != codec.PP_MODE:
+            seq = self.send_mode(codec.PP_MODE)
+            self.wait_status(lambda s: s.mode == codec.PP_MODE, seq, "profile position mode")
+        self.send_target(self.status.position_counts)
+        steps = {
+            "QUICK_STOP_ACTIVE": (codec.CW_ENABLE_OPERATION, "OPERATION_ENABLED"),
+            "SWITCH_ON_DISABLED": (codec.CW_SHUTDOWN, "READY_TO_SWITCH_ON"),
+            "NOT_READY_TO_SWITCH_ON": (None, "SWITCH_ON_DISABLED"),
+            "READY_TO_SWITCH_ON": (codec.CW_SWITCH_ON, "SWITCHED_ON"),
+            "SWITCHED_ON": (codec.CW_ENABLE_OPERATION, "OPERATION_ENABLED"),
+        }
+        for _ in range(6):
+            state = self.state
+            if state == "OPERATION_ENABLED":
+                return
+            if state not in steps:
+                raise DriveFault(
+                    f"{self.name} (node {self.node_id}): cannot enable from {state}",
+                    node=self.name,
+                    node_id=self.node_id,
+                )
+            cw, nxt = steps[state]
+            if cw is None:
+                self.wait_status(lambda s, n=nxt: s.state == n, None, nxt)
+                continue
+            if state == "SWITCHED_ON":
+                # the drive may have drifted while switched on: target = actual, once more
+                self.send_target(self.status.position_counts)
+            seq = self.send_controlword(cw)
+            self.wait_status(lambda s, n=nxt: s.state == n, seq, nxt)
+        raise DriveFault(
+            f"{self.name} (node {self.node_id}): did not reach OPERATION_ENABLED (at {self.state})",
+            node=self.name,
+            node_id=self.node_id,
+        )
+
+    def quick_stop(self) -> None:
+        if self.state in ("OPERATION_ENABLED",):
+            self.send_controlword(codec.CW_QUICK_STOP)
+
+    def disable(self) -> None:
+        if self.state not in ("FAULT", "SWITCH_ON_DISABLED", "UNKNOWN"):
+            self.send_controlword(codec.CW_SHUTDOWN)
+
+    def fault_reset(self) -> None:
+        """Rising edge of controlword bit 7; the drive goes to SWITCH ON DISABLED."""
+        if self.state != "FAULT":
+            return
+        self.send_controlword(codec.CW_DISABLE_VOLTAGE)
+        seq = self.send_controlword(codec.CW_FAULT_RESET)
+        self.wait_status(lambda s: s.state != "FAULT", seq, "fault reset (leaving FAULT)")
+        self.send_controlword(codec.CW_DISABLE_VOLTAGE)
+
+    def start_move(self, target_counts: int) -> None:
+        """Profile-position handshake: target, new set-point (bit 4), acknowledge (bit 12),
+        clear bit 4, acknowledge cleared. Motion starts at the set-point."""
+        self.send_target(target_counts)
+        seq = self.send_controlword(codec.CW_ENABLE_OPERATION | codec.CW_NEW_SET_POINT)
+        self.wait_status(lambda s: s.ack, seq, "set-point acknowledge")
+        seq = self.send_controlword(codec.CW_ENABLE_OPERATION)
+        self.wait_status(lambda s: not s.ack, seq, "set-point acknowledge cleared")
+
+
+def _is_compound(node, index: int) -> bool:
+    return not isinstance(node.object_dictionary[index], canopen.objectdictionary.ODVariable)

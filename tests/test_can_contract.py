@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import can
 import pytest
+from drivers_fixtures import *  # noqa: F403 - the bus, drives and arm fixtures
+from drivers_fixtures import ON_REAL_BUS, needs_sim
 
 from cell.kinematics import Joints
 from drivers import Arm, FaultLatched, LimitError, NotConnected
 from drivers.clock import RealClock, SimClock
-from drivers_fixtures import ON_REAL_BUS, arm, channel, needs_sim, open_test_bus, sim_clock, sim_drives  # noqa: F401
 
 
 class ContractSuite:

@@ -139,12 +139,14 @@ class Arm:
         self._pump = BusPump(self.bus, [self._network.listeners[0], self._on_frame], name="arm-rx")
         self.clock.add_settler(self._pump.settle)
         host_period_s = self.cell.can.host_heartbeat_ms / 1000.0
-        self._jobs.append(self.clock.every(host_period_s, self._send_host_heartbeat, name="host-heartbeat"))
+        self._host_job = self.clock.every(host_period_s, self._send_host_heartbeat, name="host-heartbeat")
+        self._jobs.append(self._host_job)
         self._send_host_heartbeat()
         self._connected = True
         try:
+            t0 = self.clock.now()
             for ax in self.axes.values():
-                ax.wait_heartbeat(self.clock, self.boot_timeout_s, self.poll_s)
+                ax.wait_heartbeat(self.clock, self.boot_timeout_s, self.poll_s, start_s=t0)
             for ax in self.axes.values():
                 self._configure(ax)
             for ax in self.axes.values():
@@ -292,8 +294,8 @@ class Arm:
             if ax.name not in self._faults:
                 try:
                     ax.quick_stop()
-                except can.CanError:
-                    pass
+                except (can.CanError, DriverError):
+                    pass  # stopping the others matters more than this one's answer
 
     def _check_faults(self, during_move: bool) -> None:
         with self._lock:
@@ -310,15 +312,9 @@ class Arm:
         (and stays latched) when a node is still silent or faults again."""
         self._require_connected()
         self._watch()
-        with self._lock:
-            self._faults.clear()
-            self.error_frames = 0
         for ax in self.axes.values():
-            if (
-                ax.last_heartbeat_s is None
-                or self.clock.now() - ax.last_heartbeat_s > self.heartbeat_deadline_s
-            ):
-                # wait one deadline for a node that went quiet to show up again
+            if ax.last_heartbeat_s is None or self.clock.now() - ax.last_heartbeat_s > self.heartbeat_deadline_s:
+                # give a node that went quiet one deadline to show up again
                 ax.last_heartbeat_s = None
                 try:
                     ax.wait_heartbeat(self.clock, self.heartbeat_deadline_s, self.poll_s)
@@ -328,8 +324,11 @@ class Arm:
         try:
             for ax in self.axes.values():
                 ax.fault_reset()
-            for ax in self.axes.values():
-                self._emcy_seen[ax.name] = ax.emcy_seq
+            with self._lock:
+                self._faults.clear()
+                self.error_frames = 0
+                for ax in self.axes.values():
+                    self._emcy_seen[ax.name] = ax.emcy_seq
             self._enable_all()
         except DriverError as e:
             self._latch(e)

@@ -54,6 +54,7 @@ class Axis:
         self.network = network
         self.node = canopen.RemoteNode(node_id, eds)
         self.node.sdo.RESPONSE_TIMEOUT = sdo_timeout_s
+        self.node.sdo.MAX_RETRIES = 2  # canopen counts attempts: one retry after a lost answer
         network.add_node(self.node)
         self._cond = threading.Condition()
         self.status: codec.DriveStatus | None = None
@@ -225,9 +226,10 @@ class Axis:
                     )
                 self._cond.wait(left)
 
-    def wait_heartbeat(self, clock: Clock, timeout_s: float, step_s: float) -> None:
-        """Wait for a heartbeat (or boot-up) on the shared clock: the boot-up deadline."""
-        start = clock.now()
+    def wait_heartbeat(self, clock: Clock, timeout_s: float, step_s: float, start_s: float | None = None) -> None:
+        """Wait for a heartbeat (or boot-up) on the shared clock: the boot-up deadline,
+        `timeout_s` after `start_s` (default: now)."""
+        start = clock.now() if start_s is None else start_s
         while self.last_heartbeat_s is None:
             if clock.now() - start >= timeout_s:
                 raise NodeSilent(
@@ -300,9 +302,15 @@ class Axis:
             node_id=self.node_id,
         )
 
-    def quick_stop(self) -> None:
-        if self.state in ("OPERATION_ENABLED",):
-            self.send_controlword(codec.CW_QUICK_STOP)
+    def quick_stop(self, confirm_timeout_s: float = 0.2) -> None:
+        """Quick stop (402 transition 11) and wait briefly for the drive to confirm it."""
+        if self.state != "OPERATION_ENABLED":
+            return
+        seq = self.send_controlword(codec.CW_QUICK_STOP)
+        try:
+            self.wait_status(lambda s: s.state != "OPERATION_ENABLED", seq, "quick stop FAULT", confirm_timeout_s)
+        except NodeSilent:
+            pass  # a silent drive stops on its own when it misses the host's heartbeat
 
     def disable(self) -> None:
         if self.state not in ("FAULT", "SWITCH_ON_DISABLED", "UNKNOWN"):

@@ -374,6 +374,7 @@ class SimDrive:
                 # a dead node also stops hearing the host: it stops driving (as a real drive would)
                 if self.state == "OPERATION_ENABLED":
                     self._fault(0x8130)
+                self._host_seen_s = None  # watching restarts with the next heartbeat heard
                 return
             if self._host_id and self._host_seen_s is not None and self._host_deadline_s > 0:
                 if now - self._host_seen_s > self._host_deadline_s and self.state != "FAULT":

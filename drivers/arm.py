@@ -313,7 +313,10 @@ class Arm:
         self._require_connected()
         self._watch()
         for ax in self.axes.values():
-            if ax.last_heartbeat_s is None or self.clock.now() - ax.last_heartbeat_s > self.heartbeat_deadline_s:
+            if (
+                ax.last_heartbeat_s is None
+                or self.clock.now() - ax.last_heartbeat_s > self.heartbeat_deadline_s
+            ):
                 # give a node that went quiet one deadline to show up again
                 ax.last_heartbeat_s = None
                 try:

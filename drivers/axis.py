@@ -226,7 +226,9 @@ class Axis:
                     )
                 self._cond.wait(left)
 
-    def wait_heartbeat(self, clock: Clock, timeout_s: float, step_s: float, start_s: float | None = None) -> None:
+    def wait_heartbeat(
+        self, clock: Clock, timeout_s: float, step_s: float, start_s: float | None = None
+    ) -> None:
         """Wait for a heartbeat (or boot-up) on the shared clock: the boot-up deadline,
         `timeout_s` after `start_s` (default: now)."""
         start = clock.now() if start_s is None else start_s
@@ -308,7 +310,9 @@ class Axis:
             return
         seq = self.send_controlword(codec.CW_QUICK_STOP)
         try:
-            self.wait_status(lambda s: s.state != "OPERATION_ENABLED", seq, "quick stop FAULT", confirm_timeout_s)
+            self.wait_status(
+                lambda s: s.state != "OPERATION_ENABLED", seq, "quick stop FAULT", confirm_timeout_s
+            )
         except NodeSilent:
             pass  # a silent drive stops on its own when it misses the host's heartbeat
 

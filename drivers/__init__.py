@@ -5,6 +5,7 @@
     sim.serve(bus, cell, clock)                           simulated drives on the same bus
     clock.SimClock / clock.RealClock                      the time both sides share
     record.BusRecorder(bus, path)                         python-can logger of all traffic
+    simulated_cell(cell, clock) -> (arm, drives)          all of the above in one context manager
 
 Data flow: joint command -> limits (drivers.limits) -> counts (codec) -> RPDO / SDO frames
 (drivers.axis) -> bus; TPDO / EMCY / heartbeat frames -> codec -> supervision (drivers.arm).
@@ -24,6 +25,7 @@ from drivers.errors import (
     NotConnected,
     SdoError,
 )
+from drivers.session import real_cell, simulated_cell
 
 CellDrives = Arm
 
@@ -44,4 +46,6 @@ __all__ = [
     "NodeSilent",
     "NotConnected",
     "SdoError",
+    "real_cell",
+    "simulated_cell",
 ]

@@ -110,7 +110,8 @@ class Arm:
         self._jobs: list = []
         self._velocity_counts: dict[str, int] = {}
         self._connected = False
-        self.frames_sent = 0
+        self._pending: tuple[dict, float] = ({}, 0.0)
+        self.state_at_failure: dict | None = None
 
     # --- lifecycle -------------------------------------------------------------------------
     @property
@@ -158,6 +159,7 @@ class Arm:
             if enable:
                 self._enable_all()
         except BaseException:
+            self.state_at_failure = self.state()
             self.disconnect()
             raise
 
@@ -288,6 +290,13 @@ class Arm:
         """Latched faults: node name (or 'bus') -> reason. Empty when all is well."""
         with self._lock:
             return {k: str(v) for k, v in self._faults.items()}
+
+    def stop(self) -> None:
+        """Quick-stop every enabled axis now (Ctrl-C, an operator's stop). The drives stay in
+        QUICK STOP ACTIVE until the next enable (`reset_faults()`)."""
+        if self._connected:
+            self._stop_all()
+            self._pending = ({}, 0.0)
 
     def _stop_all(self) -> None:
         for ax in self.axes.values():
@@ -427,7 +436,7 @@ class Arm:
 
     def wait_idle(self) -> None:
         """Wait (on the shared clock) until the last move's axes report target reached."""
-        targets, deadline = getattr(self, "_pending", ({}, 0.0))
+        targets, deadline = self._pending
         try:
             while targets:
                 self._check_faults(during_move=True)

@@ -64,3 +64,13 @@ def gripper_violations(cell, width_mm: float, force_n: float | None = None) -> l
         ):
             out.append(f"grip force {force_n} N outside (0, {cell.gripper.max_force_n:g}]")
     return out
+
+
+def split_move(start: Joints, target: Joints, max_step: dict) -> list[Joints]:
+    """Waypoints from `start` to `target` (linear in joint space, target last) such that no
+    step exceeds `max_step` (per joint name). One waypoint when the move is small enough."""
+    n = 1
+    for joint, field, _ in JOINT_FIELDS:
+        n = max(n, math.ceil(abs(getattr(target, field) - getattr(start, field)) / max_step[joint] - 1e-12))
+    a, b = start.as_array(), target.as_array()
+    return [Joints(*(a + (b - a) * (i / n)).tolist()) for i in range(1, n)] + [target]

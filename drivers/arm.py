@@ -206,8 +206,8 @@ class Arm:
                 try:
                     ax.disable()
                     ax.sdo_write(0x1016, 1, 0)
-                except DriverError:
-                    pass
+                except (DriverError, can.CanError):
+                    pass  # a node that cannot be told is stopped by its host-heartbeat watch
         finally:
             for job in self._jobs:
                 job.cancel()
@@ -347,6 +347,13 @@ class Arm:
             raise
 
     # --- commands --------------------------------------------------------------------------
+    def _begin_command(self) -> None:
+        """Every command: connected, the previous move finished, no fault latched."""
+        self._require_connected()
+        if self._pending[0]:
+            self.wait_idle()
+        self._check_faults(during_move=False)
+
     def _require_connected(self) -> None:
         if not self._connected:
             raise NotConnected("the arm is not connected: call connect() first")
@@ -382,8 +389,7 @@ class Arm:
         when every axis reports target reached; a fault during the move quick-stops all axes
         and raises the node's error.
         """
-        self._require_connected()
-        self._check_faults(during_move=False)
+        self._begin_command()
         current = self.joints()
         problems = command_violations(self.cell, target, current)
         if problems:
@@ -515,8 +521,7 @@ class Gripper:
     def open(self, width_mm: float | None = None) -> float:
         """Open the jaws (fully by default); returns the width reached."""
         arm = self._arm
-        arm._require_connected()
-        arm._check_faults(during_move=False)
+        arm._begin_command()
         width_mm = arm.cell.gripper.opening_mm[1] if width_mm is None else width_mm
         problems = gripper_violations(arm.cell, width_mm)
         if problems:
@@ -531,8 +536,7 @@ class Gripper:
         jaws stopped: holding when they stopped on something no narrower than
         `expected_width_mm - tolerance_mm`; a miss closes past it."""
         arm = self._arm
-        arm._require_connected()
-        arm._check_faults(during_move=False)
+        arm._begin_command()
         force_n = arm.cell.gripper.grip_force_n if force_n is None else force_n
         problems = gripper_violations(arm.cell, expected_width_mm, force_n)
         if problems:

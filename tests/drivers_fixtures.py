@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import itertools
 import os
+import threading
+import time
 
 import pytest
 
@@ -45,7 +47,16 @@ def open_test_bus(channel):
     yield _open
     for bus in buses:
         bus.shutdown()
-    assert all(getattr(b, "_is_shutdown", True) for b in buses), "a bus was left open"
+    # like python-can's own test suite: nothing may outlive a test (buses, receive threads, clocks)
+    deadline = time.monotonic() + 2.0
+    while _driver_threads() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert not _driver_threads(), f"threads left running: {_driver_threads()}"
+
+
+def _driver_threads():
+    names = ("arm-rx", "sim-drives-rx", "drivers-clock", "can-recorder", "bench-tap", "test-tap")
+    return [t.name for t in threading.enumerate() if t.name in names and t.is_alive()]
 
 
 @pytest.fixture

@@ -17,6 +17,8 @@ from drivers.clock import RealClock, SimClock
 class ContractSuite:
     """Behaviour every backend of the drives must show. Subclasses choose the clock."""
 
+    timing_slack_s = 0.05  # polling and tick granularity on the shared clock
+
     def test_enable_brings_every_node_to_operation_enabled(self, arm):
         st = arm.state()
         assert set(st) == {"j1", "j2", "j3", "j4", "gripper"}
@@ -45,7 +47,7 @@ class ContractSuite:
         # the move took the coordinated profile time (plus at most a few polling periods)
         expected = arm.move_time_s(start, target)
         assert expected > 0.1
-        assert expected - 0.01 <= elapsed <= expected + 0.15
+        assert expected - 0.01 <= elapsed <= expected + self.timing_slack_s
 
     def test_limits_refused_before_any_frame(self, arm, open_test_bus):
         spy = open_test_bus()  # a third participant hears everything sent on the bus
@@ -110,6 +112,8 @@ class TestSimulatedTime(ContractSuite):
 @pytest.mark.skipif(ON_REAL_BUS, reason="the real-bus run uses the default suite")
 class TestRealTime(ContractSuite):
     """The same suite with the drives' motion in a background thread on wall time."""
+
+    timing_slack_s = 0.5  # wall time on a loaded machine
 
     @pytest.fixture
     def sim_clock(self):

@@ -530,7 +530,7 @@ class Gripper:
         return self.width_mm
 
     def grip(
-        self, expected_width_mm: float, force_n: float | None = None, *, tolerance_mm: float = 3.0
+        self, expected_width_mm: float, force_n: float | None = None, *, tolerance_mm: float = 2.0
     ) -> GripResult:
         """Close with the force limit (default: the cell file's grip force) and report where the
         jaws stopped: holding when they stopped on something no narrower than

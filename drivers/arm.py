@@ -322,10 +322,7 @@ class Arm:
         self._require_connected()
         self._watch()
         for ax in self.axes.values():
-            if (
-                ax.last_heartbeat_s is None
-                or self.clock.now() - ax.last_heartbeat_s > self.heartbeat_deadline_s
-            ):
+            if ax.last_heartbeat_s is None or self.clock.now() - ax.last_heartbeat_s > self.heartbeat_deadline_s:
                 # give a node that went quiet one deadline to show up again
                 ax.last_heartbeat_s = None
                 try:
@@ -374,9 +371,7 @@ class Arm:
         trapezoidal profiles under the cell file's speed and acceleration limits."""
         s = self.cell.scara
         return max(
-            trapezoid(
-                getattr(target, f) - getattr(start, f), s.max_velocity[j], s.max_acceleration[j]
-            ).duration_s
+            trapezoid(getattr(target, f) - getattr(start, f), s.max_velocity[j], s.max_acceleration[j]).duration_s
             for j, f, _ in JOINT_FIELDS
         )
 
@@ -404,22 +399,13 @@ class Arm:
             if counts == ax.status.position_counts:
                 continue
             targets[joint] = counts
-            v = (
-                velocity_for_duration(distance, duration_s, s.max_acceleration[joint])
-                if duration_s > 0
-                else 0.0
-            )
-            v_counts = max(
-                1, min(round(v * ax.counts_per_unit), round(s.max_velocity[joint] * ax.counts_per_unit))
-            )
+            v = velocity_for_duration(distance, duration_s, s.max_acceleration[joint]) if duration_s > 0 else 0.0
+            v_counts = max(1, min(round(v * ax.counts_per_unit), round(s.max_velocity[joint] * ax.counts_per_unit)))
             if self._velocity_counts.get(joint) != v_counts:
                 self._guarded(ax.sdo_write, 0x6081, 0, v_counts)
                 self._velocity_counts[joint] = v_counts
         sent = Joints(
-            *(
-                self.axes[j].from_counts(targets.get(j, self.axes[j].status.position_counts))
-                for j, _, _ in JOINT_FIELDS
-            )
+            *(self.axes[j].from_counts(targets.get(j, self.axes[j].status.position_counts)) for j, _, _ in JOINT_FIELDS)
         )
         self._run_moves(targets, wait=wait, timeout_s=1.5 * duration_s + 1.0)
         return sent
@@ -487,9 +473,7 @@ class Arm:
                 "nmt": codec.NMT_STATE_NAMES.get(ax.nmt_state, "UNKNOWN")
                 if ax and ax.nmt_state is not None
                 else "UNKNOWN",
-                "heartbeat_age_s": (now - ax.last_heartbeat_s)
-                if ax and ax.last_heartbeat_s is not None
-                else None,
+                "heartbeat_age_s": (now - ax.last_heartbeat_s) if ax and ax.last_heartbeat_s is not None else None,
                 "fault": faults.get(name),
                 "emcy": {"code": e.code, "text": e.text} if e is not None else None,
             }
@@ -529,9 +513,7 @@ class Gripper:
         self._move(width_mm)
         return self.width_mm
 
-    def grip(
-        self, expected_width_mm: float, force_n: float | None = None, *, tolerance_mm: float = 2.0
-    ) -> GripResult:
+    def grip(self, expected_width_mm: float, force_n: float | None = None, *, tolerance_mm: float = 2.0) -> GripResult:
         """Close with the force limit (default: the cell file's grip force) and report where the
         jaws stopped: holding when they stopped on something no narrower than
         `expected_width_mm - tolerance_mm`; a miss closes past it."""

@@ -172,8 +172,7 @@ class Axis:
             ) from None
         except SdoAbortedError as e:
             raise SdoError(
-                f"{self.name} (node {self.node_id}): SDO write of 0x{index:04X}:{subindex} = {value} "
-                f"aborted: {e}",
+                f"{self.name} (node {self.node_id}): SDO write of 0x{index:04X}:{subindex} = {value} aborted: {e}",
                 node=self.name,
                 node_id=self.node_id,
             ) from None
@@ -226,9 +225,7 @@ class Axis:
                     )
                 self._cond.wait(left)
 
-    def wait_heartbeat(
-        self, clock: Clock, timeout_s: float, step_s: float, start_s: float | None = None
-    ) -> None:
+    def wait_heartbeat(self, clock: Clock, timeout_s: float, step_s: float, start_s: float | None = None) -> None:
         """Wait for a heartbeat (or boot-up) on the shared clock: the boot-up deadline,
         `timeout_s` after `start_s` (default: now)."""
         start = clock.now() if start_s is None else start_s
@@ -310,9 +307,7 @@ class Axis:
             return
         seq = self.send_controlword(codec.CW_QUICK_STOP)
         try:
-            self.wait_status(
-                lambda s: s.state != "OPERATION_ENABLED", seq, "quick stop FAULT", confirm_timeout_s
-            )
+            self.wait_status(lambda s: s.state != "OPERATION_ENABLED", seq, "quick stop FAULT", confirm_timeout_s)
         except NodeSilent:
             pass  # a silent drive stops on its own when it misses the host's heartbeat
 

@@ -60,9 +60,7 @@ def round_trips(cell=None, n: int = 200) -> dict:
     }
 
 
-def pick_cycle(
-    cell=None, part_xy_mm=(380.0, -60.0), grasp_z_mm: float = 10.0, width_mm: float = 30.0
-) -> dict:
+def pick_cycle(cell=None, part_xy_mm=(380.0, -60.0), grasp_z_mm: float = 10.0, width_mm: float = 30.0) -> dict:
     """One pick in simulated time with a tap counting every frame on the bus.
 
     home -> above the part (safe z) -> down -> grip -> up -> above the drop-off -> open ->

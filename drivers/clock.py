@@ -156,7 +156,8 @@ class RealClock(Clock):
         import logging
 
         log = logging.getLogger(__name__)
-        while not self._stop.is_set():
+        stop = self._stop  # this thread's own stop signal (close() makes a fresh one)
+        while not stop.is_set():
             now = self.now()
             with self._lock:
                 self._jobs = [e for e in self._jobs if not e[1].cancelled]
@@ -170,10 +171,14 @@ class RealClock(Clock):
                     job.fn()
                 except Exception:  # a failing job must not stop the others (heartbeats!)
                     log.exception("clock job %s failed", job.name)
-            self._stop.wait(max(self._resolution_s, min(next_due - self.now(), 0.05)))
+            stop.wait(max(self._resolution_s, min(next_due - self.now(), 0.05)))
 
     def close(self) -> None:
+        """Stop the job thread and forget the jobs; the clock can be used again afterwards."""
         self._stop.set()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=1.0)
-        self._thread = None
+        with self._lock:
+            self._thread = None
+            self._jobs.clear()
+            self._stop = threading.Event()

@@ -176,9 +176,7 @@ class DriveStatus:
 
 
 def pack_tpdo1(status: DriveStatus) -> bytes:
-    return _TPDO1.pack(
-        status.statusword & 0xFFFF, _check_i32(status.position_counts), _I8.pack(status.mode)[0]
-    )
+    return _TPDO1.pack(status.statusword & 0xFFFF, _check_i32(status.position_counts), _I8.pack(status.mode)[0])
 
 
 def unpack_tpdo1(data: bytes) -> DriveStatus:

@@ -46,8 +46,7 @@ def command_violations(cell, target: Joints, current: Joints | None) -> list[str
             step = abs(getattr(target, field) - getattr(current, field))
             if step > cell.scara.max_step[joint] + 1e-9:
                 out.append(
-                    f"{joint.upper()} step {step:.3f} {unit} larger than max_step "
-                    f"{cell.scara.max_step[joint]:g} {unit}"
+                    f"{joint.upper()} step {step:.3f} {unit} larger than max_step {cell.scara.max_step[joint]:g} {unit}"
                 )
     return out
 

@@ -75,9 +75,7 @@ def trapezoid(distance: float, v_max: float, accel: float, decel: float | None =
     return Trapezoid(distance, v_peak, accel, decel, v_peak / accel, 0.0, v_peak / decel)
 
 
-def velocity_for_duration(
-    distance: float, duration_s: float, accel: float, decel: float | None = None
-) -> float:
+def velocity_for_duration(distance: float, duration_s: float, accel: float, decel: float | None = None) -> float:
     """The cruise speed that makes a move of `distance` last `duration_s` with the given ramps
     (for coordinated moves: every axis arrives with the slowest). Requires `duration_s` at least
     the time-optimal duration at unbounded speed."""

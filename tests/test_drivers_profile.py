@@ -55,3 +55,40 @@ def test_velocity_for_an_impossible_duration_is_refused():
 def test_bad_limits_are_refused(bad):
     with pytest.raises(ValueError, match="positive"):
         trapezoid(10.0, bad, 1.0)
+
+
+def test_sim_clock_runs_jobs_in_time_order_and_only_when_slept():
+    from drivers.clock import SimClock
+
+    clock, seen = SimClock(), []
+    clock.every(0.1, lambda: seen.append(("a", round(clock.now(), 6))))
+    job = clock.every(0.25, lambda: seen.append(("b", round(clock.now(), 6))))
+    assert seen == [] and clock.now() == 0.0
+    clock.sleep(0.5)
+    assert seen == [
+        ("a", 0.1),
+        ("a", 0.2),
+        ("b", 0.25),
+        ("a", 0.3),
+        ("a", 0.4),
+        ("b", 0.5),
+        ("a", 0.5),
+    ]  # ties: first scheduled first
+    job.cancel()
+    clock.sleep(0.25)
+    assert seen[-1] == ("a", 0.7) and clock.now() == pytest.approx(0.75)
+
+
+def test_real_clock_can_be_reused_after_close():
+    import threading
+
+    from drivers.clock import RealClock
+
+    clock, ticks = RealClock(), threading.Event()
+    clock.every(0.01, ticks.set)
+    assert ticks.wait(1.0)
+    clock.close()
+    ticks.clear()
+    clock.every(0.01, ticks.set)
+    assert ticks.wait(1.0)
+    clock.close()

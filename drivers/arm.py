@@ -84,7 +84,7 @@ class Arm:
         sdo_timeout_s: float = 0.3,
         boot_timeout_s: float | None = None,
         error_frame_limit: int = 1,
-        poll_s: float = 0.005,
+        poll_s: float = 0.01,
     ):
         if cell is None:
             from cell.cellconfig import default_cell

@@ -18,6 +18,7 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from drivers import codec
 from drivers.clock import Clock
+from drivers.eds import object_dictionary
 from drivers.errors import DriveFault, NodeSilent, SdoError
 
 ANSWER_TIMEOUT_S = 1.0  # wall time a drive gets to answer a controlword with a TPDO
@@ -52,7 +53,7 @@ class Axis:
         self.counts_per_unit = counts_per_unit
         self.clock = clock
         self.network = network
-        self.node = canopen.RemoteNode(node_id, eds)
+        self.node = canopen.RemoteNode(node_id, object_dictionary(eds, node_id))
         self.node.sdo.RESPONSE_TIMEOUT = sdo_timeout_s
         self.node.sdo.MAX_RETRIES = 2  # canopen counts attempts: one retry after a lost answer
         network.add_node(self.node)

@@ -7,8 +7,11 @@ mapping described in `drivers.codec`; the gripper adds a grip-force limit (0x210
 
 from __future__ import annotations
 
+import functools
 from importlib import resources
 from pathlib import Path
+
+import canopen
 
 U8, U16, U32, I8, I32, VSTR = 0x0005, 0x0006, 0x0007, 0x0002, 0x0004, 0x0009
 VAR, ARRAY, RECORD = 0x7, 0x8, 0x9
@@ -20,6 +23,13 @@ GRIP_FORCE_INDEX = 0x2100  # grip force limit, UNSIGNED16 in 0.1 N
 
 def eds_path(name: str) -> Path:
     return Path(str(resources.files("drivers") / "eds" / name))
+
+
+@functools.lru_cache(maxsize=64)
+def object_dictionary(path: str, node_id: int) -> canopen.ObjectDictionary:
+    """The parsed EDS for one node id, parsed once per process (parsing takes ~15 ms). The
+    dictionary only describes objects; values live in the nodes, so sharing it is safe."""
+    return canopen.import_od(path, node_id)
 
 
 def _objects(gripper: bool) -> list[tuple]:

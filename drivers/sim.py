@@ -27,13 +27,13 @@ from canopen.sdo import SdoAbortedError
 
 from drivers import codec
 from drivers.clock import Clock, RealClock
-from drivers.eds import AXIS_EDS, GRIP_FORCE_INDEX, GRIPPER_EDS, eds_path
+from drivers.eds import AXIS_EDS, GRIP_FORCE_INDEX, GRIPPER_EDS, eds_path, object_dictionary
 from drivers.profile import Trapezoid, trapezoid
 from drivers.pump import BusPump
 
 log = logging.getLogger(__name__)
 
-TICK_S = 0.005  # motion and timer resolution of the simulated drives
+TICK_S = 0.01  # motion and timer resolution of the simulated drives (TPDO1 at most 100 Hz)
 TPDO_EVENT_MS = 50  # TPDO1 is also sent at least this often (canopen's BaseNode402 waits 0.2 s)
 FAULT_KINDS = ("silent", "emcy", "following_error", "drop_sdo", "error_frames")
 
@@ -71,7 +71,7 @@ class SimDrive:
         self.counts_per_unit = counts_per_unit
         self._lock = threading.RLock()
         self.network = network
-        self.node = canopen.LocalNode(node_id, eds)
+        self.node = canopen.LocalNode(node_id, object_dictionary(eds, node_id))
         network.add_node(self.node)
         # NMT and heartbeats are ours (clock-driven), not canopen's send_periodic thread
         self.node._write_callbacks.remove(self.node.nmt.on_write)

@@ -178,6 +178,7 @@ class Arm:
             lo, hi = c.gripper.opening_mm
             velocity, accel = c.gripper.speed_mm_s, GRIPPER_ACCEL_FACTOR * c.gripper.speed_mm_s
             ax.sdo_write(GRIP_FORCE_INDEX, 0, round(c.gripper.grip_force_n * 10))
+            self.gripper._force_n = c.gripper.grip_force_n
         else:
             lo, hi = c.scara.limits(ax.name)
             velocity, accel = c.scara.max_velocity[ax.name], c.scara.max_acceleration[ax.name]
@@ -191,7 +192,20 @@ class Arm:
         ax.sdo_write(0x6084, 0, a)
 
     def _enable_all(self) -> None:
+        """Enable every drive. A drive found in FAULT (say, after a host crash) is not reset
+        here: its fault is latched with its error code, and only `reset_faults()` clears it."""
         for ax in self.axes.values():
+            if ax.state == "FAULT":
+                code = ax.sdo_read(0x603F)
+                self._latch(
+                    DriveFault(
+                        f"{ax.name} (node {ax.node_id}): in FAULT, error code 0x{code:04X} {codec.emcy_text(code)}",
+                        node=ax.name,
+                        node_id=ax.node_id,
+                        emcy_code=code,
+                    )
+                )
+                continue
             ax.enable()
 
     def disconnect(self) -> None:

@@ -166,3 +166,20 @@ def test_boot_up_deadline(open_test_bus, sim_clock, cell_cfg):
             arm.connect()
         assert not arm.is_connected
         assert sim_clock.now() == pytest.approx(0.5, abs=0.01)
+
+
+def test_drives_faulted_before_connect_stay_latched_until_reset(sim_drives, open_test_bus, sim_clock, cell_cfg):
+    first = Arm(open_test_bus(), cell_cfg, clock=sim_clock)
+    first.connect()
+    first._host_job.cancel()  # the host crashes: the drives fault on their host watch
+    sim_clock.sleep(0.6)
+    first._pump.stop()  # ... and its process is gone
+    assert all(d.state == "FAULT" for d in sim_drives.drives.values())
+    with Arm(open_test_bus(), cell_cfg, clock=sim_clock) as arm:  # the host restarts
+        assert set(arm.faults) == {"j1", "j2", "j3", "j4", "gripper"}
+        assert "error code 0x8130" in arm.faults["j3"]
+        assert arm.state()["j3"]["state"] == "FAULT"
+        with pytest.raises(FaultLatched, match="0x8130"):
+            arm.move_joints(arm.joints())
+        _assert_recovers(arm, sim_drives)
+    first.disconnect()

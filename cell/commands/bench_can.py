@@ -24,13 +24,9 @@ def run(args) -> int:
     if args.json:
         print(json.dumps({"round_trip": rt, "pick": pick}))
         return 0
-    print(
-        f"command round trip over python-can's virtual bus (wall time, drives in this process, n = {args.n}):"
-    )
+    print(f"command round trip over python-can's virtual bus (wall time, drives in this process, n = {args.n}):")
     for name, s in rt.items():
-        print(
-            f"  {name:16s} median {s['median_ms']:.3f} ms  p95 {s['p95_ms']:.3f} ms  max {s['max_ms']:.3f} ms"
-        )
+        print(f"  {name:16s} median {s['median_ms']:.3f} ms  p95 {s['p95_ms']:.3f} ms  max {s['max_ms']:.3f} ms")
     print(f"one pick cycle (simulated time, {'held' if pick['held'] else 'MISSED'}):")
     print(
         f"  cycle {pick['cycle_s']:.3f} s, {pick['frames']} frames ({pick['command_frames']} host commands), "

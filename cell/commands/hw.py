@@ -26,9 +26,7 @@ def add_arguments(p) -> None:
         default="virtual",
         help="python-can interface (default: virtual, with the simulated drives in this process)",
     )
-    p.add_argument(
-        "--channel", default=None, help="CAN channel (default: a private virtual channel; can0 ...)"
-    )
+    p.add_argument("--channel", default=None, help="CAN channel (default: a private virtual channel; can0 ...)")
     p.add_argument("--cell", default=None, help="cell file (default: the shipped cell)")
     if words[1] == "sim":
         p.add_argument(
@@ -44,9 +42,7 @@ def add_arguments(p) -> None:
         action="store_true",
         help="run the in-process simulated drives in simulated time (fast; for tests and CI)",
     )
-    p.add_argument(
-        "--record", default=None, help="record the CAN traffic to this python-can log (.asc/.log/.blf)"
-    )
+    p.add_argument("--record", default=None, help="record the CAN traffic to this python-can log (.asc/.log/.blf)")
     if words[1] != "status":
         p.add_argument("--yes", action="store_true", help="do not ask before moving real hardware")
     if words[1] == "jog":
@@ -75,9 +71,9 @@ def run(args) -> int:
     cell = load_cell(args.cell)
     if args._words[1] == "sim":
         return _serve(args, cell)
-    return {"status": _status, "home": _home, "jog": _jog, "gripper": _gripper, "corner": _corner}[
-        args._words[1]
-    ](args, cell)
+    return {"status": _status, "home": _home, "jog": _jog, "gripper": _gripper, "corner": _corner}[args._words[1]](
+        args, cell
+    )
 
 
 # --- sessions -------------------------------------------------------------------------------
@@ -98,9 +94,7 @@ def _session(args, cell, *, enable: bool = True):
         ):
             yield arm, drives
     else:
-        with real_cell(
-            args.interface, args.channel or "can0", cell, record=args.record, enable=enable
-        ) as arm:
+        with real_cell(args.interface, args.channel or "can0", cell, record=args.record, enable=enable) as arm:
             yield arm, None
 
 
@@ -111,12 +105,9 @@ def _confirm(args, what: str) -> None:
     if _simulated(args) or args.yes:
         return
     if not sys.stdin.isatty():
-        raise BadInput(
-            f"refusing to {what} on {args.interface}:{args.channel} without confirmation: pass --yes"
-        )
+        raise BadInput(f"refusing to {what} on {args.interface}:{args.channel} without confirmation: pass --yes")
     answer = input(
-        f"About to {what} on the REAL cell ({args.interface}:{args.channel}). Keep clear. "
-        "Type 'yes' to continue: "
+        f"About to {what} on the REAL cell ({args.interface}:{args.channel}). Keep clear. Type 'yes' to continue: "
     )
     if answer.strip().lower() != "yes":
         raise CellError("aborted by the operator; nothing moved")
@@ -143,7 +134,7 @@ def _joints_text(j) -> str:
 
 # --- commands -------------------------------------------------------------------------------
 def _status(args, cell) -> int:
-    from drivers import Arm, DriverError, SimClock, open_bus, sim
+    from drivers import Arm, SimClock, open_bus, sim
 
     code, states, error = 0, None, None
     if _simulated(args):
@@ -177,7 +168,9 @@ def _status(args, cell) -> int:
     if error is not None:
         print(f"cell: error: {error}", file=sys.stderr)
         code = 1
-    _ = DriverError
+    elif any(s["fault"] for s in states.values()):
+        print("cell: error: some nodes are faulted (see 'fault'); reset before moving", file=sys.stderr)
+        code = 1
     return code
 
 
@@ -205,9 +198,7 @@ def _serve(args, cell) -> int:
         stop.set()
 
     old = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    bus = open_bus(
-        args.interface, args.channel or ("cell-sim" if _simulated(args) else "vcan0"), cell.can.bitrate
-    )
+    bus = open_bus(args.interface, args.channel or ("cell-sim" if _simulated(args) else "vcan0"), cell.can.bitrate)
     try:
         with sim.serve(bus, cell) as drives:
             names = ", ".join(f"{n['name']}={n['node_id']}" for n in drives.nodes)

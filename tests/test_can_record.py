@@ -48,10 +48,7 @@ def test_replay_sends_the_recorded_frames(tmp_path, open_test_bus):
 
     path = tmp_path / "fixture.log"
     sender, rec_bus = open_test_bus(), open_test_bus()
-    sent = [
-        can.Message(arbitration_id=0x200 + i, data=bytes([i, 0x0F]), is_extended_id=False)
-        for i in range(1, 6)
-    ]
+    sent = [can.Message(arbitration_id=0x200 + i, data=bytes([i, 0x0F]), is_extended_id=False) for i in range(1, 6)]
     with BusRecorder(rec_bus, path) as rec:
         for m in sent:
             sender.send(m)
@@ -67,3 +64,14 @@ def test_unknown_log_format_and_missing_log_are_bad_input(tmp_path, open_test_bu
         BusRecorder(open_test_bus(), tmp_path / "x.json")
     with pytest.raises(BadInput, match="does not exist"):
         read_log(tmp_path / "missing.asc")
+
+
+def test_golden_session_fixture_is_reproduced_frame_for_frame(tmp_path):
+    from drivers.golden import fixture_path, record_golden_session
+
+    path = tmp_path / "session.log"
+    record_golden_session(path)
+    got, want = read_log(path), read_log(fixture_path())
+    assert len(got) == len(want) > 200
+    for i, (a, b) in enumerate(zip(got, want, strict=True)):
+        assert same_frame(a, b) and a.timestamp == pytest.approx(b.timestamp), f"frame {i}: {a} != {b}"

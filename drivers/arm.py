@@ -165,6 +165,13 @@ class Arm:
 
     def _configure(self, ax: Axis) -> None:
         c = self.cell
+        device_type = ax.sdo_read(0x1000)
+        if device_type & 0xFFFF != 402:
+            raise DriveFault(
+                f"{ax.name} (node {ax.node_id}) is not a CiA 402 drive (0x1000 = 0x{device_type:08X})",
+                node=ax.name,
+                node_id=ax.node_id,
+            )
         if ax.sdo_read(0x6502) & codec.SUPPORTED_MODES_PP == 0:
             raise DriveFault(
                 f"{ax.name} (node {ax.node_id}) does not support profile position mode",

@@ -146,3 +146,29 @@ def test_fault_latched_error_type_is_a_cell_error():
 
     assert issubclass(FaultLatched, CellError) and issubclass(LimitError, ValueError)
     assert can.Message  # python-can is the transport
+
+
+def test_axes_move_coordinated_and_arrive_together(arm, sim_drives, sim_clock):
+    start = arm.joints()
+    target = Joints(start.j1_deg - 30.0, start.j2_deg - 5.0, start.j3_mm - 120.0, start.j4_deg + 200.0)
+    duration = arm.move_time_s(start, target)
+    t0 = sim_clock.now()
+    arm.move_joints(target, wait=False)
+    sim_clock.sleep(duration / 2)
+    pos = sim_drives.positions()
+    fractions = [
+        (pos[j] - getattr(start, f)) / (getattr(target, f) - getattr(start, f))
+        for j, f in (("j1", "j1_deg"), ("j2", "j2_deg"), ("j3", "j3_mm"), ("j4", "j4_deg"))
+    ]
+    assert fractions == pytest.approx([0.5] * 4, abs=0.03)  # symmetric profiles: half-way at half time
+    arm.wait_idle()
+    assert sim_clock.now() - t0 == pytest.approx(duration, abs=0.03)
+
+
+def test_sdo_abort_is_reported_with_its_node(arm):
+    from drivers import SdoError
+
+    with pytest.raises(SdoError, match=r"j1 \(node 1\): SDO write of 0x6060:0 = 3 aborted"):
+        arm.axes["j1"].sdo_write(0x6060, 0, 3)  # velocity mode: not supported by the drive
+    with pytest.raises(SdoError, match="aborted"):
+        arm.axes["j1"].sdo_write(0x6041, 0, 0)  # the statusword is read-only

@@ -11,7 +11,7 @@ Data flow: joint command -> limits (drivers.limits) -> counts (codec) -> RPDO / 
 (drivers.axis) -> bus; TPDO / EMCY / heartbeat frames -> codec -> supervision (drivers.arm).
 """
 
-from drivers.arm import Arm, Gripper, GripResult
+from drivers.arm import Arm
 from drivers.bus import open_bus
 from drivers.clock import RealClock, SimClock
 from drivers.errors import (
@@ -25,6 +25,7 @@ from drivers.errors import (
     NotConnected,
     SdoError,
 )
+from drivers.gripper import Gripper, GripResult
 from drivers.session import real_cell, simulated_cell
 
 CellDrives = Arm

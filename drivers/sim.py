@@ -103,7 +103,9 @@ class SimHandle:
 
         kind : 'silent' (node stops sending and hearing), 'emcy' (the node faults with EMCY
             `code`, default 0x2310 over-current; with `after_s`, that many seconds into its
-            next move), 'following_error' (same, EMCY 0x8611 and statusword bit 13),
+            next move), 'following_error' (the axis jams `after_s` into its next move, default
+            at once; the drive faults with EMCY 0x8611 and statusword bit 13 when the demand
+            leaves the following error window 0x6065),
             'drop_sdo' (the next `count` SDO answers are lost; default all, until `heal`),
             'error_frames' (`count` error frames on the bus, default 3; no node needed).
         """

@@ -109,6 +109,7 @@ class SimDrive:
         self.silent = False
         self.drop_sdo = 0  # number of SDO answers still to drop (-1: all)
         self._armed: list[dict] = []
+        self._jammed_at: float | None = None  # actual position of a blocked axis (following error)
 
     # --- object dictionary plumbing --------------------------------------------------------
     def _store(self, index: int, subindex: int, value) -> None:
@@ -324,6 +325,7 @@ class SimDrive:
 
     def _fault_reset(self) -> None:
         self.state = "SWITCH_ON_DISABLED"
+        self._jammed_at = None  # the operator cleared the blockage before resetting
         self.error_code = 0
         self.following_error = False
         self._armed = [f for f in self._armed if f["kind"] not in ("emcy", "following_error")]
@@ -382,16 +384,23 @@ class SimDrive:
         if m is None:
             return
         elapsed = now - m.t0_s
+        demand = m.start_counts + m.profile.position_at(elapsed)
         for f in list(self._armed):
-            if f["kind"] in ("emcy", "following_error") and elapsed >= f["after_s"]:
+            if elapsed >= f["after_s"]:
                 self._armed.remove(f)
-                self.position_counts = m.start_counts + m.profile.position_at(elapsed)
                 if f["kind"] == "following_error":
-                    self._fault(0x8611, following_error=True)
+                    self._jammed_at = self.position_counts  # the axis is blocked mechanically
                 else:
+                    self.position_counts = demand
                     self._fault(f["code"])
-                return
-        self.position_counts = m.start_counts + m.profile.position_at(elapsed)
+                    return
+        if self._jammed_at is not None:
+            # the actual position stays; the drive faults once the demand leaves the window
+            self.position_counts = self._jammed_at
+            if abs(demand - self._jammed_at) > int(self._get(0x6065)):
+                self._fault(0x8611, following_error=True)
+            return
+        self.position_counts = demand
         if self._blocked(m):
             return
         if elapsed >= m.profile.duration_s:
@@ -427,16 +436,15 @@ class SimDrive:
                 self.silent = True
             elif kind == "drop_sdo":
                 self.drop_sdo = int(kw.get("count", -1))
-            elif kind in ("emcy", "following_error"):
-                after_s = kw.get("after_s")
+            elif kind == "following_error":
+                # the axis jams `after_s` into its next move; the drive trips on its window (0x6065)
+                self._armed.append({"kind": kind, "after_s": float(kw.get("after_s") or 0.0)})
+            elif kind == "emcy":
                 code = int(kw.get("code", 0x2310))
-                if after_s is None:
-                    self._fault(
-                        0x8611 if kind == "following_error" else code,
-                        following_error=kind == "following_error",
-                    )
+                if kw.get("after_s") is None:
+                    self._fault(code)
                 else:
-                    self._armed.append({"kind": kind, "after_s": float(after_s), "code": code})
+                    self._armed.append({"kind": kind, "after_s": float(kw["after_s"]), "code": code})
             else:
                 raise ValueError(f"unknown fault kind {kind!r}; one of {FAULT_KINDS}")
 

@@ -183,3 +183,14 @@ def test_drives_faulted_before_connect_stay_latched_until_reset(sim_drives, open
             arm.move_joints(arm.joints())
         _assert_recovers(arm, sim_drives)
     first.disconnect()
+
+
+def test_following_error_trips_when_the_demand_leaves_the_window(arm, sim_drives):
+    window_deg = sim_drives.drives["j1"]._get(0x6065) / 1000.0  # 2 degrees in the EDS
+    start = arm.joints()
+    sim_drives.inject_fault("following_error", "j1", after_s=0.1)
+    with pytest.raises(DriveFault, match="following error"):
+        arm.move_joints(Joints(start.j1_deg - 40.0, start.j2_deg, start.j3_mm, start.j4_deg))
+    j1 = sim_drives.drives["j1"]
+    demand_gap = abs(j1.position() - start.j1_deg)
+    assert 0 < demand_gap < 40.0 - window_deg  # jammed early, far from the target

@@ -46,6 +46,7 @@ from drivers.pump import BusPump
 HOST_NODE_ID = 0x7F  # the host's own heartbeat id (the drives watch it)
 HEARTBEAT_DEADLINE_FACTOR = 3.0  # a node is silent after this many of its heartbeat periods
 POSITION_TOLERANCE_COUNTS = 2
+TPDO_EVENT_TIMER_MS = 50  # status at least every 50 ms when nothing changes (the watch sees a stuck drive)
 
 
 class Arm:
@@ -168,6 +169,7 @@ class Arm:
                 node=ax.name,
                 node_id=ax.node_id,
             )
+        ax.setup_pdos(TPDO_EVENT_TIMER_MS)
         ax.sdo_write(0x1017, 0, c.can.heartbeat_ms)
         deadline_ms = round(HEARTBEAT_DEADLINE_FACTOR * c.can.host_heartbeat_ms)
         ax.sdo_write(0x1016, 1, codec.consumer_heartbeat_entry(HOST_NODE_ID, deadline_ms))

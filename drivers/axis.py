@@ -178,6 +178,28 @@ class Axis:
                 node_id=self.node_id,
             ) from None
 
+    def setup_pdos(self, event_timer_ms: int) -> None:
+        """Check the drive's PDO mapping is the one `drivers.codec` packs (a drive mapped
+        differently is refused, not misread) and set the communication parameters: TPDO1
+        event-driven with an event timer, RPDO1-3 valid on their default COB-IDs."""
+        tpdo = tuple(self.sdo_read(0x1A00, i) for i in range(1, self.sdo_read(0x1A00, 0) + 1))
+        rpdo = tuple(
+            tuple(self.sdo_read(0x1600 + k, i) for i in range(1, self.sdo_read(0x1600 + k, 0) + 1)) for k in range(3)
+        )
+        if tpdo != codec.TPDO1_MAPPING or rpdo != codec.RPDO_MAPPINGS:
+            raise DriveFault(
+                f"{self.name} (node {self.node_id}): PDO mapping differs from the cell's "
+                f"(TPDO1 {[hex(m) for m in tpdo]}, RPDO1-3 {[[hex(m) for m in r] for r in rpdo]})",
+                node=self.name,
+                node_id=self.node_id,
+            )
+        self.sdo_write(0x1800, 1, codec.TPDO1_BASE + self.node_id)
+        self.sdo_write(0x1800, 2, codec.PDO_EVENT_DRIVEN)
+        self.sdo_write(0x1800, 5, event_timer_ms)
+        for k, base in enumerate(codec.RPDO_BASES):
+            self.sdo_write(0x1400 + k, 1, base + self.node_id)
+            self.sdo_write(0x1400 + k, 2, codec.PDO_EVENT_DRIVEN)
+
     # --- frames out ------------------------------------------------------------------------
     def nmt(self, command: int) -> None:
         self.network.send_message(codec.NMT_COB, codec.pack_nmt(command, self.node_id))

@@ -30,6 +30,12 @@ SDO_TX_BASE = 0x580  # server -> client
 SDO_RX_BASE = 0x600  # client -> server
 HEARTBEAT_BASE = 0x700
 
+# the static PDO mapping (0x1A00 / 0x1600-0x1602 entries: index << 16 | subindex << 8 | bits)
+TPDO1_MAPPING = (0x60410010, 0x60640020, 0x60610008)
+RPDO_MAPPINGS = ((0x60400010,), (0x607A0020,), (0x60600008,))
+RPDO_BASES = (RPDO1_BASE, RPDO2_BASE, RPDO3_BASE)
+PDO_EVENT_DRIVEN = 255  # transmission type: on change (device profile specific) and event timer
+
 # NMT states as sent in heartbeats, and NMT command specifiers
 NMT_STATE_NAMES = {0x00: "INITIALISING", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
 NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82

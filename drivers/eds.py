@@ -13,6 +13,8 @@ from pathlib import Path
 
 import canopen
 
+from drivers import codec
+
 U8, U16, U32, I8, I32, VSTR = 0x0005, 0x0006, 0x0007, 0x0002, 0x0004, 0x0009
 VAR, ARRAY, RECORD = 0x7, 0x8, 0x9
 
@@ -45,8 +47,8 @@ def _objects(gripper: bool) -> list[tuple]:
             RECORD,
             [
                 (0, "Highest sub-index supported", U8, "const", "5", 0),
-                (1, "COB-ID", U32, "ro", cob, 0),
-                (2, "Transmission type", U8, "ro", "255", 0),
+                (1, "COB-ID", U32, "rw", cob, 0),
+                (2, "Transmission type", U8, "rw", "255", 0),
                 (3, "Inhibit time", U16, "rw", "0", 0),
                 (5, "Event timer", U16, "rw", "0", 0),
             ],
@@ -97,15 +99,15 @@ def _objects(gripper: bool) -> list[tuple]:
         pdo_comm(0x1401, "RPDO2 communication parameter", "$NODEID+0x300"),
         pdo_comm(0x1402, "RPDO3 communication parameter", "$NODEID+0x400"),
         pdo_comm(0x1403, "RPDO4 communication parameter", "$NODEID+0x80000500"),
-        pdo_map(0x1600, "RPDO1 mapping parameter", [0x60400010]),
-        pdo_map(0x1601, "RPDO2 mapping parameter", [0x607A0020]),
-        pdo_map(0x1602, "RPDO3 mapping parameter", [0x60600008]),
+        pdo_map(0x1600, "RPDO1 mapping parameter", list(codec.RPDO_MAPPINGS[0])),
+        pdo_map(0x1601, "RPDO2 mapping parameter", list(codec.RPDO_MAPPINGS[1])),
+        pdo_map(0x1602, "RPDO3 mapping parameter", list(codec.RPDO_MAPPINGS[2])),
         pdo_map(0x1603, "RPDO4 mapping parameter", []),
         pdo_comm(0x1800, "TPDO1 communication parameter", "$NODEID+0x180"),
         pdo_comm(0x1801, "TPDO2 communication parameter", "$NODEID+0x80000280"),
         pdo_comm(0x1802, "TPDO3 communication parameter", "$NODEID+0x80000380"),
         pdo_comm(0x1803, "TPDO4 communication parameter", "$NODEID+0x80000480"),
-        pdo_map(0x1A00, "TPDO1 mapping parameter", [0x60410010, 0x60640020, 0x60610008]),
+        pdo_map(0x1A00, "TPDO1 mapping parameter", list(codec.TPDO1_MAPPING)),
         pdo_map(0x1A01, "TPDO2 mapping parameter", []),
         pdo_map(0x1A02, "TPDO3 mapping parameter", []),
         pdo_map(0x1A03, "TPDO4 mapping parameter", []),

@@ -70,9 +70,13 @@ class SimDrive:
         self.node.add_write_callback(self._on_write)
         self._sdo_send = self.node.sdo.send_response
         self.node.sdo.send_response = self._send_sdo_response
-        network.subscribe(codec.RPDO1_BASE + node_id, self._on_rpdo1)
-        network.subscribe(codec.RPDO2_BASE + node_id, self._on_rpdo2)
-        network.subscribe(codec.RPDO3_BASE + node_id, self._on_rpdo3)
+        # RPDOs by their communication object (the COB-IDs are writable, as on real drives)
+        self._rpdo_handlers = {0x1400: self._on_rpdo1, 0x1401: self._on_rpdo2, 0x1402: self._on_rpdo3}
+        self._rpdo_cobs: dict[int, int] = {}
+        for comm in self._rpdo_handlers:
+            self._subscribe_rpdo(comm, int(self._get(comm, 1)))
+        network.subscribe(codec.SYNC_COB, self._on_sync)
+        self._sync_count = 0
         # object dictionary values the cell file sets (as a commissioning tool would)
         c = counts_per_unit
         self._store(0x607D, 1, codec.to_counts(limits[0], c))
@@ -150,6 +154,21 @@ class SimDrive:
                 self._set_host_watch(value)
             elif index == 0x1017 and value < 0:
                 raise SdoAbortedError(0x06090030)
+            elif 0x1400 <= index <= 0x1403 and subindex == 2 and value not in (254, 255):
+                raise SdoAbortedError(0x06090030)  # RPDOs act on reception here (no SYNC-applied RPDOs)
+            elif 0x1800 <= index <= 0x1803 and subindex == 2 and 240 < value < 254:
+                raise SdoAbortedError(0x06090030)
+            elif index in self._rpdo_handlers and subindex == 1:
+                self._subscribe_rpdo(index, value)
+
+    def _subscribe_rpdo(self, comm_index: int, cob_entry: int) -> None:
+        handler = self._rpdo_handlers[comm_index]
+        old = self._rpdo_cobs.pop(comm_index, None)
+        if old is not None:
+            self.network.unsubscribe(old, handler)
+        if not cob_entry & 0x80000000:  # bit 31 set: PDO not valid
+            self._rpdo_cobs[comm_index] = cob_entry & 0x7FF
+            self.network.subscribe(cob_entry & 0x7FF, handler)
 
     def _send_sdo_response(self, response) -> None:
         with self._lock:
@@ -417,17 +436,38 @@ class SimDrive:
         """Hook for the gripper: True when the motion was stopped by something physical."""
         return False
 
+    def _tpdo1_data(self) -> bytes:
+        return codec.pack_tpdo1(codec.DriveStatus(self.statusword, round(self.position_counts), self.mode))
+
     def _publish(self, now: float | None = None) -> None:
-        """Send TPDO1 when the status changed, or when the event timer is due."""
+        """Event-driven TPDO1 (transmission type 254/255): when the status changed, or when the
+        event timer is due. Synchronous types are sent on SYNC instead (`_on_sync`)."""
         if self.silent or self.nmt != NMT_OPERATIONAL:
             return
+        cob = int(self._get(0x1800, 1))
+        if cob & 0x80000000 or int(self._get(0x1800, 2)) <= 240:
+            return
         now = self.clock.now() if now is None else now
-        data = codec.pack_tpdo1(codec.DriveStatus(self.statusword, round(self.position_counts), self.mode))
+        data = self._tpdo1_data()
         event_ms = int(self._get(0x1800, 5))
         due = event_ms > 0 and now - self._last_tpdo_s >= event_ms / 1000.0 - 1e-9
         if data != self._last_tpdo or due:
             self._last_tpdo, self._last_tpdo_s = data, now
-            self.network.send_message(codec.TPDO1_BASE + self.node_id, data)
+            self.network.send_message(cob & 0x7FF, data)
+
+    def _on_sync(self, can_id, data, timestamp) -> None:
+        """Synchronous TPDO1: type 0 on SYNC when changed, types 1-240 on every n-th SYNC."""
+        with self._lock:
+            if self.silent or self.nmt != NMT_OPERATIONAL:
+                return
+            self._sync_count += 1
+            cob, kind = int(self._get(0x1800, 1)), int(self._get(0x1800, 2))
+            if cob & 0x80000000 or kind > 240:
+                return
+            data = self._tpdo1_data()
+            if (kind == 0 and data != self._last_tpdo) or (kind > 0 and self._sync_count % kind == 0):
+                self._last_tpdo, self._last_tpdo_s = data, self.clock.now()
+                self.network.send_message(cob & 0x7FF, data)
 
     # --- fault injection -------------------------------------------------------------------
     def arm(self, kind: str, **kw) -> None:

@@ -126,3 +126,46 @@ def test_drive_faults_on_a_target_outside_0x607d(open_test_bus, cell_cfg):
             assert drives.positions()["j1"] == pytest.approx(cell_cfg.motion.home_joints["j1_deg"])
         finally:
             network.disconnect()
+
+
+def test_pdo_settings_can_be_saved_and_sync_drives_the_tpdo(open_test_bus, sim_clock):
+    """A master may rewrite the PDO communication parameters (canopen's PdoMap.save) and use
+    synchronous TPDOs; the static mapping survives the save."""
+    with sim.serve(open_test_bus(), clock=sim_clock) as drives:
+        bus = open_test_bus()
+        network = canopen.Network(bus)
+        network.connect()
+        try:
+            node = canopen.BaseNode402(3, drives.nodes[2]["eds"])
+            network.add_node(node)
+            node.tpdo.read()
+            node.tpdo[1].trans_type = 2  # every second SYNC
+            node.tpdo[1].save()
+            assert node.sdo[0x1800][2].raw == 2
+            assert [v.index for v in node.tpdo[1]] == [0x6041, 0x6064, 0x6061]
+            node.nmt.state = "OPERATIONAL"
+            got = []
+            node.tpdo[1].add_callback(lambda m: got.append(m["Statusword"].raw))
+            sim_clock.sleep(0.5)  # no SYNC: no TPDO, whatever the event timer says
+            assert got == []
+            for _ in range(4):
+                network.sync.transmit()
+                sim_clock.sleep(0.01)
+            deadline = time.monotonic() + 1.0  # this master's receive thread is not on the clock
+            while len(got) < 2 and time.monotonic() < deadline:
+                time.sleep(0.005)
+            time.sleep(0.05)
+            assert len(got) == 2 and got[0] & 0x4F == 0x40  # SWITCH ON DISABLED
+        finally:
+            network.disconnect()
+
+
+def test_a_drive_mapped_differently_is_refused(open_test_bus, sim_clock, cell_cfg):
+    from drivers import Arm, DriveFault
+
+    with sim.serve(open_test_bus(), cell_cfg, clock=sim_clock) as drives:
+        drives.drives["j2"]._store(0x1A00, 0, 2)  # this drive's TPDO1 lacks the mode display
+        arm = Arm(open_test_bus(), cell_cfg, clock=sim_clock)
+        with pytest.raises(DriveFault, match=r"j2 \(node 2\): PDO mapping differs"):
+            arm.connect()
+        assert not arm.is_connected

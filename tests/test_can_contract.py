@@ -137,6 +137,7 @@ def test_commands_before_connect_are_refused(open_test_bus, cell_cfg):
     assert not a.is_connected
 
 
+@needs_sim
 def test_context_manager_connects_and_disconnects(sim_drives, open_test_bus, sim_clock, cell_cfg):
     with Arm(open_test_bus(), cell_cfg, clock=sim_clock) as a:
         assert a.is_connected
@@ -156,6 +157,7 @@ def test_fault_latched_error_type_is_a_cell_error():
     assert can.Message  # python-can is the transport
 
 
+@needs_sim
 def test_axes_move_coordinated_and_arrive_together(arm, sim_drives, sim_clock):
     start = arm.joints()
     target = Joints(start.j1_deg - 30.0, start.j2_deg - 5.0, start.j3_mm - 120.0, start.j4_deg + 200.0)

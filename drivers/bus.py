@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import can
 
+from cell.errors import BadInput
 from drivers.errors import BusFault
 
 DEFAULT_INTERFACE = "virtual"
@@ -19,6 +20,10 @@ def open_bus(
 ) -> can.BusABC:
     """A python-can bus: any interface python-can knows ('virtual' here, 'socketcan' on the
     cell). Open one per participant: on 'virtual', a bus does not hear its own frames."""
+    if interface not in can.VALID_INTERFACES:
+        raise BadInput(
+            f"unknown CAN interface {interface!r}; python-can knows: {', '.join(sorted(can.VALID_INTERFACES))}"
+        )
     try:
         if interface == "virtual":
             return can.Bus(interface=interface, channel=channel, **kwargs)

@@ -42,9 +42,7 @@ def test_hw_status_json_real_time_contract(capsys):
 
 def test_hw_jog_moves_one_joint(capsys, tmp_path):
     log = tmp_path / "jog.asc"
-    code, out, err = run_cli(
-        "hw", "jog", "j1", "-2.5", "--simulated-time", "--json", "--record", log, capsys=capsys
-    )
+    code, out, err = run_cli("hw", "jog", "j1", "-2.5", "--simulated-time", "--json", "--record", log, capsys=capsys)
     assert code == 0, err
     r = _lines(out)[0]
     assert r["to"]["j1_deg"] - r["from"]["j1_deg"] == pytest.approx(-2.5)
@@ -179,9 +177,7 @@ def test_ctrl_c_quick_stops_every_axis(tmp_path):
     assert "quick-stopped" in err and "Traceback" not in err
     frames = read_log(log)
     quick_stops = {
-        m.arbitration_id - 0x200
-        for m in frames
-        if 0x201 <= m.arbitration_id <= 0x205 and bytes(m.data) == b"\x02\x00"
+        m.arbitration_id - 0x200 for m in frames if 0x201 <= m.arbitration_id <= 0x205 and bytes(m.data) == b"\x02\x00"
     }
     assert quick_stops == {1, 2, 3, 4, 5}
 
@@ -197,3 +193,8 @@ def test_hw_sim_serves_until_sigterm():
     finally:
         proc.kill()
     assert proc.returncode == 0 and "stopped" in err
+
+
+def test_unknown_interface_is_bad_input(capsys):
+    code, _, err = run_cli("hw", "status", "--interface", "nonsense", capsys=capsys)
+    assert code == 2 and "unknown CAN interface 'nonsense'" in err and "socketcan" in err

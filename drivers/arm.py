@@ -46,6 +46,7 @@ from drivers.pump import BusPump
 HOST_NODE_ID = 0x7F  # the host's own heartbeat id (the drives watch it)
 HEARTBEAT_DEADLINE_FACTOR = 3.0  # a node is silent after this many of its heartbeat periods
 POSITION_TOLERANCE_COUNTS = 2
+QUICK_STOP_DECEL_FACTOR = 2.0  # quick stop / fault reaction deceleration = this x the max acceleration
 TPDO_EVENT_TIMER_MS = 50  # status at least every 50 ms when nothing changes (the watch sees a stuck drive)
 
 
@@ -189,6 +190,7 @@ class Arm:
         a = max(1, round(accel * ax.counts_per_unit))
         ax.sdo_write(0x6083, 0, a)
         ax.sdo_write(0x6084, 0, a)
+        ax.sdo_write(0x6085, 0, max(1, round(QUICK_STOP_DECEL_FACTOR * accel * ax.counts_per_unit)))
 
     def _enable_all(self) -> None:
         """Enable every drive. A drive found in FAULT (say, after a host crash) is not reset
@@ -271,7 +273,7 @@ class Arm:
                         node_id=ax.node_id,
                         emcy_code=e.code,
                     )
-            if err is None and ax.state == "FAULT":
+            if err is None and ax.state in ("FAULT", "FAULT_REACTION_ACTIVE"):
                 err = DriveFault(
                     f"{ax.name} (node {ax.node_id}): {ax.fault_text()}",
                     node=ax.name,
@@ -292,9 +294,10 @@ class Arm:
             if err is not None:
                 self._latch(err)
 
-    def _latch(self, err: DriverError) -> None:
+    def _latch(self, err: DriverError, key: str | None = None) -> None:
+        """Remember the first fault per node ('bus' for the bus, 'stop' for an operator's stop)."""
         with self._lock:
-            key = err.node or "bus"
+            key = key or err.node or "bus"
             if key not in self._faults:
                 self._faults[key] = err
 
@@ -305,19 +308,34 @@ class Arm:
             return {k: str(v) for k, v in self._faults.items()}
 
     def stop(self) -> None:
-        """Quick-stop every enabled axis now (Ctrl-C, an operator's stop). The drives stay in
-        QUICK STOP ACTIVE until the next enable (`reset_faults()`)."""
+        """Quick-stop every enabled axis now (Ctrl-C, an operator's stop) and wait until they
+        stand still. Latched like a fault: the drives stay in QUICK STOP ACTIVE and commands are
+        refused until `reset_faults()`."""
         if self._connected:
             self._stop_all()
             self._pending = ({}, 0.0)
+            self._latch(DriverError("quick stop requested by the operator"), key="stop")
 
     def _stop_all(self) -> None:
+        """Quick-stop every axis that still obeys, then wait (on the clock) until all stand still."""
         for ax in self.axes.values():
             if ax.name not in self._faults:
                 try:
                     ax.quick_stop()
                 except (can.CanError, DriverError):
                     pass  # stopping the others matters more than this one's answer
+        self._wait_standstill()
+
+    def _wait_standstill(self, timeout_s: float = 2.0) -> None:
+        """Until no drive ramps any more: positions unchanged over a poll, no fault reaction."""
+        deadline = self.clock.now() + timeout_s
+        last = None
+        while self.clock.now() < deadline:
+            now = {n: (ax.status.position_counts if ax.status else None, ax.state) for n, ax in self.axes.items()}
+            if now == last and not any(st == "FAULT_REACTION_ACTIVE" for _, st in now.values()):
+                return
+            last = now
+            self.clock.sleep(max(self.poll_s, 0.02))
 
     def _check_faults(self, during_move: bool) -> None:
         with self._lock:
@@ -334,6 +352,7 @@ class Arm:
         (and stays latched) when a node is still silent or faults again."""
         self._require_connected()
         self._watch()
+        self._wait_standstill()  # a drive in its fault reaction finishes its ramp first
         for ax in self.axes.values():
             if ax.last_heartbeat_s is None or self.clock.now() - ax.last_heartbeat_s > self.heartbeat_deadline_s:
                 # give a node that went quiet one deadline to show up again

@@ -230,7 +230,7 @@ class Axis:
                 st = self.status
                 if st is not None and (after_seq is None or self.status_seq > after_seq) and pred(st):
                     return st
-                if st is not None and st.state == "FAULT" and "FAULT" not in what:
+                if st is not None and st.state in ("FAULT", "FAULT_REACTION_ACTIVE") and "FAULT" not in what:
                     raise DriveFault(
                         f"{self.name} (node {self.node_id}): {self.fault_text()} while waiting for {what}",
                         node=self.name,

@@ -136,6 +136,7 @@ def _objects(gripper: bool) -> list[tuple]:
         var(0x6081, "Profile velocity", U32, "rw", "10000", 1),
         var(0x6083, "Profile acceleration", U32, "rw", "100000", 1),
         var(0x6084, "Profile deceleration", U32, "rw", "100000", 1),
+        var(0x6085, "Quick stop deceleration", U32, "rw", "200000"),
         var(0x6502, "Supported drive modes", U32, "ro", "0x00000001"),
     ]
     return objs

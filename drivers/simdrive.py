@@ -27,6 +27,7 @@ log = logging.getLogger(__name__)
 TPDO_EVENT_MS = 50  # TPDO1 is also sent at least this often (canopen's BaseNode402 waits 0.2 s)
 FAULT_KINDS = ("silent", "emcy", "following_error", "drop_sdo", "error_frames")
 NMT_OPERATIONAL, NMT_PREOP, NMT_STOPPED, NMT_INIT = 0x05, 0x7F, 0x04, 0x00
+QUICK_STOP_DECEL_FACTOR = 2.0  # quick stop / fault reaction ramp = this x the profile acceleration
 
 
 @dataclass
@@ -35,6 +36,7 @@ class _Motion:
     start_counts: float
     target_counts: int
     profile: Trapezoid
+    stopping: bool = False  # a quick-stop or fault-reaction ramp to standstill
 
 
 class SimDrive:
@@ -84,6 +86,7 @@ class SimDrive:
         self._store(0x6081, 0, max(1, round(velocity * c)))
         self._store(0x6083, 0, max(1, round(acceleration * c)))
         self._store(0x6084, 0, max(1, round(acceleration * c)))
+        self._store(0x6085, 0, max(1, round(QUICK_STOP_DECEL_FACTOR * acceleration * c)))
         self._store(0x1017, 0, heartbeat_ms)
         self._store(0x1800, 5, tpdo_event_ms)
         # drive state
@@ -256,8 +259,8 @@ class SimDrive:
         self._store(0x6040, 0, cw)
         cmd = codec.command_of(cw)
         s = self.state
-        if s == "FAULT":
-            if cw & codec.CW_FAULT_RESET and not prev & codec.CW_FAULT_RESET:
+        if s in ("FAULT", "FAULT_REACTION_ACTIVE"):
+            if s == "FAULT" and cw & codec.CW_FAULT_RESET and not prev & codec.CW_FAULT_RESET:
                 self._fault_reset()
         elif cmd == "DISABLE_VOLTAGE":
             self._enter("SWITCH_ON_DISABLED")
@@ -279,7 +282,10 @@ class SimDrive:
         self._publish()
 
     def _enter(self, state: str) -> None:
-        if state != "OPERATION_ENABLED":
+        if state == "QUICK_STOP_ACTIVE":
+            self._ramp_down()  # decelerate with the quick stop deceleration 0x6085
+            self.ack = False
+        elif state != "OPERATION_ENABLED":
             self._stop_motion()
             self.ack = False
         elif self.state != "OPERATION_ENABLED":
@@ -326,11 +332,31 @@ class SimDrive:
         self.motion = None
         self.pending = None
 
-    def _fault(self, code: int, *, following_error: bool = False) -> None:
-        if self.state == "FAULT":
+    def _ramp_down(self) -> None:
+        """Replace the running move by a ramp to standstill at the quick stop deceleration."""
+        m = self.motion
+        self.pending = None
+        if m is None or m.stopping:
             return
-        self._stop_motion()
-        self.state = "FAULT"
+        now = self.clock.now()
+        v0 = m.profile.velocity_at(now - m.t0_s)
+        d = float(self._get(0x6085))
+        if v0 == 0.0 or d <= 0:
+            self.motion = None
+            return
+        t_s = abs(v0) / d
+        ramp = Trapezoid(v0 * t_s / 2, abs(v0), d, d, 0.0, 0.0, t_s)
+        self.motion = _Motion(now, self.position_counts, round(self.position_counts + ramp.distance), ramp, True)
+
+    def _fault(self, code: int, *, following_error: bool = False) -> None:
+        if self.state in ("FAULT", "FAULT_REACTION_ACTIVE"):
+            return
+        if self.motion is not None and self._jammed_at is None:
+            self._ramp_down()  # fault reaction: stop on the ramp, then FAULT (in _move)
+            self.state = "FAULT_REACTION_ACTIVE"
+        else:
+            self._stop_motion()
+            self.state = "FAULT"
         self.ack = False
         self.following_error = following_error
         self.error_code = code
@@ -385,9 +411,10 @@ class SimDrive:
                 if self.state == "OPERATION_ENABLED":
                     self._fault(0x8130)
                 self._host_seen_s = None  # watching restarts with the next heartbeat heard
+                self._move(now)  # the mechanics go on (the fault reaction ramp), in silence
                 return
             if self._host_id and self._host_seen_s is not None and self._host_deadline_s > 0:
-                if now - self._host_seen_s > self._host_deadline_s and self.state != "FAULT":
+                if now - self._host_seen_s > self._host_deadline_s and "FAULT" not in self.state:
                     if self.state in ("OPERATION_ENABLED", "QUICK_STOP_ACTIVE") or self.motion:
                         self._fault(0x8130)
                     self._host_seen_s = None  # report once; re-armed by the next heartbeat
@@ -404,7 +431,7 @@ class SimDrive:
             return
         elapsed = now - m.t0_s
         demand = m.start_counts + m.profile.position_at(elapsed)
-        for f in list(self._armed):
+        for f in list(self._armed) if not m.stopping else ():
             if elapsed >= f["after_s"]:
                 self._armed.remove(f)
                 if f["kind"] == "following_error":
@@ -421,6 +448,12 @@ class SimDrive:
             return
         self.position_counts = demand
         if self._blocked(m):
+            return
+        if m.stopping:
+            if elapsed >= m.profile.duration_s:
+                self.motion = None
+                if self.state == "FAULT_REACTION_ACTIVE":
+                    self.state = "FAULT"
             return
         if elapsed >= m.profile.duration_s:
             self.position_counts = float(m.target_counts)

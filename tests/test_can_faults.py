@@ -194,3 +194,21 @@ def test_following_error_trips_when_the_demand_leaves_the_window(arm, sim_drives
     j1 = sim_drives.drives["j1"]
     demand_gap = abs(j1.position() - start.j1_deg)
     assert 0 < demand_gap < 40.0 - window_deg  # jammed early, far from the target
+
+
+def test_stop_ramps_down_with_the_quick_stop_deceleration(arm, sim_drives):
+    start = arm.joints()
+    arm.move_joints(Joints(start.j1_deg - 100.0, start.j2_deg, start.j3_mm, start.j4_deg), wait=False)
+    arm.clock.sleep(0.4)  # cruising at the j1 speed limit
+    v = arm.cell.scara.max_velocity["j1"]
+    at_stop = sim_drives.positions()["j1"]
+    arm.stop()
+    stopped = sim_drives.positions()["j1"]
+    decel = 2.0 * arm.cell.scara.max_acceleration["j1"]  # QUICK_STOP_DECEL_FACTOR
+    assert at_stop - stopped == pytest.approx(v * v / (2 * decel), abs=0.5)  # v^2 / 2d = 11.25 deg
+    assert sim_drives.drives["j1"].state == "QUICK_STOP_ACTIVE"
+    _assert_frozen(arm, sim_drives)
+    assert set(arm.faults) == {"stop"}
+    with pytest.raises(FaultLatched, match="stop: quick stop requested"):
+        arm.move_joints(arm.joints())
+    _assert_recovers(arm, sim_drives)

@@ -88,11 +88,12 @@ def _session(args, cell, *, enable: bool = True):
 
     if _simulated(args):
         clock = SimClock() if args.simulated_time else RealClock()
-        with simulated_cell(cell, clock, channel=args.channel, record=args.record, enable=enable) as (
-            arm,
-            drives,
-        ):
-            yield arm, drives
+        session = simulated_cell(cell, clock, channel=args.channel, record=args.record, enable=enable)
+        try:
+            with session as (arm, drives):
+                yield arm, drives
+        finally:
+            clock.close()
     else:
         with real_cell(args.interface, args.channel or "can0", cell, record=args.record, enable=enable) as arm:
             yield arm, None

@@ -193,12 +193,26 @@ class Axis:
                 node=self.name,
                 node_id=self.node_id,
             )
-        self.sdo_write(0x1800, 1, codec.TPDO1_BASE + self.node_id)
-        self.sdo_write(0x1800, 2, codec.PDO_EVENT_DRIVEN)
-        self.sdo_write(0x1800, 5, event_timer_ms)
+        self._ensure_cob_id(0x1800, codec.TPDO1_BASE + self.node_id)
+        self._ensure(0x1800, 2, codec.PDO_EVENT_DRIVEN)
+        self._ensure(0x1800, 5, event_timer_ms)
         for k, base in enumerate(codec.RPDO_BASES):
-            self.sdo_write(0x1400 + k, 1, base + self.node_id)
-            self.sdo_write(0x1400 + k, 2, codec.PDO_EVENT_DRIVEN)
+            self._ensure_cob_id(0x1400 + k, base + self.node_id)
+            self._ensure(0x1400 + k, 2, codec.PDO_EVENT_DRIVEN)
+
+    def _ensure(self, index: int, subindex: int, value: int) -> None:
+        """Write only what differs: fewer frames, and no writes a drive may refuse while running."""
+        if self.sdo_read(index, subindex) != value:
+            self.sdo_write(index, subindex, value)
+
+    def _ensure_cob_id(self, comm_index: int, cob_id: int) -> None:
+        """A valid PDO on `cob_id`; CiA 301 wants the PDO invalid (bit 31) while its id changes."""
+        current = self.sdo_read(comm_index, 1)
+        if current & 0x7FF == cob_id and not current & 0x80000000:
+            return
+        if not current & 0x80000000:
+            self.sdo_write(comm_index, 1, current | 0x80000000)
+        self.sdo_write(comm_index, 1, cob_id)
 
     # --- frames out ------------------------------------------------------------------------
     def nmt(self, command: int) -> None:

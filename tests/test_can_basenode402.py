@@ -169,3 +169,18 @@ def test_a_drive_mapped_differently_is_refused(open_test_bus, sim_clock, cell_cf
         with pytest.raises(DriveFault, match=r"j2 \(node 2\): PDO mapping differs"):
             arm.connect()
         assert not arm.is_connected
+
+
+def test_the_host_restores_the_pdo_communication_it_needs(open_test_bus, sim_clock, cell_cfg):
+    from cell.kinematics import Joints
+    from drivers import Arm
+
+    with sim.serve(open_test_bus(), cell_cfg, clock=sim_clock) as drives:
+        j3 = drives.drives["j3"]
+        j3._store(0x1800, 1, 0x80000183)  # someone left TPDO1 disabled ...
+        j3._store(0x1800, 2, 1)  # ... and synchronous
+        with Arm(open_test_bus(), cell_cfg, clock=sim_clock) as arm:
+            assert j3._get(0x1800, 1) == 0x183 and j3._get(0x1800, 2) == 255
+            s = arm.joints()
+            arm.move_joints(Joints(s.j1_deg, s.j2_deg, s.j3_mm - 30.0, s.j4_deg))
+            assert drives.positions()["j3"] == pytest.approx(s.j3_mm - 30.0)

@@ -277,7 +277,9 @@ class SimDrive:
                 self._enter("OPERATION_ENABLED")
             elif s == "READY_TO_SWITCH_ON":
                 self._enter("SWITCHED_ON")
-        if self.state == "OPERATION_ENABLED" and self.mode == codec.PP_MODE:
+        if s == self.state == "OPERATION_ENABLED" and self.mode == codec.PP_MODE:
+            # only a drive that was already enabled takes a set-point: the controlword that
+            # enables it never starts a move, even with bit 4 set (enabling never jumps)
             self._profile_position(prev, cw)
         self._publish()
 

@@ -6,6 +6,7 @@
     clock.SimClock / clock.RealClock                      the time both sides share
     record.BusRecorder(bus, path)                         python-can logger of all traffic
     simulated_cell(cell, clock) -> (arm, drives)          all of the above in one context manager
+    execute.run_commands(arm, commands) -> records        a pick's command list on the arm
 
 Data flow: joint command -> limits (drivers.limits) -> counts (codec) -> RPDO / SDO frames
 (drivers.axis) -> bus; TPDO / EMCY / heartbeat frames -> codec -> supervision (drivers.arm).

@@ -136,47 +136,28 @@ class Axis:
         return f"EMCY 0x{code:04X} {codec.emcy_text(code)}"
 
     # --- SDO -------------------------------------------------------------------------------
+    def _sdo_var(self, index: int, subindex: int):
+        obj = self.node.sdo[index]
+        return obj if subindex == 0 and not _is_compound(self.node, index) else obj[subindex]
+
+    def _sdo_failed(self, e: Exception, what: str) -> SdoError:
+        if isinstance(e, SdoCommunicationError):
+            text = f"no SDO answer {what} ({e})"
+        else:
+            text = f"SDO {what} aborted: {e}"
+        return SdoError(f"{self.name} (node {self.node_id}): {text}", node=self.name, node_id=self.node_id)
+
     def sdo_read(self, index: int, subindex: int = 0):
         try:
-            var = (
-                self.node.sdo[index]
-                if subindex == 0 and not _is_compound(self.node, index)
-                else self.node.sdo[index][subindex]
-            )
-            return var.raw
-        except SdoCommunicationError as e:
-            raise SdoError(
-                f"{self.name} (node {self.node_id}): no SDO answer reading 0x{index:04X}:{subindex} ({e})",
-                node=self.name,
-                node_id=self.node_id,
-            ) from None
-        except SdoAbortedError as e:
-            raise SdoError(
-                f"{self.name} (node {self.node_id}): SDO read of 0x{index:04X}:{subindex} aborted: {e}",
-                node=self.name,
-                node_id=self.node_id,
-            ) from None
+            return self._sdo_var(index, subindex).raw
+        except (SdoCommunicationError, SdoAbortedError) as e:
+            raise self._sdo_failed(e, f"reading 0x{index:04X}:{subindex}") from None
 
     def sdo_write(self, index: int, subindex: int, value) -> None:
         try:
-            var = (
-                self.node.sdo[index]
-                if subindex == 0 and not _is_compound(self.node, index)
-                else self.node.sdo[index][subindex]
-            )
-            var.raw = value
-        except SdoCommunicationError as e:
-            raise SdoError(
-                f"{self.name} (node {self.node_id}): no SDO answer writing 0x{index:04X}:{subindex} ({e})",
-                node=self.name,
-                node_id=self.node_id,
-            ) from None
-        except SdoAbortedError as e:
-            raise SdoError(
-                f"{self.name} (node {self.node_id}): SDO write of 0x{index:04X}:{subindex} = {value} aborted: {e}",
-                node=self.name,
-                node_id=self.node_id,
-            ) from None
+            self._sdo_var(index, subindex).raw = value
+        except (SdoCommunicationError, SdoAbortedError) as e:
+            raise self._sdo_failed(e, f"writing 0x{index:04X}:{subindex} = {value}") from None
 
     def setup_pdos(self, event_timer_ms: int) -> None:
         """Check the drive's PDO mapping is the one `drivers.codec` packs (a drive mapped

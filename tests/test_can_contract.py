@@ -178,7 +178,7 @@ def test_axes_move_coordinated_and_arrive_together(arm, sim_drives, sim_clock):
 def test_sdo_abort_is_reported_with_its_node(arm):
     from drivers import SdoError
 
-    with pytest.raises(SdoError, match=r"j1 \(node 1\): SDO write of 0x6060:0 = 3 aborted"):
+    with pytest.raises(SdoError, match=r"j1 \(node 1\): SDO writing 0x6060:0 = 3 aborted"):
         arm.axes["j1"].sdo_write(0x6060, 0, 3)  # velocity mode: not supported by the drive
     with pytest.raises(SdoError, match="aborted"):
         arm.axes["j1"].sdo_write(0x6041, 0, 0)  # the statusword is read-only

@@ -112,6 +112,7 @@ class DemoCell:
         self._counter = 0
         self.joints = Joints(**self.cell.motion.home_joints)
         self._thread: threading.Thread | None = None
+        self._closing = False
         self._render()
 
     # ------------------------------------------------------------------ StationBackend
@@ -182,13 +183,18 @@ class DemoCell:
         self._thread.start()
         return self
 
-    def join(self, timeout_s: float | None = None) -> None:
+    def close(self, timeout_s: float = 5.0) -> None:
+        """Stop the sequence and end the loop thread."""
+        self._closing = True
+        self.control.stop("demo cell closed", by="demo")
+        self.control.reset(by="demo")  # wakes the loop, which sees _closing and ends
         if self._thread is not None:
             self._thread.join(timeout_s)
+            self._thread = None
 
     def _loop(self) -> None:
         rc = self.control
-        while True:
+        while not self._closing:
             try:
                 self._sequence()
                 rc.wait_for_state("idle")  # after done: Reset starts the tray again
@@ -197,6 +203,8 @@ class DemoCell:
                 rc.wait_for_state("idle")
             except Faulted:
                 rc.wait_for_state("idle")
+            if self._closing:
+                break
             with self._lock:
                 self._parts = demo_parts() if not self._parts else self._parts
                 self._removed = []
@@ -261,7 +269,14 @@ class DemoCell:
             i = int(np.argmin(sides[:2])) if n_rejected == 0 else int(np.argmax(sides[:2]))
             a = (rect[(i + 1) % 4] + rect[(i + 2) % 4]) / 2
             b = (rect[(i + 3) % 4] + rect[i]) / 2
-            contacts, how = np.array([a, b]), "across the minimum rectangle"
+            # the rectangle's side midpoints, moved onto the outline (a non-convex part's edge
+            # may lie inside its rectangle)
+            from shapely.geometry import Point
+            from shapely.ops import nearest_points
+
+            boundary = part.polygon.boundary
+            contacts = np.array([nearest_points(boundary, Point(q))[0].coords[0] for q in (a, b)])
+            how = "across the minimum rectangle"
         opening = float(np.linalg.norm(contacts[1] - contacts[0]))
         z = grasp_z_mm(part.z_bottom_mm, part.z_top_mm, self.cell.gripper)
         d = contacts[1] - contacts[0]
@@ -289,7 +304,11 @@ class DemoCell:
                           {"kind": "station-reject", "by": "operator", "at": _now_iso(), "note": reason},
                           obstacles=others, grasp_z_mm=proposal["grasp_z_mm"],
                           joints=Joints.from_dict(proposal["joints"]) if proposal.get("joints") else None)
-        append_examples(self.examples_path, [ex])
+        try:
+            append_examples(self.examples_path, [ex])
+        except BadInput as e:  # keep running: the operator sees why nothing was recorded
+            self.control.log("example", f"rejection on {part.id} not recorded: {e}", part=part.id)
+            return
         n = self._reload_examples()
         with self._lock:
             self._n_examples = n

@@ -289,7 +289,8 @@ class StationServer:
 
     # -- life cycle
     def start(self) -> StationServer:
-        self._thread = threading.Thread(target=self.httpd.serve_forever, name="station-http", daemon=True)
+        self._thread = threading.Thread(target=self.httpd.serve_forever, kwargs={"poll_interval": 0.05},
+                                        name="station-http", daemon=True)
         self._thread.start()
         return self
 

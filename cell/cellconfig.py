@@ -16,6 +16,10 @@ from cell.errors import BadInput
 from cell.fileio import read_json
 
 FORMAT = "disassembly-cell/cell"
+# Joints nearer the contacts say more about the kind of grasp (paper section 7): the wrist
+# J4 fixes how the jaws sit, the elbow J2 which side the arm comes from, the shoulder J1
+# mostly follows the part's position. J3 is the same for every solution (the grasp z).
+DEFAULT_JOINT_WEIGHTS = {"j1": 0.25, "j2": 0.5, "j3": 0.0, "j4": 1.0}
 JOINTS = ("j1", "j2", "j3", "j4")
 
 
@@ -112,6 +116,8 @@ class Cell:
     motion: Motion
     camera: Camera
     can: CanConfig
+    # Paper step 5: weights of the joint-space distance to the examples' configurations.
+    joint_weights: dict = field(default_factory=lambda: dict(DEFAULT_JOINT_WEIGHTS))
     source: str = field(default="<default>", compare=False)
 
 
@@ -195,8 +201,14 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
         raise BadInput(f"cell file {source}: can.nodes have duplicate node ids")
     can = CanConfig(int(r.pos(cn, "bitrate", "can")), int(r.pos(cn, "heartbeat_ms", "can")),
                     int(r.pos(cn, "host_heartbeat_ms", "can")), nodes)
+    weights = dict(DEFAULT_JOINT_WEIGHTS)
+    if "configuration" in raw:
+        w = r.obj(r.obj(raw, "configuration"), "joint_weights", "configuration")
+        weights = {j: r.nonneg(w, j, "configuration.joint_weights") for j in JOINTS}
+        if not any(weights.values()):
+            raise BadInput(f"cell file {source}: configuration.joint_weights must not all be zero")
     name = raw.get("name", Path(source).stem)
-    return Cell(str(name), scara, gripper, tray, ws, motion, camera, can, source=source)
+    return Cell(str(name), scara, gripper, tray, ws, motion, camera, can, weights, source=source)
 
 
 class _Reader:

@@ -38,7 +38,7 @@ COMMANDS: list[tuple[tuple[str, ...], str, str]] = [
     (("hw", "corner"), "cell.commands.hw", "move to a tray corner and back (hardware-in-loop)"),
     (("bench", "grasp"), "cell.commands.bench_grasp", "benchmark grasp synthesis: cascade vs brute force"),
     (("bench", "vision"), "cell.commands.bench_vision", "benchmark segmentation accuracy and speed"),
-    (("bench", "stability"), "cell.commands.bench_stability", "share of physically stable grasps over the parts library"),
+    (("bench", "stability"), "cell.commands.bench_stability", "share of stable grasps over the parts library"),
     (("bench", "can"), "cell.commands.bench_can", "benchmark CAN round trip and bus load per pick"),
 ]
 

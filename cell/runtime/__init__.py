@@ -1,1 +1,1 @@
-"""The cell at run time: run control between operator and loop, and the cell loop."""
+"""The cell at run time: locating the parts, the pick motion, the loop, the simulated world."""

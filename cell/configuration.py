@@ -1,0 +1,88 @@
+"""Paper step 5: the arm configuration for the chosen contacts, learned from the examples.
+
+Among the joint solutions that reach the chosen grasp (both elbows, J4 and J4 + k * 180 for
+the symmetric jaws, all inside the joint limits) the cell keeps those whose links clear
+every part taller than the link's underside, then takes the one nearest to a configuration
+of the operator's valid examples, in a weighted joint-space distance where joints nearer
+the contacts weigh more (weights from the cell file, `configuration.joint_weights`).
+Without any example configuration the choice falls back to the smallest wrist turn.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+from shapely.geometry import LineString
+
+from cell.cellconfig import JOINTS, Cell
+from cell.examples import GraspExample
+from cell.kinematics import Joints, elbow_points
+from cell.scene import Part
+
+
+def example_configurations(examples: Iterable[GraspExample]) -> np.ndarray:
+    """The joint vectors of the valid examples that carry one, shape (k, 4)."""
+    rows = [e.joints.as_array() for e in examples if e.valid and e.joints is not None]
+    return np.array(rows, float).reshape(-1, 4)
+
+
+def weighted_distance(options: np.ndarray, configs: np.ndarray, weights: dict) -> np.ndarray:
+    """Distance of each option (n, 4) to its nearest example configuration (k, 4), shape (n,).
+
+    Each example's wrist is first turned to the option's closing axis by the smallest turn
+    (the jaws are symmetric, so at most 90 degrees): the example was taken on another part
+    with another axis, and J4 should compare the operator's habit (which way the wrist
+    sits, how far it is wound), not that part's orientation. Degrees and millimetres are
+    mixed as they are: J3 is equal across options, so only the revolute joints decide."""
+    w = np.sqrt(np.array([weights[j] for j in JOINTS], float))
+    axis_opt = options[:, 0] + options[:, 1] + options[:, 3]
+    axis_ex = configs[:, 0] + configs[:, 1] + configs[:, 3]
+    turn = (axis_opt[:, None] - axis_ex[None, :] + 90.0) % 180.0 - 90.0  # (n, k), in [-90, 90)
+    d = options[:, None, :] - configs[None, :, :]
+    d[:, :, 3] -= turn
+    d *= w
+    return np.sqrt(np.min(np.sum(d * d, axis=2), axis=1))
+
+
+def link_collisions(j: Joints, cell: Cell, parts: Sequence[Part]) -> list[str]:
+    """Ids of the parts that a link of the arm in configuration `j` would hit: a part
+    collides with a link when it is taller than the link's underside and overlaps the
+    link's plan-view footprint (the segment between its joints, as wide as the link)."""
+    s = cell.scara
+    base, elbow, wrist = elbow_points(j, s)
+    links = (
+        (LineString([base, elbow]).buffer(s.link1_width_mm / 2), s.link1_bottom_z_mm),
+        (LineString([elbow, wrist]).buffer(s.link2_width_mm / 2), s.link2_bottom_z_mm),
+    )
+    hit = []
+    for p in parts:
+        for footprint, bottom_z in links:
+            if p.z_top_mm > bottom_z and footprint.intersects(p.polygon):
+                hit.append(p.id)
+                break
+    return hit
+
+
+def choose_configuration(options: Sequence[Joints], examples: Iterable[GraspExample], cell: Cell,
+                         parts: Sequence[Part] = ()) -> Joints | None:
+    """The configuration for the grasp: collision-free, nearest to an example's configuration.
+
+    Parameters
+    ----------
+    options : every joint solution reaching the grasp (from `cell.kinematics.inverse`).
+    examples : the teaching examples; valid ones with `joints` are the reference.
+    parts : the parts on the tray at that moment (the target included: the links must clear
+        it too).
+    Returns None when every option hits a part with a link.
+    """
+    free = [q for q in options if not link_collisions(q, cell, parts)]
+    if not free:
+        return None
+    configs = example_configurations(examples)
+    arr = np.array([q.as_array() for q in free])
+    if len(configs):
+        score = weighted_distance(arr, configs, cell.joint_weights)
+    else:
+        score = np.abs(arr[:, 3])  # no example configuration: the smallest wrist turn
+    return free[int(np.argmin(score))]

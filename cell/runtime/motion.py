@@ -1,0 +1,75 @@
+"""The pick as a list of commands (pure): approach above, open, descend, grip, lift along the
+disassembly direction (straight up), carry to the drop-off, release.
+
+Every joint target keeps the chosen configuration's elbow; the carry to the drop-off takes
+the drop-off solution nearest to the grasp configuration (the least joint motion).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cell.cellconfig import Cell
+from cell.errors import CellError
+from cell.kinematics import Joints, inverse
+
+
+@dataclass(frozen=True)
+class Command:
+    """One step of a pick: a joint move, or a gripper action."""
+
+    action: str  # "move" | "open" | "grip"
+    label: str  # approach, descend, lift, carry, release ...
+    joints: Joints | None = None
+    width_mm: float | None = None  # open: the opening; grip: the expected width (the part's)
+    force_n: float | None = None
+
+    def to_json(self) -> dict:
+        d = {"action": self.action, "label": self.label}
+        if self.joints is not None:
+            d["joints"] = {k: round(v, 4) for k, v in self.joints.as_dict().items()}
+        if self.width_mm is not None:
+            d["width_mm"] = round(self.width_mm, 4)
+        if self.force_n is not None:
+            d["force_n"] = round(self.force_n, 3)
+        return d
+
+
+def above(j: Joints, z_mm: float) -> Joints:
+    return Joints(j.j1_deg, j.j2_deg, z_mm, j.j4_deg)
+
+
+def dropoff_joints(cell: Cell, near: Joints) -> Joints:
+    x, y, z = cell.motion.dropoff_mm
+    options = inverse(x, y, z, 0.0, cell.scara)
+    if not options:
+        raise CellError(f"the drop-off {cell.motion.dropoff_mm} is not reachable with the cell's joint limits")
+    q = near.as_array()
+    return min(options, key=lambda o: float(np.sum(np.abs((o.as_array() - q)[[0, 1, 3]]))))
+
+
+def pick_commands(grasp_joints: Joints, opening_mm: float, cell: Cell) -> list[Command]:
+    """Commands of one pick; `grasp_joints` is the configuration at the grasp (J3 = grasp z)."""
+    g = cell.gripper
+    safe = cell.motion.safe_z_mm
+    approach_mm = min(opening_mm + 2 * g.approach_clearance_mm, g.opening_mm[1])
+    drop = dropoff_joints(cell, grasp_joints)
+    return [
+        Command("move", "approach", above(grasp_joints, safe)),
+        Command("open", "pre-open", width_mm=approach_mm),
+        Command("move", "descend", grasp_joints),
+        Command("grip", "grip", width_mm=opening_mm, force_n=g.grip_force_n),
+        Command("move", "lift", above(grasp_joints, safe)),
+        Command("move", "carry", above(drop, safe)),
+        Command("move", "lower", drop),
+        Command("open", "release", width_mm=g.opening_mm[1]),
+        Command("move", "retreat", above(drop, safe)),
+    ]
+
+
+def grip_held(expected_mm: float, reported_mm: float, tolerance_mm: float = 2.0) -> bool:
+    """Jaws that stopped near the expected width hold the part; jaws that closed past it
+    (by more than the tolerance) missed it."""
+    return reported_mm >= expected_mm - tolerance_mm

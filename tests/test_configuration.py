@@ -1,0 +1,96 @@
+"""Paper step 5: the configuration follows the operator's examples and clears tall parts."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from cell.cellconfig import default_cell
+from cell.configuration import choose_configuration, link_collisions
+from cell.examples import GraspExample
+from cell.kinematics import inverse
+from cell.scene import parse_part
+
+CELL = default_cell()
+
+
+def square_at(x, y, half=15.0, z_top=10.0, pid="sq"):
+    return parse_part({"id": pid, "outline": [[x - half, y - half], [x + half, y - half],
+                                              [x + half, y + half], [x - half, y + half]], "z_top": z_top})
+
+
+def example_at(x, y, elbow_for, j4_turn=0, eid=None):
+    """An operator example at (x, y) with the elbow `elbow_for(y)` and the J4 solution of rank
+    `j4_turn` (0 = the one nearest zero)."""
+    part = square_at(x, y)
+    opts = [q for q in inverse(x, y, 5.0, 0.0, CELL.scara) if q.elbow == elbow_for(y)]
+    opts.sort(key=lambda q: abs(q.j4_deg))
+    q = opts[j4_turn]
+    return GraspExample(eid or f"ex-{x}-{y}", part, np.array([[x - 15, y], [x + 15, y]]), True,
+                        {"kind": "manual"}, joints=q)
+
+
+def training(elbow_for):
+    return [example_at(x, y, elbow_for) for x in (250, 350, 450) for y in (-200, -80, 80, 200)]
+
+
+def chosen(examples, x, y, axis=30.0, parts=()):
+    return choose_configuration(inverse(x, y, 5.0, axis, CELL.scara), examples, CELL, parts)
+
+
+def right_below_left_above(y):
+    return "right" if y < 0 else "left"
+
+
+def left_below_right_above(y):
+    return "left" if y < 0 else "right"
+
+
+@pytest.mark.parametrize("x,y", [(300, -150), (420, -40), (260, 60), (380, 190)])
+def test_choice_follows_the_examples_and_changes_with_them(x, y):
+    a = chosen(training(right_below_left_above), x, y)
+    b = chosen(training(left_below_right_above), x, y)
+    assert a.elbow == right_below_left_above(y)
+    assert b.elbow == left_below_right_above(y)
+
+
+def test_wrist_turn_follows_the_examples():
+    near_zero = chosen(training(right_below_left_above), 330, -120)
+    turned = [dataclasses.replace(e, joints=example_at(*e.part.polygon.centroid.coords[0],
+                                                        right_below_left_above, j4_turn=1).joints)
+              for e in training(right_below_left_above)]
+    other = chosen(turned, 330, -120)
+    assert near_zero.elbow == other.elbow
+    assert abs(near_zero.j4_deg) <= 90 < abs(other.j4_deg)
+
+
+def test_invalid_examples_and_examples_without_joints_are_ignored():
+    ex = training(right_below_left_above)
+    noise = [dataclasses.replace(e, valid=False, id=e.id + "x", joints=example_at(
+        *e.part.polygon.centroid.coords[0], left_below_right_above).joints) for e in ex]
+    assert chosen(ex + noise, 300, -150).elbow == "right"
+    bare = [dataclasses.replace(e, joints=None) for e in ex]
+    q = chosen(bare, 300, -150)
+    assert q == min(inverse(300, -150, 5.0, 30.0, CELL.scara), key=lambda j: abs(j.j4_deg))
+
+
+def test_tall_part_under_a_link_removes_that_elbow():
+    x, y = 330.0, -120.0
+    opts = inverse(x, y, 5.0, 30.0, CELL.scara)
+    right = next(q for q in opts if q.elbow == "right")
+    # A tall housing right under the middle of the right-elbow configuration's forearm.
+    from cell.kinematics import elbow_points
+    _, e, w = elbow_points(right, CELL.scara)
+    mid = (e + w) / 2
+    tower = square_at(*mid, half=20, z_top=CELL.scara.link2_bottom_z_mm + 30, pid="tower")
+    assert link_collisions(right, CELL, [tower]) == ["tower"]
+    q = chosen(training(right_below_left_above), x, y, parts=[tower])
+    assert q.elbow == "left" and not link_collisions(q, CELL, [tower])
+    low = square_at(*mid, half=20, z_top=CELL.scara.link2_bottom_z_mm - 1, pid="low")
+    assert link_collisions(right, CELL, [low]) == []
+
+
+def test_no_configuration_when_every_option_collides():
+    x, y = 330.0, -120.0
+    huge = square_at(x, y, half=400, z_top=1000, pid="wall")
+    assert chosen(training(right_below_left_above), x, y, parts=[huge]) is None

@@ -55,5 +55,5 @@ def run(args) -> int:
         except KeyboardInterrupt:
             pass
         finally:
-            control.stop("station closed", by="station")
+            cell.close()
     return 0

@@ -5,7 +5,6 @@ from importlib import resources
 from pathlib import Path
 
 import pytest
-
 from conftest import run_cli
 
 ASSEMBLIES = Path(str(resources.files("cell") / "data" / "assemblies"))

@@ -134,9 +134,12 @@ class CellLoop:
     # ------------------------------------------------------------------ the loop
     def run(self) -> dict:
         self.control.log("start", f"disassembly of {self.assembly.name}: {len(self.remaining)} parts")
-        while self.remaining:
+        while self.remaining or self._last_picked is not None:
             try:
-                self._one_part(self.remaining[0])
+                if self.remaining:
+                    self._one_part(self.remaining[0])
+                else:
+                    self._final_check()
             except (Stopped, StopRun):
                 raise
             except Faulted:
@@ -156,15 +159,8 @@ class CellLoop:
         frame, index = self._read_frame()
         t0 = time.perf_counter()
         located = self._perceive(frame, index)
-        if self._last_picked is not None:
-            pid, where = self._last_picked
-            self._last_picked = None
-            if pid in located and located[pid].polygon.intersection(where.polygon).area > 0.5 * where.polygon.area:
-                self.remaining.insert(0, pid)
-                self.poses[pid] = located[pid]
-                self.reports = [r for r in self.reports if r.part != pid]
-                self._stop_and_ask("cell", f"{pid} did not leave the tray")
-                return
+        if not self._last_pick_left(located):
+            return
         if part_id not in located:
             self._stop_and_ask("vision", f"{part_id} is not found in frame {index}")
             return
@@ -216,6 +212,27 @@ class CellLoop:
         self.reports.append(report)
         self.sink.write_decision({"type": "outcome", **report.to_json()})
         self.control.log("removed", f"{part_id} removed in {report.cycle_s:.2f} s", part=part_id)
+
+    def _final_check(self) -> None:
+        """One more frame after the last pick: the last part must be gone too."""
+        self.control.checkpoint("final frame")
+        frame, index = self._read_frame()
+        self._last_pick_left(self._perceive(frame, index))
+
+    def _last_pick_left(self, located: dict[str, Part]) -> bool:
+        """Is the part picked last gone from where it was? If not, it goes back to the front
+        of the sequence and the operator is asked."""
+        if self._last_picked is None:
+            return True
+        pid = self._last_picked[0]
+        self._last_picked = None
+        if pid in located:  # still on the tray, near where it was picked (perhaps it slipped)
+            self.remaining.insert(0, pid)
+            self.poses[pid] = located[pid]
+            self.reports = [r for r in self.reports if r.part != pid]
+            self._stop_and_ask("cell", f"{pid} did not leave the tray")
+            return False
+        return True
 
     # ------------------------------------------------------------------ steps
     def _read_frame(self):

@@ -9,7 +9,6 @@ recording (cell.runtime.replay).
 from __future__ import annotations
 
 import contextlib
-import shutil
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,10 +17,13 @@ import numpy as np
 
 from cell.cellconfig import load_cell
 from cell.examples import default_examples_path
+from cell.fileio import write_atomic
 from cell.runtime.control import RunControl, Stopped
 from cell.runtime.loop import CellLoop, LoopOptions, StopRun
 from cell.runtime.simworld import SimWorld, WorldFaults
 from cell.scene import Assembly, load_assembly
+
+EXAMPLES_AT_START = "examples_at_start.jsonl"
 
 
 def default_assembly_path() -> Path:
@@ -104,6 +106,9 @@ def run_session(cfg: RunConfig) -> dict:
                                    meta={"assembly": assembly.to_json(), "assembly_path": str(assembly_path),
                                          "seed": cfg.seed, "shift_mm": cfg.shift_mm,
                                          "on_no_grasp": cfg.on_no_grasp})
+        # The examples as they were at the start: replay needs them even after this session
+        # (or anyone) appended to the file.
+        write_atomic(recorder.dir / EXAMPLES_AT_START, examples_path.read_bytes())
     viz = None
     rrd = cfg.save_rrd or (recorder.rrd_path if recorder else None)
     if rrd or cfg.rerun:
@@ -125,7 +130,7 @@ def run_session(cfg: RunConfig) -> dict:
                         options=LoopOptions(on_no_grasp=cfg.on_no_grasp, interactive=cfg.station))
         _progress(control, say)
         try:
-            arm.move_joints(_home(cell))
+            arm.move_joints(home_joints(cell))
             if cfg.station:
                 summary = _with_station(loop, control, cfg, say)
             else:
@@ -148,7 +153,7 @@ def run_session(cfg: RunConfig) -> dict:
     return summary
 
 
-def _home(cell):
+def home_joints(cell):
     from cell.kinematics import Joints
 
     return Joints.from_dict(cell.motion.home_joints)
@@ -193,7 +198,3 @@ def _with_station(loop: CellLoop, control: RunControl, cfg: RunConfig, say) -> d
         raise result["error"]
     return result["summary"]
 
-
-def copy_default_examples(dest: Path) -> Path:
-    shutil.copyfile(default_examples_path(), dest)
-    return dest

@@ -18,6 +18,7 @@ Safety supervision, all in the host:
 
 from __future__ import annotations
 
+import math
 import threading
 
 import can
@@ -432,7 +433,10 @@ class Arm:
                 continue
             targets[joint] = counts
             v = velocity_for_duration(distance, duration_s, s.max_acceleration[joint]) if duration_s > 0 else 0.0
-            v_counts = max(1, min(round(v * ax.counts_per_unit), round(s.max_velocity[joint] * ax.counts_per_unit)))
+            # at least the mean speed, so that a move of a few counts does not crawl at 1 count/s
+            mean_counts_s = abs(counts - ax.status.position_counts) / duration_s if duration_s > 0 else 1.0
+            v_counts = max(1, round(v * ax.counts_per_unit), math.ceil(mean_counts_s))
+            v_counts = min(v_counts, round(s.max_velocity[joint] * ax.counts_per_unit))
             if self._velocity_counts.get(joint) != v_counts:
                 self._guarded(ax.sdo_write, 0x6081, 0, v_counts)
                 self._velocity_counts[joint] = v_counts

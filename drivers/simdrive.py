@@ -542,10 +542,18 @@ class SimGripper(SimDrive):
     def __init__(self, *args, grip_force_n: float, **kw):
         super().__init__(*args, **kw)
         self.object_width_mm: float | None = None
+        # A simulated world may say instead what lies between the jaws when they start closing:
+        # called once per closing move, returns the part's width or None.
+        self.object_width_fn = None
+        self._fn_motion, self._fn_width = None, None
         self._store(GRIP_FORCE_INDEX, 0, round(grip_force_n * 10))
 
     def _blocked(self, m: _Motion) -> bool:
         w = self.object_width_mm
+        if self.object_width_fn is not None and m.target_counts < m.start_counts:
+            if m is not self._fn_motion:
+                self._fn_motion, self._fn_width = m, self.object_width_fn()
+            w = self._fn_width
         if w is None:
             return False
         w_counts = w * self.counts_per_unit

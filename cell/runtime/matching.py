@@ -26,10 +26,11 @@ from cell.scene import Part
 
 @dataclass(frozen=True)
 class Region:
-    """An observed region; `polygon_at(z_mm)` maps its outline to mm on the plane at z."""
+    """An observed region; `polygon_at(z_top_mm, z_bottom_mm)` maps its outline to mm for a
+    part with those heights (the top face's plane, walls at the bottom where they show)."""
 
     index: int
-    polygon_at: Callable[[float], Polygon]
+    polygon_at: Callable[[float, float], Polygon]
     merged: bool = False
     cut_off: bool = False
 
@@ -93,9 +94,11 @@ def locate(parts: Sequence[Part], regions: Sequence[Region]) -> tuple[dict[str, 
         for r in regions:
             if r.index in claimed and not r.merged:
                 continue
-            poly = r.polygon_at(part.z_top_mm)
+            poly = r.polygon_at(part.z_top_mm, part.z_bottom_mm)
             if poly.is_empty or poly.distance(part.polygon) > MAX_SHIFT_MM:
                 continue
+            if not r.merged and not 0.6 < poly.area / part.polygon.area < 1.6:
+                continue  # another part: registration could only make it overlap worse
             x, s = register(part.polygon, poly, r.merged)
             if s >= MIN_OVERLAP and math.hypot(x[0], x[1]) <= MAX_SHIFT_MM and (best is None or s > best.overlap):
                 best = Located(part.id, r.index, float(x[0]), float(x[1]), float(x[2]), float(s), r.merged)

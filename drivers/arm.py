@@ -147,7 +147,7 @@ class Arm:
                 ax.nmt(codec.NMT_START)
             for ax in self.axes.values():
                 ax.wait_status(lambda s: True, None, "first TPDO after NMT start")
-                ax.wait_nmt(self.clock, 0x05, self.heartbeat_deadline_s, self.poll_s)
+                ax.wait_nmt(self.clock, 0x05, self.boot_timeout_s, self.poll_s)
             self._jobs.append(self.clock.every(max(self.poll_s, 0.005), self._watch, name="arm-watchdog"))
             if enable:
                 self._enable_all()

@@ -222,7 +222,10 @@ class RecordingWriter:
     def attach_can_logger(self, bus=None, *, notifier=None) -> Callable[[], None]:
         """Log every frame seen on the bus into can_log_path (candump format).
 
-        Give either `bus` (a new `can.Notifier` is started on it) or `notifier`, the one that
+        The simplest is not to call this at all: `drivers.session.simulated_cell(record=
+        rec.can_log_path)` (and `real_cell`) record with a bus of their own on the channel,
+        like candump, hearing host and drives alike. Otherwise give either `bus` (best: a bus
+        of its own on the channel; a new `can.Notifier` is started on it) or `notifier`, the one that
         already reads the bus (e.g. canopen's `network.notifier`): two notifiers on one bus
         would split its frames between them. Returns a function that detaches the logger
         and closes the log (also called by `close`). The notifier sees received frames; a

@@ -180,3 +180,25 @@ def test_page_without_token_shows_the_token_field_and_commands_change_nothing(br
     d.find_element(By.ID, "btn-run").click()
     wait.until(lambda _: "valid token" in d.find_element(By.ID, "toast").text)
     assert control.state == "idle"
+
+
+def test_the_reason_of_a_fault_and_of_a_stop_is_on_the_page(browser, station):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.05)
+    d.get(server.url)
+    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "idle")
+    control.report_fault("j2", "following error 3.1 deg")
+    wait.until(lambda _: d.find_element(By.ID, "fault").is_displayed())
+    banner = d.find_element(By.ID, "fault").text
+    assert "j2" in banner and "following error 3.1 deg" in banner
+    assert d.find_element(By.ID, "btn-run").get_attribute("disabled") is not None
+    d.find_element(By.ID, "btn-reset").click()
+    wait.until(lambda _: not d.find_element(By.ID, "fault").is_displayed())
+    assert control.state == "idle"
+    control.stop("light curtain interrupted", by="safety")
+    wait.until(lambda _: d.find_element(By.ID, "message").text == "light curtain interrupted")
+    assert d.find_element(By.ID, "state").text.lower() == "stopped"

@@ -28,6 +28,17 @@ def station(tmp_path):
         assert cell._thread is None  # the loop thread ended
 
 
+def wait_proposal(control, target):
+    """Block until the loop waits for approval of a grasp on `target` (woken by changes)."""
+    deadline = time.monotonic() + T
+    while True:
+        snap = control.snapshot(0)
+        if snap["state"] == AWAITING_APPROVAL and (snap["proposal"] or {}).get("target") == target:
+            return snap["proposal"]
+        assert time.monotonic() < deadline, f"no proposal on {target}; state {snap['state']}"
+        control.wait_change(snap["seq"], timeout_s=0.5)
+
+
 def call(server, method, path, body=None, token=TOKEN, headers=None):
     data = json.dumps(body).encode() if body is not None else None
     req = urllib.request.Request(server.base_url + path.lstrip("/"), data=data, method=method)
@@ -104,9 +115,11 @@ def test_run_step_approve_reject_through_http(station, tmp_path):
     ex = load_examples(tmp_path / "examples.jsonl")
     assert len(ex) == 1 and ex[0].valid is False and ex[0].part.id == "cover"
     assert ex[0].source["kind"] == "station-reject" and ex[0].source["note"] == "pad on the hinge"
+    # approval off first (a proposal already waiting still needs its decision), then approve
+    status, reply = call(server, "POST", "/api/approval", {"required": False})
+    assert status == 200 and reply["control"]["state"] == AWAITING_APPROVAL
     status, reply = call(server, "POST", "/api/approve")
     assert status == 200
-    status, reply = call(server, "POST", "/api/approval", {"required": False})
     control.wait_for_state(DONE, timeout_s=T)
     state = call(server, "GET", "/api/state")[1]
     assert state["cell"]["removed"] == ["cover", "board", "bracket", "cap"]
@@ -162,11 +175,10 @@ def test_teach_appends_a_valid_example_and_the_next_proposal_uses_it(station, tm
     # the loop's next plan for the board uses the taught contacts
     call(server, "POST", "/api/approval", {"required": True})
     call(server, "POST", "/api/run")
-    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
-    call(server, "POST", "/api/approve")  # cover
-    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
-    prop = control.snapshot()["proposal"]
-    assert prop["target"] == "board" and prop["how"] == "taught by the operator"
+    wait_proposal(control, "cover")
+    call(server, "POST", "/api/approve")
+    prop = wait_proposal(control, "board")
+    assert prop["how"] == "taught by the operator"
     assert abs(abs(prop["opening_mm"]) - float(((c2 - c1) ** 2).sum() ** 0.5)) < 0.2
 
 

@@ -30,7 +30,8 @@ from shapely.geometry import Polygon
 from cell.cellconfig import Cell
 from cell.errors import BadInput, CellError, NoFeasibleGrasp
 from cell.examples import GraspExample, append_examples, load_examples
-from cell.grasp.synthesis import Grasp, GraspPlanner, choose_joints
+from cell.fileio import write_atomic
+from cell.grasp.synthesis import Grasp, GraspPlanner
 from cell.runtime.control import Faulted, RunControl, Stopped
 from cell.runtime.matching import Region, locate
 from cell.runtime.motion import above, pick_commands
@@ -92,12 +93,15 @@ class LoopState:
 class CellLoop:
     def __init__(self, *, cell: Cell, calibration, assembly: Assembly, camera, arm, control: RunControl,
                  examples_path: str | Path, sink: DecisionSink | None = None, viz=None,
-                 options: LoopOptions | None = None, planner_params=None):
+                 options: LoopOptions | None = None, planner_params=None, examples_out: str | Path | None = None):
         from cell.vision import SegmentParams
 
         self.cell, self.cal, self.assembly = cell, calibration, assembly
         self.camera, self.arm, self.control = camera, arm, control
         self.examples_path = Path(examples_path)
+        # New examples (rejects, teaching) go here; the first one starts it as a copy of the
+        # examples in use (the shipped default file is never written).
+        self.examples_out = Path(examples_out) if examples_out is not None else self.examples_path
         self.sink = sink or DecisionSink()
         self.viz = viz
         self.options = options or LoopOptions()
@@ -118,6 +122,10 @@ class CellLoop:
         self.planner = GraspPlanner(self.cell, self.examples, self.planner_params)
 
     def add_example(self, example: GraspExample) -> None:
+        if self.examples_out != self.examples_path:
+            if not self.examples_out.exists():
+                write_atomic(self.examples_out, self.examples_path.read_bytes())
+            self.examples_path = self.examples_out
         append_examples(self.examples_path, [example])
         self.rebuild_planner()
         self.control.log("example", f"{'valid' if example.valid else 'invalid'} example {example.id} added; "
@@ -145,14 +153,15 @@ class CellLoop:
         if self.arm.faults:
             self.arm.reset_faults()
             self._retreat()
-        t0 = time.perf_counter()
         frame, index = self._read_frame()
+        t0 = time.perf_counter()
         located = self._perceive(frame, index)
         if self._last_picked is not None:
             pid, where = self._last_picked
             self._last_picked = None
             if pid in located and located[pid].polygon.intersection(where.polygon).area > 0.5 * where.polygon.area:
                 self.remaining.insert(0, pid)
+                self.poses[pid] = located[pid]
                 self.reports = [r for r in self.reports if r.part != pid]
                 self._stop_and_ask("cell", f"{pid} did not leave the tray")
                 return
@@ -173,8 +182,9 @@ class CellLoop:
             if grasp is None:
                 self._stop_and_ask("planner", f"{part_id}: no further grasp to try")
                 return
-            if grasp.joints is None:
-                grasp.joints = choose_joints(grasp, self.examples, self.cell, scene)
+            if grasp.joints is None and self.planner.choose_for(grasp, scene) is None:
+                attempt += 1  # step 5 finds no configuration whose links clear the parts
+                continue
             decision = self._approve(grasp, scene, attempt)
             report.planning_s += time.perf_counter() - t1
             if not decision.approved:
@@ -239,15 +249,24 @@ class CellLoop:
             def polygon_at(z_top, z_bottom):
                 outline, holes = segment_to_mm(seg, self.cal, z_top, z_bottom, frame)
                 poly = Polygon(outline, holes)
-                return poly if poly.is_valid else poly.buffer(0)
+                if not poly.is_valid:  # a wall-corrected outline may cross itself at a corner
+                    poly = poly.buffer(0)
+                    if poly.geom_type == "MultiPolygon":
+                        poly = max(poly.geoms, key=lambda g: g.area)
+                return poly
             return polygon_at
 
         regions = [Region(i, mapper(s), s.merged, s.cut_off) for i, s in enumerate(segments)]
         expected = [self.poses[p] for p in self.remaining if p in self.poses]
+        if self._last_picked is not None:  # look for it too: it should be gone
+            expected.append(self._last_picked[1])
         found, strangers = locate(expected, regions)
+        seen = {}
         for pid, loc in found.items():
-            self.poses[pid] = loc.apply(self.poses[pid])
-        seen = {pid: self.poses[pid] for pid in found}
+            part = self.poses.get(pid) or self._last_picked[1]
+            seen[pid] = loc.apply(part)
+            if pid in self.poses:
+                self.poses[pid] = seen[pid]
         self.state.seen = seen
         self.sink.write_decision({
             "type": "perception", "frame": index, "segments": len(segments),

@@ -44,6 +44,7 @@ class SimWorld:
         self.removed: list[str] = []
         self.events: list[str] = []
         self._held_width = 0.0
+        self._closest = 0.0
         self._held_z = 0.0
         self._stable = True
         drives.drives["gripper"].object_width_fn = self._between_jaws
@@ -81,6 +82,7 @@ class SimWorld:
             verdict = check_grasp(part, [centre - a * w / 2, centre + a * w / 2], tool.axis_deg, tool.z_mm,
                                   others, self.cell)
             self.held, self._held_width, self._held_z = part.id, w, tool.z_mm
+            self._closest = opening
             self._stable = verdict.ok and part.id not in self.faults.stuck
             self.events.append(f"gripped {part.id} at {w:.2f} mm" + ("" if self._stable else
                                                                      f" (will not hold: {verdict.reasons})"))
@@ -91,7 +93,8 @@ class SimWorld:
         if self.held is None:
             return
         tool, opening = self._pose()
-        if opening > self._held_width + 1.0:  # the jaws opened: the part is let go
+        self._closest = min(self._closest, opening)  # the jaws are still closing onto it at first
+        if opening > self._closest + 1.0:  # the jaws opened again: the part is let go
             pid, self.held = self.held, None
             if self.cell.tray.contains(tool.x_mm, tool.y_mm):
                 self.events.append(f"released {pid} on the tray")

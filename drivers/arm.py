@@ -18,6 +18,7 @@ Safety supervision, all in the host:
 
 from __future__ import annotations
 
+import math
 import threading
 
 import can
@@ -146,7 +147,7 @@ class Arm:
                 ax.nmt(codec.NMT_START)
             for ax in self.axes.values():
                 ax.wait_status(lambda s: True, None, "first TPDO after NMT start")
-                ax.wait_nmt(self.clock, 0x05, self.heartbeat_deadline_s, self.poll_s)
+                ax.wait_nmt(self.clock, 0x05, self.boot_timeout_s, self.poll_s)
             self._jobs.append(self.clock.every(max(self.poll_s, 0.005), self._watch, name="arm-watchdog"))
             if enable:
                 self._enable_all()
@@ -432,7 +433,10 @@ class Arm:
                 continue
             targets[joint] = counts
             v = velocity_for_duration(distance, duration_s, s.max_acceleration[joint]) if duration_s > 0 else 0.0
-            v_counts = max(1, min(round(v * ax.counts_per_unit), round(s.max_velocity[joint] * ax.counts_per_unit)))
+            # at least the mean speed, so that a move of a few counts does not crawl at 1 count/s
+            mean_counts_s = abs(counts - ax.status.position_counts) / duration_s if duration_s > 0 else 1.0
+            v_counts = max(1, round(v * ax.counts_per_unit), math.ceil(mean_counts_s))
+            v_counts = min(v_counts, round(s.max_velocity[joint] * ax.counts_per_unit))
             if self._velocity_counts.get(joint) != v_counts:
                 self._guarded(ax.sdo_write, 0x6081, 0, v_counts)
                 self._velocity_counts[joint] = v_counts

@@ -63,11 +63,14 @@ def round_trips(cell=None, n: int = 200) -> dict:
 def pick_cycle(cell=None, part_xy_mm=(380.0, -60.0), grasp_z_mm: float = 10.0, width_mm: float = 30.0) -> dict:
     """One pick in simulated time with a tap counting every frame on the bus.
 
-    home -> above the part (safe z) -> down -> grip -> up -> above the drop-off -> open ->
-    home. Returns the cycle time, frames by kind, bits on the wire (worst-case stuffing) and
-    the bus load at the cell's bitrate (1 Mbit/s in the default cell).
+    From home, the cell loop's pick (`cell.runtime.motion.pick_commands`: approach, pre-open,
+    descend, grip, lift, carry, lower, release, retreat), then back home. Returns the cycle
+    time, frames by kind, bits on the wire (worst-case stuffing) and the bus load at the
+    cell's bitrate (1 Mbit/s in the default cell).
     """
     from cell.kinematics import Joints, inverse
+    from cell.runtime.motion import pick_commands
+    from drivers.execute import run_commands
 
     clock = SimClock()
     frames = []
@@ -78,27 +81,20 @@ def pick_cycle(cell=None, part_xy_mm=(380.0, -60.0), grasp_z_mm: float = 10.0, w
         try:
             c = arm.cell
             home = Joints.from_dict(c.motion.home_joints)
-            safe = c.motion.safe_z_mm
-
-            def ik(x, y, z):
-                sols = inverse(x, y, z, 0.0, c.scara)
-                cur = arm.joints().as_array()
-                return min(sols, key=lambda q: float(abs(q.as_array() - cur).max()))
-
             x, y = part_xy_mm
+            grasp = min(
+                inverse(x, y, grasp_z_mm, 0.0, c.scara), key=lambda q: float(abs(q.as_array() - home.as_array()).max())
+            )
             t0 = clock.now()
             n0 = len(frames)
-            above = ik(x, y, safe)
-            arm.move_joints(above)
-            arm.move_joints(Joints(above.j1_deg, above.j2_deg, grasp_z_mm, above.j4_deg))
             drives.gripper_object_width_mm = width_mm
-            held = arm.gripper.grip(width_mm).holding
-            arm.move_joints(above)
-            dx, dy, dz = c.motion.dropoff_mm
-            drop = ik(dx, dy, max(dz, safe))
-            arm.move_joints(drop)
-            drives.gripper_object_width_mm = None
-            arm.gripper.open()
+
+            def world(step):  # the part leaves the jaws at the drop-off
+                if step["label"] == "release":
+                    drives.gripper_object_width_mm = None
+
+            records = run_commands(arm, pick_commands(grasp, width_mm, c), on_step=world)
+            held = next(r["holding"] for r in records if r["action"] == "grip")
             arm.move_joints(home)
             cycle_s = clock.now() - t0
             tap.settle()

@@ -182,3 +182,12 @@ def test_sdo_abort_is_reported_with_its_node(arm):
         arm.axes["j1"].sdo_write(0x6060, 0, 3)  # velocity mode: not supported by the drive
     with pytest.raises(SdoError, match="aborted"):
         arm.axes["j1"].sdo_write(0x6041, 0, 0)  # the statusword is read-only
+
+
+@needs_sim
+def test_a_tiny_move_on_one_axis_does_not_slow_the_move(arm, sim_clock):
+    start = arm.joints()
+    target = Joints(start.j1_deg + 0.001, start.j2_deg - 20.0, start.j3_mm, start.j4_deg)  # j1: one count
+    t0 = sim_clock.now()
+    arm.move_joints(target)
+    assert sim_clock.now() - t0 == pytest.approx(arm.move_time_s(start, target), abs=0.03)

@@ -52,9 +52,7 @@ def test_position_outside_int32_is_refused():
 
 @pytest.mark.parametrize("state", codec.STATES)
 def test_every_state_word_decodes_to_its_state(state):
-    word = codec.statusword_for(
-        state, target_reached=True, ack=True, following_error=True, internal_limit=True
-    )
+    word = codec.statusword_for(state, target_reached=True, ack=True, following_error=True, internal_limit=True)
     assert codec.state_name(word) == state
 
 

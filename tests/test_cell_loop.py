@@ -78,7 +78,8 @@ def test_replay_matches_and_names_the_first_divergence(recorded, tmp_path, capsy
     bad = tmp_path / "bad"
     shutil.copytree(rec, bad)
     lines = (bad / "decisions.jsonl").read_text().splitlines()
-    i = next(k for k, x in enumerate(lines) if json.loads(x)["type"] == "commands" and json.loads(x)["part"] == "washer")
+    i = next(k for k, x in enumerate(lines)
+             if json.loads(x)["type"] == "commands" and json.loads(x)["part"] == "washer")
     d = json.loads(lines[i])
     d["commands"][2]["joints"]["j3_mm"] += 1.0  # the descend would have gone elsewhere
     lines[i] = json.dumps(d)

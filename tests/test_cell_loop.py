@@ -155,3 +155,27 @@ def test_cell_run_bad_inputs_exit_2(tmp_path, capsys):
                  ["run", "--shift-mm", "-1"]):
         code, _, err = run_cli(*argv, capsys=capsys)
         assert code == 2 and "Traceback" not in err, argv
+
+
+SHIPPED = Path(__file__).resolve().parent.parent / "recordings" / "shipped"
+
+
+def test_the_shipped_session_replays_exactly(capsys):
+    code, out, err = run_cli("replay", SHIPPED, "--json", capsys=capsys)
+    assert code == 0, err
+    result = json.loads(out)
+    assert result["match"] and result["matched"] == result["decisions"] > 10
+
+
+def test_replay_with_other_examples_reports_differences(tmp_path, capsys):
+    """A handful of examples makes other choices: the differences are listed, not fatal."""
+    from cell.examples import append_examples, load_examples
+
+    mine = [e for e in load_examples(SHIPPED / "examples_at_start.jsonl") if e.valid][:6]
+    p = tmp_path / "few.jsonl"
+    append_examples(p, mine)
+    code, out, err = run_cli("replay", SHIPPED, "--examples", p, "--json", capsys=capsys)
+    assert code == 0, err
+    result = json.loads(out)
+    assert not result["match"] and result["differences"]
+    assert any("grasp" in d for d in result["differences"])

@@ -1,0 +1,151 @@
+"""`cell bench grasp [--repeat N] [--examples FILE] [--json]`: synthesis speed per stage, and the
+cascade against the brute force (every pair through every exact check) on the same scenes in
+the same run: time ratio, number of exact checks, and whether both keep the same pairs."""
+
+from __future__ import annotations
+
+import json
+import statistics
+import time
+
+
+def add_arguments(p):
+    p.add_argument("--repeat", type=int, default=15, help="plans per scene for the median time (default 15)")
+    p.add_argument("--examples", metavar="FILE",
+                   help="teaching-example file (default: the shipped one, else the hand-made examples)")
+    p.add_argument("--json", action="store_true", help="print one JSON object per scene, then a summary")
+    p.add_argument("--scenes", metavar="TEXT", help="only the scenes whose name contains TEXT")
+
+
+def bench_scenes():
+    """(name, scene) pairs: hand-made parts, alone and among taller and lower neighbours."""
+    from cell.grasp import shapes
+    from cell.scene import Scene
+
+    bar = shapes.rectangle("bar", 240, 60, (350, 0), 10)
+    gear = shapes.gear("gear", 30, 12, 4, (330, 60))
+    ring = shapes.disc("ring", 30, (300, -120), hole_r_mm=12)
+    ell = shapes.l_shape("ell", 70, 50, 18, (420, 150), 25)
+    box = shapes.rectangle("box", 50, 30, (300, 100), 30)
+    tall = shapes.rectangle("tall", 40, 40, (300, 150), 0, z_top_mm=40)
+    low = shapes.rectangle("low", 30, 60, (250, 100), 0, z_top_mm=0.5)
+    wall = shapes.rectangle("wall", 20, 120, (340, 100), 0, z_top_mm=80)
+    scenes = [("bar-300pts", Scene((bar,), "bar")),
+            ("gear", Scene((gear,), "gear")),
+            ("ring-with-hole", Scene((ring,), "ring")),
+            ("ell", Scene((ell,), "ell")),
+            ("box-among-neighbours", Scene((box, tall, low, wall), "box")),
+            ("bar-among-neighbours", Scene((bar, shapes.rectangle("post", 30, 30, (350, 50), 0, z_top_mm=60),
+                                            shapes.rectangle("plate", 80, 40, (430, -45), 0, z_top_mm=3)), "bar"))]
+    return scenes + library_scenes()
+
+
+def library_scenes():
+    """Parts of the parts library and the first step of each shipped assembly, when present."""
+    import importlib.util
+    from importlib import resources
+    from pathlib import Path
+
+    from cell.scene import Scene, load_assembly
+
+    out = []
+    if importlib.util.find_spec("cell.parts_library") is not None:
+        from cell import parts_library as lib
+
+        names = {p.id for p in lib.parts()}
+        for name, (x, y, th) in (("plate_holes_l", (330, 40, 25)), ("heatsink_m", (400, -80, -40)),
+                                 ("spur_gear_xl", (300, 120, 10))):
+            if name in names:
+                out.append((f"library:{name}", Scene((lib.place(lib.part(name), x, y, th),), name)))
+    folder = Path(str(resources.files("cell") / "data" / "assemblies"))
+    for path in sorted(folder.glob("*.json")) if folder.is_dir() else []:
+        out.append((f"assembly:{path.stem}:step0", load_assembly(path).scene_at(0)))
+    return out
+
+
+def run(args) -> int:
+    import numpy as np
+
+    from cell.cellconfig import default_cell
+    from cell.errors import BadInput, NoFeasibleGrasp
+    from cell.examples import default_examples_path, load_examples
+    from cell.grasp.cascade import Pairs, run_brute_force, run_cascade
+    from cell.grasp.shapes import hand_made_examples
+    from cell.grasp.synthesis import GraspPlanner
+
+    if args.repeat < 1:
+        raise BadInput("--repeat must be at least 1")
+    if args.examples:
+        examples, source = load_examples(args.examples), args.examples
+    elif default_examples_path().exists():
+        examples, source = load_examples(None), str(default_examples_path())
+    else:
+        examples, source = hand_made_examples(), "hand-made examples (cell.grasp.shapes)"
+    cell = default_cell()
+    t0 = time.perf_counter()
+    planner = GraspPlanner(cell, examples)
+    fit_ms = (time.perf_counter() - t0) * 1e3
+    rows = []
+    scenes = [(n, s) for n, s in bench_scenes() if not args.scenes or args.scenes in n]
+    if not scenes:
+        raise BadInput(f"no benchmark scene name contains {args.scenes!r}")
+    for name, scene in scenes:
+        times, result, err = [], None, None
+        for _ in range(args.repeat):
+            try:
+                t = time.perf_counter()
+                result = planner.plan(scene)
+                times.append((time.perf_counter() - t) * 1e3)
+            except NoFeasibleGrasp as e:
+                times.append(e.counts.get("time_ms", float("nan")))
+                err = e.reason
+        # The cascade and the brute force side by side on the same pairs (valid points of this scene).
+        op_pts = result.valid_points if result else None
+        row = {"scene": name, "median_ms": round(statistics.median(times), 3),
+               "error": err}
+        if result is not None:
+            ctx = result.context
+            tc, tb = [], []
+            for _ in range(3):
+                P = Pairs.of(op_pts.points, op_pts.normals, result.valid_sample_index)
+                t = time.perf_counter()
+                cr = run_cascade(ctx, P)
+                tc.append((time.perf_counter() - t) * 1e3)
+                P2 = Pairs.of(op_pts.points, op_pts.normals, result.valid_sample_index)
+                t = time.perf_counter()
+                br = run_brute_force(ctx, P2)
+                tb.append((time.perf_counter() - t) * 1e3)
+            row.update(counts=result.counts, stage_ms={k: round(v, 3) for k, v in result.stage_time_ms.items()},
+                       cascade_ms=round(min(tc), 3), brute_ms=round(min(tb), 3),
+                       speedup=round(min(tb) / max(min(tc), 1e-9), 1),
+                       exact_checks_cascade=cr.exact_checks, exact_checks_brute=br.exact_checks,
+                       same_pairs=bool(np.array_equal(np.sort(cr.survivors), np.sort(br.survivors))))
+        rows.append(row)
+    ok = [r for r in rows if "speedup" in r]
+    summary = {"examples": source, "n_examples": len(examples), "fit_ms": round(fit_ms, 2),
+               "median_synthesis_ms": round(statistics.median(r["median_ms"] for r in rows), 3),
+               "median_speedup": round(statistics.median(r["speedup"] for r in ok), 1) if ok else None,
+               "all_same_pairs": all(r["same_pairs"] for r in ok)}
+    if args.json:
+        for r in rows:
+            print(json.dumps(r))
+        print(json.dumps(summary))
+        return 0
+    print(f"grasp synthesis benchmark: {len(examples)} examples from {source}; trees fitted in {fit_ms:.1f} ms")
+    for r in rows:
+        if "counts" not in r:
+            print(f"\n{r['scene']}: no grasp ({r['error']}), median {r['median_ms']:.2f} ms")
+            continue
+        c = r["counts"]
+        print(f"\n{r['scene']}: median synthesis {r['median_ms']:.2f} ms over {args.repeat} plans")
+        print(f"  z={c['candidates']} candidates  z'={c['valid_points']} valid points  s={c['pairs']} pairs  "
+              f"s'={c['reachable']} reachable  s''={c['valid_sets']} valid sets")
+        stages = [k[len("after_"):] for k in c if k.startswith("after_")]
+        print("  cascade: " + "  ".join(f"{s} {c['after_' + s]} ({r['stage_ms'].get('cascade_' + s, 0):.2f} ms)"
+                                       for s in stages))
+        print(f"  cascade {r['cascade_ms']:.2f} ms with {r['exact_checks_cascade']} exact checks; brute force "
+              f"{r['brute_ms']:.2f} ms with {r['exact_checks_brute']} exact checks: {r['speedup']:.1f}x faster, "
+              f"same pairs kept: {r['same_pairs']}")
+    print(f"\nmedian synthesis {summary['median_synthesis_ms']:.2f} ms; median cascade speed-up "
+          f"{summary['median_speedup']}x; cascade and brute force agree everywhere: {summary['all_same_pairs']}")
+    return 0

@@ -1,0 +1,86 @@
+"""`cell bench stability`: share of physically stable grasps over the parts library.
+
+Prints two tables: the whole library planned with the given examples, and leave-families-out
+(each family planned by a planner that never saw an example of it). `--json` prints one
+summary object as the last line.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--examples", default=None, help="example file (default: the shipped examples)")
+    parser.add_argument("--cell", default=None, help="cell file (default: the shipped default cell)")
+    parser.add_argument("--poses", type=int, default=3, help="random poses per part (default 3)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the poses (default 0)")
+    parser.add_argument("--json", action="store_true", help="print a JSON summary as the last line")
+
+
+def run(args) -> int:
+    import numpy as np
+
+    from cell import parts_library as L
+    from cell.cellconfig import load_cell
+    from cell.errors import BadInput
+    from cell.examples import load_examples
+    from cell.study.stability import (
+        StabilityTally,
+        evaluate,
+        leave_families_out,
+        make_planner,
+        presentations,
+        random_baseline,
+    )
+
+    if args.poses < 1:
+        raise BadInput("--poses must be at least 1")
+    cell = load_cell(args.cell)
+    examples = load_examples(args.examples)
+
+    def log(msg):
+        print(msg, file=sys.stderr, flush=True)
+
+    log(f"whole library: {len(L.parts())} parts x {args.poses} poses, planner trained on {len(examples)} examples")
+    shown = presentations(L.parts(), args.poses, args.seed, cell)
+    whole = evaluate(make_planner(examples, cell), shown, cell)
+    baseline = random_baseline(shown, args.seed, cell)
+    per_family = leave_families_out(examples, args.poses, args.seed, cell, progress=log)
+    unseen = StabilityTally()
+    for t in per_family.values():
+        unseen.add(t)
+
+    def pct(x):
+        return f"{100 * x:5.1f} %"
+
+    print("| set | presented | planned | stable | planned share | stable share |")
+    print("|---|---:|---:|---:|---:|---:|")
+    print(f"| whole library, all examples | {whole.presented} | {whole.planned} | {whole.stable} | "
+          f"{pct(whole.planned_share)} | {pct(whole.stable_share)} |")
+    print(f"| unseen families (leave-one-family-out) | {unseen.presented} | {unseen.planned} | {unseen.stable} | "
+          f"{pct(unseen.planned_share)} | {pct(unseen.stable_share)} |")
+    print(f"| yardstick: two random outline points within the stroke | {baseline.presented} | - | "
+          f"{baseline.stable} | - | {pct(baseline.stable_share)} |")
+    print()
+    print("| left-out family | presented | planned | stable |")
+    print("|---|---:|---:|---:|")
+    for fam, t in per_family.items():
+        print(f"| {fam} | {t.presented} | {t.planned} | {t.stable} |")
+    for pid, reasons in whole.failures + unseen.failures:
+        log(f"unstable: {pid}: {'; '.join(reasons)}")
+    if args.json:
+        print(json.dumps({
+            "whole": {"presented": whole.presented, "planned": whole.planned, "stable": whole.stable,
+                      "stable_share": round(whole.stable_share, 4), "planned_share": round(whole.planned_share, 4),
+                      "plan_ms_median": round(float(np.median(whole.plan_ms)), 3) if whole.plan_ms else None},
+            "unseen_families": {"presented": unseen.presented, "planned": unseen.planned, "stable": unseen.stable,
+                                "stable_share": round(unseen.stable_share, 4),
+                                "planned_share": round(unseen.planned_share, 4)},
+            "random_points": {"presented": baseline.presented, "stable": baseline.stable,
+                              "stable_share": round(baseline.stable_share, 4)},
+            "per_family": {f: {"presented": t.presented, "planned": t.planned, "stable": t.stable}
+                           for f, t in per_family.items()},
+        }))
+    return 0

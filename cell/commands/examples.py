@@ -1,0 +1,47 @@
+"""`cell examples generate`: a teaching session of the simulated operator, written as an example file."""
+
+from __future__ import annotations
+
+import sys
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--out", required=True,
+                        help="example file to write (JSON Lines; appended if it exists)")
+    parser.add_argument("--count", type=int, default=60,
+                        help="accepted grasps to give (default 60, as in the paper)")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="random seed (the file is deterministic for a seed)")
+    parser.add_argument("--families", default=None,
+                        help="comma-separated part families to draw from (default: the whole library)")
+    parser.add_argument("--rejections", type=float, default=1 / 3,
+                        help="share of presentations where the operator first rejects a bad grasp "
+                        "(default 1/3)")
+    parser.add_argument("--neighbours", type=float, default=0.15,
+                        help="share of presentations with one or two neighbouring parts (default 0.15)")
+    parser.add_argument("--cell", default=None, help="cell file (default: the shipped default cell)")
+
+
+def run(args) -> int:
+    from cell.cellconfig import load_cell
+    from cell.errors import BadInput
+    from cell.examples import append_examples
+    from cell.operator import generate_examples
+
+    if args.count < 1:
+        raise BadInput("--count must be at least 1")
+    if not (0.0 <= args.rejections <= 1.0 and 0.0 <= args.neighbours <= 1.0):
+        raise BadInput("--rejections and --neighbours are shares between 0 and 1")
+    families = [f.strip() for f in args.families.split(",") if f.strip()] if args.families else None
+    cell = load_cell(args.cell)
+
+    def progress(i, n):
+        print(f"\rexamples: {i}/{n} accepted", end="", file=sys.stderr, flush=True)
+
+    examples = generate_examples(args.count, args.seed, families, cell, args.rejections, args.neighbours,
+                                 progress)
+    print(file=sys.stderr)
+    append_examples(args.out, examples)
+    n_ok = sum(e.valid for e in examples)
+    print(f"wrote {len(examples)} examples ({n_ok} accepted, {len(examples) - n_ok} rejected) to {args.out}")
+    return 0

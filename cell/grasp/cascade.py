@@ -1,0 +1,408 @@
+"""Step 3: reachable pairs through a cascade of filters of increasing cost.
+
+All pairs of valid points go through cheap, vectorised stages first (numpy over every pair),
+then exact checks (shapely, closed-form IK) only on the survivors:
+
+    stroke             contact distance within the jaw stroke (approach opening included)
+    reach              pair centre inside the SCARA's annulus and the workspace (2 mm margin)
+    antipodal          each normal within max_normal_angle of the line between the points, and
+                       the points on one closing line (lateral offset <= contact_tol)
+    precheck           points on the fingers' paths inside the target, a tall obstacle, or
+                       the pair centre inside a palm-high obstacle: a certain collision
+    contacts (exact)   each pad closes along the axis and stops at the first material in its
+                       band: that point, found exactly, must be the candidate (within
+                       contact_tol); it becomes the reported contact. Real opening in stroke.
+    ik (exact)         closed-form SCARA inverse kinematics within the joint limits
+    fingers_obstacles  each finger's footprint swept from the approach opening to the contact
+                       against every obstacle taller than the grasp z (lower ones are passed over)
+    palm (exact)       the palm against every obstacle taller than the palm's bottom
+
+The cheap stages only reject what an exact stage would also reject (the stroke, reach and
+antipodal conditions are part of the definition of a feasible pair), so the cascade and
+the brute force (every exact stage on every pair) keep the same pairs; `cell bench grasp`
+checks that in every run.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+
+from cell.cellconfig import Cell
+from cell.grasp.footprints import axis_rects, rect_polygons
+from cell.grasp.params import SynthesisParams
+from cell.kinematics import Joints, inverse, normalize_axis_deg
+from cell.scene import Part
+
+STAGES = ("stroke", "reach", "antipodal", "precheck", "contacts", "ik", "fingers_obstacles", "palm")
+EXACT_STAGES = ("contacts", "ik", "fingers_obstacles", "palm")
+PAD_COMPLIANCE_MM = 0.5  # material this close to the first-touch line touches the pad too
+CHEAP_MARGIN_MM = 2.0
+# Comparisons against a tolerance allow this much float noise, so that the verdict on a pair
+# does not depend on where the part lies (mid-step samples on parallel faces sit exactly
+# contact_tol apart across the axis).
+EPS_MM = 1e-6
+Z_EPS_MM = 1e-6
+
+
+@dataclass
+class Context:
+    """What the stages need about one scene: the target, the obstacles by height, the cell."""
+
+    target: Part
+    cell: Cell
+    params: SynthesisParams
+    grasp_z_mm: float
+    target_geom: object = None
+    finger_obstacles: object = None  # union of obstacles taller than the grasp z, or None
+    palm_obstacles: object = None  # union of obstacles taller than the palm bottom, or None
+    finger_obstacle_ids: list = field(default_factory=list)
+    edge_a: np.ndarray = None  # (E, 2) start of every target edge (outline and holes)
+    edge_b: np.ndarray = None  # (E, 2) its end
+    edge_tree: object = None  # STRtree over the edges
+    samples: np.ndarray | None = None  # (N, 2) the target's outline samples, ring after ring
+    sample_ring_first: np.ndarray | None = None  # (N,) index of the first sample of each sample's ring
+    sample_ring_count: np.ndarray | None = None  # (N,) number of samples on that ring
+
+    @classmethod
+    def build(cls, target: Part, obstacles, cell: Cell, params: SynthesisParams, grasp_z_mm: float,
+              samples: np.ndarray | None = None, sample_ring: np.ndarray | None = None) -> Context:
+        tall = [o for o in obstacles if o.z_top_mm > grasp_z_mm + Z_EPS_MM]
+        palm_z = grasp_z_mm + cell.gripper.palm_offset_mm
+        palm = [o for o in obstacles if o.z_top_mm > palm_z + Z_EPS_MM]
+
+        def union(parts):
+            if not parts:
+                return None
+            u = shapely.union_all([p.polygon for p in parts])
+            shapely.prepare(u)
+            return u
+
+        tg = shapely.Polygon(target.polygon.exterior, target.polygon.interiors)
+        shapely.prepare(tg)
+        rings = [target.outline_mm, *target.holes_mm]
+        a = np.vstack(rings)
+        b = np.vstack([np.roll(r, -1, axis=0) for r in rings])
+        tree = shapely.STRtree(shapely.linestrings(np.stack([a, b], axis=1)))
+        first = count = None
+        if samples is not None:
+            ring = np.asarray(sample_ring, int)
+            starts = np.searchsorted(ring, np.arange(ring.max() + 1))
+            counts = np.bincount(ring)
+            first, count = starts[ring], counts[ring]
+        return cls(target, cell, params, grasp_z_mm, tg, union(tall), union(palm), [o.id for o in tall],
+                   a, b, tree, samples, first, count)
+
+
+@dataclass
+class Pairs:
+    """Every unordered pair (i, j) of valid points with its closing-axis geometry, arrays (s, ...).
+
+    u: closing axis (unit, from p_j towards p_i), the bisector of n_i and -n_j; m: pair midpoint;
+    t: half the points' distance along u. The `contacts` stage fills ci, cj (the real touching
+    points), center and h (half the jaw gap at the contacts); `ik` fills joints.
+    """
+
+    ij: np.ndarray
+    pi: np.ndarray
+    pj: np.ndarray
+    ni: np.ndarray
+    nj: np.ndarray
+    d: np.ndarray
+    u: np.ndarray
+    m: np.ndarray
+    t: np.ndarray
+    ci: np.ndarray = None
+    cj: np.ndarray = None
+    center: np.ndarray = None
+    h: np.ndarray = None
+    joints: dict = field(default_factory=dict)
+    si: np.ndarray | None = None  # (s, 2) outline-sample index of p_i and p_j
+
+    def __len__(self) -> int:
+        return len(self.ij)
+
+    @classmethod
+    def of(cls, points: np.ndarray, normals: np.ndarray, sample_index: np.ndarray | None = None) -> Pairs:
+        """sample_index (z',): each point's index among the target's outline samples (enables the
+        pre-check's look at the outline next to each point)."""
+        i, j = np.triu_indices(len(points), k=1)
+        pi, pj, ni, nj = points[i], points[j], normals[i], normals[j]
+        w = pi - pj
+        d = np.linalg.norm(w, axis=1)
+        u = ni - nj
+        un = np.linalg.norm(u, axis=1)
+        degenerate = un < 1e-9
+        u[degenerate] = w[degenerate]
+        u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-12)
+        m = 0.5 * (pi + pj)
+        t = 0.5 * (w * u).sum(1)
+        nan2 = np.full((len(i), 2), np.nan)
+        si = None if sample_index is None else np.column_stack([sample_index[i], sample_index[j]])
+        return cls(np.column_stack([i, j]), pi, pj, ni, nj, d, u, m, t, nan2.copy(), nan2.copy(), nan2.copy(),
+                   np.full(len(i), np.nan), si=si)
+
+    def axis_deg(self, k: int) -> float:
+        return normalize_axis_deg(math.degrees(math.atan2(self.u[k, 1], self.u[k, 0])))
+
+
+# --- cheap stages: vectorised over the pairs idx -------------------------------------------
+
+def stage_stroke(ctx: Context, P: Pairs, idx) -> np.ndarray:
+    g = ctx.cell.gripper
+    d = P.d[idx]
+    return (d >= g.opening_mm[0] - EPS_MM) & (d + 2 * g.approach_clearance_mm <= g.opening_mm[1] + EPS_MM)
+
+
+def stage_reach(ctx: Context, P: Pairs, idx) -> np.ndarray:
+    m = P.m[idx]
+    rmin, rmax = ctx.cell.scara.reach_mm
+    r = np.linalg.norm(m, axis=1)
+    ws, e = ctx.cell.workspace, CHEAP_MARGIN_MM
+    return ((r >= rmin - e) & (r <= rmax + e) & (m[:, 0] >= ws.x_mm[0] - e) & (m[:, 0] <= ws.x_mm[1] + e)
+            & (m[:, 1] >= ws.y_mm[0] - e) & (m[:, 1] <= ws.y_mm[1] + e))
+
+
+def stage_antipodal(ctx: Context, P: Pairs, idx) -> np.ndarray:
+    w = (P.pi[idx] - P.pj[idx]) / np.maximum(P.d[idx], 1e-12)[:, None]
+    c = math.cos(math.radians(ctx.params.max_normal_angle_deg))
+    u = P.u[idx]
+    lateral = 0.5 * np.abs(w[:, 0] * u[:, 1] - w[:, 1] * u[:, 0]) * P.d[idx]
+    return (((P.ni[idx] * w).sum(1) >= c - 1e-9) & ((P.nj[idx] * -w).sum(1) >= c - 1e-9)
+            & (lateral <= ctx.params.contact_tol_mm + EPS_MM))
+
+
+def stage_precheck(ctx: Context, P: Pairs, idx) -> np.ndarray:
+    """Conservative: a point that every exact footprint of this pair would cover lies inside
+    material, or the outline next to a point juts out into its pad's band (docs/grasp.md)."""
+    g = ctx.cell.gripper
+    m, u, t = P.m[idx], P.u[idx], P.t[idx]
+    tol = ctx.params.contact_tol_mm
+    reach = g.approach_clearance_mm + g.pad_thickness_mm
+    offs = np.array([tol + 1.5, 0.5 * (tol + reach), reach - 1.5])
+    ok = np.ones(len(idx), bool)
+    for side in (1.0, -1.0):
+        q = m[:, None, :] + side * u[:, None, :] * (t[:, None] + offs[None, :])[..., None]  # (k, 3, 2)
+        x, y = q[..., 0].ravel(), q[..., 1].ravel()
+        hit = shapely.contains_xy(ctx.target_geom, x, y)
+        if ctx.finger_obstacles is not None:
+            hit |= shapely.contains_xy(ctx.finger_obstacles, x, y)
+        ok &= ~hit.reshape(len(idx), -1).any(1)
+    if ctx.palm_obstacles is not None:
+        ok &= ~shapely.contains_xy(ctx.palm_obstacles, m[:, 0], m[:, 1])
+    if ctx.samples is not None and P.si is not None:
+        ok &= ~_outline_ahead(ctx, P, idx)
+    return ok
+
+
+def _outline_ahead(ctx: Context, P: Pairs, idx) -> np.ndarray:
+    """(k,) True where an outline sample next to p_i or p_j (same ring, within the pad's reach along
+    the outline) lies in that pad's band further out than the candidate point by more than
+    contact_tol: the pad would stop there first, so the `contacts` stage would reject the pair."""
+    g, tol = ctx.cell.gripper, ctx.params.contact_tol_mm
+    hw = g.pad_width_mm / 2 + tol
+    K = int(np.ceil(hw / ctx.params.step_mm)) + 1
+    offs = np.r_[np.arange(-K, 0), np.arange(1, K + 1)]
+    m, u, t = P.m[idx], P.u[idx], P.t[idx]
+    t_max = t + g.approach_clearance_mm + g.pad_thickness_mm
+    hit = np.zeros(len(idx), bool)
+    for col, side in ((0, 1.0), (1, -1.0)):
+        s = P.si[idx, col]
+        first, count = ctx.sample_ring_first[s], ctx.sample_ring_count[s]
+        q = first[:, None] + (s[:, None] - first[:, None] + offs[None, :]) % count[:, None]  # (k, 2K)
+        d = ctx.samples[q] - m[:, None, :]
+        us = side * u
+        tq = (d * us[:, None, :]).sum(-1)
+        lq = d[..., 0] * -us[:, None, 1] + d[..., 1] * us[:, None, 0]
+        hit |= ((np.abs(lq) <= hw - EPS_MM) & (tq <= t_max[:, None] - EPS_MM)
+                & (tq > t[:, None] + tol + EPS_MM)).any(1)
+    return hit
+
+
+# --- exact stages: shapely and IK on the survivors only -------------------------------------
+
+def first_touch(ctx: Context, centers: np.ndarray, us: np.ndarray, t_min: np.ndarray, t_max: np.ndarray,
+                half_width: float):
+    """Where a pad closing along -us towards `centers` first meets the target.
+
+    For each band (b,): the rectangle from t_min to t_max along us from the centre, half_width
+    across (t_min just inside the candidate point: material further in cannot be the first touch
+    when the candidate itself is in the band). The target's material inside it is bounded by the
+    target's edges clipped to the band (Liang-Barsky, vectorised over the (band, edge) pairs whose
+    bounding boxes an STRtree finds overlapping) and, when the band's far corners lie inside the
+    target, by its far side. Returns T (b,), the largest
+    distance along us of material in the band (-inf: none), and the touching point (b, 2): on the
+    first-touch line, in the middle (across the axis) of the material within PAD_COMPLIANCE_MM of it.
+    """
+    b = len(centers)
+    vs = np.stack([-us[:, 1], us[:, 0]], -1)
+    corners = axis_rects(centers, us, t_min, t_max, half_width)
+    lo, hi = corners.min(axis=1), corners.max(axis=1)
+    bi, ei = ctx.edge_tree.query(shapely.box(lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1]))  # the clip below is exact
+    A, B = ctx.edge_a[ei], ctx.edge_b[ei]
+    c, u, v = centers[bi], us[bi], vs[bi]
+    tA, lA = ((A - c) * u).sum(1), ((A - c) * v).sum(1)
+    dt, dl = ((B - A) * u).sum(1), ((B - A) * v).sum(1)
+    s0, s1 = np.zeros(len(bi)), np.ones(len(bi))
+    inside = np.ones(len(bi), bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for p, q in ((-dt, tA - t_min[bi]), (dt, t_max[bi] - tA), (-dl, lA + half_width), (dl, half_width - lA)):
+            r = q / p
+            s0 = np.where(p < 0, np.maximum(s0, r), s0)
+            s1 = np.where(p > 0, np.minimum(s1, r), s1)
+            inside &= ~((p == 0) & (q < 0))
+    inside &= s0 <= s1
+    bi = np.concatenate([bi[inside]] * 2)
+    s = np.concatenate([s0[inside], s1[inside]])
+    tt = np.concatenate([tA[inside]] * 2) + s * np.concatenate([dt[inside]] * 2)  # along us
+    T = np.full(b, -np.inf)
+    if len(bi):
+        order = np.argsort(bi, kind="stable")
+        bi, s, tt = bi[order], s[order], tt[order]
+        idx = np.concatenate([np.flatnonzero(inside)] * 2)[order]
+        starts = np.flatnonzero(np.r_[True, bi[1:] != bi[:-1]])
+        T[bi[starts]] = np.maximum.reduceat(tt, starts)
+    far = corners[:, 1:3].reshape(-1, 2)
+    far_in = shapely.contains_xy(ctx.target_geom, far[:, 0], far[:, 1]).reshape(b, 2).any(1)
+    T[far_in] = np.maximum(T[far_in], t_max[far_in])
+    touch = np.full((b, 2), np.nan)
+    if len(bi):
+        # the touching material: within PAD_COMPLIANCE_MM of the first touch; the contact is the
+        # middle of its extent across the axis, at the first-touch line (robust to edges that
+        # run along the band's side, which a mean of vertices is not)
+        near = tt >= T[bi] - PAD_COMPLIANCE_MM
+        nb = bi[near]
+        xy = A[idx[near]] + s[near, None] * (B - A)[idx[near]]
+        lat = ((xy - centers[nb]) * vs[nb]).sum(1)
+        starts = np.flatnonzero(np.r_[True, nb[1:] != nb[:-1]])
+        lo_l, hi_l = np.minimum.reduceat(lat, starts), np.maximum.reduceat(lat, starts)
+        g = nb[starts]
+        touch[g] = centers[g] + us[g] * T[g, None] + vs[g] * (0.5 * (lo_l + hi_l))[:, None]
+    return T, touch
+
+
+def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
+    """Close each pad along the axis; it stops at the first material in its band. That point must
+    be the candidate's (within contact_tol, along and across the axis)."""
+    k = len(idx)
+    if k == 0:
+        return np.zeros(0, bool)
+    g, tol = ctx.cell.gripper, ctx.params.contact_tol_mm
+    m, u, t = P.m[idx], P.u[idx], P.t[idx]
+    centers, us = np.vstack([m, m]), np.vstack([u, -u])
+    tt = np.concatenate([t, t])
+    T, c = first_touch(ctx, centers, us, tt - 2 * tol, tt + g.approach_clearance_mm + g.pad_thickness_mm,
+                       g.pad_width_mm / 2 + tol)
+    vs = np.stack([-us[:, 1], us[:, 0]], -1)
+    lateral = np.abs(((c - centers) * vs).sum(1))
+    with np.errstate(invalid="ignore"):
+        ok2 = np.isfinite(lateral) & (T <= tt + tol + EPS_MM) & (lateral <= tol + EPS_MM)
+    ok = ok2[:k] & ok2[k:]
+    ci, cj = c[:k], c[k:]
+    h = 0.5 * ((ci - cj) * u).sum(1)
+    with np.errstate(invalid="ignore"):
+        ok &= (2 * h >= g.opening_mm[0] - EPS_MM) & (2 * h + 2 * g.approach_clearance_mm <= g.opening_mm[1] + EPS_MM)
+    P.ci[idx], P.cj[idx] = ci, cj
+    P.center[idx] = 0.5 * (ci + cj)
+    P.h[idx] = h
+    return ok
+
+
+def stage_ik(ctx: Context, P: Pairs, idx) -> np.ndarray:
+    ok = np.zeros(len(idx), bool)
+    ws = ctx.cell.workspace
+    for n, k in enumerate(idx):
+        x, y = P.center[k]
+        if not (np.isfinite(x) and ws.contains(x, y)):
+            continue
+        sols = inverse(float(x), float(y), ctx.grasp_z_mm, P.axis_deg(k), ctx.cell.scara)
+        if sols:
+            P.joints[int(k)] = sols
+            ok[n] = True
+    return ok
+
+
+def stage_fingers_obstacles(ctx: Context, P: Pairs, idx) -> np.ndarray:
+    if ctx.finger_obstacles is None or len(idx) == 0:
+        return np.ones(len(idx), bool)
+    g = ctx.cell.gripper
+    c, u, h = P.center[idx], P.u[idx], P.h[idx]
+    hh = np.concatenate([h, h])
+    rects = rect_polygons(axis_rects(np.vstack([c, c]), np.vstack([u, -u]), hh,
+                                     hh + g.approach_clearance_mm + g.pad_thickness_mm, g.pad_width_mm / 2))
+    hit = shapely.intersects(rects, ctx.finger_obstacles)
+    return ~(hit[:len(idx)] | hit[len(idx):])
+
+
+def stage_palm(ctx: Context, P: Pairs, idx) -> np.ndarray:
+    if ctx.palm_obstacles is None or len(idx) == 0:
+        return np.ones(len(idx), bool)
+    g = ctx.cell.gripper
+    rects = rect_polygons(axis_rects(P.center[idx], P.u[idx], -g.palm_length_mm / 2, g.palm_length_mm / 2,
+                                     g.palm_width_mm / 2))
+    return ~shapely.intersects(rects, ctx.palm_obstacles)
+
+
+STAGE_FUNCS = {"stroke": stage_stroke, "reach": stage_reach, "antipodal": stage_antipodal,
+               "precheck": stage_precheck, "contacts": stage_contacts, "ik": stage_ik,
+               "fingers_obstacles": stage_fingers_obstacles, "palm": stage_palm}
+
+
+@dataclass
+class CascadeResult:
+    survivors: np.ndarray  # pair indices that passed every stage
+    rejected_by: np.ndarray  # (s,) index into STAGES of the stage that rejected each pair, -1 if kept
+    kept: dict  # stage -> number of pairs it kept
+    exact_checks: int  # pair evaluations in the exact stages
+    time_ms: dict  # stage -> wall time
+
+
+def run_cascade(ctx: Context, P: Pairs, stages=STAGES) -> CascadeResult:
+    import time
+
+    alive = np.arange(len(P))
+    rejected_by = np.full(len(P), -1)
+    kept, times, exact = {}, {}, 0
+    for name in stages:
+        t0 = time.perf_counter()
+        if name in EXACT_STAGES:
+            exact += len(alive)
+        ok = STAGE_FUNCS[name](ctx, P, alive) if len(alive) else np.zeros(0, bool)
+        rejected_by[alive[~ok]] = STAGES.index(name)
+        alive = alive[ok]
+        kept[name] = len(alive)
+        times[name] = (time.perf_counter() - t0) * 1e3
+    return CascadeResult(alive, rejected_by, kept, exact, times)
+
+
+def run_brute_force(ctx: Context, P: Pairs) -> CascadeResult:
+    """Every pair through every stage (the exact ones included), for the benchmark: the
+    feasible pairs are those no stage rejects."""
+    import time
+
+    every = np.arange(len(P))
+    ok = np.ones(len(P), bool)
+    rejected_by = np.full(len(P), -1)
+    times, exact = {}, 0
+    for name in ("stroke", "reach", "antipodal", *EXACT_STAGES):
+        t0 = time.perf_counter()
+        if name in EXACT_STAGES:
+            exact += len(P)
+        if name in ("fingers_obstacles", "palm", "ik"):
+            # these need the contacts' geometry, which exists where the contacts stage found one
+            has = np.isfinite(P.center[:, 0])
+            r = np.zeros(len(P), bool)
+            r[has] = STAGE_FUNCS[name](ctx, P, every[has])
+        else:
+            r = STAGE_FUNCS[name](ctx, P, every)
+        rejected_by[(rejected_by < 0) & ~r] = STAGES.index(name)
+        ok &= r
+        times[name] = (time.perf_counter() - t0) * 1e3
+    return CascadeResult(np.flatnonzero(ok), rejected_by, {"feasible": int(ok.sum())}, exact, times)
+
+
+def joints_of(P: Pairs, k: int) -> list[Joints]:
+    return P.joints.get(int(k), [])

@@ -1,0 +1,53 @@
+"""Why the planner decided: the rules behind the chosen grasp and a sample of rejections."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cell.grasp.cascade import STAGES
+
+STAGE_WHY = {
+    "stroke": "contact distance outside the jaw stroke",
+    "reach": "pair centre outside the arm's reach or the workspace",
+    "antipodal": "normals not facing each other along the closing line",
+    "precheck": "a finger path or the palm centre inside material (cheap pre-check)",
+    "contacts": "a jaw pad would first touch other material (hidden contact) or the opening is out of stroke",
+    "ik": "no inverse-kinematics solution within the joint limits",
+    "fingers_obstacles": "a finger's swept footprint overlaps an obstacle taller than the grasp z",
+    "palm": "the palm overlaps an obstacle taller than its bottom",
+}
+
+
+def explain(result, planner, n_samples: int = 3, seed: int = 0) -> list[str]:
+    rng = np.random.default_rng(seed)
+    pt, st = planner.model.point_tree, planner.model.set_tree
+    g = result.grasp
+    vidx = np.flatnonzero(result.point_valid)
+    lines = []
+    for c, i in zip(g.contacts_mm, g.pair, strict=True):
+        ci = vidx[i]
+        lines.append(f"chosen contact {np.round(c, 2).tolist()}: tree 1 {pt.rule_for(result.candidate_attributes[ci])}")
+    lines.append(f"chosen set: tree 2 {st.rule_for(g.global_attributes)}")
+    lines.append(f"chosen set: nearest accepted example {g.nearest_example} at distance "
+                 f"{g.distance_to_example:.3f} (normalised global attributes)")
+    if result.outline is not None and not result.free.all():
+        blocked = np.flatnonzero(~result.free)
+        i = int(rng.choice(blocked))
+        lines.append(f"not a candidate: {int((~result.free).sum())} outline points within "
+                     f"{planner.params.free_gap_mm:g} mm of another part, e.g. "
+                     f"{np.round(result.outline.points[i], 2).tolist()} (contact is not free area)")
+    bad = np.flatnonzero(~result.point_valid)
+    for i in rng.choice(bad, size=min(n_samples, len(bad)), replace=False) if len(bad) else []:
+        lines.append(f"rejected point {np.round(result.candidates.points[i], 2).tolist()}: tree 1 "
+                     f"{pt.rule_for(result.candidate_attributes[i])}")
+    P, rb = result.pairs, result.cascade.rejected_by
+    for s, name in enumerate(STAGES):
+        idx = np.flatnonzero(rb == s)
+        for k in rng.choice(idx, size=min(1, len(idx)), replace=False) if len(idx) else []:
+            lines.append(f"rejected pair {np.round(P.pi[k], 1).tolist()} - {np.round(P.pj[k], 1).tolist()}: "
+                         f"{name} stage ({STAGE_WHY[name]}); {len(idx)} pairs stopped here")
+    badsets = np.flatnonzero(~result.set_valid)
+    for q in rng.choice(badsets, size=min(n_samples, len(badsets)), replace=False) if len(badsets) else []:
+        c = result.reachable_pairs[q]
+        lines.append(f"rejected set {np.round(c, 1).tolist()}: tree 2 {st.rule_for(result.reachable_attributes[q])}")
+    return lines

@@ -1,0 +1,234 @@
+"""Learning from examples: labels for both trees, the trees, and their readable rules.
+
+How an example teaches (paper: the operator grasps parts in a simulation environment):
+- Tree 1 (points). The example's part outline is resampled at the planner's step; the
+  candidate points on the same ring within half a pad width (along the outline) of a
+  contact take that contact's label: `contact_valid[i]` when given, else true for an
+  accepted grasp; a rejected grasp without `contact_valid` says nothing about its points
+  (the operator may have rejected it for a reason that is not the contact's shape).
+- Tree 2 (sets). Each example is one set, labelled by `valid`, with its global attributes
+  measured at the contacts projected onto the outline; it is augmented with its
+  neighbouring sets (each contact shifted by -k..k steps along the outline, all
+  combinations), which a pad 6 steps wide could not tell apart. A rejected example that
+  names a bad contact (`contact_valid` has a false) was rejected for that contact: tree 1
+  learns it, and it is not a negative set for tree 2, because its global attributes may be
+  those of a good set (a centred, antipodal grasp across the wrong faces looks, globally,
+  exactly like the centred grasp across the right ones; as a negative set it would
+  contradict the accepted example and cancel it).
+- Selection uses the accepted examples' own (unaugmented) global attributes.
+Trees are rebuilt from the example file on every start (milliseconds): no pickles.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+from sklearn.tree import DecisionTreeClassifier
+
+from cell.errors import BadInput
+from cell.examples import GraspExample
+from cell.grasp.attributes import (
+    describe_points,
+    global_attributes,
+    global_names,
+    local_attributes,
+    local_names,
+)
+from cell.grasp.outline import part_rings, project_to_outline, resample
+from cell.grasp.params import SynthesisParams
+
+
+def contact_labels(ex: GraspExample) -> list[bool | None]:
+    if ex.contact_valid is not None:
+        return list(ex.contact_valid)
+    return [True if ex.valid else None] * ex.n_contacts
+
+
+def point_training(ex: GraspExample, params: SynthesisParams, half_pad_mm: float):
+    """(X (k, F), y (k,)) for tree 1 from one example."""
+    rings = part_rings(ex.part)
+    ring_idx, arc = resample(rings, params.step_mm)
+    rows, labels = [], []
+    op = None
+    for c, lab in zip(ex.contacts_mm, contact_labels(ex), strict=True):
+        if lab is None:
+            continue
+        r, s, _ = project_to_outline(rings, c)
+        L = rings[r].length_mm
+        d = np.abs((arc - s + L / 2) % L - L / 2)  # periodic arc distance
+        sel = (ring_idx == r) & (d <= half_pad_mm)
+        if not sel.any():
+            continue
+        if op is None:
+            op = describe_points(rings, ring_idx, arc, params.scales_mm)
+            X_all = local_attributes(op, ex.part)
+        rows.append(X_all[sel])
+        labels.append(np.full(sel.sum(), lab))
+    if not rows:
+        return np.zeros((0, 2 + len(params.scales_mm))), np.zeros(0, bool)
+    return np.vstack(rows), np.concatenate(labels)
+
+
+def set_attributes_of_example(ex: GraspExample, params: SynthesisParams, shifts=(0,)) -> np.ndarray:
+    """Global attributes (m, G) of the example's set and of its shifted neighbours."""
+    rings = part_rings(ex.part)
+    proj = [project_to_outline(rings, c) for c in ex.contacts_mm]
+    combos = list(itertools.product(shifts, repeat=len(proj)))
+    ring_idx = np.array([[p[0] for p in proj]] * len(combos)).ravel()
+    arc = np.array([[p[1] + k * params.step_mm for p, k in zip(proj, combo, strict=True)]
+                    for combo in combos]).ravel()
+    op = describe_points(rings, ring_idx, arc, params.scales_mm)
+    n = len(proj)
+    return global_attributes(op.points.reshape(-1, n, 2), op.chord_normals.reshape(len(combos), n, -1, 2), ex.part)
+
+
+class AttributeTree:
+    """A decision tree over named attributes, printable as if-then rules (scikit-learn style:
+    hyperparameters in __init__, learned state ends in _)."""
+
+    def __init__(self, names: list[str], max_depth: int = 4, min_samples_leaf: int = 2):
+        self.names = names
+        self.max_depth = max_depth
+        self.min_samples_leaf = min_samples_leaf
+
+    def fit(self, X, y) -> AttributeTree:
+        X = np.asarray(X, float).reshape(-1, len(self.names))
+        y = np.asarray(y, bool)
+        self.n_samples_ = len(y)
+        self.n_valid_ = int(y.sum())
+        if len(set(y.tolist())) < 2:
+            # No contrast to learn from: every input gets the one verdict the examples show
+            # (no examples at all: nothing is ruled out).
+            self.constant_ = bool(y[0]) if len(y) else True
+            self.tree_ = None
+            return self
+        self.constant_ = None
+        self.tree_ = DecisionTreeClassifier(max_depth=self.max_depth, min_samples_leaf=self.min_samples_leaf,
+                                            class_weight="balanced", random_state=0).fit(X, y)
+        return self
+
+    def predict(self, X) -> np.ndarray:
+        X = np.asarray(X, float).reshape(-1, len(self.names))
+        if self.tree_ is None:
+            return np.full(len(X), self.constant_)
+        return self._leaf_class()[self.tree_.apply(X.astype(np.float32))]
+
+    def _leaf_class(self) -> np.ndarray:
+        t = self.tree_
+        cls = t.classes_[np.argmax(t.tree_.value[:, 0, :], axis=1)]
+        return cls.astype(bool)
+
+    def _path_rules(self):
+        """[(leaf nodes, [condition strings], verdict, n_samples, share of the verdict)], one per rule.
+
+        Sibling subtrees whose leaves all give the same verdict are merged into one rule (the
+        split does not change the decision, only the purity), so every printed rule decides."""
+        t = self.tree_.tree_
+        cls = self._leaf_class()
+
+        def verdicts(node):
+            if t.children_left[node] == -1:
+                return {bool(cls[node])}
+            return verdicts(t.children_left[node]) | verdicts(t.children_right[node])
+
+        def leaves(node):
+            if t.children_left[node] == -1:
+                return [node]
+            return leaves(t.children_left[node]) + leaves(t.children_right[node])
+
+        out = []
+
+        def walk(node, conds):
+            v = verdicts(node)
+            if len(v) == 1:
+                ls = leaves(node)
+                n = int(t.n_node_samples[node])
+                w = t.value[node, 0]
+                k = int(np.flatnonzero(self.tree_.classes_ == next(iter(v)))[0])
+                out.append((ls, conds, next(iter(v)), n, float(w[k] / max(w.sum(), 1e-12))))
+                return
+            name, thr = self.names[t.feature[node]], t.threshold[node]
+            walk(t.children_left[node], conds + [f"{name} <= {thr:.3f}"])
+            walk(t.children_right[node], conds + [f"{name} > {thr:.3f}"])
+
+        walk(0, [])
+        return out
+
+    def rules(self) -> list[str]:
+        if self.tree_ is None:
+            why = "no labelled examples" if self.n_samples_ == 0 else f"all {self.n_samples_} examples agree"
+            return [f"ALWAYS {'valid' if self.constant_ else 'invalid'}  ({why})"]
+        return [self._format(c, v, n, share) for _, c, v, n, share in self._path_rules()]
+
+    def rule_for(self, x) -> str:
+        """The rule (leaf path) that decides one attribute row."""
+        if self.tree_ is None:
+            return self.rules()[0]
+        leaf = int(self.tree_.apply(np.asarray(x, np.float32).reshape(1, -1))[0])
+        for nodes, c, v, n, share in self._path_rules():
+            if leaf in nodes:
+                return self._format(c, v, n, share)
+        raise AssertionError("leaf not found")
+
+    @staticmethod
+    def _format(conds, verdict, n, share) -> str:
+        # one bound per attribute and side: the tightest along the path
+        bounds: dict = {}
+        for c in conds:
+            name, op, thr = c.split(" ")
+            key, thr = (name, op), float(thr)
+            bounds[key] = thr if key not in bounds else (min if op == "<=" else max)(bounds[key], thr)
+        conds = [f"{name} {op} {thr:.3f}" for (name, op), thr in bounds.items()]
+        head = "IF " + " AND ".join(conds) if conds else "ALWAYS"
+        return f"{head} THEN {'valid' if verdict else 'invalid'}  ({n} training rows, {share:.0%} of their weight)"
+
+
+@dataclass
+class LearnedModel:
+    point_tree: AttributeTree
+    set_tree: AttributeTree
+    example_attrs: np.ndarray  # (e, G) accepted examples' global attributes
+    example_ids: list[str]
+    scale: np.ndarray  # (G,) normalisation of the global-attribute space
+    counts: dict
+
+
+def fit_model(examples: list[GraspExample], params: SynthesisParams, half_pad_mm: float) -> LearnedModel:
+    if not examples:
+        raise BadInput("no examples: the planner learns only from examples")
+    for ex in examples:
+        if ex.n_contacts != params.n_contacts:
+            raise BadInput(f"example {ex.id!r} has {ex.n_contacts} contacts; this gripper takes "
+                           f"{params.n_contacts}")
+    if not any(ex.valid for ex in examples):
+        raise BadInput("the examples hold no accepted (valid) grasp: the planner needs at least one to imitate")
+    Xp, yp = zip(*(point_training(ex, params, half_pad_mm) for ex in examples), strict=True)
+    Xp, yp = np.vstack(Xp), np.concatenate(yp)
+    k = params.augment_shift_steps
+    shifts = tuple(range(-k, k + 1))
+    Xs, ys = [], []
+    for ex in examples:
+        if not ex.valid and ex.contact_valid is not None and not all(ex.contact_valid):
+            continue  # rejected for a contact: a point label (tree 1), not a set label
+        a = set_attributes_of_example(ex, params, shifts)
+        Xs.append(a)
+        ys.append(np.full(len(a), ex.valid))
+    Xs, ys = np.vstack(Xs), np.concatenate(ys)
+    valid = [ex for ex in examples if ex.valid]
+    ex_attrs = np.vstack([set_attributes_of_example(ex, params) for ex in valid])
+    scale = Xs.std(axis=0)
+    scale[scale < 1e-9] = 1.0
+    pt = AttributeTree(local_names(params.scales_mm), params.tree_max_depth, params.tree_min_samples_leaf).fit(Xp, yp)
+    st = AttributeTree(global_names(params.scales_mm), params.tree_max_depth, params.tree_min_samples_leaf).fit(Xs, ys)
+    counts = {"examples": len(examples), "valid_examples": len(valid), "point_rows": len(yp),
+              "point_rows_valid": int(yp.sum()), "set_rows": len(ys), "set_rows_valid": int(ys.sum())}
+    return LearnedModel(pt, st, ex_attrs, [ex.id for ex in valid], scale, counts)
+
+
+def nearest_example(model: LearnedModel, G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (k,) of each set to its nearest accepted example in the normalised global-attribute
+    space (paper Eq. 8), and that example's index (k,)."""
+    d = np.linalg.norm((G[:, None, :] - model.example_attrs[None, :, :]) / model.scale, axis=-1)
+    return d.min(axis=1), d.argmin(axis=1)

@@ -1,0 +1,95 @@
+"""A part's outline as arc-length parametrised rings (pure geometry, base frame, mm).
+
+Scene parts are normalised so that the outer ring is counter-clockwise and holes clockwise:
+walking along any ring the material is on the left, so the outward normal (away from the
+material) is the walking direction turned right by 90 degrees, for holes as for the outside.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cell.scene import Part
+
+
+@dataclass(frozen=True, eq=False)
+class Ring:
+    """One closed ring: vertices (m, 2) with the material on the left, cumulative arc length (m + 1,)."""
+
+    vertices: np.ndarray
+    cum_mm: np.ndarray
+
+    @classmethod
+    def of(cls, vertices) -> Ring:
+        v = np.asarray(vertices, float)
+        seg = np.linalg.norm(np.diff(np.vstack([v, v[:1]]), axis=0), axis=1)
+        return cls(v, np.concatenate([[0.0], np.cumsum(seg)]))
+
+    @property
+    def length_mm(self) -> float:
+        return float(self.cum_mm[-1])
+
+    def at(self, arc_mm) -> np.ndarray:
+        """Points at arc positions (any shape (...,)), periodic; returns (..., 2)."""
+        s = np.mod(np.asarray(arc_mm, float), self.length_mm)
+        closed = np.vstack([self.vertices, self.vertices[:1]])
+        return np.stack([np.interp(s, self.cum_mm, closed[:, 0]), np.interp(s, self.cum_mm, closed[:, 1])], -1)
+
+    def edge_normals(self, arc_mm) -> np.ndarray:
+        """Outward unit normal of the edge holding each arc position, (..., 2)."""
+        s = np.mod(np.asarray(arc_mm, float), self.length_mm)
+        k = np.clip(np.searchsorted(self.cum_mm, s, side="right") - 1, 0, len(self.vertices) - 1)
+        d = np.roll(self.vertices, -1, axis=0)[k] - self.vertices[k]
+        n = np.stack([d[..., 1], -d[..., 0]], -1)
+        return n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+
+    def project(self, p) -> tuple[float, float]:
+        """(arc position, distance) of the ring point nearest to p."""
+        p = np.asarray(p, float)
+        a, b = self.vertices, np.roll(self.vertices, -1, axis=0)
+        d = b - a
+        L2 = np.maximum((d * d).sum(1), 1e-24)
+        t = np.clip(((p - a) * d).sum(1) / L2, 0.0, 1.0)
+        q = a + t[:, None] * d
+        dist = np.linalg.norm(q - p, axis=1)
+        k = int(np.argmin(dist))
+        return float(self.cum_mm[k] + t[k] * np.sqrt(L2[k])), float(dist[k])
+
+
+def part_rings(part: Part) -> list[Ring]:
+    """The outer ring first, then the holes: all of them are outline."""
+    return [Ring.of(part.outline_mm), *(Ring.of(h) for h in part.holes_mm)]
+
+
+def centre_of_gravity(part: Part) -> np.ndarray:
+    """Area centroid with the holes taken out, (2,)."""
+    return np.asarray(part.polygon.centroid.coords[0], float)
+
+
+def reference_radius_mm(part: Part) -> float:
+    """Equivalent-disc radius sqrt(area / pi): the size unit of the relative attributes."""
+    return float(np.sqrt(part.polygon.area / np.pi))
+
+
+def resample(rings: list[Ring], step_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Evenly spaced arc positions on every ring, about `step_mm` apart (mid-step, so a polygon's
+    vertices fall between samples). Returns ring index (z,) and arc position (z,)."""
+    idx, arcs = [], []
+    for r, ring in enumerate(rings):
+        n = max(3, int(round(ring.length_mm / step_mm)))
+        h = ring.length_mm / n
+        arcs.append((np.arange(n) + 0.5) * h)
+        idx.append(np.full(n, r))
+    return np.concatenate(idx), np.concatenate(arcs)
+
+
+def project_to_outline(rings: list[Ring], p) -> tuple[int, float, float]:
+    """(ring index, arc position, distance) of the outline point nearest to p."""
+    best = (0, 0.0, np.inf)
+    for r, ring in enumerate(rings):
+        s, d = ring.project(p)
+        if d < best[2]:
+            best = (r, s, d)
+    return best

@@ -1,0 +1,47 @@
+"""Parameters of the grasp synthesis (paper steps 1-4), with the reasons for their defaults."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+
+from cell.errors import BadInput
+
+MIN_STEP_MM = 0.5
+
+
+@dataclass(frozen=True)
+class SynthesisParams:
+    # Step 1: candidate points.
+    step_mm: float = 2.0  # arc-length step of the resampled outline: a sixth of the 12 mm pad
+    free_gap_mm: float = 1.5  # outline closer than this to another part is contact, not free area
+    # Step 2: local attributes. Convexity scales in mm (absolute: the pad has a fixed size, so
+    # "flat at the pad's scale" is a physical property, not a relative one).
+    scales_mm: tuple[float, ...] = (3.0, 6.0, 12.0, 24.0)
+    # Step 3: cascade.
+    max_normal_angle_deg: float = 20.0  # each contact normal vs the closing axis (friction cone)
+    contact_tol_mm: float = 1.0  # the pad's first touch may be this far from the candidate point
+    n_contacts: int = 2  # a parameter of the learning and the attributes; the gripper model is 2-jaw
+    # Learning.
+    tree_max_depth: int = 4
+    tree_min_samples_leaf: int = 2
+    augment_shift_steps: int = 1  # each example set is augmented by its neighbours +- this many steps
+
+    def __post_init__(self):
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.name == "scales_mm":
+                if len(v) < 3 or any(not (s > 0 and math.isfinite(s)) for s in v):
+                    raise BadInput("synthesis parameter scales_mm needs at least three positive scales (mm)")
+            elif isinstance(v, (int, float)) and not math.isfinite(v):
+                raise BadInput(f"synthesis parameter {f.name} must be a finite number, got {v}")
+            elif isinstance(v, (int, float)) and v < 0:
+                raise BadInput(f"synthesis parameter {f.name} must not be negative, got {v}")
+        if self.step_mm < MIN_STEP_MM:
+            raise BadInput(f"synthesis parameter step_mm must be at least {MIN_STEP_MM:g} mm (all pairs of "
+                           f"points are formed: a finer step costs memory with the square), got {self.step_mm:g}")
+        if self.n_contacts != 2:
+            raise BadInput(f"this cell's gripper has two jaws: n_contacts must be 2, got {self.n_contacts}")
+
+    def with_(self, **kw) -> SynthesisParams:
+        return replace(self, **{k: v for k, v in kw.items() if v is not None})

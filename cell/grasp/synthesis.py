@@ -1,0 +1,263 @@
+"""The grasp planner: paper steps 1-4 for one scene, learned from examples.
+
+    scene -> candidate points (free outline)      candidates.py   z
+          -> valid points (tree 1)                learning.py     z'
+          -> pairs -> reachable pairs (cascade)   cascade.py      s -> s'
+          -> valid sets (tree 2)                  learning.py     s''
+          -> grasp nearest to an accepted example, joints chosen by `choose_joints`
+
+The planner only ever sees examples: trees and the nearest-example space are fitted from
+them in `GraspPlanner.__init__`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cell.cellconfig import Cell
+from cell.errors import NoFeasibleGrasp
+from cell.examples import GraspExample
+from cell.grasp.attributes import OutlinePoints, global_attributes, global_names, local_attributes
+from cell.grasp.candidates import candidate_points
+from cell.grasp.cascade import STAGES, CascadeResult, Context, Pairs, joints_of, run_cascade
+from cell.grasp.height import grasp_z_mm
+from cell.grasp.learning import LearnedModel, fit_model, nearest_example
+from cell.grasp.outline import part_rings
+from cell.grasp.params import SynthesisParams
+from cell.kinematics import Joints
+from cell.scene import Scene
+
+
+@dataclass(eq=False)
+class Grasp:
+    target: str
+    contacts_mm: np.ndarray  # (n, 2) where the pads touch
+    normals: np.ndarray  # (n, 2) outward unit normals at the contacts
+    center_mm: np.ndarray  # (2,) midpoint of the contacts, the tool point
+    axis_deg: float  # closing-axis direction in (-90, 90]
+    opening_mm: float  # distance between the contacts
+    grasp_z_mm: float
+    joint_options: list[Joints]  # every IK solution within limits that passed the exact checks
+    joints: Joints | None = None
+    distance_to_example: float = float("nan")
+    global_attributes: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    nearest_example: str | None = None
+    pair: tuple[int, int] = (-1, -1)  # indices into the result's valid points
+
+    def to_json(self) -> dict:
+        d = {"target": self.target, "contacts": np.round(self.contacts_mm, 4).tolist(),
+             "center": np.round(self.center_mm, 4).tolist(), "angle_deg": round(float(self.axis_deg), 4),
+             "opening_mm": round(float(self.opening_mm), 4), "grasp_z_mm": round(float(self.grasp_z_mm), 4),
+             "joints": self.joints.rounded().as_dict() if self.joints else None,
+             "normals": np.round(self.normals, 4).tolist(),
+             "joint_options": [j.rounded().as_dict() for j in self.joint_options],
+             "distance_to_example": round(float(self.distance_to_example), 4),
+             "nearest_example": self.nearest_example}
+        return d
+
+
+def choose_joints(grasp: Grasp, examples: list[GraspExample], cell: Cell, scene: Scene) -> Joints | None:
+    """Paper step 5: among `grasp.joint_options`, the configuration nearest to an example's that
+    clears every part with the arm's links (`cell.configuration`), or None to refuse the grasp
+    (the planner then takes the next best). Another rule can be passed as `choose=`."""
+    from cell.configuration import choose_configuration
+
+    return choose_configuration(grasp.joint_options, examples, cell, scene.parts)
+
+
+@dataclass(eq=False)
+class SynthesisResult:
+    grasp: Grasp
+    ranked: list[Grasp]  # every valid reachable set, nearest to an example first (joints chosen for
+    # the first only; `GraspPlanner.choose_for(grasp, scene)` runs step 5 for another)
+    counts: dict
+    time_ms: float
+    candidates: OutlinePoints  # z free outline points with normals
+    candidate_attributes: np.ndarray  # (z, F) local attributes
+    point_valid: np.ndarray  # (z,) tree-1 verdict
+    pairs: Pairs  # every pair of valid points (indices into the valid points)
+    cascade: CascadeResult
+    reachable_attributes: np.ndarray  # (s', G) global attributes of the reachable pairs
+    set_valid: np.ndarray  # (s',) tree-2 verdict
+    stage_time_ms: dict = field(default_factory=dict)
+    context: Context | None = None  # the scene as the cascade saw it (obstacles by height, target edges)
+    outline: OutlinePoints | None = None  # every outline sample, free or not
+    free: np.ndarray | None = None  # (n,) which outline samples are free (the candidates)
+    valid_sample_index: np.ndarray | None = None  # (z',) each valid point's index among the outline samples
+    global_attribute_names: list = field(default_factory=list)
+
+    @property
+    def valid_points(self) -> OutlinePoints:
+        return self.candidates.subset(self.point_valid)
+
+    @property
+    def reachable_pairs(self) -> np.ndarray:
+        """(s', 2, 2) contact points of the reachable pairs."""
+        k = self.cascade.survivors
+        return np.stack([self.pairs.ci[k], self.pairs.cj[k]], axis=1)
+
+    @property
+    def valid_sets(self) -> np.ndarray:
+        """(s'', 2, 2) contact points of the valid sets."""
+        return self.reachable_pairs[self.set_valid]
+
+    def to_json(self) -> dict:
+        d = self.grasp.to_json()
+        d["counts"] = dict(self.counts)
+        d["time_ms"] = round(self.time_ms, 3)
+        d["ranked"] = len(self.ranked)
+        if self.global_attribute_names:
+            d["global_attributes"] = {n: round(float(v), 4) for n, v in
+                                      zip(self.global_attribute_names, self.grasp.global_attributes, strict=True)}
+        return d
+
+
+class GraspPlanner:
+    """Fits both trees from the examples; `plan(scene)` runs steps 1-4 and step 5's hook."""
+
+    def __init__(self, cell: Cell, examples: list[GraspExample], params: SynthesisParams | None = None,
+                 choose: Callable = choose_joints):
+        self.cell = cell
+        self.examples = examples
+        self.params = params or SynthesisParams()
+        self.choose = choose
+        self.model: LearnedModel = fit_model(examples, self.params, cell.gripper.pad_width_mm / 2)
+
+    def plan(self, scene: Scene) -> SynthesisResult:
+        t_start = time.perf_counter()
+        p, cell = self.params, self.cell
+        target = scene.target_part
+        obstacles = scene.obstacles
+        counts = {k: 0 for k in ("candidates", "valid_points", "pairs", "reachable", "valid_sets")}
+        times = {}
+
+        def fail(reason):
+            counts["time_ms"] = round((time.perf_counter() - t_start) * 1e3, 3)
+            raise NoFeasibleGrasp(reason, counts)
+
+        t0 = time.perf_counter()
+        rings = part_rings(target)
+        op_all, free = candidate_points(target, obstacles, p, rings)
+        cand_index = np.flatnonzero(free)
+        cand = op_all.subset(cand_index)
+        counts["outline_points"] = len(op_all)
+        counts["candidates"] = len(cand)
+        times["candidates"] = (time.perf_counter() - t0) * 1e3
+        if len(cand) == 0:
+            fail(f"no free outline: every outline point is within {p.free_gap_mm:g} mm of another part")
+
+        t0 = time.perf_counter()
+        L = local_attributes(cand, target)
+        point_valid = self.model.point_tree.predict(L)
+        vp = cand.subset(point_valid)
+        counts["valid_points"] = len(vp)
+        times["valid_points"] = (time.perf_counter() - t0) * 1e3
+        if len(vp) < p.n_contacts:
+            fail(f"tree 1 keeps {len(vp)} of {len(cand)} candidate points: fewer than {p.n_contacts} valid "
+                 "contact points")
+
+        t0 = time.perf_counter()
+        gz = grasp_z_mm(target.z_bottom_mm, target.z_top_mm, cell.gripper)
+        P = Pairs.of(vp.points, vp.normals, cand_index[point_valid])
+        counts["pairs"] = len(P)
+        ctx = Context.build(target, obstacles, cell, p, gz, op_all.points, op_all.ring)
+        cr = run_cascade(ctx, P)
+        for name in STAGES:
+            counts[f"after_{name}"] = cr.kept[name]
+        counts["reachable"] = len(cr.survivors)
+        counts["exact_checks"] = cr.exact_checks
+        times["cascade"] = (time.perf_counter() - t0) * 1e3
+        if len(cr.survivors) == 0:
+            fail(self._empty_stage_reason(cr, ctx, P))
+
+        t0 = time.perf_counter()
+        k = cr.survivors
+        contacts = np.stack([P.ci[k], P.cj[k]], axis=1)
+        ij = P.ij[k]
+        G = global_attributes(contacts, vp.chord_normals[ij], target)
+        set_valid = self.model.set_tree.predict(G)
+        counts["valid_sets"] = int(set_valid.sum())
+        times["valid_sets"] = (time.perf_counter() - t0) * 1e3
+        if not set_valid.any():
+            fail(f"tree 2 rejects all {len(k)} reachable contact sets")
+
+        t0 = time.perf_counter()
+        sel = np.flatnonzero(set_valid)
+        dist, ex_idx = nearest_example(self.model, G[sel])
+        order = np.argsort(dist, kind="stable")
+        normals = np.stack([P.ni[k], P.nj[k]], axis=1)
+        centers = 0.5 * (contacts[:, 0] + contacts[:, 1])
+        openings = np.linalg.norm(contacts[:, 0] - contacts[:, 1], axis=1)
+        ranked = []
+        for o in order:
+            q, pk = sel[o], k[sel[o]]
+            ranked.append(Grasp(target.id, contacts[q], normals[q], centers[q], P.axis_deg(pk), float(openings[q]),
+                                gz, joints_of(P, pk), None, float(dist[o]), G[q], self.model.example_ids[ex_idx[o]],
+                                (int(ij[q, 0]), int(ij[q, 1]))))
+        # Step 5's hook may refuse a grasp (None: no configuration clears the parts): take the
+        # next best, as the paper's "retry with the next grasp".
+        refused = 0
+        while ranked:
+            ranked[0].joints = self.choose(ranked[0], self.examples, cell, scene)
+            if ranked[0].joints is not None:
+                break
+            ranked.pop(0)
+            refused += 1
+        counts["configuration_refused"] = refused
+        if not ranked:
+            fail(f"no arm configuration for any of the {refused} valid contact sets (step 5 refused them all)")
+        best = ranked[0]
+        # the alternatives keep their joint options; step 5 runs for one when it is needed
+        # (`choose_for`), not for every ranked set: it checks the links against every part
+        times["select"] = (time.perf_counter() - t0) * 1e3
+        time_ms = (time.perf_counter() - t_start) * 1e3
+        return SynthesisResult(best, ranked, counts, time_ms, cand, L, point_valid, P, cr, G, set_valid,
+                               {**times, **{f"cascade_{n}": v for n, v in cr.time_ms.items()}},
+                               context=ctx, outline=op_all, free=free, valid_sample_index=cand_index[point_valid],
+                               global_attribute_names=global_names(p.scales_mm))
+
+    def choose_for(self, grasp: Grasp, scene: Scene) -> Joints | None:
+        """Step 5 for one of `result.ranked` (the best one has its joints already): sets and returns
+        `grasp.joints`, None when the hook refuses it."""
+        grasp.joints = self.choose(grasp, self.examples, self.cell, scene)
+        return grasp.joints
+
+    def _empty_stage_reason(self, cr: CascadeResult, ctx: Context, P: Pairs) -> str:
+        g, p = self.cell.gripper, self.params
+        first = next(n for n in STAGES if cr.kept[n] == 0)
+        why = {
+            "stroke": f"every pair of valid points is outside the jaw stroke (contact distance at most "
+                      f"{g.opening_mm[1] - 2 * g.approach_clearance_mm:g} mm: opening {g.opening_mm[1]:g} mm "
+                      f"minus 2 x {g.approach_clearance_mm:g} mm approach clearance)",
+            "reach": "no pair centre is within the arm's reach and the workspace",
+            "antipodal": f"no two valid points face each other (normals within {p.max_normal_angle_deg:g} deg "
+                         "of the closing line)",
+            "precheck": "every facing pair puts a finger on material (the target or an obstacle taller "
+                        "than the grasp z)",
+            "contacts": "for every facing pair a jaw pad would touch other material first (a protrusion "
+                        "in its band) or land on the part",
+            "ik": "no grasp pose is reachable within the joint limits",
+            "fingers_obstacles": "every remaining pair collides: a finger's swept footprint overlaps an "
+                                 f"obstacle taller than the grasp z ({', '.join(ctx.finger_obstacle_ids)})",
+            "palm": "every remaining pair collides: the palm overlaps an obstacle taller than its bottom",
+        }[first]
+        if STAGES.index(first) > STAGES.index("stroke"):
+            # Facing points exist, but none close enough: say so, it is the usual cause.
+            from cell.grasp.cascade import stage_antipodal, stage_stroke
+
+            every = np.arange(len(P))
+            facing = stage_antipodal(ctx, P, every)
+            if facing.any() and not (facing & stage_stroke(ctx, P, every)).any():
+                closest = float(P.d[facing].min())
+                return (f"the part is wider than the gripper's stroke: facing contact points are at least "
+                        f"{closest:.1f} mm apart, the jaws take at most "
+                        f"{g.opening_mm[1] - 2 * g.approach_clearance_mm:g} mm (opening {g.opening_mm[1]:g} mm "
+                        f"minus 2 x {g.approach_clearance_mm:g} mm approach clearance)")
+        return f"no reachable pair ({first} stage): {why}"
+
+    def rules(self) -> dict:
+        return {"points": self.model.point_tree.rules(), "sets": self.model.set_tree.rules()}

@@ -1,0 +1,397 @@
+"""The project's own physical check of a two-jaw grasp, independent of the planner.
+
+Written with shapely directly (it shares no code with the planner's collision filters), so
+it can judge the planner. Everything happens in the grasp frame: origin at the grasp centre,
+x along the closing axis, y across it.
+
+What `check_grasp` models, and why:
+
+* Closing. Each jaw is a flat pad `pad_width` (12 mm) across the axis and `pad_thickness`
+  (10 mm) along it. It starts at the approach opening (contact distance + 2 x clearance)
+  and moves along the axis until it meets the first material of the part inside its
+  12 mm band. The gripper reports the distance between the two pad faces (`jaw_width_mm`).
+  The reported contacts must be where the pads really stop (within `CONTACT_TOL_MM` along
+  the axis); a finger whose footprint already covers the part at the approach opening would
+  land on it.
+* Collision. Each finger's footprint swept from the approach opening to its contact is
+  checked against every other part whose top is above the grasp z; the palm (90 x 40,
+  centred, long side along the axis, bottom at grasp z + 40) against parts whose top is above
+  the palm's bottom. The pads' vertical band must overlap the part.
+* Friction cone (antipodal). A flat pad pushes along the axis. Where the pad face touches
+  the part at an extreme point (a flat, a vertex, a tangent point of a curve) the force
+  lies inside the contact's normal cone, so the contact holds. Where only the pad's edge
+  touches a slope (the extreme point of the band is on the band's border), the contact
+  normal is the slope's normal, and it must lie within the friction angle atan(mu) of the
+  axis, or the part squeezes out.
+* Sharp corners. A contact is on a sharp corner when the patch the pad touches is narrower
+  than `SHARP_PATCH_MM` and the outline turns by at least `SHARP_TURN_DEG` within 1 mm
+  each side. One pad on a corner is tolerated; both are not (the part would pivot).
+* Centre of gravity near the jaw line (friction/torque argument). The part hangs from the
+  pads, weight W = m g at the centre of gravity (uniform density; `meta["mass_g"]` when the
+  part carries it, else aluminium). Three ways to lose it, each with safety factor
+  `SAFETY`:
+  - slip straight down: W <= 2 mu N;
+  - rotate about the jaw line (the line through the contacts): the lever arm is the
+    distance d_perp from the centre of gravity to that line; each pad resists with the
+    torsional friction of its patch, mu N rho, where rho is the patch's mean radius
+    (sqrt(w^2 + h^2) / 4 for a w x h patch: exact for a line, 8 % under for a square).
+    W d_perp <= 2 mu N rho;
+  - tilt about the horizontal axis across the jaws: lever arm e, the centre of gravity's
+    offset along the axis from the grasp centre; the two pads' vertical frictions form a
+    couple of arm d (the jaw width). W e <= mu N d.
+* Stroke. The approach opening must be within the gripper's opening range.
+
+`lift_clear` checks that the part and the closed gripper can move straight up: nothing still
+present may be above them in plan.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from shapely import affinity
+from shapely.geometry import LinearRing, Point, Polygon, box
+
+from cell.cellconfig import Cell, default_cell
+from cell.grasp.height import grasp_z_mm as default_grasp_z_mm
+from cell.scene import Part
+
+MU = 0.3  # pad/part friction: rubber-faced pads on oily metal, conservative
+SAFETY = 2.0  # margin for the arm's accelerations and an uneven grip
+G_M_S2 = 9.81
+DEFAULT_DENSITY_G_CM3 = 2.7  # aluminium, when the part does not carry its mass
+CONTACT_TOL_MM = 2.0  # a reported contact farther than this from where the pad stops is wrong
+PATCH_DEPTH_MM = 0.5  # material this close to the pad face touches it (pad compliance)
+SHARP_PATCH_MM = 2.0
+SHARP_TURN_DEG = 50.0
+AXIS_TOL_DEG = 3.0  # the closing axis must run along the contacts
+_BIG = 1e4
+_AREA_EPS = 1e-3
+
+
+@dataclass(frozen=True)
+class GraspCheck:
+    """The verdict of `check_grasp`. `ok` when `reasons` is empty."""
+
+    ok: bool
+    reasons: tuple[str, ...]
+    jaw_width_mm: float | None  # what the gripper reports when closed on the part (None: closes on nothing)
+    contacts_mm: np.ndarray | None  # (2, 2): where the pads really touch, base frame
+    approach_opening_mm: float
+    contact_error_mm: float  # worst distance along the axis between reported and real contacts
+    collisions: tuple[str, ...]  # ids of the parts the fingers or palm would hit
+    sharp: tuple[bool, bool]
+    slope_angle_deg: tuple[float, float]  # contact normal vs axis, 0 where the pad face seats
+    patch_width_mm: tuple[float, float]
+    cog_offset_mm: float  # distance from the centre of gravity to the jaw line
+    cog_along_mm: float  # centre of gravity's offset along the axis from the grasp centre
+    torque_ratio: float  # worst demand / capacity over the three ways to lose the part (<= 1: holds)
+    extra: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        return {"ok": self.ok, "reasons": list(self.reasons),
+                "jaw_width_mm": None if self.jaw_width_mm is None else round(self.jaw_width_mm, 3),
+                "contacts": None if self.contacts_mm is None else np.round(self.contacts_mm, 3).tolist(),
+                "approach_opening_mm": round(self.approach_opening_mm, 3),
+                "contact_error_mm": round(self.contact_error_mm, 3), "collisions": list(self.collisions),
+                "sharp": list(self.sharp), "slope_angle_deg": [round(a, 2) for a in self.slope_angle_deg],
+                "patch_width_mm": [round(w, 2) for w in self.patch_width_mm],
+                "cog_offset_mm": round(self.cog_offset_mm, 3), "cog_along_mm": round(self.cog_along_mm, 3),
+                "torque_ratio": round(self.torque_ratio, 4)}
+
+
+@dataclass(frozen=True)
+class LiftCheck:
+    ok: bool
+    blocking: tuple[str, ...]  # ids of the parts in the way
+    reasons: tuple[str, ...]
+
+
+def part_mass_g(part: Part) -> float:
+    m = part.meta.get("mass_g") if isinstance(part.meta, dict) else None
+    if isinstance(m, (int, float)) and m > 0:
+        return float(m)
+    return part.polygon.area * part.height_mm * DEFAULT_DENSITY_G_CM3 / 1000.0
+
+
+def check_grasp(part: Part, contacts_mm, axis_deg: float | None = None, grasp_z_mm: float | None = None,
+                obstacles: tuple[Part, ...] | list[Part] = (), cell: Cell | None = None) -> GraspCheck:
+    """Judge a two-jaw grasp of `part` physically.
+
+    Parameters
+    ----------
+    part : the part to hold (base frame).
+    contacts_mm : array-like of shape (2, 2), the reported pad contacts.
+    axis_deg : the closing axis direction (mod 180); default: along the contacts.
+    grasp_z_mm : finger-tip z; default: `cell.grasp.height.grasp_z_mm` of the part.
+    obstacles : the other parts present (their heights decide what the fingers and palm hit).
+    cell : the cell (gripper geometry); default: the shipped default cell.
+    """
+    cell = cell or default_cell()
+    g = cell.gripper
+    c = np.asarray(contacts_mm, float).reshape(2, 2)
+    centre = c.mean(axis=0)
+    d_rep = float(np.linalg.norm(c[1] - c[0]))
+    line_deg = math.degrees(math.atan2(c[1, 1] - c[0, 1], c[1, 0] - c[0, 0])) if d_rep > 1e-9 else 0.0
+    theta = line_deg if axis_deg is None else float(axis_deg)
+    if grasp_z_mm is None:
+        grasp_z_mm = default_grasp_z_mm(part.z_bottom_mm, part.z_top_mm, g)
+    reasons: list[str] = []
+    if axis_deg is not None and d_rep > 1e-9:
+        skew = abs((line_deg - theta + 90.0) % 180.0 - 90.0)
+        if skew > AXIS_TOL_DEG:
+            reasons.append(f"the closing axis is {skew:.1f} deg off the line through the contacts")
+
+    def to_local(geom):
+        return affinity.rotate(affinity.translate(geom, -centre[0], -centre[1]), -theta, origin=(0, 0),
+                               use_radians=False)
+
+    def to_base(geom):
+        return affinity.translate(affinity.rotate(geom, theta, origin=(0, 0)), centre[0], centre[1])
+
+    a = np.array([math.cos(math.radians(theta)), math.sin(math.radians(theta))])
+    local_c = np.array([[(p - centre) @ a, (p - centre) @ np.array([-a[1], a[0]])] for p in c])
+    x_rep = np.sort(local_c[:, 0])
+    half_w, t = g.pad_width_mm / 2, g.pad_thickness_mm
+    approach = d_rep + 2 * g.approach_clearance_mm
+    s_open = approach / 2
+    if approach > g.opening_mm[1] + 1e-9:
+        reasons.append(f"approach opening {approach:.1f} mm exceeds the stroke ({g.opening_mm[1]:g} mm)")
+
+    # vertical overlap of the pads with the part
+    h_pad = min(grasp_z_mm + g.pad_height_mm, part.z_top_mm) - max(grasp_z_mm, part.z_bottom_mm)
+    if h_pad <= 0:
+        reasons.append(f"the pads (z {grasp_z_mm:.1f}..{grasp_z_mm + g.pad_height_mm:.1f}) miss the part "
+                       f"(z {part.z_bottom_mm:g}..{part.z_top_mm:g})")
+
+    local_part = to_local(part.polygon)
+    band = box(-_BIG, -half_w, _BIG, half_w)
+    material = local_part.intersection(band)
+    for side, body in (("first", box(-s_open - t, -half_w, -s_open, half_w)),
+                       ("second", box(s_open, -half_w, s_open + t, half_w))):
+        if material.intersection(body).area > _AREA_EPS:
+            reasons.append(f"the {side} finger lands on the part at the approach opening")
+    inner = material.intersection(box(-s_open, -half_w, s_open, half_w))
+    empty = inner.is_empty or inner.area <= _AREA_EPS
+    if empty:
+        reasons.append("the jaws close on nothing: no material of the part between the pads")
+        return GraspCheck(False, tuple(reasons), None, None, approach, float("inf"), (), (False, False),
+                          (0.0, 0.0), (0.0, 0.0), float("inf"), float("inf"), float("inf"))
+    xl, _, xr, _ = inner.bounds
+    jaw_width = xr - xl
+    if jaw_width < g.opening_mm[0] - 1e-9:
+        reasons.append(f"the part ({jaw_width:.1f} mm) is thinner than the smallest opening")
+    contact_error = float(max(abs(xl - x_rep[0]), abs(xr - x_rep[1])))
+    if contact_error > CONTACT_TOL_MM:
+        reasons.append(f"the pads stop {contact_error:.1f} mm from the reported contacts (first material "
+                       "inside the pad band is elsewhere)")
+
+    # the contact patches and where they are
+    rings = _rings(local_part)
+    patches, real_local, sharp, slope, widths = [], [], [], [], []
+    for k, (x0, x1) in enumerate(((xl, xl + PATCH_DEPTH_MM), (xr - PATCH_DEPTH_MM, xr))):
+        patch = inner.intersection(box(x0, -half_w, x1, half_w))
+        if patch.is_empty:  # numerically degenerate; fall back to the extreme point
+            patch = Point(xl if k == 0 else xr, 0.0)
+        y0, y1 = patch.bounds[1], patch.bounds[3]
+        width = y1 - y0
+        xface = xl if k == 0 else xr
+        # the touching point: the patch's middle, moved onto the outline
+        yc = 0.5 * (y0 + y1)
+        p = _nearest_on_rings(rings, np.array([xface, yc]))
+        real_local.append(p)
+        patches.append(patch)
+        widths.append(width)
+        normal, turn = _normal_and_turn(rings, p)
+        on_band_edge = width < SHARP_PATCH_MM and (abs(y0 + half_w) < 1e-6 or abs(y1 - half_w) < 1e-6)
+        push = np.array([1.0, 0.0]) if k == 0 else np.array([-1.0, 0.0])  # pad force direction
+        if on_band_edge and normal is not None:
+            ang = math.degrees(math.acos(max(-1.0, min(1.0, float(-normal @ push)))))
+        else:
+            ang = 0.0  # the pad face seats on an extreme point: force inside the normal cone
+        slope.append(ang)
+        sharp.append(bool(width < SHARP_PATCH_MM and turn >= SHARP_TURN_DEG and not on_band_edge))
+    friction_deg = math.degrees(math.atan(MU))
+    for k, ang in enumerate(slope):
+        if ang > friction_deg:
+            reasons.append(f"contact {k} is outside the friction cone ({ang:.1f} deg > "
+                           f"{friction_deg:.1f} deg): the pad's edge pushes on a slope")
+    if all(sharp):
+        reasons.append("both pads sit on sharp corners")
+
+    # centre of gravity against the jaw line
+    cog = np.asarray(local_part.centroid.coords[0])
+    p0, p1 = real_local
+    u = (p1 - p0) / max(np.linalg.norm(p1 - p0), 1e-9)
+    rel = cog - p0
+    cog_offset = abs(rel[0] * u[1] - rel[1] * u[0])
+    cog_along = abs(cog[0] - 0.5 * (xl + xr))
+    weight_n = part_mass_g(part) / 1000.0 * G_M_S2
+    n_grip = g.grip_force_n
+    h = max(h_pad, 0.0)
+    rho = [math.hypot(max(w, 1.0), h) / 4.0 for w in widths]
+    ratios = {
+        "slip": SAFETY * weight_n / (2 * MU * n_grip),
+        "roll about the jaw line": SAFETY * weight_n * cog_offset / max(MU * n_grip * sum(rho), 1e-9),
+        "tilt across the jaws": SAFETY * weight_n * cog_along / max(MU * n_grip * jaw_width, 1e-9),
+    }
+    worst = max(ratios, key=ratios.get)
+    if ratios[worst] > 1.0:
+        reasons.append(f"the part would {worst} out of the jaws (demand/capacity {ratios[worst]:.2f}; centre "
+                       f"of gravity {cog_offset:.1f} mm from the jaw line)")
+
+    # collisions: fingers swept along the closing stroke, palm
+    collisions: list[str] = []
+    fingers = [to_base(box(-s_open - t, -half_w, xl, half_w)), to_base(box(xr, -half_w, s_open + t, half_w))]
+    palm = to_base(_palm_box(g))
+    palm_z = grasp_z_mm + g.palm_offset_mm
+    for o in obstacles:
+        if o.id == part.id:
+            continue
+        hit = []
+        if o.z_top_mm > grasp_z_mm + 1e-9 and any(
+                f.intersection(o.polygon).area > _AREA_EPS for f in fingers):
+            hit.append("finger")
+        if o.z_top_mm > palm_z + 1e-9 and palm.intersection(o.polygon).area > _AREA_EPS:
+            hit.append("palm")
+        if hit:
+            collisions.append(o.id)
+            reasons.append(f"the {' and '.join(hit)} would hit {o.id!r} (top z {o.z_top_mm:g} mm)")
+
+    real_base = np.array([np.asarray(to_base(Point(*p)).coords[0]) for p in real_local])
+    return GraspCheck(not reasons, tuple(reasons), float(jaw_width), real_base, float(approach),
+                      contact_error, tuple(collisions), (sharp[0], sharp[1]), (slope[0], slope[1]),
+                      (widths[0], widths[1]),
+                      float(cog_offset), float(cog_along), float(ratios[worst]),
+                      extra={"ratios": ratios, "grasp_z_mm": grasp_z_mm})
+
+
+def close_jaws(part: Part, centre_mm, axis_deg: float, opening_mm: float, grasp_z_mm: float | None = None,
+               cell: Cell | None = None) -> float | None:
+    """The width the simulated gripper reports when its jaws, open at `opening_mm` around
+    `centre_mm` along `axis_deg`, close on `part` (None: they close on nothing).
+
+    The pads stop at the first material of the part inside their 12 mm band (see
+    `check_grasp`); a part outside the band or above the pads leaves the jaws closing fully.
+    """
+    cell = cell or default_cell()
+    g = cell.gripper
+    a = np.array([math.cos(math.radians(axis_deg)), math.sin(math.radians(axis_deg))])
+    half = max(opening_mm / 2 - g.approach_clearance_mm, 1e-3)
+    c = np.asarray(centre_mm, float)
+    v = check_grasp(part, [c - half * a, c + half * a], axis_deg, grasp_z_mm, (), cell)
+    if v.jaw_width_mm is None:
+        return None
+    zg = default_grasp_z_mm(part.z_bottom_mm, part.z_top_mm, g) if grasp_z_mm is None else grasp_z_mm
+    if min(zg + g.pad_height_mm, part.z_top_mm) <= max(zg, part.z_bottom_mm):
+        return None
+    return v.jaw_width_mm
+
+
+def gripper_footprint(contacts_mm, jaw_width_mm: float | None = None, cell: Cell | None = None):
+    """Plan-view footprints (fingers closed at the contacts, palm) of a grasp, base frame.
+
+    Returns (fingers: list of 2 polygons, palm: polygon).
+    """
+    cell = cell or default_cell()
+    g = cell.gripper
+    c = np.asarray(contacts_mm, float).reshape(2, 2)
+    centre = c.mean(axis=0)
+    theta = math.degrees(math.atan2(c[1, 1] - c[0, 1], c[1, 0] - c[0, 0]))
+    half = (np.linalg.norm(c[1] - c[0]) if jaw_width_mm is None else jaw_width_mm) / 2
+    hw, t = g.pad_width_mm / 2, g.pad_thickness_mm
+
+    def to_base(geom):
+        return affinity.translate(affinity.rotate(geom, theta, origin=(0, 0)), centre[0], centre[1])
+
+    fingers = [to_base(box(-half - t, -hw, -half, hw)), to_base(box(half, -hw, half + t, hw))]
+    return fingers, to_base(_palm_box(g))
+
+
+def _palm_box(g):
+    return box(-g.palm_length_mm / 2, -g.palm_width_mm / 2, g.palm_length_mm / 2, g.palm_width_mm / 2)
+
+
+def lift_clear(part: Part, others, contacts_mm=None, grasp_z_mm: float | None = None,
+               cell: Cell | None = None) -> LiftCheck:
+    """Can `part` (and the gripper holding it at `contacts_mm`) move straight up?
+
+    A part still present blocks the lift when it overlaps the part in plan and is not wholly
+    below it (its top above the part's bottom), or when it overlaps the closed gripper's
+    footprint above the grasp z (fingers) or above the palm's bottom (palm).
+    """
+    cell = cell or default_cell()
+    blocking: list[str] = []
+    reasons: list[str] = []
+    fingers, palm = ([], None)
+    if contacts_mm is not None:
+        fingers, palm = gripper_footprint(contacts_mm, None, cell)
+        if grasp_z_mm is None:
+            grasp_z_mm = default_grasp_z_mm(part.z_bottom_mm, part.z_top_mm, cell.gripper)
+    for o in others:
+        if o.id == part.id:
+            continue
+        why = None
+        if o.z_top_mm > part.z_bottom_mm + 1e-9 and o.polygon.intersection(part.polygon).area > _AREA_EPS:
+            why = f"{o.id!r} lies above {part.id!r} (overlap in plan, top z {o.z_top_mm:g})"
+        elif fingers and o.z_top_mm > grasp_z_mm + 1e-9 and any(
+                f.intersection(o.polygon).area > _AREA_EPS for f in fingers):
+            why = f"{o.id!r} is in the way of a finger"
+        elif palm is not None and o.z_top_mm > grasp_z_mm + cell.gripper.palm_offset_mm + 1e-9 and \
+                palm.intersection(o.polygon).area > _AREA_EPS:
+            why = f"{o.id!r} is in the way of the palm"
+        if why:
+            blocking.append(o.id)
+            reasons.append(why)
+    return LiftCheck(not blocking, tuple(blocking), tuple(reasons))
+
+
+# --- outline geometry helpers ------------------------------------------------------------------
+
+def _rings(poly) -> list[LinearRing]:
+    """Exterior CCW and holes CW, so the outward normal is the tangent turned right."""
+    from shapely.geometry.polygon import orient
+
+    if poly.geom_type != "Polygon":
+        poly = max(poly.geoms, key=lambda q: q.area)
+    poly = orient(poly, 1.0)
+    return [LinearRing(poly.exterior.coords)] + [LinearRing(r.coords) for r in poly.interiors]
+
+
+def _nearest_on_rings(rings, p: np.ndarray) -> np.ndarray:
+    pt = Point(*p)
+    ring = min(rings, key=lambda r: r.distance(pt))
+    q = ring.interpolate(ring.project(pt))
+    return np.array([q.x, q.y])
+
+
+def outline_normal_and_turn(rings, p, delta_mm: float = 1.0):
+    """Outward unit normal (chord over +-delta) and the convex turning angle (deg) at p.
+
+    The turning angle is positive where the outline turns outward-convex (a corner a pad can
+    sit on), negative in a concave corner.
+    """
+    return _normal_and_turn(rings, np.asarray(p, float), delta_mm)
+
+
+def _normal_and_turn(rings, p: np.ndarray, delta_mm: float = 1.0):
+    pt = Point(*p)
+    ring = min(rings, key=lambda r: r.distance(pt))
+    L = ring.length
+    s = ring.project(pt)
+    q = [np.asarray(ring.interpolate((s + k * delta_mm) % L).coords[0]) for k in (-1, 0, 1)]
+    t_in, t_out = q[1] - q[0], q[2] - q[1]
+    chord = q[2] - q[0]
+    n = np.linalg.norm(chord)
+    if n < 1e-9:
+        return None, 0.0
+    normal = np.array([chord[1], -chord[0]]) / n
+    a_in, a_out = math.atan2(t_in[1], t_in[0]), math.atan2(t_out[1], t_out[0])
+    turn = math.degrees((a_out - a_in + math.pi) % (2 * math.pi) - math.pi)
+    return normal, turn
+
+
+def outline_polygon_rings(part: Part) -> list[LinearRing]:
+    return _rings(Polygon(part.outline_mm, [h for h in part.holes_mm]))

@@ -1,0 +1,134 @@
+"""How physically sound are the planner's grasps? (`cell bench stability`, the generalisation test)
+
+Every library part is presented standalone at `poses` random poses in the tray; the planner
+(trained on some examples) picks a grasp; `cell.physics.check_grasp` judges it. Two figures:
+
+* planned share: poses where the planner found a grasp at all;
+* stable share: of those, the grasps that pass the physical check (jaws close on the part
+  where reported, no collision, centre of gravity near the jaw line, friction cone, not both
+  pads on sharp corners, opening within the stroke).
+
+Leave-families-out: for each family, the planner learns from the examples of the *other*
+families only and plans for the parts of the left-out family (parts it has never seen).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cell import parts_library as L
+from cell.cellconfig import Cell, default_cell
+from cell.errors import NoFeasibleGrasp
+from cell.examples import GraspExample
+from cell.operator import random_pose
+from cell.physics import check_grasp
+from cell.scene import Part, Scene
+
+
+@dataclass
+class StabilityTally:
+    presented: int = 0
+    planned: int = 0
+    stable: int = 0
+    failures: list = field(default_factory=list)  # (part id, reasons) of planned but unstable grasps
+    no_grasp: list = field(default_factory=list)  # (part id, planner's reason)
+    plan_ms: list = field(default_factory=list)
+
+    def add(self, other: StabilityTally) -> None:
+        self.presented += other.presented
+        self.planned += other.planned
+        self.stable += other.stable
+        self.failures += other.failures
+        self.no_grasp += other.no_grasp
+        self.plan_ms += other.plan_ms
+
+    @property
+    def planned_share(self) -> float:
+        return self.planned / self.presented if self.presented else float("nan")
+
+    @property
+    def stable_share(self) -> float:
+        return self.stable / self.planned if self.planned else float("nan")
+
+
+def presentations(parts: list[Part], poses: int, seed: int, cell: Cell) -> list[Part]:
+    """Each part at `poses` random poses inside the tray (deterministic for a seed)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for p in parts:
+        for _ in range(poses):
+            x, y, th = random_pose(p, cell, rng)
+            out.append(L.place(p, x, y, th))
+    return out
+
+
+def evaluate(planner, parts: list[Part], cell: Cell | None = None) -> StabilityTally:
+    """Plan each (placed, standalone) part and check the grasp physically."""
+    cell = cell or default_cell()
+    t = StabilityTally()
+    for part in parts:
+        t.presented += 1
+        try:
+            res = planner.plan(Scene((part,), part.id))
+        except NoFeasibleGrasp as e:
+            t.no_grasp.append((part.id, e.reason))
+            continue
+        t.planned += 1
+        t.plan_ms.append(res.time_ms)
+        g = res.grasp
+        v = check_grasp(part, g.contacts_mm, g.axis_deg, g.grasp_z_mm, (), cell)
+        if v.ok:
+            t.stable += 1
+        else:
+            t.failures.append((part.id, v.reasons))
+    return t
+
+
+def make_planner(examples: list[GraspExample], cell: Cell):
+    from cell.grasp.synthesis import GraspPlanner
+
+    return GraspPlanner(cell, examples)
+
+
+def leave_families_out(examples: list[GraspExample], poses: int = 2, seed: int = 0, cell: Cell | None = None,
+                       families: list[str] | None = None,
+                       progress: Callable[[str], None] | None = None) -> dict[str, StabilityTally]:
+    """Per family: plan its parts with a planner trained without that family's examples."""
+    cell = cell or default_cell()
+    out: dict[str, StabilityTally] = {}
+    for fam in families or L.list_families():
+        train = [e for e in examples if e.part.meta.get("family") != fam]
+        planner = make_planner(train, cell)
+        out[fam] = evaluate(planner, presentations(L.parts([fam]), poses, seed, cell), cell)
+        if progress:
+            t = out[fam]
+            progress(f"{fam}: {t.stable}/{t.planned} stable, {t.planned}/{t.presented} planned "
+                     f"({len(examples) - len(train)} examples held out)")
+    return out
+
+
+def random_baseline(parts: list[Part], seed: int = 0, cell: Cell | None = None) -> StabilityTally:
+    """What the check says about grasps chosen without judgement: two random outline points
+    within the stroke (the yardstick that shows the check discriminates)."""
+    cell = cell or default_cell()
+    rng = np.random.default_rng(seed)
+    stroke = cell.gripper.opening_mm[1] - 2 * cell.gripper.approach_clearance_mm
+    t = StabilityTally()
+    for part in parts:
+        ring = part.polygon.exterior
+        for _ in range(200):
+            c = np.array([ring.interpolate(s).coords[0] for s in rng.uniform(0, ring.length, 2)])
+            if 1.0 < np.linalg.norm(c[1] - c[0]) <= stroke:
+                break
+        else:
+            continue
+        t.presented += 1
+        t.planned += 1
+        v = check_grasp(part, c, None, None, (), cell)
+        t.stable += v.ok
+        if not v.ok:
+            t.failures.append((part.id, v.reasons))
+    return t

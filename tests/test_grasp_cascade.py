@@ -1,0 +1,237 @@
+"""The cascade of step 3: each stage rejects what it should, the cheap stages only what the exact
+ones would, and what survives is really reachable and collision-free."""
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from shapely.geometry import Point
+
+from cell.cellconfig import default_cell
+from cell.errors import NoFeasibleGrasp
+from cell.examples import GraspExample
+from cell.grasp import shapes
+from cell.grasp.candidates import candidate_points
+from cell.grasp.cascade import STAGES, Context, Pairs, run_brute_force, run_cascade
+from cell.grasp.footprints import finger_footprints, palm_footprint, swept_finger_footprints
+from cell.grasp.height import grasp_z_mm
+from cell.grasp.params import SynthesisParams
+from cell.grasp.synthesis import GraspPlanner
+from cell.kinematics import forward, normalize_axis_deg
+from cell.scene import Scene, parse_part
+
+CELL = default_cell()
+PARAMS = SynthesisParams()
+
+
+def cascade_for(target, obstacles=()):
+    """Every free outline point counts as valid here: the cascade alone decides."""
+    op, free = candidate_points(target, obstacles, PARAMS)
+    idx = np.flatnonzero(free)
+    vp = op.subset(idx)
+    gz = grasp_z_mm(target.z_bottom_mm, target.z_top_mm, CELL.gripper)
+    ctx = Context.build(target, list(obstacles), CELL, PARAMS, gz, op.points, op.ring)
+    P = Pairs.of(vp.points, vp.normals, idx)
+    return P, run_cascade(ctx, P), ctx
+
+
+def permissive_planner():
+    """One accepted example and nothing rejected: both trees keep everything."""
+    r = shapes.rectangle("r", 60, 30)
+    ex = GraspExample("ok", r, np.array([[350, 15], [350, -15]]), True, {"kind": "manual"})
+    return GraspPlanner(CELL, [ex])
+
+
+def survivors_xy(P, cr):
+    k = cr.survivors
+    return P.pi[k], P.pj[k]
+
+
+def test_pairs_wider_than_the_stroke_stop_at_the_stroke_stage():
+    target = shapes.rectangle("t", 80, 30)  # 80 + 2 x 5 clearance > 80 mm stroke across the ends
+    P, cr, _ = cascade_for(target)
+    ends = (np.abs(P.pi[:, 0] - 350) > 39.9) & (np.abs(P.pj[:, 0] - 350) > 39.9) & (
+        np.sign(P.pi[:, 0] - 350) != np.sign(P.pj[:, 0] - 350))
+    assert ends.any()
+    assert np.all(cr.rejected_by[ends] == STAGES.index("stroke"))
+    pi, pj = survivors_xy(P, cr)
+    assert len(pi) and np.all(np.linalg.norm(pi - pj, axis=1) + 10 <= 80 + 1e-9)
+
+
+def test_a_part_wider_than_the_stroke_has_no_grasp_and_says_why():
+    scene = Scene((shapes.rectangle("slab", 90, 75),), "slab")
+    with pytest.raises(NoFeasibleGrasp, match="stroke") as e:
+        permissive_planner().plan(scene)
+    assert "wider than the gripper" in e.value.reason and e.value.counts["reachable"] == 0
+
+
+def test_an_unreachable_centre_stops_at_the_reach_stage():
+    far = shapes.rectangle("t", 60, 30, center=(640, 0))  # beyond L1 + L2 = 600 mm
+    P, cr, _ = cascade_for(far)
+    assert cr.kept["stroke"] > 0 and cr.kept["reach"] == 0
+    with pytest.raises(NoFeasibleGrasp, match="reach"):
+        permissive_planner().plan(Scene((far,), "t"))
+
+
+def _under(P, k, x_lo, x_hi):
+    """Pairs across the 30 mm side (closing axis along y) whose pads overlap x in [x_lo, x_hi]."""
+    vertical = np.abs(P.u[:, 0]) < 1e-6
+    x = P.m[:, 0]
+    return vertical & (x > x_lo - 6) & (x < x_hi + 6)
+
+
+def test_a_finger_over_a_tall_neighbour_is_rejected_over_a_low_one_passed_over():
+    target = shapes.rectangle("t", 60, 30, z_top_mm=15)  # grasp z = 1 mm
+    assert grasp_z_mm(0, 15, CELL.gripper) == 1.0
+    # a neighbour 5 mm beyond the top face: free outline stays free, but a finger (10 + 5 mm) reaches it
+    tall = shapes.rectangle("tall", 20, 20, center=(350, 15 + 5 + 10), z_top_mm=40)
+    low = shapes.rectangle("low", 20, 20, center=(350, 15 + 5 + 10), z_top_mm=0.5)
+    P0, cr0, _ = cascade_for(target)
+    Pt, crt, ctx_t = cascade_for(target, [tall])
+    Pl, crl, _ = cascade_for(target, [low])
+    assert np.array_equal(cr0.survivors, crl.survivors)  # lower than the grasp z: passed over
+    hit = _under(Pt, None, 340, 360)
+    base = np.zeros(len(P0), bool)
+    base[cr0.survivors] = True
+    blocked = hit & base
+    assert blocked.sum() >= 5
+    assert set(crt.rejected_by[blocked].tolist()) <= {STAGES.index("precheck"), STAGES.index("fingers_obstacles")}
+    lost = set(cr0.survivors.tolist()) - set(crt.survivors.tolist())
+    assert set(np.flatnonzero(blocked).tolist()) <= lost
+    assert set(crt.survivors.tolist()) <= set(cr0.survivors.tolist())
+    assert {int(crt.rejected_by[k]) for k in lost} <= {STAGES.index("precheck"), STAGES.index("fingers_obstacles")}
+
+
+def test_the_palm_collides_only_with_parts_taller_than_its_bottom():
+    target = shapes.rectangle("t", 60, 30, z_top_mm=15)  # palm bottom at 1 + 40 = 41 mm
+    # 17 mm beyond the top face: clear of the fingers (5 + 10 mm), under the palm (45 mm from the centre)
+    near = (350, 15 + 17 + 10)
+    high = shapes.rectangle("high", 20, 20, center=near, z_top_mm=60)
+    mid = shapes.rectangle("mid", 20, 20, center=near, z_top_mm=30)
+    P0, cr0, _ = cascade_for(target)
+    Ph, crh, _ = cascade_for(target, [high])
+    Pm, crm, _ = cascade_for(target, [mid])
+    assert np.array_equal(cr0.survivors, crm.survivors)
+    under = _under(Ph, None, 330, 370)
+    base = np.zeros(len(P0), bool)
+    base[cr0.survivors] = True
+    assert (under & base).sum() >= 5
+    assert np.all(crh.rejected_by[under & base] == STAGES.index("palm"))
+
+
+def test_a_pad_stops_at_a_protrusion_so_hidden_contacts_are_rejected_and_contacts_are_real():
+    # a 4 mm wide, 3 mm high bump in the middle of the top face
+    c = np.array([350.0, 0.0])
+    outline = np.array([[-30, -15], [30, -15], [30, 15], [2, 15], [2, 18], [-2, 18], [-2, 15], [-30, 15]]) + c
+    target = parse_part({"id": "bump", "outline": outline.tolist(), "z_top": 15})
+    P, cr, _ = cascade_for(target)
+    vertical = np.abs(P.u[:, 0]) < 1e-6
+    dx = np.abs(P.m[:, 0] - 350)
+    beside = (vertical & (np.abs(P.pi[:, 0] - P.pj[:, 0]) < 0.5) & (dx > 3) & (dx < 8)
+              & (np.maximum(P.pi[:, 1], P.pj[:, 1]) < 15.5))
+    assert beside.any()
+    assert set(cr.rejected_by[beside].tolist()) <= {STAGES.index("precheck"), STAGES.index("contacts")}
+    planner = permissive_planner()
+    result = planner.plan(Scene((target,), "bump"))
+    tops = []
+    for g in result.ranked:
+        for contact in g.contacts_mm:
+            assert target.polygon.boundary.distance(Point(contact)) < 0.6
+        # the pads at the contacts touch the part but do not enter it
+        for fp in finger_footprints(g, CELL):
+            assert fp.intersection(target.polygon).area < 0.5 * CELL.gripper.pad_width_mm
+        if abs(g.axis_deg) == 90.0 and abs(g.center_mm[0] - 350) < 1:
+            tops.append(max(g.contacts_mm[:, 1]))
+    assert tops and np.allclose(tops, 18.0)  # across the bump, the pad touches the bump's top
+
+
+def test_the_cascade_keeps_exactly_what_the_brute_force_keeps():
+    box = shapes.rectangle("box", 50, 30, (300, 100), 30)
+    others = [shapes.rectangle("tall", 40, 40, (300, 150), 0, z_top_mm=40),
+              shapes.rectangle("low", 30, 60, (250, 100), 0, z_top_mm=0.5),
+              shapes.rectangle("wall", 20, 120, (340, 100), 0, z_top_mm=80)]
+    for target, obstacles in ((box, others), (shapes.gear("g", 30, 12, 4), []), (shapes.l_shape("l"), [])):
+        P, cr, ctx = cascade_for(target, obstacles)
+        P2 = Pairs(  # a fresh copy: nothing computed by the cascade carries over
+            P.ij, P.pi, P.pj, P.ni, P.nj, P.d, P.u, P.m, P.t, P.ci * np.nan, P.cj * np.nan,
+                   P.center * np.nan, P.h * np.nan, {}, P.si)
+        br = run_brute_force(ctx, P2)
+        assert np.array_equal(np.sort(cr.survivors), np.sort(br.survivors))
+        assert cr.exact_checks < br.exact_checks
+
+
+def test_every_reachable_pair_has_joints_that_reach_it():
+    scene = Scene((shapes.l_shape("l", 70, 50, 18, (420, 150), 25),), "l")
+    result = permissive_planner().plan(scene)
+    assert result.counts["reachable"] == len(result.cascade.survivors) > 0
+    for g in result.ranked:
+        assert g.joint_options
+        for q in g.joint_options:
+            pose = forward(q, CELL.scara)
+            assert np.allclose([pose.x_mm, pose.y_mm], g.center_mm, atol=1e-6)
+            assert abs(normalize_axis_deg(pose.axis_deg - g.axis_deg)) < 1e-6
+            assert pose.z_mm == g.grasp_z_mm
+        assert -90 < g.axis_deg <= 90
+        assert np.allclose(g.center_mm, g.contacts_mm.mean(axis=0))
+        assert g.opening_mm == pytest.approx(np.linalg.norm(g.contacts_mm[0] - g.contacts_mm[1]))
+
+
+def test_footprint_polygons_have_the_gripper_dimensions():
+    result = permissive_planner().plan(Scene((shapes.rectangle("r", 60, 30),), "r"))
+    g = result.grasp
+    pads = finger_footprints(g, CELL)
+    assert [round(p.area, 6) for p in pads] == [120.0, 120.0]
+    assert all(p.distance(Point(c)) < 1e-6 for p, c in zip(pads, g.contacts_mm, strict=True))
+    wide = finger_footprints(g, CELL, g.opening_mm + 10)
+    assert all(abs(w.distance(Point(c)) - 5) < 1e-6 for w, c in zip(wide, g.contacts_mm, strict=True))
+    assert [round(p.area, 6) for p in swept_finger_footprints(g, CELL)] == [180.0, 180.0]
+    palm = palm_footprint(g, CELL)
+    assert palm.area == pytest.approx(90 * 40) and palm.centroid.distance(Point(g.center_mm)) < 1e-9
+
+
+def test_a_target_enclosed_by_neighbours_has_no_free_outline():
+    t = shapes.rectangle("t", 40, 20)
+    ring = parse_part({"id": "frame", "outline": [[320, -20], [380, -20], [380, 20], [320, 20]],
+                       "holes": [[[330, -10.5], [330, 10.5], [370.5, 10.5], [370.5, -10.5]]], "z_top": 20})
+    ring_scene = Scene((t, ring), "t")
+    with pytest.raises(NoFeasibleGrasp, match="no free outline") as e:
+        permissive_planner().plan(ring_scene)
+    assert e.value.counts["candidates"] == 0
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(w=st.floats(20, 70), h=st.floats(15, 45), angle=st.floats(-90, 90),
+       obstacles=st.lists(st.tuples(st.floats(-60, 60), st.floats(-60, 60), st.floats(8, 40), st.floats(8, 40),
+                                    st.floats(0.2, 90)), max_size=3))
+def test_random_scenes_survivors_are_collision_free_and_match_the_brute_force(w, h, angle, obstacles):
+    target = shapes.rectangle("t", w, h, center=(350, 0), angle_deg=angle, z_top_mm=15)
+    others = []
+    for n, (dx, dy, ow, oh, top) in enumerate(obstacles):
+        o = shapes.rectangle(f"o{n}", ow, oh, center=(350 + dx, dy), z_top_mm=top)
+        if not o.polygon.intersects(target.polygon):
+            others.append(o)
+    P, cr, ctx = cascade_for(target, others)
+    fresh = Pairs(P.ij, P.pi, P.pj, P.ni, P.nj, P.d, P.u, P.m, P.t, P.ci * np.nan, P.cj * np.nan,
+                  P.center * np.nan, P.h * np.nan, {}, P.si)
+    br = run_brute_force(ctx, fresh)
+    assert np.array_equal(np.sort(cr.survivors), np.sort(br.survivors))
+    gz = ctx.grasp_z_mm
+    tall = [o.polygon for o in others if o.z_top_mm > gz]
+    palm_tall = [o.polygon for o in others if o.z_top_mm > gz + CELL.gripper.palm_offset_mm]
+
+    class G:  # the grasp geometry of a surviving pair, as the footprint functions read it
+        pass
+
+    for k in cr.survivors[:40]:
+        g = G()
+        g.contacts_mm = np.stack([P.ci[k], P.cj[k]])
+        g.center_mm = P.center[k]
+        g.axis_deg = P.axis_deg(k)
+        g.opening_mm = 2 * P.h[k]
+        for c in g.contacts_mm:
+            assert target.polygon.boundary.distance(Point(c)) < 0.6
+        for fp in swept_finger_footprints(g, CELL):
+            assert not any(fp.intersects(o) for o in tall)
+            assert fp.intersection(target.polygon).area < 0.6 * CELL.gripper.pad_width_mm
+        assert not any(palm_footprint(g, CELL).intersects(o) for o in palm_tall)
+        assert P.joints[int(k)]

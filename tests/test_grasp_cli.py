@@ -1,0 +1,186 @@
+"""`cell grasp`, `cell rules` and `cell bench grasp` from the command line (CONTRACT.md)."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+from conftest import run_cli
+
+from cell.cellconfig import default_cell, default_cell_path
+from cell.examples import append_examples
+from cell.grasp import shapes
+from cell.kinematics import Joints, forward, limit_violations, normalize_axis_deg
+from cell.scene import Scene
+
+CELL = default_cell()
+
+
+@pytest.fixture
+def examples(tmp_path):
+    path = tmp_path / "examples.jsonl"
+    append_examples(path, shapes.hand_made_examples())
+    return path
+
+
+def write_scene(path, parts, target, **extra):
+    d = Scene(tuple(parts), target).to_json()
+    d.update(extra)
+    path.write_text(json.dumps(d))
+    return path
+
+
+@pytest.fixture
+def scene(tmp_path):
+    box = shapes.rectangle("box", 50, 30, (300, 100), 30)
+    tall = shapes.rectangle("tall", 40, 40, (300, 150), 0, z_top_mm=40)
+    return write_scene(tmp_path / "box.json", [box, tall], "box")
+
+
+def test_grasp_json_has_the_contract_keys_and_they_agree(scene, examples, capsys):
+    code, out, err = run_cli("grasp", scene, "--json", "--examples", examples, capsys=capsys)
+    assert code == 0, err
+    d = json.loads(out)
+    for k in ("target", "contacts", "center", "angle_deg", "opening_mm", "grasp_z_mm", "joints", "counts", "time_ms"):
+        assert k in d
+    c = np.array(d["contacts"])
+    assert d["target"] == "box" and c.shape == (2, 2)
+    assert np.allclose(d["center"], c.mean(axis=0), atol=1e-3)
+    assert d["opening_mm"] == pytest.approx(np.linalg.norm(c[0] - c[1]), abs=1e-3)
+    assert -90 < d["angle_deg"] <= 90
+    assert 0.0 <= d["grasp_z_mm"] <= 30 - 2
+    j = Joints.from_dict(d["joints"])
+    assert not limit_violations(j, CELL.scara)
+    pose = forward(j, CELL.scara)
+    assert math.hypot(pose.x_mm - d["center"][0], pose.y_mm - d["center"][1]) < 1e-2
+    assert abs(normalize_axis_deg(pose.axis_deg - d["angle_deg"])) < 1e-3 and pose.z_mm == d["grasp_z_mm"]
+    counts = d["counts"]
+    z, z1, s, s1, s2 = (counts[k] for k in ("candidates", "valid_points", "pairs", "reachable", "valid_sets"))
+    assert z >= z1 >= 2 and s == z1 * (z1 - 1) // 2 and s >= s1 >= s2 >= 1
+    assert d["time_ms"] > 0
+
+
+def test_several_scenes_one_line_each_and_bad_input_gives_exit_2(tmp_path, scene, examples, capsys):
+    wide = write_scene(tmp_path / "wide.json", [shapes.rectangle("slab", 90, 75)], "slab")
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    code, out, err = run_cli("grasp", scene, wide, scene, "--json", "--examples", examples, capsys=capsys)
+    lines = [json.loads(x) for x in out.splitlines()]
+    assert code == 0 and [x["scene"] for x in lines] == ["box.json", "wide.json", "box.json"]
+    assert lines[1]["error"] == "no_feasible_grasp" and "stroke" in lines[1]["reason"]
+    assert lines[0]["contacts"] == lines[2]["contacts"]
+    code, out, err = run_cli("grasp", scene, bad, "--json", "--examples", examples, capsys=capsys)
+    lines = [json.loads(x) for x in out.splitlines()]
+    assert code == 2 and len(lines) == 2 and "contacts" in lines[0] and lines[1]["error"] == "bad_input"
+    assert "not valid JSON" in err and "Traceback" not in err
+
+
+def test_no_feasible_grasp_exits_3_with_the_reason(tmp_path, examples, capsys):
+    wide = write_scene(tmp_path / "wide.json", [shapes.rectangle("slab", 90, 75)], "slab")
+    code, out, err = run_cli("grasp", wide, "--json", "--examples", examples, capsys=capsys)
+    d = json.loads(out)
+    assert code == 3 and d["error"] == "no_feasible_grasp" and "wider than the gripper" in d["reason"]
+    assert d["target"] == "slab" and d["counts"]["reachable"] == 0
+    code, out, err = run_cli("grasp", wide, "--examples", examples, capsys=capsys)
+    assert code == 3 and "no feasible grasp" in out
+
+
+BOWTIE = [[300, 0], [340, 40], [340, 0], [300, 40]]
+
+
+@pytest.mark.parametrize("case, message", [
+    ("bowtie", "not a valid polygon"),
+    ("no-target", "no part 'ghost'"),
+    ("empty-examples", "holds no examples"),
+    ("missing-file", "does not exist"),
+])
+def test_bad_inputs_give_a_clear_message_and_exit_2(tmp_path, examples, case, message, capsys):
+    ex = examples
+    if case == "bowtie":
+        path = tmp_path / "s.json"
+        path.write_text(json.dumps({"parts": [{"id": "b", "outline": BOWTIE, "z_top": 5}], "target": "b"}))
+    elif case == "no-target":
+        path = write_scene(tmp_path / "s.json", [shapes.rectangle("r", 60, 30)], "r")
+        d = json.loads(path.read_text())
+        d["target"] = "ghost"
+        path.write_text(json.dumps(d))
+    elif case == "empty-examples":
+        path = write_scene(tmp_path / "s.json", [shapes.rectangle("r", 60, 30)], "r")
+        ex = tmp_path / "empty.jsonl"
+        ex.write_text("")
+    else:
+        path = tmp_path / "nowhere.json"
+    code, out, err = run_cli("grasp", path, "--json", "--examples", ex, capsys=capsys)
+    assert code == 2 and message in err and "Traceback" not in err and out == ""
+
+
+def test_missing_default_examples_is_a_clear_error(tmp_path, monkeypatch, scene, capsys):
+    import cell.examples
+
+    monkeypatch.setattr(cell.examples, "default_examples_path", lambda: tmp_path / "gone.jsonl")
+    code, out, err = run_cli("grasp", scene, "--json", capsys=capsys)
+    assert code == 2 and "default example file" in err and "--examples" in err
+
+
+def narrow_cell(tmp_path, opening_max):
+    d = json.loads(default_cell_path().read_text())
+    d["gripper"]["opening_mm"] = [0.0, opening_max]
+    p = tmp_path / f"cell-{opening_max:g}.json"
+    p.write_text(json.dumps(d))
+    return p
+
+
+def test_the_cell_comes_from_the_option_or_the_scene(tmp_path, examples, capsys):
+    part = shapes.rectangle("r", 60, 30)
+    narrow = narrow_cell(tmp_path, 35)  # 30 mm + 2 x 5 clearance does not fit
+    plain = write_scene(tmp_path / "plain.json", [part], "r")
+    own = write_scene(tmp_path / "own.json", [part], "r", cell=narrow.name)  # relative to the scene file
+    assert run_cli("grasp", plain, "--json", "--examples", examples, capsys=capsys)[0] == 0
+    code, out, _ = run_cli("grasp", plain, "--json", "--examples", examples, "--cell", narrow, capsys=capsys)
+    assert code == 3 and "stroke" in json.loads(out)["reason"]
+    assert run_cli("grasp", own, "--json", "--examples", examples, capsys=capsys)[0] == 3
+    wide = narrow_cell(tmp_path, 80)
+    assert run_cli("grasp", own, "--json", "--examples", examples, "--cell", wide, capsys=capsys)[0] == 0
+
+
+def test_human_summary_and_explain(scene, examples, capsys):
+    code, out, err = run_cli("grasp", scene, "--examples", examples, "--explain", capsys=capsys)
+    assert code == 0
+    assert "grasp 'box'" in out and "candidates" in out and "valid sets" in out
+    assert "tree 1" in out and "tree 2" in out and "stage" in out and "nearest accepted example" in out
+    code, out, err = run_cli("grasp", scene, "--examples", examples, "--explain", "--json", capsys=capsys)
+    assert any("tree 1" in line for line in json.loads(out)["explain"])
+
+
+def test_rules_prints_both_trees(examples, capsys):
+    code, out, err = run_cli("rules", "--examples", examples, capsys=capsys)
+    assert code == 0 and "Tree 1" in out and "Tree 2" in out and " THEN " in out
+    code, out, err = run_cli("rules", "--examples", examples, "--json", capsys=capsys)
+    d = json.loads(out)
+    assert d["points"] and d["sets"] and d["training"]["examples"] == len(shapes.hand_made_examples())
+
+
+def test_bench_grasp_reports_the_cascade_against_the_brute_force(examples, capsys):
+    code, out, err = run_cli("bench", "grasp", "--repeat", "1", "--examples", examples, "--json",
+                             "--scenes", "neighbours", capsys=capsys)
+    rows = [json.loads(x) for x in out.splitlines()]
+    assert code == 0
+    summary = rows[-1]
+    assert summary["all_same_pairs"] is True
+    done = [r for r in rows[:-1] if "speedup" in r]
+    assert [r["scene"] for r in rows[:-1]] == ["box-among-neighbours", "bar-among-neighbours"]
+    assert done and all(r["exact_checks_cascade"] < r["exact_checks_brute"] for r in done)
+
+
+@pytest.mark.parametrize("opt", [["--step-mm", "0"], ["--step-mm", "nan"], ["--gap-mm", "-1"]])
+def test_bad_synthesis_options_are_bad_input(scene, examples, opt, capsys):
+    code, out, err = run_cli("grasp", scene, "--json", "--examples", examples, *opt, capsys=capsys)
+    assert code == 2 and "synthesis parameter" in err and out == ""
+
+
+def test_explain_names_the_outline_that_touches_a_neighbour(tmp_path, examples, capsys):
+    box = shapes.rectangle("box", 50, 30, (300, 100), 0)
+    touching = shapes.rectangle("n", 20, 30, (300 + 25 + 10 + 0.5, 100), 0, z_top_mm=10)
+    path = write_scene(tmp_path / "touch.json", [box, touching], "box")
+    code, out, err = run_cli("grasp", path, "--examples", examples, "--explain", capsys=capsys)
+    assert code == 0 and "not a candidate: 17 outline points within 1.5 mm" in out  # face + 1 past each corner

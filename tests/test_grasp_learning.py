@@ -1,0 +1,207 @@
+"""Learning from examples: labels for both trees, the trees' readable rules, and behaviour that
+follows the examples (not hard-coded)."""
+
+import numpy as np
+import pytest
+
+from cell.cellconfig import default_cell
+from cell.errors import BadInput, NoFeasibleGrasp
+from cell.examples import GraspExample, append_examples, load_examples
+from cell.grasp import shapes
+from cell.grasp.learning import fit_model, point_training, set_attributes_of_example
+from cell.grasp.params import SynthesisParams
+from cell.grasp.synthesis import GraspPlanner
+from cell.scene import Scene
+
+CELL = default_cell()
+PARAMS = SynthesisParams()
+SRC = {"kind": "manual", "by": "test"}
+RECT = shapes.rectangle("r", 60, 30)  # centred at (350, 0)
+
+
+def ex(eid, contacts, valid, cv=None, part=RECT):
+    return GraspExample(eid, part, np.array(contacts, float), valid, SRC, cv)
+
+
+def test_an_accepted_grasp_labels_the_points_within_half_a_pad_of_its_contacts_valid():
+    X, y = point_training(ex("a", [[350, 15], [350, -15]], True), PARAMS, 6.0)
+    # 2 mm step, mid-step samples: 6 samples within 6 mm each side on each face
+    assert len(y) == 12 and y.all()
+    assert np.all(X[:, 0] <= np.hypot(6, 15) + 1e-9)
+
+
+def test_contact_verdicts_label_each_side_and_a_bare_rejection_labels_nothing():
+    X, y = point_training(ex("b", [[350, 15], [350, -15]], False, (True, False)), PARAMS, 6.0)
+    assert len(y) == 12 and y.sum() == 6
+    X2, y2 = point_training(ex("c", [[350, 15], [350, -15]], False), PARAMS, 6.0)
+    assert len(y2) == 0
+
+
+def test_each_example_is_a_set_augmented_with_its_neighbours():
+    e = ex("a", [[350, 15], [350, -15]], True)
+    assert set_attributes_of_example(e, PARAMS).shape == (1, 2 + 2 * len(PARAMS.scales_mm))
+    aug = set_attributes_of_example(e, PARAMS, (-1, 0, 1))
+    assert aug.shape[0] == 9
+    assert np.allclose(aug[4], set_attributes_of_example(e, PARAMS)[0])  # the (0, 0) shift is the example
+
+
+def test_fitting_refuses_examples_it_cannot_learn_from():
+    with pytest.raises(BadInput, match="no accepted"):
+        fit_model([ex("x", [[350, 15], [350, -15]], False)], PARAMS, 6.0)
+    with pytest.raises(BadInput, match="contacts"):
+        fit_model([ex("y", [[350, 15], [350, -15], [380, 0]], True)], PARAMS, 6.0)
+    with pytest.raises(BadInput):
+        fit_model([], PARAMS, 6.0)
+
+
+def faces_examples():
+    """Accept grasps across the long faces, reject across the ends."""
+    big = shapes.rectangle("b", 70, 40)
+    return [ex("f1", [[350, 15], [350, -15]], True), ex("f2", [[340, 15], [340, -15]], True),
+            ex("f3", [[350, 20], [350, -20]], True, part=big),
+            ex("e1", [[380, 0], [320, 0]], False, (False, False)),
+            ex("e2", [[380, 8], [320, 8]], False, (False, False)),
+            ex("e3", [[385, 0], [315, 0]], False, (False, False), part=big)]
+
+
+def ends_examples():
+    """The opposite teaching: accept across the ends, reject across the long faces."""
+    big = shapes.rectangle("b", 70, 40)
+    return [ex("e1", [[380, 0], [320, 0]], True), ex("e2", [[380, 6], [320, 6]], True),
+            ex("e3", [[385, 0], [315, 0]], True, part=big),
+            ex("f1", [[350, 15], [350, -15]], False, (False, False)),
+            ex("f2", [[340, 15], [340, -15]], False, (False, False)),
+            ex("f3", [[350, 20], [350, -20]], False, (False, False), part=big)]
+
+
+@pytest.mark.parametrize("angle", [0.0, 35.0, -70.0])
+def test_the_chosen_grasp_follows_the_teaching_on_an_unseen_size_and_pose(angle):
+    part = shapes.rectangle("new", 56, 28, center=(300, 80), angle_deg=angle)
+    scene = Scene((part,), "new")
+    across_faces = GraspPlanner(CELL, faces_examples()).plan(scene).grasp
+    across_ends = GraspPlanner(CELL, ends_examples()).plan(scene).grasp
+
+    def axis_vs_long_side(g):
+        d = abs((g.axis_deg - angle + 90) % 180 - 90)
+        return d
+
+    assert axis_vs_long_side(across_faces) == pytest.approx(90, abs=1e-6)
+    assert axis_vs_long_side(across_ends) == pytest.approx(0, abs=1e-6)
+    assert across_faces.opening_mm == pytest.approx(28, abs=0.01)
+    assert across_ends.opening_mm == pytest.approx(56, abs=0.01)
+
+
+def test_rules_are_readable_and_say_what_the_tree_does():
+    planner = GraspPlanner(CELL, faces_examples())
+    rules = planner.rules()
+    assert rules["points"] and rules["sets"]
+    names = ("dist_cog", "convexity_", "centre_offset", "angle_")
+    assert all(any(n in r for n in names) or r.startswith("ALWAYS") for r in rules["points"] + rules["sets"])
+    rng = np.random.default_rng(1)
+    for tree, dim in ((planner.model.point_tree, 2 + len(PARAMS.scales_mm)),
+                      (planner.model.set_tree, 2 + 2 * len(PARAMS.scales_mm))):
+        X = rng.normal(size=(50, dim)) * np.r_[30, 1, [0.3] * (dim - 2)]
+        for x, verdict in zip(X, tree.predict(X), strict=True):
+            rule = tree.rule_for(x)
+            said = rule.split(" THEN ")[1] if " THEN " in rule else rule[len("ALWAYS "):]
+            assert said.startswith("valid" if verdict else "invalid")
+    assert planner.model.point_tree.tree_ is not None  # a real tree, with contrast to learn from
+
+
+def test_trees_are_rebuilt_identically_from_the_example_file(tmp_path):
+    path = tmp_path / "ex.jsonl"
+    append_examples(path, faces_examples())
+    a = GraspPlanner(CELL, load_examples(path))
+    b = GraspPlanner(CELL, load_examples(path))
+    assert a.rules() == b.rules()
+    scene = Scene((shapes.l_shape("l", 70, 50, 18, (420, 150), 25),), "l")
+    ga, gb = a.plan(scene).grasp, b.plan(scene).grasp
+    assert np.array_equal(ga.contacts_mm, gb.contacts_mm) and ga.joints == gb.joints
+
+
+def test_the_chosen_set_is_the_valid_set_nearest_to_an_accepted_example():
+    planner = GraspPlanner(CELL, faces_examples())
+    res = planner.plan(Scene((shapes.rectangle("t", 60, 30, (320, -60)),), "t"))
+    d = [g.distance_to_example for g in res.ranked]
+    assert d == sorted(d) and res.grasp is res.ranked[0]
+    assert len(res.ranked) == res.counts["valid_sets"] == int(res.set_valid.sum())
+    # the same part as an example: the nearest set is that example's own grasp, at distance ~0
+    assert res.grasp.distance_to_example < 0.05
+    assert np.allclose(sorted(res.grasp.contacts_mm[:, 0]), [320, 320], atol=2.1)
+
+
+@pytest.mark.parametrize("part", [shapes.l_shape("p", 70, 50, 18), shapes.gear("p", 28, 10, 3),
+                                  shapes.disc("p", 30, hole_r_mm=12)])
+def test_the_plan_moves_with_the_part(part):
+    """Attributes, trees and cascade do not depend on where the part lies on the tray: the same
+    set sizes at every stage and the same best distance to the examples, and the chosen contacts
+    are the first pose's contacts moved along (up to the part's own symmetry)."""
+    planner = GraspPlanner(CELL, shapes.hand_made_examples())
+    ref = None
+    c0 = np.asarray(part.polygon.centroid.coords[0])
+    # a finger-high neighbour and a palm-high one, moved with the part (rotated about its centre)
+    others = [shapes.rectangle("n1", 12, 30, center=c0 + (48, 10), z_top_mm=25),
+              shapes.rectangle("n2", 30, 20, center=c0 + (-10, -75), z_top_mm=80)]
+    for dx, dy, th in ((0, 0, 0), (-80, 150, 37), (60, -170, -121), (120, 90, 180)):
+        moved = part.moved(dx, dy, th)
+        res = planner.plan(Scene((moved, *(o.moved(dx, dy, th, about=c0) for o in others)), "p"))
+        stage_counts = {k: v for k, v in res.counts.items() if k != "exact_checks"}
+        # the chosen contacts, in the part's own frame
+        t = np.radians(th)
+        rot = np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
+        local = (res.grasp.contacts_mm - c0 - (dx, dy)) @ rot
+        if ref is None:
+            ref = (stage_counts, res.grasp.distance_to_example, res)
+            continue
+        assert stage_counts == ref[0]
+        assert res.grasp.distance_to_example == pytest.approx(ref[1], abs=1e-6)
+        # every ranked grasp of the first pose, moved, has a twin here
+        ref_local = [np.sort((g.contacts_mm - c0).round(3), axis=0) for g in ref[2].ranked]
+        assert any(np.allclose(np.sort(local, axis=0), r, atol=1e-3) for r in ref_local)
+
+
+def test_when_tree_2_rejects_every_reachable_set_there_is_no_grasp():
+    examples = [ex("c", [[350, 15], [350, -15]], True), ex("c2", [[352, 15], [352, -15]], True),
+                ex("off1", [[362, 15], [362, -15]], False), ex("off2", [[372, 15], [372, -15]], False),
+                ex("off3", [[338, 15], [338, -15]], False), ex("ends", [[380, 0], [320, 0]], False, (False, False))]
+    planner = GraspPlanner(CELL, examples)
+    free = Scene((RECT,), "r")
+    assert abs(planner.plan(free).grasp.center_mm[0] - 350) < 2.1  # centred when it can be
+    # posts (finger-high, under the palm) 5 mm off the middle of both long faces: only off-centre grasps remain
+    posts = [shapes.rectangle(f"post{k}", 4, 10, center=(350, s * (15 + 5 + 5)), z_top_mm=30)
+             for k, s in ((0, 1), (1, -1))]
+    blocked = Scene((RECT, *posts), "r")
+    with pytest.raises(NoFeasibleGrasp, match="tree 2 rejects all") as e:
+        planner.plan(blocked)
+    assert e.value.counts["reachable"] > 0 and e.value.counts["valid_sets"] == 0
+
+
+def test_global_attributes_take_any_number_of_contacts():
+    from cell.grasp.attributes import describe_points, global_attributes
+    from cell.grasp.outline import part_rings
+
+    disc = shapes.disc("d", 30, center=(0, 0), n=180)
+    rings = part_rings(disc)
+    L = rings[0].length_mm
+    op = describe_points(rings, [0] * 3, [0, L / 3, 2 * L / 3], PARAMS.scales_mm)
+    G = global_attributes(op.points[None], op.chord_normals[None], disc)
+    G_swapped = global_attributes(op.points[None, ::-1], op.chord_normals[None, ::-1], disc)
+    assert np.allclose(G, G_swapped)
+    assert G[0, 0] == pytest.approx(0, abs=1e-6)  # three contacts 120 degrees apart: centred
+    assert np.all(G[0, 2:] < 1.0)  # each pushes straight at the reference point
+
+
+def test_a_step_5_hook_that_refuses_a_grasp_gets_the_next_best():
+    seen = []
+
+    def refuse_first_two(grasp, examples, cell, scene):
+        seen.append(grasp)
+        return None if len(seen) <= 2 else grasp.joint_options[-1]
+
+    base = GraspPlanner(CELL, faces_examples()).plan(Scene((RECT,), "r"))
+    res = GraspPlanner(CELL, faces_examples(), choose=refuse_first_two).plan(Scene((RECT,), "r"))
+    assert res.counts["configuration_refused"] == 2
+    assert np.array_equal(res.grasp.contacts_mm, base.ranked[2].contacts_mm)
+    assert res.grasp.joints == res.grasp.joint_options[-1] and len(res.ranked) == len(base.ranked) - 2
+    with pytest.raises(NoFeasibleGrasp, match="step 5"):
+        GraspPlanner(CELL, faces_examples(), choose=lambda *a: None).plan(Scene((RECT,), "r"))

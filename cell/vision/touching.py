@@ -19,6 +19,7 @@ from scipy import ndimage
 MIN_LOBE_RADIUS_PX = 6.0  # full-resolution px: teeth and tabs are not lobes
 COVER_MIN = 0.9
 MAX_SPLIT_DEPTH = 6
+CONVEX_SOLIDITY = 0.97  # touching blobs leave notches: two tangent discs have a solidity of about 0.9
 
 
 def split_necks(labels: np.ndarray, p, min_area_det: float, grey: np.ndarray | None = None,
@@ -73,6 +74,8 @@ def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_d
         return None
     mask = sub.astype(bool)
     px = lab_img[mask].astype(np.float32)
+    if float(px.std(axis=0).max()) < 0.25 * min_delta_e:
+        return None  # one colour: nothing to split
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5)
     _, lab, centres = cv2.kmeans(px, 2, None, crit, 1, cv2.KMEANS_PP_CENTERS)
     if np.linalg.norm(centres[0] - centres[1]) < min_delta_e:
@@ -118,6 +121,11 @@ def fill_holes(mask: np.ndarray) -> np.ndarray:
 
 def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, grey: np.ndarray | None):
     sub = fill_holes(sub)  # holes would put false saddles into the distance transform
+    contours, _ = cv2.findContours(sub, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    if len(contours) == 1:
+        hull_area = cv2.contourArea(cv2.convexHull(contours[0]))
+        if hull_area > 0 and cv2.contourArea(contours[0]) / hull_area > CONVEX_SOLIDITY:
+            return "one", None  # (nearly) convex: no neck, nothing to split
     dt = cv2.distanceTransform(sub, cv2.DIST_L2, 5)
     peak = float(dt.max())
     if peak < 2 * r_min:

@@ -135,3 +135,16 @@ def test_render_cli_bad_scene(tmp_path, capsys):
     code, _, err = run_cli("render", sp, "--out", tmp_path / "f.png", capsys=capsys)
     assert code == 2 and "at least 3" in err
     assert not (tmp_path / "f.png").exists()
+
+
+def test_bench_vision_prints_figures(capsys):
+    code, out, _ = run_cli("bench", "vision", "--frames", "1", "--parts", "3", "--repeats", "2", "--conditions",
+                           "all effects", "--json", capsys=capsys)
+    assert code == 0
+    rows = [json.loads(line) for line in out.splitlines()]
+    acc, timing = rows[0], rows[-1]
+    assert acc["condition"] == "all effects" and acc["found"] == acc["parts"] == 3
+    assert 0.0 < acc["outline_rms_mm"] < 0.6 and acc["centroid_mean_mm"] < 0.5
+    assert timing["median_ms"] > 0 and timing["frame"] == "1280x1024"
+    code, _, err = run_cli("bench", "vision", "--conditions", "foggy", capsys=capsys)
+    assert code == 2 and "unknown condition" in err

@@ -12,6 +12,8 @@ def add_arguments(p) -> None:
     p.add_argument("--conditions", nargs="+", default=None, metavar="NAME",
                    help="conditions to run (default all): " + ", ".join(repr(c) for c in _conditions()))
     p.add_argument("--repeats", type=int, default=30, help="timing repeats (default 30)")
+    p.add_argument("--library", action="store_true",
+                   help="draw the parts from the parts library (cell/parts_library.py) instead of the sample parts")
     p.add_argument("--json", action="store_true", help="print one JSON object per line")
 
 
@@ -39,9 +41,15 @@ def run(args) -> int:
         raise BadInput(f"unknown condition(s) {unknown}; known: {list(CONDITIONS)}")
     cal = load_calibration()
     params = SegmentParams.for_calibration(cal)
+    pool = None
+    if args.library:
+        from cell.parts_library import parts as library_parts
+
+        # parts that fit the tray with room to spare; the tall housings are included
+        pool = [p for p in library_parts() if max(np.ptp(p.outline_mm, axis=0)) < 150]
     rows = []
     for c in conditions:
-        rows.append(run_benchmark(args.frames, args.parts, args.seed, c, cal, params))
+        rows.append(run_benchmark(args.frames, args.parts, args.seed, c, cal, params, pool))
     frame = SimCamera(cal, SimCameraOptions(seed=args.seed)).render(
         random_layout(np.random.default_rng(args.seed), 8))
     timing = {"timing": "segment_frame, 8 parts, all effects", **time_segmentation(frame, params, args.repeats)}
@@ -49,7 +57,8 @@ def run(args) -> int:
         for r in rows + [timing]:
             print(json.dumps(r))
         return 0
-    print(f"segmentation accuracy on rendered frames ({args.frames} frames x {args.parts} parts, mm on the part's "
+    print(f"segmentation accuracy on rendered frames ({args.frames} frames x {args.parts} "
+          f"{'library' if args.library else 'sample'} parts, mm on the part's "
           "top plane; outline error both ways, every vertex and every 0.5 mm of the true outline)")
     print(f"{'condition':22s} {'found':>7s} {'flag':>5s} {'extra':>5s} {'mean':>6s} {'rms':>6s} {'p95':>6s} "
           f"{'part rms med/max':>17s} {'centroid mean/p95':>18s}")

@@ -17,7 +17,7 @@ import shapely
 from shapely.geometry import Polygon
 
 from calibration import Calibration, load_calibration
-from cell.vision.sample_parts import random_layout
+from cell.vision.sample_parts import random_layout, random_layout_of
 from cell.vision.segment import SegmentParams, segment_frame, segment_to_mm
 from cell.vision.simcamera import SimCamera, SimCameraOptions, densify
 
@@ -73,15 +73,20 @@ def evaluate_frame(cal: Calibration, parts, frame: np.ndarray, params: SegmentPa
 
 
 def run_benchmark(frames: int = 12, parts_per_frame: int = 6, seed: int = 0, condition: str = "all effects",
-                  cal: Calibration | None = None, params: SegmentParams | None = None) -> dict:
-    """Accuracy (mm) and timing (ms) over `frames` rendered frames under one condition."""
+                  cal: Calibration | None = None, params: SegmentParams | None = None,
+                  pool: list | None = None) -> dict:
+    """Accuracy (mm) and timing (ms) over `frames` rendered frames under one condition.
+
+    `pool`: parts centred on the origin to draw from (e.g. the parts library); default the
+    sample parts of `sample_parts.SHAPES`.
+    """
     cal = cal or load_calibration()
     params = params or SegmentParams.for_calibration(cal)
     rng = np.random.default_rng(seed)
     opts = replace(SimCameraOptions(), **CONDITIONS[condition])
     rows = []
     for k in range(frames):
-        parts = random_layout(rng, parts_per_frame)
+        parts = random_layout(rng, parts_per_frame) if pool is None else random_layout_of(rng, parts_per_frame, pool)
         frame = SimCamera(cal, replace(opts, seed=seed * 1000 + k)).render(parts)
         rows.append(evaluate_frame(cal, parts, frame, params))
     err = np.concatenate([e for r in rows for e in r["outline_err"]]) if rows else np.zeros(0)

@@ -104,3 +104,23 @@ def random_layout(rng: np.random.Generator, n: int, kinds=None, tray=((215.0, 48
             continue
         placed.append(p)
     return placed
+
+
+def random_layout_of(rng: np.random.Generator, n: int, pool: list[Part],
+                     tray=((215.0, 485.0), (-235.0, 235.0)), gap_mm: float = 8.0, max_tries: int = 400) -> list[Part]:
+    """Like `random_layout`, drawing from `pool` (parts centred on the origin, e.g. the parts library)."""
+    placed: list[Part] = []
+    for i in range(max_tries):
+        if len(placed) == n:
+            break
+        tpl = pool[int(rng.integers(len(pool)))]
+        c = np.asarray(tpl.polygon.centroid.coords[0])
+        p = tpl.moved(rng.uniform(*tray[0]) - c[0], rng.uniform(*tray[1]) - c[1], rng.uniform(-180, 180))
+        p = Part(f"{tpl.id}_{i}", p.outline_mm, p.holes_mm, p.z_bottom_mm, p.z_top_mm, p.direction, dict(p.meta))
+        minx, miny, maxx, maxy = p.polygon.bounds
+        if minx < tray[0][0] or maxx > tray[0][1] or miny < tray[1][0] or maxy > tray[1][1]:
+            continue
+        if any(p.polygon.distance(q.polygon) < gap_mm for q in placed):
+            continue
+        placed.append(p)
+    return placed

@@ -28,6 +28,7 @@ from cell.errors import BadInput
 from cell.vision.background import estimate_background, reference_background
 
 SMALL_FRAME_PX = 960
+WALL_FACING_COS = 0.3
 
 
 @dataclass(frozen=True)
@@ -48,6 +49,7 @@ class SegmentParams:
     sharp_fraction: float = 0.6  # share of a shadow-like region's border that must be sharp
     vertical_px: tuple[float, float] | None = None  # image of the vertical (walls face it); None: centre
     refine: bool = True
+    full_res_holes: bool = True  # look for holes again at full resolution (small holes blur away at half)
     refine_range_px: float = 4.0
     min_edge_contrast_dn: float = 10.0
     split_touching: bool = True
@@ -61,7 +63,7 @@ class SegmentParams:
         """Parameters with the speck threshold given in mm^2 on the plane at z."""
         mm_per_px = cal.mm_per_px(z_mm)
         vp = tuple(float(v) for v in cal.vertical_vanishing_px())
-        return cls(min_area_px=min_area_mm2 / mm_per_px ** 2, min_hole_area_px=max(8.0, 5.0 / mm_per_px ** 2),
+        return cls(min_area_px=min_area_mm2 / mm_per_px ** 2, min_hole_area_px=max(6.0, 2.5 / mm_per_px ** 2),
                    vertical_px=kw.pop("vertical_px", vp), **kw)
 
 
@@ -127,7 +129,7 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
         bg, _ = estimate_background(det, p.tray)
     mask = part_mask(det, bg, p, s)
     labels, merged = _split_regions(mask, p, s, det)
-    segs = _regions_to_segments(labels, merged, frame, det, p, s)
+    segs = _regions_to_segments(labels, merged, frame, det, bg, p, s)
     segs.sort(key=lambda g: -g.area_px)
     return segs
 
@@ -231,7 +233,10 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int) -> np.
         h_det, w_det = r.shape
         vp = (np.array(p.vertical_px) / scale) if p.vertical_px is not None else np.array([w_det, h_det]) / 2.0
         pc = part_c[owner]
-        facing = (cx - pc[:, 0]) * (vp[0] - pc[:, 0]) + (cy - pc[:, 1]) * (vp[1] - pc[:, 1]) > 0
+        ax, ay = cx - pc[:, 0], cy - pc[:, 1]
+        bx, by = vp[0] - pc[:, 0], vp[1] - pc[:, 1]
+        cos = (ax * bx + ay * by) / np.maximum(np.hypot(ax, ay) * np.hypot(bx, by), 1e-9)
+        facing = cos > WALL_FACING_COS  # walls on sides turned away from the vertical are thin anyway
         keep &= (owner == 0) | facing
     out = keep[lab].astype(np.uint8)
     # the sharp edge pixels around kept regions (a wall's outer edge) belong to the part
@@ -259,7 +264,7 @@ def _split_regions(mask: np.ndarray, p: SegmentParams, scale: int, det: np.ndarr
 
 
 def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.ndarray, det: np.ndarray,
-                         p: SegmentParams, scale: int) -> list[Segment]:
+                         bg: np.ndarray, p: SegmentParams, scale: int) -> list[Segment]:
     from scipy import ndimage
 
     dh, dw = labels.shape
@@ -285,6 +290,12 @@ def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.nda
                      and cv2.contourArea(contours[j]) >= p.min_hole_area_px / scale ** 2]
             outline = _to_full(c, scale)
             hole_rings = [_to_full(hh, scale) for hh in holes]
+            if scale > 1 and p.full_res_holes:
+                sub_c = contours[oi].reshape(-1, 2) - (x0, y0)
+                region = np.zeros_like(sub)
+                cv2.fillPoly(region, [sub_c.astype(np.int32)], 1)
+                pc = cv2.mean(det[y0:y1, x0:x1], sub)[:3]
+                hole_rings = _holes_full_res(frame, bg, outline, pc, (x0, y0, x1, y1), p, scale) or hole_rings
             if p.refine:
                 outline = refine_ring(frame, outline, p, hole=False)
                 hole_rings = [refine_ring(frame, hh, p, hole=True) for hh in hole_rings]
@@ -296,6 +307,37 @@ def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.nda
             mean = cv2.mean(det[y0:y1, x0:x1], sub)[:3]
             segs.append(Segment(outline, hole_rings, area, cen, bool(merged), cut, tuple(float(m) for m in mean)))
     return segs
+
+
+def _holes_full_res(frame, bg, outline, part_bgr, box, p: SegmentParams, scale: int) -> list[np.ndarray]:
+    """Holes found at full resolution inside a region's outline: pixels that look like the tray
+    (its chroma, at most shadow-dark) and lie nearer the tray's colour than the part's. Small
+    holes blur into their part at detection resolution; here they keep their pixels."""
+    x0, y0, x1, y1 = (v * scale for v in box)
+    h, w = frame.shape[:2]
+    x1, y1 = min(x1, w), min(y1, h)
+    img = frame[y0:y1, x0:x1].astype(np.float32)
+    b = cv2.resize(bg[box[1]:box[3], box[0]:box[2]], (x1 - x0, y1 - y0), interpolation=cv2.INTER_LINEAR)
+    inside = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    cv2.fillPoly(inside, [np.round((outline - (x0, y0) - 0.5) * 4).astype(np.int32)], 1, cv2.LINE_8, 2)
+    inside = cv2.erode(inside, np.ones((5, 5), np.uint8))  # away from the outline's blur
+    if not inside.any():
+        return []
+    d = np.asarray(part_bgr, np.float32)[None, None, :] - b
+    f = ((img - b) * d).sum(axis=2) / np.maximum((d * d).sum(axis=2), 1.0)
+    si, sb = img.sum(axis=2) + 1.0, b.sum(axis=2) + 1.0
+    r = si / sb
+    chroma = np.abs(img / si[:, :, None] - b / sb[:, :, None]).sum(axis=2)
+    tray_like = (chroma < p.chroma_min) & (r > 1.0 - p.darker_min) & (r < 1.0 + p.brighter_min)
+    holes = ((f < 0.5) & tray_like & inside.astype(bool)).astype(np.uint8)
+    holes = cv2.morphologyEx(holes, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    contours, _ = cv2.findContours(holes, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    rings = []
+    for c in contours:
+        if cv2.contourArea(c) < p.min_hole_area_px:
+            continue
+        rings.append(c.reshape(-1, 2).astype(float) + (x0 + 0.5, y0 + 0.5))  # pixel centres, CONTRACT frame
+    return rings
 
 
 def _to_full(c: np.ndarray, scale: int) -> np.ndarray:

@@ -36,10 +36,11 @@ MATERIALS: dict[str, tuple[tuple[float, float, float], bool]] = {
     "pcb_green": ((55.0, 115.0, 35.0), False),
     "white_plastic": ((225.0, 228.0, 226.0), False),
     "brass": ((70.0, 150.0, 185.0), True),
-    "grey_plastic": ((118.0, 121.0, 122.0), False),  # low contrast against the tray
+    "grey_plastic": ((122.0, 106.0, 90.0), False),  # low contrast against the tray
 }
 PALETTE = ("dark_plastic", "blue_plastic", "steel", "pcb_green", "white_plastic", "red_plastic", "brass")
-TRAY_BGR = (150.0, 141.0, 130.0)  # a light grey-blue anodised tray
+PLASTICS = ("dark_plastic", "blue_plastic", "red_plastic", "white_plastic", "grey_plastic")
+TRAY_BGR = (140.0, 115.0, 90.0)  # a blue anodised tray: metal parts stand out on it
 WALL_SHADE = 0.62  # walls get less light than the top face
 
 
@@ -241,6 +242,10 @@ class SimCamera:
         name = part.meta.get("material")
         if isinstance(name, str) and name in MATERIALS:
             return MATERIALS[name]
+        if name == "fr4":  # the parts library's materials
+            return MATERIALS["pcb_green"]
+        if name == "plastic":
+            return MATERIALS[PLASTICS[zlib.crc32(part.id.encode()) % len(PLASTICS)]]
         colour = part.meta.get("color_bgr")
         if isinstance(colour, list) and len(colour) == 3:
             return tuple(float(c) for c in colour), False

@@ -175,7 +175,7 @@ def test_reference_image_of_the_empty_tray():
     segs = segment_frame(frame, PARAMS, reference_bgr=ref)
     assert len(segs) == len(LAYOUT)
     errors = [outline_rms_mm(match(segs, part), part, frame)[0] for part in LAYOUT]
-    assert max(errors) < 0.6 and np.sqrt(np.mean(np.square(errors))) < 0.35
+    assert max(errors) < 0.65 and np.sqrt(np.mean(np.square(errors))) < 0.35
 
 
 def test_bad_frames_are_refused():

@@ -291,11 +291,13 @@ def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.nda
             outline = _to_full(c, scale)
             hole_rings = [_to_full(hh, scale) for hh in holes]
             if scale > 1 and p.full_res_holes:
-                sub_c = contours[oi].reshape(-1, 2) - (x0, y0)
-                region = np.zeros_like(sub)
-                cv2.fillPoly(region, [sub_c.astype(np.int32)], 1)
                 pc = cv2.mean(det[y0:y1, x0:x1], sub)[:3]
-                hole_rings = _holes_full_res(frame, bg, outline, pc, (x0, y0, x1, y1), p, scale) or hole_rings
+                # keep the holes seen at detection resolution; add the small ones only seen here
+                for ring in _holes_full_res(frame, bg, outline, pc, (x0, y0, x1, y1), p, scale):
+                    centre = ring.mean(axis=0)
+                    if not any(cv2.pointPolygonTest(hh.astype(np.float32), (float(centre[0]), float(centre[1])),
+                                                    False) >= 0 for hh in hole_rings):
+                        hole_rings.append(ring)
             if p.refine:
                 outline = refine_ring(frame, outline, p, hole=False)
                 hole_rings = [refine_ring(frame, hh, p, hole=True) for hh in hole_rings]

@@ -19,6 +19,7 @@ from scipy import ndimage
 MIN_LOBE_RADIUS_PX = 6.0  # full-resolution px: teeth and tabs are not lobes
 COVER_MIN = 0.9
 MAX_SPLIT_DEPTH = 6
+MIN_PIECE_HALF_WIDTH = 4.0  # detection px: a colour piece narrower than this is a wall, not a part
 CONVEX_SOLIDITY = 0.97  # touching blobs leave notches: two tangent discs have a solidity of about 0.9
 
 
@@ -93,7 +94,9 @@ def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_d
             sel = comp == j
             # edge pixels mix with the tray's colour: a piece owns the outline it comes near
             reach = cv2.dilate(sel.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
-            if stats[j, cv2.CC_STAT_AREA] >= min_area and (outline & reach).sum() >= 0.15 * n_out:
+            # and is a body, not a band: a part's own wall seen from the side is a thin strip
+            thick = float(cv2.distanceTransform(sel.astype(np.uint8), cv2.DIST_L2, 3).max()) >= MIN_PIECE_HALF_WIDTH
+            if stats[j, cv2.CC_STAT_AREA] >= min_area and (outline & reach).sum() >= 0.15 * n_out and thick:
                 k += 1
                 seeds[sel] = k
     if k < 2:

@@ -145,10 +145,11 @@ def test_touching_parts_are_split_or_flagged(materials):
     assert len(segs) in (1, 2)
     if len(segs) == 1:
         assert segs[0].merged  # never one silent outline around two parts
-    else:
+    else:  # split: every part has its segment; a cut that is visibly off is flagged
         for part in (a, b):
-            seg = match(segs, part)
-            assert seg is not None and abs(seg.area_px / segs[0].area_px - 1) < 0.25
+            assert match(segs, part) is not None
+        ratio = min(s.area_px for s in segs) / max(s.area_px for s in segs)
+        assert ratio > 0.8 or any(s.merged for s in segs)
 
 
 def test_touching_parts_of_different_colour_are_separated_accurately():

@@ -55,7 +55,7 @@ class SegmentParams:
     split_touching: bool = True
     neck_split: float = 0.75  # split where the neck is narrower than this x the smaller lobe's width
     neck_flag: float = 0.9  # ... and flag `merged` up to this ratio
-    colour_split: float = 30.0  # CIE Lab distance between touching parts told apart by colour
+    colour_split: float = 30.0  # CIE Lab distance (lightness counted half) between touching parts told apart
     seam_contrast_dn: float = 12.0  # brightness change along a cut that shows two parts meet there
 
     @classmethod

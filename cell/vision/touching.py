@@ -74,7 +74,8 @@ def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_d
     if area < 2 * min_area:
         return None
     mask = sub.astype(bool)
-    px = lab_img[mask].astype(np.float32)
+    # lightness counts half: a highlight on metal or a shaded face is the same part, brighter
+    px = lab_img[mask].astype(np.float32) * np.array([0.5, 1.0, 1.0], np.float32)
     if float(px.std(axis=0).max()) < 0.25 * min_delta_e:
         return None  # one colour: nothing to split
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5)

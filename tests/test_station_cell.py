@@ -136,7 +136,7 @@ def test_operator_runs_rejects_teaches_and_approves_over_http(live):
 
 @pytest.mark.skipif(not (Path(CHROMIUM).exists() and Path(CHROMEDRIVER).exists()),
                     reason="the browser test needs Debian's chromium and chromium-driver (apt-get install)")
-def test_the_page_shows_the_cell_and_approves_in_a_browser(live, browser):
+def test_the_page_shows_the_cell_and_approves_in_a_browser(live, browser):  # noqa: F811 - the fixture
     from selenium.webdriver.support.ui import WebDriverWait
 
     driver = browser

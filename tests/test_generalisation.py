@@ -41,3 +41,19 @@ def test_the_check_discriminates(unseen_result):
     base = random_baseline(shown, seed=3)
     assert base.presented >= 20
     assert base.stable_share < 0.5 < t.stable_share
+
+
+def test_bench_stability_command(capsys):
+    import json
+
+    from conftest import run_cli
+
+    code, out, err = run_cli("bench", "stability", "--poses", "1", "--json", capsys=capsys)
+    assert code == 0 and "left-out family" in out and "whole library" in err
+    s = json.loads(out.strip().splitlines()[-1])
+    assert s["whole"]["presented"] == len(L.parts())
+    assert s["whole"]["stable_share"] >= 0.95 and s["unseen_families"]["stable_share"] >= 0.95
+    assert s["random_points"]["stable_share"] < 0.5
+    assert set(s["per_family"]) == set(L.list_families())
+    code, _, err = run_cli("bench", "stability", "--poses", "0", capsys=capsys)
+    assert code == 2 and "--poses" in err

@@ -126,7 +126,17 @@ def test_cli_generate(tmp_path, capsys):
                               capsys=capsys)
     assert code == 0 and "2 accepted" in stdout
     assert sum(e.valid for e in load_examples(out)) == 2
-    code, _, err = run_cli("examples", "generate", "--out", out, "--families", "spring", capsys=capsys)
+    before = out.read_bytes()
+    code, _, err = run_cli("examples", "generate", "--out", out, "--count", "1", capsys=capsys)
+    assert code == 2 and "--append" in err and out.read_bytes() == before  # nothing lost
+    code, _, _ = run_cli("examples", "generate", "--out", out, "--count", "1", "--seed", "6", "--append",
+                         capsys=capsys)
+    assert code == 0 and sum(e.valid for e in load_examples(out)) == 3
+    code, _, _ = run_cli("examples", "generate", "--out", out, "--count", "1", "--seed", "6", "--overwrite",
+                         capsys=capsys)
+    assert code == 0 and sum(e.valid for e in load_examples(out)) == 1
+    code, _, err = run_cli("examples", "generate", "--out", tmp_path / "f.jsonl", "--families", "spring",
+                           capsys=capsys)
     assert code == 2 and "unknown part families" in err
-    code, _, err = run_cli("examples", "generate", "--out", out, "--count", "0", capsys=capsys)
+    code, _, err = run_cli("examples", "generate", "--out", tmp_path / "g.jsonl", "--count", "0", capsys=capsys)
     assert code == 2 and "--count" in err

@@ -61,11 +61,12 @@ class Grasp:
 
 
 def choose_joints(grasp: Grasp, examples: list[GraspExample], cell: Cell, scene: Scene) -> Joints | None:
-    """Paper step 5 hook: pick one arm configuration among `grasp.joint_options`, or None to refuse
-    the grasp (the planner then takes the next best). For now the option with the smallest wrist
-    turn |J4| (the first such); replace it by passing `choose=` to GraspPlanner (e.g. around
-    `cell.configuration.choose_configuration`)."""
-    return min(grasp.joint_options, key=lambda q: abs(q.j4_deg))
+    """Paper step 5: among `grasp.joint_options`, the configuration nearest to an example's that
+    clears every part with the arm's links (`cell.configuration`), or None to refuse the grasp
+    (the planner then takes the next best). Another rule can be passed as `choose=`."""
+    from cell.configuration import choose_configuration
+
+    return choose_configuration(grasp.joint_options, examples, cell, scene.parts)
 
 
 @dataclass(eq=False)

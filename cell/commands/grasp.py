@@ -107,7 +107,11 @@ def _emit(obj, path, many, args, result, planner):
 
 def summary(obj, path) -> str:
     if "error" in obj:
-        return f"{Path(path).name}: no feasible grasp for {obj.get('target')!r}: {obj['reason']}"
+        c = obj.get("counts", {})
+        stages = "  ".join(f"{k[len('after_'):]} {v}" for k, v in c.items() if k.startswith("after_"))
+        return (f"{Path(path).name}: no feasible grasp for {obj.get('target')!r}: {obj['reason']}\n"
+                f"  z={c.get('candidates', 0)} candidates -> z'={c.get('valid_points', 0)} valid points -> "
+                f"s={c.get('pairs', 0)} pairs" + (f"; cascade kept: {stages}" if stages else ""))
     c, j = obj["counts"], obj["joints"]
     return (f"{Path(path).name}: grasp {obj['target']!r} at ({obj['center'][0]:.1f}, {obj['center'][1]:.1f}) mm, "
             f"axis {obj['angle_deg']:.1f} deg, opening {obj['opening_mm']:.1f} mm, z {obj['grasp_z_mm']:.1f} mm\n"

@@ -16,6 +16,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--cell", default=None, help="cell file (default: the shipped default cell)")
     parser.add_argument("--poses", type=int, default=3, help="random poses per part (default 3)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the poses (default 0)")
+    parser.add_argument("--families", default=None,
+                        help="comma-separated families to leave out one at a time (default: all)")
     parser.add_argument("--json", action="store_true", help="print a JSON summary as the last line")
 
 
@@ -47,7 +49,10 @@ def run(args) -> int:
     shown = presentations(L.parts(), args.poses, args.seed, cell)
     whole = evaluate(make_planner(examples, cell), shown, cell)
     baseline = random_baseline(shown, args.seed, cell)
-    per_family = leave_families_out(examples, args.poses, args.seed, cell, progress=log)
+    families = [f.strip() for f in args.families.split(",") if f.strip()] if args.families else None
+    if families:
+        L.parts(families)  # unknown names are bad input
+    per_family = leave_families_out(examples, args.poses, args.seed, cell, families, progress=log)
     unseen = StabilityTally()
     for t in per_family.values():
         unseen.add(t)

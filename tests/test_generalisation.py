@@ -55,6 +55,7 @@ def test_bench_stability_command(capsys):
     assert s["whole"]["presented"] == len(L.parts())
     assert s["whole"]["stable_share"] >= 0.95 and s["unseen_families"]["stable_share"] >= 0.95
     assert s["random_points"]["stable_share"] < 0.5
+    assert s["clutter"]["presented"] == len(L.parts()) and s["clutter"]["stable_share"] >= 0.95
     assert set(s["per_family"]) == {"gear", "pcb"}
     assert s["unseen_families"]["presented"] == len(L.parts(["gear", "pcb"]))
     code, _, err = run_cli("bench", "stability", "--poses", "0", capsys=capsys)

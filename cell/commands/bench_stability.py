@@ -30,6 +30,7 @@ def run(args) -> int:
     from cell.examples import load_examples
     from cell.study.stability import (
         StabilityTally,
+        cluttered,
         evaluate,
         leave_families_out,
         make_planner,
@@ -47,7 +48,10 @@ def run(args) -> int:
 
     log(f"whole library: {len(L.parts())} parts x {args.poses} poses, planner trained on {len(examples)} examples")
     shown = presentations(L.parts(), args.poses, args.seed, cell)
-    whole = evaluate(make_planner(examples, cell), shown, cell)
+    planner = make_planner(examples, cell)
+    whole = evaluate(planner, shown, cell)
+    log("clutter: every presentation with one or two neighbours 3..15 mm away")
+    clutter = evaluate(planner, cluttered(shown, args.seed, cell), cell)
     baseline = random_baseline(shown, args.seed, cell)
     families = [f.strip() for f in args.families.split(",") if f.strip()] if args.families else None
     if families:
@@ -66,6 +70,8 @@ def run(args) -> int:
           f"{pct(whole.planned_share)} | {pct(whole.stable_share)} |")
     print(f"| unseen families (leave-one-family-out) | {unseen.presented} | {unseen.planned} | {unseen.stable} | "
           f"{pct(unseen.planned_share)} | {pct(unseen.stable_share)} |")
+    print(f"| with 1-2 neighbours 3..15 mm away, all examples | {clutter.presented} | {clutter.planned} | "
+          f"{clutter.stable} | {pct(clutter.planned_share)} | {pct(clutter.stable_share)} |")
     print(f"| yardstick: two random outline points within the stroke | {baseline.presented} | - | "
           f"{baseline.stable} | - | {pct(baseline.stable_share)} |")
     print()
@@ -73,7 +79,7 @@ def run(args) -> int:
     print("|---|---:|---:|---:|")
     for fam, t in per_family.items():
         print(f"| {fam} | {t.presented} | {t.planned} | {t.stable} |")
-    for pid, reasons in whole.failures + unseen.failures:
+    for pid, reasons in whole.failures + unseen.failures + clutter.failures:
         log(f"unstable: {pid}: {'; '.join(reasons)}")
     if args.json:
         print(json.dumps({
@@ -83,6 +89,9 @@ def run(args) -> int:
             "unseen_families": {"presented": unseen.presented, "planned": unseen.planned, "stable": unseen.stable,
                                 "stable_share": round(unseen.stable_share, 4),
                                 "planned_share": round(unseen.planned_share, 4)},
+            "clutter": {"presented": clutter.presented, "planned": clutter.planned, "stable": clutter.stable,
+                        "stable_share": round(clutter.stable_share, 4),
+                        "planned_share": round(clutter.planned_share, 4)},
             "random_points": {"presented": baseline.presented, "stable": baseline.stable,
                               "stable_share": round(baseline.stable_share, 4)},
             "per_family": {f: {"presented": t.presented, "planned": t.planned, "stable": t.stable}

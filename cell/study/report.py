@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -199,6 +198,3 @@ def write_report(results: dict[str, ProblemResult], out_dir: str | Path, budget:
                          "repeats": budget.repeats, "seed": seed, "label_noise": label_noise}
     write_json_atomic(out / "results.json", summary)
     return [report, out / "results.json", *(out / p for p in pngs)]
-
-
-__all__ = ["write_report", "headline_table", "comparison_text", "json"]

@@ -171,6 +171,8 @@ def load_examples(path: str | Path | None = None, *, allow_empty: bool = False) 
 def append_examples(path: str | Path, examples: list[GraspExample]) -> None:
     """Append examples atomically (ids must be new in the file)."""
     path = Path(path)
+    for e in examples:  # refuse a line that load_examples would refuse: it would lock the whole file
+        parse_example(e.to_json(), f"new example {e.id}")
     existing = {e.id for e in load_examples(path, allow_empty=True)} if path.exists() else set()
     for e in examples:
         if e.id in existing:

@@ -161,12 +161,14 @@ def test_rules_prints_both_trees(examples, capsys):
 
 
 def test_bench_grasp_reports_the_cascade_against_the_brute_force(examples, capsys):
-    code, out, err = run_cli("bench", "grasp", "--repeat", "1", "--examples", examples, "--json", capsys=capsys)
+    code, out, err = run_cli("bench", "grasp", "--repeat", "1", "--examples", examples, "--json",
+                             "--scenes", "neighbours", capsys=capsys)
     rows = [json.loads(x) for x in out.splitlines()]
     assert code == 0
     summary = rows[-1]
     assert summary["all_same_pairs"] is True
     done = [r for r in rows[:-1] if "speedup" in r]
+    assert [r["scene"] for r in rows[:-1]] == ["box-among-neighbours", "bar-among-neighbours"]
     assert done and all(r["exact_checks_cascade"] < r["exact_checks_brute"] for r in done)
 
 

@@ -13,7 +13,7 @@ def bracket(pid, x, y, z_top=10.0):
 
 
 def region_of(part, index, merged=False):
-    return Region(index, lambda z, p=part.polygon: p, merged=merged)
+    return Region(index, lambda zt, zb, p=part.polygon: p, merged=merged)
 
 
 @pytest.mark.parametrize("dx,dy,dth", [(0, 0, 0), (7.5, -4.0, 12.0), (-15, 9, -25), (3, 3, 170)])
@@ -29,7 +29,7 @@ def test_register_recovers_the_pose(dx, dy, dth):
 def test_locate_assigns_regions_and_reports_strangers():
     a, b = bracket("a", 250, -100), bracket("b", 400, 100, z_top=30)
     stranger = Polygon([(450, -200), (470, -200), (470, -180), (450, -180)])
-    regions = [region_of(b.moved(4, -3, 6), 0), Region(1, lambda z: stranger), region_of(a.moved(-2, 5, -3), 2)]
+    regions = [region_of(b.moved(4, -3, 6), 0), Region(1, lambda zt, zb: stranger), region_of(a.moved(-2, 5, -3), 2)]
     found, unclaimed = locate([a, b], regions)
     assert found["a"].region == 2 and found["b"].region == 0
     assert abs(found["b"].dtheta_deg - 6) < 0.5 and abs(found["a"].dx_mm + 2) < 0.3
@@ -47,9 +47,9 @@ def test_the_plane_height_is_asked_per_part():
     asked = []
     a = bracket("a", 250, -100, z_top=42.0)
 
-    def at(z):
-        asked.append(z)
+    def at(zt, zb):
+        asked.append((zt, zb))
         return a.polygon
 
     locate([a], [Region(0, at)])
-    assert asked == [42.0]
+    assert asked == [(42.0, 0.0)]

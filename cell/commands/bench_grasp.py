@@ -14,6 +14,7 @@ def add_arguments(p):
     p.add_argument("--examples", metavar="FILE",
                    help="teaching-example file (default: the shipped one, else the hand-made examples)")
     p.add_argument("--json", action="store_true", help="print one JSON object per scene, then a summary")
+    p.add_argument("--scenes", metavar="TEXT", help="only the scenes whose name contains TEXT")
 
 
 def bench_scenes():
@@ -85,7 +86,10 @@ def run(args) -> int:
     planner = GraspPlanner(cell, examples)
     fit_ms = (time.perf_counter() - t0) * 1e3
     rows = []
-    for name, scene in bench_scenes():
+    scenes = [(n, s) for n, s in bench_scenes() if not args.scenes or args.scenes in n]
+    if not scenes:
+        raise BadInput(f"no benchmark scene name contains {args.scenes!r}")
+    for name, scene in scenes:
         times, result, err = [], None, None
         for _ in range(args.repeat):
             try:

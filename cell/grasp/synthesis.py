@@ -72,7 +72,8 @@ def choose_joints(grasp: Grasp, examples: list[GraspExample], cell: Cell, scene:
 @dataclass(eq=False)
 class SynthesisResult:
     grasp: Grasp
-    ranked: list[Grasp]  # every valid reachable set, nearest to an example first
+    ranked: list[Grasp]  # every valid reachable set, nearest to an example first (joints chosen for
+    # the first only; `GraspPlanner.choose_for(grasp, scene)` runs step 5 for another)
     counts: dict
     time_ms: float
     candidates: OutlinePoints  # z free outline points with normals
@@ -210,14 +211,20 @@ class GraspPlanner:
         if not ranked:
             fail(f"no arm configuration for any of the {refused} valid contact sets (step 5 refused them all)")
         best = ranked[0]
-        for g in ranked[1:]:
-            g.joints = choose_joints(g, self.examples, cell, scene)
+        # the alternatives keep their joint options; step 5 runs for one when it is needed
+        # (`choose_for`), not for every ranked set: it checks the links against every part
         times["select"] = (time.perf_counter() - t0) * 1e3
         time_ms = (time.perf_counter() - t_start) * 1e3
         return SynthesisResult(best, ranked, counts, time_ms, cand, L, point_valid, P, cr, G, set_valid,
                                {**times, **{f"cascade_{n}": v for n, v in cr.time_ms.items()}},
                                context=ctx, outline=op_all, free=free, valid_sample_index=cand_index[point_valid],
                                global_attribute_names=global_names(p.scales_mm))
+
+    def choose_for(self, grasp: Grasp, scene: Scene) -> Joints | None:
+        """Step 5 for one of `result.ranked` (the best one has its joints already): sets and returns
+        `grasp.joints`, None when the hook refuses it."""
+        grasp.joints = self.choose(grasp, self.examples, self.cell, scene)
+        return grasp.joints
 
     def _empty_stage_reason(self, cr: CascadeResult, ctx: Context, P: Pairs) -> str:
         g, p = self.cell.gripper, self.params

@@ -26,10 +26,11 @@ from cell.scene import Part
 
 @dataclass(frozen=True)
 class Region:
-    """An observed region; `polygon_at(z_mm)` maps its outline to mm on the plane at z."""
+    """An observed region; `polygon_at(z_top_mm, z_bottom_mm)` maps its outline to mm for a
+    part with those heights (the top face's plane, walls at the bottom where they show)."""
 
     index: int
-    polygon_at: Callable[[float], Polygon]
+    polygon_at: Callable[[float, float], Polygon]
     merged: bool = False
     cut_off: bool = False
 
@@ -48,6 +49,8 @@ class Located:
         return part.moved(self.dx_mm, self.dy_mm, self.dtheta_deg)
 
 
+SIMPLIFY_MM = 0.25
+GOOD_OVERLAP = 0.95  # a start that reaches this needs no other start
 MIN_OVERLAP = 0.55  # below this the region is not that part (or the part is not seen)
 MAX_SHIFT_MM = 60.0
 
@@ -56,7 +59,7 @@ def _score(model: Polygon, region: Polygon, merged: bool) -> float:
     inter = model.intersection(region).area
     if merged:
         return inter / model.area
-    return inter / model.union(region).area
+    return inter / (model.area + region.area - inter)
 
 
 def _posed(model: Polygon, c, x) -> Polygon:
@@ -66,14 +69,18 @@ def _posed(model: Polygon, c, x) -> Polygon:
 def register(model: Polygon, region: Polygon, merged: bool = False) -> tuple[np.ndarray, float]:
     """Best (dx, dy, dtheta_deg) placing `model` onto `region`, and the overlap there."""
     c = model.centroid.coords[0]
+    # Fine detail (gear teeth, 1 mm steps of a resampled outline) only slows the search down.
+    model, region = model.simplify(SIMPLIFY_MM), region.simplify(SIMPLIFY_MM)
     starts = [np.zeros(3)]
     if not merged:
         d = np.subtract(region.centroid.coords[0], c)
-        for turn in (0.0, _axis_deg(region) - _axis_deg(model)):
-            for flip in (0.0, 180.0):
-                starts.append(np.array([d[0], d[1], turn + flip]))
+        starts.append(np.array([d[0], d[1], 0.0]))
+        turn = _axis_deg(region) - _axis_deg(model)
+        starts += [np.array([d[0], d[1], turn]), np.array([d[0], d[1], turn + 180.0])]
     best_x, best_s = None, -1.0
     for x0 in starts:
+        if best_s >= GOOD_OVERLAP:
+            break
         res = minimize(lambda x: -_score(_posed(model, c, x), region, merged), x0, method="Nelder-Mead",
                        options={"xatol": 0.02, "fatol": 1e-5, "initial_simplex": x0 + np.array(
                            [[0, 0, 0], [3, 0, 0], [0, 3, 0], [0, 0, 8]]), "maxiter": 400})
@@ -93,9 +100,11 @@ def locate(parts: Sequence[Part], regions: Sequence[Region]) -> tuple[dict[str, 
         for r in regions:
             if r.index in claimed and not r.merged:
                 continue
-            poly = r.polygon_at(part.z_top_mm)
+            poly = r.polygon_at(part.z_top_mm, part.z_bottom_mm)
             if poly.is_empty or poly.distance(part.polygon) > MAX_SHIFT_MM:
                 continue
+            if not r.merged and not 0.6 < poly.area / part.polygon.area < 1.6:
+                continue  # another part: registration could only make it overlap worse
             x, s = register(part.polygon, poly, r.merged)
             if s >= MIN_OVERLAP and math.hypot(x[0], x[1]) <= MAX_SHIFT_MM and (best is None or s > best.overlap):
                 best = Located(part.id, r.index, float(x[0]), float(x[1]), float(x[2]), float(s), r.merged)

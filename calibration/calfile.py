@@ -1,0 +1,173 @@
+"""The calibration file: readable, versioned JSON, validated on read, written atomically.
+
+```json
+{
+  "format": "disassembly-cell/calibration",
+  "version": 1,
+  "name": "default cell camera",
+  "image": {"width_px": 1280, "height_px": 1024},
+  "intrinsics": {"fx": 1600.0, "fy": 1600.0, "cx": 642.7, "cy": 509.1, "skew": 0.0,
+                 "dist": [k1, k2, p1, p2, k3], "rms_px": 0.2},        // or null
+  "pose": {"cam2base": [[r, r, r, x], [r, r, r, y], [r, r, r, z], [0, 0, 0, 1]],
+           "plane_z_mm": 0.0},                                       // or null
+  "homography": {"px_to_mm": [[...], [...], [...]], "plane_z_mm": 0.0},  // or null
+  "report": {...}                                                     // free-form, kept
+}
+```
+`cx`, `cy` are OpenCV's (pixel centres at integers); mapping functions take and give
+CONTRACT-frame pixels (see calibration/camera.py). Lengths in mm.
+"""
+
+from __future__ import annotations
+
+import math
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from calibration.camera import Calibration
+from cell.errors import BadInput
+from cell.fileio import read_json, write_json_atomic
+
+FORMAT = "disassembly-cell/calibration"
+VERSION = 1
+
+
+def default_calibration_path() -> Path:
+    return Path(str(resources.files("calibration") / "data" / "default.json"))
+
+
+def load_calibration(path: str | Path | None = None, *, size: tuple[int, int] | None = None) -> Calibration:
+    """Read and validate a calibration file (None: the default cell's).
+
+    `size` = (width_px, height_px) refuses a file made for another resolution.
+    """
+    path = default_calibration_path() if path is None else Path(path)
+    raw = read_json(path, "calibration file")
+    cal = parse_calibration(raw, str(path))
+    if size is not None and tuple(size) != cal.size:
+        raise BadInput(f"calibration file {path} is for {cal.width_px} x {cal.height_px} px images, "
+                       f"not {size[0]} x {size[1]} px")
+    return cal
+
+
+def save_calibration(cal: Calibration, path: str | Path) -> None:
+    """Write `cal` atomically (a crash leaves the old file or the new one, never half)."""
+    write_json_atomic(path, calibration_to_json(cal))
+
+
+def calibration_to_json(cal: Calibration) -> dict:
+    d: dict = {"format": FORMAT, "version": VERSION, "name": cal.name,
+               "image": {"width_px": int(cal.width_px), "height_px": int(cal.height_px)},
+               "intrinsics": None, "pose": None, "homography": None}
+    if cal.camera_matrix is not None:
+        k = cal.camera_matrix
+        d["intrinsics"] = {"fx": float(k[0, 0]), "fy": float(k[1, 1]), "cx": float(k[0, 2]),
+                           "cy": float(k[1, 2]), "skew": float(k[0, 1]),
+                           "dist": [float(x) for x in np.ravel(cal.dist)]}
+    if cal.cam2base is not None:
+        d["pose"] = {"cam2base": np.asarray(cal.cam2base, float).tolist(), "plane_z_mm": float(cal.plane_z_mm)}
+    if cal.homography is not None:
+        d["homography"] = {"px_to_mm": np.asarray(cal.homography, float).tolist(),
+                           "plane_z_mm": float(cal.plane_z_mm)}
+    d["report"] = _jsonable(cal.report)
+    return d
+
+
+def parse_calibration(raw, source: str = "<calibration>") -> Calibration:
+    """Validate the JSON object of a calibration file; every problem names the key."""
+
+    def fail(why: str):
+        raise BadInput(f"calibration file {source}: {why}")
+
+    if not isinstance(raw, dict):
+        fail("top level must be a JSON object")
+    if raw.get("format") != FORMAT:
+        fail(f"'format' must be {FORMAT!r}, got {raw.get('format')!r} (not a calibration file?)")
+    version = raw.get("version")
+    if not isinstance(version, int) or isinstance(version, bool):
+        fail(f"'version' must be an integer, got {version!r}")
+    if version > VERSION or version < 1:
+        fail(f"version {version} is not supported (this program reads version {VERSION})")
+    img = raw.get("image")
+    if not isinstance(img, dict):
+        fail("'image' must be an object with width_px and height_px")
+    w, h = img.get("width_px"), img.get("height_px")
+    for key, v in (("width_px", w), ("height_px", h)):
+        if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
+            fail(f"image.{key} must be a positive integer, got {v!r}")
+
+    k = dist = cam2base = hom = None
+    plane_z = 0.0
+    intr = raw.get("intrinsics")
+    if intr is not None:
+        if not isinstance(intr, dict):
+            fail("'intrinsics' must be an object or null")
+        vals = {}
+        for key in ("fx", "fy", "cx", "cy"):
+            vals[key] = _finite(intr.get(key), f"intrinsics.{key}", fail)
+        skew = _finite(intr.get("skew", 0.0), "intrinsics.skew", fail)
+        if vals["fx"] <= 0 or vals["fy"] <= 0:
+            fail("intrinsics.fx and fy must be positive")
+        dist_raw = intr.get("dist", [0.0] * 5)
+        if not isinstance(dist_raw, list) or len(dist_raw) not in (4, 5, 8, 12, 14):
+            fail("intrinsics.dist must be a list of 4, 5, 8, 12 or 14 numbers (OpenCV's order)")
+        dist = np.array([_finite(x, "intrinsics.dist", fail) for x in dist_raw])
+        k = np.array([[vals["fx"], skew, vals["cx"]], [0.0, vals["fy"], vals["cy"]], [0.0, 0.0, 1.0]])
+    pose = raw.get("pose")
+    if pose is not None:
+        if k is None:
+            fail("'pose' needs 'intrinsics'")
+        if not isinstance(pose, dict):
+            fail("'pose' must be an object or null")
+        cam2base = _matrix(pose.get("cam2base"), (4, 4), "pose.cam2base", fail)
+        r = cam2base[:3, :3]
+        if not np.allclose(r @ r.T, np.eye(3), atol=1e-6) or np.linalg.det(r) < 0:
+            fail("pose.cam2base rotation part is not a rotation matrix")
+        if not np.allclose(cam2base[3], [0, 0, 0, 1]):
+            fail("pose.cam2base last row must be [0, 0, 0, 1]")
+        plane_z = _finite(pose.get("plane_z_mm", 0.0), "pose.plane_z_mm", fail)
+    homr = raw.get("homography")
+    if homr is not None:
+        if not isinstance(homr, dict):
+            fail("'homography' must be an object or null")
+        hom = _matrix(homr.get("px_to_mm"), (3, 3), "homography.px_to_mm", fail)
+        if abs(np.linalg.det(hom)) < 1e-15:
+            fail("homography.px_to_mm is singular")
+        plane_z = _finite(homr.get("plane_z_mm", plane_z), "homography.plane_z_mm", fail)
+    if k is None and hom is None:
+        fail("the file has neither 'intrinsics' nor 'homography'")
+    report = raw.get("report", {})
+    if not isinstance(report, dict):
+        fail("'report' must be an object")
+    return Calibration(w, h, k, dist if dist is not None else np.zeros(5), cam2base, hom, plane_z,
+                       str(raw.get("name", Path(source).stem)), report)
+
+
+def _finite(v, where, fail) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        fail(f"{where} must be a finite number, got {v!r}")
+    return float(v)
+
+
+def _matrix(v, shape, where, fail) -> np.ndarray:
+    try:
+        arr = np.array(v, dtype=float)
+    except (TypeError, ValueError):
+        fail(f"{where} must be a {shape[0]} x {shape[1]} list of numbers")
+    if arr.shape != shape or not np.all(np.isfinite(arr)):
+        fail(f"{where} must be a {shape[0]} x {shape[1]} list of finite numbers")
+    return arr
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj

@@ -1,0 +1,220 @@
+"""The camera model: pixels <-> base-frame millimetres on a horizontal plane at height z.
+
+Two kinds of mapping, both behind one class:
+
+- pose: intrinsics (camera matrix + lens distortion) and the camera's pose in the base
+  frame (`cam2base`, 4 x 4). A pixel is undistorted into a ray and the ray is cut with the
+  plane z = z_mm, so any plane height works (part tops are not at z = 0).
+- homography: a 3 x 3 plane-to-image homography fitted without intrinsics. It is exact
+  only on its own plane (`plane_z_mm`); other heights are refused.
+
+Pixel coordinates follow CONTRACT.md: origin at the top-left pixel's top-left corner, so
+the centre of pixel (row i, column j) is (j + 0.5, i + 0.5). The camera matrix is stored
+as OpenCV computes and publishes it (pixel centres at integers, e.g. OpenCV's `cx`), and
+the half-pixel shift is applied here, once, at the boundary.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from cell.errors import BadInput
+
+HALF_PX = 0.5  # CONTRACT frame = OpenCV pixel-centre frame + 0.5
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
+
+
+def check_points(pts, name: str) -> np.ndarray:
+    """Return `pts` as a float64 array of shape (n, 2); a single point (2,) becomes (1, 2)."""
+    arr = np.asarray(pts, dtype=float)
+    if arr.ndim == 1 and arr.shape[0] == 2:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise BadInput(f"{name}: expected points of shape (n, 2), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise BadInput(f"{name}: points must be finite numbers")
+    return arr.copy()
+
+
+@dataclass(frozen=True, eq=False)
+class Calibration:
+    """A camera calibration for images of `width_px` x `height_px`.
+
+    Attributes
+    ----------
+    camera_matrix : ndarray of shape (3, 3) or None
+        OpenCV camera matrix (pixel centres at integers); None for a homography-only file.
+    dist : ndarray of shape (k,)
+        OpenCV distortion coefficients (k1, k2, p1, p2, k3[, ...]); zeros when unknown.
+    cam2base : ndarray of shape (4, 4) or None
+        Pose of the camera in the robot base frame (mm); None when there is no pose.
+    homography : ndarray of shape (3, 3) or None
+        CONTRACT-frame pixels -> base-frame (x, y) on the plane z = `plane_z_mm`.
+    plane_z_mm : float
+        The plane of the calibration's fiducials; the default height for mapping.
+    report : dict
+        How the calibration was made (residuals, images used, warnings); kept in the file.
+    """
+
+    width_px: int
+    height_px: int
+    camera_matrix: np.ndarray | None = None
+    dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
+    cam2base: np.ndarray | None = None
+    homography: np.ndarray | None = None
+    plane_z_mm: float = 0.0
+    name: str = "calibration"
+    report: dict = field(default_factory=dict)
+
+    # ---- what the calibration can do -------------------------------------------------
+    @property
+    def has_intrinsics(self) -> bool:
+        return self.camera_matrix is not None
+
+    @property
+    def has_pose(self) -> bool:
+        return self.camera_matrix is not None and self.cam2base is not None
+
+    @property
+    def can_map(self) -> bool:
+        return self.has_pose or self.homography is not None
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return self.width_px, self.height_px
+
+    def check_frame(self, frame: np.ndarray, what: str = "frame") -> None:
+        """Refuse a frame whose size is not the calibration's."""
+        h, w = frame.shape[:2]
+        if (w, h) != (self.width_px, self.height_px):
+            raise BadInput(f"{what} is {w} x {h} px but calibration {self.name!r} is for "
+                           f"{self.width_px} x {self.height_px} px images")
+
+    # ---- pixel -> mm --------------------------------------------------------------------
+    def px_to_mm(self, uv, z_mm: float | None = None) -> np.ndarray:
+        """Map pixels (CONTRACT frame) to base-frame (x, y) on the plane at height `z_mm`.
+
+        Parameters
+        ----------
+        uv : array-like of shape (n, 2)
+        z_mm : float, optional
+            Height of the plane; default `plane_z_mm`.
+
+        Returns
+        -------
+        ndarray of shape (n, 2), mm.
+        """
+        uv = check_points(uv, "px_to_mm")
+        z = self.plane_z_mm if z_mm is None else float(z_mm)
+        if self.has_pose:
+            rays_cam = self._rays(uv)
+            r, t = self.cam2base[:3, :3], self.cam2base[:3, 3]
+            rays = rays_cam @ r.T
+            dz = rays[:, 2]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                s = (z - t[2]) / dz
+            if np.any(~np.isfinite(s)) or np.any(s <= 0):
+                raise BadInput(f"the plane z = {z} mm is not in front of the camera for some pixels")
+            return (t[None, :] + s[:, None] * rays)[:, :2]
+        if self.homography is not None:
+            self._check_plane(z)
+            return _apply_h(self.homography, uv)
+        raise BadInput(f"calibration {self.name!r} has intrinsics only: no mapping to the base frame "
+                       "(run `cell calibrate plane`)")
+
+    def mm_to_px(self, xy, z_mm: float | None = None) -> np.ndarray:
+        """Map base-frame (x, y) on the plane at height `z_mm` to pixels (CONTRACT frame).
+
+        Parameters
+        ----------
+        xy : array-like of shape (n, 2)
+        z_mm : float, optional
+
+        Returns
+        -------
+        ndarray of shape (n, 2), px, lens distortion applied.
+        """
+        xy = check_points(xy, "mm_to_px")
+        z = self.plane_z_mm if z_mm is None else float(z_mm)
+        if self.has_pose:
+            xyz = np.column_stack([xy, np.full(len(xy), z)])
+            return self.project(xyz)
+        if self.homography is not None:
+            self._check_plane(z)
+            return _apply_h(np.linalg.inv(self.homography), xy)
+        raise BadInput(f"calibration {self.name!r} has intrinsics only: no mapping to the base frame")
+
+    def project(self, xyz_mm) -> np.ndarray:
+        """Project base-frame points of shape (n, 3) to pixels (n, 2), CONTRACT frame."""
+        if not self.has_pose:
+            raise BadInput(f"calibration {self.name!r} has no camera pose: cannot project 3D points")
+        xyz = np.asarray(xyz_mm, dtype=float).reshape(-1, 3)
+        base2cam = np.linalg.inv(self.cam2base)
+        pc = xyz @ base2cam[:3, :3].T + base2cam[:3, 3]
+        if np.any(pc[:, 2] <= 0):
+            raise BadInput("some points are behind the camera")
+        img, _ = cv2.projectPoints(pc.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), self.camera_matrix, self.dist)
+        return img.reshape(-1, 2) + HALF_PX
+
+    def undistort_px(self, uv) -> np.ndarray:
+        """Distorted pixels -> ideal (distortion-free) pixels, both CONTRACT frame, shape (n, 2)."""
+        uv = check_points(uv, "undistort_px")
+        if not self.has_intrinsics:
+            return uv
+        n = self._rays(uv)
+        k = self.camera_matrix
+        return np.column_stack([k[0, 0] * n[:, 0] + k[0, 1] * n[:, 1] + k[0, 2],
+                                k[1, 1] * n[:, 1] + k[1, 2]]) + HALF_PX
+
+    def _rays(self, uv: np.ndarray) -> np.ndarray:
+        pts = (uv - HALF_PX).reshape(-1, 1, 2)
+        norm = cv2.undistortPoints(pts, self.camera_matrix, self.dist, criteria=_UNDISTORT_CRITERIA)
+        norm = norm.reshape(-1, 2)
+        return np.column_stack([norm, np.ones(len(norm))])
+
+    def _check_plane(self, z: float) -> None:
+        if abs(z - self.plane_z_mm) > 1e-6:
+            raise BadInput(f"calibration {self.name!r} is a homography for the plane z = {self.plane_z_mm} mm "
+                           f"only; mapping at z = {z} mm needs intrinsics and a camera pose")
+
+    # ---- derived figures ----------------------------------------------------------------
+    def vertical_vanishing_px(self) -> np.ndarray:
+        """Image point (2,) where vertical lines meet: tops of walls lie farther from it than bottoms.
+
+        For a homography-only calibration (no pose) the image centre is returned.
+        """
+        if not self.has_pose:
+            return np.array([self.width_px / 2.0, self.height_px / 2.0])
+        down_cam = np.linalg.inv(self.cam2base)[:3, :3] @ np.array([0.0, 0.0, -1.0])
+        if down_cam[2] <= 1e-9:
+            return np.array([self.width_px / 2.0, self.height_px / 2.0])
+        p = self.camera_matrix @ (down_cam / down_cam[2])
+        return p[:2] + HALF_PX
+
+    def mm_per_px(self, z_mm: float | None = None) -> float:
+        """Ground sampling distance at the image centre on the plane z, mm per pixel."""
+        c = np.array([[self.width_px / 2.0, self.height_px / 2.0]])
+        a = self.px_to_mm(c + [[-5.0, 0.0]], z_mm)
+        b = self.px_to_mm(c + [[5.0, 0.0]], z_mm)
+        return float(np.linalg.norm(b - a) / 10.0)
+
+    def camera_position_mm(self) -> np.ndarray | None:
+        return None if self.cam2base is None else self.cam2base[:3, 3].copy()
+
+
+def _apply_h(h: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    ph = np.column_stack([pts, np.ones(len(pts))]) @ h.T
+    if np.any(np.abs(ph[:, 2]) < 1e-12):
+        raise BadInput("point maps to infinity under the homography")
+    return ph[:, :2] / ph[:, 2:3]
+
+
+def pose_matrix(r: np.ndarray, t) -> np.ndarray:
+    """4 x 4 homogeneous transform from a rotation (3, 3) and a translation (3,)."""
+    m = np.eye(4)
+    m[:3, :3] = r
+    m[:3, 3] = np.asarray(t, float).reshape(3)
+    return m

@@ -1,0 +1,256 @@
+"""Camera intrinsics from photographs of a chessboard or a ChArUco board.
+
+Recipe (chosen to reproduce OpenCV's own published numbers, see docs/vision.md):
+- chessboard: `findChessboardCorners` + `cornerSubPix` (5 x 5 window, EPS + COUNT, 30,
+  0.1), OpenCV's calibration test recipe. When `findChessboardCornersSB` finds boards that
+  this classic detector missed, every image is detected with SB instead (already
+  sub-pixel): one detector per calibration, so that all views have the same corner noise.
+- ChArUco: `CharucoDetector.detectBoard`, then `board.matchImagePoints`; a view needs at
+  least 6 corners.
+- `calibrateCamera` with flags 0 (k1, k2, p1, p2, k3).
+
+Images where the board is not found are listed and left out. After the fit, a view whose
+reprojection RMS is more than `OUTLIER_FACTOR` times the median view RMS (and more than
+`OUTLIER_MIN_PX` above it) is flagged as an outlier; with `reject_outliers=True` it is
+left out and the fit repeated. Warnings are raised for results a user should not accept
+silently (principal point far from the image centre, few views, large RMS).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from cell.errors import BadInput
+
+SUBPIX_WIN = (5, 5)
+SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.1)
+OUTLIER_FACTOR = 3.0
+OUTLIER_MIN_PX = 0.3
+PRINCIPAL_OFF_CENTRE_WARN = 0.15  # fraction of the image size
+MIN_VIEWS = 3
+MIN_CHARUCO_CORNERS = 6
+
+
+@dataclass
+class View:
+    """One image of the board: whether it was used and how well it fits."""
+
+    name: str
+    found: bool
+    n_points: int = 0
+    rms_px: float | None = None
+    outlier: bool = False
+    used: bool = False
+    note: str = ""
+    detector: str = ""
+
+    def to_json(self) -> dict:
+        return {"image": self.name, "found": self.found, "n_points": self.n_points,
+                "rms_px": None if self.rms_px is None else round(self.rms_px, 6),
+                "outlier": self.outlier, "used": self.used, "detector": self.detector, "note": self.note}
+
+
+@dataclass
+class IntrinsicsResult:
+    camera_matrix: np.ndarray  # (3, 3)
+    dist: np.ndarray  # (5,)
+    rms_px: float
+    width_px: int
+    height_px: int
+    views: list[View]
+    warnings: list[str] = field(default_factory=list)
+    board: dict = field(default_factory=dict)
+
+    @property
+    def images_used(self) -> list[str]:
+        return [v.name for v in self.views if v.used]
+
+    def to_json(self) -> dict:
+        k = self.camera_matrix
+        return {"rms_px": self.rms_px, "fx": float(k[0, 0]), "fy": float(k[1, 1]), "cx": float(k[0, 2]),
+                "cy": float(k[1, 2]), "dist": [float(x) for x in self.dist.ravel()],
+                "width_px": self.width_px, "height_px": self.height_px,
+                "images_used": self.images_used,
+                "images_not_found": [v.name for v in self.views if not v.found],
+                "outliers": [v.name for v in self.views if v.outlier],
+                "per_image": [v.to_json() for v in self.views], "warnings": self.warnings, "board": self.board}
+
+    def to_calibration(self, name: str = "intrinsics"):
+        from calibration.camera import Calibration
+
+        report = {"method": "intrinsics", **{k: v for k, v in self.to_json().items()
+                                             if k not in ("fx", "fy", "cx", "cy", "dist")}}
+        return Calibration(self.width_px, self.height_px, self.camera_matrix.copy(), self.dist.ravel().copy(),
+                           name=name, report=report)
+
+
+def chessboard_object_points(pattern: tuple[int, int], square_mm: float) -> np.ndarray:
+    """Board corners (cols * rows, 3) in the board frame, row by row as OpenCV returns them."""
+    cols, rows = pattern
+    grid = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2)
+    return np.column_stack([grid * square_mm, np.zeros(len(grid))]).astype(np.float32)
+
+
+def detect_chessboard(gray: np.ndarray, pattern: tuple[int, int], detector: str = "classic",
+                      subpix_win: int = SUBPIX_WIN[0]):
+    """Corners (n, 1, 2) float32 in OpenCV's pixel-centre frame, or None when not found."""
+    if detector == "classic":
+        found, corners = cv2.findChessboardCorners(gray, pattern)
+        if not found:
+            return None
+        return cv2.cornerSubPix(gray, corners, (subpix_win, subpix_win), (-1, -1), SUBPIX_CRITERIA)
+    if detector == "sb":
+        found, corners = cv2.findChessboardCornersSB(gray, pattern)
+        return corners.astype(np.float32) if found else None
+    raise BadInput(f"unknown chessboard detector {detector!r} (classic, sb, auto)")
+
+
+def charuco_board(squares: tuple[int, int], square_mm: float, marker_mm: float, dictionary: str):
+    d = aruco_dictionary(dictionary)
+    return cv2.aruco.CharucoBoard(squares, square_mm, marker_mm, d)
+
+
+def aruco_dictionary(name: str):
+    code = getattr(cv2.aruco, name, None) if isinstance(name, str) and name.startswith("DICT_") else None
+    if code is None:
+        raise BadInput(f"unknown ArUco dictionary {name!r} (e.g. DICT_4X4_50, DICT_6X6_250)")
+    return cv2.aruco.getPredefinedDictionary(code)
+
+
+def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[int, int], square_mm: float,
+                         *, detector: str = "auto", charuco: dict | None = None,
+                         reject_outliers: bool = False, subpix_win: int = SUBPIX_WIN[0]) -> IntrinsicsResult:
+    """Calibrate from named grey images.
+
+    Parameters
+    ----------
+    images : list of (name, ndarray of shape (h, w) uint8)
+        All images must have the same size.
+    pattern : (cols, rows)
+        Chessboard inner corners; for ChArUco the squares (x, y) of the board.
+    square_mm : float
+        Side of one square (any unit; the intrinsics do not depend on it).
+    detector : {"auto", "classic", "sb"}
+        Chessboard detector (see the module docstring); ignored for ChArUco.
+    charuco : dict, optional
+        {"marker_mm": float, "dictionary": "DICT_6X6_250"}: the board is ChArUco.
+    reject_outliers : bool
+        Leave out views flagged as outliers and fit again.
+    subpix_win : int
+        Half-size of the `cornerSubPix` window of the classic detector (OpenCV's test: 5;
+        its C++ sample: 11, which roughly doubles the RMS on OpenCV's own images).
+    """
+    if not images:
+        raise BadInput("no images given")
+    sizes = {img.shape[:2] for _, img in images}
+    if len(sizes) != 1:
+        raise BadInput("the images have different sizes: " + ", ".join(f"{w}x{h}" for h, w in sorted(sizes)))
+    h, w = images[0][1].shape[:2]
+    views = [View(name, False) for name, _ in images]
+    obj_pts: list[np.ndarray | None] = [None] * len(images)
+    img_pts: list[np.ndarray | None] = [None] * len(images)
+
+    if charuco is not None:
+        board = charuco_board(pattern, square_mm, float(charuco["marker_mm"]), charuco.get("dictionary",
+                                                                                           "DICT_6X6_250"))
+        det = cv2.aruco.CharucoDetector(board)
+        for i, (_, gray) in enumerate(images):
+            corners, ids, _, _ = det.detectBoard(gray)
+            n = 0 if ids is None else len(ids)
+            views[i].detector = "charuco"
+            if n < MIN_CHARUCO_CORNERS:
+                views[i].note = f"only {n} ChArUco corners found (need {MIN_CHARUCO_CORNERS})"
+                continue
+            op, ip = board.matchImagePoints(corners, ids)
+            obj_pts[i], img_pts[i] = op.astype(np.float32), ip.astype(np.float32)
+            views[i].found, views[i].n_points = True, n
+        board_info = {"type": "charuco", "squares": list(pattern), "square": square_mm, **charuco}
+    else:
+        order = {"auto": ["classic", "sb"], "classic": ["classic"], "sb": ["sb"]}.get(detector)
+        if order is None:
+            raise BadInput(f"unknown chessboard detector {detector!r} (auto, classic, sb)")
+        objp = chessboard_object_points(pattern, square_mm)
+        name = order[0]
+        found = [detect_chessboard(g, pattern, name, subpix_win) for _, g in images]
+        missed = [i for i, c in enumerate(found) if c is None]
+        if len(order) > 1 and missed:
+            # switch to SB for every view only if it finds boards the classic detector missed
+            # (an image without a board must not change the detector of the others)
+            if any(detect_chessboard(images[i][1], pattern, "sb") is not None for i in missed):
+                name = "sb"
+                found = [detect_chessboard(g, pattern, name) for _, g in images]
+        for i, corners in enumerate(found):
+            views[i].detector = name
+            if corners is None:
+                views[i].note = f"board {pattern[0]}x{pattern[1]} not found"
+                continue
+            obj_pts[i], img_pts[i] = objp, corners
+            views[i].found, views[i].n_points = True, len(corners)
+        board_info = {"type": "chessboard", "inner_corners": list(pattern), "square": square_mm,
+                      "detector": name, "subpix_win": subpix_win if name == "classic" else None}
+
+    use = [i for i, v in enumerate(views) if v.found]
+    if len(use) < MIN_VIEWS:
+        raise BadInput(f"the board was found in {len(use)} of {len(images)} images; at least {MIN_VIEWS} "
+                       "are needed (check --pattern, which counts inner corners COLSxROWS)")
+    k, dist, rms, per_view = _fit(obj_pts, img_pts, use, (w, h))
+    _flag_outliers(views, use, per_view)
+    if reject_outliers and any(views[i].outlier for i in use):
+        kept = [i for i in use if not views[i].outlier]
+        if len(kept) >= MIN_VIEWS:
+            k, dist, rms, per_view = _fit(obj_pts, img_pts, kept, (w, h))
+            for i, e in zip(kept, per_view, strict=True):
+                views[i].rms_px = e
+            for i in use:
+                if views[i].outlier:
+                    views[i].note = "outlier: left out"
+            use = kept
+    for i in use:
+        views[i].used = True
+    result = IntrinsicsResult(k, dist.ravel()[:5] if dist.size >= 5 else dist.ravel(), float(rms), w, h, views,
+                              board=board_info)
+    result.warnings = _warnings(result)
+    return result
+
+
+def _fit(obj_pts, img_pts, use, size):
+    ops = [obj_pts[i] for i in use]
+    ips = [img_pts[i] for i in use]
+    rms, k, dist, rvecs, tvecs = cv2.calibrateCamera(ops, ips, size, None, None)
+    per_view = []
+    for op, ip, rv, tv in zip(ops, ips, rvecs, tvecs, strict=True):
+        proj, _ = cv2.projectPoints(op, rv, tv, k, dist)
+        per_view.append(float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - ip.reshape(-1, 2)) ** 2, axis=1)))))
+    return k, dist, float(rms), per_view
+
+
+def _flag_outliers(views: list[View], use: list[int], per_view: list[float]) -> None:
+    med = float(np.median(per_view))
+    for i, e in zip(use, per_view, strict=True):
+        views[i].rms_px = e
+        if e > OUTLIER_FACTOR * med and e > med + OUTLIER_MIN_PX:
+            views[i].outlier = True
+            views[i].note = f"outlier: view RMS {e:.3f} px vs median {med:.3f} px"
+
+
+def _warnings(r: IntrinsicsResult) -> list[str]:
+    out = []
+    cx, cy = r.camera_matrix[0, 2], r.camera_matrix[1, 2]
+    dx, dy = abs(cx - (r.width_px - 1) / 2) / r.width_px, abs(cy - (r.height_px - 1) / 2) / r.height_px
+    if max(dx, dy) > PRINCIPAL_OFF_CENTRE_WARN:
+        out.append(f"principal point ({cx:.1f}, {cy:.1f}) is far from the image centre "
+                   f"({(r.width_px - 1) / 2:.1f}, {(r.height_px - 1) / 2:.1f}): {100 * dx:.0f}% / "
+                   f"{100 * dy:.0f}% of the image size; the views probably do not constrain the model "
+                   "(tilt the board more, cover the corners) - do not use this result as is")
+    n = len(r.images_used)
+    if n < 8:
+        out.append(f"only {n} views used; 10-20 views at varied tilts give a stable calibration")
+    if r.rms_px > 1.0:
+        out.append(f"RMS reprojection error {r.rms_px:.2f} px is large (expect < 0.5 px)")
+    outl = [v.name for v in r.views if v.outlier]
+    if outl:
+        out.append("views that do not fit the model: " + ", ".join(outl))
+    return out

@@ -1,0 +1,136 @@
+"""The mapping image <-> base frame from points at known base coordinates.
+
+Sources of correspondences (all end in `fit_plane_mapping`):
+- ArUco fiducials whose corners' base coordinates are known (`markers_correspondences`);
+- points touched with the gripper tip and clicked / detected in the image (a list of
+  {"px": [u, v], "mm": [x, y, z]} pairs).
+
+With intrinsics the camera pose is solved (`solvePnP`, IPPE for a plane, then
+Levenberg-Marquardt), so pixels map to any plane height z. Without intrinsics a homography
+is fitted, exact only on the points' plane. The residual is measured where it matters: the
+detected pixels mapped back to the plane, against the known base coordinates, in mm.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from calibration.camera import HALF_PX, Calibration, pose_matrix
+from calibration.intrinsics import aruco_dictionary
+from cell.errors import BadInput
+
+PLANE_TOLERANCE_MM = 1.0  # the points' z may differ this much and still count as one plane
+MIN_POINTS = 4
+
+
+def detect_markers(gray: np.ndarray, dictionary: str) -> dict[int, np.ndarray]:
+    """ArUco markers in the image: id -> corners (4, 2) in CONTRACT-frame pixels, OpenCV's order."""
+    det = cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), cv2.aruco.DetectorParameters())
+    corners, ids, _ = det.detectMarkers(gray)
+    if ids is None:
+        return {}
+    return {int(i): c.reshape(4, 2).astype(float) + HALF_PX for i, c in zip(ids.ravel(), corners, strict=True)}
+
+
+def parse_markers(raw, source: str) -> tuple[str, dict[int, np.ndarray]]:
+    """Validate a MARKERS.json object (CONTRACT.md); returns (dictionary, id -> corners (4, 3) mm)."""
+    if not isinstance(raw, dict):
+        raise BadInput(f"{source}: top level must be a JSON object")
+    dictionary = raw.get("dictionary")
+    if not isinstance(dictionary, str):
+        raise BadInput(f"{source}: 'dictionary' must name an ArUco dictionary, e.g. \"DICT_4X4_50\"")
+    aruco_dictionary(dictionary)
+    markers = raw.get("markers")
+    if not isinstance(markers, dict) or not markers:
+        raise BadInput(f"{source}: 'markers' must be an object {{\"ID\": [[x, y, z] x 4], ...}}")
+    out = {}
+    for key, corners in markers.items():
+        try:
+            mid = int(key)
+        except ValueError:
+            raise BadInput(f"{source}: marker id {key!r} is not an integer") from None
+        try:
+            arr = np.array(corners, dtype=float)
+        except (TypeError, ValueError):
+            raise BadInput(f"{source}: marker {key}: corners must be 4 points [x, y, z] in mm") from None
+        if arr.shape != (4, 3) or not np.all(np.isfinite(arr)):
+            raise BadInput(f"{source}: marker {key}: corners must be 4 points [x, y, z] in mm, got shape "
+                           f"{arr.shape}")
+        out[mid] = arr
+    return dictionary, out
+
+
+def markers_correspondences(detected: dict[int, np.ndarray], known: dict[int, np.ndarray]):
+    """Pair detected and known corners: (uv (n, 2), xyz (n, 3), used ids, missing ids)."""
+    used = sorted(set(detected) & set(known))
+    missing = sorted(set(known) - set(detected))
+    if not used:
+        return np.zeros((0, 2)), np.zeros((0, 3)), used, missing
+    uv = np.concatenate([detected[i] for i in used])
+    xyz = np.concatenate([known[i] for i in used])
+    return uv, xyz, used, missing
+
+
+def fit_plane_mapping(uv_px, xyz_mm, size: tuple[int, int], camera_matrix: np.ndarray | None = None,
+                      dist: np.ndarray | None = None, name: str = "plane calibration") -> Calibration:
+    """Fit the image <-> base mapping to correspondences on one plane.
+
+    Parameters
+    ----------
+    uv_px : array-like of shape (n, 2)
+        Pixels, CONTRACT frame.
+    xyz_mm : array-like of shape (n, 3)
+        The same points in the base frame, mm; all at one height (within 1 mm).
+    size : (width_px, height_px)
+    camera_matrix, dist : optional
+        Intrinsics; without them the result is a homography for the points' plane.
+
+    Returns
+    -------
+    Calibration whose `report` holds `residual_mm` (RMS), `residual_max_mm`,
+    `reprojection_rms_px` and the method.
+    """
+    uv = np.asarray(uv_px, float).reshape(-1, 2)
+    xyz = np.asarray(xyz_mm, float).reshape(-1, 3)
+    if len(uv) != len(xyz):
+        raise BadInput(f"{len(uv)} pixels but {len(xyz)} base points")
+    if len(uv) < MIN_POINTS:
+        raise BadInput(f"{len(uv)} points given; at least {MIN_POINTS} (one marker) are needed, "
+                       "better 12 (three markers) spread over the work area")
+    z = xyz[:, 2]
+    if np.ptp(z) > PLANE_TOLERANCE_MM:
+        raise BadInput(f"the points are not on one horizontal plane (z from {z.min():.2f} to {z.max():.2f} mm)")
+    plane_z = float(np.mean(z))
+    w, h = size
+    if camera_matrix is not None:
+        k = np.asarray(camera_matrix, float)
+        d = np.zeros(5) if dist is None else np.asarray(dist, float).ravel()
+        obj = xyz.astype(np.float64)
+        img = (uv - HALF_PX).astype(np.float64)
+        ok, rvec, tvec = cv2.solvePnP(obj, img, k, d, flags=cv2.SOLVEPNP_IPPE)
+        if not ok:
+            raise BadInput("the camera pose could not be solved from these points")
+        rvec, tvec = cv2.solvePnPRefineLM(obj, img, k, d, rvec, tvec)
+        r, _ = cv2.Rodrigues(rvec)
+        base2cam = pose_matrix(r, tvec.ravel())
+        cal = Calibration(w, h, k, d, np.linalg.inv(base2cam), None, plane_z, name)
+        proj = cal.project(xyz)
+        method = "pose"
+    else:
+        hmat, _ = cv2.findHomography(uv, xyz[:, :2], 0)
+        if hmat is None:
+            raise BadInput("no homography fits these points (are they collinear?)")
+        cal = Calibration(w, h, None, np.zeros(5), None, hmat, plane_z, name)
+        proj = cal.mm_to_px(xyz[:, :2])
+        method = "homography"
+    err_mm = np.linalg.norm(cal.px_to_mm(uv) - xyz[:, :2], axis=1)
+    err_px = np.linalg.norm(proj - uv, axis=1)
+    report = {"method": method, "points": len(uv), "plane_z_mm": plane_z,
+              "residual_mm": float(np.sqrt(np.mean(err_mm ** 2))), "residual_max_mm": float(err_mm.max()),
+              "reprojection_rms_px": float(np.sqrt(np.mean(err_px ** 2))),
+              "mm_per_px": cal.mm_per_px()}
+    if cal.has_pose:
+        report["camera_position_mm"] = [round(float(x), 3) for x in cal.camera_position_mm()]
+    return Calibration(cal.width_px, cal.height_px, cal.camera_matrix, cal.dist, cal.cam2base, cal.homography,
+                       plane_z, name, report)

@@ -1,0 +1,50 @@
+"""Small argument helpers shared by the vision and calibration commands."""
+
+from __future__ import annotations
+
+import re
+
+from cell.errors import BadInput
+
+# let "-120.5,30" be a value, not an option (argparse only knows plain negative numbers)
+_NEG_VALUE = re.compile(r"^-\d+$|^-\d*\.\d+$|^-?[\d.]+(,-?[\d.]+)+$|^-[\d.]+(,-?[\d.]+)*$")
+
+
+def allow_negative_pairs(parser) -> None:
+    parser._negative_number_matcher = _NEG_VALUE
+
+
+def pair(text: str, what: str) -> tuple[float, float]:
+    """'12.5,-3' -> (12.5, -3.0); anything else is bad input naming `what`."""
+    parts = str(text).split(",")
+    if len(parts) != 2:
+        raise BadInput(f"{what} must be two numbers A,B (got {text!r})")
+    try:
+        a, b = float(parts[0]), float(parts[1])
+    except ValueError:
+        raise BadInput(f"{what} must be two numbers A,B (got {text!r})") from None
+    if not all(map(_finite, (a, b))):
+        raise BadInput(f"{what} must be finite numbers (got {text!r})")
+    return a, b
+
+
+def numbers(text: str, n: int, what: str) -> list[float]:
+    parts = str(text).split(",")
+    try:
+        vals = [float(x) for x in parts]
+    except ValueError:
+        raise BadInput(f"{what} must be {n} comma-separated numbers (got {text!r})") from None
+    if len(vals) != n or not all(map(_finite, vals)):
+        raise BadInput(f"{what} must be {n} comma-separated finite numbers (got {text!r})")
+    return vals
+
+
+def grid(text: str, what: str) -> tuple[int, int]:
+    m = re.fullmatch(r"\s*(\d+)\s*[xX,]\s*(\d+)\s*", str(text))
+    if not m or int(m.group(1)) < 2 or int(m.group(2)) < 2:
+        raise BadInput(f"{what} must be COLSxROWS with both at least 2, e.g. 9x6 (got {text!r})")
+    return int(m.group(1)), int(m.group(2))
+
+
+def _finite(x: float) -> bool:
+    return x == x and abs(x) != float("inf")

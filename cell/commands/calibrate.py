@@ -1,0 +1,56 @@
+"""`cell calibrate intrinsics IMAGES... --pattern COLSxROWS --square MM --out FILE`."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+from cell.commands._vision_args import grid
+
+
+def add_arguments(p) -> None:
+    p.add_argument("images", nargs="+", metavar="IMAGE", help="photographs of the board")
+    p.add_argument("--pattern", required=True, metavar="COLSxROWS",
+                   help="chessboard: inner corners (e.g. 9x6); ChArUco: squares (e.g. 5x7)")
+    p.add_argument("--square", required=True, type=float, metavar="MM", help="side of one square")
+    p.add_argument("--out", required=True, metavar="FILE", help="calibration file to write")
+    p.add_argument("--detector", choices=("auto", "classic", "sb"), default="auto",
+                   help="chessboard detector: classic + cornerSubPix, the sector-based SB one, or auto "
+                        "(classic when it finds every board, else SB for all)")
+    p.add_argument("--subpix-win", type=int, default=5, metavar="N",
+                   help="cornerSubPix half window of the classic detector (OpenCV's test: 5, its sample: 11)")
+    p.add_argument("--reject-outliers", action="store_true",
+                   help="leave out views that do not fit and calibrate again")
+    p.add_argument("--charuco", action="store_true", help="the board is a ChArUco board")
+    p.add_argument("--marker", type=float, metavar="MM", help="ChArUco marker side (same unit as --square)")
+    p.add_argument("--dictionary", default="DICT_6X6_250", help="ChArUco dictionary (default DICT_6X6_250)")
+    p.add_argument("--name", default=None, help="name stored in the calibration file")
+
+
+def run(args) -> int:
+    from calibration import save_calibration
+    from calibration.intrinsics import calibrate_intrinsics
+    from cell.errors import BadInput
+    from cell.vision.sources import read_image
+
+    pattern = grid(args.pattern, "--pattern")
+    if not args.square > 0:
+        raise BadInput("--square must be a positive length")
+    charuco = None
+    if args.charuco:
+        if args.marker is None or not 0 < args.marker < args.square:
+            raise BadInput("--charuco needs --marker MM, smaller than --square")
+        charuco = {"marker_mm": args.marker, "dictionary": args.dictionary}
+    if args.subpix_win < 1:
+        raise BadInput("--subpix-win must be at least 1")
+    images = [(str(path), read_image(path, grey=True)) for path in args.images]
+    result = calibrate_intrinsics(images, pattern, args.square, detector=args.detector, charuco=charuco,
+                                  reject_outliers=args.reject_outliers, subpix_win=args.subpix_win)
+    cal = result.to_calibration(args.name or "intrinsics")
+    save_calibration(cal, args.out)
+    out = result.to_json()
+    out["out"] = str(args.out)
+    print(json.dumps(out))
+    for w in result.warnings:
+        print(f"cell: warning: {w}", file=sys.stderr)
+    return 0

@@ -1,0 +1,100 @@
+"""`cell calibrate plane IMAGE --markers MARKERS.json --out FILE [--camera-matrix ... | --intrinsics FILE]`.
+
+Also `--points POINTS.json` instead of markers: points touched with the gripper tip,
+`{"points": [{"px": [u, v], "mm": [x, y, z]}, ...]}` (u, v in the CONTRACT pixel frame).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+from cell.commands._vision_args import numbers
+
+MIN_MARKERS = 3
+
+
+def add_arguments(p) -> None:
+    p.add_argument("image", metavar="IMAGE", help="camera frame showing the fiducials")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--markers", metavar="MARKERS.json", help="ArUco markers at known base coordinates")
+    src.add_argument("--points", metavar="POINTS.json", help="pixel / base-frame pairs (touched points)")
+    p.add_argument("--out", required=True, metavar="FILE", help="calibration file to write")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--camera-matrix", metavar="FX,FY,CX,CY", help="intrinsics (OpenCV's cx, cy), no distortion")
+    g.add_argument("--intrinsics", metavar="FILE", help="a calibration file with intrinsics")
+    p.add_argument("--name", default=None, help="name stored in the calibration file")
+
+
+def run(args) -> int:
+    import numpy as np
+
+    from calibration import load_calibration, save_calibration
+    from calibration.plane import detect_markers, fit_plane_mapping, markers_correspondences, parse_markers
+    from cell.errors import BadInput
+    from cell.fileio import read_json
+    from cell.vision.sources import read_image
+
+    frame = read_image(args.image)
+    h, w = frame.shape[:2]
+    k = dist = None
+    if args.camera_matrix:
+        fx, fy, cx, cy = numbers(args.camera_matrix, 4, "--camera-matrix")
+        if fx <= 0 or fy <= 0:
+            raise BadInput("--camera-matrix: fx and fy must be positive")
+        k, dist = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]]), np.zeros(5)
+    elif args.intrinsics:
+        intr = load_calibration(args.intrinsics, size=(w, h))
+        if not intr.has_intrinsics:
+            raise BadInput(f"{args.intrinsics} holds no intrinsics")
+        k, dist = intr.camera_matrix, intr.dist
+    out: dict = {}
+    if args.markers:
+        dictionary, known = parse_markers(read_json(args.markers, "markers file"), args.markers)
+        detected = detect_markers(cv_grey(frame), dictionary)
+        uv, xyz, used, missing = markers_correspondences(detected, known)
+        out.update({"markers_used": used, "markers_missing": missing,
+                    "markers_detected": sorted(detected)})
+        if len(used) < MIN_MARKERS:
+            raise BadInput(f"{len(used)} of the markers in {args.markers} were found in {args.image} "
+                           f"(found ids {sorted(detected)}, need at least {MIN_MARKERS} of {sorted(known)})")
+    else:
+        uv, xyz = parse_points(read_json(args.points, "points file"), args.points)
+    cal = fit_plane_mapping(uv, xyz, (w, h), k, dist, args.name or "plane calibration")
+    if args.markers:
+        cal.report.update({"markers_used": out["markers_used"], "markers_missing": out["markers_missing"]})
+    cal.report["image"] = str(args.image)
+    save_calibration(cal, args.out)
+    out = {**cal.report, **out, "out": str(args.out)}
+    print(json.dumps(out))
+    if out.get("markers_missing"):
+        print(f"cell: warning: markers not found in the image: {out['markers_missing']}", file=sys.stderr)
+    return 0
+
+
+def cv_grey(frame):
+    import cv2
+
+    return cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+
+
+def parse_points(raw, source: str):
+    import numpy as np
+
+    from cell.errors import BadInput
+
+    pts = raw.get("points") if isinstance(raw, dict) else None
+    if not isinstance(pts, list) or not pts:
+        raise BadInput(f"{source}: expected {{\"points\": [{{\"px\": [u, v], \"mm\": [x, y, z]}}, ...]}}")
+    uv, xyz = [], []
+    for i, p in enumerate(pts):
+        try:
+            a = np.array(p["px"], float)
+            b = np.array(p["mm"], float)
+        except (KeyError, TypeError, ValueError):
+            raise BadInput(f"{source}: point #{i} needs 'px': [u, v] and 'mm': [x, y, z]") from None
+        if a.shape != (2,) or b.shape != (3,) or not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+            raise BadInput(f"{source}: point #{i} needs 'px': [u, v] and 'mm': [x, y, z] (finite numbers)")
+        uv.append(a)
+        xyz.append(b)
+    return np.array(uv), np.array(xyz)

@@ -1,0 +1,346 @@
+"""`cell hw status|sim|home|jog|gripper|corner`: hardware-in-loop commands.
+
+Each takes `--interface/--channel` (default: the simulated cell on python-can's virtual
+bus, served in this process, so every command runs here as is). On any other interface the
+commands that move ask for confirmation first (or take `--yes`), and Ctrl-C quick-stops
+every axis before exiting.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import signal
+import sys
+import threading
+
+JOG_MAX = {"deg": 10.0, "mm": 10.0}  # the largest jog step: "a small step"
+CORNERS = ("near-left", "near-right", "far-left", "far-right")  # near = small x, left = +y
+
+
+def add_arguments(p) -> None:
+    words = p.get_default("_words")
+    p.add_argument(
+        "--interface",
+        default="virtual",
+        help="python-can interface (default: virtual, with the simulated drives in this process)",
+    )
+    p.add_argument("--channel", default=None, help="CAN channel (default: a private virtual channel; can0 ...)")
+    p.add_argument("--cell", default=None, help="cell file (default: the shipped cell)")
+    if words[1] == "sim":
+        p.add_argument(
+            "--seconds",
+            type=float,
+            default=None,
+            help="stop after this many seconds (default: until SIGINT/SIGTERM)",
+        )
+        return
+    p.add_argument("--json", action="store_true", help="print JSON (one object per line)")
+    p.add_argument(
+        "--simulated-time",
+        action="store_true",
+        help="run the in-process simulated drives in simulated time (fast; for tests and CI)",
+    )
+    p.add_argument("--record", default=None, help="record the CAN traffic to this python-can log (.asc/.log/.blf)")
+    if words[1] != "status":
+        p.add_argument("--yes", action="store_true", help="do not ask before moving real hardware")
+    if words[1] == "jog":
+        p.add_argument("joint", choices=("j1", "j2", "j3", "j4"))
+        p.add_argument(
+            "step", type=float, help=f"signed step in deg (j1, j2, j4) or mm (j3), at most {JOG_MAX['deg']:g}"
+        )
+    elif words[1] == "gripper":
+        p.add_argument("action", choices=("open", "grip"))
+        p.add_argument("--width", type=float, default=None, help="grip: the expected part width, mm")
+        p.add_argument("--force", type=float, default=None, help="grip: force limit, N (default: the cell's)")
+        p.add_argument(
+            "--part",
+            type=float,
+            default=None,
+            help="simulated cell only: width of a part placed between the jaws, mm",
+        )
+    elif words[1] == "corner":
+        p.add_argument("--corner", choices=CORNERS, default="far-right")
+        p.add_argument("--dwell", type=float, default=0.5, help="seconds to stay at the corner")
+
+
+def run(args) -> int:
+    from cell.cellconfig import load_cell
+
+    cell = load_cell(args.cell)
+    if args._words[1] == "sim":
+        return _serve(args, cell)
+    return {"status": _status, "home": _home, "jog": _jog, "gripper": _gripper, "corner": _corner}[args._words[1]](
+        args, cell
+    )
+
+
+# --- sessions -------------------------------------------------------------------------------
+def _simulated(args) -> bool:
+    return args.interface == "virtual"
+
+
+@contextlib.contextmanager
+def _session(args, cell, *, enable: bool = True):
+    """A connected arm: the in-process simulated cell on 'virtual', else the real bus."""
+    from drivers import RealClock, SimClock, real_cell, simulated_cell
+
+    if _simulated(args):
+        clock = SimClock() if args.simulated_time else RealClock()
+        session = simulated_cell(cell, clock, channel=args.channel, record=args.record, enable=enable)
+        try:
+            with session as (arm, drives):
+                yield arm, drives
+        finally:
+            clock.close()
+    else:
+        with real_cell(args.interface, args.channel or "can0", cell, record=args.record, enable=enable) as arm:
+            yield arm, None
+
+
+def _confirm(args, what: str) -> None:
+    """Ask before moving real hardware; the simulated cell needs no confirmation."""
+    from cell.errors import BadInput, CellError
+
+    if _simulated(args) or args.yes:
+        return
+    if not sys.stdin.isatty():
+        raise BadInput(f"refusing to {what} on {args.interface}:{args.channel} without confirmation: pass --yes")
+    answer = input(
+        f"About to {what} on the REAL cell ({args.interface}:{args.channel}). Keep clear. Type 'yes' to continue: "
+    )
+    if answer.strip().lower() != "yes":
+        raise CellError("aborted by the operator; nothing moved")
+
+
+@contextlib.contextmanager
+def _stop_on_interrupt(arm):
+    """Ctrl-C (or SIGTERM) during a move: quick-stop every axis, then leave with exit 130."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        arm.stop()
+        print("cell hw: interrupted, all axes quick-stopped", file=sys.stderr)
+        raise
+
+
+def _emit(args, obj: dict, text: str) -> None:
+    print(json.dumps(obj) if args.json else text)
+
+
+def _joints_text(j) -> str:
+    return f"j1 {j.j1_deg:.3f} deg, j2 {j.j2_deg:.3f} deg, j3 {j.j3_mm:.3f} mm, j4 {j.j4_deg:.3f} deg"
+
+
+# --- commands -------------------------------------------------------------------------------
+def _status(args, cell) -> int:
+    from drivers import Arm, SimClock, open_bus, sim
+
+    code, states, error = 0, None, None
+    if _simulated(args):
+        with contextlib.ExitStack() as stack:
+            from drivers.clock import RealClock
+
+            clock = SimClock() if args.simulated_time else RealClock()
+            stack.callback(clock.close)
+            channel = args.channel or "cell-hw-status"
+            sim_bus = open_bus("virtual", channel)
+            stack.callback(sim_bus.shutdown)
+            stack.enter_context(sim.serve(sim_bus, cell, clock=clock))
+            bus = open_bus("virtual", channel)
+            stack.callback(bus.shutdown)
+            states, error = _bring_up(Arm(bus, cell, clock=clock))
+    else:
+        bus = open_bus(args.interface, args.channel or "can0", cell.can.bitrate)
+        try:
+            states, error = _bring_up(Arm(bus, cell))
+        finally:
+            bus.shutdown()
+    for s in states.values():
+        row = {k: s[k] for k in ("node_id", "name", "state", "position", "unit", "nmt", "fault", "emcy")}
+        pos = "-" if s["position"] is None else f"{s['position']:.3f} {s['unit']}"
+        _emit(
+            args,
+            row,
+            f"{s['name']:8s} node {s['node_id']:3d}  {s['nmt']:16s} {s['state']:24s} {pos}"
+            + (f"  FAULT: {s['fault']}" if s["fault"] else ""),
+        )
+    if error is not None:
+        print(f"cell: error: {error}", file=sys.stderr)
+        code = 1
+    elif any(s["fault"] for s in states.values()):
+        print("cell: error: some nodes are faulted (see 'fault'); reset before moving", file=sys.stderr)
+        code = 1
+    return code
+
+
+def _bring_up(arm):
+    from drivers import DriverError
+
+    try:
+        arm.connect()
+    except DriverError as e:
+        return arm.state_at_failure or arm.state(), e
+    try:
+        arm.clock.sleep(0.05)  # one more round of heartbeats and TPDOs
+        return arm.state(), None
+    finally:
+        arm.disconnect()
+
+
+def _serve(args, cell) -> int:
+    """Serve the simulated drives until SIGINT/SIGTERM (or --seconds)."""
+    from drivers import open_bus, sim
+
+    stop = threading.Event()
+
+    def _on_signal(signum, frame):
+        stop.set()
+
+    old = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    bus = open_bus(args.interface, args.channel or ("cell-sim" if _simulated(args) else "vcan0"), cell.can.bitrate)
+    try:
+        with sim.serve(bus, cell) as drives:
+            names = ", ".join(f"{n['name']}={n['node_id']}" for n in drives.nodes)
+            print(
+                f"cell hw sim: simulated drives ({names}) on {args.interface}:{bus.channel_info}; "
+                "Ctrl-C or SIGTERM stops",
+                file=sys.stderr,
+                flush=True,
+            )
+            stop.wait(args.seconds)
+    finally:
+        bus.shutdown()
+        for s, h in old.items():
+            signal.signal(s, h)
+    print("cell hw sim: stopped", file=sys.stderr)
+    return 0
+
+
+def _move_in_steps(arm, target) -> None:
+    from drivers.limits import split_move
+
+    for waypoint in split_move(arm.joints(), target, arm.cell.scara.max_step):
+        arm.move_joints(waypoint)
+
+
+def _home(args, cell) -> int:
+    from cell.kinematics import Joints
+
+    home = Joints.from_dict(cell.motion.home_joints)
+    with _session(args, cell) as (arm, _):
+        start = arm.joints()
+        _confirm(args, f"home the arm from {_joints_text(start)}")
+        t0 = arm.clock.now()
+        with _stop_on_interrupt(arm):
+            if start.j3_mm < home.j3_mm:  # lift first, then swing
+                _move_in_steps(arm, Joints(start.j1_deg, start.j2_deg, home.j3_mm, start.j4_deg))
+            _move_in_steps(arm, home)
+        end = arm.joints()
+        _emit(
+            args,
+            {"from": start.as_dict(), "to": end.as_dict(), "time_s": round(arm.clock.now() - t0, 4)},
+            f"homed: {_joints_text(end)} ({arm.clock.now() - t0:.2f} s)",
+        )
+    return 0
+
+
+def _jog(args, cell) -> int:
+    from cell.errors import BadInput
+    from cell.kinematics import Joints
+
+    unit = cell.can.nodes[args.joint].unit
+    if not math.isfinite(args.step) or abs(args.step) > JOG_MAX[unit]:
+        raise BadInput(f"jog step {args.step} {unit} too large: at most {JOG_MAX[unit]:g} {unit}")
+    with _session(args, cell) as (arm, _):
+        start = arm.joints()
+        d = start.as_dict()
+        field = {"j1": "j1_deg", "j2": "j2_deg", "j3": "j3_mm", "j4": "j4_deg"}[args.joint]
+        d[field] += args.step
+        _confirm(args, f"jog {args.joint} by {args.step:+g} {unit}")
+        with _stop_on_interrupt(arm):
+            sent = arm.move_joints(Joints.from_dict(d))
+        end = arm.joints()
+        _emit(
+            args,
+            {"joint": args.joint, "from": start.as_dict(), "sent": sent.as_dict(), "to": end.as_dict()},
+            f"{args.joint}: {getattr(start, field):.3f} -> {getattr(end, field):.3f} {unit}",
+        )
+    return 0
+
+
+def _gripper(args, cell) -> int:
+    from cell.errors import BadInput
+
+    if args.action == "grip" and args.width is None:
+        raise BadInput("gripper grip needs --width (the expected part width, mm)")
+    if args.part is not None and not _simulated(args):
+        raise BadInput("--part places a part in the simulated cell only")
+    with _session(args, cell) as (arm, drives):
+        if drives is not None:
+            drives.gripper_object_width_mm = args.part
+        _confirm(args, f"{args.action} the gripper")
+        with _stop_on_interrupt(arm):
+            if args.action == "open":
+                width = arm.gripper.open()
+                _emit(args, {"action": "open", "width_mm": width}, f"gripper open: {width:.2f} mm")
+            else:
+                r = arm.gripper.grip(args.width, args.force)
+                _emit(
+                    args,
+                    {
+                        "action": "grip",
+                        "width_mm": r.width_mm,
+                        "holding": r.holding,
+                        "expected_width_mm": r.expected_width_mm,
+                    },
+                    f"gripper closed at {r.width_mm:.2f} mm: " + ("holding" if r.holding else "MISSED"),
+                )
+    return 0
+
+
+def _corner(args, cell) -> int:
+    from cell.errors import CellError
+    from cell.kinematics import Joints, inverse
+
+    x = cell.tray.x_mm[0] if args.corner.startswith("near") else cell.tray.x_mm[1]
+    y = cell.tray.y_mm[1] if args.corner.endswith("left") else cell.tray.y_mm[0]
+    z = cell.motion.safe_z_mm
+    with _session(args, cell) as (arm, _):
+        start = arm.joints()
+        solutions = inverse(x, y, z, 0.0, cell.scara)
+        if not solutions:
+            raise CellError(f"tray corner ({x:g}, {y:g}) is out of reach")
+        w = start.as_array()
+        corner = min(solutions, key=lambda q: float(abs(q.as_array() - w).max()))
+        corner = Joints(corner.j1_deg, corner.j2_deg, z, start.j4_deg + _wrap(corner.j4_deg - start.j4_deg))
+        _confirm(args, f"move to the {args.corner} tray corner ({x:g}, {y:g}) at z {z:g} and back")
+        t0 = arm.clock.now()
+        with _stop_on_interrupt(arm):
+            lifted = Joints(start.j1_deg, start.j2_deg, max(start.j3_mm, z), start.j4_deg)
+            _move_in_steps(arm, lifted)
+            _move_in_steps(arm, corner)
+            at_corner = arm.joints()
+            arm.clock.sleep(args.dwell)
+            _move_in_steps(arm, lifted)
+            _move_in_steps(arm, start)
+        end = arm.joints()
+        _emit(
+            args,
+            {
+                "corner": args.corner,
+                "corner_mm": [x, y, z],
+                "at_corner": at_corner.as_dict(),
+                "back": end.as_dict(),
+                "time_s": round(arm.clock.now() - t0, 4),
+            },
+            f"{args.corner} corner ({x:g}, {y:g}, {z:g}) reached at {_joints_text(at_corner)}; "
+            f"back at {_joints_text(end)}",
+        )
+    return 0
+
+
+def _wrap(a: float) -> float:
+    """Equivalent J4 turn nearest zero (the closing axis is a direction mod 180 degrees)."""
+    return (a + 90.0) % 180.0 - 90.0

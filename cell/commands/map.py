@@ -1,0 +1,40 @@
+"""`cell map CALIBRATION --px U,V ... [--z MM] --json` (or `--mm X,Y ...`): pixels <-> base frame."""
+
+from __future__ import annotations
+
+import json
+
+from cell.commands._vision_args import allow_negative_pairs, pair
+
+
+def add_arguments(p) -> None:
+    allow_negative_pairs(p)
+    p.add_argument("calibration", metavar="CALIBRATION", help="calibration file")
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--px", nargs="+", metavar="U,V", help="pixels (origin at the top-left pixel's corner)")
+    g.add_argument("--mm", nargs="+", metavar="X,Y", help="base-frame points, mm")
+    p.add_argument("--z", type=float, default=None, metavar="MM",
+                   help="height of the plane (default: the calibration's plane)")
+    p.add_argument("--json", action="store_true", help="print a JSON object")
+
+
+def run(args) -> int:
+    from calibration import load_calibration
+
+    cal = load_calibration(args.calibration)
+    if args.px:
+        pts = [pair(t, "--px") for t in args.px]
+        res = cal.px_to_mm(pts, args.z)
+        key = "mm"
+    else:
+        pts = [pair(t, "--mm") for t in args.mm]
+        res = cal.mm_to_px(pts, args.z)
+        key = "px"
+    out = {key: [[round(float(a), 4), round(float(b), 4)] for a, b in res],
+           "z_mm": cal.plane_z_mm if args.z is None else args.z}
+    if args.json:
+        print(json.dumps(out))
+    else:
+        for src, (a, b) in zip(pts, out[key], strict=True):
+            print(f"{src[0]:g},{src[1]:g} -> {a:.3f},{b:.3f} {key}")
+    return 0

@@ -1,0 +1,39 @@
+"""`cell replay DIR [--examples FILE] [--json]`.
+
+Re-runs perception and planning on a recorded session's frames with the simulated drives and
+checks that every decision and command matches the recording. Exit 0 when all match, 1 at
+the first divergence (named on stderr), 2 on a missing or corrupt recording. With
+`--examples FILE` (other teaching examples) the differences are listed instead (exit 0).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+
+def add_arguments(p):
+    p.add_argument("recording", metavar="DIR", help="a recording directory written by `cell run --record`")
+    p.add_argument("--examples", metavar="FILE", help="try another example file: report differences, not fail")
+    p.add_argument("--json", action="store_true", help="print the result as one JSON object")
+
+
+def run(args) -> int:
+    from cell.runtime.replay import Divergence, replay
+
+    try:
+        result = replay(args.recording, args.examples,
+                        progress=lambda s: print(s, file=sys.stderr if args.json else sys.stdout, flush=True))
+    except Divergence as e:
+        if args.json:
+            print(json.dumps({"match": False, "divergence": str(e)}))
+        print(f"cell replay: divergence: {e}", file=sys.stderr)
+        return 1
+    result["match"] = not result["differences"]
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(f"{result['matched']} of {result['decisions']} decisions match the recording")
+        for d in result["differences"]:
+            print(f"  differs: {d}")
+    return 0

@@ -1,0 +1,84 @@
+"""`cell run [ASSEMBLY] [--record DIR] [--json] [--rerun | --save FILE.rrd] [--station] ...`.
+
+Runs the disassembly in the simulated cell (the default on this machine: simulated world,
+simulated camera rendering frames through the calibration, simulated CANopen drives on
+python-can's virtual bus). With no arguments: the shipped default assembly.
+Exit 0 when the whole sequence was removed, 1 when the run stopped, 2 on bad input.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+
+def add_arguments(p):
+    p.add_argument("assembly", nargs="?", help="assembly JSON file (default: the shipped default assembly)")
+    p.add_argument("--sim", action="store_true", default=True,
+                   help="simulated cell: world, camera and CANopen drives on the virtual bus (the default)")
+    p.add_argument("--record", metavar="DIR", help="record the session into DIR (e.g. recordings/<name>)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON on the last stdout line")
+    p.add_argument("--rerun", action="store_true", help="show the run live in a rerun viewer")
+    p.add_argument("--save", metavar="FILE.rrd", help="write the rerun recording to FILE.rrd")
+    p.add_argument("--examples", metavar="FILE", help="teaching-example file (default: the shipped one)")
+    p.add_argument("--cell", metavar="FILE", help="cell file (default: the assembly's or the embedded default)")
+    p.add_argument("--calibration", metavar="FILE", help="camera calibration (default: the default cell's)")
+    p.add_argument("--on-no-grasp", choices=("stop", "skip"), default="stop",
+                   help="when a part has no feasible grasp: stop and ask (default) or skip it")
+    p.add_argument("--approve", action="store_true", help="ask the operator to approve each grasp (station)")
+    p.add_argument("--station", action="store_true", help="serve the operator station on 127.0.0.1")
+    p.add_argument("--port", type=int, default=8765, help="station port (default 8765)")
+    p.add_argument("--token", help="station token (default: a random one, printed)")
+    p.add_argument("--seed", type=int, default=0, help="simulated world: seed of part displacement and noise")
+    p.add_argument("--shift-mm", type=float, default=2.0,
+                   help="simulated world: parts lie up to this far from their nominal poses (default 2)")
+    p.add_argument("--sim-miss", metavar="PART[:N]", action="append", default=[],
+                   help="simulated world: the next N (default 1) grips of PART slide off it")
+    p.add_argument("--sim-stuck", metavar="PART", action="append", default=[],
+                   help="simulated world: PART never leaves the tray")
+
+
+def run(args) -> int:
+    from cell.errors import BadInput
+    from cell.runtime.session import RunConfig, run_session
+    from cell.runtime.simworld import WorldFaults
+
+    if args.approve and not args.station:
+        raise BadInput("--approve needs --station: someone must be there to approve")
+    if not 0.0 <= args.shift_mm <= 20.0:
+        raise BadInput("--shift-mm must be within 0..20 mm")
+    miss = {}
+    for m in args.sim_miss:
+        pid, _, n = m.partition(":")
+        try:
+            miss[pid] = int(n or 1)
+        except ValueError:
+            raise BadInput(f"--sim-miss {m!r}: expected PART or PART:N") from None
+    out = sys.stderr if args.json else sys.stdout
+    cfg = RunConfig(assembly=args.assembly, cell=args.cell, calibration=args.calibration, examples=args.examples,
+                    record=args.record, rerun=args.rerun, save_rrd=args.save, seed=args.seed,
+                    shift_mm=args.shift_mm, on_no_grasp=args.on_no_grasp, require_approval=args.approve,
+                    station=args.station, station_port=args.port, station_token=args.token,
+                    faults=WorldFaults(miss=miss, stuck=set(args.sim_stuck)),
+                    progress=lambda s: print(s, file=out, flush=True))
+    summary = run_session(cfg)
+    _print_summary(summary, out)
+    if args.json:
+        print(json.dumps(summary), flush=True)
+    return 0 if summary["status"] == "complete" and summary["parts_removed"] == summary["parts_total"] else 1
+
+
+def _print_summary(s: dict, out) -> None:
+    print(f"\n{s['assembly']}: {s['parts_removed']} of {s['parts_total']} parts removed "
+          f"({s['status']}), {s['grasps']} grasps", file=out)
+    for r in s["parts"]:
+        print(f"  {r['part']:<12} {r['outcome']:<8} attempts {r['attempts']}  cycle {r['cycle_s']:.2f} s "
+              f"(motion {r['motion_s']:.2f} s, planning {r['planning_s'] * 1000:.0f} ms) {r['reason']}", file=out)
+    if s["parts_removed"]:
+        print(f"  mean cycle {s['cycle_s_mean']:.2f} s, {s['picks_per_hour']:.0f} picks/hour, planning share "
+              f"{100 * s['planning_share']:.1f}%", file=out)
+        v, a = s["motion_limits"]["max_velocity"], s["motion_limits"]["max_acceleration"]
+        print(f"  motion limits: velocity {v}, acceleration {a} (cell file)", file=out)
+    for k in ("recording", "rrd", "stopped"):
+        if k in s:
+            print(f"  {k}: {s[k]}", file=out)

@@ -1,0 +1,78 @@
+"""`cell segment IMAGE... --json [--calibration FILE] [--z MM]`: frames -> part contours."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+
+def add_arguments(p) -> None:
+    p.add_argument("images", nargs="+", metavar="IMAGE", help="image file(s) to segment")
+    p.add_argument("--json", action="store_true", help="print JSON (one object per image, one per line)")
+    p.add_argument("--calibration", metavar="FILE",
+                   help="calibration file: adds outline_mm (base frame) to every part")
+    p.add_argument("--z", type=float, default=None, metavar="MM",
+                   help="height of the parts' tops for the mm mapping (default: the calibration's plane)")
+    p.add_argument("--reference", metavar="IMAGE", help="image of the empty tray under the same light")
+    p.add_argument("--min-area-mm2", type=float, default=75.0,
+                   help="with a calibration: regions smaller than this are specks (default 75)")
+    p.add_argument("--min-area-px", type=float, default=None,
+                   help="regions smaller than this many pixels are specks (default 300, or from --min-area-mm2)")
+    p.add_argument("--backlit", action="store_true",
+                   help="the tray is the bright side of the frame (a back-lit panel in a dark surround)")
+    p.add_argument("--no-shadow-aware", action="store_true",
+                   help="treat any darkening as a part (for back-lit trays or frames without shadows)")
+
+
+def run(args) -> int:
+    from dataclasses import replace
+
+    from calibration import load_calibration
+    from cell.vision.segment import SegmentParams, segment_frame, segment_to_mm
+    from cell.vision.sources import read_image
+
+    cal = None
+    if args.calibration:
+        cal = load_calibration(args.calibration)
+        if not cal.can_map:
+            from cell.errors import BadInput
+
+            raise BadInput(f"calibration {args.calibration} has no image -> base-frame mapping "
+                           "(it holds intrinsics only; run `cell calibrate plane`)")
+    z = args.z if args.z is not None else (cal.plane_z_mm if cal else 0.0)
+    params = SegmentParams.for_calibration(cal, args.min_area_mm2, z) if cal else SegmentParams()
+    if args.min_area_px is not None:
+        params = replace(params, min_area_px=args.min_area_px)
+    if args.backlit:
+        params = replace(params, tray="bright")
+    if args.no_shadow_aware:
+        params = replace(params, shadow_aware=False)
+    frames = [(path, read_image(path)) for path in args.images]  # all bad files refused before any output
+    reference = read_image(args.reference) if args.reference else None
+    for path, frame in frames:
+        if cal is not None:
+            cal.check_frame(frame, f"image {path}")
+        segs = segment_frame(frame, params, reference_bgr=reference)
+        parts = []
+        for seg in segs:
+            d = seg.to_json()
+            if cal is not None:
+                outline_mm, holes_mm = segment_to_mm(seg, cal, z)
+                d["outline_mm"] = [[round(float(x), 3), round(float(y), 3)] for x, y in outline_mm]
+                d["holes_mm"] = [[[round(float(x), 3), round(float(y), 3)] for x, y in h] for h in holes_mm]
+                d["centroid_mm"] = [round(float(v), 3) for v in cal.px_to_mm(seg.centroid_px, z)[0]]
+                d["z_mm"] = z
+            parts.append(d)
+        h, w = frame.shape[:2]
+        out = {"image": str(path), "width_px": w, "height_px": h, "parts": parts}
+        if args.json:
+            print(json.dumps(out))
+        else:
+            print(f"{path}: {len(parts)} part(s)")
+            for i, d in enumerate(parts):
+                flags = ", ".join(f for f in ("merged", "cut_off") if d[f])
+                print(f"  #{i}: area {d['area_px']:.0f} px, centroid ({d['centroid_px'][0]:.1f}, "
+                      f"{d['centroid_px'][1]:.1f}) px, {len(d['holes_px'])} hole(s)" + (f" [{flags}]" if flags
+                                                                                      else ""))
+    sys.stdout.flush()
+    return 0

@@ -1,0 +1,59 @@
+"""`cell station`: serve the operator station (local web page) for the demo cell.
+
+The cell loop (`cell run --station`, the lead's) serves the same page for the real cell; this
+command serves it for `cell.station.demo.DemoCell`, a small simulated tray, so the page can
+be tried and shown without the rest of the cell.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--host", default="127.0.0.1", help="interface to bind (default 127.0.0.1: this PC only)")
+    p.add_argument("--port", type=int, default=8765, help="TCP port (default 8765; 0 = any free port)")
+    p.add_argument("--token", help="session token for commands (default: a random one, printed)")
+    p.add_argument("--allow-remote", action="store_true",
+                   help="allow binding to a non-loopback address (the token then guards the arm)")
+    p.add_argument("--examples", default="station_examples.jsonl",
+                   help="example file taught and rejected grasps are appended to "
+                        "(default ./station_examples.jsonl)")
+    p.add_argument("--approve-each", action="store_true", help="start with 'approve each grasp' on")
+    p.add_argument("--motion-s", type=float, default=1.0, help="simulated duration of one pick (s)")
+    p.add_argument("--for-s", type=float, default=None, help="serve this long, then exit (default: until ^C)")
+
+
+def run(args) -> int:
+    import time
+
+    from cell.errors import BadInput
+    from cell.runtime.control import RunControl
+    from cell.station.demo import DemoCell
+    from cell.station.server import StationServer
+
+    if not (0 <= args.port <= 65535):
+        raise BadInput(f"--port must be 0..65535, not {args.port}")
+    if args.motion_s < 0:
+        raise BadInput("--motion-s must not be negative")
+    control = RunControl(require_approval=args.approve_each)
+    cell = DemoCell(control, args.examples, motion_s=args.motion_s)
+    server = StationServer(cell, control, host=args.host, port=args.port, token=args.token,
+                           allow_remote=args.allow_remote)
+    with server:
+        cell.start()
+        print(f"operator station (demo cell) at {server.base_url}", flush=True)
+        print(f"open: {server.url}", flush=True)
+        print(f"token: {server.token}", flush=True)
+        print(f"examples: {args.examples}", flush=True)
+        try:
+            if args.for_s is not None:
+                time.sleep(max(0.0, args.for_s))
+            else:
+                while True:
+                    time.sleep(3600)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            cell.close()
+    return 0

@@ -1,0 +1,474 @@
+"""Session recordings: everything `cell run --record DIR` needs to replay and audit a session.
+
+Layout of a recording directory (format "cell-recording", version 1):
+
+    manifest.json      format, version, created/closed times, software version, status
+                       ("recording" while open, then "complete" or "incomplete"), files, counts
+    cell.json          copy of the cell file used (the embedded default when none was given)
+    calibration.json   copy of the calibration file used (absent when none was given)
+    frames/000000.png  the camera frames, PNG, each written atomically
+    decisions.jsonl    one JSON object per decision (segmented parts, grasp, configuration,
+                       commands ...), flushed and fsynced line by line
+    can.log            the CAN traffic in candump format (python-can's Logger / LogReader)
+    session.rrd        the rerun recording (written by cell.viz to `rrd_path`)
+
+The manifest is written atomically at the start and again at `close`. A crash leaves a
+manifest that still says "recording", every finished decision line and every whole frame;
+`RecordingReader` reports such a recording as incomplete (with the torn last line, if any,
+dropped) instead of refusing it. Anything else that is wrong is a `BadInput` naming the
+file and line.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import platform
+import re
+import shutil
+import threading
+from collections.abc import Callable, Iterator
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+
+from cell.errors import BadInput
+from cell.fileio import read_json, write_atomic, write_json_atomic
+
+FORMAT = "cell-recording"
+VERSION = 1
+MANIFEST = "manifest.json"
+DECISIONS = "decisions.jsonl"
+FRAMES_DIR = "frames"
+CAN_LOG = "can.log"
+RRD = "session.rrd"
+STATUSES = ("recording", "complete", "incomplete")
+_FRAME_RE = re.compile(r"^(\d{6,})\.png$")
+
+
+def _now_iso() -> str:
+    return datetime.now(UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
+
+
+def _sha256(path: Path) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def to_jsonable(obj):
+    """numpy arrays and scalars, tuples, Paths and objects with `as_dict`/`to_json` -> plain JSON."""
+    if isinstance(obj, dict):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return to_jsonable(obj.tolist())
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        f = float(obj)
+        if not math.isfinite(f):
+            raise ValueError(f"decision holds a non-finite number ({f}); JSON cannot store it")
+        return f
+    if isinstance(obj, Path):
+        return str(obj)
+    for method in ("to_json", "as_dict"):
+        if hasattr(obj, method):
+            return to_jsonable(getattr(obj, method)())
+    if obj is None or isinstance(obj, (str, int, bool)):
+        return obj
+    raise TypeError(f"cannot record a {type(obj).__name__} in a decision")
+
+
+def _flushing_logger(writer):
+    """Wrap a python-can writer (a `can.Listener`) so that it flushes after every frame."""
+    import can
+
+    class FlushingLogger(can.Listener):
+        """Writes through a `can.Logger` and flushes after every frame (a crash loses at most
+        the frame being written)."""
+
+        def __init__(self):
+            self._lock = threading.Lock()
+
+        def on_message_received(self, msg) -> None:
+            with self._lock:
+                writer.on_message_received(msg)
+                f = getattr(writer, "file", None)
+                if f is not None:
+                    f.flush()
+
+        def stop(self) -> None:
+            with self._lock:
+                writer.stop()
+
+    return FlushingLogger()
+
+
+class RecordingWriter:
+    """Write one session into `directory` (created; refused if it already holds a recording).
+
+    Parameters
+    ----------
+    directory : path of the recording directory.
+    cell_file : the cell file used, copied as cell.json (None: the embedded default cell).
+    calibration_file : the calibration used, copied as calibration.json (None: none used).
+    examples_file : the teaching-example file; its path and sha256 go into the manifest.
+    meta : free JSON-able information for the manifest (command line, assembly, ...).
+    """
+
+    def __init__(self, directory, *, cell_file=None, calibration_file=None, examples_file=None,
+                 meta: dict | None = None):
+        self.dir = Path(directory)
+        if (self.dir / MANIFEST).exists():
+            raise BadInput(f"recording directory {self.dir} already holds a recording; choose a new name")
+        if self.dir.exists() and not self.dir.is_dir():
+            raise BadInput(f"recording directory {self.dir} is a file")
+        self.dir.mkdir(parents=True, exist_ok=True)
+        (self.dir / FRAMES_DIR).mkdir(exist_ok=True)
+
+        from cell import __version__
+        from cell.cellconfig import default_cell_path
+
+        cell_src = Path(cell_file) if cell_file is not None else default_cell_path()
+        if not cell_src.is_file():
+            raise BadInput(f"cell file {cell_src} does not exist")
+        shutil.copyfile(cell_src, self.dir / "cell.json")
+        files = {"cell": "cell.json", "calibration": None, "decisions": DECISIONS, "frames": FRAMES_DIR,
+                 "can_log": CAN_LOG, "rrd": RRD}
+        if calibration_file is not None:
+            cal = Path(calibration_file)
+            if not cal.is_file():
+                raise BadInput(f"calibration file {cal} does not exist")
+            shutil.copyfile(cal, self.dir / "calibration.json")
+            files["calibration"] = "calibration.json"
+        examples = None
+        if examples_file is not None:
+            ex = Path(examples_file)
+            if not ex.is_file():
+                raise BadInput(f"example file {ex} does not exist")
+            examples = {"path": str(ex.resolve()), "sha256": _sha256(ex)}
+
+        self._lock = threading.Lock()
+        self._frame_indices: set[int] = set()
+        self._n_decisions = 0
+        self._closed = False
+        self._can_stops: list[Callable[[], None]] = []
+        self.manifest = {
+            "format": FORMAT, "version": VERSION, "status": "recording",
+            "created": _now_iso(), "closed": None,
+            "software": {"name": "disassembly-cell", "version": __version__,
+                         "python": platform.python_version()},
+            "cell_source": str(Path(cell_file).resolve()) if cell_file is not None else "embedded default",
+            "calibration_source": str(Path(calibration_file).resolve()) if calibration_file else None,
+            "examples": examples, "files": files, "counts": {"frames": 0, "decisions": 0},
+            "meta": to_jsonable(meta or {}),
+        }
+        write_json_atomic(self.dir / MANIFEST, self.manifest)
+        self._decisions = open(self.dir / DECISIONS, "a", encoding="utf-8")  # noqa: SIM115 - held open
+
+    # -- paths the lead's loop attaches other writers to
+    @property
+    def can_log_path(self) -> Path:
+        return self.dir / CAN_LOG
+
+    @property
+    def rrd_path(self) -> Path:
+        return self.dir / RRD
+
+    def write_frame(self, index: int, frame_bgr: np.ndarray) -> str:
+        """Store a frame as frames/NNNNNN.png (atomically); returns that relative path."""
+        import cv2
+
+        if self._closed:
+            raise RuntimeError("recording is closed")
+        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or index < 0:
+            raise ValueError(f"frame index must be a non-negative integer, got {index!r}")
+        a = np.asarray(frame_bgr)
+        if a.dtype != np.uint8 or not (a.ndim == 2 or (a.ndim == 3 and a.shape[2] in (1, 3, 4))):
+            raise ValueError(f"frame must be uint8 of shape (h, w) or (h, w, 3), got {a.dtype} {a.shape}")
+        ok, png = cv2.imencode(".png", a)
+        if not ok:
+            raise ValueError("frame could not be encoded as PNG")
+        rel = f"{FRAMES_DIR}/{int(index):06d}.png"
+        write_atomic(self.dir / rel, png.tobytes())
+        with self._lock:
+            self._frame_indices.add(int(index))
+        return rel
+
+    def write_decision(self, record: dict) -> None:
+        """Append one decision as a JSON line, flushed and fsynced before returning."""
+        if not isinstance(record, dict):
+            raise TypeError("a decision is a dict")
+        line = json.dumps(to_jsonable(record), separators=(",", ":"), allow_nan=False)
+        with self._lock:
+            if self._closed:
+                raise RuntimeError("recording is closed")
+            self._decisions.write(line + "\n")
+            self._decisions.flush()
+            os.fsync(self._decisions.fileno())
+            self._n_decisions += 1
+
+    def attach_can_logger(self, bus=None, *, notifier=None) -> Callable[[], None]:
+        """Log every frame seen on the bus into can_log_path (candump format).
+
+        The simplest is not to call this at all: `drivers.session.simulated_cell(record=
+        rec.can_log_path)` (and `real_cell`) record with a bus of their own on the channel,
+        like candump, hearing host and drives alike. Otherwise give either `bus` (best: a bus
+        of its own on the channel; a new `can.Notifier` is started on it) or `notifier`, the one that
+        already reads the bus (e.g. canopen's `network.notifier`): two notifiers on one bus
+        would split its frames between them. Returns a function that detaches the logger
+        and closes the log (also called by `close`). The notifier sees received frames; a
+        master's own frames appear when the bus echoes them (python-can's virtual bus with
+        receive_own_messages=True) or when the caller passes them to the logger itself.
+        """
+        import can
+
+        if (bus is None) == (notifier is None):
+            raise ValueError("give either bus or notifier")
+        listener = _flushing_logger(can.Logger(str(self.can_log_path)))
+        if notifier is None:
+            notifier = can.Notifier(bus, [listener], timeout=0.1)
+            own = True
+        else:
+            notifier.add_listener(listener)
+            own = False
+        done = threading.Event()
+
+        def stop() -> None:
+            if done.is_set():
+                return
+            done.set()
+            if own:
+                notifier.stop()
+            else:
+                notifier.remove_listener(listener)
+            listener.stop()
+
+        self._can_stops.append(stop)
+        return stop
+
+    @property
+    def counts(self) -> dict:
+        with self._lock:
+            return {"frames": len(self._frame_indices), "decisions": self._n_decisions}
+
+    def close(self, status: str = "complete", summary: dict | None = None) -> None:
+        """Stop the CAN logger(s), close the decision file and rewrite the manifest."""
+        if status not in ("complete", "incomplete"):
+            raise ValueError(f"status must be 'complete' or 'incomplete', not {status!r}")
+        for stop in self._can_stops:
+            stop()
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            self._decisions.close()
+            self.manifest.update(status=status, closed=_now_iso(),
+                                 counts={"frames": len(self._frame_indices), "decisions": self._n_decisions})
+            if summary is not None:
+                self.manifest["summary"] = to_jsonable(summary)
+            if not self.can_log_path.exists():
+                self.manifest["files"]["can_log"] = None
+            if not self.rrd_path.exists():
+                self.manifest["files"]["rrd"] = None
+        write_json_atomic(self.dir / MANIFEST, self.manifest)
+
+    def __enter__(self) -> RecordingWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.close("complete" if exc_type is None else "incomplete")
+
+
+class RecordingReader:
+    """Open and validate a recording directory.
+
+    Attributes
+    ----------
+    manifest : dict, the manifest as read.
+    status : "complete", or "incomplete" (closed so, or the writer never closed: a crash).
+    complete : bool.
+    problems : list of str, what makes it incomplete (never fatal).
+    decisions : list of dict, every whole decision line, in order.
+    """
+
+    def __init__(self, directory):
+        self.dir = Path(directory)
+        if not self.dir.exists():
+            raise BadInput(f"recording {self.dir} does not exist")
+        if not self.dir.is_dir():
+            raise BadInput(f"recording {self.dir} is not a directory")
+        mpath = self.dir / MANIFEST
+        if not mpath.exists():
+            raise BadInput(f"recording {self.dir} has no {MANIFEST}: not a recording, or never started")
+        m = read_json(mpath, "recording manifest")
+        if not isinstance(m, dict) or m.get("format") != FORMAT:
+            fmt = m.get("format") if isinstance(m, dict) else None
+            raise BadInput(f"{mpath}: not a {FORMAT} manifest (format={fmt!r})")
+        if m.get("version") != VERSION:
+            raise BadInput(f"{mpath}: version {m.get('version')!r} is not supported (reader: {VERSION})")
+        if m.get("status") not in STATUSES:
+            raise BadInput(f"{mpath}: status must be one of {', '.join(STATUSES)}, not {m.get('status')!r}")
+        files = m.get("files")
+        if not isinstance(files, dict) or not isinstance(files.get("cell"), str):
+            raise BadInput(f"{mpath}: 'files' must name at least the cell file")
+        self.manifest = m
+        self.problems: list[str] = []
+        if m["status"] == "recording":
+            self.problems.append("the writer was never closed (the session crashed or was killed)")
+        elif m["status"] == "incomplete":
+            self.problems.append("the session ended early (closed as incomplete)")
+
+        self.cell_path = self.dir / files["cell"]
+        if not self.cell_path.is_file():
+            raise BadInput(f"recording {self.dir}: the cell file copy {files['cell']} is missing")
+        cal = files.get("calibration")
+        self.calibration_path = self.dir / cal if cal else None
+        if self.calibration_path is not None and not self.calibration_path.is_file():
+            raise BadInput(f"recording {self.dir}: the calibration copy {cal} is missing")
+
+        self.decisions = self._read_decisions()
+        self._frames = self._index_frames()
+        counts = m.get("counts") or {}
+        if m["status"] != "recording":  # a closed manifest states its counts: they must match
+            if counts.get("decisions") != len(self.decisions):
+                raise BadInput(f"recording {self.dir}: {DECISIONS} holds {len(self.decisions)} decisions, "
+                               f"the manifest says {counts.get('decisions')}")
+            if counts.get("frames") != len(self._frames):
+                raise BadInput(f"recording {self.dir}: {FRAMES_DIR}/ holds {len(self._frames)} frames, "
+                               f"the manifest says {counts.get('frames')}")
+
+    @property
+    def status(self) -> str:
+        return "complete" if self.manifest["status"] == "complete" and not self.problems else "incomplete"
+
+    @property
+    def complete(self) -> bool:
+        return self.status == "complete"
+
+    @property
+    def examples_sha256(self) -> str | None:
+        ex = self.manifest.get("examples")
+        return ex.get("sha256") if isinstance(ex, dict) else None
+
+    @property
+    def examples_path(self) -> Path | None:
+        ex = self.manifest.get("examples")
+        return Path(ex["path"]) if isinstance(ex, dict) and ex.get("path") else None
+
+    def examples_match(self, path) -> bool:
+        """True when the example file at `path` is the one the session used (same sha256)."""
+        return self.examples_sha256 is not None and _sha256(Path(path)) == self.examples_sha256
+
+    @property
+    def can_log_path(self) -> Path | None:
+        p = self.dir / CAN_LOG
+        return p if p.exists() else None
+
+    @property
+    def rrd_path(self) -> Path | None:
+        p = self.dir / RRD
+        return p if p.exists() else None
+
+    # -- decisions
+    def _read_decisions(self) -> list[dict]:
+        path = self.dir / DECISIONS
+        if not path.exists():
+            if self.manifest["status"] == "recording":
+                return []
+            raise BadInput(f"recording {self.dir}: {DECISIONS} is missing")
+        raw = path.read_bytes()
+        lines = raw.split(b"\n")
+        torn = lines[-1] if lines and lines[-1] else b""  # bytes after the last newline
+        out = []
+        for lineno, line in enumerate(lines[:-1], 1):
+            if not line.strip():
+                continue
+            out.append(self._parse_line(path, lineno, line))
+        if torn.strip():
+            try:
+                rec = self._parse_line(path, len(lines), torn)
+            except BadInput:
+                self.problems.append(f"{DECISIONS} line {len(lines)} is torn (cut off by a crash); dropped")
+            else:  # a whole object, only its newline is missing
+                out.append(rec)
+                self.problems.append(f"{DECISIONS} line {len(lines)} has no final newline")
+        return out
+
+    def _parse_line(self, path: Path, lineno: int, line: bytes) -> dict:
+        try:
+            rec = json.loads(line.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as e:
+            msg = e.msg if isinstance(e, json.JSONDecodeError) else "not UTF-8"
+            raise BadInput(f"recording {path} line {lineno}: not valid JSON ({msg})") from None
+        if not isinstance(rec, dict):
+            raise BadInput(f"recording {path} line {lineno}: a decision must be a JSON object")
+        return rec
+
+    # -- frames
+    def _index_frames(self) -> dict[int, Path]:
+        d = self.dir / FRAMES_DIR
+        out = {}
+        if d.is_dir():
+            for p in d.iterdir():
+                m = _FRAME_RE.match(p.name)
+                if m:
+                    out[int(m.group(1))] = p
+        return dict(sorted(out.items()))
+
+    @property
+    def frame_indices(self) -> list[int]:
+        return list(self._frames)
+
+    def frame_path(self, index: int) -> Path:
+        if index not in self._frames:
+            raise BadInput(f"recording {self.dir} has no frame {index}")
+        return self._frames[index]
+
+    def read_frame(self, index: int) -> np.ndarray:
+        """The frame as stored, BGR uint8 of shape (h, w, 3) (or (h, w) for grey frames)."""
+        import cv2
+
+        p = self.frame_path(index)
+        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise BadInput(f"recording frame {p} cannot be decoded as PNG")
+        return img
+
+    def frames(self) -> Iterator[tuple[int, np.ndarray]]:
+        for i in self._frames:
+            yield i, self.read_frame(i)
+
+    # -- CAN traffic
+    def can_messages(self) -> list:
+        """Every CAN frame of the session as `can.Message`, read by python-can's LogReader.
+        A line torn by a crash at the end is dropped (and noted in `problems`)."""
+        import can
+
+        path = self.can_log_path
+        if path is None:
+            return []
+        text = path.read_text(encoding="ascii", errors="replace")
+        if text and not text.endswith("\n"):
+            text = text[: text.rfind("\n") + 1]
+            self.problems.append(f"{CAN_LOG}: the last line is torn (cut off by a crash); dropped")
+            reader = can.CanutilsLogReader(io.StringIO(text))
+        else:
+            reader = can.LogReader(str(path))
+        try:
+            return list(reader)
+        except (ValueError, IndexError) as e:
+            raise BadInput(f"recording {path}: not a readable candump log ({e})") from None
+        finally:
+            reader.stop()

@@ -1,0 +1,431 @@
+"""The cell loop: frame -> segmentation -> which part is where -> the next part of the
+sequence -> grasp and configuration -> pick commands -> the arm, until the sequence is done.
+
+The loop only sees its sources (a camera with `read()`, an `Arm` on a CAN bus) and its
+sinks (a decision sink such as a `RecordingWriter`, an optional rerun `Viz`, the
+`RunControl` the operator acts through). Simulated or real, recorded or live, is decided by
+whoever builds those; `cell replay` runs this same code on recorded frames.
+
+Failures, as an operator wants them handled (each is logged with its reason):
+- no feasible grasp: stop and ask, or skip the part (`on_no_grasp="skip"`);
+- a missed grip (jaws closed past the expected width): open, lift, retry once with the next
+  best grasp, then stop and ask;
+- a part that did not leave the tray (seen again where it was picked): stop and ask;
+- a drive fault: the arm has stopped every axis; stop until the operator resets;
+- a missing or unreadable frame: retry, then stop and ask.
+"Stop and ask" waits for the operator at the station; without an operator (plain `cell run`)
+the run ends there with the reason.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+from shapely.geometry import Polygon
+
+from cell.cellconfig import Cell
+from cell.errors import BadInput, CellError, NoFeasibleGrasp
+from cell.examples import GraspExample, append_examples, load_examples
+from cell.fileio import write_atomic
+from cell.grasp.synthesis import Grasp, GraspPlanner
+from cell.runtime.control import Faulted, RunControl, Stopped
+from cell.runtime.matching import Region, locate
+from cell.runtime.motion import above, pick_commands
+from cell.scene import Assembly, Part, Scene
+
+
+class StopRun(CellError):
+    """The loop stopped and nobody is there to answer (no station): the reason is the message."""
+
+
+@dataclass
+class LoopOptions:
+    on_no_grasp: str = "stop"  # "stop" (ask the operator) or "skip" the part
+    frame_retries: int = 2
+    grip_retries: int = 1  # retries with the next best grasp after a missed grip
+    interactive: bool = False  # an operator answers (the station); else a stop ends the run
+    min_area_mm2: float = 75.0  # smaller regions are dust
+
+
+@dataclass
+class PartReport:
+    part: str
+    outcome: str  # removed | skipped
+    attempts: int = 0
+    motion_s: float = 0.0  # on the arm's clock (simulated seconds in simulation)
+    planning_s: float = 0.0  # wall time of perception and planning
+    reason: str = ""
+
+    @property
+    def cycle_s(self) -> float:
+        return self.motion_s + self.planning_s
+
+    def to_json(self) -> dict:
+        return {"part": self.part, "outcome": self.outcome, "attempts": self.attempts,
+                "motion_s": round(self.motion_s, 3), "planning_s": round(self.planning_s, 4),
+                "cycle_s": round(self.cycle_s, 3), "reason": self.reason}
+
+
+class DecisionSink:
+    """Where decisions go (a RecordingWriter, a replay comparison); the default drops them."""
+
+    def write_frame(self, index: int, frame_bgr) -> str | None:
+        return None
+
+    def write_decision(self, record: dict) -> None:
+        pass
+
+
+@dataclass
+class LoopState:
+    """What the station shows: the last frame, what was seen there, the pending proposal."""
+
+    frame: np.ndarray | None = None
+    frame_index: int | None = None
+    seen: dict = field(default_factory=dict)  # part id -> Part at its measured pose
+    proposal: dict | None = None
+
+
+class CellLoop:
+    def __init__(self, *, cell: Cell, calibration, assembly: Assembly, camera, arm, control: RunControl,
+                 examples_path: str | Path, sink: DecisionSink | None = None, viz=None,
+                 options: LoopOptions | None = None, planner_params=None, examples_out: str | Path | None = None):
+        from cell.vision import SegmentParams
+
+        self.cell, self.cal, self.assembly = cell, calibration, assembly
+        self.camera, self.arm, self.control = camera, arm, control
+        self.examples_path = Path(examples_path)
+        # New examples (rejects, teaching) go here; the first one starts it as a copy of the
+        # examples in use (the shipped default file is never written).
+        self.examples_out = Path(examples_out) if examples_out is not None else self.examples_path
+        self.sink = sink or DecisionSink()
+        self.viz = viz
+        self.options = options or LoopOptions()
+        self.planner_params = planner_params
+        self.segment_params = SegmentParams.for_calibration(calibration, self.options.min_area_mm2)
+        self.poses: dict[str, Part] = {p.id: p for p in assembly.parts}
+        self.remaining: list[str] = list(assembly.sequence)
+        self.reports: list[PartReport] = []
+        self.state = LoopState()
+        self._frame_counter = 0
+        self._last_picked: tuple[str, Part] | None = None
+        self.rebuild_planner()
+
+    # ------------------------------------------------------------------ learning
+    def rebuild_planner(self) -> None:
+        """Re-read the example file and fit both trees again (after a reject or a teach)."""
+        self.examples = load_examples(self.examples_path)
+        self.planner = GraspPlanner(self.cell, self.examples, self.planner_params)
+
+    def add_example(self, example: GraspExample) -> None:
+        if self.examples_out != self.examples_path:
+            if not self.examples_out.exists():
+                write_atomic(self.examples_out, self.examples_path.read_bytes())
+            self.examples_path = self.examples_out
+        append_examples(self.examples_path, [example])
+        self.rebuild_planner()
+        self.control.log("example", f"{'valid' if example.valid else 'invalid'} example {example.id} added; "
+                         "model rebuilt", id=example.id)
+
+    # ------------------------------------------------------------------ the loop
+    def run(self) -> dict:
+        self.control.log("start", f"disassembly of {self.assembly.name}: {len(self.remaining)} parts")
+        while self.remaining or self._last_picked is not None:
+            try:
+                if self.remaining:
+                    self._one_part(self.remaining[0])
+                else:
+                    self._final_check()
+            except (Stopped, StopRun):
+                raise
+            except Faulted:
+                continue  # a fault was reported meanwhile: the next checkpoint holds until reset
+            except CellError as e:  # drive faults and anything else the cell reports
+                self._stop_and_ask(getattr(e, "node", None) or "cell", str(e))
+        summary = self.summary()
+        self.sink.write_decision({"type": "summary", **summary})
+        self.control.done(summary)
+        return summary
+
+    def _one_part(self, part_id: str) -> None:
+        self.control.checkpoint("frame", step=len(self.assembly.sequence) - len(self.remaining), part=part_id)
+        if self.arm.faults:
+            self.arm.reset_faults()
+            self._retreat()
+        frame, index = self._read_frame()
+        t0 = time.perf_counter()
+        located = self._perceive(frame, index)
+        if not self._last_pick_left(located):
+            return
+        if part_id not in located:
+            self._stop_and_ask("vision", f"{part_id} is not found in frame {index}")
+            return
+        present = [p for p in self.remaining if p in self.poses]
+        scene = Scene(tuple(self.poses[p] for p in present), part_id, source=f"frame {index}")
+        report = PartReport(part_id, "removed")
+        grasps = self._plan(scene, part_id)
+        report.planning_s += time.perf_counter() - t0
+        if grasps is None:
+            return
+        attempt = 0
+        while True:
+            t1 = time.perf_counter()
+            grasp = grasps[attempt] if attempt < len(grasps) else None
+            if grasp is None:
+                self._stop_and_ask("planner", f"{part_id}: no further grasp to try")
+                return
+            if grasp.joints is None and self.planner.choose_for(grasp, scene) is None:
+                attempt += 1  # step 5 finds no configuration whose links clear the parts
+                continue
+            decision = self._approve(grasp, scene, attempt)
+            report.planning_s += time.perf_counter() - t1
+            if not decision.approved:
+                self._rejected(grasp, scene, decision.reason)
+                t2 = time.perf_counter()
+                grasps = self._plan(scene, part_id)
+                report.planning_s += time.perf_counter() - t2
+                if grasps is None:
+                    return
+                attempt = 0
+                continue
+            report.attempts += 1
+            records = self._execute(grasp, part_id, attempt)
+            report.motion_s += records[-1]["t_end_s"] - records[0]["t_start_s"]
+            if records[-1].get("holding") is not False:
+                break
+            self.control.log("miss", f"{part_id}: the jaws closed to {records[-1]['width_mm']:.1f} mm, expected "
+                             f"{grasp.opening_mm:.1f} mm: missed", part=part_id)
+            t3 = self.arm.clock.now()
+            self._retreat()
+            report.motion_s += self.arm.clock.now() - t3
+            attempt += 1
+            if attempt > self.options.grip_retries:
+                self._stop_and_ask("gripper", f"{part_id}: missed {attempt} times")
+                return
+        self.remaining.remove(part_id)
+        self._last_picked = (part_id, self.poses[part_id])
+        self.poses.pop(part_id)
+        self.reports.append(report)
+        self.sink.write_decision({"type": "outcome", **report.to_json()})
+        self.control.log("removed", f"{part_id} removed in {report.cycle_s:.2f} s", part=part_id)
+
+    def _final_check(self) -> None:
+        """One more frame after the last pick: the last part must be gone too."""
+        self.control.checkpoint("final frame")
+        frame, index = self._read_frame()
+        self._last_pick_left(self._perceive(frame, index))
+
+    def _last_pick_left(self, located: dict[str, Part]) -> bool:
+        """Is the part picked last gone from where it was? If not, it goes back to the front
+        of the sequence and the operator is asked."""
+        if self._last_picked is None:
+            return True
+        pid = self._last_picked[0]
+        self._last_picked = None
+        if pid in located:  # still on the tray, near where it was picked (perhaps it slipped)
+            self.remaining.insert(0, pid)
+            self.poses[pid] = located[pid]
+            self.reports = [r for r in self.reports if r.part != pid]
+            self._stop_and_ask("cell", f"{pid} did not leave the tray")
+            return False
+        return True
+
+    # ------------------------------------------------------------------ steps
+    def _read_frame(self):
+        last = None
+        for _ in range(self.options.frame_retries + 1):
+            try:
+                frame = self.camera.read()
+                if frame is None:
+                    raise BadInput("the camera returned no frame")
+                break
+            except (BadInput, OSError) as e:
+                last = e
+                self.control.log("frame", f"frame missing or unreadable: {e}")
+        else:
+            self._stop_and_ask("camera", f"no readable frame after {self.options.frame_retries + 1} tries: {last}")
+            raise Faulted(str(last))
+        index = self._frame_counter
+        self._frame_counter += 1
+        self.sink.write_frame(index, frame)
+        self.state.frame, self.state.frame_index = frame, index
+        if self.viz is not None:
+            self.viz.frame(index, frame)
+        return frame, index
+
+    def _perceive(self, frame, index: int) -> dict[str, Part]:
+        from cell.vision import segment_frame, segment_to_mm
+
+        segments = segment_frame(frame, self.segment_params)
+
+        def mapper(seg):
+            def polygon_at(z_top, z_bottom):
+                outline, holes = segment_to_mm(seg, self.cal, z_top, z_bottom, frame)
+                poly = Polygon(outline, holes)
+                if not poly.is_valid:  # a wall-corrected outline may cross itself at a corner
+                    poly = poly.buffer(0)
+                    if poly.geom_type == "MultiPolygon":
+                        poly = max(poly.geoms, key=lambda g: g.area)
+                return poly
+            return polygon_at
+
+        regions = [Region(i, mapper(s), s.merged, s.cut_off) for i, s in enumerate(segments)]
+        expected = [self.poses[p] for p in self.remaining if p in self.poses]
+        if self._last_picked is not None:  # look for it too: it should be gone
+            expected.append(self._last_picked[1])
+        found, strangers = locate(expected, regions)
+        seen = {}
+        for pid, loc in found.items():
+            part = self.poses.get(pid) or self._last_picked[1]
+            seen[pid] = loc.apply(part)
+            if pid in self.poses:
+                self.poses[pid] = seen[pid]
+        self.state.seen = seen
+        self.sink.write_decision({
+            "type": "perception", "frame": index, "segments": len(segments),
+            "merged": [i for i, s in enumerate(segments) if s.merged],
+            "cut_off": [i for i, s in enumerate(segments) if s.cut_off],
+            "located": {pid: {"region": l.region, "dx_mm": round(l.dx_mm, 3), "dy_mm": round(l.dy_mm, 3),
+                              "dtheta_deg": round(l.dtheta_deg, 3), "overlap": round(l.overlap, 4)}
+                        for pid, l in found.items()},
+            "unclaimed": strangers})
+        if strangers:
+            self.control.log("vision", f"{len(strangers)} region(s) match no part of the assembly",
+                             regions=strangers)
+        if self.viz is not None:
+            self.viz.contours([s.outline_px for s in segments])
+            self.viz.parts([p.outline_mm for p in seen.values()], [p.z_top_mm for p in seen.values()],
+                           list(seen))
+        return seen
+
+    def _plan(self, scene: Scene, part_id: str) -> list[Grasp] | None:
+        try:
+            result = self.planner.plan(scene)
+        except NoFeasibleGrasp as e:
+            self.sink.write_decision({"type": "no_grasp", "part": part_id, "reason": e.reason})
+            if self.options.on_no_grasp == "skip":
+                self.remaining.remove(part_id)
+                self.reports.append(PartReport(part_id, "skipped", reason=e.reason))
+                self.control.log("skip", f"{part_id} skipped: no feasible grasp ({e.reason})", part=part_id)
+            else:
+                self._stop_and_ask("planner", f"no feasible grasp for {part_id}: {e.reason}")
+            return None
+        g = result.grasp
+        self.sink.write_decision({"type": "grasp", "part": part_id, "counts": {
+            k: v for k, v in result.counts.items() if k != "time_ms"}, "ranked": len(result.ranked),
+            **_grasp_json(g)})
+        if self.viz is not None:
+            self._show(result)
+        return result.ranked
+
+    def _approve(self, grasp: Grasp, scene: Scene, attempt: int):
+        from cell.grasp.footprints import finger_footprints, palm_footprint
+
+        proposal = {"target": grasp.target, "attempt": attempt, **_grasp_json(grasp)}
+        to_px = self.cal.mm_to_px
+        z = grasp.grasp_z_mm
+        self.state.proposal = {
+            "target": grasp.target,
+            "contacts_px": to_px(grasp.contacts_mm, z).round(2).tolist(),
+            "fingers_px": [to_px(np.asarray(f.exterior.coords)[:-1], z).round(2).tolist()
+                           for f in finger_footprints(grasp, self.cell)],
+            "palm_px": to_px(np.asarray(palm_footprint(grasp, self.cell).exterior.coords)[:-1], z).round(2).tolist(),
+        }
+        try:
+            decision = self.control.request_approval(proposal)
+        finally:
+            self.state.proposal = None
+        self.sink.write_decision({"type": "decision", "part": grasp.target, "approved": decision.approved,
+                                  "reason": decision.reason, "by": decision.by})
+        return decision
+
+    def _rejected(self, grasp: Grasp, scene: Scene, reason: str) -> None:
+        """A rejected grasp becomes an invalid example (the operator said no to this set)."""
+        ex = GraspExample(
+            f"reject-{datetime.now(UTC).strftime('%Y%m%dT%H%M%S%f')}", scene.target_part, grasp.contacts_mm,
+            False, {"kind": "station-reject", "by": "operator", "at": datetime.now(UTC).isoformat(),
+                    "note": reason or "rejected at the station"},
+            obstacles=tuple(scene.obstacles), grasp_z_mm=grasp.grasp_z_mm, joints=grasp.joints)
+        self.add_example(ex)
+
+    def _execute(self, grasp: Grasp, part_id: str, attempt: int) -> list[dict]:
+        from drivers.execute import run_commands
+
+        commands = pick_commands(grasp.joints, grasp.opening_mm, self.cell)
+        self.sink.write_decision({"type": "commands", "part": part_id, "attempt": attempt,
+                                  "commands": [c.to_json() for c in commands]})
+        self.control.checkpoint("pick", part=part_id)
+
+        def on_step(rec):
+            if self.viz is not None:
+                self._show_arm()
+                if "width_mm" in rec:
+                    self.viz.gripper_width(rec["width_mm"])
+
+        records = run_commands(self.arm, commands, stop_on_miss=True, on_step=on_step)
+        self.sink.write_decision({"type": "executed", "part": part_id, "attempt": attempt, "records": records})
+        return records
+
+    def _retreat(self) -> None:
+        """Open the jaws and go straight up to the safe height where the arm is."""
+        self.arm.gripper.open()
+        self.arm.move_joints(above(self.arm.joints(), self.cell.motion.safe_z_mm))
+
+    def _stop_and_ask(self, source: str, why: str) -> None:
+        self.sink.write_decision({"type": "stop", "source": source, "reason": why})
+        self.control.report_fault(source, why)
+        if not self.options.interactive:
+            raise StopRun(f"{source}: {why}")
+
+    # ------------------------------------------------------------------ reporting
+    def summary(self) -> dict:
+        removed = [r for r in self.reports if r.outcome == "removed"]
+        cycles = [r.cycle_s for r in removed]
+        mean = float(np.mean(cycles)) if cycles else 0.0
+        planning = float(np.mean([r.planning_s for r in removed])) if removed else 0.0
+        s = self.cell.scara
+        return {
+            "assembly": self.assembly.name,
+            "parts_total": len(self.assembly.sequence),
+            "parts_removed": len(removed),
+            "parts_skipped": [r.part for r in self.reports if r.outcome == "skipped"],
+            "grasps": sum(r.attempts for r in removed),
+            "cycle_s_mean": round(mean, 3),
+            "planning_s_mean": round(planning, 4),
+            "planning_share": round(planning / mean, 4) if mean else 0.0,
+            "picks_per_hour": round(3600.0 / mean, 1) if mean else 0.0,
+            "motion_limits": {"max_velocity": s.max_velocity, "max_acceleration": s.max_acceleration,
+                              "gripper_speed_mm_s": self.cell.gripper.speed_mm_s,
+                              "safe_z_mm": self.cell.motion.safe_z_mm},
+            "parts": [r.to_json() for r in self.reports],
+        }
+
+    # ------------------------------------------------------------------ visualisation
+    def _show(self, result) -> None:
+        from cell.grasp.footprints import finger_footprints, palm_footprint
+
+        g = result.grasp
+        z = g.grasp_z_mm
+        ok = result.point_valid
+        self.viz.candidates(result.candidates.points, ok, space="mm", z_mm=z)
+        self.viz.pairs(result.valid_sets, z_mm=z)
+        self.viz.grasp(g.contacts_mm, [np.asarray(f.exterior.coords) for f in finger_footprints(g, self.cell)],
+                       np.asarray(palm_footprint(g, self.cell).exterior.coords), grasp_z_mm=z)
+
+    def _show_arm(self) -> None:
+        from cell.kinematics import elbow_points
+
+        j = self.arm.joints()
+        self.viz.arm(elbow_points(j, self.cell.scara), j)
+        self.viz.joints(j)
+
+
+def _grasp_json(g: Grasp) -> dict:
+    return {"contacts": np.round(g.contacts_mm, 3).tolist(), "center": np.round(g.center_mm, 3).tolist(),
+            "angle_deg": round(float(g.axis_deg), 3), "opening_mm": round(float(g.opening_mm), 3),
+            "grasp_z_mm": round(float(g.grasp_z_mm), 3),
+            "joints": g.joints.rounded(3).as_dict() if g.joints else None}

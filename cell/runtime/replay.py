@@ -1,0 +1,187 @@
+"""Replay of a recorded session: the same loop on the recorded frames, compared decision by
+decision with the recording.
+
+The loop runs as it ran: frames come from the recording (a file camera), the drives are the
+simulated CANopen nodes on a fresh virtual bus, the operator's approvals are the recorded
+ones, and the gripper closes to the recorded width (the recording is the world). Each
+decision the loop makes is compared with the recorded one as it is made; the first
+divergence stops the replay and is named. With other examples (`--examples`), the replay
+does not stop at differences but lists them: the gripper then holds whatever the new plan
+grips, so the sequence goes on.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from cell.errors import BadInput, CellError
+from cell.runtime.control import Decision, RunControl
+
+VOLATILE = {"planning_s", "cycle_s", "motion_s", "t_start_s", "t_end_s", "time_ms"}
+TOLERANCE = 1e-3
+
+
+class Divergence(Exception):  # noqa: N818 - not a CellError: the loop must not treat it as a cell fault
+    """Replay made another decision than the recording (exit 1)."""
+
+
+def differences(recorded, replayed, path: str = "") -> list[str]:
+    """Where two decision records differ (volatile timing keys ignored), as 'path: a != b'."""
+    if isinstance(recorded, dict) and isinstance(replayed, dict):
+        out = []
+        for k in sorted(set(recorded) | set(replayed)):
+            if k in VOLATILE:
+                continue
+            if k not in recorded or k not in replayed:
+                out.append(f"{path}{k}: {'missing in replay' if k in recorded else 'not in the recording'}")
+            else:
+                out += differences(recorded[k], replayed[k], f"{path}{k}.")
+        return out
+    if isinstance(recorded, list) and isinstance(replayed, list):
+        if len(recorded) != len(replayed):
+            return [f"{path.rstrip('.')}: {len(recorded)} items recorded, {len(replayed)} replayed"]
+        out = []
+        for i, (a, b) in enumerate(zip(recorded, replayed, strict=True)):
+            out += differences(a, b, f"{path}{i}.")
+        return out
+    if isinstance(recorded, (int, float)) and isinstance(replayed, (int, float)) and not isinstance(recorded, bool):
+        if math.isclose(recorded, replayed, abs_tol=TOLERANCE, rel_tol=1e-9):
+            return []
+    elif recorded == replayed:
+        return []
+    return [f"{path.rstrip('.')}: recorded {recorded!r}, replayed {replayed!r}"]
+
+
+@dataclass
+class Comparison:
+    """The decision sink of a replay."""
+
+    recorded: list[dict]
+    drives: object
+    strict: bool = True
+    position: int = 0
+    found: list[str] = field(default_factory=list)
+
+    def write_frame(self, index, frame_bgr):
+        return None
+
+    def write_decision(self, record: dict) -> None:
+        import json
+
+        record = json.loads(json.dumps(record))  # the recording holds JSON: compare like with like
+        if record.get("type") == "summary":
+            return  # timings only: another run's are others
+        if record.get("type") == "commands":
+            self._set_gripper(record)
+        if self.position >= len(self.recorded):
+            self._diverged(f"decision #{self.position} ({record.get('type')}): the recording has no more decisions")
+            return
+        expected = self.recorded[self.position]
+        self.position += 1
+        diff = differences(expected, record)
+        if diff:
+            self._diverged(f"decision #{self.position - 1} ({expected.get('type')}"
+                           f"{', ' + str(expected.get('part')) if expected.get('part') else ''}): {diff[0]}"
+                           + (f" (+{len(diff) - 1} more)" if len(diff) > 1 else ""))
+            if not self.strict and expected.get("type") != record.get("type"):
+                self._resync(record)
+
+    def _diverged(self, what: str) -> None:
+        if self.strict:
+            raise Divergence(what)
+        self.found.append(what)
+
+    def _resync(self, record: dict) -> None:
+        """After a different kind of decision, skip the recording ahead to the same kind."""
+        for i in range(self.position - 1, len(self.recorded)):
+            if self.recorded[i].get("type") == record.get("type"):
+                self.position = i + 1
+                return
+
+    def _set_gripper(self, record: dict) -> None:
+        """The recording is the world: the jaws stop where they stopped in the session."""
+        width = None
+        if self.strict:
+            for rec in self.recorded[self.position:]:
+                if rec.get("type") == "executed":
+                    grips = [r for r in rec.get("records", []) if r.get("action") == "grip"]
+                    if grips and grips[-1].get("holding"):
+                        width = grips[-1]["width_mm"]
+                    break
+        else:
+            grips = [c for c in record["commands"] if c["action"] == "grip"]
+            width = grips[0]["width_mm"] if grips else None
+        self.drives.gripper_object_width_mm = width
+
+
+class RecordedApprovals(RunControl):
+    """The operator's recorded answers, in order (a reject becomes an invalid example again)."""
+
+    def __init__(self, decisions: list[dict]):
+        super().__init__(require_approval=False)
+        self._answers = [d for d in decisions if d.get("type") == "decision"]
+
+    def request_approval(self, proposal: dict, *, timeout_s=None) -> Decision:
+        if not self._answers:
+            return super().request_approval(proposal, timeout_s=timeout_s)
+        d = self._answers.pop(0)
+        return Decision(bool(d["approved"]), d.get("reason", ""), d.get("by", "operator"))
+
+
+def replay(directory: str | Path, examples: str | Path | None = None, progress=None) -> dict:
+    """Re-run a recording. Returns {"decisions", "matched", "differences"}; raises Divergence
+    (strict mode) at the first difference, BadInput on a missing or corrupt recording."""
+    import shutil
+    import tempfile
+
+    from calibration import load_calibration
+    from cell.cellconfig import load_cell
+    from cell.recording import RecordingReader
+    from cell.runtime.loop import CellLoop, LoopOptions, StopRun
+    from cell.runtime.session import EXAMPLES_AT_START, home_joints
+    from cell.scene import parse_assembly
+    from cell.vision import FileCamera
+    from drivers import simulated_cell
+
+    say = progress or (lambda s: None)
+    rec = RecordingReader(directory)
+    meta = rec.manifest.get("meta") or {}
+    if "assembly" not in meta:
+        raise BadInput(f"recording {directory}: the manifest does not hold the assembly (not made by cell run)")
+    assembly = parse_assembly(meta["assembly"], f"recording {directory} assembly")
+    cell = load_cell(rec.cell_path)
+    if rec.calibration_path is None:
+        raise BadInput(f"recording {directory} holds no calibration")
+    cal = load_calibration(rec.calibration_path)
+    strict = examples is None
+    examples_src = Path(examples) if examples else rec.dir / EXAMPLES_AT_START
+    if not examples_src.is_file():
+        raise BadInput(f"example file {examples_src} does not exist")
+    recorded = [d for d in rec.decisions if d.get("type") != "summary"]
+    frames = [rec.frame_path(i) for i in rec.frame_indices]
+    if not frames:
+        raise BadInput(f"recording {directory} holds no frames")
+    with tempfile.TemporaryDirectory() as tmp:
+        work_examples = Path(tmp) / "examples.jsonl"
+        shutil.copyfile(examples_src, work_examples)  # rejects are appended again, not to the original
+        with simulated_cell(cell) as (arm, drives):
+            sink = Comparison(recorded, drives, strict)
+            control = RecordedApprovals(rec.decisions)
+            loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=FileCamera(frames), arm=arm,
+                            control=control, examples_path=work_examples, sink=sink,
+                            options=LoopOptions(on_no_grasp=meta.get("on_no_grasp", "stop")))
+            arm.move_joints(home_joints(cell))
+            control.run(by="replay")
+            say(f"replaying {len(frames)} frames, {len(recorded)} decisions")
+            try:
+                loop.run()
+            except StopRun:
+                pass  # the recorded session stopped here too, or the comparison says where not
+            except CellError as e:
+                sink._diverged(f"the replay failed at decision #{sink.position}: {e}")
+    if sink.position < len(recorded):
+        sink._diverged(f"the replay ended after {sink.position} of {len(recorded)} recorded decisions; next: "
+                       f"{recorded[sink.position].get('type')}")
+    return {"decisions": len(recorded), "matched": sink.position - len(sink.found), "differences": sink.found}

@@ -1,0 +1,200 @@
+"""Putting the cell together for one run: the sources (simulated world and camera, or
+recorded frames), the CAN bus with the drives, the sinks (recording, rerun), the operator
+station, and the loop.
+
+`run_session(cfg)` is what `cell run` does; `cell replay` builds the same loop on a
+recording (cell.runtime.replay).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from cell.cellconfig import load_cell
+from cell.examples import default_examples_path
+from cell.fileio import write_atomic
+from cell.runtime.control import RunControl, Stopped
+from cell.runtime.loop import CellLoop, LoopOptions, StopRun
+from cell.runtime.simworld import SimWorld, WorldFaults
+from cell.scene import Assembly, load_assembly
+
+EXAMPLES_AT_START = "examples_at_start.jsonl"
+
+
+def default_assembly_path() -> Path:
+    from importlib import resources
+
+    return Path(str(resources.files("cell") / "data" / "assemblies" / "default.json"))
+
+
+@dataclass
+class RunConfig:
+    assembly: str | Path | None = None  # None: the shipped default assembly
+    cell: str | Path | None = None
+    calibration: str | Path | None = None
+    examples: str | Path | None = None
+    record: str | Path | None = None
+    rerun: bool = False
+    save_rrd: str | Path | None = None
+    seed: int = 0
+    shift_mm: float = 2.0  # parts lie up to this far (and 2 deg per mm) from their nominal pose
+    on_no_grasp: str = "stop"
+    require_approval: bool = False
+    station: bool = False
+    station_port: int = 8765
+    station_token: str | None = None
+    faults: WorldFaults = field(default_factory=WorldFaults)
+    progress: object = None  # callable(str) for progress lines
+
+
+class SimCameraSource:
+    """The simulated camera looking at the simulated world (a camera like any other: read())."""
+
+    def __init__(self, world: SimWorld, cal, seed: int):
+        from cell.vision import SimCamera, SimCameraOptions
+
+        self.world = world
+        self.camera = SimCamera(cal, SimCameraOptions(seed=seed))
+
+    def read(self):
+        return self.camera.read(self.world.visible_parts())
+
+
+def displaced(assembly: Assembly, shift_mm: float, seed: int):
+    """The assembly's parts as they really lie: each moved a little from its nominal pose."""
+    rng = np.random.default_rng(seed)
+    return [p.moved(*rng.uniform(-shift_mm, shift_mm, 2), rng.uniform(-2 * shift_mm, 2 * shift_mm))
+            for p in assembly.parts]
+
+
+def run_session(cfg: RunConfig) -> dict:
+    """Run the disassembly in the simulated cell; returns the summary (with 'status')."""
+    from calibration import default_calibration_path, load_calibration
+    from drivers import simulated_cell
+
+    say = cfg.progress or (lambda s: None)
+    assembly_path = Path(cfg.assembly) if cfg.assembly else default_assembly_path()
+    assembly = load_assembly(assembly_path)
+    cell_path = cfg.cell or assembly.cell_path
+    cell = load_cell(cell_path)
+    cal_path = Path(cfg.calibration) if cfg.calibration else default_calibration_path()
+    cal = load_calibration(cal_path)
+    if (cal.width_px, cal.height_px) != (cell.camera.width_px, cell.camera.height_px):
+        from cell.errors import BadInput
+
+        raise BadInput(f"calibration {cal_path} is for {cal.width_px} x {cal.height_px} px, the cell's camera "
+                       f"has {cell.camera.width_px} x {cell.camera.height_px} px")
+    examples_path = Path(cfg.examples) if cfg.examples else default_examples_path()
+    from cell.examples import load_examples
+
+    load_examples(examples_path)  # bad example files are refused before anything moves
+    examples_out = None
+    if examples_path == default_examples_path():
+        examples_out = (Path(cfg.record) if cfg.record else Path.cwd()) / "examples.jsonl"
+
+    recorder = None
+    if cfg.record:
+        from cell.recording import RecordingWriter
+
+        recorder = RecordingWriter(cfg.record, cell_file=cell_path, calibration_file=cal_path,
+                                   examples_file=examples_path,
+                                   meta={"assembly": assembly.to_json(), "assembly_path": str(assembly_path),
+                                         "seed": cfg.seed, "shift_mm": cfg.shift_mm,
+                                         "on_no_grasp": cfg.on_no_grasp})
+        # The examples as they were at the start: replay needs them even after this session
+        # (or anyone) appended to the file.
+        write_atomic(recorder.dir / EXAMPLES_AT_START, examples_path.read_bytes())
+    viz = None
+    rrd = cfg.save_rrd or (recorder.rrd_path if recorder else None)
+    if rrd or cfg.rerun:
+        from cell.viz import Viz
+
+        viz = Viz("disassembly-cell", spawn=cfg.rerun, save_path=rrd)
+
+    control = RunControl(require_approval=cfg.require_approval)
+    status, summary = "complete", None
+    with contextlib.ExitStack() as stack:
+        arm, drives = stack.enter_context(simulated_cell(
+            cell, record=recorder.can_log_path if recorder else None))
+        world = SimWorld(displaced(assembly, cfg.shift_mm, cfg.seed), cell, drives, seed=cfg.seed,
+                         faults=cfg.faults)
+        stack.callback(world.close)
+        camera = SimCameraSource(world, cal, cfg.seed)
+        loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=camera, arm=arm, control=control,
+                        examples_path=examples_path, examples_out=examples_out, sink=recorder, viz=viz,
+                        options=LoopOptions(on_no_grasp=cfg.on_no_grasp, interactive=cfg.station))
+        _progress(control, say)
+        try:
+            arm.move_joints(home_joints(cell))
+            if cfg.station:
+                summary = _with_station(loop, control, cfg, say)
+            else:
+                control.run(by="cell run")
+                summary = loop.run()
+        except (StopRun, Stopped) as e:
+            status = "stopped"
+            summary = {**loop.summary(), "stopped": str(e)}
+            say(f"stopped: {e}")
+        finally:
+            summary = summary or loop.summary()
+            summary.update(status=status, sim_events=list(world.events))
+            if recorder is not None:
+                summary["recording"] = str(recorder.dir)
+            if viz is not None:
+                viz.close()
+                summary["rrd"] = str(rrd)
+            if recorder is not None:
+                recorder.close("complete" if status == "complete" else "incomplete", summary)
+    return summary
+
+
+def home_joints(cell):
+    from cell.kinematics import Joints
+
+    return Joints.from_dict(cell.motion.home_joints)
+
+
+def _progress(control: RunControl, say) -> None:
+    """Print the loop's events as they happen (progress for the operator's terminal)."""
+    orig = control._log_locked
+
+    def log_locked(event, message="", **data):
+        orig(event, message, **data)
+        if message and event in ("start", "removed", "skip", "miss", "fault", "example", "vision", "frame"):
+            say(f"[{event}] {message}")
+
+    control._log_locked = log_locked
+
+
+def _with_station(loop: CellLoop, control: RunControl, cfg: RunConfig, say) -> dict:
+    from cell.runtime.backend import LoopBackend
+    from cell.station.server import StationServer
+
+    server = StationServer(LoopBackend(loop), control, port=cfg.station_port, token=cfg.station_token)
+    result: dict = {}
+
+    def work():
+        try:
+            result["summary"] = loop.run()
+        except BaseException as e:  # noqa: BLE001 - reported to the operator and the caller
+            result["error"] = e
+
+    with server:
+        say(f"operator station: {server.url}  (token {server.token}); press Run on the page")
+        t = threading.Thread(target=work, name="cell-loop", daemon=True)
+        t.start()
+        try:
+            while t.is_alive():
+                t.join(0.2)
+        except KeyboardInterrupt:
+            control.stop("interrupted at the terminal")
+            t.join(5)
+    if "error" in result:
+        raise result["error"]
+    return result["summary"]
+

@@ -1,0 +1,308 @@
+"""The operator station: a local web page served by the cell (stdlib http.server, no dependency).
+
+Routes (JSON unless said otherwise):
+
+    GET  /                     the page (index.html, station.js, station.css: no CDN, works offline)
+    GET  /api/state            {"control": RunControl.snapshot(), "cell": backend.snapshot()}
+    GET  /api/frame.png        the current camera frame (404 until there is one)
+    POST /api/run | pause | step | approve | stop | reset
+    POST /api/reject           {"reason": "..."}        (the loop turns it into an invalid example)
+    POST /api/approval         {"required": true|false}  (approve each grasp)
+    POST /api/teach            {"part": id, "p1_px": [u, v], "p2_px": [u, v]} -> backend.teach(...)
+
+Every POST needs the session token in the `X-Cell-Token` header: a missing or wrong token
+gets 403 and changes nothing. GETs need none (looking is harmless). The server binds to
+127.0.0.1 by default and then also refuses requests whose Host header is not a loopback
+name (a web page elsewhere cannot reach the arm through DNS rebinding); the custom header
+makes every POST a CORS-preflighted request, which the server never grants to other origins.
+Status codes: 400 bad input, 403 token/host, 404, 409 a command the state does not allow.
+"""
+
+from __future__ import annotations
+
+import hmac
+import json
+import logging
+import math
+import secrets
+import threading
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from importlib import resources
+from typing import Protocol
+from urllib.parse import urlsplit
+
+from cell.errors import BadInput
+from cell.runtime.control import InvalidCommand, RunControl
+
+log = logging.getLogger(__name__)
+
+TOKEN_HEADER = "X-Cell-Token"
+MAX_BODY_BYTES = 64 * 1024
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
+STATIC = {"/": ("index.html", "text/html; charset=utf-8"),
+          "/index.html": ("index.html", "text/html; charset=utf-8"),
+          "/station.js": ("station.js", "text/javascript; charset=utf-8"),
+          "/station.css": ("station.css", "text/css; charset=utf-8")}
+
+
+class StationBackend(Protocol):
+    """What the cell loop offers the station (the loop implements it; tests use cell.station.demo).
+
+    snapshot() -> dict, JSON-able, in image px (the image frame of CONTRACT.md):
+        {"frame": {"index": int | None, "width_px": int, "height_px": int},
+         "parts": [{"id": str, "outline_px": [[u, v], ...], "holes_px": [[[u, v], ...]]}],
+         "proposal_px": None | {"target": id, "contacts_px": [[u, v], [u, v]],
+                                "fingers_px": [[[u, v], ...], ...], "palm_px": [[u, v], ...]},
+         "examples": {"path": str, "count": int}, ...free keys shown as they are}
+    frame_png() -> bytes | None: the current frame as PNG.
+    teach(part_id, p1_px, p2_px) -> dict: make a valid example from two contact points in px
+        (map to mm, snap to the outline, current configuration), append it atomically,
+        rebuild the model; raise BadInput (400) or InvalidCommand (409) to refuse.
+    """
+
+    def snapshot(self) -> dict: ...
+
+    def frame_png(self) -> bytes | None: ...
+
+    def teach(self, part_id: str, p1_px: list[float], p2_px: list[float]) -> dict: ...
+
+
+def new_token() -> str:
+    return secrets.token_urlsafe(18)
+
+
+def _point(raw, key: str) -> list[float]:
+    if (not isinstance(raw, (list, tuple)) or len(raw) != 2
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                       for v in raw)):
+        raise BadInput(f"'{key}' must be [u, v], two finite numbers (px)")
+    return [float(raw[0]), float(raw[1])]
+
+
+class _Handler(BaseHTTPRequestHandler):
+    server_version = "cell-station/1"
+    station: StationServer  # set on the subclass made per server
+
+    # -- plumbing
+    def log_message(self, fmt, *args):  # route http.server's access log to logging, not stderr
+        log.debug("%s " + fmt, self.address_string(), *args)
+
+    def _send(self, status: int, body: bytes, ctype: str, extra: dict | None = None) -> None:
+        self.send_response(status)
+        self.send_header("Content-Type", ctype)
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "no-store")
+        self.send_header("X-Content-Type-Options", "nosniff")
+        self.send_header("Content-Security-Policy",
+                         "default-src 'self'; img-src 'self' data:; style-src 'self'; script-src 'self'")
+        for k, v in (extra or {}).items():
+            self.send_header(k, v)
+        self.end_headers()
+        if self.command != "HEAD":
+            self.wfile.write(body)
+
+    def _json(self, status: int, obj) -> None:
+        self._send(status, json.dumps(obj, separators=(",", ":")).encode("utf-8"), "application/json")
+
+    def _error(self, status: int, message: str) -> None:
+        self._json(status, {"ok": False, "error": message})
+
+    def _host_ok(self) -> bool:
+        if not self.station.loopback_only:
+            return True
+        host = self.headers.get("Host", "")
+        try:
+            name = urlsplit(f"//{host}").hostname or ""
+        except ValueError:
+            return False
+        return name in LOOPBACK_HOSTS
+
+    # -- GET
+    def do_GET(self):  # noqa: N802 - http.server's naming
+        if not self._host_ok():
+            return self._error(403, "this station only answers requests for 127.0.0.1 / localhost")
+        path = urlsplit(self.path).path
+        st = self.station
+        try:
+            if path in STATIC:
+                name, ctype = STATIC[path]
+                return self._send(200, st.static_file(name), ctype)
+            if path == "/api/state":
+                return self._json(200, st.state())
+            if path == "/api/frame.png":
+                png = st.backend.frame_png()
+                if png is None:
+                    return self._error(404, "no frame yet")
+                return self._send(200, png, "image/png")
+            if path == "/favicon.ico":
+                return self._send(204, b"", "image/x-icon")
+        except Exception as e:  # the loop's backend failed: say so, keep serving
+            log.exception("GET %s failed", path)
+            return self._error(500, f"{type(e).__name__}: {e}")
+        return self._error(404, f"no such page: {path}")
+
+    do_HEAD = do_GET
+
+    # -- POST
+    def do_POST(self):  # noqa: N802
+        if not self._host_ok():
+            return self._error(403, "this station only answers requests for 127.0.0.1 / localhost")
+        st = self.station
+        given = self.headers.get(TOKEN_HEADER, "")
+        if not given or not hmac.compare_digest(given.encode(), st.token.encode()):
+            # read and drop the body so the connection stays sane, then refuse
+            self._read_body(ignore=True)
+            return self._error(403, f"a valid token is required in the {TOKEN_HEADER} header "
+                                    "(it is printed when the station starts)")
+        path = urlsplit(self.path).path
+        if not path.startswith("/api/"):
+            return self._error(404, f"no such command: {path}")
+        cmd = path[len("/api/"):]
+        try:
+            body = self._read_body()
+            result = st.command(cmd, body)
+        except InvalidCommand as e:
+            return self._error(409, str(e))
+        except BadInput as e:
+            return self._error(400, str(e))
+        except KeyError as e:
+            return self._error(404, str(e.args[0]) if e.args else "unknown command")
+        except Exception as e:
+            log.exception("POST %s failed", path)
+            return self._error(500, f"{type(e).__name__}: {e}")
+        return self._json(200, {"ok": True, "result": result, **st.state()})
+
+    def _read_body(self, ignore: bool = False) -> dict:
+        try:
+            n = int(self.headers.get("Content-Length") or 0)
+        except ValueError:
+            raise BadInput("Content-Length must be a number") from None
+        if n > MAX_BODY_BYTES:
+            raise BadInput(f"request body too large ({n} bytes, at most {MAX_BODY_BYTES})")
+        raw = self.rfile.read(n) if n > 0 else b""
+        if ignore or not raw.strip():
+            return {}
+        try:
+            body = json.loads(raw.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError):
+            raise BadInput("request body must be a JSON object") from None
+        if not isinstance(body, dict):
+            raise BadInput("request body must be a JSON object")
+        return body
+
+
+class StationServer:
+    """Serve the station for `backend` and `control` in a background thread.
+
+    Parameters
+    ----------
+    backend : StationBackend, the cell loop's view (frame, outlines, proposal, teach).
+    control : RunControl shared with the loop.
+    host : interface to bind; 127.0.0.1 by default. Another address needs allow_remote=True.
+    port : TCP port (0: any free port; see `.port`).
+    token : the session token (default: a random one; see `.token` and `.url`).
+    """
+
+    def __init__(self, backend: StationBackend, control: RunControl, *, host: str = "127.0.0.1",
+                 port: int = 8765, token: str | None = None, allow_remote: bool = False):
+        if host not in LOOPBACK_HOSTS and not allow_remote:
+            raise BadInput(f"binding the station to {host} exposes the arm to the network; "
+                           "use 127.0.0.1 (default) or pass allow_remote / --allow-remote")
+        if token is not None and len(token) < 8:
+            raise BadInput("the station token must be at least 8 characters")
+        self.backend = backend
+        self.control = control
+        self.token = token or new_token()
+        self.loopback_only = host in LOOPBACK_HOSTS
+        handler = type("StationHandler", (_Handler,), {"station": self})
+        try:
+            self.httpd = ThreadingHTTPServer((host, port), handler)
+        except OSError as e:
+            raise BadInput(f"cannot serve the station on {host}:{port}: {e.strerror or e}") from None
+        self.httpd.daemon_threads = True
+        self._thread: threading.Thread | None = None
+        self._static_cache: dict[str, bytes] = {}
+
+    @property
+    def port(self) -> int:
+        return self.httpd.server_address[1]
+
+    @property
+    def host(self) -> str:
+        return self.httpd.server_address[0]
+
+    @property
+    def base_url(self) -> str:
+        host = self.host if ":" not in self.host else f"[{self.host}]"
+        return f"http://{host}:{self.port}/"
+
+    @property
+    def url(self) -> str:
+        """The page with the token in the fragment (never sent to the server, never logged)."""
+        return f"{self.base_url}#token={self.token}"
+
+    def static_file(self, name: str) -> bytes:
+        if name not in self._static_cache:
+            self._static_cache[name] = (resources.files("cell.station") / name).read_bytes()
+        return self._static_cache[name]
+
+    def state(self) -> dict:
+        return {"control": self.control.snapshot(), "cell": self.backend.snapshot()}
+
+    def command(self, cmd: str, body: dict):
+        """Apply one operator command (token already checked); returns the command's result."""
+        rc = self.control
+        by = "station"
+        if cmd == "run":
+            return rc.run(by=by)
+        if cmd == "pause":
+            return rc.pause(by=by)
+        if cmd == "step":
+            return rc.step(by=by)
+        if cmd == "approve":
+            return rc.approve(by=by)
+        if cmd == "reject":
+            reason = body.get("reason", "")
+            if not isinstance(reason, str):
+                raise BadInput("'reason' must be a string")
+            return rc.reject(reason[:500], by=by)
+        if cmd == "stop":
+            reason = body.get("reason", "")
+            return rc.stop(reason[:500] if isinstance(reason, str) else "", by=by)
+        if cmd == "reset":
+            return rc.reset(by=by)
+        if cmd == "approval":
+            required = body.get("required")
+            if not isinstance(required, bool):
+                raise BadInput("'required' must be true or false")
+            return rc.set_require_approval(required, by=by)
+        if cmd == "teach":
+            part = body.get("part")
+            if not isinstance(part, str) or not part:
+                raise BadInput("'part' must be the id of a part on the current frame")
+            p1, p2 = _point(body.get("p1_px"), "p1_px"), _point(body.get("p2_px"), "p2_px")
+            result = self.backend.teach(part, p1, p2)
+            rc.log("teach", f"taught a grasp on {part}", part=part,
+                   example=result.get("example_id") if isinstance(result, dict) else None)
+            return result
+        raise KeyError(f"no such command: {cmd}")
+
+    # -- life cycle
+    def start(self) -> StationServer:
+        self._thread = threading.Thread(target=self.httpd.serve_forever, kwargs={"poll_interval": 0.05},
+                                        name="station-http", daemon=True)
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        if self._thread is not None:
+            self.httpd.shutdown()
+            self._thread.join(timeout=5)
+            self._thread = None
+        self.httpd.server_close()
+
+    def __enter__(self) -> StationServer:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,284 @@
+// Operator station: polls /api/state, draws the frame with outlines and the proposed grasp
+// (SVG in image pixel coordinates: origin at the top-left pixel's top-left corner, u right,
+// v down), and posts commands with the session token (X-Cell-Token).
+"use strict";
+
+const SVGNS = "http://www.w3.org/2000/svg";
+const POLL_MS = 300;
+const $ = (id) => document.getElementById(id);
+
+let token = "";
+let last = null;            // last state received
+let frameIndex = null;      // index of the frame shown
+let teach = null;           // null, or {stage: "part" | "p1" | "p2", part, p1}
+let busy = false;
+
+// ---- token: from the URL fragment (#token=...), kept for this tab only, removed from the URL
+function loadToken() {
+  const m = /(?:^#|&)token=([^&]+)/.exec(location.hash);
+  if (m) {
+    token = decodeURIComponent(m[1]);
+    sessionStorage.setItem("cell-token", token);
+    history.replaceState(null, "", location.pathname + location.search);
+  } else {
+    token = sessionStorage.getItem("cell-token") || "";
+  }
+  $("token-card").classList.toggle("hidden", !!token);
+}
+
+function toast(text, ok) {
+  const t = $("toast");
+  t.textContent = text;
+  t.classList.toggle("ok", !!ok);
+  t.classList.remove("hidden");
+  clearTimeout(toast.timer);
+  toast.timer = setTimeout(() => t.classList.add("hidden"), ok ? 1500 : 5000);
+}
+
+// ---- talking to the cell
+async function post(cmd, body) {
+  if (!token) {
+    $("token-card").classList.remove("hidden");
+    toast("enter the station token first");
+    return null;
+  }
+  busy = true;
+  try {
+    const r = await fetch("/api/" + cmd, {
+      method: "POST",
+      headers: {"Content-Type": "application/json", "X-Cell-Token": token},
+      body: JSON.stringify(body || {}),
+    });
+    const data = await r.json().catch(() => ({ok: false, error: "HTTP " + r.status}));
+    if (r.status === 403) {
+      $("token-card").classList.remove("hidden");
+    }
+    if (!data.ok) {
+      toast(data.error || ("HTTP " + r.status));
+      return null;
+    }
+    render(data);
+    return data;
+  } catch (e) {
+    toast("the cell does not answer: " + e);
+    return null;
+  } finally {
+    busy = false;
+  }
+}
+
+async function poll() {
+  try {
+    const r = await fetch("/api/state", {cache: "no-store"});
+    if (r.ok && !busy) render(await r.json());
+  } catch (e) {
+    $("message").textContent = "the cell does not answer";
+  }
+  setTimeout(poll, POLL_MS);
+}
+
+// ---- drawing
+function el(name, attrs, parent) {
+  const e = document.createElementNS(SVGNS, name);
+  for (const [k, v] of Object.entries(attrs || {})) e.setAttribute(k, v);
+  if (parent) parent.appendChild(e);
+  return e;
+}
+const ptsAttr = (pts) => pts.map((p) => p[0] + "," + p[1]).join(" ");
+
+function render(data) {
+  last = data;
+  const c = data.control, cell = data.cell || {};
+  const badge = $("state");
+  badge.textContent = c.state.replace("_", " ");
+  badge.className = "badge state-" + c.state;
+  $("message").textContent = c.message;
+  const cur = c.current || {};
+  $("current").textContent = (cur.part ? "part " + cur.part : "") + (cur.step != null ? " · step " + cur.step : "")
+    + (c.checkpoint ? " · at " + c.checkpoint : "");
+  const fault = $("fault");
+  fault.classList.toggle("hidden", !c.fault);
+  if (c.fault) fault.textContent = "FAULT in " + c.fault.source + ": " + c.fault.why + " — fix it, then Reset";
+
+  // buttons: enabled only where the state allows the command
+  const s = c.state, live = ["idle", "paused", "running", "awaiting_approval"].includes(s);
+  $("btn-run").disabled = !(s === "idle" || s === "paused" || (s === "running" && c.step_mode));
+  $("btn-pause").disabled = !(s === "running" || s === "awaiting_approval");
+  $("btn-step").disabled = !live;
+  $("btn-stop").disabled = !live;
+  $("btn-approve").disabled = s !== "awaiting_approval";
+  $("btn-reject").disabled = s !== "awaiting_approval";
+  $("btn-reset").disabled = !["fault", "stopped", "done"].includes(s);
+  const ae = $("approve-each");
+  if (document.activeElement !== ae) ae.checked = !!c.require_approval;
+
+  const p = c.proposal;
+  $("proposal-card").classList.toggle("awaiting", s === "awaiting_approval");
+  $("proposal-text").textContent = p ? proposalText(p) : "none";
+  const ex = cell.examples;
+  $("examples").textContent = ex ? ex.count + " examples in " + ex.path : "";
+
+  drawFrame(cell.frame || {});
+  drawParts(cell.parts || [], p ? p.target : null);
+  drawProposal(cell.proposal_px);
+  drawLog(c.events || []);
+  drawTeach();
+}
+
+function proposalText(p) {
+  const lines = ["target    " + p.target];
+  if (p.opening_mm != null) lines.push("opening   " + p.opening_mm + " mm");
+  if (p.angle_deg != null) lines.push("axis      " + p.angle_deg + "°");
+  if (p.grasp_z_mm != null) lines.push("grasp z   " + p.grasp_z_mm + " mm");
+  if (p.contacts) lines.push("contacts  " + JSON.stringify(p.contacts));
+  if (p.joints) lines.push("joints    " + Object.values(p.joints).join(" / "));
+  if (p.how) lines.push("(" + p.how + ")");
+  return lines.join("\n");
+}
+
+function drawFrame(f) {
+  const svg = $("overlay");
+  if (f.width_px && f.height_px) {
+    svg.setAttribute("viewBox", "0 0 " + f.width_px + " " + f.height_px);
+    $("view").style.aspectRatio = f.width_px + " / " + f.height_px;
+  }
+  $("frameno").textContent = f.index == null ? "–" : f.index;
+  $("noframe").classList.toggle("hidden", f.index != null);
+  if (f.index != null && f.index !== frameIndex) {
+    frameIndex = f.index;
+    $("frame").src = "/api/frame.png?i=" + f.index;
+  }
+}
+
+function drawParts(parts, target) {
+  const g = $("parts");
+  g.replaceChildren();
+  for (const part of parts) {
+    const cls = "part" + (part.id === target ? " target" : "") + (teach && teach.part === part.id ? " selected" : "");
+    const poly = el("polygon", {points: ptsAttr(part.outline_px), class: cls, "data-part": part.id}, g);
+    poly.addEventListener("click", (ev) => onPartClick(ev, part.id));
+    const [u, v] = centroid(part.outline_px);
+    el("text", {x: u, y: v, class: "part-label", "text-anchor": "middle"}, g).textContent = part.id;
+  }
+}
+
+function drawProposal(pp) {
+  const g = $("proposal");
+  g.replaceChildren();
+  if (!pp) return;
+  if (pp.palm_px) el("polygon", {points: ptsAttr(pp.palm_px), class: "palm"}, g);
+  for (const f of pp.fingers_px || []) el("polygon", {points: ptsAttr(f), class: "finger"}, g);
+  const cs = pp.contacts_px || [];
+  if (cs.length === 2) el("line", {x1: cs[0][0], y1: cs[0][1], x2: cs[1][0], y2: cs[1][1], class: "axis"}, g);
+  for (const q of cs) el("circle", {cx: q[0], cy: q[1], r: 4, class: "contact"}, g);
+}
+
+function drawLog(events) {
+  const ol = $("log");
+  const newest = events.length ? events[events.length - 1].n : 0;
+  if (ol.dataset.newest === String(newest)) return;
+  ol.dataset.newest = String(newest);
+  ol.replaceChildren();
+  for (const e of events.slice().reverse()) {
+    const li = document.createElement("li");
+    const t = (e.t || "").slice(11, 19);
+    const ev = document.createElement("span");
+    ev.className = "ev ev-" + e.event;
+    ev.textContent = e.event;
+    li.append(t + " ", ev, " " + (e.message || ""));
+    ol.appendChild(li);
+  }
+}
+
+function centroid(pts) {
+  let u = 0, v = 0;
+  for (const p of pts) { u += p[0]; v += p[1]; }
+  return [u / pts.length, v / pts.length];
+}
+
+// ---- teach: click a part, then two contact points on its edge
+function drawTeach() {
+  const g = $("teachmarks");
+  g.replaceChildren();
+  $("view").classList.toggle("teaching", !!teach);
+  $("btn-teach").classList.toggle("active", !!teach);
+  const st = $("teach-status");
+  if (!teach) { st.textContent = ""; return; }
+  if (teach.p1) el("circle", {cx: teach.p1[0], cy: teach.p1[1], r: 5, class: "teachmark"}, g);
+  st.textContent = teach.stage === "part" ? "Teach: click the part to grasp"
+    : teach.stage === "p1" ? "Teach " + teach.part + ": click the first contact on its edge"
+    : "Teach " + teach.part + ": click the second contact";
+}
+
+function framePoint(ev) {
+  // screen -> SVG user units, which are image pixels (viewBox = frame size)
+  const svg = $("overlay");
+  const pt = svg.createSVGPoint();
+  pt.x = ev.clientX; pt.y = ev.clientY;
+  const q = pt.matrixTransform(svg.getScreenCTM().inverse());
+  return [Math.round(q.x * 10) / 10, Math.round(q.y * 10) / 10];
+}
+
+function onPartClick(ev, partId) {
+  if (!teach || teach.stage !== "part") return;
+  ev.stopPropagation();
+  teach = {stage: "p1", part: partId};
+  if (last) render(last);
+}
+
+async function onFrameClick(ev) {
+  if (!teach || teach.stage === "part") return;
+  const p = framePoint(ev);
+  if (teach.stage === "p1") {
+    teach = {stage: "p2", part: teach.part, p1: p};
+    drawTeach();
+    return;
+  }
+  const t = teach;
+  teach = null;
+  drawTeach();
+  const r = await post("teach", {part: t.part, p1_px: t.p1, p2_px: p});
+  if (r) toast("taught " + t.part + ": example " + r.result.example_id
+    + " (" + r.result.n_examples + " examples)", true);
+}
+
+function startTeach() {
+  teach = teach ? null : {stage: "part"};
+  if (last) render(last); else drawTeach();
+}
+
+function reject() {
+  const reason = $("reason").value.trim();
+  return post("reject", {reason}).then((r) => { if (r) $("reason").value = ""; });
+}
+
+// ---- wiring
+function init() {
+  loadToken();
+  for (const b of document.querySelectorAll("button[data-cmd]")) {
+    b.addEventListener("click", () => post(b.dataset.cmd));
+  }
+  $("btn-reject").addEventListener("click", reject);
+  $("btn-teach").addEventListener("click", startTeach);
+  $("overlay").addEventListener("click", onFrameClick);
+  $("approve-each").addEventListener("change", (ev) => post("approval", {required: ev.target.checked}));
+  $("btn-token").addEventListener("click", () => {
+    token = $("token").value.trim();
+    sessionStorage.setItem("cell-token", token);
+    $("token-card").classList.toggle("hidden", !!token);
+  });
+  $("reason").addEventListener("keydown", (ev) => { if (ev.key === "Enter") reject(); });
+  $("frame").addEventListener("load", () => $("noframe").classList.add("hidden"));
+  document.addEventListener("keydown", (ev) => {
+    if (ev.target.tagName === "INPUT" && ev.target.type !== "checkbox") return;
+    if (ev.key === " ") { ev.preventDefault(); post("step"); }
+    else if (ev.key === "a") post("approve");
+    else if (ev.key === "r") { if ($("reason").value.trim()) reject(); else $("reason").focus(); }
+    else if (ev.key === "p") post("pause");
+    else if (ev.key === "t") startTeach();
+    else if (ev.key === "Escape") { teach = null; drawTeach(); if (last) render(last); }
+  });
+  poll();
+}
+
+document.addEventListener("DOMContentLoaded", init);

@@ -1,0 +1,104 @@
+"""The empty tray's appearance under the current lighting, estimated from the frame itself.
+
+Without a reference image of the empty tray, the tray is modelled as a smooth colour
+field: a low-degree polynomial in (u, v) per colour channel, fitted robustly on a
+copy of the frame about 80 px wide. Parts are outliers of that fit: the first inliers are
+the pixels near the frame's most frequent colour (counted with more weight at the centre of
+the view, where the tray is), then the fit is repeated with the pixels
+within 3 sigma of it. This follows lighting gradients and vignetting, needs no empty-tray
+image, and works while the tray fills more of the frame than the parts do.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+FIT_WIDTH_PX = 80  # the fit runs on a copy about this wide
+FIT_DEGREE = 2
+FIT_ITERATIONS = 4
+MODE_BIN = 16  # DN per histogram bin when looking for the tray's colour
+CENTRE_SIGMA = 0.4  # of the half-size: where the tray's colour is looked for
+MODE_RADIUS = 40.0  # DN around the modal colour taken as the first inliers
+
+
+@lru_cache(maxsize=8)
+def _design(h: int, w: int, degree: int) -> np.ndarray:
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    u = (u + 0.5) / w * 2 - 1
+    v = (v + 0.5) / h * 2 - 1
+    cols = [u ** i * v ** j for i in range(degree + 1) for j in range(degree + 1 - i)]
+    return np.stack([c.ravel() for c in cols], axis=1)
+
+
+@lru_cache(maxsize=8)
+def _centre_weights(h: int, w: int) -> np.ndarray:
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    un, vn = (u + 0.5) / w * 2 - 1, (v + 0.5) / h * 2 - 1
+    return np.exp(-(un ** 2 + vn ** 2) / (2 * CENTRE_SIGMA ** 2)).ravel()
+
+
+def estimate_background(image_bgr: np.ndarray, tray: str = "auto") -> tuple[np.ndarray, float]:
+    """The tray's colour field and its noise.
+
+    Parameters
+    ----------
+    image_bgr : ndarray of shape (h, w, 3), uint8 or float32
+        The frame (usually the half-resolution detection copy).
+    tray : {"auto", "bright"}
+        "bright": the tray is the brighter side of the frame (a back-lit panel framed by a
+        dark surround that would otherwise outnumber it).
+
+    Returns
+    -------
+    background : ndarray of shape (h, w, 3) float32
+    sigma_dn : float
+        Robust spread (1.4826 MAD) of the tray's residual colour distance, DN.
+    """
+    h, w = image_bgr.shape[:2]
+    f = max(1, w // FIT_WIDTH_PX)
+    sw, sh = max(4, w // f), max(4, h // f)
+    small = cv2.resize(image_bgr, (sw, sh), interpolation=cv2.INTER_AREA).reshape(-1, 3).astype(np.float64)
+    nb = 256 // MODE_BIN
+    q = (small // MODE_BIN).astype(np.int64)
+    # the camera looks at the tray: weigh the centre of the view up, the surroundings down
+    weights = _centre_weights(sh, sw)
+    if tray == "bright":
+        grey = small.mean(axis=1).astype(np.uint8).reshape(-1, 1)
+        otsu, _ = cv2.threshold(grey, 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
+        weights = weights * (grey.ravel() > otsu)
+    elif tray != "auto":
+        raise ValueError(f"tray must be 'auto' or 'bright', got {tray!r}")
+    hist = np.bincount((q[:, 0] * nb + q[:, 1]) * nb + q[:, 2], weights=weights,
+                       minlength=nb ** 3).reshape(nb, nb, nb)
+    # a lit tray spreads over neighbouring bins (gradients): count each bin with its neighbours
+    hist = ndimage.uniform_filter(hist.astype(np.float32), size=3, mode="constant")
+    mode = int(np.argmax(hist))
+    mode_bgr = (np.array([mode // (nb * nb), (mode // nb) % nb, mode % nb]) + 0.5) * MODE_BIN
+    inl = np.linalg.norm(small - mode_bgr, axis=1) < MODE_RADIUS
+    if inl.sum() < 0.1 * len(small):
+        inl[:] = True
+    a = _design(sh, sw, FIT_DEGREE)
+    sigma = 1.0
+    coef = None
+    for _ in range(FIT_ITERATIONS):
+        ai = a[inl]
+        coef = np.linalg.solve(ai.T @ ai + 1e-9 * np.eye(a.shape[1]), ai.T @ small[inl])
+        res = np.linalg.norm(small - a @ coef, axis=1)
+        sigma = max(1.4826 * float(np.median(res[inl])), 1.0)
+        new = res < max(3.0 * sigma, 6.0)
+        if new.sum() < 0.1 * len(small):
+            break
+        inl = new
+    bg_small = (a @ coef).reshape(sh, sw, 3).astype(np.float32)
+    # resize maps pixel centres consistently, so the smooth field lands where it was fitted
+    return cv2.resize(bg_small, (w, h), interpolation=cv2.INTER_LINEAR), sigma
+
+
+def reference_background(reference_bgr: np.ndarray, out_size: tuple[int, int]) -> np.ndarray:
+    """An image of the empty tray, smoothed and resized: the background field, float32."""
+    ref = cv2.resize(reference_bgr, out_size, interpolation=cv2.INTER_AREA).astype(np.float32)
+    return cv2.GaussianBlur(ref, (0, 0), 1.5)

@@ -1,0 +1,453 @@
+"""Frames -> part contours with holes, in pixels at sub-pixel accuracy.
+
+Pipeline (one frame, see docs/vision.md for the parameters and why):
+1. The tray's colour field B: a reference image of the empty tray when given, else a
+   robust smooth fit to the frame itself (background.py).
+2. At half resolution, per pixel: brightness ratio r = sum(I) / sum(B) and chroma change
+   c = |I / sum(I) - B / sum(B)|_1. A pixel is part if its chroma changed, or it is
+   brighter than the tray, or darker than any shadow can make the tray.
+3. Shadow-like pixels (darker, same chroma) are part only where the region they form is
+   bounded by sharp edges (walls of parts, grey parts); soft-edged regions are shadows.
+4. Specks below a minimum area are dropped; parts touching each other are separated at
+   narrow necks (watershed on the distance transform) or flagged `merged`; parts touching
+   the image border are flagged `cut_off`.
+5. Every boundary point is moved along its normal to where the full-resolution colour
+   profile crosses half-way between the part and what lies outside it (sub-pixel).
+
+Pixel coordinates are CONTRACT-frame (origin at the top-left pixel's top-left corner).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from cell.errors import BadInput
+from cell.vision.background import estimate_background, reference_background
+
+SMALL_FRAME_PX = 960
+
+
+@dataclass(frozen=True)
+class SegmentParams:
+    """Segmentation parameters; the defaults suit the default cell (0.5 mm/px)."""
+
+    tray: str = "auto"  # "bright": the tray is the bright side (back-lit panel in a dark surround)
+    scale: int = 2  # detection runs at 1 / scale resolution; outlines are refined at full resolution
+    min_area_px: float = 300.0  # full-resolution px; smaller regions are specks (75 mm^2 at 0.5 mm/px)
+    min_hole_area_px: float = 20.0
+    chroma_min: float = 0.035  # L1 change of normalised colour that marks a part
+    brighter_min: float = 0.12  # relative brightness above the tray that marks a part
+    darker_min: float = 0.45  # relative darkening no shadow reaches: a part for sure
+    noise_k: float = 5.0  # ... and the change must stand this many noise spreads above the tray's
+    hysteresis: float = 0.6  # pixels this fraction of the way to a threshold join a part they touch
+    shadow_aware: bool = True  # False: any darkening beyond `brighter_min` is a part
+    sharp_edge: float = 0.06  # ratio change per full-res px that counts as a sharp (material) edge
+    sharp_fraction: float = 0.6  # share of a shadow-like region's border that must be sharp
+    refine: bool = True
+    refine_range_px: float = 4.0
+    min_edge_contrast_dn: float = 10.0
+    split_touching: bool = True
+    neck_split: float = 0.75  # split where the neck is narrower than this x the smaller lobe's width
+    neck_flag: float = 0.9  # ... and flag `merged` up to this ratio
+    neck_pinch: float = 0.35  # a neck this thin with no visible seam is still flagged `merged`
+    colour_split: float = 30.0  # CIE Lab distance between touching parts told apart by colour
+    seam_contrast_dn: float = 12.0  # brightness change along a cut that shows two parts meet there
+
+    @classmethod
+    def for_calibration(cls, cal, min_area_mm2: float = 75.0, z_mm: float = 0.0, **kw) -> SegmentParams:
+        """Parameters with the speck threshold given in mm^2 on the plane at z."""
+        mm_per_px = cal.mm_per_px(z_mm)
+        return cls(min_area_px=min_area_mm2 / mm_per_px ** 2, min_hole_area_px=max(8.0, 5.0 / mm_per_px ** 2),
+                   **kw)
+
+
+@dataclass
+class Segment:
+    """One part region in the frame (CONTRACT-frame pixels).
+
+    Attributes
+    ----------
+    outline_px : ndarray of shape (n, 2)
+        Outer contour, sub-pixel, counter-clockwise in (u, v) axes.
+    holes_px : list of ndarray of shape (m, 2)
+    area_px, centroid_px : float, ndarray of shape (2,)
+        Of the region (outline minus holes).
+    merged : bool
+        The region looks like touching parts that could not be separated.
+    cut_off : bool
+        The region touches the image border: the part is not all in view.
+    mean_bgr : tuple of 3 floats
+        Mean colour inside the region.
+    """
+
+    outline_px: np.ndarray
+    holes_px: list[np.ndarray] = field(default_factory=list)
+    area_px: float = 0.0
+    centroid_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    merged: bool = False
+    cut_off: bool = False
+    mean_bgr: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def to_json(self, decimals: int = 2) -> dict:
+        return {"outline_px": np.round(self.outline_px, decimals).tolist(),
+                "holes_px": [np.round(h, decimals).tolist() for h in self.holes_px],
+                "area_px": round(float(self.area_px), decimals),
+                "centroid_px": np.round(self.centroid_px, decimals).tolist(),
+                "merged": bool(self.merged), "cut_off": bool(self.cut_off)}
+
+
+def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
+                  reference_bgr: np.ndarray | None = None) -> list[Segment]:
+    """Segment one frame into part regions, largest first.
+
+    Parameters
+    ----------
+    frame_bgr : ndarray of shape (h, w, 3) uint8 (a grey (h, w) image is accepted)
+    params : SegmentParams, optional
+    reference_bgr : ndarray of shape (h, w, 3), optional
+        The empty tray under the same lighting; without it the tray is estimated.
+    """
+    p = params or SegmentParams()
+    frame = _as_bgr(frame_bgr)
+    h, w = frame.shape[:2]
+    s = max(1, int(p.scale)) if w >= SMALL_FRAME_PX else 1  # small frames are detected at full resolution
+    dw, dh = w // s, h // s
+    det = cv2.resize(frame, (dw, dh), interpolation=cv2.INTER_AREA) if s > 1 else frame
+    det = det.astype(np.float32)
+    if reference_bgr is not None:
+        ref = _as_bgr(reference_bgr)
+        if ref.shape != frame.shape:
+            raise BadInput(f"the reference image is {ref.shape[1]} x {ref.shape[0]} px, the frame {w} x {h} px")
+        bg = reference_background(ref, (dw, dh))
+    else:
+        bg, _ = estimate_background(det, p.tray)
+    mask = part_mask(det, bg, p, s)
+    labels, merged = _split_regions(mask, p, s, det)
+    segs = _regions_to_segments(labels, merged, frame, det, p, s)
+    segs.sort(key=lambda g: -g.area_px)
+    return segs
+
+
+def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int) -> np.ndarray:
+    """uint8 mask (0/1) of part pixels at detection resolution (steps 2 and 3)."""
+    sm = cv2.GaussianBlur(det, (0, 0), 0.8)
+    ones = np.ones((1, 3), np.float32)
+    si = cv2.transform(sm, ones) + 1.0
+    sb = cv2.transform(bg, ones) + 1.0
+    r = si / sb
+    ib, ig, _ = cv2.split(sm)
+    bb, bgg, _ = cv2.split(bg)
+    db = ib / si - bb / sb
+    dg = ig / si - bgg / sb
+    chroma = np.abs(db) + np.abs(dg) + np.abs(db + dg)  # L1 over b, g, r of the normalised colour
+    # the same changes in DN, to be compared with the frame's noise (dark trays have noisy chroma)
+    chroma_dn = chroma * si
+    bright_dn = (si - sb) / 3.0
+    # spread from the quietest quarter of the frame (the tray), valid while the tray covers a
+    # quarter of the view: the 25th percentile of |N(0, s)| is 0.32 s
+    noise_c = float(np.percentile(chroma_dn[::4, ::4], 25)) / 0.32 + 1e-3
+    noise_b = float(np.percentile(np.abs(bright_dn[::4, ::4]), 25)) / 0.32 + 1e-3
+
+    def evidence(f: float):
+        k = f * p.noise_k
+        return (((chroma > f * p.chroma_min) & (chroma_dn > k * noise_c))
+                | ((r > 1.0 + f * p.brighter_min) & (bright_dn > k * noise_b))
+                | ((r < 1.0 - p.darker_min) & (-bright_dn > k * noise_b)))
+
+    strong = evidence(1.0)
+    if p.hysteresis < 1.0:  # weaker evidence counts where it is connected to strong evidence
+        weak = evidence(p.hysteresis)
+        n, lab = cv2.connectedComponents(weak.astype(np.uint8), connectivity=8)
+        seeded = np.zeros(n, bool)
+        seeded[np.unique(lab[strong])] = True
+        seeded[0] = False
+        strong = seeded[lab]
+    darker = (r < 1.0 - p.brighter_min) & ~strong
+    if not p.shadow_aware:
+        strong |= darker
+        darker[:] = False
+    mask = strong.astype(np.uint8)
+    if darker.any():
+        # shadow-like pixels enclosed by a part are its holes (the tray in the part's shadow)
+        from cell.vision.touching import fill_holes
+
+        enclosed = fill_holes(strong.astype(np.uint8)).astype(bool) & ~strong
+        mask |= _material_shadowlike(r, strong, darker & ~enclosed, p, scale)
+    k = np.ones((3, 3), np.uint8)
+    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, k)
+    return mask
+
+
+def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int) -> np.ndarray:
+    """Shadow-like regions bounded by sharp edges are material (walls, grey parts), not shadow."""
+    gx = cv2.Sobel(r, cv2.CV_32F, 1, 0, ksize=3) / 8.0
+    gy = cv2.Sobel(r, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+    grad = np.sqrt(gx * gx + gy * gy) / scale  # per full-resolution pixel
+    sharp = grad > p.sharp_edge
+    # cut shadow-like regions at sharp edges, so a grey part and its own shadow come apart
+    cand = (darker & ~sharp).astype(np.uint8)
+    n, lab = cv2.connectedComponents(cand, connectivity=4)
+    if n <= 1:
+        return np.zeros_like(cand)
+    # judge each region by its free border, where it meets the tray (not the part it hangs on):
+    # a wall ends there in a sharp edge, a shadow fades out
+    tray = (~(strong | darker | sharp)).astype(np.uint8)
+    near_tray = cv2.dilate(tray, np.ones((5, 5), np.uint8)) > 0
+    near_part = cv2.dilate(strong.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    border = cand.astype(bool) & (cv2.dilate((1 - cand).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+    border &= near_tray & ~near_part
+    near_sharp = cv2.dilate(sharp.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    lb = lab[border]
+    total = np.bincount(lb, minlength=n).astype(float)
+    sharp_count = np.bincount(lb, weights=near_sharp[border].astype(float), minlength=n)
+    frac = np.divide(sharp_count, total, out=np.zeros(n), where=total > 0)
+    keep = frac > p.sharp_fraction
+    keep[0] = False
+    # a shadow-like nook between two separate parts is the crevice where they meet, not a wall
+    ns, parts_lab = cv2.connectedComponents(strong.astype(np.uint8), connectivity=8)
+    if ns > 2:
+        pl = parts_lab.astype(np.float32)
+        k3 = np.ones((3, 3), np.uint8)
+        hi = cv2.dilate(pl, k3)
+        lo = -cv2.dilate(np.where(pl > 0, -pl, -1e9).astype(np.float32), k3)
+        inside = lab > 0
+        li = lab[inside]
+        hi_c = np.zeros(n)
+        np.maximum.at(hi_c, li, hi[inside])
+        lo_c = np.full(n, 1e9)
+        np.minimum.at(lo_c, li, np.where(lo[inside] > 0, lo[inside], 1e9))
+        keep &= ~((hi_c > 0) & (lo_c < 1e9) & (hi_c != lo_c))
+    out = keep[lab].astype(np.uint8)
+    # the sharp edge pixels between kept regions and parts belong to the part
+    grown = cv2.dilate(out | strong.astype(np.uint8), np.ones((3, 3), np.uint8))
+    out |= (darker & sharp & (grown > 0)).astype(np.uint8)
+    return out
+
+
+def _split_regions(mask: np.ndarray, p: SegmentParams, scale: int, det: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, set[int]]:
+    """Label image of regions (0 = tray) and the labels flagged merged; touching parts split."""
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    min_area = p.min_area_px / scale ** 2
+    keep = np.zeros(n, bool)
+    keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= min_area
+    remap = np.zeros(n, np.int32)
+    remap[keep] = np.arange(1, int(keep.sum()) + 1)
+    lab = remap[lab]
+    if not p.split_touching:
+        return lab, set()
+    from cell.vision.touching import split_necks
+
+    grey = lab_img = None
+    if det is not None:
+        grey = cv2.cvtColor(det, cv2.COLOR_BGR2GRAY)
+        lab_img = cv2.cvtColor(np.clip(det / 255.0, 0, 1).astype(np.float32), cv2.COLOR_BGR2LAB)
+    return split_necks(lab, p, min_area, grey, lab_img)
+
+
+def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.ndarray, det: np.ndarray,
+                         p: SegmentParams, scale: int) -> list[Segment]:
+    from scipy import ndimage
+
+    dh, dw = labels.shape
+    segs = []
+    for k, sl in enumerate(ndimage.find_objects(labels), start=1):
+        if sl is None:
+            continue
+        merged = k in merged_ids
+        y0, x0 = max(sl[0].start - 1, 0), max(sl[1].start - 1, 0)
+        y1, x1 = min(sl[0].stop + 1, dh), min(sl[1].stop + 1, dw)
+        sub = (labels[y0:y1, x0:x1] == k).astype(np.uint8)
+        contours, hier = cv2.findContours(sub, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE, offset=(x0, y0))
+        if hier is None:
+            continue
+        hier = hier[0]
+        outers = [i for i in range(len(contours)) if hier[i][3] < 0]
+        for oi in outers:
+            c = contours[oi].reshape(-1, 2)
+            if cv2.contourArea(contours[oi]) < p.min_area_px / scale ** 2 * 0.5:
+                continue
+            cut = bool(np.any((c[:, 0] <= 0) | (c[:, 1] <= 0) | (c[:, 0] >= dw - 1) | (c[:, 1] >= dh - 1)))
+            holes = [contours[j].reshape(-1, 2) for j in range(len(contours)) if hier[j][3] == oi
+                     and cv2.contourArea(contours[j]) >= p.min_hole_area_px / scale ** 2]
+            outline = _to_full(c, scale)
+            hole_rings = [_to_full(hh, scale) for hh in holes]
+            if p.refine:
+                outline = refine_ring(frame, outline, p, hole=False)
+                hole_rings = [refine_ring(frame, hh, p, hole=True) for hh in hole_rings]
+            outline = _orient(outline, ccw=True)
+            hole_rings = [_orient(hh, ccw=False) for hh in hole_rings]
+            area, cen = _area_centroid(outline, hole_rings)
+            if area < 0.5 * p.min_area_px:
+                continue  # a sliver whose pixels passed the speck filter but whose outline did not
+            mean = cv2.mean(det[y0:y1, x0:x1], sub)[:3]
+            segs.append(Segment(outline, hole_rings, area, cen, bool(merged), cut, tuple(float(m) for m in mean)))
+    return segs
+
+
+def _to_full(c: np.ndarray, scale: int) -> np.ndarray:
+    """Detection-resolution boundary pixel centres -> full-resolution CONTRACT coordinates."""
+    return (c.astype(float) + 0.5) * scale
+
+
+def refine_ring(frame: np.ndarray, ring: np.ndarray, p: SegmentParams, hole: bool) -> np.ndarray:
+    """Move each ring point along its normal to the half-way crossing of the colour profile.
+
+    The profile across the edge is projected on the colour difference between the part side
+    and the other side, so it runs from 1 (part) to 0 (tray, shadow or hole) whatever the
+    colours; 0.5 is the edge of an optically blurred step.
+    """
+    n = len(ring)
+    if n < 5:
+        return ring
+    tang = np.roll(ring, -2, axis=0) - np.roll(ring, 2, axis=0)
+    tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
+    normal = np.column_stack([tang[:, 1], -tang[:, 0]])  # out of the ring if it is CCW in (u, v)
+    sign = 1.0 if _signed_area(ring) > 0 else -1.0
+    normal *= sign * (-1.0 if hole else 1.0)  # out of the material
+    rng_px = p.refine_range_px
+    ts = np.arange(-rng_px, rng_px + 1e-9, 0.5)
+    ks = np.array([-1.0, 0.0, 1.0])
+    pts = (ring[:, None, None, :] + ts[None, :, None, None] * normal[:, None, None, :]
+           + ks[None, None, :, None] * tang[:, None, None, :])
+    mapx = (pts[..., 0] - 0.5).reshape(n, -1).astype(np.float32)
+    mapy = (pts[..., 1] - 0.5).reshape(n, -1).astype(np.float32)
+    samp = cv2.remap(frame, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    prof = samp.reshape(n, len(ts), len(ks), 3).astype(np.float32).mean(axis=2)
+    q = 3  # samples at each end that stand for "inside" and "outside"
+    inside = np.median(prof[:, :q], axis=1)
+    outside = np.median(prof[:, -q:], axis=1)
+    d = inside - outside
+    dd = (d * d).sum(axis=1)
+    ok = dd > p.min_edge_contrast_dn ** 2
+    f = ((prof - outside[:, None, :]) * d[:, None, :]).sum(axis=2) / np.maximum(dd, 1e-9)[:, None]
+    cross = (f[:, :-1] >= 0.5) & (f[:, 1:] < 0.5)
+    tmid = 0.5 * (ts[:-1] + ts[1:])
+    cost = np.where(cross, np.abs(tmid)[None, :], np.inf)
+    j = np.argmin(cost, axis=1)
+    found = np.isfinite(cost[np.arange(n), j]) & ok
+    f0, f1 = f[np.arange(n), j], f[np.arange(n), j + 1]
+    frac = np.clip((f0 - 0.5) / np.maximum(f0 - f1, 1e-9), 0.0, 1.0)
+    t = ts[j] + frac * (ts[1] - ts[0])
+    t = np.where(found, t, 0.0)
+    return ring + t[:, None] * normal
+
+
+def _signed_area(ring: np.ndarray) -> float:
+    x, y = ring[:, 0], ring[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+
+
+def _orient(ring: np.ndarray, ccw: bool) -> np.ndarray:
+    return ring if (_signed_area(ring) > 0) == ccw else ring[::-1].copy()
+
+
+def _area_centroid(outline: np.ndarray, holes: list[np.ndarray]) -> tuple[float, np.ndarray]:
+    def ring_ac(r):
+        x, y = r[:, 0], r[:, 1]
+        x1, y1 = np.roll(x, -1), np.roll(y, -1)
+        cr = x * y1 - x1 * y
+        a = 0.5 * cr.sum()
+        if abs(a) < 1e-12:
+            return 0.0, r.mean(axis=0)
+        return a, np.array([((x + x1) * cr).sum(), ((y + y1) * cr).sum()]) / (6 * a)
+
+    a0, c0 = ring_ac(outline)
+    a0 = abs(a0)
+    tot, mom = a0, a0 * c0
+    for hring in holes:
+        ah, ch = ring_ac(hring)
+        ah = abs(ah)
+        tot -= ah
+        mom = mom - ah * ch
+    if tot <= 0:
+        return a0, c0
+    return float(tot), mom / tot
+
+
+def _as_bgr(img: np.ndarray) -> np.ndarray:
+    if not isinstance(img, np.ndarray) or img.size == 0:
+        raise BadInput("the frame is empty or not an image")
+    if img.dtype != np.uint8:
+        raise BadInput(f"the frame must be 8-bit, got {img.dtype}")
+    if img.ndim == 2:
+        return cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    if img.ndim == 3 and img.shape[2] == 4:
+        return cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    if img.ndim == 3 and img.shape[2] == 3:
+        return img
+    raise BadInput(f"the frame must be (h, w, 3) BGR, got shape {img.shape}")
+
+
+def segment_to_mm(seg: Segment, cal, z_mm: float, z_bottom_mm: float | None = None,
+                  frame: np.ndarray | None = None):
+    """Map a segment to the base frame on the plane of the part's top.
+
+    The camera sees a part's walls on the side facing the image of the vertical (the point
+    vertical lines run to, near the image centre). There the outline is the part's bottom
+    edge when the wall shows, its top edge when the wall looks like the tray. With
+    `z_bottom_mm` (the part is a prism from z_bottom to z_mm) those boundary points are mapped
+    at the bottom; with the `frame` as well, each point is checked in the image: if the band
+    where a wall would be has the top face's colour, the point is the top edge after all.
+
+    Returns
+    -------
+    (outline_mm ndarray of shape (n, 2), list of hole rings (m, 2)), base frame, mm.
+    """
+    if z_bottom_mm is None or abs(z_bottom_mm - z_mm) < 1e-9:
+        return cal.px_to_mm(seg.outline_px, z_mm), [cal.px_to_mm(hh, z_mm) for hh in seg.holes_px]
+    vp = cal.vertical_vanishing_px()
+    img = None if frame is None else _as_bgr(frame)
+
+    def ring(r: np.ndarray, hole: bool) -> np.ndarray:
+        top = cal.px_to_mm(r, z_mm)
+        if len(r) < 5:
+            return top
+        tang = np.roll(r, -2, axis=0) - np.roll(r, 2, axis=0)
+        normal = np.column_stack([tang[:, 1], -tang[:, 0]]) * (1.0 if _signed_area(r) > 0 else -1.0)
+        if hole:
+            normal = -normal
+        wall_side = (normal * (r - vp)).sum(axis=1) < 0
+        bottom = cal.px_to_mm(r, z_bottom_mm)
+        if img is not None and wall_side.any():
+            wall_side &= _wall_visible(img, r, cal.mm_to_px(bottom, z_mm))
+        return np.where(wall_side[:, None], bottom, top)
+
+    return ring(seg.outline_px, False), [ring(hh, True) for hh in seg.holes_px]
+
+
+WALL_MIN_PX = 1.0  # narrower walls: the two hypotheses differ by less than half a pixel's mapping
+WALL_CONTRAST = 0.15  # relative colour change that shows a wall
+WALL_DARK_DN = 20.0
+WALL_VOTE_WINDOW = 9
+
+
+def _wall_visible(img: np.ndarray, b: np.ndarray, b_top: np.ndarray) -> np.ndarray:
+    """For boundary points `b` (n, 2) taken as bottom edges, with their top edges at `b_top`:
+    does the band between them differ from the top face beyond it (a wall is seen)?"""
+    d = b_top - b
+    w = np.linalg.norm(d, axis=1)
+    u = d / np.maximum(w, 1e-9)[:, None]
+    t = np.column_stack([-u[:, 1], u[:, 0]])
+
+    def sample(pts):
+        offs = np.array([-1.0, 0.0, 1.0])
+        q = pts[:, None, :] + offs[None, :, None] * t[:, None, :]
+        mx = (q[..., 0] - 0.5).astype(np.float32)
+        my = (q[..., 1] - 0.5).astype(np.float32)
+        return cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float32).mean(
+            axis=1)
+
+    top = sample(b_top + 2.0 * u)
+    # relative to the top face's brightness: a dark part's wall is only a few DN darker than its
+    # top, but brushed metal varies by as many DN from row to row
+    norm = np.linalg.norm(top, axis=1) / np.sqrt(3) + WALL_DARK_DN
+    diff = np.max([np.linalg.norm(sample(b + f * d) - top, axis=1) for f in (0.6, 0.8)], axis=0) / norm
+    vote = (diff > WALL_CONTRAST).astype(float)
+    # a wall's look changes slowly along the part: a running majority removes single misreadings
+    k = WALL_VOTE_WINDOW // 2
+    vote = np.mean([np.roll(vote, s) for s in range(-k, k + 1)], axis=0) > 0.5
+    return (w >= WALL_MIN_PX) & vote

@@ -1,0 +1,195 @@
+"""Touching parts: split a region at a narrow neck, or flag it as merged.
+
+Two convex-ish parts that touch form one region whose distance transform (DT) has two
+lobes joined by a low saddle. Thresholding the DT at rising levels L finds the first level
+where the region falls apart into two or more cores (each with a peak well above L). If
+those cores, grown back by L, cover the region (nothing but the lobes: the signature of
+touching blobs, unlike a lever whose bosses are joined by a long bar), the region is split
+by a watershed from the cores when the neck is narrow (L / smaller peak < `neck_split`),
+and flagged merged when it is only moderately narrow (< `neck_flag`). Touching parts with
+no neck at all (two plates side by side) cannot be told from one part by shape alone.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+MIN_LOBE_RADIUS_PX = 6.0  # full-resolution px: teeth and tabs are not lobes
+COVER_MIN = 0.9
+MAX_SPLIT_DEPTH = 6
+
+
+def split_necks(labels: np.ndarray, p, min_area_det: float, grey: np.ndarray | None = None,
+                lab_image: np.ndarray | None = None) -> tuple[np.ndarray, set[int]]:
+    """Return a label image where touching regions are split, and the labels flagged merged."""
+    out = np.zeros_like(labels)
+    merged: set[int] = set()
+    next_id = 1
+    scale = max(1, int(p.scale))
+    r_min = MIN_LOBE_RADIUS_PX / scale
+    hh, ww = labels.shape
+    for lid, sl in enumerate(ndimage.find_objects(labels), start=1):
+        if sl is None:
+            continue
+        y0, x0 = max(sl[0].start - 2, 0), max(sl[1].start - 2, 0)
+        y1, x1 = min(sl[0].stop + 2, hh), min(sl[1].stop + 2, ww)
+        sub = (labels[y0:y1, x0:x1] == lid).astype(np.uint8)
+        g = None if grey is None else grey[y0:y1, x0:x1]
+        pieces = None if lab_image is None else split_by_colour(sub, lab_image[y0:y1, x0:x1], min_area_det,
+                                                                p.colour_split)
+        pieces = sub.astype(np.int32) if pieces is None else pieces
+        view = out[y0:y1, x0:x1]
+        # each colour piece may still hold touching parts; each split lobe is looked at again
+        work = [((pieces == c).astype(np.uint8), 0) for c in range(1, int(pieces.max()) + 1)]
+        while work:
+            piece, depth = work.pop()
+            if not piece.any():
+                continue
+            decision, parts = _analyse(piece, p, r_min, min_area_det, g)
+            if decision == "split" and depth < MAX_SPLIT_DEPTH:
+                work.extend(((parts == k).astype(np.uint8), depth + 1) for k in range(1, int(parts.max()) + 1))
+                continue
+            view[piece.astype(bool)] = next_id
+            if decision == "merged":
+                merged.add(next_id)
+            next_id += 1
+    return out, merged
+
+
+def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_delta_e: float):
+    """Split a region into parts of clearly different colour that each own part of its outline.
+
+    Two colour clusters (k-means in CIE Lab) count as two touching parts only when both form a
+    large connected piece that reaches the region's outline: pills in a blister pack or a
+    highlight on metal lie inside their part and do not split it. Returns a label image
+    (1..k inside the region) or None.
+    """
+    area = int(sub.sum())
+    if area < 2 * min_area:
+        return None
+    mask = sub.astype(bool)
+    px = lab_img[mask].astype(np.float32)
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5)
+    _, lab, centres = cv2.kmeans(px, 2, None, crit, 1, cv2.KMEANS_PP_CENTERS)
+    if np.linalg.norm(centres[0] - centres[1]) < min_delta_e:
+        return None
+    cl = np.zeros(sub.shape, np.uint8)
+    cl[mask] = lab.ravel() + 1
+    outline = mask & (cv2.erode(sub, np.ones((3, 3), np.uint8)) == 0)
+    n_out = int(outline.sum())
+    seeds = np.zeros(sub.shape, np.int32)
+    k = 0
+    for c in (1, 2):
+        piece = cv2.morphologyEx((cl == c).astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+        n, comp, stats, _ = cv2.connectedComponentsWithStats(piece, connectivity=8)
+        for j in range(1, n):
+            sel = comp == j
+            # edge pixels mix with the tray's colour: a piece owns the outline it comes near
+            reach = cv2.dilate(sel.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
+            if stats[j, cv2.CC_STAT_AREA] >= min_area and (outline & reach).sum() >= 0.15 * n_out:
+                k += 1
+                seeds[sel] = k
+    if k < 2:
+        return None
+    return _nearest_label(seeds, sub)  # every pixel of the region goes to the nearest seed
+
+
+def _nearest_label(parts: np.ndarray, region: np.ndarray) -> np.ndarray:
+    """Extend labels (1..k) to every pixel of `region` by nearest labelled pixel."""
+    seeds = parts > 0
+    _, nearest = cv2.distanceTransformWithLabels((~seeds).astype(np.uint8), cv2.DIST_L2, 5,
+                                                 labelType=cv2.DIST_LABEL_PIXEL)
+    lut = np.zeros(int(nearest.max()) + 1, np.int32)
+    lut[nearest[seeds]] = parts[seeds]
+    return np.where(region > 0, lut[nearest], 0)
+
+
+def fill_holes(mask: np.ndarray) -> np.ndarray:
+    """The mask (0/1 uint8) with every region not reachable from the border filled."""
+    pad = np.pad(mask, 1)
+    flood = pad.copy()
+    cv2.floodFill(flood, None, (0, 0), 1)
+    return (pad | (1 - flood))[1:-1, 1:-1]
+
+
+def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, grey: np.ndarray | None):
+    sub = fill_holes(sub)  # holes would put false saddles into the distance transform
+    dt = cv2.distanceTransform(sub, cv2.DIST_L2, 5)
+    peak = float(dt.max())
+    if peak < 2 * r_min:
+        return "one", None
+    for level in np.arange(1.0, peak, max(1.0, peak / 12)):
+        n, cores = cv2.connectedComponents((dt > level).astype(np.uint8), connectivity=8)
+        if n <= 2:
+            continue
+        idx = np.arange(1, n)
+        peaks = np.asarray(ndimage.maximum(dt, cores, idx), float)
+        areas = np.bincount(cores.ravel(), minlength=n)[1:]
+        big = idx[(peaks >= np.maximum(r_min, level / p.neck_flag)) & (areas >= 3)]
+        if len(big) < 2:
+            continue
+        lobe_peaks = np.asarray(ndimage.maximum(dt, cores, big), float)
+        grown = cv2.dilate(np.isin(cores, big).astype(np.uint8),
+                           cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * int(level) + 3,) * 2))
+        cover = float((grown.astype(bool) & sub.astype(bool)).sum()) / float(sub.sum())
+        if cover < COVER_MIN:
+            # lobes joined by bars or arms: one part with a shape of its own; but three or more
+            # separate lobes in one region are a heap of parts
+            return ("merged" if len(big) >= 3 else "one"), None
+        ratio = level / float(np.sort(lobe_peaks)[-2])
+        if ratio >= p.neck_flag:
+            return "one", None
+        if ratio >= p.neck_split:
+            return "merged", None
+        markers = np.zeros(sub.shape, np.int32)
+        for k, c in enumerate(big, start=1):
+            markers[cores == c] = k
+        markers[sub == 0] = len(big) + 1
+        ws = cv2.watershed(cv2.cvtColor((255 - np.clip(dt * 8, 0, 255)).astype(np.uint8), cv2.COLOR_GRAY2BGR),
+                           markers)
+        parts = np.where((ws >= 1) & (ws <= len(big)) & (sub > 0), ws, 0)
+        # the watershed lines (-1) inside the region go to the neighbouring lobe
+        parts = _fill_lines(parts, sub)
+        if min(int((parts == k).sum()) for k in range(1, len(big) + 1)) < min_area:
+            return "merged", None
+        if not _seam_visible(parts, ws, grey, p.seam_contrast_dn):
+            # a neck but no seam in the image: one part with a waist, or parts that touch
+            # so closely nothing shows; only a pinch-thin neck is reported as merged
+            return ("merged" if ratio < p.neck_pinch else "one"), None
+        return "split", parts
+    return "one", None
+
+
+def _seam_visible(parts: np.ndarray, ws: np.ndarray, grey: np.ndarray | None, contrast_dn: float) -> bool:
+    """Does the image show where the lobes meet: a thin dark or bright line along the cut (the
+    gap, walls, a crease) or a change of brightness across it (different parts)?"""
+    if grey is None:
+        return True
+    inner = cv2.erode((parts > 0).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0  # away from the outline
+    cut = (ws == -1) & inner
+    if cut.sum() < 2:
+        return True
+    near = (cv2.dilate(cut.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0) & ~(
+        cv2.dilate(cut.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0) & inner
+    if not near.any():
+        return True
+    g = grey.astype(np.float32)
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+    line = np.maximum(cv2.morphologyEx(g, cv2.MORPH_BLACKHAT, k), cv2.morphologyEx(g, cv2.MORPH_TOPHAT, k))
+    on_cut = cv2.dilate(cut.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    valley = float(np.median(np.max([line[on_cut]], axis=0))) - float(np.median(line[near]))
+    sides = [float(np.median(g[near & (parts == k)])) for k in np.unique(parts[near]) if k > 0]
+    step = max(sides) - min(sides) if len(sides) > 1 else 0.0
+    return valley > 0.5 * contrast_dn or step > contrast_dn
+
+
+def _fill_lines(parts: np.ndarray, sub: np.ndarray) -> np.ndarray:
+    holes = (sub > 0) & (parts == 0)
+    if not holes.any():
+        return parts
+    grown = cv2.dilate(parts.astype(np.float32), np.ones((3, 3), np.uint8)).astype(np.int32)
+    parts = parts.copy()
+    parts[holes] = grown[holes]
+    return parts

@@ -1,0 +1,516 @@
+"""The cell's drives as one object: four SCARA axes and the gripper over CANopen.
+
+    with Arm(bus, cell, clock) as arm:          # connect(): heartbeats, SDO set-up, enable
+        sent = arm.move_joints(Joints(...))     # limits checked here, before any frame
+        result = arm.gripper.grip(32.0)         # GripResult(width_mm, holding)
+        arm.state()                             # per node: state, position, faults
+
+Safety supervision, all in the host:
+- every command is checked by `drivers.limits` first; a violation raises `LimitError` and
+  nothing is sent;
+- the host sends its own heartbeat and configures each drive (0x1016) to fault when it
+  falls silent; it watches every node's heartbeat against a deadline (and the boot-up
+  deadline at connect);
+- EMCY frames, FAULT states, heartbeat timeouts, SDO failures and error frames latch a
+  fault: the running move is quick-stopped on every axis, the error names the node and
+  the reason, and nothing moves again until `reset_faults()`.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import can
+import canopen
+
+from cell.kinematics import Joints
+from drivers import codec
+from drivers.axis import Axis
+from drivers.clock import Clock, RealClock
+from drivers.eds import AXIS_EDS, GRIP_FORCE_INDEX, GRIPPER_EDS, eds_path
+from drivers.errors import (
+    BusFault,
+    DriveFault,
+    DriverError,
+    FaultLatched,
+    LimitError,
+    MoveTimeout,
+    NodeSilent,
+    NotConnected,
+)
+from drivers.gripper import GRIPPER_ACCEL_FACTOR, Gripper
+from drivers.limits import JOINT_FIELDS, command_violations
+from drivers.profile import trapezoid, velocity_for_duration
+from drivers.pump import BusPump
+
+HOST_NODE_ID = 0x7F  # the host's own heartbeat id (the drives watch it)
+HEARTBEAT_DEADLINE_FACTOR = 3.0  # a node is silent after this many of its heartbeat periods
+POSITION_TOLERANCE_COUNTS = 2
+QUICK_STOP_DECEL_FACTOR = 2.0  # quick stop / fault reaction deceleration = this x the max acceleration
+TPDO_EVENT_TIMER_MS = 50  # status at least every 50 ms when nothing changes (the watch sees a stuck drive)
+
+
+class Arm:
+    """The SCARA arm and the gripper on a CAN bus made by the caller (see `drivers.open_bus`).
+
+    Parameters
+    ----------
+    bus : can.BusABC
+        Never created nor shut down here.
+    cell : cell.cellconfig.Cell, optional
+        Joint limits, speeds, workspace, gripper and CAN node table (default: the shipped cell).
+    clock : Clock, optional
+        Share a `SimClock` with `drivers.sim.serve` for simulated time; default wall time.
+    sdo_timeout_s : float
+        Wall time an SDO answer may take (canopen retries once).
+    error_frame_limit : int
+        Error frames seen on the bus before the bus counts as faulty.
+    """
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        cell=None,
+        clock: Clock | None = None,
+        *,
+        sdo_timeout_s: float = 0.3,
+        boot_timeout_s: float | None = None,
+        error_frame_limit: int = 1,
+        poll_s: float = 0.01,
+    ):
+        if cell is None:
+            from cell.cellconfig import default_cell
+
+            cell = default_cell()
+        self.bus, self.cell = bus, cell
+        self._own_clock = clock is None
+        self.clock = clock or RealClock()
+        self.sdo_timeout_s = sdo_timeout_s
+        hb_s = cell.can.heartbeat_ms / 1000.0
+        self.heartbeat_deadline_s = HEARTBEAT_DEADLINE_FACTOR * hb_s
+        self.boot_timeout_s = boot_timeout_s if boot_timeout_s is not None else max(1.0, 5 * hb_s)
+        self.error_frame_limit = error_frame_limit
+        self.poll_s = poll_s
+        self.axes: dict[str, Axis] = {}
+        self.gripper = Gripper(self)
+        self.error_frames = 0
+        self._faults: dict[str, DriverError] = {}
+        self._lock = threading.Lock()
+        self._emcy_seen: dict[str, int] = {}
+        self._network: canopen.Network | None = None
+        self._pump: BusPump | None = None
+        self._jobs: list = []
+        self._velocity_counts: dict[str, int] = {}
+        self._connected = False
+        self._pending: tuple[dict, float] = ({}, 0.0)
+        self.state_at_failure: dict | None = None
+
+    # --- lifecycle -------------------------------------------------------------------------
+    @property
+    def is_connected(self) -> bool:
+        return self._connected
+
+    def connect(self, *, enable: bool = True) -> None:
+        """Bring every node up: boot-up/heartbeat deadline, SDO set-up (heartbeats both ways,
+        software limits, profile parameters), NMT start, and (unless `enable=False`) the 402
+        state machine to OPERATION ENABLED with target = actual position."""
+        if self._connected:
+            return
+        self._network = canopen.Network(self.bus)
+        for name, n in self.cell.can.nodes.items():
+            eds = eds_path(GRIPPER_EDS if name == "gripper" else AXIS_EDS)
+            self.axes[name] = Axis(
+                name,
+                n.node_id,
+                str(eds),
+                self._network,
+                self.clock,
+                n.counts_per_unit,
+                n.unit,
+                sdo_timeout_s=self.sdo_timeout_s,
+            )
+        self._pump = BusPump(self.bus, [self._network.listeners[0], self._on_frame], name="arm-rx")
+        self.clock.add_settler(self._pump.settle)
+        host_period_s = self.cell.can.host_heartbeat_ms / 1000.0
+        self._host_job = self.clock.every(host_period_s, self._send_host_heartbeat, name="host-heartbeat")
+        self._jobs.append(self._host_job)
+        self._send_host_heartbeat()
+        self._connected = True
+        try:
+            t0 = self.clock.now()
+            for ax in self.axes.values():
+                ax.wait_heartbeat(self.clock, self.boot_timeout_s, self.poll_s, start_s=t0)
+            for ax in self.axes.values():
+                self._configure(ax)
+            for ax in self.axes.values():
+                ax.nmt(codec.NMT_START)
+            for ax in self.axes.values():
+                ax.wait_status(lambda s: True, None, "first TPDO after NMT start")
+                ax.wait_nmt(self.clock, 0x05, self.boot_timeout_s, self.poll_s)
+            self._jobs.append(self.clock.every(max(self.poll_s, 0.005), self._watch, name="arm-watchdog"))
+            if enable:
+                self._enable_all()
+        except BaseException:
+            self.state_at_failure = self.state()
+            self.disconnect()
+            raise
+
+    def _configure(self, ax: Axis) -> None:
+        c = self.cell
+        device_type = ax.sdo_read(0x1000)
+        if device_type & 0xFFFF != 402:
+            raise DriveFault(
+                f"{ax.name} (node {ax.node_id}) is not a CiA 402 drive (0x1000 = 0x{device_type:08X})",
+                node=ax.name,
+                node_id=ax.node_id,
+            )
+        if ax.sdo_read(0x6502) & codec.SUPPORTED_MODES_PP == 0:
+            raise DriveFault(
+                f"{ax.name} (node {ax.node_id}) does not support profile position mode",
+                node=ax.name,
+                node_id=ax.node_id,
+            )
+        ax.setup_pdos(TPDO_EVENT_TIMER_MS)
+        ax.sdo_write(0x1017, 0, c.can.heartbeat_ms)
+        deadline_ms = round(HEARTBEAT_DEADLINE_FACTOR * c.can.host_heartbeat_ms)
+        ax.sdo_write(0x1016, 1, codec.consumer_heartbeat_entry(HOST_NODE_ID, deadline_ms))
+        if ax.name == "gripper":
+            lo, hi = c.gripper.opening_mm
+            velocity, accel = c.gripper.speed_mm_s, GRIPPER_ACCEL_FACTOR * c.gripper.speed_mm_s
+            ax.sdo_write(GRIP_FORCE_INDEX, 0, round(c.gripper.grip_force_n * 10))
+            self.gripper._force_n = c.gripper.grip_force_n
+        else:
+            lo, hi = c.scara.limits(ax.name)
+            velocity, accel = c.scara.max_velocity[ax.name], c.scara.max_acceleration[ax.name]
+        ax.sdo_write(0x607D, 1, ax.to_counts(lo))
+        ax.sdo_write(0x607D, 2, ax.to_counts(hi))
+        v = max(1, round(velocity * ax.counts_per_unit))
+        ax.sdo_write(0x6081, 0, v)
+        self._velocity_counts[ax.name] = v
+        a = max(1, round(accel * ax.counts_per_unit))
+        ax.sdo_write(0x6083, 0, a)
+        ax.sdo_write(0x6084, 0, a)
+        ax.sdo_write(0x6085, 0, max(1, round(QUICK_STOP_DECEL_FACTOR * accel * ax.counts_per_unit)))
+
+    def _enable_all(self) -> None:
+        """Enable every drive. A drive found in FAULT (say, after a host crash) is not reset
+        here: its fault is latched with its error code, and only `reset_faults()` clears it."""
+        for ax in self.axes.values():
+            if ax.state == "FAULT":
+                code = ax.sdo_read(0x603F)
+                self._latch(
+                    DriveFault(
+                        f"{ax.name} (node {ax.node_id}): in FAULT, error code 0x{code:04X} {codec.emcy_text(code)}",
+                        node=ax.name,
+                        node_id=ax.node_id,
+                        emcy_code=code,
+                    )
+                )
+                continue
+            ax.enable()
+
+    def disconnect(self) -> None:
+        """Disable the drives cleanly (they hold no torque and stop watching the host), stop
+        the host heartbeat and the receive thread. The bus stays open."""
+        if not self._connected:
+            return
+        try:
+            for ax in self.axes.values():
+                if ax.last_heartbeat_s is None or self._faults.get(ax.name) is not None:
+                    continue
+                try:
+                    ax.disable()
+                    ax.sdo_write(0x1016, 1, 0)
+                except (DriverError, can.CanError):
+                    pass  # a node that cannot be told is stopped by its host-heartbeat watch
+        finally:
+            for job in self._jobs:
+                job.cancel()
+            self._jobs.clear()
+            if self._pump is not None:
+                self.clock.remove_settler(self._pump.settle)
+                self._pump.stop()
+            for ax in self.axes.values():
+                ax.detach()
+            self.axes.clear()
+            self._connected = False
+            if self._own_clock:
+                self.clock.close()
+
+    def __enter__(self) -> Arm:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.disconnect()
+
+    # --- supervision -----------------------------------------------------------------------
+    def _send_host_heartbeat(self) -> None:
+        if self._network is not None:
+            self._network.send_message(codec.HEARTBEAT_BASE + HOST_NODE_ID, codec.pack_heartbeat(0x05))
+
+    def _on_frame(self, msg: can.Message) -> None:
+        if msg.is_error_frame:
+            with self._lock:
+                self.error_frames += 1
+                if self.error_frames >= self.error_frame_limit and "bus" not in self._faults:
+                    self._faults["bus"] = BusFault(
+                        f"bus: {self.error_frames} error frame(s) received (limit {self.error_frame_limit})"
+                    )
+
+    def _watch(self) -> None:
+        """Periodic check of every node: heartbeat deadline, EMCY, FAULT state."""
+        now = self.clock.now()
+        for ax in list(self.axes.values()):
+            err: DriverError | None = None
+            if ax.emcy_seq != self._emcy_seen.get(ax.name, 0):
+                self._emcy_seen[ax.name] = ax.emcy_seq
+                e = ax.last_emcy
+                if e is not None and e.code != 0:
+                    err = DriveFault(
+                        f"{ax.name} (node {ax.node_id}): EMCY 0x{e.code:04X} {e.text}",
+                        node=ax.name,
+                        node_id=ax.node_id,
+                        emcy_code=e.code,
+                    )
+            if err is None and ax.state in ("FAULT", "FAULT_REACTION_ACTIVE"):
+                err = DriveFault(
+                    f"{ax.name} (node {ax.node_id}): {ax.fault_text()}",
+                    node=ax.name,
+                    node_id=ax.node_id,
+                    emcy_code=ax.last_emcy.code if ax.last_emcy else None,
+                )
+            if (
+                err is None
+                and ax.last_heartbeat_s is not None
+                and now - ax.last_heartbeat_s > self.heartbeat_deadline_s
+            ):
+                err = NodeSilent(
+                    f"{ax.name} (node {ax.node_id}): no heartbeat for {now - ax.last_heartbeat_s:.3f} s "
+                    f"(deadline {self.heartbeat_deadline_s:g} s)",
+                    node=ax.name,
+                    node_id=ax.node_id,
+                )
+            if err is not None:
+                self._latch(err)
+
+    def _latch(self, err: DriverError, key: str | None = None) -> None:
+        """Remember the first fault per node ('bus' for the bus, 'stop' for an operator's stop)."""
+        with self._lock:
+            key = key or err.node or "bus"
+            if key not in self._faults:
+                self._faults[key] = err
+
+    @property
+    def faults(self) -> dict[str, str]:
+        """Latched faults: node name (or 'bus') -> reason. Empty when all is well."""
+        with self._lock:
+            return {k: str(v) for k, v in self._faults.items()}
+
+    def stop(self) -> None:
+        """Quick-stop every enabled axis now (Ctrl-C, an operator's stop) and wait until they
+        stand still. Latched like a fault: the drives stay in QUICK STOP ACTIVE and commands are
+        refused until `reset_faults()`."""
+        if self._connected:
+            self._stop_all()
+            self._pending = ({}, 0.0)
+            self._latch(DriverError("quick stop requested by the operator"), key="stop")
+
+    def _stop_all(self) -> None:
+        """Quick-stop every axis that still obeys, then wait (on the clock) until all stand still."""
+        for ax in self.axes.values():
+            if ax.name not in self._faults:
+                try:
+                    ax.quick_stop()
+                except (can.CanError, DriverError):
+                    pass  # stopping the others matters more than this one's answer
+        self._wait_standstill()
+
+    def _wait_standstill(self, timeout_s: float = 2.0) -> None:
+        """Until no drive ramps any more: positions unchanged over a poll, no fault reaction."""
+        deadline = self.clock.now() + timeout_s
+        last = None
+        while self.clock.now() < deadline:
+            now = {n: (ax.status.position_counts if ax.status else None, ax.state) for n, ax in self.axes.items()}
+            if now == last and not any(st == "FAULT_REACTION_ACTIVE" for _, st in now.values()):
+                return
+            last = now
+            self.clock.sleep(max(self.poll_s, 0.02))
+
+    def _check_faults(self, during_move: bool) -> None:
+        with self._lock:
+            faults = dict(self._faults)
+        if not faults:
+            return
+        if during_move:
+            self._stop_all()
+            raise next(iter(faults.values()))
+        raise FaultLatched({k: str(v) for k, v in faults.items()})
+
+    def reset_faults(self) -> None:
+        """Clear latched faults: fault-reset every faulted drive and enable all again. Raises
+        (and stays latched) when a node is still silent or faults again."""
+        self._require_connected()
+        self._watch()
+        self._wait_standstill()  # a drive in its fault reaction finishes its ramp first
+        for ax in self.axes.values():
+            if ax.last_heartbeat_s is None or self.clock.now() - ax.last_heartbeat_s > self.heartbeat_deadline_s:
+                # give a node that went quiet one deadline to show up again
+                ax.last_heartbeat_s = None
+                try:
+                    ax.wait_heartbeat(self.clock, self.heartbeat_deadline_s, self.poll_s)
+                except NodeSilent as e:
+                    self._latch(e)
+                    raise
+        try:
+            for ax in self.axes.values():
+                ax.fault_reset()
+            with self._lock:
+                self._faults.clear()
+                self.error_frames = 0
+                for ax in self.axes.values():
+                    self._emcy_seen[ax.name] = ax.emcy_seq
+            self._enable_all()
+        except DriverError as e:
+            self._latch(e)
+            raise
+
+    # --- commands --------------------------------------------------------------------------
+    def _begin_command(self) -> None:
+        """Every command: connected, the previous move finished, no fault latched."""
+        self._require_connected()
+        if self._pending[0]:
+            self.wait_idle()
+        self._check_faults(during_move=False)
+
+    def _require_connected(self) -> None:
+        if not self._connected:
+            raise NotConnected("the arm is not connected: call connect() first")
+
+    def joints(self) -> Joints:
+        """The actual joint values (from the drives' last TPDOs)."""
+        self._require_connected()
+        vals = []
+        for joint, _, _ in JOINT_FIELDS:
+            p = self.axes[joint].position
+            if p is None:
+                raise NotConnected(f"{joint}: no position received yet")
+            vals.append(p)
+        return Joints(*vals)
+
+    def move_time_s(self, start: Joints, target: Joints) -> float:
+        """Duration of the coordinated move (every axis arrives with the slowest), from the
+        trapezoidal profiles under the cell file's speed and acceleration limits."""
+        s = self.cell.scara
+        return max(
+            trapezoid(getattr(target, f) - getattr(start, f), s.max_velocity[j], s.max_acceleration[j]).duration_s
+            for j, f, _ in JOINT_FIELDS
+        )
+
+    def move_joints(self, target: Joints, *, wait: bool = True) -> Joints:
+        """Move all four axes to `target` in one coordinated profile-position move.
+
+        Refuses (`LimitError`, nothing sent) anything outside the joint limits, the workspace
+        box or the maximum step; refuses (`FaultLatched`) while a fault is latched. Returns
+        the command actually sent (the targets rounded to whole counts). With `wait`, returns
+        when every axis reports target reached; a fault during the move quick-stops all axes
+        and raises the node's error.
+        """
+        self._begin_command()
+        current = self.joints()
+        problems = command_violations(self.cell, target, current)
+        if problems:
+            raise LimitError("move refused, nothing sent: " + "; ".join(problems))
+        s = self.cell.scara
+        duration_s = self.move_time_s(current, target)
+        targets: dict[str, int] = {}
+        for joint, field, _ in JOINT_FIELDS:
+            ax = self.axes[joint]
+            counts = ax.to_counts(getattr(target, field))
+            distance = getattr(target, field) - getattr(current, field)
+            if counts == ax.status.position_counts:
+                continue
+            targets[joint] = counts
+            v = velocity_for_duration(distance, duration_s, s.max_acceleration[joint]) if duration_s > 0 else 0.0
+            # at least the mean speed, so that a move of a few counts does not crawl at 1 count/s
+            mean_counts_s = abs(counts - ax.status.position_counts) / duration_s if duration_s > 0 else 1.0
+            v_counts = max(1, round(v * ax.counts_per_unit), math.ceil(mean_counts_s))
+            v_counts = min(v_counts, round(s.max_velocity[joint] * ax.counts_per_unit))
+            if self._velocity_counts.get(joint) != v_counts:
+                self._guarded(ax.sdo_write, 0x6081, 0, v_counts)
+                self._velocity_counts[joint] = v_counts
+        sent = Joints(
+            *(self.axes[j].from_counts(targets.get(j, self.axes[j].status.position_counts)) for j, _, _ in JOINT_FIELDS)
+        )
+        self._run_moves(targets, wait=wait, timeout_s=1.5 * duration_s + 1.0)
+        return sent
+
+    def _guarded(self, fn, *args):
+        """Run an SDO/handshake step; a failure latches the fault (and stops everything)."""
+        try:
+            return fn(*args)
+        except DriverError as e:
+            self._latch(e)
+            self._stop_all()
+            raise
+
+    def _run_moves(self, targets: dict[str, int], *, wait: bool, timeout_s: float) -> None:
+        for name, counts in targets.items():
+            self._guarded(self.axes[name].start_move, counts)
+        self._pending = (targets, self.clock.now() + timeout_s)
+        if wait:
+            self.wait_idle()
+
+    def wait_idle(self) -> None:
+        """Wait (on the shared clock) until the last move's axes report target reached."""
+        targets, deadline = self._pending
+        try:
+            while targets:
+                self._check_faults(during_move=True)
+                if all(self._arrived(self.axes[n], c) for n, c in targets.items()):
+                    return
+                if self.clock.now() > deadline:
+                    late = [n for n, c in targets.items() if not self._arrived(self.axes[n], c)]
+                    err = MoveTimeout(
+                        f"{', '.join(late)}: target not reached in time",
+                        node=late[0],
+                        node_id=self.axes[late[0]].node_id,
+                    )
+                    self._latch(err)
+                    self._stop_all()
+                    raise err
+                self.clock.sleep(self.poll_s)
+        finally:
+            self._pending = ({}, 0.0)
+
+    @staticmethod
+    def _arrived(ax: Axis, counts: int) -> bool:
+        st = ax.status
+        if st is None or not st.target_reached or st.ack:
+            return False
+        return abs(st.position_counts - counts) <= POSITION_TOLERANCE_COUNTS or st.internal_limit
+
+    def state(self) -> dict[str, dict]:
+        """Per node: name, node_id, state (CiA 402 name), position (deg or mm), unit, nmt,
+        fault (latched reason or None), emcy ({code, text} of the last EMCY or None)."""
+        out = {}
+        faults = self.faults
+        now = self.clock.now()
+        for name, n in self.cell.can.nodes.items():
+            ax = self.axes.get(name)
+            e = ax.last_emcy if ax is not None else None
+            out[name] = {
+                "name": name,
+                "node_id": n.node_id,
+                "state": ax.state if ax is not None else "UNKNOWN",
+                "position": ax.position if ax is not None else None,
+                "unit": n.unit,
+                "nmt": codec.NMT_STATE_NAMES.get(ax.nmt_state, "UNKNOWN")
+                if ax and ax.nmt_state is not None
+                else "UNKNOWN",
+                "heartbeat_age_s": (now - ax.last_heartbeat_s) if ax and ax.last_heartbeat_s is not None else None,
+                "fault": faults.get(name),
+                "emcy": {"code": e.code, "text": e.text} if e is not None else None,
+            }
+        return out

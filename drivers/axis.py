@@ -1,0 +1,356 @@
+"""Master side of one CiA 402 node: SDO set-up, NMT, the 402 state machine and the
+profile-position handshake, over PDOs, with every frame packed by `drivers.codec`.
+
+Received frames (TPDO1, EMCY, heartbeat) arrive in the bus pump's thread and only update
+this object's view (under a condition variable); every frame is sent from the caller's
+thread. Waiting for an answer that needs no time to pass (an acknowledge, a state change)
+uses a wall-clock timeout; waiting for motion is the arm's business (it sleeps on the
+shared clock).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import canopen
+from canopen.sdo import SdoAbortedError, SdoCommunicationError
+
+from drivers import codec
+from drivers.clock import Clock
+from drivers.eds import object_dictionary
+from drivers.errors import DriveFault, NodeSilent, SdoError
+
+ANSWER_TIMEOUT_S = 1.0  # wall time a drive gets to answer a controlword with a TPDO
+
+
+class Axis:
+    """One CiA 402 drive as seen from the host.
+
+    Parameters
+    ----------
+    name : str            'j1' ... 'j4' or 'gripper'
+    node_id : int
+    eds : str             path of the node's EDS file
+    network : canopen.Network
+    clock : Clock         for heartbeat time stamps
+    counts_per_unit : float
+    unit : str            'deg' or 'mm'
+    """
+
+    def __init__(
+        self,
+        name: str,
+        node_id: int,
+        eds: str,
+        network: canopen.Network,
+        clock: Clock,
+        counts_per_unit: float,
+        unit: str,
+        sdo_timeout_s: float = 0.3,
+    ):
+        self.name, self.node_id, self.unit = name, node_id, unit
+        self.counts_per_unit = counts_per_unit
+        self.clock = clock
+        self.network = network
+        self.node = canopen.RemoteNode(node_id, object_dictionary(eds, node_id))
+        self.node.sdo.RESPONSE_TIMEOUT = sdo_timeout_s
+        self.node.sdo.MAX_RETRIES = 2  # canopen counts attempts: one retry after a lost answer
+        network.add_node(self.node)
+        self._cond = threading.Condition()
+        self.status: codec.DriveStatus | None = None
+        self.status_seq = 0
+        self.last_heartbeat_s: float | None = None
+        self.nmt_state: int | None = None
+        self.boot_count = 0
+        self.last_emcy: codec.Emcy | None = None
+        self.emcy_seq = 0
+        self.controlword = 0
+        self._subs = [
+            (codec.TPDO1_BASE + node_id, self._on_tpdo1),
+            (codec.EMCY_BASE + node_id, self._on_emcy),
+            (codec.HEARTBEAT_BASE + node_id, self._on_heartbeat),
+        ]
+        for cob, fn in self._subs:
+            network.subscribe(cob, fn)
+
+    def detach(self) -> None:
+        for cob, fn in self._subs:
+            if fn in self.network.subscribers.get(cob, []):
+                self.network.unsubscribe(cob, fn)
+
+    # --- received frames (bus pump thread) -------------------------------------------------
+    def _on_tpdo1(self, can_id, data, timestamp) -> None:
+        try:
+            status = codec.unpack_tpdo1(data)
+        except ValueError:
+            return
+        with self._cond:
+            self.status = status
+            self.status_seq += 1
+            self._cond.notify_all()
+
+    def _on_emcy(self, can_id, data, timestamp) -> None:
+        try:
+            e = codec.unpack_emcy(data)
+        except ValueError:
+            return
+        with self._cond:
+            self.last_emcy = e
+            self.emcy_seq += 1
+            self._cond.notify_all()
+
+    def _on_heartbeat(self, can_id, data, timestamp) -> None:
+        try:
+            state = codec.unpack_heartbeat(data)
+        except ValueError:
+            return
+        with self._cond:
+            if state == 0:
+                self.boot_count += 1
+            self.nmt_state = state
+            self.last_heartbeat_s = self.clock.now()
+            self._cond.notify_all()
+
+    # --- views -----------------------------------------------------------------------------
+    @property
+    def state(self) -> str:
+        return self.status.state if self.status is not None else "UNKNOWN"
+
+    @property
+    def position(self) -> float | None:
+        if self.status is None:
+            return None
+        return codec.from_counts(self.status.position_counts, self.counts_per_unit)
+
+    def to_counts(self, value: float) -> int:
+        return codec.to_counts(value, self.counts_per_unit)
+
+    def from_counts(self, counts: int) -> float:
+        return codec.from_counts(counts, self.counts_per_unit)
+
+    def fault_text(self) -> str:
+        code = self.last_emcy.code if self.last_emcy is not None and self.last_emcy.code else None
+        if code is None:
+            return "drive in FAULT"
+        return f"EMCY 0x{code:04X} {codec.emcy_text(code)}"
+
+    # --- SDO -------------------------------------------------------------------------------
+    def _sdo_var(self, index: int, subindex: int):
+        obj = self.node.sdo[index]
+        return obj if subindex == 0 and not _is_compound(self.node, index) else obj[subindex]
+
+    def _sdo_failed(self, e: Exception, what: str) -> SdoError:
+        if isinstance(e, SdoCommunicationError):
+            text = f"no SDO answer {what} ({e})"
+        else:
+            text = f"SDO {what} aborted: {e}"
+        return SdoError(f"{self.name} (node {self.node_id}): {text}", node=self.name, node_id=self.node_id)
+
+    def sdo_read(self, index: int, subindex: int = 0):
+        try:
+            return self._sdo_var(index, subindex).raw
+        except (SdoCommunicationError, SdoAbortedError) as e:
+            raise self._sdo_failed(e, f"reading 0x{index:04X}:{subindex}") from None
+
+    def sdo_write(self, index: int, subindex: int, value) -> None:
+        try:
+            self._sdo_var(index, subindex).raw = value
+        except (SdoCommunicationError, SdoAbortedError) as e:
+            raise self._sdo_failed(e, f"writing 0x{index:04X}:{subindex} = {value}") from None
+
+    def setup_pdos(self, event_timer_ms: int) -> None:
+        """Check the drive's PDO mapping is the one `drivers.codec` packs (a drive mapped
+        differently is refused, not misread) and set the communication parameters: TPDO1
+        event-driven with an event timer, RPDO1-3 valid on their default COB-IDs."""
+        tpdo = tuple(self.sdo_read(0x1A00, i) for i in range(1, self.sdo_read(0x1A00, 0) + 1))
+        rpdo = tuple(
+            tuple(self.sdo_read(0x1600 + k, i) for i in range(1, self.sdo_read(0x1600 + k, 0) + 1)) for k in range(3)
+        )
+        if tpdo != codec.TPDO1_MAPPING or rpdo != codec.RPDO_MAPPINGS:
+            raise DriveFault(
+                f"{self.name} (node {self.node_id}): PDO mapping differs from the cell's "
+                f"(TPDO1 {[hex(m) for m in tpdo]}, RPDO1-3 {[[hex(m) for m in r] for r in rpdo]})",
+                node=self.name,
+                node_id=self.node_id,
+            )
+        self._ensure_cob_id(0x1800, codec.TPDO1_BASE + self.node_id)
+        self._ensure(0x1800, 2, codec.PDO_EVENT_DRIVEN)
+        self._ensure(0x1800, 5, event_timer_ms)
+        for k, base in enumerate(codec.RPDO_BASES):
+            self._ensure_cob_id(0x1400 + k, base + self.node_id)
+            self._ensure(0x1400 + k, 2, codec.PDO_EVENT_DRIVEN)
+
+    def _ensure(self, index: int, subindex: int, value: int) -> None:
+        """Write only what differs: fewer frames, and no writes a drive may refuse while running."""
+        if self.sdo_read(index, subindex) != value:
+            self.sdo_write(index, subindex, value)
+
+    def _ensure_cob_id(self, comm_index: int, cob_id: int) -> None:
+        """A valid PDO on `cob_id`; CiA 301 wants the PDO invalid (bit 31) while its id changes."""
+        current = self.sdo_read(comm_index, 1)
+        if current & 0x7FF == cob_id and not current & 0x80000000:
+            return
+        if not current & 0x80000000:
+            self.sdo_write(comm_index, 1, current | 0x80000000)
+        self.sdo_write(comm_index, 1, cob_id)
+
+    # --- frames out ------------------------------------------------------------------------
+    def nmt(self, command: int) -> None:
+        self.network.send_message(codec.NMT_COB, codec.pack_nmt(command, self.node_id))
+
+    def send_controlword(self, cw: int) -> int:
+        """Send the controlword (RPDO1); returns the status sequence number before sending."""
+        with self._cond:
+            seq = self.status_seq
+        self.controlword = cw
+        self.network.send_message(codec.RPDO1_BASE + self.node_id, codec.pack_controlword(cw))
+        return seq
+
+    def send_target(self, counts: int) -> None:
+        self.network.send_message(codec.RPDO2_BASE + self.node_id, codec.pack_target(counts))
+
+    def send_mode(self, mode: int) -> int:
+        with self._cond:
+            seq = self.status_seq
+        self.network.send_message(codec.RPDO3_BASE + self.node_id, codec.pack_mode(mode))
+        return seq
+
+    # --- waiting ---------------------------------------------------------------------------
+    def wait_status(self, pred, after_seq: int | None, what: str, timeout_s: float = ANSWER_TIMEOUT_S):
+        """Wait (wall time) for a TPDO newer than `after_seq` whose status satisfies `pred`."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while True:
+                st = self.status
+                if st is not None and (after_seq is None or self.status_seq > after_seq) and pred(st):
+                    return st
+                if st is not None and st.state in ("FAULT", "FAULT_REACTION_ACTIVE") and "FAULT" not in what:
+                    raise DriveFault(
+                        f"{self.name} (node {self.node_id}): {self.fault_text()} while waiting for {what}",
+                        node=self.name,
+                        node_id=self.node_id,
+                        emcy_code=self.last_emcy.code if self.last_emcy else None,
+                    )
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    got = st.state if st is not None else "no status"
+                    raise NodeSilent(
+                        f"{self.name} (node {self.node_id}): no answer ({what}) within "
+                        f"{timeout_s:g} s, last status: {got}",
+                        node=self.name,
+                        node_id=self.node_id,
+                    )
+                self._cond.wait(left)
+
+    def wait_heartbeat(self, clock: Clock, timeout_s: float, step_s: float, start_s: float | None = None) -> None:
+        """Wait for a heartbeat (or boot-up) on the shared clock: the boot-up deadline,
+        `timeout_s` after `start_s` (default: now)."""
+        start = clock.now() if start_s is None else start_s
+        while self.last_heartbeat_s is None:
+            if clock.now() - start >= timeout_s:
+                raise NodeSilent(
+                    f"{self.name} (node {self.node_id}): no boot-up or heartbeat within {timeout_s:g} s",
+                    node=self.name,
+                    node_id=self.node_id,
+                )
+            clock.sleep(step_s)
+
+    def wait_nmt(self, clock: Clock, nmt_state: int, timeout_s: float, step_s: float) -> None:
+        """Wait (on the shared clock) for a heartbeat reporting `nmt_state`."""
+        start = clock.now()
+        while self.nmt_state != nmt_state:
+            if clock.now() - start >= timeout_s:
+                got = codec.NMT_STATE_NAMES.get(self.nmt_state, "nothing")
+                raise NodeSilent(
+                    f"{self.name} (node {self.node_id}): heartbeat did not report "
+                    f"{codec.NMT_STATE_NAMES.get(nmt_state)} within {timeout_s:g} s (last: {got})",
+                    node=self.name,
+                    node_id=self.node_id,
+                )
+            clock.sleep(step_s)
+
+    # --- CiA 402 state machine -------------------------------------------------------------
+    def enable(self) -> None:
+        """Walk the 402 state machine to OPERATION ENABLED in profile position mode, with the
+        target set to the actual position first so that enabling never jumps."""
+        if self.status is None:
+            self.wait_status(lambda s: True, None, "first TPDO")
+        if self.state == "FAULT":
+            raise DriveFault(
+                f"{self.name} (node {self.node_id}): {self.fault_text()}; reset faults first",
+                node=self.name,
+                node_id=self.node_id,
+                emcy_code=self.last_emcy.code if self.last_emcy else None,
+            )
+        if self.status.mode != codec.PP_MODE:
+            seq = self.send_mode(codec.PP_MODE)
+            self.wait_status(lambda s: s.mode == codec.PP_MODE, seq, "profile position mode")
+        self.send_target(self.status.position_counts)
+        steps = {
+            "QUICK_STOP_ACTIVE": (codec.CW_ENABLE_OPERATION, "OPERATION_ENABLED"),
+            "SWITCH_ON_DISABLED": (codec.CW_SHUTDOWN, "READY_TO_SWITCH_ON"),
+            "NOT_READY_TO_SWITCH_ON": (None, "SWITCH_ON_DISABLED"),
+            "READY_TO_SWITCH_ON": (codec.CW_SWITCH_ON, "SWITCHED_ON"),
+            "SWITCHED_ON": (codec.CW_ENABLE_OPERATION, "OPERATION_ENABLED"),
+        }
+        for _ in range(6):
+            state = self.state
+            if state == "OPERATION_ENABLED":
+                return
+            if state not in steps:
+                raise DriveFault(
+                    f"{self.name} (node {self.node_id}): cannot enable from {state}",
+                    node=self.name,
+                    node_id=self.node_id,
+                )
+            cw, nxt = steps[state]
+            if cw is None:
+                self.wait_status(lambda s, n=nxt: s.state == n, None, nxt)
+                continue
+            if state == "SWITCHED_ON":
+                # the drive may have drifted while switched on: target = actual, once more
+                self.send_target(self.status.position_counts)
+            seq = self.send_controlword(cw)
+            self.wait_status(lambda s, n=nxt: s.state == n, seq, nxt)
+        raise DriveFault(
+            f"{self.name} (node {self.node_id}): did not reach OPERATION_ENABLED (at {self.state})",
+            node=self.name,
+            node_id=self.node_id,
+        )
+
+    def quick_stop(self, confirm_timeout_s: float = 0.2) -> None:
+        """Quick stop (402 transition 11) and wait briefly for the drive to confirm it."""
+        if self.state != "OPERATION_ENABLED":
+            return
+        seq = self.send_controlword(codec.CW_QUICK_STOP)
+        try:
+            self.wait_status(lambda s: s.state != "OPERATION_ENABLED", seq, "quick stop FAULT", confirm_timeout_s)
+        except NodeSilent:
+            pass  # a silent drive stops on its own when it misses the host's heartbeat
+
+    def disable(self) -> None:
+        if self.state not in ("FAULT", "SWITCH_ON_DISABLED", "UNKNOWN"):
+            self.send_controlword(codec.CW_SHUTDOWN)
+
+    def fault_reset(self) -> None:
+        """Rising edge of controlword bit 7; the drive goes to SWITCH ON DISABLED."""
+        if self.state != "FAULT":
+            return
+        self.send_controlword(codec.CW_DISABLE_VOLTAGE)
+        seq = self.send_controlword(codec.CW_FAULT_RESET)
+        self.wait_status(lambda s: s.state != "FAULT", seq, "fault reset (leaving FAULT)")
+        self.send_controlword(codec.CW_DISABLE_VOLTAGE)
+
+    def start_move(self, target_counts: int) -> None:
+        """Profile-position handshake: target, new set-point (bit 4), acknowledge (bit 12),
+        clear bit 4, acknowledge cleared. Motion starts at the set-point."""
+        self.send_target(target_counts)
+        seq = self.send_controlword(codec.CW_ENABLE_OPERATION | codec.CW_NEW_SET_POINT)
+        self.wait_status(lambda s: s.ack, seq, "set-point acknowledge")
+        seq = self.send_controlword(codec.CW_ENABLE_OPERATION)
+        self.wait_status(lambda s: not s.ack, seq, "set-point acknowledge cleared")
+
+
+def _is_compound(node, index: int) -> bool:
+    return not isinstance(node.object_dictionary[index], canopen.objectdictionary.ODVariable)

@@ -1,0 +1,249 @@
+"""The EDS files of the cell's drives (shipped in drivers/eds/), and the generator that wrote them.
+
+Both drives are CiA 402 devices with the same communication objects and the static PDO
+mapping described in `drivers.codec`; the gripper adds a grip-force limit (0x2100).
+`python -m drivers.eds` rewrites the files; a test checks the shipped files match.
+"""
+
+from __future__ import annotations
+
+import functools
+from importlib import resources
+from pathlib import Path
+
+import canopen
+
+from drivers import codec
+
+U8, U16, U32, I8, I32, VSTR = 0x0005, 0x0006, 0x0007, 0x0002, 0x0004, 0x0009
+VAR, ARRAY, RECORD = 0x7, 0x8, 0x9
+
+AXIS_EDS = "scara_axis.eds"
+GRIPPER_EDS = "gripper.eds"
+GRIP_FORCE_INDEX = 0x2100  # grip force limit, UNSIGNED16 in 0.1 N
+
+
+def eds_path(name: str) -> Path:
+    return Path(str(resources.files("drivers") / "eds" / name))
+
+
+@functools.lru_cache(maxsize=64)
+def object_dictionary(path: str, node_id: int) -> canopen.ObjectDictionary:
+    """The parsed EDS for one node id, parsed once per process (parsing takes ~15 ms). The
+    dictionary only describes objects; values live in the nodes, so sharing it is safe."""
+    return canopen.import_od(path, node_id)
+
+
+def _objects(gripper: bool) -> list[tuple]:
+    """(index, name, kind, [subs]) with subs (subindex, name, type, access, default, pdo)."""
+
+    def var(index, name, dtype, access, default, pdo=0):
+        return (index, name, VAR, [(0, name, dtype, access, default, pdo)])
+
+    def pdo_comm(index, name, cob):
+        return (
+            index,
+            name,
+            RECORD,
+            [
+                (0, "Highest sub-index supported", U8, "const", "5", 0),
+                (1, "COB-ID", U32, "rw", cob, 0),
+                (2, "Transmission type", U8, "rw", "255", 0),
+                (3, "Inhibit time", U16, "rw", "0", 0),
+                (5, "Event timer", U16, "rw", "0", 0),
+            ],
+        )
+
+    def pdo_map(index, name, entries):
+        subs = [(0, "Number of mapped objects", U8, "ro", str(len(entries)), 0)]
+        for i in range(1, 5):
+            value = entries[i - 1] if i <= len(entries) else 0
+            subs.append((i, f"Mapped object {i}", U32, "ro", f"0x{value:08X}", 0))
+        return (index, name, RECORD, subs)
+
+    device_type = "0x00020192"  # CiA 402, servo drive
+    objs = [
+        var(0x1000, "Device type", U32, "ro", device_type),
+        var(0x1001, "Error register", U8, "ro", "0", 1),
+        var(
+            0x1008,
+            "Manufacturer device name",
+            VSTR,
+            "const",
+            "disassembly-cell gripper" if gripper else "disassembly-cell SCARA axis",
+        ),
+        var(0x1014, "COB-ID EMCY", U32, "ro", "$NODEID+0x80"),
+        (
+            0x1016,
+            "Consumer heartbeat time",
+            ARRAY,
+            [
+                (0, "Number of entries", U8, "const", "1", 0),
+                (1, "Consumer heartbeat time 1", U32, "rw", "0", 0),
+            ],
+        ),
+        var(0x1017, "Producer heartbeat time", U16, "rw", "100"),
+        (
+            0x1018,
+            "Identity object",
+            RECORD,
+            [
+                (0, "Number of entries", U8, "const", "4", 0),
+                (1, "Vendor-ID", U32, "ro", "0x00000000", 0),
+                (2, "Product code", U32, "ro", "0x00000402" if not gripper else "0x00000403", 0),
+                (3, "Revision number", U32, "ro", "0x00010000", 0),
+                (4, "Serial number", U32, "ro", "0", 0),
+            ],
+        ),
+        pdo_comm(0x1400, "RPDO1 communication parameter", "$NODEID+0x200"),
+        pdo_comm(0x1401, "RPDO2 communication parameter", "$NODEID+0x300"),
+        pdo_comm(0x1402, "RPDO3 communication parameter", "$NODEID+0x400"),
+        pdo_comm(0x1403, "RPDO4 communication parameter", "$NODEID+0x80000500"),
+        pdo_map(0x1600, "RPDO1 mapping parameter", list(codec.RPDO_MAPPINGS[0])),
+        pdo_map(0x1601, "RPDO2 mapping parameter", list(codec.RPDO_MAPPINGS[1])),
+        pdo_map(0x1602, "RPDO3 mapping parameter", list(codec.RPDO_MAPPINGS[2])),
+        pdo_map(0x1603, "RPDO4 mapping parameter", []),
+        pdo_comm(0x1800, "TPDO1 communication parameter", "$NODEID+0x180"),
+        pdo_comm(0x1801, "TPDO2 communication parameter", "$NODEID+0x80000280"),
+        pdo_comm(0x1802, "TPDO3 communication parameter", "$NODEID+0x80000380"),
+        pdo_comm(0x1803, "TPDO4 communication parameter", "$NODEID+0x80000480"),
+        pdo_map(0x1A00, "TPDO1 mapping parameter", list(codec.TPDO1_MAPPING)),
+        pdo_map(0x1A01, "TPDO2 mapping parameter", []),
+        pdo_map(0x1A02, "TPDO3 mapping parameter", []),
+        pdo_map(0x1A03, "TPDO4 mapping parameter", []),
+    ]
+    if gripper:
+        objs.append(var(GRIP_FORCE_INDEX, "Grip force limit", U16, "rw", "400"))
+    objs += [
+        var(0x603F, "Error code", U16, "ro", "0", 1),
+        var(0x6040, "Controlword", U16, "rw", "0", 1),
+        var(0x6041, "Statusword", U16, "ro", "0", 1),
+        var(0x6060, "Modes of operation", I8, "rw", "0", 1),
+        var(0x6061, "Modes of operation display", I8, "ro", "0", 1),
+        var(0x6064, "Position actual value", I32, "ro", "0", 1),
+        var(0x6065, "Following error window", U32, "rw", "2000"),
+        var(0x607A, "Target position", I32, "rw", "0", 1),
+        (
+            0x607D,
+            "Software position limit",
+            ARRAY,
+            [
+                (0, "Number of entries", U8, "const", "2", 0),
+                (1, "Min position limit", I32, "rw", "-2147483648", 0),
+                (2, "Max position limit", I32, "rw", "2147483647", 0),
+            ],
+        ),
+        var(0x6081, "Profile velocity", U32, "rw", "10000", 1),
+        var(0x6083, "Profile acceleration", U32, "rw", "100000", 1),
+        var(0x6084, "Profile deceleration", U32, "rw", "100000", 1),
+        var(0x6085, "Quick stop deceleration", U32, "rw", "200000"),
+        var(0x6502, "Supported drive modes", U32, "ro", "0x00000001"),
+    ]
+    return objs
+
+
+def render_eds(gripper: bool) -> str:
+    objs = _objects(gripper)
+    groups = {"MandatoryObjects": [], "OptionalObjects": [], "ManufacturerObjects": []}
+    for o in objs:
+        index = o[0]
+        key = (
+            "MandatoryObjects"
+            if index in (0x1000, 0x1001, 0x1018)
+            else "ManufacturerObjects"
+            if 0x2000 <= index < 0x6000
+            else "OptionalObjects"
+        )
+        groups[key].append(index)
+    name = "gripper" if gripper else "SCARA axis"
+    lines = [
+        "[FileInfo]",
+        f"FileName={GRIPPER_EDS if gripper else AXIS_EDS}",
+        "FileVersion=1",
+        "FileRevision=0",
+        "EDSVersion=4.0",
+        f"Description=disassembly-cell {name}, CiA 402 profile position (simulated and real)",
+        "CreatedBy=drivers/eds.py",
+        "",
+        "[DeviceInfo]",
+        "VendorName=disassembly-cell",
+        f"ProductName={name}",
+        "ProductNumber=0",
+        "RevisionNumber=0x00010000",
+        "OrderCode=",
+        "BaudRate_10=0",
+        "BaudRate_20=0",
+        "BaudRate_50=0",
+        "BaudRate_125=1",
+        "BaudRate_250=1",
+        "BaudRate_500=1",
+        "BaudRate_800=0",
+        "BaudRate_1000=1",
+        "SimpleBootUpMaster=0",
+        "SimpleBootUpSlave=1",
+        "Granularity=8",
+        "DynamicChannelsSupported=0",
+        "GroupMessaging=0",
+        "NrOfRXPDO=4",
+        "NrOfTXPDO=4",
+        "LSS_Supported=0",
+        "",
+        "[DummyUsage]",
+        "Dummy0001=0",
+        "Dummy0002=0",
+        "Dummy0003=0",
+        "Dummy0004=0",
+        "Dummy0005=0",
+        "Dummy0006=0",
+        "Dummy0007=0",
+        "",
+    ]
+    for key, indices in groups.items():
+        lines.append(f"[{key}]")
+        lines.append(f"SupportedObjects={len(indices)}")
+        lines += [f"{i + 1}=0x{index:04X}" for i, index in enumerate(indices)]
+        lines.append("")
+    for index, oname, kind, subs in objs:
+        if kind == VAR:
+            _, _, dtype, access, default, pdo = subs[0]
+            lines += [
+                f"[{index:04X}]",
+                f"ParameterName={oname}",
+                f"ObjectType=0x{VAR:X}",
+                f"DataType=0x{dtype:04X}",
+                f"AccessType={access}",
+                f"DefaultValue={default}",
+                f"PDOMapping={pdo}",
+                "",
+            ]
+            continue
+        lines += [
+            f"[{index:04X}]",
+            f"ParameterName={oname}",
+            f"ObjectType=0x{kind:X}",
+            f"SubNumber={len(subs)}",
+            "",
+        ]
+        for sub, sname, dtype, access, default, pdo in subs:
+            lines += [
+                f"[{index:04X}sub{sub:X}]",
+                f"ParameterName={sname}",
+                f"ObjectType=0x{VAR:X}",
+                f"DataType=0x{dtype:04X}",
+                f"AccessType={access}",
+                f"DefaultValue={default}",
+                f"PDOMapping={pdo}",
+                "",
+            ]
+    return "\n".join(lines)
+
+
+def main() -> None:
+    for name, gripper in ((AXIS_EDS, False), (GRIPPER_EDS, True)):
+        path = Path(__file__).resolve().parent / "eds" / name
+        path.write_text(render_eds(gripper), encoding="utf-8")
+        print(path)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,84 @@
+"""The parallel gripper as seen by the cell: open, grip under a force limit, report the width.
+
+A CiA 402 node whose position is the jaw opening (mm). `grip` closes fully under the force
+limit (0x2100); the drive stops on the part (statusword bit 11, internal limit) or closes
+past it when there is none, and the final width tells a held part from a missed one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from drivers.eds import GRIP_FORCE_INDEX
+from drivers.errors import LimitError
+from drivers.limits import gripper_violations
+from drivers.profile import trapezoid
+
+if TYPE_CHECKING:
+    from drivers.arm import Arm
+
+GRIPPER_ACCEL_FACTOR = 10.0  # gripper acceleration = this x its speed, per second
+
+
+@dataclass(frozen=True)
+class GripResult:
+    """Where the jaws stopped. `holding` is False when they closed past the expected width."""
+
+    width_mm: float
+    holding: bool
+    expected_width_mm: float
+
+
+class Gripper:
+    """The parallel gripper (node 'gripper'): open, grip with a force limit, report the width."""
+
+    def __init__(self, arm: Arm):
+        self._arm = arm
+        self._force_n: float | None = None
+
+    @property
+    def width_mm(self) -> float | None:
+        ax = self._arm.axes.get("gripper")
+        return ax.position if ax is not None else None
+
+    def move_time_s(self, from_mm: float, to_mm: float) -> float:
+        g = self._arm.cell.gripper
+        return trapezoid(to_mm - from_mm, g.speed_mm_s, GRIPPER_ACCEL_FACTOR * g.speed_mm_s).duration_s
+
+    def _move(self, width_mm: float, *, wait: bool = True) -> None:
+        arm = self._arm
+        ax = arm.axes["gripper"]
+        duration = self.move_time_s(ax.position, width_mm)
+        arm._run_moves({"gripper": ax.to_counts(width_mm)}, wait=wait, timeout_s=1.5 * duration + 1.0)
+
+    def open(self, width_mm: float | None = None) -> float:
+        """Open the jaws (fully by default); returns the width reached."""
+        arm = self._arm
+        arm._begin_command()
+        width_mm = arm.cell.gripper.opening_mm[1] if width_mm is None else width_mm
+        problems = gripper_violations(arm.cell, width_mm)
+        if problems:
+            raise LimitError("gripper command refused, nothing sent: " + "; ".join(problems))
+        self._move(width_mm)
+        return self.width_mm
+
+    def grip(self, expected_width_mm: float, force_n: float | None = None, *, tolerance_mm: float = 2.0) -> GripResult:
+        """Close with the force limit (default: the cell file's grip force) and report where the
+        jaws stopped: holding when they stopped on something no narrower than
+        `expected_width_mm - tolerance_mm`; a miss closes past it."""
+        arm = self._arm
+        arm._begin_command()
+        force_n = arm.cell.gripper.grip_force_n if force_n is None else force_n
+        problems = gripper_violations(arm.cell, expected_width_mm, force_n)
+        if problems:
+            raise LimitError("grip refused, nothing sent: " + "; ".join(problems))
+        ax = arm.axes["gripper"]
+        if force_n != self._force_n:
+            arm._guarded(ax.sdo_write, GRIP_FORCE_INDEX, 0, round(force_n * 10))
+            self._force_n = force_n
+        self._move(arm.cell.gripper.opening_mm[0])
+        width = self.width_mm
+        st = ax.status
+        holding = bool(st.internal_limit) and width >= expected_width_mm - tolerance_mm
+        return GripResult(width, holding, expected_width_mm)

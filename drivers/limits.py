@@ -1,0 +1,75 @@
+"""The one place where a joint command is checked before any frame leaves (pure).
+
+Joint limits, the workspace box of the cell file (x/y of the tool; the tray lies inside it)
+and the largest step one command may ask for. The drives' software limits (0x607D) are a
+second line of defence; this check comes first and refuses with a message that says why.
+"""
+
+from __future__ import annotations
+
+import math
+
+from cell.kinematics import Joints, forward, limit_violations
+
+JOINT_FIELDS = (
+    ("j1", "j1_deg", "deg"),
+    ("j2", "j2_deg", "deg"),
+    ("j3", "j3_mm", "mm"),
+    ("j4", "j4_deg", "deg"),
+)
+
+
+def command_violations(cell, target: Joints, current: Joints | None) -> list[str]:
+    """Human-readable reasons why `target` must not be sent (empty list: it may be sent).
+
+    Parameters
+    ----------
+    cell : cell.cellconfig.Cell
+    target : Joints
+        The commanded joint values.
+    current : Joints or None
+        Where the arm is (or was last commanded to); None skips the step check.
+    """
+    values = (target.j1_deg, target.j2_deg, target.j3_mm, target.j4_deg)
+    if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
+        return [f"joint values must be finite numbers, got {target}"]
+    out = list(limit_violations(target, cell.scara))
+    tool = forward(target, cell.scara)
+    ws = cell.workspace
+    if not ws.contains(tool.x_mm, tool.y_mm):
+        out.append(
+            f"tool at x = {tool.x_mm:.1f}, y = {tool.y_mm:.1f} mm outside the workspace "
+            f"x in [{ws.x_mm[0]:g}, {ws.x_mm[1]:g}], y in [{ws.y_mm[0]:g}, {ws.y_mm[1]:g}]"
+        )
+    if current is not None:
+        for joint, field, unit in JOINT_FIELDS:
+            step = abs(getattr(target, field) - getattr(current, field))
+            if step > cell.scara.max_step[joint] + 1e-9:
+                out.append(
+                    f"{joint.upper()} step {step:.3f} {unit} larger than max_step {cell.scara.max_step[joint]:g} {unit}"
+                )
+    return out
+
+
+def gripper_violations(cell, width_mm: float, force_n: float | None = None) -> list[str]:
+    lo, hi = cell.gripper.opening_mm
+    out = []
+    if not (isinstance(width_mm, (int, float)) and math.isfinite(width_mm)) or not lo <= width_mm <= hi:
+        out.append(f"gripper width {width_mm} mm outside [{lo:g}, {hi:g}]")
+    if force_n is not None:
+        if (
+            not (isinstance(force_n, (int, float)) and math.isfinite(force_n))
+            or not 0 < force_n <= cell.gripper.max_force_n
+        ):
+            out.append(f"grip force {force_n} N outside (0, {cell.gripper.max_force_n:g}]")
+    return out
+
+
+def split_move(start: Joints, target: Joints, max_step: dict) -> list[Joints]:
+    """Waypoints from `start` to `target` (linear in joint space, target last) such that no
+    step exceeds `max_step` (per joint name). One waypoint when the move is small enough."""
+    n = 1
+    for joint, field, _ in JOINT_FIELDS:
+        n = max(n, math.ceil(abs(getattr(target, field) - getattr(start, field)) / max_step[joint] - 1e-12))
+    a, b = start.as_array(), target.as_array()
+    return [Joints(*(a + (b - a) * (i / n)).tolist()) for i in range(1, n)] + [target]

@@ -1,0 +1,93 @@
+"""Trapezoidal (or triangular) point-to-point motion profiles: pure functions, any unit.
+
+The simulated drives move along these profiles and `Arm.move_time_s` reports them, so the
+cycle time the cell computes is the time the drives take.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Trapezoid:
+    """A rest-to-rest move of `distance` (signed) with the phases' durations in seconds."""
+
+    distance: float
+    v_peak: float  # reached speed (>= 0)
+    accel: float
+    decel: float
+    t_accel_s: float
+    t_cruise_s: float
+    t_decel_s: float
+
+    @property
+    def duration_s(self) -> float:
+        return self.t_accel_s + self.t_cruise_s + self.t_decel_s
+
+    def position_at(self, t_s: float) -> float:
+        """Distance travelled (signed) after `t_s` seconds; clamped to [0, duration]."""
+        sign = 1.0 if self.distance >= 0 else -1.0
+        t = min(max(t_s, 0.0), self.duration_s)
+        ta, tc = self.t_accel_s, self.t_cruise_s
+        if t <= ta:
+            s = 0.5 * self.accel * t * t
+        elif t <= ta + tc:
+            s = 0.5 * self.accel * ta * ta + self.v_peak * (t - ta)
+        else:
+            td = t - ta - tc
+            s = 0.5 * self.accel * ta * ta + self.v_peak * tc + self.v_peak * td - 0.5 * self.decel * td * td
+        s = min(s, abs(self.distance))
+        return sign * s
+
+    def velocity_at(self, t_s: float) -> float:
+        sign = 1.0 if self.distance >= 0 else -1.0
+        t = min(max(t_s, 0.0), self.duration_s)
+        ta, tc = self.t_accel_s, self.t_cruise_s
+        if t <= ta:
+            v = self.accel * t
+        elif t <= ta + tc:
+            v = self.v_peak
+        else:
+            v = max(0.0, self.v_peak - self.decel * (t - ta - tc))
+        return sign * v
+
+
+def trapezoid(distance: float, v_max: float, accel: float, decel: float | None = None) -> Trapezoid:
+    """The time-optimal rest-to-rest profile for `distance` under the speed and acceleration
+    limits; triangular when the move is too short to reach `v_max`."""
+    decel = accel if decel is None else decel
+    for name, v in (("v_max", v_max), ("accel", accel), ("decel", decel)):
+        if not (math.isfinite(v) and v > 0):
+            raise ValueError(f"{name} must be positive and finite, got {v}")
+    if not math.isfinite(distance):
+        raise ValueError(f"distance must be finite, got {distance}")
+    d = abs(distance)
+    if d == 0.0:
+        return Trapezoid(distance, 0.0, accel, decel, 0.0, 0.0, 0.0)
+    # distance needed to reach v_max and stop again
+    d_ramps = v_max * v_max / (2 * accel) + v_max * v_max / (2 * decel)
+    if d >= d_ramps:
+        ta, td = v_max / accel, v_max / decel
+        return Trapezoid(distance, v_max, accel, decel, ta, (d - d_ramps) / v_max, td)
+    v_peak = math.sqrt(2 * d * accel * decel / (accel + decel))
+    return Trapezoid(distance, v_peak, accel, decel, v_peak / accel, 0.0, v_peak / decel)
+
+
+def velocity_for_duration(distance: float, duration_s: float, accel: float, decel: float | None = None) -> float:
+    """The cruise speed that makes a move of `distance` last `duration_s` with the given ramps
+    (for coordinated moves: every axis arrives with the slowest). Requires `duration_s` at least
+    the time-optimal duration at unbounded speed."""
+    decel = accel if decel is None else decel
+    d = abs(distance)
+    if d == 0.0:
+        return 0.0
+    # d = v*T - v^2/2 * (1/a + 1/dec)  ->  k v^2 - T v + d = 0 with k = (1/a + 1/dec) / 2
+    k = 0.5 * (1.0 / accel + 1.0 / decel)
+    disc = duration_s * duration_s - 4 * k * d
+    if -1e-9 * duration_s * duration_s < disc < 0:
+        disc = 0.0  # exactly the time-optimal triangle, up to rounding
+    if disc < 0:
+        raise ValueError(f"a move of {d} cannot last only {duration_s} s with these ramps")
+    return (duration_s - math.sqrt(disc)) / (2 * k)

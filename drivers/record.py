@@ -1,0 +1,107 @@
+"""Record and replay bus traffic with python-can's own loggers and readers (never a home-made
+format): `.asc` or candump `.log` for small fixtures, `.blf` for long runs (by file suffix).
+
+The recorder listens on a bus of its own on the same channel, like candump on a socket: it
+hears every participant (the host and the drives) without touching their buses.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import can
+
+from cell.errors import BadInput
+from drivers.clock import Clock
+from drivers.pump import BusPump
+
+SUFFIXES = (".asc", ".log", ".blf")
+
+
+class BusRecorder:
+    """Write every frame heard on `bus` to `path` until `stop()` (a context manager).
+
+    Parameters
+    ----------
+    bus : can.BusABC
+        A bus of the recorder's own on the channel to record (the caller opens and closes it).
+    path : str or Path
+        `.asc`, `.log` (candump) or `.blf`.
+    clock : Clock, optional
+        Stamp frames with this clock's time (simulated time in a simulated session) instead of
+        the wall time of reception.
+    """
+
+    def __init__(self, bus: can.BusABC, path: str | Path, clock: Clock | None = None):
+        self.path = Path(path)
+        if self.path.suffix.lower() not in SUFFIXES:
+            raise BadInput(f"CAN log {self.path}: use one of {', '.join(SUFFIXES)} (python-can's formats)")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.clock = clock
+        self.frames = 0
+        self._writer = can.Logger(str(self.path))
+        self._pump = BusPump(bus, [self._on_message], name="can-recorder")
+        if clock is not None:
+            clock.add_settler(self._pump.settle)
+        self._stopped = False
+
+    def _on_message(self, msg: can.Message) -> None:
+        if self.clock is not None:
+            msg.timestamp = self.clock.now()
+        self._writer.on_message_received(msg)
+        self.frames += 1
+
+    def stop(self) -> int:
+        """Write out what was heard so far and close the file; returns the number of frames."""
+        if not self._stopped:
+            self._stopped = True
+            self._pump.settle()
+            if self.clock is not None:
+                self.clock.remove_settler(self._pump.settle)
+            self._pump.stop()
+            self._writer.stop()
+        return self.frames
+
+    def __enter__(self) -> BusRecorder:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+def read_log(path: str | Path) -> list[can.Message]:
+    """Every frame of a python-can log file, in order; `BadInput` for a missing or unreadable log."""
+    path = Path(path)
+    if not path.is_file():
+        raise BadInput(f"CAN log {path} does not exist")
+    try:
+        with can.LogReader(str(path)) as reader:
+            return list(reader)
+    except (ValueError, OSError, can.CanError, EOFError, IndexError) as e:
+        raise BadInput(f"CAN log {path} cannot be read: {e}") from None
+
+
+def replay(path: str | Path, bus: can.BusABC, *, realtime: bool = False) -> int:
+    """Send the frames of a log on `bus` (with `realtime`, spaced as recorded); returns the count."""
+    frames = read_log(path)
+    source = can.MessageSync(frames, timestamps=True) if realtime else frames
+    n = 0
+    for msg in source:
+        bus.send(msg)
+        n += 1
+    return n
+
+
+def same_frame(a: can.Message, b: can.Message) -> bool:
+    """Equal on the wire: id, id length, frame kind and data (timestamps and channels aside).
+    Error frames compare by kind only: the log formats keep different parts of the error class."""
+    if a.is_error_frame or b.is_error_frame:
+        return a.is_error_frame == b.is_error_frame
+    return (
+        a.arbitration_id == b.arbitration_id
+        and a.is_extended_id == b.is_extended_id
+        and a.is_error_frame == b.is_error_frame
+        and a.is_remote_frame == b.is_remote_frame
+        and a.dlc == b.dlc
+        and bytes(a.data) == bytes(b.data)
+    )

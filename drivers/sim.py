@@ -1,0 +1,174 @@
+"""Simulated CiA 402 drives of the cell (j1-j4 and the gripper) that answer on a real CAN bus.
+
+`serve(bus, cell=None, clock=None)` puts five CANopen nodes on a python-can bus made by the
+caller. Each node is a `canopen.LocalNode` (its SDO server and object dictionary come from
+the shipped EDS file) plus the drive logic here: NMT with boot-up and heartbeat, the 402
+state machine with faults, profile position with the set-point handshake (a target without
+the rising edge of controlword bit 4 never moves), trapezoidal motion in the clock's time,
+statusword/position/mode in TPDO1 (on change and on the event timer), EMCY on faults, a
+consumer heartbeat on the host (the drive faults when the host falls silent), software
+position limits (0x607D) as a second line of defence, and a gripper that stops on a part
+of a given width or closes fully when there is none.
+
+Fault injection (`SimHandle.inject_fault`) covers: a silent node, an EMCY during a move, a
+following error, dropped SDO answers, error frames on the bus. Faults latch in the drive
+until a fault reset (controlword bit 7 rising edge), as on a real drive.
+"""
+
+from __future__ import annotations
+
+import can
+import canopen
+
+from drivers.clock import Clock, RealClock
+from drivers.eds import AXIS_EDS, GRIPPER_EDS, eds_path
+from drivers.pump import BusPump
+from drivers.simdrive import FAULT_KINDS, TPDO_EVENT_MS, SimDrive, SimGripper
+
+TICK_S = 0.01  # motion and timer resolution of the simulated drives (TPDO1 at most 100 Hz)
+
+
+class SimHandle:
+    """The running simulated cell drives; a context manager (leaving it stops them)."""
+
+    def __init__(self, bus: can.BusABC, cell, clock: Clock | None, tick_s: float, tpdo_event_ms: int):
+        self.bus = bus
+        self.cell = cell
+        self._own_clock = clock is None
+        self.clock = clock or RealClock()
+        self.network = canopen.Network(bus)
+        self.drives: dict[str, SimDrive] = {}
+        home = cell.motion.home_joints
+        start = {"j1": home["j1_deg"], "j2": home["j2_deg"], "j3": home["j3_mm"], "j4": home["j4_deg"]}
+        for name, n in cell.can.nodes.items():
+            common = dict(
+                counts_per_unit=n.counts_per_unit,
+                heartbeat_ms=cell.can.heartbeat_ms,
+                tpdo_event_ms=tpdo_event_ms,
+            )
+            if name == "gripper":
+                g = cell.gripper
+                d = SimGripper(
+                    name,
+                    n.node_id,
+                    str(eds_path(GRIPPER_EDS)),
+                    self.network,
+                    self.clock,
+                    limits=g.opening_mm,
+                    velocity=g.speed_mm_s,
+                    acceleration=10 * g.speed_mm_s,
+                    position=g.opening_mm[1],
+                    grip_force_n=g.grip_force_n,
+                    **common,
+                )
+            else:
+                s = cell.scara
+                d = SimDrive(
+                    name,
+                    n.node_id,
+                    str(eds_path(AXIS_EDS)),
+                    self.network,
+                    self.clock,
+                    limits=s.limits(name),
+                    velocity=s.max_velocity[name],
+                    acceleration=s.max_acceleration[name],
+                    position=start[name],
+                    **common,
+                )
+            self.drives[name] = d
+        self.nodes = [{"node_id": d.node_id, "name": name, "eds": d.eds} for name, d in self.drives.items()]
+        self.pump = BusPump(bus, [self.network.listeners[0]], name="sim-drives-rx")
+        self.clock.add_settler(self.pump.settle)
+        for d in self.drives.values():
+            d.boot()
+        self._job = self.clock.every(tick_s, self._tick, name="sim-drives")
+        self._closed = False
+
+    def _tick(self) -> None:
+        now = self.clock.now()
+        for d in self.drives.values():
+            d.step(now)
+
+    @property
+    def gripper_object_width_mm(self) -> float | None:
+        """Width of the part between the jaws (set by the simulated world); None = no part."""
+        return self.drives["gripper"].object_width_mm
+
+    @gripper_object_width_mm.setter
+    def gripper_object_width_mm(self, width_mm: float | None) -> None:
+        self.drives["gripper"].object_width_mm = None if width_mm is None else float(width_mm)
+
+    def inject_fault(self, kind: str, node: str | None = None, **kw) -> None:
+        """Make the simulated cell misbehave.
+
+        kind : 'silent' (node stops sending and hearing), 'emcy' (the node faults with EMCY
+            `code`, default 0x2310 over-current; with `after_s`, that many seconds into its
+            next move), 'following_error' (the axis jams `after_s` into its next move, default
+            at once; the drive faults with EMCY 0x8611 and statusword bit 13 when the demand
+            leaves the following error window 0x6065),
+            'drop_sdo' (the next `count` SDO answers are lost; default all, until `heal`),
+            'error_frames' (`count` error frames on the bus, default 3; no node needed).
+        """
+        if kind == "error_frames":
+            for _ in range(int(kw.get("count", 3))):
+                self.bus.send(
+                    can.Message(
+                        is_error_frame=True,
+                        arbitration_id=0x20000080,
+                        is_extended_id=True,
+                        data=bytes(8),
+                        dlc=8,
+                    )
+                )
+            return
+        if kind not in FAULT_KINDS:
+            raise ValueError(f"unknown fault kind {kind!r}; one of {FAULT_KINDS}")
+        if node not in self.drives:
+            raise ValueError(f"unknown node {node!r}; one of {sorted(self.drives)}")
+        self.drives[node].arm(kind, **kw)
+
+    def heal(self, node: str | None = None) -> None:
+        """Undo injected misbehaviour (all nodes, or one); latched drive faults stay latched."""
+        for name, d in self.drives.items():
+            if node in (None, name):
+                d.heal()
+
+    def positions(self) -> dict[str, float]:
+        return {name: d.position() for name, d in self.drives.items()}
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self._job.cancel()
+        self.clock.remove_settler(self.pump.settle)
+        self.pump.stop()
+        if self._own_clock:
+            self.clock.close()
+
+    def __enter__(self) -> SimHandle:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def serve(
+    bus: can.BusABC,
+    cell=None,
+    clock: Clock | None = None,
+    *,
+    tick_s: float = TICK_S,
+    tpdo_event_ms: int = TPDO_EVENT_MS,
+) -> SimHandle:
+    """Start the simulated drives of `cell` (default: the shipped cell) on `bus`.
+
+    With no clock, motion runs in real time in a background thread (`RealClock`); pass a
+    `drivers.clock.SimClock` shared with the master for fast deterministic runs. The bus
+    stays the caller's: leaving the handle stops the drives but does not shut the bus down.
+    """
+    if cell is None:
+        from cell.cellconfig import default_cell
+
+        cell = default_cell()
+    return SimHandle(bus, cell, clock, tick_s, tpdo_event_ms)

@@ -1,0 +1,572 @@
+"""One simulated CiA 402 drive (and the gripper) on a canopen `Network`: the drive logic
+behind `drivers.sim.serve`.
+
+A `canopen.LocalNode` provides the SDO server and the object dictionary (from the shipped
+EDS); this module adds NMT with boot-up and heartbeat, the 402 state machine with faults,
+profile position with the set-point handshake, trapezoidal motion on the shared clock,
+TPDO1 on change and on its event timer, EMCY, the host heartbeat watch, the software
+position limits, and fault injection.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass
+
+import canopen
+from canopen.sdo import SdoAbortedError
+
+from drivers import codec
+from drivers.clock import Clock
+from drivers.eds import GRIP_FORCE_INDEX, object_dictionary
+from drivers.profile import Trapezoid, trapezoid
+
+log = logging.getLogger(__name__)
+
+TPDO_EVENT_MS = 50  # TPDO1 is also sent at least this often (canopen's BaseNode402 waits 0.2 s)
+FAULT_KINDS = ("silent", "emcy", "following_error", "drop_sdo", "error_frames")
+NMT_OPERATIONAL, NMT_PREOP, NMT_STOPPED, NMT_INIT = 0x05, 0x7F, 0x04, 0x00
+QUICK_STOP_DECEL_FACTOR = 2.0  # quick stop / fault reaction ramp = this x the profile acceleration
+
+
+@dataclass
+class _Motion:
+    t0_s: float
+    start_counts: float
+    target_counts: int
+    profile: Trapezoid
+    stopping: bool = False  # a quick-stop or fault-reaction ramp to standstill
+
+
+class SimDrive:
+    """One simulated CiA 402 drive on a canopen `Network`. Thread-safe (one lock)."""
+
+    def __init__(
+        self,
+        name: str,
+        node_id: int,
+        eds: str,
+        network: canopen.Network,
+        clock: Clock,
+        *,
+        counts_per_unit: float,
+        limits: tuple[float, float],
+        velocity: float,
+        acceleration: float,
+        position: float,
+        heartbeat_ms: int,
+        tpdo_event_ms: int = TPDO_EVENT_MS,
+    ):
+        self.name, self.node_id, self.eds, self.clock = name, node_id, eds, clock
+        self.counts_per_unit = counts_per_unit
+        self._lock = threading.RLock()
+        self.network = network
+        self.node = canopen.LocalNode(node_id, object_dictionary(eds, node_id))
+        network.add_node(self.node)
+        # NMT and heartbeats are ours (clock-driven), not canopen's send_periodic thread
+        self.node._write_callbacks.remove(self.node.nmt.on_write)
+        network.unsubscribe(0, self.node.nmt.on_command)
+        network.subscribe(0, self._on_nmt)
+        self.node.add_read_callback(self._on_read)
+        self.node.add_write_callback(self._on_write)
+        self._sdo_send = self.node.sdo.send_response
+        self.node.sdo.send_response = self._send_sdo_response
+        # RPDOs by their communication object (the COB-IDs are writable, as on real drives)
+        self._rpdo_handlers = {0x1400: self._on_rpdo1, 0x1401: self._on_rpdo2, 0x1402: self._on_rpdo3}
+        self._rpdo_cobs: dict[int, int] = {}
+        for comm in self._rpdo_handlers:
+            self._subscribe_rpdo(comm, int(self._get(comm, 1)))
+        network.subscribe(codec.SYNC_COB, self._on_sync)
+        self._sync_count = 0
+        # object dictionary values the cell file sets (as a commissioning tool would)
+        c = counts_per_unit
+        self._store(0x607D, 1, codec.to_counts(limits[0], c))
+        self._store(0x607D, 2, codec.to_counts(limits[1], c))
+        self._store(0x6081, 0, max(1, round(velocity * c)))
+        self._store(0x6083, 0, max(1, round(acceleration * c)))
+        self._store(0x6084, 0, max(1, round(acceleration * c)))
+        self._store(0x6085, 0, max(1, round(QUICK_STOP_DECEL_FACTOR * acceleration * c)))
+        self._store(0x1017, 0, heartbeat_ms)
+        self._store(0x1800, 5, tpdo_event_ms)
+        # drive state
+        self.nmt = NMT_INIT
+        self.state = "NOT_READY_TO_SWITCH_ON"
+        self.position_counts = float(codec.to_counts(position, c))
+        self._store(0x607A, 0, round(self.position_counts))
+        self.mode = 0
+        self.controlword = 0
+        self.ack = False
+        self.target_reached = True
+        self.following_error = False
+        self.internal_limit = False
+        self.error_code = 0
+        self.motion: _Motion | None = None
+        self.pending: tuple[int, bool] | None = None  # buffered set-point (single set-point mode)
+        self.emcy_log: list[int] = []
+        # host heartbeat watch (0x1016)
+        self._host_id = 0
+        self._host_deadline_s = 0.0
+        self._host_seen_s: float | None = None
+        # timers
+        self._last_hb_s = -1e9
+        self._last_tpdo_s = -1e9
+        self._last_tpdo: bytes | None = None
+        # injected faults
+        self.silent = False
+        self.drop_sdo = 0  # number of SDO answers still to drop (-1: all)
+        self._armed: list[dict] = []
+        self._jammed_at: float | None = None  # actual position of a blocked axis (following error)
+
+    # --- object dictionary plumbing --------------------------------------------------------
+    def _store(self, index: int, subindex: int, value) -> None:
+        od = self.node.object_dictionary[index]
+        var = od if isinstance(od, canopen.objectdictionary.ODVariable) else od[subindex]
+        self.node.data_store.setdefault(index, {})[subindex] = var.encode_raw(value)
+
+    def _get(self, index: int, subindex: int = 0):
+        od = self.node.object_dictionary[index]
+        var = od if isinstance(od, canopen.objectdictionary.ODVariable) else od[subindex]
+        raw = self.node.data_store.get(index, {}).get(subindex)
+        return var.decode_raw(raw) if raw is not None else var.default
+
+    def _on_read(self, index, subindex, od):
+        with self._lock:
+            if index == 0x6041:
+                return self.statusword
+            if index == 0x6064:
+                return round(self.position_counts)
+            if index == 0x6061:
+                return self.mode
+            if index == 0x603F:
+                return self.error_code
+            if index == 0x1001:
+                return 0x01 if self.error_code else 0x00
+            if index == 0x6040:
+                return self.controlword
+        return None
+
+    def _on_write(self, index, subindex, od, data):
+        with self._lock:
+            value = od.decode_raw(data)
+            if index == 0x6040:
+                self._on_controlword(value)
+            elif index == 0x6060:
+                self._set_mode(value)
+            elif index == 0x1016 and subindex == 1:
+                self._set_host_watch(value)
+            elif index == 0x1017 and value < 0:
+                raise SdoAbortedError(0x06090030)
+            elif 0x1400 <= index <= 0x1403 and subindex == 2 and value not in (254, 255):
+                raise SdoAbortedError(0x06090030)  # RPDOs act on reception here (no SYNC-applied RPDOs)
+            elif 0x1800 <= index <= 0x1803 and subindex == 2 and 240 < value < 254:
+                raise SdoAbortedError(0x06090030)
+            elif index in self._rpdo_handlers and subindex == 1:
+                self._subscribe_rpdo(index, value)
+
+    def _subscribe_rpdo(self, comm_index: int, cob_entry: int) -> None:
+        handler = self._rpdo_handlers[comm_index]
+        old = self._rpdo_cobs.pop(comm_index, None)
+        if old is not None:
+            self.network.unsubscribe(old, handler)
+        if not cob_entry & 0x80000000:  # bit 31 set: PDO not valid
+            self._rpdo_cobs[comm_index] = cob_entry & 0x7FF
+            self.network.subscribe(cob_entry & 0x7FF, handler)
+
+    def _send_sdo_response(self, response) -> None:
+        with self._lock:
+            if self.silent or self.nmt == NMT_STOPPED:
+                return
+            if self.drop_sdo:
+                self.drop_sdo -= 1 if self.drop_sdo > 0 else 0
+                return
+        self._sdo_send(response)
+
+    # --- received frames -------------------------------------------------------------------
+    def _on_nmt(self, can_id, data, timestamp) -> None:
+        if len(data) < 2 or data[1] not in (0, self.node_id):
+            return
+        with self._lock:
+            if self.silent:
+                return
+            cmd = data[0]
+            if cmd == codec.NMT_START:
+                self.nmt = NMT_OPERATIONAL
+                self._last_tpdo = None  # send the current status at once
+            elif cmd == codec.NMT_STOP:
+                self.nmt = NMT_STOPPED
+            elif cmd == codec.NMT_PREOP:
+                self.nmt = NMT_PREOP
+            elif cmd in (codec.NMT_RESET_NODE, codec.NMT_RESET_COMM):
+                if cmd == codec.NMT_RESET_NODE:
+                    self._reset_application()
+                self.boot()
+                return
+            self._publish()
+
+    def _on_rpdo1(self, can_id, data, timestamp) -> None:
+        with self._lock:
+            if self.silent or self.nmt != NMT_OPERATIONAL:
+                return
+            try:
+                self._on_controlword(codec.unpack_controlword(data))
+            except ValueError:
+                log.warning("%s: malformed RPDO1 %s", self.name, bytes(data).hex())
+
+    def _on_rpdo2(self, can_id, data, timestamp) -> None:
+        with self._lock:
+            if self.silent or self.nmt != NMT_OPERATIONAL:
+                return
+            try:
+                self._store(0x607A, 0, codec.unpack_target(data))
+            except ValueError:
+                log.warning("%s: malformed RPDO2 %s", self.name, bytes(data).hex())
+
+    def _on_rpdo3(self, can_id, data, timestamp) -> None:
+        with self._lock:
+            if self.silent or self.nmt != NMT_OPERATIONAL:
+                return
+            try:
+                self._set_mode(codec.unpack_mode(data))
+            except (ValueError, SdoAbortedError):
+                log.warning("%s: bad RPDO3 %s", self.name, bytes(data).hex())
+
+    def on_host_heartbeat(self, can_id, data, timestamp) -> None:
+        with self._lock:
+            if not self.silent:
+                self._host_seen_s = self.clock.now()
+
+    # --- CiA 402 ---------------------------------------------------------------------------
+    @property
+    def statusword(self) -> int:
+        return codec.statusword_for(
+            self.state,
+            target_reached=self.target_reached and self.state == "OPERATION_ENABLED",
+            ack=self.ack,
+            following_error=self.following_error,
+            internal_limit=self.internal_limit,
+        )
+
+    def _set_mode(self, mode: int) -> None:
+        if mode not in (0, codec.PP_MODE):
+            raise SdoAbortedError(0x06090030)  # value range of parameter exceeded
+        self.mode = mode
+        self._store(0x6060, 0, mode)
+        self._publish()
+
+    def _on_controlword(self, cw: int) -> None:
+        prev, self.controlword = self.controlword, cw
+        self._store(0x6040, 0, cw)
+        cmd = codec.command_of(cw)
+        s = self.state
+        if s in ("FAULT", "FAULT_REACTION_ACTIVE"):
+            if s == "FAULT" and cw & codec.CW_FAULT_RESET and not prev & codec.CW_FAULT_RESET:
+                self._fault_reset()
+        elif cmd == "DISABLE_VOLTAGE":
+            self._enter("SWITCH_ON_DISABLED")
+        elif cmd == "QUICK_STOP":
+            self._enter("QUICK_STOP_ACTIVE" if s == "OPERATION_ENABLED" else "SWITCH_ON_DISABLED")
+        elif cmd == "SHUTDOWN":
+            if s in ("SWITCH_ON_DISABLED", "SWITCHED_ON", "OPERATION_ENABLED"):
+                self._enter("READY_TO_SWITCH_ON")
+        elif cmd == "SWITCH_ON":
+            if s in ("READY_TO_SWITCH_ON", "OPERATION_ENABLED"):
+                self._enter("SWITCHED_ON")
+        elif cmd == "ENABLE_OPERATION":
+            if s in ("SWITCHED_ON", "QUICK_STOP_ACTIVE"):
+                self._enter("OPERATION_ENABLED")
+            elif s == "READY_TO_SWITCH_ON":
+                self._enter("SWITCHED_ON")
+        if s == self.state == "OPERATION_ENABLED" and self.mode == codec.PP_MODE:
+            # only a drive that was already enabled takes a set-point: the controlword that
+            # enables it never starts a move, even with bit 4 set (enabling never jumps)
+            self._profile_position(prev, cw)
+        self._publish()
+
+    def _enter(self, state: str) -> None:
+        if state == "QUICK_STOP_ACTIVE":
+            self._ramp_down()  # decelerate with the quick stop deceleration 0x6085
+            self.ack = False
+        elif state != "OPERATION_ENABLED":
+            self._stop_motion()
+            self.ack = False
+        elif self.state != "OPERATION_ENABLED":
+            # enabling never jumps: hold the actual position until the next set-point
+            self._stop_motion()
+            self.target_reached = True
+        self.state = state
+
+    def _profile_position(self, prev: int, cw: int) -> None:
+        rising = cw & codec.CW_NEW_SET_POINT and not prev & codec.CW_NEW_SET_POINT
+        if rising and not self.ack:
+            target = int(self._get(0x607A))
+            relative = bool(cw & codec.CW_RELATIVE)
+            if self.motion is not None and not cw & codec.CW_CHANGE_IMMEDIATELY:
+                self.pending = (target, relative)  # single set-point: after the current move
+            else:
+                self._start_move(target, relative)
+            self.ack = True
+        elif not cw & codec.CW_NEW_SET_POINT and self.ack:
+            self.ack = False
+        if cw & codec.CW_HALT and self.motion is not None:
+            self._stop_motion()
+            self.target_reached = True
+
+    def _start_move(self, target: int, relative: bool) -> None:
+        if relative:
+            target = round(self.position_counts) + target
+        lo, hi = int(self._get(0x607D, 1)), int(self._get(0x607D, 2))
+        if not lo <= target <= hi:
+            self._fault(0x8612)
+            return
+        v = float(self._get(0x6081))
+        a, d = float(self._get(0x6083)), float(self._get(0x6084))
+        if v <= 0 or a <= 0 or d <= 0:
+            self._fault(0x6320)
+            return
+        self.internal_limit = False
+        self.target_reached = False
+        self.motion = _Motion(
+            self.clock.now(), self.position_counts, target, trapezoid(target - self.position_counts, v, a, d)
+        )
+
+    def _stop_motion(self) -> None:
+        self.motion = None
+        self.pending = None
+
+    def _ramp_down(self) -> None:
+        """Replace the running move by a ramp to standstill at the quick stop deceleration."""
+        m = self.motion
+        self.pending = None
+        if m is None or m.stopping:
+            return
+        now = self.clock.now()
+        v0 = m.profile.velocity_at(now - m.t0_s)
+        d = float(self._get(0x6085))
+        if v0 == 0.0 or d <= 0:
+            self.motion = None
+            return
+        t_s = abs(v0) / d
+        ramp = Trapezoid(v0 * t_s / 2, abs(v0), d, d, 0.0, 0.0, t_s)
+        self.motion = _Motion(now, self.position_counts, round(self.position_counts + ramp.distance), ramp, True)
+
+    def _fault(self, code: int, *, following_error: bool = False) -> None:
+        if self.state in ("FAULT", "FAULT_REACTION_ACTIVE"):
+            return
+        if self.motion is not None and self._jammed_at is None:
+            self._ramp_down()  # fault reaction: stop on the ramp, then FAULT (in _move)
+            self.state = "FAULT_REACTION_ACTIVE"
+        else:
+            self._stop_motion()
+            self.state = "FAULT"
+        self.ack = False
+        self.following_error = following_error
+        self.error_code = code
+        self.emcy_log.append(code)
+        if not self.silent:
+            self.network.send_message(
+                codec.EMCY_BASE + self.node_id,
+                codec.pack_emcy(codec.Emcy(code, 0x01 | (0x80 if code >> 12 == 8 else 0))),
+            )
+        self._publish()
+
+    def _fault_reset(self) -> None:
+        self.state = "SWITCH_ON_DISABLED"
+        self._jammed_at = None  # the operator cleared the blockage before resetting
+        self.error_code = 0
+        self.following_error = False
+        self._armed = [f for f in self._armed if f["kind"] not in ("emcy", "following_error")]
+        if not self.silent:
+            self.network.send_message(codec.EMCY_BASE + self.node_id, codec.pack_emcy(codec.Emcy(0, 0)))
+
+    def _reset_application(self) -> None:
+        self.state = "NOT_READY_TO_SWITCH_ON"
+        self._stop_motion()
+        self.ack, self.error_code, self.following_error, self.mode = False, 0, False, 0
+
+    # --- host heartbeat watch --------------------------------------------------------------
+    def _set_host_watch(self, entry: int) -> None:
+        if self._host_id:
+            self.network.unsubscribe(codec.HEARTBEAT_BASE + self._host_id, self.on_host_heartbeat)
+        self._host_id, ms = codec.split_consumer_heartbeat_entry(entry)
+        self._host_deadline_s = ms / 1000.0
+        self._host_seen_s = None  # CiA 301: monitoring starts with the first heartbeat received
+        if self._host_id and ms:
+            self.network.subscribe(codec.HEARTBEAT_BASE + self._host_id, self.on_host_heartbeat)
+
+    # --- time steps ------------------------------------------------------------------------
+    def boot(self) -> None:
+        """Power-up: boot-up message, then PRE-OPERATIONAL with heartbeats."""
+        with self._lock:
+            self.nmt = NMT_INIT
+            if self.state == "NOT_READY_TO_SWITCH_ON":
+                self.state = "SWITCH_ON_DISABLED"  # automatic transition 1
+            if not self.silent:
+                self.network.send_message(codec.HEARTBEAT_BASE + self.node_id, codec.pack_heartbeat(0))
+            self.nmt = NMT_PREOP
+            self._last_hb_s = self.clock.now()
+
+    def step(self, now: float) -> None:
+        with self._lock:
+            if self.silent:
+                # a dead node also stops hearing the host: it stops driving (as a real drive would)
+                if self.state == "OPERATION_ENABLED":
+                    self._fault(0x8130)
+                self._host_seen_s = None  # watching restarts with the next heartbeat heard
+                self._move(now)  # the mechanics go on (the fault reaction ramp), in silence
+                return
+            if self._host_id and self._host_seen_s is not None and self._host_deadline_s > 0:
+                if now - self._host_seen_s > self._host_deadline_s and "FAULT" not in self.state:
+                    if self.state in ("OPERATION_ENABLED", "QUICK_STOP_ACTIVE") or self.motion:
+                        self._fault(0x8130)
+                    self._host_seen_s = None  # report once; re-armed by the next heartbeat
+            self._move(now)
+            self._publish(now)
+            hb_ms = int(self._get(0x1017))
+            if hb_ms > 0 and now - self._last_hb_s >= hb_ms / 1000.0 - 1e-9:
+                self._last_hb_s = now
+                self.network.send_message(codec.HEARTBEAT_BASE + self.node_id, codec.pack_heartbeat(self.nmt))
+
+    def _move(self, now: float) -> None:
+        m = self.motion
+        if m is None:
+            return
+        elapsed = now - m.t0_s
+        demand = m.start_counts + m.profile.position_at(elapsed)
+        for f in list(self._armed) if not m.stopping else ():
+            if elapsed >= f["after_s"]:
+                self._armed.remove(f)
+                if f["kind"] == "following_error":
+                    self._jammed_at = self.position_counts  # the axis is blocked mechanically
+                else:
+                    self.position_counts = demand
+                    self._fault(f["code"])
+                    return
+        if self._jammed_at is not None:
+            # the actual position stays; the drive faults once the demand leaves the window
+            self.position_counts = self._jammed_at
+            if abs(demand - self._jammed_at) > int(self._get(0x6065)):
+                self._fault(0x8611, following_error=True)
+            return
+        self.position_counts = demand
+        if self._blocked(m):
+            return
+        if m.stopping:
+            if elapsed >= m.profile.duration_s:
+                self.motion = None
+                if self.state == "FAULT_REACTION_ACTIVE":
+                    self.state = "FAULT"
+            return
+        if elapsed >= m.profile.duration_s:
+            self.position_counts = float(m.target_counts)
+            self.motion = None
+            if self.pending is not None:
+                target, relative = self.pending
+                self.pending = None
+                self._start_move(target, relative)
+            else:
+                self.target_reached = True
+
+    def _blocked(self, m: _Motion) -> bool:
+        """Hook for the gripper: True when the motion was stopped by something physical."""
+        return False
+
+    def _tpdo1_data(self) -> bytes:
+        return codec.pack_tpdo1(codec.DriveStatus(self.statusword, round(self.position_counts), self.mode))
+
+    def _publish(self, now: float | None = None) -> None:
+        """Event-driven TPDO1 (transmission type 254/255): when the status changed, or when the
+        event timer is due. Synchronous types are sent on SYNC instead (`_on_sync`)."""
+        if self.silent or self.nmt != NMT_OPERATIONAL:
+            return
+        cob = int(self._get(0x1800, 1))
+        if cob & 0x80000000 or int(self._get(0x1800, 2)) <= 240:
+            return
+        now = self.clock.now() if now is None else now
+        data = self._tpdo1_data()
+        event_ms = int(self._get(0x1800, 5))
+        due = event_ms > 0 and now - self._last_tpdo_s >= event_ms / 1000.0 - 1e-9
+        if data != self._last_tpdo or due:
+            self._last_tpdo, self._last_tpdo_s = data, now
+            self.network.send_message(cob & 0x7FF, data)
+
+    def _on_sync(self, can_id, data, timestamp) -> None:
+        """Synchronous TPDO1: type 0 on SYNC when changed, types 1-240 on every n-th SYNC."""
+        with self._lock:
+            if self.silent or self.nmt != NMT_OPERATIONAL:
+                return
+            self._sync_count += 1
+            cob, kind = int(self._get(0x1800, 1)), int(self._get(0x1800, 2))
+            if cob & 0x80000000 or kind > 240:
+                return
+            data = self._tpdo1_data()
+            if (kind == 0 and data != self._last_tpdo) or (kind > 0 and self._sync_count % kind == 0):
+                self._last_tpdo, self._last_tpdo_s = data, self.clock.now()
+                self.network.send_message(cob & 0x7FF, data)
+
+    # --- fault injection -------------------------------------------------------------------
+    def arm(self, kind: str, **kw) -> None:
+        with self._lock:
+            if kind == "silent":
+                self.silent = True
+            elif kind == "drop_sdo":
+                self.drop_sdo = int(kw.get("count", -1))
+            elif kind == "following_error":
+                # the axis jams `after_s` into its next move; the drive trips on its window (0x6065)
+                self._armed.append({"kind": kind, "after_s": float(kw.get("after_s") or 0.0)})
+            elif kind == "emcy":
+                code = int(kw.get("code", 0x2310))
+                if kw.get("after_s") is None:
+                    self._fault(code)
+                else:
+                    self._armed.append({"kind": kind, "after_s": float(kw["after_s"]), "code": code})
+            else:
+                raise ValueError(f"unknown fault kind {kind!r}; one of {FAULT_KINDS}")
+
+    def heal(self) -> None:
+        """Stop injected misbehaviour (the node talks again); latched drive faults stay."""
+        with self._lock:
+            self.silent = False
+            self.drop_sdo = 0
+            self._armed.clear()
+
+    def position(self) -> float:
+        with self._lock:
+            return codec.from_counts(self.position_counts, self.counts_per_unit)
+
+
+class SimGripper(SimDrive):
+    """A parallel gripper on the 402 profile: position = jaw opening. Closing onto a part of
+    width `object_width_mm` stops there with the force limit reached (statusword bit 11)."""
+
+    def __init__(self, *args, grip_force_n: float, **kw):
+        super().__init__(*args, **kw)
+        self.object_width_mm: float | None = None
+        # A simulated world may say instead what lies between the jaws when they start closing:
+        # called once per closing move, returns the part's width or None.
+        self.object_width_fn = None
+        self._fn_motion, self._fn_width = None, None
+        self._store(GRIP_FORCE_INDEX, 0, round(grip_force_n * 10))
+
+    def _blocked(self, m: _Motion) -> bool:
+        w = self.object_width_mm
+        if self.object_width_fn is not None and m.target_counts < m.start_counts:
+            if m is not self._fn_motion:
+                self._fn_motion, self._fn_width = m, self.object_width_fn()
+            w = self._fn_width
+        if w is None:
+            return False
+        w_counts = w * self.counts_per_unit
+        closing = m.target_counts < m.start_counts
+        if closing and m.start_counts >= w_counts > m.target_counts and self.position_counts <= w_counts:
+            self.position_counts = w_counts
+            self.motion = None
+            self.pending = None
+            self.internal_limit = True
+            self.target_reached = True
+            return True
+        return False
+
+    @property
+    def grip_force_n(self) -> float:
+        return int(self._get(GRIP_FORCE_INDEX)) / 10.0

@@ -1,0 +1,135 @@
+"""The calibration model and file: round trips, heights, validation, the default cell's camera."""
+
+import json
+
+import numpy as np
+import pytest
+
+from calibration import Calibration, default_calibration_path, load_calibration, save_calibration
+from calibration.calfile import calibration_to_json
+from calibration.default import default_cell_calibration
+from cell.errors import BadInput
+
+
+@pytest.fixture(scope="module")
+def cal():
+    return load_calibration()
+
+
+@pytest.mark.parametrize("z_mm", [0.0, 12.5, 40.0])
+def test_mm_px_mm_round_trip(cal, z_mm):
+    rng = np.random.default_rng(7)
+    xy = rng.uniform([120, -300], [580, 300], size=(500, 2))
+    uv = cal.mm_to_px(xy, z_mm)
+    assert np.abs(cal.px_to_mm(uv, z_mm) - xy).max() < 1e-6
+
+
+def test_px_mm_px_round_trip_over_the_whole_image(cal):
+    rng = np.random.default_rng(8)
+    uv = rng.uniform([0, 0], [cal.width_px, cal.height_px], size=(500, 2))
+    assert np.abs(cal.mm_to_px(cal.px_to_mm(uv, 20.0), 20.0) - uv).max() < 1e-6
+
+
+def test_lens_distortion_is_handled(cal):
+    # a straight line on the table bends in the image (barrel distortion), and maps back straight
+    xy = np.column_stack([np.full(50, 110.0), np.linspace(-300, 300, 50)])
+    uv = cal.mm_to_px(xy)
+    chord = np.polyfit(uv[:, 0], uv[:, 1], 1)
+    assert np.abs(np.polyval(chord, uv[:, 0]) - uv[:, 1]).max() > 1.0  # visibly curved in pixels
+    back = cal.px_to_mm(uv)
+    assert np.abs(back[:, 0] - 110.0).max() < 1e-6
+    ideal = cal.undistort_px(uv)
+    fit = np.polyfit(ideal[:, 0], ideal[:, 1], 1)
+    assert np.abs(np.polyval(fit, ideal[:, 0]) - ideal[:, 1]).max() < 1e-6
+
+
+def test_parallax_part_tops_map_differently(cal):
+    # a pixel near the image corner sees the table and a 30 mm high part top at different x, y
+    uv = [[60.0, 60.0]]
+    d = np.linalg.norm(cal.px_to_mm(uv, 0.0) - cal.px_to_mm(uv, 30.0))
+    assert d > 8.0
+    centre = [cal.vertical_vanishing_px()]
+    assert np.linalg.norm(cal.px_to_mm(centre, 0.0) - cal.px_to_mm(centre, 30.0)) < 1e-6
+
+
+def test_default_cell_camera_matches_the_contract(cal):
+    assert (cal.width_px, cal.height_px) == (1280, 1024)
+    assert cal.mm_per_px() == pytest.approx(0.5, abs=0.01)
+    assert 780 < cal.camera_position_mm()[2] < 820
+    tray = np.array([[200, -250], [500, -250], [500, 250], [200, 250]], float)
+    uv = cal.mm_to_px(tray)
+    assert np.all((uv > 20) & (uv < [cal.width_px - 20, cal.height_px - 20]))
+    # the image's long side (u) runs along the tray's long side (y)
+    span = uv.max(axis=0) - uv.min(axis=0)
+    assert span[0] > span[1]
+    assert np.ptp(cal.mm_to_px([[350, -250], [350, 250]])[:, 0]) > 900
+
+
+def test_shipped_file_equals_the_nominal_values():
+    shipped = json.loads(default_calibration_path().read_text())
+    assert shipped == json.loads(json.dumps(calibration_to_json(default_cell_calibration())))
+
+
+def test_save_load_round_trip(tmp_path, cal):
+    path = tmp_path / "sub" / "cal.json"
+    save_calibration(cal, path)
+    again = load_calibration(path)
+    uv = np.array([[10.0, 20.0], [640.0, 512.0], [1270.0, 1000.0]])
+    assert np.allclose(again.px_to_mm(uv, 15.0), cal.px_to_mm(uv, 15.0), atol=1e-9)
+    assert [p.name for p in path.parent.iterdir()] == ["cal.json"]  # no temp file left behind
+    assert json.loads(path.read_text())["format"] == "disassembly-cell/calibration"
+
+
+def test_homography_only_refuses_other_heights():
+    h = np.array([[0.5, 0, 100], [0, 0.5, -200], [0, 0, 1.0]])
+    cal = Calibration(640, 480, homography=h, plane_z_mm=5.0, name="h")
+    assert np.allclose(cal.px_to_mm([[10, 20]]), [[105, -190]])
+    assert np.allclose(cal.mm_to_px(cal.px_to_mm([[10, 20]])), [[10, 20]])
+    with pytest.raises(BadInput, match="homography for the plane z = 5.0"):
+        cal.px_to_mm([[10, 20]], 0.0)
+
+
+def _write(tmp_path, obj, name="c.json"):
+    p = tmp_path / name
+    p.write_text(obj if isinstance(obj, str) else json.dumps(obj))
+    return p
+
+
+def test_missing_file_is_refused(tmp_path):
+    with pytest.raises(BadInput, match="does not exist"):
+        load_calibration(tmp_path / "nope.json")
+
+
+@pytest.mark.parametrize("mutate, match", [
+    (lambda d: d.update(format="something else"), "'format' must be"),
+    (lambda d: d.update(version=99), "version 99 is not supported"),
+    (lambda d: d["image"].update(width_px=-3), "image.width_px must be a positive integer"),
+    (lambda d: d["intrinsics"].update(fx="big"), "intrinsics.fx must be a finite number"),
+    (lambda d: d["intrinsics"].update(dist=[1, 2, 3]), "intrinsics.dist must be a list"),
+    (lambda d: d["pose"]["cam2base"][0].__setitem__(0, 3.0), "not a rotation matrix"),
+    (lambda d: d["pose"].update(cam2base=[[1, 0], [0, 1]]), "pose.cam2base must be a 4 x 4"),
+    (lambda d: d.update(intrinsics=None, pose=None), "neither 'intrinsics' nor 'homography'"),
+])
+def test_malformed_files_are_refused(tmp_path, mutate, match):
+    d = json.loads(default_calibration_path().read_text())
+    mutate(d)
+    with pytest.raises(BadInput, match=match):
+        load_calibration(_write(tmp_path, d))
+
+
+def test_not_json_is_refused(tmp_path):
+    with pytest.raises(BadInput, match="not valid JSON"):
+        load_calibration(_write(tmp_path, '{"format": "disassembly-cell/calibration", '))
+
+
+def test_other_resolution_is_refused(tmp_path, cal):
+    with pytest.raises(BadInput, match="for 1280 x 1024 px images, not 640 x 480"):
+        load_calibration(None, size=(640, 480))
+    with pytest.raises(BadInput, match="is 640 x 480 px but calibration"):
+        cal.check_frame(np.zeros((480, 640, 3), np.uint8))
+
+
+def test_intrinsics_only_cannot_map():
+    cal = Calibration(640, 480, camera_matrix=np.array([[500, 0, 320], [0, 500, 240], [0, 0, 1.0]]))
+    with pytest.raises(BadInput, match="intrinsics only"):
+        cal.px_to_mm([[1, 2]])

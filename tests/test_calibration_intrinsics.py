@@ -1,0 +1,115 @@
+"""Intrinsics on real photographs made by others, against OpenCV's published numbers."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from conftest import EXTERNAL, run_cli
+
+from calibration import load_calibration
+from calibration.intrinsics import calibrate_intrinsics
+
+CHESS = EXTERNAL / "opencv-chessboard"
+WEBCAM = EXTERNAL / "desk-chessboard-webcam"
+CHARUCO = EXTERNAL / "opencv-charuco"
+
+
+def _images(folder, pattern="left*.jpg"):
+    return [(p.name, cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)) for p in sorted(folder.glob(pattern))]
+
+
+@pytest.fixture(scope="module")
+def chess_ref():
+    return json.loads((CHESS / "published_reference.json").read_text())
+
+
+def test_chessboard_matches_opencv_published_calibration(chess_ref):
+    ref = chess_ref["opencv_python_test_calibration"]
+    r = calibrate_intrinsics(_images(CHESS), (9, 6), 1.0)
+    assert len(r.images_used) == 13
+    assert abs(r.rms_px - ref["rms"]) < ref["rms_tolerance_abs"]
+    assert np.abs(r.camera_matrix - np.array(ref["camera_matrix"])).sum() < ref["camera_matrix_tolerance_L1"]
+    assert np.abs(r.dist[:5] - np.array(ref["dist_k1_k2_p1_p2_k3"])).sum() < ref["dist_tolerance_L1"]
+    assert r.warnings == [] or all("views" not in w for w in r.warnings)
+    assert not any(v.outlier for v in r.views)
+
+
+def test_sample_recipe_singles_out_left02_and_can_reject_it(chess_ref):
+    # OpenCV's C++ sample (11x11 cornerSubPix) publishes per-view errors with left02 at 1.18 px
+    ref = chess_ref["left_intrinsics_yml"]["per_view_reprojection_errors"]
+    r = calibrate_intrinsics(_images(CHESS), (9, 6), 1.0, subpix_win=11)
+    assert [v.name for v in r.views if v.outlier] == ["left02.jpg"]
+    assert np.allclose([v.rms_px for v in r.views], ref, atol=0.02)
+    kept = calibrate_intrinsics(_images(CHESS), (9, 6), 1.0, subpix_win=11, reject_outliers=True)
+    assert "left02.jpg" not in kept.images_used and len(kept.images_used) == 12
+    assert kept.rms_px < r.rms_px - 0.1
+
+
+def test_an_image_that_does_not_fit_is_reported():
+    imgs = _images(CHESS)
+    stretched = cv2.resize(imgs[4][1], None, fx=1.12, fy=1.0)[:, :640]  # a view from "another lens"
+    r = calibrate_intrinsics(imgs + [("stretched.jpg", stretched)], (9, 6), 1.0)
+    assert [v.name for v in r.views if v.outlier] == ["stretched.jpg"]
+    assert any("stretched.jpg" in w for w in r.warnings)
+
+
+def test_webcam_board_matches_reference_and_warns_about_principal_point():
+    r = calibrate_intrinsics(_images(WEBCAM), (7, 7), 1.0, detector="sb")
+    assert len(r.images_used) == 13
+    assert r.rms_px == pytest.approx(0.566, abs=0.01)
+    k = r.camera_matrix
+    assert [k[0, 0], k[1, 1], k[0, 2], k[1, 2]] == pytest.approx([878.4, 873.8, 196.2, 222.5], abs=1.0)
+    assert any("principal point" in w and "far from the image centre" in w for w in r.warnings)
+
+
+def test_charuco_matches_published_calibration():
+    ref = json.loads((CHARUCO / "published_reference.json").read_text())["tutorial_camera_charuco_yml"]
+    r = calibrate_intrinsics(_images(CHARUCO, "img_0*.jpg"), (5, 7), 0.04,
+                             charuco={"marker_mm": 0.02, "dictionary": "DICT_6X6_250"})
+    assert len(r.images_used) == 4 and all(v.n_points == 24 for v in r.views)
+    k = r.camera_matrix
+    assert r.rms_px == pytest.approx(0.1878, abs=0.005)  # OpenCV 5 on these views (SOURCE.md)
+    assert [k[0, 0], k[1, 1], k[0, 2], k[1, 2]] == pytest.approx([457.3, 461.3, 317.2, 275.6], abs=0.5)
+    pub = np.array(ref["camera_matrix"])  # the 2021 published value: within 1.1 % in focal length
+    assert abs(k[0, 0] / pub[0, 0] - 1) < 0.011 and abs(k[1, 1] / pub[1, 1] - 1) < 0.011
+    assert abs(k[0, 2] - pub[0, 2]) < 1.0 and abs(k[1, 2] - pub[1, 2]) < 3.0
+
+
+def test_cli_intrinsics_writes_a_loadable_file_and_lists_missing_boards(tmp_path, capsys):
+    blank = tmp_path / "blank.png"
+    cv2.imwrite(str(blank), np.full((480, 640), 128, np.uint8))
+    out = tmp_path / "intr.json"
+    images = sorted(CHESS.glob("left*.jpg"))
+    code, stdout, _ = run_cli("calibrate", "intrinsics", *images, blank, "--pattern", "9x6", "--square", "25",
+                              "--out", out, capsys=capsys)
+    assert code == 0
+    res = json.loads(stdout)
+    for key in ("rms_px", "fx", "fy", "cx", "cy", "dist", "images_used"):
+        assert key in res
+    assert len(res["images_used"]) == 13 and res["images_not_found"] == [str(blank)]
+    assert res["fx"] == pytest.approx(532.8, abs=1.0)  # square size does not change intrinsics
+    cal = load_calibration(out, size=(640, 480))
+    assert cal.camera_matrix[0, 2] == pytest.approx(res["cx"])
+
+
+@pytest.mark.parametrize("args, match", [
+    (["--pattern", "9by6"], "COLSxROWS"),
+    (["--pattern", "9x6", "--square", "-1"], "positive"),
+    (["--pattern", "12x12"], "found in 0 of"),
+])
+def test_cli_intrinsics_bad_input(tmp_path, capsys, args, match):
+    argv = ["calibrate", "intrinsics", *sorted(CHESS.glob("left0*.jpg"))[:3], "--out", tmp_path / "x.json"]
+    if "--square" not in args:
+        args = args + ["--square", "1"]
+    code, _, err = run_cli(*argv, *args, capsys=capsys)
+    assert code == 2 and match in err and "Traceback" not in err
+    assert not (tmp_path / "x.json").exists()
+
+
+def test_cli_intrinsics_unreadable_image(tmp_path, capsys):
+    bad = tmp_path / "bad.jpg"
+    bad.write_bytes(b"\xff\xd8\xff\xe0 not really a jpeg")
+    code, _, err = run_cli("calibrate", "intrinsics", *sorted(CHESS.glob("left*.jpg")), bad, "--pattern", "9x6",
+                           "--square", "1", "--out", tmp_path / "x.json", capsys=capsys)
+    assert code == 2 and "bad.jpg is not a readable image" in err

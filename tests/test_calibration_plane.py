@@ -1,0 +1,140 @@
+"""Image <-> base frame on a plane: real ArUco frames of a robot cell, synthetic points, the CLI."""
+
+import json
+
+import numpy as np
+import pytest
+from conftest import EXTERNAL, run_cli
+
+from calibration import default_calibration_path, load_calibration
+from calibration.plane import fit_plane_mapping
+
+FESTO = EXTERNAL / "p5binpicking-festo-table"
+DEFAULT = default_calibration_path()
+
+
+def _markers(tmp_path, shift_marker1=True, extra=None):
+    ref = json.loads((FESTO / "published_reference.json").read_text())
+    markers = {k: v for k, v in ref["marker_corners_robot_frame_mm"].items()}
+    if shift_marker1:  # SOURCE.md: OpenCV corner j of marker 1 is the published entry (j + 1) mod 4
+        markers["1"] = markers["1"][1:] + markers["1"][:1]
+    markers.update(extra or {})
+    p = tmp_path / "markers.json"
+    p.write_text(json.dumps({"dictionary": ref["aruco_dictionary"], "markers": markers}))
+    return p, ref
+
+
+@pytest.mark.parametrize("image", ["aruco_img.png", "aruco_img2.png"])
+@pytest.mark.parametrize("with_intrinsics", [True, False])
+def test_festo_frames_fit_to_about_a_millimetre(tmp_path, capsys, image, with_intrinsics):
+    markers, ref = _markers(tmp_path)
+    k = np.array(ref["camera_matrix_realsense_sdk"])
+    extra = ["--camera-matrix", f"{k[0, 0]},{k[1, 1]},{k[0, 2]},{k[1, 2]}"] if with_intrinsics else []
+    out = tmp_path / "plane.json"
+    code, stdout, _ = run_cli("calibrate", "plane", FESTO / image, "--markers", markers, "--out", out, *extra,
+                              capsys=capsys)
+    assert code == 0
+    res = json.loads(stdout)
+    assert res["markers_used"] == [0, 1, 2, 3]
+    assert res["residual_mm"] < 1.0
+    assert res["mm_per_px"] == pytest.approx(0.56, abs=0.01)
+    if with_intrinsics:
+        assert res["method"] == "pose"
+        assert np.allclose(res["camera_position_mm"], [74, -395, 779], atol=3.0)
+        assert res["reprojection_rms_px"] < 1.6
+    else:
+        assert res["method"] == "homography"
+    cal = load_calibration(out, size=(1920, 1080))
+    # a marker corner maps back to its published base coordinates within a few mm
+    code, stdout, _ = run_cli("map", out, "--mm", "175.7,-90.0", "--json", capsys=capsys)
+    uv = json.loads(stdout)["px"][0]
+    assert np.allclose(cal.px_to_mm([uv])[0], [175.7, -90.0], atol=1e-6)
+
+
+def test_published_corner_order_without_the_fix_does_not_fit(tmp_path, capsys):
+    markers, _ = _markers(tmp_path, shift_marker1=False)
+    code, stdout, _ = run_cli("calibrate", "plane", FESTO / "aruco_img.png", "--markers", markers, "--out",
+                              tmp_path / "p.json", capsys=capsys)
+    assert code == 0 and json.loads(stdout)["residual_mm"] > 5.0
+
+
+def test_markers_missing_from_the_image_are_skipped_and_reported(tmp_path, capsys):
+    extra = {"7": [[0, 0, 0], [40, 0, 0], [40, 40, 0], [0, 40, 0]]}
+    markers, _ = _markers(tmp_path, extra=extra)
+    code, stdout, err = run_cli("calibrate", "plane", FESTO / "aruco_img.png", "--markers", markers, "--out",
+                                tmp_path / "p.json", capsys=capsys)
+    res = json.loads(stdout)
+    assert code == 0 and res["markers_missing"] == [7] and res["markers_used"] == [0, 1, 2, 3]
+    assert "7" in err
+
+
+def test_fewer_than_three_markers_is_bad_input(tmp_path, capsys):
+    ref = json.loads((FESTO / "published_reference.json").read_text())
+    m = {k: ref["marker_corners_robot_frame_mm"][k] for k in ("0", "2")}
+    p = tmp_path / "m.json"
+    p.write_text(json.dumps({"dictionary": "DICT_4X4_50", "markers": m}))
+    code, _, err = run_cli("calibrate", "plane", FESTO / "aruco_img.png", "--markers", p, "--out",
+                           tmp_path / "p.json", capsys=capsys)
+    assert code == 2 and "at least 3" in err
+    assert not (tmp_path / "p.json").exists()
+
+
+@pytest.mark.parametrize("content, match", [
+    ({"dictionary": "DICT_9X9_1", "markers": {"0": [[0, 0, 0]] * 4}}, "unknown ArUco dictionary"),
+    ({"dictionary": "DICT_4X4_50", "markers": {"0": [[0, 0]] * 4}}, "4 points"),
+    ({"dictionary": "DICT_4X4_50", "markers": {"x": [[0, 0, 0]] * 4}}, "not an integer"),
+    ("{not json", "not valid JSON"),
+])
+def test_bad_markers_files(tmp_path, capsys, content, match):
+    p = tmp_path / "m.json"
+    p.write_text(content if isinstance(content, str) else json.dumps(content))
+    code, _, err = run_cli("calibrate", "plane", FESTO / "aruco_img.png", "--markers", p, "--out",
+                           tmp_path / "p.json", capsys=capsys)
+    assert code == 2 and match in err
+
+
+def test_touched_points_recover_the_default_camera(tmp_path, capsys):
+    """Points touched with the gripper on a plane at z = 15: the pose comes back, residual tiny."""
+    truth = load_calibration()
+    rng = np.random.default_rng(3)
+    xy = rng.uniform([210, -240], [490, 240], size=(12, 2))
+    uv = truth.mm_to_px(xy, 15.0) + rng.normal(0, 0.1, size=(12, 2))  # click noise, 0.1 px
+    cal = fit_plane_mapping(uv, np.column_stack([xy, np.full(12, 15.0)]), truth.size, truth.camera_matrix,
+                            truth.dist)
+    assert cal.report["residual_mm"] < 0.1
+    grid = np.array([[300.0, -100.0], [450.0, 200.0]])
+    assert np.abs(cal.px_to_mm(truth.mm_to_px(grid, 0.0), 0.0) - grid).max() < 0.3  # another height too
+    pts = tmp_path / "points.json"
+    pts.write_text(json.dumps({"points": [{"px": list(a), "mm": [b[0], b[1], 15.0]} for a, b in zip(uv, xy)]}))
+    frame = tmp_path / "frame.png"
+    import cv2
+
+    cv2.imwrite(str(frame), np.zeros((1024, 1280, 3), np.uint8))
+    code, stdout, _ = run_cli("calibrate", "plane", frame, "--points", pts, "--intrinsics",
+                              DEFAULT, "--out", tmp_path / "c.json", capsys=capsys)
+    assert code == 0 and json.loads(stdout)["residual_mm"] < 0.1
+
+
+def test_map_cli_both_ways_with_negative_coordinates(capsys):
+    code, stdout, _ = run_cli("map", DEFAULT, "--mm", "350,-120.5", "-0,0", "--z", "10",
+                              "--json", capsys=capsys)
+    assert code == 0
+    px = json.loads(stdout)["px"]
+    code, stdout, _ = run_cli("map", DEFAULT, "--px", *[f"{u},{v}" for u, v in px],
+                              "--z", "10", "--json", capsys=capsys)
+    assert np.allclose(json.loads(stdout)["mm"], [[350, -120.5], [0, 0]], atol=1e-3)
+
+
+@pytest.mark.parametrize("args, match", [
+    (["--px", "1,2,3"], "two numbers"),
+    (["--px", "a,b"], "two numbers"),
+    (["--mm", "1,nan"], "finite"),
+])
+def test_map_cli_bad_points(capsys, args, match):
+    code, _, err = run_cli("map", DEFAULT, *args, "--json", capsys=capsys)
+    assert code == 2 and match in err
+
+
+def test_map_cli_missing_calibration(tmp_path, capsys):
+    code, _, err = run_cli("map", tmp_path / "none.json", "--px", "1,2", capsys=capsys)
+    assert code == 2 and "does not exist" in err

@@ -1,0 +1,214 @@
+"""Fault injection against the simulated drives (simulated time): every fault names its node
+and reason, stops the move on every axis, and nothing moves again until reset_faults()."""
+
+from __future__ import annotations
+
+import pytest
+from drivers_fixtures import *  # noqa: F403 - the bus, drives and arm fixtures
+from drivers_fixtures import needs_sim
+
+from cell.kinematics import Joints
+from drivers import Arm, BusFault, DriveFault, FaultLatched, NodeSilent, SdoError, sim
+
+pytestmark = needs_sim
+
+
+def _long_move(arm):
+    s = arm.joints()
+    return Joints(s.j1_deg - 40.0, s.j2_deg - 30.0, s.j3_mm - 100.0, s.j4_deg + 90.0)
+
+
+def _assert_frozen(arm, sim_drives, seconds=0.5):
+    """Nothing moves: the drives' positions stay put while time passes."""
+    before = sim_drives.positions()
+    arm.clock.sleep(seconds)
+    assert sim_drives.positions() == before
+
+
+def _assert_recovers(arm, sim_drives):
+    arm.reset_faults()
+    assert arm.faults == {}
+    assert all(s["state"] == "OPERATION_ENABLED" for s in arm.state().values())
+    start = arm.joints()
+    target = Joints(start.j1_deg + 3.0, start.j2_deg, start.j3_mm, start.j4_deg)
+    arm.move_joints(target)
+    assert sim_drives.positions()["j1"] == pytest.approx(target.j1_deg, abs=1e-3)
+
+
+def test_emcy_during_a_move_stops_every_axis_and_names_the_node(arm, sim_drives):
+    target = _long_move(arm)
+    sim_drives.inject_fault("emcy", "j2", code=0x2310, after_s=0.1)
+    with pytest.raises(DriveFault, match=r"j2 \(node 2\).*0x2310.*over-current") as exc:
+        arm.move_joints(target)
+    assert exc.value.node == "j2" and exc.value.emcy_code == 0x2310
+    st = arm.state()
+    assert st["j2"]["state"] == "FAULT" and st["j2"]["emcy"]["code"] == 0x2310
+    # the other axes were quick-stopped mid-way
+    assert st["j1"]["state"] == "QUICK_STOP_ACTIVE"
+    assert sim_drives.positions()["j1"] > target.j1_deg + 1.0
+    _assert_frozen(arm, sim_drives)
+    with pytest.raises(FaultLatched, match="j2"):
+        arm.move_joints(arm.joints())
+    with pytest.raises(FaultLatched):
+        arm.gripper.open()
+    _assert_recovers(arm, sim_drives)
+
+
+def test_following_error_faults_with_its_emcy_and_status_bit(arm, sim_drives):
+    sim_drives.inject_fault("following_error", "j3", after_s=0.05)
+    with pytest.raises(DriveFault, match="j3.*following error") as exc:
+        arm.move_joints(_long_move(arm))
+    assert exc.value.emcy_code == 0x8611
+    assert arm.axes["j3"].status.following_error
+    _assert_frozen(arm, sim_drives)
+    _assert_recovers(arm, sim_drives)
+
+
+def test_silent_node_is_detected_by_its_heartbeat_deadline(arm, sim_drives):
+    target = _long_move(arm)
+    arm.move_joints(target, wait=False)
+    sim_drives.inject_fault("silent", "j4")
+    with pytest.raises(NodeSilent, match=r"j4 \(node 4\): no heartbeat"):
+        arm.wait_idle()
+    assert "j4" in arm.faults
+    # the drive itself also stopped (it no longer hears the host) and the others were quick-stopped
+    assert sim_drives.drives["j4"].state == "FAULT"
+    assert sim_drives.drives["j1"].state == "QUICK_STOP_ACTIVE"
+    _assert_frozen(arm, sim_drives)
+    with pytest.raises(NodeSilent, match="j4"):
+        arm.reset_faults()  # still silent: the reset is refused and the fault stays latched
+    assert "j4" in arm.faults
+    sim_drives.heal("j4")
+    _assert_recovers(arm, sim_drives)
+
+
+def test_one_dropped_sdo_answer_is_retried(arm, sim_drives):
+    sim_drives.inject_fault("drop_sdo", "j1", count=1)
+    target = _long_move(arm)
+    arm.move_joints(target)
+    assert sim_drives.positions()["j1"] == pytest.approx(target.j1_deg, abs=1e-3)
+    assert arm.faults == {}
+
+
+def test_lost_sdo_answers_refuse_the_move_before_anything_moves(arm, sim_drives):
+    before = sim_drives.positions()
+    sim_drives.inject_fault("drop_sdo", "j2")  # every answer lost until healed
+    with pytest.raises(SdoError, match=r"j2 \(node 2\): no SDO answer writing 0x6081"):
+        arm.move_joints(_long_move(arm))
+    assert sim_drives.positions() == before
+    with pytest.raises(FaultLatched, match="j2"):
+        arm.move_joints(_long_move(arm))
+    sim_drives.heal()
+    _assert_recovers(arm, sim_drives)
+
+
+def test_error_frames_latch_a_bus_fault(arm, sim_drives):
+    sim_drives.inject_fault("error_frames", count=2)
+    arm.clock.sleep(0.02)
+    assert "bus" in arm.faults and "error frame" in arm.faults["bus"]
+    with pytest.raises(FaultLatched, match="bus"):
+        arm.move_joints(_long_move(arm))
+    _assert_frozen(arm, sim_drives)
+    _assert_recovers(arm, sim_drives)
+
+
+def test_error_frames_during_a_move_stop_it(arm, sim_drives):
+    arm.move_joints(_long_move(arm), wait=False)
+    arm.clock.sleep(0.1)
+    sim_drives.inject_fault("error_frames", count=1)
+    with pytest.raises(BusFault):
+        arm.wait_idle()
+    assert sim_drives.drives["j1"].state == "QUICK_STOP_ACTIVE"
+
+
+def test_drives_stop_when_the_host_falls_silent(arm, sim_drives):
+    arm.move_joints(_long_move(arm), wait=False)
+    arm.clock.sleep(0.1)
+    arm._host_job.cancel()  # the host crashes: its heartbeat stops, nobody stops the drives
+    for _ in range(100):  # let simulated time pass without the arm's supervision
+        sim_drives.clock.sleep(0.01)
+    drives = sim_drives.drives
+    assert all(d.state == "FAULT" and d.error_code == 0x8130 for d in drives.values())
+    before = sim_drives.positions()
+    sim_drives.clock.sleep(1.0)
+    assert sim_drives.positions() == before
+    assert before["j1"] > _long_move(arm).j1_deg  # stopped mid-way, not at the target
+
+
+def test_drive_refuses_a_target_outside_its_software_limits(arm, sim_drives):
+    # bypass the host's check to test the second line of defence (0x607D in the drive)
+    j1 = arm.axes["j1"]
+    with pytest.raises(DriveFault, match="j1"):
+        j1.start_move(j1.to_counts(arm.cell.scara.j1_deg[1] + 1.0))
+    assert sim_drives.drives["j1"].error_code == 0x8612
+    arm.clock.sleep(0.02)
+    assert "0x8612" in arm.faults["j1"] and "reference limit" in arm.faults["j1"]
+    _assert_recovers(arm, sim_drives)
+
+
+def test_target_without_the_set_point_edge_does_not_move(arm, sim_drives):
+    j1 = arm.axes["j1"]
+    start = sim_drives.positions()["j1"]
+    j1.send_target(j1.to_counts(start + 10.0))
+    arm.clock.sleep(0.5)
+    assert sim_drives.positions()["j1"] == start
+    j1.start_move(j1.to_counts(start + 10.0))  # now with the handshake
+    arm.clock.sleep(0.5)
+    assert sim_drives.positions()["j1"] == pytest.approx(start + 10.0)
+
+
+def test_boot_up_deadline(open_test_bus, sim_clock, cell_cfg):
+    sim_bus = open_test_bus()
+    with sim.serve(sim_bus, cell_cfg, clock=sim_clock) as drives:
+        drives.inject_fault("silent", "gripper")
+        arm = Arm(open_test_bus(), cell_cfg, clock=sim_clock, boot_timeout_s=0.5)  # opened after boot-up
+        with pytest.raises(NodeSilent, match=r"gripper \(node 5\): no boot-up or heartbeat within 0.5 s"):
+            arm.connect()
+        assert not arm.is_connected
+        assert sim_clock.now() == pytest.approx(0.5, abs=0.01)
+
+
+def test_drives_faulted_before_connect_stay_latched_until_reset(sim_drives, open_test_bus, sim_clock, cell_cfg):
+    first = Arm(open_test_bus(), cell_cfg, clock=sim_clock)
+    first.connect()
+    first._host_job.cancel()  # the host crashes: the drives fault on their host watch
+    sim_clock.sleep(0.6)
+    first._pump.stop()  # ... and its process is gone
+    assert all(d.state == "FAULT" for d in sim_drives.drives.values())
+    with Arm(open_test_bus(), cell_cfg, clock=sim_clock) as arm:  # the host restarts
+        assert set(arm.faults) == {"j1", "j2", "j3", "j4", "gripper"}
+        assert "error code 0x8130" in arm.faults["j3"]
+        assert arm.state()["j3"]["state"] == "FAULT"
+        with pytest.raises(FaultLatched, match="0x8130"):
+            arm.move_joints(arm.joints())
+        _assert_recovers(arm, sim_drives)
+    first.disconnect()
+
+
+def test_following_error_trips_when_the_demand_leaves_the_window(arm, sim_drives):
+    window_deg = sim_drives.drives["j1"]._get(0x6065) / 1000.0  # 2 degrees in the EDS
+    start = arm.joints()
+    sim_drives.inject_fault("following_error", "j1", after_s=0.1)
+    with pytest.raises(DriveFault, match="following error"):
+        arm.move_joints(Joints(start.j1_deg - 40.0, start.j2_deg, start.j3_mm, start.j4_deg))
+    j1 = sim_drives.drives["j1"]
+    demand_gap = abs(j1.position() - start.j1_deg)
+    assert 0 < demand_gap < 40.0 - window_deg  # jammed early, far from the target
+
+
+def test_stop_ramps_down_with_the_quick_stop_deceleration(arm, sim_drives):
+    start = arm.joints()
+    arm.move_joints(Joints(start.j1_deg - 100.0, start.j2_deg, start.j3_mm, start.j4_deg), wait=False)
+    arm.clock.sleep(0.4)  # cruising at the j1 speed limit
+    v = arm.cell.scara.max_velocity["j1"]
+    at_stop = sim_drives.positions()["j1"]
+    arm.stop()
+    stopped = sim_drives.positions()["j1"]
+    decel = 2.0 * arm.cell.scara.max_acceleration["j1"]  # QUICK_STOP_DECEL_FACTOR
+    assert at_stop - stopped == pytest.approx(v * v / (2 * decel), abs=0.5)  # v^2 / 2d = 11.25 deg
+    assert sim_drives.drives["j1"].state == "QUICK_STOP_ACTIVE"
+    _assert_frozen(arm, sim_drives)
+    assert set(arm.faults) == {"stop"}
+    with pytest.raises(FaultLatched, match="stop: quick stop requested"):
+        arm.move_joints(arm.joints())
+    _assert_recovers(arm, sim_drives)

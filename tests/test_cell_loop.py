@@ -1,0 +1,181 @@
+"""The whole cell loop in simulation: frames rendered from a simulated world, segmented,
+matched to the assembly, planned, and executed on the simulated CANopen drives over the
+virtual bus; failures handled as the operator wants; recordings replayed."""
+
+import json
+from importlib import resources
+from pathlib import Path
+
+import pytest
+from conftest import run_cli
+
+from cell.runtime.session import RunConfig, run_session
+from cell.runtime.simworld import WorldFaults
+
+DEFAULT = Path(str(resources.files("cell") / "data" / "assemblies" / "default.json"))
+
+
+@pytest.fixture(scope="module")
+def short_assembly(tmp_path_factory):
+    """Three parts of the default assembly: a nut, a washer and the PCB."""
+    d = json.loads(DEFAULT.read_text())
+    keep = ["nut", "washer", "pcb"]
+    d["parts"] = [p for p in d["parts"] if p["id"] in keep]
+    d["sequence"] = keep
+    d["name"] = "short"
+    p = tmp_path_factory.mktemp("asm") / "short.json"
+    p.write_text(json.dumps(d))
+    return p
+
+
+@pytest.fixture(scope="module")
+def recorded(short_assembly, tmp_path_factory):
+    rec = tmp_path_factory.mktemp("rec") / "session"
+    summary = run_session(RunConfig(assembly=short_assembly, record=rec, seed=3))
+    return rec, summary
+
+
+def test_the_loop_removes_every_part_and_reports_cycle_times(recorded):
+    rec, s = recorded
+    assert s["status"] == "complete"
+    assert (s["parts_total"], s["parts_removed"]) == (3, 3)
+    assert [r["part"] for r in s["parts"]] == ["nut", "washer", "pcb"]
+    assert all(r["attempts"] == 1 for r in s["parts"])
+    assert 1.0 < s["cycle_s_mean"] < 30.0 and s["picks_per_hour"] == pytest.approx(3600 / s["cycle_s_mean"], rel=1e-2)
+    assert 0 < s["planning_share"] < 1
+    # the simulated world agrees: every part left the tray by the gripper, dropped off the tray
+    assert [e for e in s["sim_events"] if e.startswith("dropped")] == [
+        "dropped nut off the tray", "dropped washer off the tray", "dropped pcb off the tray"]
+
+
+def test_the_recording_holds_frames_decisions_can_traffic_and_rrd(recorded):
+    import can
+
+    from cell.recording import RecordingReader
+
+    rec, _ = recorded
+    r = RecordingReader(rec)
+    assert r.complete
+    assert len(r.frame_indices) == 4  # one per part, and the last that shows the pcb gone
+    kinds = [d["type"] for d in r.decisions]
+    assert kinds.count("grasp") == 3 and kinds.count("commands") == 3 and kinds.count("executed") == 3
+    executed = [d for d in r.decisions if d["type"] == "executed"]
+    assert all(any(x.get("holding") for x in d["records"]) for d in executed)
+    msgs = list(can.LogReader(str(r.can_log_path)))
+    assert len(msgs) > 1000 and {m.arbitration_id for m in msgs} >= {0x201, 0x181, 0x205, 0x185}
+    assert r.rrd_path.stat().st_size > 10_000
+    assert (rec / "examples_at_start.jsonl").read_bytes() == (
+        Path(str(resources.files("cell") / "data" / "default_examples.jsonl")).read_bytes())
+
+
+def test_replay_matches_and_names_the_first_divergence(recorded, tmp_path, capsys):
+    import shutil
+
+    rec, _ = recorded
+    code, out, err = run_cli("replay", rec, capsys=capsys)
+    assert code == 0, err
+    assert "match the recording" in out
+    bad = tmp_path / "bad"
+    shutil.copytree(rec, bad)
+    lines = (bad / "decisions.jsonl").read_text().splitlines()
+    i = next(k for k, x in enumerate(lines)
+             if json.loads(x)["type"] == "commands" and json.loads(x)["part"] == "washer")
+    d = json.loads(lines[i])
+    d["commands"][2]["joints"]["j3_mm"] += 1.0  # the descend would have gone elsewhere
+    lines[i] = json.dumps(d)
+    (bad / "decisions.jsonl").write_text("\n".join(lines) + "\n")
+    code, out, err = run_cli("replay", bad, capsys=capsys)
+    assert code == 1
+    assert f"decision #{i} (commands, washer)" in err and "j3_mm" in err
+
+
+def test_replay_refuses_a_missing_or_corrupt_recording(recorded, tmp_path, capsys):
+    import shutil
+
+    code, _, err = run_cli("replay", tmp_path / "nothing", capsys=capsys)
+    assert code == 2 and "does not exist" in err
+    rec, _ = recorded
+    bad = tmp_path / "corrupt"
+    shutil.copytree(rec, bad)
+    text = (bad / "decisions.jsonl").read_text().splitlines()
+    text[1] = "{not json"
+    (bad / "decisions.jsonl").write_text("\n".join(text) + "\n")
+    code, _, err = run_cli("replay", bad, capsys=capsys)
+    assert code == 2 and "decisions.jsonl" in err and "Traceback" not in err
+
+
+def test_a_missed_grip_is_retried_with_the_next_best_grasp(short_assembly):
+    s = run_session(RunConfig(assembly=short_assembly, seed=3, faults=WorldFaults(miss={"washer": 1})))
+    assert s["status"] == "complete" and s["parts_removed"] == 3
+    washer = next(r for r in s["parts"] if r["part"] == "washer")
+    assert washer["attempts"] == 2
+    assert "the jaws slid off washer" in s["sim_events"]
+
+
+def test_two_missed_grips_stop_and_ask(short_assembly):
+    s = run_session(RunConfig(assembly=short_assembly, seed=3, faults=WorldFaults(miss={"washer": 2})))
+    assert s["status"] == "stopped" and s["parts_removed"] == 1
+    assert "washer: missed 2 times" in s["stopped"]
+
+
+def test_a_part_that_does_not_leave_the_tray_is_noticed(short_assembly):
+    s = run_session(RunConfig(assembly=short_assembly, seed=3, faults=WorldFaults(stuck={"nut"})))
+    assert s["status"] == "stopped" and "nut did not leave the tray" in s["stopped"]
+    assert s["parts_removed"] == 0  # the nut is not counted as removed
+
+
+def test_no_feasible_grasp_stops_or_skips(tmp_path):
+    # A plate wider than the stroke in every direction, between two small parts.
+    d = json.loads(DEFAULT.read_text())
+    nut = next(p for p in d["parts"] if p["id"] == "nut")
+    plate = {"id": "plate", "outline": [[300, 60], [400, 60], [400, 160], [300, 160]], "z_top": 3.0}
+    asm = {"units": "mm", "name": "wide", "parts": [nut, plate], "sequence": ["plate", "nut"]}
+    p = tmp_path / "wide.json"
+    p.write_text(json.dumps(asm))
+    stop = run_session(RunConfig(assembly=p, seed=1))
+    assert stop["status"] == "stopped" and "no feasible grasp for plate" in stop["stopped"]
+    skip = run_session(RunConfig(assembly=p, seed=1, on_no_grasp="skip"))
+    assert skip["status"] == "complete" and skip["parts_skipped"] == ["plate"] and skip["parts_removed"] == 1
+
+
+def test_cell_run_cli_prints_the_contract_summary(short_assembly, tmp_path, capsys):
+    code, out, err = run_cli("run", short_assembly, "--json", "--record", tmp_path / "r", capsys=capsys)
+    assert code == 0, err
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert {"parts_total", "parts_removed", "picks_per_hour", "cycle_s_mean"} <= set(summary)
+    assert "[removed] nut removed" in err  # progress goes to stderr with --json
+    code, _, err = run_cli("run", short_assembly, "--record", tmp_path / "r", capsys=capsys)
+    assert code == 2 and "already holds a recording" in err
+
+
+def test_cell_run_bad_inputs_exit_2(tmp_path, capsys):
+    bad = tmp_path / "bad.json"
+    bad.write_text("{")
+    for argv in (["run", bad], ["run", "--examples", tmp_path / "none.jsonl"], ["run", "--approve"],
+                 ["run", "--shift-mm", "-1"]):
+        code, _, err = run_cli(*argv, capsys=capsys)
+        assert code == 2 and "Traceback" not in err, argv
+
+
+SHIPPED = Path(__file__).resolve().parent.parent / "recordings" / "shipped"
+
+
+def test_the_shipped_session_replays_exactly(capsys):
+    code, out, err = run_cli("replay", SHIPPED, "--json", capsys=capsys)
+    assert code == 0, err
+    result = json.loads(out)
+    assert result["match"] and result["matched"] == result["decisions"] > 10
+
+
+def test_replay_with_other_examples_reports_differences(tmp_path, capsys):
+    """A handful of examples makes other choices: the differences are listed, not fatal."""
+    from cell.examples import append_examples, load_examples
+
+    mine = [e for e in load_examples(SHIPPED / "examples_at_start.jsonl") if e.valid][:6]
+    p = tmp_path / "few.jsonl"
+    append_examples(p, mine)
+    code, out, err = run_cli("replay", SHIPPED, "--examples", p, "--json", capsys=capsys)
+    assert code == 0, err
+    result = json.loads(out)
+    assert not result["match"] and result["differences"]
+    assert any("grasp" in d for d in result["differences"])

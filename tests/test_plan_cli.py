@@ -1,0 +1,69 @@
+"""`cell plan`: one object per step against the parts still present, figures, exit codes."""
+
+import json
+from importlib import resources
+from pathlib import Path
+
+import pytest
+from conftest import run_cli
+
+ASSEMBLIES = Path(str(resources.files("cell") / "data" / "assemblies"))
+
+
+def test_plan_prints_one_object_per_step_in_sequence(capsys):
+    path = ASSEMBLIES / "fig18_product.json"
+    seq = json.loads(path.read_text())["sequence"]
+    code, out, _ = run_cli("plan", path, "--json", capsys=capsys)
+    lines = [json.loads(x) for x in out.splitlines()]
+    assert code == 0
+    assert [x["step"] for x in lines] == list(range(len(seq)))
+    assert [x["target"] for x in lines] == seq
+    for x in lines:
+        assert set(x) >= {"contacts", "center", "angle_deg", "opening_mm", "grasp_z_mm", "joints", "counts", "time_ms"}
+        assert x["lift"] == {"clear": True}
+        # Later steps see fewer parts: the removed ones are gone from the scene.
+    assert lines[-1]["counts"]["candidates"] > 0
+
+
+def test_figures_are_written_per_step(tmp_path, capsys):
+    path = ASSEMBLIES / "default.json"
+    code, out, _ = run_cli("plan", path, "--figures", tmp_path / "figs", capsys=capsys)
+    assert code == 0
+    pngs = sorted((tmp_path / "figs").glob("step_*.png"))
+    assert len(pngs) == len(json.loads(path.read_text())["sequence"])
+    assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 20_000 for p in pngs)
+
+
+def _stack(tmp_path, sequence):
+    plate = {"id": "plate", "outline": [[300, -30], [370, -30], [370, 30], [300, 30]], "z_top": 5}
+    lid = {"id": "lid", "outline": [[325, -10], [345, -10], [345, 10], [325, 10]], "z_bottom": 5, "z_top": 12}
+    p = tmp_path / "stack.json"
+    p.write_text(json.dumps({"units": "mm", "parts": [plate, lid], "sequence": sequence}))
+    return p
+
+
+def test_a_part_with_another_on_it_cannot_be_lifted(tmp_path, capsys):
+    code, out, _ = run_cli("plan", _stack(tmp_path, ["plate", "lid"]), "--json", capsys=capsys)
+    lines = [json.loads(x) for x in out.splitlines()]
+    assert code == 3
+    assert lines[0]["error"] == "lift_blocked" and "'lid'" in lines[0]["reason"]
+    assert "error" not in lines[1]  # the lid alone is still planned
+
+
+def test_the_right_order_plans_both(tmp_path, capsys):
+    code, out, _ = run_cli("plan", _stack(tmp_path, ["lid", "plate"]), "--json", capsys=capsys)
+    assert code == 0, out
+
+
+@pytest.mark.parametrize("edit,match", [
+    (lambda d: d["parts"][0].__setitem__("direction", [0, 1, 0]), "straight up"),
+    (lambda d: d.__setitem__("sequence", ["plate"]), "exactly once"),
+    (lambda d: d["parts"][1].__setitem__("outline", [[0, 0], [1, 1], [1, 0], [0, 1]]), "valid polygon"),
+])
+def test_bad_assemblies_exit_2(tmp_path, capsys, edit, match):
+    p = _stack(tmp_path, ["lid", "plate"])
+    d = json.loads(p.read_text())
+    edit(d)
+    p.write_text(json.dumps(d))
+    code, out, err = run_cli("plan", p, "--json", capsys=capsys)
+    assert code == 2 and match in err and "Traceback" not in err and out == ""

@@ -1,0 +1,204 @@
+"""The station page in a real headless Chromium (selenium + Debian's chromium/chromedriver).
+
+Clicks Step, Run, Pause, Approve, a two-click teach on the frame, Reject with a reason, the
+approve-each toggle and the keyboard shortcut, and checks both what the backend saw (run
+control, the example file) and what the page shows. Set STATION_SCREENSHOT=path.png to keep
+a screenshot.
+"""
+
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import pytest
+
+from cell.examples import load_examples
+from cell.runtime.control import AWAITING_APPROVAL, DONE, PAUSED, RunControl
+from cell.station.demo import DemoCell, demo_parts, mm_to_px
+from cell.station.server import StationServer
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+CHROMEDRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
+T = 10.0
+
+pytestmark = pytest.mark.skipif(
+    not (os.path.exists(CHROMIUM) and os.path.exists(CHROMEDRIVER)),
+    reason="the browser test needs Debian's chromium and chromedriver (apt-get install chromium "
+           "chromium-driver); they are not installed here",
+)
+
+
+@pytest.fixture
+def browser(monkeypatch):
+    webdriver = pytest.importorskip("selenium.webdriver")
+    from selenium.webdriver.chrome.service import Service
+
+    monkeypatch.setenv("SE_OFFLINE", "true")  # never let Selenium Manager fetch anything
+    profile = tempfile.mkdtemp(prefix="station-chromium-")
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = CHROMIUM
+    for flag in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync", "--no-first-run",
+                 "--disable-dev-shm-usage", f"--user-data-dir={profile}", "--window-size=1400,1000"):
+        opts.add_argument(flag)
+    driver = webdriver.Chrome(service=Service(executable_path=CHROMEDRIVER), options=opts)
+    driver.set_page_load_timeout(T)
+    try:
+        yield driver
+    finally:
+        driver.quit()
+        shutil.rmtree(profile, ignore_errors=True)
+
+
+@pytest.fixture
+def station(tmp_path):
+    control = RunControl(require_approval=True)
+    cell = DemoCell(control, tmp_path / "examples.jsonl", motion_s=0.0)
+    with StationServer(cell, control, port=0) as server:
+        cell.start()
+        yield server, control, cell, tmp_path / "examples.jsonl"
+        cell.close()
+
+
+def click_frame_px(driver, u, v):
+    """Click the overlay at image pixel (u, v): the page's own SVG transform gives the screen point."""
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    svg = driver.find_element("id", "overlay")
+    dx, dy = driver.execute_script(
+        """const svg = arguments[0], p = svg.createSVGPoint();
+           p.x = arguments[1]; p.y = arguments[2];
+           const q = p.matrixTransform(svg.getScreenCTM()), r = svg.getBoundingClientRect();
+           return [q.x - (r.left + r.width / 2), q.y - (r.top + r.height / 2)];""", svg, u, v)
+    ActionChains(driver).move_to_element_with_offset(svg, round(dx), round(dy)).click().perform()
+
+
+def test_operator_runs_approves_teaches_and_rejects_in_a_real_browser(browser, station):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, cell, examples = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.05)
+
+    def badge():
+        return d.find_element(By.ID, "state").text.lower()
+
+    d.get(server.url)
+    wait.until(lambda _: badge() == "idle")
+    assert "#token" not in d.current_url  # the token is taken from the URL and hidden
+    wait.until(lambda _: d.execute_script("return document.getElementById('frame').naturalWidth") == 640)
+    assert len(d.find_elements(By.CSS_SELECTOR, "#parts polygon")) == 4
+
+    # Step: one checkpoint passes, then the loop holds
+    d.find_element(By.ID, "btn-step").click()
+    control.wait_for_state(PAUSED, timeout_s=T)
+    wait.until(lambda _: badge() == "paused")
+    # Run: the loop proposes a grasp on the cover and waits for approval
+    d.find_element(By.ID, "btn-run").click()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    wait.until(lambda _: badge() == "awaiting approval")
+    wait.until(lambda _: "cover" in d.find_element(By.ID, "proposal-text").text)
+    assert len(d.find_elements(By.CSS_SELECTOR, "#proposal .finger")) == 2
+    shot = os.environ.get("STATION_SCREENSHOT")
+    if shot:
+        d.save_screenshot(str(Path(shot).with_suffix(".awaiting.png")))
+    # Pause while awaiting, then Approve: the grasp is approved and the loop pauses after it
+    d.find_element(By.ID, "btn-pause").click()
+    wait.until(lambda _: any(e["event"] == "pause" for e in control.snapshot()["events"]))
+    d.find_element(By.ID, "btn-approve").click()
+    control.wait_for_state(PAUSED, timeout_s=T)
+    wait.until(lambda _: badge() == "paused")
+    events = control.snapshot(200)["events"]
+    assert any(e["event"] == "approve" and e["data"]["by"] == "station" for e in events)
+
+    # Teach: Teach, click the board, click two points on its opposite edges
+    board = next(p for p in demo_parts() if p.id == "board")
+    o = board.outline_mm
+    c1, c2 = (o[0] + o[1]) / 2, (o[2] + o[3]) / 2
+    d.find_element(By.ID, "btn-teach").click()
+    wait.until(lambda _: "click the part" in d.find_element(By.ID, "teach-status").text)
+    click_frame_px(d, *mm_to_px(board.polygon.centroid.coords[0]))
+    wait.until(lambda _: "first contact" in d.find_element(By.ID, "teach-status").text)
+    click_frame_px(d, *mm_to_px(c1))
+    wait.until(lambda _: "second contact" in d.find_element(By.ID, "teach-status").text)
+    click_frame_px(d, *mm_to_px(c2))
+    wait.until(lambda _: examples.exists())
+    wait.until(lambda _: "taught board" in d.find_element(By.ID, "toast").text)
+    ex = load_examples(examples)
+    assert len(ex) == 1 and ex[0].valid and ex[0].part.id == "board"
+    assert ex[0].source["kind"] == "station-teach"
+    assert abs(ex[0].contacts_mm - [c1, c2]).max() < 3.0  # two clicks in a scaled view, snapped to the edge
+    wait.until(lambda _: d.find_element(By.ID, "examples").text.startswith("1 examples"))
+
+    # Run on: the board's proposal is the taught grasp; approve it with the keyboard
+    d.find_element(By.ID, "btn-run").click()
+    wait.until(lambda _: (control.snapshot()["proposal"] or {}).get("target") == "board")
+    wait.until(lambda _: "taught by the operator" in d.find_element(By.ID, "proposal-text").text)
+    d.find_element(By.TAG_NAME, "body").send_keys("a")
+    # the bracket: reject it with a reason -> an invalid example
+    wait.until(lambda _: (control.snapshot()["proposal"] or {}).get("target") == "bracket")
+    wait.until(lambda _: "bracket" in d.find_element(By.ID, "proposal-text").text)
+    d.find_element(By.ID, "reason").send_keys("finger on the spring")
+    d.find_element(By.ID, "btn-reject").click()
+    wait.until(lambda _: len(load_examples(examples)) == 2)
+    rejected = load_examples(examples)[1]
+    assert not rejected.valid and rejected.source["note"] == "finger on the spring"
+    wait.until(lambda _: "finger on the spring" in d.find_element(By.ID, "log").text)
+
+    # turn approval off: the loop finishes the tray by itself
+    wait.until(lambda _: control.state == AWAITING_APPROVAL)
+    d.find_element(By.ID, "approve-each").click()
+    wait.until(lambda _: not control.require_approval)
+    d.find_element(By.ID, "btn-approve").click()
+    control.wait_for_state(DONE, timeout_s=T)
+    wait.until(lambda _: badge() == "done")
+    assert cell.snapshot()["removed"] == ["cover", "board", "bracket", "cap"]
+    wait.until(lambda _: len(d.find_elements(By.CSS_SELECTOR, "#parts polygon")) == 0)
+    shot = os.environ.get("STATION_SCREENSHOT")
+    if shot:
+        d.save_screenshot(str(Path(shot)))
+
+
+def test_page_without_token_shows_the_token_field_and_commands_change_nothing(browser, station):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.05)
+    d.get(server.base_url)
+    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "idle")
+    assert d.find_element(By.ID, "token-card").is_displayed()
+    d.find_element(By.ID, "btn-run").click()
+    wait.until(lambda _: "token" in d.find_element(By.ID, "toast").text)
+    assert control.state == "idle"
+    # a wrong token: the server answers 403, nothing happens
+    d.find_element(By.ID, "token").send_keys("not-the-right-token")
+    d.find_element(By.ID, "btn-token").click()
+    d.find_element(By.ID, "btn-run").click()
+    wait.until(lambda _: "valid token" in d.find_element(By.ID, "toast").text)
+    assert control.state == "idle"
+
+
+def test_the_reason_of_a_fault_and_of_a_stop_is_on_the_page(browser, station):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.05)
+    d.get(server.url)
+    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "idle")
+    control.report_fault("j2", "following error 3.1 deg")
+    wait.until(lambda _: d.find_element(By.ID, "fault").is_displayed())
+    banner = d.find_element(By.ID, "fault").text
+    assert "j2" in banner and "following error 3.1 deg" in banner
+    assert d.find_element(By.ID, "btn-run").get_attribute("disabled") is not None
+    d.find_element(By.ID, "btn-reset").click()
+    wait.until(lambda _: not d.find_element(By.ID, "fault").is_displayed())
+    assert control.state == "idle"
+    control.stop("light curtain interrupted", by="safety")
+    wait.until(lambda _: d.find_element(By.ID, "message").text == "light curtain interrupted")
+    assert d.find_element(By.ID, "state").text.lower() == "stopped"

@@ -1,0 +1,201 @@
+"""The station over real HTTP (urllib against 127.0.0.1, port 0): tokens, state changes, teach."""
+
+import json
+import time
+import urllib.error
+import urllib.request
+
+import pytest
+
+from cell.errors import BadInput
+from cell.examples import load_examples
+from cell.runtime.control import AWAITING_APPROVAL, DONE, PAUSED, RunControl
+from cell.station.demo import DemoCell, mm_to_px
+from cell.station.server import StationServer
+
+T = 5.0
+TOKEN = "test-token-0123456789"
+
+
+@pytest.fixture
+def station(tmp_path):
+    control = RunControl()
+    cell = DemoCell(control, tmp_path / "examples.jsonl", motion_s=0.0)
+    with StationServer(cell, control, port=0, token=TOKEN) as server:
+        cell.start()
+        yield server, control, cell
+        cell.close()
+        assert cell._thread is None  # the loop thread ended
+
+
+def wait_proposal(control, target):
+    """Block until the loop waits for approval of a grasp on `target` (woken by changes)."""
+    deadline = time.monotonic() + T
+    while True:
+        snap = control.snapshot(0)
+        if snap["state"] == AWAITING_APPROVAL and (snap["proposal"] or {}).get("target") == target:
+            return snap["proposal"]
+        assert time.monotonic() < deadline, f"no proposal on {target}; state {snap['state']}"
+        control.wait_change(snap["seq"], timeout_s=0.5)
+
+
+def call(server, method, path, body=None, token=TOKEN, headers=None):
+    data = json.dumps(body).encode() if body is not None else None
+    req = urllib.request.Request(server.base_url + path.lstrip("/"), data=data, method=method)
+    if token is not None:
+        req.add_header("X-Cell-Token", token)
+    if data is not None:
+        req.add_header("Content-Type", "application/json")
+    for k, v in (headers or {}).items():
+        req.add_header(k, v)
+    try:
+        with urllib.request.urlopen(req, timeout=T) as r:
+            raw, status, ctype = r.read(), r.status, r.headers["Content-Type"]
+    except urllib.error.HTTPError as e:
+        raw, status, ctype = e.read(), e.code, e.headers["Content-Type"]
+    return status, (json.loads(raw) if ctype == "application/json" else raw)
+
+
+def test_page_state_and_frame_need_no_token(station):
+    server, _, _ = station
+    status, page = call(server, "GET", "/", token=None)
+    assert status == 200 and b"<title>Cell station</title>" in page
+    for asset in ("/station.js", "/station.css"):
+        assert call(server, "GET", asset, token=None)[0] == 200
+    status, state = call(server, "GET", "/api/state", token=None)
+    assert status == 200 and state["control"]["state"] == "idle"
+    assert {p["id"] for p in state["cell"]["parts"]} == {"cover", "board", "bracket", "cap"}
+    status, png = call(server, "GET", "/api/frame.png", token=None)
+    assert status == 200 and png[:8] == b"\x89PNG\r\n\x1a\n"
+    assert call(server, "GET", "/nothing", token=None)[0] == 404
+
+
+@pytest.mark.parametrize("token", [None, "", "wrong-token-0123456789", TOKEN[:-1]])
+def test_every_command_needs_the_token_and_a_wrong_one_changes_nothing(station, token):
+    server, control, _ = station
+    before = control.snapshot()
+    for cmd, body in (("run", None), ("step", None), ("stop", {"reason": "x"}),
+                      ("approval", {"required": True}),
+                      ("teach", {"part": "cover", "p1_px": [1, 2], "p2_px": [3, 4]})):
+        status, reply = call(server, "POST", f"/api/{cmd}", body, token=token)
+        assert status == 403 and "token" in reply["error"]
+    after = control.snapshot()
+    assert after["state"] == before["state"] == "idle"
+    assert after["require_approval"] is False and after["seq"] == before["seq"]
+
+
+def test_a_foreign_host_header_is_refused(station):
+    server, control, _ = station
+    status, reply = call(server, "POST", "/api/run", headers={"Host": "evil.example:80"})
+    assert status == 403 and "127.0.0.1" in reply["error"]
+    assert call(server, "GET", "/api/state", headers={"Host": "evil.example"})[0] == 403
+    assert control.state == "idle"
+
+
+def test_run_step_approve_reject_through_http(station, tmp_path):
+    server, control, cell = station
+    status, reply = call(server, "POST", "/api/approval", {"required": True})
+    assert status == 200 and reply["control"]["require_approval"] is True
+    status, reply = call(server, "POST", "/api/step")
+    assert status == 200
+    control.wait_for_state(PAUSED, timeout_s=T)  # one checkpoint passed, held at the next
+    status, reply = call(server, "POST", "/api/run")
+    assert status == 200
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    state = call(server, "GET", "/api/state")[1]
+    assert state["control"]["proposal"]["target"] == "cover"
+    assert len(state["cell"]["proposal_px"]["contacts_px"]) == 2
+    status, reply = call(server, "POST", "/api/reject", {"reason": "pad on the hinge"})
+    assert status == 200
+    # the rejection became an invalid example in the file
+    deadline = time.monotonic() + T
+    while time.monotonic() < deadline and not (tmp_path / "examples.jsonl").exists():
+        time.sleep(0.01)
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)  # the next proposal (other axis)
+    ex = load_examples(tmp_path / "examples.jsonl")
+    assert len(ex) == 1 and ex[0].valid is False and ex[0].part.id == "cover"
+    assert ex[0].source["kind"] == "station-reject" and ex[0].source["note"] == "pad on the hinge"
+    # approval off first (a proposal already waiting still needs its decision), then approve
+    status, reply = call(server, "POST", "/api/approval", {"required": False})
+    assert status == 200 and reply["control"]["state"] == AWAITING_APPROVAL
+    status, reply = call(server, "POST", "/api/approve")
+    assert status == 200
+    control.wait_for_state(DONE, timeout_s=T)
+    state = call(server, "GET", "/api/state")[1]
+    assert state["cell"]["removed"] == ["cover", "board", "bracket", "cap"]
+    assert state["control"]["summary"]["parts_removed"] == 4
+
+
+def test_commands_the_state_does_not_allow_get_409(station):
+    server, control, _ = station
+    status, reply = call(server, "POST", "/api/approve")
+    assert status == 409 and "no grasp is waiting" in reply["error"]
+    assert call(server, "POST", "/api/reset")[0] == 200  # idle: nothing to reset, harmless
+    assert call(server, "POST", "/api/fly")[0] == 404
+    status, reply = call(server, "POST", "/api/approval", {"required": "yes"})
+    assert status == 400 and "true or false" in reply["error"]
+    control.report_fault("j2", "following error")
+    status, reply = call(server, "POST", "/api/run")
+    assert status == 409 and "Reset" in reply["error"]
+    status, state = call(server, "GET", "/api/state")
+    assert state["control"]["fault"] == {"source": "j2", "why": "following error",
+                                         "t": state["control"]["fault"]["t"]}
+    assert call(server, "POST", "/api/reset")[1]["control"]["state"] == "idle"
+
+
+def test_teach_appends_a_valid_example_and_the_next_proposal_uses_it(station, tmp_path):
+    server, control, cell = station
+    part = next(p for p in cell.snapshot()["parts"] if p["id"] == "board")
+    # two points on opposite long edges of the board, given in px as the page would send them
+    from cell.station.demo import demo_parts
+
+    board = next(p for p in demo_parts() if p.id == "board")
+    o = board.outline_mm
+    c1, c2 = (o[0] + o[1]) / 2, (o[2] + o[3]) / 2  # midpoints of two parallel edges
+    p1, p2 = mm_to_px(c1).tolist(), mm_to_px(c2).tolist()
+    status, reply = call(server, "POST", "/api/teach", {"part": part["id"], "p1_px": p1, "p2_px": p2})
+    assert status == 200, reply
+    r = reply["result"]
+    assert r["part"] == "board" and r["n_examples"] == 1 and r["example_id"].startswith("station-teach")
+    ex = load_examples(tmp_path / "examples.jsonl")
+    assert ex[0].valid and ex[0].source["kind"] == "station-teach" and ex[0].joints is not None
+    assert abs(ex[0].contacts_mm - [c1, c2]).max() < 0.2
+    assert {o.id for o in ex[0].obstacles} == {"cover", "bracket", "cap"}
+    assert any(e["event"] == "teach" for e in reply["control"]["events"])
+
+    # bad teach input: 400 with a reason, nothing appended
+    for body, match in (({"part": "ghost", "p1_px": p1, "p2_px": p2}, "no part 'ghost'"),
+                        ({"part": "board", "p1_px": [1], "p2_px": p2}, "p1_px"),
+                        ({"part": "board", "p1_px": p1, "p2_px": p1}, "apart"),
+                        ({"part": "board", "p1_px": [5, 5], "p2_px": p2}, "from the outline")):
+        status, reply = call(server, "POST", "/api/teach", body)
+        assert status == 400 and match in reply["error"], reply
+    assert len(load_examples(tmp_path / "examples.jsonl")) == 1
+
+    # the loop's next plan for the board uses the taught contacts
+    call(server, "POST", "/api/approval", {"required": True})
+    call(server, "POST", "/api/run")
+    wait_proposal(control, "cover")
+    call(server, "POST", "/api/approve")
+    prop = wait_proposal(control, "board")
+    assert prop["how"] == "taught by the operator"
+    assert abs(abs(prop["opening_mm"]) - float(((c2 - c1) ** 2).sum() ** 0.5)) < 0.2
+
+
+def test_non_loopback_bind_needs_explicit_permission(tmp_path):
+    control = RunControl()
+    cell = DemoCell(control, tmp_path / "e.jsonl")
+    with pytest.raises(BadInput, match="exposes the arm"):
+        StationServer(cell, control, host="0.0.0.0", port=0)
+    with pytest.raises(BadInput, match="at least 8"):
+        StationServer(cell, control, port=0, token="short")
+
+
+def test_cli_serves_and_exits(tmp_path, capsys):
+    from cell.cli import main
+
+    code = main(["station", "--port", "0", "--examples", str(tmp_path / "e.jsonl"), "--for-s", "0.2",
+                 "--token", TOKEN])
+    out = capsys.readouterr().out
+    assert code == 0 and f"#token={TOKEN}" in out and "http://127.0.0.1:" in out
+    assert main(["station", "--port", "70000"]) == 2

@@ -49,6 +49,7 @@ class RunConfig:
     station_port: int = 8765
     station_token: str | None = None
     faults: WorldFaults = field(default_factory=WorldFaults)
+    drive_fault: tuple | None = None  # (node, kind, {kw}) injected into the simulated drives at the start
     progress: object = None  # callable(str) for progress lines
 
 
@@ -125,6 +126,9 @@ def run_session(cfg: RunConfig) -> dict:
                          faults=cfg.faults)
         stack.callback(world.close)
         camera = SimCameraSource(world, cal, cfg.seed)
+        if cfg.drive_fault is not None:
+            node, kind, kw = cfg.drive_fault
+            drives.inject_fault(kind, node, **kw)
         loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=camera, arm=arm, control=control,
                         examples_path=examples_path, examples_out=examples_out, sink=recorder, viz=viz,
                         options=LoopOptions(on_no_grasp=cfg.on_no_grasp, interactive=cfg.station))

@@ -163,16 +163,13 @@ def home_joints(cell):
     return Joints.from_dict(cell.motion.home_joints)
 
 
+PROGRESS_EVENTS = ("start", "removed", "skip", "miss", "fault", "example", "vision", "frame")
+
+
 def _progress(control: RunControl, say) -> None:
     """Print the loop's events as they happen (progress for the operator's terminal)."""
-    orig = control._log_locked
-
-    def log_locked(event, message="", **data):
-        orig(event, message, **data)
-        if message and event in ("start", "removed", "skip", "miss", "fault", "example", "vision", "frame"):
-            say(f"[{event}] {message}")
-
-    control._log_locked = log_locked
+    control.add_listener(lambda e: say(f"[{e['event']}] {e['message']}")
+                         if e.get("message") and e["event"] in PROGRESS_EVENTS else None)
 
 
 def _with_station(loop: CellLoop, control: RunControl, cfg: RunConfig, say) -> dict:

@@ -27,22 +27,31 @@ def example_configurations(examples: Iterable[GraspExample]) -> np.ndarray:
     return np.array(rows, float).reshape(-1, 4)
 
 
+def _fold180(a: np.ndarray) -> np.ndarray:
+    """Angles folded into [-90, 90): the jaws are symmetric, so a direction is mod 180."""
+    return (a + 90.0) % 180.0 - 90.0
+
+
 def weighted_distance(options: np.ndarray, configs: np.ndarray, weights: dict) -> np.ndarray:
     """Distance of each option (n, 4) to its nearest example configuration (k, 4), shape (n,).
 
-    Each example's wrist is first turned to the option's closing axis by the smallest turn
-    (the jaws are symmetric, so at most 90 degrees): the example was taken on another part
-    with another axis, and J4 should compare the operator's habit (which way the wrist
-    sits, how far it is wound), not that part's orientation. Degrees and millimetres are
-    mixed as they are: J3 is equal across options, so only the revolute joints decide."""
-    w = np.sqrt(np.array([weights[j] for j in JOINTS], float))
-    axis_opt = options[:, 0] + options[:, 1] + options[:, 3]
-    axis_ex = configs[:, 0] + configs[:, 1] + configs[:, 3]
-    turn = (axis_opt[:, None] - axis_ex[None, :] + 90.0) % 180.0 - 90.0  # (n, k), in [-90, 90)
+    J4 is compared in two parts. Its direction mod 180 (how the jaws sit on the arm) is
+    compared after turning the example's jaws onto the option's closing axis: the example
+    was taken on another part, and the wrist should be compared as a habit, not as that
+    part's orientation. Its wind (how many half turns away from the fold in [-90, 90), i.e.
+    which of J4, J4 +/- 180 ...) is compared as a count of half turns: an operator who always
+    takes the smallest wind-up teaches wind 0. Degrees and millimetres are mixed as they are:
+    J3 is the same for every option, so only the revolute joints decide."""
+    w = np.array([weights[j] for j in JOINTS], float)
     d = options[:, None, :] - configs[None, :, :]
-    d[:, :, 3] -= turn
-    d *= w
-    return np.sqrt(np.min(np.sum(d * d, axis=2), axis=1))
+    axis_turn = _fold180((options[:, 0] + options[:, 1] + options[:, 3])[:, None]
+                         - (configs[:, 0] + configs[:, 1] + configs[:, 3])[None, :])
+    d_dir = _fold180(d[:, :, 3] - axis_turn)
+    wind_opt = np.rint((options[:, 3] - _fold180(options[:, 3])) / 180.0)
+    wind_ex = np.rint((configs[:, 3] - _fold180(configs[:, 3])) / 180.0)
+    d_wind = 180.0 * (wind_opt[:, None] - wind_ex[None, :])
+    sq = w[0] * d[:, :, 0] ** 2 + w[1] * d[:, :, 1] ** 2 + w[2] * d[:, :, 2] ** 2 + w[3] * (d_dir ** 2 + d_wind ** 2)
+    return np.sqrt(np.min(sq, axis=1))
 
 
 def link_collisions(j: Joints, cell: Cell, parts: Sequence[Part]) -> list[str]:

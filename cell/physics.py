@@ -52,7 +52,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from shapely import affinity
-from shapely.geometry import LinearRing, Point, Polygon, box
+from shapely.geometry import LinearRing, Point, box
 
 from cell.cellconfig import Cell, default_cell
 from cell.grasp.height import grasp_z_mm as default_grasp_z_mm
@@ -391,7 +391,3 @@ def _normal_and_turn(rings, p: np.ndarray, delta_mm: float = 1.0):
     a_in, a_out = math.atan2(t_in[1], t_in[0]), math.atan2(t_out[1], t_out[0])
     turn = math.degrees((a_out - a_in + math.pi) % (2 * math.pi) - math.pi)
     return normal, turn
-
-
-def outline_polygon_rings(part: Part) -> list[LinearRing]:
-    return _rings(Polygon(part.outline_mm, [h for h in part.holes_mm]))

@@ -179,3 +179,19 @@ def test_replay_with_other_examples_reports_differences(tmp_path, capsys):
     result = json.loads(out)
     assert not result["match"] and result["differences"]
     assert any("grasp" in d for d in result["differences"])
+
+
+def test_a_drive_fault_stops_everything_and_names_the_node(short_assembly):
+    s = run_session(RunConfig(assembly=short_assembly, seed=3, drive_fault=("j2", "emcy", {"after_s": 0.3})))
+    assert s["status"] == "stopped" and s["parts_removed"] == 0
+    assert "j2" in s["stopped"] and "EMCY" in s["stopped"]
+
+
+def test_the_session_rrd_holds_the_pipeline(recorded):
+    from test_viz_rrd import _read_rrd
+
+    rec, _ = recorded
+    paths = set(_read_rrd(rec / "session.rrd"))
+    for p in ("/camera/frame", "/vision/contours", "/grasp/candidates", "/grasp/selected", "/arm/links",
+              "/arm/joints/j1", "/gripper/width"):
+        assert any(x.startswith(p) for x in paths), (p, sorted(paths))

@@ -94,3 +94,13 @@ def test_no_configuration_when_every_option_collides():
     x, y = 330.0, -120.0
     huge = square_at(x, y, half=400, z_top=1000, pid="wall")
     assert chosen(training(right_below_left_above), x, y, parts=[huge]) is None
+
+
+def test_examples_with_the_smallest_wind_up_teach_it_everywhere():
+    """Every example takes the J4 of smallest magnitude: so does every choice, whatever the axis."""
+    rng = np.random.default_rng(5)
+    ex = training(right_below_left_above)
+    for _ in range(40):
+        x, y, axis = rng.uniform(220, 480), rng.uniform(-230, 230), rng.uniform(-90, 90)
+        q = chosen(ex, x, y, axis)
+        assert abs(q.j4_deg) <= 90.0 + 1e-9, (x, y, axis, q)

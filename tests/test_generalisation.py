@@ -41,3 +41,24 @@ def test_the_check_discriminates(unseen_result):
     base = random_baseline(shown, seed=3)
     assert base.presented >= 20
     assert base.stable_share < 0.5 < t.stable_share
+
+
+def test_bench_stability_command(capsys):
+    import json
+
+    from conftest import run_cli
+
+    code, out, err = run_cli("bench", "stability", "--poses", "1", "--families", "gear,pcb", "--json",
+                             capsys=capsys)
+    assert code == 0 and "left-out family" in out and "whole library" in err
+    s = json.loads(out.strip().splitlines()[-1])
+    assert s["whole"]["presented"] == len(L.parts())
+    assert s["whole"]["stable_share"] >= 0.95 and s["unseen_families"]["stable_share"] >= 0.95
+    assert s["random_points"]["stable_share"] < 0.5
+    assert s["clutter"]["presented"] == len(L.parts()) and s["clutter"]["stable_share"] >= 0.95
+    assert set(s["per_family"]) == {"gear", "pcb"}
+    assert s["unseen_families"]["presented"] == len(L.parts(["gear", "pcb"]))
+    code, _, err = run_cli("bench", "stability", "--poses", "0", capsys=capsys)
+    assert code == 2 and "--poses" in err
+    code, _, err = run_cli("bench", "stability", "--families", "gears", capsys=capsys)
+    assert code == 2 and "unknown part families" in err

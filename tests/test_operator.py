@@ -79,19 +79,19 @@ def test_arm_configuration_policy(cell_cfg):
 
 
 def test_generated_session_is_deterministic_and_has_reasoned_rejections(tmp_path):
-    a = generate_examples(6, seed=11, rejection_share=0.6)
-    b = generate_examples(6, seed=11, rejection_share=0.6)
+    a = generate_examples(4, seed=11, rejection_share=0.6)
+    b = generate_examples(4, seed=11, rejection_share=0.6)
     assert [json.dumps(e.to_json()) for e in a] == [json.dumps(e.to_json()) for e in b]
     accepted = [e for e in a if e.valid]
     rejected = [e for e in a if not e.valid]
-    assert len(accepted) == 6 and rejected
+    assert len(accepted) == 4 and rejected
     for e in rejected:
         assert e.source["note"].startswith("rejected: ") and len(e.contact_valid) == 2
     path = tmp_path / "ex.jsonl"
     append_examples(path, a)
     back = load_examples(path)
     assert [e.id for e in back] == [e.id for e in a]
-    assert generate_examples(3, seed=12)[0].to_json() != a[0].to_json()
+    assert generate_examples(1, seed=12)[0].to_json() != a[0].to_json()
 
 
 def test_family_restricted_session():
@@ -126,7 +126,27 @@ def test_cli_generate(tmp_path, capsys):
                               capsys=capsys)
     assert code == 0 and "2 accepted" in stdout
     assert sum(e.valid for e in load_examples(out)) == 2
-    code, _, err = run_cli("examples", "generate", "--out", out, "--families", "spring", capsys=capsys)
+    before = out.read_bytes()
+    code, _, err = run_cli("examples", "generate", "--out", out, "--count", "1", capsys=capsys)
+    assert code == 2 and "--append" in err and out.read_bytes() == before  # nothing lost
+    code, _, _ = run_cli("examples", "generate", "--out", out, "--count", "1", "--seed", "6", "--append",
+                         capsys=capsys)
+    assert code == 0 and sum(e.valid for e in load_examples(out)) == 3
+    code, _, _ = run_cli("examples", "generate", "--out", out, "--count", "1", "--seed", "6", "--overwrite",
+                         capsys=capsys)
+    assert code == 0 and sum(e.valid for e in load_examples(out)) == 1
+    code, _, err = run_cli("examples", "generate", "--out", tmp_path / "f.jsonl", "--families", "spring",
+                           capsys=capsys)
     assert code == 2 and "unknown part families" in err
-    code, _, err = run_cli("examples", "generate", "--out", out, "--count", "0", capsys=capsys)
+    code, _, err = run_cli("examples", "generate", "--out", tmp_path / "g.jsonl", "--count", "0", capsys=capsys)
     assert code == 2 and "--count" in err
+
+
+def test_shipped_file_is_what_the_command_makes():
+    """`cell examples generate --count 60 --seed 0` made the shipped file: a shorter session with
+    the same seed is its prefix (the random draws come in the same order)."""
+    from cell.examples import default_examples_path
+
+    shipped = default_examples_path().read_text().splitlines()
+    fresh = [json.dumps(e.to_json(), separators=(",", ":")) for e in generate_examples(4, seed=0)]
+    assert shipped[:len(fresh)] == fresh

@@ -138,3 +138,28 @@ def test_close_jaws_reports_what_the_gripper_would_measure():
     assert close_jaws(SQUARE, (320, 30), 0.0, 60.0) is None  # band beside the part: closes on air
     assert close_jaws(SQUARE, (320, 0), 0.0, 60.0, grasp_z_mm=15.0) is None  # pads above the part
     assert close_jaws(SQUARE.moved(0, 0, 45), (320, 0), 0.0, 70.0) == pytest.approx(40 * np.sqrt(2), abs=1e-6)
+
+
+@pytest.mark.parametrize("name", ["spur_gear_m", "pcb_m", "hex_nut_m16", "l_bracket_s", "heatsink_s"])
+def test_verdict_is_independent_of_the_pose(name):
+    """Moving part and contacts together changes nothing (seeded rigid motions)."""
+    from cell import parts_library as L
+    from cell.operator import Operator
+
+    base = L.part(name)
+    g = Operator(rng=np.random.default_rng(1)).choose_grasp(L.place(base, 0, 0, 0))
+    ref = check_grasp(L.place(base, 0, 0, 0), g.contacts_mm, g.axis_deg, g.grasp_z_mm)
+    bad = [[g.contacts_mm[0][0] + 3, g.contacts_mm[0][1]], g.contacts_mm[1]]  # skewed: may fail
+    ref_bad = check_grasp(L.place(base, 0, 0, 0), bad)
+    rng = np.random.default_rng(5)
+    for _ in range(4):
+        x, y, th = rng.uniform(200, 500), rng.uniform(-200, 200), rng.uniform(-180, 180)
+        t = np.radians(th)
+        R = np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
+        part = L.place(base, x, y, th)
+        for contacts, axis, want in ((g.contacts_mm, g.axis_deg + th, ref), (bad, None, ref_bad)):
+            moved = np.asarray(contacts) @ R.T + (x, y)
+            v = check_grasp(part, moved, axis, g.grasp_z_mm)
+            assert v.ok == want.ok and v.jaw_width_mm == pytest.approx(want.jaw_width_mm, abs=1e-6)
+            assert v.torque_ratio == pytest.approx(want.torque_ratio, rel=1e-6, abs=1e-9)
+            assert v.sharp == want.sharp

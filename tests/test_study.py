@@ -3,6 +3,7 @@ import json
 import numpy as np
 import pytest
 from conftest import run_cli
+from sklearn.utils.estimator_checks import parametrize_with_checks
 
 from cell.operator import Operator
 from cell.study.data import point_dataset, set_dataset
@@ -80,3 +81,9 @@ def test_label_noise_flips_the_asked_share(tmp_path, capsys):
     f.write_text("x")
     code, _, err = run_cli("study", "--budget", "tiny", "--out", f, capsys=capsys)
     assert code == 2 and "not a folder" in err
+
+
+
+@parametrize_with_checks([RBFNetwork(n_centres=5)])
+def test_rbf_network_is_a_proper_scikit_learn_estimator(estimator, check):
+    check(estimator)

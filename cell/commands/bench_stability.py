@@ -16,6 +16,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--cell", default=None, help="cell file (default: the shipped default cell)")
     parser.add_argument("--poses", type=int, default=3, help="random poses per part (default 3)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the poses (default 0)")
+    parser.add_argument("--families", default=None,
+                        help="comma-separated families to leave out one at a time (default: all)")
     parser.add_argument("--json", action="store_true", help="print a JSON summary as the last line")
 
 
@@ -28,6 +30,7 @@ def run(args) -> int:
     from cell.examples import load_examples
     from cell.study.stability import (
         StabilityTally,
+        cluttered,
         evaluate,
         leave_families_out,
         make_planner,
@@ -45,9 +48,15 @@ def run(args) -> int:
 
     log(f"whole library: {len(L.parts())} parts x {args.poses} poses, planner trained on {len(examples)} examples")
     shown = presentations(L.parts(), args.poses, args.seed, cell)
-    whole = evaluate(make_planner(examples, cell), shown, cell)
+    planner = make_planner(examples, cell)
+    whole = evaluate(planner, shown, cell)
+    log("clutter: every presentation with one or two neighbours 3..15 mm away")
+    clutter = evaluate(planner, cluttered(shown, args.seed, cell), cell)
     baseline = random_baseline(shown, args.seed, cell)
-    per_family = leave_families_out(examples, args.poses, args.seed, cell, progress=log)
+    families = [f.strip() for f in args.families.split(",") if f.strip()] if args.families else None
+    if families:
+        L.parts(families)  # unknown names are bad input
+    per_family = leave_families_out(examples, args.poses, args.seed, cell, families, progress=log)
     unseen = StabilityTally()
     for t in per_family.values():
         unseen.add(t)
@@ -61,6 +70,8 @@ def run(args) -> int:
           f"{pct(whole.planned_share)} | {pct(whole.stable_share)} |")
     print(f"| unseen families (leave-one-family-out) | {unseen.presented} | {unseen.planned} | {unseen.stable} | "
           f"{pct(unseen.planned_share)} | {pct(unseen.stable_share)} |")
+    print(f"| with 1-2 neighbours 3..15 mm away, all examples | {clutter.presented} | {clutter.planned} | "
+          f"{clutter.stable} | {pct(clutter.planned_share)} | {pct(clutter.stable_share)} |")
     print(f"| yardstick: two random outline points within the stroke | {baseline.presented} | - | "
           f"{baseline.stable} | - | {pct(baseline.stable_share)} |")
     print()
@@ -68,7 +79,7 @@ def run(args) -> int:
     print("|---|---:|---:|---:|")
     for fam, t in per_family.items():
         print(f"| {fam} | {t.presented} | {t.planned} | {t.stable} |")
-    for pid, reasons in whole.failures + unseen.failures:
+    for pid, reasons in whole.failures + unseen.failures + clutter.failures:
         log(f"unstable: {pid}: {'; '.join(reasons)}")
     if args.json:
         print(json.dumps({
@@ -78,6 +89,9 @@ def run(args) -> int:
             "unseen_families": {"presented": unseen.presented, "planned": unseen.planned, "stable": unseen.stable,
                                 "stable_share": round(unseen.stable_share, 4),
                                 "planned_share": round(unseen.planned_share, 4)},
+            "clutter": {"presented": clutter.presented, "planned": clutter.planned, "stable": clutter.stable,
+                        "stable_share": round(clutter.stable_share, 4),
+                        "planned_share": round(clutter.planned_share, 4)},
             "random_points": {"presented": baseline.presented, "stable": baseline.stable,
                               "stable_share": round(baseline.stable_share, 4)},
             "per_family": {f: {"presented": t.presented, "planned": t.planned, "stable": t.stable}

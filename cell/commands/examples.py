@@ -6,8 +6,10 @@ import sys
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--out", required=True,
-                        help="example file to write (JSON Lines; appended if it exists)")
+    parser.add_argument("--out", required=True, help="example file to write (JSON Lines)")
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument("--append", action="store_true", help="append to an existing file (example ids must be new)")
+    mode.add_argument("--overwrite", action="store_true", help="replace an existing file (atomically)")
     parser.add_argument("--count", type=int, default=60,
                         help="accepted grasps to give (default 60, as in the paper)")
     parser.add_argument("--seed", type=int, default=0,
@@ -23,15 +25,24 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
+    import json
+    from pathlib import Path
+
     from cell.cellconfig import load_cell
     from cell.errors import BadInput
     from cell.examples import append_examples
+    from cell.fileio import write_atomic
     from cell.operator import generate_examples
 
     if args.count < 1:
         raise BadInput("--count must be at least 1")
     if not (0.0 <= args.rejections <= 1.0 and 0.0 <= args.neighbours <= 1.0):
         raise BadInput("--rejections and --neighbours are shares between 0 and 1")
+    out = Path(args.out)
+    if out.exists() and not (args.append or args.overwrite):
+        raise BadInput(f"{out} exists: pass --append to add to it or --overwrite to replace it")
+    if out.exists() and out.is_dir():
+        raise BadInput(f"--out {out} is a folder")
     families = [f.strip() for f in args.families.split(",") if f.strip()] if args.families else None
     cell = load_cell(args.cell)
 
@@ -41,7 +52,13 @@ def run(args) -> int:
     examples = generate_examples(args.count, args.seed, families, cell, args.rejections, args.neighbours,
                                  progress)
     print(file=sys.stderr)
-    append_examples(args.out, examples)
+    try:
+        if args.overwrite and out.exists():
+            write_atomic(out, "".join(json.dumps(e.to_json(), separators=(",", ":")) + "\n" for e in examples))
+        else:
+            append_examples(out, examples)
+    except OSError as e:
+        raise BadInput(f"cannot write {out}: {e}") from None
     n_ok = sum(e.valid for e in examples)
     print(f"wrote {len(examples)} examples ({n_ok} accepted, {len(examples) - n_ok} rejected) to {args.out}")
     return 0

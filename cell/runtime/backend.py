@@ -77,6 +77,7 @@ class LoopBackend:
                           obstacles=others, grasp_z_mm=z, joints=joints)
         with self._lock:
             lp.add_example(ex)
-        return {"ok": True, "example": ex.id, "contacts_mm": np.round(contacts, 2).tolist(),
+        return {"ok": True, "example_id": ex.id, "n_examples": len(lp.examples),
+                "contacts_mm": np.round(contacts, 2).tolist(),
                 "opening_mm": round(opening, 2), "joints": None if joints is None else joints.rounded(3).as_dict(),
-                "examples": len(lp.examples)}
+                }

@@ -90,6 +90,7 @@ class RunControl:
         self._seq = 0  # bumped on every change; the page can tell when to redraw
         self._events: deque[dict] = deque(maxlen=event_log_size)
         self._event_no = 0
+        self._listeners: list = []
         with self._cond:
             self._log_locked("init", f"run control ready (approve each grasp: {self._require_approval})")
 
@@ -104,6 +105,14 @@ class RunControl:
         self._events.append(e)
         self._seq += 1
         self._cond.notify_all()
+        for fn in self._listeners:
+            fn(e)
+
+    def add_listener(self, fn) -> None:
+        """Call fn(event_dict) for every event from now on (with the lock held: keep it short,
+        e.g. print a progress line)."""
+        with self._cond:
+            self._listeners.append(fn)
 
     def _set_locked(self, state: str, message: str, event: str, **data) -> None:
         self._state = state

@@ -172,6 +172,7 @@ class CellLoop:
         if grasps is None:
             return
         attempt = 0
+        rejected_here: list[np.ndarray] = []
         while True:
             t1 = time.perf_counter()
             grasp = grasps[attempt] if attempt < len(grasps) else None
@@ -185,10 +186,17 @@ class CellLoop:
             report.planning_s += time.perf_counter() - t1
             if not decision.approved:
                 self._rejected(grasp, scene, decision.reason)
+                rejected_here.append(grasp.contacts_mm)
                 t2 = time.perf_counter()
                 grasps = self._plan(scene, part_id)
                 report.planning_s += time.perf_counter() - t2
                 if grasps is None:
+                    return
+                # The example teaches the trees; this cycle, the operator also simply expects
+                # not to be asked the same again (sets of a symmetric part look alike to them).
+                grasps = [g for g in grasps if not any(self._same_contacts(g.contacts_mm, r) for r in rejected_here)]
+                if not grasps:
+                    self._stop_and_ask("planner", f"{part_id}: every feasible grasp was rejected; teach one")
                     return
                 attempt = 0
                 continue
@@ -342,6 +350,11 @@ class CellLoop:
         self.sink.write_decision({"type": "decision", "part": grasp.target, "approved": decision.approved,
                                   "reason": decision.reason, "by": decision.by})
         return decision
+
+    def _same_contacts(self, a: np.ndarray, b: np.ndarray) -> bool:
+        """Two contact sets the pads would cover alike (either order), within half a pad width."""
+        tol = self.cell.gripper.pad_width_mm / 2
+        return bool(np.all(np.linalg.norm(a - b, axis=1) <= tol) or np.all(np.linalg.norm(a - b[::-1], axis=1) <= tol))
 
     def _rejected(self, grasp: Grasp, scene: Scene, reason: str) -> None:
         """A rejected grasp becomes an invalid example (the operator said no to this set)."""

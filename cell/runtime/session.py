@@ -49,6 +49,7 @@ class RunConfig:
     station_port: int = 8765
     station_token: str | None = None
     faults: WorldFaults = field(default_factory=WorldFaults)
+    drive_fault: tuple | None = None  # (node, kind, {kw}) injected into the simulated drives at the start
     progress: object = None  # callable(str) for progress lines
 
 
@@ -125,6 +126,9 @@ def run_session(cfg: RunConfig) -> dict:
                          faults=cfg.faults)
         stack.callback(world.close)
         camera = SimCameraSource(world, cal, cfg.seed)
+        if cfg.drive_fault is not None:
+            node, kind, kw = cfg.drive_fault
+            drives.inject_fault(kind, node, **kw)
         loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=camera, arm=arm, control=control,
                         examples_path=examples_path, examples_out=examples_out, sink=recorder, viz=viz,
                         options=LoopOptions(on_no_grasp=cfg.on_no_grasp, interactive=cfg.station))
@@ -159,16 +163,13 @@ def home_joints(cell):
     return Joints.from_dict(cell.motion.home_joints)
 
 
+PROGRESS_EVENTS = ("start", "removed", "skip", "miss", "fault", "example", "vision", "frame")
+
+
 def _progress(control: RunControl, say) -> None:
     """Print the loop's events as they happen (progress for the operator's terminal)."""
-    orig = control._log_locked
-
-    def log_locked(event, message="", **data):
-        orig(event, message, **data)
-        if message and event in ("start", "removed", "skip", "miss", "fault", "example", "vision", "frame"):
-            say(f"[{event}] {message}")
-
-    control._log_locked = log_locked
+    control.add_listener(lambda e: say(f"[{e['event']}] {e['message']}")
+                         if e.get("message") and e["event"] in PROGRESS_EVENTS else None)
 
 
 def _with_station(loop: CellLoop, control: RunControl, cfg: RunConfig, say) -> dict:

@@ -9,7 +9,6 @@ centre, standing on its top face).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -202,7 +201,3 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
-
-
-__all__ = ["RECIPES", "Step", "build", "make_assembly", "verify", "write_all", "shipped_assembly_paths",
-           "gaps_mm", "math"]

@@ -30,7 +30,8 @@ from sklearn.neural_network import MLPClassifier
 from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 from sklearn.tree import DecisionTreeClassifier
-from sklearn.utils.validation import check_is_fitted
+from sklearn.utils.multiclass import check_classification_targets
+from sklearn.utils.validation import check_is_fitted, validate_data
 
 
 class RBFNetwork(ClassifierMixin, BaseEstimator):
@@ -51,12 +52,12 @@ class RBFNetwork(ClassifierMixin, BaseEstimator):
         self.random_state = random_state
 
     def _features(self, X):
-        d2 = ((np.asarray(X, float)[:, None, :] - self.centres_[None]) ** 2).sum(-1)
+        d2 = ((X[:, None, :] - self.centres_[None]) ** 2).sum(-1)
         return np.exp(-d2 / (2 * self.width_ ** 2))
 
     def fit(self, X, y):
-        X = np.asarray(X, float)
-        y = np.asarray(y)
+        X, y = validate_data(self, X, y)
+        check_classification_targets(y)
         k = max(1, min(self.n_centres, len(np.unique(X, axis=0))))
         km = KMeans(n_clusters=k, n_init=3, random_state=self.random_state).fit(X)
         self.centres_ = km.cluster_centers_
@@ -73,6 +74,7 @@ class RBFNetwork(ClassifierMixin, BaseEstimator):
 
     def predict(self, X):
         check_is_fitted(self, "out_")
+        X = validate_data(self, X, reset=False)
         return self.out_.predict(self._features(X))
 
 

@@ -10,6 +10,7 @@ Every library part is presented standalone at `poses` random poses in the tray; 
 
 Leave-families-out: for each family, the planner learns from the examples of the *other*
 families only and plans for the parts of the left-out family (parts it has never seen).
+Clutter: every part with one or two random neighbours 3..15 mm away (collisions count).
 """
 
 from __future__ import annotations
@@ -65,21 +66,41 @@ def presentations(parts: list[Part], poses: int, seed: int, cell: Cell) -> list[
     return out
 
 
-def evaluate(planner, parts: list[Part], cell: Cell | None = None) -> StabilityTally:
-    """Plan each (placed, standalone) part and check the grasp physically."""
+def cluttered(parts: list[Part], seed: int, cell: Cell) -> list[tuple[Part, tuple[Part, ...]]]:
+    """Each (placed) part with one or two random library neighbours 3..15 mm away, inside the tray."""
+    from cell.operator import _inside_tray, place_neighbour
+
+    rng = np.random.default_rng(seed + 100)
+    lib = L.parts()
+    out = []
+    for p in parts:
+        obstacles: list[Part] = []
+        for j in range(int(rng.integers(1, 3))):
+            nb = lib[int(rng.integers(0, len(lib)))]
+            q = place_neighbour(p, nb, float(rng.uniform(3, 15)), float(rng.uniform(0, 360)),
+                                float(rng.uniform(-180, 180)), f"{nb.id}#n{j}")
+            if all(q.polygon.distance(o.polygon) > 2 for o in obstacles) and _inside_tray(q, cell):
+                obstacles.append(q)
+        out.append((p, tuple(obstacles)))
+    return out
+
+
+def evaluate(planner, parts, cell: Cell | None = None) -> StabilityTally:
+    """Plan each placed part (standalone, or a (part, obstacles) pair) and check the grasp physically."""
     cell = cell or default_cell()
     t = StabilityTally()
-    for part in parts:
+    for item in parts:
+        part, obstacles = item if isinstance(item, tuple) else (item, ())
         t.presented += 1
         try:
-            res = planner.plan(Scene((part,), part.id))
+            res = planner.plan(Scene((part, *obstacles), part.id))
         except NoFeasibleGrasp as e:
             t.no_grasp.append((part.id, e.reason))
             continue
         t.planned += 1
         t.plan_ms.append(res.time_ms)
         g = res.grasp
-        v = check_grasp(part, g.contacts_mm, g.axis_deg, g.grasp_z_mm, (), cell)
+        v = check_grasp(part, g.contacts_mm, g.axis_deg, g.grasp_z_mm, obstacles, cell)
         if v.ok:
             t.stable += 1
         else:

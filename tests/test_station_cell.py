@@ -1,0 +1,153 @@
+"""The operator station in front of the real cell loop (simulated world, camera and CANopen
+drives): run, approve, reject (an invalid example), teach (a valid example) over HTTP with the
+token, and the same in a real headless browser."""
+
+import contextlib
+import json
+import shutil
+import threading
+import urllib.error
+import urllib.request
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_station_browser import CHROMEDRIVER, CHROMIUM, browser  # noqa: F401 - the browser fixture
+
+from cell.cellconfig import default_cell
+from cell.examples import default_examples_path, load_examples
+from cell.runtime.backend import LoopBackend
+from cell.runtime.control import AWAITING_APPROVAL, DONE, RunControl, Stopped
+from cell.runtime.loop import CellLoop, LoopOptions
+from cell.runtime.session import SimCameraSource, home_joints
+from cell.runtime.simworld import SimWorld
+from cell.scene import parse_assembly
+from cell.station.server import StationServer
+
+DEFAULT = Path(str(resources.files("cell") / "data" / "assemblies" / "default.json"))
+T = 30.0
+
+
+@pytest.fixture
+def live(tmp_path):
+    from calibration import load_calibration
+    from drivers import simulated_cell
+
+    d = json.loads(DEFAULT.read_text())
+    d["parts"] = [p for p in d["parts"] if p["id"] in ("nut", "washer")]
+    d["sequence"] = ["washer", "nut"]
+    assembly = parse_assembly(d)
+    cell, cal = default_cell(), load_calibration()
+    examples = tmp_path / "examples.jsonl"
+    shutil.copyfile(default_examples_path(), examples)
+    control = RunControl(require_approval=True)
+    with simulated_cell(cell) as (arm, drives):
+        world = SimWorld(list(assembly.parts), cell, drives)
+        loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=SimCameraSource(world, cal, 0),
+                        arm=arm, control=control, examples_path=examples,
+                        options=LoopOptions(interactive=True))
+        arm.move_joints(home_joints(cell))
+        with StationServer(LoopBackend(loop), control, port=0) as server:
+            def work():
+                with contextlib.suppress(Stopped):
+                    loop.run()
+
+            t = threading.Thread(target=work, daemon=True)
+            t.start()
+            yield server, control, loop, examples, world
+            control.stop("test over")
+            t.join(10)
+        world.close()
+
+
+def call(server, path, body=None, token=True):
+    req = urllib.request.Request(server.base_url + path, method="POST" if body is not None else "GET",
+                                 data=None if body is None else json.dumps(body).encode())
+    req.add_header("Content-Type", "application/json")
+    if token:
+        req.add_header("X-Cell-Token", server.token)
+    try:
+        with urllib.request.urlopen(req, timeout=T) as r:
+            raw = r.read()
+            return r.status, (json.loads(raw) if r.headers.get_content_type() == "application/json" else raw)
+    except urllib.error.HTTPError as e:
+        return e.code, json.loads(e.read() or b"{}")
+
+
+def across(part, cal):
+    """Two points on the part's outline across its centre (image px at its top)."""
+    c = np.asarray(part.polygon.centroid.coords[0])
+    b = part.polygon.exterior
+    far = max((np.asarray(p) for p in b.coords), key=lambda p: np.linalg.norm(p - c))
+    opposite = np.asarray(b.interpolate(b.project(type(part.polygon.centroid)(*(2 * c - far)))).coords[0])
+    return cal.mm_to_px(np.array([far, opposite]), part.z_top_mm)
+
+
+def test_operator_runs_rejects_teaches_and_approves_over_http(live):
+    server, control, loop, examples, world = live
+    n0 = len(load_examples(examples))
+    code, _ = call(server, "/api/run", {}, token=False)
+    assert code == 403 and control.state == "idle"  # no token: nothing moves
+    assert call(server, "/api/run", {})[0] == 200
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    code, state = call(server, "/api/state")
+    cell = state["cell"]
+    assert state["control"]["proposal"]["target"] == "washer"
+    assert cell["proposal_px"]["target"] == "washer" and len(cell["proposal_px"]["contacts_px"]) == 2
+    assert {p["id"] for p in cell["parts"]} == {"nut", "washer"} and cell["frame"]["index"] == 0
+    code, png = call(server, "/api/frame.png")
+    assert code == 200 and png[:4] == b"\x89PNG"
+
+    # teach a grasp across the nut: a valid example with a configuration, model rebuilt
+    p1, p2 = across(loop.state.seen["nut"], loop.cal)
+    code, r = call(server, "/api/teach", {"part": "nut", "p1_px": p1.tolist(), "p2_px": p2.tolist()})
+    assert code == 200, r
+    taught = load_examples(examples)[-1]
+    assert taught.valid and taught.source["kind"] == "station-teach" and taught.joints is not None
+    assert taught.part.id == "nut" and len(loop.examples) == n0 + 1
+    code, r = call(server, "/api/teach", {"part": "washer", "p1_px": [5, 5], "p2_px": [9, 9]})
+    assert code == 400 and "outline" in r["error"]
+
+    # reject the proposal: an invalid example; the cell plans again and asks about another grasp
+    first = np.array(call(server, "/api/state")[1]["control"]["proposal"]["contacts"])
+    seq = state["control"]["seq"]
+    assert call(server, "/api/reject", {"reason": "pads on the threads"})[0] == 200
+    control.wait_change(seq, timeout_s=T)
+    st = control.wait_for_state(AWAITING_APPROVAL, "fault", timeout_s=T)
+    assert st == AWAITING_APPROVAL, control.snapshot()["fault"]
+    rejected = load_examples(examples)[-1]
+    assert not rejected.valid and rejected.source["note"] == "pads on the threads"
+    assert rejected.part.id == "washer" and len(loop.examples) == n0 + 2
+    second = np.array(control.snapshot()["proposal"]["contacts"])
+    assert min(np.abs(second - first).max(), np.abs(second[::-1] - first).max()) > 6.0
+
+    # approve both picks: the world is empty at the end
+    assert call(server, "/api/approve", {})[0] == 200
+    for _ in range(10):
+        st = control.wait_for_state(AWAITING_APPROVAL, DONE, timeout_s=T)
+        if st == DONE:
+            break
+        call(server, "/api/approve", {})
+    assert control.state == DONE
+    assert world.removed == ["washer", "nut"]
+    assert call(server, "/api/state")[1]["cell"]["removed"] == ["washer", "nut"]
+
+
+@pytest.mark.skipif(not (Path(CHROMIUM).exists() and Path(CHROMEDRIVER).exists()),
+                    reason="the browser test needs Debian's chromium and chromium-driver (apt-get install)")
+def test_the_page_shows_the_cell_and_approves_in_a_browser(live, browser):  # noqa: F811 - the fixture
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    driver = browser
+
+    server, control, loop, examples, world = live
+    driver.get(server.url)
+    WebDriverWait(driver, T).until(lambda d: d.find_element("id", "btn-run").is_enabled())
+    driver.find_element("id", "btn-run").click()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    WebDriverWait(driver, T).until(lambda d: "awaiting" in d.find_element("id", "state").text.lower())
+    WebDriverWait(driver, T).until(lambda d: d.execute_script(
+        "return document.querySelectorAll('#overlay .part').length") == 2)
+    driver.find_element("id", "btn-approve").click()
+    WebDriverWait(driver, T).until(lambda _: "washer" in world.removed)

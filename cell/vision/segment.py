@@ -293,7 +293,8 @@ def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.nda
             if scale > 1 and p.full_res_holes:
                 pc = cv2.mean(det[y0:y1, x0:x1], sub)[:3]
                 # keep the holes seen at detection resolution; add the small ones only seen here
-                for ring in _holes_full_res(frame, bg, outline, pc, (x0, y0, x1, y1), p, scale):
+                for ring in _holes_full_res(frame, bg, outline, pc, (x0, y0, x1, y1), p, scale,
+                                            _tray_dips(det, bg, sub, pc, (x0, y0, x1, y1), p)):
                     centre = ring.mean(axis=0)
                     if not any(cv2.pointPolygonTest(hh.astype(np.float32), (float(centre[0]), float(centre[1])),
                                                     False) >= 0 for hh in hole_rings):
@@ -311,10 +312,34 @@ def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.nda
     return segs
 
 
-def _holes_full_res(frame, bg, outline, part_bgr, box, p: SegmentParams, scale: int) -> list[np.ndarray]:
+def _tray_dips(det, bg, region, part_bgr, box, p: SegmentParams) -> tuple[int, int, int, int] | None:
+    """Bounding box (detection px, within `box`) of the region's pixels that lean towards the
+    tray's colour and keep its chroma: where a small hole may hide. None: nowhere."""
+    x0, y0, x1, y1 = box
+    img, b = det[y0:y1, x0:x1], bg[y0:y1, x0:x1]
+    d = np.asarray(part_bgr, np.float32)[None, None, :] - b
+    f = ((img - b) * d).sum(axis=2) / np.maximum((d * d).sum(axis=2), 1.0)
+    si, sb = img.sum(axis=2) + 1.0, b.sum(axis=2) + 1.0
+    chroma = np.abs(img / si[:, :, None] - b / sb[:, :, None]).sum(axis=2)
+    dips = (f < 0.8) & (chroma < 2.0 * p.chroma_min) & cv2.erode(region, np.ones((3, 3), np.uint8)).astype(bool)
+    if not dips.any():
+        return None
+    ys, xs = np.nonzero(dips)
+    return int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1
+
+
+def _holes_full_res(frame, bg, outline, part_bgr, box, p: SegmentParams, scale: int, dips=None
+                    ) -> list[np.ndarray]:
     """Holes found at full resolution inside a region's outline: pixels that look like the tray
     (its chroma, at most shadow-dark) and lie nearer the tray's colour than the part's. Small
-    holes blur into their part at detection resolution; here they keep their pixels."""
+    holes blur into their part at detection resolution; here they keep their pixels. With
+    `dips` (from `_tray_dips`) only that part of the region is looked at."""
+    if dips is None:
+        return []
+    bx0, by0 = box[0], box[1]
+    m = 3  # detection px of margin around the dips
+    box = (max(bx0 + dips[0] - m, box[0]), max(by0 + dips[1] - m, box[1]), min(bx0 + dips[2] + m, box[2]),
+           min(by0 + dips[3] + m, box[3]))
     x0, y0, x1, y1 = (v * scale for v in box)
     h, w = frame.shape[:2]
     x1, y1 = min(x1, w), min(y1, h)

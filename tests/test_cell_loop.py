@@ -195,3 +195,23 @@ def test_the_session_rrd_holds_the_pipeline(recorded):
     for p in ("/camera/frame", "/vision/contours", "/grasp/candidates", "/grasp/selected", "/arm/links",
               "/arm/joints/j1", "/gripper/width"):
         assert any(x.startswith(p) for x in paths), (p, sorted(paths))
+
+
+def test_parts_lying_on_a_base_plate_move_with_it(tmp_path):
+    """A nut and a washer on the base plate do not stand out against the tray on their own:
+    they are located through the plate they lie on, and picked before it."""
+    d = json.loads((DEFAULT.parent / "fig18_product.json").read_text())
+    base = next(p for p in d["parts"] if p["id"] == "base")
+    on_base = [p for p in d["parts"] if p["id"] != "base" and abs(p.get("z_bottom", 0) - base["z_top"]) < 0.5][:2]
+    assert len(on_base) == 2
+    d["parts"] = [base, *on_base]
+    d["sequence"] = [p["id"] for p in on_base] + ["base"]
+    p = tmp_path / "stack.json"
+    p.write_text(json.dumps(d))
+    rec = tmp_path / "rec"
+    s = run_session(RunConfig(assembly=p, seed=2, shift_mm=3.0, record=rec))
+    assert s["status"] == "complete" and s["parts_removed"] == 3, s.get("stopped")
+    from cell.recording import RecordingReader
+
+    first = next(x for x in RecordingReader(rec).decisions if x["type"] == "perception")
+    assert first["carried"] == {on_base[0]["id"]: "base", on_base[1]["id"]: "base"}

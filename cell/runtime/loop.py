@@ -290,8 +290,18 @@ class CellLoop:
         for pid, loc in found.items():
             part = self.poses.get(pid) or self._last_picked[1]
             seen[pid] = loc.apply(part)
+        carried = {}
+        for part in expected:
+            if part.id in found or (self._last_picked is not None and part.id == self._last_picked[0]):
+                continue
+            carrier = self._carrier(part, found)
+            if carrier is not None:  # lying on a part that was seen: it moved with it
+                loc, base = found[carrier], self.poses[carrier]
+                seen[part.id] = part.moved(loc.dx_mm, loc.dy_mm, loc.dtheta_deg, about=base.polygon.centroid.coords[0])
+                carried[part.id] = carrier
+        for pid, part in seen.items():
             if pid in self.poses:
-                self.poses[pid] = seen[pid]
+                self.poses[pid] = part
         self.state.seen = seen
         self.sink.write_decision({
             "type": "perception", "frame": index, "segments": len(segments),
@@ -300,7 +310,7 @@ class CellLoop:
             "located": {pid: {"region": l.region, "dx_mm": round(l.dx_mm, 3), "dy_mm": round(l.dy_mm, 3),
                               "dtheta_deg": round(l.dtheta_deg, 3), "overlap": round(l.overlap, 4)}
                         for pid, l in found.items()},
-            "unclaimed": strangers})
+            "carried": carried, "unclaimed": strangers})
         if strangers:
             self.control.log("vision", f"{len(strangers)} region(s) match no part of the assembly",
                              regions=strangers)
@@ -309,6 +319,17 @@ class CellLoop:
             self.viz.parts([p.outline_mm for p in seen.values()], [p.z_top_mm for p in seen.values()],
                            list(seen))
         return seen
+
+    def _carrier(self, part: Part, found: dict) -> str | None:
+        """The seen part this one lies on (its bottom on the other's top, inside its outline
+        in plan): a part on a base plate does not stand out against the tray on its own."""
+        for cid in found:
+            c = self.poses.get(cid)
+            if c is None or cid == part.id or abs(part.z_bottom_mm - c.z_top_mm) > 0.5:
+                continue
+            if part.polygon.intersection(c.polygon).area > 0.9 * part.polygon.area:
+                return cid
+        return None
 
     def _plan(self, scene: Scene, part_id: str) -> list[Grasp] | None:
         try:

@@ -67,10 +67,22 @@ class SimCameraSource:
 
 
 def displaced(assembly: Assembly, shift_mm: float, seed: int):
-    """The assembly's parts as they really lie: each moved a little from its nominal pose."""
+    """The assembly's parts as they really lie: each moved a little from its nominal pose; a
+    part lying on another moves with it (a base plate carries what sits on it)."""
     rng = np.random.default_rng(seed)
-    return [p.moved(*rng.uniform(-shift_mm, shift_mm, 2), rng.uniform(-2 * shift_mm, 2 * shift_mm))
-            for p in assembly.parts]
+    moves: dict[str, tuple] = {}
+    out = []
+    for p in sorted(assembly.parts, key=lambda q: q.z_bottom_mm):
+        carrier = next((c for c in out if abs(p.z_bottom_mm - c.z_top_mm) <= 0.5
+                        and p.polygon.intersection(c.polygon).area > 0.9 * p.polygon.area), None)
+        if carrier is not None:
+            moves[p.id] = moves[carrier.id]
+        else:
+            nominal = assembly.parts[[q.id for q in assembly.parts].index(p.id)]
+            moves[p.id] = (*rng.uniform(-shift_mm, shift_mm, 2), rng.uniform(-2 * shift_mm, 2 * shift_mm),
+                           nominal.polygon.centroid.coords[0])
+        out.append(p)
+    return [p.moved(*moves[p.id][:3], about=moves[p.id][3]) for p in assembly.parts]
 
 
 def run_session(cfg: RunConfig) -> dict:

@@ -18,6 +18,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the poses (default 0)")
     parser.add_argument("--families", default=None,
                         help="comma-separated families to leave out one at a time (default: all)")
+    parser.add_argument("--no-slanted-faces", action="store_true",
+                        help="plan with SynthesisParams.slanted_faces off (the planner before it existed)")
     parser.add_argument("--json", action="store_true", help="print a JSON summary as the last line")
 
 
@@ -48,7 +50,10 @@ def run(args) -> int:
 
     log(f"whole library: {len(L.parts())} parts x {args.poses} poses, planner trained on {len(examples)} examples")
     shown = presentations(L.parts(), args.poses, args.seed, cell)
-    planner = make_planner(examples, cell)
+    from cell.grasp.params import SynthesisParams
+
+    params = SynthesisParams(slanted_faces=not args.no_slanted_faces)
+    planner = make_planner(examples, cell, params)
     whole = evaluate(planner, shown, cell)
     log("clutter: every presentation with one or two neighbours 3..15 mm away")
     clutter = evaluate(planner, cluttered(shown, args.seed, cell), cell)
@@ -56,7 +61,7 @@ def run(args) -> int:
     families = [f.strip() for f in args.families.split(",") if f.strip()] if args.families else None
     if families:
         L.parts(families)  # unknown names are bad input
-    per_family = leave_families_out(examples, args.poses, args.seed, cell, families, progress=log)
+    per_family = leave_families_out(examples, args.poses, args.seed, cell, families, progress=log, params=params)
     unseen = StabilityTally()
     for t in per_family.values():
         unseen.add(t)

@@ -11,7 +11,9 @@ then exact checks (shapely, closed-form IK) only on the survivors:
                        the pair centre inside a palm-high obstacle: a certain collision
     contacts (exact)   each pad closes along the axis and stops at the first material in its
                        band: that point, found exactly, must be the candidate (within
-                       contact_tol); it becomes the reported contact. Real opening in stroke.
+                       contact_tol), or the candidate must be among the material touching the
+                       pad (within PAD_COMPLIANCE of the first touch: a slanted face); the
+                       touch becomes the reported contact. Real opening in stroke.
     ik (exact)         closed-form SCARA inverse kinematics within the joint limits
     fingers_obstacles  each finger's footprint swept from the approach opening to the contact
                        against every obstacle taller than the grasp z (lower ones are passed over)
@@ -225,7 +227,7 @@ def _outline_ahead(ctx: Context, P: Pairs, idx) -> np.ndarray:
 # --- exact stages: shapely and IK on the survivors only -------------------------------------
 
 def first_touch(ctx: Context, centers: np.ndarray, us: np.ndarray, t_min: np.ndarray, t_max: np.ndarray,
-                half_width: float):
+                half_width: float, slanted: bool = False):
     """Where a pad closing along -us towards `centers` first meets the target.
 
     For each band (b,): the rectangle from t_min to t_max along us from the centre, half_width
@@ -255,6 +257,7 @@ def first_touch(ctx: Context, centers: np.ndarray, us: np.ndarray, t_min: np.nda
             s1 = np.where(p > 0, np.minimum(s1, r), s1)
             inside &= ~((p == 0) & (q < 0))
     inside &= s0 <= s1
+    pieces = (bi[inside], s0[inside], s1[inside], tA[inside], dt[inside], A[inside], (B - A)[inside])
     bi = np.concatenate([bi[inside]] * 2)
     s = np.concatenate([s0[inside], s1[inside]])
     tt = np.concatenate([tA[inside]] * 2) + s * np.concatenate([dt[inside]] * 2)  # along us
@@ -262,7 +265,6 @@ def first_touch(ctx: Context, centers: np.ndarray, us: np.ndarray, t_min: np.nda
     if len(bi):
         order = np.argsort(bi, kind="stable")
         bi, s, tt = bi[order], s[order], tt[order]
-        idx = np.concatenate([np.flatnonzero(inside)] * 2)[order]
         starts = np.flatnonzero(np.r_[True, bi[1:] != bi[:-1]])
         T[bi[starts]] = np.maximum.reduceat(tt, starts)
     far = corners[:, 1:3].reshape(-1, 2)
@@ -270,12 +272,26 @@ def first_touch(ctx: Context, centers: np.ndarray, us: np.ndarray, t_min: np.nda
     T[far_in] = np.maximum(T[far_in], t_max[far_in])
     touch = np.full((b, 2), np.nan)
     if len(bi):
-        # the touching material: within PAD_COMPLIANCE_MM of the first touch; the contact is the
-        # middle of its extent across the axis, at the first-touch line (robust to edges that
-        # run along the band's side, which a mean of vertices is not)
-        near = tt >= T[bi] - PAD_COMPLIANCE_MM
-        nb = bi[near]
-        xy = A[idx[near]] + s[near, None] * (B - A)[idx[near]]
+        # the touching material: the parts of the clipped edges within PAD_COMPLIANCE_MM of the first
+        # touch (on a face slightly slanted to the pad that is a stretch from the band's side
+        # inwards, not only the edge's end); the contact is the middle of its extent across the
+        # axis, at the first-touch line (robust to edges that run along the band's side)
+        pb, p0, p1, pA, pdt, pa, pd = pieces
+        if slanted:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                sc = (T[pb] - PAD_COMPLIANCE_MM - pA) / pdt  # where the edge is PAD_COMPLIANCE_MM behind T
+            lo_s = np.where(pdt > 0, np.maximum(p0, sc), p0)
+            hi_s = np.where(pdt < 0, np.minimum(p1, sc), p1)
+            near = (lo_s <= hi_s + 1e-12) & ((pdt != 0) | (pA >= T[pb] - PAD_COMPLIANCE_MM))
+        else:  # as before `slanted_faces`: only the clipped edges' ends within PAD_COMPLIANCE_MM
+            e0, e1 = pA + p0 * pdt >= T[pb] - PAD_COMPLIANCE_MM, pA + p1 * pdt >= T[pb] - PAD_COMPLIANCE_MM
+            lo_s, hi_s = np.where(e0, p0, p1), np.where(e1, p1, p0)
+            near = e0 | e1
+        nb = np.concatenate([pb[near]] * 2)
+        sn = np.concatenate([lo_s[near], hi_s[near]])
+        order = np.argsort(nb, kind="stable")
+        nb, sn = nb[order], sn[order]
+        xy = np.concatenate([pa[near]] * 2)[order] + sn[:, None] * np.concatenate([pd[near]] * 2)[order]
         lat = ((xy - centers[nb]) * vs[nb]).sum(1)
         starts = np.flatnonzero(np.r_[True, nb[1:] != nb[:-1]])
         lo_l, hi_l = np.minimum.reduceat(lat, starts), np.maximum.reduceat(lat, starts)
@@ -294,11 +310,36 @@ def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     m, u, t = P.m[idx], P.u[idx], P.t[idx]
     centers, us = np.vstack([m, m]), np.vstack([u, -u])
     tt = np.concatenate([t, t])
+    slanted = bool(ctx.params.slanted_faces)
     T, c = first_touch(ctx, centers, us, tt - 2 * tol, tt + g.approach_clearance_mm + g.pad_thickness_mm,
-                       g.pad_width_mm / 2 + tol)
+                       g.pad_width_mm / 2 + tol, slanted)
     vs = np.stack([-us[:, 1], us[:, 0]], -1)
     lateral = np.abs(((c - centers) * vs).sum(1))
     with np.errstate(invalid="ignore"):
+        # the pad stops at the candidate: the first touch is within tol of it along and across the
+        # axis. A face slightly slanted to the pad (a tapered web) is first touched at the band's
+        # side and the middle of the touching stretch lies mm from the candidate; when the
+        # candidate itself is within PAD_COMPLIANCE_MM of the first touch the pad presses on it
+        # too: the contact is then on the first-touch line, on the pair's closing line when the
+        # pad presses there as well, else across from the candidate
+        cand = np.vstack([P.pi[idx], P.pj[idx]])  # p_i is on the +u side (its normal is near u)
+        pressed = np.isfinite(lateral) & (lateral > tol + EPS_MM) & (T <= tt + tol + EPS_MM)
+        pressed &= slanted
+        Tp = T.copy()
+        if pressed.any():  # the pad itself (not the band widened by tol) on the pair's closing line
+            q = np.flatnonzero(pressed)
+            Tp[q], _ = first_touch(ctx, centers[q], us[q], tt[q] - 2 * tol,
+                                   tt[q] + g.approach_clearance_mm + g.pad_thickness_mm, g.pad_width_mm / 2)
+            pressed[q] = np.isfinite(Tp[q]) & (
+                Tp[q] <= ((cand[q] - centers[q]) * us[q]).sum(1) + PAD_COMPLIANCE_MM + EPS_MM)
+        lat_c = ((cand - centers) * vs).sum(1)
+        if pressed.any():  # the contact on the pair's closing line when the pad presses there too
+            q = np.flatnonzero(pressed)
+            T0, _ = first_touch(ctx, centers[q], us[q], tt[q] - 2 * tol,
+                                tt[q] + g.approach_clearance_mm + g.pad_thickness_mm, 0.05)
+            lat_c[q] = np.where(T0 >= Tp[q] - PAD_COMPLIANCE_MM, 0.0, lat_c[q])
+        c = np.where(pressed[:, None], centers + us * Tp[:, None] + vs * lat_c[:, None], c)
+        lateral = np.where(pressed, np.abs(((c - centers) * vs).sum(1)), lateral)
         ok2 = np.isfinite(lateral) & (T <= tt + tol + EPS_MM) & (lateral <= tol + EPS_MM)
     ok = ok2[:k] & ok2[k:]
     ci, cj = c[:k], c[k:]

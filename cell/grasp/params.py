@@ -21,6 +21,12 @@ class SynthesisParams:
     # Step 3: cascade.
     max_normal_angle_deg: float = 20.0  # each contact normal vs the closing axis (friction cone)
     contact_tol_mm: float = 1.0  # the pad's first touch may be this far from the candidate point
+    # A face slanted to the pad by a few degrees (a tapered web, a segmented outline's wobble) is
+    # first touched at the band's side; with this on, the contacts stage also accepts a candidate
+    # that the pad presses on there (within the pad's compliance of the first touch) and reports
+    # the candidate as the contact. Recordings made before this option existed replay with it
+    # off (cell.runtime.replay); docs/data.md gives the figures both ways.
+    slanted_faces: bool = True
     n_contacts: int = 2  # a parameter of the learning and the attributes; the gripper model is 2-jaw
     # Learning.
     tree_max_depth: int = 4

@@ -138,6 +138,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
 
     from calibration import load_calibration
     from cell.cellconfig import load_cell
+    from cell.grasp.params import SynthesisParams
     from cell.recording import RecordingReader
     from cell.runtime.loop import CellLoop, LoopOptions, StopRun
     from cell.runtime.session import EXAMPLES_AT_START, home_joints
@@ -159,6 +160,8 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     examples_src = Path(examples) if examples else rec.dir / EXAMPLES_AT_START
     if not examples_src.is_file():
         raise BadInput(f"example file {examples_src} does not exist")
+    # the planner as the session ran it: a recording made before `slanted_faces` existed planned without it
+    planner_params = SynthesisParams(slanted_faces=bool((meta.get("planner") or {}).get("slanted_faces", False)))
     recorded = [d for d in rec.decisions if d.get("type") != "summary"]
     frames = [rec.frame_path(i) for i in rec.frame_indices]
     if not frames:
@@ -171,7 +174,8 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
             control = RecordedApprovals(rec.decisions)
             loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=FileCamera(frames), arm=arm,
                             control=control, examples_path=work_examples, sink=sink,
-                            options=LoopOptions(on_no_grasp=meta.get("on_no_grasp", "stop")))
+                            options=LoopOptions(on_no_grasp=meta.get("on_no_grasp", "stop")),
+                            planner_params=planner_params)
             arm.move_joints(home_joints(cell))
             control.run(by="replay")
             say(f"replaying {len(frames)} frames, {len(recorded)} decisions")

@@ -112,13 +112,15 @@ def run_session(cfg: RunConfig) -> dict:
 
     recorder = None
     if cfg.record:
+        from cell.grasp.params import SynthesisParams
         from cell.recording import RecordingWriter
 
         recorder = RecordingWriter(cfg.record, cell_file=cell_path, calibration_file=cal_path,
                                    examples_file=examples_path,
                                    meta={"assembly": assembly.to_json(), "assembly_path": str(assembly_path),
                                          "seed": cfg.seed, "shift_mm": cfg.shift_mm,
-                                         "on_no_grasp": cfg.on_no_grasp})
+                                         "on_no_grasp": cfg.on_no_grasp,
+                                         "planner": {"slanted_faces": SynthesisParams().slanted_faces}})
         # The examples as they were at the start: replay needs them even after this session
         # (or anyone) appended to the file.
         write_atomic(recorder.dir / EXAMPLES_AT_START, examples_path.read_bytes())

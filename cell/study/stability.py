@@ -108,21 +108,21 @@ def evaluate(planner, parts, cell: Cell | None = None) -> StabilityTally:
     return t
 
 
-def make_planner(examples: list[GraspExample], cell: Cell):
+def make_planner(examples: list[GraspExample], cell: Cell, params=None):
     from cell.grasp.synthesis import GraspPlanner
 
-    return GraspPlanner(cell, examples)
+    return GraspPlanner(cell, examples, params)
 
 
 def leave_families_out(examples: list[GraspExample], poses: int = 2, seed: int = 0, cell: Cell | None = None,
                        families: list[str] | None = None,
-                       progress: Callable[[str], None] | None = None) -> dict[str, StabilityTally]:
+                       progress: Callable[[str], None] | None = None, params=None) -> dict[str, StabilityTally]:
     """Per family: plan its parts with a planner trained without that family's examples."""
     cell = cell or default_cell()
     out: dict[str, StabilityTally] = {}
     for fam in families or L.list_families():
         train = [e for e in examples if e.part.meta.get("family") != fam]
-        planner = make_planner(train, cell)
+        planner = make_planner(train, cell, params)
         out[fam] = evaluate(planner, presentations(L.parts([fam]), poses, seed, cell), cell)
         if progress:
             t = out[fam]

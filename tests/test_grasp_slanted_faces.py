@@ -1,0 +1,87 @@
+"""`SynthesisParams.slanted_faces`: a pad on a face slanted to it by a few degrees (a tapered web)."""
+
+import numpy as np
+from shapely.geometry import Point
+
+from cell.cellconfig import default_cell
+from cell.grasp import shapes
+from cell.grasp.candidates import candidate_points
+from cell.grasp.cascade import STAGES, Context, Pairs, run_brute_force, run_cascade
+from cell.grasp.height import grasp_z_mm
+from cell.grasp.params import SynthesisParams
+from cell.physics import check_grasp
+from cell.scene import parse_part
+
+CELL = default_cell()
+ON = SynthesisParams(slanted_faces=True)
+OFF = SynthesisParams(slanted_faces=False)
+# a tapered web 100 mm long, 28 mm wide at one end and 12 at the other: each long side slants by
+# 4.6 deg, like a connecting rod's web (a 12 mm pad touches it first at its side, 0.5 mm proud)
+WEB = parse_part({"id": "web", "z_top": 8,
+                  "outline": (np.array([[-50, -14], [50, -6], [50, 6], [-50, 14]]) + [350, 0]).tolist()})
+
+
+def cascade_for(target, params):
+    op, free = candidate_points(target, (), params)
+    idx = np.flatnonzero(free)
+    vp = op.subset(idx)
+    gz = grasp_z_mm(target.z_bottom_mm, target.z_top_mm, CELL.gripper)
+    ctx = Context.build(target, [], CELL, params, gz, op.points, op.ring)
+    P = Pairs.of(vp.points, vp.normals, idx)
+    return P, run_cascade(ctx, P), ctx
+
+
+def across_the_web(P):
+    return (np.abs(P.pi[:, 0] - P.pj[:, 0]) < 1.5) & (np.abs(P.m[:, 0] - 350) < 15) & (np.abs(P.u[:, 1]) > 0.99)
+
+
+def test_by_default_a_slanted_face_is_refused_at_the_contacts_stage():
+    P, cr, _ = cascade_for(WEB, OFF)
+    across = across_the_web(P)
+    assert across.any()
+    assert not np.isin(np.flatnonzero(across), cr.survivors).any()
+    assert STAGES.index("contacts") in set(cr.rejected_by[across].tolist())
+
+
+def test_with_slanted_faces_the_pads_press_on_the_candidates_and_the_grasp_is_stable():
+    P, cr, ctx = cascade_for(WEB, ON)
+    kept = np.intersect1d(np.flatnonzero(across_the_web(P)), cr.survivors)
+    assert len(kept) >= 3
+    gz = grasp_z_mm(WEB.z_bottom_mm, WEB.z_top_mm, CELL.gripper)
+    for k in kept:
+        ci, cj = P.ci[k], P.cj[k]
+        # the reported contacts are where the pads press: within 0.5 mm along and tol across of the candidates
+        assert np.linalg.norm(ci - P.pi[k]) <= 1.5 and np.linalg.norm(cj - P.pj[k]) <= 1.5
+        for c in (ci, cj):
+            assert WEB.polygon.boundary.distance(Point(c)) < 0.6
+        v = check_grasp(WEB, np.array([ci, cj]), P.axis_deg(k), gz, (), CELL)
+        assert v.ok, v.reasons
+    # the cheap stages still reject only what the exact ones would: the same pairs as the brute force
+    P2, _, _ = cascade_for(WEB, ON)
+    br = run_brute_force(ctx, P2)
+    assert np.array_equal(np.sort(cr.survivors), np.sort(br.survivors))
+
+
+def test_slanted_faces_only_add_pressed_pairs_and_still_stop_at_a_bump():
+    box = shapes.rectangle("box", 50, 30, (300, 100), 30)
+    Pa, ca, _ = cascade_for(box, OFF)
+    Pb, cb, ctx = cascade_for(box, ON)
+    assert np.isin(ca.survivors, cb.survivors).all()  # what was kept is kept, with the same contacts
+    assert np.allclose(Pa.ci[ca.survivors], Pb.ci[ca.survivors]) and np.allclose(Pa.cj[ca.survivors],
+                                                                                Pb.cj[ca.survivors])
+    # the added pairs: pads overhanging a face's end (the touching stretch's middle is off the
+    # candidate, the candidate is pressed): the contacts are the candidates and the grasp holds
+    added = np.setdiff1d(cb.survivors, ca.survivors)
+    gz = grasp_z_mm(box.z_bottom_mm, box.z_top_mm, CELL.gripper)
+    for k in added:
+        assert np.linalg.norm(Pb.ci[k] - Pb.pi[k]) <= 1.5 and np.linalg.norm(Pb.cj[k] - Pb.pj[k]) <= 1.5
+        assert check_grasp(box, np.array([Pb.ci[k], Pb.cj[k]]), Pb.axis_deg(k), gz, (), CELL).ok
+    # a 3 mm bump on the top face: a pad beside it still stops on the bump, not on the candidate
+    c = np.array([350.0, 0.0])
+    outline = np.array([[-30, -15], [30, -15], [30, 15], [2, 15], [2, 18], [-2, 18], [-2, 15], [-30, 15]]) + c
+    bump = parse_part({"id": "bump", "outline": outline.tolist(), "z_top": 15})
+    P, cr, _ = cascade_for(bump, ON)
+    beside = ((np.abs(P.u[:, 0]) < 1e-6) & (np.abs(P.pi[:, 0] - P.pj[:, 0]) < 0.5)
+              & (np.abs(P.m[:, 0] - 350) > 3) & (np.abs(P.m[:, 0] - 350) < 8)
+              & (np.maximum(P.pi[:, 1], P.pj[:, 1]) < 15.5))
+    assert beside.any() and not np.isin(np.flatnonzero(beside), cr.survivors).any()

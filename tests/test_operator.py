@@ -94,6 +94,20 @@ def test_generated_session_is_deterministic_and_has_reasoned_rejections(tmp_path
     assert generate_examples(1, seed=12)[0].to_json() != a[0].to_json()
 
 
+def test_parts_are_drawn_family_by_family():
+    from cell.operator import FamilyRounds
+
+    pool = L.parts()
+    fams = L.list_families()
+    draw = FamilyRounds(pool, np.random.default_rng(4))
+    first = [draw.next() for _ in range(len(fams))]
+    assert sorted(p.meta["family"] for p in first) == sorted(fams)  # each family once per round
+    nuts = [p for p in pool if p.meta["family"] == "nut"]
+    more = [p.id for p in (draw.next() for _ in range(len(fams) * (len(nuts) - 1))) if p.meta["family"] == "nut"]
+    seen = more + [p.id for p in first if p.meta["family"] == "nut"]
+    assert sorted(seen) == sorted(p.id for p in nuts)  # a family's parts without replacement first
+
+
 def test_family_restricted_session():
     ex = generate_examples(4, seed=3, families=["nut", "washer"], rejection_share=0)
     assert len(ex) == 4 and {e.part.meta["family"] for e in ex} <= {"nut", "washer"}
@@ -103,7 +117,11 @@ def test_shipped_default_examples(cell_cfg):
     ex = load_examples()
     accepted = [e for e in ex if e.valid]
     assert len(accepted) == 60 and len(ex) - len(accepted) >= 10
-    assert len({e.extra["pose"]["library_part"] for e in ex}) >= 25
+    assert len({e.extra["pose"]["library_part"] for e in ex}) >= 45
+    # every family is taught, off-centre grasps included where the centre of gravity is off the material
+    assert {e.part.meta["family"] for e in accepted} == set(L.list_families())
+    off = [e for e in accepted if "off the material" in e.source["note"]]
+    assert {e.part.meta["family"] for e in off} >= {"bracket", "clip"}
     (x0, x1), (y0, y1) = cell_cfg.tray.x_mm, cell_cfg.tray.y_mm
     for e in ex:
         bx = e.part.polygon.bounds

@@ -127,15 +127,22 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
         bg = reference_background(ref, (dw, dh))
     else:
         bg, _ = estimate_background(det, p.tray)
-    mask = part_mask(det, bg, p, s)
+    mask, chroma = _part_mask(det, bg, p, s)
+    if not mask.any():
+        return []  # the empty tray
     labels, merged = _split_regions(mask, p, s, det)
-    segs = _regions_to_segments(labels, merged, frame, det, bg, p, s)
+    segs = _regions_to_segments(labels, merged, frame, det, bg, p, s, chroma)
     segs.sort(key=lambda g: -g.area_px)
     return segs
 
 
 def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int) -> np.ndarray:
     """uint8 mask (0/1) of part pixels at detection resolution (steps 2 and 3)."""
+    return _part_mask(det, bg, p, scale)[0]
+
+
+def _part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int) -> tuple[np.ndarray, np.ndarray]:
+    """The part mask and the chroma change per pixel (float32), at detection resolution."""
     sm = cv2.GaussianBlur(det, (0, 0), 0.8)
     ones = np.ones((1, 3), np.float32)
     si = cv2.transform(sm, ones) + 1.0
@@ -182,7 +189,7 @@ def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int) -> 
         mask |= _material_shadowlike(r, strong, darker & ~enclosed, p, scale)
     k = np.ones((3, 3), np.uint8)
     mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, k)
-    return mask
+    return mask, chroma
 
 
 def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int) -> np.ndarray:
@@ -210,29 +217,34 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int) -> np.
     frac = np.divide(sharp_count, total, out=np.zeros(n), where=total > 0)
     keep = frac > p.sharp_fraction
     keep[0] = False
-    ns, parts_lab, _, part_c = cv2.connectedComponentsWithStats(strong.astype(np.uint8), connectivity=8)
-    if ns > 1 and keep.any():
+    if keep.any() and strong.any():
+        ns, parts_lab = cv2.connectedComponents(strong.astype(np.uint8), connectivity=8)
         pl = parts_lab.astype(np.float32)
         k3 = np.ones((3, 3), np.uint8)
         hi = cv2.dilate(pl, k3)
-        lo = -cv2.dilate(np.where(pl > 0, -pl, -1e9).astype(np.float32), k3)
+        lo = -cv2.dilate(np.where(pl > 0, -pl, np.float32(-1e9)).astype(np.float32), k3)
         inside = keep[lab]  # only the regions still in question
-        li = lab[inside]
+        ys, xs = np.nonzero(inside)
+        li = lab[ys, xs]
+        touch = hi[ys, xs] > 0  # pixels next to a part (only they see a part's label)
+        lt, hit, lot = li[touch], hi[ys[touch], xs[touch]], lo[ys[touch], xs[touch]]
         hi_c = np.zeros(n)
-        np.maximum.at(hi_c, li, hi[inside])
+        np.maximum.at(hi_c, lt, hit)
         lo_c = np.full(n, 1e9)
-        np.minimum.at(lo_c, li, np.where(lo[inside] > 0, lo[inside], 1e9))
+        np.minimum.at(lo_c, lt, lot)
         # a shadow-like nook between two separate parts is the crevice where they meet, not a wall
         keep &= ~((hi_c > 0) & (lo_c < 1e9) & (hi_c != lo_c))
         # walls are seen only on a part's side that faces the image of the vertical; a sharp
         # strip on the other side is the part's own short shadow
-        ys, xs = np.nonzero(inside)
         cnt = np.maximum(np.bincount(li, minlength=n), 1)
         cx, cy = np.bincount(li, xs, n) / cnt, np.bincount(li, ys, n) / cnt
         owner = hi_c.astype(int)
         h_det, w_det = r.shape
         vp = (np.array(p.vertical_px) / scale) if p.vertical_px is not None else np.array([w_det, h_det]) / 2.0
-        pc = part_c[owner]
+        py, px = np.nonzero(parts_lab)
+        pli = parts_lab[py, px]
+        pcnt = np.maximum(np.bincount(pli, minlength=ns), 1)
+        pc = np.column_stack([np.bincount(pli, px, ns), np.bincount(pli, py, ns)])[owner] / pcnt[owner, None]
         ax, ay = cx - pc[:, 0], cy - pc[:, 1]
         bx, by = vp[0] - pc[:, 0], vp[1] - pc[:, 1]
         cos = (ax * bx + ay * by) / np.maximum(np.hypot(ax, ay) * np.hypot(bx, by), 1e-9)
@@ -248,10 +260,11 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int) -> np.
 def _split_regions(mask: np.ndarray, p: SegmentParams, scale: int, det: np.ndarray | None = None
                    ) -> tuple[np.ndarray, set[int]]:
     """Label image of regions (0 = tray) and the labels flagged merged; touching parts split."""
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    # (connectedComponentsWithStats is ten times slower than labelling and counting)
+    n, lab = cv2.connectedComponents(mask, connectivity=8)
     min_area = p.min_area_px / scale ** 2
-    keep = np.zeros(n, bool)
-    keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= min_area
+    keep = np.bincount(lab.ravel(), minlength=n) >= min_area
+    keep[0] = False
     remap = np.zeros(n, np.int32)
     remap[keep] = np.arange(1, int(keep.sum()) + 1)
     lab = remap[lab]
@@ -264,11 +277,12 @@ def _split_regions(mask: np.ndarray, p: SegmentParams, scale: int, det: np.ndarr
 
 
 def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.ndarray, det: np.ndarray,
-                         bg: np.ndarray, p: SegmentParams, scale: int) -> list[Segment]:
+                         bg: np.ndarray, p: SegmentParams, scale: int, chroma: np.ndarray | None = None
+                         ) -> list[Segment]:
     from scipy import ndimage
 
     dh, dw = labels.shape
-    segs = []
+    found = []  # (outline, holes, merged, cut_off, mean colour) per region, before refinement
     for k, sl in enumerate(ndimage.find_objects(labels), start=1):
         if sl is None:
             continue
@@ -280,6 +294,7 @@ def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.nda
         if hier is None:
             continue
         hier = hier[0]
+        mean = cv2.mean(det[y0:y1, x0:x1], sub)[:3]
         outers = [i for i in range(len(contours)) if hier[i][3] < 0]
         for oi in outers:
             c = contours[oi].reshape(-1, 2)
@@ -291,37 +306,47 @@ def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.nda
             outline = _to_full(c, scale)
             hole_rings = [_to_full(hh, scale) for hh in holes]
             if scale > 1 and p.full_res_holes:
-                pc = cv2.mean(det[y0:y1, x0:x1], sub)[:3]
                 # keep the holes seen at detection resolution; add the small ones only seen here
-                for ring in _holes_full_res(frame, bg, outline, pc, (x0, y0, x1, y1), p, scale,
-                                            _tray_dips(det, bg, sub, pc, (x0, y0, x1, y1), p)):
+                dips = _tray_dips(det, bg, sub, mean, (x0, y0, x1, y1), p, chroma)
+                for ring in _holes_full_res(frame, bg, outline, mean, (x0, y0, x1, y1), p, scale, dips):
                     centre = ring.mean(axis=0)
                     if not any(cv2.pointPolygonTest(hh.astype(np.float32), (float(centre[0]), float(centre[1])),
                                                     False) >= 0 for hh in hole_rings):
                         hole_rings.append(ring)
-            if p.refine:
-                outline = refine_ring(frame, outline, p, hole=False)
-                hole_rings = [refine_ring(frame, hh, p, hole=True) for hh in hole_rings]
-            outline = _orient(outline, ccw=True)
-            hole_rings = [_orient(hh, ccw=False) for hh in hole_rings]
-            area, cen = _area_centroid(outline, hole_rings)
-            if area < 0.5 * p.min_area_px:
-                continue  # a sliver whose pixels passed the speck filter but whose outline did not
-            mean = cv2.mean(det[y0:y1, x0:x1], sub)[:3]
-            segs.append(Segment(outline, hole_rings, area, cen, bool(merged), cut, tuple(float(m) for m in mean)))
+            found.append((outline, hole_rings, merged, cut, mean))
+    if p.refine and found:  # all rings of the frame in one pass
+        rings = [r for o, hs, *_ in found for r in [o, *hs]]
+        is_hole = [h for o, hs, *_ in found for h in [False] + [True] * len(hs)]
+        refined = iter(refine_rings(frame, rings, is_hole, p))
+        found = [(next(refined), [next(refined) for _ in hs], *rest) for _, hs, *rest in found]
+    segs = []
+    for outline, hole_rings, merged, cut, mean in found:
+        outline = _orient(outline, ccw=True)
+        hole_rings = [_orient(hh, ccw=False) for hh in hole_rings]
+        area, cen = _area_centroid(outline, hole_rings)
+        if area < 0.5 * p.min_area_px:
+            continue  # a sliver whose pixels passed the speck filter but whose outline did not
+        segs.append(Segment(outline, hole_rings, area, cen, bool(merged), cut, tuple(float(m) for m in mean)))
     return segs
 
 
-def _tray_dips(det, bg, region, part_bgr, box, p: SegmentParams) -> tuple[int, int, int, int] | None:
+def _tray_dips(det, bg, region, part_bgr, box, p: SegmentParams, chroma=None) -> tuple[int, int, int, int] | None:
     """Bounding box (detection px, within `box`) of the region's pixels that lean towards the
     tray's colour and keep its chroma: where a small hole may hide. None: nowhere."""
     x0, y0, x1, y1 = box
     img, b = det[y0:y1, x0:x1], bg[y0:y1, x0:x1]
-    d = np.asarray(part_bgr, np.float32)[None, None, :] - b
-    f = ((img - b) * d).sum(axis=2) / np.maximum((d * d).sum(axis=2), 1.0)
-    si, sb = img.sum(axis=2) + 1.0, b.sum(axis=2) + 1.0
-    chroma = np.abs(img / si[:, :, None] - b / sb[:, :, None]).sum(axis=2)
-    dips = (f < 0.8) & (chroma < 2.0 * p.chroma_min) & cv2.erode(region, np.ones((3, 3), np.uint8)).astype(bool)
+    inner = cv2.erode(region, np.ones((3, 3), np.uint8))
+    if not inner.any():
+        return None
+    # the tray's colour varies slowly: one part-minus-tray colour difference for the whole box
+    d = np.asarray(part_bgr, np.float32) - np.asarray(cv2.mean(b)[:3], np.float32)
+    f = cv2.transform(img - b, (d / max(float(d @ d), 1.0)).reshape(1, 3))
+    if chroma is None:
+        si, sb = img.sum(axis=2) + 1.0, b.sum(axis=2) + 1.0
+        ch = np.abs(img / si[:, :, None] - b / sb[:, :, None]).sum(axis=2)
+    else:
+        ch = chroma[y0:y1, x0:x1]
+    dips = (f < 0.8) & (ch < 2.0 * p.chroma_min) & inner.astype(bool)
     if not dips.any():
         return None
     ys, xs = np.nonzero(dips)
@@ -373,46 +398,66 @@ def _to_full(c: np.ndarray, scale: int) -> np.ndarray:
 
 
 def refine_ring(frame: np.ndarray, ring: np.ndarray, p: SegmentParams, hole: bool) -> np.ndarray:
+    """Move each ring point along its normal to the half-way crossing of the colour profile
+    (one ring; see `refine_rings`)."""
+    return refine_rings(frame, [ring], [hole], p)[0]
+
+
+def refine_rings(frame: np.ndarray, rings: list[np.ndarray], is_hole: list[bool], p: SegmentParams
+                 ) -> list[np.ndarray]:
     """Move each ring point along its normal to the half-way crossing of the colour profile.
 
     The profile across the edge is projected on the colour difference between the part side
     and the other side, so it runs from 1 (part) to 0 (tray, shadow or hole) whatever the
-    colours; 0.5 is the edge of an optically blurred step.
+    colours; 0.5 is the edge of an optically blurred step. All rings are sampled in one pass.
     """
-    n = len(ring)
-    if n < 5:
-        return ring
-    tang = np.roll(ring, -2, axis=0) - np.roll(ring, 2, axis=0)
-    tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
-    normal = np.column_stack([tang[:, 1], -tang[:, 0]])  # out of the ring if it is CCW in (u, v)
-    sign = 1.0 if _signed_area(ring) > 0 else -1.0
-    normal *= sign * (-1.0 if hole else 1.0)  # out of the material
+    todo = [i for i, r in enumerate(rings) if len(r) >= 5]
+    if not todo:
+        return list(rings)
+    normals, tangs = [], []
+    for i in todo:
+        ring = rings[i]
+        tang = np.roll(ring, -2, axis=0) - np.roll(ring, 2, axis=0)
+        tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
+        sign = (1.0 if _signed_area(ring) > 0 else -1.0) * (-1.0 if is_hole[i] else 1.0)
+        normals.append(sign * np.column_stack([tang[:, 1], -tang[:, 0]]))  # out of the material
+        tangs.append(tang)
+    pts0 = np.concatenate([rings[i] for i in todo])
+    normal, tang = np.concatenate(normals), np.concatenate(tangs)
+    n = len(pts0)
     rng_px = max(p.refine_range_px, 2.0 * p.scale)  # the coarse outline is up to a detection pixel off
     ts = np.arange(-rng_px, rng_px + 1e-9, 0.5)
-    ks = np.array([-1.0, 0.0, 1.0])
-    pts = (ring[:, None, None, :] + ts[None, :, None, None] * normal[:, None, None, :]
-           + ks[None, None, :, None] * tang[:, None, None, :])
-    mapx = (pts[..., 0] - 0.5).reshape(n, -1).astype(np.float32)
-    mapy = (pts[..., 1] - 0.5).reshape(n, -1).astype(np.float32)
-    samp = cv2.remap(frame, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    prof = samp.reshape(n, len(ts), len(ks), 3).astype(np.float32).mean(axis=2)
+    nt = len(ts)
+    ks = np.array([-1.0, 0.0, 1.0])  # three samples across the profile, averaged (noise)
+    pts = (pts0[:, None, None, :] - 0.5 + ts[None, :, None, None] * normal[:, None, None, :]
+           + ks[None, None, :, None] * tang[:, None, None, :]).astype(np.float32)
+    samp = cv2.remap(frame, pts[..., 0].reshape(n, -1), pts[..., 1].reshape(n, -1), cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)  # (n, nt * 3, 3) uint8
+    # the three samples of each step are neighbours in a row: an area resize averages them
+    prof = cv2.resize(samp.astype(np.float32), (nt, n), interpolation=cv2.INTER_AREA).reshape(n, nt, 3)
     q = 3  # samples at each end that stand for "inside" and "outside"
     inside = _median3(prof[:, :q])
     outside = _median3(prof[:, -q:])
     d = inside - outside
-    dd = (d * d).sum(axis=1)
+    dd = np.einsum("nc,nc->n", d, d)
     ok = dd > p.min_edge_contrast_dn ** 2
-    f = ((prof - outside[:, None, :]) * d[:, None, :]).sum(axis=2) / np.maximum(dd, 1e-9)[:, None]
+    f = (np.einsum("ntc,nc->nt", prof, d) - np.einsum("nc,nc->n", outside, d)[:, None]) / np.maximum(dd, 1e-9)[:, None]
     cross = (f[:, :-1] >= 0.5) & (f[:, 1:] < 0.5)
     tmid = 0.5 * (ts[:-1] + ts[1:])
     cost = np.where(cross, np.abs(tmid)[None, :], np.inf)
     j = np.argmin(cost, axis=1)
-    found = np.isfinite(cost[np.arange(n), j]) & ok
-    f0, f1 = f[np.arange(n), j], f[np.arange(n), j + 1]
+    rows = np.arange(n)
+    found = np.isfinite(cost[rows, j]) & ok
+    f0, f1 = f[rows, j], f[rows, j + 1]
     frac = np.clip((f0 - 0.5) / np.maximum(f0 - f1, 1e-9), 0.0, 1.0)
-    t = ts[j] + frac * (ts[1] - ts[0])
-    t = np.where(found, t, 0.0)
-    return ring + t[:, None] * normal
+    t = np.where(found, ts[j] + frac * (ts[1] - ts[0]), 0.0)
+    moved = pts0 + t[:, None] * normal
+    out = list(rings)
+    start = 0
+    for i in todo:
+        out[i] = moved[start:start + len(rings[i])]
+        start += len(rings[i])
+    return out
 
 
 def _median3(a: np.ndarray) -> np.ndarray:

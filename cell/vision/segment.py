@@ -127,23 +127,17 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
         bg = reference_background(ref, (dw, dh))
     else:
         bg, _ = estimate_background(det, p.tray)
-    mask, chroma = _part_mask(det, bg, p, s)
+    mask = part_mask(det, bg, p, s)
     if not mask.any():
         return []  # the empty tray
     labels, merged = _split_regions(mask, p, s, det)
-    segs = _regions_to_segments(labels, merged, frame, det, bg, p, s, chroma)
+    segs = _regions_to_segments(labels, merged, frame, det, bg, p, s)
     segs.sort(key=lambda g: -g.area_px)
     return segs
 
 
-def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int) -> np.ndarray:
-    """uint8 mask (0/1) of part pixels at detection resolution (steps 2 and 3)."""
-    return _part_mask(det, bg, p, scale)[0]
-
-
-def _part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int) -> tuple[np.ndarray, np.ndarray]:
-    """The part mask and the chroma change per pixel (float32), at detection resolution."""
-    sm = cv2.GaussianBlur(det, (0, 0), 0.8)
+def _colour_change(sm: np.ndarray, bg: np.ndarray):
+    """Per pixel: brightness ratio r, chroma change (L1 of normalised colour), both in DN too."""
     ones = np.ones((1, 3), np.float32)
     si = cv2.transform(sm, ones) + 1.0
     sb = cv2.transform(bg, ones) + 1.0
@@ -154,26 +148,91 @@ def _part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int) ->
     dg = ig / si - bgg / sb
     chroma = np.abs(db) + np.abs(dg) + np.abs(db + dg)  # L1 over b, g, r of the normalised colour
     # the same changes in DN, to be compared with the frame's noise (dark trays have noisy chroma)
-    chroma_dn = chroma * si
-    bright_dn = (si - sb) / 3.0
+    return r, chroma, chroma * si, (si - sb) / 3.0
+
+
+COARSE = 4  # the search for where anything differs from the tray runs at 1 / COARSE of detection
+BOX_MARGIN_PX = 12  # detection px around what differs: room for weak edges, shadows' tails, walls
+COARSE_EVIDENCE = 0.8  # x the weak-evidence thresholds
+BOX_FULL_FRAME = 0.6  # when the boxes cover more of the frame than this, one box for all
+
+
+def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int) -> np.ndarray:
+    """uint8 mask (0/1) of part pixels at detection resolution (steps 2 and 3). Only boxes
+    around what differs from the tray are looked at closely."""
+    sm = cv2.GaussianBlur(det, (0, 0), 0.8)
     # spread from the quietest quarter of the frame (the tray), valid while the tray covers a
     # quarter of the view: the 25th percentile of |N(0, s)| is 0.32 s
-    noise_c = float(np.percentile(chroma_dn[::4, ::4], 25)) / 0.32 + 1e-3
-    noise_b = float(np.percentile(np.abs(bright_dn[::4, ::4]), 25)) / 0.32 + 1e-3
+    _, _, chroma_dn, bright_dn = _colour_change(np.ascontiguousarray(sm[::4, ::4]), np.ascontiguousarray(bg[::4, ::4]))
+    noise_c = float(np.percentile(chroma_dn, 25)) / 0.32 + 1e-3
+    noise_b = float(np.percentile(np.abs(bright_dn), 25)) / 0.32 + 1e-3
+    h, w = det.shape[:2]
+    mask = np.zeros((h, w), np.uint8)
+    for x0, y0, x1, y1 in _work_boxes(sm, bg, p):
+        mask[y0:y1, x0:x1] = _mask_in_box(sm[y0:y1, x0:x1], bg[y0:y1, x0:x1], p, scale, noise_c, noise_b,
+                                          (x0, y0), (h, w))
+    return mask
 
-    def evidence(f: float):
-        k = f * p.noise_k
-        return (((chroma > f * p.chroma_min) & (chroma_dn > k * noise_c))
-                | ((r > 1.0 + f * p.brighter_min) & (bright_dn > k * noise_b))
-                | ((r < 1.0 - p.darker_min) & (-bright_dn > k * noise_b)))
 
-    strong = evidence(1.0)
+def _evidence(r, chroma, chroma_dn, bright_dn, p: SegmentParams, f: float, noise_c: float, noise_b: float):
+    k = f * p.noise_k
+    return (((chroma > f * p.chroma_min) & (chroma_dn > k * noise_c))
+            | ((r > 1.0 + f * p.brighter_min) & (bright_dn > k * noise_b))
+            | ((r < 1.0 - p.darker_min) & (-bright_dn > k * noise_b)))
+
+
+def _work_boxes(sm, bg, p: SegmentParams) -> list[tuple[int, int, int, int]]:
+    """Disjoint boxes (detection px) that hold everything that differs from the tray, with a
+    margin: found on a coarse copy with the weak-evidence thresholds lowered (averaging keeps a
+    part's change and lowers the noise; thin parts lose contrast). Each box holds whole clusters
+    of changed pixels."""
+    h, w = sm.shape[:2]
+    cw, ch = max(1, w // COARSE), max(1, h // COARSE)
+    r, chroma, chroma_dn, bright_dn = _colour_change(cv2.resize(sm, (cw, ch), interpolation=cv2.INTER_AREA),
+                                                     cv2.resize(bg, (cw, ch), interpolation=cv2.INTER_AREA))
+    # the coarse copy's own noise (averaging lowers it), measured like the frame's
+    noise_c = float(np.percentile(chroma_dn, 25)) / 0.32 + 1e-3
+    noise_b = float(np.percentile(np.abs(bright_dn), 25)) / 0.32 + 1e-3
+    changed = (_evidence(r, chroma, chroma_dn, bright_dn, p, COARSE_EVIDENCE * p.hysteresis, noise_c, noise_b)
+               | (r < 1.0 - COARSE_EVIDENCE * p.brighter_min))
+    n, lab = cv2.connectedComponents(changed.astype(np.uint8), connectivity=8)
+    if n <= 1:
+        return []
+    from scipy import ndimage
+
+    m = BOX_MARGIN_PX
+    boxes = [[max(sl[1].start * w // cw - m, 0), max(sl[0].start * h // ch - m, 0),
+              min(sl[1].stop * w // cw + m, w), min(sl[0].stop * h // ch + m, h)]
+             for sl in ndimage.find_objects(lab) if sl is not None]
+    merged = True
+    while merged:  # overlapping boxes become one, so that no box cuts through a cluster
+        merged = False
+        out: list[list[int]] = []
+        for bx in boxes:
+            for o in out:
+                if bx[0] < o[2] and o[0] < bx[2] and bx[1] < o[3] and o[1] < bx[3]:
+                    o[:] = [min(o[0], bx[0]), min(o[1], bx[1]), max(o[2], bx[2]), max(o[3], bx[3])]
+                    merged = True
+                    break
+            else:
+                out.append(bx)
+        boxes = out
+    if sum((b[2] - b[0]) * (b[3] - b[1]) for b in boxes) > BOX_FULL_FRAME * w * h:
+        return [(0, 0, w, h)]
+    return [tuple(b) for b in boxes]
+
+
+def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: float, origin=(0, 0), det_hw=None):
+    """Part mask (uint8 0/1) in one box (steps 2 and 3)."""
+    r, chroma, chroma_dn, bright_dn = _colour_change(sm, bg)
+    strong = _evidence(r, chroma, chroma_dn, bright_dn, p, 1.0, noise_c, noise_b)
     if p.hysteresis < 1.0:  # weaker evidence counts where it is connected to strong evidence,
         # but not in shadow (a shadow next to a part mixes with the part's colour at its edge)
-        weak = (evidence(p.hysteresis) & ~(r < 1.0 - p.brighter_min)) | strong
+        weak = (_evidence(r, chroma, chroma_dn, bright_dn, p, p.hysteresis, noise_c, noise_b)
+                & ~(r < 1.0 - p.brighter_min)) | strong
         n, lab = cv2.connectedComponents(weak.astype(np.uint8), connectivity=8)
         seeded = np.zeros(n, bool)
-        seeded[np.unique(lab[strong])] = True
+        seeded[lab[strong]] = True
         seeded[0] = False
         strong = seeded[lab]
     darker = (r < 1.0 - p.brighter_min) & ~strong
@@ -186,13 +245,12 @@ def _part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int) ->
         from cell.vision.touching import fill_holes
 
         enclosed = fill_holes(strong.astype(np.uint8)).astype(bool) & ~strong
-        mask |= _material_shadowlike(r, strong, darker & ~enclosed, p, scale)
+        mask |= _material_shadowlike(r, strong, darker & ~enclosed, p, scale, origin, det_hw)
     k = np.ones((3, 3), np.uint8)
-    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, k)
-    return mask, chroma
+    return cv2.morphologyEx(mask, cv2.MORPH_OPEN, k)
 
 
-def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int) -> np.ndarray:
+def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin=(0, 0), det_hw=None) -> np.ndarray:
     """Shadow-like regions bounded by sharp edges are material (walls, grey parts), not shadow."""
     gx = cv2.Sobel(r, cv2.CV_32F, 1, 0, ksize=3) / 8.0
     gy = cv2.Sobel(r, cv2.CV_32F, 0, 1, ksize=3) / 8.0
@@ -239,8 +297,9 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int) -> np.
         cnt = np.maximum(np.bincount(li, minlength=n), 1)
         cx, cy = np.bincount(li, xs, n) / cnt, np.bincount(li, ys, n) / cnt
         owner = hi_c.astype(int)
-        h_det, w_det = r.shape
-        vp = (np.array(p.vertical_px) / scale) if p.vertical_px is not None else np.array([w_det, h_det]) / 2.0
+        h_det, w_det = det_hw or r.shape
+        vp = ((np.array(p.vertical_px) / scale) if p.vertical_px is not None
+              else np.array([w_det, h_det]) / 2.0) - np.asarray(origin)  # in the box's pixels
         py, px = np.nonzero(parts_lab)
         pli = parts_lab[py, px]
         pcnt = np.maximum(np.bincount(pli, minlength=ns), 1)
@@ -277,8 +336,7 @@ def _split_regions(mask: np.ndarray, p: SegmentParams, scale: int, det: np.ndarr
 
 
 def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.ndarray, det: np.ndarray,
-                         bg: np.ndarray, p: SegmentParams, scale: int, chroma: np.ndarray | None = None
-                         ) -> list[Segment]:
+                         bg: np.ndarray, p: SegmentParams, scale: int) -> list[Segment]:
     from scipy import ndimage
 
     dh, dw = labels.shape
@@ -307,7 +365,7 @@ def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.nda
             hole_rings = [_to_full(hh, scale) for hh in holes]
             if scale > 1 and p.full_res_holes:
                 # keep the holes seen at detection resolution; add the small ones only seen here
-                dips = _tray_dips(det, bg, sub, mean, (x0, y0, x1, y1), p, chroma)
+                dips = _tray_dips(det, bg, sub, mean, (x0, y0, x1, y1), p)
                 for ring in _holes_full_res(frame, bg, outline, mean, (x0, y0, x1, y1), p, scale, dips):
                     centre = ring.mean(axis=0)
                     if not any(cv2.pointPolygonTest(hh.astype(np.float32), (float(centre[0]), float(centre[1])),
@@ -330,7 +388,7 @@ def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.nda
     return segs
 
 
-def _tray_dips(det, bg, region, part_bgr, box, p: SegmentParams, chroma=None) -> tuple[int, int, int, int] | None:
+def _tray_dips(det, bg, region, part_bgr, box, p: SegmentParams) -> tuple[int, int, int, int] | None:
     """Bounding box (detection px, within `box`) of the region's pixels that lean towards the
     tray's colour and keep its chroma: where a small hole may hide. None: nowhere."""
     x0, y0, x1, y1 = box
@@ -341,11 +399,8 @@ def _tray_dips(det, bg, region, part_bgr, box, p: SegmentParams, chroma=None) ->
     # the tray's colour varies slowly: one part-minus-tray colour difference for the whole box
     d = np.asarray(part_bgr, np.float32) - np.asarray(cv2.mean(b)[:3], np.float32)
     f = cv2.transform(img - b, (d / max(float(d @ d), 1.0)).reshape(1, 3))
-    if chroma is None:
-        si, sb = img.sum(axis=2) + 1.0, b.sum(axis=2) + 1.0
-        ch = np.abs(img / si[:, :, None] - b / sb[:, :, None]).sum(axis=2)
-    else:
-        ch = chroma[y0:y1, x0:x1]
+    si, sb = img.sum(axis=2) + 1.0, b.sum(axis=2) + 1.0
+    ch = np.abs(img / si[:, :, None] - b / sb[:, :, None]).sum(axis=2)
     dips = (f < 0.8) & (ch < 2.0 * p.chroma_min) & inner.astype(bool)
     if not dips.any():
         return None

@@ -73,11 +73,13 @@ def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_d
     area = int(sub.sum())
     if area < 2 * min_area:
         return None
-    mask = sub.astype(bool)
     # lightness counts half: a highlight on metal or a shaded face is the same part, brighter
-    px = lab_img[mask].astype(np.float32) * np.array([0.5, 1.0, 1.0], np.float32)
-    if float(px.std(axis=0).max()) < 0.25 * min_delta_e:
+    weight = np.array([0.5, 1.0, 1.0], np.float32)
+    _, std = cv2.meanStdDev(lab_img, mask=sub)
+    if float((std.ravel() * weight).max()) < 0.25 * min_delta_e:
         return None  # one colour: nothing to split
+    mask = sub.astype(bool)
+    px = lab_img[mask].astype(np.float32) * weight
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5)
     _, lab, centres = cv2.kmeans(px, 2, None, crit, 1, cv2.KMEANS_PP_CENTERS)
     if np.linalg.norm(centres[0] - centres[1]) < min_delta_e:
@@ -139,12 +141,15 @@ def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, grey: np.ndarray
         if n <= 2:
             continue
         idx = np.arange(1, n)
-        peaks = np.asarray(ndimage.maximum(dt, cores, idx), float)
+        inside = cores > 0
+        peak_of = np.zeros(n)
+        np.maximum.at(peak_of, cores[inside], dt[inside])
+        peaks = peak_of[1:]
         areas = np.bincount(cores.ravel(), minlength=n)[1:]
         big = idx[(peaks >= np.maximum(r_min, level / p.neck_flag)) & (areas >= 3)]
         if len(big) < 2:
             continue
-        lobe_peaks = np.asarray(ndimage.maximum(dt, cores, big), float)
+        lobe_peaks = peak_of[big]
         grown = cv2.dilate(np.isin(cores, big).astype(np.uint8),
                            cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * int(level) + 3,) * 2))
         cover = float((grown.astype(bool) & sub.astype(bool)).sum()) / float(sub.sum())

@@ -401,11 +401,18 @@ def _tray_dips(det, bg, region, part_bgr, box, p: SegmentParams) -> tuple[int, i
     f = cv2.transform(img - b, (d / max(float(d @ d), 1.0)).reshape(1, 3))
     si, sb = img.sum(axis=2) + 1.0, b.sum(axis=2) + 1.0
     ch = np.abs(img / si[:, :, None] - b / sb[:, :, None]).sum(axis=2)
-    dips = (f < 0.8) & (ch < 2.0 * p.chroma_min) & inner.astype(bool)
+    dips = (((f < 0.8) & (ch < 2.0 * p.chroma_min)) | (ch < 0.5 * _chroma_of(part_bgr, b))) & inner.astype(bool)
     if not dips.any():
         return None
     ys, xs = np.nonzero(dips)
     return int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1
+
+
+def _chroma_of(part_bgr, tray_bgr: np.ndarray) -> float:
+    """Chroma change (L1 of normalised colour) of a part's mean colour against the tray's mean."""
+    pc = np.asarray(part_bgr, np.float64)
+    tc = np.asarray(cv2.mean(tray_bgr)[:3], np.float64)
+    return float(np.abs(pc / (pc.sum() + 1.0) - tc / (tc.sum() + 1.0)).sum())
 
 
 def _holes_full_res(frame, bg, outline, part_bgr, box, p: SegmentParams, scale: int, dips=None
@@ -435,8 +442,11 @@ def _holes_full_res(frame, bg, outline, part_bgr, box, p: SegmentParams, scale: 
     si, sb = img.sum(axis=2) + 1.0, b.sum(axis=2) + 1.0
     r = si / sb
     chroma = np.abs(img / si[:, :, None] - b / sb[:, :, None]).sum(axis=2)
-    tray_like = (chroma < p.chroma_min) & (r > 1.0 - p.darker_min) & (r < 1.0 + p.brighter_min)
-    holes = ((f < 0.5) & tray_like & inside.astype(bool)).astype(np.uint8)
+    # nearer the tray's colour than the part's; for a coloured part the chroma alone decides, as
+    # the tray seen through a hole lies in the part's shadow (darker, towards a dark part's colour)
+    half_chroma = 0.5 * _chroma_of(part_bgr, b)
+    tray_like = (chroma < max(p.chroma_min, half_chroma)) & (r > 1.0 - p.darker_min) & (r < 1.0 + p.brighter_min)
+    holes = (((f < 0.5) | (chroma < half_chroma)) & tray_like & inside.astype(bool)).astype(np.uint8)
     holes = cv2.morphologyEx(holes, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     contours, _ = cv2.findContours(holes, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     rings = []

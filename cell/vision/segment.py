@@ -399,13 +399,22 @@ def _tray_dips(det, bg, region, part_bgr, box, p: SegmentParams) -> tuple[int, i
     # the tray's colour varies slowly: one part-minus-tray colour difference for the whole box
     d = np.asarray(part_bgr, np.float32) - np.asarray(cv2.mean(b)[:3], np.float32)
     f = cv2.transform(img - b, (d / max(float(d @ d), 1.0)).reshape(1, 3))
-    si, sb = img.sum(axis=2) + 1.0, b.sum(axis=2) + 1.0
-    ch = np.abs(img / si[:, :, None] - b / sb[:, :, None]).sum(axis=2)
+    ch = _ratio_chroma(img, b)[1]
     dips = (((f < 0.8) & (ch < 2.0 * p.chroma_min)) | (ch < 0.5 * _chroma_of(part_bgr, b))) & inner.astype(bool)
     if not dips.any():
         return None
     ys, xs = np.nonzero(dips)
     return int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1
+
+
+def _ratio_chroma(img: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Brightness ratio and chroma change (L1 over the three channels of the colour divided by
+    its sum) of an unblurred image against the tray; float32 (h, w) each."""
+    ones = np.ones((1, 3), np.float32)
+    si = cv2.transform(img, ones) + 1.0
+    sb = cv2.transform(b, ones) + 1.0
+    diff = cv2.absdiff(img * (1.0 / si)[:, :, None], b * (1.0 / sb)[:, :, None])
+    return si / sb, cv2.transform(diff, ones)
 
 
 def _chroma_of(part_bgr, tray_bgr: np.ndarray) -> float:
@@ -437,11 +446,9 @@ def _holes_full_res(frame, bg, outline, part_bgr, box, p: SegmentParams, scale: 
     inside = cv2.erode(inside, np.ones((5, 5), np.uint8))  # away from the outline's blur
     if not inside.any():
         return []
-    d = np.asarray(part_bgr, np.float32)[None, None, :] - b
-    f = ((img - b) * d).sum(axis=2) / np.maximum((d * d).sum(axis=2), 1.0)
-    si, sb = img.sum(axis=2) + 1.0, b.sum(axis=2) + 1.0
-    r = si / sb
-    chroma = np.abs(img / si[:, :, None] - b / sb[:, :, None]).sum(axis=2)
+    d = np.asarray(part_bgr, np.float32) - np.asarray(cv2.mean(b)[:3], np.float32)  # the tray varies slowly
+    f = cv2.transform(img - b, (d / max(float(d @ d), 1.0)).reshape(1, 3))
+    r, chroma = _ratio_chroma(img, b)
     # nearer the tray's colour than the part's; for a coloured part the chroma alone decides, as
     # the tray seen through a hole lies in the part's shadow (darker, towards a dark part's colour)
     half_chroma = 0.5 * _chroma_of(part_bgr, b)

@@ -501,9 +501,12 @@ def refine_rings(frame: np.ndarray, rings: list[np.ndarray], is_hole: list[bool]
     ts = np.arange(-rng_px, rng_px + 1e-9, 0.5)
     nt = len(ts)
     ks = np.array([-1.0, 0.0, 1.0])  # three samples across the profile, averaged (noise)
-    pts = (pts0[:, None, None, :] - 0.5 + ts[None, :, None, None] * normal[:, None, None, :]
-           + ks[None, None, :, None] * tang[:, None, None, :]).astype(np.float32)
-    samp = cv2.remap(frame, pts[..., 0].reshape(n, -1), pts[..., 1].reshape(n, -1), cv2.INTER_LINEAR,
+    # sample positions (n, nt, 3) per axis, built in float32 (maps of pixel centres at integers)
+    t32, k32 = ts.astype(np.float32)[None, :, None], ks.astype(np.float32)[None, None, :]
+    p32, n32, g32 = (a.astype(np.float32) for a in (pts0 - 0.5, normal, tang))
+    mapx = p32[:, 0, None, None] + t32 * n32[:, 0, None, None] + k32 * g32[:, 0, None, None]
+    mapy = p32[:, 1, None, None] + t32 * n32[:, 1, None, None] + k32 * g32[:, 1, None, None]
+    samp = cv2.remap(frame, mapx.reshape(n, -1), mapy.reshape(n, -1), cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_REPLICATE)  # (n, nt * 3, 3) uint8
     # the three samples of each step are neighbours in a row: an area resize averages them
     prof = cv2.resize(samp.astype(np.float32), (nt, n), interpolation=cv2.INTER_AREA).reshape(n, nt, 3)

@@ -143,7 +143,7 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
     r = _Reader(raw, source)
     if raw.get("format", FORMAT) != FORMAT:
         raise BadInput(f"cell file {source}: 'format' must be {FORMAT!r}")
-    if r.num(raw, "version", "version") != 1:
+    if r.num(raw, "version") != 1:
         raise BadInput(f"cell file {source}: unsupported version {raw.get('version')!r} (this build reads 1)")
     s = r.obj(raw, "scara")
     scara = Scara(

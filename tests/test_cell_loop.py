@@ -215,3 +215,12 @@ def test_parts_lying_on_a_base_plate_move_with_it(tmp_path):
 
     first = next(x for x in RecordingReader(rec).decisions if x["type"] == "perception")
     assert first["carried"] == {on_base[0]["id"]: "base", on_base[1]["id"]: "base"}
+
+
+def test_unreadable_frames_are_retried_then_stop_and_ask(short_assembly, capsys):
+    ok = run_session(RunConfig(assembly=short_assembly, seed=3, faults=WorldFaults(bad_frames=2),
+                               progress=print))
+    assert ok["status"] == "complete" and ok["parts_removed"] == 3
+    assert capsys.readouterr().out.count("frame missing or unreadable") == 2
+    bad = run_session(RunConfig(assembly=short_assembly, seed=3, faults=WorldFaults(bad_frames=3)))
+    assert bad["status"] == "stopped" and bad["stopped"].startswith("camera: no readable frame after 3 tries")

@@ -53,3 +53,16 @@ def test_the_plane_height_is_asked_per_part():
 
     locate([a], [Region(0, at)])
     assert asked == [(42.0, 0.0)]
+
+
+def test_a_region_of_its_own_beats_a_merged_one_and_merged_parts_share_theirs():
+    a, b = bracket("a", 300, 0), bracket("b", 300, 45)  # touching: one merged region
+    c = bracket("c", 380, 0)  # separate, but the merged region would cover it after a 60 mm move
+    merged = a.moved(1, 1, 2).polygon.union(b.moved(-1, 0.5, -2).polygon)
+    regions = [Region(0, lambda zt, zb: merged, merged=True), region_of(c.moved(0.5, -0.5, 1), 1)]
+    found, unclaimed = locate([c, a, b], regions)
+    assert found["c"].region == 1 and not found["c"].merged
+    assert found["a"].region == 0 and found["b"].region == 0 and found["a"].merged
+    for pid, (dx, dy) in (("a", (1, 1)), ("b", (-1, 0.5))):
+        assert np.hypot(found[pid].dx_mm - dx, found[pid].dy_mm - dy) < 3.0, found[pid]
+    assert unclaimed == []

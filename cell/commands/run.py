@@ -36,6 +36,8 @@ def add_arguments(p):
                    help="simulated world: the next N (default 1) grips of PART slide off it")
     p.add_argument("--sim-stuck", metavar="PART", action="append", default=[],
                    help="simulated world: PART never leaves the tray")
+    p.add_argument("--sim-bad-frames", metavar="N", type=int, default=0,
+                   help="simulated camera: the next N reads deliver a corrupt frame")
 
 
 def run(args) -> int:
@@ -59,7 +61,7 @@ def run(args) -> int:
                     record=args.record, rerun=args.rerun, save_rrd=args.save, seed=args.seed,
                     shift_mm=args.shift_mm, on_no_grasp=args.on_no_grasp, require_approval=args.approve,
                     station=args.station, station_port=args.port, station_token=args.token,
-                    faults=WorldFaults(miss=miss, stuck=set(args.sim_stuck)),
+                    faults=WorldFaults(miss=miss, stuck=set(args.sim_stuck), bad_frames=args.sim_bad_frames),
                     progress=lambda s: print(s, file=out, flush=True))
     summary = run_session(cfg)
     _print_summary(summary, out)

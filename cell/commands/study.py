@@ -47,6 +47,10 @@ def run(args) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise BadInput(f"--out {out} exists and is not a folder")
+    try:  # before minutes of work, not after
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise BadInput(f"--out {out} cannot be created: {e.strerror}") from None
     cell = load_cell(args.cell)
     t0 = time.perf_counter()
 

@@ -53,6 +53,7 @@ SIMPLIFY_MM = 0.25
 GOOD_OVERLAP = 0.95  # a start that reaches this needs no other start
 MIN_OVERLAP = 0.55  # below this the region is not that part (or the part is not seen)
 MAX_SHIFT_MM = 60.0
+MAX_MERGED_SHIFT_MM = 15.0
 
 
 def _score(model: Polygon, region: Polygon, merged: bool) -> float:
@@ -92,25 +93,51 @@ def register(model: Polygon, region: Polygon, merged: bool = False) -> tuple[np.
 
 def locate(parts: Sequence[Part], regions: Sequence[Region]) -> tuple[dict[str, Located], list[int]]:
     """Match model parts to regions. Returns the located parts by id and the indices of
-    regions no part claimed (something unexpected on the tray)."""
+    regions no part claimed (something unexpected on the tray).
+
+    A region of its own (intersection over union) always beats a merged region: coverage of a
+    merged region is 1 almost anywhere inside it, so it is only asked for the parts that have
+    no region of their own, with the parts already placed in it taken out, and the part may
+    not wander further than MAX_MERGED_SHIFT_MM from where it was."""
     located: dict[str, Located] = {}
     claimed: set[int] = set()
     for part in parts:
         best: Located | None = None
         for r in regions:
-            if r.index in claimed and not r.merged:
+            if r.merged or r.index in claimed:
                 continue
             poly = r.polygon_at(part.z_top_mm, part.z_bottom_mm)
             if poly.is_empty or poly.distance(part.polygon) > MAX_SHIFT_MM:
                 continue
-            if not r.merged and not 0.6 < poly.area / part.polygon.area < 1.6:
+            if not 0.6 < poly.area / part.polygon.area < 1.6:
                 continue  # another part: registration could only make it overlap worse
-            x, s = register(part.polygon, poly, r.merged)
+            x, s = register(part.polygon, poly)
             if s >= MIN_OVERLAP and math.hypot(x[0], x[1]) <= MAX_SHIFT_MM and (best is None or s > best.overlap):
-                best = Located(part.id, r.index, float(x[0]), float(x[1]), float(x[2]), float(s), r.merged)
+                best = Located(part.id, r.index, float(x[0]), float(x[1]), float(x[2]), float(s), False)
         if best is not None:
             located[part.id] = best
             claimed.add(best.region)
+    placed: dict[int, list[Polygon]] = {}
+    for part in parts:
+        if part.id in located:
+            continue
+        best = None
+        for r in regions:
+            if not r.merged:
+                continue
+            poly = r.polygon_at(part.z_top_mm, part.z_bottom_mm)
+            for other in placed.get(r.index, []):
+                poly = poly.difference(other)
+            if poly.is_empty or poly.distance(part.polygon) > MAX_MERGED_SHIFT_MM:
+                continue
+            x, s = register(part.polygon, poly, merged=True)
+            near = math.hypot(x[0], x[1]) <= MAX_MERGED_SHIFT_MM
+            if s >= MIN_OVERLAP and near and (best is None or s > best.overlap):
+                best = Located(part.id, r.index, float(x[0]), float(x[1]), float(x[2]), float(s), True)
+        if best is not None:
+            located[part.id] = best
+            claimed.add(best.region)
+            placed.setdefault(best.region, []).append(best.apply(part).polygon)
     return located, [r.index for r in regions if r.index not in claimed]
 
 

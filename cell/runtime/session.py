@@ -63,6 +63,11 @@ class SimCameraSource:
         self.camera = SimCamera(cal, SimCameraOptions(seed=seed))
 
     def read(self):
+        if self.world.faults.bad_frames > 0:
+            self.world.faults.bad_frames -= 1
+            from cell.errors import BadInput
+
+            raise BadInput("the camera delivered a corrupt frame (simulated)")
         return self.camera.read(self.world.visible_parts())
 
 

@@ -31,6 +31,7 @@ class WorldFaults:
 
     miss: dict = field(default_factory=dict)  # part id -> how many grips slide off it
     stuck: set = field(default_factory=set)  # part ids that never leave the tray
+    bad_frames: int = 0  # the camera's next reads that deliver no usable frame
 
 
 class SimWorld:

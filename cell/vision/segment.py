@@ -380,12 +380,21 @@ def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.nda
     segs = []
     for outline, hole_rings, merged, cut, mean in found:
         outline = _orient(outline, ccw=True)
-        hole_rings = [_orient(hh, ccw=False) for hh in hole_rings]
+        hole_rings = [_orient(hh, ccw=False) for hh in hole_rings if _hole_holds(hh, outline, p)]
         area, cen = _area_centroid(outline, hole_rings)
         if area < 0.5 * p.min_area_px:
             continue  # a sliver whose pixels passed the speck filter but whose outline did not
         segs.append(Segment(outline, hole_rings, area, cen, bool(merged), cut, tuple(float(m) for m in mean)))
     return segs
+
+
+def _hole_holds(hole: np.ndarray, outline: np.ndarray, p: SegmentParams) -> bool:
+    """A refined hole keeps its minimum area and lies inside its outline (a sliver along the
+    edge that refinement squeezed or pushed onto the outline is no hole)."""
+    if abs(_signed_area(hole)) < 0.5 * p.min_hole_area_px:
+        return False
+    ring = outline.astype(np.float32)
+    return all(cv2.pointPolygonTest(ring, (float(u), float(v)), True) > 0.5 for u, v in hole)
 
 
 def _tray_dips(det, bg, region, part_bgr, box, p: SegmentParams) -> tuple[int, int, int, int] | None:

@@ -225,3 +225,19 @@ def test_bench_matches_a_split_ring_whose_centroid_lies_outside_it():
     row = evaluate_frame(CAL, [washer, bracket], frame, PARAMS)
     assert row["found"] == 2 and row["extra"] == 0
     assert all(np.sqrt(np.mean(e ** 2)) < 1.0 for e in row["outline_err"])
+
+
+def test_strong_shadows_make_no_false_holes():
+    # frames of the bench's "strong shadows" condition where slivers of shadow inside plates were
+    # taken for holes; a hole must keep its area and lie inside its outline after refinement
+    from cell.vision.sample_parts import random_layout
+
+    rng = np.random.default_rng(0)
+    layouts = [random_layout(rng, 6) for _ in range(3)]
+    frame = render(layouts[2], seed=2, shadow_strength=0.45)
+    segs = segment_frame(frame, PARAMS)
+    for part in layouts[2]:
+        seg = match(segs, part)
+        assert seg is not None, part.id
+        assert len(seg.holes_px) == len(part.holes_mm), part.id
+        assert Polygon(seg.outline_px, seg.holes_px).is_valid, part.id

@@ -188,3 +188,56 @@ def test_bad_frames_are_refused():
         segment_frame(np.zeros((0, 0, 3), np.uint8))
     with pytest.raises(BadInput, match="reference image"):
         segment_frame(np.zeros((100, 100, 3), np.uint8), reference_bgr=np.zeros((50, 50, 3), np.uint8))
+
+
+def test_looking_only_in_boxes_around_changes_gives_the_full_frame_result(layout_frame, monkeypatch):
+    from cell.vision import segment as seg_mod
+
+    boxed = segment_frame(layout_frame, PARAMS)
+    monkeypatch.setattr(seg_mod, "BOX_FULL_FRAME", -1.0)  # every frame looked at as one box
+    whole = segment_frame(layout_frame, PARAMS)
+    assert len(boxed) == len(whole) == len(LAYOUT)
+    for a, b in zip(boxed, whole, strict=True):
+        assert np.array_equal(a.outline_px, b.outline_px) and len(a.holes_px) == len(b.holes_px)
+
+
+def test_small_hole_of_a_coloured_part_is_found_through_its_shadow():
+    # a 4 mm hole in an 8 mm PCB off the image centre: parallax leaves a sliver of tray seen
+    # through it, darkened by the board's shadow
+    from cell.parts_library import part as library_part
+
+    board = library_part("pcb_round_m").moved(300.0, 150.0, 30.0)
+    frame = render([board], seed=2)
+    segs = segment_frame(frame, PARAMS)
+    assert len(segs) == 1 and len(segs[0].holes_px) == 1
+    _, holes = segment_to_mm(segs[0], CAL, board.z_top_mm, board.z_bottom_mm, frame)
+    true_centre = board.holes_mm[0].mean(axis=0)
+    assert np.linalg.norm(holes[0].mean(axis=0) - true_centre) < 2.0
+
+
+def test_bench_matches_a_split_ring_whose_centroid_lies_outside_it():
+    from cell.parts_library import part as library_part
+    from cell.vision.bench import evaluate_frame
+
+    washer = library_part("lock_washer_m20").moved(330.0, -120.0, 40.0)
+    bracket = library_part("u_bracket_m").moved(420.0, 100.0, -20.0)
+    frame = render([washer, bracket], seed=3)
+    row = evaluate_frame(CAL, [washer, bracket], frame, PARAMS)
+    assert row["found"] == 2 and row["extra"] == 0
+    assert all(np.sqrt(np.mean(e ** 2)) < 1.0 for e in row["outline_err"])
+
+
+def test_strong_shadows_make_no_false_holes():
+    # frames of the bench's "strong shadows" condition where slivers of shadow inside plates were
+    # taken for holes; a hole must keep its area and lie inside its outline after refinement
+    from cell.vision.sample_parts import random_layout
+
+    rng = np.random.default_rng(0)
+    layouts = [random_layout(rng, 6) for _ in range(3)]
+    frame = render(layouts[2], seed=2, shadow_strength=0.45)
+    segs = segment_frame(frame, PARAMS)
+    for part in layouts[2]:
+        seg = match(segs, part)
+        assert seg is not None, part.id
+        assert len(seg.holes_px) == len(part.holes_mm), part.id
+        assert Polygon(seg.outline_px, seg.holes_px).is_valid, part.id

@@ -128,15 +128,16 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
     else:
         bg, _ = estimate_background(det, p.tray)
     mask = part_mask(det, bg, p, s)
+    if not mask.any():
+        return []  # the empty tray
     labels, merged = _split_regions(mask, p, s, det)
     segs = _regions_to_segments(labels, merged, frame, det, bg, p, s)
     segs.sort(key=lambda g: -g.area_px)
     return segs
 
 
-def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int) -> np.ndarray:
-    """uint8 mask (0/1) of part pixels at detection resolution (steps 2 and 3)."""
-    sm = cv2.GaussianBlur(det, (0, 0), 0.8)
+def _colour_change(sm: np.ndarray, bg: np.ndarray):
+    """Per pixel: brightness ratio r, chroma change (L1 of normalised colour), both in DN too."""
     ones = np.ones((1, 3), np.float32)
     si = cv2.transform(sm, ones) + 1.0
     sb = cv2.transform(bg, ones) + 1.0
@@ -147,26 +148,91 @@ def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int) -> 
     dg = ig / si - bgg / sb
     chroma = np.abs(db) + np.abs(dg) + np.abs(db + dg)  # L1 over b, g, r of the normalised colour
     # the same changes in DN, to be compared with the frame's noise (dark trays have noisy chroma)
-    chroma_dn = chroma * si
-    bright_dn = (si - sb) / 3.0
+    return r, chroma, chroma * si, (si - sb) / 3.0
+
+
+COARSE = 4  # the search for where anything differs from the tray runs at 1 / COARSE of detection
+BOX_MARGIN_PX = 12  # detection px around what differs: room for weak edges, shadows' tails, walls
+COARSE_EVIDENCE = 0.8  # x the weak-evidence thresholds
+BOX_FULL_FRAME = 0.6  # when the boxes cover more of the frame than this, one box for all
+
+
+def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int) -> np.ndarray:
+    """uint8 mask (0/1) of part pixels at detection resolution (steps 2 and 3). Only boxes
+    around what differs from the tray are looked at closely."""
+    sm = cv2.GaussianBlur(det, (0, 0), 0.8)
     # spread from the quietest quarter of the frame (the tray), valid while the tray covers a
     # quarter of the view: the 25th percentile of |N(0, s)| is 0.32 s
-    noise_c = float(np.percentile(chroma_dn[::4, ::4], 25)) / 0.32 + 1e-3
-    noise_b = float(np.percentile(np.abs(bright_dn[::4, ::4]), 25)) / 0.32 + 1e-3
+    _, _, chroma_dn, bright_dn = _colour_change(np.ascontiguousarray(sm[::4, ::4]), np.ascontiguousarray(bg[::4, ::4]))
+    noise_c = float(np.percentile(chroma_dn, 25)) / 0.32 + 1e-3
+    noise_b = float(np.percentile(np.abs(bright_dn), 25)) / 0.32 + 1e-3
+    h, w = det.shape[:2]
+    mask = np.zeros((h, w), np.uint8)
+    for x0, y0, x1, y1 in _work_boxes(sm, bg, p):
+        mask[y0:y1, x0:x1] = _mask_in_box(sm[y0:y1, x0:x1], bg[y0:y1, x0:x1], p, scale, noise_c, noise_b,
+                                          (x0, y0), (h, w))
+    return mask
 
-    def evidence(f: float):
-        k = f * p.noise_k
-        return (((chroma > f * p.chroma_min) & (chroma_dn > k * noise_c))
-                | ((r > 1.0 + f * p.brighter_min) & (bright_dn > k * noise_b))
-                | ((r < 1.0 - p.darker_min) & (-bright_dn > k * noise_b)))
 
-    strong = evidence(1.0)
+def _evidence(r, chroma, chroma_dn, bright_dn, p: SegmentParams, f: float, noise_c: float, noise_b: float):
+    k = f * p.noise_k
+    return (((chroma > f * p.chroma_min) & (chroma_dn > k * noise_c))
+            | ((r > 1.0 + f * p.brighter_min) & (bright_dn > k * noise_b))
+            | ((r < 1.0 - p.darker_min) & (-bright_dn > k * noise_b)))
+
+
+def _work_boxes(sm, bg, p: SegmentParams) -> list[tuple[int, int, int, int]]:
+    """Disjoint boxes (detection px) that hold everything that differs from the tray, with a
+    margin: found on a coarse copy with the weak-evidence thresholds lowered (averaging keeps a
+    part's change and lowers the noise; thin parts lose contrast). Each box holds whole clusters
+    of changed pixels."""
+    h, w = sm.shape[:2]
+    cw, ch = max(1, w // COARSE), max(1, h // COARSE)
+    r, chroma, chroma_dn, bright_dn = _colour_change(cv2.resize(sm, (cw, ch), interpolation=cv2.INTER_AREA),
+                                                     cv2.resize(bg, (cw, ch), interpolation=cv2.INTER_AREA))
+    # the coarse copy's own noise (averaging lowers it), measured like the frame's
+    noise_c = float(np.percentile(chroma_dn, 25)) / 0.32 + 1e-3
+    noise_b = float(np.percentile(np.abs(bright_dn), 25)) / 0.32 + 1e-3
+    changed = (_evidence(r, chroma, chroma_dn, bright_dn, p, COARSE_EVIDENCE * p.hysteresis, noise_c, noise_b)
+               | (r < 1.0 - COARSE_EVIDENCE * p.brighter_min))
+    n, lab = cv2.connectedComponents(changed.astype(np.uint8), connectivity=8)
+    if n <= 1:
+        return []
+    from scipy import ndimage
+
+    m = BOX_MARGIN_PX
+    boxes = [[max(sl[1].start * w // cw - m, 0), max(sl[0].start * h // ch - m, 0),
+              min(sl[1].stop * w // cw + m, w), min(sl[0].stop * h // ch + m, h)]
+             for sl in ndimage.find_objects(lab) if sl is not None]
+    merged = True
+    while merged:  # overlapping boxes become one, so that no box cuts through a cluster
+        merged = False
+        out: list[list[int]] = []
+        for bx in boxes:
+            for o in out:
+                if bx[0] < o[2] and o[0] < bx[2] and bx[1] < o[3] and o[1] < bx[3]:
+                    o[:] = [min(o[0], bx[0]), min(o[1], bx[1]), max(o[2], bx[2]), max(o[3], bx[3])]
+                    merged = True
+                    break
+            else:
+                out.append(bx)
+        boxes = out
+    if sum((b[2] - b[0]) * (b[3] - b[1]) for b in boxes) > BOX_FULL_FRAME * w * h:
+        return [(0, 0, w, h)]
+    return [tuple(b) for b in boxes]
+
+
+def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: float, origin=(0, 0), det_hw=None):
+    """Part mask (uint8 0/1) in one box (steps 2 and 3)."""
+    r, chroma, chroma_dn, bright_dn = _colour_change(sm, bg)
+    strong = _evidence(r, chroma, chroma_dn, bright_dn, p, 1.0, noise_c, noise_b)
     if p.hysteresis < 1.0:  # weaker evidence counts where it is connected to strong evidence,
         # but not in shadow (a shadow next to a part mixes with the part's colour at its edge)
-        weak = (evidence(p.hysteresis) & ~(r < 1.0 - p.brighter_min)) | strong
+        weak = (_evidence(r, chroma, chroma_dn, bright_dn, p, p.hysteresis, noise_c, noise_b)
+                & ~(r < 1.0 - p.brighter_min)) | strong
         n, lab = cv2.connectedComponents(weak.astype(np.uint8), connectivity=8)
         seeded = np.zeros(n, bool)
-        seeded[np.unique(lab[strong])] = True
+        seeded[lab[strong]] = True
         seeded[0] = False
         strong = seeded[lab]
     darker = (r < 1.0 - p.brighter_min) & ~strong
@@ -179,13 +245,12 @@ def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int) -> 
         from cell.vision.touching import fill_holes
 
         enclosed = fill_holes(strong.astype(np.uint8)).astype(bool) & ~strong
-        mask |= _material_shadowlike(r, strong, darker & ~enclosed, p, scale)
+        mask |= _material_shadowlike(r, strong, darker & ~enclosed, p, scale, origin, det_hw)
     k = np.ones((3, 3), np.uint8)
-    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, k)
-    return mask
+    return cv2.morphologyEx(mask, cv2.MORPH_OPEN, k)
 
 
-def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int) -> np.ndarray:
+def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin=(0, 0), det_hw=None) -> np.ndarray:
     """Shadow-like regions bounded by sharp edges are material (walls, grey parts), not shadow."""
     gx = cv2.Sobel(r, cv2.CV_32F, 1, 0, ksize=3) / 8.0
     gy = cv2.Sobel(r, cv2.CV_32F, 0, 1, ksize=3) / 8.0
@@ -210,29 +275,35 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int) -> np.
     frac = np.divide(sharp_count, total, out=np.zeros(n), where=total > 0)
     keep = frac > p.sharp_fraction
     keep[0] = False
-    ns, parts_lab, _, part_c = cv2.connectedComponentsWithStats(strong.astype(np.uint8), connectivity=8)
-    if ns > 1 and keep.any():
+    if keep.any() and strong.any():
+        ns, parts_lab = cv2.connectedComponents(strong.astype(np.uint8), connectivity=8)
         pl = parts_lab.astype(np.float32)
         k3 = np.ones((3, 3), np.uint8)
         hi = cv2.dilate(pl, k3)
-        lo = -cv2.dilate(np.where(pl > 0, -pl, -1e9).astype(np.float32), k3)
+        lo = -cv2.dilate(np.where(pl > 0, -pl, np.float32(-1e9)).astype(np.float32), k3)
         inside = keep[lab]  # only the regions still in question
-        li = lab[inside]
+        ys, xs = np.nonzero(inside)
+        li = lab[ys, xs]
+        touch = hi[ys, xs] > 0  # pixels next to a part (only they see a part's label)
+        lt, hit, lot = li[touch], hi[ys[touch], xs[touch]], lo[ys[touch], xs[touch]]
         hi_c = np.zeros(n)
-        np.maximum.at(hi_c, li, hi[inside])
+        np.maximum.at(hi_c, lt, hit)
         lo_c = np.full(n, 1e9)
-        np.minimum.at(lo_c, li, np.where(lo[inside] > 0, lo[inside], 1e9))
+        np.minimum.at(lo_c, lt, lot)
         # a shadow-like nook between two separate parts is the crevice where they meet, not a wall
         keep &= ~((hi_c > 0) & (lo_c < 1e9) & (hi_c != lo_c))
         # walls are seen only on a part's side that faces the image of the vertical; a sharp
         # strip on the other side is the part's own short shadow
-        ys, xs = np.nonzero(inside)
         cnt = np.maximum(np.bincount(li, minlength=n), 1)
         cx, cy = np.bincount(li, xs, n) / cnt, np.bincount(li, ys, n) / cnt
         owner = hi_c.astype(int)
-        h_det, w_det = r.shape
-        vp = (np.array(p.vertical_px) / scale) if p.vertical_px is not None else np.array([w_det, h_det]) / 2.0
-        pc = part_c[owner]
+        h_det, w_det = det_hw or r.shape
+        vp = ((np.array(p.vertical_px) / scale) if p.vertical_px is not None
+              else np.array([w_det, h_det]) / 2.0) - np.asarray(origin)  # in the box's pixels
+        py, px = np.nonzero(parts_lab)
+        pli = parts_lab[py, px]
+        pcnt = np.maximum(np.bincount(pli, minlength=ns), 1)
+        pc = np.column_stack([np.bincount(pli, px, ns), np.bincount(pli, py, ns)])[owner] / pcnt[owner, None]
         ax, ay = cx - pc[:, 0], cy - pc[:, 1]
         bx, by = vp[0] - pc[:, 0], vp[1] - pc[:, 1]
         cos = (ax * bx + ay * by) / np.maximum(np.hypot(ax, ay) * np.hypot(bx, by), 1e-9)
@@ -248,10 +319,11 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int) -> np.
 def _split_regions(mask: np.ndarray, p: SegmentParams, scale: int, det: np.ndarray | None = None
                    ) -> tuple[np.ndarray, set[int]]:
     """Label image of regions (0 = tray) and the labels flagged merged; touching parts split."""
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    # (connectedComponentsWithStats is ten times slower than labelling and counting)
+    n, lab = cv2.connectedComponents(mask, connectivity=8)
     min_area = p.min_area_px / scale ** 2
-    keep = np.zeros(n, bool)
-    keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= min_area
+    keep = np.bincount(lab.ravel(), minlength=n) >= min_area
+    keep[0] = False
     remap = np.zeros(n, np.int32)
     remap[keep] = np.arange(1, int(keep.sum()) + 1)
     lab = remap[lab]
@@ -268,7 +340,7 @@ def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.nda
     from scipy import ndimage
 
     dh, dw = labels.shape
-    segs = []
+    found = []  # (outline, holes, merged, cut_off, mean colour) per region, before refinement
     for k, sl in enumerate(ndimage.find_objects(labels), start=1):
         if sl is None:
             continue
@@ -280,6 +352,7 @@ def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.nda
         if hier is None:
             continue
         hier = hier[0]
+        mean = cv2.mean(det[y0:y1, x0:x1], sub)[:3]
         outers = [i for i in range(len(contours)) if hier[i][3] < 0]
         for oi in outers:
             c = contours[oi].reshape(-1, 2)
@@ -291,25 +364,37 @@ def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.nda
             outline = _to_full(c, scale)
             hole_rings = [_to_full(hh, scale) for hh in holes]
             if scale > 1 and p.full_res_holes:
-                pc = cv2.mean(det[y0:y1, x0:x1], sub)[:3]
                 # keep the holes seen at detection resolution; add the small ones only seen here
-                for ring in _holes_full_res(frame, bg, outline, pc, (x0, y0, x1, y1), p, scale,
-                                            _tray_dips(det, bg, sub, pc, (x0, y0, x1, y1), p)):
+                dips = _tray_dips(det, bg, sub, mean, (x0, y0, x1, y1), p)
+                for ring in _holes_full_res(frame, bg, outline, mean, (x0, y0, x1, y1), p, scale, dips):
                     centre = ring.mean(axis=0)
                     if not any(cv2.pointPolygonTest(hh.astype(np.float32), (float(centre[0]), float(centre[1])),
                                                     False) >= 0 for hh in hole_rings):
                         hole_rings.append(ring)
-            if p.refine:
-                outline = refine_ring(frame, outline, p, hole=False)
-                hole_rings = [refine_ring(frame, hh, p, hole=True) for hh in hole_rings]
-            outline = _orient(outline, ccw=True)
-            hole_rings = [_orient(hh, ccw=False) for hh in hole_rings]
-            area, cen = _area_centroid(outline, hole_rings)
-            if area < 0.5 * p.min_area_px:
-                continue  # a sliver whose pixels passed the speck filter but whose outline did not
-            mean = cv2.mean(det[y0:y1, x0:x1], sub)[:3]
-            segs.append(Segment(outline, hole_rings, area, cen, bool(merged), cut, tuple(float(m) for m in mean)))
+            found.append((outline, hole_rings, merged, cut, mean))
+    if p.refine and found:  # all rings of the frame in one pass
+        rings = [r for o, hs, *_ in found for r in [o, *hs]]
+        is_hole = [h for o, hs, *_ in found for h in [False] + [True] * len(hs)]
+        refined = iter(refine_rings(frame, rings, is_hole, p))
+        found = [(next(refined), [next(refined) for _ in hs], *rest) for _, hs, *rest in found]
+    segs = []
+    for outline, hole_rings, merged, cut, mean in found:
+        outline = _orient(outline, ccw=True)
+        hole_rings = [_orient(hh, ccw=False) for hh in hole_rings if _hole_holds(hh, outline, p)]
+        area, cen = _area_centroid(outline, hole_rings)
+        if area < 0.5 * p.min_area_px:
+            continue  # a sliver whose pixels passed the speck filter but whose outline did not
+        segs.append(Segment(outline, hole_rings, area, cen, bool(merged), cut, tuple(float(m) for m in mean)))
     return segs
+
+
+def _hole_holds(hole: np.ndarray, outline: np.ndarray, p: SegmentParams) -> bool:
+    """A refined hole keeps its minimum area and lies inside its outline (a sliver along the
+    edge that refinement squeezed or pushed onto the outline is no hole)."""
+    if abs(_signed_area(hole)) < 0.5 * p.min_hole_area_px:
+        return False
+    ring = outline.astype(np.float32)
+    return all(cv2.pointPolygonTest(ring, (float(u), float(v)), True) > 0.5 for u, v in hole)
 
 
 def _tray_dips(det, bg, region, part_bgr, box, p: SegmentParams) -> tuple[int, int, int, int] | None:
@@ -317,15 +402,35 @@ def _tray_dips(det, bg, region, part_bgr, box, p: SegmentParams) -> tuple[int, i
     tray's colour and keep its chroma: where a small hole may hide. None: nowhere."""
     x0, y0, x1, y1 = box
     img, b = det[y0:y1, x0:x1], bg[y0:y1, x0:x1]
-    d = np.asarray(part_bgr, np.float32)[None, None, :] - b
-    f = ((img - b) * d).sum(axis=2) / np.maximum((d * d).sum(axis=2), 1.0)
-    si, sb = img.sum(axis=2) + 1.0, b.sum(axis=2) + 1.0
-    chroma = np.abs(img / si[:, :, None] - b / sb[:, :, None]).sum(axis=2)
-    dips = (f < 0.8) & (chroma < 2.0 * p.chroma_min) & cv2.erode(region, np.ones((3, 3), np.uint8)).astype(bool)
+    inner = cv2.erode(region, np.ones((3, 3), np.uint8))
+    if not inner.any():
+        return None
+    # the tray's colour varies slowly: one part-minus-tray colour difference for the whole box
+    d = np.asarray(part_bgr, np.float32) - np.asarray(cv2.mean(b)[:3], np.float32)
+    f = cv2.transform(img - b, (d / max(float(d @ d), 1.0)).reshape(1, 3))
+    ch = _ratio_chroma(img, b)[1]
+    dips = (((f < 0.8) & (ch < 2.0 * p.chroma_min)) | (ch < 0.5 * _chroma_of(part_bgr, b))) & inner.astype(bool)
     if not dips.any():
         return None
     ys, xs = np.nonzero(dips)
     return int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1
+
+
+def _ratio_chroma(img: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Brightness ratio and chroma change (L1 over the three channels of the colour divided by
+    its sum) of an unblurred image against the tray; float32 (h, w) each."""
+    ones = np.ones((1, 3), np.float32)
+    si = cv2.transform(img, ones) + 1.0
+    sb = cv2.transform(b, ones) + 1.0
+    diff = cv2.absdiff(img * (1.0 / si)[:, :, None], b * (1.0 / sb)[:, :, None])
+    return si / sb, cv2.transform(diff, ones)
+
+
+def _chroma_of(part_bgr, tray_bgr: np.ndarray) -> float:
+    """Chroma change (L1 of normalised colour) of a part's mean colour against the tray's mean."""
+    pc = np.asarray(part_bgr, np.float64)
+    tc = np.asarray(cv2.mean(tray_bgr)[:3], np.float64)
+    return float(np.abs(pc / (pc.sum() + 1.0) - tc / (tc.sum() + 1.0)).sum())
 
 
 def _holes_full_res(frame, bg, outline, part_bgr, box, p: SegmentParams, scale: int, dips=None
@@ -350,13 +455,14 @@ def _holes_full_res(frame, bg, outline, part_bgr, box, p: SegmentParams, scale: 
     inside = cv2.erode(inside, np.ones((5, 5), np.uint8))  # away from the outline's blur
     if not inside.any():
         return []
-    d = np.asarray(part_bgr, np.float32)[None, None, :] - b
-    f = ((img - b) * d).sum(axis=2) / np.maximum((d * d).sum(axis=2), 1.0)
-    si, sb = img.sum(axis=2) + 1.0, b.sum(axis=2) + 1.0
-    r = si / sb
-    chroma = np.abs(img / si[:, :, None] - b / sb[:, :, None]).sum(axis=2)
-    tray_like = (chroma < p.chroma_min) & (r > 1.0 - p.darker_min) & (r < 1.0 + p.brighter_min)
-    holes = ((f < 0.5) & tray_like & inside.astype(bool)).astype(np.uint8)
+    d = np.asarray(part_bgr, np.float32) - np.asarray(cv2.mean(b)[:3], np.float32)  # the tray varies slowly
+    f = cv2.transform(img - b, (d / max(float(d @ d), 1.0)).reshape(1, 3))
+    r, chroma = _ratio_chroma(img, b)
+    # nearer the tray's colour than the part's; for a coloured part the chroma alone decides, as
+    # the tray seen through a hole lies in the part's shadow (darker, towards a dark part's colour)
+    half_chroma = 0.5 * _chroma_of(part_bgr, b)
+    tray_like = (chroma < max(p.chroma_min, half_chroma)) & (r > 1.0 - p.darker_min) & (r < 1.0 + p.brighter_min)
+    holes = (((f < 0.5) | (chroma < half_chroma)) & tray_like & inside.astype(bool)).astype(np.uint8)
     holes = cv2.morphologyEx(holes, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     contours, _ = cv2.findContours(holes, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     rings = []
@@ -373,51 +479,75 @@ def _to_full(c: np.ndarray, scale: int) -> np.ndarray:
 
 
 def refine_ring(frame: np.ndarray, ring: np.ndarray, p: SegmentParams, hole: bool) -> np.ndarray:
+    """Move each ring point along its normal to the half-way crossing of the colour profile
+    (one ring; see `refine_rings`)."""
+    return refine_rings(frame, [ring], [hole], p)[0]
+
+
+def refine_rings(frame: np.ndarray, rings: list[np.ndarray], is_hole: list[bool], p: SegmentParams
+                 ) -> list[np.ndarray]:
     """Move each ring point along its normal to the half-way crossing of the colour profile.
 
     The profile across the edge is projected on the colour difference between the part side
     and the other side, so it runs from 1 (part) to 0 (tray, shadow or hole) whatever the
-    colours; 0.5 is the edge of an optically blurred step.
+    colours; 0.5 is the edge of an optically blurred step. All rings are sampled in one pass.
     """
-    n = len(ring)
-    if n < 5:
-        return ring
-    tang = np.roll(ring, -2, axis=0) - np.roll(ring, 2, axis=0)
-    tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
-    normal = np.column_stack([tang[:, 1], -tang[:, 0]])  # out of the ring if it is CCW in (u, v)
-    sign = 1.0 if _signed_area(ring) > 0 else -1.0
-    normal *= sign * (-1.0 if hole else 1.0)  # out of the material
+    todo = [i for i, r in enumerate(rings) if len(r) >= 5]
+    if not todo:
+        return list(rings)
+    normals, tangs = [], []
+    for i in todo:
+        ring = rings[i]
+        tang = np.roll(ring, -2, axis=0) - np.roll(ring, 2, axis=0)
+        tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
+        sign = (1.0 if _signed_area(ring) > 0 else -1.0) * (-1.0 if is_hole[i] else 1.0)
+        normals.append(sign * np.column_stack([tang[:, 1], -tang[:, 0]]))  # out of the material
+        tangs.append(tang)
+    pts0 = np.concatenate([rings[i] for i in todo])
+    normal, tang = np.concatenate(normals), np.concatenate(tangs)
+    n = len(pts0)
     rng_px = max(p.refine_range_px, 2.0 * p.scale)  # the coarse outline is up to a detection pixel off
     ts = np.arange(-rng_px, rng_px + 1e-9, 0.5)
-    ks = np.array([-1.0, 0.0, 1.0])
-    pts = (ring[:, None, None, :] + ts[None, :, None, None] * normal[:, None, None, :]
-           + ks[None, None, :, None] * tang[:, None, None, :])
-    mapx = (pts[..., 0] - 0.5).reshape(n, -1).astype(np.float32)
-    mapy = (pts[..., 1] - 0.5).reshape(n, -1).astype(np.float32)
-    samp = cv2.remap(frame, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    prof = samp.reshape(n, len(ts), len(ks), 3).astype(np.float32).mean(axis=2)
+    nt = len(ts)
+    ks = np.array([-1.0, 0.0, 1.0])  # three samples across the profile, averaged (noise)
+    # sample positions (n, nt, 3) per axis, built in float32 (maps of pixel centres at integers)
+    t32, k32 = ts.astype(np.float32)[None, :, None], ks.astype(np.float32)[None, None, :]
+    p32, n32, g32 = (a.astype(np.float32) for a in (pts0 - 0.5, normal, tang))
+    mapx = p32[:, 0, None, None] + t32 * n32[:, 0, None, None] + k32 * g32[:, 0, None, None]
+    mapy = p32[:, 1, None, None] + t32 * n32[:, 1, None, None] + k32 * g32[:, 1, None, None]
+    samp = cv2.remap(frame, mapx.reshape(n, -1), mapy.reshape(n, -1), cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)  # (n, nt * 3, 3) uint8
+    # the three samples of each step are neighbours in a row: an area resize averages them
+    prof = cv2.resize(samp.astype(np.float32), (nt, n), interpolation=cv2.INTER_AREA).reshape(n, nt, 3)
     q = 3  # samples at each end that stand for "inside" and "outside"
     inside = _median3(prof[:, :q])
     outside = _median3(prof[:, -q:])
     d = inside - outside
-    dd = (d * d).sum(axis=1)
+    dd = np.einsum("nc,nc->n", d, d)
     ok = dd > p.min_edge_contrast_dn ** 2
-    f = ((prof - outside[:, None, :]) * d[:, None, :]).sum(axis=2) / np.maximum(dd, 1e-9)[:, None]
+    f = (np.einsum("ntc,nc->nt", prof, d) - np.einsum("nc,nc->n", outside, d)[:, None]) / np.maximum(dd, 1e-9)[:, None]
     cross = (f[:, :-1] >= 0.5) & (f[:, 1:] < 0.5)
     tmid = 0.5 * (ts[:-1] + ts[1:])
     cost = np.where(cross, np.abs(tmid)[None, :], np.inf)
     j = np.argmin(cost, axis=1)
-    found = np.isfinite(cost[np.arange(n), j]) & ok
-    f0, f1 = f[np.arange(n), j], f[np.arange(n), j + 1]
+    rows = np.arange(n)
+    found = np.isfinite(cost[rows, j]) & ok
+    f0, f1 = f[rows, j], f[rows, j + 1]
     frac = np.clip((f0 - 0.5) / np.maximum(f0 - f1, 1e-9), 0.0, 1.0)
-    t = ts[j] + frac * (ts[1] - ts[0])
-    t = np.where(found, t, 0.0)
-    return ring + t[:, None] * normal
+    t = np.where(found, ts[j] + frac * (ts[1] - ts[0]), 0.0)
+    moved = pts0 + t[:, None] * normal
+    out = list(rings)
+    start = 0
+    for i in todo:
+        out[i] = moved[start:start + len(rings[i])]
+        start += len(rings[i])
+    return out
 
 
 def _median3(a: np.ndarray) -> np.ndarray:
     """Median over axis 1 of length 3 (np.median is slow for this)."""
-    return a.sum(axis=1) - a.max(axis=1) - a.min(axis=1)
+    x, y, z = a[:, 0], a[:, 1], a[:, 2]
+    return np.maximum(np.minimum(x, y), np.minimum(np.maximum(x, y), z))
 
 
 def _signed_area(ring: np.ndarray) -> float:

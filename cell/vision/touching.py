@@ -32,34 +32,48 @@ def split_necks(labels: np.ndarray, p, min_area_det: float, grey: np.ndarray | N
     scale = max(1, int(p.scale))
     r_min = MIN_LOBE_RADIUS_PX / scale
     hh, ww = labels.shape
+    boxes = []
     for lid, sl in enumerate(ndimage.find_objects(labels), start=1):
-        if sl is None:
-            continue
-        y0, x0 = max(sl[0].start - 2, 0), max(sl[1].start - 2, 0)
-        y1, x1 = min(sl[0].stop + 2, hh), min(sl[1].stop + 2, ww)
+        if sl is not None:
+            boxes.append((lid, max(sl[0].start - 2, 0), max(sl[1].start - 2, 0), min(sl[0].stop + 2, hh),
+                          min(sl[1].stop + 2, ww)))
+
+    def analyse_region(box):
+        lid, y0, x0, y1, x1 = box
         sub = (labels[y0:y1, x0:x1] == lid).astype(np.uint8)
-        g = None if grey is None else grey[y0:y1, x0:x1]
-        pieces = None
-        if bgr is not None:
-            lab_img = cv2.cvtColor(np.clip(bgr[y0:y1, x0:x1] / 255.0, 0, 1).astype(np.float32), cv2.COLOR_BGR2LAB)
-            pieces = split_by_colour(sub, lab_img, min_area_det, p.colour_split)
-        pieces = sub.astype(np.int32) if pieces is None else pieces
+        bgr_box = None if bgr is None else bgr[y0:y1, x0:x1]
+        return _region_pieces(sub, None if grey is None else grey[y0:y1, x0:x1], bgr_box, p, r_min, min_area_det)
+
+    for (_, y0, x0, y1, x1), pieces in zip(boxes, map(analyse_region, boxes), strict=True):
         view = out[y0:y1, x0:x1]
-        # each colour piece may still hold touching parts; each split lobe is looked at again
-        work = [((pieces == c).astype(np.uint8), 0) for c in range(1, int(pieces.max()) + 1)]
-        while work:
-            piece, depth = work.pop()
-            if not piece.any():
-                continue
-            decision, parts = _analyse(piece, p, r_min, min_area_det, g)
-            if decision == "split" and depth < MAX_SPLIT_DEPTH:
-                work.extend(((parts == k).astype(np.uint8), depth + 1) for k in range(1, int(parts.max()) + 1))
-                continue
-            view[piece.astype(bool)] = next_id
-            if decision == "merged":
+        for piece, is_merged in pieces:
+            view[piece] = next_id
+            if is_merged:
                 merged.add(next_id)
             next_id += 1
     return out, merged
+
+
+def _region_pieces(sub, grey, bgr, p, r_min: float, min_area_det: float) -> list[tuple[np.ndarray, bool]]:
+    """One region -> its parts as (bool mask in the region's box, merged flag)."""
+    pieces = None
+    if bgr is not None:
+        lab_img = cv2.cvtColor(np.clip(bgr / 255.0, 0, 1).astype(np.float32), cv2.COLOR_BGR2LAB)
+        pieces = split_by_colour(sub, lab_img, min_area_det, p.colour_split)
+    pieces = sub.astype(np.int32) if pieces is None else pieces
+    # each colour piece may still hold touching parts; each split lobe is looked at again
+    work = [((pieces == c).astype(np.uint8), 0) for c in range(1, int(pieces.max()) + 1)]
+    found = []
+    while work:
+        piece, depth = work.pop()
+        if not piece.any():
+            continue
+        decision, parts = _analyse(piece, p, r_min, min_area_det, grey)
+        if decision == "split" and depth < MAX_SPLIT_DEPTH:
+            work.extend(((parts == k).astype(np.uint8), depth + 1) for k in range(1, int(parts.max()) + 1))
+            continue
+        found.append((piece.astype(bool), decision == "merged"))
+    return found
 
 
 def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_delta_e: float):
@@ -73,11 +87,13 @@ def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_d
     area = int(sub.sum())
     if area < 2 * min_area:
         return None
-    mask = sub.astype(bool)
     # lightness counts half: a highlight on metal or a shaded face is the same part, brighter
-    px = lab_img[mask].astype(np.float32) * np.array([0.5, 1.0, 1.0], np.float32)
-    if float(px.std(axis=0).max()) < 0.25 * min_delta_e:
+    weight = np.array([0.5, 1.0, 1.0], np.float32)
+    _, std = cv2.meanStdDev(lab_img, mask=sub)
+    if float((std.ravel() * weight).max()) < 0.25 * min_delta_e:
         return None  # one colour: nothing to split
+    mask = sub.astype(bool)
+    px = lab_img[mask].astype(np.float32) * weight
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5)
     _, lab, centres = cv2.kmeans(px, 2, None, crit, 1, cv2.KMEANS_PP_CENTERS)
     if np.linalg.norm(centres[0] - centres[1]) < min_delta_e:
@@ -139,12 +155,15 @@ def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, grey: np.ndarray
         if n <= 2:
             continue
         idx = np.arange(1, n)
-        peaks = np.asarray(ndimage.maximum(dt, cores, idx), float)
+        inside = cores > 0
+        peak_of = np.zeros(n)
+        np.maximum.at(peak_of, cores[inside], dt[inside])
+        peaks = peak_of[1:]
         areas = np.bincount(cores.ravel(), minlength=n)[1:]
         big = idx[(peaks >= np.maximum(r_min, level / p.neck_flag)) & (areas >= 3)]
         if len(big) < 2:
             continue
-        lobe_peaks = np.asarray(ndimage.maximum(dt, cores, big), float)
+        lobe_peaks = peak_of[big]
         grown = cv2.dilate(np.isin(cores, big).astype(np.uint8),
                            cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * int(level) + 3,) * 2))
         cover = float((grown.astype(bool) & sub.astype(bool)).sum()) / float(sub.sum())

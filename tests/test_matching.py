@@ -66,3 +66,12 @@ def test_a_region_of_its_own_beats_a_merged_one_and_merged_parts_share_theirs():
     for pid, (dx, dy) in (("a", (1, 1)), ("b", (-1, 0.5))):
         assert np.hypot(found[pid].dx_mm - dx, found[pid].dy_mm - dy) < 3.0, found[pid]
     assert unclaimed == []
+
+
+def test_a_region_in_pieces_still_registers():
+    a = bracket("a", 300, 0)
+    moved = a.moved(2, -1, 5).polygon
+    pieces = moved.difference(Polygon([(250, 14), (400, 14), (400, 16), (250, 16)]))  # a sliver cut
+    assert pieces.geom_type == "MultiPolygon"
+    found, _ = locate([a], [Region(0, lambda zt, zb: pieces)])
+    assert abs(found["a"].dtheta_deg - 5) < 1.0

@@ -143,7 +143,10 @@ def locate(parts: Sequence[Part], regions: Sequence[Region]) -> tuple[dict[str, 
 
 def _axis_deg(poly: Polygon) -> float:
     """Direction of the principal axis of the outline's vertices (good enough as a start)."""
-    xy = np.asarray(poly.exterior.coords)[:-1]
+    hull = poly.convex_hull  # any region geometry (a squeezed outline may map to several pieces)
+    if hull.geom_type != "Polygon":
+        return 0.0
+    xy = np.asarray(hull.exterior.coords)[:-1]
     xy = xy - xy.mean(axis=0)
     cov = xy.T @ xy
     w, v = np.linalg.eigh(cov)

@@ -28,7 +28,7 @@ import numpy as np
 
 from calibration.camera import Calibration
 from cell.errors import BadInput
-from cell.fileio import read_json, write_json_atomic
+from cell.fileio import read_json, to_jsonable, write_json_atomic
 
 FORMAT = "disassembly-cell/calibration"
 VERSION = 1
@@ -71,7 +71,7 @@ def calibration_to_json(cal: Calibration) -> dict:
     if cal.homography is not None:
         d["homography"] = {"px_to_mm": np.asarray(cal.homography, float).tolist(),
                            "plane_z_mm": float(cal.plane_z_mm)}
-    d["report"] = _jsonable(cal.report)
+    d["report"] = to_jsonable(cal.report, nonfinite="null")
     return d
 
 
@@ -159,15 +159,3 @@ def _matrix(v, shape, where, fail) -> np.ndarray:
     if arr.shape != shape or not np.all(np.isfinite(arr)):
         fail(f"{where} must be a {shape[0]} x {shape[1]} list of finite numbers")
     return arr
-
-
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    return obj

@@ -9,9 +9,12 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import json
+import math
 import os
 import tempfile
 from pathlib import Path
+
+import numpy as np
 
 from cell.errors import BadInput
 
@@ -80,3 +83,35 @@ def _fsync_dir(directory: Path) -> None:
             os.fsync(fd)
         finally:
             os.close(fd)
+
+
+def to_jsonable(obj, *, nonfinite: str = "error"):
+    """numpy arrays and scalars, tuples, Paths and objects with `as_dict`/`to_json` -> plain JSON.
+
+    A non-finite float raises ValueError (JSON cannot store it), or becomes null with
+    `nonfinite="null"`."""
+    if isinstance(obj, dict):
+        return {str(k): to_jsonable(v, nonfinite=nonfinite) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v, nonfinite=nonfinite) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return to_jsonable(obj.tolist(), nonfinite=nonfinite)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        f = float(obj)
+        if not math.isfinite(f):
+            if nonfinite == "null":
+                return None
+            raise ValueError(f"a non-finite number ({f}): JSON cannot store it")
+        return f
+    if isinstance(obj, Path):
+        return str(obj)
+    for method in ("to_json", "as_dict"):
+        if hasattr(obj, method):
+            return to_jsonable(getattr(obj, method)(), nonfinite=nonfinite)
+    if obj is None or isinstance(obj, (str, int, bool)):
+        return obj
+    raise TypeError(f"a {type(obj).__name__} cannot be written as JSON")

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import io
 import json
-import math
 import os
 import platform
 import re
@@ -36,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from cell.errors import BadInput
-from cell.fileio import read_json, write_atomic, write_json_atomic
+from cell.fileio import read_json, to_jsonable, write_atomic, write_json_atomic
 
 FORMAT = "cell-recording"
 VERSION = 1
@@ -61,33 +60,6 @@ def _sha256(path: Path) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
-
-
-def to_jsonable(obj):
-    """numpy arrays and scalars, tuples, Paths and objects with `as_dict`/`to_json` -> plain JSON."""
-    if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist())
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        f = float(obj)
-        if not math.isfinite(f):
-            raise ValueError(f"decision holds a non-finite number ({f}); JSON cannot store it")
-        return f
-    if isinstance(obj, Path):
-        return str(obj)
-    for method in ("to_json", "as_dict"):
-        if hasattr(obj, method):
-            return to_jsonable(getattr(obj, method)())
-    if obj is None or isinstance(obj, (str, int, bool)):
-        return obj
-    raise TypeError(f"cannot record a {type(obj).__name__} in a decision")
 
 
 def _flushing_logger(writer):

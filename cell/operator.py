@@ -348,14 +348,7 @@ def generate_examples(count: int = 60, seed: int = 0, families=None, cell: Cell 
         lib = draw.next()
         x, y, th = random_pose(lib, cell, rng)
         part = parts_library.place(lib, x, y, th, lib.id)
-        obstacles: list[Part] = []
-        if rng.random() < neighbour_share:
-            for j in range(int(rng.integers(1, 3))):
-                nb = everything[int(rng.integers(0, len(everything)))]
-                q = place_neighbour(part, nb, float(rng.uniform(3, 15)), float(rng.uniform(0, 360)),
-                                    float(rng.uniform(-180, 180)), f"{nb.id}#n{j}")
-                if all(q.polygon.distance(o.polygon) > 2 for o in obstacles) and _inside_tray(q, cell):
-                    obstacles.append(q)
+        obstacles = random_neighbours(part, everything, rng, cell) if rng.random() < neighbour_share else []
         grasp = op.choose_grasp(part, obstacles)
         if grasp is None:
             continue  # a person would put this one aside; the next part is drawn
@@ -399,6 +392,19 @@ class FamilyRounds:
             self.unseen[fam] = list(self.by_family[fam])
         left = self.unseen[fam]
         return left.pop(int(self.rng.integers(0, len(left))))
+
+
+def random_neighbours(part: Part, pool: list[Part], rng: np.random.Generator, cell: Cell) -> list[Part]:
+    """One or two parts of `pool` placed 3..15 mm around `part` at random, apart from each
+    other and inside the tray (the clutter a part may be presented in)."""
+    obstacles: list[Part] = []
+    for j in range(int(rng.integers(1, 3))):
+        nb = pool[int(rng.integers(0, len(pool)))]
+        q = place_neighbour(part, nb, float(rng.uniform(3, 15)), float(rng.uniform(0, 360)),
+                            float(rng.uniform(-180, 180)), f"{nb.id}#n{j}")
+        if all(q.polygon.distance(o.polygon) > 2 for o in obstacles) and _inside_tray(q, cell):
+            obstacles.append(q)
+    return obstacles
 
 
 def _inside_tray(p: Part, cell: Cell) -> bool:

@@ -68,21 +68,11 @@ def presentations(parts: list[Part], poses: int, seed: int, cell: Cell) -> list[
 
 def cluttered(parts: list[Part], seed: int, cell: Cell) -> list[tuple[Part, tuple[Part, ...]]]:
     """Each (placed) part with one or two random library neighbours 3..15 mm away, inside the tray."""
-    from cell.operator import _inside_tray, place_neighbour
+    from cell.operator import random_neighbours
 
     rng = np.random.default_rng(seed + 100)
     lib = L.parts()
-    out = []
-    for p in parts:
-        obstacles: list[Part] = []
-        for j in range(int(rng.integers(1, 3))):
-            nb = lib[int(rng.integers(0, len(lib)))]
-            q = place_neighbour(p, nb, float(rng.uniform(3, 15)), float(rng.uniform(0, 360)),
-                                float(rng.uniform(-180, 180)), f"{nb.id}#n{j}")
-            if all(q.polygon.distance(o.polygon) > 2 for o in obstacles) and _inside_tray(q, cell):
-                obstacles.append(q)
-        out.append((p, tuple(obstacles)))
-    return out
+    return [(p, tuple(random_neighbours(p, lib, rng, cell))) for p in parts]
 
 
 def evaluate(planner, parts, cell: Cell | None = None) -> StabilityTally:

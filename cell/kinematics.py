@@ -120,3 +120,26 @@ def inverse(x_mm: float, y_mm: float, z_mm: float, axis_deg: float, scara: Scara
 
 def _wrap180(a: float) -> float:
     return (a + 180.0) % 360.0 - 180.0
+
+
+def reachable_mask(x_mm, y_mm, z_mm: float, axis_deg, scara: Scara) -> np.ndarray:
+    """Vectorised `bool(inverse(x, y, z, axis, scara))`: does any solution within the joint
+    limits exist? Shapes (n,) in, (n,) bool out. The cascade asks this for every pair; the
+    solutions themselves are only worked out for the grasps that are looked at."""
+    x, y, a = (np.asarray(v, float) for v in (x_mm, y_mm, axis_deg))
+    l1, l2 = scara.l1_mm, scara.l2_mm
+    c2 = (x * x + y * y - l1 * l1 - l2 * l2) / (2 * l1 * l2)
+    inside = (c2 <= 1.0 + 1e-12) & (c2 >= -1.0 - 1e-12)
+    c2 = np.clip(c2, -1.0, 1.0)
+    z_ok = scara.j3_mm[0] - 1e-9 <= z_mm <= scara.j3_mm[1] + 1e-9
+    ok = np.zeros(x.shape, bool)
+    for sign in (1.0, -1.0):
+        t2 = sign * np.arccos(c2)
+        j1 = (np.degrees(np.arctan2(y, x) - np.arctan2(l2 * np.sin(t2), l1 + l2 * np.cos(t2))) + 180.0) % 360.0 - 180.0
+        j2 = np.degrees(t2)
+        base = a - j1 - j2
+        lo4, hi4 = scara.j4_deg
+        some_j4 = np.floor((hi4 - base) / 180.0 + 1e-9) >= np.ceil((lo4 - base) / 180.0 - 1e-9)
+        ok |= ((j1 >= scara.j1_deg[0] - 1e-9) & (j1 <= scara.j1_deg[1] + 1e-9)
+               & (j2 >= scara.j2_deg[0] - 1e-9) & (j2 <= scara.j2_deg[1] + 1e-9) & some_j4)
+    return ok & inside & z_ok

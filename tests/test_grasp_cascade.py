@@ -12,7 +12,7 @@ from cell.errors import NoFeasibleGrasp
 from cell.examples import GraspExample
 from cell.grasp import shapes
 from cell.grasp.candidates import candidate_points
-from cell.grasp.cascade import STAGES, Context, Pairs, run_brute_force, run_cascade
+from cell.grasp.cascade import STAGES, Context, Pairs, joints_of, run_brute_force, run_cascade
 from cell.grasp.footprints import finger_footprints, palm_footprint, swept_finger_footprints
 from cell.grasp.height import grasp_z_mm
 from cell.grasp.params import SynthesisParams
@@ -234,4 +234,4 @@ def test_random_scenes_survivors_are_collision_free_and_match_the_brute_force(w,
             assert not any(fp.intersects(o) for o in tall)
             assert fp.intersection(target.polygon).area < 0.6 * CELL.gripper.pad_width_mm
         assert not any(palm_footprint(g, CELL).intersects(o) for o in palm_tall)
-        assert P.joints[int(k)]
+        assert len(joints_of(P, k)) > 0  # reachable: the solutions exist when asked for

@@ -60,3 +60,11 @@ def test_axis_folds_into_half_open_interval(a, expected):
 def test_forward_of_straight_arm():
     p = forward(Joints(0, 0, 5, 0), SCARA)
     assert np.allclose([p.x_mm, p.y_mm], [600, 0])
+
+
+@settings(max_examples=300, deadline=None)
+@given(x=st.floats(-650, 650), y=st.floats(-650, 650), z=st.floats(-10, 210), axis=st.floats(-400, 400))
+def test_the_vectorised_reachability_agrees_with_the_solutions(x, y, z, axis):
+    from cell.kinematics import reachable_mask
+
+    assert bool(reachable_mask([x], [y], z, [axis], SCARA)[0]) == bool(inverse(x, y, z, axis, SCARA))

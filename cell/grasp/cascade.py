@@ -28,6 +28,7 @@ checks that in every run.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,7 +37,7 @@ import shapely
 from cell.cellconfig import Cell
 from cell.grasp.footprints import axis_rects, rect_polygons
 from cell.grasp.params import SynthesisParams
-from cell.kinematics import Joints, inverse, normalize_axis_deg
+from cell.kinematics import Joints, inverse, normalize_axis_deg, reachable_mask
 from cell.scene import Part
 
 STAGES = ("stroke", "reach", "antipodal", "precheck", "contacts", "ik", "fingers_obstacles", "palm")
@@ -122,6 +123,7 @@ class Pairs:
     center: np.ndarray = None
     h: np.ndarray = None
     joints: dict = field(default_factory=dict)
+    ik: tuple | None = None  # (grasp z, scara) once the ik stage ran: joints_of solves from it
     si: np.ndarray | None = None  # (s, 2) outline-sample index of p_i and p_j
 
     def __len__(self) -> int:
@@ -353,16 +355,16 @@ def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
 
 
 def stage_ik(ctx: Context, P: Pairs, idx) -> np.ndarray:
-    ok = np.zeros(len(idx), bool)
+    idx = np.asarray(idx, int)
+    c = P.center[idx]
     ws = ctx.cell.workspace
-    for n, k in enumerate(idx):
-        x, y = P.center[k]
-        if not (np.isfinite(x) and ws.contains(x, y)):
-            continue
-        sols = inverse(float(x), float(y), ctx.grasp_z_mm, P.axis_deg(k), ctx.cell.scara)
-        if sols:
-            P.joints[int(k)] = sols
-            ok[n] = True
+    axis = np.degrees(np.arctan2(P.u[idx, 1], P.u[idx, 0]))
+    with np.errstate(invalid="ignore"):
+        inside = (np.isfinite(c[:, 0]) & (c[:, 0] >= ws.x_mm[0]) & (c[:, 0] <= ws.x_mm[1])
+                  & (c[:, 1] >= ws.y_mm[0]) & (c[:, 1] <= ws.y_mm[1]))
+    ok = np.zeros(len(idx), bool)
+    ok[inside] = reachable_mask(c[inside, 0], c[inside, 1], ctx.grasp_z_mm, axis[inside], ctx.cell.scara)
+    P.ik = (ctx.grasp_z_mm, ctx.cell.scara)  # the solutions, for the pairs that get looked at: joints_of
     return ok
 
 
@@ -445,5 +447,27 @@ def run_brute_force(ctx: Context, P: Pairs) -> CascadeResult:
     return CascadeResult(np.flatnonzero(ok), rejected_by, {"feasible": int(ok.sum())}, exact, times)
 
 
-def joints_of(P: Pairs, k: int) -> list[Joints]:
-    return P.joints.get(int(k), [])
+class _Solutions(Sequence):
+    """Every IK solution of pair k, worked out on first use (most reachable pairs never are)."""
+
+    def __init__(self, P: Pairs, k: int):
+        self._P, self._k = P, int(k)
+
+    def _list(self) -> list[Joints]:
+        P, k = self._P, self._k
+        if k not in P.joints:
+            z, scara = P.ik
+            x, y = P.center[k]
+            P.joints[k] = inverse(float(x), float(y), z, P.axis_deg(k), scara)
+        return P.joints[k]
+
+    def __getitem__(self, i):
+        return self._list()[i]
+
+    def __len__(self) -> int:
+        return len(self._list())
+
+
+def joints_of(P: Pairs, k: int) -> Sequence[Joints]:
+    """The joint solutions of pair k (both elbows, every J4 turn), computed when first read."""
+    return _Solutions(P, k)

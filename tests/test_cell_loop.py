@@ -134,8 +134,13 @@ def test_no_feasible_grasp_stops_or_skips(tmp_path):
     p.write_text(json.dumps(asm))
     stop = run_session(RunConfig(assembly=p, seed=1))
     assert stop["status"] == "stopped" and "no feasible grasp for plate" in stop["stopped"]
-    skip = run_session(RunConfig(assembly=p, seed=1, on_no_grasp="skip"))
+    skip = run_session(RunConfig(assembly=p, seed=1, on_no_grasp="skip", record=tmp_path / "skip"))
     assert skip["status"] == "complete" and skip["parts_skipped"] == ["plate"] and skip["parts_removed"] == 1
+    # the skipped plate still lies on the tray: still seen, still an obstacle for the nut's grasp
+    from cell.recording import RecordingReader
+
+    seen = [d for d in RecordingReader(tmp_path / "skip").decisions if d["type"] == "perception"]
+    assert all("plate" in d["located"] for d in seen)
 
 
 def test_cell_run_cli_prints_the_contract_summary(short_assembly, tmp_path, capsys):
@@ -224,3 +229,36 @@ def test_unreadable_frames_are_retried_then_stop_and_ask(short_assembly, capsys)
     assert capsys.readouterr().out.count("frame missing or unreadable") == 2
     bad = run_session(RunConfig(assembly=short_assembly, seed=3, faults=WorldFaults(bad_frames=3)))
     assert bad["status"] == "stopped" and bad["stopped"].startswith("camera: no readable frame after 3 tries")
+
+
+def test_tall_parts_raise_the_travel_height(tmp_path):
+    """A 130 mm post beside a nut: the jaws travel above it, never at the cell's 150 mm when that
+    would pass through it with the nut hanging below."""
+    d = json.loads(DEFAULT.read_text())
+    nut = next(p for p in d["parts"] if p["id"] == "nut")
+    post = {"id": "post", "outline": [[300, -60], [330, -60], [330, -30], [300, -30]], "z_top": 140.0}
+    p = tmp_path / "post.json"
+    p.write_text(json.dumps({"units": "mm", "name": "post", "parts": [nut, post], "sequence": ["nut", "post"]}))
+    rec = tmp_path / "rec"
+    s = run_session(RunConfig(assembly=p, seed=1, record=rec))
+    assert s["status"] == "complete", s.get("stopped")
+    from cell.recording import RecordingReader
+
+    cmds = [x for x in RecordingReader(rec).decisions if x["type"] == "commands"]
+    nut_grasp_z = next(c["joints"]["j3_mm"] for c in cmds[0]["commands"] if c["label"] == "descend")
+    approach = next(c["joints"]["j3_mm"] for c in cmds[0]["commands"] if c["label"] == "approach")
+    assert approach >= 140.0 + 20.0 + nut_grasp_z - 1e-6  # the nut hangs below the tips over the post
+    post_cmds = cmds[1]["commands"]
+    descend = next(c["joints"]["j3_mm"] for c in post_cmds if c["label"] == "descend")
+    assert all(c["joints"]["j3_mm"] > descend for c in post_cmds if c["label"] in ("approach", "lift"))
+
+
+def test_an_operator_stop_in_the_recording_ends_the_replay_there():
+    from cell.runtime.loop import StopRun
+    from cell.runtime.replay import Comparison
+
+    recorded = [{"type": "perception", "frame": 0}, {"type": "stop", "source": "operator", "reason": "stop"}]
+    sink = Comparison(recorded, drives=None)
+    sink.write_decision({"type": "perception", "frame": 0})
+    with pytest.raises(StopRun):
+        sink.write_decision({"type": "grasp", "part": "nut"})

@@ -24,6 +24,15 @@ def run(args) -> int:
     from cell.grasp.synthesis import GraspPlanner
     from cell.scene import load_assembly
 
+    if args.figures:  # before the planning, not after
+        from pathlib import Path
+
+        from cell.errors import BadInput
+
+        try:
+            Path(args.figures).mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise BadInput(f"--figures {args.figures} cannot be used as a folder: {e.strerror}") from None
     assembly = load_assembly(args.assembly)
     cell = load_cell(args.cell or assembly.cell_path)
     planner = GraspPlanner(cell, load_planner_inputs(args.examples))

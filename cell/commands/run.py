@@ -47,6 +47,12 @@ def run(args) -> int:
 
     if args.approve and not args.station:
         raise BadInput("--approve needs --station: someone must be there to approve")
+    if args.seed < 0:
+        raise BadInput("--seed must not be negative")
+    if not 0 <= args.port <= 65535:
+        raise BadInput(f"--port must be 0..65535, not {args.port}")
+    if args.sim_bad_frames < 0:
+        raise BadInput("--sim-bad-frames must not be negative")
     if not 0.0 <= args.shift_mm <= 20.0:
         raise BadInput("--shift-mm must be within 0..20 mm")
     miss = {}

@@ -37,6 +37,8 @@ from cell.runtime.matching import Region, locate
 from cell.runtime.motion import above, pick_commands
 from cell.scene import Assembly, Part, Scene
 
+TRAVEL_MARGIN_MM = 20.0  # above the tallest part on the tray, when travelling
+
 
 class StopRun(CellError):
     """The loop stopped and nobody is there to answer (no station): the reason is the message."""
@@ -140,7 +142,10 @@ class CellLoop:
                     self._one_part(self.remaining[0])
                 else:
                     self._final_check()
-            except (Stopped, StopRun):
+            except Stopped as e:
+                self.sink.write_decision({"type": "stop", "source": "operator", "reason": str(e)})
+                raise
+            except StopRun:
                 raise
             except Faulted:
                 continue  # a fault was reported meanwhile: the next checkpoint holds until reset
@@ -164,7 +169,7 @@ class CellLoop:
         if part_id not in located:
             self._stop_and_ask("vision", f"{part_id} is not found in frame {index}")
             return
-        present = [p for p in self.remaining if p in self.poses]
+        present = list(self.poses)  # everything not removed, skipped parts included: they still lie there
         scene = Scene(tuple(self.poses[p] for p in present), part_id, source=f"frame {index}")
         report = PartReport(part_id, "removed")
         grasps = self._plan(scene, part_id)
@@ -182,8 +187,8 @@ class CellLoop:
             if grasp.joints is None and self.planner.choose_for(grasp, scene) is None:
                 attempt += 1  # step 5 finds no configuration whose links clear the parts
                 continue
+            report.planning_s += time.perf_counter() - t1  # the operator's time to answer is not planning
             decision = self._approve(grasp, scene, attempt)
-            report.planning_s += time.perf_counter() - t1
             if not decision.approved:
                 self._rejected(grasp, scene, decision.reason)
                 rejected_here.append(grasp.contacts_mm)
@@ -282,7 +287,7 @@ class CellLoop:
             return polygon_at
 
         regions = [Region(i, mapper(s), s.merged, s.cut_off) for i, s in enumerate(segments)]
-        expected = [self.poses[p] for p in self.remaining if p in self.poses]
+        expected = list(self.poses.values())
         if self._last_picked is not None:  # look for it too: it should be gone
             expected.append(self._last_picked[1])
         found, strangers = locate(expected, regions)
@@ -389,7 +394,8 @@ class CellLoop:
     def _execute(self, grasp: Grasp, part_id: str, attempt: int) -> list[dict]:
         from drivers.execute import run_commands
 
-        commands = pick_commands(grasp.joints, grasp.opening_mm, self.cell)
+        commands = pick_commands(grasp.joints, grasp.opening_mm, self.cell,
+                                 safe_z_mm=self._safe_z_mm(part_id, grasp.grasp_z_mm))
         self.sink.write_decision({"type": "commands", "part": part_id, "attempt": attempt,
                                   "commands": [c.to_json() for c in commands]})
         self.control.checkpoint("pick", part=part_id)
@@ -403,6 +409,20 @@ class CellLoop:
         records = run_commands(self.arm, commands, stop_on_miss=True, on_step=on_step)
         self.sink.write_decision({"type": "executed", "part": part_id, "attempt": attempt, "records": records})
         return records
+
+    def _safe_z_mm(self, part_id: str, grasp_z_mm: float) -> float:
+        """Travel height of the finger tips: the cell's safe height, or higher when the parts on
+        the tray are tall: the empty jaws and the held part hanging below them (from the tips
+        down to its bottom) must pass over every part with a margin."""
+        part = self.poses[part_id]
+        others = [p.z_top_mm for pid, p in self.poses.items() if pid != part_id]
+        empty = max([part.z_top_mm, *others]) + TRAVEL_MARGIN_MM  # the open jaws, to and from the grasp
+        loaded = max(others, default=0.0) + TRAVEL_MARGIN_MM + (grasp_z_mm - part.z_bottom_mm)
+        safe = max(self.cell.motion.safe_z_mm, empty, loaded)
+        if safe > self.cell.scara.j3_mm[1]:
+            raise CellError(f"{part_id} cannot be carried over the parts on the tray: it needs a travel "
+                            f"height of {safe:.0f} mm, J3 reaches {self.cell.scara.j3_mm[1]:g} mm")
+        return safe
 
     def _retreat(self) -> None:
         """Open the jaws and go straight up to the safe height where the arm is."""

@@ -50,10 +50,13 @@ def dropoff_joints(cell: Cell, near: Joints) -> Joints:
     return min(options, key=lambda o: float(np.sum(np.abs((o.as_array() - q)[[0, 1, 3]]))))
 
 
-def pick_commands(grasp_joints: Joints, opening_mm: float, cell: Cell) -> list[Command]:
-    """Commands of one pick; `grasp_joints` is the configuration at the grasp (J3 = grasp z)."""
+def pick_commands(grasp_joints: Joints, opening_mm: float, cell: Cell, safe_z_mm: float | None = None) -> list[Command]:
+    """Commands of one pick; `grasp_joints` is the configuration at the grasp (J3 = grasp z);
+    travel at `safe_z_mm` (default: the cell's safe height), which must be above the grasp."""
     g = cell.gripper
-    safe = cell.motion.safe_z_mm
+    safe = cell.motion.safe_z_mm if safe_z_mm is None else safe_z_mm
+    if safe <= grasp_joints.j3_mm:
+        raise CellError(f"the travel height {safe:g} mm is not above the grasp z {grasp_joints.j3_mm:g} mm")
     approach_mm = min(opening_mm + 2 * g.approach_clearance_mm, g.opening_mm[1])
     drop = dropoff_joints(cell, grasp_joints)
     return [

@@ -80,6 +80,10 @@ class Comparison:
             return
         expected = self.recorded[self.position]
         self.position += 1
+        if expected.get("type") == "stop" and expected.get("source") == "operator":
+            from cell.runtime.loop import StopRun
+
+            raise StopRun("the operator stopped the recorded session here")  # nobody presses Stop in a replay
         diff = differences(expected, record)
         if diff:
             self._diverged(f"decision #{self.position - 1} ({expected.get('type')}"
@@ -119,9 +123,12 @@ class Comparison:
 class RecordedApprovals(RunControl):
     """The operator's recorded answers, in order (a reject becomes an invalid example again)."""
 
-    def __init__(self, decisions: list[dict]):
+    def __init__(self, decisions: list[dict], where: str = "recording"):
         super().__init__(require_approval=False)
         self._answers = [d for d in decisions if d.get("type") == "decision"]
+        for d in self._answers:
+            if not isinstance(d.get("approved"), bool):
+                raise BadInput(f"{where}: a recorded operator decision has no true/false 'approved'")
 
     def request_approval(self, proposal: dict, *, timeout_s=None) -> Decision:
         if not self._answers:
@@ -161,17 +168,25 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     if not examples_src.is_file():
         raise BadInput(f"example file {examples_src} does not exist")
     # the planner as the session ran it: a recording made before `slanted_faces` existed planned without it
-    planner_params = SynthesisParams(slanted_faces=bool((meta.get("planner") or {}).get("slanted_faces", False)))
+    planner = meta.get("planner") or {}
+    if not isinstance(planner, dict):
+        raise BadInput(f"recording {directory}: manifest meta.planner must be an object")
+    planner_params = SynthesisParams(slanted_faces=bool(planner.get("slanted_faces", False)))
     recorded = [d for d in rec.decisions if d.get("type") != "summary"]
     frames = [rec.frame_path(i) for i in rec.frame_indices]
     if not frames:
         raise BadInput(f"recording {directory} holds no frames")
+    for i in rec.frame_indices:  # a frame the loop would skip as unreadable would shift all that follow
+        frame = rec.read_frame(i)
+        if frame.shape[:2] != (cal.height_px, cal.width_px):
+            raise BadInput(f"recording {directory}: frame {i} is {frame.shape[1]} x {frame.shape[0]} px, the "
+                           f"calibration {cal.width_px} x {cal.height_px} px")
     with tempfile.TemporaryDirectory() as tmp:
         work_examples = Path(tmp) / "examples.jsonl"
         shutil.copyfile(examples_src, work_examples)  # rejects are appended again, not to the original
         with simulated_cell(cell) as (arm, drives):
             sink = Comparison(recorded, drives, strict)
-            control = RecordedApprovals(rec.decisions)
+            control = RecordedApprovals(rec.decisions, f"recording {directory}")
             loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=FileCamera(frames), arm=arm,
                             control=control, examples_path=work_examples, sink=sink,
                             options=LoopOptions(on_no_grasp=meta.get("on_no_grasp", "stop")),

@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import threading
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -112,8 +113,11 @@ def run_session(cfg: RunConfig) -> dict:
 
     load_examples(examples_path)  # bad example files are refused before anything moves
     examples_out = None
-    if examples_path == default_examples_path():
-        examples_out = (Path(cfg.record) if cfg.record else Path.cwd()) / "examples.jsonl"
+    if examples_path.resolve() == default_examples_path().resolve():
+        # never the shipped file; a fresh file per session (not one an earlier run left here)
+        folder = Path(cfg.record) if cfg.record else Path.cwd()
+        stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
+        examples_out = folder / ("examples.jsonl" if cfg.record else f"examples-{stamp}.jsonl")
 
     recorder = None
     if cfg.record:
@@ -159,6 +163,10 @@ def run_session(cfg: RunConfig) -> dict:
             else:
                 control.run(by="cell run")
                 summary = loop.run()
+        except KeyboardInterrupt:
+            arm.stop()  # quick stop of every axis before the drives are disabled
+            status = "stopped"
+            raise
         except (StopRun, Stopped) as e:
             status = "stopped"
             summary = {**loop.summary(), "stopped": str(e)}
@@ -213,7 +221,9 @@ def _with_station(loop: CellLoop, control: RunControl, cfg: RunConfig, say) -> d
                 t.join(0.2)
         except KeyboardInterrupt:
             control.stop("interrupted at the terminal")
-            t.join(5)
+            loop.arm.stop()  # a pick in progress ends now, not when it is done
+            t.join()
+            raise
     if "error" in result:
         raise result["error"]
     return result["summary"]

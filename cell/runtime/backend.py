@@ -9,7 +9,6 @@ atomically; the model is rebuilt at once, so the next plan uses it.
 
 from __future__ import annotations
 
-import threading
 from datetime import UTC, datetime
 
 import cv2
@@ -26,7 +25,6 @@ from cell.kinematics import inverse
 class LoopBackend:
     def __init__(self, loop):
         self.loop = loop
-        self._lock = threading.Lock()
 
     def snapshot(self) -> dict:
         lp, st = self.loop, self.loop.state
@@ -75,8 +73,7 @@ class LoopBackend:
                           {"kind": "station-teach", "by": "operator", "at": now.isoformat(),
                            "note": f"taught on frame {lp.state.frame_index}"},
                           obstacles=others, grasp_z_mm=z, joints=joints)
-        with self._lock:
-            lp.add_example(ex)
+        lp.add_example(ex)
         return {"ok": True, "example_id": ex.id, "n_examples": len(lp.examples),
                 "contacts_mm": np.round(contacts, 2).tolist(),
                 "opening_mm": round(opening, 2), "joints": None if joints is None else joints.rounded(3).as_dict(),

@@ -19,6 +19,7 @@ the run ends there with the reason.
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -115,6 +116,7 @@ class CellLoop:
         self.state = LoopState()
         self._frame_counter = 0
         self._last_picked: tuple[str, Part] | None = None
+        self._examples_lock = threading.Lock()
         self.rebuild_planner()
 
     # ------------------------------------------------------------------ learning
@@ -124,12 +126,14 @@ class CellLoop:
         self.planner = GraspPlanner(self.cell, self.examples, self.planner_params)
 
     def add_example(self, example: GraspExample) -> None:
-        if self.examples_out != self.examples_path:
-            if not self.examples_out.exists():
-                write_atomic(self.examples_out, self.examples_path.read_bytes())
-            self.examples_path = self.examples_out
-        append_examples(self.examples_path, [example])
-        self.rebuild_planner()
+        """Append an example and rebuild the model (from the loop thread or the station's)."""
+        with self._examples_lock:
+            if self.examples_out != self.examples_path:
+                if not self.examples_out.exists():
+                    write_atomic(self.examples_out, self.examples_path.read_bytes())
+                self.examples_path = self.examples_out
+            append_examples(self.examples_path, [example])
+            self.rebuild_planner()
         self.control.log("example", f"{'valid' if example.valid else 'invalid'} example {example.id} added; "
                          "model rebuilt", id=example.id)
 

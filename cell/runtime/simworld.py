@@ -12,6 +12,7 @@ left the world. Nothing in the loop knows about this: it sees frames and the bus
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -44,6 +45,7 @@ class SimWorld:
         self.held: str | None = None
         self.removed: list[str] = []
         self.events: list[str] = []
+        self._lock = threading.Lock()
         self._held_width = 0.0
         self._closest = 0.0
         self._held_z = 0.0
@@ -58,7 +60,8 @@ class SimWorld:
     def visible_parts(self) -> list[Part]:
         """The parts the camera sees (a held part is above the tray, out of the frame's way
         once the arm has carried it off)."""
-        return [p for pid, p in self.parts.items() if pid != self.held]
+        with self._lock:  # the drives' clock thread changes the world meanwhile
+            return [p for pid, p in self.parts.items() if pid != self.held]
 
     def _pose(self):
         pos = self.drives.positions()
@@ -66,6 +69,10 @@ class SimWorld:
         return forward(j, self.cell.scara), pos["gripper"]
 
     def _between_jaws(self) -> float | None:
+        with self._lock:
+            return self._between_jaws_locked()
+
+    def _between_jaws_locked(self) -> float | None:
         tool, opening = self._pose()
         centre = np.array([tool.x_mm, tool.y_mm])
         for part in sorted(self.parts.values(), key=lambda p: -p.z_top_mm):
@@ -91,6 +98,10 @@ class SimWorld:
         return None
 
     def _track(self) -> None:
+        with self._lock:
+            self._track_locked()
+
+    def _track_locked(self) -> None:
         if self.held is None:
             return
         tool, opening = self._pose()

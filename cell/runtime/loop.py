@@ -33,6 +33,7 @@ from cell.errors import BadInput, CellError, NoFeasibleGrasp
 from cell.examples import GraspExample, append_examples, load_examples
 from cell.fileio import write_atomic
 from cell.grasp.synthesis import Grasp, GraspPlanner
+from cell.kinematics import Joints
 from cell.runtime.control import Faulted, RunControl, Stopped
 from cell.runtime.matching import Region, locate
 from cell.runtime.motion import above, pick_commands
@@ -117,6 +118,7 @@ class CellLoop:
         self._frame_counter = 0
         self._last_picked: tuple[str, Part] | None = None
         self._examples_lock = threading.Lock()
+        self.home_first: Joints | None = None  # set: move there once the operator lets the loop run
         self.rebuild_planner()
 
     # ------------------------------------------------------------------ learning
@@ -162,6 +164,9 @@ class CellLoop:
 
     def _one_part(self, part_id: str) -> None:
         self.control.checkpoint("frame", step=len(self.assembly.sequence) - len(self.remaining), part=part_id)
+        if self.home_first is not None:  # the first motion waits for the operator's Run
+            home, self.home_first = self.home_first, None
+            self.arm.move_joints(home)
         if self.arm.faults:
             self.arm.reset_faults()
             self._retreat()

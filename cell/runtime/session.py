@@ -157,10 +157,11 @@ def run_session(cfg: RunConfig) -> dict:
                         options=LoopOptions(on_no_grasp=cfg.on_no_grasp, interactive=cfg.station))
         _progress(control, say)
         try:
-            arm.move_joints(home_joints(cell))
             if cfg.station:
+                loop.home_first = home_joints(cell)  # nothing moves before the operator presses Run
                 summary = _with_station(loop, control, cfg, say)
             else:
+                arm.move_joints(home_joints(cell))
                 control.run(by="cell run")
                 summary = loop.run()
         except KeyboardInterrupt:

@@ -186,10 +186,14 @@ def test_replay_with_other_examples_reports_differences(tmp_path, capsys):
     assert any("grasp" in d for d in result["differences"])
 
 
-def test_a_drive_fault_stops_everything_and_names_the_node(short_assembly):
-    s = run_session(RunConfig(assembly=short_assembly, seed=3, drive_fault=("j2", "emcy", {"after_s": 0.3})))
+@pytest.mark.parametrize("node,kind", [("j2", "emcy"), ("j1", "following_error")])
+def test_a_drive_fault_stops_everything_names_the_node_and_replays(short_assembly, tmp_path, capsys, node, kind):
+    rec = tmp_path / "fault"
+    s = run_session(RunConfig(assembly=short_assembly, seed=3, drive_fault=(node, kind, {"after_s": 0.3}), record=rec))
     assert s["status"] == "stopped" and s["parts_removed"] == 0
-    assert "j2" in s["stopped"] and "EMCY" in s["stopped"]
+    assert s["stopped"].startswith(f"{node}: {node} (node") and "EMCY" in s["stopped"]
+    code, out, err = run_cli("replay", rec, capsys=capsys)  # the same drive faults again in the replay
+    assert code == 0, err
 
 
 def test_the_session_rrd_holds_the_pipeline(recorded):

@@ -13,6 +13,7 @@ grips, so the sequence goes on.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -75,6 +76,8 @@ class Comparison:
             return  # timings only: another run's are others
         if record.get("type") == "commands":
             self._set_gripper(record)
+            if self.strict:
+                self._replay_drive_fault()
         if self.position >= len(self.recorded):
             self._diverged(f"decision #{self.position} ({record.get('type')}): the recording has no more decisions")
             return
@@ -102,6 +105,18 @@ class Comparison:
         for i in range(self.position - 1, len(self.recorded)):
             if self.recorded[i].get("type") == record.get("type"):
                 self.position = i + 1
+                return
+
+    def _replay_drive_fault(self) -> None:
+        """A pick the recording shows ending in a drive fault: the same drive faults again (its
+        EMCY code), so the replay takes the same path (the moment within the pick may differ)."""
+        for rec in self.recorded[self.position:]:
+            if rec.get("type") == "executed":
+                return
+            if rec.get("type") == "stop":
+                m = re.match(r"(\w+) \(node \d+\): EMCY 0x([0-9A-Fa-f]{4})", rec.get("reason", ""))
+                if m and rec.get("source") == m.group(1):
+                    self.drives.inject_fault("emcy", m.group(1), code=int(m.group(2), 16), after_s=0.0)
                 return
 
     def _set_gripper(self, record: dict) -> None:

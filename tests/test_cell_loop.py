@@ -266,3 +266,35 @@ def test_an_operator_stop_in_the_recording_ends_the_replay_there():
     sink.write_decision({"type": "perception", "frame": 0})
     with pytest.raises(StopRun):
         sink.write_decision({"type": "grasp", "part": "nut"})
+
+
+def test_a_pick_whose_links_would_hit_a_tall_part_is_refused_before_anything_moves(short_assembly, tmp_path):
+    """A SCARA with a low forearm (underside 120 mm) and a 130 mm column under its way to the
+    drop-off: the pick is refused before any of its commands is sent."""
+    from cell.cellconfig import default_cell_path, load_cell
+    from cell.kinematics import Joints, elbow_points
+    from cell.runtime.motion import dropoff_joints
+
+    raw = json.loads(default_cell_path().read_text())
+    raw["scara"].update(link1_bottom_z_mm=150.0, link2_bottom_z_mm=120.0)
+    cell_file = tmp_path / "low_arm.json"
+    cell_file.write_text(json.dumps(raw))
+    cell = load_cell(cell_file)
+    drop = dropoff_joints(cell, Joints(0, 90, 150, 0))
+    _, e, w = elbow_points(drop, cell.scara)
+    cx, cy = (e + w) / 2
+    d = json.loads(short_assembly.read_text())
+    d["parts"].append({"id": "column", "outline": [[cx - 15, cy - 15], [cx + 15, cy - 15], [cx + 15, cy + 15],
+                                                   [cx - 15, cy + 15]], "z_top": 130.0})
+    d["sequence"].append("column")
+    p = tmp_path / "column.json"
+    p.write_text(json.dumps(d))
+    s = run_session(RunConfig(assembly=p, cell=cell_file, seed=3, record=tmp_path / "r"))
+    assert s["status"] == "stopped" and "links would hit column" in s["stopped"], s.get("stopped")
+    from cell.recording import RecordingReader
+
+    decisions = RecordingReader(tmp_path / "r").decisions
+    refused = decisions[-1]["reason"].split(":")[0]
+    assert decisions[-1]["type"] == "stop"
+    sent = [x["part"] for x in decisions if x["type"] == "commands"]
+    assert refused not in sent and sent == [r["part"] for r in s["parts"]]  # nothing of that pick was sent

@@ -29,6 +29,7 @@ import numpy as np
 from shapely.geometry import Polygon
 
 from cell.cellconfig import Cell
+from cell.configuration import link_collisions
 from cell.errors import BadInput, CellError, NoFeasibleGrasp
 from cell.examples import GraspExample, append_examples, load_examples
 from cell.fileio import write_atomic
@@ -405,6 +406,11 @@ class CellLoop:
 
         commands = pick_commands(grasp.joints, grasp.opening_mm, self.cell,
                                  safe_z_mm=self._safe_z_mm(part_id, grasp.grasp_z_mm))
+        others = [p for pid, p in self.poses.items() if pid != part_id]
+        for c in commands:  # the links at every target: the carried part is in the jaws, not on the tray
+            hit = link_collisions(c.joints, self.cell, others) if c.joints is not None else []
+            if hit:
+                raise CellError(f"{part_id}: at '{c.label}' the arm's links would hit {', '.join(hit)}")
         self.sink.write_decision({"type": "commands", "part": part_id, "attempt": attempt,
                                   "commands": [c.to_json() for c in commands]})
         self.control.checkpoint("pick", part=part_id)

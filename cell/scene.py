@@ -44,6 +44,13 @@ class Part:
     def height_mm(self) -> float:
         return self.z_top_mm - self.z_bottom_mm
 
+    def lies_on(self, other: Part) -> bool:
+        """Does this part rest on `other`: its bottom on the other's top (within 0.5 mm) and its
+        outline (nine tenths of it) over the other's in plan? A part on a base plate moves with
+        the plate, and does not stand out against the tray on its own."""
+        return (self.id != other.id and abs(self.z_bottom_mm - other.z_top_mm) <= 0.5
+                and self.polygon.intersection(other.polygon).area > 0.9 * self.polygon.area)
+
     def moved(self, dx_mm: float, dy_mm: float, dtheta_deg: float = 0.0, about=None) -> Part:
         """The same part rotated by dtheta about `about` (default: its centroid), then shifted."""
         c = np.asarray(about if about is not None else self.polygon.centroid.coords[0], float)

@@ -338,13 +338,7 @@ class CellLoop:
     def _carrier(self, part: Part, found: dict) -> str | None:
         """The seen part this one lies on (its bottom on the other's top, inside its outline
         in plan): a part on a base plate does not stand out against the tray on its own."""
-        for cid in found:
-            c = self.poses.get(cid)
-            if c is None or cid == part.id or abs(part.z_bottom_mm - c.z_top_mm) > 0.5:
-                continue
-            if part.polygon.intersection(c.polygon).area > 0.9 * part.polygon.area:
-                return cid
-        return None
+        return next((cid for cid in found if cid in self.poses and part.lies_on(self.poses[cid])), None)
 
     def _plan(self, scene: Scene, part_id: str) -> list[Grasp] | None:
         try:

@@ -79,14 +79,12 @@ def displaced(assembly: Assembly, shift_mm: float, seed: int):
     moves: dict[str, tuple] = {}
     out = []
     for p in sorted(assembly.parts, key=lambda q: q.z_bottom_mm):
-        carrier = next((c for c in out if abs(p.z_bottom_mm - c.z_top_mm) <= 0.5
-                        and p.polygon.intersection(c.polygon).area > 0.9 * p.polygon.area), None)
+        carrier = next((c for c in out if p.lies_on(c)), None)
         if carrier is not None:
             moves[p.id] = moves[carrier.id]
         else:
-            nominal = assembly.parts[[q.id for q in assembly.parts].index(p.id)]
             moves[p.id] = (*rng.uniform(-shift_mm, shift_mm, 2), rng.uniform(-2 * shift_mm, 2 * shift_mm),
-                           nominal.polygon.centroid.coords[0])
+                           p.polygon.centroid.coords[0])
         out.append(p)
     return [p.moved(*moves[p.id][:3], about=moves[p.id][3]) for p in assembly.parts]
 

@@ -179,8 +179,8 @@ class CellLoop:
         if part_id not in located:
             self._stop_and_ask("vision", f"{part_id} is not found in frame {index}")
             return
-        present = list(self.poses)  # everything not removed, skipped parts included: they still lie there
-        scene = Scene(tuple(self.poses[p] for p in present), part_id, source=f"frame {index}")
+        # everything not removed, skipped parts included: they still lie there
+        scene = Scene(tuple(self.poses.values()), part_id, source=f"frame {index}")
         report = PartReport(part_id, "removed")
         grasps = self._plan(scene, part_id)
         report.planning_s += time.perf_counter() - t0

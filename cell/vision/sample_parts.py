@@ -97,12 +97,8 @@ def random_layout(rng: np.random.Generator, n: int, kinds=None, tray=((215.0, 48
             break
         kind = kinds[int(rng.integers(len(kinds)))]
         p = make_part(kind, f"{kind}_{i}", rng.uniform(*tray[0]), rng.uniform(*tray[1]), rng.uniform(-180, 180))
-        minx, miny, maxx, maxy = p.polygon.bounds
-        if minx < tray[0][0] or maxx > tray[0][1] or miny < tray[1][0] or maxy > tray[1][1]:
-            continue
-        if any(p.polygon.distance(q.polygon) < gap_mm for q in placed):
-            continue
-        placed.append(p)
+        if _fits(p, placed, tray, gap_mm):
+            placed.append(p)
     return placed
 
 
@@ -117,10 +113,14 @@ def random_layout_of(rng: np.random.Generator, n: int, pool: list[Part],
         c = np.asarray(tpl.polygon.centroid.coords[0])
         p = tpl.moved(rng.uniform(*tray[0]) - c[0], rng.uniform(*tray[1]) - c[1], rng.uniform(-180, 180))
         p = Part(f"{tpl.id}_{i}", p.outline_mm, p.holes_mm, p.z_bottom_mm, p.z_top_mm, p.direction, dict(p.meta))
-        minx, miny, maxx, maxy = p.polygon.bounds
-        if minx < tray[0][0] or maxx > tray[0][1] or miny < tray[1][0] or maxy > tray[1][1]:
-            continue
-        if any(p.polygon.distance(q.polygon) < gap_mm for q in placed):
-            continue
-        placed.append(p)
+        if _fits(p, placed, tray, gap_mm):
+            placed.append(p)
     return placed
+
+
+def _fits(p: Part, placed: list[Part], tray, gap_mm: float) -> bool:
+    """Inside the tray box and at least gap_mm from every part already placed."""
+    minx, miny, maxx, maxy = p.polygon.bounds
+    if minx < tray[0][0] or maxx > tray[0][1] or miny < tray[1][0] or maxy > tray[1][1]:
+        return False
+    return not any(p.polygon.distance(q.polygon) < gap_mm for q in placed)

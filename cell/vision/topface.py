@@ -20,7 +20,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
-MIN_WALL_PX = 2.0  # narrower walls: the silhouette mapped point by point is as good
+MIN_WALL_PX = 1.0  # narrower walls: the two planes map the silhouette within half a pixel
 WALL_SHADE = 0.81  # a wall pixel is darker than this x the top's level (walls: about 0.6 - 0.7)
 TOP_LEVEL_PERCENTILE = 60  # the top face is most of the silhouette; highlights are a few per cent
 SWEEP_TOLERANCE = 1.5  # silhouette pixels the swept top face may miss or add, per pixel of perimeter

@@ -18,6 +18,7 @@ from cell.vision.sources import write_image
 from drivers import open_bus, sim
 
 DEFAULT = Path(str(resources.files("cell") / "data" / "assemblies" / "default.json"))
+SHIPPED_FRAMES = Path(__file__).resolve().parents[1] / "recordings" / "shipped" / "frames"
 
 
 @pytest.fixture
@@ -68,14 +69,32 @@ def test_the_real_cell_removes_a_part_seen_by_its_camera(tmp_path, washer_only, 
     assert manifest["status"] == "complete" and manifest["meta"]["real_cell"]["channel"] == channel
 
 
-def test_a_camera_of_another_resolution_stops_the_run(tmp_path, washer_only, served_drives, capsys):
-    channel, _ = served_drives
-    camera = frames_folder(tmp_path / "camera", [np.full((480, 640, 3), 90, np.uint8)] * 3)  # every retry
+def test_a_camera_of_another_resolution_is_refused_before_anything_moves(tmp_path, washer_only, served_drives,
+                                                                         capsys):
+    channel, drives = served_drives
+    before = {n: d.position_counts for n, d in drives.drives.items()}
+    camera = frames_folder(tmp_path / "camera", [np.full((480, 640, 3), 90, np.uint8)])
     code, out, err = run_cli("run", washer_only, "--interface", "virtual", "--channel", channel, "--camera", camera,
+                             "--record", tmp_path / "rec", capsys=capsys)
+    assert code == 2 and "640 x 480 px" in err and "calibration" in err and "Traceback" not in err
+    assert {n: d.position_counts for n, d in drives.drives.items()} == before
+    manifest = json.loads((tmp_path / "rec" / "manifest.json").read_text())
+    assert manifest["status"] == "incomplete" and "640 x 480 px" in manifest["summary"]["error"]
+
+
+def test_the_operator_says_no_and_nothing_opens(monkeypatch, washer_only, capsys):
+    import drivers
+    from cell.vision import sources
+
+    opened = []
+    monkeypatch.setattr(drivers, "real_cell", lambda *a, **k: opened.append("bus"))
+    monkeypatch.setattr(sources.VideoCamera, "connect", lambda self: opened.append("camera"))
+    monkeypatch.setattr("sys.stdin.isatty", lambda: True, raising=False)
+    monkeypatch.setattr("builtins.input", lambda *a: "no")
+    code, out, err = run_cli("run", washer_only, "--interface", "socketcan", "--channel", "can7", "--camera", "0",
                              "--json", capsys=capsys)
-    summary = json.loads(out.splitlines()[-1])
-    assert code == 1 and summary["parts_removed"] == 0
-    assert "640 x 480 px" in summary["stopped"] and "calibration" in summary["stopped"]
+    assert code != 0 and "nothing moved" in err and "REAL cell (socketcan:can7)" in err
+    assert out == "" and opened == []  # the question went to stderr; no bus, no camera
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -83,8 +102,10 @@ def test_a_camera_of_another_resolution_stops_the_run(tmp_path, washer_only, ser
     (["--camera", "0"], "needs both --interface"),
     (["--channel", "can0"], "for the real cell"),
     (["--interface", "virtual", "--camera", "0", "--sim-miss", "nut"], "not of the real cell"),
+    (["--interface", "virtual", "--camera", "0", "--seed", "3"], "--seed: options of the simulated world"),
     (["--interface", "virtual", "--channel", "nobody-here", "--camera", "no/such/folder"], "cannot be opened"),
     (["--interface", "socketcan", "--channel", "vcan9", "--camera", "0"], "without confirmation"),
+    (["--interface", "socketcan", "--channel", "vcan9", "--camera", str(SHIPPED_FRAMES)], "live camera"),
 ])
 def test_bad_real_cell_options_are_bad_input(argv, message, capsys):
     code, out, err = run_cli("run", *argv, capsys=capsys)

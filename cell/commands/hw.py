@@ -107,9 +107,10 @@ def confirm_motion(args, what: str) -> None:
         return
     if not sys.stdin.isatty():
         raise BadInput(f"refusing to {what} on {args.interface}:{args.channel} without confirmation: pass --yes")
-    answer = input(
-        f"About to {what} on the REAL cell ({args.interface}:{args.channel}). Keep clear. Type 'yes' to continue: "
-    )
+    # the question on stderr: stdout may be JSON for a script reading it
+    print(f"About to {what} on the REAL cell ({args.interface}:{args.channel}). Keep clear. Type 'yes' to continue: ",
+          end="", file=sys.stderr, flush=True)
+    answer = input()
     if answer.strip().lower() != "yes":
         raise CellError("aborted by the operator; nothing moved")
 

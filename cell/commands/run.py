@@ -31,8 +31,9 @@ def add_arguments(p):
     p.add_argument("--station", action="store_true", help="serve the operator station on 127.0.0.1")
     p.add_argument("--port", type=int, default=8765, help="station port (default 8765)")
     p.add_argument("--token", help="station token (default: a random one, printed)")
-    p.add_argument("--seed", type=int, default=0, help="simulated world: seed of part displacement and noise")
-    p.add_argument("--shift-mm", type=float, default=2.0,
+    p.add_argument("--seed", type=int, default=None,
+                   help="simulated world: seed of part displacement and noise (default 0)")
+    p.add_argument("--shift-mm", type=float, default=None,
                    help="simulated world: parts lie up to this far from their nominal poses (default 2)")
     p.add_argument("--sim-miss", metavar="PART[:N]", action="append", default=[],
                    help="simulated world: the next N (default 1) grips of PART slide off it")
@@ -53,6 +54,9 @@ def run(args) -> int:
     from cell.runtime.session import RunConfig, run_session
     from cell.runtime.simworld import WorldFaults
 
+    world_options = {"--seed": args.seed is not None, "--shift-mm": args.shift_mm is not None}  # given?
+    args.seed = 0 if args.seed is None else args.seed
+    args.shift_mm = 2.0 if args.shift_mm is None else args.shift_mm
     if args.approve and not args.station:
         raise BadInput("--approve needs --station: someone must be there to approve")
     if args.seed < 0:
@@ -70,7 +74,7 @@ def run(args) -> int:
             miss[pid] = int(n or 1)
         except ValueError:
             raise BadInput(f"--sim-miss {m!r}: expected PART or PART:N") from None
-    real_cell = _real_cell(args)
+    real_cell = _real_cell(args, world_options)
     out = sys.stderr if args.json else sys.stdout
     cfg = RunConfig(assembly=args.assembly, cell=args.cell, calibration=args.calibration, examples=args.examples,
                     record=args.record, rerun=args.rerun, save_rrd=args.save, seed=args.seed,
@@ -85,7 +89,7 @@ def run(args) -> int:
     return 0 if summary["status"] == "complete" and summary["parts_removed"] == summary["parts_total"] else 1
 
 
-def _real_cell(args):
+def _real_cell(args, world_options: dict):
     """--interface and --camera together select the real cell; the simulated world's options do not
     apply to it. Moving the real arm is confirmed first (or --yes)."""
     from cell.errors import BadInput
@@ -98,10 +102,16 @@ def _real_cell(args):
     if args.interface is None or args.camera is None:
         raise BadInput("the real cell needs both --interface (its CAN bus) and --camera")
     sim = [o for o, v in (("--sim-miss", args.sim_miss), ("--sim-stuck", args.sim_stuck),
-                          ("--sim-bad-frames", args.sim_bad_frames)) if v]
+                          ("--sim-bad-frames", args.sim_bad_frames), *world_options.items()) if v]
     if sim:
         raise BadInput(f"{', '.join(sim)}: options of the simulated world, not of the real cell")
     from cell.commands.hw import confirm_motion
+    from cell.vision.sources import FileCamera, open_camera
+
+    if isinstance(open_camera(args.camera), FileCamera) and args.interface != "virtual":
+        # old frames show where parts were, and the next file "shows" a pick worked whether or not it did
+        raise BadInput(f"--camera {args.camera}: image files drive only the virtual bus (tests); the real arm "
+                       "needs a live camera")
 
     args.channel = args.channel or "can0"
     confirm_motion(args, "run the disassembly (the arm moves over the whole tray)")

@@ -267,6 +267,8 @@ class BandEdges:
 
     def narrowed(self, rows: np.ndarray, half_width: float) -> BandEdges:
         """The bands `rows` only, half_width (<= this one's) across: the pieces clipped again."""
+        if half_width > self.half_width:
+            raise ValueError(f"a band {half_width} mm wide cannot be cut from one {self.half_width} mm wide")
         pos = np.full(len(self.centers), -1)
         pos[rows] = np.arange(len(rows))
         keep = pos[self.bi] >= 0

@@ -216,11 +216,13 @@ def _simulated_sources(cfg: RunConfig, cell, cal, assembly: Assembly, can_log, s
 
 
 def _real_sources(real: RealCell, cell, cal, can_log, stack: contextlib.ExitStack):
-    """The drives on the cell's CAN bus and its camera: no world, what the camera shows is the truth."""
+    """The drives on the cell's CAN bus and its camera: no world, what the camera shows is the truth.
+    The camera is checked (it delivers frames of the calibration's size) before the bus is opened."""
     from cell.vision.sources import open_camera
     from drivers import real_cell
 
     camera = stack.enter_context(open_camera(real.camera, (cal.width_px, cal.height_px)))
+    cal.check_frame(camera.peek(), f"the first frame of camera {real.camera!r}")
     arm = stack.enter_context(real_cell(real.interface, real.channel, cell, record=can_log))
     return arm, camera, None
 

@@ -83,6 +83,10 @@ class FileCamera:
         self.index += 1
         return read_image(path)
 
+    def peek(self) -> np.ndarray:
+        """The frame `read()` returns next, without moving on."""
+        return read_image(self.paths[self.index % len(self.paths)])
+
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
@@ -91,11 +95,12 @@ class VideoCamera:
     """A camera OpenCV can open (`cv2.VideoCapture`: a device index, a video file, an RTSP or
     GStreamer URL); `read()` returns the newest frame as BGR uint8.
 
-    The driver's small frame queue is drained first (`grab` a few times): the cell wants what the
-    tray looks like now, not a frame taken before the arm moved away.
+    The cell wants what the tray looks like now, not a frame queued before the arm moved away:
+    the driver's queue is asked to hold one frame, and frames are grabbed until one takes at
+    least half a frame period to arrive (it was taken after the read began), at most MAX_GRABS.
     """
 
-    FLUSH_GRABS = 3
+    MAX_GRABS = 30
 
     def __init__(self, source: int | str, size_px: tuple[int, int] | None = None):
         self.source, self.size_px = source, size_px
@@ -109,6 +114,9 @@ class VideoCamera:
         if self.size_px is not None:
             cap.set(cv2.CAP_PROP_FRAME_WIDTH, self.size_px[0])
             cap.set(cv2.CAP_PROP_FRAME_HEIGHT, self.size_px[1])
+        cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)  # honoured by some backends only: the grabs below do the rest
+        fps = cap.get(cv2.CAP_PROP_FPS)
+        self._period_s = 1.0 / fps if fps and 1.0 <= fps <= 1000.0 else 1.0 / 30.0
         self._cap = cap
         return self
 
@@ -126,20 +134,32 @@ class VideoCamera:
     def read(self) -> np.ndarray:
         if self._cap is None:
             raise BadInput(f"camera {self.source!r} is not connected")
-        for _ in range(self.FLUSH_GRABS):
-            self._cap.grab()
-        ok, frame = self._cap.read()
+        import time
+
+        for _ in range(self.MAX_GRABS):
+            t0 = time.monotonic()
+            if not self._cap.grab():
+                raise BadInput(f"camera {self.source!r} delivered no frame")
+            if time.monotonic() - t0 >= 0.5 * self._period_s:  # waited for it: a fresh frame
+                break
+        ok, frame = self._cap.retrieve()
         if not ok or frame is None or frame.size == 0:
             raise BadInput(f"camera {self.source!r} delivered no frame")
         if frame.ndim == 2:
             frame = cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
         return frame
 
+    def peek(self) -> np.ndarray:
+        """A frame now (a live camera has no "next" frame to keep)."""
+        return self.read()
+
 
 def open_camera(spec: str, size_px: tuple[int, int] | None = None):
     """The frame source `spec` names: a folder (its images in name order) or one image file
     (played by `FileCamera`), a device index ("0", "/dev/video0"), or anything else
     `cv2.VideoCapture` opens (a video file, an rtsp:// or GStreamer URL). Not yet connected."""
+    if "://" in spec:  # rtsp://, http://: a stream, whatever its name ends with
+        return VideoCamera(spec, size_px)
     path = Path(spec)
     if path.is_dir():
         files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)

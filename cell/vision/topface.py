@@ -9,8 +9,10 @@ bolt holes are not seen through). The top face can: under light from above it is
 than the walls. This module finds it (pixels of the silhouette not darker than the top's level
 by a wall's shading) and accepts it only when it explains the silhouette: the top face swept
 by the parallax between the top and the bottom plane must give back the silhouette, within
-about a pixel along its boundary. A face that does not (walls as bright as the top, dark
-markings wider than a wall, highlights) is refused and the caller maps the silhouette instead.
+a band of a pixel or two along its boundary. A face that does not (walls as bright as the top,
+dark markings wider than the walls' sweep, highlights) is refused and the caller maps the
+silhouette instead. A dark marking no wider than the walls' sweep looks exactly like a hole too
+deep to see through and is taken for one (one image cannot tell them apart).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ MIN_WALL_PX = 1.0  # narrower walls: the two planes map the silhouette within ha
 WALL_SHADE = 0.81  # a wall pixel is darker than this x the top's level (walls: about 0.6 - 0.7)
 TOP_LEVEL_PERCENTILE = 60  # the top face is most of the silhouette; highlights are a few per cent
 SWEEP_TOLERANCE = 1.5  # silhouette pixels the swept top face may miss or add, per pixel of perimeter
+THICK_MISMATCH_PX = 40  # the largest region of the mismatch 3 px thick (corners and shading leave up to ~20)
 _SUBPIX = 4  # fillPoly fractional bits
 
 
@@ -96,18 +99,34 @@ def top_face_px(seg, frame: np.ndarray, cal, z_top_mm: float, z_bottom_mm: float
         elif len(ring) >= 5 and cv2.contourArea(cc) >= params.min_hole_area_px:
             holes.append(ring)
     outer = max(outers, key=lambda r: abs(_signed_area(r)))
-    # the face's boundary is pixel-exact; refine it like every outline, over a short range (a fin's
-    # top is a few pixels wide between two walls)
-    rings = refine_rings(frame, [outer, *holes], [False] + [True] * len(holes),
-                         replace(params, refine_range_px=2.0, scale=1))
-    return rings[0], rings[1:]
+    # refine like every outline, over a short range (a fin's top is a few pixels wide between two
+    # walls). The contours run through the centres of the face's boundary pixels, half a pixel
+    # inside its edge on average: a point where no edge is found is moved out by that much
+    rings, is_hole = [outer, *holes], [False] + [True] * len(holes)
+    refined = refine_rings(frame, rings, is_hole, replace(params, refine_range_px=2.0, scale=1))
+    out = [np.where(np.all(f == r, axis=1)[:, None], _moved_out(r, 0.5, h), f)
+           for r, f, h in zip(rings, refined, is_hole, strict=True)]
+    return out[0], out[1:]
+
+
+def _moved_out(ring: np.ndarray, by_px: float, hole: bool) -> np.ndarray:
+    """The ring moved by_px along its normal out of the face (into the hole for a hole)."""
+    from cell.vision.segment import _signed_area
+
+    tang = np.roll(ring, -1, axis=0) - np.roll(ring, 1, axis=0)
+    tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
+    sign = (1.0 if _signed_area(ring) > 0 else -1.0) * (-1.0 if hole else 1.0)
+    return ring + by_px * sign * np.column_stack([tang[:, 1], -tang[:, 0]])
 
 
 def _explains(face: np.ndarray, silhouette: np.ndarray, d: np.ndarray, gradient: np.ndarray, c: np.ndarray,
               perimeter_px: float) -> bool:
     """Does the top face swept from top to bottom (each pixel p by f * (d + gradient @ (p - c)),
-    f from 0 to 1) give back the silhouette, within SWEEP_TOLERANCE pixels per pixel of its
-    perimeter? c: the point where the shift is d, in the masks' pixel indices."""
+    f from 0 to 1) give back the silhouette? Rasterising leaves a band of a pixel or two along
+    the boundary; anything thicker (silhouette the swept face misses: a dark label taken for a
+    hole, wider than the walls' sweep fills; swept face beyond the silhouette: walls as bright
+    as the top taken for top) is refused, and so is a total over SWEEP_TOLERANCE pixels per
+    pixel of perimeter. c: the point where the shift is d, in the masks' pixel indices."""
     steps = int(np.ceil(np.hypot(*d))) + 1
     swept = face.copy()
     size = (face.shape[1], face.shape[0])
@@ -117,4 +136,9 @@ def _explains(face: np.ndarray, silhouette: np.ndarray, d: np.ndarray, gradient:
         shift = np.column_stack([a, f * d - f * gradient @ c]).astype(np.float32)
         swept |= cv2.warpAffine(face, shift, size, flags=cv2.INTER_NEAREST)
     swept = cv2.morphologyEx(swept, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
-    return int(np.count_nonzero(swept != silhouette)) <= SWEEP_TOLERANCE * perimeter_px
+    mismatch = (swept != silhouette).astype(np.uint8)
+    thick = cv2.erode(mismatch, np.ones((3, 3), np.uint8))  # what is left of regions 3 px thick or more
+    n, _, stats, _ = cv2.connectedComponentsWithStats(thick, connectivity=8)
+    if n > 1 and stats[1:, cv2.CC_STAT_AREA].max() > THICK_MISMATCH_PX:
+        return False
+    return int(np.count_nonzero(mismatch)) <= SWEEP_TOLERANCE * perimeter_px

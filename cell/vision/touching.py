@@ -101,14 +101,18 @@ def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_d
     k = 0
     for c in (1, 2):
         piece = cv2.morphologyEx((cl == c).astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-        n, comp, stats, _ = cv2.connectedComponentsWithStats(piece, connectivity=8)
+        # (connectedComponentsWithStats is ten times slower than labelling and counting)
+        n, comp = cv2.connectedComponents(piece, connectivity=8)
+        areas = np.bincount(comp.ravel(), minlength=n)
         for j in range(1, n):
+            if areas[j] < min_area:
+                continue  # a speck of colour
             sel = comp == j
             # edge pixels mix with the tray's colour: a piece owns the outline it comes near
             reach = cv2.dilate(sel.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
             # and is a body, not a band: a part's own wall seen from the side is a thin strip
             thick = float(cv2.distanceTransform(sel.astype(np.uint8), cv2.DIST_L2, 3).max()) >= MIN_PIECE_HALF_WIDTH
-            if stats[j, cv2.CC_STAT_AREA] >= min_area and (outline & reach).sum() >= 0.15 * n_out and thick:
+            if (outline & reach).sum() >= 0.15 * n_out and thick:
                 k += 1
                 seeds[sel] = k
     if k < 2:

@@ -295,7 +295,7 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin
         pl = parts_lab.astype(np.float32)
         k3 = np.ones((3, 3), np.uint8)
         hi = cv2.dilate(pl, k3)
-        lo = -cv2.dilate(np.where(pl > 0, -pl, np.float32(-1e9)).astype(np.float32), k3)
+        lo = cv2.erode(np.where(pl > 0, pl, np.float32(1e9)), k3)
         inside = keep[lab]  # only the regions still in question
         ys, xs = np.nonzero(inside)
         li = lab[ys, xs]
@@ -315,10 +315,11 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin
         h_det, w_det = det_hw or r.shape
         vp = ((np.array(p.vertical_px) / scale) if p.vertical_px is not None
               else np.array([w_det, h_det]) / 2.0) - np.asarray(origin)  # in the box's pixels
-        py, px = np.nonzero(parts_lab)
-        pli = parts_lab[py, px]
-        pcnt = np.maximum(np.bincount(pli, minlength=ns), 1)
-        pc = np.column_stack([np.bincount(pli, px, ns), np.bincount(pli, py, ns)])[owner] / pcnt[owner, None]
+        centres = np.zeros((ns, 2))  # of the parts that own a region still kept
+        for o in np.unique(owner[keep & (owner > 0)]):
+            m = cv2.moments((parts_lab == o).astype(np.uint8), binaryImage=True)
+            centres[o] = m["m10"] / m["m00"], m["m01"] / m["m00"]
+        pc = centres[owner]
         ax, ay = cx - pc[:, 0], cy - pc[:, 1]
         bx, by = vp[0] - pc[:, 0], vp[1] - pc[:, 1]
         cos = (ax * bx + ay * by) / np.maximum(np.hypot(ax, ay) * np.hypot(bx, by), 1e-9)
@@ -459,6 +460,12 @@ def _hole_holds(hole: np.ndarray, outline: np.ndarray, p: SegmentParams) -> bool
     if abs(_signed_area(hole)) < 0.5 * p.min_hole_area_px:
         return False
     ring = outline.astype(np.float32)
+    (u0, v0), (u1, v1) = hole.min(axis=0) - 1.0, hole.max(axis=0) + 1.0
+    a, b = outline, _ahead(outline, 1)
+    near = ((np.minimum(a[:, 0], b[:, 0]) <= u1) & (np.maximum(a[:, 0], b[:, 0]) >= u0)
+            & (np.minimum(a[:, 1], b[:, 1]) <= v1) & (np.maximum(a[:, 1], b[:, 1]) >= v0))
+    if not near.any():  # no edge of the outline comes near: the hole lies wholly inside or outside
+        return cv2.pointPolygonTest(ring, (float(hole[0, 0]), float(hole[0, 1])), False) > 0
     return all(cv2.pointPolygonTest(ring, (float(u), float(v)), True) > 0.5 for u, v in hole)
 
 

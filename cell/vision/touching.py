@@ -150,7 +150,7 @@ def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, grey: np.ndarray
     if peak < 2 * r_min:
         return "one", None
     for level in np.arange(1.0, peak, max(1.0, peak / 12)):
-        n, cores = cv2.connectedComponents((dt > level).astype(np.uint8), connectivity=8)
+        n, cores = cv2.connectedComponents(cv2.compare(dt, _below_f32(level), cv2.CMP_GT), connectivity=8)
         if n <= 2:
             continue
         idx = np.arange(1, n)
@@ -163,7 +163,9 @@ def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, grey: np.ndarray
         if len(big) < 2:
             continue
         lobe_peaks = peak_of[big]
-        grown = cv2.dilate(np.isin(cores, big).astype(np.uint8),
+        is_big = np.zeros(n, np.uint8)
+        is_big[big] = 1
+        grown = cv2.dilate(is_big[cores],
                            cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * int(level) + 3,) * 2))
         cover = float((grown.astype(bool) & sub.astype(bool)).sum()) / float(sub.sum())
         if cover < COVER_MIN:
@@ -192,6 +194,12 @@ def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, grey: np.ndarray
             return "merged", None
         return "split", parts
     return "one", None
+
+
+def _below_f32(x: float) -> float:
+    """The largest float32 at most x: for float32 values v, v > it exactly when v > x."""
+    t = np.float32(x)
+    return float(np.nextafter(t, np.float32(-np.inf)) if t > x else t)
 
 
 def _seam_visible(parts: np.ndarray, ws: np.ndarray, grey: np.ndarray | None, contrast_dn: float) -> bool:

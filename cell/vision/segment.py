@@ -120,6 +120,9 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
     dw, dh = w // s, h // s
     det = cv2.resize(frame, (dw, dh), interpolation=cv2.INTER_AREA) if s > 1 else frame
     det = det.astype(np.float32)
+    # the blurred copies do not depend on the tray: made in a helper thread while the tray is fitted
+    # (OpenCV releases the GIL; the fit is mostly Python and small numpy calls)
+    smoothed = _helper().submit(smoothed_copies, det)
     if reference_bgr is not None:
         ref = _as_bgr(reference_bgr)
         if ref.shape != frame.shape:
@@ -127,7 +130,7 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
         bg = reference_background(ref, (dw, dh))
     else:
         bg, _ = estimate_background(det, p.tray)
-    mask, boxes = part_mask(det, bg, p, s)
+    mask, boxes = part_mask(det, bg, p, s, smoothed.result())
     if not mask.any():
         return []  # the empty tray
     pieces = _split_regions(mask, boxes, p, s, det)
@@ -155,19 +158,40 @@ COARSE_EVIDENCE = 0.8  # x the weak-evidence thresholds
 BOX_FULL_FRAME = 0.6  # when the boxes cover more of the frame than this, one box for all
 
 
-def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int
+_HELPER: list = []
+
+
+def _helper():
+    """One helper thread for work that overlaps the main thread's (made on first use)."""
+    if not _HELPER:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _HELPER.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="segment"))
+    return _HELPER[0]
+
+
+def smoothed_copies(det: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The detection image blurred (noise), its every 4th pixel (to measure the noise on) and
+    its coarse copy (to find where anything differs from the tray), float32."""
+    sm = cv2.GaussianBlur(det, (0, 0), 0.8)
+    h, w = sm.shape[:2]
+    coarse = cv2.resize(sm, (max(1, w // COARSE), max(1, h // COARSE)), interpolation=cv2.INTER_AREA)
+    return sm, np.ascontiguousarray(sm[::4, ::4]), coarse
+
+
+def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int, smoothed=None
               ) -> tuple[np.ndarray, list[tuple[int, int, int, int]]]:
     """uint8 mask (0/1) of part pixels at detection resolution (steps 2 and 3), and the boxes
     (x0, y0, x1, y1) outside which it is 0. Only those boxes around what differs from the tray
-    are looked at closely."""
-    sm = cv2.GaussianBlur(det, (0, 0), 0.8)
+    are looked at closely. `smoothed`: `smoothed_copies(det)` if made already."""
+    sm, sparse, coarse = smoothed or smoothed_copies(det)
     # spread from the quietest quarter of the frame (the tray), valid while the tray covers a
     # quarter of the view: the 25th percentile of |N(0, s)| is 0.32 s
-    _, _, chroma_dn, bright_dn = _colour_change(np.ascontiguousarray(sm[::4, ::4]), np.ascontiguousarray(bg[::4, ::4]))
+    _, _, chroma_dn, bright_dn = _colour_change(sparse, np.ascontiguousarray(bg[::4, ::4]))
     noise_c, noise_b = _noise_spreads(chroma_dn, bright_dn)
     h, w = det.shape[:2]
     mask = np.zeros((h, w), np.uint8)
-    boxes = _work_boxes(sm, bg, p)
+    boxes = _work_boxes(coarse, bg, p)
     for x0, y0, x1, y1 in boxes:
         mask[y0:y1, x0:x1] = _mask_in_box(sm[y0:y1, x0:x1], bg[y0:y1, x0:x1], p, scale, noise_c, noise_b,
                                           (x0, y0), (h, w))
@@ -197,15 +221,14 @@ def _evidence(r, chroma, chroma_dn, bright_dn, p: SegmentParams, f: float, noise
             | ((r < 1.0 - p.darker_min) & (-bright_dn > k * noise_b)))
 
 
-def _work_boxes(sm, bg, p: SegmentParams) -> list[tuple[int, int, int, int]]:
+def _work_boxes(coarse, bg, p: SegmentParams) -> list[tuple[int, int, int, int]]:
     """Disjoint boxes (detection px) that hold everything that differs from the tray, with a
     margin: found on a coarse copy with the weak-evidence thresholds lowered (averaging keeps a
     part's change and lowers the noise; thin parts lose contrast). Each box holds whole clusters
-    of changed pixels."""
-    h, w = sm.shape[:2]
-    cw, ch = max(1, w // COARSE), max(1, h // COARSE)
-    r, chroma, chroma_dn, bright_dn = _colour_change(cv2.resize(sm, (cw, ch), interpolation=cv2.INTER_AREA),
-                                                     cv2.resize(bg, (cw, ch), interpolation=cv2.INTER_AREA))
+    of changed pixels. `coarse`: the blurred detection image at 1 / COARSE size."""
+    h, w = bg.shape[:2]
+    ch, cw = coarse.shape[:2]
+    r, chroma, chroma_dn, bright_dn = _colour_change(coarse, cv2.resize(bg, (cw, ch), interpolation=cv2.INTER_AREA))
     # the coarse copy's own noise (averaging lowers it), measured like the frame's
     noise_c, noise_b = _noise_spreads(chroma_dn, bright_dn)
     changed = (_evidence(r, chroma, chroma_dn, bright_dn, p, COARSE_EVIDENCE * p.hysteresis, noise_c, noise_b)
@@ -568,17 +591,20 @@ def refine_rings(frame: np.ndarray, rings: list[np.ndarray], is_hole: list[bool]
     todo = [i for i, r in enumerate(rings) if len(r) >= 5]
     if not todo:
         return list(rings)
-    normals, tangs = [], []
-    for i in todo:
-        ring = rings[i]
-        tang = _ahead(ring, 2) - _ahead(ring, -2)
-        tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
-        sign = (1.0 if _signed_area(ring) > 0 else -1.0) * (-1.0 if is_hole[i] else 1.0)
-        normals.append(sign * np.column_stack([tang[:, 1], -tang[:, 0]]))  # out of the material
-        tangs.append(tang)
+    # all rings' points in one array; each point's neighbours k steps along its own ring
+    lens = np.array([len(rings[i]) for i in todo])
+    starts = np.concatenate(([0], np.cumsum(lens)[:-1]))
     pts0 = np.concatenate([rings[i] for i in todo])
-    normal, tang = np.concatenate(normals), np.concatenate(tangs)
     n = len(pts0)
+    ring_of = np.repeat(np.arange(len(todo)), lens)
+    first, size = starts[ring_of], lens[ring_of]
+    local = np.arange(n) - first
+    tang = pts0[first + (local + 2) % size] - pts0[first + (local - 2) % size]
+    tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
+    nxt = pts0[first + (local + 1) % size]
+    area2 = np.add.reduceat(pts0[:, 0] * nxt[:, 1] - nxt[:, 0] * pts0[:, 1], starts)  # twice each ring's signed area
+    sign = np.where(area2 > 0, 1.0, -1.0) * np.where(np.array([is_hole[i] for i in todo]), -1.0, 1.0)
+    normal = sign[ring_of, None] * np.column_stack([tang[:, 1], -tang[:, 0]])  # out of the material
     rng_px = max(p.refine_range_px, 2.0 * p.scale)  # the coarse outline is up to a detection pixel off
     ts = np.arange(-rng_px, rng_px + 1e-9, 0.5)
     nt = len(ts)

@@ -41,7 +41,20 @@ def _centre_weights(h: int, w: int) -> np.ndarray:
 
 
 def estimate_background(image_bgr: np.ndarray, tray: str = "auto") -> tuple[np.ndarray, float]:
-    """The tray's colour field and its noise.
+    """The tray's colour field at the image's size, and its noise (see `fit_tray_field`)."""
+    h, w = image_bgr.shape[:2]
+    field, sigma = fit_tray_field(image_bgr, tray)
+    return field_at(field, (w, h)), sigma
+
+
+def field_at(field: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """The fitted colour field (from `fit_tray_field`) at another size (w, h), float32: resize maps
+    pixel centres consistently, so the smooth field lands where it was fitted."""
+    return cv2.resize(field, size, interpolation=cv2.INTER_LINEAR)
+
+
+def fit_tray_field(image_bgr: np.ndarray, tray: str = "auto") -> tuple[np.ndarray, float]:
+    """The tray's colour field, on a copy about FIT_WIDTH_PX wide, and its noise.
 
     Parameters
     ----------
@@ -53,7 +66,8 @@ def estimate_background(image_bgr: np.ndarray, tray: str = "auto") -> tuple[np.n
 
     Returns
     -------
-    background : ndarray of shape (h, w, 3) float32
+    field : ndarray of shape (sh, sw, 3) float32
+        The field on the small copy (`field_at` brings it to any size).
     sigma_dn : float
         Robust spread (1.4826 MAD) of the tray's residual colour distance, DN.
     """
@@ -95,10 +109,10 @@ def estimate_background(image_bgr: np.ndarray, tray: str = "auto") -> tuple[np.n
         new = res < max(3.0 * sigma, 6.0)
         if new.sum() < 0.1 * len(small):
             break
+        if np.array_equal(new, inl):
+            break  # the same inliers again: the remaining rounds would repeat this fit
         inl = new
-    bg_small = (a @ coef).reshape(sh, sw, 3).astype(np.float32)
-    # resize maps pixel centres consistently, so the smooth field lands where it was fitted
-    return cv2.resize(bg_small, (w, h), interpolation=cv2.INTER_LINEAR), sigma
+    return (a @ coef).reshape(sh, sw, 3).astype(np.float32), sigma
 
 
 def _box3(a: np.ndarray, axis: int) -> np.ndarray:

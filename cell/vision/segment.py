@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from cell.errors import BadInput
-from cell.vision.background import estimate_background, reference_background
+from cell.vision.background import field_at, fit_tray_field, reference_background
 
 SMALL_FRAME_PX = 960
 WALL_FACING_COS = 0.3
@@ -128,9 +128,13 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
         if ref.shape != frame.shape:
             raise BadInput(f"the reference image is {ref.shape[1]} x {ref.shape[0]} px, the frame {w} x {h} px")
         bg = reference_background(ref, (dw, dh))
+        bg_coarse = None
     else:
-        bg, _ = estimate_background(det, p.tray)
-    mask, boxes = part_mask(det, bg, p, s, smoothed.result())
+        field, _ = fit_tray_field(det, p.tray)
+        bg = field_at(field, (dw, dh))
+        # the coarse copy straight from the fitted field, not by averaging `bg` (the same smooth field)
+        bg_coarse = field_at(field, (max(1, dw // COARSE), max(1, dh // COARSE)))
+    mask, boxes = part_mask(det, bg, p, s, smoothed.result(), bg_coarse)
     if not mask.any():
         return []  # the empty tray
     pieces = _split_regions(mask, boxes, p, s, det)
@@ -179,11 +183,12 @@ def smoothed_copies(det: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return sm, np.ascontiguousarray(sm[::4, ::4]), coarse
 
 
-def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int, smoothed=None
-              ) -> tuple[np.ndarray, list[tuple[int, int, int, int]]]:
+def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int, smoothed=None,
+              bg_coarse: np.ndarray | None = None) -> tuple[np.ndarray, list[tuple[int, int, int, int]]]:
     """uint8 mask (0/1) of part pixels at detection resolution (steps 2 and 3), and the boxes
     (x0, y0, x1, y1) outside which it is 0. Only those boxes around what differs from the tray
-    are looked at closely. `smoothed`: `smoothed_copies(det)` if made already."""
+    are looked at closely. `smoothed`: `smoothed_copies(det)` if made already; `bg_coarse`: the
+    tray at 1 / COARSE size if known (else `bg` averaged down)."""
     sm, sparse, coarse = smoothed or smoothed_copies(det)
     # spread from the quietest quarter of the frame (the tray), valid while the tray covers a
     # quarter of the view: the 25th percentile of |N(0, s)| is 0.32 s
@@ -191,7 +196,9 @@ def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int, smo
     noise_c, noise_b = _noise_spreads(chroma_dn, bright_dn)
     h, w = det.shape[:2]
     mask = np.zeros((h, w), np.uint8)
-    boxes = _work_boxes(coarse, bg, p)
+    if bg_coarse is None:
+        bg_coarse = cv2.resize(bg, coarse.shape[1::-1], interpolation=cv2.INTER_AREA)
+    boxes = _work_boxes(coarse, bg_coarse, p, (h, w))
     for x0, y0, x1, y1 in boxes:
         mask[y0:y1, x0:x1] = _mask_in_box(sm[y0:y1, x0:x1], bg[y0:y1, x0:x1], p, scale, noise_c, noise_b,
                                           (x0, y0), (h, w))
@@ -221,14 +228,15 @@ def _evidence(r, chroma, chroma_dn, bright_dn, p: SegmentParams, f: float, noise
             | ((r < 1.0 - p.darker_min) & (-bright_dn > k * noise_b)))
 
 
-def _work_boxes(coarse, bg, p: SegmentParams) -> list[tuple[int, int, int, int]]:
+def _work_boxes(coarse, bg_coarse, p: SegmentParams, det_hw: tuple[int, int]) -> list[tuple[int, int, int, int]]:
     """Disjoint boxes (detection px) that hold everything that differs from the tray, with a
     margin: found on a coarse copy with the weak-evidence thresholds lowered (averaging keeps a
     part's change and lowers the noise; thin parts lose contrast). Each box holds whole clusters
-    of changed pixels. `coarse`: the blurred detection image at 1 / COARSE size."""
-    h, w = bg.shape[:2]
+    of changed pixels. `coarse`, `bg_coarse`: the blurred detection image and the tray at
+    1 / COARSE size; `det_hw` the detection image's size."""
+    h, w = det_hw
     ch, cw = coarse.shape[:2]
-    r, chroma, chroma_dn, bright_dn = _colour_change(coarse, cv2.resize(bg, (cw, ch), interpolation=cv2.INTER_AREA))
+    r, chroma, chroma_dn, bright_dn = _colour_change(coarse, bg_coarse)
     # the coarse copy's own noise (averaging lowers it), measured like the frame's
     noise_c, noise_b = _noise_spreads(chroma_dn, bright_dn)
     changed = (_evidence(r, chroma, chroma_dn, bright_dn, p, COARSE_EVIDENCE * p.hysteresis, noise_c, noise_b)

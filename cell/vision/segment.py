@@ -509,31 +509,30 @@ def _tray_dips(det, bg, region, part_bgr, box, p: SegmentParams) -> tuple[int, i
     if not inner.any():
         return None
     # the tray's colour varies slowly: one part-minus-tray colour difference for the whole box
-    d = np.asarray(part_bgr, np.float32) - np.asarray(cv2.mean(b)[:3], np.float32)
+    tray = cv2.mean(b)[:3]
+    d = np.asarray(part_bgr, np.float32) - np.asarray(tray, np.float32)
     f = cv2.transform(img - b, (d / max(float(d @ d), 1.0)).reshape(1, 3))
-    ch = _ratio_chroma(img, b)[1]
-    dips = (((f < 0.8) & (ch < 2.0 * p.chroma_min)) | (ch < 0.5 * _chroma_of(part_bgr, b))) & inner.astype(bool)
-    if not dips.any():
-        return None
-    ys, xs = np.nonzero(dips)
-    return int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1
+    ch = _ratio_chroma(img, b, ratio=False)[1]
+    dips = (((f < 0.8) & (ch < 2.0 * p.chroma_min)) | (ch < 0.5 * _chroma_of(part_bgr, tray))) & inner.astype(bool)
+    bx, by, bw, bh = cv2.boundingRect(dips.view(np.uint8))
+    return None if bw == 0 else (bx, by, bx + bw, by + bh)
 
 
-def _ratio_chroma(img: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Brightness ratio and chroma change (L1 over the three channels of the colour divided by
-    its sum) of an unblurred image against the tray; float32 (h, w) each."""
+def _ratio_chroma(img: np.ndarray, b: np.ndarray, ratio: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
+    """Brightness ratio (None unless `ratio`) and chroma change (L1 over the three channels of the
+    colour divided by its sum) of an unblurred image against the tray; float32 (h, w) each."""
     ones = np.ones((1, 3), np.float32)
     si = cv2.transform(img, ones) + 1.0
     sb = cv2.transform(b, ones) + 1.0
     # (cv2.multiply by a merged reciprocal: the same products as numpy's broadcast, faster)
     diff = cv2.absdiff(cv2.multiply(img, cv2.merge([1.0 / si] * 3)), cv2.multiply(b, cv2.merge([1.0 / sb] * 3)))
-    return si / sb, cv2.transform(diff, ones)
+    return (si / sb if ratio else None), cv2.transform(diff, ones)
 
 
-def _chroma_of(part_bgr, tray_bgr: np.ndarray) -> float:
+def _chroma_of(part_bgr, tray_mean_bgr) -> float:
     """Chroma change (L1 of normalised colour) of a part's mean colour against the tray's mean."""
     pc = np.asarray(part_bgr, np.float64)
-    tc = np.asarray(cv2.mean(tray_bgr)[:3], np.float64)
+    tc = np.asarray(tray_mean_bgr, np.float64)
     return float(np.abs(pc / (pc.sum() + 1.0) - tc / (tc.sum() + 1.0)).sum())
 
 
@@ -559,12 +558,13 @@ def _holes_full_res(frame, bg, outline, part_bgr, box, p: SegmentParams, scale: 
     inside = cv2.erode(inside, np.ones((5, 5), np.uint8))  # away from the outline's blur
     if not inside.any():
         return []
-    d = np.asarray(part_bgr, np.float32) - np.asarray(cv2.mean(b)[:3], np.float32)  # the tray varies slowly
+    tray = cv2.mean(b)[:3]
+    d = np.asarray(part_bgr, np.float32) - np.asarray(tray, np.float32)  # the tray varies slowly
     f = cv2.transform(img - b, (d / max(float(d @ d), 1.0)).reshape(1, 3))
     r, chroma = _ratio_chroma(img, b)
     # nearer the tray's colour than the part's; for a coloured part the chroma alone decides, as
     # the tray seen through a hole lies in the part's shadow (darker, towards a dark part's colour)
-    half_chroma = 0.5 * _chroma_of(part_bgr, b)
+    half_chroma = 0.5 * _chroma_of(part_bgr, tray)
     tray_like = (chroma < max(p.chroma_min, half_chroma)) & (r > 1.0 - p.darker_min) & (r < 1.0 + p.brighter_min)
     holes = (((f < 0.5) | (chroma < half_chroma)) & tray_like & inside.astype(bool)).astype(np.uint8)
     holes = cv2.morphologyEx(holes, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))

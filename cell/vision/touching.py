@@ -55,9 +55,9 @@ def _region_pieces(sub, grey, bgr, p, r_min: float, min_area_det: float) -> list
         # (bgr holds whole DN 0..255 in float32: dividing in float32 is exact enough and no clip is needed)
         lab_img = cv2.cvtColor(bgr / np.float32(255.0), cv2.COLOR_BGR2LAB)
         pieces = split_by_colour(sub, lab_img, min_area_det, p.colour_split)
-    pieces = sub.astype(np.int32) if pieces is None else pieces
     # each colour piece may still hold touching parts; each split lobe is looked at again
-    work = [((pieces == c).astype(np.uint8), 0) for c in range(1, int(pieces.max()) + 1)]
+    work = [(sub, 0)] if pieces is None else [((pieces == c).astype(np.uint8), 0)
+                                              for c in range(1, int(pieces.max()) + 1)]
     found = []
     while work:
         piece, depth = work.pop()
@@ -79,7 +79,7 @@ def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_d
     highlight on metal lie inside their part and do not split it. Returns a label image
     (1..k inside the region) or None.
     """
-    area = int(sub.sum())
+    area = cv2.countNonZero(sub)
     if area < 2 * min_area:
         return None
     # lightness counts half: a highlight on metal or a shaded face is the same part, brighter
@@ -88,7 +88,7 @@ def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_d
     if float((std.ravel() * weight).max()) < 0.25 * min_delta_e:
         return None  # one colour: nothing to split
     mask = sub.astype(bool)
-    px = lab_img[mask].astype(np.float32) * weight
+    px = lab_img[mask] * weight  # (float32 already)
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5)
     _, lab, centres = cv2.kmeans(px, 2, None, crit, 1, cv2.KMEANS_PP_CENTERS)
     if np.linalg.norm(centres[0] - centres[1]) < min_delta_e:
@@ -139,12 +139,13 @@ def fill_holes(mask: np.ndarray) -> np.ndarray:
 
 
 def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, grey: np.ndarray | None):
-    sub = fill_holes(sub)  # holes would put false saddles into the distance transform
+    # (outer contours are the same with the holes filled or not)
     contours, _ = cv2.findContours(sub, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     if len(contours) == 1:
         hull_area = cv2.contourArea(cv2.convexHull(contours[0]))
         if hull_area > 0 and cv2.contourArea(contours[0]) / hull_area > CONVEX_SOLIDITY:
             return "one", None  # (nearly) convex: no neck, nothing to split
+    sub = fill_holes(sub)  # holes would put false saddles into the distance transform
     dt = cv2.distanceTransform(sub, cv2.DIST_L2, 5)
     peak = float(dt.max())
     if peak < 2 * r_min:

@@ -298,8 +298,8 @@ def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: 
 
 def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin=(0, 0), det_hw=None) -> np.ndarray:
     """Shadow-like regions bounded by sharp edges are material (walls, grey parts), not shadow."""
-    gx = cv2.Sobel(r, cv2.CV_32F, 1, 0, ksize=3) / 8.0
-    gy = cv2.Sobel(r, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+    gx = cv2.Sobel(r, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
+    gy = cv2.Sobel(r, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
     grad = np.sqrt(gx * gx + gy * gy) / scale  # per full-resolution pixel
     sharp = grad > p.sharp_edge
     # cut shadow-like regions at sharp edges, so a grey part and its own shadow come apart
@@ -311,13 +311,13 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin
     # a wall ends there in a sharp edge, a shadow fades out
     tray = (~(strong | darker | sharp)).astype(np.uint8)
     near_tray = cv2.dilate(tray, np.ones((5, 5), np.uint8)) > 0
-    near_part = cv2.dilate(strong.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-    border = cand.astype(bool) & (cv2.dilate((1 - cand).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+    near_part = cv2.dilate(strong.view(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    # (a region's border pixels: those with a neighbour outside it)
+    border = cand.astype(bool) & (cv2.erode(cand, np.ones((3, 3), np.uint8)) == 0)
     border &= near_tray & ~near_part
-    near_sharp = cv2.dilate(sharp.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-    lb = lab[border]
-    total = np.bincount(lb, minlength=n).astype(float)
-    sharp_count = np.bincount(lb, weights=near_sharp[border].astype(float), minlength=n)
+    near_sharp = cv2.dilate(sharp.view(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    total = np.bincount(lab[border], minlength=n).astype(float)
+    sharp_count = np.bincount(lab[border & near_sharp], minlength=n).astype(float)
     frac = np.divide(sharp_count, total, out=np.zeros(n), where=total > 0)
     keep = frac > p.sharp_fraction
     keep[0] = False

@@ -42,13 +42,12 @@ def split_necks(regions, p, min_area_det: float, bgr: np.ndarray | None = None
     out = []
     for x0, y0, sub in regions:
         bgr_box = None if bgr is None else bgr[y0:y0 + sub.shape[0], x0:x0 + sub.shape[1]]
-        grey = None if bgr_box is None else cv2.cvtColor(bgr_box, cv2.COLOR_BGR2GRAY)
-        for piece, is_merged in _region_pieces(sub, grey, bgr_box, p, r_min, min_area_det):
+        for piece, is_merged in _region_pieces(sub, bgr_box, p, r_min, min_area_det):
             out.append((x0, y0, piece, is_merged))
     return out
 
 
-def _region_pieces(sub, grey, bgr, p, r_min: float, min_area_det: float) -> list[tuple[np.ndarray, bool]]:
+def _region_pieces(sub, bgr, p, r_min: float, min_area_det: float) -> list[tuple[np.ndarray, bool]]:
     """One region -> its parts as (bool mask in the region's box, merged flag)."""
     pieces = None
     if bgr is not None:
@@ -63,7 +62,7 @@ def _region_pieces(sub, grey, bgr, p, r_min: float, min_area_det: float) -> list
         piece, depth = work.pop()
         if not piece.any():
             continue
-        decision, parts = _analyse(piece, p, r_min, min_area_det, grey)
+        decision, parts = _analyse(piece, p, r_min, min_area_det, bgr)
         if decision == "split" and depth < MAX_SPLIT_DEPTH:
             work.extend(((parts == k).astype(np.uint8), depth + 1) for k in range(1, int(parts.max()) + 1))
             continue
@@ -138,7 +137,7 @@ def fill_holes(mask: np.ndarray) -> np.ndarray:
     return cv2.bitwise_or(mask, 1 - flood[1:-1, 1:-1])
 
 
-def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, grey: np.ndarray | None):
+def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, bgr: np.ndarray | None):
     # (outer contours are the same with the holes filled or not)
     contours, _ = cv2.findContours(sub, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     if len(contours) == 1:
@@ -189,6 +188,7 @@ def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, grey: np.ndarray
         parts = _fill_lines(parts, sub)
         if min(int((parts == k).sum()) for k in range(1, len(big) + 1)) < min_area:
             return "merged", None
+        grey = None if bgr is None else cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)  # (only needed here)
         if not _seam_visible(parts, ws, grey, p.seam_contrast_dn):
             # a neck but no seam in the image: one part with a waist, or two parts that touch so
             # closely that nothing shows. Flag it: a false alarm costs a look, a wrong outline a part.

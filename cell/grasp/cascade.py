@@ -228,6 +228,127 @@ def _outline_ahead(ctx: Context, P: Pairs, idx) -> np.ndarray:
 
 # --- exact stages: shapely and IK on the survivors only -------------------------------------
 
+@dataclass
+class BandEdges:
+    """The target's edges clipped to bands along us (one Liang-Barsky pass): pieces (p,) of edges,
+    each the stretch s in [s0, s1] of edge A + s * D, in band coordinates (t along us from the
+    band's centre, l across). Narrower bands with the same t range reuse the pieces (`narrowed`)."""
+
+    centers: np.ndarray  # (b, 2)
+    us: np.ndarray  # (b, 2)
+    vs: np.ndarray  # (b, 2) us turned by +90 degrees
+    t_max: np.ndarray  # (b,)
+    half_width: float
+    bi: np.ndarray  # (p,) band of each piece
+    s0: np.ndarray
+    s1: np.ndarray
+    tA: np.ndarray  # t and l of the edge's start, and their change along the edge
+    lA: np.ndarray
+    dt: np.ndarray
+    dl: np.ndarray
+    A: np.ndarray  # (p, 2) the edge's start and direction (end - start)
+    D: np.ndarray
+
+    @classmethod
+    def clip(cls, ctx: Context, centers, us, t_min, t_max, half_width: float) -> BandEdges:
+        vs = np.stack([-us[:, 1], us[:, 0]], -1)
+        corners = axis_rects(centers, us, t_min, t_max, half_width)
+        lo, hi = corners.min(axis=1), corners.max(axis=1)
+        bi, ei = ctx.edge_tree.query(shapely.box(lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1]))  # the clip below is exact
+        A, B = ctx.edge_a[ei], ctx.edge_b[ei]
+        D = B - A
+        c, u, v = centers[bi], us[bi], vs[bi]
+        AC = A - c
+        tA, lA = (AC * u).sum(1), (AC * v).sum(1)
+        dt, dl = (D * u).sum(1), (D * v).sum(1)
+        s0, s1, inside = _liang_barsky(tA, dt, lA, dl, t_min[bi], t_max[bi], half_width)
+        return cls(centers, us, vs, t_max, half_width, bi[inside], s0[inside], s1[inside], tA[inside], lA[inside],
+                   dt[inside], dl[inside], A[inside], D[inside])
+
+    def narrowed(self, rows: np.ndarray, half_width: float) -> BandEdges:
+        """The bands `rows` only, half_width (<= this one's) across: the pieces clipped again."""
+        pos = np.full(len(self.centers), -1)
+        pos[rows] = np.arange(len(rows))
+        keep = pos[self.bi] >= 0
+        bi = pos[self.bi[keep]]
+        tA, lA, dt, dl = self.tA[keep], self.lA[keep], self.dt[keep], self.dl[keep]
+        s0, s1 = self.s0[keep], self.s1[keep]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inside = np.ones(len(bi), bool)
+            for p, q in ((-dl, lA + half_width), (dl, half_width - lA)):
+                r = q / p
+                s0 = np.where(p < 0, np.maximum(s0, r), s0)
+                s1 = np.where(p > 0, np.minimum(s1, r), s1)
+                inside &= ~((p == 0) & (q < 0))
+            inside &= s0 <= s1
+        return BandEdges(self.centers[rows], self.us[rows], self.vs[rows], self.t_max[rows], half_width, bi[inside],
+                         s0[inside], s1[inside], tA[inside], lA[inside], dt[inside], dl[inside],
+                         self.A[keep][inside], self.D[keep][inside])
+
+    def first_touch(self, ctx: Context, slanted: bool = False, touch: bool = True):
+        """T (b,): the largest distance along us of the target's material in each band (-inf: none), and
+        (touch=True) the touching point (b, 2) on the first-touch line, in the middle (across the axis)
+        of the material within PAD_COMPLIANCE_MM of it."""
+        b = len(self.centers)
+        T = np.full(b, -np.inf)
+        if len(self.bi):
+            tt = np.maximum(self.tA + self.s0 * self.dt, self.tA + self.s1 * self.dt)  # the piece's end further out
+            np.maximum.at(T, self.bi, tt)
+        # the target's far side: material fills the band up to t_max where its far corners are inside
+        hw = self.half_width
+        far = np.concatenate([self.centers + self.us * self.t_max[:, None] - self.vs * hw,
+                              self.centers + self.us * self.t_max[:, None] + self.vs * hw])
+        far_in = shapely.contains_xy(ctx.target_geom, far[:, 0], far[:, 1]).reshape(2, b).any(0)
+        T[far_in] = np.maximum(T[far_in], self.t_max[far_in])
+        if not touch:
+            return T, None
+        return T, self._touch(T, slanted)
+
+    def _touch(self, T: np.ndarray, slanted: bool) -> np.ndarray:
+        # the touching material: the parts of the clipped edges within PAD_COMPLIANCE_MM of the first
+        # touch (on a face slightly slanted to the pad that is a stretch from the band's side
+        # inwards, not only the edge's end); the contact is the middle of its extent across the
+        # axis, at the first-touch line (robust to edges that run along the band's side)
+        touch = np.full((len(self.centers), 2), np.nan)
+        if not len(self.bi):
+            return touch
+        pb, p0, p1, pA, pdt = self.bi, self.s0, self.s1, self.tA, self.dt
+        limit = T[pb] - PAD_COMPLIANCE_MM
+        if slanted:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                sc = (limit - pA) / pdt  # where the edge is PAD_COMPLIANCE_MM behind T
+            lo_s = np.where(pdt > 0, np.maximum(p0, sc), p0)
+            hi_s = np.where(pdt < 0, np.minimum(p1, sc), p1)
+            near = (lo_s <= hi_s + 1e-12) & ((pdt != 0) | (pA >= limit))
+        else:  # as before `slanted_faces`: only the clipped edges' ends within PAD_COMPLIANCE_MM
+            e0, e1 = pA + p0 * pdt >= limit, pA + p1 * pdt >= limit
+            lo_s, hi_s = np.where(e0, p0, p1), np.where(e1, p1, p0)
+            near = e0 | e1
+        nb = pb[near]
+        lat_lo = self.lA[near] + lo_s[near] * self.dl[near]  # across the axis, at both ends of the stretch
+        lat_hi = self.lA[near] + hi_s[near] * self.dl[near]
+        lo_l = np.full(len(self.centers), np.inf)
+        hi_l = np.full(len(self.centers), -np.inf)
+        np.minimum.at(lo_l, nb, np.minimum(lat_lo, lat_hi))
+        np.maximum.at(hi_l, nb, np.maximum(lat_lo, lat_hi))
+        g = np.unique(nb)
+        touch[g] = self.centers[g] + self.us[g] * T[g, None] + self.vs[g] * (0.5 * (lo_l[g] + hi_l[g]))[:, None]
+        return touch
+
+
+def _liang_barsky(tA, dt, lA, dl, t_min, t_max, half_width):
+    """Clip segments (in band coordinates) to t_min <= t <= t_max, |l| <= half_width: s0, s1, inside."""
+    s0, s1 = np.zeros(len(tA)), np.ones(len(tA))
+    inside = np.ones(len(tA), bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for p, q in ((-dt, tA - t_min), (dt, t_max - tA), (-dl, lA + half_width), (dl, half_width - lA)):
+            r = q / p
+            s0 = np.where(p < 0, np.maximum(s0, r), s0)
+            s1 = np.where(p > 0, np.minimum(s1, r), s1)
+            inside &= ~((p == 0) & (q < 0))
+    return s0, s1, inside & (s0 <= s1)
+
+
 def first_touch(ctx: Context, centers: np.ndarray, us: np.ndarray, t_min: np.ndarray, t_max: np.ndarray,
                 half_width: float, slanted: bool = False):
     """Where a pad closing along -us towards `centers` first meets the target.
@@ -237,69 +358,11 @@ def first_touch(ctx: Context, centers: np.ndarray, us: np.ndarray, t_min: np.nda
     when the candidate itself is in the band). The target's material inside it is bounded by the
     target's edges clipped to the band (Liang-Barsky, vectorised over the (band, edge) pairs whose
     bounding boxes an STRtree finds overlapping) and, when the band's far corners lie inside the
-    target, by its far side. Returns T (b,), the largest
-    distance along us of material in the band (-inf: none), and the touching point (b, 2): on the
-    first-touch line, in the middle (across the axis) of the material within PAD_COMPLIANCE_MM of it.
+    target, by its far side. Returns T (b,), the largest distance along us of material in the band
+    (-inf: none), and the touching point (b, 2): on the first-touch line, in the middle (across
+    the axis) of the material within PAD_COMPLIANCE_MM of it.
     """
-    b = len(centers)
-    vs = np.stack([-us[:, 1], us[:, 0]], -1)
-    corners = axis_rects(centers, us, t_min, t_max, half_width)
-    lo, hi = corners.min(axis=1), corners.max(axis=1)
-    bi, ei = ctx.edge_tree.query(shapely.box(lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1]))  # the clip below is exact
-    A, B = ctx.edge_a[ei], ctx.edge_b[ei]
-    c, u, v = centers[bi], us[bi], vs[bi]
-    tA, lA = ((A - c) * u).sum(1), ((A - c) * v).sum(1)
-    dt, dl = ((B - A) * u).sum(1), ((B - A) * v).sum(1)
-    s0, s1 = np.zeros(len(bi)), np.ones(len(bi))
-    inside = np.ones(len(bi), bool)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for p, q in ((-dt, tA - t_min[bi]), (dt, t_max[bi] - tA), (-dl, lA + half_width), (dl, half_width - lA)):
-            r = q / p
-            s0 = np.where(p < 0, np.maximum(s0, r), s0)
-            s1 = np.where(p > 0, np.minimum(s1, r), s1)
-            inside &= ~((p == 0) & (q < 0))
-    inside &= s0 <= s1
-    pieces = (bi[inside], s0[inside], s1[inside], tA[inside], dt[inside], A[inside], (B - A)[inside])
-    bi = np.concatenate([bi[inside]] * 2)
-    s = np.concatenate([s0[inside], s1[inside]])
-    tt = np.concatenate([tA[inside]] * 2) + s * np.concatenate([dt[inside]] * 2)  # along us
-    T = np.full(b, -np.inf)
-    if len(bi):
-        order = np.argsort(bi, kind="stable")
-        bi, s, tt = bi[order], s[order], tt[order]
-        starts = np.flatnonzero(np.r_[True, bi[1:] != bi[:-1]])
-        T[bi[starts]] = np.maximum.reduceat(tt, starts)
-    far = corners[:, 1:3].reshape(-1, 2)
-    far_in = shapely.contains_xy(ctx.target_geom, far[:, 0], far[:, 1]).reshape(b, 2).any(1)
-    T[far_in] = np.maximum(T[far_in], t_max[far_in])
-    touch = np.full((b, 2), np.nan)
-    if len(bi):
-        # the touching material: the parts of the clipped edges within PAD_COMPLIANCE_MM of the first
-        # touch (on a face slightly slanted to the pad that is a stretch from the band's side
-        # inwards, not only the edge's end); the contact is the middle of its extent across the
-        # axis, at the first-touch line (robust to edges that run along the band's side)
-        pb, p0, p1, pA, pdt, pa, pd = pieces
-        if slanted:
-            with np.errstate(divide="ignore", invalid="ignore"):
-                sc = (T[pb] - PAD_COMPLIANCE_MM - pA) / pdt  # where the edge is PAD_COMPLIANCE_MM behind T
-            lo_s = np.where(pdt > 0, np.maximum(p0, sc), p0)
-            hi_s = np.where(pdt < 0, np.minimum(p1, sc), p1)
-            near = (lo_s <= hi_s + 1e-12) & ((pdt != 0) | (pA >= T[pb] - PAD_COMPLIANCE_MM))
-        else:  # as before `slanted_faces`: only the clipped edges' ends within PAD_COMPLIANCE_MM
-            e0, e1 = pA + p0 * pdt >= T[pb] - PAD_COMPLIANCE_MM, pA + p1 * pdt >= T[pb] - PAD_COMPLIANCE_MM
-            lo_s, hi_s = np.where(e0, p0, p1), np.where(e1, p1, p0)
-            near = e0 | e1
-        nb = np.concatenate([pb[near]] * 2)
-        sn = np.concatenate([lo_s[near], hi_s[near]])
-        order = np.argsort(nb, kind="stable")
-        nb, sn = nb[order], sn[order]
-        xy = np.concatenate([pa[near]] * 2)[order] + sn[:, None] * np.concatenate([pd[near]] * 2)[order]
-        lat = ((xy - centers[nb]) * vs[nb]).sum(1)
-        starts = np.flatnonzero(np.r_[True, nb[1:] != nb[:-1]])
-        lo_l, hi_l = np.minimum.reduceat(lat, starts), np.maximum.reduceat(lat, starts)
-        g = nb[starts]
-        touch[g] = centers[g] + us[g] * T[g, None] + vs[g] * (0.5 * (lo_l + hi_l))[:, None]
-    return T, touch
+    return BandEdges.clip(ctx, centers, us, t_min, t_max, half_width).first_touch(ctx, slanted)
 
 
 def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
@@ -313,9 +376,10 @@ def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     centers, us = np.vstack([m, m]), np.vstack([u, -u])
     tt = np.concatenate([t, t])
     slanted = bool(ctx.params.slanted_faces)
-    T, c = first_touch(ctx, centers, us, tt - 2 * tol, tt + g.approach_clearance_mm + g.pad_thickness_mm,
-                       g.pad_width_mm / 2 + tol, slanted)
-    vs = np.stack([-us[:, 1], us[:, 0]], -1)
+    band = BandEdges.clip(ctx, centers, us, tt - 2 * tol, tt + g.approach_clearance_mm + g.pad_thickness_mm,
+                          g.pad_width_mm / 2 + tol)
+    T, c = band.first_touch(ctx, slanted)
+    vs = band.vs
     lateral = np.abs(((c - centers) * vs).sum(1))
     with np.errstate(invalid="ignore"):
         # the pad stops at the candidate: the first touch is within tol of it along and across the
@@ -330,15 +394,13 @@ def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
         Tp = T.copy()
         if pressed.any():  # the pad itself (not the band widened by tol) on the pair's closing line
             q = np.flatnonzero(pressed)
-            Tp[q], _ = first_touch(ctx, centers[q], us[q], tt[q] - 2 * tol,
-                                   tt[q] + g.approach_clearance_mm + g.pad_thickness_mm, g.pad_width_mm / 2)
+            Tp[q], _ = band.narrowed(q, g.pad_width_mm / 2).first_touch(ctx, touch=False)
             pressed[q] = np.isfinite(Tp[q]) & (
                 Tp[q] <= ((cand[q] - centers[q]) * us[q]).sum(1) + PAD_COMPLIANCE_MM + EPS_MM)
         lat_c = ((cand - centers) * vs).sum(1)
         if pressed.any():  # the contact on the pair's closing line when the pad presses there too
             q = np.flatnonzero(pressed)
-            T0, _ = first_touch(ctx, centers[q], us[q], tt[q] - 2 * tol,
-                                tt[q] + g.approach_clearance_mm + g.pad_thickness_mm, 0.05)
+            T0, _ = band.narrowed(q, 0.05).first_touch(ctx, touch=False)
             lat_c[q] = np.where(T0 >= Tp[q] - PAD_COMPLIANCE_MM, 0.0, lat_c[q])
         c = np.where(pressed[:, None], centers + us * Tp[:, None] + vs * lat_c[:, None], c)
         lateral = np.where(pressed, np.abs(((c - centers) * vs).sum(1)), lateral)

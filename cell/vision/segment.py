@@ -710,15 +710,19 @@ def _as_bgr(img: np.ndarray) -> np.ndarray:
 
 
 def segment_to_mm(seg: Segment, cal, z_mm: float, z_bottom_mm: float | None = None,
-                  frame: np.ndarray | None = None):
+                  frame: np.ndarray | None = None, params: SegmentParams | None = None):
     """Map a segment to the base frame on the plane of the part's top.
 
     The camera sees a part's walls on the side facing the image of the vertical (the point
-    vertical lines run to, near the image centre). There the outline is the part's bottom
-    edge when the wall shows, its top edge when the wall looks like the tray. With
-    `z_bottom_mm` (the part is a prism from z_bottom to z_mm) those boundary points are mapped
-    at the bottom; with the `frame` as well, each point is checked in the image: if the band
-    where a wall would be has the top face's colour, the point is the top edge after all.
+    vertical lines run to, near the image centre). With `z_bottom_mm` (the part is a prism from
+    z_bottom to z_mm) and the `frame`, the top face is looked for inside the silhouette
+    (topface.py: brighter than the walls, and swept down to the bottom it gives back the
+    silhouette); when found, its outline and holes are mapped at the top. Else the silhouette
+    is mapped point by point: on the wall side the outline is the part's bottom edge when the
+    wall shows, its top edge when the wall looks like the tray; with `z_bottom_mm` those
+    boundary points are mapped at the bottom, and with the `frame` each point is checked in
+    the image: if the band where a wall would be has the top face's colour, the point is the
+    top edge after all. Merged and cut-off regions are always mapped point by point.
 
     Returns
     -------
@@ -726,8 +730,14 @@ def segment_to_mm(seg: Segment, cal, z_mm: float, z_bottom_mm: float | None = No
     """
     if z_bottom_mm is None or abs(z_bottom_mm - z_mm) < 1e-9:
         return cal.px_to_mm(seg.outline_px, z_mm), [cal.px_to_mm(hh, z_mm) for hh in seg.holes_px]
-    vp = cal.vertical_vanishing_px()
     img = None if frame is None else _as_bgr(frame)
+    if img is not None and not (seg.merged or seg.cut_off) and cal.has_pose:
+        from cell.vision.topface import top_face_px
+
+        face = top_face_px(seg, img, cal, z_mm, z_bottom_mm, params or SegmentParams.for_calibration(cal, z_mm=z_mm))
+        if face is not None:
+            return cal.px_to_mm(face[0], z_mm), [cal.px_to_mm(h, z_mm) for h in face[1]]
+    vp = cal.vertical_vanishing_px()
 
     def ring(r: np.ndarray, hole: bool) -> np.ndarray:
         top = cal.px_to_mm(r, z_mm)

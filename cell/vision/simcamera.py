@@ -63,6 +63,7 @@ class SimCameraOptions:
     shot_noise: float = 0.12  # sigma = shot_noise * sqrt(signal)
     supersample: int = 4
     tray_bgr: tuple[float, float, float] = TRAY_BGR
+    wall_shade: float = WALL_SHADE  # a wall's brightness relative to the top face
 
 
 class SimCamera:
@@ -219,7 +220,7 @@ class SimCamera:
             top_col *= (1.0 + 0.04 * np.repeat(streak, u1 - u0, axis=1))[:, :, None]
             if o.highlights:
                 top_col += self._highlights(v1 - v0, u1 - u0, rng)[:, :, None]
-        wall_col = base * WALL_SHADE
+        wall_col = base * o.wall_shade
         roi = img[v0:v1, u0:u1]
         cw = (cov_sil - cov_top).clip(0, 1)[:, :, None]
         ct = cov_top[:, :, None]

@@ -241,7 +241,7 @@ def _work_boxes(coarse, bg_coarse, p: SegmentParams, det_hw: tuple[int, int]) ->
     noise_c, noise_b = _noise_spreads(chroma_dn, bright_dn)
     changed = (_evidence(r, chroma, chroma_dn, bright_dn, p, COARSE_EVIDENCE * p.hysteresis, noise_c, noise_b)
                | (r < 1.0 - COARSE_EVIDENCE * p.brighter_min))
-    n, lab = cv2.connectedComponents(changed.astype(np.uint8), connectivity=8)
+    n, lab = cv2.connectedComponents(changed.view(np.uint8), connectivity=8)
     if n <= 1:
         return []
     from scipy import ndimage
@@ -276,7 +276,7 @@ def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: 
         # but not in shadow (a shadow next to a part mixes with the part's colour at its edge)
         weak = (_evidence(r, chroma, chroma_dn, bright_dn, p, p.hysteresis, noise_c, noise_b)
                 & ~(r < 1.0 - p.brighter_min)) | strong
-        n, lab = cv2.connectedComponents(weak.astype(np.uint8), connectivity=8)
+        n, lab = cv2.connectedComponents(weak.view(np.uint8), connectivity=8)
         seeded = np.zeros(n, bool)
         seeded[lab[strong]] = True
         seeded[0] = False
@@ -290,7 +290,7 @@ def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: 
         # shadow-like pixels enclosed by a part are its holes (the tray in the part's shadow)
         from cell.vision.touching import fill_holes
 
-        enclosed = fill_holes(strong.astype(np.uint8)).astype(bool) & ~strong
+        enclosed = fill_holes(strong.view(np.uint8)).view(bool) & ~strong
         mask |= _material_shadowlike(r, strong, darker & ~enclosed, p, scale, origin, det_hw)
     k = np.ones((3, 3), np.uint8)
     return cv2.morphologyEx(mask, cv2.MORPH_OPEN, k)
@@ -303,17 +303,17 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin
     grad = np.sqrt(gx * gx + gy * gy) / scale  # per full-resolution pixel
     sharp = grad > p.sharp_edge
     # cut shadow-like regions at sharp edges, so a grey part and its own shadow come apart
-    cand = (darker & ~sharp).astype(np.uint8)
+    cand = (darker & ~sharp).view(np.uint8)  # (bool arrays viewed as 0/1 bytes for OpenCV: no copies)
     n, lab = cv2.connectedComponents(cand, connectivity=4)
     if n <= 1:
         return np.zeros_like(cand)
     # judge each region by its free border, where it meets the tray (not the part it hangs on):
     # a wall ends there in a sharp edge, a shadow fades out
-    tray = (~(strong | darker | sharp)).astype(np.uint8)
+    tray = (~(strong | darker | sharp)).view(np.uint8)
     near_tray = cv2.dilate(tray, np.ones((5, 5), np.uint8)) > 0
     near_part = cv2.dilate(strong.view(np.uint8), np.ones((3, 3), np.uint8)) > 0
     # (a region's border pixels: those with a neighbour outside it)
-    border = cand.astype(bool) & (cv2.erode(cand, np.ones((3, 3), np.uint8)) == 0)
+    border = cand.view(bool) & (cv2.erode(cand, np.ones((3, 3), np.uint8)) == 0)
     border &= near_tray & ~near_part
     near_sharp = cv2.dilate(sharp.view(np.uint8), np.ones((3, 3), np.uint8)) > 0
     total = np.bincount(lab[border], minlength=n).astype(float)
@@ -322,7 +322,7 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin
     keep = frac > p.sharp_fraction
     keep[0] = False
     if keep.any() and strong.any():
-        ns, parts_lab = cv2.connectedComponents(strong.astype(np.uint8), connectivity=8)
+        ns, parts_lab = cv2.connectedComponents(strong.view(np.uint8), connectivity=8)
         pl = parts_lab.astype(np.float32)
         k3 = np.ones((3, 3), np.uint8)
         hi = cv2.dilate(pl, k3)
@@ -348,7 +348,7 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin
               else np.array([w_det, h_det]) / 2.0) - np.asarray(origin)  # in the box's pixels
         centres = np.zeros((ns, 2))  # of the parts that own a region still kept
         for o in np.unique(owner[keep & (owner > 0)]):
-            m = cv2.moments((parts_lab == o).astype(np.uint8), binaryImage=True)
+            m = cv2.moments((parts_lab == o).view(np.uint8), binaryImage=True)
             centres[o] = m["m10"] / m["m00"], m["m01"] / m["m00"]
         pc = centres[owner]
         ax, ay = cx - pc[:, 0], cy - pc[:, 1]
@@ -356,10 +356,10 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin
         cos = (ax * bx + ay * by) / np.maximum(np.hypot(ax, ay) * np.hypot(bx, by), 1e-9)
         facing = cos > WALL_FACING_COS  # walls on sides turned away from the vertical are thin anyway
         keep &= (owner == 0) | facing
-    out = keep[lab].astype(np.uint8)
+    out = keep[lab].view(np.uint8)
     # the sharp edge pixels around kept regions (a wall's outer edge) belong to the part
     grown = cv2.dilate(out, np.ones((3, 3), np.uint8))
-    out |= (darker & sharp & (grown > 0)).astype(np.uint8)
+    out |= (darker & sharp & (grown > 0)).view(np.uint8)
     return out
 
 
@@ -434,7 +434,7 @@ def _regions_to_segments(pieces, frame: np.ndarray, det: np.ndarray, bg: np.ndar
     dh, dw = det.shape[:2]
     found = []  # (outline, holes, merged, cut_off, mean colour) per region, before refinement
     for px0, py0, piece, merged in pieces:
-        piece = piece.astype(np.uint8)
+        piece = piece.view(np.uint8)
         bx, by, bw, bh = cv2.boundingRect(piece)
         if bw == 0:
             continue
@@ -513,7 +513,7 @@ def _tray_dips(det, bg, region, part_bgr, box, p: SegmentParams) -> tuple[int, i
     d = np.asarray(part_bgr, np.float32) - np.asarray(tray, np.float32)
     f = cv2.transform(img - b, (d / max(float(d @ d), 1.0)).reshape(1, 3))
     ch = _ratio_chroma(img, b, ratio=False)[1]
-    dips = (((f < 0.8) & (ch < 2.0 * p.chroma_min)) | (ch < 0.5 * _chroma_of(part_bgr, tray))) & inner.astype(bool)
+    dips = (((f < 0.8) & (ch < 2.0 * p.chroma_min)) | (ch < 0.5 * _chroma_of(part_bgr, tray))) & inner.view(bool)
     bx, by, bw, bh = cv2.boundingRect(dips.view(np.uint8))
     return None if bw == 0 else (bx, by, bx + bw, by + bh)
 
@@ -566,7 +566,7 @@ def _holes_full_res(frame, bg, outline, part_bgr, box, p: SegmentParams, scale: 
     # the tray seen through a hole lies in the part's shadow (darker, towards a dark part's colour)
     half_chroma = 0.5 * _chroma_of(part_bgr, tray)
     tray_like = (chroma < max(p.chroma_min, half_chroma)) & (r > 1.0 - p.darker_min) & (r < 1.0 + p.brighter_min)
-    holes = (((f < 0.5) | (chroma < half_chroma)) & tray_like & inside.astype(bool)).astype(np.uint8)
+    holes = (((f < 0.5) | (chroma < half_chroma)) & tray_like & inside.view(bool)).view(np.uint8)
     holes = cv2.morphologyEx(holes, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     contours, _ = cv2.findContours(holes, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     rings = []

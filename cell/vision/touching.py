@@ -55,7 +55,7 @@ def _region_pieces(sub, bgr, p, r_min: float, min_area_det: float) -> list[tuple
         lab_img = cv2.cvtColor(bgr / np.float32(255.0), cv2.COLOR_BGR2LAB)
         pieces = split_by_colour(sub, lab_img, min_area_det, p.colour_split)
     # each colour piece may still hold touching parts; each split lobe is looked at again
-    work = [(sub, 0)] if pieces is None else [((pieces == c).astype(np.uint8), 0)
+    work = [(sub, 0)] if pieces is None else [((pieces == c).view(np.uint8), 0)
                                               for c in range(1, int(pieces.max()) + 1)]
     found = []
     while work:
@@ -64,9 +64,9 @@ def _region_pieces(sub, bgr, p, r_min: float, min_area_det: float) -> list[tuple
             continue
         decision, parts = _analyse(piece, p, r_min, min_area_det, bgr)
         if decision == "split" and depth < MAX_SPLIT_DEPTH:
-            work.extend(((parts == k).astype(np.uint8), depth + 1) for k in range(1, int(parts.max()) + 1))
+            work.extend(((parts == k).view(np.uint8), depth + 1) for k in range(1, int(parts.max()) + 1))
             continue
-        found.append((piece.astype(bool), decision == "merged"))
+        found.append((piece.view(bool), decision == "merged"))  # (0/1 bytes: a bool view)
     return found
 
 
@@ -86,7 +86,7 @@ def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_d
     _, std = cv2.meanStdDev(lab_img, mask=sub)
     if float((std.ravel() * weight).max()) < 0.25 * min_delta_e:
         return None  # one colour: nothing to split
-    mask = sub.astype(bool)
+    mask = sub.view(bool)
     px = lab_img[mask] * weight  # (float32 already)
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5)
     _, lab, centres = cv2.kmeans(px, 2, None, crit, 1, cv2.KMEANS_PP_CENTERS)
@@ -99,7 +99,7 @@ def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_d
     seeds = np.zeros(sub.shape, np.int32)
     k = 0
     for c in (1, 2):
-        piece = cv2.morphologyEx((cl == c).astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+        piece = cv2.morphologyEx((cl == c).view(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
         # (connectedComponentsWithStats is ten times slower than labelling and counting)
         n, comp = cv2.connectedComponents(piece, connectivity=8)
         areas = np.bincount(comp.ravel(), minlength=n)
@@ -108,9 +108,9 @@ def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_d
                 continue  # a speck of colour
             sel = comp == j
             # edge pixels mix with the tray's colour: a piece owns the outline it comes near
-            reach = cv2.dilate(sel.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
+            reach = cv2.dilate(sel.view(np.uint8), np.ones((7, 7), np.uint8)) > 0
             # and is a body, not a band: a part's own wall seen from the side is a thin strip
-            thick = float(cv2.distanceTransform(sel.astype(np.uint8), cv2.DIST_L2, 3).max()) >= MIN_PIECE_HALF_WIDTH
+            thick = float(cv2.distanceTransform(sel.view(np.uint8), cv2.DIST_L2, 3).max()) >= MIN_PIECE_HALF_WIDTH
             if (outline & reach).sum() >= 0.15 * n_out and thick:
                 k += 1
                 seeds[sel] = k
@@ -167,7 +167,7 @@ def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, bgr: np.ndarray 
         is_big[big] = 1
         grown = cv2.dilate(is_big[cores],
                            cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * int(level) + 3,) * 2))
-        cover = float((grown.astype(bool) & sub.astype(bool)).sum()) / float(sub.sum())
+        cover = float((grown.view(bool) & sub.view(bool)).sum()) / float(sub.sum())
         if cover < COVER_MIN:
             # lobes joined by bars or arms: one part with a shape of its own; but three or more
             # separate lobes in one region are a heap of parts

@@ -336,3 +336,23 @@ def test_blur_in_the_helper_thread_gives_the_same_segments(layout_frame, monkeyp
     for a, b in zip(threaded, inline, strict=True):
         assert np.array_equal(a.outline_px, b.outline_px)
         assert all(np.array_equal(h, g) for h, g in zip(a.holes_px, b.holes_px, strict=True))
+
+
+def _segment_count(frame, queue):
+    queue.put(len(segment_frame(frame, PARAMS)))
+
+
+def test_a_forked_process_segments_after_its_parent_did(layout_frame):
+    # the helper thread does not survive a fork: the child must make its own, not wait on the dead one
+    import multiprocessing
+
+    segment_frame(layout_frame, PARAMS)  # the parent's helper thread exists now
+    ctx = multiprocessing.get_context("fork")
+    queue = ctx.Queue()
+    child = ctx.Process(target=_segment_count, args=(layout_frame, queue))
+    child.start()
+    child.join(30)
+    alive = child.is_alive()
+    if alive:
+        child.kill()
+    assert not alive and queue.get(timeout=5) == len(LAYOUT)

@@ -19,6 +19,7 @@ Pixel coordinates are CONTRACT-frame (origin at the top-left pixel's top-left co
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 
 import cv2
@@ -163,6 +164,7 @@ BOX_FULL_FRAME = 0.6  # when the boxes cover more of the frame than this, one bo
 
 
 _HELPER: list = []
+os.register_at_fork(after_in_child=_HELPER.clear)  # a forked child makes its own (threads do not survive a fork)
 
 
 def _helper():

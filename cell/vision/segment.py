@@ -144,11 +144,13 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
     return segs
 
 
+_SUM_PLUS_1 = np.ones((1, 4), np.float32)  # cv2.transform: b + g + r + 1 in one pass (the same sums)
+
+
 def _colour_change(sm: np.ndarray, bg: np.ndarray):
     """Per pixel: brightness ratio r, chroma change (L1 of normalised colour), both in DN too."""
-    ones = np.ones((1, 3), np.float32)
-    si = cv2.transform(sm, ones) + 1.0
-    sb = cv2.transform(bg, ones) + 1.0
+    si = cv2.transform(sm, _SUM_PLUS_1)
+    sb = cv2.transform(bg, _SUM_PLUS_1)
     r = si / sb
     db = sm[:, :, 0] / si - bg[:, :, 0] / sb  # (channel views: no copies)
     dg = sm[:, :, 1] / si - bg[:, :, 1] / sb
@@ -524,8 +526,8 @@ def _ratio_chroma(img: np.ndarray, b: np.ndarray, ratio: bool = True) -> tuple[n
     """Brightness ratio (None unless `ratio`) and chroma change (L1 over the three channels of the
     colour divided by its sum) of an unblurred image against the tray; float32 (h, w) each."""
     ones = np.ones((1, 3), np.float32)
-    si = cv2.transform(img, ones) + 1.0
-    sb = cv2.transform(b, ones) + 1.0
+    si = cv2.transform(img, _SUM_PLUS_1)
+    sb = cv2.transform(b, _SUM_PLUS_1)
     # (cv2.multiply by a merged reciprocal: the same products as numpy's broadcast, faster)
     diff = cv2.absdiff(cv2.multiply(img, cv2.merge([1.0 / si] * 3)), cv2.multiply(b, cv2.merge([1.0 / sb] * 3)))
     return (si / sb if ratio else None), cv2.transform(diff, ones)

@@ -459,7 +459,8 @@ def _regions_to_segments(pieces, frame: np.ndarray, det: np.ndarray, bg: np.ndar
             c = contours[oi].reshape(-1, 2)
             if cv2.contourArea(contours[oi]) < p.min_area_px / scale ** 2 * 0.5:
                 continue
-            cut = bool(np.any((c[:, 0] <= 0) | (c[:, 1] <= 0) | (c[:, 0] >= dw - 1) | (c[:, 1] >= dh - 1)))
+            ox, oy, ow, oh = cv2.boundingRect(contours[oi])
+            cut = ox <= 0 or oy <= 0 or ox + ow >= dw or oy + oh >= dh  # touches the image border
             holes = [contours[j].reshape(-1, 2) for j in range(len(contours)) if hier[j][3] == oi
                      and cv2.contourArea(contours[j]) >= p.min_hole_area_px / scale ** 2]
             outline = _to_full(c, scale)

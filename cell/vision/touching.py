@@ -51,7 +51,8 @@ def _region_pieces(sub, bgr, p, r_min: float, min_area_det: float) -> list[tuple
     """One region -> its parts as (bool mask in the region's box, merged flag)."""
     pieces = None
     if bgr is not None:
-        # (bgr holds whole DN 0..255 in float32: dividing in float32 is exact enough and no clip is needed)
+        # (bgr holds whole DN 0..255 in float32: a float32 division gives the very values the float64 one
+        # rounded to float32 did, and no clip is needed)
         lab_img = cv2.cvtColor(bgr / np.float32(255.0), cv2.COLOR_BGR2LAB)
         pieces = split_by_colour(sub, lab_img, min_area_det, p.colour_split)
     # each colour piece may still hold touching parts; each split lobe is looked at again

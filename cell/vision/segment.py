@@ -330,9 +330,13 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin
         pl = parts_lab.astype(np.float32)
         k3 = np.ones((3, 3), np.uint8)
         hi = cv2.dilate(pl, k3)
-        lo = cv2.erode(np.where(pl > 0, pl, np.float32(1e9)), k3)
-        inside = keep[lab]  # only the regions still in question
-        ys, xs = np.nonzero(inside)
+        # the lowest neighbouring part label: the tray (0) counted as 1e9 (pl + 1e9 where pl is 0)
+        lo = cv2.erode(cv2.add(pl, cv2.threshold(pl, 0.5, 1e9, cv2.THRESH_BINARY_INV)[1]), k3)
+        inside = np.take(keep, lab)  # only the regions still in question (take: twice as fast as keep[lab])
+        bx0, by0, bw, bh = cv2.boundingRect(inside.view(np.uint8))  # (they are small: look only there)
+        ys, xs = np.nonzero(inside[by0:by0 + bh, bx0:bx0 + bw])
+        ys += by0
+        xs += bx0
         li = lab[ys, xs]
         touch = hi[ys, xs] > 0  # pixels next to a part (only they see a part's label)
         lt, hit, lot = li[touch], hi[ys[touch], xs[touch]], lo[ys[touch], xs[touch]]
@@ -360,7 +364,7 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin
         cos = (ax * bx + ay * by) / np.maximum(np.hypot(ax, ay) * np.hypot(bx, by), 1e-9)
         facing = cos > WALL_FACING_COS  # walls on sides turned away from the vertical are thin anyway
         keep &= (owner == 0) | facing
-    out = keep[lab].view(np.uint8)
+    out = np.take(keep, lab).view(np.uint8)
     # the sharp edge pixels around kept regions (a wall's outer edge) belong to the part
     grown = cv2.dilate(out, np.ones((3, 3), np.uint8))
     out |= (darker & sharp & (grown > 0)).view(np.uint8)

@@ -226,10 +226,18 @@ def _quartile1(a: np.ndarray) -> float:
 
 
 def _evidence(r, chroma, chroma_dn, bright_dn, p: SegmentParams, f: float, noise_c: float, noise_b: float):
+    """Pixels that changed their chroma, or are brighter, or darker than any shadow makes the
+    tray, by f x the thresholds, each change standing f x noise_k noise spreads above the tray's."""
     k = f * p.noise_k
-    return (((chroma > f * p.chroma_min) & (chroma_dn > k * noise_c))
-            | ((r > 1.0 + f * p.brighter_min) & (bright_dn > k * noise_b))
-            | ((r < 1.0 - p.darker_min) & (-bright_dn > k * noise_b)))
+    out = chroma > f * p.chroma_min  # (in place: fewer passes over the box)
+    out &= chroma_dn > k * noise_c
+    brighter = r > 1.0 + f * p.brighter_min
+    brighter &= bright_dn > k * noise_b
+    out |= brighter
+    dark = r < 1.0 - p.darker_min
+    dark &= bright_dn < -(k * noise_b)
+    out |= dark
+    return out
 
 
 def _work_boxes(coarse, bg_coarse, p: SegmentParams, det_hw: tuple[int, int]) -> list[tuple[int, int, int, int]]:
@@ -284,7 +292,7 @@ def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: 
         seeded = np.zeros(n, bool)
         seeded[lab[strong]] = True
         seeded[0] = False
-        strong = seeded[lab]
+        strong = np.take(seeded, lab)
     darker = (r < 1.0 - p.brighter_min) & ~strong
     if not p.shadow_aware:
         strong |= darker

@@ -124,10 +124,10 @@ def test_moving_real_hardware_needs_confirmation(monkeypatch):
     args = types.SimpleNamespace(interface="socketcan", channel="can0", yes=False)
     monkeypatch.setattr(sys, "stdin", open(os.devnull))
     with pytest.raises(BadInput, match="without confirmation"):
-        hw._confirm(args, "jog j1")
+        hw.confirm_motion(args, "jog j1")
     args.yes = True
-    hw._confirm(args, "jog j1")  # --yes: no question
-    hw._confirm(types.SimpleNamespace(interface="virtual", channel=None, yes=False), "jog j1")
+    hw.confirm_motion(args, "jog j1")  # --yes: no question
+    hw.confirm_motion(types.SimpleNamespace(interface="virtual", channel=None, yes=False), "jog j1")
 
 
 def test_bench_can_prints_figures(capsys):

@@ -26,7 +26,7 @@ def rms_mm(outline, holes, part) -> float:
 
 def silhouette_only(seg):
     """The same region mapped point by point (what segment_to_mm does when no top face is accepted)."""
-    return replace(seg, merged=True)  # merged regions never take the top-face path
+    return replace(seg, cut_off=True)  # cut-off regions never take the top-face path
 
 
 @pytest.mark.parametrize("name, x, y, th", [("heatsink_s", 430, 160, 30), ("heatsink_m", 260, -150, -70)])
@@ -75,3 +75,16 @@ def test_low_parts_and_parts_near_the_image_centre_keep_the_silhouette():
     frame = render(part)
     seg = segment_frame(frame, PARAMS)[0]
     assert top_face_px(seg, frame, CAL, part.z_top_mm, part.z_bottom_mm, PARAMS) is None
+
+
+def test_two_touching_parts_of_different_heights_are_not_one_face():
+    # a merged region takes the top-face path only when one face explains all of it
+    tall = lib.place(lib.part("box_housing_m"), 420, 150, 0)
+    low = lib.place(lib.part("cover_rect_m"), 0, 0, 0)
+    gap = tall.polygon.bounds[2] - low.polygon.bounds[0] - 0.5
+    low = low.moved(gap, 150 + 0.0)
+    assert tall.polygon.distance(low.polygon) < 1.0 and not tall.polygon.intersects(low.polygon.buffer(-0.2))
+    frame = SimCamera(CAL, SimCameraOptions(seed=3)).render([tall, low])
+    region = max(segment_frame(frame, PARAMS), key=lambda s: s.area_px)
+    assert region.area_px > 1.2 * segment_frame(render(tall), PARAMS)[0].area_px  # the two came out as one
+    assert top_face_px(region, frame, CAL, tall.z_top_mm, tall.z_bottom_mm, PARAMS) is None

@@ -99,7 +99,7 @@ def _session(args, cell, *, enable: bool = True):
             yield arm, None
 
 
-def _confirm(args, what: str) -> None:
+def confirm_motion(args, what: str) -> None:
     """Ask before moving real hardware; the simulated cell needs no confirmation."""
     from cell.errors import BadInput, CellError
 
@@ -231,7 +231,7 @@ def _home(args, cell) -> int:
     home = Joints.from_dict(cell.motion.home_joints)
     with _session(args, cell) as (arm, _):
         start = arm.joints()
-        _confirm(args, f"home the arm from {_joints_text(start)}")
+        confirm_motion(args, f"home the arm from {_joints_text(start)}")
         t0 = arm.clock.now()
         with _stop_on_interrupt(arm):
             if start.j3_mm < home.j3_mm:  # lift first, then swing
@@ -258,7 +258,7 @@ def _jog(args, cell) -> int:
         d = start.as_dict()
         field = {"j1": "j1_deg", "j2": "j2_deg", "j3": "j3_mm", "j4": "j4_deg"}[args.joint]
         d[field] += args.step
-        _confirm(args, f"jog {args.joint} by {args.step:+g} {unit}")
+        confirm_motion(args, f"jog {args.joint} by {args.step:+g} {unit}")
         with _stop_on_interrupt(arm):
             sent = arm.move_joints(Joints.from_dict(d))
         end = arm.joints()
@@ -280,7 +280,7 @@ def _gripper(args, cell) -> int:
     with _session(args, cell) as (arm, drives):
         if drives is not None:
             drives.gripper_object_width_mm = args.part
-        _confirm(args, f"{args.action} the gripper")
+        confirm_motion(args, f"{args.action} the gripper")
         with _stop_on_interrupt(arm):
             if args.action == "open":
                 width = arm.gripper.open()
@@ -315,7 +315,7 @@ def _corner(args, cell) -> int:
         w = start.as_array()
         corner = min(solutions, key=lambda q: float(abs(q.as_array() - w).max()))
         corner = Joints(corner.j1_deg, corner.j2_deg, z, start.j4_deg + _wrap(corner.j4_deg - start.j4_deg))
-        _confirm(args, f"move to the {args.corner} tray corner ({x:g}, {y:g}) at z {z:g} and back")
+        confirm_motion(args, f"move to the {args.corner} tray corner ({x:g}, {y:g}) at z {z:g} and back")
         t0 = arm.clock.now()
         with _stop_on_interrupt(arm):
             lifted = Joints(start.j1_deg, start.j2_deg, max(start.j3_mm, z), start.j4_deg)

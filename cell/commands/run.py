@@ -2,7 +2,9 @@
 
 Runs the disassembly in the simulated cell (the default on this machine: simulated world,
 simulated camera rendering frames through the calibration, simulated CANopen drives on
-python-can's virtual bus). With no arguments: the shipped default assembly.
+python-can's virtual bus). With no arguments: the shipped default assembly. With
+`--interface I [--channel C] --camera SPEC` the real cell instead: the drives on that CAN bus,
+frames from that camera (asks before the arm moves, or `--yes`).
 Exit 0 when the whole sequence was removed, 1 when the run stopped, 2 on bad input.
 """
 
@@ -38,6 +40,12 @@ def add_arguments(p):
                    help="simulated world: PART never leaves the tray")
     p.add_argument("--sim-bad-frames", metavar="N", type=int, default=0,
                    help="simulated camera: the next N reads deliver a corrupt frame")
+    real = p.add_argument_group("the real cell (instead of the simulated one)")
+    real.add_argument("--interface", help="python-can interface of the cell's CAN bus (e.g. socketcan)")
+    real.add_argument("--channel", help="CAN channel (default can0)")
+    real.add_argument("--camera", metavar="SPEC",
+                      help="the camera: a device index (0, /dev/video0), a video URL, or a folder of frames")
+    real.add_argument("--yes", action="store_true", help="do not ask before moving the real arm")
 
 
 def run(args) -> int:
@@ -62,18 +70,42 @@ def run(args) -> int:
             miss[pid] = int(n or 1)
         except ValueError:
             raise BadInput(f"--sim-miss {m!r}: expected PART or PART:N") from None
+    real_cell = _real_cell(args)
     out = sys.stderr if args.json else sys.stdout
     cfg = RunConfig(assembly=args.assembly, cell=args.cell, calibration=args.calibration, examples=args.examples,
                     record=args.record, rerun=args.rerun, save_rrd=args.save, seed=args.seed,
                     shift_mm=args.shift_mm, on_no_grasp=args.on_no_grasp, require_approval=args.approve,
                     station=args.station, station_port=args.port, station_token=args.token,
                     faults=WorldFaults(miss=miss, stuck=set(args.sim_stuck), bad_frames=args.sim_bad_frames),
-                    progress=lambda s: print(s, file=out, flush=True))
+                    progress=lambda s: print(s, file=out, flush=True), real_cell=real_cell)
     summary = run_session(cfg)
     _print_summary(summary, out)
     if args.json:
         print(json.dumps(summary), flush=True)
     return 0 if summary["status"] == "complete" and summary["parts_removed"] == summary["parts_total"] else 1
+
+
+def _real_cell(args):
+    """--interface and --camera together select the real cell; the simulated world's options do not
+    apply to it. Moving the real arm is confirmed first (or --yes)."""
+    from cell.errors import BadInput
+    from cell.runtime.session import RealCell
+
+    if args.interface is None and args.camera is None:
+        if args.channel or args.yes:
+            raise BadInput("--channel and --yes are for the real cell: give --interface and --camera too")
+        return None
+    if args.interface is None or args.camera is None:
+        raise BadInput("the real cell needs both --interface (its CAN bus) and --camera")
+    sim = [o for o, v in (("--sim-miss", args.sim_miss), ("--sim-stuck", args.sim_stuck),
+                          ("--sim-bad-frames", args.sim_bad_frames)) if v]
+    if sim:
+        raise BadInput(f"{', '.join(sim)}: options of the simulated world, not of the real cell")
+    from cell.commands.hw import confirm_motion
+
+    args.channel = args.channel or "can0"
+    confirm_motion(args, "run the disassembly (the arm moves over the whole tray)")
+    return RealCell(args.interface, args.channel, args.camera)
 
 
 def _print_summary(s: dict, out) -> None:

@@ -265,6 +265,7 @@ class CellLoop:
                 frame = self.camera.read()
                 if frame is None:
                     raise BadInput("the camera returned no frame")
+                self.cal.check_frame(frame)  # another camera mode or the wrong camera: not this calibration
                 break
             except (BadInput, OSError) as e:
                 last = e

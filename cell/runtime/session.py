@@ -33,6 +33,16 @@ def default_assembly_path() -> Path:
     return Path(str(resources.files("cell") / "data" / "assemblies" / "default.json"))
 
 
+@dataclass(frozen=True)
+class RealCell:
+    """The real cell: the drives on a CAN bus (python-can interface and channel) and a camera
+    (`cell.vision.sources.open_camera` spec: device index, URL, or a folder of frames)."""
+
+    interface: str
+    channel: str
+    camera: str
+
+
 @dataclass
 class RunConfig:
     assembly: str | Path | None = None  # None: the shipped default assembly
@@ -50,6 +60,7 @@ class RunConfig:
     station_port: int = 8765
     station_token: str | None = None
     faults: WorldFaults = field(default_factory=WorldFaults)
+    real_cell: RealCell | None = None  # None: the simulated cell
     drive_fault: tuple | None = None  # (node, kind, {kw}) injected into the simulated drives at the start
     progress: object = None  # callable(str) for progress lines
 
@@ -92,7 +103,6 @@ def displaced(assembly: Assembly, shift_mm: float, seed: int):
 def run_session(cfg: RunConfig) -> dict:
     """Run the disassembly in the simulated cell; returns the summary (with 'status')."""
     from calibration import default_calibration_path, load_calibration
-    from drivers import simulated_cell
 
     say = cfg.progress or (lambda s: None)
     assembly_path = Path(cfg.assembly) if cfg.assembly else default_assembly_path()
@@ -127,6 +137,7 @@ def run_session(cfg: RunConfig) -> dict:
                                    meta={"assembly": assembly.to_json(), "assembly_path": str(assembly_path),
                                          "seed": cfg.seed, "shift_mm": cfg.shift_mm,
                                          "on_no_grasp": cfg.on_no_grasp,
+                                         "real_cell": None if cfg.real_cell is None else vars(cfg.real_cell),
                                          "planner": {"slanted_faces": SynthesisParams().slanted_faces}})
         # The examples as they were at the start: replay needs them even after this session
         # (or anyone) appended to the file.
@@ -141,15 +152,18 @@ def run_session(cfg: RunConfig) -> dict:
     control = RunControl(require_approval=cfg.require_approval)
     status, summary = "complete", None
     with contextlib.ExitStack() as stack:
-        arm, drives = stack.enter_context(simulated_cell(
-            cell, record=recorder.can_log_path if recorder else None))
-        world = SimWorld(displaced(assembly, cfg.shift_mm, cfg.seed), cell, drives, seed=cfg.seed,
-                         faults=cfg.faults)
-        stack.callback(world.close)
-        camera = SimCameraSource(world, cal, cfg.seed)
-        if cfg.drive_fault is not None:
-            node, kind, kw = cfg.drive_fault
-            drives.inject_fault(kind, node, **kw)
+        can_log = recorder.can_log_path if recorder else None
+        try:
+            if cfg.real_cell is not None:
+                arm, camera, world = _real_sources(cfg.real_cell, cell, cal, can_log, stack)
+            else:
+                arm, camera, world = _simulated_sources(cfg, cell, cal, assembly, can_log, stack)
+        except BaseException as e:  # no camera, no bus: nothing ran; the recording says why
+            if viz is not None:
+                viz.close()
+            if recorder is not None:
+                recorder.close("incomplete", {"status": "not started", "error": str(e)})
+            raise
         loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=camera, arm=arm, control=control,
                         examples_path=examples_path, examples_out=examples_out, sink=recorder, viz=viz,
                         options=LoopOptions(on_no_grasp=cfg.on_no_grasp, interactive=cfg.station))
@@ -172,7 +186,12 @@ def run_session(cfg: RunConfig) -> dict:
             say(f"stopped: {e}")
         finally:
             summary = summary or loop.summary()
-            summary.update(status=status, sim_events=list(world.events))
+            summary.update(status=status)
+            if world is not None:
+                summary["sim_events"] = list(world.events)
+            else:
+                summary["real_cell"] = {"interface": cfg.real_cell.interface, "channel": cfg.real_cell.channel,
+                                        "camera": cfg.real_cell.camera}
             if recorder is not None:
                 summary["recording"] = str(recorder.dir)
             if viz is not None:
@@ -181,6 +200,29 @@ def run_session(cfg: RunConfig) -> dict:
             if recorder is not None:
                 recorder.close("complete" if status == "complete" else "incomplete", summary)
     return summary
+
+
+def _simulated_sources(cfg: RunConfig, cell, cal, assembly: Assembly, can_log, stack: contextlib.ExitStack):
+    """The simulated drives on the virtual bus, the simulated world and its camera."""
+    from drivers import simulated_cell
+
+    arm, drives = stack.enter_context(simulated_cell(cell, record=can_log))
+    world = SimWorld(displaced(assembly, cfg.shift_mm, cfg.seed), cell, drives, seed=cfg.seed, faults=cfg.faults)
+    stack.callback(world.close)
+    if cfg.drive_fault is not None:
+        node, kind, kw = cfg.drive_fault
+        drives.inject_fault(kind, node, **kw)
+    return arm, SimCameraSource(world, cal, cfg.seed), world
+
+
+def _real_sources(real: RealCell, cell, cal, can_log, stack: contextlib.ExitStack):
+    """The drives on the cell's CAN bus and its camera: no world, what the camera shows is the truth."""
+    from cell.vision.sources import open_camera
+    from drivers import real_cell
+
+    camera = stack.enter_context(open_camera(real.camera, (cal.width_px, cal.height_px)))
+    arm = stack.enter_context(real_cell(real.interface, real.channel, cell, record=can_log))
+    return arm, camera, None
 
 
 def home_joints(cell):

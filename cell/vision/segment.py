@@ -739,7 +739,8 @@ def segment_to_mm(seg: Segment, cal, z_mm: float, z_bottom_mm: float | None = No
     wall shows, its top edge when the wall looks like the tray; with `z_bottom_mm` those
     boundary points are mapped at the bottom, and with the `frame` each point is checked in
     the image: if the band where a wall would be has the top face's colour, the point is the
-    top edge after all. Merged and cut-off regions are always mapped point by point.
+    top edge after all. Cut-off regions are always mapped point by point; a merged region takes
+    the top-face path only when one face explains all of it (one prism after all).
 
     Returns
     -------
@@ -748,7 +749,7 @@ def segment_to_mm(seg: Segment, cal, z_mm: float, z_bottom_mm: float | None = No
     if z_bottom_mm is None or abs(z_bottom_mm - z_mm) < 1e-9:
         return cal.px_to_mm(seg.outline_px, z_mm), [cal.px_to_mm(hh, z_mm) for hh in seg.holes_px]
     img = None if frame is None else _as_bgr(frame)
-    if img is not None and not (seg.merged or seg.cut_off) and cal.has_pose:
+    if img is not None and not seg.cut_off and cal.has_pose:
         from cell.vision.topface import top_face_px
 
         face = top_face_px(seg, img, cal, z_mm, z_bottom_mm, params or SegmentParams.for_calibration(cal, z_mm=z_mm))

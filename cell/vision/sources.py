@@ -82,3 +82,76 @@ class FileCamera:
         path = self.paths[self.index]
         self.index += 1
         return read_image(path)
+
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+
+
+class VideoCamera:
+    """A camera OpenCV can open (`cv2.VideoCapture`: a device index, a video file, an RTSP or
+    GStreamer URL); `read()` returns the newest frame as BGR uint8.
+
+    The driver's small frame queue is drained first (`grab` a few times): the cell wants what the
+    tray looks like now, not a frame taken before the arm moved away.
+    """
+
+    FLUSH_GRABS = 3
+
+    def __init__(self, source: int | str, size_px: tuple[int, int] | None = None):
+        self.source, self.size_px = source, size_px
+        self._cap = None
+
+    def connect(self) -> VideoCamera:
+        cap = cv2.VideoCapture(self.source)
+        if not cap.isOpened():
+            cap.release()
+            raise BadInput(f"camera {self.source!r} cannot be opened (no such device, or OpenCV has no backend for it)")
+        if self.size_px is not None:
+            cap.set(cv2.CAP_PROP_FRAME_WIDTH, self.size_px[0])
+            cap.set(cv2.CAP_PROP_FRAME_HEIGHT, self.size_px[1])
+        self._cap = cap
+        return self
+
+    def disconnect(self) -> None:
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None
+
+    def __enter__(self) -> VideoCamera:
+        return self.connect()
+
+    def __exit__(self, *exc) -> None:
+        self.disconnect()
+
+    def read(self) -> np.ndarray:
+        if self._cap is None:
+            raise BadInput(f"camera {self.source!r} is not connected")
+        for _ in range(self.FLUSH_GRABS):
+            self._cap.grab()
+        ok, frame = self._cap.read()
+        if not ok or frame is None or frame.size == 0:
+            raise BadInput(f"camera {self.source!r} delivered no frame")
+        if frame.ndim == 2:
+            frame = cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
+        return frame
+
+
+def open_camera(spec: str, size_px: tuple[int, int] | None = None):
+    """The frame source `spec` names: a folder (its images in name order) or one image file
+    (played by `FileCamera`), a device index ("0", "/dev/video0"), or anything else
+    `cv2.VideoCapture` opens (a video file, an rtsp:// or GStreamer URL). Not yet connected."""
+    path = Path(spec)
+    if path.is_dir():
+        files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        if not files:
+            raise BadInput(f"camera folder {path} holds no image files ({', '.join(IMAGE_SUFFIXES)})")
+        return FileCamera(files)
+    if path.suffix.lower() in IMAGE_SUFFIXES:
+        if not path.is_file():
+            raise BadInput(f"camera image {path} does not exist")
+        return FileCamera([path])
+    if spec.isdigit():
+        return VideoCamera(int(spec), size_px)
+    if spec.startswith("/dev/video") and spec[len("/dev/video"):].isdigit():
+        return VideoCamera(int(spec[len("/dev/video"):]), size_px)
+    return VideoCamera(spec, size_px)

@@ -20,7 +20,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
-MIN_WALL_PX = 2.0  # narrower walls: the silhouette mapped point by point is as good
+MIN_WALL_PX = 1.0  # narrower walls: the two planes map the silhouette within half a pixel
 WALL_SHADE = 0.81  # a wall pixel is darker than this x the top's level (walls: about 0.6 - 0.7)
 TOP_LEVEL_PERCENTILE = 60  # the top face is most of the silhouette; highlights are a few per cent
 SWEEP_TOLERANCE = 1.5  # silhouette pixels the swept top face may miss or add, per pixel of perimeter
@@ -51,8 +51,12 @@ def top_face_px(seg, frame: np.ndarray, cal, z_top_mm: float, z_bottom_mm: float
 
     outline = np.asarray(seg.outline_px, float)
     c = outline.mean(axis=0)
-    # where the top's point above c lands on the bottom plane: the sweep from top to bottom
-    d = cal.mm_to_px(cal.px_to_mm(c[None], z_top_mm), z_bottom_mm)[0] - c
+    # where the top's points at and next to c land on the bottom plane: the sweep from top to bottom
+    # (it grows with the distance from the image of the vertical: affine over the part)
+    probe = c + np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0]])
+    shifts = cal.mm_to_px(cal.px_to_mm(probe, z_top_mm), z_bottom_mm) - probe
+    d = shifts[0]
+    gradient = np.column_stack([shifts[1] - d, shifts[2] - d]) / 10.0  # d(p) = d + gradient @ (p - c)
     w = float(np.hypot(*d))
     if not np.isfinite(w) or w < MIN_WALL_PX:
         return None
@@ -80,7 +84,8 @@ def top_face_px(seg, frame: np.ndarray, cal, z_top_mm: float, z_bottom_mm: float
     if n < 2:
         return None
     face = (labels == 1 + int(np.argmax(np.bincount(labels.ravel())[1:]))).astype(np.uint8)
-    if not _explains(face, silhouette, d, cv2.arcLength(raster(outline).astype(np.float32) / (1 << _SUBPIX), True)):
+    perimeter = cv2.arcLength(raster(outline).astype(np.float32) / (1 << _SUBPIX), True)
+    if not _explains(face, silhouette, d, gradient, c - origin, perimeter):
         return None
     contours, hierarchy = cv2.findContours(face, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
     outers, holes = [], []
@@ -98,14 +103,18 @@ def top_face_px(seg, frame: np.ndarray, cal, z_top_mm: float, z_bottom_mm: float
     return rings[0], rings[1:]
 
 
-def _explains(face: np.ndarray, silhouette: np.ndarray, d: np.ndarray, perimeter_px: float) -> bool:
-    """Does the top face swept along d (top -> bottom) give back the silhouette, within
-    SWEEP_TOLERANCE pixels per pixel of its perimeter?"""
+def _explains(face: np.ndarray, silhouette: np.ndarray, d: np.ndarray, gradient: np.ndarray, c: np.ndarray,
+              perimeter_px: float) -> bool:
+    """Does the top face swept from top to bottom (each pixel p by f * (d + gradient @ (p - c)),
+    f from 0 to 1) give back the silhouette, within SWEEP_TOLERANCE pixels per pixel of its
+    perimeter? c: the point where the shift is d, in the masks' pixel indices."""
     steps = int(np.ceil(np.hypot(*d))) + 1
     swept = face.copy()
     size = (face.shape[1], face.shape[0])
     for s in range(1, steps + 1):
-        shift = np.float32([[1, 0, d[0] * s / steps], [0, 1, d[1] * s / steps]])
+        f = s / steps
+        a = np.eye(2) + f * gradient
+        shift = np.column_stack([a, f * d - f * gradient @ c]).astype(np.float32)
         swept |= cv2.warpAffine(face, shift, size, flags=cv2.INTER_NEAREST)
     swept = cv2.morphologyEx(swept, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
     return int(np.count_nonzero(swept != silhouette)) <= SWEEP_TOLERANCE * perimeter_px

@@ -241,3 +241,118 @@ def test_strong_shadows_make_no_false_holes():
         assert seg is not None, part.id
         assert len(seg.holes_px) == len(part.holes_mm), part.id
         assert Polygon(seg.outline_px, seg.holes_px).is_valid, part.id
+
+
+# fast paths of the segmentation: each must give what the plain computation gives
+
+
+def test_regions_labelled_per_group_of_boxes_equal_the_whole_frame_labelling():
+    import cv2
+
+    from cell.vision.segment import label_regions
+
+    rng = np.random.default_rng(3)
+    mask = np.zeros((120, 160), np.uint8)
+    # boxes that overlap, touch along an edge, touch at a corner, stand apart, and one at the border
+    boxes = [(10, 10, 40, 40), (40, 15, 70, 35), (70, 35, 90, 60), (100, 80, 140, 110), (0, 90, 20, 120)]
+    for x0, y0, x1, y1 in boxes:
+        mask[y0:y1, x0:x1] = rng.random((y1 - y0, x1 - x0)) < 0.55
+    mask[35:37, 68:72] = 1  # a region that crosses from one box into the one touching its corner
+    regions = label_regions(mask, boxes, min_area=5, margin_px=2)
+    n, lab = cv2.connectedComponents(mask, connectivity=8)
+    sizes = np.bincount(lab.ravel())
+    expected = {frozenset(zip(*np.nonzero(lab == k), strict=True)) for k in range(1, n) if sizes[k] >= 5}
+    got = set()
+    for x0, y0, sub in regions:
+        ys, xs = np.nonzero(sub)
+        got.add(frozenset(zip(ys + y0, xs + x0, strict=True)))
+    assert len(regions) == len(expected) >= 5
+    assert got == expected
+
+
+def test_quartile_and_median_by_partial_sort_equal_numpy():
+    from cell.vision.background import _box3, _median
+    from cell.vision.segment import _quartile1
+
+    rng = np.random.default_rng(0)
+    for size in (1, 2, 7, 20480, 20481):
+        a = rng.normal(size=size).astype(np.float32)
+        assert _quartile1(a) == pytest.approx(float(np.percentile(a, 25)), rel=1e-6, abs=1e-7)
+        b = rng.normal(size=size)
+        assert _median(b) == float(np.median(b))
+    from scipy import ndimage
+
+    h = rng.random((16, 16, 16))
+    assert np.allclose(_box3(_box3(_box3(h, 0), 1), 2), 27 * ndimage.uniform_filter(h, size=3, mode="constant"))
+
+
+def test_hole_check_far_from_the_outline_equals_the_check_of_every_vertex():
+    import cv2
+
+    from cell.vision.segment import _hole_holds
+
+    def square(cx, cy, r, n=40):
+        t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+        return np.column_stack([cx + r * np.cos(t), cy + r * np.sin(t)])
+
+    outline = square(100, 100, 60, 400)
+    ring = outline.astype(np.float32)
+    cases = [square(100, 100, 10), square(100, 100, 58.8), square(100, 100, 59.8), square(300, 300, 10),
+             square(155, 100, 8), square(100, 100, 1)]
+    for hole in cases:
+        slow = (abs(0.5 * float(np.dot(hole[:, 0], np.roll(hole[:, 1], -1)) - np.dot(np.roll(hole[:, 0], -1),
+                                                                                    hole[:, 1])))
+                >= 0.5 * PARAMS.min_hole_area_px
+                and all(cv2.pointPolygonTest(ring, (float(u), float(v)), True) > 0.5 for u, v in hole))
+        assert _hole_holds(hole, outline, PARAMS) == slow
+    assert _hole_holds(cases[0], outline, PARAMS) and not _hole_holds(cases[3], outline, PARAMS)
+
+
+def test_float32_threshold_of_the_neck_search_is_exact():
+    import cv2
+
+    from cell.vision.touching import _below_f32
+
+    rng = np.random.default_rng(1)
+    dt = (rng.random((50, 50)) * 20).astype(np.float32)
+    dt[0, :5] = np.float32(1.0) + np.float32(20 / 12)  # values right at a level
+    for level in np.concatenate([np.arange(1.0, 20.0, 20 / 12), rng.random(20) * 20]):
+        assert np.array_equal(cv2.compare(dt, _below_f32(level), cv2.CMP_GT) > 0, dt > level)
+
+
+def test_blur_in_the_helper_thread_gives_the_same_segments(layout_frame, monkeypatch):
+    from cell.vision import segment as seg_mod
+
+    threaded = segment_frame(layout_frame, PARAMS)
+
+    class Inline:  # runs the work where it is submitted
+        def submit(self, fn, *args):
+            result = fn(*args)
+            return type("Done", (), {"result": lambda self: result})()
+
+    monkeypatch.setattr(seg_mod, "_helper", Inline)
+    inline = segment_frame(layout_frame, PARAMS)
+    assert len(threaded) == len(inline) == len(LAYOUT)
+    for a, b in zip(threaded, inline, strict=True):
+        assert np.array_equal(a.outline_px, b.outline_px)
+        assert all(np.array_equal(h, g) for h, g in zip(a.holes_px, b.holes_px, strict=True))
+
+
+def _segment_count(frame, queue):
+    queue.put(len(segment_frame(frame, PARAMS)))
+
+
+def test_a_forked_process_segments_after_its_parent_did(layout_frame):
+    # the helper thread does not survive a fork: the child must make its own, not wait on the dead one
+    import multiprocessing
+
+    segment_frame(layout_frame, PARAMS)  # the parent's helper thread exists now
+    ctx = multiprocessing.get_context("fork")
+    queue = ctx.Queue()
+    child = ctx.Process(target=_segment_count, args=(layout_frame, queue))
+    child.start()
+    child.join(30)
+    alive = child.is_alive()
+    if alive:
+        child.kill()
+    assert not alive and queue.get(timeout=5) == len(LAYOUT)

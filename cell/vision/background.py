@@ -15,7 +15,6 @@ from functools import lru_cache
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 FIT_WIDTH_PX = 80  # the fit runs on a copy about this wide
 FIT_DEGREE = 2
@@ -42,7 +41,20 @@ def _centre_weights(h: int, w: int) -> np.ndarray:
 
 
 def estimate_background(image_bgr: np.ndarray, tray: str = "auto") -> tuple[np.ndarray, float]:
-    """The tray's colour field and its noise.
+    """The tray's colour field at the image's size, and its noise (see `fit_tray_field`)."""
+    h, w = image_bgr.shape[:2]
+    field, sigma = fit_tray_field(image_bgr, tray)
+    return field_at(field, (w, h)), sigma
+
+
+def field_at(field: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """The fitted colour field (from `fit_tray_field`) at another size (w, h), float32: resize maps
+    pixel centres consistently, so the smooth field lands where it was fitted."""
+    return cv2.resize(field, size, interpolation=cv2.INTER_LINEAR)
+
+
+def fit_tray_field(image_bgr: np.ndarray, tray: str = "auto") -> tuple[np.ndarray, float]:
+    """The tray's colour field, on a copy about FIT_WIDTH_PX wide, and its noise.
 
     Parameters
     ----------
@@ -54,7 +66,8 @@ def estimate_background(image_bgr: np.ndarray, tray: str = "auto") -> tuple[np.n
 
     Returns
     -------
-    background : ndarray of shape (h, w, 3) float32
+    field : ndarray of shape (sh, sw, 3) float32
+        The field on the small copy (`field_at` brings it to any size).
     sigma_dn : float
         Robust spread (1.4826 MAD) of the tray's residual colour distance, DN.
     """
@@ -63,7 +76,7 @@ def estimate_background(image_bgr: np.ndarray, tray: str = "auto") -> tuple[np.n
     sw, sh = max(4, w // f), max(4, h // f)
     small = cv2.resize(image_bgr, (sw, sh), interpolation=cv2.INTER_AREA).reshape(-1, 3).astype(np.float64)
     nb = 256 // MODE_BIN
-    q = (small // MODE_BIN).astype(np.int64)
+    q = (small * (1.0 / MODE_BIN)).astype(np.int64)  # (the bin size is a power of two: exact floor)
     # the camera looks at the tray: weigh the centre of the view up, the surroundings down
     weights = _centre_weights(sh, sw)
     if tray == "bright":
@@ -75,27 +88,54 @@ def estimate_background(image_bgr: np.ndarray, tray: str = "auto") -> tuple[np.n
     hist = np.bincount((q[:, 0] * nb + q[:, 1]) * nb + q[:, 2], weights=weights,
                        minlength=nb ** 3).reshape(nb, nb, nb)
     # a lit tray spreads over neighbouring bins (gradients): count each bin with its neighbours
-    hist = ndimage.uniform_filter(hist.astype(np.float32), size=3, mode="constant")
+    hist = _box3(_box3(_box3(hist, 0), 1), 2)
     mode = int(np.argmax(hist))
     mode_bgr = (np.array([mode // (nb * nb), (mode // nb) % nb, mode % nb]) + 0.5) * MODE_BIN
-    inl = np.linalg.norm(small - mode_bgr, axis=1) < MODE_RADIUS
+    inl = _row_norms(small - mode_bgr) < MODE_RADIUS
     if inl.sum() < 0.1 * len(small):
         inl[:] = True
     a = _design(sh, sw, FIT_DEGREE)
+    nc = a.shape[1]
+    ay = np.hstack([a, small])  # design and data side by side: one gather and one product a round
+    ridge = 1e-9 * np.eye(nc)
     sigma = 1.0
     coef = None
     for _ in range(FIT_ITERATIONS):
-        ai = a[inl]
-        coef = np.linalg.solve(ai.T @ ai + 1e-9 * np.eye(a.shape[1]), ai.T @ small[inl])
-        res = np.linalg.norm(small - a @ coef, axis=1)
-        sigma = max(1.4826 * float(np.median(res[inl])), 1.0)
+        ayi = ay[inl]
+        normal = ayi.T @ ayi  # [[A'A, A'y], [y'A, y'y]]
+        coef = np.linalg.solve(normal[:nc, :nc] + ridge, normal[:nc, nc:])
+        res = _row_norms(small - a @ coef)
+        sigma = max(1.4826 * _median(res[inl]), 1.0)
         new = res < max(3.0 * sigma, 6.0)
         if new.sum() < 0.1 * len(small):
             break
+        if np.array_equal(new, inl):
+            break  # the same inliers again: the remaining rounds would repeat this fit
         inl = new
-    bg_small = (a @ coef).reshape(sh, sw, 3).astype(np.float32)
-    # resize maps pixel centres consistently, so the smooth field lands where it was fitted
-    return cv2.resize(bg_small, (w, h), interpolation=cv2.INTER_LINEAR), sigma
+    return (a @ coef).reshape(sh, sw, 3).astype(np.float32), sigma
+
+
+def _box3(a: np.ndarray, axis: int) -> np.ndarray:
+    """Sum of each element and its two neighbours along `axis` (zeros beyond the ends)."""
+    p = np.moveaxis(a, axis, 0)
+    out = p.copy()
+    out[1:] += p[:-1]
+    out[:-1] += p[1:]
+    return np.moveaxis(out, 0, axis)
+
+
+def _median(x: np.ndarray) -> float:
+    """np.median of a 1-D array by one partial sort (without np.median's overhead)."""
+    k = len(x) // 2
+    if len(x) % 2:
+        return float(np.partition(x, k)[k])
+    part = np.partition(x, k)  # (one kth: numpy's multi-kth partition is ten times slower)
+    return float((part[:k].max() + part[k]) * 0.5)
+
+
+def _row_norms(d: np.ndarray) -> np.ndarray:
+    """Euclidean norms of the rows of an (n, 3) array (np.linalg.norm(d, axis=1), faster)."""
+    return np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
 
 
 def reference_background(reference_bgr: np.ndarray, out_size: tuple[int, int]) -> np.ndarray:

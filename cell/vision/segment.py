@@ -19,13 +19,14 @@ Pixel coordinates are CONTRACT-frame (origin at the top-left pixel's top-left co
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
 from cell.errors import BadInput
-from cell.vision.background import estimate_background, reference_background
+from cell.vision.background import field_at, fit_tray_field, reference_background
 
 SMALL_FRAME_PX = 960
 WALL_FACING_COS = 0.3
@@ -120,32 +121,39 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
     dw, dh = w // s, h // s
     det = cv2.resize(frame, (dw, dh), interpolation=cv2.INTER_AREA) if s > 1 else frame
     det = det.astype(np.float32)
+    # the blurred copies do not depend on the tray: made in a helper thread while the tray is fitted
+    # (OpenCV releases the GIL; the fit is mostly Python and small numpy calls)
+    smoothed = _helper().submit(smoothed_copies, det)
     if reference_bgr is not None:
         ref = _as_bgr(reference_bgr)
         if ref.shape != frame.shape:
             raise BadInput(f"the reference image is {ref.shape[1]} x {ref.shape[0]} px, the frame {w} x {h} px")
         bg = reference_background(ref, (dw, dh))
+        bg_coarse = None
     else:
-        bg, _ = estimate_background(det, p.tray)
-    mask = part_mask(det, bg, p, s)
+        field, _ = fit_tray_field(det, p.tray)
+        bg = field_at(field, (dw, dh))
+        # the coarse copy straight from the fitted field, not by averaging `bg` (the same smooth field)
+        bg_coarse = field_at(field, (max(1, dw // COARSE), max(1, dh // COARSE)))
+    mask, boxes = part_mask(det, bg, p, s, smoothed.result(), bg_coarse)
     if not mask.any():
         return []  # the empty tray
-    labels, merged = _split_regions(mask, p, s, det)
-    segs = _regions_to_segments(labels, merged, frame, det, bg, p, s)
+    pieces = _split_regions(mask, boxes, p, s, det)
+    segs = _regions_to_segments(pieces, frame, det, bg, p, s)
     segs.sort(key=lambda g: -g.area_px)
     return segs
 
 
+_SUM_PLUS_1 = np.ones((1, 4), np.float32)  # cv2.transform: b + g + r + 1 in one pass (the same sums)
+
+
 def _colour_change(sm: np.ndarray, bg: np.ndarray):
     """Per pixel: brightness ratio r, chroma change (L1 of normalised colour), both in DN too."""
-    ones = np.ones((1, 3), np.float32)
-    si = cv2.transform(sm, ones) + 1.0
-    sb = cv2.transform(bg, ones) + 1.0
+    si = cv2.transform(sm, _SUM_PLUS_1)
+    sb = cv2.transform(bg, _SUM_PLUS_1)
     r = si / sb
-    ib, ig, _ = cv2.split(sm)
-    bb, bgg, _ = cv2.split(bg)
-    db = ib / si - bb / sb
-    dg = ig / si - bgg / sb
+    db = sm[:, :, 0] / si - bg[:, :, 0] / sb  # (channel views: no copies)
+    dg = sm[:, :, 1] / si - bg[:, :, 1] / sb
     chroma = np.abs(db) + np.abs(dg) + np.abs(db + dg)  # L1 over b, g, r of the normalised colour
     # the same changes in DN, to be compared with the frame's noise (dark trays have noisy chroma)
     return r, chroma, chroma * si, (si - sb) / 3.0
@@ -157,45 +165,95 @@ COARSE_EVIDENCE = 0.8  # x the weak-evidence thresholds
 BOX_FULL_FRAME = 0.6  # when the boxes cover more of the frame than this, one box for all
 
 
-def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int) -> np.ndarray:
-    """uint8 mask (0/1) of part pixels at detection resolution (steps 2 and 3). Only boxes
-    around what differs from the tray are looked at closely."""
+_HELPER: list = []
+os.register_at_fork(after_in_child=_HELPER.clear)  # a forked child makes its own (threads do not survive a fork)
+
+
+def _helper():
+    """One helper thread for work that overlaps the main thread's (made on first use)."""
+    if not _HELPER:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _HELPER.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="segment"))
+    return _HELPER[0]
+
+
+def smoothed_copies(det: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The detection image blurred (noise), its every 4th pixel (to measure the noise on) and
+    its coarse copy (to find where anything differs from the tray), float32."""
     sm = cv2.GaussianBlur(det, (0, 0), 0.8)
+    h, w = sm.shape[:2]
+    coarse = cv2.resize(sm, (max(1, w // COARSE), max(1, h // COARSE)), interpolation=cv2.INTER_AREA)
+    return sm, np.ascontiguousarray(sm[::4, ::4]), coarse
+
+
+def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int, smoothed=None,
+              bg_coarse: np.ndarray | None = None) -> tuple[np.ndarray, list[tuple[int, int, int, int]]]:
+    """uint8 mask (0/1) of part pixels at detection resolution (steps 2 and 3), and the boxes
+    (x0, y0, x1, y1) outside which it is 0. Only those boxes around what differs from the tray
+    are looked at closely. `smoothed`: `smoothed_copies(det)` if made already; `bg_coarse`: the
+    tray at 1 / COARSE size if known (else `bg` averaged down)."""
+    sm, sparse, coarse = smoothed or smoothed_copies(det)
     # spread from the quietest quarter of the frame (the tray), valid while the tray covers a
     # quarter of the view: the 25th percentile of |N(0, s)| is 0.32 s
-    _, _, chroma_dn, bright_dn = _colour_change(np.ascontiguousarray(sm[::4, ::4]), np.ascontiguousarray(bg[::4, ::4]))
-    noise_c = float(np.percentile(chroma_dn, 25)) / 0.32 + 1e-3
-    noise_b = float(np.percentile(np.abs(bright_dn), 25)) / 0.32 + 1e-3
+    _, _, chroma_dn, bright_dn = _colour_change(sparse, np.ascontiguousarray(bg[::4, ::4]))
+    noise_c, noise_b = _noise_spreads(chroma_dn, bright_dn)
     h, w = det.shape[:2]
     mask = np.zeros((h, w), np.uint8)
-    for x0, y0, x1, y1 in _work_boxes(sm, bg, p):
+    if bg_coarse is None:
+        bg_coarse = cv2.resize(bg, coarse.shape[1::-1], interpolation=cv2.INTER_AREA)
+    boxes = _work_boxes(coarse, bg_coarse, p, (h, w))
+    for x0, y0, x1, y1 in boxes:
         mask[y0:y1, x0:x1] = _mask_in_box(sm[y0:y1, x0:x1], bg[y0:y1, x0:x1], p, scale, noise_c, noise_b,
                                           (x0, y0), (h, w))
-    return mask
+    return mask, boxes
+
+
+def _noise_spreads(chroma_dn: np.ndarray, bright_dn: np.ndarray) -> tuple[float, float]:
+    """Noise spreads (DN) of chroma and brightness from their 25th percentiles: the quietest
+    quarter is the tray, and the 25th percentile of |N(0, s)| is 0.32 s."""
+    return _quartile1(chroma_dn) / 0.32 + 1e-3, _quartile1(np.abs(bright_dn)) / 0.32 + 1e-3
+
+
+def _quartile1(a: np.ndarray) -> float:
+    """np.percentile(a, 25) (linear interpolation) by one partial sort, without its overhead."""
+    flat = a.ravel()
+    idx = 0.25 * (flat.size - 1)
+    lo = int(idx)
+    part = np.partition(flat, lo)  # (one kth: numpy's multi-kth partition is ten times slower)
+    nxt = part[lo + 1:].min() if lo + 1 < flat.size else part[lo]
+    return float(part[lo] + (nxt - part[lo]) * (idx - lo))
 
 
 def _evidence(r, chroma, chroma_dn, bright_dn, p: SegmentParams, f: float, noise_c: float, noise_b: float):
+    """Pixels that changed their chroma, or are brighter, or darker than any shadow makes the
+    tray, by f x the thresholds, each change standing f x noise_k noise spreads above the tray's."""
     k = f * p.noise_k
-    return (((chroma > f * p.chroma_min) & (chroma_dn > k * noise_c))
-            | ((r > 1.0 + f * p.brighter_min) & (bright_dn > k * noise_b))
-            | ((r < 1.0 - p.darker_min) & (-bright_dn > k * noise_b)))
+    out = chroma > f * p.chroma_min  # (in place: fewer passes over the box)
+    out &= chroma_dn > k * noise_c
+    brighter = r > 1.0 + f * p.brighter_min
+    brighter &= bright_dn > k * noise_b
+    out |= brighter
+    dark = r < 1.0 - p.darker_min
+    dark &= bright_dn < -(k * noise_b)
+    out |= dark
+    return out
 
 
-def _work_boxes(sm, bg, p: SegmentParams) -> list[tuple[int, int, int, int]]:
+def _work_boxes(coarse, bg_coarse, p: SegmentParams, det_hw: tuple[int, int]) -> list[tuple[int, int, int, int]]:
     """Disjoint boxes (detection px) that hold everything that differs from the tray, with a
     margin: found on a coarse copy with the weak-evidence thresholds lowered (averaging keeps a
     part's change and lowers the noise; thin parts lose contrast). Each box holds whole clusters
-    of changed pixels."""
-    h, w = sm.shape[:2]
-    cw, ch = max(1, w // COARSE), max(1, h // COARSE)
-    r, chroma, chroma_dn, bright_dn = _colour_change(cv2.resize(sm, (cw, ch), interpolation=cv2.INTER_AREA),
-                                                     cv2.resize(bg, (cw, ch), interpolation=cv2.INTER_AREA))
+    of changed pixels. `coarse`, `bg_coarse`: the blurred detection image and the tray at
+    1 / COARSE size; `det_hw` the detection image's size."""
+    h, w = det_hw
+    ch, cw = coarse.shape[:2]
+    r, chroma, chroma_dn, bright_dn = _colour_change(coarse, bg_coarse)
     # the coarse copy's own noise (averaging lowers it), measured like the frame's
-    noise_c = float(np.percentile(chroma_dn, 25)) / 0.32 + 1e-3
-    noise_b = float(np.percentile(np.abs(bright_dn), 25)) / 0.32 + 1e-3
+    noise_c, noise_b = _noise_spreads(chroma_dn, bright_dn)
     changed = (_evidence(r, chroma, chroma_dn, bright_dn, p, COARSE_EVIDENCE * p.hysteresis, noise_c, noise_b)
                | (r < 1.0 - COARSE_EVIDENCE * p.brighter_min))
-    n, lab = cv2.connectedComponents(changed.astype(np.uint8), connectivity=8)
+    n, lab = cv2.connectedComponents(changed.view(np.uint8), connectivity=8)
     if n <= 1:
         return []
     from scipy import ndimage
@@ -230,11 +288,11 @@ def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: 
         # but not in shadow (a shadow next to a part mixes with the part's colour at its edge)
         weak = (_evidence(r, chroma, chroma_dn, bright_dn, p, p.hysteresis, noise_c, noise_b)
                 & ~(r < 1.0 - p.brighter_min)) | strong
-        n, lab = cv2.connectedComponents(weak.astype(np.uint8), connectivity=8)
+        n, lab = cv2.connectedComponents(weak.view(np.uint8), connectivity=8)
         seeded = np.zeros(n, bool)
         seeded[lab[strong]] = True
         seeded[0] = False
-        strong = seeded[lab]
+        strong = np.take(seeded, lab)
     darker = (r < 1.0 - p.brighter_min) & ~strong
     if not p.shadow_aware:
         strong |= darker
@@ -244,7 +302,7 @@ def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: 
         # shadow-like pixels enclosed by a part are its holes (the tray in the part's shadow)
         from cell.vision.touching import fill_holes
 
-        enclosed = fill_holes(strong.astype(np.uint8)).astype(bool) & ~strong
+        enclosed = fill_holes(strong.view(np.uint8)).view(bool) & ~strong
         mask |= _material_shadowlike(r, strong, darker & ~enclosed, p, scale, origin, det_hw)
     k = np.ones((3, 3), np.uint8)
     return cv2.morphologyEx(mask, cv2.MORPH_OPEN, k)
@@ -252,37 +310,41 @@ def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: 
 
 def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin=(0, 0), det_hw=None) -> np.ndarray:
     """Shadow-like regions bounded by sharp edges are material (walls, grey parts), not shadow."""
-    gx = cv2.Sobel(r, cv2.CV_32F, 1, 0, ksize=3) / 8.0
-    gy = cv2.Sobel(r, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+    gx = cv2.Sobel(r, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
+    gy = cv2.Sobel(r, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
     grad = np.sqrt(gx * gx + gy * gy) / scale  # per full-resolution pixel
     sharp = grad > p.sharp_edge
     # cut shadow-like regions at sharp edges, so a grey part and its own shadow come apart
-    cand = (darker & ~sharp).astype(np.uint8)
+    cand = (darker & ~sharp).view(np.uint8)  # (bool arrays viewed as 0/1 bytes for OpenCV: no copies)
     n, lab = cv2.connectedComponents(cand, connectivity=4)
     if n <= 1:
         return np.zeros_like(cand)
     # judge each region by its free border, where it meets the tray (not the part it hangs on):
     # a wall ends there in a sharp edge, a shadow fades out
-    tray = (~(strong | darker | sharp)).astype(np.uint8)
+    tray = (~(strong | darker | sharp)).view(np.uint8)
     near_tray = cv2.dilate(tray, np.ones((5, 5), np.uint8)) > 0
-    near_part = cv2.dilate(strong.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-    border = cand.astype(bool) & (cv2.dilate((1 - cand).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+    near_part = cv2.dilate(strong.view(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    # (a region's border pixels: those with a neighbour outside it)
+    border = cand.view(bool) & (cv2.erode(cand, np.ones((3, 3), np.uint8)) == 0)
     border &= near_tray & ~near_part
-    near_sharp = cv2.dilate(sharp.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-    lb = lab[border]
-    total = np.bincount(lb, minlength=n).astype(float)
-    sharp_count = np.bincount(lb, weights=near_sharp[border].astype(float), minlength=n)
+    near_sharp = cv2.dilate(sharp.view(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    total = np.bincount(lab[border], minlength=n).astype(float)
+    sharp_count = np.bincount(lab[border & near_sharp], minlength=n).astype(float)
     frac = np.divide(sharp_count, total, out=np.zeros(n), where=total > 0)
     keep = frac > p.sharp_fraction
     keep[0] = False
     if keep.any() and strong.any():
-        ns, parts_lab = cv2.connectedComponents(strong.astype(np.uint8), connectivity=8)
+        ns, parts_lab = cv2.connectedComponents(strong.view(np.uint8), connectivity=8)
         pl = parts_lab.astype(np.float32)
         k3 = np.ones((3, 3), np.uint8)
         hi = cv2.dilate(pl, k3)
-        lo = -cv2.dilate(np.where(pl > 0, -pl, np.float32(-1e9)).astype(np.float32), k3)
-        inside = keep[lab]  # only the regions still in question
-        ys, xs = np.nonzero(inside)
+        # the lowest neighbouring part label: the tray (0) counted as 1e9 (pl + 1e9 where pl is 0)
+        lo = cv2.erode(cv2.add(pl, cv2.threshold(pl, 0.5, 1e9, cv2.THRESH_BINARY_INV)[1]), k3)
+        inside = np.take(keep, lab)  # only the regions still in question (take: twice as fast as keep[lab])
+        bx0, by0, bw, bh = cv2.boundingRect(inside.view(np.uint8))  # (they are small: look only there)
+        ys, xs = np.nonzero(inside[by0:by0 + bh, bx0:bx0 + bw])
+        ys += by0
+        xs += bx0
         li = lab[ys, xs]
         touch = hi[ys, xs] > 0  # pixels next to a part (only they see a part's label)
         lt, hit, lot = li[touch], hi[ys[touch], xs[touch]], lo[ys[touch], xs[touch]]
@@ -300,54 +362,105 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin
         h_det, w_det = det_hw or r.shape
         vp = ((np.array(p.vertical_px) / scale) if p.vertical_px is not None
               else np.array([w_det, h_det]) / 2.0) - np.asarray(origin)  # in the box's pixels
-        py, px = np.nonzero(parts_lab)
-        pli = parts_lab[py, px]
-        pcnt = np.maximum(np.bincount(pli, minlength=ns), 1)
-        pc = np.column_stack([np.bincount(pli, px, ns), np.bincount(pli, py, ns)])[owner] / pcnt[owner, None]
+        centres = np.zeros((ns, 2))  # of the parts that own a region still kept
+        for o in np.unique(owner[keep & (owner > 0)]):
+            m = cv2.moments((parts_lab == o).view(np.uint8), binaryImage=True)
+            centres[o] = m["m10"] / m["m00"], m["m01"] / m["m00"]
+        pc = centres[owner]
         ax, ay = cx - pc[:, 0], cy - pc[:, 1]
         bx, by = vp[0] - pc[:, 0], vp[1] - pc[:, 1]
         cos = (ax * bx + ay * by) / np.maximum(np.hypot(ax, ay) * np.hypot(bx, by), 1e-9)
         facing = cos > WALL_FACING_COS  # walls on sides turned away from the vertical are thin anyway
         keep &= (owner == 0) | facing
-    out = keep[lab].astype(np.uint8)
+    out = np.take(keep, lab).view(np.uint8)
     # the sharp edge pixels around kept regions (a wall's outer edge) belong to the part
     grown = cv2.dilate(out, np.ones((3, 3), np.uint8))
-    out |= (darker & sharp & (grown > 0)).astype(np.uint8)
+    out |= (darker & sharp & (grown > 0)).view(np.uint8)
     return out
 
 
-def _split_regions(mask: np.ndarray, p: SegmentParams, scale: int, det: np.ndarray | None = None
-                   ) -> tuple[np.ndarray, set[int]]:
-    """Label image of regions (0 = tray) and the labels flagged merged; touching parts split."""
-    # (connectedComponentsWithStats is ten times slower than labelling and counting)
-    n, lab = cv2.connectedComponents(mask, connectivity=8)
+def _split_regions(mask: np.ndarray, boxes, p: SegmentParams, scale: int, det: np.ndarray | None = None
+                   ) -> list[tuple[int, int, np.ndarray, bool]]:
+    """The mask's parts as (x0, y0, piece bool mask in a box at (x0, y0), merged); specks
+    dropped, touching parts split."""
     min_area = p.min_area_px / scale ** 2
-    keep = np.bincount(lab.ravel(), minlength=n) >= min_area
-    keep[0] = False
-    remap = np.zeros(n, np.int32)
-    remap[keep] = np.arange(1, int(keep.sum()) + 1)
-    lab = remap[lab]
+    regions = label_regions(mask, boxes, min_area, margin_px=2)
     if not p.split_touching:
-        return lab, set()
+        return [(x0, y0, sub.astype(bool), False) for x0, y0, sub in regions]
     from cell.vision.touching import split_necks
 
-    grey = None if det is None else cv2.cvtColor(det, cv2.COLOR_BGR2GRAY)
-    return split_necks(lab, p, min_area, grey, det)
+    return split_necks(regions, p, min_area, det)
 
 
-def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.ndarray, det: np.ndarray,
-                         bg: np.ndarray, p: SegmentParams, scale: int) -> list[Segment]:
+def label_regions(mask: np.ndarray, boxes, min_area: float, margin_px: int = 0
+                  ) -> list[tuple[int, int, np.ndarray]]:
+    """8-connected regions of `mask` (uint8 0/1, zero outside `boxes`) of at least `min_area`
+    pixels, each as (x0, y0, uint8 0/1 mask of the region alone in its bounding box grown by
+    `margin_px`, clipped to the frame), in the order of their first pixel within each group of
+    touching boxes. Labelling box groups instead of the whole frame saves whole-frame passes."""
     from scipy import ndimage
 
-    dh, dw = labels.shape
-    found = []  # (outline, holes, merged, cut_off, mean colour) per region, before refinement
-    for k, sl in enumerate(ndimage.find_objects(labels), start=1):
-        if sl is None:
+    h, w = mask.shape
+    out = []
+    for gx0, gy0, gx1, gy1 in _touching_groups(boxes):
+        crop = mask[gy0:gy1, gx0:gx1]
+        # (connectedComponentsWithStats is ten times slower than labelling and counting)
+        n, lab = cv2.connectedComponents(crop, connectivity=8)
+        if n <= 1:
             continue
-        merged = k in merged_ids
-        y0, x0 = max(sl[0].start - 1, 0), max(sl[1].start - 1, 0)
-        y1, x1 = min(sl[0].stop + 1, dh), min(sl[1].stop + 1, dw)
-        sub = (labels[y0:y1, x0:x1] == k).astype(np.uint8)
+        big = np.bincount(lab.ravel(), minlength=n) >= min_area
+        for k, sl in enumerate(ndimage.find_objects(lab), start=1):
+            if sl is None or not big[k]:
+                continue
+            y0, x0 = max(sl[0].start + gy0 - margin_px, 0), max(sl[1].start + gx0 - margin_px, 0)
+            y1, x1 = min(sl[0].stop + gy0 + margin_px, h), min(sl[1].stop + gx0 + margin_px, w)
+            sub = np.zeros((y1 - y0, x1 - x0), np.uint8)
+            # the region's pixels, copied from the group's labels (the margin may reach past the group)
+            cy0, cx0 = max(y0, gy0), max(x0, gx0)
+            cy1, cx1 = min(y1, gy1), min(x1, gx1)
+            sub[cy0 - y0:cy1 - y0, cx0 - x0:cx1 - x0] = lab[cy0 - gy0:cy1 - gy0, cx0 - gx0:cx1 - gx0] == k
+            out.append((x0, y0, sub))
+    return out
+
+
+def _touching_groups(boxes) -> list[tuple[int, int, int, int]]:
+    """Bounding boxes of groups of boxes (x0, y0, x1, y1) that overlap or touch (also at a
+    corner): 8-connected regions of a mask that is 0 outside the boxes never cross groups."""
+    groups = [list(b) for b in boxes]
+    merged = True
+    while merged:
+        merged = False
+        out: list[list[int]] = []
+        for bx in groups:
+            for o in out:
+                if bx[0] <= o[2] and o[0] <= bx[2] and bx[1] <= o[3] and o[1] <= bx[3]:
+                    o[:] = [min(o[0], bx[0]), min(o[1], bx[1]), max(o[2], bx[2]), max(o[3], bx[3])]
+                    merged = True
+                    break
+            else:
+                out.append(bx)
+        groups = out
+    return [tuple(g) for g in groups]
+
+
+def _regions_to_segments(pieces, frame: np.ndarray, det: np.ndarray, bg: np.ndarray, p: SegmentParams,
+                         scale: int) -> list[Segment]:
+    """Pieces (x0, y0, bool mask, merged) -> segments: outlines, holes (also the small ones seen
+    only at full resolution), all refined at full resolution in one pass."""
+    dh, dw = det.shape[:2]
+    found = []  # (outline, holes, merged, cut_off, mean colour) per region, before refinement
+    for px0, py0, piece, merged in pieces:
+        piece = piece.view(np.uint8)
+        bx, by, bw, bh = cv2.boundingRect(piece)
+        if bw == 0:
+            continue
+        # the piece's bounding box grown by a pixel
+        y0, x0 = max(py0 + by - 1, 0), max(px0 + bx - 1, 0)
+        y1, x1 = min(py0 + by + bh + 1, dh), min(px0 + bx + bw + 1, dw)
+        sub = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        cy0, cx0 = max(y0, py0), max(x0, px0)
+        cy1, cx1 = min(y1, py0 + piece.shape[0]), min(x1, px0 + piece.shape[1])
+        sub[cy0 - y0:cy1 - y0, cx0 - x0:cx1 - x0] = piece[cy0 - py0:cy1 - py0, cx0 - px0:cx1 - px0]
         contours, hier = cv2.findContours(sub, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE, offset=(x0, y0))
         if hier is None:
             continue
@@ -358,7 +471,8 @@ def _regions_to_segments(labels: np.ndarray, merged_ids: set[int], frame: np.nda
             c = contours[oi].reshape(-1, 2)
             if cv2.contourArea(contours[oi]) < p.min_area_px / scale ** 2 * 0.5:
                 continue
-            cut = bool(np.any((c[:, 0] <= 0) | (c[:, 1] <= 0) | (c[:, 0] >= dw - 1) | (c[:, 1] >= dh - 1)))
+            ox, oy, ow, oh = cv2.boundingRect(contours[oi])
+            cut = ox <= 0 or oy <= 0 or ox + ow >= dw or oy + oh >= dh  # touches the image border
             holes = [contours[j].reshape(-1, 2) for j in range(len(contours)) if hier[j][3] == oi
                      and cv2.contourArea(contours[j]) >= p.min_hole_area_px / scale ** 2]
             outline = _to_full(c, scale)
@@ -394,6 +508,12 @@ def _hole_holds(hole: np.ndarray, outline: np.ndarray, p: SegmentParams) -> bool
     if abs(_signed_area(hole)) < 0.5 * p.min_hole_area_px:
         return False
     ring = outline.astype(np.float32)
+    (u0, v0), (u1, v1) = hole.min(axis=0) - 1.0, hole.max(axis=0) + 1.0
+    a, b = outline, _ahead(outline, 1)
+    near = ((np.minimum(a[:, 0], b[:, 0]) <= u1) & (np.maximum(a[:, 0], b[:, 0]) >= u0)
+            & (np.minimum(a[:, 1], b[:, 1]) <= v1) & (np.maximum(a[:, 1], b[:, 1]) >= v0))
+    if not near.any():  # no edge of the outline comes near: the hole lies wholly inside or outside
+        return cv2.pointPolygonTest(ring, (float(hole[0, 0]), float(hole[0, 1])), False) > 0
     return all(cv2.pointPolygonTest(ring, (float(u), float(v)), True) > 0.5 for u, v in hole)
 
 
@@ -406,30 +526,30 @@ def _tray_dips(det, bg, region, part_bgr, box, p: SegmentParams) -> tuple[int, i
     if not inner.any():
         return None
     # the tray's colour varies slowly: one part-minus-tray colour difference for the whole box
-    d = np.asarray(part_bgr, np.float32) - np.asarray(cv2.mean(b)[:3], np.float32)
+    tray = cv2.mean(b)[:3]
+    d = np.asarray(part_bgr, np.float32) - np.asarray(tray, np.float32)
     f = cv2.transform(img - b, (d / max(float(d @ d), 1.0)).reshape(1, 3))
-    ch = _ratio_chroma(img, b)[1]
-    dips = (((f < 0.8) & (ch < 2.0 * p.chroma_min)) | (ch < 0.5 * _chroma_of(part_bgr, b))) & inner.astype(bool)
-    if not dips.any():
-        return None
-    ys, xs = np.nonzero(dips)
-    return int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1
+    ch = _ratio_chroma(img, b, ratio=False)[1]
+    dips = (((f < 0.8) & (ch < 2.0 * p.chroma_min)) | (ch < 0.5 * _chroma_of(part_bgr, tray))) & inner.view(bool)
+    bx, by, bw, bh = cv2.boundingRect(dips.view(np.uint8))
+    return None if bw == 0 else (bx, by, bx + bw, by + bh)
 
 
-def _ratio_chroma(img: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Brightness ratio and chroma change (L1 over the three channels of the colour divided by
-    its sum) of an unblurred image against the tray; float32 (h, w) each."""
+def _ratio_chroma(img: np.ndarray, b: np.ndarray, ratio: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
+    """Brightness ratio (None unless `ratio`) and chroma change (L1 over the three channels of the
+    colour divided by its sum) of an unblurred image against the tray; float32 (h, w) each."""
     ones = np.ones((1, 3), np.float32)
-    si = cv2.transform(img, ones) + 1.0
-    sb = cv2.transform(b, ones) + 1.0
-    diff = cv2.absdiff(img * (1.0 / si)[:, :, None], b * (1.0 / sb)[:, :, None])
-    return si / sb, cv2.transform(diff, ones)
+    si = cv2.transform(img, _SUM_PLUS_1)
+    sb = cv2.transform(b, _SUM_PLUS_1)
+    # (cv2.multiply by a merged reciprocal: the same products as numpy's broadcast, faster)
+    diff = cv2.absdiff(cv2.multiply(img, cv2.merge([1.0 / si] * 3)), cv2.multiply(b, cv2.merge([1.0 / sb] * 3)))
+    return (si / sb if ratio else None), cv2.transform(diff, ones)
 
 
-def _chroma_of(part_bgr, tray_bgr: np.ndarray) -> float:
+def _chroma_of(part_bgr, tray_mean_bgr) -> float:
     """Chroma change (L1 of normalised colour) of a part's mean colour against the tray's mean."""
     pc = np.asarray(part_bgr, np.float64)
-    tc = np.asarray(cv2.mean(tray_bgr)[:3], np.float64)
+    tc = np.asarray(tray_mean_bgr, np.float64)
     return float(np.abs(pc / (pc.sum() + 1.0) - tc / (tc.sum() + 1.0)).sum())
 
 
@@ -455,14 +575,15 @@ def _holes_full_res(frame, bg, outline, part_bgr, box, p: SegmentParams, scale: 
     inside = cv2.erode(inside, np.ones((5, 5), np.uint8))  # away from the outline's blur
     if not inside.any():
         return []
-    d = np.asarray(part_bgr, np.float32) - np.asarray(cv2.mean(b)[:3], np.float32)  # the tray varies slowly
+    tray = cv2.mean(b)[:3]
+    d = np.asarray(part_bgr, np.float32) - np.asarray(tray, np.float32)  # the tray varies slowly
     f = cv2.transform(img - b, (d / max(float(d @ d), 1.0)).reshape(1, 3))
     r, chroma = _ratio_chroma(img, b)
     # nearer the tray's colour than the part's; for a coloured part the chroma alone decides, as
     # the tray seen through a hole lies in the part's shadow (darker, towards a dark part's colour)
-    half_chroma = 0.5 * _chroma_of(part_bgr, b)
+    half_chroma = 0.5 * _chroma_of(part_bgr, tray)
     tray_like = (chroma < max(p.chroma_min, half_chroma)) & (r > 1.0 - p.darker_min) & (r < 1.0 + p.brighter_min)
-    holes = (((f < 0.5) | (chroma < half_chroma)) & tray_like & inside.astype(bool)).astype(np.uint8)
+    holes = (((f < 0.5) | (chroma < half_chroma)) & tray_like & inside.view(bool)).view(np.uint8)
     holes = cv2.morphologyEx(holes, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     contours, _ = cv2.findContours(holes, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     rings = []
@@ -495,28 +616,30 @@ def refine_rings(frame: np.ndarray, rings: list[np.ndarray], is_hole: list[bool]
     todo = [i for i, r in enumerate(rings) if len(r) >= 5]
     if not todo:
         return list(rings)
-    normals, tangs = [], []
-    for i in todo:
-        ring = rings[i]
-        tang = np.roll(ring, -2, axis=0) - np.roll(ring, 2, axis=0)
-        tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
-        sign = (1.0 if _signed_area(ring) > 0 else -1.0) * (-1.0 if is_hole[i] else 1.0)
-        normals.append(sign * np.column_stack([tang[:, 1], -tang[:, 0]]))  # out of the material
-        tangs.append(tang)
+    # all rings' points in one array; each point's neighbours k steps along its own ring
+    lens = np.array([len(rings[i]) for i in todo])
+    starts = np.concatenate(([0], np.cumsum(lens)[:-1]))
     pts0 = np.concatenate([rings[i] for i in todo])
-    normal, tang = np.concatenate(normals), np.concatenate(tangs)
     n = len(pts0)
+    ring_of = np.repeat(np.arange(len(todo)), lens)
+    first, size = starts[ring_of], lens[ring_of]
+    local = np.arange(n) - first
+    tang = pts0[first + (local + 2) % size] - pts0[first + (local - 2) % size]
+    tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
+    nxt = pts0[first + (local + 1) % size]
+    area2 = np.add.reduceat(pts0[:, 0] * nxt[:, 1] - nxt[:, 0] * pts0[:, 1], starts)  # twice each ring's signed area
+    sign = np.where(area2 > 0, 1.0, -1.0) * np.where(np.array([is_hole[i] for i in todo]), -1.0, 1.0)
+    normal = sign[ring_of, None] * np.column_stack([tang[:, 1], -tang[:, 0]])  # out of the material
     rng_px = max(p.refine_range_px, 2.0 * p.scale)  # the coarse outline is up to a detection pixel off
     ts = np.arange(-rng_px, rng_px + 1e-9, 0.5)
     nt = len(ts)
     ks = np.array([-1.0, 0.0, 1.0])  # three samples across the profile, averaged (noise)
-    # sample positions (n, nt, 3) per axis, built in float32 (maps of pixel centres at integers)
-    t32, k32 = ts.astype(np.float32)[None, :, None], ks.astype(np.float32)[None, None, :]
-    p32, n32, g32 = (a.astype(np.float32) for a in (pts0 - 0.5, normal, tang))
-    mapx = p32[:, 0, None, None] + t32 * n32[:, 0, None, None] + k32 * g32[:, 0, None, None]
-    mapy = p32[:, 1, None, None] + t32 * n32[:, 1, None, None] + k32 * g32[:, 1, None, None]
-    samp = cv2.remap(frame, mapx.reshape(n, -1), mapy.reshape(n, -1), cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_REPLICATE)  # (n, nt * 3, 3) uint8
+    # sample positions p + t normal + k tangent for every (t, k), per axis (n, nt * 3), as one
+    # product of (n, 3) coefficients and a (3, nt * 3) basis, in float32 (pixel centres at integers)
+    basis = np.stack([np.ones(nt * 3), np.repeat(ts, 3), np.tile(ks, nt)]).astype(np.float32)
+    mapx = np.column_stack([pts0[:, 0] - 0.5, normal[:, 0], tang[:, 0]]).astype(np.float32) @ basis
+    mapy = np.column_stack([pts0[:, 1] - 0.5, normal[:, 1], tang[:, 1]]).astype(np.float32) @ basis
+    samp = cv2.remap(frame, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)  # (n, nt * 3, 3) uint8
     # the three samples of each step are neighbours in a row: an area resize averages them
     prof = cv2.resize(samp.astype(np.float32), (nt, n), interpolation=cv2.INTER_AREA).reshape(n, nt, 3)
     q = 3  # samples at each end that stand for "inside" and "outside"
@@ -525,7 +648,8 @@ def refine_rings(frame: np.ndarray, rings: list[np.ndarray], is_hole: list[bool]
     d = inside - outside
     dd = np.einsum("nc,nc->n", d, d)
     ok = dd > p.min_edge_contrast_dn ** 2
-    f = (np.einsum("ntc,nc->nt", prof, d) - np.einsum("nc,nc->n", outside, d)[:, None]) / np.maximum(dd, 1e-9)[:, None]
+    f = (np.matmul(prof, d[:, :, None])[:, :, 0] - np.einsum("nc,nc->n", outside, d)[:, None]) / np.maximum(
+        dd, 1e-9)[:, None]
     cross = (f[:, :-1] >= 0.5) & (f[:, 1:] < 0.5)
     tmid = 0.5 * (ts[:-1] + ts[1:])
     cost = np.where(cross, np.abs(tmid)[None, :], np.inf)
@@ -552,7 +676,13 @@ def _median3(a: np.ndarray) -> np.ndarray:
 
 def _signed_area(ring: np.ndarray) -> float:
     x, y = ring[:, 0], ring[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+    return 0.5 * float(np.dot(x, _ahead(y, 1)) - np.dot(_ahead(x, 1), y))
+
+
+def _ahead(a: np.ndarray, k: int) -> np.ndarray:
+    """The ring's points k steps ahead (np.roll(a, -k, axis=0), a few times faster for short rings)."""
+    k %= len(a)
+    return np.concatenate((a[k:], a[:k]))
 
 
 def _orient(ring: np.ndarray, ccw: bool) -> np.ndarray:
@@ -562,7 +692,7 @@ def _orient(ring: np.ndarray, ccw: bool) -> np.ndarray:
 def _area_centroid(outline: np.ndarray, holes: list[np.ndarray]) -> tuple[float, np.ndarray]:
     def ring_ac(r):
         x, y = r[:, 0], r[:, 1]
-        x1, y1 = np.roll(x, -1), np.roll(y, -1)
+        x1, y1 = _ahead(x, 1), _ahead(y, 1)
         cr = x * y1 - x1 * y
         a = 0.5 * cr.sum()
         if abs(a) < 1e-12:

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 MIN_LOBE_RADIUS_PX = 6.0  # full-resolution px: teeth and tabs are not lobes
 COVER_MIN = 0.9
@@ -23,56 +22,52 @@ MIN_PIECE_HALF_WIDTH = 4.0  # detection px: a colour piece narrower than this is
 CONVEX_SOLIDITY = 0.97  # touching blobs leave notches: two tangent discs have a solidity of about 0.9
 
 
-def split_necks(labels: np.ndarray, p, min_area_det: float, grey: np.ndarray | None = None,
-                bgr: np.ndarray | None = None) -> tuple[np.ndarray, set[int]]:
-    """Return a label image where touching regions are split, and the labels flagged merged."""
-    out = np.zeros_like(labels)
-    merged: set[int] = set()
-    next_id = 1
+def split_necks(regions, p, min_area_det: float, bgr: np.ndarray | None = None
+                ) -> list[tuple[int, int, np.ndarray, bool]]:
+    """Split touching parts.
+
+    Parameters
+    ----------
+    regions : list of (x0, y0, ndarray of shape (h, w) uint8 0/1)
+        Each region alone in a box at (x0, y0) of the detection image (with a margin).
+    bgr : ndarray of shape (H, W, 3) float32, optional
+        The detection image: colours for the colour split, brightness for the seams.
+
+    Returns
+    -------
+    list of (x0, y0, bool mask of shape (h, w), merged) : the parts, in their region's box.
+    """
     scale = max(1, int(p.scale))
     r_min = MIN_LOBE_RADIUS_PX / scale
-    hh, ww = labels.shape
-    boxes = []
-    for lid, sl in enumerate(ndimage.find_objects(labels), start=1):
-        if sl is not None:
-            boxes.append((lid, max(sl[0].start - 2, 0), max(sl[1].start - 2, 0), min(sl[0].stop + 2, hh),
-                          min(sl[1].stop + 2, ww)))
-
-    def analyse_region(box):
-        lid, y0, x0, y1, x1 = box
-        sub = (labels[y0:y1, x0:x1] == lid).astype(np.uint8)
-        bgr_box = None if bgr is None else bgr[y0:y1, x0:x1]
-        return _region_pieces(sub, None if grey is None else grey[y0:y1, x0:x1], bgr_box, p, r_min, min_area_det)
-
-    for (_, y0, x0, y1, x1), pieces in zip(boxes, map(analyse_region, boxes), strict=True):
-        view = out[y0:y1, x0:x1]
-        for piece, is_merged in pieces:
-            view[piece] = next_id
-            if is_merged:
-                merged.add(next_id)
-            next_id += 1
-    return out, merged
+    out = []
+    for x0, y0, sub in regions:
+        bgr_box = None if bgr is None else bgr[y0:y0 + sub.shape[0], x0:x0 + sub.shape[1]]
+        for piece, is_merged in _region_pieces(sub, bgr_box, p, r_min, min_area_det):
+            out.append((x0, y0, piece, is_merged))
+    return out
 
 
-def _region_pieces(sub, grey, bgr, p, r_min: float, min_area_det: float) -> list[tuple[np.ndarray, bool]]:
+def _region_pieces(sub, bgr, p, r_min: float, min_area_det: float) -> list[tuple[np.ndarray, bool]]:
     """One region -> its parts as (bool mask in the region's box, merged flag)."""
     pieces = None
     if bgr is not None:
-        lab_img = cv2.cvtColor(np.clip(bgr / 255.0, 0, 1).astype(np.float32), cv2.COLOR_BGR2LAB)
+        # (bgr holds whole DN 0..255 in float32: a float32 division gives the very values the float64 one
+        # rounded to float32 did, and no clip is needed)
+        lab_img = cv2.cvtColor(bgr / np.float32(255.0), cv2.COLOR_BGR2LAB)
         pieces = split_by_colour(sub, lab_img, min_area_det, p.colour_split)
-    pieces = sub.astype(np.int32) if pieces is None else pieces
     # each colour piece may still hold touching parts; each split lobe is looked at again
-    work = [((pieces == c).astype(np.uint8), 0) for c in range(1, int(pieces.max()) + 1)]
+    work = [(sub, 0)] if pieces is None else [((pieces == c).view(np.uint8), 0)
+                                              for c in range(1, int(pieces.max()) + 1)]
     found = []
     while work:
         piece, depth = work.pop()
         if not piece.any():
             continue
-        decision, parts = _analyse(piece, p, r_min, min_area_det, grey)
+        decision, parts = _analyse(piece, p, r_min, min_area_det, bgr)
         if decision == "split" and depth < MAX_SPLIT_DEPTH:
-            work.extend(((parts == k).astype(np.uint8), depth + 1) for k in range(1, int(parts.max()) + 1))
+            work.extend(((parts == k).view(np.uint8), depth + 1) for k in range(1, int(parts.max()) + 1))
             continue
-        found.append((piece.astype(bool), decision == "merged"))
+        found.append((piece.view(bool), decision == "merged"))  # (0/1 bytes: a bool view)
     return found
 
 
@@ -84,7 +79,7 @@ def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_d
     highlight on metal lie inside their part and do not split it. Returns a label image
     (1..k inside the region) or None.
     """
-    area = int(sub.sum())
+    area = cv2.countNonZero(sub)
     if area < 2 * min_area:
         return None
     # lightness counts half: a highlight on metal or a shaded face is the same part, brighter
@@ -92,8 +87,8 @@ def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_d
     _, std = cv2.meanStdDev(lab_img, mask=sub)
     if float((std.ravel() * weight).max()) < 0.25 * min_delta_e:
         return None  # one colour: nothing to split
-    mask = sub.astype(bool)
-    px = lab_img[mask].astype(np.float32) * weight
+    mask = sub.view(bool)
+    px = lab_img[mask] * weight  # (float32 already)
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5)
     _, lab, centres = cv2.kmeans(px, 2, None, crit, 1, cv2.KMEANS_PP_CENTERS)
     if np.linalg.norm(centres[0] - centres[1]) < min_delta_e:
@@ -105,15 +100,19 @@ def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_d
     seeds = np.zeros(sub.shape, np.int32)
     k = 0
     for c in (1, 2):
-        piece = cv2.morphologyEx((cl == c).astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-        n, comp, stats, _ = cv2.connectedComponentsWithStats(piece, connectivity=8)
+        piece = cv2.morphologyEx((cl == c).view(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+        # (connectedComponentsWithStats is ten times slower than labelling and counting)
+        n, comp = cv2.connectedComponents(piece, connectivity=8)
+        areas = np.bincount(comp.ravel(), minlength=n)
         for j in range(1, n):
+            if areas[j] < min_area:
+                continue  # a speck of colour
             sel = comp == j
             # edge pixels mix with the tray's colour: a piece owns the outline it comes near
-            reach = cv2.dilate(sel.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
+            reach = cv2.dilate(sel.view(np.uint8), np.ones((7, 7), np.uint8)) > 0
             # and is a body, not a band: a part's own wall seen from the side is a thin strip
-            thick = float(cv2.distanceTransform(sel.astype(np.uint8), cv2.DIST_L2, 3).max()) >= MIN_PIECE_HALF_WIDTH
-            if stats[j, cv2.CC_STAT_AREA] >= min_area and (outline & reach).sum() >= 0.15 * n_out and thick:
+            thick = float(cv2.distanceTransform(sel.view(np.uint8), cv2.DIST_L2, 3).max()) >= MIN_PIECE_HALF_WIDTH
+            if (outline & reach).sum() >= 0.15 * n_out and thick:
                 k += 1
                 seeds[sel] = k
     if k < 2:
@@ -133,25 +132,26 @@ def _nearest_label(parts: np.ndarray, region: np.ndarray) -> np.ndarray:
 
 def fill_holes(mask: np.ndarray) -> np.ndarray:
     """The mask (0/1 uint8) with every region not reachable from the border filled."""
-    pad = np.pad(mask, 1)
-    flood = pad.copy()
+    flood = cv2.copyMakeBorder(mask, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
     cv2.floodFill(flood, None, (0, 0), 1)
-    return (pad | (1 - flood))[1:-1, 1:-1]
+    # reached from the border: 1 in `flood` and not in the mask; everything else is filled
+    return cv2.bitwise_or(mask, 1 - flood[1:-1, 1:-1])
 
 
-def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, grey: np.ndarray | None):
-    sub = fill_holes(sub)  # holes would put false saddles into the distance transform
+def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, bgr: np.ndarray | None):
+    # (outer contours are the same with the holes filled or not)
     contours, _ = cv2.findContours(sub, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     if len(contours) == 1:
         hull_area = cv2.contourArea(cv2.convexHull(contours[0]))
         if hull_area > 0 and cv2.contourArea(contours[0]) / hull_area > CONVEX_SOLIDITY:
             return "one", None  # (nearly) convex: no neck, nothing to split
+    sub = fill_holes(sub)  # holes would put false saddles into the distance transform
     dt = cv2.distanceTransform(sub, cv2.DIST_L2, 5)
     peak = float(dt.max())
     if peak < 2 * r_min:
         return "one", None
     for level in np.arange(1.0, peak, max(1.0, peak / 12)):
-        n, cores = cv2.connectedComponents((dt > level).astype(np.uint8), connectivity=8)
+        n, cores = cv2.connectedComponents(cv2.compare(dt, _below_f32(level), cv2.CMP_GT), connectivity=8)
         if n <= 2:
             continue
         idx = np.arange(1, n)
@@ -164,9 +164,11 @@ def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, grey: np.ndarray
         if len(big) < 2:
             continue
         lobe_peaks = peak_of[big]
-        grown = cv2.dilate(np.isin(cores, big).astype(np.uint8),
+        is_big = np.zeros(n, np.uint8)
+        is_big[big] = 1
+        grown = cv2.dilate(is_big[cores],
                            cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * int(level) + 3,) * 2))
-        cover = float((grown.astype(bool) & sub.astype(bool)).sum()) / float(sub.sum())
+        cover = float((grown.view(bool) & sub.view(bool)).sum()) / float(sub.sum())
         if cover < COVER_MIN:
             # lobes joined by bars or arms: one part with a shape of its own; but three or more
             # separate lobes in one region are a heap of parts
@@ -187,12 +189,19 @@ def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, grey: np.ndarray
         parts = _fill_lines(parts, sub)
         if min(int((parts == k).sum()) for k in range(1, len(big) + 1)) < min_area:
             return "merged", None
+        grey = None if bgr is None else cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)  # (only needed here)
         if not _seam_visible(parts, ws, grey, p.seam_contrast_dn):
             # a neck but no seam in the image: one part with a waist, or two parts that touch so
             # closely that nothing shows. Flag it: a false alarm costs a look, a wrong outline a part.
             return "merged", None
         return "split", parts
     return "one", None
+
+
+def _below_f32(x: float) -> float:
+    """The largest float32 at most x: for float32 values v, v > it exactly when v > x."""
+    t = np.float32(x)
+    return float(np.nextafter(t, np.float32(-np.inf)) if t > x else t)
 
 
 def _seam_visible(parts: np.ndarray, ws: np.ndarray, grey: np.ndarray | None, contrast_dn: float) -> bool:

@@ -298,3 +298,54 @@ def test_a_pick_whose_links_would_hit_a_tall_part_is_refused_before_anything_mov
     assert decisions[-1]["type"] == "stop"
     sent = [x["part"] for x in decisions if x["type"] == "commands"]
     assert refused not in sent and sent == [r["part"] for r in s["parts"]]  # nothing of that pick was sent
+
+
+def test_a_part_in_the_jaws_at_a_drive_fault_is_carried_to_the_drop_off_after_the_reset(short_assembly):
+    """Interactive: J1 faults while carrying the first part; after the operator's reset the jaws
+    stay shut, the part is let go at the drop-off (not over the tray), and the run goes on."""
+    import threading
+
+    from calibration import load_calibration
+    from cell.cellconfig import default_cell
+    from cell.examples import default_examples_path
+    from cell.runtime.control import RunControl
+    from cell.runtime.loop import CellLoop, LoopOptions
+    from cell.runtime.session import SimCameraSource, home_joints
+    from cell.runtime.simworld import SimWorld
+    from cell.scene import load_assembly
+    from drivers import simulated_cell
+
+    assembly, cell, cal = load_assembly(short_assembly), default_cell(), load_calibration()
+    control = RunControl()
+    with simulated_cell(cell) as (arm, drives):
+        world = SimWorld(list(assembly.parts), cell, drives)
+        loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=SimCameraSource(world, cal, 0), arm=arm,
+                        control=control, examples_path=default_examples_path(), options=LoopOptions(interactive=True))
+        grip, faulted = arm.gripper.grip, []
+
+        def grip_then_fault(*a, **k):  # J1's next move is the carry to the drop-off
+            r = grip(*a, **k)
+            if not faulted:
+                faulted.append(True)
+                drives.inject_fault("emcy", "j1", after_s=0.2)
+            return r
+
+        arm.gripper.grip = grip_then_fault
+        arm.move_joints(home_joints(cell))
+        control.run(by="test")
+        result = {}
+        t = threading.Thread(target=lambda: result.update(summary=loop.run()), daemon=True)
+        t.start()
+        assert control.wait_for_state("fault", timeout_s=60) == "fault"
+        first = assembly.sequence[0]
+        assert f"gripped {first}" in world.events[-1] and not any("released" in e or "dropped" in e
+                                                                   for e in world.events)
+        control.reset(by="test")
+        control.run(by="test")
+        t.join(120)
+        world.close()
+    s = result["summary"]
+    assert (s["parts_total"], s["parts_removed"]) == (3, 3)
+    assert s["parts"][0]["part"] == first and s["parts"][0]["reason"] == "carried off after a drive fault"
+    assert f"dropped {first} off the tray" in world.events and not any("on the tray" in e for e in world.events
+                                                                        if e.startswith("released"))

@@ -37,7 +37,7 @@ from cell.grasp.synthesis import Grasp, GraspPlanner
 from cell.kinematics import Joints
 from cell.runtime.control import Faulted, RunControl, Stopped
 from cell.runtime.matching import Region, locate
-from cell.runtime.motion import above, pick_commands
+from cell.runtime.motion import above, carry_off_commands, pick_commands
 from cell.scene import Assembly, Part, Scene
 
 TRAVEL_MARGIN_MM = 20.0  # above the tallest part on the tray, when travelling
@@ -118,6 +118,7 @@ class CellLoop:
         self.state = LoopState()
         self._frame_counter = 0
         self._last_picked: tuple[str, Part] | None = None
+        self._in_jaws: tuple[str, Grasp] | None = None  # gripped and not yet let go (as far as the loop knows)
         self._examples_lock = threading.Lock()
         self.home_first: Joints | None = None  # set: move there once the operator lets the loop run
         self.rebuild_planner()
@@ -170,6 +171,8 @@ class CellLoop:
             self.arm.move_joints(home)
         if self.arm.faults:
             self.arm.reset_faults()
+            if self._carry_off_after_fault():
+                return  # the part it held left the tray: the next frame checks that
             self._retreat()
         frame, index = self._read_frame()
         t0 = time.perf_counter()
@@ -401,16 +404,16 @@ class CellLoop:
 
         commands = pick_commands(grasp.joints, grasp.opening_mm, self.cell,
                                  safe_z_mm=self._safe_z_mm(part_id, grasp.grasp_z_mm))
-        others = [p for pid, p in self.poses.items() if pid != part_id]
-        for c in commands:  # the links at every target: the carried part is in the jaws, not on the tray
-            hit = link_collisions(c.joints, self.cell, others) if c.joints is not None else []
-            if hit:
-                raise CellError(f"{part_id}: at '{c.label}' the arm's links would hit {', '.join(hit)}")
+        self._check_links(part_id, commands, f"{part_id}: ")
         self.sink.write_decision({"type": "commands", "part": part_id, "attempt": attempt,
                                   "commands": [c.to_json() for c in commands]})
         self.control.checkpoint("pick", part=part_id)
 
         def on_step(rec):
+            if rec["action"] == "grip" and rec.get("holding"):
+                self._in_jaws = (part_id, grasp)
+            elif rec["action"] == "open" and rec["label"] == "release":
+                self._in_jaws = None
             if self.viz is not None:
                 self._show_arm()
                 if "width_mm" in rec:
@@ -433,6 +436,42 @@ class CellLoop:
             raise CellError(f"{part_id} cannot be carried over the parts on the tray: it needs a travel "
                             f"height of {safe:.0f} mm, J3 reaches {self.cell.scara.j3_mm[1]:g} mm")
         return safe
+
+    def _check_links(self, part_id: str, commands, why: str) -> None:
+        """The links at every target of `commands` against the parts on the tray (the part
+        `part_id` is in the jaws, not on the tray); a hit refuses the whole list before anything moves."""
+        others = [p for pid, p in self.poses.items() if pid != part_id]
+        for c in commands:
+            hit = link_collisions(c.joints, self.cell, others) if c.joints is not None else []
+            if hit:
+                raise CellError(f"{why}at '{c.label}' the arm's links would hit {', '.join(hit)}")
+
+    def _carry_off_after_fault(self) -> bool:
+        """After a drive fault (reset by the operator) with a part in the jaws: the jaws stay shut,
+        the arm goes straight up and lets the part go at the drop-off, not where the arm stopped
+        (over the tray, on other parts). True when it did; the part then counts as picked, and the
+        next frame checks that it left its place."""
+        if self._in_jaws is None:
+            return False
+        pid, grasp = self._in_jaws
+        commands = carry_off_commands(self.arm.joints(), grasp.joints, self.cell,
+                                      self._safe_z_mm(pid, grasp.grasp_z_mm))
+        self._check_links(pid, commands, f"{pid} is still in the jaws (take it out by hand); ")
+        self.sink.write_decision({"type": "commands", "part": pid, "attempt": "after fault",
+                                  "commands": [c.to_json() for c in commands]})
+        from drivers.execute import run_commands
+
+        records = run_commands(self.arm, commands, stop_on_miss=False)
+        self.sink.write_decision({"type": "executed", "part": pid, "attempt": "after fault", "records": records})
+        self._in_jaws = None
+        report = PartReport(pid, "removed", attempts=1, motion_s=records[-1]["t_end_s"] - records[0]["t_start_s"],
+                            reason="carried off after a drive fault")
+        self.remaining.remove(pid)
+        self._last_picked = (pid, self.poses.pop(pid))
+        self.reports.append(report)
+        self.sink.write_decision({"type": "outcome", **report.to_json()})
+        self.control.log("removed", f"{pid} was in the jaws at the fault: carried to the drop-off", part=pid)
+        return True
 
     def _retreat(self) -> None:
         """Open the jaws and go straight up to the safe height where the arm is."""

@@ -58,17 +58,25 @@ def pick_commands(grasp_joints: Joints, opening_mm: float, cell: Cell, safe_z_mm
     if safe <= grasp_joints.j3_mm:
         raise CellError(f"the travel height {safe:g} mm is not above the grasp z {grasp_joints.j3_mm:g} mm")
     approach_mm = min(opening_mm + 2 * g.approach_clearance_mm, g.opening_mm[1])
-    drop = dropoff_joints(cell, grasp_joints)
     return [
         Command("move", "approach", above(grasp_joints, safe)),
         Command("open", "pre-open", width_mm=approach_mm),
         Command("move", "descend", grasp_joints),
         Command("grip", "grip", width_mm=opening_mm, force_n=g.grip_force_n),
-        Command("move", "lift", above(grasp_joints, safe)),
-        Command("move", "carry", above(drop, safe)),
+        *carry_off_commands(grasp_joints, grasp_joints, cell, safe),
+    ]
+
+
+def carry_off_commands(from_joints: Joints, grasp_joints: Joints, cell: Cell, safe_z_mm: float) -> list[Command]:
+    """A held part from where the arm is (`from_joints`) to the drop-off: straight up to the travel
+    height, across, down, let go, up. `grasp_joints` decides the drop-off pose (dropoff_joints)."""
+    drop = dropoff_joints(cell, grasp_joints)
+    return [
+        Command("move", "lift", above(from_joints, safe_z_mm)),
+        Command("move", "carry", above(drop, safe_z_mm)),
         Command("move", "lower", drop),
-        Command("open", "release", width_mm=g.opening_mm[1]),
-        Command("move", "retreat", above(drop, safe)),
+        Command("open", "release", width_mm=cell.gripper.opening_mm[1]),
+        Command("move", "retreat", above(drop, safe_z_mm)),
     ]
 
 

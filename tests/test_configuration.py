@@ -104,3 +104,22 @@ def test_examples_with_the_smallest_wind_up_teach_it_everywhere():
         x, y, axis = rng.uniform(220, 480), rng.uniform(-230, 230), rng.uniform(-90, 90)
         q = chosen(ex, x, y, axis)
         assert abs(q.j4_deg) <= 90.0 + 1e-9, (x, y, axis, q)
+
+
+def test_a_move_whose_links_sweep_over_a_tall_part_is_caught_between_its_ends():
+    # both ends clear a tall tower; on the way J1 turns the forearm across it
+    from cell.configuration import path_link_collisions
+    from cell.kinematics import Joints, elbow_points
+    from cell.scene import Part
+
+    a, b = Joints(-40.0, 60.0, 150.0, 0.0), Joints(40.0, 60.0, 150.0, 0.0)
+    mid = Joints(0.0, 60.0, 150.0, 0.0)
+    _, e, w = elbow_points(mid, CELL.scara)
+    cx, cy = (e + w) / 2
+    tower = Part("tower", np.array([[cx - 10, cy - 10], [cx + 10, cy - 10], [cx + 10, cy + 10], [cx - 10, cy + 10]]),
+                 z_top_mm=CELL.scara.link2_bottom_z_mm + 20)
+    assert not link_collisions(a, CELL, [tower]) and not link_collisions(b, CELL, [tower])
+    assert path_link_collisions(a, b, CELL, [tower]) == ["tower"]
+    low = Part("low", tower.outline_mm, z_top_mm=CELL.scara.link2_bottom_z_mm - 1)
+    assert path_link_collisions(a, b, CELL, [low]) == []
+    assert path_link_collisions(a, Joints(-38.0, 60.0, 150.0, 0.0), CELL, [tower]) == []  # a short move beside it

@@ -29,7 +29,7 @@ import numpy as np
 from shapely.geometry import Polygon
 
 from cell.cellconfig import Cell
-from cell.configuration import link_collisions
+from cell.configuration import path_link_collisions
 from cell.errors import BadInput, CellError, NoFeasibleGrasp
 from cell.examples import GraspExample, append_examples, load_examples
 from cell.fileio import write_atomic
@@ -438,13 +438,18 @@ class CellLoop:
         return safe
 
     def _check_links(self, part_id: str, commands, why: str) -> None:
-        """The links at every target of `commands` against the parts on the tray (the part
-        `part_id` is in the jaws, not on the tray); a hit refuses the whole list before anything moves."""
+        """The links along every move of `commands`, from where the arm is, against the parts on the
+        tray (the part `part_id` is in the jaws, not on the tray); a hit refuses the whole list
+        before anything moves."""
         others = [p for pid, p in self.poses.items() if pid != part_id]
+        at = self.arm.joints()
         for c in commands:
-            hit = link_collisions(c.joints, self.cell, others) if c.joints is not None else []
+            if c.joints is None:
+                continue
+            hit = path_link_collisions(at, c.joints, self.cell, others)
             if hit:
-                raise CellError(f"{why}at '{c.label}' the arm's links would hit {', '.join(hit)}")
+                raise CellError(f"{why}on the way to '{c.label}' the arm's links would hit {', '.join(hit)}")
+            at = c.joints
 
     def _carry_off_after_fault(self) -> bool:
         """After a drive fault (reset by the operator) with a part in the jaws: the jaws stay shut,

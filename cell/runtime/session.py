@@ -22,7 +22,7 @@ from cell.fileio import write_atomic
 from cell.runtime.control import RunControl, Stopped
 from cell.runtime.loop import CellLoop, LoopOptions, StopRun
 from cell.runtime.simworld import SimWorld, WorldFaults
-from cell.scene import Assembly, load_assembly
+from cell.scene import Assembly, Part, load_assembly
 
 EXAMPLES_AT_START = "examples_at_start.jsonl"
 
@@ -83,21 +83,40 @@ class SimCameraSource:
         return self.camera.read(self.world.visible_parts())
 
 
-def displaced(assembly: Assembly, shift_mm: float, seed: int):
+def displaced(assembly: Assembly, shift_mm: float, seed: int, tries: int = 40):
     """The assembly's parts as they really lie: each moved a little from its nominal pose; a
-    part lying on another moves with it (a base plate carries what sits on it)."""
+    part lying on another moves with it (a base plate carries what sits on it). Parts do not
+    move into each other: a move that makes a part overlap one already placed (more than they
+    overlap as designed) is drawn again, up to `tries` times, else the part stays where it was
+    designed to be."""
     rng = np.random.default_rng(seed)
+    nominal = {p.id: p for p in assembly.parts}
     moves: dict[str, tuple] = {}
-    out = []
+    placed: list[Part] = []
     for p in sorted(assembly.parts, key=lambda q: q.z_bottom_mm):
-        carrier = next((c for c in out if p.lies_on(c)), None)
+        carrier = next((c for c in placed if nominal[p.id].lies_on(nominal[c.id])), None)
         if carrier is not None:
             moves[p.id] = moves[carrier.id]
         else:
-            moves[p.id] = (*rng.uniform(-shift_mm, shift_mm, 2), rng.uniform(-2 * shift_mm, 2 * shift_mm),
-                           p.polygon.centroid.coords[0])
-        out.append(p)
+            about = p.polygon.centroid.coords[0]
+            moves[p.id] = (0.0, 0.0, 0.0, about)
+            for _ in range(tries):
+                move = (*rng.uniform(-shift_mm, shift_mm, 2), rng.uniform(-2 * shift_mm, 2 * shift_mm), about)
+                if not _moves_into(p.moved(*move[:3], about=about), placed, nominal):
+                    moves[p.id] = move
+                    break
+        placed.append(p.moved(*moves[p.id][:3], about=moves[p.id][3]))
     return [p.moved(*moves[p.id][:3], about=moves[p.id][3]) for p in assembly.parts]
+
+
+def _moves_into(part: Part, placed: list[Part], nominal: dict[str, Part], slack_mm2: float = 0.5) -> bool:
+    """Does `part` overlap a part already placed by more than their designs overlap (parts lying
+    on one another, e.g. on a base plate, overlap in plan view by design)?"""
+    for q in placed:
+        designed = nominal[part.id].polygon.intersection(nominal[q.id].polygon).area
+        if part.polygon.intersection(q.polygon).area > designed + slack_mm2:
+            return True
+    return False
 
 
 def run_session(cfg: RunConfig) -> dict:

@@ -10,7 +10,6 @@ Without any example configuration the choice falls back to the smallest wrist tu
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Sequence
 
 import numpy as np
@@ -74,25 +73,13 @@ def link_collisions(j: Joints, cell: Cell, parts: Sequence[Part]) -> list[str]:
     return hit
 
 
-PATH_STEP_DEG = 2.0  # J1/J2 step between the configurations checked along a move (links are 70-90 mm wide)
-
-
-def path_link_collisions(start: Joints, end: Joints, cell: Cell, parts: Sequence[Part],
-                         step_deg: float = PATH_STEP_DEG) -> list[str]:
-    """Ids of the parts a link hits anywhere on the move from `start` to `end` (the end included,
-    the start not). The arm's coordinated move runs every axis over the same time, so J1 and J2
-    go (nearly) in step: configurations on the straight line between them, no further than
-    step_deg apart. Only parts taller than a link's underside can be hit: without any, nothing
-    is computed."""
+def path_link_collisions(path: Sequence[Joints], cell: Cell, parts: Sequence[Part]) -> list[str]:
+    """Ids of the parts a link hits at any configuration of `path` (samples of a move, e.g.
+    `drivers.Arm.path`: the axes do not move in proportion). Only parts taller than a link's
+    underside can be hit: without any, nothing is computed."""
     s = cell.scara
     tall = [p for p in parts if p.z_top_mm > min(s.link1_bottom_z_mm, s.link2_bottom_z_mm)]
-    if not tall:
-        return []
-    n = max(1, math.ceil(max(abs(end.j1_deg - start.j1_deg), abs(end.j2_deg - start.j2_deg)) / step_deg))
-    for k in range(1, n + 1):
-        f = k / n
-        j = Joints(start.j1_deg + f * (end.j1_deg - start.j1_deg), start.j2_deg + f * (end.j2_deg - start.j2_deg),
-                   end.j3_mm, end.j4_deg)
+    for j in path if tall else ():
         hit = link_collisions(j, cell, tall)
         if hit:
             return hit

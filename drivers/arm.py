@@ -41,7 +41,7 @@ from drivers.errors import (
 )
 from drivers.gripper import GRIPPER_ACCEL_FACTOR, Gripper
 from drivers.limits import JOINT_FIELDS, command_violations
-from drivers.profile import trapezoid, velocity_for_duration
+from drivers.profile import coordinated_move_s, coordinated_path, velocity_for_duration
 from drivers.pump import BusPump
 
 HOST_NODE_ID = 0x7F  # the host's own heartbeat id (the drives watch it)
@@ -402,11 +402,14 @@ class Arm:
     def move_time_s(self, start: Joints, target: Joints) -> float:
         """Duration of the coordinated move (every axis arrives with the slowest), from the
         trapezoidal profiles under the cell file's speed and acceleration limits."""
-        s = self.cell.scara
-        return max(
-            trapezoid(getattr(target, f) - getattr(start, f), s.max_velocity[j], s.max_acceleration[j]).duration_s
-            for j, f, _ in JOINT_FIELDS
-        )
+        return coordinated_move_s(self.cell.scara, start, target)
+
+    def path(self, start: Joints, target: Joints, step_deg: float = 2.0) -> list[Joints]:
+        """Where the axes are during the coordinated move from `start` to `target` (the end
+        included): sampled in time so that J1 and J2 turn at most about step_deg between samples.
+        Each axis follows its own trapezoid to arrive with the slowest, so the joints do not move in
+        proportion (the long axis ramps, the short one nearly cruises)."""
+        return coordinated_path(self.cell.scara, start, target, step_deg)
 
     def move_joints(self, target: Joints, *, wait: bool = True) -> Joints:
         """Move all four axes to `target` in one coordinated profile-position move.

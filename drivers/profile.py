@@ -91,3 +91,38 @@ def velocity_for_duration(distance: float, duration_s: float, accel: float, dece
     if disc < 0:
         raise ValueError(f"a move of {d} cannot last only {duration_s} s with these ramps")
     return (duration_s - math.sqrt(disc)) / (2 * k)
+
+
+def coordinated_move_s(scara, start, target) -> float:
+    """Duration of a coordinated move of the four joints (`Joints`): every axis arrives with
+    the slowest, each under its own speed and acceleration limits (`scara`: the cell file's)."""
+    from drivers.limits import JOINT_FIELDS
+
+    return max(trapezoid(getattr(target, f) - getattr(start, f), scara.max_velocity[j],
+                         scara.max_acceleration[j]).duration_s for j, f, _ in JOINT_FIELDS)
+
+
+def coordinated_path(scara, start, target, step_deg: float = 2.0) -> list:
+    """`Joints` along the coordinated move from start to target (the end included), in time:
+    each axis on the trapezoid with its own ramps and the cruise speed that makes it arrive with
+    the slowest (as `Arm.move_joints` commands them). Samples close enough that J1 and J2 turn
+    at most about step_deg between two (the progress of an axis is at most twice its mean)."""
+    from cell.kinematics import Joints
+    from drivers.limits import JOINT_FIELDS
+
+    duration = coordinated_move_s(scara, start, target)
+    turn = max(abs(target.j1_deg - start.j1_deg), abs(target.j2_deg - start.j2_deg))
+    n = max(1, math.ceil(2.0 * turn / step_deg))
+    profiles = {}
+    for j, f, _ in JOINT_FIELDS:
+        d = getattr(target, f) - getattr(start, f)
+        a = scara.max_acceleration[j]
+        v = velocity_for_duration(d, duration, a) if duration > 0 else 0.0
+        profiles[f] = trapezoid(d, v, a) if d != 0.0 and v > 0 else None
+    path = []
+    for k in range(1, n + 1):
+        t = duration * k / n
+        path.append(Joints(*(getattr(start, f) + (profiles[f].position_at(t) if profiles[f] else 0.0)
+                             for _, f, _ in JOINT_FIELDS)))
+    path[-1] = target
+    return path

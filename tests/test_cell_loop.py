@@ -301,9 +301,11 @@ def test_a_pick_whose_links_would_hit_a_tall_part_is_refused_before_anything_mov
     assert refused not in sent and sent == [r["part"] for r in s["parts"]]  # nothing of that pick was sent
 
 
-def test_a_part_in_the_jaws_at_a_drive_fault_is_carried_to_the_drop_off_after_the_reset(short_assembly):
-    """Interactive: J1 faults while carrying the first part; after the operator's reset the jaws
-    stay shut, the part is let go at the drop-off (not over the tray), and the run goes on."""
+def interactive_run(assembly_path, arrange, *at_faults):
+    """Run the loop as under the station (faults wait for the operator's reset) in a thread.
+    `arrange(loop, arm, drives, world)` sets up the trouble before the run; `at_faults[k](loop,
+    world, fault)` is what the operator does at the k-th fault before pressing reset. Returns
+    (summary, world)."""
     import threading
 
     from calibration import load_calibration
@@ -316,40 +318,91 @@ def test_a_part_in_the_jaws_at_a_drive_fault_is_carried_to_the_drop_off_after_th
     from cell.scene import load_assembly
     from drivers import simulated_cell
 
-    assembly, cell, cal = load_assembly(short_assembly), default_cell(), load_calibration()
+    assembly, cell, cal = load_assembly(assembly_path), default_cell(), load_calibration()
     control = RunControl()
     with simulated_cell(cell) as (arm, drives):
         world = SimWorld(list(assembly.parts), cell, drives)
         loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=SimCameraSource(world, cal, 0), arm=arm,
                         control=control, examples_path=default_examples_path(), options=LoopOptions(interactive=True))
-        grip, faulted = arm.gripper.grip, []
-
-        def grip_then_fault(*a, **k):  # J1's next move is the carry to the drop-off
-            r = grip(*a, **k)
-            if not faulted:
-                faulted.append(True)
-                drives.inject_fault("emcy", "j1", after_s=0.2)
-            return r
-
-        arm.gripper.grip = grip_then_fault
+        arrange(loop, arm, drives, world)
         arm.move_joints(home_joints(cell))
         control.run(by="test")
         result = {}
         t = threading.Thread(target=lambda: result.update(summary=loop.run()), daemon=True)
         t.start()
-        assert control.wait_for_state("fault", timeout_s=60) == "fault"
-        first = assembly.sequence[0]
-        assert f"gripped {first}" in world.events[-1] and not any("released" in e or "dropped" in e
-                                                                   for e in world.events)
-        control.reset(by="test")
-        control.run(by="test")
+        for at_fault in at_faults:
+            assert control.wait_for_state("fault", timeout_s=60) == "fault"
+            at_fault(loop, world, control.snapshot()["fault"])
+            control.reset(by="test")
+            control.run(by="test")
         t.join(120)
         world.close()
-    s = result["summary"]
+    return result["summary"], world
+
+
+def fault_after(arm, drives, wrap: str, nth: int, node: str):
+    """A drive fault on `node`'s next move after the nth call of arm.gripper.<wrap>."""
+    fn, calls = getattr(arm.gripper, wrap), []
+
+    def wrapped(*a, **k):
+        r = fn(*a, **k)
+        calls.append(1)
+        if len(calls) == nth:
+            drives.inject_fault("emcy", node, after_s=0.05)
+        return r
+
+    setattr(arm.gripper, wrap, wrapped)
+
+
+def test_a_part_in_the_jaws_at_a_drive_fault_is_carried_to_the_drop_off_after_the_reset(short_assembly):
+    """J1 faults while carrying the first part; after the operator's reset the jaws stay shut,
+    the part is let go at the drop-off (not over the tray), and the run goes on."""
+    seen = {}
+    s, world = interactive_run(short_assembly, lambda loop, arm, drives, w: fault_after(arm, drives, "grip", 1, "j1"),
+                               lambda loop, w, fault: seen.update(events=list(w.events)))
+    first = s["parts"][0]["part"]
+    assert f"gripped {first}" in seen["events"][-1]  # held when it stopped
     assert (s["parts_total"], s["parts_removed"]) == (3, 3)
-    assert s["parts"][0]["part"] == first and s["parts"][0]["reason"] == "carried off after a drive fault"
-    assert f"dropped {first} off the tray" in world.events and not any("on the tray" in e for e in world.events
-                                                                        if e.startswith("released"))
+    assert s["parts"][0]["reason"] == "carried off after a drive fault" and s["parts"][0]["attempts"] == 1
+    assert f"dropped {first} off the tray" in world.events
+    assert not any(e.startswith("released") for e in world.events)  # nothing let go over the tray
+
+
+def test_a_fault_after_the_part_was_let_go_counts_it_as_removed(short_assembly):
+    # J3 faults on the way up from the drop-off (the release was the pick's second open)
+    s, world = interactive_run(short_assembly, lambda loop, arm, drives, w: fault_after(arm, drives, "open", 2, "j3"),
+                               lambda loop, w, fault: None)
+    assert (s["parts_total"], s["parts_removed"]) == (3, 3)
+    assert s["parts"][0]["reason"] == "let go at the drop-off before a drive fault"
+    assert [e for e in world.events if e.startswith("dropped")] == [f"dropped {p} off the tray" for p in
+                                                                     ("nut", "washer", "pcb")]
+
+
+def test_a_carry_off_that_is_refused_asks_for_the_part_to_be_taken_out_by_hand(short_assembly):
+    from cell.runtime.loop import LinksWouldHit
+
+    def arrange(loop, arm, drives, world):
+        fault_after(arm, drives, "grip", 1, "j1")
+        check, refused = loop._check_links, []
+
+        def refuse_the_carry_off(part_id, commands, why):
+            if commands[0].label == "lift" and not refused:
+                refused.append(part_id)
+                raise LinksWouldHit("on the way to 'carry' the arm's links would hit a column (test)")
+            return check(part_id, commands, why)
+
+        loop._check_links = refuse_the_carry_off
+
+    faults, held = [], []
+    s, world = interactive_run(
+        short_assembly, arrange,
+        lambda loop, w, fault: faults.append(fault),  # the drive fault: reset
+        lambda loop, w, fault: (faults.append(fault), held.append(w.take_out_of_jaws())))  # asked: by hand
+    first = s["parts"][0]["part"]
+    assert "take it out by hand" in str(faults[1]) and first in str(faults[1]) and held == [first]
+    assert (s["parts_total"], s["parts_removed"]) == (3, 3)
+    assert s["parts"][0]["reason"] == "taken out of the jaws by hand after a drive fault"
+    assert not any(e.startswith("released") for e in world.events)
 
 
 @pytest.mark.parametrize("name", ["default", "drive_unit", "fig18_product"])
@@ -359,8 +412,8 @@ def test_displaced_parts_never_move_into_each_other(name):
 
     asm = load_assembly(DEFAULT.parent / f"{name}.json")
     nominal = {p.id: p for p in asm.parts}
-    for seed in range(12):
-        parts = displaced(asm, 8.0, seed)
+    for seed, shift_mm in [(k, 8.0) for k in range(8)] + [(k, 20.0) for k in range(8)]:
+        parts = displaced(asm, shift_mm, seed)
         assert any(np.linalg.norm(p.outline_mm - nominal[p.id].outline_mm, axis=1).max() > 1.0 for p in parts)
         for i, p in enumerate(parts):
             for q in parts[i + 1:]:

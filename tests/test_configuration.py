@@ -111,6 +111,7 @@ def test_a_move_whose_links_sweep_over_a_tall_part_is_caught_between_its_ends():
     from cell.configuration import path_link_collisions
     from cell.kinematics import Joints, elbow_points
     from cell.scene import Part
+    from drivers.profile import coordinated_path
 
     a, b = Joints(-40.0, 60.0, 150.0, 0.0), Joints(40.0, 60.0, 150.0, 0.0)
     mid = Joints(0.0, 60.0, 150.0, 0.0)
@@ -119,7 +120,37 @@ def test_a_move_whose_links_sweep_over_a_tall_part_is_caught_between_its_ends():
     tower = Part("tower", np.array([[cx - 10, cy - 10], [cx + 10, cy - 10], [cx + 10, cy + 10], [cx - 10, cy + 10]]),
                  z_top_mm=CELL.scara.link2_bottom_z_mm + 20)
     assert not link_collisions(a, CELL, [tower]) and not link_collisions(b, CELL, [tower])
-    assert path_link_collisions(a, b, CELL, [tower]) == ["tower"]
+    assert path_link_collisions(coordinated_path(CELL.scara, a, b), CELL, [tower]) == ["tower"]
     low = Part("low", tower.outline_mm, z_top_mm=CELL.scara.link2_bottom_z_mm - 1)
-    assert path_link_collisions(a, b, CELL, [low]) == []
-    assert path_link_collisions(a, Joints(-38.0, 60.0, 150.0, 0.0), CELL, [tower]) == []  # a short move beside it
+    assert path_link_collisions(coordinated_path(CELL.scara, a, b), CELL, [low]) == []
+    beside = Joints(-38.0, 60.0, 150.0, 0.0)  # a short move beside it
+    assert path_link_collisions(coordinated_path(CELL.scara, a, beside), CELL, [tower]) == []
+
+
+def test_the_coordinated_path_is_where_the_simulated_drives_are():
+    """J1 and J2 do not move in proportion (each ramps with its own acceleration): the sampled
+    path follows the drives, not the straight line between the ends."""
+    from cell.kinematics import Joints
+    from drivers import SimClock, simulated_cell
+    from drivers.profile import coordinated_path
+
+    start, end = Joints(-60.0, 100.0, 150.0, 0.0), Joints(30.0, 40.0, 120.0, 90.0)
+    path = coordinated_path(CELL.scara, start, end, step_deg=1.0)
+    assert path[-1] == end and max(abs(p.j1_deg - q.j1_deg) for p, q in zip(path, path[1:])) <= 1.0 + 1e-9
+    straight = [(p.j1_deg - start.j1_deg) / (end.j1_deg - start.j1_deg)
+                - (p.j2_deg - start.j2_deg) / (end.j2_deg - start.j2_deg) for p in path]
+    assert max(abs(x) for x in straight) > 0.02  # not in proportion
+    clock = SimClock()
+    with simulated_cell(CELL, clock) as (arm, drives):
+        arm.move_joints(start)
+        t0 = clock.now()
+        seen = []
+        job = clock.every(0.01, lambda: seen.append((clock.now() - t0, arm.joints())))
+        arm.move_joints(end)
+        job.cancel()
+    duration = arm.move_time_s(start, end)
+    assert len(seen) > 50  # the drives were watched all along the move
+    for t, j in seen[1:-1]:
+        k = min(len(path) - 1, max(0, round(t / duration * len(path)) - 1))
+        near = min(abs(p.j1_deg - j.j1_deg) + abs(p.j2_deg - j.j2_deg) for p in path[max(0, k - 2):k + 3])
+        assert near < 2.5, (t, j)

@@ -56,6 +56,10 @@ class LoopOptions:
     min_area_mm2: float = 75.0  # smaller regions are dust
 
 
+class LinksWouldHit(CellError):
+    """A grasp whose moves would sweep a link of the arm over a part taller than its underside."""
+
+
 @dataclass
 class PartReport:
     part: str
@@ -118,7 +122,9 @@ class CellLoop:
         self.state = LoopState()
         self._frame_counter = 0
         self._last_picked: tuple[str, Part] | None = None
-        self._in_jaws: tuple[str, Grasp] | None = None  # gripped and not yet let go (as far as the loop knows)
+        # the pick being sent: part, grasp, report, attempt, and its stage (sent, gripped, released)
+        self._pick: dict | None = None
+        self._taken_by_hand: dict | None = None  # a pick whose part the operator was asked to take out of the jaws
         self._examples_lock = threading.Lock()
         self.home_first: Joints | None = None  # set: move there once the operator lets the loop run
         self.rebuild_planner()
@@ -169,10 +175,15 @@ class CellLoop:
         if self.home_first is not None:  # the first motion waits for the operator's Run
             home, self.home_first = self.home_first, None
             self.arm.move_joints(home)
+        if self._taken_by_hand is not None:  # the operator took the part out of the jaws and reset
+            pick, self._taken_by_hand = self._taken_by_hand, None
+            self._retreat()
+            self._picked(pick, "taken out of the jaws by hand after a drive fault")
+            return
         if self.arm.faults:
             self.arm.reset_faults()
-            if self._carry_off_after_fault():
-                return  # the part it held left the tray: the next frame checks that
+            if self._recover_pick():
+                return  # the part left the tray in the jaws: the next frame checks that
             self._retreat()
         frame, index = self._read_frame()
         t0 = time.perf_counter()
@@ -191,11 +202,13 @@ class CellLoop:
             return
         attempt = 0
         rejected_here: list[np.ndarray] = []
+        refused = ""
         while True:
             t1 = time.perf_counter()
             grasp = grasps[attempt] if attempt < len(grasps) else None
             if grasp is None:
-                self._stop_and_ask("planner", f"{part_id}: no further grasp to try")
+                why = f"{part_id}: no further grasp to try" + (f" ({refused})" if refused else "")
+                self._stop_and_ask("planner", why)
                 return
             if grasp.joints is None and self.planner.choose_for(grasp, scene) is None:
                 attempt += 1  # step 5 finds no configuration whose links clear the parts
@@ -218,8 +231,19 @@ class CellLoop:
                     return
                 attempt = 0
                 continue
+            commands = pick_commands(grasp.joints, grasp.opening_mm, self.cell,
+                                     safe_z_mm=self._safe_z_mm(part_id, grasp.grasp_z_mm))
+            try:
+                self._check_links(part_id, commands, f"{part_id}: ")
+            except LinksWouldHit as e:  # this grasp's moves sweep a link over a tall part: the next one
+                refused = str(e)
+                self.control.log("links", refused, part=part_id)
+                attempt += 1
+                continue
             report.attempts += 1
-            records = self._execute(grasp, part_id, attempt)
+            self._pick = {"part": part_id, "grasp": grasp, "report": report, "attempt": attempt, "stage": "sent"}
+            records = self._execute(grasp, part_id, attempt, commands)
+            self._pick = None
             report.motion_s += records[-1]["t_end_s"] - records[0]["t_start_s"]
             if records[-1].get("holding") is not False:
                 break
@@ -232,12 +256,7 @@ class CellLoop:
             if attempt > self.options.grip_retries:
                 self._stop_and_ask("gripper", f"{part_id}: missed {attempt} times")
                 return
-        self.remaining.remove(part_id)
-        self._last_picked = (part_id, self.poses[part_id])
-        self.poses.pop(part_id)
-        self.reports.append(report)
-        self.sink.write_decision({"type": "outcome", **report.to_json()})
-        self.control.log("removed", f"{part_id} removed in {report.cycle_s:.2f} s", part=part_id)
+        self._picked({"part": part_id, "report": report})
 
     def _final_check(self) -> None:
         """One more frame after the last pick: the last part must be gone too."""
@@ -399,28 +418,28 @@ class CellLoop:
             obstacles=tuple(scene.obstacles), grasp_z_mm=grasp.grasp_z_mm, joints=grasp.joints)
         self.add_example(ex)
 
-    def _execute(self, grasp: Grasp, part_id: str, attempt: int) -> list[dict]:
+    def _execute(self, grasp: Grasp, part_id: str, attempt: int, commands, **record) -> list[dict]:
+        """Send a pick's commands (checked already); `self._pick`'s stage follows the jaws."""
         from drivers.execute import run_commands
 
-        commands = pick_commands(grasp.joints, grasp.opening_mm, self.cell,
-                                 safe_z_mm=self._safe_z_mm(part_id, grasp.grasp_z_mm))
-        self._check_links(part_id, commands, f"{part_id}: ")
-        self.sink.write_decision({"type": "commands", "part": part_id, "attempt": attempt,
+        self.sink.write_decision({"type": "commands", "part": part_id, "attempt": attempt, **record,
                                   "commands": [c.to_json() for c in commands]})
         self.control.checkpoint("pick", part=part_id)
 
         def on_step(rec):
-            if rec["action"] == "grip" and rec.get("holding"):
-                self._in_jaws = (part_id, grasp)
-            elif rec["action"] == "open" and rec["label"] == "release":
-                self._in_jaws = None
+            if self._pick is not None:
+                if rec["action"] == "grip" and rec.get("holding"):
+                    self._pick["stage"] = "gripped"
+                elif rec["action"] == "open" and rec["label"] == "release":
+                    self._pick["stage"] = "released"
             if self.viz is not None:
                 self._show_arm()
                 if "width_mm" in rec:
                     self.viz.gripper_width(rec["width_mm"])
 
         records = run_commands(self.arm, commands, stop_on_miss=True, on_step=on_step)
-        self.sink.write_decision({"type": "executed", "part": part_id, "attempt": attempt, "records": records})
+        self.sink.write_decision({"type": "executed", "part": part_id, "attempt": attempt, **record,
+                                  "records": records})
         return records
 
     def _safe_z_mm(self, part_id: str, grasp_z_mm: float) -> float:
@@ -446,37 +465,62 @@ class CellLoop:
         for c in commands:
             if c.joints is None:
                 continue
-            hit = path_link_collisions(at, c.joints, self.cell, others)
+            hit = path_link_collisions(self.arm.path(at, c.joints), self.cell, others)
             if hit:
-                raise CellError(f"{why}on the way to '{c.label}' the arm's links would hit {', '.join(hit)}")
+                raise LinksWouldHit(f"{why}on the way to '{c.label}' the arm's links would hit {', '.join(hit)}")
             at = c.joints
 
-    def _carry_off_after_fault(self) -> bool:
-        """After a drive fault (reset by the operator) with a part in the jaws: the jaws stay shut,
-        the arm goes straight up and lets the part go at the drop-off, not where the arm stopped
-        (over the tray, on other parts). True when it did; the part then counts as picked, and the
-        next frame checks that it left its place."""
-        if self._in_jaws is None:
+    def _recover_pick(self) -> bool:
+        """After a drive fault, reset by the operator, in the middle of a pick. Jaws that held the
+        part: they stay shut, the arm goes straight up and lets the part go at the drop-off, not
+        where the arm stopped (over the tray, on other parts). A part already let go at the
+        drop-off: the arm goes up. True in both cases; the part then counts as picked and the next
+        frame checks that it left its place. False when nothing was held (open, up, as usual).
+        If the way to the drop-off is refused, the operator is asked to take the part out of the
+        jaws by hand and reset again."""
+        pick = self._pick
+        if pick is None or pick["stage"] == "sent":
+            self._pick = None
             return False
-        pid, grasp = self._in_jaws
-        commands = carry_off_commands(self.arm.joints(), grasp.joints, self.cell,
-                                      self._safe_z_mm(pid, grasp.grasp_z_mm))
-        self._check_links(pid, commands, f"{pid} is still in the jaws (take it out by hand); ")
-        self.sink.write_decision({"type": "commands", "part": pid, "attempt": "after fault",
-                                  "commands": [c.to_json() for c in commands]})
-        from drivers.execute import run_commands
+        pid, grasp = pick["part"], pick["grasp"]
+        if pick["stage"] == "released":
+            self._pick = None
+            self._retreat()
+            self._picked(pick, "let go at the drop-off before a drive fault")
+            return True
+        try:
+            commands = carry_off_commands(self.arm.joints(), grasp.joints, self.cell,
+                                          self._safe_z_mm(pid, grasp.grasp_z_mm))
+            self._check_links(pid, commands, "")
+            from drivers.limits import command_violations
 
-        records = run_commands(self.arm, commands, stop_on_miss=False)
-        self.sink.write_decision({"type": "executed", "part": pid, "attempt": "after fault", "records": records})
-        self._in_jaws = None
-        report = PartReport(pid, "removed", attempts=1, motion_s=records[-1]["t_end_s"] - records[0]["t_start_s"],
-                            reason="carried off after a drive fault")
-        self.remaining.remove(pid)
-        self._last_picked = (pid, self.poses.pop(pid))
+            problems = [p for c in commands if c.joints is not None
+                        for p in command_violations(self.cell, c.joints, None)]
+            if problems:
+                raise CellError("; ".join(problems))
+        except CellError as e:
+            self._pick, self._taken_by_hand = None, pick
+            raise CellError(f"{pid} is still in the jaws and cannot be carried off ({e}): take it out by hand, "
+                            "then reset") from None
+        records = self._execute(grasp, pid, pick["attempt"], commands, after_fault=True)
+        self._pick = None
+        pick["report"].motion_s += records[-1]["t_end_s"] - records[0]["t_start_s"]
+        self._picked(pick, "carried off after a drive fault")
+        return True
+
+    def _picked(self, pick: dict, reason: str = "") -> None:
+        """The part of `pick` has left the tray in the jaws: out of the sequence; the next frame
+        checks that it is gone from where it was."""
+        pid, report = pick["part"], pick["report"]
+        report.reason = reason
+        if pid in self.remaining:
+            self.remaining.remove(pid)
+        if pid in self.poses:
+            self._last_picked = (pid, self.poses.pop(pid))
         self.reports.append(report)
         self.sink.write_decision({"type": "outcome", **report.to_json()})
-        self.control.log("removed", f"{pid} was in the jaws at the fault: carried to the drop-off", part=pid)
-        return True
+        self.control.log("removed", f"{pid} removed in {report.cycle_s:.2f} s" + (f" ({reason})" if reason else ""),
+                         part=pid)
 
     def _retreat(self) -> None:
         """Open the jaws and go straight up to the safe height where the arm is."""

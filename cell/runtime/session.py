@@ -83,40 +83,61 @@ class SimCameraSource:
         return self.camera.read(self.world.visible_parts())
 
 
-def displaced(assembly: Assembly, shift_mm: float, seed: int, tries: int = 40):
+def displaced(assembly: Assembly, shift_mm: float, seed: int, tries: int = 40, layouts: int = 10):
     """The assembly's parts as they really lie: each moved a little from its nominal pose; a
     part lying on another moves with it (a base plate carries what sits on it). Parts do not
     move into each other: a move that makes a part overlap one already placed (more than they
-    overlap as designed) is drawn again, up to `tries` times, else the part stays where it was
-    designed to be."""
+    overlap as designed) is drawn again, up to `tries` times (else the least overlapping pose,
+    the designed one included); a layout that still has an overlap is drawn again, up to
+    `layouts` times (else the least overlapping one)."""
     rng = np.random.default_rng(seed)
+    best = None
+    for _ in range(layouts):
+        parts, excess = _layout(assembly, shift_mm, rng, tries)
+        if best is None or excess < best[1]:
+            best = (parts, excess)
+        if excess <= OVERLAP_SLACK_MM2:
+            break
+    return best[0]
+
+
+def _layout(assembly: Assembly, shift_mm: float, rng: np.random.Generator, tries: int) -> tuple[list[Part], float]:
+    """One draw of `displaced`: the parts and how much they overlap beyond their designs (mm^2)."""
     nominal = {p.id: p for p in assembly.parts}
     moves: dict[str, tuple] = {}
     placed: list[Part] = []
+    total = 0.0
     for p in sorted(assembly.parts, key=lambda q: q.z_bottom_mm):
         carrier = next((c for c in placed if nominal[p.id].lies_on(nominal[c.id])), None)
         if carrier is not None:
             moves[p.id] = moves[carrier.id]
         else:
             about = p.polygon.centroid.coords[0]
-            moves[p.id] = (0.0, 0.0, 0.0, about)
+            best = (_overlap_excess(p, placed, nominal), (0.0, 0.0, 0.0, about))
             for _ in range(tries):
                 move = (*rng.uniform(-shift_mm, shift_mm, 2), rng.uniform(-2 * shift_mm, 2 * shift_mm), about)
-                if not _moves_into(p.moved(*move[:3], about=about), placed, nominal):
-                    moves[p.id] = move
+                excess = _overlap_excess(p.moved(*move[:3], about=about), placed, nominal)
+                if excess <= OVERLAP_SLACK_MM2:
+                    best = (excess, move)
                     break
+                best = min(best, (excess, move), key=lambda b: b[0])
+            moves[p.id] = best[1]
+            total += best[0]
         placed.append(p.moved(*moves[p.id][:3], about=moves[p.id][3]))
-    return [p.moved(*moves[p.id][:3], about=moves[p.id][3]) for p in assembly.parts]
+    return [p.moved(*moves[p.id][:3], about=moves[p.id][3]) for p in assembly.parts], total
 
 
-def _moves_into(part: Part, placed: list[Part], nominal: dict[str, Part], slack_mm2: float = 0.5) -> bool:
-    """Does `part` overlap a part already placed by more than their designs overlap (parts lying
-    on one another, e.g. on a base plate, overlap in plan view by design)?"""
+OVERLAP_SLACK_MM2 = 0.5
+
+
+def _overlap_excess(part: Part, placed: list[Part], nominal: dict[str, Part]) -> float:
+    """How much more (mm^2) `part` overlaps the parts already placed than their designs overlap
+    (parts lying on one another, e.g. on a base plate, overlap in plan view by design)."""
+    excess = 0.0
     for q in placed:
         designed = nominal[part.id].polygon.intersection(nominal[q.id].polygon).area
-        if part.polygon.intersection(q.polygon).area > designed + slack_mm2:
-            return True
-    return False
+        excess += max(0.0, part.polygon.intersection(q.polygon).area - designed)
+    return excess
 
 
 def run_session(cfg: RunConfig) -> dict:

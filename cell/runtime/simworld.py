@@ -63,6 +63,16 @@ class SimWorld:
         with self._lock:  # the drives' clock thread changes the world meanwhile
             return [p for pid, p in self.parts.items() if pid != self.held]
 
+    def take_out_of_jaws(self) -> str | None:
+        """The operator takes the held part out of the jaws by hand (off the tray); its id."""
+        with self._lock:
+            pid, self.held = self.held, None
+            if pid is not None:
+                self.parts.pop(pid)
+                self.removed.append(pid)
+                self.events.append(f"{pid} taken out of the jaws by hand")
+            return pid
+
     def _pose(self):
         pos = self.drives.positions()
         j = Joints(pos["j1"], pos["j2"], pos["j3"], pos["j4"])

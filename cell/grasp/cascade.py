@@ -251,6 +251,13 @@ class BandEdges:
 
     @classmethod
     def clip(cls, ctx: Context, centers, us, t_min, t_max, half_width: float) -> BandEdges:
+        """Where pads closing along -us towards `centers` meet the target. Each band (b,) is the
+        rectangle from t_min to t_max along us from its centre, half_width across (t_min just
+        inside the candidate point: material further in cannot be the first touch when the
+        candidate itself is in the band). The target's material in it is bounded by the target's
+        edges clipped to the band (Liang-Barsky over the (band, edge) pairs whose bounding boxes
+        an STRtree finds overlapping) and, when the band's far corners lie inside the target, by
+        its far side (`first_touch`)."""
         vs = np.stack([-us[:, 1], us[:, 0]], -1)
         corners = axis_rects(centers, us, t_min, t_max, half_width)
         lo, hi = corners.min(axis=1), corners.max(axis=1)
@@ -349,22 +356,6 @@ def _liang_barsky(tA, dt, lA, dl, t_min, t_max, half_width):
             s1 = np.where(p > 0, np.minimum(s1, r), s1)
             inside &= ~((p == 0) & (q < 0))
     return s0, s1, inside & (s0 <= s1)
-
-
-def first_touch(ctx: Context, centers: np.ndarray, us: np.ndarray, t_min: np.ndarray, t_max: np.ndarray,
-                half_width: float, slanted: bool = False):
-    """Where a pad closing along -us towards `centers` first meets the target.
-
-    For each band (b,): the rectangle from t_min to t_max along us from the centre, half_width
-    across (t_min just inside the candidate point: material further in cannot be the first touch
-    when the candidate itself is in the band). The target's material inside it is bounded by the
-    target's edges clipped to the band (Liang-Barsky, vectorised over the (band, edge) pairs whose
-    bounding boxes an STRtree finds overlapping) and, when the band's far corners lie inside the
-    target, by its far side. Returns T (b,), the largest distance along us of material in the band
-    (-inf: none), and the touching point (b, 2): on the first-touch line, in the middle (across
-    the axis) of the material within PAD_COMPLIANCE_MM of it.
-    """
-    return BandEdges.clip(ctx, centers, us, t_min, t_max, half_width).first_touch(ctx, slanted)
 
 
 def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:

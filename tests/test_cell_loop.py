@@ -363,7 +363,7 @@ def test_a_part_in_the_jaws_at_a_drive_fault_is_carried_to_the_drop_off_after_th
     first = s["parts"][0]["part"]
     assert f"gripped {first}" in seen["events"][-1]  # held when it stopped
     assert (s["parts_total"], s["parts_removed"]) == (3, 3)
-    assert s["parts"][0]["reason"] == "carried off after a drive fault" and s["parts"][0]["attempts"] == 1
+    assert s["parts"][0]["reason"] == "carried off after the pick was cut short" and s["parts"][0]["attempts"] == 1
     assert f"dropped {first} off the tray" in world.events
     assert not any(e.startswith("released") for e in world.events)  # nothing let go over the tray
 
@@ -373,9 +373,37 @@ def test_a_fault_after_the_part_was_let_go_counts_it_as_removed(short_assembly):
     s, world = interactive_run(short_assembly, lambda loop, arm, drives, w: fault_after(arm, drives, "open", 2, "j3"),
                                lambda loop, w, fault: None)
     assert (s["parts_total"], s["parts_removed"]) == (3, 3)
-    assert s["parts"][0]["reason"] == "let go at the drop-off before a drive fault"
+    assert s["parts"][0]["reason"] == "let go at the drop-off before the pick was cut short"
     assert [e for e in world.events if e.startswith("dropped")] == [f"dropped {p} off the tray" for p in
                                                                      ("nut", "washer", "pcb")]
+
+
+def test_a_move_refused_while_carrying_is_recovered_like_a_fault(short_assembly):
+    # a move the arm refuses (nothing sent, no fault latched) with the part in the jaws: after the
+    # reset the part is carried off, not taken along into the next frame
+    from drivers.errors import LimitError
+
+    def arrange(loop, arm, drives, world):
+        move, gripped = arm.move_joints, []
+        grip = arm.gripper.grip
+
+        def grip_and_note(*a, **k):
+            r = grip(*a, **k)
+            gripped.append(r.holding)
+            return r
+
+        def refuse_once(target, **k):
+            if len(gripped) == 1 and gripped[0] and not getattr(refuse_once, "done", False):
+                refuse_once.done = True
+                raise LimitError("move refused, nothing sent: (test)")
+            return move(target, **k)
+
+        arm.gripper.grip, arm.move_joints = grip_and_note, refuse_once
+
+    s, world = interactive_run(short_assembly, arrange, lambda loop, w, fault: None)
+    assert (s["parts_total"], s["parts_removed"]) == (3, 3)
+    assert s["parts"][0]["reason"] == "carried off after the pick was cut short"
+    assert not any(e.startswith("released") for e in world.events)
 
 
 def test_a_carry_off_that_is_refused_asks_for_the_part_to_be_taken_out_by_hand(short_assembly):

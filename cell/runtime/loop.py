@@ -180,10 +180,14 @@ class CellLoop:
             self._retreat()
             self._picked(pick, "taken out of the jaws by hand after a drive fault")
             return
-        if self.arm.faults:
+        faulted = bool(self.arm.faults)
+        if faulted:
             self.arm.reset_faults()
+        if self._pick is not None:  # a pick was cut short (a drive fault, a refused move)
             if self._recover_pick():
                 return  # the part left the tray in the jaws: the next frame checks that
+            self._retreat()
+        elif faulted:
             self._retreat()
         frame, index = self._read_frame()
         t0 = time.perf_counter()
@@ -471,8 +475,8 @@ class CellLoop:
             at = c.joints
 
     def _recover_pick(self) -> bool:
-        """After a drive fault, reset by the operator, in the middle of a pick. Jaws that held the
-        part: they stay shut, the arm goes straight up and lets the part go at the drop-off, not
+        """After a pick was cut short (a drive fault, a refused move) and the operator's reset.
+        Jaws that held the part: they stay shut, the arm goes straight up and lets the part go at the drop-off, not
         where the arm stopped (over the tray, on other parts). A part already let go at the
         drop-off: the arm goes up. True in both cases; the part then counts as picked and the next
         frame checks that it left its place. False when nothing was held (open, up, as usual).
@@ -486,7 +490,7 @@ class CellLoop:
         if pick["stage"] == "released":
             self._pick = None
             self._retreat()
-            self._picked(pick, "let go at the drop-off before a drive fault")
+            self._picked(pick, "let go at the drop-off before the pick was cut short")
             return True
         try:
             commands = carry_off_commands(self.arm.joints(), grasp.joints, self.cell,
@@ -505,7 +509,7 @@ class CellLoop:
         records = self._execute(grasp, pid, pick["attempt"], commands, after_fault=True)
         self._pick = None
         pick["report"].motion_s += records[-1]["t_end_s"] - records[0]["t_start_s"]
-        self._picked(pick, "carried off after a drive fault")
+        self._picked(pick, "carried off after the pick was cut short")
         return True
 
     def _picked(self, pick: dict, reason: str = "") -> None:

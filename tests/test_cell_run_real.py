@@ -106,6 +106,8 @@ def test_the_operator_says_no_and_nothing_opens(monkeypatch, washer_only, capsys
     (["--interface", "virtual", "--channel", "nobody-here", "--camera", "no/such/folder"], "cannot be opened"),
     (["--interface", "socketcan", "--channel", "vcan9", "--camera", "0"], "without confirmation"),
     (["--interface", "socketcan", "--channel", "vcan9", "--camera", str(SHIPPED_FRAMES)], "live camera"),
+    (["--interface", "socketcan", "--channel", "vcan9", "--camera", str(SHIPPED_FRAMES / "000000.png")],
+     "live camera"),
 ])
 def test_bad_real_cell_options_are_bad_input(argv, message, capsys):
     code, out, err = run_cli("run", *argv, capsys=capsys)

@@ -45,7 +45,8 @@ def add_arguments(p):
     real.add_argument("--interface", help="python-can interface of the cell's CAN bus (e.g. socketcan)")
     real.add_argument("--channel", help="CAN channel (default can0)")
     real.add_argument("--camera", metavar="SPEC",
-                      help="the camera: a device index (0, /dev/video0), a video URL, or a folder of frames")
+                      help="the camera: a device index (0, /dev/video0) or a stream URL; on the virtual bus also "
+                           "image files or a folder of them (tests)")
     real.add_argument("--yes", action="store_true", help="do not ask before moving the real arm")
 
 
@@ -105,12 +106,14 @@ def _real_cell(args, world_options: dict):
                           ("--sim-bad-frames", args.sim_bad_frames), *world_options.items()) if v]
     if sim:
         raise BadInput(f"{', '.join(sim)}: options of the simulated world, not of the real cell")
-    from cell.commands.hw import confirm_motion
-    from cell.vision.sources import FileCamera, open_camera
+    from pathlib import Path
 
-    if isinstance(open_camera(args.camera), FileCamera) and args.interface != "virtual":
+    from cell.commands.hw import confirm_motion
+
+    recorded = Path(args.camera).is_file() or Path(args.camera).is_dir()  # images, a folder, a video file
+    if recorded and args.interface != "virtual":
         # old frames show where parts were, and the next file "shows" a pick worked whether or not it did
-        raise BadInput(f"--camera {args.camera}: image files drive only the virtual bus (tests); the real arm "
+        raise BadInput(f"--camera {args.camera}: recorded frames drive only the virtual bus (tests); the real arm "
                        "needs a live camera")
 
     args.channel = args.channel or "can0"

@@ -25,6 +25,7 @@ from cell.runtime.simworld import SimWorld, WorldFaults
 from cell.scene import Assembly, Part, load_assembly
 
 EXAMPLES_AT_START = "examples_at_start.jsonl"
+OVERLAP_SLACK_MM2 = 0.5  # displaced parts may overlap this much more than designed (rasterising, rounding)
 
 
 def default_assembly_path() -> Path:
@@ -127,9 +128,6 @@ def _layout(assembly: Assembly, shift_mm: float, rng: np.random.Generator, tries
     return [p.moved(*moves[p.id][:3], about=moves[p.id][3]) for p in assembly.parts], total
 
 
-OVERLAP_SLACK_MM2 = 0.5
-
-
 def _overlap_excess(part: Part, placed: list[Part], nominal: dict[str, Part]) -> float:
     """How much more (mm^2) `part` overlaps the parts already placed than their designs overlap
     (parts lying on one another, e.g. on a base plate, overlap in plan view by design)."""
@@ -141,7 +139,8 @@ def _overlap_excess(part: Part, placed: list[Part], nominal: dict[str, Part]) ->
 
 
 def run_session(cfg: RunConfig) -> dict:
-    """Run the disassembly in the simulated cell; returns the summary (with 'status')."""
+    """Run the disassembly in the simulated cell, or on the real one (`cfg.real_cell`); returns
+    the summary (with 'status')."""
     from calibration import default_calibration_path, load_calibration
 
     say = cfg.progress or (lambda s: None)

@@ -22,6 +22,8 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
+from cell.vision.segment import _signed_area, refine_rings  # (segment.py imports this module lazily)
+
 MIN_WALL_PX = 1.0  # narrower walls: the two planes map the silhouette within half a pixel
 WALL_SHADE = 0.81  # a wall pixel is darker than this x the top's level (walls: about 0.6 - 0.7)
 TOP_LEVEL_PERCENTILE = 60  # the top face is most of the silhouette; highlights are a few per cent
@@ -37,7 +39,7 @@ def top_face_px(seg, frame: np.ndarray, cal, z_top_mm: float, z_bottom_mm: float
     Parameters
     ----------
     seg : Segment
-        One part's region (not a merged one).
+        One part's region (a merged one is accepted only when one face explains all of it).
     frame : ndarray (h, w, 3) uint8
         The frame the segment came from.
     cal : Calibration
@@ -50,8 +52,6 @@ def top_face_px(seg, frame: np.ndarray, cal, z_top_mm: float, z_bottom_mm: float
     Returns None when the walls are too narrow to matter or the face found does not explain the
     silhouette; the caller then maps the silhouette.
     """
-    from cell.vision.segment import _signed_area, refine_rings
-
     outline = np.asarray(seg.outline_px, float)
     c = outline.mean(axis=0)
     # where the top's points at and next to c land on the bottom plane: the sweep from top to bottom
@@ -111,8 +111,6 @@ def top_face_px(seg, frame: np.ndarray, cal, z_top_mm: float, z_bottom_mm: float
 
 def _moved_out(ring: np.ndarray, by_px: float, hole: bool) -> np.ndarray:
     """The ring moved by_px along its normal out of the face (into the hole for a hole)."""
-    from cell.vision.segment import _signed_area
-
     tang = np.roll(ring, -1, axis=0) - np.roll(ring, 1, axis=0)
     tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
     sign = (1.0 if _signed_area(ring) > 0 else -1.0) * (-1.0 if hole else 1.0)

@@ -205,3 +205,24 @@ def test_a_step_5_hook_that_refuses_a_grasp_gets_the_next_best():
     assert res.grasp.joints == res.grasp.joint_options[-1] and len(res.ranked) == len(base.ranked) - 2
     with pytest.raises(NoFeasibleGrasp, match="step 5"):
         GraspPlanner(CELL, faces_examples(), choose=lambda *a: None).plan(Scene((RECT,), "r"))
+
+
+def test_one_taught_example_on_a_large_gear_makes_large_gears_plannable():
+    """The shipped examples' tree 1 rejects the tooth tips of the large gears (no grasp at all);
+    one grasp the operator shows on one of them, at one pose, is enough at other poses and for
+    the next size up: what teaching on the station does."""
+    from cell import parts_library as lib
+    from cell.operator import Operator, _example
+
+    shipped = load_examples(None)
+    op = Operator(CELL, np.random.default_rng(0))
+    shown = lib.place(lib.part("spur_gear_l"), 300, -100, 35)
+    g = op.choose_grasp(shown, [])
+    taught = _example(op, "taught-gear", shown, g.contacts_mm, g.axis_deg, g.grasp_z_mm, g.judgement, [], {}, 0)
+    before, after = GraspPlanner(CELL, shipped), GraspPlanner(CELL, [*shipped, taught])
+    for name, x, y, th in [("spur_gear_l", 350, 0, 20), ("spur_gear_xl", 420, 120, -60)]:
+        gear = lib.place(lib.part(name), x, y, th)
+        with pytest.raises(NoFeasibleGrasp):
+            before.plan(Scene((gear,), gear.id))
+        grasp = after.plan(Scene((gear,), gear.id)).grasp
+        assert grasp.opening_mm > 50  # across the gear, tip to tip (no other pair clears the teeth)

@@ -320,6 +320,34 @@ def test_float32_threshold_of_the_neck_search_is_exact():
         assert np.array_equal(cv2.compare(dt, _below_f32(level), cv2.CMP_GT) > 0, dt > level)
 
 
+def test_levels_labelled_in_one_stack_fall_apart_where_each_level_labelled_alone_does():
+    import cv2
+
+    from cell.vision.touching import _below_f32, _levels_that_fall_apart, fill_holes
+
+    rng = np.random.default_rng(4)
+    apart_seen = 0
+    for _ in range(60):  # heaps of 1 - 4 discs and bars: necks, lobes, bars, rings
+        mask = np.zeros((int(rng.integers(40, 120)), int(rng.integers(40, 120))), np.uint8)
+        h, w = mask.shape
+        for _ in range(int(rng.integers(1, 5))):
+            c = (int(rng.integers(5, w - 5)), int(rng.integers(5, h - 5)))
+            if rng.random() < 0.7:
+                cv2.circle(mask, c, int(rng.integers(3, 25)), 1, -1)
+            else:
+                cv2.line(mask, c, (int(rng.integers(0, w)), int(rng.integers(0, h))), 1, int(rng.integers(2, 9)))
+        dt = cv2.distanceTransform(fill_holes(mask), cv2.DIST_L2, 5)
+        peak = float(dt.max())
+        if peak <= 1.0:
+            continue
+        levels = np.arange(1.0, peak, max(1.0, peak / 12))
+        alone = [cv2.connectedComponents(cv2.compare(dt, _below_f32(lv), cv2.CMP_GT), connectivity=8)[0] > 2
+                 for lv in levels]
+        assert list(_levels_that_fall_apart(dt, levels)) == alone
+        apart_seen += sum(alone)
+    assert apart_seen >= 20  # the case that matters was there
+
+
 def test_blur_in_the_helper_thread_gives_the_same_segments(layout_frame, monkeypatch):
     from cell.vision import segment as seg_mod
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -631,12 +632,10 @@ def refine_rings(frame: np.ndarray, rings: list[np.ndarray], is_hole: list[bool]
     sign = np.where(area2 > 0, 1.0, -1.0) * np.where(np.array([is_hole[i] for i in todo]), -1.0, 1.0)
     normal = sign[ring_of, None] * np.column_stack([tang[:, 1], -tang[:, 0]])  # out of the material
     rng_px = max(p.refine_range_px, 2.0 * p.scale)  # the coarse outline is up to a detection pixel off
-    ts = np.arange(-rng_px, rng_px + 1e-9, 0.5)
+    ts, basis, nearest_first = _profile_steps(rng_px)
     nt = len(ts)
-    ks = np.array([-1.0, 0.0, 1.0])  # three samples across the profile, averaged (noise)
     # sample positions p + t normal + k tangent for every (t, k), per axis (n, nt * 3), as one
-    # product of (n, 3) coefficients and a (3, nt * 3) basis, in float32 (pixel centres at integers)
-    basis = np.stack([np.ones(nt * 3), np.repeat(ts, 3), np.tile(ks, nt)]).astype(np.float32)
+    # product of (n, 3) coefficients and the (3, nt * 3) basis, in float32 (pixel centres at integers)
     mapx = np.column_stack([pts0[:, 0] - 0.5, normal[:, 0], tang[:, 0]]).astype(np.float32) @ basis
     mapy = np.column_stack([pts0[:, 1] - 0.5, normal[:, 1], tang[:, 1]]).astype(np.float32) @ basis
     samp = cv2.remap(frame, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)  # (n, nt * 3, 3) uint8
@@ -651,11 +650,11 @@ def refine_rings(frame: np.ndarray, rings: list[np.ndarray], is_hole: list[bool]
     f = (np.matmul(prof, d[:, :, None])[:, :, 0] - np.einsum("nc,nc->n", outside, d)[:, None]) / np.maximum(
         dd, 1e-9)[:, None]
     cross = (f[:, :-1] >= 0.5) & (f[:, 1:] < 0.5)
-    tmid = 0.5 * (ts[:-1] + ts[1:])
-    cost = np.where(cross, np.abs(tmid)[None, :], np.inf)
-    j = np.argmin(cost, axis=1)
+    # the crossing nearest the coarse point (of two as near, the one further in): the first one in
+    # the steps ordered by distance (argmax finds the first True)
+    j = nearest_first[np.argmax(cross[:, nearest_first], axis=1)]
     rows = np.arange(n)
-    found = np.isfinite(cost[rows, j]) & ok
+    found = cross[rows, j] & ok
     f0, f1 = f[rows, j], f[rows, j + 1]
     frac = np.clip((f0 - 0.5) / np.maximum(f0 - f1, 1e-9), 0.0, 1.0)
     t = np.where(found, ts[j] + frac * (ts[1] - ts[0]), 0.0)
@@ -666,6 +665,22 @@ def refine_rings(frame: np.ndarray, rings: list[np.ndarray], is_hole: list[bool]
         out[i] = moved[start:start + len(rings[i])]
         start += len(rings[i])
     return out
+
+
+@lru_cache(maxsize=4)
+def _profile_steps(rng_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Steps t (px) along the normal, the (3, nt * 3) float32 basis of the sample positions
+    (1, t, k) for the three samples k = -1, 0, 1 across the profile at each step, and the
+    intervals between steps ordered by the distance of their middle from 0 (ties: the lower
+    first). Read-only: shared by every call."""
+    ts = np.arange(-rng_px, rng_px + 1e-9, 0.5)
+    nt = len(ts)
+    ks = np.array([-1.0, 0.0, 1.0])  # three samples across the profile, averaged (noise)
+    basis = np.stack([np.ones(nt * 3), np.repeat(ts, 3), np.tile(ks, nt)]).astype(np.float32)
+    nearest_first = np.argsort(np.abs(0.5 * (ts[:-1] + ts[1:])), kind="stable")
+    for a in (ts, basis, nearest_first):
+        a.flags.writeable = False
+    return ts, basis, nearest_first
 
 
 def _median3(a: np.ndarray) -> np.ndarray:

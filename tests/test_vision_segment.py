@@ -348,6 +348,21 @@ def test_levels_labelled_in_one_stack_fall_apart_where_each_level_labelled_alone
     assert apart_seen >= 20  # the case that matters was there
 
 
+def test_nearest_crossing_by_its_order_equals_the_least_distance():
+    from cell.vision.segment import _profile_steps
+
+    ts, basis, nearest_first = _profile_steps(4.0)
+    assert basis.shape == (3, 3 * len(ts)) and not ts.flags.writeable
+    rng = np.random.default_rng(5)
+    cross = rng.random((2000, len(ts) - 1)) < rng.choice([0.0, 0.05, 0.3, 1.0], size=(2000, 1))
+    cost = np.where(cross, np.abs(0.5 * (ts[:-1] + ts[1:]))[None, :], np.inf)  # the plain computation
+    plain = np.argmin(cost, axis=1)
+    fast = nearest_first[np.argmax(cross[:, nearest_first], axis=1)]
+    some = cross.any(axis=1)
+    assert 0 < some.sum() < len(some)
+    assert np.array_equal(fast[some], plain[some])  # (rows without a crossing are not moved either way)
+
+
 def test_blur_in_the_helper_thread_gives_the_same_segments(layout_frame, monkeypatch):
     from cell.vision import segment as seg_mod
 

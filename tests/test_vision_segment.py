@@ -363,6 +363,38 @@ def test_nearest_crossing_by_its_order_equals_the_least_distance():
     assert np.array_equal(fast[some], plain[some])  # (rows without a crossing are not moved either way)
 
 
+def test_sharp_edges_by_the_squared_gradient_equal_the_gradient_test():
+    from cell.vision.segment import _sharp_bound_sq
+
+    rng = np.random.default_rng(6)
+    for edge, scale in ((0.06, 2), (0.06, 1), (0.06, 3), (0.1, 5)):
+        bound = _sharp_bound_sq(edge, scale)
+        near = bound + np.arange(-300, 300, dtype=np.float32) * np.spacing(bound)  # every float32 near it
+        g2 = np.concatenate([near, rng.random(100_000).astype(np.float32) * np.float32(4 * (edge * scale) ** 2)])
+        assert np.array_equal(g2 > bound, np.sqrt(g2) / scale > edge)
+
+
+def test_labels_around_pixels_of_a_box_equal_those_of_the_whole_image():
+    import cv2
+
+    from cell.vision.segment import _labels_around
+
+    rng = np.random.default_rng(7)
+    for _ in range(30):
+        strong = (rng.random((60, 80)) < 0.3).astype(np.uint8)
+        _, lab = cv2.connectedComponents(strong, connectivity=8)
+        pl = lab.astype(np.float32)
+        k3 = np.ones((3, 3), np.uint8)
+        hi = cv2.dilate(pl, k3)  # the plain computation: over the whole image
+        lo = cv2.erode(pl + np.where(pl == 0, np.float32(1e9), np.float32(0)), k3)
+        x0, y0 = int(rng.integers(0, 70)), int(rng.integers(0, 50))  # boxes inside and at the borders
+        x1, y1 = int(rng.integers(x0 + 1, 81)), int(rng.integers(y0 + 1, 61))
+        ys, xs = np.nonzero(rng.random((y1 - y0, x1 - x0)) < 0.5)
+        ys, xs = ys + y0, xs + x0
+        got_hi, got_lo = _labels_around(lab, ys, xs, (x0, y0, x1, y1))
+        assert np.array_equal(got_hi, hi[ys, xs]) and np.array_equal(got_lo, lo[ys, xs])
+
+
 def test_blur_in_the_helper_thread_gives_the_same_segments(layout_frame, monkeypatch):
     from cell.vision import segment as seg_mod
 

@@ -313,8 +313,9 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin
     """Shadow-like regions bounded by sharp edges are material (walls, grey parts), not shadow."""
     gx = cv2.Sobel(r, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
     gy = cv2.Sobel(r, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
-    grad = np.sqrt(gx * gx + gy * gy) / scale  # per full-resolution pixel
-    sharp = grad > p.sharp_edge
+    # |grad| / scale > sharp_edge (per full-resolution pixel), compared on the squared gradient
+    # against the exact float32 bound: no square root and division over the box
+    sharp = gx * gx + gy * gy > _sharp_bound_sq(p.sharp_edge, scale)
     # cut shadow-like regions at sharp edges, so a grey part and its own shadow come apart
     cand = (darker & ~sharp).view(np.uint8)  # (bool arrays viewed as 0/1 bytes for OpenCV: no copies)
     n, lab = cv2.connectedComponents(cand, connectivity=4)
@@ -336,19 +337,15 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin
     keep[0] = False
     if keep.any() and strong.any():
         ns, parts_lab = cv2.connectedComponents(strong.view(np.uint8), connectivity=8)
-        pl = parts_lab.astype(np.float32)
-        k3 = np.ones((3, 3), np.uint8)
-        hi = cv2.dilate(pl, k3)
-        # the lowest neighbouring part label: the tray (0) counted as 1e9 (pl + 1e9 where pl is 0)
-        lo = cv2.erode(cv2.add(pl, cv2.threshold(pl, 0.5, 1e9, cv2.THRESH_BINARY_INV)[1]), k3)
         inside = np.take(keep, lab)  # only the regions still in question (take: twice as fast as keep[lab])
         bx0, by0, bw, bh = cv2.boundingRect(inside.view(np.uint8))  # (they are small: look only there)
         ys, xs = np.nonzero(inside[by0:by0 + bh, bx0:bx0 + bw])
         ys += by0
         xs += bx0
+        hi, lo = _labels_around(parts_lab, ys, xs, (bx0, by0, bx0 + bw, by0 + bh))
         li = lab[ys, xs]
-        touch = hi[ys, xs] > 0  # pixels next to a part (only they see a part's label)
-        lt, hit, lot = li[touch], hi[ys[touch], xs[touch]], lo[ys[touch], xs[touch]]
+        touch = hi > 0  # pixels next to a part (only they see a part's label)
+        lt, hit, lot = li[touch], hi[touch], lo[touch]
         hi_c = np.zeros(n)
         np.maximum.at(hi_c, lt, hit)
         lo_c = np.full(n, 1e9)
@@ -378,6 +375,37 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin
     grown = cv2.dilate(out, np.ones((3, 3), np.uint8))
     out |= (darker & sharp & (grown > 0)).view(np.uint8)
     return out
+
+
+def _labels_around(parts_lab: np.ndarray, ys: np.ndarray, xs: np.ndarray, box) -> tuple[np.ndarray, np.ndarray]:
+    """The highest and the lowest part label (the tray, 0, counted as 1e9) in the 3 x 3
+    neighbourhood of each pixel (ys, xs), all in `box` (x0, y0, x1, y1); float32 (k,) each. The
+    dilation and erosion run on the box and a pixel around it only: the same values there as
+    over the whole image (outside the image they ignore the border, as there)."""
+    x0, y0, x1, y1 = box
+    cy0, cx0 = max(y0 - 1, 0), max(x0 - 1, 0)
+    pl = parts_lab[cy0:y1 + 1, cx0:x1 + 1].astype(np.float32)
+    k3 = np.ones((3, 3), np.uint8)
+    hi = cv2.dilate(pl, k3)
+    lo = cv2.erode(cv2.add(pl, cv2.threshold(pl, 0.5, 1e9, cv2.THRESH_BINARY_INV)[1]), k3)  # (pl + 1e9 where 0)
+    yc, xc = ys - cy0, xs - cx0
+    return hi[yc, xc], lo[yc, xc]
+
+
+@lru_cache(maxsize=8)
+def _sharp_bound_sq(edge: float, scale: int) -> np.float32:
+    """The largest float32 g2 whose np.sqrt(g2) / scale is not above `edge` (in float32, as on
+    the arrays): for float32 g2 >= 0, sqrt(g2) / scale > edge exactly when g2 > it (both roundings
+    are monotonic, so the comparison flips once)."""
+    def above(g2) -> bool:
+        return bool((np.sqrt(np.array([g2], np.float32)) / scale > edge)[0])
+
+    b = np.float32((edge * scale) ** 2)
+    while above(b):
+        b = np.nextafter(b, np.float32(0))
+    while not above(np.nextafter(b, np.float32(np.inf))):
+        b = np.nextafter(b, np.float32(np.inf))
+    return b
 
 
 def _split_regions(mask: np.ndarray, boxes, p: SegmentParams, scale: int, det: np.ndarray | None = None

@@ -395,6 +395,19 @@ def test_labels_around_pixels_of_a_box_equal_those_of_the_whole_image():
         assert np.array_equal(got_hi, hi[ys, xs]) and np.array_equal(got_lo, lo[ys, xs])
 
 
+def test_pick_equals_boolean_indexing():
+    from cell.vision.touching import pick
+
+    rng = np.random.default_rng(8)
+    for shape in ((7,), (40, 30), (40, 30, 3), (1, 1)):
+        a = rng.normal(size=shape).astype(np.float32)
+        mask = rng.random(shape[:2] if len(shape) == 3 else shape) < 0.4
+        assert np.array_equal(pick(a, mask), a[mask])
+    a = rng.normal(size=(50, 9))
+    inl = rng.random(50) < 0.5
+    assert np.array_equal(np.compress(inl, a, axis=0), a[inl])
+
+
 def test_blur_in_the_helper_thread_gives_the_same_segments(layout_frame, monkeypatch):
     from cell.vision import segment as seg_mod
 

@@ -101,7 +101,7 @@ def fit_tray_field(image_bgr: np.ndarray, tray: str = "auto") -> tuple[np.ndarra
     sigma = 1.0
     coef = None
     for _ in range(FIT_ITERATIONS):
-        ayi = ay[inl]
+        ayi = np.compress(inl, ay, axis=0)  # (ay[inl], four times faster)
         normal = ayi.T @ ayi  # [[A'A, A'y], [y'A, y'y]]
         coef = np.linalg.solve(normal[:nc, :nc] + ridge, normal[:nc, nc:])
         res = _row_norms(small - a @ coef)

@@ -28,6 +28,7 @@ import numpy as np
 
 from cell.errors import BadInput
 from cell.vision.background import field_at, fit_tray_field, reference_background
+from cell.vision.touching import pick
 
 SMALL_FRAME_PX = 960
 WALL_FACING_COS = 0.3
@@ -291,7 +292,7 @@ def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: 
                 & ~(r < 1.0 - p.brighter_min)) | strong
         n, lab = cv2.connectedComponents(weak.view(np.uint8), connectivity=8)
         seeded = np.zeros(n, bool)
-        seeded[lab[strong]] = True
+        seeded[pick(lab, strong)] = True
         seeded[0] = False
         strong = np.take(seeded, lab)
     darker = (r < 1.0 - p.brighter_min) & ~strong
@@ -330,8 +331,8 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin
     border = cand.view(bool) & (cv2.erode(cand, np.ones((3, 3), np.uint8)) == 0)
     border &= near_tray & ~near_part
     near_sharp = cv2.dilate(sharp.view(np.uint8), np.ones((3, 3), np.uint8)) > 0
-    total = np.bincount(lab[border], minlength=n).astype(float)
-    sharp_count = np.bincount(lab[border & near_sharp], minlength=n).astype(float)
+    total = np.bincount(pick(lab, border), minlength=n).astype(float)
+    sharp_count = np.bincount(pick(lab, border & near_sharp), minlength=n).astype(float)
     frac = np.divide(sharp_count, total, out=np.zeros(n), where=total > 0)
     keep = frac > p.sharp_fraction
     keep[0] = False

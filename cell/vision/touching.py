@@ -22,6 +22,12 @@ MIN_PIECE_HALF_WIDTH = 4.0  # detection px: a colour piece narrower than this is
 CONVEX_SOLIDITY = 0.97  # touching blobs leave notches: two tangent discs have a solidity of about 0.9
 
 
+def pick(a: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """a[mask] for a boolean mask of a's leading shape (the same values in the same order), by
+    np.compress on the flattened arrays: several times faster than boolean indexing in 2-D."""
+    return np.compress(mask.ravel(), a.reshape(mask.size, *a.shape[mask.ndim:]), axis=0)
+
+
 def split_necks(regions, p, min_area_det: float, bgr: np.ndarray | None = None
                 ) -> list[tuple[int, int, np.ndarray, bool]]:
     """Split touching parts.
@@ -88,7 +94,7 @@ def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_d
     if float((std.ravel() * weight).max()) < 0.25 * min_delta_e:
         return None  # one colour: nothing to split
     mask = sub.view(bool)
-    px = lab_img[mask] * weight  # (float32 already)
+    px = pick(lab_img, mask) * weight  # (float32 already)
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5)
     _, lab, centres = cv2.kmeans(px, 2, None, crit, 1, cv2.KMEANS_PP_CENTERS)
     if np.linalg.norm(centres[0] - centres[1]) < min_delta_e:
@@ -158,7 +164,7 @@ def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, bgr: np.ndarray 
         idx = np.arange(1, n)
         inside = cores > 0
         peak_of = np.zeros(n)
-        np.maximum.at(peak_of, cores[inside], dt[inside])
+        np.maximum.at(peak_of, pick(cores, inside), pick(dt, inside))
         peaks = peak_of[1:]
         areas = np.bincount(cores.ravel(), minlength=n)[1:]
         big = idx[(peaks >= np.maximum(r_min, level / p.neck_flag)) & (areas >= 3)]

@@ -413,8 +413,8 @@ def test_a_carry_off_that_is_refused_asks_for_the_part_to_be_taken_out_by_hand(s
         fault_after(arm, drives, "grip", 1, "j1")
         check, refused = loop._check_links, []
 
-        def refuse_the_carry_off(part_id, commands, why):
-            if commands[0].label == "lift" and not refused:
+        def refuse_the_carry_off(part_id, commands, why):  # whichever drop-off configuration
+            if commands[0].label == "lift":
                 refused.append(part_id)
                 raise LinksWouldHit("on the way to 'carry' the arm's links would hit a column (test)")
             return check(part_id, commands, why)
@@ -454,3 +454,43 @@ def test_parts_lying_8_mm_off_their_design_are_all_found_and_removed():
     # gearbox and the run stopped
     s = run_session(RunConfig(assembly=DEFAULT.parent / "drive_unit.json", seed=4, shift_mm=8.0))
     assert s["status"] == "complete" and s["parts_removed"] == s["parts_total"] == 6
+
+
+def test_a_drop_off_whose_way_hits_a_tall_part_is_reached_with_the_other_elbow(tmp_path):
+    """A low-armed SCARA (link undersides 150 / 120 mm) and a 130 mm column under the forearm's
+    way to the usual drop-off configuration: the pick takes the other elbow there instead."""
+    from calibration import load_calibration
+    from cell.cellconfig import default_cell_path, load_cell
+    from cell.examples import default_examples_path
+    from cell.kinematics import elbow_points
+    from cell.runtime.control import RunControl
+    from cell.runtime.loop import CellLoop, LinksWouldHit, LoopOptions
+    from cell.runtime.motion import dropoff_options, pick_commands
+    from cell.scene import Scene, parse_assembly, parse_part
+    from drivers import simulated_cell
+
+    raw = json.loads(default_cell_path().read_text())
+    raw["scara"].update(link1_bottom_z_mm=150.0, link2_bottom_z_mm=120.0)
+    (tmp_path / "low_arm.json").write_text(json.dumps(raw))
+    cell = load_cell(tmp_path / "low_arm.json")
+    d = json.loads(DEFAULT.read_text())
+    d["parts"], d["sequence"] = [p for p in d["parts"] if p["id"] == "washer"], ["washer"]
+    with simulated_cell(cell) as (arm, drives):
+        loop = CellLoop(cell=cell, calibration=load_calibration(), assembly=parse_assembly(d), camera=None, arm=arm,
+                        control=RunControl(), examples_path=default_examples_path(), options=LoopOptions())
+        scene = Scene(tuple(loop.poses.values()), "washer")
+        grasp = loop.planner.plan(scene).grasp
+        grasp.joints = grasp.joints or loop.planner.choose_for(grasp, scene)
+        usual, *others = dropoff_options(cell, grasp.joints)
+        assert loop._clear_pick("washer", grasp)[-3].joints == usual  # nothing in the way: as always
+        _, elbow, wrist = elbow_points(usual, cell.scara)
+        cx, cy = (elbow + wrist) / 2
+        loop.poses["column"] = parse_part({"id": "column", "z_top": 130.0, "outline": [
+            [cx - 12, cy - 12], [cx + 12, cy - 12], [cx + 12, cy + 12], [cx - 12, cy + 12]]})
+        safe_z = loop._safe_z_mm("washer", grasp.grasp_z_mm)
+        with pytest.raises(LinksWouldHit):
+            loop._check_links("washer", pick_commands(grasp.joints, grasp.opening_mm, cell, safe_z, usual), "")
+        commands = loop._clear_pick("washer", grasp)
+        drop = commands[-3].joints  # 'lower': the drop-off configuration
+        assert drop in others and drop.elbow != usual.elbow
+        loop._check_links("washer", commands, "")  # its whole way is clear

@@ -37,7 +37,7 @@ from cell.grasp.synthesis import Grasp, GraspPlanner
 from cell.kinematics import Joints
 from cell.runtime.control import Faulted, RunControl, Stopped
 from cell.runtime.matching import Region, locate
-from cell.runtime.motion import above, carry_off_commands, pick_commands
+from cell.runtime.motion import above, carry_off_commands, dropoff_options, pick_commands
 from cell.scene import Assembly, Part, Scene
 
 TRAVEL_MARGIN_MM = 20.0  # above the tallest part on the tray, when travelling
@@ -235,11 +235,9 @@ class CellLoop:
                     return
                 attempt = 0
                 continue
-            commands = pick_commands(grasp.joints, grasp.opening_mm, self.cell,
-                                     safe_z_mm=self._safe_z_mm(part_id, grasp.grasp_z_mm))
             try:
-                self._check_links(part_id, commands, f"{part_id}: ")
-            except LinksWouldHit as e:  # this grasp's moves sweep a link over a tall part: the next one
+                commands = self._clear_pick(part_id, grasp)
+            except LinksWouldHit as e:  # every way of this grasp sweeps a link over a tall part: the next one
                 refused = str(e)
                 self.control.log("links", refused, part=part_id)
                 attempt += 1
@@ -460,6 +458,35 @@ class CellLoop:
                             f"height of {safe:.0f} mm, J3 reaches {self.cell.scara.j3_mm[1]:g} mm")
         return safe
 
+    def _clear_pick(self, part_id: str, grasp: Grasp) -> list:
+        """The pick's commands with the first drop-off configuration (nearest to the grasp's first:
+        the other elbow, the J4 turns) whose moves keep the links clear of the parts on the tray;
+        LinksWouldHit (the first one's reason) when none does."""
+        safe_z = self._safe_z_mm(part_id, grasp.grasp_z_mm)
+        first = None
+        for drop in dropoff_options(self.cell, grasp.joints):
+            commands = pick_commands(grasp.joints, grasp.opening_mm, self.cell, safe_z_mm=safe_z, drop=drop)
+            try:
+                self._check_links(part_id, commands, f"{part_id}: ")
+                return commands
+            except LinksWouldHit as e:
+                first = first or e
+        raise first
+
+    def _clear_carry_off(self, part_id: str, grasp: Grasp) -> list:
+        """Carry-off commands from where the arm is, with the first drop-off configuration whose
+        moves keep the links clear; LinksWouldHit when none does."""
+        safe_z, here = self._safe_z_mm(part_id, grasp.grasp_z_mm), self.arm.joints()
+        first = None
+        for drop in dropoff_options(self.cell, grasp.joints):
+            commands = carry_off_commands(here, grasp.joints, self.cell, safe_z, drop)
+            try:
+                self._check_links(part_id, commands, "")
+                return commands
+            except LinksWouldHit as e:
+                first = first or e
+        raise first
+
     def _check_links(self, part_id: str, commands, why: str) -> None:
         """The links along every move of `commands`, from where the arm is, against the parts on the
         tray (the part `part_id` is in the jaws, not on the tray); a hit refuses the whole list
@@ -493,9 +520,7 @@ class CellLoop:
             self._picked(pick, "let go at the drop-off before the pick was cut short")
             return True
         try:
-            commands = carry_off_commands(self.arm.joints(), grasp.joints, self.cell,
-                                          self._safe_z_mm(pid, grasp.grasp_z_mm))
-            self._check_links(pid, commands, "")
+            commands = self._clear_carry_off(pid, grasp)
             from drivers.limits import command_violations
 
             problems = [p for c in commands if c.joints is not None

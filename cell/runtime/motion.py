@@ -41,18 +41,26 @@ def above(j: Joints, z_mm: float) -> Joints:
     return Joints(j.j1_deg, j.j2_deg, z_mm, j.j4_deg)
 
 
-def dropoff_joints(cell: Cell, near: Joints) -> Joints:
+def dropoff_options(cell: Cell, near: Joints) -> list[Joints]:
+    """Every configuration reaching the drop-off (both elbows, the J4 turns), nearest to `near`
+    first (J1, J2, J4 distance: the least motion from the grasp)."""
     x, y, z = cell.motion.dropoff_mm
     options = inverse(x, y, z, 0.0, cell.scara)
     if not options:
         raise CellError(f"the drop-off {cell.motion.dropoff_mm} is not reachable with the cell's joint limits")
     q = near.as_array()
-    return min(options, key=lambda o: float(np.sum(np.abs((o.as_array() - q)[[0, 1, 3]]))))
+    return sorted(options, key=lambda o: float(np.sum(np.abs((o.as_array() - q)[[0, 1, 3]]))))
 
 
-def pick_commands(grasp_joints: Joints, opening_mm: float, cell: Cell, safe_z_mm: float | None = None) -> list[Command]:
+def dropoff_joints(cell: Cell, near: Joints) -> Joints:
+    return dropoff_options(cell, near)[0]
+
+
+def pick_commands(grasp_joints: Joints, opening_mm: float, cell: Cell, safe_z_mm: float | None = None,
+                  drop: Joints | None = None) -> list[Command]:
     """Commands of one pick; `grasp_joints` is the configuration at the grasp (J3 = grasp z);
-    travel at `safe_z_mm` (default: the cell's safe height), which must be above the grasp."""
+    travel at `safe_z_mm` (default: the cell's safe height), which must be above the grasp; let
+    go at `drop` (default: the drop-off configuration nearest to the grasp's)."""
     g = cell.gripper
     safe = cell.motion.safe_z_mm if safe_z_mm is None else safe_z_mm
     if safe <= grasp_joints.j3_mm:
@@ -63,14 +71,16 @@ def pick_commands(grasp_joints: Joints, opening_mm: float, cell: Cell, safe_z_mm
         Command("open", "pre-open", width_mm=approach_mm),
         Command("move", "descend", grasp_joints),
         Command("grip", "grip", width_mm=opening_mm, force_n=g.grip_force_n),
-        *carry_off_commands(grasp_joints, grasp_joints, cell, safe),
+        *carry_off_commands(grasp_joints, grasp_joints, cell, safe, drop),
     ]
 
 
-def carry_off_commands(from_joints: Joints, grasp_joints: Joints, cell: Cell, safe_z_mm: float) -> list[Command]:
+def carry_off_commands(from_joints: Joints, grasp_joints: Joints, cell: Cell, safe_z_mm: float,
+                       drop: Joints | None = None) -> list[Command]:
     """A held part from where the arm is (`from_joints`) to the drop-off: straight up to the travel
-    height, across, down, let go, up. `grasp_joints` decides the drop-off pose (dropoff_joints)."""
-    drop = dropoff_joints(cell, grasp_joints)
+    height, across, down, let go, up; at `drop` (default: the drop-off configuration nearest to
+    `grasp_joints`)."""
+    drop = drop or dropoff_joints(cell, grasp_joints)
     return [
         Command("move", "lift", above(from_joints, safe_z_mm)),
         Command("move", "carry", above(drop, safe_z_mm)),

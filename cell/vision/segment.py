@@ -154,9 +154,14 @@ def _colour_change(sm: np.ndarray, bg: np.ndarray):
     si = cv2.transform(sm, _SUM_PLUS_1)
     sb = cv2.transform(bg, _SUM_PLUS_1)
     r = si / sb
-    db = sm[:, :, 0] / si - bg[:, :, 0] / sb  # (channel views: no copies)
-    dg = sm[:, :, 1] / si - bg[:, :, 1] / sb
-    chroma = np.abs(db) + np.abs(dg) + np.abs(db + dg)  # L1 over b, g, r of the normalised colour
+    db = sm[:, :, 0] / si  # (channel views: no copies; then in place: fewer passes and allocations)
+    db -= bg[:, :, 0] / sb
+    dg = sm[:, :, 1] / si
+    dg -= bg[:, :, 1] / sb
+    dr = np.abs(db + dg)  # |b + g| = |r| of the normalised colour change (it sums to 0)
+    chroma = np.abs(db)  # the L1 over b, g, r, summed in the order |b| + |g| + |r|
+    chroma += np.abs(dg)
+    chroma += dr
     # the same changes in DN, to be compared with the frame's noise (dark trays have noisy chroma)
     return r, chroma, chroma * si, (si - sb) / 3.0
 

@@ -408,6 +408,16 @@ def test_pick_equals_boolean_indexing():
     assert np.array_equal(np.compress(inl, a, axis=0), a[inl])
 
 
+def test_chroma_of_mean_colours_equals_the_numpy_computation():
+    from cell.vision.segment import _chroma_of
+
+    rng = np.random.default_rng(9)
+    for _ in range(20_000):
+        part, tray = tuple(rng.random(3) * 255), tuple(rng.random(3) * 255)
+        pc, tc = np.asarray(part), np.asarray(tray)
+        assert _chroma_of(part, tray) == float(np.abs(pc / (pc.sum() + 1.0) - tc / (tc.sum() + 1.0)).sum())
+
+
 def test_blur_in_the_helper_thread_gives_the_same_segments(layout_frame, monkeypatch):
     from cell.vision import segment as seg_mod
 

@@ -581,9 +581,11 @@ def _ratio_chroma(img: np.ndarray, b: np.ndarray, ratio: bool = True) -> tuple[n
 
 def _chroma_of(part_bgr, tray_mean_bgr) -> float:
     """Chroma change (L1 of normalised colour) of a part's mean colour against the tray's mean."""
-    pc = np.asarray(part_bgr, np.float64)
-    tc = np.asarray(tray_mean_bgr, np.float64)
-    return float(np.abs(pc / (pc.sum() + 1.0) - tc / (tc.sum() + 1.0)).sum())
+    # (in Python floats: the same double operations in the same order as on numpy arrays, faster for 3 values)
+    p0, p1, p2 = (float(v) for v in part_bgr)
+    t0, t1, t2 = (float(v) for v in tray_mean_bgr)
+    sp, st = p0 + p1 + p2 + 1.0, t0 + t1 + t2 + 1.0
+    return abs(p0 / sp - t0 / st) + abs(p1 / sp - t1 / st) + abs(p2 / sp - t2 / st)
 
 
 def _holes_full_res(frame, bg, outline, part_bgr, box, p: SegmentParams, scale: int, dips=None

@@ -418,6 +418,19 @@ def test_chroma_of_mean_colours_equals_the_numpy_computation():
         assert _chroma_of(part, tray) == float(np.abs(pc / (pc.sum() + 1.0) - tc / (tc.sum() + 1.0)).sum())
 
 
+def test_fit_copy_of_whole_numbers_equals_the_area_resize_of_the_float_image():
+    from cell.vision.background import fit_copy, fit_copy_of_whole_dn
+
+    rng = np.random.default_rng(10)
+    # blocks of 8 and 16 (the fast way), of 5 and uneven (resized as given), extreme values
+    for shape in ((512, 640, 3), (1024, 1280, 3), (400, 400, 3), (500, 650, 3), (64, 80, 3)):
+        img = rng.integers(0, 256, shape, dtype=np.uint8)
+        img[:8, :8] = 255
+        img[-8:, -8:] = 0
+        fast = fit_copy_of_whole_dn(img)
+        assert fast.dtype == np.float32 and np.array_equal(fast, fit_copy(img.astype(np.float32)))
+
+
 def test_blur_in_the_helper_thread_gives_the_same_segments(layout_frame, monkeypatch):
     from cell.vision import segment as seg_mod
 

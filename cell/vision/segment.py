@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from cell.errors import BadInput
-from cell.vision.background import field_at, fit_tray_field, reference_background
+from cell.vision.background import field_at, fit_copy_of_whole_dn, fit_tray_field, reference_background
 from cell.vision.touching import pick
 
 SMALL_FRAME_PX = 960
@@ -121,8 +121,8 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
     h, w = frame.shape[:2]
     s = max(1, int(p.scale)) if w >= SMALL_FRAME_PX else 1  # small frames are detected at full resolution
     dw, dh = w // s, h // s
-    det = cv2.resize(frame, (dw, dh), interpolation=cv2.INTER_AREA) if s > 1 else frame
-    det = det.astype(np.float32)
+    det_u8 = cv2.resize(frame, (dw, dh), interpolation=cv2.INTER_AREA) if s > 1 else frame
+    det = det_u8.astype(np.float32)
     # the blurred copies do not depend on the tray: made in a helper thread while the tray is fitted
     # (OpenCV releases the GIL; the fit is mostly Python and small numpy calls)
     smoothed = _helper().submit(smoothed_copies, det)
@@ -133,7 +133,7 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
         bg = reference_background(ref, (dw, dh))
         bg_coarse = None
     else:
-        field, _ = fit_tray_field(det, p.tray)
+        field, _ = fit_tray_field(det, p.tray, fit_copy_of_whole_dn(det_u8))
         bg = field_at(field, (dw, dh))
         # the coarse copy straight from the fitted field, not by averaging `bg` (the same smooth field)
         bg_coarse = field_at(field, (max(1, dw // COARSE), max(1, dh // COARSE)))

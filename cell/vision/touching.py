@@ -216,7 +216,8 @@ def _levels_that_fall_apart(dt: np.ndarray, levels: np.ndarray) -> np.ndarray:
     each level alone).
     """
     h, w = dt.shape
-    thr = np.array([_below_f32(level) for level in levels], np.float32)
+    thr = levels.astype(np.float32)  # `_below_f32` of every level at once
+    thr = np.where(thr > levels, np.nextafter(thr, np.float32(-np.inf)), thr)
     stack = np.zeros((len(levels), h + 1, w), np.uint8)
     np.greater(dt, thr[:, None, None], out=stack[:, :h].view(bool))  # (the same as cv2.compare: exact bounds)
     _, lab = cv2.connectedComponents(stack.reshape(-1, w), connectivity=8)

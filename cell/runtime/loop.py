@@ -459,29 +459,28 @@ class CellLoop:
         return safe
 
     def _clear_pick(self, part_id: str, grasp: Grasp) -> list:
-        """The pick's commands with the first drop-off configuration (nearest to the grasp's first:
-        the other elbow, the J4 turns) whose moves keep the links clear of the parts on the tray;
-        LinksWouldHit (the first one's reason) when none does."""
+        """The pick's commands, by way of the first drop-off configuration whose moves keep the
+        links clear (`_clear_way`)."""
         safe_z = self._safe_z_mm(part_id, grasp.grasp_z_mm)
-        first = None
-        for drop in dropoff_options(self.cell, grasp.joints):
-            commands = pick_commands(grasp.joints, grasp.opening_mm, self.cell, safe_z_mm=safe_z, drop=drop)
-            try:
-                self._check_links(part_id, commands, f"{part_id}: ")
-                return commands
-            except LinksWouldHit as e:
-                first = first or e
-        raise first
+        return self._clear_way(part_id, grasp, f"{part_id}: ", lambda drop: pick_commands(
+            grasp.joints, grasp.opening_mm, self.cell, safe_z_mm=safe_z, drop=drop))
 
     def _clear_carry_off(self, part_id: str, grasp: Grasp) -> list:
-        """Carry-off commands from where the arm is, with the first drop-off configuration whose
-        moves keep the links clear; LinksWouldHit when none does."""
+        """Carry-off commands from where the arm is, by way of the first drop-off configuration
+        whose moves keep the links clear (`_clear_way`)."""
         safe_z, here = self._safe_z_mm(part_id, grasp.grasp_z_mm), self.arm.joints()
+        return self._clear_way(part_id, grasp, "", lambda drop: carry_off_commands(
+            here, grasp.joints, self.cell, safe_z, drop))
+
+    def _clear_way(self, part_id: str, grasp: Grasp, why: str, commands_to) -> list:
+        """`commands_to(drop)` for the first drop-off configuration (nearest to the grasp's first:
+        the other elbow, the J4 turns) whose moves keep the links clear of the parts on the tray;
+        LinksWouldHit (the first one's reason) when none does."""
         first = None
         for drop in dropoff_options(self.cell, grasp.joints):
-            commands = carry_off_commands(here, grasp.joints, self.cell, safe_z, drop)
+            commands = commands_to(drop)
             try:
-                self._check_links(part_id, commands, "")
+                self._check_links(part_id, commands, why)
                 return commands
             except LinksWouldHit as e:
                 first = first or e

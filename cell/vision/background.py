@@ -2,7 +2,7 @@
 
 Without a reference image of the empty tray, the tray is modelled as a smooth colour
 field: a low-degree polynomial in (u, v) per colour channel, fitted robustly on a
-copy of the frame about 80 px wide. Parts are outliers of that fit: the first inliers are
+copy of the frame about 40 px wide. Parts are outliers of that fit: the first inliers are
 the pixels near the frame's most frequent colour (counted with more weight at the centre of
 the view, where the tray is), then the fit is repeated with the pixels
 within 3 sigma of it. This follows lighting gradients and vignetting, needs no empty-tray
@@ -16,7 +16,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-FIT_WIDTH_PX = 80  # the fit runs on a copy about this wide
+FIT_WIDTH_PX = 40  # the fit runs on a copy about this wide (a smooth field: 40 x 32 samples are plenty)
 FIT_DEGREE = 2
 FIT_ITERATIONS = 4
 MODE_BIN = 16  # DN per histogram bin when looking for the tray's colour

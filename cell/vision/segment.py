@@ -140,7 +140,7 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
     mask, boxes = part_mask(det, bg, p, s, smoothed.result(), bg_coarse)
     if not mask.any():
         return []  # the empty tray
-    pieces = _split_regions(mask, boxes, p, s, det)
+    pieces = _split_regions(mask, boxes, p, s, det_u8)
     segs = _regions_to_segments(pieces, frame, det, bg, p, s)
     segs.sort(key=lambda g: -g.area_px)
     return segs
@@ -416,17 +416,17 @@ def _sharp_bound_sq(edge: float, scale: int) -> np.float32:
     return b
 
 
-def _split_regions(mask: np.ndarray, boxes, p: SegmentParams, scale: int, det: np.ndarray | None = None
+def _split_regions(mask: np.ndarray, boxes, p: SegmentParams, scale: int, det_u8: np.ndarray | None = None
                    ) -> list[tuple[int, int, np.ndarray, bool]]:
     """The mask's parts as (x0, y0, piece bool mask in a box at (x0, y0), merged); specks
-    dropped, touching parts split."""
+    dropped, touching parts split (`det_u8`: the 8-bit detection image, for colours and seams)."""
     min_area = p.min_area_px / scale ** 2
     regions = label_regions(mask, boxes, min_area, margin_px=2)
     if not p.split_touching:
         return [(x0, y0, sub.astype(bool), False) for x0, y0, sub in regions]
     from cell.vision.touching import split_necks
 
-    return split_necks(regions, p, min_area, det)
+    return split_necks(regions, p, min_area, det_u8)
 
 
 def label_regions(mask: np.ndarray, boxes, min_area: float, margin_px: int = 0

@@ -147,6 +147,7 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
 
 
 _SUM_PLUS_1 = np.ones((1, 4), np.float32)  # cv2.transform: b + g + r + 1 in one pass (the same sums)
+_ONES_1x3 = np.ones((1, 3), np.float32)
 
 
 def _colour_change(sm: np.ndarray, bg: np.ndarray):
@@ -560,25 +561,33 @@ def _tray_dips(det, bg, region, part_bgr, box, p: SegmentParams) -> tuple[int, i
     inner = cv2.erode(region, np.ones((3, 3), np.uint8))
     if not inner.any():
         return None
-    # the tray's colour varies slowly: one part-minus-tray colour difference for the whole box
+    # the tray's colour varies slowly: the box is compared with its mean colour
     tray = cv2.mean(b)[:3]
-    d = np.asarray(part_bgr, np.float32) - np.asarray(tray, np.float32)
-    f = cv2.transform(img - b, (d / max(float(d @ d), 1.0)).reshape(1, 3))
-    ch = _ratio_chroma(img, b, ratio=False)[1]
+    f = _towards_part(img, part_bgr, tray)
+    ch = _ratio_chroma(img, tray, ratio=False)[1]
     dips = (((f < 0.8) & (ch < 2.0 * p.chroma_min)) | (ch < 0.5 * _chroma_of(part_bgr, tray))) & inner.view(bool)
     bx, by, bw, bh = cv2.boundingRect(dips.view(np.uint8))
     return None if bw == 0 else (bx, by, bx + bw, by + bh)
 
 
-def _ratio_chroma(img: np.ndarray, b: np.ndarray, ratio: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
+def _towards_part(img: np.ndarray, part_bgr, tray_bgr) -> np.ndarray:
+    """Per pixel, how far its colour lies from the tray's towards the part's (0 at the tray's
+    colour, 1 at the part's, projected on their difference); float32 (h, w)."""
+    d = np.asarray(part_bgr, np.float64) - np.asarray(tray_bgr, np.float64)
+    wt = d / max(float(d @ d), 1.0)
+    # (one affine cv2.transform: the offset is the tray's projection)
+    return cv2.transform(img, np.array([[*wt, -float(wt @ np.asarray(tray_bgr, np.float64))]], np.float32))
+
+
+def _ratio_chroma(img: np.ndarray, tray_bgr, ratio: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
     """Brightness ratio (None unless `ratio`) and chroma change (L1 over the three channels of the
-    colour divided by its sum) of an unblurred image against the tray; float32 (h, w) each."""
-    ones = np.ones((1, 3), np.float32)
+    colour divided by its sum) of an unblurred image against the tray's colour (3 floats: it
+    varies slowly, one colour serves a part's box); float32 (h, w) each."""
     si = cv2.transform(img, _SUM_PLUS_1)
-    sb = cv2.transform(b, _SUM_PLUS_1)
+    st = float(tray_bgr[0]) + float(tray_bgr[1]) + float(tray_bgr[2]) + 1.0
     # (cv2.multiply by a merged reciprocal: the same products as numpy's broadcast, faster)
-    diff = cv2.absdiff(cv2.multiply(img, cv2.merge([1.0 / si] * 3)), cv2.multiply(b, cv2.merge([1.0 / sb] * 3)))
-    return (si / sb if ratio else None), cv2.transform(diff, ones)
+    diff = cv2.absdiff(cv2.multiply(img, cv2.merge([1.0 / si] * 3)), tuple(float(t) / st for t in tray_bgr) + (0.0,))
+    return (si * np.float32(1.0 / st) if ratio else None), cv2.transform(diff, _ONES_1x3)
 
 
 def _chroma_of(part_bgr, tray_mean_bgr) -> float:
@@ -606,16 +615,14 @@ def _holes_full_res(frame, bg, outline, part_bgr, box, p: SegmentParams, scale: 
     h, w = frame.shape[:2]
     x1, y1 = min(x1, w), min(y1, h)
     img = frame[y0:y1, x0:x1].astype(np.float32)
-    b = cv2.resize(bg[box[1]:box[3], box[0]:box[2]], (x1 - x0, y1 - y0), interpolation=cv2.INTER_LINEAR)
     inside = np.zeros((y1 - y0, x1 - x0), np.uint8)
     cv2.fillPoly(inside, [np.round((outline - (x0, y0) - 0.5) * 4).astype(np.int32)], 1, cv2.LINE_8, 2)
     inside = cv2.erode(inside, np.ones((5, 5), np.uint8))  # away from the outline's blur
     if not inside.any():
         return []
-    tray = cv2.mean(b)[:3]
-    d = np.asarray(part_bgr, np.float32) - np.asarray(tray, np.float32)  # the tray varies slowly
-    f = cv2.transform(img - b, (d / max(float(d @ d), 1.0)).reshape(1, 3))
-    r, chroma = _ratio_chroma(img, b)
+    tray = cv2.mean(bg[box[1]:box[3], box[0]:box[2]])[:3]  # (the tray varies slowly: its mean over the box)
+    f = _towards_part(img, part_bgr, tray)
+    r, chroma = _ratio_chroma(img, tray)
     # nearer the tray's colour than the part's; for a coloured part the chroma alone decides, as
     # the tray seen through a hole lies in the part's shadow (darker, towards a dark part's colour)
     half_chroma = 0.5 * _chroma_of(part_bgr, tray)

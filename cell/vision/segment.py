@@ -529,19 +529,28 @@ def _regions_to_segments(pieces, frame: np.ndarray, det: np.ndarray, bg: np.ndar
         found = [(next(refined), [next(refined) for _ in hs], *rest) for _, hs, *rest in found]
     segs = []
     for outline, hole_rings, merged, cut, mean in found:
-        outline = _orient(outline, ccw=True)
-        hole_rings = [_orient(hh, ccw=False) for hh in hole_rings if _hole_holds(hh, outline, p)]
-        area, cen = _area_centroid(outline, hole_rings)
+        # each ring's area and centroid once: they give its orientation, the hole's size and the region's
+        outer, cen = _ring_area_centroid(outline)
+        outline = outline if outer > 0 else outline[::-1].copy()  # counter-clockwise
+        area, mom = abs(outer), abs(outer) * cen
+        holes = []
+        for hh in hole_rings:
+            ha, hc = _ring_area_centroid(hh)
+            if _hole_holds(hh, outline, p, ha):
+                holes.append(hh if ha < 0 else hh[::-1].copy())  # clockwise
+                area, mom = area - abs(ha), mom - abs(ha) * hc
+        area, cen = (area, mom / area) if area > 0 else (abs(outer), cen)  # (holes filling it: the outline's)
         if area < 0.5 * p.min_area_px:
             continue  # a sliver whose pixels passed the speck filter but whose outline did not
-        segs.append(Segment(outline, hole_rings, area, cen, bool(merged), cut, tuple(float(m) for m in mean)))
+        segs.append(Segment(outline, holes, float(area), cen, bool(merged), cut, tuple(float(m) for m in mean)))
     return segs
 
 
-def _hole_holds(hole: np.ndarray, outline: np.ndarray, p: SegmentParams) -> bool:
+def _hole_holds(hole: np.ndarray, outline: np.ndarray, p: SegmentParams, area: float | None = None) -> bool:
     """A refined hole keeps its minimum area and lies inside its outline (a sliver along the
-    edge that refinement squeezed or pushed onto the outline is no hole)."""
-    if abs(_signed_area(hole)) < 0.5 * p.min_hole_area_px:
+    edge that refinement squeezed or pushed onto the outline is no hole). `area`: the hole's
+    signed area if known."""
+    if abs(_signed_area(hole) if area is None else area) < 0.5 * p.min_hole_area_px:
         return False
     ring = outline.astype(np.float32)
     (u0, v0), (u1, v1) = hole.min(axis=0) - 1.0, hole.max(axis=0) + 1.0
@@ -743,31 +752,15 @@ def _ahead(a: np.ndarray, k: int) -> np.ndarray:
     return np.concatenate((a[k:], a[:k]))
 
 
-def _orient(ring: np.ndarray, ccw: bool) -> np.ndarray:
-    return ring if (_signed_area(ring) > 0) == ccw else ring[::-1].copy()
-
-
-def _area_centroid(outline: np.ndarray, holes: list[np.ndarray]) -> tuple[float, np.ndarray]:
-    def ring_ac(r):
-        x, y = r[:, 0], r[:, 1]
-        x1, y1 = _ahead(x, 1), _ahead(y, 1)
-        cr = x * y1 - x1 * y
-        a = 0.5 * cr.sum()
-        if abs(a) < 1e-12:
-            return 0.0, r.mean(axis=0)
-        return a, np.array([((x + x1) * cr).sum(), ((y + y1) * cr).sum()]) / (6 * a)
-
-    a0, c0 = ring_ac(outline)
-    a0 = abs(a0)
-    tot, mom = a0, a0 * c0
-    for hring in holes:
-        ah, ch = ring_ac(hring)
-        ah = abs(ah)
-        tot -= ah
-        mom = mom - ah * ch
-    if tot <= 0:
-        return a0, c0
-    return float(tot), mom / tot
+def _ring_area_centroid(ring: np.ndarray) -> tuple[float, np.ndarray]:
+    """Signed area (positive counter-clockwise in (u, v) axes) and centroid (2,) of a ring (n, 2)."""
+    x, y = ring[:, 0], ring[:, 1]
+    x1, y1 = _ahead(x, 1), _ahead(y, 1)
+    cr = x * y1 - x1 * y
+    a = 0.5 * float(cr.sum())
+    if abs(a) < 1e-12:
+        return 0.0, ring.mean(axis=0)
+    return a, np.array([((x + x1) * cr).sum(), ((y + y1) * cr).sum()]) / (6 * a)
 
 
 def _as_bgr(img: np.ndarray) -> np.ndarray:

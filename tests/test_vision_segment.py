@@ -515,3 +515,24 @@ def test_colour_split_gives_every_pixel_the_nearer_colour_and_leaves_one_colour_
     one[30:50, 30:60] *= 1.25
     lab = cv2.cvtColor(np.clip(one, 0, 255).astype(np.uint8), cv2.COLOR_BGR2LAB)
     assert split_by_colour(sub, lab, min_area=100, min_delta_e=30.0) is None
+
+
+def test_tray_field_fitted_on_a_checkerboard_of_samples_follows_the_lighting_past_the_parts():
+    from cell.vision.background import field_at, fit_copy_of_whole_dn, fit_tray_field
+
+    rng = np.random.default_rng(14)
+    h, w = 512, 640
+    v, u = np.mgrid[0:h, 0:w]
+    un, vn = (u + 0.5) / w * 2 - 1, (v + 0.5) / h * 2 - 1
+    light = 1.0 + 0.25 * un - 0.15 * vn - 0.2 * (un ** 2 + vn ** 2)  # gradient and vignetting
+    tray = light[..., None] * np.array([120.0, 135.0, 150.0])
+    img = tray + rng.normal(0, 2.0, tray.shape)
+    for _ in range(10):  # parts: a quarter of the view, some dark, some bright, some coloured
+        x0, y0 = rng.integers(0, w - 120), rng.integers(0, h - 90)
+        img[y0:y0 + 90, x0:x0 + 120] = rng.integers(0, 256, 3)
+    img_u8 = np.clip(np.round(img), 0, 255).astype(np.uint8)
+    field, sigma = fit_tray_field(img_u8, "auto", fit_copy_of_whole_dn(img_u8))
+    assert field.shape == (64, 80, 3)
+    err = np.abs(field_at(field, (w, h)) - tray)
+    assert np.percentile(err, 99) < 2.0 and err.max() < 4.0
+    assert 1.0 <= sigma < 6.0  # the noise's colour distance (2 DN a channel), not the parts'

@@ -1,9 +1,12 @@
 """Camera intrinsics from photographs of a chessboard or a ChArUco board.
 
 Recipe (chosen to reproduce OpenCV's own published numbers, see docs/vision.md):
-- chessboard: `findChessboardCorners` + `cornerSubPix` (5 x 5 window, EPS + COUNT, 30,
-  0.1), OpenCV's calibration test recipe. When `findChessboardCornersSB` finds boards that
-  this classic detector missed, every image is detected with SB instead (already
+- chessboard: `findChessboardCorners` + `cornerSubPix` (half-window 5 on OpenCV's 640 x 480
+  boards, EPS + COUNT, 30, 0.1), OpenCV's calibration test recipe. The window grows with the
+  board's squares in the image (`SUBPIX_WIN_PER_SQUARE` x the median corner spacing, one window
+  for all views): on OpenCV's boards upscaled 3 x, a fixed 5 px window gave 1.83 px RMS, the
+  scaled one (15) 0.64 px, about 3 x the original's 0.196. When `findChessboardCornersSB` finds
+  boards that this classic detector missed, every image is detected with SB instead (already
   sub-pixel): one detector per calibration, so that all views have the same corner noise.
 - ChArUco: `CharucoDetector.detectBoard`, then `board.matchImagePoints`; a view needs at
   least 6 corners.
@@ -26,6 +29,7 @@ import numpy as np
 from cell.errors import BadInput
 
 SUBPIX_WIN = (5, 5)
+SUBPIX_WIN_PER_SQUARE = 0.13  # half-window / square side px: 5 on OpenCV's boards (median spacing 37.8 px)
 SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.1)
 OUTLIER_FACTOR = 3.0
 OUTLIER_MIN_PX = 0.3
@@ -95,17 +99,30 @@ def chessboard_object_points(pattern: tuple[int, int], square_mm: float) -> np.n
 
 
 def detect_chessboard(gray: np.ndarray, pattern: tuple[int, int], detector: str = "classic",
-                      subpix_win: int = SUBPIX_WIN[0]):
-    """Corners (n, 1, 2) float32 in OpenCV's pixel-centre frame, or None when not found."""
+                      subpix_win: int | None = SUBPIX_WIN[0]):
+    """Corners (n, 1, 2) float32 in OpenCV's pixel-centre frame, or None when not found.
+    `subpix_win` None: the classic detector's corners before `cornerSubPix` (see `refine_corners`)."""
     if detector == "classic":
         found, corners = cv2.findChessboardCorners(gray, pattern)
         if not found:
             return None
-        return cv2.cornerSubPix(gray, corners, (subpix_win, subpix_win), (-1, -1), SUBPIX_CRITERIA)
+        return corners if subpix_win is None else refine_corners(gray, corners, subpix_win)
     if detector == "sb":
         found, corners = cv2.findChessboardCornersSB(gray, pattern)
         return corners.astype(np.float32) if found else None
     raise BadInput(f"unknown chessboard detector {detector!r} (classic, sb, auto)")
+
+
+def refine_corners(gray: np.ndarray, corners: np.ndarray, subpix_win: int) -> np.ndarray:
+    return cv2.cornerSubPix(gray, corners, (subpix_win, subpix_win), (-1, -1), SUBPIX_CRITERIA)
+
+
+def subpix_win_for(corners: list[np.ndarray], pattern: tuple[int, int]) -> int:
+    """One `cornerSubPix` half-window for a calibration: `SUBPIX_WIN_PER_SQUARE` x the median
+    spacing of neighbouring corners along the board's rows over all views, at least 3 px."""
+    cols, rows = pattern
+    spacing = [np.linalg.norm(np.diff(c.reshape(rows, cols, 2), axis=1), axis=2).ravel() for c in corners]
+    return max(3, int(round(SUBPIX_WIN_PER_SQUARE * float(np.median(np.concatenate(spacing))))))
 
 
 def charuco_board(squares: tuple[int, int], square_mm: float, marker_mm: float, dictionary: str):
@@ -122,7 +139,7 @@ def aruco_dictionary(name: str):
 
 def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[int, int], square_mm: float,
                          *, detector: str = "auto", charuco: dict | None = None,
-                         reject_outliers: bool = False, subpix_win: int = SUBPIX_WIN[0]) -> IntrinsicsResult:
+                         reject_outliers: bool = False, subpix_win: int | None = None) -> IntrinsicsResult:
     """Calibrate from named grey images.
 
     Parameters
@@ -139,9 +156,10 @@ def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[in
         {"marker_mm": float, "dictionary": "DICT_6X6_250"}: the board is ChArUco.
     reject_outliers : bool
         Leave out views flagged as outliers and fit again.
-    subpix_win : int
-        Half-size of the `cornerSubPix` window of the classic detector (OpenCV's test: 5;
-        its C++ sample: 11, which roughly doubles the RMS on OpenCV's own images).
+    subpix_win : int, optional
+        Half-size of the `cornerSubPix` window of the classic detector. None: from the squares'
+        size in the images (`subpix_win_for`; 5 on OpenCV's own images, as its test uses; its C++
+        sample's 11 roughly doubles the RMS there).
     """
     if not images:
         raise BadInput("no images given")
@@ -174,7 +192,11 @@ def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[in
             raise BadInput(f"unknown chessboard detector {detector!r} (auto, classic, sb)")
         objp = chessboard_object_points(pattern, square_mm)
         name = order[0]
-        found = [detect_chessboard(g, pattern, name, subpix_win) for _, g in images]
+        found = [detect_chessboard(g, pattern, name, None) for _, g in images]
+        if name == "classic" and any(c is not None for c in found):
+            if subpix_win is None:
+                subpix_win = subpix_win_for([c for c in found if c is not None], pattern)
+            found = [None if c is None else refine_corners(g, c, subpix_win) for c, (_, g) in zip(found, images)]
         missed = [i for i, c in enumerate(found) if c is None]
         if len(order) > 1 and missed:
             # switch to SB for every view only if it finds boards the classic detector missed

@@ -35,6 +35,21 @@ def test_chessboard_matches_opencv_published_calibration(chess_ref):
     assert not any(v.outlier for v in r.views)
 
 
+def test_corner_window_grows_with_the_squares_in_the_image(chess_ref):
+    # the same boards seen by a camera with 3 x the resolution: corners are 3 x as far apart and as
+    # blurred, so the refinement window must grow with them (a fixed 5 px window: 1.83 px RMS)
+    plain = calibrate_intrinsics(_images(CHESS), (9, 6), 1.0)
+    big = [(n, cv2.resize(g, None, fx=3, fy=3, interpolation=cv2.INTER_CUBIC)) for n, g in _images(CHESS)]
+    r = calibrate_intrinsics(big, (9, 6), 1.0)
+    assert plain.board["subpix_win"] == 5 and r.board["subpix_win"] == 15
+    assert r.rms_px < 3.5 * plain.rms_px
+    # (OpenCV maps pixel centres: centre c at 1 x is 3 c + 1 at 3 x)
+    assert r.camera_matrix[0, 0] / 3 == pytest.approx(plain.camera_matrix[0, 0], rel=0.005)
+    assert (r.camera_matrix[0, 2] - 1) / 3 == pytest.approx(plain.camera_matrix[0, 2], abs=1.0)
+    fixed = calibrate_intrinsics(big, (9, 6), 1.0, subpix_win=5)
+    assert fixed.rms_px > 2 * r.rms_px
+
+
 def test_sample_recipe_singles_out_left02_and_can_reject_it(chess_ref):
     # OpenCV's C++ sample (11x11 cornerSubPix) publishes per-view errors with left02 at 1.18 px
     ref = chess_ref["left_intrinsics_yml"]["per_view_reprojection_errors"]

@@ -36,12 +36,13 @@ def test_festo_frames_fit_to_about_a_millimetre(tmp_path, capsys, image, with_in
     assert code == 0
     res = json.loads(stdout)
     assert res["markers_used"] == [0, 1, 2, 3]
-    assert res["residual_mm"] < 1.0
+    # sub-pixel marker corners: 0.51 - 0.61 mm (0.64 - 0.85 mm with OpenCV's unrefined corners)
+    assert res["residual_mm"] < 0.7
     assert res["mm_per_px"] == pytest.approx(0.56, abs=0.01)
     if with_intrinsics:
         assert res["method"] == "pose"
         assert np.allclose(res["camera_position_mm"], [74, -395, 779], atol=3.0)
-        assert res["reprojection_rms_px"] < 1.6
+        assert res["reprojection_rms_px"] < 1.2  # SOURCE.md's solvePnP on unrefined corners: 1.34 - 1.50
     else:
         assert res["method"] == "homography"
     cal = load_calibration(out, size=(1920, 1080))
@@ -49,6 +50,39 @@ def test_festo_frames_fit_to_about_a_millimetre(tmp_path, capsys, image, with_in
     code, stdout, _ = run_cli("map", out, "--mm", "175.7,-90.0", "--json", capsys=capsys)
     uv = json.loads(stdout)["px"][0]
     assert np.allclose(cal.px_to_mm([uv])[0], [175.7, -90.0], atol=1e-6)
+
+
+def test_marker_corners_are_found_to_sub_pixel_accuracy():
+    """Markers drawn on a plane and imaged through a known homography, blurred, with noise."""
+    import cv2
+
+    from calibration.plane import detect_markers
+
+    rng = np.random.default_rng(3)
+    side, supersample = 60, 4
+    errors = []
+    for _ in range(8):
+        plane = np.full((600, 800), 230, np.uint8)
+        truth = {}
+        for i, (x, y) in enumerate([(100, 100), (600, 100), (100, 420), (600, 420)]):
+            plane[y:y + side, x:x + side] = cv2.aruco.generateImageMarker(
+                cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50), i, side)
+            truth[i] = np.array([[x, y], [x + side, y], [x + side, y + side], [x, y + side]], float)  # edges
+        corners = np.float32([[0, 0], [800, 0], [800, 600], [0, 600]])
+        h = cv2.getPerspectiveTransform(corners, corners + rng.uniform(-50, 50, (4, 2)).astype(np.float32))
+        # warp a supersampled copy (pixel-centre coordinates at both ends), then average it down
+        s, t = supersample, (lambda d: np.array([[1, 0, d], [0, 1, d], [0, 0, 1.0]]))
+        big = cv2.resize(plane, None, fx=s, fy=s, interpolation=cv2.INTER_NEAREST)
+        hs = t(-0.5) @ np.diag([s, s, 1.0]) @ h @ np.diag([1 / s, 1 / s, 1.0]) @ t(0.5)
+        warped = cv2.warpPerspective(big, hs, (800 * s, 600 * s), borderValue=230)
+        img = cv2.GaussianBlur(cv2.resize(warped, (800, 600), interpolation=cv2.INTER_AREA).astype(np.float32),
+                               (0, 0), 1.0) + rng.normal(0, 2.0, (600, 800))
+        found = detect_markers(np.clip(img, 0, 255).astype(np.uint8), "DICT_4X4_50")
+        assert sorted(found) == [0, 1, 2, 3]
+        for i, uv in found.items():  # CONTRACT frame: pixel edges, as the truth
+            errors.append(np.linalg.norm(uv - cv2.perspectiveTransform(truth[i].reshape(-1, 1, 2), h).reshape(4, 2),
+                                         axis=1))
+    assert np.sqrt(np.mean(np.concatenate(errors) ** 2)) < 0.5  # OpenCV's unrefined corners: ~0.9 px
 
 
 def test_published_corner_order_without_the_fix_does_not_fit(tmp_path, capsys):

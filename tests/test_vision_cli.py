@@ -1,6 +1,7 @@
 """The simulated camera, frame sources and the segment / render commands, with bad input."""
 
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -148,3 +149,17 @@ def test_bench_vision_prints_figures(capsys):
     assert timing["median_ms"] > 0 and timing["frame"] == "1280x1024"
     code, _, err = run_cli("bench", "vision", "--conditions", "foggy", capsys=capsys)
     assert code == 2 and "unknown condition" in err
+
+
+def test_truncated_image_gives_one_clear_line_without_decoder_noise(tmp_path, frame_file):
+    # OpenCV's decoder warns on the process's own stderr (not Python's): only a subprocess sees it
+    import subprocess
+    import sys
+
+    p = tmp_path / "cut.png"
+    p.write_bytes(frame_file.read_bytes()[:5000])
+    r = subprocess.run([sys.executable, "-m", "cell", "segment", str(p), "--json"], capture_output=True, text=True,
+                       cwd=Path(__file__).resolve().parents[1])
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr.strip().splitlines() == [f"cell: error: image {p} is not a readable image "
+                                             "(corrupt, truncated or not an image format)"]

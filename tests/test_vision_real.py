@@ -16,8 +16,11 @@ def whole(segs, min_area):
     return [s for s in segs if not s.cut_off and s.area_px >= min_area]
 
 
-def test_pca_backlit_parts_six():
-    segs = segment_frame(read_image(OBJECTS / "pca_test1.jpg"), SegmentParams(tray="bright"))
+@pytest.mark.parametrize("tray", ["bright", "auto"])
+def test_pca_backlit_parts_six(tray):
+    # "auto" first takes the dark surround (the commoner colour) for the tray and the lit panel for
+    # one part cut by the border; it must notice and take the panel as the tray
+    segs = segment_frame(read_image(OBJECTS / "pca_test1.jpg"), SegmentParams(tray=tray))
     parts = whole(segs, 5000)
     assert len(parts) == 6  # the PCA tutorial's figure shows 6 objects
     areas = np.array([s.area_px for s in parts])
@@ -28,6 +31,14 @@ def test_pca_backlit_parts_six():
         assert ev[1] / ev[0] > 9.0
     # the dark surround outside the panel touches the border: reported, flagged
     assert any(s.cut_off for s in segs)
+    assert not any(s.cut_off and s.holes_px for s in segs)  # the panel is no part with six holes
+
+
+def test_cli_segment_finds_backlit_parts_without_being_told(capsys):
+    code, out, _ = run_cli("segment", OBJECTS / "pca_test1.jpg", "--json", capsys=capsys)
+    assert code == 0
+    whole_parts = [p for p in json.loads(out)["parts"] if not p["cut_off"] and p["area_px"] > 5000]
+    assert len(whole_parts) == 6
 
 
 def test_pills_two_blister_packs():

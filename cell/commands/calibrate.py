@@ -17,8 +17,9 @@ def add_arguments(p) -> None:
     p.add_argument("--detector", choices=("auto", "classic", "sb"), default="auto",
                    help="chessboard detector: classic + cornerSubPix, the sector-based SB one, or auto "
                         "(classic when it finds every board, else SB for all)")
-    p.add_argument("--subpix-win", type=int, default=5, metavar="N",
-                   help="cornerSubPix half window of the classic detector (OpenCV's test: 5, its sample: 11)")
+    p.add_argument("--subpix-win", type=int, default=None, metavar="N",
+                   help="cornerSubPix half window of the classic detector (default: 0.13 x the squares' size "
+                        "in px, 5 on OpenCV's 640 x 480 boards)")
     p.add_argument("--reject-outliers", action="store_true",
                    help="leave out views that do not fit and calibrate again")
     p.add_argument("--charuco", action="store_true", help="the board is a ChArUco board")
@@ -41,7 +42,7 @@ def run(args) -> int:
         if args.marker is None or not 0 < args.marker < args.square:
             raise BadInput("--charuco needs --marker MM, smaller than --square")
         charuco = {"marker_mm": args.marker, "dictionary": args.dictionary}
-    if args.subpix_win < 1:
+    if args.subpix_win is not None and args.subpix_win < 1:
         raise BadInput("--subpix-win must be at least 1")
     images = [(str(path), read_image(path, grey=True)) for path in args.images]
     result = calibrate_intrinsics(images, pattern, args.square, detector=args.detector, charuco=charuco,

@@ -20,7 +20,7 @@ Pixel coordinates are CONTRACT-frame (origin at the top-left pixel's top-left co
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 
 import cv2
@@ -118,6 +118,33 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
     """
     p = params or SegmentParams()
     frame = _as_bgr(frame_bgr)
+    segs = _segment(frame, p, reference_bgr)
+    if reference_bgr is None and p.tray == "auto" and _tray_taken_for_a_part(segs, frame.shape):
+        # a back-lit panel in a dark surround: the dark side outnumbered the panel, so the panel came
+        # out as one part cut by the border with the parts as its holes; the panel as the tray
+        # encloses more whole parts (and costs a second pass only on such frames)
+        lit = _segment(frame, replace(p, tray="bright"), None)
+        if _whole_parts_area(lit) > _whole_parts_area(segs):
+            return lit
+    return segs
+
+
+TRAY_TAKEN_SHARE = 0.25  # a region cut by the border and this large a share of the frame may be the tray
+
+
+def _tray_taken_for_a_part(segs: list[Segment], shape) -> bool:
+    """True when a region touching the border covers TRAY_TAKEN_SHARE of the frame and holds holes."""
+    frame_px = shape[0] * shape[1]
+    return any(s.cut_off and s.holes_px and s.area_px > TRAY_TAKEN_SHARE * frame_px for s in segs)
+
+
+def _whole_parts_area(segs: list[Segment]) -> float:
+    """Area of the regions not cut by the border, px: what a right choice of tray maximises."""
+    return sum(s.area_px for s in segs if not s.cut_off)
+
+
+def _segment(frame: np.ndarray, p: SegmentParams, reference_bgr: np.ndarray | None) -> list[Segment]:
+    """`segment_frame` with the tray model `p.tray` as given."""
     h, w = frame.shape[:2]
     s = max(1, int(p.scale)) if w >= SMALL_FRAME_PX else 1  # small frames are detected at full resolution
     dw, dh = w // s, h // s

@@ -27,7 +27,12 @@ def read_image(path: str | Path, grey: bool = False) -> np.ndarray:
         raise BadInput(f"image {path} cannot be read: {e}") from None
     if data.size == 0:
         raise BadInput(f"image {path} is empty (0 bytes)")
-    img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_COLOR)
+    quiet = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # our message says it: no decoder warnings
+    try:
+        img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_COLOR)
+    finally:
+        cv2.utils.logging.setLogLevel(quiet)
     if img is None or img.size == 0:
         raise BadInput(f"image {path} is not a readable image (corrupt, truncated or not an image format)")
     if img.dtype != np.uint8:

@@ -467,6 +467,18 @@ def test_displaced_parts_lie_at_most_shift_mm_from_their_design():
     assert max(moved) <= 10.0 + 1e-9 and max(moved) > 8.0  # the whole disc is used, never beyond it
 
 
+def test_a_part_merged_into_its_neighbours_region_is_an_obstacle_not_empty_tray():
+    """drive_unit 15 mm off its design, seed 6: the clip touches the washer and is seen only as part
+    of the washer's region (and two small pieces): it is not located. The loop used to plan the
+    washer as if the clip were at its designed place; a finger came down on the clip (the
+    simulated world: "the finger would hit 'clip'") and the washer fell back. The material no
+    located part explains is now an obstacle of the missing clip's height: no grasp of the washer
+    clears it, and the loop stops and asks before anything moves."""
+    s = run_session(RunConfig(assembly=DEFAULT.parent / "drive_unit.json", seed=6, shift_mm=15.0))
+    assert not any("would hit" in e for e in s["sim_events"]), s["sim_events"]
+    assert s["status"] == "stopped" and s["parts_removed"] == 0 and s["grasps"] == 0
+
+
 def test_parts_lying_8_mm_off_their_design_are_all_found_and_removed():
     # drive_unit has 2-6 mm gaps: before the world kept parts apart, this seed put the pulley into the
     # gearbox and the run stopped

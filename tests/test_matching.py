@@ -75,3 +75,51 @@ def test_a_region_in_pieces_still_registers():
     assert pieces.geom_type == "MultiPolygon"
     found, _ = locate([a], [Region(0, lambda zt, zb: pieces)])
     assert abs(found["a"].dtheta_deg - 5) < 1.0
+
+
+def disc(pid, x, y, r=12.0, z_top=10.0):
+    a = np.linspace(0, 2 * np.pi, 48, endpoint=False)
+    return parse_part({"id": pid, "outline": np.column_stack([x + r * np.cos(a), y + r * np.sin(a)]).tolist(),
+                       "z_top": z_top})
+
+
+def test_the_best_fits_are_taken_first_over_all_parts():
+    """Two look-alike discs 60 mm apart: b moved 2 mm lies alone, a lies touching a bracket (one
+    merged region). Asked in turn, a took b's region (58 mm off, a perfect fit) and b was lost;
+    best-and-nearest first, b keeps its region and a is found in the merged one."""
+    a, b, other = disc("a", 300, 0), disc("b", 360, 0), bracket("c", 285, 14)
+    merged = a.moved(3, 0).polygon.union(other.polygon)
+    regions = [region_of(b.moved(-2, 0), 0), Region(1, lambda zt, zb: merged, merged=True)]
+    found, unclaimed = locate([a, b, other], regions)
+    assert found["b"].region == 0 and abs(found["b"].dx_mm + 2) < 0.3
+    assert found["a"].region == 1 and abs(found["a"].dx_mm - 3) < 0.5
+    assert unclaimed == []
+
+
+def test_a_region_much_larger_than_a_missing_part_is_searched_like_a_merged_one():
+    """A washer touching a tall neighbour whose wall the split gave to the washer: the region is
+    twice the washer and not flagged; the washer is still found in it, where it lies."""
+    washer = disc("w", 380, 50, r=8.0, z_top=3.0)
+    wall = Polygon([(366, 55), (396, 55), (396, 62), (366, 62)])  # along the washer's far side, touching it
+    region = washer.moved(1.5, -2.0).polygon.union(wall)
+    assert region.area > 1.6 * washer.polygon.area
+    found, _ = locate([washer], [Region(0, lambda zt, zb: region)])
+    assert found["w"].merged and abs(found["w"].dx_mm - 1.5) < 0.5 and abs(found["w"].dy_mm + 2.0) < 0.5
+
+
+def test_material_no_located_part_explains_becomes_an_obstacle():
+    from cell.runtime.matching import unexplained
+
+    a, tall = bracket("a", 250, -100, z_top=3.0), bracket("t", 400, 100, z_top=45.0)
+    clip = Polygon([(270, -110), (285, -110), (285, -100), (270, -100)])  # a 2 mm clip touching a, not located
+    # parallax: the tall part's region lies 5 mm further out when mapped at z = 0 than at its top
+    regions = [Region(0, lambda zt, zb: a.polygon.union(clip)),
+               Region(1, lambda zt, zb: tall.moved(5 * (1 - zt / 45.0), 0).polygon)]
+    seen = {"a": a, "t": tall}
+    found, _ = locate([a, tall], regions)
+    obstacles = unexplained(regions, seen, found, z_top_mm=2.0)
+    assert len(obstacles) == 1 and obstacles[0].meta["region"] == 0
+    assert obstacles[0].z_top_mm == 2.0 and obstacles[0].z_bottom_mm == 0.0
+    # the clip less the 2 mm margin around a (the tall part's region, mapped at its own height, leaves nothing)
+    assert obstacles[0].polygon.area == pytest.approx(clip.difference(a.polygon.buffer(2.0)).area, rel=0.05)
+    assert unexplained(regions[1:], seen, found, z_top_mm=2.0) == []

@@ -36,7 +36,7 @@ from cell.fileio import write_atomic
 from cell.grasp.synthesis import Grasp, GraspPlanner
 from cell.kinematics import Joints
 from cell.runtime.control import Faulted, RunControl, Stopped
-from cell.runtime.matching import Region, locate
+from cell.runtime.matching import Region, locate, unexplained
 from cell.runtime.motion import above, carry_off_commands, dropoff_options, pick_commands
 from cell.scene import Assembly, Part, Scene
 
@@ -117,6 +117,7 @@ class CellLoop:
         self.planner_params = planner_params
         self.segment_params = SegmentParams.for_calibration(calibration, self.options.min_area_mm2)
         self.poses: dict[str, Part] = {p.id: p for p in assembly.parts}
+        self.unexplained: list[Part] = []  # seen material no located part explains: obstacles too
         self.remaining: list[str] = list(assembly.sequence)
         self.reports: list[PartReport] = []
         self.state = LoopState()
@@ -198,7 +199,7 @@ class CellLoop:
             self._stop_and_ask("vision", f"{part_id} is not found in frame {index}")
             return
         # everything not removed, skipped parts included: they still lie there
-        scene = Scene(tuple(self.poses.values()), part_id, source=f"frame {index}")
+        scene = Scene(tuple(self._on_tray()), part_id, source=f"frame {index}")
         report = PartReport(part_id, "removed")
         grasps = self._plan(scene, part_id)
         report.planning_s += time.perf_counter() - t0
@@ -343,6 +344,7 @@ class CellLoop:
             if pid in self.poses:
                 self.poses[pid] = part
         self.state.seen = seen
+        self.unexplained = self._unexplained(regions, seen, found, strangers)
         self.sink.write_decision({
             "type": "perception", "frame": index, "segments": len(segments),
             "merged": [i for i, s in enumerate(segments) if s.merged],
@@ -350,7 +352,9 @@ class CellLoop:
             "located": {pid: {"region": l.region, "dx_mm": round(l.dx_mm, 3), "dy_mm": round(l.dy_mm, 3),
                               "dtheta_deg": round(l.dtheta_deg, 3), "overlap": round(l.overlap, 4)}
                         for pid, l in found.items()},
-            "carried": carried, "unclaimed": strangers})
+            "carried": carried, "unclaimed": strangers,
+            **({"unexplained": [{"region": u.meta["region"], "area_mm2": round(u.polygon.area, 1),
+                                 "z_top_mm": u.z_top_mm} for u in self.unexplained]} if self.unexplained else {})})
         if strangers:
             self.control.log("vision", f"{len(strangers)} region(s) match no part of the assembly",
                              regions=strangers)
@@ -359,6 +363,20 @@ class CellLoop:
             self.viz.parts([p.outline_mm for p in seen.values()], [p.z_top_mm for p in seen.values()],
                            list(seen))
         return seen
+
+    def _unexplained(self, regions, seen: dict, found: dict, strangers: list) -> list[Part]:
+        """Material no located part explains, as obstacles (matching.unexplained), looked for only when a
+        part still on the tray was not located or a region matches no part: at the height of the
+        tallest part not located (it is most likely in there), else of the tallest part on the tray."""
+        missing = [p for pid, p in self.poses.items() if pid not in seen]
+        if not missing and not strangers:
+            return []
+        heights = [p.z_top_mm for p in (missing or self.poses.values())]
+        return unexplained(regions, seen, found, max(heights)) if heights else []
+
+    def _on_tray(self, but: str | None = None) -> list[Part]:
+        """Every part believed on the tray (`but` excepted: in the jaws) and the material no part explains."""
+        return [p for pid, p in self.poses.items() if pid != but] + self.unexplained
 
     def _carrier(self, part: Part, found: dict) -> str | None:
         """The seen part this one lies on (its bottom on the other's top, inside its outline
@@ -449,7 +467,7 @@ class CellLoop:
         the tray are tall: the empty jaws and the held part hanging below them (from the tips
         down to its bottom) must pass over every part with a margin."""
         part = self.poses[part_id]
-        others = [p.z_top_mm for pid, p in self.poses.items() if pid != part_id]
+        others = [p.z_top_mm for p in self._on_tray(but=part_id)]
         empty = max([part.z_top_mm, *others]) + TRAVEL_MARGIN_MM  # the open jaws, to and from the grasp
         loaded = max(others, default=0.0) + TRAVEL_MARGIN_MM + (grasp_z_mm - part.z_bottom_mm)
         safe = max(self.cell.motion.safe_z_mm, empty, loaded)
@@ -490,7 +508,7 @@ class CellLoop:
         """The links along every move of `commands`, from where the arm is, against the parts on the
         tray (the part `part_id` is in the jaws, not on the tray); a hit refuses the whole list
         before anything moves."""
-        others = [p for pid, p in self.poses.items() if pid != part_id]
+        others = self._on_tray(but=part_id)
         at = self.arm.joints()
         for c in commands:
             if c.joints is None:

@@ -54,6 +54,14 @@ GOOD_OVERLAP = 0.95  # a start that reaches this needs no other start
 MIN_OVERLAP = 0.55  # below this the region is not that part (or the part is not seen)
 MAX_SHIFT_MM = 60.0
 MAX_MERGED_SHIFT_MM = 15.0
+NEARER_WEIGHT = 0.05  # overlap given up per MAX_SHIFT_MM of shift when choosing among matches
+MIN_UNFLAGGED_RATIO = 1.6  # an unflagged region this much larger than a missing part may hold it
+
+
+def _preference(c: Located) -> float:
+    """Sort key of candidate matches, best first: the overlap, and between equally good fits the
+    nearer (identical parts side by side)."""
+    return -(c.overlap - NEARER_WEIGHT * math.hypot(c.dx_mm, c.dy_mm) / MAX_SHIFT_MM)
 
 
 def _score(model: Polygon, region: Polygon, merged: bool) -> float:
@@ -98,13 +106,18 @@ def locate(parts: Sequence[Part], regions: Sequence[Region]) -> tuple[dict[str, 
     A region of its own (intersection over union) always beats a merged region: coverage of a
     merged region is 1 almost anywhere inside it, so it is only asked for the parts that have
     no region of their own, with the parts already placed in it taken out, and the part may
-    not wander further than MAX_MERGED_SHIFT_MM from where it was."""
+    not wander further than MAX_MERGED_SHIFT_MM from where it was. A region no part claimed that is
+    much larger than a part still missing is asked the same way: touching parts split along the
+    wrong line (a tall part's wall given to its low neighbour) are merged without the flag."""
     located: dict[str, Located] = {}
     claimed: set[int] = set()
+    # every (part, region of its own) match that could be, then the best first over all parts: a
+    # part taken in turn would take a look-alike's region (a pulley 58 mm off on the flange's)
+    # before the look-alike, which fits it better, is asked
+    candidates: list[Located] = []
     for part in parts:
-        best: Located | None = None
         for r in regions:
-            if r.merged or r.index in claimed:
+            if r.merged:
                 continue
             poly = r.polygon_at(part.z_top_mm, part.z_bottom_mm)
             if poly.is_empty or poly.distance(part.polygon) > MAX_SHIFT_MM:
@@ -112,20 +125,24 @@ def locate(parts: Sequence[Part], regions: Sequence[Region]) -> tuple[dict[str, 
             if not 0.6 < poly.area / part.polygon.area < 1.6:
                 continue  # another part: registration could only make it overlap worse
             x, s = register(part.polygon, poly)
-            if s >= MIN_OVERLAP and math.hypot(x[0], x[1]) <= MAX_SHIFT_MM and (best is None or s > best.overlap):
-                best = Located(part.id, r.index, float(x[0]), float(x[1]), float(x[2]), float(s), False)
-        if best is not None:
-            located[part.id] = best
-            claimed.add(best.region)
+            if s >= MIN_OVERLAP and math.hypot(x[0], x[1]) <= MAX_SHIFT_MM:
+                candidates.append(Located(part.id, r.index, float(x[0]), float(x[1]), float(x[2]), float(s), False))
+    for c in sorted(candidates, key=_preference):
+        if c.part_id not in located and c.region not in claimed:
+            located[c.part_id] = c
+            claimed.add(c.region)
     placed: dict[int, list[Polygon]] = {}
+    own = set(claimed)  # regions matched to a part of their own size
     for part in parts:
         if part.id in located:
             continue
         best = None
         for r in regions:
-            if not r.merged:
+            if r.index in own:
                 continue
             poly = r.polygon_at(part.z_top_mm, part.z_bottom_mm)
+            if not r.merged and poly.area < MIN_UNFLAGGED_RATIO * part.polygon.area:
+                continue  # a region of about its size: the first pass judged it (not this part)
             for other in placed.get(r.index, []):
                 poly = poly.difference(other)
             if poly.is_empty or poly.distance(part.polygon) > MAX_MERGED_SHIFT_MM:
@@ -152,3 +169,36 @@ def _axis_deg(poly: Polygon) -> float:
     w, v = np.linalg.eigh(cov)
     major = v[:, int(np.argmax(w))]
     return math.degrees(math.atan2(major[1], major[0]))
+
+
+EXPLAINED_MARGIN_MM = 2.0  # material this close to a located part's outline is that part (outline noise)
+MIN_UNEXPLAINED_MM2 = 20.0
+
+
+def unexplained(regions: Sequence[Region], seen: dict[str, Part], located: dict[str, Located], z_top_mm: float
+                ) -> list[Part]:
+    """Material the camera sees that no located part explains, as obstacles from the table up to
+    z_top_mm (e.g. a part not found because it was merged into its neighbour's region, or split
+    into pieces that match nothing): planning beside it as if the tray were empty there would put
+    a finger on it.
+
+    A region is mapped to mm at the heights of the parts located in it (as it was matched; parallax
+    moves a tall part's outline by mm between planes), else at z_top_mm; the located parts'
+    outlines (widened by EXPLAINED_MARGIN_MM) are taken out, and what is left, opened by 1 mm
+    against slivers, is kept where it covers MIN_UNEXPLAINED_MM2."""
+    from shapely import union_all
+    from shapely.geometry.polygon import orient
+
+    explained = union_all([p.polygon for p in seen.values()]).buffer(EXPLAINED_MARGIN_MM) if seen else Polygon()
+    out: list[Part] = []
+    for r in regions:
+        inside = [seen[pid] for pid, loc in located.items() if loc.region == r.index and pid in seen]
+        z_top = max((p.z_top_mm for p in inside), default=z_top_mm)
+        z_bottom = min((p.z_bottom_mm for p in inside), default=0.0)
+        left = r.polygon_at(z_top, z_bottom).difference(explained).buffer(-0.5).buffer(0.5)
+        for piece in getattr(left, "geoms", [left]):
+            if piece.geom_type == "Polygon" and piece.area >= MIN_UNEXPLAINED_MM2:
+                ring = np.asarray(orient(piece, 1.0).exterior.coords)[:-1]  # counter-clockwise, holes filled
+                out.append(Part(f"unexplained-{len(out)}", ring, z_bottom_mm=0.0, z_top_mm=z_top_mm,
+                                meta={"region": r.index}))
+    return out

@@ -69,6 +69,8 @@ class Context:
     samples: np.ndarray | None = None  # (N, 2) the target's outline samples, ring after ring
     sample_ring_first: np.ndarray | None = None  # (N,) index of the first sample of each sample's ring
     sample_ring_count: np.ndarray | None = None  # (N,) number of samples on that ring
+    sample_x: np.ndarray | None = None  # (N,) samples[:, 0] and samples[:, 1], contiguous (cheap to gather)
+    sample_y: np.ndarray | None = None
 
     @classmethod
     def build(cls, target: Part, obstacles, cell: Cell, params: SynthesisParams, grasp_z_mm: float,
@@ -96,8 +98,12 @@ class Context:
             starts = np.searchsorted(ring, np.arange(ring.max() + 1))
             counts = np.bincount(ring)
             first, count = starts[ring], counts[ring]
+        sx = sy = None
+        if samples is not None:
+            samples = np.asarray(samples, float)
+            sx, sy = np.ascontiguousarray(samples[:, 0]), np.ascontiguousarray(samples[:, 1])
         return cls(target, cell, params, grasp_z_mm, tg, union(tall), union(palm), [o.id for o in tall],
-                   a, b, tree, samples, first, count)
+                   a, b, tree, samples, first, count, sx, sy)
 
 
 @dataclass
@@ -126,6 +132,12 @@ class Pairs:
     ik: tuple | None = None  # (grasp z, scara) once the ik stage ran: joints_of solves from it
     si: np.ndarray | None = None  # (s, 2) outline-sample index of p_i and p_j
 
+    w: np.ndarray | None = None  # (s, 2) p_i - p_j, the stages reuse it
+
+    def __post_init__(self):
+        if self.w is None:
+            self.w = self.pi - self.pj
+
     def __len__(self) -> int:
         return len(self.ij)
 
@@ -134,67 +146,92 @@ class Pairs:
         """sample_index (z',): each point's index among the target's outline samples (enables the
         pre-check's look at the outline next to each point)."""
         i, j = np.triu_indices(len(points), k=1)
-        pi, pj, ni, nj = points[i], points[j], normals[i], normals[j]
+        points, normals = np.asarray(points, float), np.asarray(normals, float)
+        pi, pj, ni, nj = points.take(i, 0), points.take(j, 0), normals.take(i, 0), normals.take(j, 0)
         w = pi - pj
-        d = np.linalg.norm(w, axis=1)
+        d = _norm2(w)
         u = ni - nj
-        un = np.linalg.norm(u, axis=1)
+        un = _norm2(u)
         degenerate = un < 1e-9
-        u[degenerate] = w[degenerate]
-        u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-12)
+        if degenerate.any():
+            u[degenerate] = w[degenerate]
+            un = _norm2(u)
+        u /= np.maximum(un, 1e-12)[:, None]
         m = 0.5 * (pi + pj)
-        t = 0.5 * (w * u).sum(1)
+        t = 0.5 * (w[:, 0] * u[:, 0] + w[:, 1] * u[:, 1])
         nan2 = np.full((len(i), 2), np.nan)
         si = None if sample_index is None else np.column_stack([sample_index[i], sample_index[j]])
         return cls(np.column_stack([i, j]), pi, pj, ni, nj, d, u, m, t, nan2.copy(), nan2.copy(), nan2.copy(),
-                   np.full(len(i), np.nan), si=si)
+                   np.full(len(i), np.nan), si=si, w=w)
 
     def axis_deg(self, k: int) -> float:
         return normalize_axis_deg(math.degrees(math.atan2(self.u[k, 1], self.u[k, 0])))
 
 
+def _norm2(a: np.ndarray) -> np.ndarray:
+    """Row lengths of a (k, 2): np.linalg.norm(a, axis=1), bit for bit, without its reduction's cost."""
+    return np.sqrt(a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1])
+
+
+def _dot2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row dot products of two (k, 2): (a * b).sum(1), bit for bit (a sum over an axis of length 2 costs
+    ten times the two products and the addition)."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]
+
+
 # --- cheap stages: vectorised over the pairs idx -------------------------------------------
+# Rows are gathered with take (numpy's fancy indexing of (k, 2) arrays costs several times more).
 
 def stage_stroke(ctx: Context, P: Pairs, idx) -> np.ndarray:
     g = ctx.cell.gripper
-    d = P.d[idx]
+    d = P.d.take(idx)
     return (d >= g.opening_mm[0] - EPS_MM) & (d + 2 * g.approach_clearance_mm <= g.opening_mm[1] + EPS_MM)
 
 
 def stage_reach(ctx: Context, P: Pairs, idx) -> np.ndarray:
-    m = P.m[idx]
+    m = P.m.take(idx, 0)
+    x, y = m[:, 0], m[:, 1]
     rmin, rmax = ctx.cell.scara.reach_mm
-    r = np.linalg.norm(m, axis=1)
+    r = np.sqrt(x * x + y * y)
     ws, e = ctx.cell.workspace, CHEAP_MARGIN_MM
-    return ((r >= rmin - e) & (r <= rmax + e) & (m[:, 0] >= ws.x_mm[0] - e) & (m[:, 0] <= ws.x_mm[1] + e)
-            & (m[:, 1] >= ws.y_mm[0] - e) & (m[:, 1] <= ws.y_mm[1] + e))
+    return ((r >= rmin - e) & (r <= rmax + e) & (x >= ws.x_mm[0] - e) & (x <= ws.x_mm[1] + e)
+            & (y >= ws.y_mm[0] - e) & (y <= ws.y_mm[1] + e))
 
 
 def stage_antipodal(ctx: Context, P: Pairs, idx) -> np.ndarray:
-    w = (P.pi[idx] - P.pj[idx]) / np.maximum(P.d[idx], 1e-12)[:, None]
     c = math.cos(math.radians(ctx.params.max_normal_angle_deg))
-    u = P.u[idx]
-    lateral = 0.5 * np.abs(w[:, 0] * u[:, 1] - w[:, 1] * u[:, 0]) * P.d[idx]
-    return (((P.ni[idx] * w).sum(1) >= c - 1e-9) & ((P.nj[idx] * -w).sum(1) >= c - 1e-9)
-            & (lateral <= ctx.params.contact_tol_mm + EPS_MM))
+    d = P.d.take(idx)
+    w = P.w.take(idx, 0) / np.maximum(d, 1e-12)[:, None]  # unit, p_j towards p_i
+    ok = _dot2(P.ni.take(idx, 0), w) >= c - 1e-9
+    # the other two conditions only where the first holds (most pairs fail it): same verdicts
+    k = np.flatnonzero(ok)
+    w, d = w.take(k, 0), d.take(k)
+    sub = idx.take(k)
+    u = P.u.take(sub, 0)
+    lateral = 0.5 * np.abs(w[:, 0] * u[:, 1] - w[:, 1] * u[:, 0]) * d
+    # (n_j . -w) >= c, written as -(n_j . w) >= c: negation is exact, the verdict the same
+    ok[k] = (-_dot2(P.nj.take(sub, 0), w) >= c - 1e-9) & (lateral <= ctx.params.contact_tol_mm + EPS_MM)
+    return ok
 
 
 def stage_precheck(ctx: Context, P: Pairs, idx) -> np.ndarray:
     """Conservative: a point that every exact footprint of this pair would cover lies inside
     material, or the outline next to a point juts out into its pad's band (docs/grasp.md)."""
     g = ctx.cell.gripper
-    m, u, t = P.m[idx], P.u[idx], P.t[idx]
+    m, u, t = P.m.take(idx, 0), P.u.take(idx, 0), P.t.take(idx)
     tol = ctx.params.contact_tol_mm
     reach = g.approach_clearance_mm + g.pad_thickness_mm
     offs = np.array([tol + 1.5, 0.5 * (tol + reach), reach - 1.5])
-    ok = np.ones(len(idx), bool)
-    for side in (1.0, -1.0):
-        q = m[:, None, :] + side * u[:, None, :] * (t[:, None] + offs[None, :])[..., None]  # (k, 3, 2)
-        x, y = q[..., 0].ravel(), q[..., 1].ravel()
-        hit = shapely.contains_xy(ctx.target_geom, x, y)
-        if ctx.finger_obstacles is not None:
-            hit |= shapely.contains_xy(ctx.finger_obstacles, x, y)
-        ok &= ~hit.reshape(len(idx), -1).any(1)
+    # both fingers' points in one shapely call: m + side * u * (t + off) is m + u * (side * (t + off)),
+    # exactly, as side is +-1
+    a = t[:, None] + offs[None, :]
+    a = np.concatenate([a, -a], axis=1)  # (k, 6)
+    x = (m[:, 0, None] + u[:, 0, None] * a).ravel()
+    y = (m[:, 1, None] + u[:, 1, None] * a).ravel()
+    hit = shapely.contains_xy(ctx.target_geom, x, y)
+    if ctx.finger_obstacles is not None:
+        hit |= shapely.contains_xy(ctx.finger_obstacles, x, y)
+    ok = ~hit.reshape(len(idx), -1).any(1)
     if ctx.palm_obstacles is not None:
         ok &= ~shapely.contains_xy(ctx.palm_obstacles, m[:, 0], m[:, 1])
     if ctx.samples is not None and P.si is not None:
@@ -210,20 +247,20 @@ def _outline_ahead(ctx: Context, P: Pairs, idx) -> np.ndarray:
     hw = g.pad_width_mm / 2 + tol
     K = int(np.ceil(hw / ctx.params.step_mm)) + 1
     offs = np.r_[np.arange(-K, 0), np.arange(1, K + 1)]
-    m, u, t = P.m[idx], P.u[idx], P.t[idx]
+    k = len(idx)
+    # both points at once: p_i's pad closes along -u from the +u side (side +1), p_j's from -u
+    s = P.si.take(idx, 0).T.ravel()  # (2k,) p_i's samples, then p_j's
+    m, u, t = P.m.take(idx, 0), P.u.take(idx, 0), P.t.take(idx)
+    mx, my, t = np.tile(m[:, 0], 2), np.tile(m[:, 1], 2), np.tile(t, 2)
+    usx, usy = np.concatenate([u[:, 0], -u[:, 0]]), np.concatenate([u[:, 1], -u[:, 1]])
     t_max = t + g.approach_clearance_mm + g.pad_thickness_mm
-    hit = np.zeros(len(idx), bool)
-    for col, side in ((0, 1.0), (1, -1.0)):
-        s = P.si[idx, col]
-        first, count = ctx.sample_ring_first[s], ctx.sample_ring_count[s]
-        q = first[:, None] + (s[:, None] - first[:, None] + offs[None, :]) % count[:, None]  # (k, 2K)
-        d = ctx.samples[q] - m[:, None, :]
-        us = side * u
-        tq = (d * us[:, None, :]).sum(-1)
-        lq = d[..., 0] * -us[:, None, 1] + d[..., 1] * us[:, None, 0]
-        hit |= ((np.abs(lq) <= hw - EPS_MM) & (tq <= t_max[:, None] - EPS_MM)
-                & (tq > t[:, None] + tol + EPS_MM)).any(1)
-    return hit
+    first, count = ctx.sample_ring_first.take(s), ctx.sample_ring_count.take(s)
+    q = first[:, None] + (s[:, None] - first[:, None] + offs[None, :]) % count[:, None]  # (2k, 2K)
+    dx, dy = ctx.sample_x.take(q) - mx[:, None], ctx.sample_y.take(q) - my[:, None]
+    tq = dx * usx[:, None] + dy * usy[:, None]
+    lq = dx * -usy[:, None] + dy * usx[:, None]
+    hit = ((np.abs(lq) <= hw - EPS_MM) & (tq <= t_max[:, None] - EPS_MM) & (tq > t[:, None] + tol + EPS_MM)).any(1)
+    return hit[:k] | hit[k:]
 
 
 # --- exact stages: shapely and IK on the survivors only -------------------------------------

@@ -29,6 +29,16 @@ def axis_rects(center, u, t0, t1, half_width) -> np.ndarray:
     return out
 
 
+def axis_rect_bounds(cx, cy, ux, uy, t0, t1, half_width):
+    """Bounding boxes of the rectangles of `axis_rects` (centre and u given by component, each (k,)):
+    lo x, lo y, hi x, hi y, each (k,), bit for bit the extremes of axis_rects' corners (rounding is
+    monotonic, so the extreme of the rounded corners is the rounded extreme) without building them."""
+    ax0, ax1 = cx + ux * t0, cx + ux * t1
+    ay0, ay1 = cy + uy * t0, cy + uy * t1
+    bx, by = np.abs(-uy * half_width), np.abs(ux * half_width)  # |v * half_width|, v = u turned by +90 degrees
+    return np.minimum(ax0, ax1) - bx, np.minimum(ay0, ay1) - by, np.maximum(ax0, ax1) + bx, np.maximum(ay0, ay1) + by
+
+
 def rect_polygons(corners: np.ndarray) -> np.ndarray:
     """shapely polygons (k,) from corner arrays (k, 4, 2)."""
     # via linearrings: shapely.polygons on raw coordinates is several times slower

@@ -342,8 +342,8 @@ class BandEdges:
         bi = pos.take(self.bi.take(keep))
         n, nr = len(half_widths), len(rows)
         bi = np.concatenate([bi + w * nr for w in range(n)])
-        tA, lA, dt, dl, s0, s1 = (np.tile(a.take(keep), n) for a in (self.tA, self.lA, self.dt, self.dl, self.s0,
-                                                                        self.s1))
+        tA, lA, dt, dl, s0, s1 = (np.concatenate([a.take(keep)] * n) for a in (self.tA, self.lA, self.dt, self.dl,
+                                                                                   self.s0, self.s1))
         hw = np.repeat(np.asarray(half_widths, float), len(keep))
         with np.errstate(divide="ignore", invalid="ignore"):
             inside = np.ones(len(bi), bool)
@@ -354,7 +354,7 @@ class BandEdges:
                 inside &= ~((p == 0) & (q < 0))
             inside &= s0 <= s1
         k = np.flatnonzero(inside)
-        rr = np.tile(rows, n)
+        rr = np.concatenate([rows] * n)
         return BandEdges(self.cx.take(rr), self.cy.take(rr), self.ux.take(rr), self.uy.take(rr), self.vx.take(rr),
                          self.vy.take(rr), self.t_max.take(rr), np.repeat(np.asarray(half_widths, float), nr),
                          bi.take(k), s0.take(k), s1.take(k), tA.take(k), lA.take(k), dt.take(k), dl.take(k))

@@ -199,38 +199,48 @@ def _dot2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 # --- cheap stages: vectorised over the pairs idx -------------------------------------------
-# Rows are gathered with take (numpy's fancy indexing of (k, 2) arrays costs several times more).
+# Rows are gathered with take (numpy's fancy indexing of (k, 2) arrays costs several times more);
+# when idx holds most pairs, a stage looks at every pair (views, no gathering) and picks idx's verdicts.
+
+def _dense(P: Pairs, idx) -> bool:
+    return 2 * len(idx) > len(P)
+
 
 def stage_stroke(ctx: Context, P: Pairs, idx) -> np.ndarray:
     g = ctx.cell.gripper
-    d = P.d.take(idx)
-    return (d >= g.opening_mm[0] - EPS_MM) & (d + 2 * g.approach_clearance_mm <= g.opening_mm[1] + EPS_MM)
+    dense = _dense(P, idx)
+    d = P.d if dense else P.d.take(idx)
+    ok = (d >= g.opening_mm[0] - EPS_MM) & (d + 2 * g.approach_clearance_mm <= g.opening_mm[1] + EPS_MM)
+    return ok.take(idx) if dense else ok
 
 
 def stage_reach(ctx: Context, P: Pairs, idx) -> np.ndarray:
-    m = P.m.take(idx, 0)
+    dense = _dense(P, idx)
+    m = P.m if dense else P.m.take(idx, 0)
     x, y = m[:, 0], m[:, 1]
     rmin, rmax = ctx.cell.scara.reach_mm
     r = np.sqrt(x * x + y * y)
     ws, e = ctx.cell.workspace, CHEAP_MARGIN_MM
-    return ((r >= rmin - e) & (r <= rmax + e) & (x >= ws.x_mm[0] - e) & (x <= ws.x_mm[1] + e)
-            & (y >= ws.y_mm[0] - e) & (y <= ws.y_mm[1] + e))
+    ok = ((r >= rmin - e) & (r <= rmax + e) & (x >= ws.x_mm[0] - e) & (x <= ws.x_mm[1] + e)
+          & (y >= ws.y_mm[0] - e) & (y <= ws.y_mm[1] + e))
+    return ok.take(idx) if dense else ok
 
 
 def stage_antipodal(ctx: Context, P: Pairs, idx) -> np.ndarray:
     c = math.cos(math.radians(ctx.params.max_normal_angle_deg))
-    d = P.d.take(idx)
-    w = P.w.take(idx, 0) / np.maximum(d, 1e-12)[:, None]  # unit, p_j towards p_i
-    ok = _dot2(P.ni.take(idx, 0), w) >= c - 1e-9
+    dense = _dense(P, idx)
+    d = P.d if dense else P.d.take(idx)
+    w = (P.w if dense else P.w.take(idx, 0)) / np.maximum(d, 1e-12)[:, None]  # unit, p_j towards p_i
+    ok = _dot2(P.ni if dense else P.ni.take(idx, 0), w) >= c - 1e-9
     # the other two conditions only where the first holds (most pairs fail it): same verdicts
     k = np.flatnonzero(ok)
     w, d = w.take(k, 0), d.take(k)
-    sub = idx.take(k)
+    sub = k if dense else idx.take(k)
     u = P.u.take(sub, 0)
     lateral = 0.5 * np.abs(w[:, 0] * u[:, 1] - w[:, 1] * u[:, 0]) * d
     # (n_j . -w) >= c, written as -(n_j . w) >= c: negation is exact, the verdict the same
     ok[k] = (-_dot2(P.nj.take(sub, 0), w) >= c - 1e-9) & (lateral <= ctx.params.contact_tol_mm + EPS_MM)
-    return ok
+    return ok.take(idx) if dense else ok
 
 
 def stage_precheck(ctx: Context, P: Pairs, idx) -> np.ndarray:

@@ -80,8 +80,8 @@ class Context:
     edge_loy: np.ndarray = None
     edge_hix: np.ndarray = None
     edge_hiy: np.ndarray = None
-    sample_x: np.ndarray | None = None  # (N,) samples[:, 0] and samples[:, 1], contiguous (cheap to gather)
-    sample_y: np.ndarray | None = None
+    neighbour_x: np.ndarray | None = None  # (N, 2K) the samples on the same ring within K steps of each sample
+    neighbour_y: np.ndarray | None = None
 
     @classmethod
     def build(cls, target: Part, obstacles, cell: Cell, params: SynthesisParams, grasp_z_mm: float,
@@ -109,12 +109,20 @@ class Context:
             starts = np.searchsorted(ring, np.arange(ring.max() + 1))
             counts = np.bincount(ring)
             first, count = starts[ring], counts[ring]
-        sx = sy = None
-        if samples is not None:
+        nx = ny = None
+        if samples is not None:  # the samples next to each sample on its ring, for the pre-check
             samples = np.asarray(samples, float)
-            sx, sy = np.ascontiguousarray(samples[:, 0]), np.ascontiguousarray(samples[:, 1])
+            offs = np.array(_neighbour_offsets(cell, params))
+            near = first[:, None] + (np.arange(len(samples))[:, None] - first[:, None] + offs[None, :]) % count[:, None]
+            nx, ny = samples[:, 0].take(near), samples[:, 1].take(near)
         return cls(target, cell, params, grasp_z_mm, tg, union(tall), union(palm), [o.id for o in tall],
-                   a, b, tree, samples, first, count, *_edge_columns(a, b), sx, sy)
+                   a, b, tree, samples, first, count, *_edge_columns(a, b), nx, ny)
+
+
+def _neighbour_offsets(cell: Cell, params: SynthesisParams) -> list[int]:
+    """Steps along the outline, -K..-1, 1..K, that reach past a pad band's half width (contact_tol included)."""
+    K = math.ceil((cell.gripper.pad_width_mm / 2 + params.contact_tol_mm) / params.step_mm) + 1
+    return [*range(-K, 0), *range(1, K + 1)]
 
 
 def _edge_columns(a: np.ndarray, b: np.ndarray) -> list[np.ndarray]:
@@ -274,8 +282,6 @@ def _outline_ahead(ctx: Context, P: Pairs, idx) -> np.ndarray:
     contact_tol: the pad would stop there first, so the `contacts` stage would reject the pair."""
     g, tol = ctx.cell.gripper, ctx.params.contact_tol_mm
     hw = g.pad_width_mm / 2 + tol
-    K = int(np.ceil(hw / ctx.params.step_mm)) + 1
-    offs = np.r_[np.arange(-K, 0), np.arange(1, K + 1)]
     k = len(idx)
     # both points at once: p_i's pad closes along -u from the +u side (side +1), p_j's from -u
     s = P.si.take(idx, 0).T.ravel()  # (2k,) p_i's samples, then p_j's
@@ -283,9 +289,7 @@ def _outline_ahead(ctx: Context, P: Pairs, idx) -> np.ndarray:
     mx, my, t = np.concatenate([m[:, 0], m[:, 0]]), np.concatenate([m[:, 1], m[:, 1]]), np.concatenate([t, t])
     usx, usy = np.concatenate([u[:, 0], -u[:, 0]]), np.concatenate([u[:, 1], -u[:, 1]])
     t_max = t + g.approach_clearance_mm + g.pad_thickness_mm
-    first, count = ctx.sample_ring_first.take(s), ctx.sample_ring_count.take(s)
-    q = first[:, None] + (s[:, None] - first[:, None] + offs[None, :]) % count[:, None]  # (2k, 2K)
-    dx, dy = ctx.sample_x.take(q) - mx[:, None], ctx.sample_y.take(q) - my[:, None]
+    dx, dy = ctx.neighbour_x.take(s, 0) - mx[:, None], ctx.neighbour_y.take(s, 0) - my[:, None]  # (2k, 2K)
     tq = dx * usx[:, None] + dy * usy[:, None]
     lq = dx * -usy[:, None] + dy * usx[:, None]
     hit = ((np.abs(lq) <= hw - EPS_MM) & (tq <= t_max[:, None] - EPS_MM) & (tq > t[:, None] + tol + EPS_MM)).any(1)
@@ -519,14 +523,17 @@ def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
 
 def stage_ik(ctx: Context, P: Pairs, idx) -> np.ndarray:
     idx = np.asarray(idx, int)
-    c = P.center[idx]
+    c, u = P.center.take(idx, 0), P.u.take(idx, 0)
+    x, y = c[:, 0], c[:, 1]
     ws = ctx.cell.workspace
-    axis = np.degrees(np.arctan2(P.u[idx, 1], P.u[idx, 0]))
+    axis = np.degrees(np.arctan2(u[:, 1], u[:, 0]))
     with np.errstate(invalid="ignore"):
-        inside = (np.isfinite(c[:, 0]) & (c[:, 0] >= ws.x_mm[0]) & (c[:, 0] <= ws.x_mm[1])
-                  & (c[:, 1] >= ws.y_mm[0]) & (c[:, 1] <= ws.y_mm[1]))
-    ok = np.zeros(len(idx), bool)
-    ok[inside] = reachable_mask(c[inside, 0], c[inside, 1], ctx.grasp_z_mm, axis[inside], ctx.cell.scara)
+        inside = (np.isfinite(x) & (x >= ws.x_mm[0]) & (x <= ws.x_mm[1]) & (y >= ws.y_mm[0]) & (y <= ws.y_mm[1]))
+    if inside.all():  # the usual case: no subset to gather
+        ok = reachable_mask(x, y, ctx.grasp_z_mm, axis, ctx.cell.scara)
+    else:
+        ok = np.zeros(len(idx), bool)
+        ok[inside] = reachable_mask(x[inside], y[inside], ctx.grasp_z_mm, axis[inside], ctx.cell.scara)
     P.ik = (ctx.grasp_z_mm, ctx.cell.scara)  # the solutions, for the pairs that get looked at: joints_of
     return ok
 

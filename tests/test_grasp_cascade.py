@@ -3,6 +3,7 @@ ones would, and what survives is really reachable and collision-free."""
 
 import numpy as np
 import pytest
+import shapely
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import Point
@@ -18,6 +19,7 @@ from cell.grasp.footprints import (
     axis_rects,
     finger_footprints,
     palm_footprint,
+    rect_polygons,
     swept_finger_footprints,
 )
 from cell.grasp.height import grasp_z_mm
@@ -359,3 +361,19 @@ def test_narrowed_bands_have_the_first_touch_of_bands_clipped_at_that_width():
     assert np.array_equal(T_wide, np.concatenate([T6[rows], T005[rows]]))
     with pytest.raises(ValueError):
         clip(6.0).narrowed(rows, (7.0,))
+
+
+def test_rectangle_corners_and_polygons_are_the_plain_formula():
+    rng = np.random.default_rng(3)
+    c = rng.normal(size=(50, 2)) * 100
+    a = rng.uniform(-4, 4, 50)
+    u = np.column_stack([np.cos(a), np.sin(a)])
+    t = rng.normal(size=50)
+    corners = axis_rects(c, u, t, t + 15, 6.0)
+    v = np.stack([-u[:, 1], u[:, 0]], -1)
+    for k, (tk, w) in enumerate(((t, -6.0), (t + 15, -6.0), (t + 15, 6.0), (t, 6.0))):
+        assert np.array_equal(corners[:, k], c + u * tk[:, None] + v * w)
+    polys = rect_polygons(corners)
+    assert [len(p.exterior.coords) for p in polys] == [5] * 50
+    assert np.array_equal(shapely.get_coordinates(polys).reshape(50, 5, 2)[:, :4], corners)
+    assert np.allclose(shapely.area(polys), 15 * 12)

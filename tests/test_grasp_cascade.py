@@ -334,8 +334,10 @@ def test_contacts_are_the_same_with_the_box_broadcast_or_the_strtree(monkeypatch
         P = Pairs.of(vp.points, vp.normals, idx)
         alive = np.flatnonzero(cascade.stage_antipodal(ctx, P, np.arange(len(P))))
         monkeypatch.setattr(cascade, "OVERLAP_BROADCAST_MAX", 10**12)
+        monkeypatch.setattr(cascade, "OVERLAP_BROADCAST_EDGES", 10**12)
         broadcast = _contacts(ctx, P, alive)
         monkeypatch.setattr(cascade, "OVERLAP_BROADCAST_MAX", 0)
+        monkeypatch.setattr(cascade, "OVERLAP_BROADCAST_EDGES", 0)
         tree = _contacts(ctx, P, alive)
         assert broadcast[0].any()
         for a, b in zip(broadcast, tree, strict=True):
@@ -377,3 +379,21 @@ def test_rectangle_corners_and_polygons_are_the_plain_formula():
     assert [len(p.exterior.coords) for p in polys] == [5] * 50
     assert np.array_equal(shapely.get_coordinates(polys).reshape(50, 5, 2)[:, :4], corners)
     assert np.allclose(shapely.area(polys), 15 * 12)
+
+
+def test_footprints_tested_against_nearby_obstacles_only_get_every_verdict_right():
+    # two obstacles (one a union of two overlapping squares) and rectangles all around them, axis-aligned
+    # ones flush against their sides (touching counts as a collision)
+    obstacles = shapely.union_all([shapely.box(0, 0, 10, 10), shapely.box(5, 5, 20, 12), shapely.box(40, 0, 50, 5)])
+    shapely.prepare(obstacles)
+    boxes = shapely.bounds(shapely.get_parts(obstacles))
+    rng = np.random.default_rng(5)
+    c = np.vstack([rng.uniform(-30, 80, size=(300, 2)), [[-5, 5], [25, 8], [45, 10], [45, 10.5]]])
+    a = np.concatenate([rng.uniform(-3.2, 3.2, 300), [0, 0, np.pi / 2, np.pi / 2]])
+    u = np.column_stack([np.cos(a), np.sin(a)])
+    u[-4:] = np.round(u[-4:])
+    t0, t1, hw = -5.0, 5.0, 5.5
+    fast = cascade._rects_hitting(obstacles, boxes, c[:, 0], c[:, 1], u[:, 0], u[:, 1], t0, t1, hw)
+    plain = shapely.intersects(rect_polygons(axis_rects(c, u, t0, t1, hw)), obstacles)
+    assert np.array_equal(fast, plain) and 20 < plain.sum() < 280
+    assert plain[-4:].tolist() == [True, True, True, False]  # flush at x = 0, x = 20 and y = 5; 0.5 mm clear

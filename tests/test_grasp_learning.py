@@ -226,3 +226,23 @@ def test_one_taught_example_on_a_large_gear_makes_large_gears_plannable():
             before.plan(Scene((gear,), gear.id))
         grasp = after.plan(Scene((gear,), gear.id)).grasp
         assert grasp.opening_mm > 50  # across the gear, tip to tip (no other pair clears the teeth)
+
+
+@pytest.mark.parametrize("side_mm", [11.0, 15.0, 23.0])
+def test_squares_are_not_held_by_two_opposite_corners(side_mm):
+    """A square's first vertex is a sample with the corner's bisector as its normal, antipodal to
+    the opposite corner: squeezed there the square turns (the physical check: 'both pads sit on
+    sharp corners'). With leaves of 2 rows tree 1 let such corners through (a leaf of the two
+    contacts of one heatsink grasp); the shipped examples must hold squares by their faces or not at all."""
+    from cell.physics import check_grasp
+    from cell.scene import Part
+
+    planner = GraspPlanner(CELL, load_examples(None))
+    h = side_mm / 2
+    for theta in (0.3, 1.1, 2.0):
+        c, s = np.cos(theta), np.sin(theta)
+        pts = np.array([[-h, -h], [h, -h], [h, h], [-h, h]]) @ np.array([[c, s], [-s, c]]) + [350.0, 40.0]
+        square = Part("sq", pts, z_bottom_mm=0.0, z_top_mm=10.0)
+        grasp = planner.plan(Scene((square,), "sq")).grasp
+        check = check_grasp(square, grasp.contacts_mm, grasp.axis_deg, grasp.grasp_z_mm)
+        assert check.ok, check.reasons

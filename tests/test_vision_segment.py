@@ -467,3 +467,72 @@ def test_a_forked_process_segments_after_its_parent_did(layout_frame):
     if alive:
         child.kill()
     assert not alive and queue.get(timeout=5) == len(LAYOUT)
+
+
+def test_comparison_with_the_tray_colour_equals_the_numpy_computation():
+    from cell.vision.segment import _ratio_chroma, _towards_part
+
+    rng = np.random.default_rng(12)
+    img = rng.integers(0, 256, (30, 40, 3)).astype(np.float32)
+    for _ in range(20):
+        tray, part = tuple(rng.random(3) * 255), tuple(rng.random(3) * 255)
+        t, pc = np.asarray(tray), np.asarray(part)
+        s = img.astype(np.float64).sum(axis=2, keepdims=True) + 1.0
+        r, chroma = _ratio_chroma(img, tray)
+        assert np.allclose(r, s[..., 0] / (t.sum() + 1.0), rtol=1e-5)
+        assert np.allclose(chroma, np.abs(img / s - t / (t.sum() + 1.0)).sum(axis=2), atol=1e-5)
+        assert _ratio_chroma(img, tray, ratio=False)[0] is None
+        d = pc - t
+        lean = _towards_part(img, part, tray)
+        assert np.allclose(lean, (img - t) @ (d / max(d @ d, 1.0)), atol=1e-4)
+    # 0 at the tray's colour, 1 at the part's
+    both = np.array([[tray, part]], np.float32)
+    assert np.allclose(_towards_part(both, part, tray), [[0.0, 1.0]], atol=1e-4)
+
+
+def test_colour_split_gives_every_pixel_the_nearer_colour_and_leaves_one_colour_whole():
+    import cv2
+
+    from cell.vision.touching import split_by_colour
+
+    rng = np.random.default_rng(13)
+    sub = np.zeros((80, 120), np.uint8)
+    cv2.circle(sub, (40, 40), 30, 1, -1)
+    cv2.circle(sub, (85, 40), 30, 1, -1)
+    img = np.zeros((80, 120, 3), np.float32)
+    img[:, :62] = (200, 60, 40)  # blue on the left, red on the right (BGR)
+    img[:, 62:] = (40, 50, 200)
+    img += rng.normal(0, 4, img.shape)
+    lab = cv2.cvtColor(np.clip(img, 0, 255).astype(np.uint8), cv2.COLOR_BGR2LAB)
+    parts = split_by_colour(sub, lab, min_area=100, min_delta_e=30.0)
+    assert parts is not None and set(np.unique(parts)) == {0, 1, 2}
+    assert np.array_equal(parts > 0, sub > 0)
+    left, right = parts[40, 20], parts[40, 100]
+    assert left != right and (parts[:, :55][sub[:, :55] > 0] == left).all()
+    assert (parts[:, 70:][sub[:, 70:] > 0] == right).all()
+    # one colour with a bright highlight (lightness counts half): not split
+    one = np.full((80, 120, 3), (200, 60, 40), np.float32) + rng.normal(0, 4, (80, 120, 3))
+    one[30:50, 30:60] *= 1.25
+    lab = cv2.cvtColor(np.clip(one, 0, 255).astype(np.uint8), cv2.COLOR_BGR2LAB)
+    assert split_by_colour(sub, lab, min_area=100, min_delta_e=30.0) is None
+
+
+def test_tray_field_fitted_on_a_checkerboard_of_samples_follows_the_lighting_past_the_parts():
+    from cell.vision.background import field_at, fit_copy_of_whole_dn, fit_tray_field
+
+    rng = np.random.default_rng(14)
+    h, w = 512, 640
+    v, u = np.mgrid[0:h, 0:w]
+    un, vn = (u + 0.5) / w * 2 - 1, (v + 0.5) / h * 2 - 1
+    light = 1.0 + 0.25 * un - 0.15 * vn - 0.2 * (un ** 2 + vn ** 2)  # gradient and vignetting
+    tray = light[..., None] * np.array([120.0, 135.0, 150.0])
+    img = tray + rng.normal(0, 2.0, tray.shape)
+    for _ in range(10):  # parts: a quarter of the view, some dark, some bright, some coloured
+        x0, y0 = rng.integers(0, w - 120), rng.integers(0, h - 90)
+        img[y0:y0 + 90, x0:x0 + 120] = rng.integers(0, 256, 3)
+    img_u8 = np.clip(np.round(img), 0, 255).astype(np.uint8)
+    field, sigma = fit_tray_field(img_u8, "auto", fit_copy_of_whole_dn(img_u8))
+    assert field.shape == (64, 80, 3)
+    err = np.abs(field_at(field, (w, h)) - tray)
+    assert np.percentile(err, 99) < 2.0 and err.max() < 4.0
+    assert 1.0 <= sigma < 6.0  # the noise's colour distance (2 DN a channel), not the parts'

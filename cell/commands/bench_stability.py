@@ -38,6 +38,7 @@ def run(args) -> int:
         make_planner,
         presentations,
         random_baseline,
+        simple_shapes,
     )
 
     if args.poses < 1:
@@ -58,6 +59,8 @@ def run(args) -> int:
     log("clutter: every presentation with one or two neighbours 3..15 mm away")
     clutter = evaluate(planner, cluttered(shown, args.seed, cell), cell)
     baseline = random_baseline(shown, args.seed, cell)
+    log(f"simple shapes not in the library: {len(simple_shapes())} x {args.poses} poses")
+    simple = evaluate(planner, presentations(simple_shapes(), args.poses, args.seed, cell), cell)
     families = [f.strip() for f in args.families.split(",") if f.strip()] if args.families else None
     if families:
         L.parts(families)  # unknown names are bad input
@@ -77,6 +80,8 @@ def run(args) -> int:
           f"{pct(unseen.planned_share)} | {pct(unseen.stable_share)} |")
     print(f"| with 1-2 neighbours 3..15 mm away, all examples | {clutter.presented} | {clutter.planned} | "
           f"{clutter.stable} | {pct(clutter.planned_share)} | {pct(clutter.stable_share)} |")
+    print(f"| simple shapes not in the library, all examples | {simple.presented} | {simple.planned} | "
+          f"{simple.stable} | {pct(simple.planned_share)} | {pct(simple.stable_share)} |")
     print(f"| yardstick: two random outline points within the stroke | {baseline.presented} | - | "
           f"{baseline.stable} | - | {pct(baseline.stable_share)} |")
     print()
@@ -84,7 +89,7 @@ def run(args) -> int:
     print("|---|---:|---:|---:|")
     for fam, t in per_family.items():
         print(f"| {fam} | {t.presented} | {t.planned} | {t.stable} |")
-    for pid, reasons in whole.failures + unseen.failures + clutter.failures:
+    for pid, reasons in whole.failures + unseen.failures + clutter.failures + simple.failures:
         log(f"unstable: {pid}: {'; '.join(reasons)}")
     if args.json:
         print(json.dumps({
@@ -97,6 +102,9 @@ def run(args) -> int:
             "clutter": {"presented": clutter.presented, "planned": clutter.planned, "stable": clutter.stable,
                         "stable_share": round(clutter.stable_share, 4),
                         "planned_share": round(clutter.planned_share, 4)},
+            "simple_shapes": {"presented": simple.presented, "planned": simple.planned, "stable": simple.stable,
+                              "stable_share": round(simple.stable_share, 4),
+                              "planned_share": round(simple.planned_share, 4)},
             "random_points": {"presented": baseline.presented, "stable": baseline.stable,
                               "stable_share": round(baseline.stable_share, 4)},
             "per_family": {f: {"presented": t.presented, "planned": t.planned, "stable": t.stable}

@@ -30,7 +30,8 @@ class SynthesisParams:
     n_contacts: int = 2  # a parameter of the learning and the attributes; the gripper model is 2-jaw
     # Learning.
     tree_max_depth: int = 4
-    tree_min_samples_leaf: int = 2
+    # 4, not 2: a leaf of 2 rows (one heatsink grasp's contacts) let square corners through (docs/grasp.md)
+    tree_min_samples_leaf: int = 4
     augment_shift_steps: int = 1  # each example set is augmented by its neighbours +- this many steps
 
     def __post_init__(self):

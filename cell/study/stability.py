@@ -11,6 +11,9 @@ Every library part is presented standalone at `poses` random poses in the tray; 
 Leave-families-out: for each family, the planner learns from the examples of the *other*
 families only and plans for the parts of the left-out family (parts it has never seen).
 Clutter: every part with one or two random neighbours 3..15 mm away (collisions count).
+Simple shapes: squares, rectangles, regular polygons, discs and L-shapes that are not in the
+library (`simple_shapes`), in every size between a small nut and a large cover, so that an
+attribute or a learned rule that only holds for the library's shapes shows.
 """
 
 from __future__ import annotations
@@ -53,6 +56,31 @@ class StabilityTally:
     @property
     def stable_share(self) -> float:
         return self.stable / self.planned if self.planned else float("nan")
+
+
+def simple_shapes(height_mm: float = 10.0) -> list[Part]:
+    """Plain prisms centred at the origin (ids say what they are): squares of every side 6-40 mm,
+    rectangles of 4 widths x 4 aspect ratios, regular 3-, 5-, 6- and 8-gons and discs of 5-30 mm
+    circumradius, three L-shapes."""
+    def centred(xy) -> np.ndarray:
+        xy = np.asarray(xy, float)
+        return xy - xy.mean(axis=0)
+
+    shapes: dict[str, np.ndarray] = {}
+    for side in range(6, 41):
+        h = side / 2
+        shapes[f"square_{side}"] = centred([[-h, -h], [h, -h], [h, h], [-h, h]])
+    for w in (6, 9, 13, 17, 21, 26):
+        for aspect in (1.2, 1.6, 2.5, 4.0):
+            a, b = w / 2, w * aspect / 2
+            shapes[f"rect_{w}x{w * aspect:g}"] = centred([[-a, -b], [a, -b], [a, b], [-a, b]])
+    for n in (3, 5, 6, 8, 64):
+        for r in (5, 7, 9, 11, 13, 16, 20, 25, 30):
+            ang = np.arange(n) * 2 * np.pi / n
+            shapes[f"{'disc' if n == 64 else f'{n}-gon'}_r{r}"] = r * np.column_stack([np.cos(ang), np.sin(ang)])
+    for a, b, t in ((30, 20, 8), (50, 40, 10), (20, 20, 6)):
+        shapes[f"ell_{a}x{b}x{t}"] = centred([[0, 0], [a, 0], [a, t], [t, t], [t, b], [0, b]])
+    return [Part(name, xy, z_bottom_mm=0.0, z_top_mm=height_mm) for name, xy in shapes.items()]
 
 
 def presentations(parts: list[Part], poses: int, seed: int, cell: Cell) -> list[Part]:

@@ -167,13 +167,14 @@ def _segment(frame: np.ndarray, p: SegmentParams, reference_bgr: np.ndarray | No
     mask, boxes = part_mask(det, bg, p, s, smoothed.result(), bg_coarse)
     if not mask.any():
         return []  # the empty tray
-    pieces = _split_regions(mask, boxes, p, s, det)
+    pieces = _split_regions(mask, boxes, p, s, det_u8)
     segs = _regions_to_segments(pieces, frame, det, bg, p, s)
     segs.sort(key=lambda g: -g.area_px)
     return segs
 
 
 _SUM_PLUS_1 = np.ones((1, 4), np.float32)  # cv2.transform: b + g + r + 1 in one pass (the same sums)
+_ONES_1x3 = np.ones((1, 3), np.float32)
 
 
 def _colour_change(sm: np.ndarray, bg: np.ndarray):
@@ -193,6 +194,7 @@ def _colour_change(sm: np.ndarray, bg: np.ndarray):
     return r, chroma, chroma * si, (si - sb) / 3.0
 
 
+BLUR_TAPS = 5  # of the detection blur (sigma 0.8 detection px)
 COARSE = 4  # the search for where anything differs from the tray runs at 1 / COARSE of detection
 BOX_MARGIN_PX = 12  # detection px around what differs: room for weak edges, shadows' tails, walls
 COARSE_EVIDENCE = 0.8  # x the weak-evidence thresholds
@@ -215,7 +217,8 @@ def _helper():
 def smoothed_copies(det: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The detection image blurred (noise), its every 4th pixel (to measure the noise on) and
     its coarse copy (to find where anything differs from the tray), float32."""
-    sm = cv2.GaussianBlur(det, (0, 0), 0.8)
+    # 5 taps: for float32 OpenCV would take 7, whose outer two weigh 0.04 % each (twice the time)
+    sm = cv2.GaussianBlur(det, (BLUR_TAPS, BLUR_TAPS), 0.8)
     h, w = sm.shape[:2]
     coarse = cv2.resize(sm, (max(1, w // COARSE), max(1, h // COARSE)), interpolation=cv2.INTER_AREA)
     return sm, np.ascontiguousarray(sm[::4, ::4]), coarse
@@ -441,17 +444,17 @@ def _sharp_bound_sq(edge: float, scale: int) -> np.float32:
     return b
 
 
-def _split_regions(mask: np.ndarray, boxes, p: SegmentParams, scale: int, det: np.ndarray | None = None
+def _split_regions(mask: np.ndarray, boxes, p: SegmentParams, scale: int, det_u8: np.ndarray | None = None
                    ) -> list[tuple[int, int, np.ndarray, bool]]:
     """The mask's parts as (x0, y0, piece bool mask in a box at (x0, y0), merged); specks
-    dropped, touching parts split."""
+    dropped, touching parts split (`det_u8`: the 8-bit detection image, for colours and seams)."""
     min_area = p.min_area_px / scale ** 2
     regions = label_regions(mask, boxes, min_area, margin_px=2)
     if not p.split_touching:
         return [(x0, y0, sub.astype(bool), False) for x0, y0, sub in regions]
     from cell.vision.touching import split_necks
 
-    return split_necks(regions, p, min_area, det)
+    return split_necks(regions, p, min_area, det_u8)
 
 
 def label_regions(mask: np.ndarray, boxes, min_area: float, margin_px: int = 0
@@ -553,19 +556,28 @@ def _regions_to_segments(pieces, frame: np.ndarray, det: np.ndarray, bg: np.ndar
         found = [(next(refined), [next(refined) for _ in hs], *rest) for _, hs, *rest in found]
     segs = []
     for outline, hole_rings, merged, cut, mean in found:
-        outline = _orient(outline, ccw=True)
-        hole_rings = [_orient(hh, ccw=False) for hh in hole_rings if _hole_holds(hh, outline, p)]
-        area, cen = _area_centroid(outline, hole_rings)
+        # each ring's area and centroid once: they give its orientation, the hole's size and the region's
+        outer, cen = _ring_area_centroid(outline)
+        outline = outline if outer > 0 else outline[::-1].copy()  # counter-clockwise
+        area, mom = abs(outer), abs(outer) * cen
+        holes = []
+        for hh in hole_rings:
+            ha, hc = _ring_area_centroid(hh)
+            if _hole_holds(hh, outline, p, ha):
+                holes.append(hh if ha < 0 else hh[::-1].copy())  # clockwise
+                area, mom = area - abs(ha), mom - abs(ha) * hc
+        area, cen = (area, mom / area) if area > 0 else (abs(outer), cen)  # (holes filling it: the outline's)
         if area < 0.5 * p.min_area_px:
             continue  # a sliver whose pixels passed the speck filter but whose outline did not
-        segs.append(Segment(outline, hole_rings, area, cen, bool(merged), cut, tuple(float(m) for m in mean)))
+        segs.append(Segment(outline, holes, float(area), cen, bool(merged), cut, tuple(float(m) for m in mean)))
     return segs
 
 
-def _hole_holds(hole: np.ndarray, outline: np.ndarray, p: SegmentParams) -> bool:
+def _hole_holds(hole: np.ndarray, outline: np.ndarray, p: SegmentParams, area: float | None = None) -> bool:
     """A refined hole keeps its minimum area and lies inside its outline (a sliver along the
-    edge that refinement squeezed or pushed onto the outline is no hole)."""
-    if abs(_signed_area(hole)) < 0.5 * p.min_hole_area_px:
+    edge that refinement squeezed or pushed onto the outline is no hole). `area`: the hole's
+    signed area if known."""
+    if abs(_signed_area(hole) if area is None else area) < 0.5 * p.min_hole_area_px:
         return False
     ring = outline.astype(np.float32)
     (u0, v0), (u1, v1) = hole.min(axis=0) - 1.0, hole.max(axis=0) + 1.0
@@ -585,25 +597,33 @@ def _tray_dips(det, bg, region, part_bgr, box, p: SegmentParams) -> tuple[int, i
     inner = cv2.erode(region, np.ones((3, 3), np.uint8))
     if not inner.any():
         return None
-    # the tray's colour varies slowly: one part-minus-tray colour difference for the whole box
+    # the tray's colour varies slowly: the box is compared with its mean colour
     tray = cv2.mean(b)[:3]
-    d = np.asarray(part_bgr, np.float32) - np.asarray(tray, np.float32)
-    f = cv2.transform(img - b, (d / max(float(d @ d), 1.0)).reshape(1, 3))
-    ch = _ratio_chroma(img, b, ratio=False)[1]
+    f = _towards_part(img, part_bgr, tray)
+    ch = _ratio_chroma(img, tray, ratio=False)[1]
     dips = (((f < 0.8) & (ch < 2.0 * p.chroma_min)) | (ch < 0.5 * _chroma_of(part_bgr, tray))) & inner.view(bool)
     bx, by, bw, bh = cv2.boundingRect(dips.view(np.uint8))
     return None if bw == 0 else (bx, by, bx + bw, by + bh)
 
 
-def _ratio_chroma(img: np.ndarray, b: np.ndarray, ratio: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
+def _towards_part(img: np.ndarray, part_bgr, tray_bgr) -> np.ndarray:
+    """Per pixel, how far its colour lies from the tray's towards the part's (0 at the tray's
+    colour, 1 at the part's, projected on their difference); float32 (h, w)."""
+    d = np.asarray(part_bgr, np.float64) - np.asarray(tray_bgr, np.float64)
+    wt = d / max(float(d @ d), 1.0)
+    # (one affine cv2.transform: the offset is the tray's projection)
+    return cv2.transform(img, np.array([[*wt, -float(wt @ np.asarray(tray_bgr, np.float64))]], np.float32))
+
+
+def _ratio_chroma(img: np.ndarray, tray_bgr, ratio: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
     """Brightness ratio (None unless `ratio`) and chroma change (L1 over the three channels of the
-    colour divided by its sum) of an unblurred image against the tray; float32 (h, w) each."""
-    ones = np.ones((1, 3), np.float32)
+    colour divided by its sum) of an unblurred image against the tray's colour (3 floats: it
+    varies slowly, one colour serves a part's box); float32 (h, w) each."""
     si = cv2.transform(img, _SUM_PLUS_1)
-    sb = cv2.transform(b, _SUM_PLUS_1)
+    st = float(tray_bgr[0]) + float(tray_bgr[1]) + float(tray_bgr[2]) + 1.0
     # (cv2.multiply by a merged reciprocal: the same products as numpy's broadcast, faster)
-    diff = cv2.absdiff(cv2.multiply(img, cv2.merge([1.0 / si] * 3)), cv2.multiply(b, cv2.merge([1.0 / sb] * 3)))
-    return (si / sb if ratio else None), cv2.transform(diff, ones)
+    diff = cv2.absdiff(cv2.multiply(img, cv2.merge([1.0 / si] * 3)), tuple(float(t) / st for t in tray_bgr) + (0.0,))
+    return (si * np.float32(1.0 / st) if ratio else None), cv2.transform(diff, _ONES_1x3)
 
 
 def _chroma_of(part_bgr, tray_mean_bgr) -> float:
@@ -631,16 +651,14 @@ def _holes_full_res(frame, bg, outline, part_bgr, box, p: SegmentParams, scale: 
     h, w = frame.shape[:2]
     x1, y1 = min(x1, w), min(y1, h)
     img = frame[y0:y1, x0:x1].astype(np.float32)
-    b = cv2.resize(bg[box[1]:box[3], box[0]:box[2]], (x1 - x0, y1 - y0), interpolation=cv2.INTER_LINEAR)
     inside = np.zeros((y1 - y0, x1 - x0), np.uint8)
     cv2.fillPoly(inside, [np.round((outline - (x0, y0) - 0.5) * 4).astype(np.int32)], 1, cv2.LINE_8, 2)
     inside = cv2.erode(inside, np.ones((5, 5), np.uint8))  # away from the outline's blur
     if not inside.any():
         return []
-    tray = cv2.mean(b)[:3]
-    d = np.asarray(part_bgr, np.float32) - np.asarray(tray, np.float32)  # the tray varies slowly
-    f = cv2.transform(img - b, (d / max(float(d @ d), 1.0)).reshape(1, 3))
-    r, chroma = _ratio_chroma(img, b)
+    tray = cv2.mean(bg[box[1]:box[3], box[0]:box[2]])[:3]  # (the tray varies slowly: its mean over the box)
+    f = _towards_part(img, part_bgr, tray)
+    r, chroma = _ratio_chroma(img, tray)
     # nearer the tray's colour than the part's; for a coloured part the chroma alone decides, as
     # the tray seen through a hole lies in the part's shadow (darker, towards a dark part's colour)
     half_chroma = 0.5 * _chroma_of(part_bgr, tray)
@@ -761,31 +779,15 @@ def _ahead(a: np.ndarray, k: int) -> np.ndarray:
     return np.concatenate((a[k:], a[:k]))
 
 
-def _orient(ring: np.ndarray, ccw: bool) -> np.ndarray:
-    return ring if (_signed_area(ring) > 0) == ccw else ring[::-1].copy()
-
-
-def _area_centroid(outline: np.ndarray, holes: list[np.ndarray]) -> tuple[float, np.ndarray]:
-    def ring_ac(r):
-        x, y = r[:, 0], r[:, 1]
-        x1, y1 = _ahead(x, 1), _ahead(y, 1)
-        cr = x * y1 - x1 * y
-        a = 0.5 * cr.sum()
-        if abs(a) < 1e-12:
-            return 0.0, r.mean(axis=0)
-        return a, np.array([((x + x1) * cr).sum(), ((y + y1) * cr).sum()]) / (6 * a)
-
-    a0, c0 = ring_ac(outline)
-    a0 = abs(a0)
-    tot, mom = a0, a0 * c0
-    for hring in holes:
-        ah, ch = ring_ac(hring)
-        ah = abs(ah)
-        tot -= ah
-        mom = mom - ah * ch
-    if tot <= 0:
-        return a0, c0
-    return float(tot), mom / tot
+def _ring_area_centroid(ring: np.ndarray) -> tuple[float, np.ndarray]:
+    """Signed area (positive counter-clockwise in (u, v) axes) and centroid (2,) of a ring (n, 2)."""
+    x, y = ring[:, 0], ring[:, 1]
+    x1, y1 = _ahead(x, 1), _ahead(y, 1)
+    cr = x * y1 - x1 * y
+    a = 0.5 * float(cr.sum())
+    if abs(a) < 1e-12:
+        return 0.0, ring.mean(axis=0)
+    return a, np.array([((x + x1) * cr).sum(), ((y + y1) * cr).sum()]) / (6 * a)
 
 
 def _as_bgr(img: np.ndarray) -> np.ndarray:

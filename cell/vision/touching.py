@@ -19,6 +19,10 @@ MIN_LOBE_RADIUS_PX = 6.0  # full-resolution px: teeth and tabs are not lobes
 COVER_MIN = 0.9
 MAX_SPLIT_DEPTH = 6
 MIN_PIECE_HALF_WIDTH = 4.0  # detection px: a colour piece narrower than this is a wall, not a part
+# 8-bit Lab -> CIE Lab units, lightness counted half: a highlight on metal or a shaded face is the
+# same part, brighter
+LAB_U8_WEIGHT = np.array([0.5 * 100.0 / 255.0, 1.0, 1.0], np.float32)
+KMEANS_SAMPLES = 500  # pixels a colour split's k-means looks at (about; every n-th of the region)
 CONVEX_SOLIDITY = 0.97  # touching blobs leave notches: two tangent discs have a solidity of about 0.9
 
 
@@ -36,7 +40,7 @@ def split_necks(regions, p, min_area_det: float, bgr: np.ndarray | None = None
     ----------
     regions : list of (x0, y0, ndarray of shape (h, w) uint8 0/1)
         Each region alone in a box at (x0, y0) of the detection image (with a margin).
-    bgr : ndarray of shape (H, W, 3) float32, optional
+    bgr : ndarray of shape (H, W, 3) uint8, optional
         The detection image: colours for the colour split, brightness for the seams.
 
     Returns
@@ -57,10 +61,9 @@ def _region_pieces(sub, bgr, p, r_min: float, min_area_det: float) -> list[tuple
     """One region -> its parts as (bool mask in the region's box, merged flag)."""
     pieces = None
     if bgr is not None:
-        # (bgr holds whole DN 0..255 in float32: a float32 division gives the very values the float64 one
-        # rounded to float32 did, and no clip is needed)
-        lab_img = cv2.cvtColor(bgr / np.float32(255.0), cv2.COLOR_BGR2LAB)
-        pieces = split_by_colour(sub, lab_img, min_area_det, p.colour_split)
+        # 8-bit Lab (L x 255 / 100, a and b + 128): a third of the float conversion's time, and
+        # its rounding (under 1 unit) is far below the colour differences that split (30)
+        pieces = split_by_colour(sub, cv2.cvtColor(bgr, cv2.COLOR_BGR2LAB), min_area_det, p.colour_split)
     # each colour piece may still hold touching parts; each split lobe is looked at again
     work = [(sub, 0)] if pieces is None else [((pieces == c).view(np.uint8), 0)
                                               for c in range(1, int(pieces.max()) + 1)]
@@ -80,6 +83,9 @@ def _region_pieces(sub, bgr, p, r_min: float, min_area_det: float) -> list[tuple
 def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_delta_e: float):
     """Split a region into parts of clearly different colour that each own part of its outline.
 
+    `lab_img`: the region's box in OpenCV's 8-bit CIE Lab (uint8 (h, w, 3): L x 255 / 100, a + 128,
+    b + 128); `min_delta_e` in CIE Lab units.
+
     Two colour clusters (k-means in CIE Lab) count as two touching parts only when both form a
     large connected piece that reaches the region's outline: pills in a blister pack or a
     highlight on metal lie inside their part and do not split it. Returns a label image
@@ -88,19 +94,22 @@ def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_d
     area = cv2.countNonZero(sub)
     if area < 2 * min_area:
         return None
-    # lightness counts half: a highlight on metal or a shaded face is the same part, brighter
-    weight = np.array([0.5, 1.0, 1.0], np.float32)
     _, std = cv2.meanStdDev(lab_img, mask=sub)
-    if float((std.ravel() * weight).max()) < 0.25 * min_delta_e:
+    if float((std.ravel() * LAB_U8_WEIGHT).max()) < 0.25 * min_delta_e:
         return None  # one colour: nothing to split
     mask = sub.view(bool)
-    px = pick(lab_img, mask) * weight  # (float32 already)
+    px = pick(lab_img, mask) * LAB_U8_WEIGHT  # (float32; the offsets of a and b do not matter to k-means)
+    # the two colours from an even sample of the pixels (k-means' time grows with their number),
+    # then every pixel to the nearer of them
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5)
-    _, lab, centres = cv2.kmeans(px, 2, None, crit, 1, cv2.KMEANS_PP_CENTERS)
-    if np.linalg.norm(centres[0] - centres[1]) < min_delta_e:
+    _, _, centres = cv2.kmeans(px[::max(1, len(px) // KMEANS_SAMPLES)], 2, None, crit, 1, cv2.KMEANS_PP_CENTERS)
+    c0, c1 = centres.astype(np.float64)
+    if np.linalg.norm(c0 - c1) < min_delta_e:
         return None
+    # |x - c1| < |x - c0| exactly when x . (c1 - c0) > (|c1|^2 - |c0|^2) / 2
+    nearer_c1 = px @ (c1 - c0).astype(np.float32) > np.float32(0.5 * (c1 @ c1 - c0 @ c0))
     cl = np.zeros(sub.shape, np.uint8)
-    cl[mask] = lab.ravel() + 1
+    cl[mask] = nearer_c1.view(np.uint8) + 1
     outline = mask & (cv2.erode(sub, np.ones((3, 3), np.uint8)) == 0)
     n_out = int(outline.sum())
     seeds = np.zeros(sub.shape, np.int32)

@@ -359,8 +359,9 @@ class BandEdges:
     def narrowed(self, rows: np.ndarray, half_widths: Sequence[float]) -> BandEdges:
         """The bands `rows` only, for each of half_widths (each <= this one's) across: the pieces
         clipped again. Bands (len(half_widths) * len(rows),): `rows` at the first width, then at the next."""
-        if max(half_widths) > self.half_width:
-            raise ValueError(f"a band {max(half_widths)} mm wide cannot be cut from one {self.half_width} mm wide")
+        if max(half_widths) > np.min(self.half_width):
+            raise ValueError(f"a band {max(half_widths)} mm wide cannot be cut from one {np.min(self.half_width)} mm "
+                             "wide")
         pos = np.full(len(self.cx), -1)
         pos[rows] = np.arange(len(rows))
         keep = np.flatnonzero(pos.take(self.bi) >= 0)

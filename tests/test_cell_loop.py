@@ -449,6 +449,24 @@ def test_displaced_parts_never_move_into_each_other(name):
                 assert p.polygon.intersection(q.polygon).area <= designed + 0.5, (seed, p.id, q.id)
 
 
+def test_displaced_parts_lie_at_most_shift_mm_from_their_design():
+    """"Up to this far" is a distance: a part on its own moves its centre of area by at most
+    shift_mm in any direction (it once moved up to shift_mm in x and in y: 1.4 x as far)."""
+    from cell.runtime.session import displaced
+    from cell.scene import load_assembly
+
+    asm = load_assembly(DEFAULT.parent / "drive_unit.json")
+    nominal = {p.id: p for p in asm.parts}
+    free = [p.id for p in asm.parts if not any(p.lies_on(q) for q in asm.parts if q is not p)]
+    moved = []
+    for seed in range(30):
+        for p in displaced(asm, 10.0, seed):
+            if p.id in free:
+                a, b = p.polygon.centroid, nominal[p.id].polygon.centroid
+                moved.append(np.hypot(a.x - b.x, a.y - b.y))
+    assert max(moved) <= 10.0 + 1e-9 and max(moved) > 8.0  # the whole disc is used, never beyond it
+
+
 def test_parts_lying_8_mm_off_their_design_are_all_found_and_removed():
     # drive_unit has 2-6 mm gaps: before the world kept parts apart, this seed put the pulley into the
     # gearbox and the run stopped

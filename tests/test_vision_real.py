@@ -96,3 +96,25 @@ def test_festo_frame_with_its_calibration(tmp_path, capsys):
     from shapely.geometry import Polygon
 
     assert Polygon(p["outline_mm"]).area / p["area_px"] == pytest.approx(0.56 ** 2, rel=0.1)
+
+
+def test_parts_crowding_the_middle_of_the_view_are_not_taken_for_the_tray():
+    """pills.png with a third blister pack pasted over the middle (overlapping the left one): the
+    packs now fill most of the centre, which the tray colour is looked for with more weight. The
+    white packs made the tray and the cloth looked like their shadow: no parts at all."""
+    import cv2
+
+    img = read_image(PILLS / "pills.png")
+    left = min((s for s in segment_frame(img) if s.area_px > 20000), key=lambda s: s.centroid_px[0])
+    inside = np.zeros(img.shape[:2], np.uint8)
+    cv2.fillPoly(inside, [np.round(left.outline_px - 0.5).astype(np.int32)], 1)
+    ys, xs = np.nonzero(inside)
+    crowded = img.copy()
+    crowded[ys + 60, xs + 128] = img[ys, xs]
+    segs = [s for s in segment_frame(crowded) if s.area_px > 5000]
+    assert len(segs) == 2 and not any(s.cut_off for s in segs)
+    union = np.zeros_like(inside)
+    union[ys + 60, xs + 128] = 1
+    union |= inside
+    # the right pack on its own, and the left with the pasted one over it as one region of their union
+    assert sorted(s.area_px for s in segs)[1] == pytest.approx(union.sum(), rel=0.03)

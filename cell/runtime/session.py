@@ -116,7 +116,7 @@ def _layout(assembly: Assembly, shift_mm: float, rng: np.random.Generator, tries
             about = p.polygon.centroid.coords[0]
             best = (_overlap_excess(p, placed, nominal), (0.0, 0.0, 0.0, about))
             for _ in range(tries):
-                move = (*rng.uniform(-shift_mm, shift_mm, 2), rng.uniform(-2 * shift_mm, 2 * shift_mm), about)
+                move = (*_within(shift_mm, rng), rng.uniform(-2 * shift_mm, 2 * shift_mm), about)
                 excess = _overlap_excess(p.moved(*move[:3], about=about), placed, nominal)
                 if excess <= OVERLAP_SLACK_MM2:
                     best = (excess, move)
@@ -126,6 +126,13 @@ def _layout(assembly: Assembly, shift_mm: float, rng: np.random.Generator, tries
             total += best[0]
         placed.append(p.moved(*moves[p.id][:3], about=moves[p.id][3]))
     return [p.moved(*moves[p.id][:3], about=moves[p.id][3]) for p in assembly.parts], total
+
+
+def _within(radius_mm: float, rng: np.random.Generator) -> tuple[float, float]:
+    """A shift (dx, dy) drawn evenly over the disc of `radius_mm`: "up to this far" is a distance
+    (a square of that half-side reaches 1.4 times as far along its diagonals)."""
+    r, turn = np.sqrt(rng.uniform()) * radius_mm, rng.uniform(0.0, 2.0 * np.pi)
+    return float(r * np.cos(turn)), float(r * np.sin(turn))
 
 
 def _overlap_excess(part: Part, placed: list[Part], nominal: dict[str, Part]) -> float:

@@ -22,6 +22,7 @@ FIT_ITERATIONS = 4
 MODE_BIN = 16  # DN per histogram bin when looking for the tray's colour
 CENTRE_SIGMA = 0.4  # of the half-size: where the tray's colour is looked for
 MODE_RADIUS = 40.0  # DN around the modal colour taken as the first inliers
+TRAY_MIN_SHARE = 0.5  # a field that explains less of the view than this is checked against the other candidate
 
 
 @lru_cache(maxsize=8)
@@ -126,21 +127,43 @@ def fit_tray_field(image_bgr: np.ndarray, tray: str = "auto", small_bgr: np.ndar
         weights = weights * (grey.ravel() > otsu)
     elif tray != "auto":
         raise ValueError(f"tray must be 'auto' or 'bright', got {tray!r}")
-    hist = np.bincount((q[:, 0] * nb + q[:, 1]) * nb + q[:, 2], weights=weights,
-                       minlength=nb ** 3).reshape(nb, nb, nb)
+    codes = (q[:, 0] * nb + q[:, 1]) * nb + q[:, 2]
+    a = _design(sh, sw, FIT_DEGREE)[sel]
+    coef, sigma, res = _fit_around(_modal_bgr(codes, weights, nb), a, small)
+    if tray == "auto" and (res < max(3.0 * sigma, 6.0)).mean() < TRAY_MIN_SHARE:
+        # the fit explains less than half the view: large or many parts outnumber the tray near
+        # the centre. The other candidate: the commonest colour of the whole view away from the
+        # first one; the one whose field explains more of the view (at the smoother one's spread)
+        # is the tray
+        away = (res > MODE_RADIUS).astype(np.float64)  # off the first field
+        if away.sum() >= 0.1 * len(small):
+            coef2, sigma2, res2 = _fit_around(_modal_bgr(codes, away, nb), a, small)
+            limit = max(3.0 * min(sigma, sigma2), 6.0)
+            if (res2 < limit).sum() > (res < limit).sum():
+                coef, sigma = coef2, sigma2
+    return (_design(sh, sw, FIT_DEGREE) @ coef).reshape(sh, sw, 3).astype(np.float32), sigma
+
+
+def _modal_bgr(codes: np.ndarray, weights: np.ndarray, nb: int) -> np.ndarray:
+    """The centre (b, g, r) of the most frequent colour bin, each bin counted with its neighbours."""
+    hist = np.bincount(codes, weights=weights, minlength=nb ** 3).reshape(nb, nb, nb)
     # a lit tray spreads over neighbouring bins (gradients): count each bin with its neighbours
     hist = _box3(_box3(_box3(hist, 0), 1), 2)
     mode = int(np.argmax(hist))
-    mode_bgr = (np.array([mode // (nb * nb), (mode // nb) % nb, mode % nb]) + 0.5) * MODE_BIN
+    return (np.array([mode // (nb * nb), (mode // nb) % nb, mode % nb]) + 0.5) * MODE_BIN
+
+
+def _fit_around(mode_bgr: np.ndarray, a: np.ndarray, small: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """The smooth field (coefficients (nc, 3)) fitted robustly from the samples near `mode_bgr`,
+    its noise sigma (DN) and every sample's residual (n,)."""
     inl = _row_norms(small - mode_bgr) < MODE_RADIUS
     if inl.sum() < 0.1 * len(small):
         inl[:] = True
-    a = _design(sh, sw, FIT_DEGREE)[sel]
     nc = a.shape[1]
     ay = np.hstack([a, small])  # design and data side by side: one gather and one product a round
     ridge = 1e-9 * np.eye(nc)
     sigma = 1.0
-    coef = None
+    coef = res = None
     for _ in range(FIT_ITERATIONS):
         ayi = np.compress(inl, ay, axis=0)  # (ay[inl], four times faster)
         normal = ayi.T @ ayi  # [[A'A, A'y], [y'A, y'y]]
@@ -153,7 +176,7 @@ def fit_tray_field(image_bgr: np.ndarray, tray: str = "auto", small_bgr: np.ndar
         if np.array_equal(new, inl):
             break  # the same inliers again: the remaining rounds would repeat this fit
         inl = new
-    return (_design(sh, sw, FIT_DEGREE) @ coef).reshape(sh, sw, 3).astype(np.float32), sigma
+    return coef, sigma, res
 
 
 def _box3(a: np.ndarray, axis: int) -> np.ndarray:

@@ -3,6 +3,7 @@ ones would, and what survives is really reachable and collision-free."""
 
 import numpy as np
 import pytest
+import shapely
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import Point
@@ -10,10 +11,17 @@ from shapely.geometry import Point
 from cell.cellconfig import default_cell
 from cell.errors import NoFeasibleGrasp
 from cell.examples import GraspExample
-from cell.grasp import shapes
+from cell.grasp import cascade, shapes
 from cell.grasp.candidates import candidate_points
 from cell.grasp.cascade import STAGES, Context, Pairs, joints_of, run_brute_force, run_cascade
-from cell.grasp.footprints import finger_footprints, palm_footprint, swept_finger_footprints
+from cell.grasp.footprints import (
+    axis_rect_bounds,
+    axis_rects,
+    finger_footprints,
+    palm_footprint,
+    rect_polygons,
+    swept_finger_footprints,
+)
 from cell.grasp.height import grasp_z_mm
 from cell.grasp.params import SynthesisParams
 from cell.grasp.synthesis import GraspPlanner
@@ -235,3 +243,157 @@ def test_random_scenes_survivors_are_collision_free_and_match_the_brute_force(w,
             assert fp.intersection(target.polygon).area < 0.6 * CELL.gripper.pad_width_mm
         assert not any(palm_footprint(g, CELL).intersects(o) for o in palm_tall)
         assert len(joints_of(P, k)) > 0  # reachable: the solutions exist when asked for
+
+
+# --- fast paths give what the plain computation gives, bit for bit --------------------------
+
+def _obstacle_scene():
+    box = shapes.rectangle("box", 50, 30, (300, 100), 30)
+    others = [shapes.rectangle("tall", 40, 40, (300, 150), 0, z_top_mm=40),
+              shapes.rectangle("wall", 20, 120, (340, 100), 0, z_top_mm=80)]
+    return box, others
+
+
+def test_row_norms_and_dot_products_match_numpy_bit_for_bit():
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(5000, 2)) * np.exp(rng.normal(size=(5000, 2)) * 4)
+    b = rng.normal(size=(5000, 2))
+    assert np.array_equal(cascade._norm2(a), np.linalg.norm(a, axis=1))
+    assert np.array_equal(cascade._dot2(a, b), (a * b).sum(1))
+    assert np.array_equal(-cascade._dot2(a, b), (a * -b).sum(1))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.tuples(st.floats(-50, 50), st.floats(-50, 50), st.floats(0.01, 1), st.floats(-3, 3),
+                          st.floats(0, 40)), min_size=1, max_size=20),
+       st.floats(0.05, 30))
+def test_rectangle_bounds_are_the_corners_extremes(rects, half_width):
+    r = np.array(rects)
+    angle = r[:, 3]
+    u = np.column_stack([np.cos(angle), np.sin(angle)])
+    u[::3] = np.round(u[::3])  # axis-aligned ones too
+    t0, t1 = r[:, 4] - 20, r[:, 4] + r[:, 2] * 10
+    corners = axis_rects(r[:, :2], u, t0, t1, half_width)
+    lox, loy, hix, hiy = axis_rect_bounds(r[:, 0], r[:, 1], u[:, 0], u[:, 1], t0, t1, half_width)
+    assert np.array_equal(np.column_stack([lox, loy]), corners.min(axis=1))
+    assert np.array_equal(np.column_stack([hix, hiy]), corners.max(axis=1))
+
+
+def _plain_liang_barsky(tA, dt, lA, dl, t_min, t_max, half_width):
+    s0, s1 = np.zeros(len(tA)), np.ones(len(tA))
+    inside = np.ones(len(tA), bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for p, q in ((-dt, tA - t_min), (dt, t_max - tA), (-dl, lA + half_width), (dl, half_width - lA)):
+            r = q / p
+            s0 = np.where(p < 0, np.maximum(s0, r), s0)
+            s1 = np.where(p > 0, np.minimum(s1, r), s1)
+            inside &= ~((p == 0) & (q < 0))
+    return s0, s1, inside & (s0 <= s1)
+
+
+@pytest.mark.parametrize("n", [300, cascade.LB_STACKED_MAX + 1])
+def test_liang_barsky_matches_the_plain_clip(n):
+    rng = np.random.default_rng(n)
+    tA, dt, lA, dl = np.round(rng.normal(size=(4, n)) * 10, 1)  # rounded: edges on the band's sides and ends
+    dt[::7] = 0
+    dl[::5] = 0
+    t_min, t_max = np.round(rng.normal(size=n), 1), np.round(rng.normal(size=n), 1) + 10
+    fast = cascade._liang_barsky(tA, dt, lA, dl, t_min, t_max, 7.0)
+    plain = _plain_liang_barsky(tA, dt, lA, dl, t_min, t_max, 7.0)
+    assert np.array_equal(fast[2], plain[2]) and fast[2].any() and not fast[2].all()
+    assert np.array_equal(fast[0][fast[2]], plain[0][plain[2]]) and np.array_equal(fast[1][fast[2]], plain[1][plain[2]])
+
+
+def test_antipodal_verdicts_match_the_plain_formula():
+    P, _, ctx = cascade_for(shapes.gear("g", 30, 12, 4))
+    every = np.arange(len(P))
+    w = (P.pi - P.pj) / np.maximum(P.d, 1e-12)[:, None]
+    c = np.cos(np.radians(ctx.params.max_normal_angle_deg))
+    lateral = 0.5 * np.abs(w[:, 0] * P.u[:, 1] - w[:, 1] * P.u[:, 0]) * P.d
+    plain = (((P.ni * w).sum(1) >= c - 1e-9) & ((P.nj * -w).sum(1) >= c - 1e-9)
+             & (lateral <= ctx.params.contact_tol_mm + cascade.EPS_MM))
+    fast = cascade.stage_antipodal(ctx, P, every)
+    assert plain.any() and not plain.all() and np.array_equal(fast, plain)
+
+
+def _contacts(ctx, P, idx):
+    fresh = Pairs(P.ij, P.pi, P.pj, P.ni, P.nj, P.d, P.u, P.m, P.t, P.ci * np.nan, P.cj * np.nan,
+                  P.center * np.nan, P.h * np.nan, {}, P.si)
+    ok = cascade.stage_contacts(ctx, fresh, idx)
+    return ok, fresh.ci, fresh.cj, fresh.h
+
+
+@pytest.mark.parametrize("slanted", [True, False])
+def test_contacts_are_the_same_with_the_box_broadcast_or_the_strtree(monkeypatch, slanted):
+    params = SynthesisParams(slanted_faces=slanted)
+    for target, obstacles in (_obstacle_scene(), (shapes.gear("g", 30, 12, 4), [])):
+        op, free = candidate_points(target, obstacles, params)
+        idx = np.flatnonzero(free)
+        vp = op.subset(idx)
+        ctx = Context.build(target, obstacles, CELL, params, 1.0, op.points, op.ring)
+        P = Pairs.of(vp.points, vp.normals, idx)
+        alive = np.flatnonzero(cascade.stage_antipodal(ctx, P, np.arange(len(P))))
+        monkeypatch.setattr(cascade, "OVERLAP_BROADCAST_MAX", 10**12)
+        monkeypatch.setattr(cascade, "OVERLAP_BROADCAST_EDGES", 10**12)
+        broadcast = _contacts(ctx, P, alive)
+        monkeypatch.setattr(cascade, "OVERLAP_BROADCAST_MAX", 0)
+        monkeypatch.setattr(cascade, "OVERLAP_BROADCAST_EDGES", 0)
+        tree = _contacts(ctx, P, alive)
+        assert broadcast[0].any()
+        for a, b in zip(broadcast, tree, strict=True):
+            assert np.array_equal(a, b, equal_nan=True)
+
+
+def test_narrowed_bands_have_the_first_touch_of_bands_clipped_at_that_width():
+    target, obstacles = _obstacle_scene()
+    P, cr, ctx = cascade_for(target, obstacles)
+    k = np.flatnonzero(cr.rejected_by >= STAGES.index("contacts"))  # pairs that reached the contacts stage
+    k = np.concatenate([k, np.flatnonzero(cr.rejected_by == STAGES.index("precheck"))[:50]])
+    c, u, t = np.concatenate([P.m[k], P.m[k]]), np.concatenate([P.u[k], -P.u[k]]), np.concatenate([P.t[k], P.t[k]])
+    t_min, t_max = t - 2, t + 15
+
+    def clip(hw):
+        return cascade.BandEdges.clip(ctx, c[:, 0], c[:, 1], u[:, 0], u[:, 1], t_min, t_max, hw)
+
+    rows = np.arange(0, len(c), 3)
+    T_wide, _ = clip(7.0).narrowed(rows, (6.0, 0.05)).first_touch(ctx, touch=False)
+    T6, _ = clip(6.0).first_touch(ctx, touch=False)
+    T005, _ = clip(0.05).first_touch(ctx, touch=False)
+    assert np.isfinite(T6[rows]).any()
+    assert np.array_equal(T_wide, np.concatenate([T6[rows], T005[rows]]))
+    with pytest.raises(ValueError):
+        clip(6.0).narrowed(rows, (7.0,))
+
+
+def test_rectangle_corners_and_polygons_are_the_plain_formula():
+    rng = np.random.default_rng(3)
+    c = rng.normal(size=(50, 2)) * 100
+    a = rng.uniform(-4, 4, 50)
+    u = np.column_stack([np.cos(a), np.sin(a)])
+    t = rng.normal(size=50)
+    corners = axis_rects(c, u, t, t + 15, 6.0)
+    v = np.stack([-u[:, 1], u[:, 0]], -1)
+    for k, (tk, w) in enumerate(((t, -6.0), (t + 15, -6.0), (t + 15, 6.0), (t, 6.0))):
+        assert np.array_equal(corners[:, k], c + u * tk[:, None] + v * w)
+    polys = rect_polygons(corners)
+    assert [len(p.exterior.coords) for p in polys] == [5] * 50
+    assert np.array_equal(shapely.get_coordinates(polys).reshape(50, 5, 2)[:, :4], corners)
+    assert np.allclose(shapely.area(polys), 15 * 12)
+
+
+def test_footprints_tested_against_nearby_obstacles_only_get_every_verdict_right():
+    # two obstacles (one a union of two overlapping squares) and rectangles all around them, axis-aligned
+    # ones flush against their sides (touching counts as a collision)
+    obstacles = shapely.union_all([shapely.box(0, 0, 10, 10), shapely.box(5, 5, 20, 12), shapely.box(40, 0, 50, 5)])
+    shapely.prepare(obstacles)
+    boxes = shapely.bounds(shapely.get_parts(obstacles))
+    rng = np.random.default_rng(5)
+    c = np.vstack([rng.uniform(-30, 80, size=(300, 2)), [[-5, 5], [25, 8], [45, 10], [45, 10.5]]])
+    a = np.concatenate([rng.uniform(-3.2, 3.2, 300), [0, 0, np.pi / 2, np.pi / 2]])
+    u = np.column_stack([np.cos(a), np.sin(a)])
+    u[-4:] = np.round(u[-4:])
+    t0, t1, hw = -5.0, 5.0, 5.5
+    fast = cascade._rects_hitting(obstacles, boxes, c[:, 0], c[:, 1], u[:, 0], u[:, 1], t0, t1, hw)
+    plain = shapely.intersects(rect_polygons(axis_rects(c, u, t0, t1, hw)), obstacles)
+    assert np.array_equal(fast, plain) and 20 < plain.sum() < 280
+    assert plain[-4:].tolist() == [True, True, True, False]  # flush at x = 0, x = 20 and y = 5; 0.5 mm clear

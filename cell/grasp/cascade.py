@@ -35,7 +35,7 @@ import numpy as np
 import shapely
 
 from cell.cellconfig import Cell
-from cell.grasp.footprints import axis_rects, rect_polygons
+from cell.grasp.footprints import axis_rect_bounds, axis_rects, rect_polygons
 from cell.grasp.params import SynthesisParams
 from cell.kinematics import Joints, inverse, normalize_axis_deg, reachable_mask
 from cell.scene import Part
@@ -44,6 +44,11 @@ STAGES = ("stroke", "reach", "antipodal", "precheck", "contacts", "ik", "fingers
 EXACT_STAGES = ("contacts", "ik", "fingers_obstacles", "palm")
 PAD_COMPLIANCE_MM = 0.5  # material this close to the first-touch line touches the pad too
 CHEAP_MARGIN_MM = 2.0
+# a broadcast comparison of bounding boxes beats the STRtree's query for targets with up to this many
+# edges (measured: 2x faster for 4-72 edges at any number of bands), or up to this many (band, edge) pairs
+OVERLAP_BROADCAST_EDGES = 100
+OVERLAP_BROADCAST_MAX = 20000
+LB_STACKED_MAX = 5000  # segments up to which clipping to the four boundaries at once is faster
 # Comparisons against a tolerance allow this much float noise, so that the verdict on a pair
 # does not depend on where the part lies (mid-step samples on parallel faces sit exactly
 # contact_tol apart across the axis).
@@ -69,6 +74,18 @@ class Context:
     samples: np.ndarray | None = None  # (N, 2) the target's outline samples, ring after ring
     sample_ring_first: np.ndarray | None = None  # (N,) index of the first sample of each sample's ring
     sample_ring_count: np.ndarray | None = None  # (N,) number of samples on that ring
+    edge_ax: np.ndarray = None  # (E,) the edges' start, direction (end - start) and bounding boxes, by component
+    edge_ay: np.ndarray = None
+    edge_dx: np.ndarray = None
+    edge_dy: np.ndarray = None
+    edge_lox: np.ndarray = None
+    edge_loy: np.ndarray = None
+    edge_hix: np.ndarray = None
+    edge_hiy: np.ndarray = None
+    finger_boxes: np.ndarray | None = None  # (n, 4) bounding boxes of the finger obstacles' parts
+    palm_boxes: np.ndarray | None = None  # (n, 4) the same for the palm obstacles
+    neighbour_x: np.ndarray | None = None  # (N, 2K) the samples on the same ring within K steps of each sample
+    neighbour_y: np.ndarray | None = None
 
     @classmethod
     def build(cls, target: Part, obstacles, cell: Cell, params: SynthesisParams, grasp_z_mm: float,
@@ -96,8 +113,35 @@ class Context:
             starts = np.searchsorted(ring, np.arange(ring.max() + 1))
             counts = np.bincount(ring)
             first, count = starts[ring], counts[ring]
-        return cls(target, cell, params, grasp_z_mm, tg, union(tall), union(palm), [o.id for o in tall],
-                   a, b, tree, samples, first, count)
+        nx = ny = None
+        if samples is not None:  # the samples next to each sample on its ring, for the pre-check
+            samples = np.asarray(samples, float)
+            offs = np.array(_neighbour_offsets(cell, params))
+            near = first[:, None] + (np.arange(len(samples))[:, None] - first[:, None] + offs[None, :]) % count[:, None]
+            nx, ny = samples[:, 0].take(near), samples[:, 1].take(near)
+        fo, po = union(tall), union(palm)
+        return cls(target, cell, params, grasp_z_mm, tg, fo, po, [o.id for o in tall],
+                   a, b, tree, samples, first, count, *_edge_columns(a, b), _part_boxes(fo),
+                   _part_boxes(po), nx, ny)
+
+
+def _part_boxes(geom) -> np.ndarray | None:
+    """(n, 4) bounding boxes (x0, y0, x1, y1) of the parts of a (multi)polygon; None for None."""
+    return None if geom is None else shapely.bounds(shapely.get_parts(geom))
+
+
+def _neighbour_offsets(cell: Cell, params: SynthesisParams) -> list[int]:
+    """Steps along the outline, -K..-1, 1..K, that reach past a pad band's half width (contact_tol included)."""
+    K = math.ceil((cell.gripper.pad_width_mm / 2 + params.contact_tol_mm) / params.step_mm) + 1
+    return [*range(-K, 0), *range(1, K + 1)]
+
+
+def _edge_columns(a: np.ndarray, b: np.ndarray) -> list[np.ndarray]:
+    """Edges from a to b (E, 2): start x, y, direction x, y, bounding box lo x, y, hi x, y, each (E,)."""
+    d = b - a
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    return [np.ascontiguousarray(c) for c in (a[:, 0], a[:, 1], d[:, 0], d[:, 1], lo[:, 0], lo[:, 1], hi[:, 0],
+                                              hi[:, 1])]
 
 
 @dataclass
@@ -126,6 +170,12 @@ class Pairs:
     ik: tuple | None = None  # (grasp z, scara) once the ik stage ran: joints_of solves from it
     si: np.ndarray | None = None  # (s, 2) outline-sample index of p_i and p_j
 
+    w: np.ndarray | None = None  # (s, 2) p_i - p_j, the stages reuse it
+
+    def __post_init__(self):
+        if self.w is None:
+            self.w = self.pi - self.pj
+
     def __len__(self) -> int:
         return len(self.ij)
 
@@ -134,67 +184,102 @@ class Pairs:
         """sample_index (z',): each point's index among the target's outline samples (enables the
         pre-check's look at the outline next to each point)."""
         i, j = np.triu_indices(len(points), k=1)
-        pi, pj, ni, nj = points[i], points[j], normals[i], normals[j]
+        points, normals = np.asarray(points, float), np.asarray(normals, float)
+        pi, pj, ni, nj = points.take(i, 0), points.take(j, 0), normals.take(i, 0), normals.take(j, 0)
         w = pi - pj
-        d = np.linalg.norm(w, axis=1)
+        d = _norm2(w)
         u = ni - nj
-        un = np.linalg.norm(u, axis=1)
+        un = _norm2(u)
         degenerate = un < 1e-9
-        u[degenerate] = w[degenerate]
-        u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-12)
+        if degenerate.any():
+            u[degenerate] = w[degenerate]
+            un = _norm2(u)
+        u /= np.maximum(un, 1e-12)[:, None]
         m = 0.5 * (pi + pj)
-        t = 0.5 * (w * u).sum(1)
+        t = 0.5 * (w[:, 0] * u[:, 0] + w[:, 1] * u[:, 1])
         nan2 = np.full((len(i), 2), np.nan)
         si = None if sample_index is None else np.column_stack([sample_index[i], sample_index[j]])
         return cls(np.column_stack([i, j]), pi, pj, ni, nj, d, u, m, t, nan2.copy(), nan2.copy(), nan2.copy(),
-                   np.full(len(i), np.nan), si=si)
+                   np.full(len(i), np.nan), si=si, w=w)
 
     def axis_deg(self, k: int) -> float:
         return normalize_axis_deg(math.degrees(math.atan2(self.u[k, 1], self.u[k, 0])))
 
 
+def _norm2(a: np.ndarray) -> np.ndarray:
+    """Row lengths of a (k, 2): np.linalg.norm(a, axis=1), bit for bit, without its reduction's cost."""
+    return np.sqrt(a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1])
+
+
+def _dot2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row dot products of two (k, 2): (a * b).sum(1), bit for bit (a sum over an axis of length 2 costs
+    ten times the two products and the addition)."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]
+
+
 # --- cheap stages: vectorised over the pairs idx -------------------------------------------
+# Rows are gathered with take (numpy's fancy indexing of (k, 2) arrays costs several times more);
+# when idx holds most pairs, a stage looks at every pair (views, no gathering) and picks idx's verdicts.
+
+def _dense(P: Pairs, idx) -> bool:
+    return 2 * len(idx) > len(P)
+
 
 def stage_stroke(ctx: Context, P: Pairs, idx) -> np.ndarray:
     g = ctx.cell.gripper
-    d = P.d[idx]
-    return (d >= g.opening_mm[0] - EPS_MM) & (d + 2 * g.approach_clearance_mm <= g.opening_mm[1] + EPS_MM)
+    dense = _dense(P, idx)
+    d = P.d if dense else P.d.take(idx)
+    ok = (d >= g.opening_mm[0] - EPS_MM) & (d + 2 * g.approach_clearance_mm <= g.opening_mm[1] + EPS_MM)
+    return ok.take(idx) if dense else ok
 
 
 def stage_reach(ctx: Context, P: Pairs, idx) -> np.ndarray:
-    m = P.m[idx]
+    dense = _dense(P, idx)
+    m = P.m if dense else P.m.take(idx, 0)
+    x, y = m[:, 0], m[:, 1]
     rmin, rmax = ctx.cell.scara.reach_mm
-    r = np.linalg.norm(m, axis=1)
+    r = np.sqrt(x * x + y * y)
     ws, e = ctx.cell.workspace, CHEAP_MARGIN_MM
-    return ((r >= rmin - e) & (r <= rmax + e) & (m[:, 0] >= ws.x_mm[0] - e) & (m[:, 0] <= ws.x_mm[1] + e)
-            & (m[:, 1] >= ws.y_mm[0] - e) & (m[:, 1] <= ws.y_mm[1] + e))
+    ok = ((r >= rmin - e) & (r <= rmax + e) & (x >= ws.x_mm[0] - e) & (x <= ws.x_mm[1] + e)
+          & (y >= ws.y_mm[0] - e) & (y <= ws.y_mm[1] + e))
+    return ok.take(idx) if dense else ok
 
 
 def stage_antipodal(ctx: Context, P: Pairs, idx) -> np.ndarray:
-    w = (P.pi[idx] - P.pj[idx]) / np.maximum(P.d[idx], 1e-12)[:, None]
     c = math.cos(math.radians(ctx.params.max_normal_angle_deg))
-    u = P.u[idx]
-    lateral = 0.5 * np.abs(w[:, 0] * u[:, 1] - w[:, 1] * u[:, 0]) * P.d[idx]
-    return (((P.ni[idx] * w).sum(1) >= c - 1e-9) & ((P.nj[idx] * -w).sum(1) >= c - 1e-9)
-            & (lateral <= ctx.params.contact_tol_mm + EPS_MM))
+    dense = _dense(P, idx)
+    d = P.d if dense else P.d.take(idx)
+    w = (P.w if dense else P.w.take(idx, 0)) / np.maximum(d, 1e-12)[:, None]  # unit, p_j towards p_i
+    ok = _dot2(P.ni if dense else P.ni.take(idx, 0), w) >= c - 1e-9
+    # the other two conditions only where the first holds (most pairs fail it): same verdicts
+    k = np.flatnonzero(ok)
+    w, d = w.take(k, 0), d.take(k)
+    sub = k if dense else idx.take(k)
+    u = P.u.take(sub, 0)
+    lateral = 0.5 * np.abs(w[:, 0] * u[:, 1] - w[:, 1] * u[:, 0]) * d
+    # (n_j . -w) >= c, written as -(n_j . w) >= c: negation is exact, the verdict the same
+    ok[k] = (-_dot2(P.nj.take(sub, 0), w) >= c - 1e-9) & (lateral <= ctx.params.contact_tol_mm + EPS_MM)
+    return ok.take(idx) if dense else ok
 
 
 def stage_precheck(ctx: Context, P: Pairs, idx) -> np.ndarray:
     """Conservative: a point that every exact footprint of this pair would cover lies inside
     material, or the outline next to a point juts out into its pad's band (docs/grasp.md)."""
     g = ctx.cell.gripper
-    m, u, t = P.m[idx], P.u[idx], P.t[idx]
+    m, u, t = P.m.take(idx, 0), P.u.take(idx, 0), P.t.take(idx)
     tol = ctx.params.contact_tol_mm
     reach = g.approach_clearance_mm + g.pad_thickness_mm
     offs = np.array([tol + 1.5, 0.5 * (tol + reach), reach - 1.5])
-    ok = np.ones(len(idx), bool)
-    for side in (1.0, -1.0):
-        q = m[:, None, :] + side * u[:, None, :] * (t[:, None] + offs[None, :])[..., None]  # (k, 3, 2)
-        x, y = q[..., 0].ravel(), q[..., 1].ravel()
-        hit = shapely.contains_xy(ctx.target_geom, x, y)
-        if ctx.finger_obstacles is not None:
-            hit |= shapely.contains_xy(ctx.finger_obstacles, x, y)
-        ok &= ~hit.reshape(len(idx), -1).any(1)
+    # both fingers' points in one shapely call: m + side * u * (t + off) is m + u * (side * (t + off)),
+    # exactly, as side is +-1
+    a = t[:, None] + offs[None, :]
+    a = np.concatenate([a, -a], axis=1)  # (k, 6)
+    x = (m[:, 0, None] + u[:, 0, None] * a).ravel()
+    y = (m[:, 1, None] + u[:, 1, None] * a).ravel()
+    hit = shapely.contains_xy(ctx.target_geom, x, y)
+    if ctx.finger_obstacles is not None:
+        hit |= shapely.contains_xy(ctx.finger_obstacles, x, y)
+    ok = ~hit.reshape(len(idx), -1).any(1)
     if ctx.palm_obstacles is not None:
         ok &= ~shapely.contains_xy(ctx.palm_obstacles, m[:, 0], m[:, 1])
     if ctx.samples is not None and P.si is not None:
@@ -208,37 +293,38 @@ def _outline_ahead(ctx: Context, P: Pairs, idx) -> np.ndarray:
     contact_tol: the pad would stop there first, so the `contacts` stage would reject the pair."""
     g, tol = ctx.cell.gripper, ctx.params.contact_tol_mm
     hw = g.pad_width_mm / 2 + tol
-    K = int(np.ceil(hw / ctx.params.step_mm)) + 1
-    offs = np.r_[np.arange(-K, 0), np.arange(1, K + 1)]
-    m, u, t = P.m[idx], P.u[idx], P.t[idx]
+    k = len(idx)
+    # both points at once: p_i's pad closes along -u from the +u side (side +1), p_j's from -u
+    s = P.si.take(idx, 0).T.ravel()  # (2k,) p_i's samples, then p_j's
+    m, u, t = P.m.take(idx, 0), P.u.take(idx, 0), P.t.take(idx)
+    mx, my, t = np.concatenate([m[:, 0], m[:, 0]]), np.concatenate([m[:, 1], m[:, 1]]), np.concatenate([t, t])
+    usx, usy = np.concatenate([u[:, 0], -u[:, 0]]), np.concatenate([u[:, 1], -u[:, 1]])
     t_max = t + g.approach_clearance_mm + g.pad_thickness_mm
-    hit = np.zeros(len(idx), bool)
-    for col, side in ((0, 1.0), (1, -1.0)):
-        s = P.si[idx, col]
-        first, count = ctx.sample_ring_first[s], ctx.sample_ring_count[s]
-        q = first[:, None] + (s[:, None] - first[:, None] + offs[None, :]) % count[:, None]  # (k, 2K)
-        d = ctx.samples[q] - m[:, None, :]
-        us = side * u
-        tq = (d * us[:, None, :]).sum(-1)
-        lq = d[..., 0] * -us[:, None, 1] + d[..., 1] * us[:, None, 0]
-        hit |= ((np.abs(lq) <= hw - EPS_MM) & (tq <= t_max[:, None] - EPS_MM)
-                & (tq > t[:, None] + tol + EPS_MM)).any(1)
-    return hit
+    dx, dy = ctx.neighbour_x.take(s, 0) - mx[:, None], ctx.neighbour_y.take(s, 0) - my[:, None]  # (2k, 2K)
+    tq = dx * usx[:, None] + dy * usy[:, None]
+    lq = dx * -usy[:, None] + dy * usx[:, None]
+    hit = ((np.abs(lq) <= hw - EPS_MM) & (tq <= t_max[:, None] - EPS_MM) & (tq > t[:, None] + tol + EPS_MM)).any(1)
+    return hit[:k] | hit[k:]
 
 
 # --- exact stages: shapely and IK on the survivors only -------------------------------------
 
 @dataclass
 class BandEdges:
-    """The target's edges clipped to bands along us (one Liang-Barsky pass): pieces (p,) of edges,
-    each the stretch s in [s0, s1] of edge A + s * D, in band coordinates (t along us from the
-    band's centre, l across). Narrower bands with the same t range reuse the pieces (`narrowed`)."""
+    """The target's edges clipped to bands along u (one Liang-Barsky pass): pieces (p,) of edges,
+    each the stretch s in [s0, s1] of edge A + s * D, in band coordinates (t along u from the
+    band's centre, l across). Narrower bands with the same t range reuse the pieces (`narrowed`).
+    Bands are columns (b,) of x and y components: the stages gather and combine them without the
+    cost of numpy's (b, 2) fancy indexing and axis sums."""
 
-    centers: np.ndarray  # (b, 2)
-    us: np.ndarray  # (b, 2)
-    vs: np.ndarray  # (b, 2) us turned by +90 degrees
+    cx: np.ndarray  # (b,) centre
+    cy: np.ndarray
+    ux: np.ndarray  # (b,) u, the direction along the band (unit)
+    uy: np.ndarray
+    vx: np.ndarray  # (b,) v: u turned by +90 degrees
+    vy: np.ndarray
     t_max: np.ndarray  # (b,)
-    half_width: float
+    half_width: float | np.ndarray  # one for all bands, or (b,)
     bi: np.ndarray  # (p,) band of each piece
     s0: np.ndarray
     s1: np.ndarray
@@ -246,83 +332,90 @@ class BandEdges:
     lA: np.ndarray
     dt: np.ndarray
     dl: np.ndarray
-    A: np.ndarray  # (p, 2) the edge's start and direction (end - start)
-    D: np.ndarray
 
     @classmethod
-    def clip(cls, ctx: Context, centers, us, t_min, t_max, half_width: float) -> BandEdges:
-        """Where pads closing along -us towards `centers` meet the target. Each band (b,) is the
-        rectangle from t_min to t_max along us from its centre, half_width across (t_min just
+    def clip(cls, ctx: Context, cx, cy, ux, uy, t_min, t_max, half_width: float) -> BandEdges:
+        """Where pads closing along -u towards the centres meet the target. Each band (b,) is the
+        rectangle from t_min to t_max along u from its centre, half_width across (t_min just
         inside the candidate point: material further in cannot be the first touch when the
         candidate itself is in the band). The target's material in it is bounded by the target's
         edges clipped to the band (Liang-Barsky over the (band, edge) pairs whose bounding boxes
-        an STRtree finds overlapping) and, when the band's far corners lie inside the target, by
-        its far side (`first_touch`)."""
-        vs = np.stack([-us[:, 1], us[:, 0]], -1)
-        corners = axis_rects(centers, us, t_min, t_max, half_width)
-        lo, hi = corners.min(axis=1), corners.max(axis=1)
-        bi, ei = ctx.edge_tree.query(shapely.box(lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1]))  # the clip below is exact
-        A, B = ctx.edge_a[ei], ctx.edge_b[ei]
-        D = B - A
-        c, u, v = centers[bi], us[bi], vs[bi]
-        AC = A - c
-        tA, lA = (AC * u).sum(1), (AC * v).sum(1)
-        dt, dl = (D * u).sum(1), (D * v).sum(1)
-        s0, s1, inside = _liang_barsky(tA, dt, lA, dl, t_min[bi], t_max[bi], half_width)
-        return cls(centers, us, vs, t_max, half_width, bi[inside], s0[inside], s1[inside], tA[inside], lA[inside],
-                   dt[inside], dl[inside], A[inside], D[inside])
+        overlap) and, when the band's far corners lie inside the target, by its far side
+        (`first_touch`)."""
+        vx, vy = -uy, ux
+        lox, loy, hix, hiy = axis_rect_bounds(cx, cy, ux, uy, t_min, t_max, half_width)
+        bi, ei = _overlapping_edges(ctx, lox, loy, hix, hiy)  # the clip below is exact
+        c_x, c_y, u_x, u_y = cx.take(bi), cy.take(bi), ux.take(bi), uy.take(bi)
+        v_x = -u_y
+        acx, acy = ctx.edge_ax.take(ei) - c_x, ctx.edge_ay.take(ei) - c_y
+        dx, dy = ctx.edge_dx.take(ei), ctx.edge_dy.take(ei)
+        tA, lA = acx * u_x + acy * u_y, acx * v_x + acy * u_x
+        dt, dl = dx * u_x + dy * u_y, dx * v_x + dy * u_x
+        s0, s1, inside = _liang_barsky(tA, dt, lA, dl, t_min.take(bi), t_max.take(bi), half_width)
+        k = np.flatnonzero(inside)
+        return cls(cx, cy, ux, uy, vx, vy, t_max, half_width, bi.take(k), s0.take(k), s1.take(k), tA.take(k),
+                   lA.take(k), dt.take(k), dl.take(k))
 
-    def narrowed(self, rows: np.ndarray, half_width: float) -> BandEdges:
-        """The bands `rows` only, half_width (<= this one's) across: the pieces clipped again."""
-        if half_width > self.half_width:
-            raise ValueError(f"a band {half_width} mm wide cannot be cut from one {self.half_width} mm wide")
-        pos = np.full(len(self.centers), -1)
+    def narrowed(self, rows: np.ndarray, half_widths: Sequence[float]) -> BandEdges:
+        """The bands `rows` only, for each of half_widths (each <= this one's) across: the pieces
+        clipped again. Bands (len(half_widths) * len(rows),): `rows` at the first width, then at the next."""
+        if max(half_widths) > np.min(self.half_width):
+            raise ValueError(f"a band {max(half_widths)} mm wide cannot be cut from one {np.min(self.half_width)} mm "
+                             "wide")
+        pos = np.full(len(self.cx), -1)
         pos[rows] = np.arange(len(rows))
-        keep = pos[self.bi] >= 0
-        bi = pos[self.bi[keep]]
-        tA, lA, dt, dl = self.tA[keep], self.lA[keep], self.dt[keep], self.dl[keep]
-        s0, s1 = self.s0[keep], self.s1[keep]
+        keep = np.flatnonzero(pos.take(self.bi) >= 0)
+        bi = pos.take(self.bi.take(keep))
+        n, nr = len(half_widths), len(rows)
+        bi = np.concatenate([bi + w * nr for w in range(n)])
+        tA, lA, dt, dl, s0, s1 = (np.concatenate([a.take(keep)] * n) for a in (self.tA, self.lA, self.dt, self.dl,
+                                                                                   self.s0, self.s1))
+        hw = np.repeat(np.asarray(half_widths, float), len(keep))
         with np.errstate(divide="ignore", invalid="ignore"):
             inside = np.ones(len(bi), bool)
-            for p, q in ((-dl, lA + half_width), (dl, half_width - lA)):
+            for p, q in ((-dl, lA + hw), (dl, hw - lA)):
                 r = q / p
                 s0 = np.where(p < 0, np.maximum(s0, r), s0)
                 s1 = np.where(p > 0, np.minimum(s1, r), s1)
                 inside &= ~((p == 0) & (q < 0))
             inside &= s0 <= s1
-        return BandEdges(self.centers[rows], self.us[rows], self.vs[rows], self.t_max[rows], half_width, bi[inside],
-                         s0[inside], s1[inside], tA[inside], lA[inside], dt[inside], dl[inside],
-                         self.A[keep][inside], self.D[keep][inside])
+        k = np.flatnonzero(inside)
+        rr = np.concatenate([rows] * n)
+        return BandEdges(self.cx.take(rr), self.cy.take(rr), self.ux.take(rr), self.uy.take(rr), self.vx.take(rr),
+                         self.vy.take(rr), self.t_max.take(rr), np.repeat(np.asarray(half_widths, float), nr),
+                         bi.take(k), s0.take(k), s1.take(k), tA.take(k), lA.take(k), dt.take(k), dl.take(k))
 
     def first_touch(self, ctx: Context, slanted: bool = False, touch: bool = True):
-        """T (b,): the largest distance along us of the target's material in each band (-inf: none), and
-        (touch=True) the touching point (b, 2) on the first-touch line, in the middle (across the axis)
-        of the material within PAD_COMPLIANCE_MM of it."""
-        b = len(self.centers)
+        """T (b,): the largest distance along u of the target's material in each band (-inf: none), and
+        (touch=True) the touching point (x, y), each (b,), on the first-touch line, in the middle
+        (across the axis) of the material within PAD_COMPLIANCE_MM of it (nan: no material)."""
+        b = len(self.cx)
         T = np.full(b, -np.inf)
         if len(self.bi):
             tt = np.maximum(self.tA + self.s0 * self.dt, self.tA + self.s1 * self.dt)  # the piece's end further out
             np.maximum.at(T, self.bi, tt)
         # the target's far side: material fills the band up to t_max where its far corners are inside
         hw = self.half_width
-        far = np.concatenate([self.centers + self.us * self.t_max[:, None] - self.vs * hw,
-                              self.centers + self.us * self.t_max[:, None] + self.vs * hw])
-        far_in = shapely.contains_xy(ctx.target_geom, far[:, 0], far[:, 1]).reshape(2, b).any(0)
-        T[far_in] = np.maximum(T[far_in], self.t_max[far_in])
+        fx, fy = self.cx + self.ux * self.t_max, self.cy + self.uy * self.t_max
+        wx, wy = self.vx * hw, self.vy * hw
+        far_in = shapely.contains_xy(ctx.target_geom, np.concatenate([fx - wx, fx + wx]),
+                                     np.concatenate([fy - wy, fy + wy]))
+        far_in = far_in[:b] | far_in[b:]
+        T = np.where(far_in, np.maximum(T, self.t_max), T)
         if not touch:
             return T, None
         return T, self._touch(T, slanted)
 
-    def _touch(self, T: np.ndarray, slanted: bool) -> np.ndarray:
+    def _touch(self, T: np.ndarray, slanted: bool):
         # the touching material: the parts of the clipped edges within PAD_COMPLIANCE_MM of the first
         # touch (on a face slightly slanted to the pad that is a stretch from the band's side
         # inwards, not only the edge's end); the contact is the middle of its extent across the
         # axis, at the first-touch line (robust to edges that run along the band's side)
-        touch = np.full((len(self.centers), 2), np.nan)
+        b = len(self.cx)
         if not len(self.bi):
-            return touch
+            return np.full(b, np.nan), np.full(b, np.nan)
         pb, p0, p1, pA, pdt = self.bi, self.s0, self.s1, self.tA, self.dt
-        limit = T[pb] - PAD_COMPLIANCE_MM
+        limit = T.take(pb) - PAD_COMPLIANCE_MM
         if slanted:
             with np.errstate(divide="ignore", invalid="ignore"):
                 sc = (limit - pA) / pdt  # where the edge is PAD_COMPLIANCE_MM behind T
@@ -333,24 +426,47 @@ class BandEdges:
             e0, e1 = pA + p0 * pdt >= limit, pA + p1 * pdt >= limit
             lo_s, hi_s = np.where(e0, p0, p1), np.where(e1, p1, p0)
             near = e0 | e1
-        nb = pb[near]
-        lat_lo = self.lA[near] + lo_s[near] * self.dl[near]  # across the axis, at both ends of the stretch
-        lat_hi = self.lA[near] + hi_s[near] * self.dl[near]
-        lo_l = np.full(len(self.centers), np.inf)
-        hi_l = np.full(len(self.centers), -np.inf)
+        k = np.flatnonzero(near)
+        nb, lA, dl = pb.take(k), self.lA.take(k), self.dl.take(k)
+        lat_lo = lA + lo_s.take(k) * dl  # across the axis, at both ends of the stretch
+        lat_hi = lA + hi_s.take(k) * dl
+        lo_l = np.full(b, np.inf)
+        hi_l = np.full(b, -np.inf)
         np.minimum.at(lo_l, nb, np.minimum(lat_lo, lat_hi))
         np.maximum.at(hi_l, nb, np.maximum(lat_lo, lat_hi))
-        g = np.unique(nb)
-        touch[g] = self.centers[g] + self.us[g] * T[g, None] + self.vs[g] * (0.5 * (lo_l[g] + hi_l[g]))[:, None]
-        return touch
+        has = lo_l < np.inf  # the bands with touching material (the lateral extremes are finite)
+        with np.errstate(invalid="ignore"):
+            mid = 0.5 * (lo_l + hi_l)
+            x = np.where(has, self.cx + self.ux * T + self.vx * mid, np.nan)
+            y = np.where(has, self.cy + self.uy * T + self.vy * mid, np.nan)
+        return x, y
+
+
+def _overlapping_edges(ctx: Context, lox, loy, hix, hiy):
+    """(band, edge) index pairs whose bounding boxes overlap (touching counts, as for the STRtree):
+    a broadcast comparison for few edges or bands, else the STRtree (same pairs, other order)."""
+    if len(ctx.edge_ax) <= OVERLAP_BROADCAST_EDGES or len(lox) * len(ctx.edge_ax) <= OVERLAP_BROADCAST_MAX:
+        hit = (lox[:, None] <= ctx.edge_hix) & (hix[:, None] >= ctx.edge_lox)
+        hit &= (loy[:, None] <= ctx.edge_hiy) & (hiy[:, None] >= ctx.edge_loy)
+        return np.nonzero(hit)
+    return ctx.edge_tree.query(shapely.box(lox, loy, hix, hiy))
 
 
 def _liang_barsky(tA, dt, lA, dl, t_min, t_max, half_width):
-    """Clip segments (in band coordinates) to t_min <= t <= t_max, |l| <= half_width: s0, s1, inside."""
-    s0, s1 = np.zeros(len(tA)), np.ones(len(tA))
-    inside = np.ones(len(tA), bool)
+    """Clip segments (in band coordinates) to t_min <= t <= t_max, |l| <= half_width: s0, s1, inside.
+    The entering parameter is the largest of the boundaries' where p < 0 (and 0), the leaving one the
+    smallest where p > 0 (and 1)."""
+    bounds = ((-dt, tA - t_min), (dt, t_max - tA), (-dl, lA + half_width), (dl, half_width - lA))
     with np.errstate(divide="ignore", invalid="ignore"):
-        for p, q in ((-dt, tA - t_min), (dt, t_max - tA), (-dl, lA + half_width), (dl, half_width - lA)):
+        if len(tA) <= LB_STACKED_MAX:  # few segments: the four boundaries at once, rows of (4, n)
+            p, q = np.stack([b[0] for b in bounds]), np.stack([b[1] for b in bounds])
+            r = q / p
+            s0 = np.maximum(np.where(p < 0, r, -np.inf).max(0), 0.0)
+            s1 = np.minimum(np.where(p > 0, r, np.inf).min(0), 1.0)
+            return s0, s1, ~((p == 0) & (q < 0)).any(0) & (s0 <= s1)
+        s0, s1 = np.zeros(len(tA)), np.ones(len(tA))
+        inside = np.ones(len(tA), bool)
+        for p, q in bounds:
             r = q / p
             s0 = np.where(p < 0, np.maximum(s0, r), s0)
             s1 = np.where(p > 0, np.minimum(s1, r), s1)
@@ -365,15 +481,17 @@ def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     if k == 0:
         return np.zeros(0, bool)
     g, tol = ctx.cell.gripper, ctx.params.contact_tol_mm
-    m, u, t = P.m[idx], P.u[idx], P.t[idx]
-    centers, us = np.vstack([m, m]), np.vstack([u, -u])
+    m, u, t = P.m.take(idx, 0), P.u.take(idx, 0), P.t.take(idx)
+    # the 2k bands: p_i's pad (closing along -u from the +u side), then p_j's
+    cx, cy = np.concatenate([m[:, 0], m[:, 0]]), np.concatenate([m[:, 1], m[:, 1]])
+    ux, uy = np.concatenate([u[:, 0], -u[:, 0]]), np.concatenate([u[:, 1], -u[:, 1]])
     tt = np.concatenate([t, t])
     slanted = bool(ctx.params.slanted_faces)
-    band = BandEdges.clip(ctx, centers, us, tt - 2 * tol, tt + g.approach_clearance_mm + g.pad_thickness_mm,
+    band = BandEdges.clip(ctx, cx, cy, ux, uy, tt - 2 * tol, tt + g.approach_clearance_mm + g.pad_thickness_mm,
                           g.pad_width_mm / 2 + tol)
-    T, c = band.first_touch(ctx, slanted)
-    vs = band.vs
-    lateral = np.abs(((c - centers) * vs).sum(1))
+    T, (x, y) = band.first_touch(ctx, slanted)
+    vx, vy = band.vx, band.vy
+    lateral = np.abs((x - cx) * vx + (y - cy) * vy)
     with np.errstate(invalid="ignore"):
         # the pad stops at the candidate: the first touch is within tol of it along and across the
         # axis. A face slightly slanted to the pad (a tapered web) is first touched at the band's
@@ -381,26 +499,32 @@ def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
         # candidate itself is within PAD_COMPLIANCE_MM of the first touch the pad presses on it
         # too: the contact is then on the first-touch line, on the pair's closing line when the
         # pad presses there as well, else across from the candidate
-        cand = np.vstack([P.pi[idx], P.pj[idx]])  # p_i is on the +u side (its normal is near u)
+        pi, pj = P.pi.take(idx, 0), P.pj.take(idx, 0)  # p_i is on the +u side (its normal is near u)
+        ax, ay = np.concatenate([pi[:, 0], pj[:, 0]]) - cx, np.concatenate([pi[:, 1], pj[:, 1]]) - cy
         pressed = np.isfinite(lateral) & (lateral > tol + EPS_MM) & (T <= tt + tol + EPS_MM)
         pressed &= slanted
-        Tp = T.copy()
-        if pressed.any():  # the pad itself (not the band widened by tol) on the pair's closing line
+        if pressed.any():
             q = np.flatnonzero(pressed)
-            Tp[q], _ = band.narrowed(q, g.pad_width_mm / 2).first_touch(ctx, touch=False)
-            pressed[q] = np.isfinite(Tp[q]) & (
-                Tp[q] <= ((cand[q] - centers[q]) * us[q]).sum(1) + PAD_COMPLIANCE_MM + EPS_MM)
-        lat_c = ((cand - centers) * vs).sum(1)
-        if pressed.any():  # the contact on the pair's closing line when the pad presses there too
-            q = np.flatnonzero(pressed)
-            T0, _ = band.narrowed(q, 0.05).first_touch(ctx, touch=False)
-            lat_c[q] = np.where(T0 >= Tp[q] - PAD_COMPLIANCE_MM, 0.0, lat_c[q])
-        c = np.where(pressed[:, None], centers + us * Tp[:, None] + vs * lat_c[:, None], c)
-        lateral = np.where(pressed, np.abs(((c - centers) * vs).sum(1)), lateral)
+            nq = len(q)
+            # the pad itself (not the band widened by tol), and a thin band on the pair's closing line,
+            # in one pass (the thin band's verdict is used only where the pad presses on the candidate)
+            Tn, _ = band.narrowed(q, (g.pad_width_mm / 2, 0.05)).first_touch(ctx, touch=False)
+            Tp, T0 = Tn[:nq], Tn[nq:]
+            ax_q, ay_q = ax.take(q), ay.take(q)
+            uxq, uyq, vxq, vyq = ux.take(q), uy.take(q), vx.take(q), vy.take(q)
+            press = np.isfinite(Tp) & (Tp <= ax_q * uxq + ay_q * uyq + PAD_COMPLIANCE_MM + EPS_MM)
+            # the contact on the first-touch line: on the pair's closing line when the pad presses
+            # there too, else across from the candidate
+            lat_c = np.where(T0 >= Tp - PAD_COMPLIANCE_MM, 0.0, ax_q * vxq + ay_q * vyq)
+            cxq, cyq = cx.take(q), cy.take(q)
+            px, py = cxq + uxq * Tp + vxq * lat_c, cyq + uyq * Tp + vyq * lat_c
+            x[q] = np.where(press, px, x.take(q))
+            y[q] = np.where(press, py, y.take(q))
+            lateral[q] = np.where(press, np.abs((px - cxq) * vxq + (py - cyq) * vyq), lateral.take(q))
         ok2 = np.isfinite(lateral) & (T <= tt + tol + EPS_MM) & (lateral <= tol + EPS_MM)
     ok = ok2[:k] & ok2[k:]
-    ci, cj = c[:k], c[k:]
-    h = 0.5 * ((ci - cj) * u).sum(1)
+    ci, cj = np.column_stack([x[:k], y[:k]]), np.column_stack([x[k:], y[k:]])
+    h = 0.5 * _dot2(ci - cj, u)
     with np.errstate(invalid="ignore"):
         ok &= (2 * h >= g.opening_mm[0] - EPS_MM) & (2 * h + 2 * g.approach_clearance_mm <= g.opening_mm[1] + EPS_MM)
     P.ci[idx], P.cj[idx] = ci, cj
@@ -411,27 +535,48 @@ def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
 
 def stage_ik(ctx: Context, P: Pairs, idx) -> np.ndarray:
     idx = np.asarray(idx, int)
-    c = P.center[idx]
+    c, u = P.center.take(idx, 0), P.u.take(idx, 0)
+    x, y = c[:, 0], c[:, 1]
     ws = ctx.cell.workspace
-    axis = np.degrees(np.arctan2(P.u[idx, 1], P.u[idx, 0]))
+    axis = np.degrees(np.arctan2(u[:, 1], u[:, 0]))
     with np.errstate(invalid="ignore"):
-        inside = (np.isfinite(c[:, 0]) & (c[:, 0] >= ws.x_mm[0]) & (c[:, 0] <= ws.x_mm[1])
-                  & (c[:, 1] >= ws.y_mm[0]) & (c[:, 1] <= ws.y_mm[1]))
-    ok = np.zeros(len(idx), bool)
-    ok[inside] = reachable_mask(c[inside, 0], c[inside, 1], ctx.grasp_z_mm, axis[inside], ctx.cell.scara)
+        inside = (np.isfinite(x) & (x >= ws.x_mm[0]) & (x <= ws.x_mm[1]) & (y >= ws.y_mm[0]) & (y <= ws.y_mm[1]))
+    if inside.all():  # the usual case: no subset to gather
+        ok = reachable_mask(x, y, ctx.grasp_z_mm, axis, ctx.cell.scara)
+    else:
+        ok = np.zeros(len(idx), bool)
+        ok[inside] = reachable_mask(x[inside], y[inside], ctx.grasp_z_mm, axis[inside], ctx.cell.scara)
     P.ik = (ctx.grasp_z_mm, ctx.cell.scara)  # the solutions, for the pairs that get looked at: joints_of
     return ok
+
+
+def _rects_hitting(obstacles, boxes: np.ndarray, cx, cy, ux, uy, t0, t1, half_width: float) -> np.ndarray:
+    """(k,) does the rectangle of `axis_rects` (centre and u by component, (k,)) intersect the prepared
+    `obstacles`? Only the rectangles whose bounding box overlaps the box (n, 4) of one of the obstacles'
+    parts are built and tested by shapely: the others cannot touch it (same verdicts, less work)."""
+    lox, loy, hix, hiy = axis_rect_bounds(cx, cy, ux, uy, t0, t1, half_width)
+    near = ((lox[:, None] <= boxes[:, 2]) & (hix[:, None] >= boxes[:, 0]) & (loy[:, None] <= boxes[:, 3])
+            & (hiy[:, None] >= boxes[:, 1])).any(1)
+    hit = np.zeros(len(cx), bool)
+    r = np.flatnonzero(near)
+    if len(r):
+        c = np.column_stack([cx.take(r), cy.take(r)])
+        u = np.column_stack([ux.take(r), uy.take(r)])
+        t0, t1 = np.broadcast_to(t0, len(cx)).take(r), np.broadcast_to(t1, len(cx)).take(r)
+        hit[r] = shapely.intersects(rect_polygons(axis_rects(c, u, t0, t1, half_width)), obstacles)
+    return hit
 
 
 def stage_fingers_obstacles(ctx: Context, P: Pairs, idx) -> np.ndarray:
     if ctx.finger_obstacles is None or len(idx) == 0:
         return np.ones(len(idx), bool)
     g = ctx.cell.gripper
-    c, u, h = P.center[idx], P.u[idx], P.h[idx]
+    c, u, h = P.center.take(idx, 0), P.u.take(idx, 0), P.h.take(idx)
     hh = np.concatenate([h, h])
-    rects = rect_polygons(axis_rects(np.vstack([c, c]), np.vstack([u, -u]), hh,
-                                     hh + g.approach_clearance_mm + g.pad_thickness_mm, g.pad_width_mm / 2))
-    hit = shapely.intersects(rects, ctx.finger_obstacles)
+    hit = _rects_hitting(ctx.finger_obstacles, ctx.finger_boxes, np.concatenate([c[:, 0], c[:, 0]]),
+                         np.concatenate([c[:, 1], c[:, 1]]), np.concatenate([u[:, 0], -u[:, 0]]),
+                         np.concatenate([u[:, 1], -u[:, 1]]), hh,
+                         hh + g.approach_clearance_mm + g.pad_thickness_mm, g.pad_width_mm / 2)
     return ~(hit[:len(idx)] | hit[len(idx):])
 
 
@@ -439,9 +584,9 @@ def stage_palm(ctx: Context, P: Pairs, idx) -> np.ndarray:
     if ctx.palm_obstacles is None or len(idx) == 0:
         return np.ones(len(idx), bool)
     g = ctx.cell.gripper
-    rects = rect_polygons(axis_rects(P.center[idx], P.u[idx], -g.palm_length_mm / 2, g.palm_length_mm / 2,
-                                     g.palm_width_mm / 2))
-    return ~shapely.intersects(rects, ctx.palm_obstacles)
+    c, u = P.center.take(idx, 0), P.u.take(idx, 0)
+    return ~_rects_hitting(ctx.palm_obstacles, ctx.palm_boxes, c[:, 0], c[:, 1], u[:, 0], u[:, 1],
+                           -g.palm_length_mm / 2, g.palm_length_mm / 2, g.palm_width_mm / 2)
 
 
 STAGE_FUNCS = {"stroke": stage_stroke, "reach": stage_reach, "antipodal": stage_antipodal,

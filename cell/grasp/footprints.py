@@ -18,21 +18,36 @@ from cell.cellconfig import Cell
 
 
 def axis_rects(center, u, t0, t1, half_width) -> np.ndarray:
-    """Corners (k, 4, 2) of rectangles spanning [t0, t1] along u (k, 2) from center (k, 2)."""
+    """Corners (k, 4, 2) of rectangles spanning [t0, t1] along u (k, 2) from center (k, 2): corner
+    c + u t + v w for (t0, -half_width), (t1, -half_width), (t1, half_width), (t0, half_width), v = u
+    turned by +90 degrees."""
     center, u = np.atleast_2d(center), np.atleast_2d(u)
-    v = np.stack([-u[:, 1], u[:, 0]], -1)
-    t0, t1 = np.broadcast_to(t0, len(center)), np.broadcast_to(t1, len(center))
-    hw = np.broadcast_to(half_width, len(center))
-    out = np.empty((len(center), 4, 2))
-    for k, (t, w) in enumerate(((t0, -hw), (t1, -hw), (t1, hw), (t0, hw))):
-        out[:, k] = center + u * t[:, None] + v * w[:, None]
+    k = len(center)
+    t0, t1 = np.broadcast_to(t0, k), np.broadcast_to(t1, k)
+    hw = np.broadcast_to(half_width, k)
+    out = np.empty((k, 4, 2))
+    for axis, (c, uc, vc) in enumerate(((center[:, 0], u[:, 0], -u[:, 1]), (center[:, 1], u[:, 1], u[:, 0]))):
+        a0, a1, w = c + uc * t0, c + uc * t1, vc * hw  # (c + u t) + v (-w) is (c + u t) - v w, exactly
+        out[:, 0, axis], out[:, 1, axis], out[:, 2, axis], out[:, 3, axis] = a0 - w, a1 - w, a1 + w, a0 + w
     return out
+
+
+def axis_rect_bounds(cx, cy, ux, uy, t0, t1, half_width):
+    """Bounding boxes of the rectangles of `axis_rects` (centre and u given by component, each (k,)):
+    lo x, lo y, hi x, hi y, each (k,), bit for bit the extremes of axis_rects' corners (rounding is
+    monotonic, so the extreme of the rounded corners is the rounded extreme) without building them."""
+    ax0, ax1 = cx + ux * t0, cx + ux * t1
+    ay0, ay1 = cy + uy * t0, cy + uy * t1
+    bx, by = np.abs(-uy * half_width), np.abs(ux * half_width)  # |v * half_width|, v = u turned by +90 degrees
+    return np.minimum(ax0, ax1) - bx, np.minimum(ay0, ay1) - by, np.maximum(ax0, ax1) + bx, np.maximum(ay0, ay1) + by
 
 
 def rect_polygons(corners: np.ndarray) -> np.ndarray:
     """shapely polygons (k,) from corner arrays (k, 4, 2)."""
-    # via linearrings: shapely.polygons on raw coordinates is several times slower
-    return shapely.polygons(shapely.linearrings(np.concatenate([corners, corners[:, :1]], axis=1)))
+    # one ragged-array call: shapely.polygons (or linearrings, then polygons) on the coordinates costs more
+    k = len(corners)
+    ring = np.concatenate([corners, corners[:, :1]], axis=1).reshape(-1, 2)
+    return shapely.from_ragged_array(shapely.GeometryType.POLYGON, ring, (np.arange(0, 5 * k + 1, 5), np.arange(k + 1)))
 
 
 def _axis(grasp) -> np.ndarray:

@@ -105,6 +105,30 @@ def test_replay_refuses_a_missing_or_corrupt_recording(recorded, tmp_path, capsy
     assert code == 2 and "decisions.jsonl" in err and "Traceback" not in err
 
 
+def test_a_recording_keeps_the_planner_it_ran_and_replays_with_it(recorded, tmp_path, capsys):
+    import json
+    import shutil
+
+    from cell.grasp.params import SynthesisParams
+    from cell.runtime.loop import loop_planner_params
+    from cell.runtime.replay import planner_from_meta
+
+    rec, _ = recorded
+    meta = json.loads((rec / "manifest.json").read_text())["meta"]["planner"]
+    assert planner_from_meta(meta, "here") == loop_planner_params()
+    assert loop_planner_params().obstacle_margin_mm > 0
+    # a recording made before these settings were kept: the planner of that time
+    assert planner_from_meta({"slanted_faces": True}, "here") == SynthesisParams(
+        slanted_faces=True, tree_min_samples_leaf=2, obstacle_margin_mm=0.0)
+    bad = tmp_path / "bad"
+    shutil.copytree(rec, bad)
+    manifest = json.loads((bad / "manifest.json").read_text())
+    manifest["meta"]["planner"]["obstacle_margin_mm"] = "one"
+    (bad / "manifest.json").write_text(json.dumps(manifest))
+    code, _, err = run_cli("replay", bad, capsys=capsys)
+    assert code == 2 and "meta.planner.obstacle_margin_mm must be a float" in err
+
+
 def test_a_missed_grip_is_retried_with_the_next_best_grasp(short_assembly):
     s = run_session(RunConfig(assembly=short_assembly, seed=3, faults=WorldFaults(miss={"washer": 1})))
     assert s["status"] == "complete" and s["parts_removed"] == 3

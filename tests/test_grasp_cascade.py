@@ -397,3 +397,21 @@ def test_footprints_tested_against_nearby_obstacles_only_get_every_verdict_right
     plain = shapely.intersects(rect_polygons(axis_rects(c, u, t0, t1, hw)), obstacles)
     assert np.array_equal(fast, plain) and 20 < plain.sum() < 280
     assert plain[-4:].tolist() == [True, True, True, False]  # flush at x = 0, x = 20 and y = 5; 0.5 mm clear
+
+
+def test_an_obstacle_margin_keeps_fingers_off_neighbours_they_would_graze():
+    """Tall neighbours 15.5 mm beyond each face of a 30 mm square: the finger's footprint reaches
+    15 mm out from the contact (approach clearance 5 + thickness 10), so with exact outlines every
+    face grasp clears them by 0.5 mm; with the loop's 1 mm margin for measured poses none does."""
+    def rect(pid, x0, y0, x1, y1, z_top):
+        return parse_part({"id": pid, "outline": [[x0, y0], [x1, y0], [x1, y1], [x0, y1]], "z_top": z_top})
+
+    target = rect("t", 335, -15, 365, 15, 10.0)
+    walls = [rect("e", 380.5, -40, 390, 40, 40.0), rect("w", 310, -40, 319.5, 40, 40.0),
+             rect("n", 320, 30.5, 380, 40, 40.0), rect("s", 320, -40, 380, -30.5, 40.0)]
+    scene = Scene((target, *walls), "t")
+    exact = GraspPlanner(CELL, shapes.hand_made_examples()).plan(scene).grasp
+    gaps = [shapely.Polygon(w.outline_mm).distance(Point(c)) for w in walls for c in exact.contacts_mm]
+    assert min(gaps) == pytest.approx(15.5, abs=0.01)
+    with pytest.raises(NoFeasibleGrasp, match="fingers_obstacles|precheck"):
+        GraspPlanner(CELL, shapes.hand_made_examples(), SynthesisParams(obstacle_margin_mm=1.0)).plan(scene)

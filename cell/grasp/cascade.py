@@ -98,6 +98,8 @@ class Context:
             if not parts:
                 return None
             u = shapely.union_all([p.polygon for p in parts])
+            if params.obstacle_margin_mm > 0:
+                u = u.buffer(params.obstacle_margin_mm, quad_segs=4)
             shapely.prepare(u)
             return u
 

@@ -27,6 +27,9 @@ class SynthesisParams:
     # the candidate as the contact. Recordings made before this option existed replay with it
     # off (cell.runtime.replay); docs/data.md gives the figures both ways.
     slanted_faces: bool = True
+    # Obstacles widened by this much for the fingers and the palm: 0 for outlines given exactly (a
+    # scene file); the cell loop plans on measured poses and keeps a margin (cell.runtime.loop).
+    obstacle_margin_mm: float = 0.0
     n_contacts: int = 2  # a parameter of the learning and the attributes; the gripper model is 2-jaw
     # Learning.
     tree_max_depth: int = 4

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from cell.errors import BadInput, CellError
+from cell.grasp.params import SynthesisParams
 from cell.runtime.control import Decision, RunControl
 
 VOLATILE = {"planning_s", "cycle_s", "motion_s", "t_start_s", "t_end_s", "time_ms"}
@@ -27,6 +28,27 @@ TOLERANCE = 1e-3
 class Divergence(Exception):  # noqa: N818 - not a CellError: the loop must not treat it as a cell fault
     """Replay made another decision than the recording (exit 1)."""
 
+
+
+# The planner settings a recording keeps (meta.planner), with the values that held before each was
+# recorded: a recording made before `slanted_faces` planned without it, with leaves of 2 rows and
+# no margin around the other parts.
+RECORDED_PLANNER = {"slanted_faces": False, "tree_min_samples_leaf": 2, "obstacle_margin_mm": 0.0}
+
+
+def planner_meta(params: SynthesisParams) -> dict:
+    return {k: getattr(params, k) for k in RECORDED_PLANNER}
+
+
+def planner_from_meta(planner, where: str) -> SynthesisParams:
+    """The planner as the session ran it, from its manifest's meta.planner."""
+    if not isinstance(planner, dict):
+        raise BadInput(f"{where}: manifest meta.planner must be an object")
+    values = {k: planner.get(k, old) for k, old in RECORDED_PLANNER.items()}
+    for k, v in values.items():
+        if isinstance(v, bool) != isinstance(RECORDED_PLANNER[k], bool) or not isinstance(v, (int, float)):
+            raise BadInput(f"{where}: manifest meta.planner.{k} must be a {type(RECORDED_PLANNER[k]).__name__}")
+    return SynthesisParams(**values)
 
 def differences(recorded, replayed, path: str = "") -> list[str]:
     """Where two decision records differ (volatile timing keys ignored), as 'path: a != b'."""
@@ -160,7 +182,6 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
 
     from calibration import load_calibration
     from cell.cellconfig import load_cell
-    from cell.grasp.params import SynthesisParams
     from cell.recording import RecordingReader
     from cell.runtime.loop import CellLoop, LoopOptions, StopRun
     from cell.runtime.session import EXAMPLES_AT_START, home_joints
@@ -182,11 +203,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     examples_src = Path(examples) if examples else rec.dir / EXAMPLES_AT_START
     if not examples_src.is_file():
         raise BadInput(f"example file {examples_src} does not exist")
-    # the planner as the session ran it: a recording made before `slanted_faces` existed planned without it
-    planner = meta.get("planner") or {}
-    if not isinstance(planner, dict):
-        raise BadInput(f"recording {directory}: manifest meta.planner must be an object")
-    planner_params = SynthesisParams(slanted_faces=bool(planner.get("slanted_faces", False)))
+    planner_params = planner_from_meta(meta.get("planner") or {}, f"recording {directory}")
     recorded = [d for d in rec.decisions if d.get("type") != "summary"]
     frames = [rec.frame_path(i) for i in rec.frame_indices]
     if not frames:

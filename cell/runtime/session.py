@@ -175,8 +175,9 @@ def run_session(cfg: RunConfig) -> dict:
 
     recorder = None
     if cfg.record:
-        from cell.grasp.params import SynthesisParams
         from cell.recording import RecordingWriter
+        from cell.runtime.loop import loop_planner_params
+        from cell.runtime.replay import planner_meta
 
         recorder = RecordingWriter(cfg.record, cell_file=cell_path, calibration_file=cal_path,
                                    examples_file=examples_path,
@@ -184,7 +185,7 @@ def run_session(cfg: RunConfig) -> dict:
                                          "seed": cfg.seed, "shift_mm": cfg.shift_mm,
                                          "on_no_grasp": cfg.on_no_grasp,
                                          "real_cell": None if cfg.real_cell is None else vars(cfg.real_cell),
-                                         "planner": {"slanted_faces": SynthesisParams().slanted_faces}})
+                                         "planner": planner_meta(loop_planner_params())})
         # The examples as they were at the start: replay needs them even after this session
         # (or anyone) appended to the file.
         write_atomic(recorder.dir / EXAMPLES_AT_START, examples_path.read_bytes())

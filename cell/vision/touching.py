@@ -160,7 +160,7 @@ def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, bgr: np.ndarray 
         hull_area = cv2.contourArea(cv2.convexHull(contours[0]))
         if hull_area > 0 and cv2.contourArea(contours[0]) / hull_area > CONVEX_SOLIDITY:
             return "one", None  # (nearly) convex: no neck, nothing to split
-    sub = fill_holes(sub)  # holes would put false saddles into the distance transform
+    with_holes, sub = sub, fill_holes(sub)  # holes would put false saddles into the distance transform
     dt = cv2.distanceTransform(sub, cv2.DIST_L2, 5)
     peak = float(dt.max())
     if peak < 2 * r_min:
@@ -203,6 +203,7 @@ def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, bgr: np.ndarray 
         parts = np.where((ws >= 1) & (ws <= len(big)) & (sub > 0), ws, 0)
         # the watershed lines (-1) inside the region go to the neighbouring lobe
         parts = _fill_lines(parts, sub)
+        parts[with_holes == 0] = 0  # the parts keep their holes (a washer split off its neighbour)
         if min(int((parts == k).sum()) for k in range(1, len(big) + 1)) < min_area:
             return "merged", None
         grey = None if bgr is None else cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)  # (only needed here)

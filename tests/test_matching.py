@@ -123,3 +123,16 @@ def test_material_no_located_part_explains_becomes_an_obstacle():
     # the clip less the 2 mm margin around a (the tall part's region, mapped at its own height, leaves nothing)
     assert obstacles[0].polygon.area == pytest.approx(clip.difference(a.polygon.buffer(2.0)).area, rel=0.05)
     assert unexplained(regions[1:], seen, found, z_top_mm=2.0) == []
+
+
+def test_a_part_cut_into_pieces_is_found_from_its_pieces():
+    """A washer whose highlight the colour split cut off: two regions, neither alone like it."""
+    washer = disc("w", 380, 50, r=10.0, z_top=3.0)
+    moved = washer.moved(1.0, 1.5).polygon
+    cut = Polygon([(365, 30), (380.5, 30), (380.5, 70), (365, 70)])  # about half of it
+    regions = [Region(0, lambda zt, zb: moved.difference(cut)), Region(1, lambda zt, zb: moved.intersection(cut))]
+    found, unclaimed = locate([washer], regions)
+    assert found["w"].merged and found["w"].region == 0 and unclaimed == []
+    assert abs(found["w"].dx_mm - 1.0) < 0.3 and abs(found["w"].dy_mm - 1.5) < 0.3
+    alone, _ = locate([washer], regions[:1])
+    assert alone == {}  # the larger piece alone is not it

@@ -15,7 +15,10 @@ from cell.scene import load_assembly
 ASSEMBLIES = Path(str(resources.files("cell") / "data" / "assemblies"))
 
 
-@pytest.mark.parametrize("name,seed", [("default", 0), ("default", 7), ("drive_unit", 1)])
+# drive_unit 3, 5, 8: a washer touching the pulley, split off it by the neck search with its hole
+# filled, and its hole then grazed by the jagged split line (both mended; the washer was not found)
+@pytest.mark.parametrize("name,seed", [("default", 0), ("default", 7), ("drive_unit", 1), ("drive_unit", 3),
+                                       ("drive_unit", 5), ("drive_unit", 8)])
 def test_every_part_is_located_where_it_really_lies(name, seed):
     from calibration import load_calibration
     from cell.vision import SegmentParams, SimCamera, SimCameraOptions, segment_frame, segment_to_mm

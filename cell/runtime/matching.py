@@ -151,11 +151,36 @@ def locate(parts: Sequence[Part], regions: Sequence[Region]) -> tuple[dict[str, 
             near = math.hypot(x[0], x[1]) <= MAX_MERGED_SHIFT_MM
             if s >= MIN_OVERLAP and near and (best is None or s > best.overlap):
                 best = Located(part.id, r.index, float(x[0]), float(x[1]), float(x[2]), float(s), True)
+        if best is None:
+            best, pieces = _in_pieces(part, [r for r in regions if not r.merged and r.index not in claimed])
+            claimed.update(pieces)
         if best is not None:
             located[part.id] = best
             claimed.add(best.region)
             placed.setdefault(best.region, []).append(best.apply(part).polygon)
     return located, [r.index for r in regions if r.index not in claimed]
+
+
+def _in_pieces(part: Part, free: Sequence[Region]) -> tuple[Located | None, list[int]]:
+    """A part the segmentation cut into pieces (a washer's highlight split off by colour): the
+    unclaimed regions near it, smaller than MIN_UNFLAGGED_RATIO x the part, registered together
+    (intersection over union of their union). The match (region: the largest piece) and the pieces'
+    indices, or (None, [])."""
+    from shapely import union_all
+
+    near = []
+    for r in free:
+        poly = r.polygon_at(part.z_top_mm, part.z_bottom_mm)
+        if not poly.is_empty and poly.area < MIN_UNFLAGGED_RATIO * part.polygon.area \
+                and poly.distance(part.polygon) <= MAX_MERGED_SHIFT_MM:
+            near.append((poly.area, r.index, poly))
+    if len(near) < 2:
+        return None, []
+    x, s = register(part.polygon, union_all([poly for *_, poly in near]).buffer(0))
+    if s < MIN_OVERLAP or math.hypot(x[0], x[1]) > MAX_MERGED_SHIFT_MM:
+        return None, []
+    largest = max(near, key=lambda t: t[0])[1]
+    return Located(part.id, largest, float(x[0]), float(x[1]), float(x[2]), float(s), True), [i for _, i, _ in near]
 
 
 def _axis_deg(poly: Polygon) -> float:

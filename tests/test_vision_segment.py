@@ -536,3 +536,27 @@ def test_tray_field_fitted_on_a_checkerboard_of_samples_follows_the_lighting_pas
     err = np.abs(field_at(field, (w, h)) - tray)
     assert np.percentile(err, 99) < 2.0 and err.max() < 4.0
     assert 1.0 <= sigma < 6.0  # the noise's colour distance (2 DN a channel), not the parts'
+
+
+@pytest.mark.parametrize("table_bgr", [(60, 60, 60), (120, 170, 200)])
+def test_a_tray_filling_less_than_half_the_view_beside_a_plain_table_stays_the_tray(layout_frame, table_bgr):
+    """The default cell's tray covers 45 % of the camera's view; around it a real cell shows its
+    table. A dark or a light plain table must not become the tray (every part would vanish into
+    one tray-sized region): neither by the second tray candidate nor by the back-lit fallback."""
+    import cv2
+
+    from cell.cellconfig import default_cell
+
+    tray = default_cell().tray
+    corners = [(tray.x_mm[0], tray.y_mm[0]), (tray.x_mm[1], tray.y_mm[0]), (tray.x_mm[1], tray.y_mm[1]),
+               (tray.x_mm[0], tray.y_mm[1])]
+    inside = np.zeros(layout_frame.shape[:2], np.uint8)
+    cv2.fillPoly(inside, [np.round(CAL.mm_to_px(np.array(corners), 0.0) - 0.5).astype(np.int32)], 1)
+    assert 0.3 < inside.mean() < 0.5
+    frame = layout_frame.copy()
+    frame[inside == 0] = table_bgr
+    frame = np.clip(frame + np.random.default_rng(0).normal(0, 2, frame.shape), 0, 255).astype(np.uint8)
+    segs = segment_frame(frame, PARAMS)
+    for part in LAYOUT:
+        seg = match(segs, part)
+        assert seg is not None and seg.area_px < 0.05 * frame.shape[0] * frame.shape[1], part.id

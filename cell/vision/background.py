@@ -22,6 +22,11 @@ FIT_ITERATIONS = 4
 MODE_BIN = 16  # DN per histogram bin when looking for the tray's colour
 CENTRE_SIGMA = 0.4  # of the half-size: where the tray's colour is looked for
 MODE_RADIUS = 40.0  # DN around the modal colour taken as the first inliers
+# ... and is replaced only when its spread is this many times the other's and above ROUGH_MIN_DN:
+# white packs taken for the tray 37 DN against the cloth's 10; a rendered tray 3.7 DN beside a plain
+# table 1 DN (a tray filling 45 % of the view, as the default cell's does, must stay the tray)
+ROUGH_TRAY = 2.0
+ROUGH_MIN_DN = 15.0
 TRAY_MIN_SHARE = 0.5  # a field that explains less of the view than this is checked against the other candidate
 
 
@@ -131,15 +136,17 @@ def fit_tray_field(image_bgr: np.ndarray, tray: str = "auto", small_bgr: np.ndar
     a = _design(sh, sw, FIT_DEGREE)[sel]
     coef, sigma, res = _fit_around(_modal_bgr(codes, weights, nb), a, small)
     if tray == "auto" and (res < max(3.0 * sigma, 6.0)).mean() < TRAY_MIN_SHARE:
-        # the fit explains less than half the view: large or many parts outnumber the tray near
+        # the fit explains less than half the view: large or many parts may outnumber the tray near
         # the centre. The other candidate: the commonest colour of the whole view away from the
-        # first one; the one whose field explains more of the view (at the smoother one's spread)
-        # is the tray
+        # first one. It is the tray only if it explains more of the view (at the smoother one's
+        # spread) and the first is rough (textured parts, not a plain surface): a smooth tray that
+        # fills less than half the view beside a plain table stays the tray
         away = (res > MODE_RADIUS).astype(np.float64)  # off the first field
         if away.sum() >= 0.1 * len(small):
             coef2, sigma2, res2 = _fit_around(_modal_bgr(codes, away, nb), a, small)
             limit = max(3.0 * min(sigma, sigma2), 6.0)
-            if (res2 < limit).sum() > (res < limit).sum():
+            rough = sigma > max(ROUGH_TRAY * sigma2, ROUGH_MIN_DN)
+            if rough and (res2 < limit).sum() > (res < limit).sum():
                 coef, sigma = coef2, sigma2
     return (_design(sh, sw, FIT_DEGREE) @ coef).reshape(sh, sw, 3).astype(np.float32), sigma
 

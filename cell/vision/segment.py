@@ -122,9 +122,10 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
     if reference_bgr is None and p.tray == "auto" and _tray_taken_for_a_part(segs, frame.shape):
         # a back-lit panel in a dark surround: the dark side outnumbered the panel, so the panel came
         # out as one part cut by the border with the parts as its holes; the panel as the tray
-        # encloses more whole parts (and costs a second pass only on such frames)
+        # shows more whole parts (and costs a second pass only on such frames). Counted, not
+        # summed: a tray beside a lighter table would be one whole part as large as the tray
         lit = _segment(frame, replace(p, tray="bright"), None)
-        if _whole_parts_area(lit) > _whole_parts_area(segs):
+        if _whole_parts(lit) > _whole_parts(segs):
             return lit
     return segs
 
@@ -138,9 +139,9 @@ def _tray_taken_for_a_part(segs: list[Segment], shape) -> bool:
     return any(s.cut_off and s.holes_px and s.area_px > TRAY_TAKEN_SHARE * frame_px for s in segs)
 
 
-def _whole_parts_area(segs: list[Segment]) -> float:
-    """Area of the regions not cut by the border, px: what a right choice of tray maximises."""
-    return sum(s.area_px for s in segs if not s.cut_off)
+def _whole_parts(segs: list[Segment]) -> int:
+    """How many regions the border does not cut: what a right choice of tray shows more of."""
+    return sum(not s.cut_off for s in segs)
 
 
 def _segment(frame: np.ndarray, p: SegmentParams, reference_bgr: np.ndarray | None) -> list[Segment]:

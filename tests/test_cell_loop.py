@@ -123,10 +123,16 @@ def test_a_recording_keeps_the_planner_it_ran_and_replays_with_it(recorded, tmp_
     bad = tmp_path / "bad"
     shutil.copytree(rec, bad)
     manifest = json.loads((bad / "manifest.json").read_text())
-    manifest["meta"]["planner"]["obstacle_margin_mm"] = "one"
-    (bad / "manifest.json").write_text(json.dumps(manifest))
-    code, _, err = run_cli("replay", bad, capsys=capsys)
-    assert code == 2 and "meta.planner.obstacle_margin_mm must be a float" in err
+    for key, value, says in [("obstacle_margin_mm", "one", "obstacle_margin_mm must be a number"),
+                             ("obstacle_margin_mm", -1, "obstacle_margin_mm must be a number"),
+                             ("tree_min_samples_leaf", 4.0, "tree_min_samples_leaf must be a whole number"),
+                             ("tree_min_samples_leaf", 0, "tree_min_samples_leaf must be a whole number"),
+                             ("slanted_faces", 1, "slanted_faces must be true or false")]:
+        broken = json.loads(json.dumps(manifest))
+        broken["meta"]["planner"][key] = value
+        (bad / "manifest.json").write_text(json.dumps(broken))
+        code, _, err = run_cli("replay", bad, capsys=capsys)
+        assert code == 2 and f"meta.planner.{says}" in err and "Traceback" not in err, (key, value, err)
 
 
 def test_a_missed_grip_is_retried_with_the_next_best_grasp(short_assembly):
@@ -491,16 +497,31 @@ def test_displaced_parts_lie_at_most_shift_mm_from_their_design():
     assert max(moved) <= 10.0 + 1e-9 and max(moved) > 8.0  # the whole disc is used, never beyond it
 
 
-def test_a_part_merged_into_its_neighbours_region_is_an_obstacle_not_empty_tray():
-    """drive_unit 15 mm off its design, seed 6: the clip touches the washer and is seen only as part
-    of the washer's region (and two small pieces): it is not located. The loop used to plan the
-    washer as if the clip were at its designed place; a finger came down on the clip (the
-    simulated world: "the finger would hit 'clip'") and the washer fell back. The material no
-    located part explains is now an obstacle of the missing clip's height: no grasp of the washer
-    clears it, and the loop stops and asks before anything moves."""
+def test_a_washer_wedged_between_clip_and_pulley_stops_before_anything_moves():
+    """drive_unit 15 mm off its design, seed 6: the clip touches the washer (first in the sequence).
+    The loop once planned the washer as if the clip were at its designed place, a finger came
+    down on the clip (the simulated world: "the finger would hit 'clip'") and the washer fell
+    back. Now the clip is located (from its pieces) or its material is an obstacle, no grasp of
+    the washer clears clip and pulley, and the loop stops and asks before anything moves."""
     s = run_session(RunConfig(assembly=DEFAULT.parent / "drive_unit.json", seed=6, shift_mm=15.0))
     assert not any("would hit" in e for e in s["sim_events"]), s["sim_events"]
     assert s["status"] == "stopped" and s["parts_removed"] == 0 and s["grasps"] == 0
+
+
+def test_a_tool_left_on_the_tray_is_an_obstacle_as_tall_as_the_tallest_part(tmp_path):
+    """A 40 mm tall block nobody modelled, 6 mm beside the nut, where the nut's usual grasp puts a
+    finger: the region matches no part, so it becomes an obstacle (as tall as the tallest part on
+    the tray, not as a part that happens to be missing) and the nut is held another way."""
+    from cell.scene import parse_part
+
+    tool = parse_part({"id": "tool", "outline": [[385, -46], [401, -46], [401, -38], [385, -38]], "z_top": 40.0})
+    s = run_session(RunConfig(assembly=DEFAULT, seed=0, faults=WorldFaults(extra=(tool,)), record=tmp_path / "r"))
+    assert not any("would hit" in e for e in s["sim_events"]), s["sim_events"]
+    assert s["parts_removed"] >= 1 and s["parts"][0]["part"] == "nut" and s["parts"][0]["outcome"] == "removed"
+    first = next(json.loads(line) for line in (tmp_path / "r" / "decisions.jsonl").read_text().splitlines()
+                 if json.loads(line).get("type") == "perception")
+    tall = [u for u in first["unexplained"] if u["z_top_mm"] == 40.0]
+    assert tall and abs(sum(u["area_mm2"] for u in tall) - 128) < 30  # the 16 x 8 mm block
 
 
 def test_parts_lying_8_mm_off_their_design_are_all_found_and_removed():

@@ -136,3 +136,40 @@ def test_a_part_cut_into_pieces_is_found_from_its_pieces():
     assert abs(found["w"].dx_mm - 1.0) < 0.3 and abs(found["w"].dy_mm - 1.5) < 0.3
     alone, _ = locate([washer], regions[:1])
     assert alone == {}  # the larger piece alone is not it
+
+
+def test_a_region_far_larger_than_a_missing_part_does_not_place_it():
+    """Coverage is 1 anywhere inside a large region: a disc touching an unknown object (together
+    3.7 x the disc) would be 'found' wherever it was expected, and the object ignored."""
+    a = disc("a", 300, 0, r=15)
+    blob = Polygon([(316.2, -30), (346, -30), (346, 30), (316.2, 30)])
+    region = a.moved(1, 0).polygon.union(blob)
+    found, strangers = locate([a], [Region(0, lambda zt, zb: region)])
+    assert found == {} and strangers == [0]
+
+
+def test_a_part_found_in_pieces_owns_them_all():
+    """A washer cut in two halves, and a clip designed beside it that is gone: the clip must not be
+    'found' by coverage inside the washer's second half."""
+    washer = disc("washer", 380, 50, r=20.0, z_top=3.0)
+    clip = parse_part({"id": "clip", "outline": [[354, 45], [364, 45], [364, 55], [354, 55]], "z_top": 3.0})
+    moved = washer.moved(1.0, 0.5).polygon
+    cut = Polygon([(350, 20), (381, 20), (381, 80), (350, 80)])
+    regions = [Region(0, lambda zt, zb: moved.difference(cut)), Region(1, lambda zt, zb: moved.intersection(cut))]
+    found, unclaimed = locate([washer, clip], regions)
+    assert set(found) == {"washer"} and unclaimed == []
+
+
+def test_material_in_a_region_no_part_was_found_in_is_as_tall_as_asked():
+    """Something nobody modelled (a tool) beside a part: as tall as the tallest part on the tray,
+    not as the 2 mm clip that happens to be missing elsewhere."""
+    from cell.runtime.matching import unexplained
+
+    cover = parse_part({"id": "cover", "outline": [[300, 0], [360, 0], [360, 40], [300, 40]], "z_top": 30.0})
+    tool = Polygon([(365, 0), (395, 0), (395, 40), (365, 40)])
+    regions = [Region(0, lambda zt, zb: cover.moved(0.5, 0).polygon), Region(1, lambda zt, zb: tool)]
+    found, strangers = locate([cover], regions)
+    seen = {"cover": found["cover"].apply(cover)}
+    obstacles = unexplained(regions, seen, found, z_top_mm=2.0, stranger_z_mm=30.0)
+    assert strangers == [1] and [(o.meta["region"], o.z_top_mm) for o in obstacles] == [(1, 30.0)]
+    assert obstacles[0].polygon.area == pytest.approx(tool.area, rel=0.02)

@@ -374,14 +374,17 @@ class CellLoop:
         return seen
 
     def _unexplained(self, regions, seen: dict, found: dict, strangers: list) -> list[Part]:
-        """Material no located part explains, as obstacles (matching.unexplained), looked for only when a
-        part still on the tray was not located or a region matches no part: at the height of the
-        tallest part not located (it is most likely in there), else of the tallest part on the tray."""
+        """Material no located part explains, as obstacles (matching.unexplained), looked for when a part
+        still on the tray was not located, a region matches no part, or a part was placed in a region
+        by coverage (merged)."""
         missing = [p for pid, p in self.poses.items() if pid not in seen]
-        if not missing and not strangers:
+        covered = any(loc.merged for loc in found.values())  # placed by coverage: the region may hold more
+        if not (missing or strangers or covered) or not self.poses:
             return []
-        heights = [p.z_top_mm for p in (missing or self.poses.values())]
-        return unexplained(regions, seen, found, max(heights)) if heights else []
+        tallest = max(p.z_top_mm for p in self.poses.values())
+        # leftovers beside located parts: most likely a part not found; a region nothing was located
+        # in may be anything (a tool left on the tray): at least as tall as the tallest part
+        return unexplained(regions, seen, found, max((p.z_top_mm for p in missing), default=tallest), tallest)
 
     def _on_tray(self, but: str | None = None) -> list[Part]:
         """Every part believed on the tray (`but` excepted: in the jaws) and the material no part explains."""

@@ -56,6 +56,7 @@ MAX_SHIFT_MM = 60.0
 MAX_MERGED_SHIFT_MM = 15.0
 NEARER_WEIGHT = 0.05  # overlap given up per MAX_SHIFT_MM of shift when choosing among matches
 MIN_UNFLAGGED_RATIO = 1.6  # an unflagged region this much larger than a missing part may hold it
+MAX_UNFLAGGED_RATIO = 3.0  # ... up to this much (the part and a neighbour's wall or a small part)
 
 
 def _preference(c: Located) -> float:
@@ -141,8 +142,11 @@ def locate(parts: Sequence[Part], regions: Sequence[Region]) -> tuple[dict[str, 
             if r.index in own:
                 continue
             poly = r.polygon_at(part.z_top_mm, part.z_bottom_mm)
-            if not r.merged and poly.area < MIN_UNFLAGGED_RATIO * part.polygon.area:
-                continue  # a region of about its size: the first pass judged it (not this part)
+            if not r.merged and not (MIN_UNFLAGGED_RATIO * part.polygon.area <= poly.area
+                                     <= MAX_UNFLAGGED_RATIO * part.polygon.area):
+                # about its size: the first pass judged it (not this part); far larger (a tray
+                # against a table of another colour): coverage would place the part anywhere in it
+                continue
             for other in placed.get(r.index, []):
                 poly = poly.difference(other)
             if poly.is_empty or poly.distance(part.polygon) > MAX_MERGED_SHIFT_MM:
@@ -154,6 +158,7 @@ def locate(parts: Sequence[Part], regions: Sequence[Region]) -> tuple[dict[str, 
         if best is None:
             best, pieces = _in_pieces(part, [r for r in regions if not r.merged and r.index not in claimed])
             claimed.update(pieces)
+            own.update(pieces)  # every piece is this part's: no later part is looked for in one
         if best is not None:
             located[part.id] = best
             claimed.add(best.region)
@@ -200,12 +205,13 @@ EXPLAINED_MARGIN_MM = 2.0  # material this close to a located part's outline is 
 MIN_UNEXPLAINED_MM2 = 20.0
 
 
-def unexplained(regions: Sequence[Region], seen: dict[str, Part], located: dict[str, Located], z_top_mm: float
-                ) -> list[Part]:
+def unexplained(regions: Sequence[Region], seen: dict[str, Part], located: dict[str, Located], z_top_mm: float,
+                stranger_z_mm: float | None = None) -> list[Part]:
     """Material the camera sees that no located part explains, as obstacles from the table up to
     z_top_mm (e.g. a part not found because it was merged into its neighbour's region, or split
     into pieces that match nothing): planning beside it as if the tray were empty there would put
-    a finger on it.
+    a finger on it. In a region no part was located in (something that is not in the assembly,
+    perhaps a tool) up to stranger_z_mm (default z_top_mm).
 
     A region is mapped to mm at the heights of the parts located in it (as it was matched; parallax
     moves a tall part's outline by mm between planes), else at z_top_mm; the located parts'
@@ -218,12 +224,13 @@ def unexplained(regions: Sequence[Region], seen: dict[str, Part], located: dict[
     out: list[Part] = []
     for r in regions:
         inside = [seen[pid] for pid, loc in located.items() if loc.region == r.index and pid in seen]
-        z_top = max((p.z_top_mm for p in inside), default=z_top_mm)
+        height = z_top_mm if inside else max(z_top_mm, stranger_z_mm or 0.0)
+        z_top = max((p.z_top_mm for p in inside), default=height)
         z_bottom = min((p.z_bottom_mm for p in inside), default=0.0)
         left = r.polygon_at(z_top, z_bottom).difference(explained).buffer(-0.5).buffer(0.5)
         for piece in getattr(left, "geoms", [left]):
             if piece.geom_type == "Polygon" and piece.area >= MIN_UNEXPLAINED_MM2:
                 ring = np.asarray(orient(piece, 1.0).exterior.coords)[:-1]  # counter-clockwise, holes filled
-                out.append(Part(f"unexplained-{len(out)}", ring, z_bottom_mm=0.0, z_top_mm=z_top_mm,
+                out.append(Part(f"unexplained-{len(out)}", ring, z_bottom_mm=0.0, z_top_mm=height,
                                 meta={"region": r.index}))
     return out

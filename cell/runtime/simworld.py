@@ -28,20 +28,22 @@ LIFTED_MM = 10.0  # the part is off the tray once the tips are this far above wh
 
 @dataclass
 class WorldFaults:
-    """Misbehaviour for tests: parts whose next grips miss, parts stuck to the tray."""
+    """Misbehaviour for tests: parts whose next grips miss, parts stuck to the tray, things on the
+    tray that the assembly does not know."""
 
     miss: dict = field(default_factory=dict)  # part id -> how many grips slide off it
     stuck: set = field(default_factory=set)  # part ids that never leave the tray
     bad_frames: int = 0  # the camera's next reads that deliver no usable frame
+    extra: tuple = ()  # parts on the tray that are not in the assembly (a tool left there)
 
 
 class SimWorld:
     def __init__(self, parts, cell: Cell, drives, *, seed: int = 0, faults: WorldFaults | None = None):
-        self.parts: dict[str, Part] = {p.id: p for p in parts}
+        self.faults = faults or WorldFaults()
+        self.parts: dict[str, Part] = {p.id: p for p in [*parts, *self.faults.extra]}
         self.cell = cell
         self.drives = drives
         self.rng = np.random.default_rng(seed)
-        self.faults = faults or WorldFaults()
         self.held: str | None = None
         self.removed: list[str] = []
         self.events: list[str] = []

@@ -45,9 +45,14 @@ def planner_from_meta(planner, where: str) -> SynthesisParams:
     if not isinstance(planner, dict):
         raise BadInput(f"{where}: manifest meta.planner must be an object")
     values = {k: planner.get(k, old) for k, old in RECORDED_PLANNER.items()}
-    for k, v in values.items():
-        if isinstance(v, bool) != isinstance(RECORDED_PLANNER[k], bool) or not isinstance(v, (int, float)):
-            raise BadInput(f"{where}: manifest meta.planner.{k} must be a {type(RECORDED_PLANNER[k]).__name__}")
+    if not isinstance(values["slanted_faces"], bool):
+        raise BadInput(f"{where}: manifest meta.planner.slanted_faces must be true or false")
+    leaf = values["tree_min_samples_leaf"]
+    if isinstance(leaf, bool) or not isinstance(leaf, int) or leaf < 1:
+        raise BadInput(f"{where}: manifest meta.planner.tree_min_samples_leaf must be a whole number >= 1")
+    margin = values["obstacle_margin_mm"]
+    if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 0 <= margin < math.inf:
+        raise BadInput(f"{where}: manifest meta.planner.obstacle_margin_mm must be a number of mm >= 0")
     return SynthesisParams(**values)
 
 def differences(recorded, replayed, path: str = "") -> list[str]:

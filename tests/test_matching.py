@@ -173,3 +173,17 @@ def test_material_in_a_region_no_part_was_found_in_is_as_tall_as_asked():
     obstacles = unexplained(regions, seen, found, z_top_mm=2.0, stranger_z_mm=30.0)
     assert strangers == [1] and [(o.meta["region"], o.z_top_mm) for o in obstacles] == [(1, 30.0)]
     assert obstacles[0].polygon.area == pytest.approx(tool.area, rel=0.02)
+
+
+def test_unexplained_material_round_a_part_keeps_its_hole():
+    """A ring of material round a located part (a gasket it sits in): the obstacle is the ring, not
+    a disc that would cover the part itself."""
+    from cell.runtime.matching import unexplained
+
+    part = disc("p", 350, 0, r=10.0)
+    ring = disc("r", 350, 0, r=20.0).polygon.difference(disc("h", 350, 0, r=14.0).polygon)
+    regions = [Region(0, lambda zt, zb: part.polygon), Region(1, lambda zt, zb: ring)]
+    found, _ = locate([part], regions)
+    obstacles = unexplained(regions, {"p": found["p"].apply(part)}, found, z_top_mm=5.0, stranger_z_mm=5.0)
+    assert len(obstacles) == 1 and len(obstacles[0].holes_mm) == 1
+    assert not obstacles[0].polygon.intersects(part.polygon)

@@ -202,7 +202,7 @@ def _axis_deg(poly: Polygon) -> float:
 
 
 EXPLAINED_MARGIN_MM = 2.0  # material this close to a located part's outline is that part (outline noise)
-MIN_UNEXPLAINED_MM2 = 20.0
+MIN_UNEXPLAINED_MM2 = 30.0  # (outline noise left 21-23 mm2 pieces; a clip's smallest piece seen: 45)
 
 
 def unexplained(regions: Sequence[Region], seen: dict[str, Part], located: dict[str, Located], z_top_mm: float,
@@ -230,7 +230,9 @@ def unexplained(regions: Sequence[Region], seen: dict[str, Part], located: dict[
         left = r.polygon_at(z_top, z_bottom).difference(explained).buffer(-0.5).buffer(0.5)
         for piece in getattr(left, "geoms", [left]):
             if piece.geom_type == "Polygon" and piece.area >= MIN_UNEXPLAINED_MM2:
-                ring = np.asarray(orient(piece, 1.0).exterior.coords)[:-1]  # counter-clockwise, holes filled
-                out.append(Part(f"unexplained-{len(out)}", ring, z_bottom_mm=0.0, z_top_mm=height,
-                                meta={"region": r.index}))
+                piece = orient(piece, 1.0)  # outline counter-clockwise, holes clockwise (a ring round a part
+                # keeps its hole: filled, it would cover the part)
+                out.append(Part(f"unexplained-{len(out)}", np.asarray(piece.exterior.coords)[:-1],
+                                tuple(np.asarray(h.coords)[:-1] for h in piece.interiors), z_bottom_mm=0.0,
+                                z_top_mm=height, meta={"region": r.index}))
     return out

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from shapely.geometry import Polygon
 
-from cell.runtime.matching import Region, locate, register
+from cell.runtime.matching import Located, Region, locate, register
 from cell.scene import parse_part
 
 
@@ -187,3 +187,21 @@ def test_unexplained_material_round_a_part_keeps_its_hole():
     obstacles = unexplained(regions, {"p": found["p"].apply(part)}, found, z_top_mm=5.0, stranger_z_mm=5.0)
     assert len(obstacles) == 1 and len(obstacles[0].holes_mm) == 1
     assert not obstacles[0].polygon.intersects(part.polygon)
+
+
+def test_with_nothing_missing_a_misfit_is_no_obstacle_but_more_material_is():
+    """Beside a part placed in a region, with every part found: a sliver the registration left (a
+    poor fit) is the part's own; something as large as half the part is not, and is unknown."""
+    from cell.runtime.matching import unexplained
+
+    washer = disc("w", 380, 50, r=12.0, z_top=3.0)
+    area = washer.polygon.area
+    for extra_mm2, counted in [(0.3 * area, False), (0.7 * area, True)]:
+        side = extra_mm2 / 10.0
+        extra = Polygon([(392.5, 45), (392.5 + side, 45), (392.5 + side, 55), (392.5, 55)])
+        region = washer.polygon.union(extra)
+        located = {"w": Located("w", 0, 0.0, 0.0, 0.0, 0.9, True)}
+        obstacles = unexplained([Region(0, lambda zt, zb, g=region: g)], {"w": washer}, located, z_top_mm=40.0,
+                                stranger_z_mm=40.0, missing=False)
+        assert bool(obstacles) == counted, extra_mm2
+        assert all(o.z_top_mm == 40.0 for o in obstacles)

@@ -384,7 +384,8 @@ class CellLoop:
         tallest = max(p.z_top_mm for p in self.poses.values())
         # leftovers beside located parts: most likely a part not found; a region nothing was located
         # in may be anything (a tool left on the tray): at least as tall as the tallest part
-        return unexplained(regions, seen, found, max((p.z_top_mm for p in missing), default=tallest), tallest)
+        return unexplained(regions, seen, found, max((p.z_top_mm for p in missing), default=tallest), tallest,
+                           missing=bool(missing))
 
     def _on_tray(self, but: str | None = None) -> list[Part]:
         """Every part believed on the tray (`but` excepted: in the jaws) and the material no part explains."""

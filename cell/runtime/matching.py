@@ -202,16 +202,19 @@ def _axis_deg(poly: Polygon) -> float:
 
 
 EXPLAINED_MARGIN_MM = 2.0  # material this close to a located part's outline is that part (outline noise)
+MISFIT_SHARE = 0.5  # x a located part's area: more left over beside it than a misfit leaves (measured 0.27)
 MIN_UNEXPLAINED_MM2 = 30.0  # (outline noise left 21-23 mm2 pieces; a clip's smallest piece seen: 45)
 
 
 def unexplained(regions: Sequence[Region], seen: dict[str, Part], located: dict[str, Located], z_top_mm: float,
-                stranger_z_mm: float | None = None) -> list[Part]:
+                stranger_z_mm: float | None = None, missing: bool = True) -> list[Part]:
     """Material the camera sees that no located part explains, as obstacles from the table up to
     z_top_mm (e.g. a part not found because it was merged into its neighbour's region, or split
     into pieces that match nothing): planning beside it as if the tray were empty there would put
     a finger on it. In a region no part was located in (something that is not in the assembly,
-    perhaps a tool) up to stranger_z_mm (default z_top_mm).
+    perhaps a tool) up to stranger_z_mm (default z_top_mm). With no part `missing`, what is left
+    beside located parts is most likely their own misfit (a poor registration, a wall): it counts
+    only from MISFIT_SHARE of the smallest of them, and then as unknown (stranger_z_mm).
 
     A region is mapped to mm at the heights of the parts located in it (as it was matched; parallax
     moves a tall part's outline by mm between planes), else at z_top_mm; the located parts'
@@ -224,12 +227,16 @@ def unexplained(regions: Sequence[Region], seen: dict[str, Part], located: dict[
     out: list[Part] = []
     for r in regions:
         inside = [seen[pid] for pid, loc in located.items() if loc.region == r.index and pid in seen]
-        height = z_top_mm if inside else max(z_top_mm, stranger_z_mm or 0.0)
+        unknown = max(z_top_mm, stranger_z_mm or 0.0)
+        height = z_top_mm if inside and missing else unknown
+        least = MIN_UNEXPLAINED_MM2
+        if inside and not missing:
+            least = max(least, MISFIT_SHARE * min(p.polygon.area for p in inside))
         z_top = max((p.z_top_mm for p in inside), default=height)
         z_bottom = min((p.z_bottom_mm for p in inside), default=0.0)
         left = r.polygon_at(z_top, z_bottom).difference(explained).buffer(-0.5).buffer(0.5)
         for piece in getattr(left, "geoms", [left]):
-            if piece.geom_type == "Polygon" and piece.area >= MIN_UNEXPLAINED_MM2:
+            if piece.geom_type == "Polygon" and piece.area >= least:
                 piece = orient(piece, 1.0)  # outline counter-clockwise, holes clockwise (a ring round a part
                 # keeps its hole: filled, it would cover the part)
                 out.append(Part(f"unexplained-{len(out)}", np.asarray(piece.exterior.coords)[:-1],

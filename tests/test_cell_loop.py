@@ -524,6 +524,20 @@ def test_a_tool_left_on_the_tray_is_an_obstacle_as_tall_as_the_tallest_part(tmp_
     assert tall and abs(sum(u["area_mm2"] for u in tall) - 128) < 30  # the 16 x 8 mm block
 
 
+def test_a_self_crossing_region_keeps_all_its_area():
+    """A merged region mapped at a tall part's height may cross itself; its largest piece alone lost
+    the motor standing on fig18_product's base plate (15 mm off, seed 9: "motor is not found")."""
+    from shapely.geometry import Polygon
+
+    from cell.runtime.loop import valid_area
+
+    bowtie = Polygon([(0, 0), (40, 30), (40, 0), (0, 30)])  # two 300 mm2 lobes crossing at (20, 15)
+    fixed = valid_area(bowtie)
+    assert fixed.is_valid and fixed.area == pytest.approx(600.0)
+    s = run_session(RunConfig(assembly=DEFAULT.parent / "fig18_product.json", seed=9, shift_mm=15.0))
+    assert s["status"] == "complete" and s["parts_removed"] == 6
+
+
 def test_parts_lying_8_mm_off_their_design_are_all_found_and_removed():
     # drive_unit has 2-6 mm gaps: before the world kept parts apart, this seed put the pulley into the
     # gearbox and the run stopped

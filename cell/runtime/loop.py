@@ -47,6 +47,17 @@ TRAVEL_MARGIN_MM = 20.0  # above the tallest part on the tray, when travelling
 SEEN_OBSTACLE_MARGIN_MM = 1.0
 
 
+def valid_area(poly: Polygon):
+    """All the area of a self-crossing polygon as a valid (multi)polygon. (Not the largest piece of
+    `buffer(0)`: a motor in a region merged with its base plate, mapped at its top height, crossed
+    itself, and keeping the largest piece dropped the motor: "motor is not found".)"""
+    import shapely
+
+    fixed = shapely.make_valid(poly)
+    pieces = [g for g in getattr(fixed, "geoms", [fixed]) if g.geom_type in ("Polygon", "MultiPolygon")]
+    return shapely.union_all(pieces) if pieces else Polygon()
+
+
 def loop_planner_params() -> SynthesisParams:
     """The planner's parameters as the loop runs it on measured poses."""
     return SynthesisParams(obstacle_margin_mm=SEEN_OBSTACLE_MARGIN_MM)
@@ -325,9 +336,7 @@ class CellLoop:
                 outline, holes = segment_to_mm(seg, self.cal, z_top, z_bottom, frame)
                 poly = Polygon(outline, holes)
                 if not poly.is_valid:  # a wall-corrected outline may cross itself at a corner
-                    poly = poly.buffer(0)
-                    if poly.geom_type == "MultiPolygon":
-                        poly = max(poly.geoms, key=lambda g: g.area)
+                    poly = valid_area(poly)
                 return poly
             return polygon_at
 

@@ -591,7 +591,12 @@ def _hole_holds(hole: np.ndarray, outline: np.ndarray, p: SegmentParams, area: f
             & (np.minimum(a[:, 1], b[:, 1]) <= v1) & (np.maximum(a[:, 1], b[:, 1]) >= v0))
     if not near.any():  # no edge of the outline comes near: the hole lies wholly inside or outside
         return cv2.pointPolygonTest(ring, (float(hole[0, 0]), float(hole[0, 1])), False) > 0
-    return all(cv2.pointPolygonTest(ring, (float(u), float(v)), True) > 0.5 for u, v in hole)
+    return bool(_clear_inside(hole, ring).all())
+
+
+def _clear_inside(hole: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """(m,) True where the hole's vertex lies more than 0.5 px inside the outline `ring` (float32)."""
+    return np.array([cv2.pointPolygonTest(ring, (float(u), float(v)), True) > 0.5 for u, v in hole])
 
 
 GRAZED_HOLE_MIN = 4.0  # x min_hole_area_px: a hole this large that the outline grazes is kept, clipped
@@ -606,8 +611,7 @@ def _hole_grazed(hole: np.ndarray, outline: np.ndarray, p: SegmentParams, area: 
     clipped to the outline (0.5 px inside), or None when it was no more than a sliver."""
     if abs(area) < GRAZED_HOLE_MIN * p.min_hole_area_px:
         return None
-    ring = outline.astype(np.float32)
-    close = sum(cv2.pointPolygonTest(ring, (float(u), float(v)), True) <= 0.5 for u, v in hole)
+    close = np.count_nonzero(~_clear_inside(hole, outline.astype(np.float32)))
     if close > GRAZED_MAX_SHARE * len(hole):
         return None  # a stretch of it runs along the edge: a sliver of shadow, not a hole
     from shapely.geometry import Polygon

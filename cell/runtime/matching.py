@@ -225,9 +225,9 @@ def unexplained(regions: Sequence[Region], seen: dict[str, Part], located: dict[
 
     explained = union_all([p.polygon for p in seen.values()]).buffer(EXPLAINED_MARGIN_MM) if seen else Polygon()
     out: list[Part] = []
+    unknown = max(z_top_mm, stranger_z_mm or 0.0)
     for r in regions:
         inside = [seen[pid] for pid, loc in located.items() if loc.region == r.index and pid in seen]
-        unknown = max(z_top_mm, stranger_z_mm or 0.0)
         height = z_top_mm if inside and missing else unknown
         least = MIN_UNEXPLAINED_MM2
         if inside and not missing:

@@ -151,7 +151,14 @@ def _cli(*argv):
         text=True,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
+        # a shell without job control starts background jobs with SIGINT ignored, and Python keeps an
+        # ignored SIGINT ignored: give the command the terminal's default, whoever started pytest
+        preexec_fn=_default_sigint,
     )
+
+
+def _default_sigint():
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _wait_for_file_frames(path, timeout_s=20.0):

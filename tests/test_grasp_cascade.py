@@ -11,7 +11,7 @@ from shapely.geometry import Point
 from cell.cellconfig import default_cell
 from cell.errors import NoFeasibleGrasp
 from cell.examples import GraspExample
-from cell.grasp import cascade, shapes
+from cell.grasp import bands, cascade, pairs, shapes
 from cell.grasp.candidates import candidate_points
 from cell.grasp.cascade import STAGES, Context, Pairs, joints_of, run_brute_force, run_cascade
 from cell.grasp.footprints import (
@@ -258,9 +258,9 @@ def test_row_norms_and_dot_products_match_numpy_bit_for_bit():
     rng = np.random.default_rng(0)
     a = rng.normal(size=(5000, 2)) * np.exp(rng.normal(size=(5000, 2)) * 4)
     b = rng.normal(size=(5000, 2))
-    assert np.array_equal(cascade._norm2(a), np.linalg.norm(a, axis=1))
-    assert np.array_equal(cascade._dot2(a, b), (a * b).sum(1))
-    assert np.array_equal(-cascade._dot2(a, b), (a * -b).sum(1))
+    assert np.array_equal(pairs._norm2(a), np.linalg.norm(a, axis=1))
+    assert np.array_equal(pairs._dot2(a, b), (a * b).sum(1))
+    assert np.array_equal(-pairs._dot2(a, b), (a * -b).sum(1))
 
 
 @settings(max_examples=40, deadline=None)
@@ -291,14 +291,14 @@ def _plain_liang_barsky(tA, dt, lA, dl, t_min, t_max, half_width):
     return s0, s1, inside & (s0 <= s1)
 
 
-@pytest.mark.parametrize("n", [300, cascade.LB_STACKED_MAX + 1])
+@pytest.mark.parametrize("n", [300, bands.LB_STACKED_MAX + 1])
 def test_liang_barsky_matches_the_plain_clip(n):
     rng = np.random.default_rng(n)
     tA, dt, lA, dl = np.round(rng.normal(size=(4, n)) * 10, 1)  # rounded: edges on the band's sides and ends
     dt[::7] = 0
     dl[::5] = 0
     t_min, t_max = np.round(rng.normal(size=n), 1), np.round(rng.normal(size=n), 1) + 10
-    fast = cascade._liang_barsky(tA, dt, lA, dl, t_min, t_max, 7.0)
+    fast = bands._liang_barsky(tA, dt, lA, dl, t_min, t_max, 7.0)
     plain = _plain_liang_barsky(tA, dt, lA, dl, t_min, t_max, 7.0)
     assert np.array_equal(fast[2], plain[2]) and fast[2].any() and not fast[2].all()
     assert np.array_equal(fast[0][fast[2]], plain[0][plain[2]]) and np.array_equal(fast[1][fast[2]], plain[1][plain[2]])
@@ -333,11 +333,11 @@ def test_contacts_are_the_same_with_the_box_broadcast_or_the_strtree(monkeypatch
         ctx = Context.build(target, obstacles, CELL, params, 1.0, op.points, op.ring)
         P = Pairs.of(vp.points, vp.normals, idx)
         alive = np.flatnonzero(cascade.stage_antipodal(ctx, P, np.arange(len(P))))
-        monkeypatch.setattr(cascade, "OVERLAP_BROADCAST_MAX", 10**12)
-        monkeypatch.setattr(cascade, "OVERLAP_BROADCAST_EDGES", 10**12)
+        monkeypatch.setattr(bands, "OVERLAP_BROADCAST_MAX", 10**12)
+        monkeypatch.setattr(bands, "OVERLAP_BROADCAST_EDGES", 10**12)
         broadcast = _contacts(ctx, P, alive)
-        monkeypatch.setattr(cascade, "OVERLAP_BROADCAST_MAX", 0)
-        monkeypatch.setattr(cascade, "OVERLAP_BROADCAST_EDGES", 0)
+        monkeypatch.setattr(bands, "OVERLAP_BROADCAST_MAX", 0)
+        monkeypatch.setattr(bands, "OVERLAP_BROADCAST_EDGES", 0)
         tree = _contacts(ctx, P, alive)
         assert broadcast[0].any()
         for a, b in zip(broadcast, tree, strict=True):
@@ -353,7 +353,7 @@ def test_narrowed_bands_have_the_first_touch_of_bands_clipped_at_that_width():
     t_min, t_max = t - 2, t + 15
 
     def clip(hw):
-        return cascade.BandEdges.clip(ctx, c[:, 0], c[:, 1], u[:, 0], u[:, 1], t_min, t_max, hw)
+        return bands.BandEdges.clip(ctx, c[:, 0], c[:, 1], u[:, 0], u[:, 1], t_min, t_max, hw)
 
     rows = np.arange(0, len(c), 3)
     T_wide, _ = clip(7.0).narrowed(rows, (6.0, 0.05)).first_touch(ctx, touch=False)

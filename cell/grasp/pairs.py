@@ -1,0 +1,188 @@
+"""The pairs of valid points the cascade filters, and what the stages know about the scene.
+
+Context: the target (its edges by component, its outline samples and their neighbours), the
+obstacles sorted by height (finger-high, palm-high), the cell. Pairs: every unordered pair of
+valid points with its closing-axis geometry; the stages fill in the real contacts and the IK.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+
+from cell.cellconfig import Cell
+from cell.grasp.params import SynthesisParams
+from cell.kinematics import normalize_axis_deg
+from cell.scene import Part
+
+# Comparisons against a tolerance allow this much float noise, so that the verdict on a pair
+# does not depend on where the part lies (mid-step samples on parallel faces sit exactly
+# contact_tol apart across the axis).
+EPS_MM = 1e-6
+Z_EPS_MM = 1e-6
+
+
+@dataclass
+class Context:
+    """What the stages need about one scene: the target, the obstacles by height, the cell."""
+
+    target: Part
+    cell: Cell
+    params: SynthesisParams
+    grasp_z_mm: float
+    target_geom: object = None
+    finger_obstacles: object = None  # union of obstacles taller than the grasp z, or None
+    palm_obstacles: object = None  # union of obstacles taller than the palm bottom, or None
+    finger_obstacle_ids: list = field(default_factory=list)
+    edge_a: np.ndarray = None  # (E, 2) start of every target edge (outline and holes)
+    edge_b: np.ndarray = None  # (E, 2) its end
+    edge_tree: object = None  # STRtree over the edges
+    samples: np.ndarray | None = None  # (N, 2) the target's outline samples, ring after ring
+    sample_ring_first: np.ndarray | None = None  # (N,) index of the first sample of each sample's ring
+    sample_ring_count: np.ndarray | None = None  # (N,) number of samples on that ring
+    edge_ax: np.ndarray = None  # (E,) the edges' start, direction (end - start) and bounding boxes, by component
+    edge_ay: np.ndarray = None
+    edge_dx: np.ndarray = None
+    edge_dy: np.ndarray = None
+    edge_lox: np.ndarray = None
+    edge_loy: np.ndarray = None
+    edge_hix: np.ndarray = None
+    edge_hiy: np.ndarray = None
+    finger_boxes: np.ndarray | None = None  # (n, 4) bounding boxes of the finger obstacles' parts
+    palm_boxes: np.ndarray | None = None  # (n, 4) the same for the palm obstacles
+    neighbour_x: np.ndarray | None = None  # (N, 2K) the samples on the same ring within K steps of each sample
+    neighbour_y: np.ndarray | None = None
+
+    @classmethod
+    def build(cls, target: Part, obstacles, cell: Cell, params: SynthesisParams, grasp_z_mm: float,
+              samples: np.ndarray | None = None, sample_ring: np.ndarray | None = None) -> Context:
+        tall = [o for o in obstacles if o.z_top_mm > grasp_z_mm + Z_EPS_MM]
+        palm_z = grasp_z_mm + cell.gripper.palm_offset_mm
+        palm = [o for o in obstacles if o.z_top_mm > palm_z + Z_EPS_MM]
+
+        def union(parts):
+            if not parts:
+                return None
+            u = shapely.union_all([p.polygon for p in parts])
+            if params.obstacle_margin_mm > 0:
+                u = u.buffer(params.obstacle_margin_mm, quad_segs=4)
+            shapely.prepare(u)
+            return u
+
+        tg = shapely.Polygon(target.polygon.exterior, target.polygon.interiors)
+        shapely.prepare(tg)
+        rings = [target.outline_mm, *target.holes_mm]
+        a = np.vstack(rings)
+        b = np.vstack([np.roll(r, -1, axis=0) for r in rings])
+        tree = shapely.STRtree(shapely.linestrings(np.stack([a, b], axis=1)))
+        first = count = None
+        if samples is not None:
+            ring = np.asarray(sample_ring, int)
+            starts = np.searchsorted(ring, np.arange(ring.max() + 1))
+            counts = np.bincount(ring)
+            first, count = starts[ring], counts[ring]
+        nx = ny = None
+        if samples is not None:  # the samples next to each sample on its ring, for the pre-check
+            samples = np.asarray(samples, float)
+            offs = np.array(_neighbour_offsets(cell, params))
+            near = first[:, None] + (np.arange(len(samples))[:, None] - first[:, None] + offs[None, :]) % count[:, None]
+            nx, ny = samples[:, 0].take(near), samples[:, 1].take(near)
+        fo, po = union(tall), union(palm)
+        return cls(target, cell, params, grasp_z_mm, tg, fo, po, [o.id for o in tall],
+                   a, b, tree, samples, first, count, *_edge_columns(a, b), _part_boxes(fo),
+                   _part_boxes(po), nx, ny)
+
+
+def _part_boxes(geom) -> np.ndarray | None:
+    """(n, 4) bounding boxes (x0, y0, x1, y1) of the parts of a (multi)polygon; None for None."""
+    return None if geom is None else shapely.bounds(shapely.get_parts(geom))
+
+
+def _neighbour_offsets(cell: Cell, params: SynthesisParams) -> list[int]:
+    """Steps along the outline, -K..-1, 1..K, that reach past a pad band's half width (contact_tol included)."""
+    K = math.ceil((cell.gripper.pad_width_mm / 2 + params.contact_tol_mm) / params.step_mm) + 1
+    return [*range(-K, 0), *range(1, K + 1)]
+
+
+def _edge_columns(a: np.ndarray, b: np.ndarray) -> list[np.ndarray]:
+    """Edges from a to b (E, 2): start x, y, direction x, y, bounding box lo x, y, hi x, y, each (E,)."""
+    d = b - a
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    return [np.ascontiguousarray(c) for c in (a[:, 0], a[:, 1], d[:, 0], d[:, 1], lo[:, 0], lo[:, 1], hi[:, 0],
+                                              hi[:, 1])]
+
+
+@dataclass
+class Pairs:
+    """Every unordered pair (i, j) of valid points with its closing-axis geometry, arrays (s, ...).
+
+    u: closing axis (unit, from p_j towards p_i), the bisector of n_i and -n_j; m: pair midpoint;
+    t: half the points' distance along u. The `contacts` stage fills ci, cj (the real touching
+    points), center and h (half the jaw gap at the contacts); `ik` fills joints.
+    """
+
+    ij: np.ndarray
+    pi: np.ndarray
+    pj: np.ndarray
+    ni: np.ndarray
+    nj: np.ndarray
+    d: np.ndarray
+    u: np.ndarray
+    m: np.ndarray
+    t: np.ndarray
+    ci: np.ndarray = None
+    cj: np.ndarray = None
+    center: np.ndarray = None
+    h: np.ndarray = None
+    joints: dict = field(default_factory=dict)
+    ik: tuple | None = None  # (grasp z, scara) once the ik stage ran: joints_of solves from it
+    si: np.ndarray | None = None  # (s, 2) outline-sample index of p_i and p_j
+
+    w: np.ndarray | None = None  # (s, 2) p_i - p_j, the stages reuse it
+
+    def __post_init__(self):
+        if self.w is None:
+            self.w = self.pi - self.pj
+
+    def __len__(self) -> int:
+        return len(self.ij)
+
+    @classmethod
+    def of(cls, points: np.ndarray, normals: np.ndarray, sample_index: np.ndarray | None = None) -> Pairs:
+        """sample_index (z',): each point's index among the target's outline samples (enables the
+        pre-check's look at the outline next to each point)."""
+        i, j = np.triu_indices(len(points), k=1)
+        points, normals = np.asarray(points, float), np.asarray(normals, float)
+        pi, pj, ni, nj = points.take(i, 0), points.take(j, 0), normals.take(i, 0), normals.take(j, 0)
+        w = pi - pj
+        d = _norm2(w)
+        u = ni - nj
+        un = _norm2(u)
+        degenerate = un < 1e-9
+        if degenerate.any():
+            u[degenerate] = w[degenerate]
+            un = _norm2(u)
+        u /= np.maximum(un, 1e-12)[:, None]
+        m = 0.5 * (pi + pj)
+        t = 0.5 * (w[:, 0] * u[:, 0] + w[:, 1] * u[:, 1])
+        nan2 = np.full((len(i), 2), np.nan)
+        si = None if sample_index is None else np.column_stack([sample_index[i], sample_index[j]])
+        return cls(np.column_stack([i, j]), pi, pj, ni, nj, d, u, m, t, nan2.copy(), nan2.copy(), nan2.copy(),
+                   np.full(len(i), np.nan), si=si, w=w)
+
+    def axis_deg(self, k: int) -> float:
+        return normalize_axis_deg(math.degrees(math.atan2(self.u[k, 1], self.u[k, 0])))
+
+
+def _norm2(a: np.ndarray) -> np.ndarray:
+    """Row lengths of a (k, 2): np.linalg.norm(a, axis=1), bit for bit, without its reduction's cost."""
+    return np.sqrt(a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1])
+
+
+def _dot2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row dot products of two (k, 2): (a * b).sum(1), bit for bit (a sum over an axis of length 2 costs
+    ten times the two products and the addition)."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]

@@ -163,6 +163,8 @@ def test_map_cli_both_ways_with_negative_coordinates(capsys):
     (["--px", "1,2,3"], "two numbers"),
     (["--px", "a,b"], "two numbers"),
     (["--mm", "1,nan"], "finite"),
+    (["--px", "1,2", "--z", "nan"], "--z must be a finite number"),
+    (["--px", "1,2", "--z", "inf"], "--z must be a finite number"),
 ])
 def test_map_cli_bad_points(capsys, args, match):
     code, _, err = run_cli("map", DEFAULT, *args, "--json", capsys=capsys)

@@ -6,7 +6,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from conftest import run_cli
+from conftest import EXTERNAL, run_cli
 
 from calibration import Calibration, default_calibration_path, save_calibration
 from cell.errors import BadInput
@@ -105,6 +105,22 @@ def test_segment_cli_corrupt_images(tmp_path, capsys, content, match):
     p.write_bytes(content)
     code, out, err = run_cli("segment", p, "--json", capsys=capsys)
     assert code == 2 and match in err and out == "" and "Traceback" not in err
+
+
+@pytest.mark.parametrize("option, value", [
+    ("--min-area-px", "nan"),   # used to print "parts": [] and exit 0 (no area compares above NaN)
+    ("--min-area-px", "-5"),    # used to keep every speck
+    ("--min-area-mm2", "nan"),
+    ("--min-area-mm2", "-1"),
+    ("--z", "inf"),             # used to say "the plane z = inf mm is not in front of the camera"
+    ("--z", "nan"),
+])
+def test_segment_cli_refuses_non_finite_and_negative_numbers(capsys, option, value):
+    image = EXTERNAL / "simplecv-coins" / "pills.png"
+    extra = ["--calibration", default_calibration_path()] if option != "--min-area-px" else []
+    code, out, err = run_cli("segment", image, *extra, option, value, "--json", capsys=capsys)
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and option in err and "Traceback" not in err
 
 
 def test_segment_cli_missing_and_directory(tmp_path, capsys):

@@ -46,5 +46,16 @@ def grid(text: str, what: str) -> tuple[int, int]:
     return int(m.group(1)), int(m.group(2))
 
 
+def finite(value: float | None, what: str, minimum: float | None = None) -> float | None:
+    """An option's number, refused when NaN or infinite (or below `minimum`); None passes."""
+    if value is None:
+        return None
+    if not _finite(value):
+        raise BadInput(f"{what} must be a finite number (got {value!r})")
+    if minimum is not None and value < minimum:
+        raise BadInput(f"{what} must be at least {minimum:g} (got {value!r})")
+    return value
+
+
 def _finite(x: float) -> bool:
     return x == x and abs(x) != float("inf")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from cell.commands._vision_args import allow_negative_pairs, pair
+from cell.commands._vision_args import allow_negative_pairs, finite, pair
 
 
 def add_arguments(p) -> None:
@@ -21,6 +21,7 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from calibration import load_calibration
 
+    finite(args.z, "--z")
     cal = load_calibration(args.calibration)
     if args.px:
         pts = [pair(t, "--px") for t in args.px]

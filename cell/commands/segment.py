@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import sys
 
+from cell.commands._vision_args import finite
+
 
 def add_arguments(p) -> None:
     p.add_argument("images", nargs="+", metavar="IMAGE", help="image file(s) to segment")
@@ -31,6 +33,9 @@ def run(args) -> int:
     from cell.vision.segment import SegmentParams, segment_frame, segment_to_mm
     from cell.vision.sources import read_image
 
+    finite(args.z, "--z")
+    finite(args.min_area_mm2, "--min-area-mm2", 0.0)
+    finite(args.min_area_px, "--min-area-px", 0.0)
     cal = None
     if args.calibration:
         cal = load_calibration(args.calibration)

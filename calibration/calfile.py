@@ -32,6 +32,7 @@ from cell.fileio import read_json, to_jsonable, write_json_atomic
 
 FORMAT = "disassembly-cell/calibration"
 VERSION = 1
+MAX_HOMOGRAPHY_COND = 1e12  # a fitted px -> mm homography of a 1920 x 1080 frame: about 1e5
 
 
 def default_calibration_path() -> Path:
@@ -133,8 +134,10 @@ def parse_calibration(raw, source: str = "<calibration>") -> Calibration:
         if not isinstance(homr, dict):
             fail("'homography' must be an object or null")
         hom = _matrix(homr.get("px_to_mm"), (3, 3), "homography.px_to_mm", fail)
-        if abs(np.linalg.det(hom)) < 1e-15:
-            fail("homography.px_to_mm is singular")
+        with np.errstate(over="ignore", invalid="ignore"):
+            cond = np.linalg.cond(hom)  # scale-free: a homography times any factor is the same mapping
+        if not np.isfinite(cond) or cond > MAX_HOMOGRAPHY_COND:
+            fail("homography.px_to_mm is singular (or too badly conditioned to invert)")
         plane_z = _finite(homr.get("plane_z_mm", plane_z), "homography.plane_z_mm", fail)
     if k is None and hom is None:
         fail("the file has neither 'intrinsics' nor 'homography'")
@@ -152,6 +155,8 @@ def _finite(v, where, fail) -> float:
 
 
 def _matrix(v, shape, where, fail) -> np.ndarray:
+    if _has_bool(v):
+        fail(f"{where} must be a {shape[0]} x {shape[1]} list of numbers (true/false are not numbers)")
     try:
         arr = np.array(v, dtype=float)
     except (TypeError, ValueError):
@@ -159,3 +164,7 @@ def _matrix(v, shape, where, fail) -> np.ndarray:
     if arr.shape != shape or not np.all(np.isfinite(arr)):
         fail(f"{where} must be a {shape[0]} x {shape[1]} list of finite numbers")
     return arr
+
+
+def _has_bool(v) -> bool:
+    return isinstance(v, bool) or (isinstance(v, list) and any(_has_bool(x) for x in v))

@@ -108,7 +108,7 @@ class Calibration:
         ndarray of shape (n, 2), mm.
         """
         uv = check_points(uv, "px_to_mm")
-        z = self.plane_z_mm if z_mm is None else float(z_mm)
+        z = self._plane(z_mm)
         if self.has_pose:
             rays_cam = self._rays(uv)
             r, t = self.cam2base[:3, :3], self.cam2base[:3, 3]
@@ -118,10 +118,10 @@ class Calibration:
                 s = (z - t[2]) / dz
             if np.any(~np.isfinite(s)) or np.any(s <= 0):
                 raise BadInput(f"the plane z = {z} mm is not in front of the camera for some pixels")
-            return (t[None, :] + s[:, None] * rays)[:, :2]
+            return _finite_result((t[None, :] + s[:, None] * rays)[:, :2], "px_to_mm")
         if self.homography is not None:
             self._check_plane(z)
-            return _apply_h(self.homography, uv)
+            return _finite_result(_apply_h(self.homography, uv), "px_to_mm")
         raise BadInput(f"calibration {self.name!r} has intrinsics only: no mapping to the base frame "
                        "(run `cell calibrate plane`)")
 
@@ -138,13 +138,13 @@ class Calibration:
         ndarray of shape (n, 2), px, lens distortion applied.
         """
         xy = check_points(xy, "mm_to_px")
-        z = self.plane_z_mm if z_mm is None else float(z_mm)
+        z = self._plane(z_mm)
         if self.has_pose:
             xyz = np.column_stack([xy, np.full(len(xy), z)])
-            return self.project(xyz)
+            return _finite_result(self.project(xyz), "mm_to_px")
         if self.homography is not None:
             self._check_plane(z)
-            return _apply_h(np.linalg.inv(self.homography), xy)
+            return _finite_result(_apply_h(np.linalg.inv(self.homography), xy), "mm_to_px")
         raise BadInput(f"calibration {self.name!r} has intrinsics only: no mapping to the base frame")
 
     def project(self, xyz_mm) -> np.ndarray:
@@ -174,6 +174,12 @@ class Calibration:
         norm = cv2.undistortPoints(pts, self.camera_matrix, self.dist, criteria=_UNDISTORT_CRITERIA)
         norm = norm.reshape(-1, 2)
         return np.column_stack([norm, np.ones(len(norm))])
+
+    def _plane(self, z_mm: float | None) -> float:
+        z = self.plane_z_mm if z_mm is None else float(z_mm)
+        if not np.isfinite(z):
+            raise BadInput(f"the plane height z must be a finite number of mm, got {z_mm!r}")
+        return z
 
     def _check_plane(self, z: float) -> None:
         if abs(z - self.plane_z_mm) > 1e-6:
@@ -205,11 +211,22 @@ class Calibration:
         return None if self.cam2base is None else self.cam2base[:3, 3].copy()
 
 
+def _finite_result(pts: np.ndarray, what: str) -> np.ndarray:
+    """A mapping's result, refused when it overflowed (a degenerate calibration, or a point at
+    the horizon): NaN or infinity would otherwise reach the JSON output."""
+    if not np.all(np.isfinite(pts)):
+        raise BadInput(f"{what}: some points map to infinity or NaN (a degenerate calibration, or points "
+                       "on the plane's horizon)")
+    return pts
+
+
 def _apply_h(h: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    ph = np.column_stack([pts, np.ones(len(pts))]) @ h.T
+    with np.errstate(over="ignore", invalid="ignore"):
+        ph = np.column_stack([pts, np.ones(len(pts))]) @ h.T
     if np.any(np.abs(ph[:, 2]) < 1e-12):
         raise BadInput("point maps to infinity under the homography")
-    return ph[:, :2] / ph[:, 2:3]
+    with np.errstate(over="ignore", invalid="ignore"):
+        return ph[:, :2] / ph[:, 2:3]
 
 
 def pose_matrix(r: np.ndarray, t) -> np.ndarray:

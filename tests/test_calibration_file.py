@@ -133,3 +133,37 @@ def test_intrinsics_only_cannot_map():
     cal = Calibration(640, 480, camera_matrix=np.array([[500, 0, 320], [0, 500, 240], [0, 0, 1.0]]))
     with pytest.raises(BadInput, match="intrinsics only"):
         cal.px_to_mm([[1, 2]])
+
+
+def _homography_file(tmp_path, h, name="h.json"):
+    cal = Calibration(640, 480, homography=np.eye(3), name="h")
+    d = calibration_to_json(cal)
+    d["homography"]["px_to_mm"] = h
+    return _write(tmp_path, d, name)
+
+
+def test_homography_is_validated_whatever_its_scale(tmp_path):
+    h = np.array([[0.5, 0, 100], [0, 0.5, -200], [0, 0, 1.0]])
+    # a homography times any factor is the same mapping: 1e-6 x h used to be refused as "singular"
+    small = load_calibration(_homography_file(tmp_path, (1e-6 * h).tolist()))
+    assert np.allclose(small.px_to_mm([[10, 20]]), [[105, -190]])
+    # entries near the float limit: det() overflowed to a huge number and the file was accepted
+    with pytest.raises(BadInput, match="homography.px_to_mm is singular"):
+        load_calibration(_homography_file(tmp_path, [[1e308, 1e308, 0], [0, 1, 0], [0, 0, 1]]))
+    with pytest.raises(BadInput, match="true/false are not numbers"):
+        load_calibration(_homography_file(tmp_path, [[True, 0, 0], [0, 1, 0], [0, 0, 1]]))
+    d = json.loads(default_calibration_path().read_text())
+    d["pose"]["cam2base"][3][3] = True
+    with pytest.raises(BadInput, match="true/false are not numbers"):
+        load_calibration(_write(tmp_path, d))
+
+
+def test_map_never_prints_infinity(tmp_path, capsys):
+    from conftest import run_cli
+
+    # a valid homography (identity x 1e307) whose products overflow: used to print {"mm": [[Infinity, ...]]}
+    path = _homography_file(tmp_path, (1e307 * np.eye(3)).tolist())
+    code, out, err = run_cli("map", path, "--px", "100,100", "--json", capsys=capsys)
+    assert code == 2 and out == "" and err.count("\n") == 1 and "infinity or NaN" in err
+    code, out, _ = run_cli("map", path, "--px", "0.5,0.25", "--json", capsys=capsys)
+    assert code == 0 and json.loads(out, parse_constant=lambda c: pytest.fail(c))["mm"] == [[0.5, 0.25]]

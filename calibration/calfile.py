@@ -55,7 +55,10 @@ def load_calibration(path: str | Path | None = None, *, size: tuple[int, int] | 
 
 def save_calibration(cal: Calibration, path: str | Path) -> None:
     """Write `cal` atomically (a crash leaves the old file or the new one, never half)."""
-    write_json_atomic(path, calibration_to_json(cal))
+    try:
+        write_json_atomic(path, calibration_to_json(cal))
+    except OSError as e:  # a directory, a read-only place, a full disk: the user's to fix
+        raise BadInput(f"cannot write the calibration file {path}: {e.strerror or e}") from None
 
 
 def calibration_to_json(cal: Calibration) -> dict:

@@ -127,6 +127,20 @@ def test_bad_markers_files(tmp_path, capsys, content, match):
     assert code == 2 and match in err
 
 
+def test_out_that_cannot_be_written_is_bad_input(tmp_path, capsys):
+    markers, _ = _markers(tmp_path)
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    for out in (tmp_path, blocker / "p.json"):  # a directory; a path under a plain file
+        code, stdout, err = run_cli("calibrate", "plane", FESTO / "aruco_img.png", "--markers", markers, "--out",
+                                    out, capsys=capsys)
+        assert code == 2 and stdout == "" and err.count("\n") == 1
+        assert "cannot write the calibration file" in err and "Traceback" not in err
+    code, _, err = run_cli("calibrate", "intrinsics", *sorted((EXTERNAL / "opencv-chessboard").glob("left0*.jpg")),
+                           "--pattern", "9x6", "--square", "1", "--out", tmp_path, capsys=capsys)
+    assert code == 2 and "cannot write the calibration file" in err
+
+
 def test_touched_points_recover_the_default_camera(tmp_path, capsys):
     """Points touched with the gripper on a plane at z = 15: the pose comes back, residual tiny."""
     truth = load_calibration()

@@ -22,6 +22,8 @@ from cell.errors import BadInput
 
 PLANE_TOLERANCE_MM = 1.0  # the points' z may differ this much and still count as one plane
 MIN_POINTS = 4
+WARN_REPROJECTION_PX = 3.0  # the Festo frames fit to 0.9 - 1.1 px; one marker's corners listed one off: 37 px
+CORNER_ORDER_GAIN = 3.0  # another corner order must fit this many times better (and 2 mm) to be named
 
 
 def detect_markers(gray: np.ndarray, dictionary: str) -> dict[int, np.ndarray]:
@@ -49,6 +51,9 @@ def parse_markers(raw, source: str) -> tuple[str, dict[int, np.ndarray]]:
         raise BadInput(f"{source}: 'markers' must be an object {{\"ID\": [[x, y, z] x 4], ...}}")
     out = {}
     for key, corners in markers.items():
+        if _has_bool(corners):
+            raise BadInput(f"{source}: marker {key}: corners must be 4 points [x, y, z] in mm (true/false are "
+                           "not numbers)")
         try:
             mid = int(key)
         except ValueError:
@@ -73,6 +78,35 @@ def markers_correspondences(detected: dict[int, np.ndarray], known: dict[int, np
     uv = np.concatenate([detected[i] for i in used])
     xyz = np.concatenate([known[i] for i in used])
     return uv, xyz, used, missing
+
+
+def marker_residuals(cal: Calibration, detected: dict[int, np.ndarray], known: dict[int, np.ndarray],
+                     used: list[int]) -> tuple[dict[str, float], list[str]]:
+    """Per-marker RMS residual (mm, detected corners mapped to the plane against the known ones) and
+    warnings: a fit far worse than a pixel, and markers whose corners fit much better in another
+    order (listed from another corner than OpenCV's top-left, or counter-clockwise)."""
+    per, warnings = {}, []
+    for i in used:
+        got = cal.px_to_mm(detected[i])
+        want = known[i][:, :2]
+        orders = [np.roll(want, -k, axis=0) for k in range(4)] + [np.roll(want[::-1], -k, axis=0) for k in range(4)]
+        errs = [float(np.sqrt(np.mean(np.sum((got - o) ** 2, axis=1)))) for o in orders]
+        per[str(i)] = round(errs[0], 3)
+        best = int(np.argmin(errs))
+        if best and errs[best] * CORNER_ORDER_GAIN < errs[0] and errs[0] - errs[best] > 2.0:
+            how = (f"starting from its corner #{best}" if best < 4 else
+                   f"in reverse order starting from its corner #{(3 - (best - 4)) % 4}")
+            warnings.append(f"marker {i}: its corners fit {errs[0]:.1f} -> {errs[best]:.1f} mm when listed {how}; "
+                            "check the corner order (OpenCV's: clockwise from the marker's own top-left)")
+    rms = cal.report.get("reprojection_rms_px")
+    if rms is not None and rms > WARN_REPROJECTION_PX:
+        warnings.insert(0, f"the markers fit badly: {rms:.1f} px RMS reprojection, {cal.report['residual_mm']:.1f} mm "
+                           "RMS on the plane (expect about 1 px); check the markers' coordinates and corner order")
+    return per, warnings
+
+
+def _has_bool(v) -> bool:
+    return isinstance(v, bool) or (isinstance(v, list) and any(_has_bool(x) for x in v))
 
 
 def fit_plane_mapping(uv_px, xyz_mm, size: tuple[int, int], camera_matrix: np.ndarray | None = None,

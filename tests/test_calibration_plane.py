@@ -92,6 +92,32 @@ def test_published_corner_order_without_the_fix_does_not_fit(tmp_path, capsys):
     assert code == 0 and json.loads(stdout)["residual_mm"] > 5.0
 
 
+@pytest.mark.parametrize("with_intrinsics", [True, False])
+def test_a_marker_listed_in_another_corner_order_is_named(tmp_path, capsys, with_intrinsics):
+    markers, ref = _markers(tmp_path, shift_marker1=False)  # the published list, marker 1 one corner off
+    k = np.array(ref["camera_matrix_realsense_sdk"])
+    extra = ["--camera-matrix", f"{k[0, 0]},{k[1, 1]},{k[0, 2]},{k[1, 2]}"] if with_intrinsics else []
+    code, stdout, err = run_cli("calibrate", "plane", FESTO / "aruco_img.png", "--markers", markers, "--out",
+                                tmp_path / "p.json", *extra, capsys=capsys)
+    res = json.loads(stdout)
+    assert code == 0 and res["residual_mm"] > 5.0  # still written (the user decides), but not silently:
+    assert any("fit badly" in w for w in res["warnings"]) and "fit badly" in err
+    named = [w for w in res["warnings"] if w.startswith("marker ")]
+    assert len(named) == 1 and named[0].startswith("marker 1:")
+    assert "from its corner #1; check the corner order" in named[0]
+    assert res["per_marker_residual_mm"]["1"] > 20 * res["per_marker_residual_mm"]["0"]
+    saved = json.loads((tmp_path / "p.json").read_text())["report"]
+    assert saved["warnings"] == res["warnings"]
+    # with the fix there is nothing to warn about, in both frames
+    markers, _ = _markers(tmp_path)
+    for image in ("aruco_img.png", "aruco_img2.png"):
+        code, stdout, err = run_cli("calibrate", "plane", FESTO / image, "--markers", markers, "--out",
+                                    tmp_path / "p.json", *extra, capsys=capsys)
+        res = json.loads(stdout)
+        assert code == 0 and res["warnings"] == [] and err == ""
+        assert max(res["per_marker_residual_mm"].values()) < 1.0
+
+
 def test_markers_missing_from_the_image_are_skipped_and_reported(tmp_path, capsys):
     extra = {"7": [[0, 0, 0], [40, 0, 0], [40, 40, 0], [0, 40, 0]]}
     markers, _ = _markers(tmp_path, extra=extra)
@@ -117,6 +143,9 @@ def test_fewer_than_three_markers_is_bad_input(tmp_path, capsys):
     ({"dictionary": "DICT_9X9_1", "markers": {"0": [[0, 0, 0]] * 4}}, "unknown ArUco dictionary"),
     ({"dictionary": "DICT_4X4_50", "markers": {"0": [[0, 0]] * 4}}, "4 points"),
     ({"dictionary": "DICT_4X4_50", "markers": {"x": [[0, 0, 0]] * 4}}, "not an integer"),
+    # true taken for 1.0: the frame was calibrated (52 mm residual) and exit 0
+    ({"dictionary": "DICT_4X4_50", "markers": {"0": [[True, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]}},
+     "true/false are not numbers"),
     ("{not json", "not valid JSON"),
 ])
 def test_bad_markers_files(tmp_path, capsys, content, match):
@@ -161,6 +190,16 @@ def test_touched_points_recover_the_default_camera(tmp_path, capsys):
     code, stdout, _ = run_cli("calibrate", "plane", frame, "--points", pts, "--intrinsics",
                               DEFAULT, "--out", tmp_path / "c.json", capsys=capsys)
     assert code == 0 and json.loads(stdout)["residual_mm"] < 0.1
+
+
+def test_touched_points_with_true_for_a_number_are_bad_input(tmp_path, capsys):
+    pts = tmp_path / "points.json"
+    good = [{"px": [100.0 * i, 50.0 * i * i], "mm": [10.0 * i, 7.0 * i * i, 0.0]} for i in range(1, 6)]
+    pts.write_text(json.dumps({"points": good[:4] + [{"px": [True, 3.0], "mm": [1.0, 2.0, 0.0]}]}))
+    code, _, err = run_cli("calibrate", "plane", FESTO / "aruco_img.png", "--points", pts,
+                           "--out", tmp_path / "c.json", capsys=capsys)
+    assert code == 2 and "point #4" in err and "true/false" in err
+    assert not (tmp_path / "c.json").exists()
 
 
 def test_map_cli_both_ways_with_negative_coordinates(capsys):

@@ -30,7 +30,13 @@ def run(args) -> int:
     import numpy as np
 
     from calibration import load_calibration, save_calibration
-    from calibration.plane import detect_markers, fit_plane_mapping, markers_correspondences, parse_markers
+    from calibration.plane import (
+        detect_markers,
+        fit_plane_mapping,
+        marker_residuals,
+        markers_correspondences,
+        parse_markers,
+    )
     from cell.errors import BadInput
     from cell.fileio import read_json
     from cell.vision.sources import read_image
@@ -61,14 +67,19 @@ def run(args) -> int:
     else:
         uv, xyz = parse_points(read_json(args.points, "points file"), args.points)
     cal = fit_plane_mapping(uv, xyz, (w, h), k, dist, args.name or "plane calibration")
+    warnings: list[str] = []
     if args.markers:
-        cal.report.update({"markers_used": out["markers_used"], "markers_missing": out["markers_missing"]})
+        per_marker, warnings = marker_residuals(cal, detected, known, used)
+        cal.report.update({"markers_used": out["markers_used"], "markers_missing": out["markers_missing"],
+                           "per_marker_residual_mm": per_marker, "warnings": warnings})
     cal.report["image"] = str(args.image)
     save_calibration(cal, args.out)
     out = {**cal.report, **out, "out": str(args.out)}
     print(json.dumps(out))
     if out.get("markers_missing"):
         print(f"cell: warning: markers not found in the image: {out['markers_missing']}", file=sys.stderr)
+    for w in warnings:
+        print(f"cell: warning: {w}", file=sys.stderr)
     return 0
 
 
@@ -88,6 +99,8 @@ def parse_points(raw, source: str):
         raise BadInput(f"{source}: expected {{\"points\": [{{\"px\": [u, v], \"mm\": [x, y, z]}}, ...]}}")
     uv, xyz = [], []
     for i, p in enumerate(pts):
+        if isinstance(p, dict) and (_is_bool_in(p.get("px")) or _is_bool_in(p.get("mm"))):
+            raise BadInput(f"{source}: point #{i} needs 'px': [u, v] and 'mm': [x, y, z] (true/false are not numbers)")
         try:
             a = np.array(p["px"], float)
             b = np.array(p["mm"], float)
@@ -98,3 +111,7 @@ def parse_points(raw, source: str):
         uv.append(a)
         xyz.append(b)
     return np.array(uv), np.array(xyz)
+
+
+def _is_bool_in(v) -> bool:
+    return isinstance(v, bool) or (isinstance(v, list) and any(_is_bool_in(x) for x in v))

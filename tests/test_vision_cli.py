@@ -179,3 +179,25 @@ def test_truncated_image_gives_one_clear_line_without_decoder_noise(tmp_path, fr
     assert r.returncode == 2 and r.stdout == ""
     assert r.stderr.strip().splitlines() == [f"cell: error: image {p} is not a readable image "
                                              "(corrupt, truncated or not an image format)"]
+
+
+def test_high_bit_depth_frames_are_read_at_their_depth(tmp_path, capsys):
+    """A 10 - 14 bit camera's frame in a 16-bit PNG: OpenCV's default decode kept the top 8 bits (a
+    12-bit frame came out with values 0 - 15) and pills.png segmented into 4 regions instead of 2."""
+    photo = EXTERNAL / "simplecv-coins" / "pills.png"
+    bgr = cv2.imread(str(photo))
+    full = tmp_path / "full16.png"
+    cv2.imwrite(str(full), bgr.astype(np.uint16) * 257)
+    assert np.array_equal(read_image(full), bgr)  # a full-range 16-bit copy reads back exactly
+    twelve = tmp_path / "twelve.png"
+    cv2.imwrite(str(twelve), bgr.astype(np.uint16) * 16 + (bgr >> 4))  # 0 - 4095
+    assert np.abs(read_image(twelve).astype(int) - bgr).max() <= 1
+    grey = cv2.imread(str(EXTERNAL / "opencv-chessboard" / "left01.jpg"), cv2.IMREAD_GRAYSCALE)
+    cv2.imwrite(str(tmp_path / "g10.png"), grey.astype(np.uint16) * 4)  # 10 bits, the intrinsics' grey path
+    assert np.abs(read_image(tmp_path / "g10.png", grey=True).astype(int) - grey).max() <= 1
+    outs = []
+    for p in (photo, twelve):
+        code, out, _ = run_cli("segment", p, "--json", capsys=capsys)
+        assert code == 0
+        outs.append(sorted((round(q["area_px"]), len(q["holes_px"])) for q in json.loads(out)["parts"]))
+    assert len(outs[1]) == 2 and outs[1] == outs[0]

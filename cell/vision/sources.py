@@ -30,14 +30,31 @@ def read_image(path: str | Path, grey: bool = False) -> np.ndarray:
     quiet = cv2.utils.logging.getLogLevel()
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # our message says it: no decoder warnings
     try:
-        img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_COLOR)
+        # ANYDEPTH: without it OpenCV keeps the top 8 of 16 bits, and a 10 - 14 bit camera's frame stored in
+        # a 16-bit PNG (values up to 1023 - 16383) came out nearly black (pills.png at 12 bits: 4 regions, not 2)
+        img = cv2.imdecode(data, cv2.IMREAD_ANYDEPTH | (cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_COLOR))
     finally:
         cv2.utils.logging.setLogLevel(quiet)
     if img is None or img.size == 0:
         raise BadInput(f"image {path} is not a readable image (corrupt, truncated or not an image format)")
-    if img.dtype != np.uint8:
-        img = cv2.convertScaleAbs(img, alpha=255.0 / max(float(img.max()), 1.0))
-    return img
+    return _to_uint8(img, path)
+
+
+def _to_uint8(img: np.ndarray, path: Path) -> np.ndarray:
+    """8-bit as is; 16-bit scaled by the smallest bit depth (8, 10, 12, 14, 16) that holds its maximum,
+    so a full-range 16-bit copy of an 8-bit frame gives back exactly that frame; float in [0, 1] x 255."""
+    if img.dtype == np.uint8:
+        return img
+    if img.dtype == np.uint16:
+        top = int(img.max())
+        depth = next(d for d in (8, 10, 12, 14, 16) if top < 2 ** d)
+        if depth == 8:
+            return img.astype(np.uint8)
+        return cv2.convertScaleAbs(img, alpha=255.0 / (2 ** depth - 1))
+    if img.dtype in (np.float32, np.float64) and np.all(np.isfinite(img)):
+        top = float(img.max())
+        return cv2.convertScaleAbs(img, alpha=255.0 if top <= 1.0 else 255.0 / top)
+    raise BadInput(f"image {path} has {img.dtype} pixels; 8- or 16-bit integer or float images are read")
 
 
 def write_image(path: str | Path, frame: np.ndarray) -> None:

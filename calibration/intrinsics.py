@@ -36,6 +36,7 @@ OUTLIER_MIN_PX = 0.3
 PRINCIPAL_OFF_CENTRE_WARN = 0.15  # fraction of the image size
 MIN_VIEWS = 3
 MIN_CHARUCO_CORNERS = 6
+MIN_SQUARE_PX = 4  # a board square smaller than this cannot be detected
 
 
 @dataclass
@@ -163,10 +164,20 @@ def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[in
     """
     if not images:
         raise BadInput("no images given")
+    if not (np.isfinite(square_mm) and square_mm > 0):
+        raise BadInput(f"the square side must be a finite positive length, got {square_mm!r}")
     sizes = {img.shape[:2] for _, img in images}
     if len(sizes) != 1:
         raise BadInput("the images have different sizes: " + ", ".join(f"{w}x{h}" for h, w in sorted(sizes)))
     h, w = images[0][1].shape[:2]
+    squares = pattern if charuco is not None else (pattern[0] + 1, pattern[1] + 1)
+    if max(squares) * MIN_SQUARE_PX > max(w, h) or min(squares) * MIN_SQUARE_PX > min(w, h):
+        # OpenCV's detectors fail with assertions on such images (1 x 1 px) or allocate without end (99999x99999)
+        raise BadInput(f"a board of {squares[0]} x {squares[1]} squares cannot be seen in {w} x {h} px images "
+                       f"(at least {MIN_SQUARE_PX} px a square); check --pattern")
+    if subpix_win is not None and not (1 <= subpix_win and 2 * subpix_win + 5 <= min(w, h)):
+        raise BadInput(f"the cornerSubPix half-window {subpix_win} does not fit in {w} x {h} px images "
+                       f"(at most {(min(w, h) - 5) // 2})")
     views = [View(name, False) for name, _ in images]
     obj_pts: list[np.ndarray | None] = [None] * len(images)
     img_pts: list[np.ndarray | None] = [None] * len(images)
@@ -195,7 +206,7 @@ def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[in
         found = [detect_chessboard(g, pattern, name, None) for _, g in images]
         if name == "classic" and any(c is not None for c in found):
             if subpix_win is None:
-                subpix_win = subpix_win_for([c for c in found if c is not None], pattern)
+                subpix_win = min(subpix_win_for([c for c in found if c is not None], pattern), (min(w, h) - 5) // 2)
             found = [None if c is None else refine_corners(g, c, subpix_win) for c, (_, g) in zip(found, images)]
         missed = [i for i, c in enumerate(found) if c is None]
         if len(order) > 1 and missed:
@@ -216,8 +227,10 @@ def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[in
 
     use = [i for i, v in enumerate(views) if v.found]
     if len(use) < MIN_VIEWS:
+        hint = ("check --pattern, which counts the squares COLSxROWS for ChArUco, and --dictionary"
+                if charuco is not None else "check --pattern, which counts inner corners COLSxROWS")
         raise BadInput(f"the board was found in {len(use)} of {len(images)} images; at least {MIN_VIEWS} "
-                       "are needed (check --pattern, which counts inner corners COLSxROWS)")
+                       f"are needed ({hint})")
     k, dist, rms, per_view = _fit(obj_pts, img_pts, use, (w, h))
     _flag_outliers(views, use, per_view)
     if reject_outliers and any(views[i].outlier for i in use):

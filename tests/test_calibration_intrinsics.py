@@ -122,6 +122,37 @@ def test_cli_intrinsics_bad_input(tmp_path, capsys, args, match):
     assert not (tmp_path / "x.json").exists()
 
 
+@pytest.mark.parametrize("args, match", [  # each of these was a cv2.error or MemoryError traceback, exit 1
+    (["--pattern", "9x6", "--square", "inf"], "finite positive"),
+    (["--pattern", "9x6", "--subpix-win", "1000"], "half-window 1000 does not fit in 640 x 480"),
+    (["--pattern", "99999x99999"], "cannot be seen in 640 x 480 px images"),
+])
+def test_cli_intrinsics_options_opencv_cannot_take(tmp_path, capsys, args, match):
+    argv = ["calibrate", "intrinsics", *sorted(CHESS.glob("left0*.jpg"))[:3], "--out", tmp_path / "x.json"]
+    if "--square" not in args:
+        args = args + ["--square", "1"]
+    code, out, err = run_cli(*argv, *args, capsys=capsys)
+    assert code == 2 and out == "" and err.count("\n") == 1 and match in err
+    assert not (tmp_path / "x.json").exists()
+
+
+def test_cli_intrinsics_images_too_small_for_the_board(tmp_path, capsys):
+    tiny = []
+    for i in range(3):  # 1 x 1 px: adaptiveThreshold asserted
+        tiny.append(tmp_path / f"t{i}.png")
+        cv2.imwrite(str(tiny[-1]), np.full((1, 1), 128, np.uint8))
+    code, out, err = run_cli("calibrate", "intrinsics", *tiny, "--pattern", "9x6", "--square", "1",
+                             "--out", tmp_path / "x.json", capsys=capsys)
+    assert code == 2 and out == "" and "10 x 7 squares cannot be seen in 1 x 1 px" in err
+
+
+def test_cli_charuco_wrong_dictionary_names_the_dictionary(tmp_path, capsys):
+    code, _, err = run_cli("calibrate", "intrinsics", *sorted(CHARUCO.glob("img_0*.jpg")), "--pattern", "5x7",
+                           "--square", "0.04", "--marker", "0.02", "--charuco", "--dictionary", "DICT_4X4_50",
+                           "--out", tmp_path / "x.json", capsys=capsys)
+    assert code == 2 and "found in 0 of 4" in err and "--dictionary" in err
+
+
 def test_cli_intrinsics_unreadable_image(tmp_path, capsys):
     bad = tmp_path / "bad.jpg"
     bad.write_bytes(b"\xff\xd8\xff\xe0 not really a jpeg")

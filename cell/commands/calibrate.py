@@ -35,11 +35,11 @@ def run(args) -> int:
     from cell.vision.sources import read_image
 
     pattern = grid(args.pattern, "--pattern")
-    if not args.square > 0:
-        raise BadInput("--square must be a positive length")
+    if not (args.square > 0 and args.square != float("inf")):
+        raise BadInput("--square must be a finite positive length")
     charuco = None
     if args.charuco:
-        if args.marker is None or not 0 < args.marker < args.square:
+        if args.marker is None or not 0 < args.marker < args.square:  # NaN fails both
             raise BadInput("--charuco needs --marker MM, smaller than --square")
         charuco = {"marker_mm": args.marker, "dictionary": args.dictionary}
     if args.subpix_win is not None and args.subpix_win < 1:

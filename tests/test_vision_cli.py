@@ -201,3 +201,25 @@ def test_high_bit_depth_frames_are_read_at_their_depth(tmp_path, capsys):
         assert code == 0
         outs.append(sorted((round(q["area_px"]), len(q["holes_px"])) for q in json.loads(out)["parts"]))
     assert len(outs[1]) == 2 and outs[1] == outs[0]
+
+
+@pytest.mark.parametrize("photo, damage, message", [
+    # cut in the middle of the image data: libpng printed "libpng error: PNG input buffer is incomplete" too
+    ("p5binpicking-festo-table/aruco_img.png", lambda b: b[:700000], "is not a readable image"),
+    # bytes flipped inside the scan: libjpeg decoded a smeared frame (exit 0) and printed "Corrupt JPEG data"
+    ("opencv-objects/stuff.jpg", lambda b: b[:5000] + bytes(x ^ 0x55 for x in b[5000:5100]) + b[5100:],
+     "is corrupt (the decoder says: Corrupt JPEG data"),
+])
+def test_damaged_photographs_give_one_clear_line(tmp_path, photo, damage, message):
+    import subprocess
+    import sys
+
+    p = tmp_path / Path(photo).name
+    p.write_bytes(damage((EXTERNAL / photo).read_bytes()))
+    r = subprocess.run([sys.executable, "-m", "cell", "segment", str(p), "--json"], capture_output=True, text=True,
+                       cwd=Path(__file__).resolve().parents[1])
+    assert r.returncode == 2 and r.stdout == ""
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"cell: error: image {p} ") and message in lines[0]
+    with pytest.raises(BadInput, match="image"):
+        FileCamera([p]).read()  # the cell loop's frames go the same way

@@ -6,6 +6,10 @@ not an image, truncated, empty) is a `BadInput` naming the file.
 
 from __future__ import annotations
 
+import os
+import sys
+import tempfile
+import threading
 from pathlib import Path
 
 import cv2
@@ -27,17 +31,53 @@ def read_image(path: str | Path, grey: bool = False) -> np.ndarray:
         raise BadInput(f"image {path} cannot be read: {e}") from None
     if data.size == 0:
         raise BadInput(f"image {path} is empty (0 bytes)")
-    quiet = cv2.utils.logging.getLogLevel()
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # our message says it: no decoder warnings
-    try:
-        # ANYDEPTH: without it OpenCV keeps the top 8 of 16 bits, and a 10 - 14 bit camera's frame stored in
-        # a 16-bit PNG (values up to 1023 - 16383) came out nearly black (pills.png at 12 bits: 4 regions, not 2)
-        img = cv2.imdecode(data, cv2.IMREAD_ANYDEPTH | (cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_COLOR))
-    finally:
-        cv2.utils.logging.setLogLevel(quiet)
+    # ANYDEPTH: without it OpenCV keeps the top 8 of 16 bits, and a 10 - 14 bit camera's frame stored in
+    # a 16-bit PNG (values up to 1023 - 16383) came out nearly black (pills.png at 12 bits: 4 regions, not 2)
+    img, noise = _decode_quietly(data, cv2.IMREAD_ANYDEPTH | (cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_COLOR))
     if img is None or img.size == 0:
         raise BadInput(f"image {path} is not a readable image (corrupt, truncated or not an image format)")
+    damage = [line for line in noise if line.startswith(_DAMAGE)]
+    if damage:  # decoded, but with made-up pixels where the data was broken: not a frame to act on
+        raise BadInput(f"image {path} is corrupt (the decoder says: {damage[0]})")
     return _to_uint8(img, path)
+
+
+# what libjpeg says when it decodes a damaged file anyway (the missing part grey or smeared)
+_DAMAGE = ("Corrupt JPEG data", "Premature end of JPEG file")
+# libjpeg / libpng write straight to the process's stderr (fd 2), past OpenCV's log level: captured
+_DECODER_NOISE = ("Corrupt JPEG data", "Premature end of JPEG", "libpng ", "Invalid JPEG", "Bogus ",
+                  "Unsupported marker", "Warning: ", "JPEG datastream", "Not a JPEG file")
+_DECODE_LOCK = threading.Lock()
+
+
+def _decode_quietly(data: np.ndarray, flags: int):
+    """cv2.imdecode with the image libraries' messages captured: (image or None, their lines). Anything
+    else written to stderr meanwhile (another thread) is passed on."""
+    quiet = cv2.utils.logging.getLogLevel()
+    with _DECODE_LOCK, tempfile.TemporaryFile() as capture:
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+        sys.stderr.flush()
+        try:
+            saved = os.dup(2)
+        except OSError:  # no stderr to guard (a detached process): decode as is
+            cv2.utils.logging.setLogLevel(quiet)
+            return cv2.imdecode(data, flags), []
+        try:
+            os.dup2(capture.fileno(), 2)
+            try:
+                img = cv2.imdecode(data, flags)
+            finally:
+                os.dup2(saved, 2)
+        finally:
+            os.close(saved)
+            cv2.utils.logging.setLogLevel(quiet)
+        capture.seek(0)
+        lines = capture.read().decode("utf-8", "replace").splitlines()
+    noise = [line.strip() for line in lines if line.strip().startswith(_DECODER_NOISE)]
+    others = [line for line in lines if line.strip() and not line.strip().startswith(_DECODER_NOISE)]
+    if others:
+        print("\n".join(others), file=sys.stderr)
+    return img, noise
 
 
 def _to_uint8(img: np.ndarray, path: Path) -> np.ndarray:

@@ -95,6 +95,14 @@ def test_segment_cli_refuses_other_resolution(tmp_path, frame_file, capsys):
     assert code == 2 and "1280 x 1024 px but calibration 'small' is for 640 x 480" in err
 
 
+def test_segment_cli_refuses_a_frame_of_another_size_before_any_output(tmp_path, frame_file, capsys):
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), cv2.imread(str(frame_file))[::2, ::2])
+    code, out, err = run_cli("segment", frame_file, small, "--calibration", default_calibration_path(), "--json",
+                             capsys=capsys)
+    assert code == 2 and out == "" and "is 640 x 512 px but calibration" in err  # the first frame's line was printed
+
+
 @pytest.mark.parametrize("content, match", [
     (b"", "is empty"),
     (b"this is not an image", "not a readable image"),

@@ -54,9 +54,10 @@ def run(args) -> int:
         params = replace(params, shadow_aware=False)
     frames = [(path, read_image(path)) for path in args.images]  # all bad files refused before any output
     reference = read_image(args.reference) if args.reference else None
-    for path, frame in frames:
-        if cal is not None:
+    if cal is not None:  # like unreadable files: refused before any output, not after the first lines
+        for path, frame in frames:
             cal.check_frame(frame, f"image {path}")
+    for path, frame in frames:
         segs = segment_frame(frame, params, reference_bgr=reference)
         parts = []
         for seg in segs:

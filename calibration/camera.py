@@ -121,7 +121,8 @@ class Calibration:
             return _finite_result((t[None, :] + s[:, None] * rays)[:, :2], "px_to_mm")
         if self.homography is not None:
             self._check_plane(z)
-            return _finite_result(_apply_h(self.homography, uv), "px_to_mm")
+            centre = np.array([[self.width_px / 2.0, self.height_px / 2.0]])
+            return _finite_result(_apply_h(self.homography, uv, centre), "px_to_mm")
         raise BadInput(f"calibration {self.name!r} has intrinsics only: no mapping to the base frame "
                        "(run `cell calibrate plane`)")
 
@@ -144,7 +145,8 @@ class Calibration:
             return _finite_result(self.project(xyz), "mm_to_px")
         if self.homography is not None:
             self._check_plane(z)
-            return _finite_result(_apply_h(np.linalg.inv(self.homography), xy), "mm_to_px")
+            centre = _apply_h(self.homography, np.array([[self.width_px / 2.0, self.height_px / 2.0]]))
+            return _finite_result(_apply_h(np.linalg.inv(self.homography), xy, centre), "mm_to_px")
         raise BadInput(f"calibration {self.name!r} has intrinsics only: no mapping to the base frame")
 
     def project(self, xyz_mm) -> np.ndarray:
@@ -220,11 +222,19 @@ def _finite_result(pts: np.ndarray, what: str) -> np.ndarray:
     return pts
 
 
-def _apply_h(h: np.ndarray, pts: np.ndarray) -> np.ndarray:
+def _apply_h(h: np.ndarray, pts: np.ndarray, same_side_as: np.ndarray | None = None) -> np.ndarray:
+    """Apply the homography; with `same_side_as` (a point of the view), points on the other side of the
+    plane's horizon are refused: they are not on the plane in front of the camera, and the division would
+    give them a point on it all the same."""
     with np.errstate(over="ignore", invalid="ignore"):
         ph = np.column_stack([pts, np.ones(len(pts))]) @ h.T
     if np.any(np.abs(ph[:, 2]) < 1e-12):
         raise BadInput("point maps to infinity under the homography")
+    if same_side_as is not None:
+        with np.errstate(over="ignore", invalid="ignore"):
+            w_ref = (np.append(np.asarray(same_side_as, float).ravel()[:2], 1.0) @ h.T)[2]
+        if np.any(np.sign(ph[:, 2]) != np.sign(w_ref)):
+            raise BadInput("some points lie beyond the plane's horizon (not on the plane in front of the camera)")
     with np.errstate(over="ignore", invalid="ignore"):
         return ph[:, :2] / ph[:, 2:3]
 

@@ -167,3 +167,16 @@ def test_map_never_prints_infinity(tmp_path, capsys):
     assert code == 2 and out == "" and err.count("\n") == 1 and "infinity or NaN" in err
     code, out, _ = run_cli("map", path, "--px", "0.5,0.25", "--json", capsys=capsys)
     assert code == 0 and json.loads(out, parse_constant=lambda c: pytest.fail(c))["mm"] == [[0.5, 0.25]]
+
+
+def test_homography_refuses_points_beyond_the_horizon():
+    # a tilted view: the plane's horizon is the image line v = -1000 (w = 0 there)
+    h = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0.001, 1.0]])
+    cal = Calibration(640, 480, homography=h, name="tilted")
+    inside = cal.px_to_mm([[10, 20], [600, -900]])
+    assert np.allclose(cal.mm_to_px(inside), [[10, 20], [600, -900]])
+    assert np.allclose(cal.mm_to_px([[0, -2000]]), [[0, -2000 / 3]])  # far on the plane: still in front
+    with pytest.raises(BadInput, match="beyond the plane's horizon"):
+        cal.px_to_mm([[10, -2000]])  # used to come back as the point (-10, 2000) on the plane
+    with pytest.raises(BadInput, match="beyond the plane's horizon"):
+        cal.mm_to_px([[0, 2000]])  # the point it maps to: its "image" (0, -2000) lies beyond the horizon

@@ -22,6 +22,7 @@ from cell.errors import BadInput
 
 PLANE_TOLERANCE_MM = 1.0  # the points' z may differ this much and still count as one plane
 MIN_POINTS = 4
+COLLINEAR_RATIO = 1e-3  # the points' second spread direction against the first: below this, a line
 WARN_REPROJECTION_PX = 3.0  # the Festo frames fit to 0.9 - 1.1 px; one marker's corners listed one off: 37 px
 CORNER_ORDER_GAIN = 3.0  # another corner order must fit this many times better (and 2 mm) to be named
 
@@ -138,6 +139,12 @@ def fit_plane_mapping(uv_px, xyz_mm, size: tuple[int, int], camera_matrix: np.nd
     z = xyz[:, 2]
     if np.ptp(z) > PLANE_TOLERANCE_MM:
         raise BadInput(f"the points are not on one horizontal plane (z from {z.min():.2f} to {z.max():.2f} mm)")
+    for pts, what in ((uv, "pixels"), (xyz[:, :2], "base points")):
+        sv = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False)
+        if not sv[0] > 1e-9 or sv[1] < COLLINEAR_RATIO * sv[0]:
+            # findHomography fitted such points with a few mm of residual and the file was written (exit 0)
+            raise BadInput(f"the {what} lie on one line (or one point): a plane mapping needs points spread "
+                           "over the work area, not along a line")
     plane_z = float(np.mean(z))
     w, h = size
     if camera_matrix is not None:

@@ -202,6 +202,22 @@ def test_touched_points_with_true_for_a_number_are_bad_input(tmp_path, capsys):
     assert not (tmp_path / "c.json").exists()
 
 
+@pytest.mark.parametrize("px, mm", [
+    (lambda i: [100 * i, 100 * i], lambda i: [10 * i, 10 * i, 0]),       # all on one line: was exit 0, 6.6 mm
+    (lambda i: [100, 100], lambda i: [10 * i, 5 * i * i, 0]),            # one pixel
+    (lambda i: [100 * i, 50 * i * i], lambda i: [0, 0, 0]),              # one base point
+])
+@pytest.mark.parametrize("with_intrinsics", [True, False])
+def test_points_on_a_line_are_bad_input(tmp_path, capsys, px, mm, with_intrinsics):
+    pts = tmp_path / "points.json"
+    pts.write_text(json.dumps({"points": [{"px": px(i), "mm": mm(i)} for i in range(1, 6)]}))
+    extra = ["--camera-matrix", "1393.77,1393.14,956.754,545.3"] if with_intrinsics else []
+    code, out, err = run_cli("calibrate", "plane", FESTO / "aruco_img.png", "--points", pts,
+                             "--out", tmp_path / "c.json", *extra, capsys=capsys)
+    assert code == 2 and out == "" and "lie on one line" in err
+    assert not (tmp_path / "c.json").exists()
+
+
 def test_map_cli_both_ways_with_negative_coordinates(capsys):
     code, stdout, _ = run_cli("map", DEFAULT, "--mm", "350,-120.5", "-0,0", "--z", "10",
                               "--json", capsys=capsys)

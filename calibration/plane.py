@@ -27,8 +27,11 @@ WARN_REPROJECTION_PX = 3.0  # the Festo frames fit to 0.9 - 1.1 px; one marker's
 CORNER_ORDER_GAIN = 3.0  # another corner order must fit this many times better (and 2 mm) to be named
 
 
-def detect_markers(gray: np.ndarray, dictionary: str) -> dict[int, np.ndarray]:
-    """ArUco markers in the image: id -> corners (4, 2) in CONTRACT-frame pixels, OpenCV's order."""
+def detect_markers(gray: np.ndarray, dictionary: str, duplicates: list[int] | None = None) -> dict[int, np.ndarray]:
+    """ArUco markers in the image: id -> corners (4, 2) in CONTRACT-frame pixels, OpenCV's order.
+
+    An id seen more than once is left out (which copy lies at the known place cannot be told; the last
+    one found used to be taken) and appended to `duplicates` when given."""
     params = cv2.aruco.DetectorParameters()
     # corners to sub-pixel: on rendered 60 px markers 0.39 px RMS instead of 0.88 (OpenCV's default: none)
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
@@ -36,7 +39,11 @@ def detect_markers(gray: np.ndarray, dictionary: str) -> dict[int, np.ndarray]:
     corners, ids, _ = det.detectMarkers(gray)
     if ids is None:
         return {}
-    return {int(i): c.reshape(4, 2).astype(float) + HALF_PX for i, c in zip(ids.ravel(), corners, strict=True)}
+    flat = [int(i) for i in ids.ravel()]
+    twice = sorted({i for i in flat if flat.count(i) > 1})
+    if duplicates is not None:
+        duplicates.extend(twice)
+    return {i: c.reshape(4, 2).astype(float) + HALF_PX for i, c in zip(flat, corners, strict=True) if i not in twice}
 
 
 def parse_markers(raw, source: str) -> tuple[str, dict[int, np.ndarray]]:

@@ -118,6 +118,26 @@ def test_a_marker_listed_in_another_corner_order_is_named(tmp_path, capsys, with
         assert max(res["per_marker_residual_mm"].values()) < 1.0
 
 
+def test_a_marker_seen_twice_is_left_out(tmp_path, capsys):
+    import cv2
+
+    from calibration.plane import detect_markers
+
+    frame = cv2.imread(str(FESTO / "aruco_img.png"))
+    corners = detect_markers(cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY), "DICT_4X4_50")[2]
+    (x0, y0), (x1, y1) = (corners.min(0) - 15).astype(int), (corners.max(0) + 15).astype(int)
+    copy = frame.copy()
+    copy[100:100 + y1 - y0, 900:900 + x1 - x0] = frame[y0:y1, x0:x1]  # a second marker 2, elsewhere
+    path = tmp_path / "two_of_marker_2.png"
+    cv2.imwrite(str(path), copy)
+    markers, _ = _markers(tmp_path)
+    code, stdout, err = run_cli("calibrate", "plane", path, "--markers", markers, "--out", tmp_path / "p.json",
+                                capsys=capsys)
+    res = json.loads(stdout)  # the last copy found used to be taken as the marker at the known place
+    assert code == 0 and res["markers_used"] == [0, 1, 3] and res["markers_duplicated"] == [2]
+    assert res["markers_missing"] == [] and "seen more than once" in err and res["residual_mm"] < 1.0
+
+
 def test_markers_missing_from_the_image_are_skipped_and_reported(tmp_path, capsys):
     extra = {"7": [[0, 0, 0], [40, 0, 0], [40, 40, 0], [0, 40, 0]]}
     markers, _ = _markers(tmp_path, extra=extra)

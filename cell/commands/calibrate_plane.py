@@ -57,20 +57,26 @@ def run(args) -> int:
     out: dict = {}
     if args.markers:
         dictionary, known = parse_markers(read_json(args.markers, "markers file"), args.markers)
-        detected = detect_markers(cv_grey(frame), dictionary)
+        duplicated: list[int] = []
+        detected = detect_markers(cv_grey(frame), dictionary, duplicated)
         uv, xyz, used, missing = markers_correspondences(detected, known)
+        missing = [i for i in missing if i not in duplicated]  # seen, but ambiguous: reported as such
         out.update({"markers_used": used, "markers_missing": missing,
-                    "markers_detected": sorted(detected)})
+                    "markers_detected": sorted(detected), "markers_duplicated": duplicated})
         if len(used) < MIN_MARKERS:
             raise BadInput(f"{len(used)} of the markers in {args.markers} were found in {args.image} "
-                           f"(found ids {sorted(detected)}, need at least {MIN_MARKERS} of {sorted(known)})")
+                           f"(found ids {sorted(detected)}, need at least {MIN_MARKERS} of {sorted(known)}"
+                           + (f"; seen more than once, left out: {duplicated}" if duplicated else "") + ")")
     else:
         uv, xyz = parse_points(read_json(args.points, "points file"), args.points)
     cal = fit_plane_mapping(uv, xyz, (w, h), k, dist, args.name or "plane calibration")
     warnings: list[str] = []
     if args.markers:
         per_marker, warnings = marker_residuals(cal, detected, known, used)
+        if duplicated:
+            warnings.insert(0, f"markers seen more than once in the image, left out: {duplicated}")
         cal.report.update({"markers_used": out["markers_used"], "markers_missing": out["markers_missing"],
+                           "markers_duplicated": duplicated,
                            "per_marker_residual_mm": per_marker, "warnings": warnings})
     cal.report["image"] = str(args.image)
     save_calibration(cal, args.out)

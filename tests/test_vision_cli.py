@@ -231,3 +231,15 @@ def test_damaged_photographs_give_one_clear_line(tmp_path, photo, damage, messag
     assert len(lines) == 1 and lines[0].startswith(f"cell: error: image {p} ") and message in lines[0]
     with pytest.raises(BadInput, match="image"):
         FileCamera([p]).read()  # the cell loop's frames go the same way
+
+
+def test_junk_between_jpeg_markers_is_read(tmp_path, capsys):
+    # libjpeg says "Corrupt JPEG data: 3 extraneous bytes before marker 0xdb" and skips them: the pixels are
+    # those of the clean file, so the frame is segmented, not refused as corrupt
+    b = (EXTERNAL / "opencv-objects/stuff.jpg").read_bytes()
+    end_of_app0 = 4 + int.from_bytes(b[4:6], "big")
+    p = tmp_path / "junk.jpg"
+    p.write_bytes(b[:end_of_app0] + b"\x00\x11\x22" + b[end_of_app0:])
+    assert np.array_equal(read_image(p), read_image(EXTERNAL / "opencv-objects/stuff.jpg"))
+    code, out, err = run_cli("segment", p, "--json", capsys=capsys)
+    assert code == 0 and len(json.loads(out)["parts"]) >= 5, err

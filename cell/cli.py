@@ -3,7 +3,9 @@
 Each module in `cell.commands` defines `add_arguments(parser)` and `run(args) -> int`.
 Heavy imports (cv2, sklearn, canopen, rerun) belong inside `run`, so `cell --help` is fast.
 Errors of the `CellError` family become a message on stderr and their exit code
-(2 for bad input); no traceback reaches the user for anything the user can fix.
+(2 for bad input); no traceback reaches the user for anything the user can fix. An OSError (a path or
+device that cannot be used) is bad input too; any other exception is a bug, reported in one line with
+exit 1 (CELL_TRACEBACK=1 lets the traceback through).
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
+import os
 import sys
 
 from cell.errors import BadInput, CellError
@@ -92,3 +95,12 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except BrokenPipeError:
         return 0
+    except OSError as e:  # a path or device the user named cannot be used (permissions, a full disk, ...)
+        print(f"cell: error: {e}", file=sys.stderr)
+        return 2
+    except Exception as e:  # a bug: one line, not a traceback; CELL_TRACEBACK=1 shows where it happened
+        if os.environ.get("CELL_TRACEBACK"):
+            raise
+        print(f"cell: internal error: {type(e).__name__}: {e} (please report it with the command line; "
+              "CELL_TRACEBACK=1 shows where it happened)", file=sys.stderr)
+        return 1

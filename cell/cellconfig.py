@@ -230,8 +230,9 @@ class _Reader:
 
     def num(self, d, key, where=""):
         v = d.get(key)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            self._fail(where, key, f"must be a finite number, got {v!r}")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v):
+            r = repr(v)
+            self._fail(where, key, f"must be a finite number, got {r if len(r) <= 40 else r[:37] + '...'}")
         return float(v)
 
     def pos(self, d, key, where=""):
@@ -261,3 +262,10 @@ class _Reader:
     def per_joint(self, d, key):
         o = self.obj(d, key, "scara")
         return {j: self.pos(o, j, f"scara.{key}") for j in JOINTS}
+
+
+def _finite(v: int | float) -> bool:
+    try:
+        return math.isfinite(v)
+    except OverflowError:  # an int too large for a float (JSON allows any length)
+        return False

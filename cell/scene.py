@@ -22,6 +22,9 @@ from cell.errors import BadInput
 from cell.fileio import read_json
 
 UP = (0.0, 0.0, 1.0)
+# Outline coordinates beyond 1 km from the base are not millimetres of a part on the tray (and a
+# target that large would be resampled into millions of candidate points): bad input.
+MAX_COORD_MM = 1e6
 
 
 @dataclass(frozen=True, eq=False)
@@ -243,18 +246,35 @@ def _ring(raw, where) -> np.ndarray:
         raise BadInput(f"{where}: must be a list of at least 3 [x, y] points")
     try:
         arr = np.asarray(raw, dtype=float)
+    except OverflowError:  # an integer literal too large for a float (JSON allows any length)
+        raise BadInput(f"{where}: coordinates must be finite numbers (one is too large)") from None
     except (TypeError, ValueError):
         raise BadInput(f"{where}: every point must be [x, y] with numbers") from None
     if arr.ndim != 2 or arr.shape[1] != 2:
         raise BadInput(f"{where}: every point must be [x, y], got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise BadInput(f"{where}: coordinates must be finite numbers")
+    if np.abs(arr).max() > MAX_COORD_MM:
+        raise BadInput(f"{where}: coordinates must be within {MAX_COORD_MM:g} mm of the base "
+                       f"(got {np.abs(arr).max():g}; the units are mm)")
     if np.allclose(arr[0], arr[-1]) and len(arr) > 3:
         arr = arr[:-1]  # tolerate a repeated first point
     return arr
 
 
 def _num(v, where) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise BadInput(f"{where}: must be a finite number, got {v!r}")
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v):
+        raise BadInput(f"{where}: must be a finite number, got {_short(v)}")
     return float(v)
+
+
+def _finite(v: int | float) -> bool:
+    try:
+        return math.isfinite(v)
+    except OverflowError:  # an int too large for a float
+        return False
+
+
+def _short(v) -> str:
+    r = repr(v)
+    return r if len(r) <= 40 else r[:37] + "..."

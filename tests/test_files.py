@@ -7,7 +7,7 @@ from cell.cellconfig import default_cell_path, load_cell, parse_cell
 from cell.errors import BadInput
 from cell.examples import GraspExample, append_examples, load_examples
 from cell.fileio import append_lines_atomic, write_atomic
-from cell.scene import parse_assembly, parse_part, parse_scene
+from cell.scene import load_scene, parse_assembly, parse_part, parse_scene
 
 SQUARE = [[300, 0], [340, 0], [340, 40], [300, 40]]
 
@@ -125,3 +125,32 @@ def test_atomic_write_leaves_no_temp_files(tmp_path):
     append_lines_atomic(p, ["two", "three"])
     assert p.read_text() == "one\ntwo\nthree\n"
     assert sorted(x.name for x in tmp_path.iterdir() if not x.name.endswith(".lock")) == ["a.txt"]
+
+
+BIG_INT = 10 ** 400  # valid JSON, and Python's json reads it as an int that no float holds
+
+
+@pytest.mark.parametrize("edit,match", [
+    (lambda p: p.__setitem__("z_top", BIG_INT), "z_top"),
+    (lambda p: p.__setitem__("z_bottom", -BIG_INT), "z_bottom"),
+    (lambda p: p["outline"].__setitem__(0, [BIG_INT, 0]), "outline"),
+    (lambda p: p.__setitem__("direction", [0, 0, BIG_INT]), "direction"),
+    (lambda p: p["outline"].__setitem__(2, [1e300, 1e300]), "outline"),
+    (lambda p: p.__setitem__("holes", [[[310, 10], [320, 10], [-1e200, 20]]]), "hole #0"),
+])
+def test_numbers_too_large_for_a_scene_are_bad_input_not_a_crash(tmp_path, edit, match):
+    part = {"id": "a", "outline": [list(p) for p in SQUARE], "z_top": 5}
+    edit(part)
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps({"parts": [part], "target": "a"}))
+    with pytest.raises(BadInput, match=match):
+        load_scene(path)
+
+
+def test_a_cell_number_too_large_for_a_float_is_bad_input(tmp_path):
+    d = json.loads(default_cell_path().read_text())
+    d["scara"]["l1_mm"] = BIG_INT
+    path = tmp_path / "cell.json"
+    path.write_text(json.dumps(d))
+    with pytest.raises(BadInput, match="scara.l1_mm"):
+        load_cell(path)

@@ -85,6 +85,21 @@ def test_no_feasible_grasp_exits_3_with_the_reason(tmp_path, examples, capsys):
     assert code == 3 and "no feasible grasp" in out
 
 
+@pytest.mark.parametrize("z_bottom,z_top,code", [(0.0, 1.5, 3), (20.0, 21.9, 3), (0.0, 2.0, 0), (20.0, 22.0, 0)])
+def test_a_target_thinner_than_the_pads_need_has_no_grasp(tmp_path, examples, capsys, z_bottom, z_top, code):
+    """CONTRACT: grasp z within [z_bottom, z_top - 2]. A part less than 2 mm tall has no such z: it
+    was planned at z_bottom, outside the promised range; it is now 'no feasible grasp'."""
+    part = shapes.rectangle("sheet", 50, 30, (320, 40), 10, z_bottom_mm=z_bottom, z_top_mm=z_top)
+    path = write_scene(tmp_path / "sheet.json", [part], "sheet")
+    got, out, err = run_cli("grasp", path, "--json", "--examples", examples, capsys=capsys)
+    d = json.loads(out)
+    assert got == code, d
+    if code == 3:
+        assert d["error"] == "no_feasible_grasp" and "2 mm" in d["reason"] and "tall" in d["reason"]
+    else:
+        assert z_bottom <= d["grasp_z_mm"] <= z_top - 2
+
+
 BOWTIE = [[300, 0], [340, 40], [340, 0], [300, 40]]
 
 

@@ -231,7 +231,7 @@ def parse_part(raw, where: str = "part") -> Part:
     direction = tuple(_num(d, f"{where} direction") for d in direction)
     poly = Polygon(outline, holes)
     if not poly.is_valid:
-        raise BadInput(f"{where}: the outline is not a valid polygon ({explain_validity(poly)})")
+        poly = _repaired(poly, where)
     if poly.area <= 0:
         raise BadInput(f"{where}: the outline has no area")
     poly = shapely.geometry.polygon.orient(poly, 1.0)  # outer CCW, holes CW
@@ -239,6 +239,31 @@ def parse_part(raw, where: str = "part") -> Part:
     inner = tuple(np.asarray(r.coords, float)[:-1] for r in poly.interiors)
     meta = {k: v for k, v in raw.items() if k not in ("id", "outline", "holes", "z_bottom", "z_top", "direction")}
     return Part(pid, outer, inner, zb, zt, direction, meta)
+
+
+# A camera contour (a thousand vertices or more, a few hundredths of a mm of noise) often crosses
+# itself in tiny loops. Such an outline is repaired, not refused, when the repair is negligible:
+# every piece of area it drops (a loop cut off, a pinhole made by a loop turning inward) is
+# smaller than REPAIR_PIECE_MM2 and all of them together less than REPAIR_SHARE of the area. A
+# bow tie, a figure eight or a hole outside the outline changes more than that: still refused.
+REPAIR_PIECE_MM2 = 1.0
+REPAIR_SHARE = 0.01
+
+
+def _repaired(poly: Polygon, where: str) -> Polygon:
+    why = explain_validity(poly)
+    fixed = shapely.make_valid(poly)
+    polygonal = [g for g in shapely.get_parts(fixed) if g.geom_type in ("Polygon", "MultiPolygon")]
+    pieces = [g for g in shapely.get_parts(polygonal) if g.area > 0]  # lines and points have none
+    if pieces:
+        keep = max(pieces, key=lambda g: g.area)
+        pinholes = [r for r in keep.interiors if Polygon(r).area < REPAIR_PIECE_MM2]
+        dropped = [g.area for g in pieces if g is not keep] + [Polygon(r).area for r in pinholes]
+        repaired = Polygon(keep.exterior, [r for r in keep.interiors if Polygon(r).area >= REPAIR_PIECE_MM2])
+        if (repaired.is_valid and all(a < REPAIR_PIECE_MM2 for a in dropped)
+                and sum(dropped) < REPAIR_SHARE * repaired.area):
+            return repaired
+    raise BadInput(f"{where}: the outline is not a valid polygon ({why})")
 
 
 def _ring(raw, where) -> np.ndarray:

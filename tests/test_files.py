@@ -154,3 +154,36 @@ def test_a_cell_number_too_large_for_a_float_is_bad_input(tmp_path):
     path.write_text(json.dumps(d))
     with pytest.raises(BadInput, match="scara.l1_mm"):
         load_cell(path)
+
+
+def _camera_contour(n=2000, noise_mm=0.05, seed=3):
+    """A 60 x 35 mm rectangle as a camera gives it: n vertices, every edge a collinear run, a few
+    hundredths of a mm of noise; at this density the noise crosses the outline over itself."""
+    corners = np.array([[300.0, 0.0], [360.0, 0.0], [360.0, 35.0], [300.0, 35.0], [300.0, 0.0]])
+    cum = np.r_[0, np.cumsum(np.linalg.norm(np.diff(corners, axis=0), axis=1))]
+    s = np.linspace(0, cum[-1], n, endpoint=False)
+    pts = np.c_[np.interp(s, cum, corners[:, 0]), np.interp(s, cum, corners[:, 1])]
+    return (pts + np.random.default_rng(seed).normal(0, noise_mm, pts.shape)).round(3)
+
+
+def test_a_noisy_camera_contour_that_crosses_itself_in_tiny_loops_is_repaired(tmp_path):
+    from shapely.geometry import Polygon
+
+    pts = _camera_contour()
+    assert not Polygon(pts).is_valid  # the case: it was refused as "not a valid polygon"
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps({"parts": [{"id": "a", "outline": pts.tolist(), "z_top": 10}], "target": "a"}))
+    part = load_scene(path).target_part
+    assert part.polygon.is_valid and not part.holes_mm  # no pinholes left by loops turning inward
+    assert part.polygon.area == pytest.approx(60 * 35, rel=0.01)
+    assert part.polygon.symmetric_difference(Polygon(pts).buffer(0)).area < 2.0
+    assert len(part.outline_mm) > 0.9 * len(pts)  # the outline as given, not a simplification
+
+
+@pytest.mark.parametrize("outline", [
+    [[300, 0], [340, 40], [340, 0], [300, 40]],  # bow tie: two halves of one size
+    [[300, 0], [340, 0], [340, 40], [300, 40], [300, 20], [290, 22], [290, 18], [300, 20.5]],  # a 20 mm2 loop
+])
+def test_an_outline_that_really_crosses_itself_is_still_refused(outline):
+    with pytest.raises(BadInput, match="not a valid polygon"):
+        parse_part({"id": "a", "outline": outline, "z_top": 5})

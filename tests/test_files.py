@@ -32,6 +32,9 @@ def test_default_cell_matches_the_contract():
     (lambda d: d.__setitem__("version", 7), "version"),
     (lambda d: d["can"]["nodes"]["j2"].__setitem__("node_id", 1), "duplicate"),
     (lambda d: d["tray"].__setitem__("x_mm", [-900, 500]), "inside the workspace"),
+    (lambda d: d["can"]["nodes"]["j1"].__setitem__("node_id", 1.5), "can.nodes.j1.node_id must be a whole number"),
+    (lambda d: d["camera"].__setitem__("width_px", 0.5), "camera.width_px must be a whole number"),
+    (lambda d: d["can"].__setitem__("bitrate", 500000.5), "can.bitrate must be a whole number"),
 ])
 def test_bad_cell_files_are_refused_with_the_key(mutate, match):
     d = json.loads(default_cell_path().read_text())

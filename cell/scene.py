@@ -180,7 +180,9 @@ def parse_assembly(raw, source: str = "<assembly>", base_dir: Path | None = None
             f"repeated {', '.join(dup)}" if dup else "")
         raise BadInput(f"{source}: the sequence must name every part exactly once ({why})")
     for p in parts:
-        if not np.allclose(p.direction, UP):
+        d = np.asarray(p.direction, float)
+        n = float(np.linalg.norm(d))
+        if not (n > 0 and np.allclose(d / n, UP)):  # a direction, not a length: [0, 0, 2] is up too
             raise BadInput(
                 f"{source}: part {p.id!r} has disassembly direction {list(p.direction)}; the 2D normal "
                 "grasp supports only straight up [0, 0, 1]")

@@ -88,6 +88,17 @@ def test_assembly_refuses_other_directions_and_bad_sequences():
     assert a.scene_at(1).ids == ["a"] and a.scene_at(1).target == "a"
 
 
+@pytest.mark.parametrize("direction,ok", [([0, 0, 1], True), ([0, 0, 2.5], True), ([0, 0, 1e-3], True),
+                                          ([0, 0, -1], False), ([0, 0, 0], False), ([0, 1, 1], False)])
+def test_an_upward_direction_of_any_length_is_straight_up(direction, ok):
+    parts = [{"id": "a", "outline": SQUARE, "z_top": 1, "direction": direction}]
+    if ok:
+        assert parse_assembly({"parts": parts, "sequence": ["a"]}).sequence == ("a",)
+    else:
+        with pytest.raises(BadInput, match="straight up"):
+            parse_assembly({"parts": parts, "sequence": ["a"]})
+
+
 def _example(eid, valid=True):
     part = parse_part({"id": "sq", "outline": SQUARE, "z_top": 10})
     return GraspExample(eid, part, np.array([[300.0, 20.0], [340.0, 20.0]]), valid,

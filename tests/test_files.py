@@ -201,3 +201,13 @@ def test_a_noisy_camera_contour_that_crosses_itself_in_tiny_loops_is_repaired(tm
 def test_an_outline_that_really_crosses_itself_is_still_refused(outline):
     with pytest.raises(BadInput, match="not a valid polygon"):
         parse_part({"id": "a", "outline": outline, "z_top": 5})
+
+
+@pytest.mark.parametrize("holes", [
+    [[[330, 10], [350, 10], [350, 20], [330, 20]]],  # half outside the outline
+    [[[310, 10], [320, 10], [320, 20], [310, 20]], [[315, 15], [325, 15], [325, 25], [315, 25]]],  # overlapping
+    [[[280, 10], [290, 10], [290, 20], [280, 20]]],  # wholly outside
+])
+def test_holes_that_are_not_inside_the_outline_are_still_refused(holes):
+    with pytest.raises(BadInput, match="not a valid polygon"):
+        parse_part({"id": "a", "outline": SQUARE, "holes": holes, "z_top": 5})

@@ -235,3 +235,17 @@ def test_a_noisy_self_crossing_camera_contour_is_planned(tmp_path, examples, cap
     assert all(Polygon(pts).buffer(0).exterior.distance(Point(p)) < 0.5 for p in c)
     assert d["opening_mm"] == pytest.approx(np.linalg.norm(c[0] - c[1]), abs=1e-3)
     assert 34 < d["opening_mm"] < 36.5 or 59 < d["opening_mm"] < 61.5
+
+
+def test_a_part_narrower_than_the_smallest_opening_says_so(tmp_path, examples, capsys):
+    """A cell whose jaws close to 20 mm at the least, a part 8 x 6 mm: the reason named only the
+    largest opening ("contact distance at most 70 mm"), which the part is well within."""
+    d = json.loads(default_cell_path().read_text())
+    d["gripper"]["opening_mm"] = [20.0, 80.0]
+    cell = tmp_path / "cell.json"
+    cell.write_text(json.dumps(d))
+    path = write_scene(tmp_path / "pin.json", [shapes.rectangle("pin", 8, 6, (320, 40))], "pin")
+    code, out, err = run_cli("grasp", path, "--json", "--examples", examples, "--cell", cell, capsys=capsys)
+    r = json.loads(out)
+    assert code == 3 and r["error"] == "no_feasible_grasp", r
+    assert "narrower than the gripper's smallest opening" in r["reason"] and "20 mm" in r["reason"]

@@ -249,6 +249,16 @@ class GraspPlanner:
                                  f"obstacle taller than the grasp z ({', '.join(ctx.finger_obstacle_ids)})",
             "palm": "every remaining pair collides: the palm overlaps an obstacle taller than its bottom",
         }[first]
+        if first == "stroke" and len(P) and g.opening_mm[0] > 0:
+            narrow = P.d < g.opening_mm[0]
+            if narrow.all():
+                return (f"the part is narrower than the gripper's smallest opening: contact points are at most "
+                        f"{float(P.d.max()):.1f} mm apart, the jaws close to {g.opening_mm[0]:g} mm at the least")
+            if narrow.any():
+                widest = g.opening_mm[1] - 2 * g.approach_clearance_mm
+                why = (f"every pair of valid points is either closer than the jaws' smallest opening "
+                       f"({g.opening_mm[0]:g} mm) or farther apart than {widest:g} mm (opening "
+                       f"{g.opening_mm[1]:g} mm minus 2 x {g.approach_clearance_mm:g} mm approach clearance)")
         if STAGES.index(first) > STAGES.index("stroke"):
             # Facing points exist, but none close enough: say so, it is the usual cause.
             from cell.grasp.cascade import stage_antipodal, stage_stroke

@@ -7,7 +7,7 @@ from cell.cellconfig import default_cell_path, load_cell, parse_cell
 from cell.errors import BadInput
 from cell.examples import GraspExample, append_examples, load_examples
 from cell.fileio import append_lines_atomic, write_atomic
-from cell.scene import load_scene, parse_assembly, parse_part, parse_scene
+from cell.scene import load_assembly, load_scene, parse_assembly, parse_part, parse_scene
 
 SQUARE = [[300, 0], [340, 0], [340, 40], [300, 40]]
 
@@ -211,3 +211,11 @@ def test_an_outline_that_really_crosses_itself_is_still_refused(outline):
 def test_holes_that_are_not_inside_the_outline_are_still_refused(holes):
     with pytest.raises(BadInput, match="not a valid polygon"):
         parse_part({"id": "a", "outline": SQUARE, "holes": holes, "z_top": 5})
+
+
+def test_json_nested_too_deeply_is_bad_input_not_a_recursion_error(tmp_path):
+    path = tmp_path / "deep.json"
+    path.write_text("[" * 100_000 + "]" * 100_000)
+    for load in (load_scene, load_assembly, load_cell):
+        with pytest.raises(BadInput, match="nested too deeply"):
+            load(path)

@@ -135,7 +135,10 @@ def load_cell(path: str | Path | None = None) -> Cell:
     """Read and validate a cell file; None means the shipped default cell."""
     if path is None:
         return default_cell()
-    raw = read_json(path, "cell file")
+    try:
+        raw = read_json(path, "cell file")
+    except RecursionError:  # json's decoder recurses per nesting level
+        raise BadInput(f"cell file {path} is not valid JSON: nested too deeply") from None
     return parse_cell(raw, source=str(path))
 
 
@@ -183,14 +186,14 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
         home_joints={k: r.num(home, k, "motion.home_joints") for k in ("j1_deg", "j2_deg", "j3_mm", "j4_deg")},
     )
     c = r.obj(raw, "camera")
-    camera = Camera(int(r.pos(c, "width_px", "camera")), int(r.pos(c, "height_px", "camera")),
+    camera = Camera(r.count(c, "width_px", "camera"), r.count(c, "height_px", "camera"),
                     r.pos(c, "height_mm", "camera"))
     cn = r.obj(raw, "can")
     nodes_raw = r.obj(cn, "nodes", "can")
     nodes = {}
     for name in (*JOINTS, "gripper"):
         n = r.obj(nodes_raw, name, "can.nodes")
-        node_id = int(r.num(n, "node_id", f"can.nodes.{name}"))
+        node_id = r.integer(n, "node_id", f"can.nodes.{name}")
         if not 1 <= node_id <= 127:
             raise BadInput(f"cell file {source}: can.nodes.{name}.node_id must be 1..127, got {node_id}")
         unit = n.get("unit")
@@ -199,8 +202,8 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
         nodes[name] = CanNode(name, node_id, unit, r.pos(n, "counts_per_unit", f"can.nodes.{name}"))
     if len({n.node_id for n in nodes.values()}) != len(nodes):
         raise BadInput(f"cell file {source}: can.nodes have duplicate node ids")
-    can = CanConfig(int(r.pos(cn, "bitrate", "can")), int(r.pos(cn, "heartbeat_ms", "can")),
-                    int(r.pos(cn, "host_heartbeat_ms", "can")), nodes)
+    can = CanConfig(r.count(cn, "bitrate", "can"), r.count(cn, "heartbeat_ms", "can"),
+                    r.count(cn, "host_heartbeat_ms", "can"), nodes)
     weights = dict(DEFAULT_JOINT_WEIGHTS)
     if "configuration" in raw:
         w = r.obj(r.obj(raw, "configuration"), "joint_weights", "configuration")
@@ -230,9 +233,23 @@ class _Reader:
 
     def num(self, d, key, where=""):
         v = d.get(key)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            self._fail(where, key, f"must be a finite number, got {v!r}")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v):
+            r = repr(v)
+            self._fail(where, key, f"must be a finite number, got {r if len(r) <= 40 else r[:37] + '...'}")
         return float(v)
+
+    def integer(self, d, key, where=""):
+        """A whole number (1280 or 1280.0); 0.5 is not silently cut to 0."""
+        v = self.num(d, key, where)
+        if not v.is_integer():
+            self._fail(where, key, f"must be a whole number, got {v}")
+        return int(v)
+
+    def count(self, d, key, where=""):
+        v = self.integer(d, key, where)
+        if v <= 0:
+            self._fail(where, key, f"must be positive, got {v}")
+        return v
 
     def pos(self, d, key, where=""):
         v = self.num(d, key, where)
@@ -261,3 +278,10 @@ class _Reader:
     def per_joint(self, d, key):
         o = self.obj(d, key, "scara")
         return {j: self.pos(o, j, f"scara.{key}") for j in JOINTS}
+
+
+def _finite(v: int | float) -> bool:
+    try:
+        return math.isfinite(v)
+    except OverflowError:  # an int too large for a float (JSON allows any length)
+        return False

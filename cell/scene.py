@@ -22,6 +22,9 @@ from cell.errors import BadInput
 from cell.fileio import read_json
 
 UP = (0.0, 0.0, 1.0)
+# Outline coordinates beyond 1 km from the base are not millimetres of a part on the tray (and a
+# target that large would be resampled into millions of candidate points): bad input.
+MAX_COORD_MM = 1e6
 
 
 @dataclass(frozen=True, eq=False)
@@ -140,13 +143,20 @@ class Assembly:
 
 
 def load_scene(path: str | Path) -> Scene:
-    raw = read_json(path, "scene file")
+    raw = _read(path, "scene file")
     return parse_scene(raw, str(path), base_dir=Path(path).parent)
 
 
 def load_assembly(path: str | Path) -> Assembly:
-    raw = read_json(path, "assembly file")
+    raw = _read(path, "assembly file")
     return parse_assembly(raw, str(path), base_dir=Path(path).parent)
+
+
+def _read(path, what: str):
+    try:
+        return read_json(path, what)
+    except RecursionError:  # json's decoder recurses per nesting level: [[[[...]]]] 100000 deep
+        raise BadInput(f"{what} {path} is not valid JSON: nested too deeply") from None
 
 
 def parse_scene(raw, source: str = "<scene>", base_dir: Path | None = None) -> Scene:
@@ -177,7 +187,9 @@ def parse_assembly(raw, source: str = "<assembly>", base_dir: Path | None = None
             f"repeated {', '.join(dup)}" if dup else "")
         raise BadInput(f"{source}: the sequence must name every part exactly once ({why})")
     for p in parts:
-        if not np.allclose(p.direction, UP):
+        d = np.asarray(p.direction, float)
+        n = float(np.linalg.norm(d))
+        if not (n > 0 and np.allclose(d / n, UP)):  # a direction, not a length: [0, 0, 2] is up too
             raise BadInput(
                 f"{source}: part {p.id!r} has disassembly direction {list(p.direction)}; the 2D normal "
                 "grasp supports only straight up [0, 0, 1]")
@@ -228,7 +240,7 @@ def parse_part(raw, where: str = "part") -> Part:
     direction = tuple(_num(d, f"{where} direction") for d in direction)
     poly = Polygon(outline, holes)
     if not poly.is_valid:
-        raise BadInput(f"{where}: the outline is not a valid polygon ({explain_validity(poly)})")
+        poly = _repaired(poly, where)
     if poly.area <= 0:
         raise BadInput(f"{where}: the outline has no area")
     poly = shapely.geometry.polygon.orient(poly, 1.0)  # outer CCW, holes CW
@@ -238,23 +250,65 @@ def parse_part(raw, where: str = "part") -> Part:
     return Part(pid, outer, inner, zb, zt, direction, meta)
 
 
+# A camera contour (a thousand vertices or more, a few hundredths of a mm of noise) often crosses
+# itself in tiny loops. Such an outline is repaired, not refused, when the repair is negligible:
+# every piece of area it drops (a loop cut off, a pinhole made by a loop turning inward) is
+# smaller than REPAIR_PIECE_MM2 and all of them together less than REPAIR_SHARE of the area. A
+# bow tie, a figure eight or a hole outside the outline changes more than that: still refused.
+REPAIR_PIECE_MM2 = 1.0
+REPAIR_SHARE = 0.01
+
+
+def _repaired(poly: Polygon, where: str) -> Polygon:
+    why = explain_validity(poly)
+    fixed = shapely.make_valid(poly)
+    polygonal = [g for g in shapely.get_parts(fixed) if g.geom_type in ("Polygon", "MultiPolygon")]
+    pieces = [g for g in shapely.get_parts(polygonal) if g.area > 0]  # lines and points have none
+    if pieces:
+        keep = max(pieces, key=lambda g: g.area)
+        pinholes = [r for r in keep.interiors if Polygon(r).area < REPAIR_PIECE_MM2]
+        dropped = [g.area for g in pieces if g is not keep] + [Polygon(r).area for r in pinholes]
+        repaired = Polygon(keep.exterior, [r for r in keep.interiors if Polygon(r).area >= REPAIR_PIECE_MM2])
+        if (repaired.is_valid and all(a < REPAIR_PIECE_MM2 for a in dropped)
+                and sum(dropped) < REPAIR_SHARE * repaired.area):
+            return repaired
+    raise BadInput(f"{where}: the outline is not a valid polygon ({why})")
+
+
 def _ring(raw, where) -> np.ndarray:
     if not isinstance(raw, list) or len(raw) < 3:
         raise BadInput(f"{where}: must be a list of at least 3 [x, y] points")
     try:
         arr = np.asarray(raw, dtype=float)
+    except OverflowError:  # an integer literal too large for a float (JSON allows any length)
+        raise BadInput(f"{where}: coordinates must be finite numbers (one is too large)") from None
     except (TypeError, ValueError):
         raise BadInput(f"{where}: every point must be [x, y] with numbers") from None
     if arr.ndim != 2 or arr.shape[1] != 2:
         raise BadInput(f"{where}: every point must be [x, y], got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise BadInput(f"{where}: coordinates must be finite numbers")
+    if np.abs(arr).max() > MAX_COORD_MM:
+        raise BadInput(f"{where}: coordinates must be within {MAX_COORD_MM:g} mm of the base "
+                       f"(got {np.abs(arr).max():g}; the units are mm)")
     if np.allclose(arr[0], arr[-1]) and len(arr) > 3:
         arr = arr[:-1]  # tolerate a repeated first point
     return arr
 
 
 def _num(v, where) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise BadInput(f"{where}: must be a finite number, got {v!r}")
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v):
+        raise BadInput(f"{where}: must be a finite number, got {_short(v)}")
     return float(v)
+
+
+def _finite(v: int | float) -> bool:
+    try:
+        return math.isfinite(v)
+    except OverflowError:  # an int too large for a float
+        return False
+
+
+def _short(v) -> str:
+    r = repr(v)
+    return r if len(r) <= 40 else r[:37] + "..."

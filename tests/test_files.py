@@ -7,7 +7,7 @@ from cell.cellconfig import default_cell_path, load_cell, parse_cell
 from cell.errors import BadInput
 from cell.examples import GraspExample, append_examples, load_examples
 from cell.fileio import append_lines_atomic, write_atomic
-from cell.scene import parse_assembly, parse_part, parse_scene
+from cell.scene import load_assembly, load_scene, parse_assembly, parse_part, parse_scene
 
 SQUARE = [[300, 0], [340, 0], [340, 40], [300, 40]]
 
@@ -32,6 +32,9 @@ def test_default_cell_matches_the_contract():
     (lambda d: d.__setitem__("version", 7), "version"),
     (lambda d: d["can"]["nodes"]["j2"].__setitem__("node_id", 1), "duplicate"),
     (lambda d: d["tray"].__setitem__("x_mm", [-900, 500]), "inside the workspace"),
+    (lambda d: d["can"]["nodes"]["j1"].__setitem__("node_id", 1.5), "can.nodes.j1.node_id must be a whole number"),
+    (lambda d: d["camera"].__setitem__("width_px", 0.5), "camera.width_px must be a whole number"),
+    (lambda d: d["can"].__setitem__("bitrate", 500000.5), "can.bitrate must be a whole number"),
 ])
 def test_bad_cell_files_are_refused_with_the_key(mutate, match):
     d = json.loads(default_cell_path().read_text())
@@ -85,6 +88,17 @@ def test_assembly_refuses_other_directions_and_bad_sequences():
     assert a.scene_at(1).ids == ["a"] and a.scene_at(1).target == "a"
 
 
+@pytest.mark.parametrize("direction,ok", [([0, 0, 1], True), ([0, 0, 2.5], True), ([0, 0, 1e-3], True),
+                                          ([0, 0, -1], False), ([0, 0, 0], False), ([0, 1, 1], False)])
+def test_an_upward_direction_of_any_length_is_straight_up(direction, ok):
+    parts = [{"id": "a", "outline": SQUARE, "z_top": 1, "direction": direction}]
+    if ok:
+        assert parse_assembly({"parts": parts, "sequence": ["a"]}).sequence == ("a",)
+    else:
+        with pytest.raises(BadInput, match="straight up"):
+            parse_assembly({"parts": parts, "sequence": ["a"]})
+
+
 def _example(eid, valid=True):
     part = parse_part({"id": "sq", "outline": SQUARE, "z_top": 10})
     return GraspExample(eid, part, np.array([[300.0, 20.0], [340.0, 20.0]]), valid,
@@ -125,3 +139,83 @@ def test_atomic_write_leaves_no_temp_files(tmp_path):
     append_lines_atomic(p, ["two", "three"])
     assert p.read_text() == "one\ntwo\nthree\n"
     assert sorted(x.name for x in tmp_path.iterdir() if not x.name.endswith(".lock")) == ["a.txt"]
+
+
+BIG_INT = 10 ** 400  # valid JSON, and Python's json reads it as an int that no float holds
+
+
+@pytest.mark.parametrize("edit,match", [
+    (lambda p: p.__setitem__("z_top", BIG_INT), "z_top"),
+    (lambda p: p.__setitem__("z_bottom", -BIG_INT), "z_bottom"),
+    (lambda p: p["outline"].__setitem__(0, [BIG_INT, 0]), "outline"),
+    (lambda p: p.__setitem__("direction", [0, 0, BIG_INT]), "direction"),
+    (lambda p: p["outline"].__setitem__(2, [1e300, 1e300]), "outline"),
+    (lambda p: p.__setitem__("holes", [[[310, 10], [320, 10], [-1e200, 20]]]), "hole #0"),
+])
+def test_numbers_too_large_for_a_scene_are_bad_input_not_a_crash(tmp_path, edit, match):
+    part = {"id": "a", "outline": [list(p) for p in SQUARE], "z_top": 5}
+    edit(part)
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps({"parts": [part], "target": "a"}))
+    with pytest.raises(BadInput, match=match):
+        load_scene(path)
+
+
+def test_a_cell_number_too_large_for_a_float_is_bad_input(tmp_path):
+    d = json.loads(default_cell_path().read_text())
+    d["scara"]["l1_mm"] = BIG_INT
+    path = tmp_path / "cell.json"
+    path.write_text(json.dumps(d))
+    with pytest.raises(BadInput, match="scara.l1_mm"):
+        load_cell(path)
+
+
+def _camera_contour(n=2000, noise_mm=0.05, seed=3):
+    """A 60 x 35 mm rectangle as a camera gives it: n vertices, every edge a collinear run, a few
+    hundredths of a mm of noise; at this density the noise crosses the outline over itself."""
+    corners = np.array([[300.0, 0.0], [360.0, 0.0], [360.0, 35.0], [300.0, 35.0], [300.0, 0.0]])
+    cum = np.r_[0, np.cumsum(np.linalg.norm(np.diff(corners, axis=0), axis=1))]
+    s = np.linspace(0, cum[-1], n, endpoint=False)
+    pts = np.c_[np.interp(s, cum, corners[:, 0]), np.interp(s, cum, corners[:, 1])]
+    return (pts + np.random.default_rng(seed).normal(0, noise_mm, pts.shape)).round(3)
+
+
+def test_a_noisy_camera_contour_that_crosses_itself_in_tiny_loops_is_repaired(tmp_path):
+    from shapely.geometry import Polygon
+
+    pts = _camera_contour()
+    assert not Polygon(pts).is_valid  # the case: it was refused as "not a valid polygon"
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps({"parts": [{"id": "a", "outline": pts.tolist(), "z_top": 10}], "target": "a"}))
+    part = load_scene(path).target_part
+    assert part.polygon.is_valid and not part.holes_mm  # no pinholes left by loops turning inward
+    assert part.polygon.area == pytest.approx(60 * 35, rel=0.01)
+    assert part.polygon.symmetric_difference(Polygon(pts).buffer(0)).area < 2.0
+    assert len(part.outline_mm) > 0.9 * len(pts)  # the outline as given, not a simplification
+
+
+@pytest.mark.parametrize("outline", [
+    [[300, 0], [340, 40], [340, 0], [300, 40]],  # bow tie: two halves of one size
+    [[300, 0], [340, 0], [340, 40], [300, 40], [300, 20], [290, 22], [290, 18], [300, 20.5]],  # a 20 mm2 loop
+])
+def test_an_outline_that_really_crosses_itself_is_still_refused(outline):
+    with pytest.raises(BadInput, match="not a valid polygon"):
+        parse_part({"id": "a", "outline": outline, "z_top": 5})
+
+
+@pytest.mark.parametrize("holes", [
+    [[[330, 10], [350, 10], [350, 20], [330, 20]]],  # half outside the outline
+    [[[310, 10], [320, 10], [320, 20], [310, 20]], [[315, 15], [325, 15], [325, 25], [315, 25]]],  # overlapping
+    [[[280, 10], [290, 10], [290, 20], [280, 20]]],  # wholly outside
+])
+def test_holes_that_are_not_inside_the_outline_are_still_refused(holes):
+    with pytest.raises(BadInput, match="not a valid polygon"):
+        parse_part({"id": "a", "outline": SQUARE, "holes": holes, "z_top": 5})
+
+
+def test_json_nested_too_deeply_is_bad_input_not_a_recursion_error(tmp_path):
+    path = tmp_path / "deep.json"
+    path.write_text("[" * 100_000 + "]" * 100_000)
+    for load in (load_scene, load_assembly, load_cell):
+        with pytest.raises(BadInput, match="nested too deeply"):
+            load(path)

@@ -85,6 +85,21 @@ def test_no_feasible_grasp_exits_3_with_the_reason(tmp_path, examples, capsys):
     assert code == 3 and "no feasible grasp" in out
 
 
+@pytest.mark.parametrize("z_bottom,z_top,code", [(0.0, 1.5, 3), (20.0, 21.9, 3), (0.0, 2.0, 0), (20.0, 22.0, 0)])
+def test_a_target_thinner_than_the_pads_need_has_no_grasp(tmp_path, examples, capsys, z_bottom, z_top, code):
+    """CONTRACT: grasp z within [z_bottom, z_top - 2]. A part less than 2 mm tall has no such z: it
+    was planned at z_bottom, outside the promised range; it is now 'no feasible grasp'."""
+    part = shapes.rectangle("sheet", 50, 30, (320, 40), 10, z_bottom_mm=z_bottom, z_top_mm=z_top)
+    path = write_scene(tmp_path / "sheet.json", [part], "sheet")
+    got, out, err = run_cli("grasp", path, "--json", "--examples", examples, capsys=capsys)
+    d = json.loads(out)
+    assert got == code, d
+    if code == 3:
+        assert d["error"] == "no_feasible_grasp" and "2 mm" in d["reason"] and "tall" in d["reason"]
+    else:
+        assert z_bottom <= d["grasp_z_mm"] <= z_top - 2
+
+
 BOWTIE = [[300, 0], [340, 40], [340, 0], [300, 40]]
 
 
@@ -196,3 +211,41 @@ def test_bench_grasp_library_sweep_reports_the_bound_of_any_cascade(examples, ca
         assert r["bound"] == round(r["counts"]["pairs"] / r["counts"]["reachable"], 1)
         assert r["exact_checks_cascade"] >= 4 * r["counts"]["reachable"]
     assert rows[-1]["planned"] == len(done) and 0 <= rows[-1]["speedup_at_least_20x"] <= len(done)
+
+
+def test_a_noisy_self_crossing_camera_contour_is_planned(tmp_path, examples, capsys):
+    """2000 vertices, collinear runs, 0.05 mm noise: the outline crosses itself in tiny loops. It
+    is repaired on reading (docs/grasp.md) and planned like the clean rectangle."""
+    from shapely.geometry import Point, Polygon
+
+    corners = np.array([[300.0, 0.0], [360.0, 0.0], [360.0, 35.0], [300.0, 35.0], [300.0, 0.0]])
+    cum = np.r_[0, np.cumsum(np.linalg.norm(np.diff(corners, axis=0), axis=1))]
+    s = np.linspace(0, cum[-1], 2000, endpoint=False)
+    pts = np.c_[np.interp(s, cum, corners[:, 0]), np.interp(s, cum, corners[:, 1])]
+    pts = (pts + np.random.default_rng(3).normal(0, 0.05, pts.shape)).round(3)
+    assert not Polygon(pts).is_valid
+    path = tmp_path / "contour.json"
+    path.write_text(json.dumps({"units": "mm", "target": "a",
+                                "parts": [{"id": "a", "outline": pts.tolist(), "z_top": 10}]}))
+    code, out, err = run_cli("grasp", path, "--json", "--examples", examples, capsys=capsys)
+    assert code == 0, err
+    d = json.loads(out)
+    c = np.array(d["contacts"])
+    # the pad rests on the outermost noise: the contact is on the pad's line, within its compliance
+    assert all(Polygon(pts).buffer(0).exterior.distance(Point(p)) < 0.5 for p in c)
+    assert d["opening_mm"] == pytest.approx(np.linalg.norm(c[0] - c[1]), abs=1e-3)
+    assert 34 < d["opening_mm"] < 36.5 or 59 < d["opening_mm"] < 61.5
+
+
+def test_a_part_narrower_than_the_smallest_opening_says_so(tmp_path, examples, capsys):
+    """A cell whose jaws close to 20 mm at the least, a part 8 x 6 mm: the reason named only the
+    largest opening ("contact distance at most 70 mm"), which the part is well within."""
+    d = json.loads(default_cell_path().read_text())
+    d["gripper"]["opening_mm"] = [20.0, 80.0]
+    cell = tmp_path / "cell.json"
+    cell.write_text(json.dumps(d))
+    path = write_scene(tmp_path / "pin.json", [shapes.rectangle("pin", 8, 6, (320, 40))], "pin")
+    code, out, err = run_cli("grasp", path, "--json", "--examples", examples, "--cell", cell, capsys=capsys)
+    r = json.loads(out)
+    assert code == 3 and r["error"] == "no_feasible_grasp", r
+    assert "narrower than the gripper's smallest opening" in r["reason"] and "20 mm" in r["reason"]

@@ -67,3 +67,21 @@ def test_bad_assemblies_exit_2(tmp_path, capsys, edit, match):
     p.write_text(json.dumps(d))
     code, out, err = run_cli("plan", p, "--json", capsys=capsys)
     assert code == 2 and match in err and "Traceback" not in err and out == ""
+
+
+def test_figure_names_stay_in_the_folder_whatever_the_part_ids(tmp_path, capsys):
+    """Part ids are free strings: 'cover/top' made a sub-folder, '../x' wrote beside the folder,
+    a 300-character id crashed with 'File name too long' (a traceback)."""
+    ids = ["cover/top", "../escaped", "x" * 300]
+    parts = [{"id": pid, "outline": [[300 + 60 * i, 0], [340 + 60 * i, 0], [340 + 60 * i, 30], [300 + 60 * i, 30]],
+              "z_top": 12} for i, pid in enumerate(ids)]
+    path = tmp_path / "ids.json"
+    path.write_text(json.dumps({"units": "mm", "parts": parts, "sequence": ids}))
+    figs = tmp_path / "figs"
+    code, out, err = run_cli("plan", path, "--json", "--figures", figs, capsys=capsys)
+    assert code == 0 and "Traceback" not in err, err
+    assert [json.loads(x)["target"] for x in out.splitlines()] == ids
+    written = sorted(p.name for p in figs.iterdir())
+    assert len(written) == 3 and all(figs.joinpath(n).is_file() and n.endswith(".png") for n in written)
+    assert written[0].startswith("step_00_") and written[2].startswith("step_02_")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["figs", "ids.json"]

@@ -45,16 +45,30 @@ def run(args) -> int:
     if args.figures:
         from pathlib import Path
 
+        from cell.errors import BadInput
         from cell.figures import step_figure
 
         for s in steps:
-            step_figure(s, cell, Path(args.figures) / f"step_{s.step:02d}_{s.scene.target}.png")
+            path = Path(args.figures) / figure_name(s.step, s.scene.target)
+            try:
+                step_figure(s, cell, path)
+            except OSError as e:
+                raise BadInput(f"--figures {args.figures}: cannot write {path.name}: {e.strerror}") from None
         if not args.json:
             print(f"figures: {args.figures}")
     failed = [s for s in steps if not s.ok]
     if not args.json:
         print(f"{len(steps) - len(failed)} of {len(steps)} steps have a grasp")
     return 3 if failed else 0
+
+
+def figure_name(step: int, part_id: str) -> str:
+    """`step_NN_<id>.png` with the id made a safe file name: part ids are free strings, and a '/'
+    or '..' in one must not write outside the folder, nor a long one exceed the name limit."""
+    import re
+
+    safe = re.sub(r"[^A-Za-z0-9._-]+", "_", part_id).strip(".") or "part"
+    return f"step_{step:02d}_{safe[:80]}.png"
 
 
 def _line(s) -> str:

@@ -11,9 +11,10 @@ from cell.cellconfig import Gripper
 
 TIP_ABOVE_BOTTOM_MM = 1.0
 PAD_ABOVE_TOP_MM = 2.0
+TIP_BELOW_TOP_MM = 2.0  # CONTRACT: grasp z <= z_top - 2; a part less tall than this has no grasp z
 
 
 def grasp_z_mm(z_bottom_mm: float, z_top_mm: float, gripper: Gripper) -> float:
     z = max(z_bottom_mm + TIP_ABOVE_BOTTOM_MM, z_top_mm - gripper.pad_height_mm + PAD_ABOVE_TOP_MM)
-    z = min(z, z_top_mm - 2.0)
+    z = min(z, z_top_mm - TIP_BELOW_TOP_MM)
     return max(z, z_bottom_mm)

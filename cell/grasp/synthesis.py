@@ -24,7 +24,7 @@ from cell.examples import GraspExample
 from cell.grasp.attributes import OutlinePoints, global_attributes, global_names, local_attributes
 from cell.grasp.candidates import candidate_points
 from cell.grasp.cascade import STAGES, CascadeResult, Context, Pairs, joints_of, run_cascade
-from cell.grasp.height import grasp_z_mm
+from cell.grasp.height import TIP_BELOW_TOP_MM, grasp_z_mm
 from cell.grasp.learning import LearnedModel, fit_model, nearest_example
 from cell.grasp.outline import part_rings
 from cell.grasp.params import SynthesisParams
@@ -139,6 +139,11 @@ class GraspPlanner:
             counts["time_ms"] = round((time.perf_counter() - t_start) * 1e3, 3)
             raise NoFeasibleGrasp(reason, counts)
 
+        gz = grasp_z_mm(target.z_bottom_mm, target.z_top_mm, cell.gripper)
+        if gz > target.z_top_mm - TIP_BELOW_TOP_MM + 1e-9:  # CONTRACT: z_bottom <= grasp z <= z_top - 2
+            fail(f"the part is {target.height_mm:g} mm tall: the pads need a grasp z at least "
+                 f"{TIP_BELOW_TOP_MM:g} mm below its top and not below its bottom")
+
         t0 = time.perf_counter()
         rings = part_rings(target)
         op_all, free = candidate_points(target, obstacles, p, rings)
@@ -161,7 +166,6 @@ class GraspPlanner:
                  "contact points")
 
         t0 = time.perf_counter()
-        gz = grasp_z_mm(target.z_bottom_mm, target.z_top_mm, cell.gripper)
         P = Pairs.of(vp.points, vp.normals, cand_index[point_valid])
         counts["pairs"] = len(P)
         ctx = Context.build(target, obstacles, cell, p, gz, op_all.points, op_all.ring)
@@ -245,6 +249,16 @@ class GraspPlanner:
                                  f"obstacle taller than the grasp z ({', '.join(ctx.finger_obstacle_ids)})",
             "palm": "every remaining pair collides: the palm overlaps an obstacle taller than its bottom",
         }[first]
+        if first == "stroke" and len(P) and g.opening_mm[0] > 0:
+            narrow = P.d < g.opening_mm[0]
+            if narrow.all():
+                return (f"the part is narrower than the gripper's smallest opening: contact points are at most "
+                        f"{float(P.d.max()):.1f} mm apart, the jaws close to {g.opening_mm[0]:g} mm at the least")
+            if narrow.any():
+                widest = g.opening_mm[1] - 2 * g.approach_clearance_mm
+                why = (f"every pair of valid points is either closer than the jaws' smallest opening "
+                       f"({g.opening_mm[0]:g} mm) or farther apart than {widest:g} mm (opening "
+                       f"{g.opening_mm[1]:g} mm minus 2 x {g.approach_clearance_mm:g} mm approach clearance)")
         if STAGES.index(first) > STAGES.index("stroke"):
             # Facing points exist, but none close enough: say so, it is the usual cause.
             from cell.grasp.cascade import stage_antipodal, stage_stroke

@@ -68,6 +68,7 @@ class SimDrive:
         self.node._write_callbacks.remove(self.node.nmt.on_write)
         network.unsubscribe(0, self.node.nmt.on_command)
         network.subscribe(0, self._on_nmt)
+        self.node._find_object = self._find_object  # canopen's LocalNode lets any sub-index through
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
         self._sdo_send = self.node.sdo.send_response
@@ -129,6 +130,22 @@ class SimDrive:
         var = od if isinstance(od, canopen.objectdictionary.ODVariable) else od[subindex]
         raw = self.node.data_store.get(index, {}).get(subindex)
         return var.decode_raw(raw) if raw is not None else var.default
+
+    def _find_object(self, index: int, subindex: int):
+        """The object an SDO names, as a real drive checks it: abort 0x06020000 for an object
+        it does not have, 0x06090011 for a sub-index the object does not have (a VAR has only
+        sub-index 0; an ARRAY only the entries its EDS declares)."""
+        od = self.node.object_dictionary
+        if index not in od:
+            raise SdoAbortedError(0x06020000)
+        obj = od[index]
+        if isinstance(obj, canopen.objectdictionary.ODVariable):
+            if subindex != 0:
+                raise SdoAbortedError(0x06090011)
+            return obj
+        if subindex not in obj.subindices:
+            raise SdoAbortedError(0x06090011)
+        return obj.subindices[subindex]
 
     def _on_read(self, index, subindex, od):
         with self._lock:

@@ -90,6 +90,8 @@ class SimDrive:
         self._store(0x6085, 0, max(1, round(QUICK_STOP_DECEL_FACTOR * acceleration * c)))
         self._store(0x1017, 0, heartbeat_ms)
         self._store(0x1800, 5, tpdo_event_ms)
+        # the power-on values (CiA 301: what the NMT resets restore), as stored by commissioning
+        self._power_on = {i: dict(subs) for i, subs in self.node.data_store.items()}
         # drive state
         self.nmt = NMT_INIT
         self.state = "NOT_READY_TO_SWITCH_ON"
@@ -217,6 +219,7 @@ class SimDrive:
             elif cmd in (codec.NMT_RESET_NODE, codec.NMT_RESET_COMM):
                 if cmd == codec.NMT_RESET_NODE:
                     self._reset_application()
+                self._reset_communication()
                 self.boot()
                 return
             self._publish()
@@ -396,10 +399,33 @@ class SimDrive:
         if not self.silent:
             self.network.send_message(codec.EMCY_BASE + self.node_id, codec.pack_emcy(codec.Emcy(0, 0)))
 
+    def _restore_power_on(self, lo: int, hi: int) -> None:
+        """Objects lo..hi back to their power-on values (CiA 301 NMT resets)."""
+        store = self.node.data_store
+        for index in [i for i in store if lo <= i <= hi]:
+            del store[index]
+        for index, subs in self._power_on.items():
+            if lo <= index <= hi:
+                store[index] = dict(subs)
+
     def _reset_application(self) -> None:
+        """NMT Reset Node: the application and profile area (0x2000-0xFFFF) to power-on values;
+        the actual position stays (absolute encoders) and becomes the target."""
         self.state = "NOT_READY_TO_SWITCH_ON"
         self._stop_motion()
         self.ack, self.error_code, self.following_error, self.mode = False, 0, False, 0
+        self.controlword, self.internal_limit, self.target_reached = 0, False, True
+        self._restore_power_on(0x2000, 0xFFFF)
+        self._store(0x607A, 0, round(self.position_counts))
+
+    def _reset_communication(self) -> None:
+        """NMT Reset Communication: the communication area (0x1000-0x1FFF) to power-on values,
+        with what depends on it: RPDO COB-IDs, the host heartbeat watch, TPDO timing."""
+        self._restore_power_on(0x1000, 0x1FFF)
+        for comm in self._rpdo_handlers:
+            self._subscribe_rpdo(comm, int(self._get(comm, 1)))
+        self._set_host_watch(int(self._get(0x1016, 1)))
+        self._last_tpdo, self._sync_count = None, 0
 
     # --- host heartbeat watch --------------------------------------------------------------
     def _set_host_watch(self, entry: int) -> None:

@@ -3,6 +3,8 @@ independent master probes what a real CiA 301/402 drive does, over the virtual b
 
 from __future__ import annotations
 
+import time
+
 import canopen
 import pytest
 from drivers_fixtures import *  # noqa: F403 - bus fixtures
@@ -49,3 +51,41 @@ def test_a_subindex_the_object_does_not_have_is_refused(open_test_bus, sim_clock
             node.sdo.download(index, subindex, bytes(size))
         assert e.value.code == 0x06090011
         assert drives.drives["j1"].controlword == 0  # the write to 0x6040 sub 1 changed nothing
+
+
+def test_nmt_resets_restore_the_power_on_values(open_test_bus, sim_clock, master, cell_cfg):
+    """CiA 301: Reset Communication sets the communication area (0x1000-0x1FFF) to its
+    power-on values, Reset Node every object; the drive boots up again in PRE-OPERATIONAL."""
+    with sim.serve(open_test_bus(), cell_cfg, clock=sim_clock) as drives:
+        _, node = master(drives, "j1")
+        velocity = node.sdo[0x6081].raw
+        node.sdo[0x1017].raw = 500
+        node.sdo[0x1800][5].raw = 20
+        node.sdo[0x1400][1].raw = 0x80000201  # RPDO1 (controlword) not valid
+        node.sdo[0x6081].raw = velocity // 2
+        node.sdo[0x6060].raw = 1
+        node.nmt.state = "RESET COMMUNICATION"
+        sim_clock.sleep(0.15)  # boot-up, then a heartbeat from PRE-OPERATIONAL
+        deadline = time.monotonic() + 1.0  # this master's receive thread is not on the clock
+        while node.nmt.state != "PRE-OPERATIONAL" and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert node.nmt.state == "PRE-OPERATIONAL"
+        assert node.sdo[0x1017].raw == cell_cfg.can.heartbeat_ms
+        assert node.sdo[0x1800][5].raw == 50
+        assert node.sdo[0x1400][1].raw == 0x201
+        assert node.sdo[0x6081].raw == velocity // 2  # the application area stays
+        assert node.sdo[0x6060].raw == node.sdo[0x6061].raw == 1
+
+        node.nmt.state = "RESET"
+        sim_clock.sleep(0.05)
+        assert node.sdo[0x6081].raw == velocity
+        assert node.sdo[0x6060].raw == node.sdo[0x6061].raw == 0  # the mode and its display agree
+        assert node.sdo[0x607A].raw == node.sdo[0x6064].raw  # no stale target after the reset
+        # RPDO1 works again after the reset: the controlword by PDO walks the state machine
+        node.tpdo.read()
+        node.rpdo.read()
+        node.nmt.state = "OPERATIONAL"
+        node.rpdo[1]["Controlword"].raw = 0x06
+        node.rpdo[1].transmit()
+        sim_clock.sleep(0.05)
+        assert node.sdo[0x6041].raw & 0x6F == 0x21  # READY TO SWITCH ON

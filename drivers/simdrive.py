@@ -106,6 +106,7 @@ class SimDrive:
         self.error_code = 0
         self.motion: _Motion | None = None
         self.pending: tuple[int, bool] | None = None  # buffered set-point (single set-point mode)
+        self.halted: int | None = None  # the target a halt (controlword bit 8) interrupted
         self.emcy_log: list[int] = []
         # host heartbeat watch (0x1016)
         self._host_id = 0
@@ -318,19 +319,34 @@ class SimDrive:
 
     def _profile_position(self, prev: int, cw: int) -> None:
         rising = cw & codec.CW_NEW_SET_POINT and not prev & codec.CW_NEW_SET_POINT
+        halt = bool(cw & codec.CW_HALT)
         if rising and not self.ack:
             target = int(self._get(0x607A))
             relative = bool(cw & codec.CW_RELATIVE)
-            if self.motion is not None and not cw & codec.CW_CHANGE_IMMEDIATELY:
+            if self.halted is not None or (halt and self.motion is None):
+                # halted: the new set-point is taken and runs when the halt is released
+                self.halted = target + round(self.position_counts) if relative else target
+            elif self.motion is not None and not cw & codec.CW_CHANGE_IMMEDIATELY:
                 self.pending = (target, relative)  # single set-point: after the current move
             else:
                 self._start_move(target, relative)
             self.ack = True
         elif not cw & codec.CW_NEW_SET_POINT and self.ack:
             self.ack = False
-        if cw & codec.CW_HALT and self.motion is not None:
-            self._stop_motion()
-            self.target_reached = True
+        if halt and self.motion is not None and not self.motion.stopping:
+            # halt: stop on the profile deceleration 0x6084; the target is kept for the release
+            target, pending = self.motion.target_counts, self.pending
+            self._ramp_down(0x6084)
+            self.halted, self.pending = target, pending
+            if self.motion is None:
+                self.target_reached = True
+        elif not halt and self.halted is not None and self.motion is None:
+            self._resume()
+
+    def _resume(self) -> None:
+        """Halt released at standstill: continue the positioning to the interrupted target."""
+        target, self.halted = self.halted, None
+        self._start_move(target, False)
 
     def _start_move(self, target: int, relative: bool) -> None:
         if relative:
@@ -353,16 +369,19 @@ class SimDrive:
     def _stop_motion(self) -> None:
         self.motion = None
         self.pending = None
+        self.halted = None
 
-    def _ramp_down(self) -> None:
-        """Replace the running move by a ramp to standstill at the quick stop deceleration."""
+    def _ramp_down(self, decel_index: int = 0x6085) -> None:
+        """Replace the running move by a ramp to standstill at the quick stop deceleration
+        (or, for a halt, the profile deceleration 0x6084)."""
         m = self.motion
         self.pending = None
+        self.halted = None
         if m is None or m.stopping:
             return
         now = self.clock.now()
         v0 = m.profile.velocity_at(now - m.t0_s)
-        d = float(self._get(0x6085))
+        d = float(self._get(decel_index))
         if v0 == 0.0 or d <= 0:
             self.motion = None
             return
@@ -499,6 +518,11 @@ class SimDrive:
                 self.motion = None
                 if self.state == "FAULT_REACTION_ACTIVE":
                     self.state = "FAULT"
+                elif self.halted is not None:
+                    if self.controlword & codec.CW_HALT:
+                        self.target_reached = True  # halted: statusword bit 10 = standstill
+                    else:
+                        self._resume()  # the halt was released during the ramp
             return
         if elapsed >= m.profile.duration_s:
             self.position_counts = float(m.target_counts)

@@ -89,3 +89,51 @@ def test_nmt_resets_restore_the_power_on_values(open_test_bus, sim_clock, master
         node.rpdo[1].transmit()
         sim_clock.sleep(0.05)
         assert node.sdo[0x6041].raw & 0x6F == 0x21  # READY TO SWITCH ON
+
+
+def _enabled_pp(network, node, sim_clock):
+    """NMT start, the 402 state machine to OPERATION ENABLED and profile position, by SDO
+    (this master's receive thread is not on the simulated clock)."""
+    node.nmt.state = "OPERATIONAL"
+    for cw in (0x06, 0x07, 0x0F):
+        node.sdo[0x6040].raw = cw
+    node.sdo[0x6060].raw = 1
+    sim_clock.sleep(0.01)
+    assert node.sdo[0x6041].raw & 0x6F == 0x27 and node.sdo[0x6061].raw == 1
+
+
+def _set_point(node, target, cw=0x0F):
+    node.sdo["Target position"].raw = target
+    node.sdo["Controlword"].raw = cw | 0x10
+    assert node.sdo["Statusword"].raw & 0x1000  # acknowledged
+    node.sdo["Controlword"].raw = cw
+
+
+def test_halt_decelerates_on_the_profile_ramp_and_release_resumes_the_move(open_test_bus, sim_clock, master, cell_cfg):
+    """CiA 402 profile position, controlword bit 8 (halt): the axis stops with the profile
+    deceleration (0x6084), statusword bit 10 reports standstill; clearing bit 8 continues
+    the positioning to the same target."""
+    with sim.serve(open_test_bus(), cell_cfg, clock=sim_clock) as drives:
+        network, node = master(drives, "j1")
+        _enabled_pp(network, node, sim_clock)
+        v, d = node.sdo[0x6081].raw, node.sdo[0x6084].raw
+        start = node.sdo[0x6064].raw
+        target = start + 100_000
+        _set_point(node, target)
+        sim_clock.sleep(0.5)  # at full speed by now
+        at_halt = node.sdo[0x6064].raw
+        node.sdo["Controlword"].raw = 0x10F  # halt
+        sim_clock.sleep(0.05)
+        assert node.sdo[0x6064].raw > at_halt + 0.04 * v  # still moving: decelerating, no jump
+        assert not node.sdo[0x6041].raw & 0x400
+        sim_clock.sleep(v / d)
+        stopped = node.sdo[0x6064].raw
+        assert stopped == pytest.approx(at_halt + v * v / (2 * d), abs=0.02 * v)
+        assert node.sdo[0x6041].raw & 0x400  # halted: velocity zero
+        sim_clock.sleep(0.2)
+        assert node.sdo[0x6064].raw == stopped
+        node.sdo["Controlword"].raw = 0x0F  # halt released: the positioning continues
+        sim_clock.sleep(0.05)
+        assert node.sdo[0x6064].raw > stopped and not node.sdo[0x6041].raw & 0x400
+        sim_clock.sleep(1.0)
+        assert node.sdo[0x6064].raw == target and node.sdo[0x6041].raw & 0x400

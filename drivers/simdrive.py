@@ -39,6 +39,13 @@ class _Motion:
     stopping: bool = False  # a quick-stop or fault-reaction ramp to standstill
 
 
+def _next_phase(last_s: float, period_s: float, now_s: float) -> float:
+    """When a periodic frame due at `last_s + period_s` goes out at `now_s` (on the next
+    tick): keep the phase, so the period holds on average; start afresh when far behind."""
+    due = last_s + period_s
+    return due if now_s - due < period_s else now_s
+
+
 class SimDrive:
     """One simulated CiA 402 drive on a canopen `Network`. Thread-safe (one lock)."""
 
@@ -484,9 +491,9 @@ class SimDrive:
                     self._host_seen_s = None  # report once; re-armed by the next heartbeat
             self._move(now)
             self._publish(now)
-            hb_ms = int(self._get(0x1017))
-            if hb_ms > 0 and now - self._last_hb_s >= hb_ms / 1000.0 - 1e-9:
-                self._last_hb_s = now
+            hb_s = int(self._get(0x1017)) / 1000.0
+            if hb_s > 0 and now - self._last_hb_s >= hb_s - 1e-9:
+                self._last_hb_s = _next_phase(self._last_hb_s, hb_s, now)
                 self.network.send_message(codec.HEARTBEAT_BASE + self.node_id, codec.pack_heartbeat(self.nmt))
 
     def _move(self, now: float) -> None:
@@ -553,8 +560,11 @@ class SimDrive:
         data = self._tpdo1_data()
         event_ms = int(self._get(0x1800, 5))
         due = event_ms > 0 and now - self._last_tpdo_s >= event_ms / 1000.0 - 1e-9
-        if data != self._last_tpdo or due:
+        if data != self._last_tpdo:  # an event: the event timer restarts
             self._last_tpdo, self._last_tpdo_s = data, now
+            self.network.send_message(cob & 0x7FF, data)
+        elif due:
+            self._last_tpdo_s = _next_phase(self._last_tpdo_s, event_ms / 1000.0, now)
             self.network.send_message(cob & 0x7FF, data)
 
     def _on_sync(self, can_id, data, timestamp) -> None:

@@ -137,3 +137,28 @@ def test_halt_decelerates_on_the_profile_ramp_and_release_resumes_the_move(open_
         assert node.sdo[0x6064].raw > stopped and not node.sdo[0x6041].raw & 0x400
         sim_clock.sleep(1.0)
         assert node.sdo[0x6064].raw == target and node.sdo[0x6041].raw & 0x400
+
+
+def _frames(bus):
+    got = []
+    while (msg := bus.recv(timeout=0.05)) is not None:
+        got.append(msg.arbitration_id)
+    return got
+
+
+@pytest.mark.parametrize("period_ms", [25, 45, 70, 100])
+def test_heartbeat_and_event_timer_keep_their_period(open_test_bus, sim_clock, master, period_ms):
+    """CiA 301: 0x1017 is the heartbeat's cycle time and 0x1800/5 the TPDO's event timer; on
+    the 10 ms tick the drives still keep the period on average (no drift to the next tick)."""
+    with sim.serve(open_test_bus(), clock=sim_clock) as drives:
+        _, node = master(drives, "j2")
+        node.sdo[0x1017].raw = period_ms
+        node.sdo[0x1800][5].raw = period_ms
+        node.nmt.state = "OPERATIONAL"
+        sim_clock.sleep(0.5)
+        tap = open_test_bus()
+        sim_clock.sleep(2.0)
+        n = 2000 / period_ms
+        frames = _frames(tap)
+        assert frames.count(0x702) == pytest.approx(n, abs=1.01)
+        assert frames.count(0x182) == pytest.approx(n, abs=1.01)

@@ -338,8 +338,8 @@ class SimDrive:
             else:
                 self._start_move(target, relative)
             self.ack = True
-        elif not cw & codec.CW_NEW_SET_POINT and self.ack:
-            self.ack = False
+        elif not cw & codec.CW_NEW_SET_POINT and self.ack and self.pending is None:
+            self.ack = False  # (a buffered set-point keeps it: the buffer is full)
         if halt and self.motion is not None and not self.motion.stopping:
             # halt: stop on the profile deceleration 0x6084; the target is kept for the release
             target, pending = self.motion.target_counts, self.pending
@@ -538,6 +538,8 @@ class SimDrive:
                 target, relative = self.pending
                 self.pending = None
                 self._start_move(target, relative)
+                if not self.controlword & codec.CW_NEW_SET_POINT:
+                    self.ack = False  # the buffer is free again
             else:
                 self.target_reached = True
 
@@ -639,6 +641,8 @@ class SimGripper(SimDrive):
             self.position_counts = w_counts
             self.motion = None
             self.pending = None
+            if not self.controlword & codec.CW_NEW_SET_POINT:
+                self.ack = False  # a buffered set-point is dropped: the buffer is free
             self.internal_limit = True
             self.target_reached = True
             return True

@@ -162,3 +162,28 @@ def test_heartbeat_and_event_timer_keep_their_period(open_test_bus, sim_clock, m
         frames = _frames(tap)
         assert frames.count(0x702) == pytest.approx(n, abs=1.01)
         assert frames.count(0x182) == pytest.approx(n, abs=1.01)
+
+
+def test_a_buffered_set_point_keeps_the_acknowledge_until_the_buffer_is_free(open_test_bus, sim_clock, master):
+    """CiA 402 profile position, single set-point (bit 5 = 0): a set-point sent during a move
+    waits for the move's end; statusword bit 12 = 1 says the drive takes no further set-point,
+    so it stays set (the buffer is full) until the buffered set-point becomes the running one."""
+    with sim.serve(open_test_bus(), clock=sim_clock) as drives:
+        network, node = master(drives, "j1")
+        _enabled_pp(network, node, sim_clock)
+        start = node.sdo[0x6064].raw
+        _set_point(node, start + 50_000)
+        sim_clock.sleep(0.1)
+        _set_point(node, start + 20_000)  # buffered
+        sim_clock.sleep(0.01)
+        assert node.sdo[0x6041].raw & 0x1000  # buffer full: no further set-point taken ...
+        node.sdo["Target position"].raw = start + 90_000
+        node.sdo["Controlword"].raw = 0x1F  # ... so this one is not
+        node.sdo["Controlword"].raw = 0x0F
+        deadline = sim_clock.now() + 3.0
+        while node.sdo[0x6041].raw & 0x1000:
+            assert sim_clock.now() < deadline
+            sim_clock.sleep(0.01)
+        assert node.sdo[0x6064].raw == pytest.approx(start + 50_000, abs=2_000)  # the first move's end
+        sim_clock.sleep(2.0)
+        assert node.sdo[0x6064].raw == start + 20_000 and node.sdo[0x6041].raw & 0x400

@@ -168,7 +168,7 @@ class SimDrive:
             if index == 0x603F:
                 return self.error_code
             if index == 0x1001:
-                return 0x01 if self.error_code else 0x00
+                return self.error_register
             if index == 0x6040:
                 return self.controlword
         return None
@@ -275,6 +275,12 @@ class SimDrive:
             internal_limit=self.internal_limit,
         )
 
+    @property
+    def error_register(self) -> int:
+        """0x1001, as in the EMCY: generic error, plus manufacturer-specific for monitoring codes."""
+        code = self.error_code
+        return 0 if not code else 0x01 | (0x80 if code >> 12 == 8 else 0)
+
     def _set_mode(self, mode: int) -> None:
         if mode not in (0, codec.PP_MODE):
             raise SdoAbortedError(0x06090030)  # value range of parameter exceeded
@@ -337,7 +343,7 @@ class SimDrive:
                 self.pending = (target, relative)  # single set-point: after the current move
             else:
                 self._start_move(target, relative)
-            self.ack = True
+            self.ack = self.state == "OPERATION_ENABLED"  # a refused set-point (fault) is not taken
         elif not cw & codec.CW_NEW_SET_POINT and self.ack and self.pending is None:
             self.ack = False  # (a buffered set-point keeps it: the buffer is full)
         if halt and self.motion is not None and not self.motion.stopping:
@@ -411,8 +417,7 @@ class SimDrive:
         self.emcy_log.append(code)
         if not self.silent:
             self.network.send_message(
-                codec.EMCY_BASE + self.node_id,
-                codec.pack_emcy(codec.Emcy(code, 0x01 | (0x80 if code >> 12 == 8 else 0))),
+                codec.EMCY_BASE + self.node_id, codec.pack_emcy(codec.Emcy(code, self.error_register))
             )
         self._publish()
 

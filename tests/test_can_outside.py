@@ -187,3 +187,35 @@ def test_a_buffered_set_point_keeps_the_acknowledge_until_the_buffer_is_free(ope
         assert node.sdo[0x6064].raw == pytest.approx(start + 50_000, abs=2_000)  # the first move's end
         sim_clock.sleep(2.0)
         assert node.sdo[0x6064].raw == start + 20_000 and node.sdo[0x6041].raw & 0x400
+
+
+def test_a_target_beyond_the_limits_is_refused_and_reported_consistently(open_test_bus, sim_clock, master):
+    """A set-point outside 0x607D is refused (no motion), and reported: FAULT, 0x603F 0x8612,
+    an EMCY whose error register is 0x1001's; the refused set-point is not acknowledged
+    (bit 12). A fault reset clears 0x603F and 0x1001 and sends the EMCY 'error reset'."""
+    with sim.serve(open_test_bus(), clock=sim_clock) as drives:
+        network, node = master(drives, "j4")
+        emcys = []
+        node.emcy.add_callback(emcys.append)
+        _enabled_pp(network, node, sim_clock)
+        start = node.sdo[0x6064].raw
+        node.sdo["Target position"].raw = node.sdo["Software position limit"]["Max position limit"].raw + 1
+        node.sdo["Controlword"].raw = 0x1F
+        sw = node.sdo["Statusword"].raw
+        assert sw & 0x4F == 0x08 and not sw & 0x1000  # FAULT, the set-point not acknowledged
+        assert node.sdo["Error code"].raw == 0x8612
+        sim_clock.sleep(0.2)
+        assert node.sdo[0x6064].raw == start
+        deadline = time.monotonic() + 1.0
+        while not emcys and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert emcys[0].code == 0x8612
+        assert node.sdo["Error register"].raw == emcys[0].register != 0
+        node.sdo["Controlword"].raw = 0x0F
+        node.sdo["Controlword"].raw = 0x8F  # fault reset (rising edge of bit 7)
+        assert node.sdo["Statusword"].raw & 0x4F == 0x40  # SWITCH ON DISABLED
+        assert node.sdo["Error code"].raw == 0 and node.sdo["Error register"].raw == 0
+        deadline = time.monotonic() + 1.0
+        while len(emcys) < 2 and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert emcys[1].code == 0

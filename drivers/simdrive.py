@@ -338,7 +338,9 @@ class SimDrive:
             relative = bool(cw & codec.CW_RELATIVE)
             if self.halted is not None or (halt and self.motion is None):
                 # halted: the new set-point is taken and runs when the halt is released
-                self.halted = target + round(self.position_counts) if relative else target
+                if relative:  # relative to the preceding (the halted) target
+                    target += self.halted if self.halted is not None else round(self.position_counts)
+                self.halted = target
             elif self.motion is not None and not cw & codec.CW_CHANGE_IMMEDIATELY:
                 self.pending = (target, relative)  # single set-point: after the current move
             else:
@@ -363,7 +365,9 @@ class SimDrive:
 
     def _start_move(self, target: int, relative: bool) -> None:
         if relative:
-            target = round(self.position_counts) + target
+            # CiA 402 (positioning option code 0x60F2 = 0): relative to the preceding target
+            m = self.motion
+            target += m.target_counts if m is not None and not m.stopping else round(self.position_counts)
         lo, hi = int(self._get(0x607D, 1)), int(self._get(0x607D, 2))
         if not lo <= target <= hi:
             self._fault(0x8612)

@@ -219,3 +219,21 @@ def test_a_target_beyond_the_limits_is_refused_and_reported_consistently(open_te
         while len(emcys) < 2 and time.monotonic() < deadline:
             time.sleep(0.005)
         assert emcys[1].code == 0
+
+
+def test_a_relative_set_point_during_a_move_is_relative_to_the_preceding_target(open_test_bus, sim_clock, master):
+    """CiA 402 profile position, bit 6 (relative) with the default positioning option code
+    (0x60F2 = 0): relative to the preceding target position, not to where the axis is."""
+    with sim.serve(open_test_bus(), clock=sim_clock) as drives:
+        network, node = master(drives, "j1")
+        _enabled_pp(network, node, sim_clock)
+        start = node.sdo[0x6064].raw
+        _set_point(node, start + 60_000)
+        sim_clock.sleep(0.15)
+        _set_point(node, 10_000, cw=0x0F | 0x40 | 0x20)  # relative, change immediately
+        sim_clock.sleep(3.0)
+        assert node.sdo[0x6064].raw == start + 70_000
+        _set_point(node, -5_000, cw=0x0F | 0x40)  # at rest: from the reached target
+        sim_clock.sleep(2.0)
+        assert node.sdo[0x6064].raw == start + 65_000
+

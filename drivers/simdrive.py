@@ -284,6 +284,11 @@ class SimDrive:
     def _set_mode(self, mode: int) -> None:
         if mode not in (0, codec.PP_MODE):
             raise SdoAbortedError(0x06090030)  # value range of parameter exceeded
+        if mode != codec.PP_MODE:
+            # leaving profile position: its move stops (decelerating on 0x6084), nothing resumes
+            if self.motion is not None and not self.motion.stopping:
+                self._ramp_down(0x6084)
+            self.pending = self.halted = None
         self.mode = mode
         self._store(0x6060, 0, mode)
         self._publish()

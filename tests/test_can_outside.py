@@ -237,3 +237,24 @@ def test_a_relative_set_point_during_a_move_is_relative_to_the_preceding_target(
         sim_clock.sleep(2.0)
         assert node.sdo[0x6064].raw == start + 65_000
 
+
+def test_leaving_profile_position_during_a_move_stops_the_axis(open_test_bus, sim_clock, master):
+    """A drive whose mode of operation leaves profile position (0x6060 = 0, 'no mode') does
+    not go on following the profile position move: it decelerates (0x6084) to standstill."""
+    with sim.serve(open_test_bus(), clock=sim_clock) as drives:
+        network, node = master(drives, "j1")
+        _enabled_pp(network, node, sim_clock)
+        v, d = node.sdo[0x6081].raw, node.sdo[0x6084].raw
+        start = node.sdo[0x6064].raw
+        _set_point(node, start - 100_000)
+        sim_clock.sleep(0.5)
+        at_switch = node.sdo[0x6064].raw
+        node.sdo["Modes of operation"].raw = 0
+        sim_clock.sleep(v / d + 0.05)
+        stopped = node.sdo[0x6064].raw
+        assert stopped == pytest.approx(at_switch - v * v / (2 * d), abs=0.02 * v)
+        sim_clock.sleep(0.5)
+        assert node.sdo[0x6064].raw == stopped and node.sdo[0x6061].raw == 0
+        node.sdo["Modes of operation"].raw = 1  # back in profile position: no stale move resumes
+        sim_clock.sleep(0.5)
+        assert node.sdo[0x6064].raw == stopped

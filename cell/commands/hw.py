@@ -137,6 +137,7 @@ def _joints_text(j) -> str:
 # --- commands -------------------------------------------------------------------------------
 def _status(args, cell) -> int:
     from drivers import Arm, SimClock, open_bus, sim
+    from drivers.record import BusRecorder
 
     code, states, error = 0, None, None
     if _simulated(args):
@@ -146,6 +147,10 @@ def _status(args, cell) -> int:
             clock = SimClock() if args.simulated_time else RealClock()
             stack.callback(clock.close)
             channel = args.channel or "cell-hw-status"
+            if args.record is not None:
+                tap = open_bus("virtual", channel)
+                stack.callback(tap.shutdown)
+                stack.enter_context(BusRecorder(tap, args.record, clock=clock if clock.simulated else None))
             sim_bus = open_bus("virtual", channel)
             stack.callback(sim_bus.shutdown)
             stack.enter_context(sim.serve(sim_bus, cell, clock=clock))
@@ -153,11 +158,15 @@ def _status(args, cell) -> int:
             stack.callback(bus.shutdown)
             states, error = _bring_up(Arm(bus, cell, clock=clock))
     else:
-        bus = open_bus(args.interface, args.channel or "can0", cell.can.bitrate)
-        try:
+        with contextlib.ExitStack() as stack:
+            channel = args.channel or "can0"
+            if args.record is not None:
+                tap = open_bus(args.interface, channel, cell.can.bitrate)
+                stack.callback(tap.shutdown)
+                stack.enter_context(BusRecorder(tap, args.record))
+            bus = open_bus(args.interface, channel, cell.can.bitrate)
+            stack.callback(bus.shutdown)
             states, error = _bring_up(Arm(bus, cell))
-        finally:
-            bus.shutdown()
     for s in states.values():
         row = {k: s[k] for k in ("node_id", "name", "state", "position", "unit", "nmt", "fault", "emcy")}
         pos = "-" if s["position"] is None else f"{s['position']:.3f} {s['unit']}"

@@ -217,3 +217,17 @@ def test_unknown_interface_is_bad_input(capsys):
     code, _, err = run_cli("hw", "status", "--interface", "nonsense", capsys=capsys)
     assert code == 2 and "unknown CAN interface 'nonsense'" in err and "socketcan" in err
 
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["corner", "--dwell", "-1", "--simulated-time"],
+        ["corner", "--dwell", "nan", "--simulated-time"],
+        ["sim", "--seconds", "-1"],
+        ["sim", "--seconds", "nan"],
+    ],
+)
+def test_hw_refuses_negative_or_nan_times(capsys, argv):
+    code, out, err = run_cli("hw", *argv, capsys=capsys)
+    assert code == 2 and argv[1] in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1 and out == ""

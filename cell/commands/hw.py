@@ -68,12 +68,23 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from cell.cellconfig import load_cell
 
+    _check_times(args)
     cell = load_cell(args.cell)
     if args._words[1] == "sim":
         return _serve(args, cell)
     return {"status": _status, "home": _home, "jog": _jog, "gripper": _gripper, "corner": _corner}[args._words[1]](
         args, cell
     )
+
+
+def _check_times(args) -> None:
+    """--dwell / --seconds: a finite time, not negative (NaN would wait forever on a SimClock)."""
+    from cell.errors import BadInput
+
+    for option in ("dwell", "seconds"):
+        value = getattr(args, option, None)
+        if value is not None and not (math.isfinite(value) and value >= 0):
+            raise BadInput(f"--{option} {value:g}: give a finite number of seconds, 0 or more")
 
 
 # --- sessions -------------------------------------------------------------------------------

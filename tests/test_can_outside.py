@@ -258,3 +258,13 @@ def test_leaving_profile_position_during_a_move_stops_the_axis(open_test_bus, si
         node.sdo["Modes of operation"].raw = 1  # back in profile position: no stale move resumes
         sim_clock.sleep(0.5)
         assert node.sdo[0x6064].raw == stopped
+
+
+def test_clocks_refuse_a_nan_sleep():
+    """A NaN sleep on the SimClock ran the drives' jobs forever (no time compares to NaN)."""
+    from drivers.clock import RealClock, SimClock
+
+    for clock in (SimClock(), RealClock()):
+        with pytest.raises(ValueError, match="nan"):
+            clock.sleep(float("nan"))
+        clock.close()

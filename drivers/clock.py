@@ -104,6 +104,8 @@ class SimClock(Clock):
     def sleep(self, dt_s: float) -> None:
         if dt_s < 0:
             raise ValueError(f"cannot sleep a negative time ({dt_s} s)")
+        if dt_s != dt_s:
+            raise ValueError("cannot sleep nan s (simulated time would run forever)")
         end = self._now + dt_s
         self.settle()
         while True:
@@ -138,6 +140,8 @@ class RealClock(Clock):
         return time.monotonic() - self._t0
 
     def sleep(self, dt_s: float) -> None:
+        if dt_s != dt_s:
+            raise ValueError("cannot sleep nan s")
         if dt_s > 0:
             time.sleep(dt_s)
 

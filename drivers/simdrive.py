@@ -39,6 +39,13 @@ class _Motion:
     stopping: bool = False  # a quick-stop or fault-reaction ramp to standstill
 
 
+def _next_phase(last_s: float, period_s: float, now_s: float) -> float:
+    """When a periodic frame due at `last_s + period_s` goes out at `now_s` (on the next
+    tick): keep the phase, so the period holds on average; start afresh when far behind."""
+    due = last_s + period_s
+    return due if now_s - due < period_s else now_s
+
+
 class SimDrive:
     """One simulated CiA 402 drive on a canopen `Network`. Thread-safe (one lock)."""
 
@@ -68,6 +75,7 @@ class SimDrive:
         self.node._write_callbacks.remove(self.node.nmt.on_write)
         network.unsubscribe(0, self.node.nmt.on_command)
         network.subscribe(0, self._on_nmt)
+        self.node._find_object = self._find_object  # canopen's LocalNode lets any sub-index through
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
         self._sdo_send = self.node.sdo.send_response
@@ -89,6 +97,8 @@ class SimDrive:
         self._store(0x6085, 0, max(1, round(QUICK_STOP_DECEL_FACTOR * acceleration * c)))
         self._store(0x1017, 0, heartbeat_ms)
         self._store(0x1800, 5, tpdo_event_ms)
+        # the power-on values (CiA 301: what the NMT resets restore), as stored by commissioning
+        self._power_on = {i: dict(subs) for i, subs in self.node.data_store.items()}
         # drive state
         self.nmt = NMT_INIT
         self.state = "NOT_READY_TO_SWITCH_ON"
@@ -103,6 +113,7 @@ class SimDrive:
         self.error_code = 0
         self.motion: _Motion | None = None
         self.pending: tuple[int, bool] | None = None  # buffered set-point (single set-point mode)
+        self.halted: int | None = None  # the target a halt (controlword bit 8) interrupted
         self.emcy_log: list[int] = []
         # host heartbeat watch (0x1016)
         self._host_id = 0
@@ -130,6 +141,22 @@ class SimDrive:
         raw = self.node.data_store.get(index, {}).get(subindex)
         return var.decode_raw(raw) if raw is not None else var.default
 
+    def _find_object(self, index: int, subindex: int):
+        """The object an SDO names, as a real drive checks it: abort 0x06020000 for an object
+        it does not have, 0x06090011 for a sub-index the object does not have (a VAR has only
+        sub-index 0; an ARRAY only the entries its EDS declares)."""
+        od = self.node.object_dictionary
+        if index not in od:
+            raise SdoAbortedError(0x06020000)
+        obj = od[index]
+        if isinstance(obj, canopen.objectdictionary.ODVariable):
+            if subindex != 0:
+                raise SdoAbortedError(0x06090011)
+            return obj
+        if subindex not in obj.subindices:
+            raise SdoAbortedError(0x06090011)
+        return obj.subindices[subindex]
+
     def _on_read(self, index, subindex, od):
         with self._lock:
             if index == 0x6041:
@@ -141,7 +168,7 @@ class SimDrive:
             if index == 0x603F:
                 return self.error_code
             if index == 0x1001:
-                return 0x01 if self.error_code else 0x00
+                return self.error_register
             if index == 0x6040:
                 return self.controlword
         return None
@@ -200,6 +227,7 @@ class SimDrive:
             elif cmd in (codec.NMT_RESET_NODE, codec.NMT_RESET_COMM):
                 if cmd == codec.NMT_RESET_NODE:
                     self._reset_application()
+                self._reset_communication()
                 self.boot()
                 return
             self._publish()
@@ -247,9 +275,20 @@ class SimDrive:
             internal_limit=self.internal_limit,
         )
 
+    @property
+    def error_register(self) -> int:
+        """0x1001, as in the EMCY: generic error, plus manufacturer-specific for monitoring codes."""
+        code = self.error_code
+        return 0 if not code else 0x01 | (0x80 if code >> 12 == 8 else 0)
+
     def _set_mode(self, mode: int) -> None:
         if mode not in (0, codec.PP_MODE):
             raise SdoAbortedError(0x06090030)  # value range of parameter exceeded
+        if mode != codec.PP_MODE:
+            # leaving profile position: its move stops (decelerating on 0x6084), nothing resumes
+            if self.motion is not None and not self.motion.stopping:
+                self._ramp_down(0x6084)
+            self.pending = self.halted = None
         self.mode = mode
         self._store(0x6060, 0, mode)
         self._publish()
@@ -298,23 +337,42 @@ class SimDrive:
 
     def _profile_position(self, prev: int, cw: int) -> None:
         rising = cw & codec.CW_NEW_SET_POINT and not prev & codec.CW_NEW_SET_POINT
+        halt = bool(cw & codec.CW_HALT)
         if rising and not self.ack:
             target = int(self._get(0x607A))
             relative = bool(cw & codec.CW_RELATIVE)
-            if self.motion is not None and not cw & codec.CW_CHANGE_IMMEDIATELY:
+            if self.halted is not None or (halt and self.motion is None):
+                # halted: the new set-point is taken and runs when the halt is released
+                if relative:  # relative to the preceding (the halted) target
+                    target += self.halted if self.halted is not None else round(self.position_counts)
+                self.halted = target
+            elif self.motion is not None and not cw & codec.CW_CHANGE_IMMEDIATELY:
                 self.pending = (target, relative)  # single set-point: after the current move
             else:
                 self._start_move(target, relative)
-            self.ack = True
-        elif not cw & codec.CW_NEW_SET_POINT and self.ack:
-            self.ack = False
-        if cw & codec.CW_HALT and self.motion is not None:
-            self._stop_motion()
-            self.target_reached = True
+            self.ack = self.state == "OPERATION_ENABLED"  # a refused set-point (fault) is not taken
+        elif not cw & codec.CW_NEW_SET_POINT and self.ack and self.pending is None:
+            self.ack = False  # (a buffered set-point keeps it: the buffer is full)
+        if halt and self.motion is not None and not self.motion.stopping:
+            # halt: stop on the profile deceleration 0x6084; the target is kept for the release
+            target, pending = self.motion.target_counts, self.pending
+            self._ramp_down(0x6084)
+            self.halted, self.pending = target, pending
+            if self.motion is None:
+                self.target_reached = True
+        elif not halt and self.halted is not None and self.motion is None:
+            self._resume()
+
+    def _resume(self) -> None:
+        """Halt released at standstill: continue the positioning to the interrupted target."""
+        target, self.halted = self.halted, None
+        self._start_move(target, False)
 
     def _start_move(self, target: int, relative: bool) -> None:
         if relative:
-            target = round(self.position_counts) + target
+            # CiA 402 (positioning option code 0x60F2 = 0): relative to the preceding target
+            m = self.motion
+            target += m.target_counts if m is not None and not m.stopping else round(self.position_counts)
         lo, hi = int(self._get(0x607D, 1)), int(self._get(0x607D, 2))
         if not lo <= target <= hi:
             self._fault(0x8612)
@@ -333,16 +391,19 @@ class SimDrive:
     def _stop_motion(self) -> None:
         self.motion = None
         self.pending = None
+        self.halted = None
 
-    def _ramp_down(self) -> None:
-        """Replace the running move by a ramp to standstill at the quick stop deceleration."""
+    def _ramp_down(self, decel_index: int = 0x6085) -> None:
+        """Replace the running move by a ramp to standstill at the quick stop deceleration
+        (or, for a halt, the profile deceleration 0x6084)."""
         m = self.motion
         self.pending = None
+        self.halted = None
         if m is None or m.stopping:
             return
         now = self.clock.now()
         v0 = m.profile.velocity_at(now - m.t0_s)
-        d = float(self._get(0x6085))
+        d = float(self._get(decel_index))
         if v0 == 0.0 or d <= 0:
             self.motion = None
             return
@@ -365,8 +426,7 @@ class SimDrive:
         self.emcy_log.append(code)
         if not self.silent:
             self.network.send_message(
-                codec.EMCY_BASE + self.node_id,
-                codec.pack_emcy(codec.Emcy(code, 0x01 | (0x80 if code >> 12 == 8 else 0))),
+                codec.EMCY_BASE + self.node_id, codec.pack_emcy(codec.Emcy(code, self.error_register))
             )
         self._publish()
 
@@ -379,10 +439,33 @@ class SimDrive:
         if not self.silent:
             self.network.send_message(codec.EMCY_BASE + self.node_id, codec.pack_emcy(codec.Emcy(0, 0)))
 
+    def _restore_power_on(self, lo: int, hi: int) -> None:
+        """Objects lo..hi back to their power-on values (CiA 301 NMT resets)."""
+        store = self.node.data_store
+        for index in [i for i in store if lo <= i <= hi]:
+            del store[index]
+        for index, subs in self._power_on.items():
+            if lo <= index <= hi:
+                store[index] = dict(subs)
+
     def _reset_application(self) -> None:
+        """NMT Reset Node: the application and profile area (0x2000-0xFFFF) to power-on values;
+        the actual position stays (absolute encoders) and becomes the target."""
         self.state = "NOT_READY_TO_SWITCH_ON"
         self._stop_motion()
         self.ack, self.error_code, self.following_error, self.mode = False, 0, False, 0
+        self.controlword, self.internal_limit, self.target_reached = 0, False, True
+        self._restore_power_on(0x2000, 0xFFFF)
+        self._store(0x607A, 0, round(self.position_counts))
+
+    def _reset_communication(self) -> None:
+        """NMT Reset Communication: the communication area (0x1000-0x1FFF) to power-on values,
+        with what depends on it: RPDO COB-IDs, the host heartbeat watch, TPDO timing."""
+        self._restore_power_on(0x1000, 0x1FFF)
+        for comm in self._rpdo_handlers:
+            self._subscribe_rpdo(comm, int(self._get(comm, 1)))
+        self._set_host_watch(int(self._get(0x1016, 1)))
+        self._last_tpdo, self._sync_count = None, 0
 
     # --- host heartbeat watch --------------------------------------------------------------
     def _set_host_watch(self, entry: int) -> None:
@@ -422,9 +505,9 @@ class SimDrive:
                     self._host_seen_s = None  # report once; re-armed by the next heartbeat
             self._move(now)
             self._publish(now)
-            hb_ms = int(self._get(0x1017))
-            if hb_ms > 0 and now - self._last_hb_s >= hb_ms / 1000.0 - 1e-9:
-                self._last_hb_s = now
+            hb_s = int(self._get(0x1017)) / 1000.0
+            if hb_s > 0 and now - self._last_hb_s >= hb_s - 1e-9:
+                self._last_hb_s = _next_phase(self._last_hb_s, hb_s, now)
                 self.network.send_message(codec.HEARTBEAT_BASE + self.node_id, codec.pack_heartbeat(self.nmt))
 
     def _move(self, now: float) -> None:
@@ -456,6 +539,11 @@ class SimDrive:
                 self.motion = None
                 if self.state == "FAULT_REACTION_ACTIVE":
                     self.state = "FAULT"
+                elif self.halted is not None:
+                    if self.controlword & codec.CW_HALT:
+                        self.target_reached = True  # halted: statusword bit 10 = standstill
+                    else:
+                        self._resume()  # the halt was released during the ramp
             return
         if elapsed >= m.profile.duration_s:
             self.position_counts = float(m.target_counts)
@@ -464,6 +552,8 @@ class SimDrive:
                 target, relative = self.pending
                 self.pending = None
                 self._start_move(target, relative)
+                if not self.controlword & codec.CW_NEW_SET_POINT:
+                    self.ack = False  # the buffer is free again
             else:
                 self.target_reached = True
 
@@ -486,8 +576,11 @@ class SimDrive:
         data = self._tpdo1_data()
         event_ms = int(self._get(0x1800, 5))
         due = event_ms > 0 and now - self._last_tpdo_s >= event_ms / 1000.0 - 1e-9
-        if data != self._last_tpdo or due:
+        if data != self._last_tpdo:  # an event: the event timer restarts
             self._last_tpdo, self._last_tpdo_s = data, now
+            self.network.send_message(cob & 0x7FF, data)
+        elif due:
+            self._last_tpdo_s = _next_phase(self._last_tpdo_s, event_ms / 1000.0, now)
             self.network.send_message(cob & 0x7FF, data)
 
     def _on_sync(self, can_id, data, timestamp) -> None:
@@ -562,6 +655,8 @@ class SimGripper(SimDrive):
             self.position_counts = w_counts
             self.motion = None
             self.pending = None
+            if not self.controlword & codec.CW_NEW_SET_POINT:
+                self.ack = False  # a buffered set-point is dropped: the buffer is free
             self.internal_limit = True
             self.target_reached = True
             return True

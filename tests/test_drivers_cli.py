@@ -40,6 +40,17 @@ def test_hw_status_json_real_time_contract(capsys):
     assert rows[4]["position"] == pytest.approx(default_cell().gripper.opening_mm[1])
 
 
+@pytest.mark.parametrize("simulated_time", [True, False])
+def test_hw_status_records_the_bring_up(capsys, tmp_path, simulated_time):
+    """`--record LOG` (documented for every `cell hw` command) also records `hw status`."""
+    log = tmp_path / "status.log"
+    argv = ["hw", "status", "--json", "--record", log] + (["--simulated-time"] if simulated_time else [])
+    code, out, err = run_cli(*argv, capsys=capsys)
+    assert code == 0, err
+    ids = {m.arbitration_id for m in read_log(log)}
+    assert {0x701, 0x705, 0x181, 0x185, 0x000, 0x77F} <= ids  # heartbeats, TPDO1, NMT, the host
+
+
 def test_hw_jog_moves_one_joint(capsys, tmp_path):
     log = tmp_path / "jog.asc"
     code, out, err = run_cli("hw", "jog", "j1", "-2.5", "--simulated-time", "--json", "--record", log, capsys=capsys)
@@ -205,3 +216,18 @@ def test_hw_sim_serves_until_sigterm():
 def test_unknown_interface_is_bad_input(capsys):
     code, _, err = run_cli("hw", "status", "--interface", "nonsense", capsys=capsys)
     assert code == 2 and "unknown CAN interface 'nonsense'" in err and "socketcan" in err
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["corner", "--dwell", "-1", "--simulated-time"],
+        ["corner", "--dwell", "nan", "--simulated-time"],
+        ["sim", "--seconds", "-1"],
+        ["sim", "--seconds", "nan"],
+    ],
+)
+def test_hw_refuses_negative_or_nan_times(capsys, argv):
+    code, out, err = run_cli("hw", *argv, capsys=capsys)
+    assert code == 2 and argv[1] in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1 and out == ""

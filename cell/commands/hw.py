@@ -68,12 +68,23 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from cell.cellconfig import load_cell
 
+    _check_times(args)
     cell = load_cell(args.cell)
     if args._words[1] == "sim":
         return _serve(args, cell)
     return {"status": _status, "home": _home, "jog": _jog, "gripper": _gripper, "corner": _corner}[args._words[1]](
         args, cell
     )
+
+
+def _check_times(args) -> None:
+    """--dwell / --seconds: a finite time, not negative (NaN would wait forever on a SimClock)."""
+    from cell.errors import BadInput
+
+    for option in ("dwell", "seconds"):
+        value = getattr(args, option, None)
+        if value is not None and not (math.isfinite(value) and value >= 0):
+            raise BadInput(f"--{option} {value:g}: give a finite number of seconds, 0 or more")
 
 
 # --- sessions -------------------------------------------------------------------------------
@@ -137,6 +148,7 @@ def _joints_text(j) -> str:
 # --- commands -------------------------------------------------------------------------------
 def _status(args, cell) -> int:
     from drivers import Arm, SimClock, open_bus, sim
+    from drivers.record import BusRecorder
 
     code, states, error = 0, None, None
     if _simulated(args):
@@ -146,6 +158,10 @@ def _status(args, cell) -> int:
             clock = SimClock() if args.simulated_time else RealClock()
             stack.callback(clock.close)
             channel = args.channel or "cell-hw-status"
+            if args.record is not None:
+                tap = open_bus("virtual", channel)
+                stack.callback(tap.shutdown)
+                stack.enter_context(BusRecorder(tap, args.record, clock=clock if clock.simulated else None))
             sim_bus = open_bus("virtual", channel)
             stack.callback(sim_bus.shutdown)
             stack.enter_context(sim.serve(sim_bus, cell, clock=clock))
@@ -153,11 +169,15 @@ def _status(args, cell) -> int:
             stack.callback(bus.shutdown)
             states, error = _bring_up(Arm(bus, cell, clock=clock))
     else:
-        bus = open_bus(args.interface, args.channel or "can0", cell.can.bitrate)
-        try:
+        with contextlib.ExitStack() as stack:
+            channel = args.channel or "can0"
+            if args.record is not None:
+                tap = open_bus(args.interface, channel, cell.can.bitrate)
+                stack.callback(tap.shutdown)
+                stack.enter_context(BusRecorder(tap, args.record))
+            bus = open_bus(args.interface, channel, cell.can.bitrate)
+            stack.callback(bus.shutdown)
             states, error = _bring_up(Arm(bus, cell))
-        finally:
-            bus.shutdown()
     for s in states.values():
         row = {k: s[k] for k in ("node_id", "name", "state", "position", "unit", "nmt", "fault", "emcy")}
         pos = "-" if s["position"] is None else f"{s['position']:.3f} {s['unit']}"

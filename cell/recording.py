@@ -106,8 +106,10 @@ class RecordingWriter:
             raise BadInput(f"recording directory {self.dir} already holds a recording; choose a new name")
         if self.dir.exists() and not self.dir.is_dir():
             raise BadInput(f"recording directory {self.dir} is a file")
-        self.dir.mkdir(parents=True, exist_ok=True)
-        (self.dir / FRAMES_DIR).mkdir(exist_ok=True)
+        if self.dir.is_dir() and any(self.dir.iterdir()):
+            # its files would be overwritten or, worse, mixed into the recording (decisions appended
+            # to a stale decisions.jsonl, stale frames counted): an unreadable recording
+            raise BadInput(f"recording directory {self.dir} is not empty; choose a new name")
 
         from cell import __version__
         from cell.cellconfig import default_cell_path
@@ -115,21 +117,23 @@ class RecordingWriter:
         cell_src = Path(cell_file) if cell_file is not None else default_cell_path()
         if not cell_src.is_file():
             raise BadInput(f"cell file {cell_src} does not exist")
-        shutil.copyfile(cell_src, self.dir / "cell.json")
-        files = {"cell": "cell.json", "calibration": None, "decisions": DECISIONS, "frames": FRAMES_DIR,
-                 "can_log": CAN_LOG, "rrd": RRD}
-        if calibration_file is not None:
-            cal = Path(calibration_file)
-            if not cal.is_file():
-                raise BadInput(f"calibration file {cal} does not exist")
-            shutil.copyfile(cal, self.dir / "calibration.json")
-            files["calibration"] = "calibration.json"
-        examples = None
-        if examples_file is not None:
-            ex = Path(examples_file)
-            if not ex.is_file():
-                raise BadInput(f"example file {ex} does not exist")
-            examples = {"path": str(ex.resolve()), "sha256": _sha256(ex)}
+        cal = Path(calibration_file) if calibration_file is not None else None
+        if cal is not None and not cal.is_file():
+            raise BadInput(f"calibration file {cal} does not exist")
+        ex = Path(examples_file) if examples_file is not None else None
+        if ex is not None and not ex.is_file():
+            raise BadInput(f"example file {ex} does not exist")
+        files = {"cell": "cell.json", "calibration": "calibration.json" if cal else None, "decisions": DECISIONS,
+                 "frames": FRAMES_DIR, "can_log": CAN_LOG, "rrd": RRD}
+        try:
+            self.dir.mkdir(parents=True, exist_ok=True)
+            (self.dir / FRAMES_DIR).mkdir(exist_ok=True)
+            shutil.copyfile(cell_src, self.dir / "cell.json")
+            if cal is not None:
+                shutil.copyfile(cal, self.dir / "calibration.json")
+            examples = {"path": str(ex.resolve()), "sha256": _sha256(ex)} if ex is not None else None
+        except OSError as e:
+            raise BadInput(f"cannot write the recording into {self.dir}: {e.strerror or e}") from None
 
         self._lock = threading.Lock()
         self._frame_indices: set[int] = set()
@@ -146,8 +150,11 @@ class RecordingWriter:
             "examples": examples, "files": files, "counts": {"frames": 0, "decisions": 0},
             "meta": to_jsonable(meta or {}),
         }
-        write_json_atomic(self.dir / MANIFEST, self.manifest)
-        self._decisions = open(self.dir / DECISIONS, "a", encoding="utf-8")  # noqa: SIM115 - held open
+        try:
+            write_json_atomic(self.dir / MANIFEST, self.manifest)
+            self._decisions = open(self.dir / DECISIONS, "x", encoding="utf-8")  # noqa: SIM115 - held open
+        except OSError as e:
+            raise BadInput(f"cannot write the recording into {self.dir}: {e.strerror or e}") from None
 
     # -- paths the lead's loop attaches other writers to
     @property

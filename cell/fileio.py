@@ -44,15 +44,19 @@ def write_json_atomic(path: str | os.PathLike, obj) -> None:
     write_atomic(path, json.dumps(obj, indent=2) + "\n")
 
 
-def append_lines_atomic(path: str | os.PathLike, lines: list[str]) -> None:
+def append_lines_atomic(path: str | os.PathLike, lines: list[str], check=None) -> None:
     """Append whole lines: the file is rewritten to a temp file and renamed, under a lock,
-    so a crash or a concurrent appender never leaves a torn last line."""
+    so a crash or a concurrent appender never leaves a torn last line. `check(old_bytes)`,
+    if given, runs under the lock on the file as it is then and may refuse the append by
+    raising (a check made before taking the lock could miss a concurrent appender's lines)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     lock_path = path.with_name(f".{path.name}.lock")
     with open(lock_path, "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         old = path.read_bytes() if path.exists() else b""
+        if check is not None:
+            check(old)
         if old and not old.endswith(b"\n"):
             old += b"\n"
         new = "".join(line.rstrip("\n") + "\n" for line in lines).encode("utf-8")

@@ -1,8 +1,14 @@
 """Bad recording directories, damaged recordings and concurrent example appends: each is a
 clear error (exit 2), never a traceback, a wrong exit code or a lost or mixed-up file."""
 
+import json
+import shutil
+from pathlib import Path
 
+import pytest
 from conftest import run_cli
+
+from cell.recording import RecordingReader
 
 
 def test_cell_run_refuses_to_record_into_a_non_empty_directory_and_leaves_it_alone(tmp_path, capsys):
@@ -56,3 +62,69 @@ def test_concurrent_appenders_of_the_same_ids_never_write_a_duplicate(tmp_path):
     assert sorted(ids) == [f"same-{i}" for i in range(6)]
     assert sum(refused) == 6 * 6 - 6
 
+
+SHIPPED = Path(__file__).resolve().parent.parent / "recordings" / "shipped"
+
+
+def _copy_of_shipped(tmp_path) -> Path:
+    d = tmp_path / "copy"
+    shutil.copytree(SHIPPED, d)
+    return d
+
+
+def _cut_off_mid_session(d: Path, keep: int = 7) -> None:
+    """What a session killed mid-way leaves: the manifest still says "recording", the decision
+    lines up to `keep`, then half a line; the frames up to the last perception."""
+    lines = (d / "decisions.jsonl").read_text().splitlines()
+    (d / "decisions.jsonl").write_text("\n".join(lines[:keep]) + "\n" + lines[keep][: len(lines[keep]) // 2])
+    frames = {json.loads(x)["frame"] for x in lines[:keep] if json.loads(x)["type"] == "perception"}
+    for f in (d / "frames").iterdir():
+        if int(f.stem) not in frames:
+            f.unlink()
+    m = json.loads((d / "manifest.json").read_text())
+    m.update(status="recording", closed=None, counts={"frames": 0, "decisions": 0})
+    m.pop("summary", None)
+    (d / "manifest.json").write_text(json.dumps(m))
+
+
+def test_replay_of_a_session_killed_mid_way_says_incomplete_not_divergence(tmp_path, capsys):
+    d = _copy_of_shipped(tmp_path)
+    _cut_off_mid_session(d)
+    assert RecordingReader(d).status == "incomplete"
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 2, err
+    assert "incomplete" in err and "7 recorded decisions match" in err and "divergence" not in err
+
+
+def test_replay_of_a_killed_session_still_names_a_divergence_within_what_was_recorded(tmp_path, capsys):
+    d = _copy_of_shipped(tmp_path)
+    _cut_off_mid_session(d)
+    lines = (d / "decisions.jsonl").read_text().split("\n")
+    g = json.loads(lines[1])
+    g["opening_mm"] += 3.0
+    lines[1] = json.dumps(g)
+    (d / "decisions.jsonl").write_text("\n".join(lines))
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 1 and "decision #1 (grasp, nut): opening_mm" in err
+
+
+def _torn_can_log(d: Path) -> None:
+    raw = (d / "can.log").read_bytes()
+    (d / "can.log").write_bytes(raw[: len(raw) // 2 + 7])
+
+
+def _empty_can_log(d: Path) -> None:
+    (d / "can.log").write_bytes(b"")
+
+
+@pytest.mark.parametrize("damage, match", [
+    (lambda d: (d / "can.log").unlink(), "can.log is missing"),
+    (_torn_can_log, "can.log is cut off"),
+    (_empty_can_log, "can.log holds no CAN traffic"),
+    (lambda d: (d / "can.log").write_text("this is no candump log\n"), "not a readable candump log"),
+])
+def test_replay_refuses_a_complete_recording_whose_can_log_is_damaged(tmp_path, capsys, damage, match):
+    d = _copy_of_shipped(tmp_path)
+    damage(d)
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 2 and match in err and "Traceback" not in err

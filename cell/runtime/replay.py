@@ -29,6 +29,10 @@ class Divergence(Exception):  # noqa: N818 - not a CellError: the loop must not 
     """Replay made another decision than the recording (exit 1)."""
 
 
+class RecordingEnds(Exception):  # noqa: N818 - not a CellError, like Divergence
+    """The replay went on past the last decision of a recording that was never closed."""
+
+
 
 # The planner settings a recording keeps (meta.planner), with the values that held before each was
 # recorded: a recording made before `slanted_faces` planned without it, with leaves of 2 rows and
@@ -91,6 +95,7 @@ class Comparison:
     strict: bool = True
     position: int = 0
     found: list[str] = field(default_factory=list)
+    cut_short: bool = False  # the recording was never closed (crash) or lost its last line
 
     def write_frame(self, index, frame_bgr):
         return None
@@ -106,6 +111,8 @@ class Comparison:
             if self.strict:
                 self._replay_drive_fault()
         if self.position >= len(self.recorded):
+            if self.cut_short:  # not a divergence: the rest of the session was never recorded
+                raise RecordingEnds()
             self._diverged(f"decision #{self.position} ({record.get('type')}): the recording has no more decisions")
             return
         expected = self.recorded[self.position]
@@ -196,6 +203,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
 
     say = progress or (lambda s: None)
     rec = RecordingReader(directory)
+    _check_can_log(rec, directory)
     meta = rec.manifest.get("meta") or {}
     if "assembly" not in meta:
         raise BadInput(f"recording {directory}: the manifest does not hold the assembly (not made by cell run)")
@@ -222,7 +230,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
         work_examples = Path(tmp) / "examples.jsonl"
         shutil.copyfile(examples_src, work_examples)  # rejects are appended again, not to the original
         with simulated_cell(cell) as (arm, drives):
-            sink = Comparison(recorded, drives, strict)
+            sink = Comparison(recorded, drives, strict, cut_short=_cut_short(rec))
             control = RecordedApprovals(rec.decisions, f"recording {directory}")
             loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=FileCamera(frames), arm=arm,
                             control=control, examples_path=work_examples, sink=sink,
@@ -233,11 +241,45 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
             say(f"replaying {len(frames)} frames, {len(recorded)} decisions")
             try:
                 loop.run()
+            except RecordingEnds:
+                pass  # reported below
             except StopRun:
                 pass  # the recorded session stopped here too, or the comparison says where not
             except CellError as e:
                 sink._diverged(f"the replay failed at decision #{sink.position}: {e}")
+    if sink.cut_short and not sink.found:
+        raise BadInput(f"recording {directory} is incomplete ({'; '.join(rec.problems)}): its {sink.position} "
+                       f"recorded decisions match the replay, but how the session went on is not recorded")
     if sink.position < len(recorded):
         sink._diverged(f"the replay ended after {sink.position} of {len(recorded)} recorded decisions; next: "
                        f"{recorded[sink.position].get('type')}")
     return {"decisions": len(recorded), "matched": sink.position - len(sink.found), "differences": sink.found}
+
+
+def _cut_short(rec) -> bool:
+    """A recording whose end is missing: its writer was never closed (the session crashed or was
+    killed), or its last decision line was torn off."""
+    from cell.recording import DECISIONS
+
+    return rec.manifest.get("status") == "recording" or any(
+        p.startswith(f"{DECISIONS} line") and "is torn" in p for p in rec.problems)
+
+
+def _check_can_log(rec, directory) -> None:
+    """The CAN log the manifest names is part of the recording: missing, unreadable, or (in a
+    recording closed as complete) torn or empty is a corrupt recording."""
+    from cell.recording import CAN_LOG
+
+    if not (rec.manifest.get("files") or {}).get("can_log"):
+        return  # a recording made without one
+    if rec.can_log_path is None:
+        raise BadInput(f"recording {directory}: the CAN log {CAN_LOG} is missing")
+    n_before = len(rec.problems)
+    messages = rec.can_messages()  # BadInput when python-can cannot read it
+    if rec.manifest.get("status") == "complete":
+        if len(rec.problems) > n_before:
+            raise BadInput(f"recording {directory}: {CAN_LOG} is cut off (its last line is torn), but the "
+                           "session was closed as complete")
+        if not messages:
+            raise BadInput(f"recording {directory}: {CAN_LOG} holds no CAN traffic, but the session was "
+                           "closed as complete")

@@ -128,3 +128,13 @@ def test_replay_refuses_a_complete_recording_whose_can_log_is_damaged(tmp_path, 
     damage(d)
     code, _, err = run_cli("replay", d, capsys=capsys)
     assert code == 2 and match in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("where", ["a-dir", "a-file/x.rrd"])
+def test_cell_run_save_where_no_rrd_can_be_written_is_bad_input_and_leaves_no_recording(tmp_path, capsys, where):
+    (tmp_path / "a-dir").mkdir()
+    (tmp_path / "a-file").write_text("x")
+    rec = tmp_path / "session"
+    code, _, err = run_cli("run", "--record", rec, "--save", tmp_path / where, capsys=capsys)
+    assert code == 2 and "--save" in err and "Traceback" not in err
+    assert not rec.exists()  # not a recording that says "recording" forever, as if the run had crashed

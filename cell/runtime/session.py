@@ -173,6 +173,8 @@ def run_session(cfg: RunConfig) -> dict:
         stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
         examples_out = folder / ("examples.jsonl" if cfg.record else f"examples-{stamp}.jsonl")
 
+    if cfg.save_rrd:  # before the recording is made: a run that cannot start leaves no recording behind
+        _check_rrd_path(Path(cfg.save_rrd))
     recorder = None
     if cfg.record:
         from cell.recording import RecordingWriter
@@ -194,7 +196,16 @@ def run_session(cfg: RunConfig) -> dict:
     if rrd or cfg.rerun:
         from cell.viz import Viz
 
-        viz = Viz("disassembly-cell", spawn=cfg.rerun, save_path=rrd)
+        try:
+            viz = Viz("disassembly-cell", spawn=cfg.rerun, save_path=rrd)
+        except BaseException as e:
+            if recorder is not None:
+                recorder.close("incomplete", {"status": "not started", "error": str(e)})
+            if isinstance(e, (OSError, RuntimeError)) and rrd:
+                from cell.errors import BadInput
+
+                raise BadInput(f"cannot write the rerun recording {rrd}: {e}") from None
+            raise
 
     control = RunControl(require_approval=cfg.require_approval)
     status, summary = "complete", None
@@ -247,6 +258,19 @@ def run_session(cfg: RunConfig) -> dict:
             if recorder is not None:
                 recorder.close("complete" if status == "complete" else "incomplete", summary)
     return summary
+
+
+def _check_rrd_path(path: Path) -> None:
+    from cell.errors import BadInput
+
+    if path.is_dir():
+        raise BadInput(f"--save {path} is a directory, not a .rrd file")
+    if path.parent.exists() and not path.parent.is_dir():
+        raise BadInput(f"--save {path}: {path.parent} is a file, not a folder")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise BadInput(f"--save {path}: cannot make its folder: {e.strerror or e}") from None
 
 
 def _simulated_sources(cfg: RunConfig, cell, cal, assembly: Assembly, can_log, stack: contextlib.ExitStack):

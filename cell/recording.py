@@ -302,6 +302,10 @@ class RecordingReader:
         files = m.get("files")
         if not isinstance(files, dict) or not isinstance(files.get("cell"), str):
             raise BadInput(f"{mpath}: 'files' must name at least the cell file")
+        if not isinstance(files.get("calibration"), (str, type(None))):
+            raise BadInput(f"{mpath}: 'files.calibration' must be a file name or null")
+        if not isinstance(m.get("counts"), (dict, type(None))):
+            raise BadInput(f"{mpath}: 'counts' must be an object")
         self.manifest = m
         self.problems: list[str] = []
         if m["status"] == "recording":
@@ -327,6 +331,9 @@ class RecordingReader:
             if counts.get("frames") != len(self._frames):
                 raise BadInput(f"recording {self.dir}: {FRAMES_DIR}/ holds {len(self._frames)} frames, "
                                f"the manifest says {counts.get('frames')}")
+        gap = next((i for i, k in enumerate(self._frames) if i != k), None)
+        if gap is not None:  # the loop numbers its frames 0, 1, 2 ...: replay would shift all that follow
+            raise BadInput(f"recording {self.dir}: frame {gap} ({FRAMES_DIR}/{gap:06d}.png) is missing")
 
     @property
     def status(self) -> str:

@@ -138,3 +138,35 @@ def test_cell_run_save_where_no_rrd_can_be_written_is_bad_input_and_leaves_no_re
     code, _, err = run_cli("run", "--record", rec, "--save", tmp_path / where, capsys=capsys)
     assert code == 2 and "--save" in err and "Traceback" not in err
     assert not rec.exists()  # not a recording that says "recording" forever, as if the run had crashed
+
+
+def _edit_manifest(**changes):
+    def damage(d: Path) -> None:
+        m = json.loads((d / "manifest.json").read_text())
+        for k, v in changes.items():
+            if "." in k:
+                outer, inner = k.split(".")
+                m[outer][inner] = v
+            else:
+                m[k] = v
+        (d / "manifest.json").write_text(json.dumps(m))
+    return damage
+
+
+def _middle_frame_lost_in_a_crash(d: Path) -> None:
+    _edit_manifest(status="recording")(d)  # an unclosed manifest states no counts to check against
+    (d / "frames" / "000001.png").unlink()
+
+
+@pytest.mark.parametrize("damage, match", [
+    (_edit_manifest(counts="x"), "'counts' must be an object"),
+    (_edit_manifest(**{"files.calibration": 7}), "'files.calibration' must be a file name or null"),
+    (_edit_manifest(meta=5), "'meta' must be an object"),
+    (_edit_manifest(**{"meta.on_no_grasp": "explode"}), "meta.on_no_grasp must be 'stop' or 'skip'"),
+    (_middle_frame_lost_in_a_crash, "frame 1 (frames/000001.png) is missing"),
+])
+def test_replay_refuses_a_malformed_manifest_or_a_lost_frame(tmp_path, capsys, damage, match):
+    d = _copy_of_shipped(tmp_path)
+    damage(d)
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 2 and match in err and "Traceback" not in err

@@ -205,6 +205,8 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     rec = RecordingReader(directory)
     _check_can_log(rec, directory)
     meta = rec.manifest.get("meta") or {}
+    if not isinstance(meta, dict):
+        raise BadInput(f"recording {directory}: manifest 'meta' must be an object")
     if "assembly" not in meta:
         raise BadInput(f"recording {directory}: the manifest does not hold the assembly (not made by cell run)")
     assembly = parse_assembly(meta["assembly"], f"recording {directory} assembly")
@@ -216,6 +218,9 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     examples_src = Path(examples) if examples else rec.dir / EXAMPLES_AT_START
     if not examples_src.is_file():
         raise BadInput(f"example file {examples_src} does not exist")
+    if meta.get("on_no_grasp", "stop") not in ("stop", "skip"):
+        raise BadInput(f"recording {directory}: manifest meta.on_no_grasp must be 'stop' or 'skip', "
+                       f"not {meta.get('on_no_grasp')!r}")
     planner_params = planner_from_meta(meta.get("planner") or {}, f"recording {directory}")
     recorded = [d for d in rec.decisions if d.get("type") != "summary"]
     frames = [rec.frame_path(i) for i in rec.frame_indices]

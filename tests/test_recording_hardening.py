@@ -170,3 +170,14 @@ def test_replay_refuses_a_malformed_manifest_or_a_lost_frame(tmp_path, capsys, d
     damage(d)
     code, _, err = run_cli("replay", d, capsys=capsys)
     assert code == 2 and match in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--sim-miss", "nutt"], "--sim-miss nutt: no such part"),
+    (["--sim-stuck", "washr"], "--sim-stuck washr: no such part"),
+    (["--sim-miss", "nut:0"], "N must be at least 1"),
+])
+def test_cell_run_refuses_a_simulated_fault_on_a_part_that_is_not_there(tmp_path, capsys, argv, match):
+    code, _, err = run_cli("run", *argv, capsys=capsys)
+    assert code == 2 and match in err and "Traceback" not in err
+

@@ -153,6 +153,14 @@ def run_session(cfg: RunConfig) -> dict:
     say = cfg.progress or (lambda s: None)
     assembly_path = Path(cfg.assembly) if cfg.assembly else default_assembly_path()
     assembly = load_assembly(assembly_path)
+    ids = {p.id for p in assembly.parts}
+    for opt, named in (("--sim-miss", cfg.faults.miss), ("--sim-stuck", cfg.faults.stuck)):
+        unknown = sorted(set(named) - ids)
+        if unknown:  # a misspelt fault would be no fault: the run would test nothing it was asked to
+            from cell.errors import BadInput
+
+            raise BadInput(f"{opt} {', '.join(unknown)}: no such part in {assembly_path} "
+                           f"(parts: {', '.join(sorted(ids))})")
     cell_path = cfg.cell or assembly.cell_path
     cell = load_cell(cell_path)
     cal_path = Path(cfg.calibration) if cfg.calibration else default_calibration_path()

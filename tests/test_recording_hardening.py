@@ -181,3 +181,9 @@ def test_cell_run_refuses_a_simulated_fault_on_a_part_that_is_not_there(tmp_path
     code, _, err = run_cli("run", *argv, capsys=capsys)
     assert code == 2 and match in err and "Traceback" not in err
 
+
+def test_replay_with_a_bad_example_file_names_that_file(tmp_path, capsys):
+    bad = tmp_path / "mine.jsonl"
+    bad.write_text("{not json\n")
+    code, _, err = run_cli("replay", SHIPPED, "--examples", bad, capsys=capsys)
+    assert code == 2 and f"example file {bad} line 1" in err

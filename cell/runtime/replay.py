@@ -194,6 +194,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
 
     from calibration import load_calibration
     from cell.cellconfig import load_cell
+    from cell.examples import load_examples
     from cell.recording import RecordingReader
     from cell.runtime.loop import CellLoop, LoopOptions, StopRun
     from cell.runtime.session import EXAMPLES_AT_START, home_joints
@@ -216,8 +217,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     cal = load_calibration(rec.calibration_path)
     strict = examples is None
     examples_src = Path(examples) if examples else rec.dir / EXAMPLES_AT_START
-    if not examples_src.is_file():
-        raise BadInput(f"example file {examples_src} does not exist")
+    load_examples(examples_src)  # a bad file names itself, not the working copy the replay makes of it
     if meta.get("on_no_grasp", "stop") not in ("stop", "skip"):
         raise BadInput(f"recording {directory}: manifest meta.on_no_grasp must be 'stop' or 'skip', "
                        f"not {meta.get('on_no_grasp')!r}")

@@ -52,6 +52,11 @@ def _now_iso() -> str:
     return datetime.now(UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
 
 
+def _no_constant(name: str):
+    """json.loads would read NaN and Infinity, which the writer never writes (allow_nan=False)."""
+    raise json.JSONDecodeError(f"{name} is not JSON", name, 0)
+
+
 def _sha256(path: Path) -> str:
     import hashlib
 
@@ -374,7 +379,10 @@ class RecordingReader:
             if self.manifest["status"] == "recording":
                 return []
             raise BadInput(f"recording {self.dir}: {DECISIONS} is missing")
-        raw = path.read_bytes()
+        try:
+            raw = path.read_bytes()
+        except OSError as e:
+            raise BadInput(f"recording {path} cannot be read: {e.strerror or e}") from None
         lines = raw.split(b"\n")
         torn = lines[-1] if lines and lines[-1] else b""  # bytes after the last newline
         out = []
@@ -394,7 +402,7 @@ class RecordingReader:
 
     def _parse_line(self, path: Path, lineno: int, line: bytes) -> dict:
         try:
-            rec = json.loads(line.decode("utf-8"))
+            rec = json.loads(line.decode("utf-8"), parse_constant=_no_constant)
         except (UnicodeDecodeError, json.JSONDecodeError) as e:
             msg = e.msg if isinstance(e, json.JSONDecodeError) else "not UTF-8"
             raise BadInput(f"recording {path} line {lineno}: not valid JSON ({msg})") from None
@@ -445,7 +453,10 @@ class RecordingReader:
         path = self.can_log_path
         if path is None:
             return []
-        text = path.read_text(encoding="ascii", errors="replace")
+        try:
+            text = path.read_text(encoding="ascii", errors="replace")
+        except OSError as e:
+            raise BadInput(f"recording {path} cannot be read: {e.strerror or e}") from None
         if text and not text.endswith("\n"):
             text = text[: text.rfind("\n") + 1]
             self.problems.append(f"{CAN_LOG}: the last line is torn (cut off by a crash); dropped")

@@ -187,3 +187,28 @@ def test_replay_with_a_bad_example_file_names_that_file(tmp_path, capsys):
     bad.write_text("{not json\n")
     code, _, err = run_cli("replay", SHIPPED, "--examples", bad, capsys=capsys)
     assert code == 2 and f"example file {bad} line 1" in err
+
+
+def _a_directory_instead_of(name):
+    def damage(d: Path) -> None:
+        (d / name).unlink()
+        (d / name).mkdir()
+    return damage
+
+
+def _nan_in_a_decision(d: Path) -> None:
+    lines = (d / "decisions.jsonl").read_text().splitlines()
+    lines[1] = lines[1].replace('"opening_mm":', '"opening_mm":NaN,"was":', 1)
+    (d / "decisions.jsonl").write_text("\n".join(lines) + "\n")
+
+
+@pytest.mark.parametrize("damage, match", [
+    (_a_directory_instead_of("decisions.jsonl"), "decisions.jsonl cannot be read"),
+    (_a_directory_instead_of("can.log"), "can.log cannot be read"),
+    (_nan_in_a_decision, "decisions.jsonl line 2: not valid JSON (NaN is not JSON)"),
+])
+def test_replay_refuses_unreadable_recording_files(tmp_path, capsys, damage, match):
+    d = _copy_of_shipped(tmp_path)
+    damage(d)
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 2 and match in err and "Traceback" not in err

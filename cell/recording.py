@@ -143,6 +143,7 @@ class RecordingWriter:
         self._lock = threading.Lock()
         self._frame_indices: set[int] = set()
         self._n_decisions = 0
+        self.last_decision: dict | None = None
         self._closed = False
         self._can_stops: list[Callable[[], None]] = []
         self.manifest = {
@@ -202,6 +203,7 @@ class RecordingWriter:
             self._decisions.flush()
             os.fsync(self._decisions.fileno())
             self._n_decisions += 1
+            self.last_decision = record
 
     def attach_can_logger(self, bus=None, *, notifier=None) -> Callable[[], None]:
         """Log every frame seen on the bus into can_log_path (candump format).

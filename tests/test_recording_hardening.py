@@ -212,3 +212,35 @@ def test_replay_refuses_unreadable_recording_files(tmp_path, capsys, damage, mat
     damage(d)
     code, _, err = run_cli("replay", d, capsys=capsys)
     assert code == 2 and match in err and "Traceback" not in err
+
+
+def test_sigterm_ends_cell_run_like_ctrl_c_and_the_recording_replays_to_there(tmp_path, capsys):
+    """SIGTERM quick-stops the arm and closes the recording as incomplete, with the stop in it
+    (it used to kill the run outright: a recording still saying "recording", like a crash); a
+    recording stopped at the terminal replays up to the stop (it used to 'diverge' there)."""
+    import signal
+    import subprocess
+    import sys
+    from importlib import resources
+
+    d = json.loads((resources.files("cell") / "data" / "assemblies" / "default.json").read_text())
+    d["parts"] = [p for p in d["parts"] if p["id"] in ("nut", "washer", "pcb")]
+    d["sequence"] = ["nut", "washer", "pcb"]
+    asm = tmp_path / "short.json"
+    asm.write_text(json.dumps(d))
+    rec = tmp_path / "session"
+    proc = subprocess.Popen([sys.executable, "-m", "cell", "run", str(asm), "--record", str(rec), "--seed", "3"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for line in proc.stdout:
+            if line.startswith("[removed]"):
+                proc.send_signal(signal.SIGTERM)
+                break
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130 and "Traceback" not in err, err
+    r = RecordingReader(rec)
+    assert r.manifest["status"] == "incomplete" and r.decisions[-1]["type"] == "stop"
+    code, out, err = run_cli("replay", rec, capsys=capsys)
+    assert code == 0, err

@@ -245,6 +245,9 @@ def run_session(cfg: RunConfig) -> dict:
         except KeyboardInterrupt:
             arm.stop()  # quick stop of every axis before the drives are disabled
             status = "stopped"
+            if recorder is not None and (recorder.last_decision or {}).get("type") != "stop":
+                # where the operator stopped it: replay ends there too instead of diverging
+                recorder.write_decision({"type": "stop", "source": "operator", "reason": "interrupted at the terminal"})
             raise
         except (StopRun, Stopped) as e:
             status = "stopped"

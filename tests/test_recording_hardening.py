@@ -244,3 +244,27 @@ def test_sigterm_ends_cell_run_like_ctrl_c_and_the_recording_replays_to_there(tm
     assert r.manifest["status"] == "incomplete" and r.decisions[-1]["type"] == "stop"
     code, out, err = run_cli("replay", rec, capsys=capsys)
     assert code == 0, err
+
+
+def test_examples_generate_overwrite_waits_for_an_append_in_progress(tmp_path, capsys):
+    """--overwrite takes the appenders' lock: an appender that read the old file and is writing
+    it back with its line would otherwise put the old lines over the new file (the overwrite lost)."""
+    import fcntl
+    import threading
+    import time
+
+    from cell.examples import load_examples
+
+    out = tmp_path / "examples.jsonl"
+    shutil.copyfile(SHIPPED / "examples_at_start.jsonl", out)
+    before = out.read_bytes()
+    done = {}
+    with open(tmp_path / ".examples.jsonl.lock", "w") as lock:  # as append_examples holds it
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        t = threading.Thread(target=lambda: done.setdefault("code", run_cli(
+            "examples", "generate", "--out", out, "--overwrite", "--count", "1")))
+        t.start()
+        time.sleep(3.0)
+        assert out.read_bytes() == before  # still waiting for the appender
+    t.join(60)
+    assert done["code"] == 0 and out.read_bytes() != before and len(load_examples(out)) >= 1

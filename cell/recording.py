@@ -3,7 +3,9 @@
 Layout of a recording directory (format "cell-recording", version 1):
 
     manifest.json      format, version, created/closed times, software version, status
-                       ("recording" while open, then "complete" or "incomplete"), files, counts
+                       ("recording" while open, then "complete" or "incomplete"), files, counts,
+                       can_frames_at_close (the CAN frames can.log held at close: a lower bound,
+                       a logger on a bus of its own may still hear the drives shut down)
     cell.json          copy of the cell file used (the embedded default when none was given)
     calibration.json   copy of the calibration file used (absent when none was given)
     frames/000000.png  the camera frames, PNG, each written atomically
@@ -266,6 +268,10 @@ class RecordingWriter:
                 self.manifest["summary"] = to_jsonable(summary)
             if not self.can_log_path.exists():
                 self.manifest["files"]["can_log"] = None
+            else:  # a lower bound: a logger on a bus of its own may still be hearing the drives shut down
+                with open(self.can_log_path, "rb") as f:
+                    self.manifest["can_frames_at_close"] = sum(b.count(b"\n") for b in iter(
+                        lambda: f.read(1 << 20), b""))
             if not self.rrd_path.exists():
                 self.manifest["files"]["rrd"] = None
         write_json_atomic(self.dir / MANIFEST, self.manifest)

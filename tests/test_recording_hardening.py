@@ -268,3 +268,38 @@ def test_examples_generate_overwrite_waits_for_an_append_in_progress(tmp_path, c
         assert out.read_bytes() == before  # still waiting for the appender
     t.join(60)
     assert done["code"] == 0 and out.read_bytes() != before and len(load_examples(out)) >= 1
+
+
+def test_the_manifest_states_the_can_frames_logged_at_close(tmp_path):
+    import time
+
+    import can
+
+    from cell.recording import RecordingWriter
+
+    w = RecordingWriter(tmp_path / "r")
+    with can.Bus(interface="virtual", channel="hardening-can-count") as bus, \
+            can.Bus(interface="virtual", channel="hardening-can-count") as sender:
+        w.attach_can_logger(bus)
+        for i in range(25):
+            sender.send(can.Message(arbitration_id=0x600 + i, data=[i], is_extended_id=False))
+        t0 = time.monotonic()
+        while (w.can_log_path.read_bytes().count(b"\n") if w.can_log_path.exists() else 0) < 25:
+            assert time.monotonic() - t0 < 5
+            time.sleep(0.02)
+        w.close("complete")
+    assert json.loads((tmp_path / "r" / "manifest.json").read_text())["can_frames_at_close"] == 25
+    assert len(RecordingReader(tmp_path / "r").can_messages()) == 25
+
+
+def test_replay_refuses_a_can_log_cut_off_at_a_line_boundary(tmp_path, capsys):
+    """Cut at a line boundary, the log reads as whole: the count at close says it was longer."""
+    d = _copy_of_shipped(tmp_path)
+    n = (d / "can.log").read_bytes().count(b"\n")
+    _edit_manifest(can_frames_at_close=n)(d)
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 0, err  # all there
+    lines = (d / "can.log").read_bytes().split(b"\n")
+    (d / "can.log").write_bytes(b"\n".join(lines[: n // 2]) + b"\n")
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 2 and f"holds {n // 2} CAN frames, the manifest says it held {n}" in err

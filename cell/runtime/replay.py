@@ -288,3 +288,7 @@ def _check_can_log(rec, directory) -> None:
         if not messages:
             raise BadInput(f"recording {directory}: {CAN_LOG} holds no CAN traffic, but the session was "
                            "closed as complete")
+    at_close = rec.manifest.get("can_frames_at_close")
+    if isinstance(at_close, int) and not isinstance(at_close, bool) and len(messages) < at_close:
+        raise BadInput(f"recording {directory}: {CAN_LOG} holds {len(messages)} CAN frames, the manifest says it "
+                       f"held {at_close} when the session was closed (cut off)")

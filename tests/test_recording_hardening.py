@@ -303,3 +303,14 @@ def test_replay_refuses_a_can_log_cut_off_at_a_line_boundary(tmp_path, capsys):
     (d / "can.log").write_bytes(b"\n".join(lines[: n // 2]) + b"\n")
     code, _, err = run_cli("replay", d, capsys=capsys)
     assert code == 2 and f"holds {n // 2} CAN frames, the manifest says it held {n}" in err
+
+
+@pytest.mark.parametrize("damage, match", [
+    (lambda d: (d / "session.rrd").unlink(), "session.rrd is missing"),
+    (lambda d: (d / "session.rrd").write_bytes(b"\x00" * 64), "session.rrd is not a rerun recording"),
+])
+def test_replay_refuses_a_complete_recording_that_lost_its_rrd(tmp_path, capsys, damage, match):
+    d = _copy_of_shipped(tmp_path)
+    damage(d)
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 2 and match in err

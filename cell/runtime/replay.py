@@ -205,6 +205,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     say = progress or (lambda s: None)
     rec = RecordingReader(directory)
     _check_can_log(rec, directory)
+    _check_rrd(rec, directory)
     meta = rec.manifest.get("meta") or {}
     if not isinstance(meta, dict):
         raise BadInput(f"recording {directory}: manifest 'meta' must be an object")
@@ -292,3 +293,23 @@ def _check_can_log(rec, directory) -> None:
     if isinstance(at_close, int) and not isinstance(at_close, bool) and len(messages) < at_close:
         raise BadInput(f"recording {directory}: {CAN_LOG} holds {len(messages)} CAN frames, the manifest says it "
                        f"held {at_close} when the session was closed (cut off)")
+
+
+def _check_rrd(rec, directory) -> None:
+    """The rerun recording the manifest names is part of the recording (replay does not read it,
+    but a recording that lost it is not the session as recorded)."""
+    from cell.recording import RRD
+
+    name = (rec.manifest.get("files") or {}).get("rrd")
+    if not name or rec.manifest.get("status") == "recording":
+        return  # none was written, or the writer never got to say
+    path = rec.dir / RRD
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4)
+    except FileNotFoundError:
+        raise BadInput(f"recording {directory}: the rerun recording {RRD} is missing") from None
+    except OSError as e:
+        raise BadInput(f"recording {directory}: {RRD} cannot be read: {e.strerror or e}") from None
+    if not head.startswith(b"RRF"):  # rerun's file header (RRF2 in rerun 0.41)
+        raise BadInput(f"recording {directory}: {RRD} is not a rerun recording")

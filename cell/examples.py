@@ -149,6 +149,10 @@ def load_examples(path: str | Path | None = None, *, allow_empty: bool = False) 
         raise BadInput(f"example file {path} does not exist") from None
     except (OSError, UnicodeDecodeError) as e:
         raise BadInput(f"example file {path} cannot be read: {e}") from None
+    return _parse_examples(text, path, allow_empty)
+
+
+def _parse_examples(text: str, path: Path, allow_empty: bool) -> list[GraspExample]:
     out: list[GraspExample] = []
     seen: set[str] = set()
     for lineno, line in enumerate(text.splitlines(), 1):
@@ -173,12 +177,20 @@ def append_examples(path: str | Path, examples: list[GraspExample]) -> None:
     path = Path(path)
     for e in examples:  # refuse a line that load_examples would refuse: it would lock the whole file
         parse_example(e.to_json(), f"new example {e.id}")
-    existing = {e.id for e in load_examples(path, allow_empty=True)} if path.exists() else set()
-    for e in examples:
-        if e.id in existing:
-            raise BadInput(f"example id {e.id!r} is already in {path}")
-        existing.add(e.id)
-    append_lines_atomic(path, [json.dumps(e.to_json(), separators=(",", ":")) for e in examples])
+    def check(old: bytes) -> None:  # under the file's lock: a concurrent appender's ids are in `old`
+        try:
+            text = old.decode("utf-8")
+        except UnicodeDecodeError as e:
+            raise BadInput(f"example file {path} cannot be read: {e}") from None
+        existing = {e.id for e in _parse_examples(text, path, allow_empty=True)}
+        for e in examples:
+            if e.id in existing:
+                raise BadInput(f"example id {e.id!r} is already in {path}")
+            existing.add(e.id)
+
+    if path.is_dir():
+        raise BadInput(f"example file {path} is a directory, not a file")
+    append_lines_atomic(path, [json.dumps(e.to_json(), separators=(",", ":")) for e in examples], check)
 
 
 def file_sha256(path: str | Path) -> str:

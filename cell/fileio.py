@@ -44,15 +44,33 @@ def write_json_atomic(path: str | os.PathLike, obj) -> None:
     write_atomic(path, json.dumps(obj, indent=2) + "\n")
 
 
-def append_lines_atomic(path: str | os.PathLike, lines: list[str]) -> None:
-    """Append whole lines: the file is rewritten to a temp file and renamed, under a lock,
-    so a crash or a concurrent appender never leaves a torn last line."""
-    path = Path(path)
+@contextlib.contextmanager
+def _file_lock(path: Path):
+    """The lock every writer of a line file takes (appenders and replacers alike)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    lock_path = path.with_name(f".{path.name}.lock")
-    with open(lock_path, "w") as lock:
+    with open(path.with_name(f".{path.name}.lock"), "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
+        yield
+
+
+def replace_lines_atomic(path: str | os.PathLike, lines: list[str]) -> None:
+    """Replace a line file atomically, under the appenders' lock: an append in progress (which
+    read the old file) would otherwise write the old lines back over the new file."""
+    path = Path(path)
+    with _file_lock(path):
+        write_atomic(path, "".join(line.rstrip("\n") + "\n" for line in lines))
+
+
+def append_lines_atomic(path: str | os.PathLike, lines: list[str], check=None) -> None:
+    """Append whole lines: the file is rewritten to a temp file and renamed, under a lock,
+    so a crash or a concurrent appender never leaves a torn last line. `check(old_bytes)`,
+    if given, runs under the lock on the file as it is then and may refuse the append by
+    raising (a check made before taking the lock could miss a concurrent appender's lines)."""
+    path = Path(path)
+    with _file_lock(path):
         old = path.read_bytes() if path.exists() else b""
+        if check is not None:
+            check(old)
         if old and not old.endswith(b"\n"):
             old += b"\n"
         new = "".join(line.rstrip("\n") + "\n" for line in lines).encode("utf-8")

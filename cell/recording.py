@@ -3,7 +3,9 @@
 Layout of a recording directory (format "cell-recording", version 1):
 
     manifest.json      format, version, created/closed times, software version, status
-                       ("recording" while open, then "complete" or "incomplete"), files, counts
+                       ("recording" while open, then "complete" or "incomplete"), files, counts,
+                       can_frames_at_close (the CAN frames can.log held at close: a lower bound,
+                       a logger on a bus of its own may still hear the drives shut down)
     cell.json          copy of the cell file used (the embedded default when none was given)
     calibration.json   copy of the calibration file used (absent when none was given)
     frames/000000.png  the camera frames, PNG, each written atomically
@@ -50,6 +52,11 @@ _FRAME_RE = re.compile(r"^(\d{6,})\.png$")
 
 def _now_iso() -> str:
     return datetime.now(UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
+
+
+def _no_constant(name: str):
+    """json.loads would read NaN and Infinity, which the writer never writes (allow_nan=False)."""
+    raise json.JSONDecodeError(f"{name} is not JSON", name, 0)
 
 
 def _sha256(path: Path) -> str:
@@ -106,8 +113,10 @@ class RecordingWriter:
             raise BadInput(f"recording directory {self.dir} already holds a recording; choose a new name")
         if self.dir.exists() and not self.dir.is_dir():
             raise BadInput(f"recording directory {self.dir} is a file")
-        self.dir.mkdir(parents=True, exist_ok=True)
-        (self.dir / FRAMES_DIR).mkdir(exist_ok=True)
+        if self.dir.is_dir() and any(self.dir.iterdir()):
+            # its files would be overwritten or, worse, mixed into the recording (decisions appended
+            # to a stale decisions.jsonl, stale frames counted): an unreadable recording
+            raise BadInput(f"recording directory {self.dir} is not empty; choose a new name")
 
         from cell import __version__
         from cell.cellconfig import default_cell_path
@@ -115,25 +124,28 @@ class RecordingWriter:
         cell_src = Path(cell_file) if cell_file is not None else default_cell_path()
         if not cell_src.is_file():
             raise BadInput(f"cell file {cell_src} does not exist")
-        shutil.copyfile(cell_src, self.dir / "cell.json")
-        files = {"cell": "cell.json", "calibration": None, "decisions": DECISIONS, "frames": FRAMES_DIR,
-                 "can_log": CAN_LOG, "rrd": RRD}
-        if calibration_file is not None:
-            cal = Path(calibration_file)
-            if not cal.is_file():
-                raise BadInput(f"calibration file {cal} does not exist")
-            shutil.copyfile(cal, self.dir / "calibration.json")
-            files["calibration"] = "calibration.json"
-        examples = None
-        if examples_file is not None:
-            ex = Path(examples_file)
-            if not ex.is_file():
-                raise BadInput(f"example file {ex} does not exist")
-            examples = {"path": str(ex.resolve()), "sha256": _sha256(ex)}
+        cal = Path(calibration_file) if calibration_file is not None else None
+        if cal is not None and not cal.is_file():
+            raise BadInput(f"calibration file {cal} does not exist")
+        ex = Path(examples_file) if examples_file is not None else None
+        if ex is not None and not ex.is_file():
+            raise BadInput(f"example file {ex} does not exist")
+        files = {"cell": "cell.json", "calibration": "calibration.json" if cal else None, "decisions": DECISIONS,
+                 "frames": FRAMES_DIR, "can_log": CAN_LOG, "rrd": RRD}
+        try:
+            self.dir.mkdir(parents=True, exist_ok=True)
+            (self.dir / FRAMES_DIR).mkdir(exist_ok=True)
+            shutil.copyfile(cell_src, self.dir / "cell.json")
+            if cal is not None:
+                shutil.copyfile(cal, self.dir / "calibration.json")
+            examples = {"path": str(ex.resolve()), "sha256": _sha256(ex)} if ex is not None else None
+        except OSError as e:
+            raise BadInput(f"cannot write the recording into {self.dir}: {e.strerror or e}") from None
 
         self._lock = threading.Lock()
         self._frame_indices: set[int] = set()
         self._n_decisions = 0
+        self.last_decision: dict | None = None
         self._closed = False
         self._can_stops: list[Callable[[], None]] = []
         self.manifest = {
@@ -146,8 +158,11 @@ class RecordingWriter:
             "examples": examples, "files": files, "counts": {"frames": 0, "decisions": 0},
             "meta": to_jsonable(meta or {}),
         }
-        write_json_atomic(self.dir / MANIFEST, self.manifest)
-        self._decisions = open(self.dir / DECISIONS, "a", encoding="utf-8")  # noqa: SIM115 - held open
+        try:
+            write_json_atomic(self.dir / MANIFEST, self.manifest)
+            self._decisions = open(self.dir / DECISIONS, "x", encoding="utf-8")  # noqa: SIM115 - held open
+        except OSError as e:
+            raise BadInput(f"cannot write the recording into {self.dir}: {e.strerror or e}") from None
 
     # -- paths the lead's loop attaches other writers to
     @property
@@ -190,6 +205,7 @@ class RecordingWriter:
             self._decisions.flush()
             os.fsync(self._decisions.fileno())
             self._n_decisions += 1
+            self.last_decision = record
 
     def attach_can_logger(self, bus=None, *, notifier=None) -> Callable[[], None]:
         """Log every frame seen on the bus into can_log_path (candump format).
@@ -252,6 +268,10 @@ class RecordingWriter:
                 self.manifest["summary"] = to_jsonable(summary)
             if not self.can_log_path.exists():
                 self.manifest["files"]["can_log"] = None
+            else:  # a lower bound: a logger on a bus of its own may still be hearing the drives shut down
+                with open(self.can_log_path, "rb") as f:
+                    self.manifest["can_frames_at_close"] = sum(b.count(b"\n") for b in iter(
+                        lambda: f.read(1 << 20), b""))
             if not self.rrd_path.exists():
                 self.manifest["files"]["rrd"] = None
         write_json_atomic(self.dir / MANIFEST, self.manifest)
@@ -295,6 +315,10 @@ class RecordingReader:
         files = m.get("files")
         if not isinstance(files, dict) or not isinstance(files.get("cell"), str):
             raise BadInput(f"{mpath}: 'files' must name at least the cell file")
+        if not isinstance(files.get("calibration"), (str, type(None))):
+            raise BadInput(f"{mpath}: 'files.calibration' must be a file name or null")
+        if not isinstance(m.get("counts"), (dict, type(None))):
+            raise BadInput(f"{mpath}: 'counts' must be an object")
         self.manifest = m
         self.problems: list[str] = []
         if m["status"] == "recording":
@@ -320,6 +344,9 @@ class RecordingReader:
             if counts.get("frames") != len(self._frames):
                 raise BadInput(f"recording {self.dir}: {FRAMES_DIR}/ holds {len(self._frames)} frames, "
                                f"the manifest says {counts.get('frames')}")
+        gap = next((i for i, k in enumerate(self._frames) if i != k), None)
+        if gap is not None:  # the loop numbers its frames 0, 1, 2 ...: replay would shift all that follow
+            raise BadInput(f"recording {self.dir}: frame {gap} ({FRAMES_DIR}/{gap:06d}.png) is missing")
 
     @property
     def status(self) -> str:
@@ -360,7 +387,10 @@ class RecordingReader:
             if self.manifest["status"] == "recording":
                 return []
             raise BadInput(f"recording {self.dir}: {DECISIONS} is missing")
-        raw = path.read_bytes()
+        try:
+            raw = path.read_bytes()
+        except OSError as e:
+            raise BadInput(f"recording {path} cannot be read: {e.strerror or e}") from None
         lines = raw.split(b"\n")
         torn = lines[-1] if lines and lines[-1] else b""  # bytes after the last newline
         out = []
@@ -380,7 +410,7 @@ class RecordingReader:
 
     def _parse_line(self, path: Path, lineno: int, line: bytes) -> dict:
         try:
-            rec = json.loads(line.decode("utf-8"))
+            rec = json.loads(line.decode("utf-8"), parse_constant=_no_constant)
         except (UnicodeDecodeError, json.JSONDecodeError) as e:
             msg = e.msg if isinstance(e, json.JSONDecodeError) else "not UTF-8"
             raise BadInput(f"recording {path} line {lineno}: not valid JSON ({msg})") from None
@@ -431,7 +461,10 @@ class RecordingReader:
         path = self.can_log_path
         if path is None:
             return []
-        text = path.read_text(encoding="ascii", errors="replace")
+        try:
+            text = path.read_text(encoding="ascii", errors="replace")
+        except OSError as e:
+            raise BadInput(f"recording {path} cannot be read: {e.strerror or e}") from None
         if text and not text.endswith("\n"):
             text = text[: text.rfind("\n") + 1]
             self.problems.append(f"{CAN_LOG}: the last line is torn (cut off by a crash); dropped")

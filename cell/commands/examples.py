@@ -31,7 +31,7 @@ def run(args) -> int:
     from cell.cellconfig import load_cell
     from cell.errors import BadInput
     from cell.examples import append_examples
-    from cell.fileio import write_atomic
+    from cell.fileio import replace_lines_atomic
     from cell.operator import generate_examples
 
     if args.count < 1:
@@ -54,7 +54,7 @@ def run(args) -> int:
     print(file=sys.stderr)
     try:
         if args.overwrite and out.exists():
-            write_atomic(out, "".join(json.dumps(e.to_json(), separators=(",", ":")) + "\n" for e in examples))
+            replace_lines_atomic(out, [json.dumps(e.to_json(), separators=(",", ":")) for e in examples])
         else:
             append_examples(out, examples)
     except OSError as e:

@@ -10,6 +10,7 @@ Exit 0 when the whole sequence was removed, 1 when the run stopped, 2 on bad inp
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
 
@@ -75,6 +76,8 @@ def run(args) -> int:
             miss[pid] = int(n or 1)
         except ValueError:
             raise BadInput(f"--sim-miss {m!r}: expected PART or PART:N") from None
+        if miss[pid] < 1:
+            raise BadInput(f"--sim-miss {m!r}: N must be at least 1")
     real_cell = _real_cell(args, world_options)
     out = sys.stderr if args.json else sys.stdout
     cfg = RunConfig(assembly=args.assembly, cell=args.cell, calibration=args.calibration, examples=args.examples,
@@ -83,11 +86,33 @@ def run(args) -> int:
                     station=args.station, station_port=args.port, station_token=args.token,
                     faults=WorldFaults(miss=miss, stuck=set(args.sim_stuck), bad_frames=args.sim_bad_frames),
                     progress=lambda s: print(s, file=out, flush=True), real_cell=real_cell)
-    summary = run_session(cfg)
+    with _sigterm_as_interrupt():
+        summary = run_session(cfg)
     _print_summary(summary, out)
     if args.json:
         print(json.dumps(summary), flush=True)
     return 0 if summary["status"] == "complete" and summary["parts_removed"] == summary["parts_total"] else 1
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """SIGTERM (a service manager, `kill`) ends the run as Ctrl-C does: every axis quick-stopped, the
+    recording closed as incomplete; not killed mid-pick with the recording saying "recording"."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def _on_sigterm(signum, frame):
+        raise KeyboardInterrupt("SIGTERM")
+
+    old = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
 
 
 def _real_cell(args, world_options: dict):

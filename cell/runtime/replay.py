@@ -29,6 +29,10 @@ class Divergence(Exception):  # noqa: N818 - not a CellError: the loop must not 
     """Replay made another decision than the recording (exit 1)."""
 
 
+class RecordingEnds(Exception):  # noqa: N818 - not a CellError, like Divergence
+    """The replay went on past the last decision of a recording that was never closed."""
+
+
 
 # The planner settings a recording keeps (meta.planner), with the values that held before each was
 # recorded: a recording made before `slanted_faces` planned without it, with leaves of 2 rows and
@@ -91,6 +95,7 @@ class Comparison:
     strict: bool = True
     position: int = 0
     found: list[str] = field(default_factory=list)
+    cut_short: bool = False  # the recording was never closed (crash) or lost its last line
 
     def write_frame(self, index, frame_bgr):
         return None
@@ -106,6 +111,8 @@ class Comparison:
             if self.strict:
                 self._replay_drive_fault()
         if self.position >= len(self.recorded):
+            if self.cut_short:  # not a divergence: the rest of the session was never recorded
+                raise RecordingEnds()
             self._diverged(f"decision #{self.position} ({record.get('type')}): the recording has no more decisions")
             return
         expected = self.recorded[self.position]
@@ -187,6 +194,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
 
     from calibration import load_calibration
     from cell.cellconfig import load_cell
+    from cell.examples import load_examples
     from cell.recording import RecordingReader
     from cell.runtime.loop import CellLoop, LoopOptions, StopRun
     from cell.runtime.session import EXAMPLES_AT_START, home_joints
@@ -196,7 +204,11 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
 
     say = progress or (lambda s: None)
     rec = RecordingReader(directory)
+    _check_can_log(rec, directory)
+    _check_rrd(rec, directory)
     meta = rec.manifest.get("meta") or {}
+    if not isinstance(meta, dict):
+        raise BadInput(f"recording {directory}: manifest 'meta' must be an object")
     if "assembly" not in meta:
         raise BadInput(f"recording {directory}: the manifest does not hold the assembly (not made by cell run)")
     assembly = parse_assembly(meta["assembly"], f"recording {directory} assembly")
@@ -206,8 +218,10 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     cal = load_calibration(rec.calibration_path)
     strict = examples is None
     examples_src = Path(examples) if examples else rec.dir / EXAMPLES_AT_START
-    if not examples_src.is_file():
-        raise BadInput(f"example file {examples_src} does not exist")
+    load_examples(examples_src)  # a bad file names itself, not the working copy the replay makes of it
+    if meta.get("on_no_grasp", "stop") not in ("stop", "skip"):
+        raise BadInput(f"recording {directory}: manifest meta.on_no_grasp must be 'stop' or 'skip', "
+                       f"not {meta.get('on_no_grasp')!r}")
     planner_params = planner_from_meta(meta.get("planner") or {}, f"recording {directory}")
     recorded = [d for d in rec.decisions if d.get("type") != "summary"]
     frames = [rec.frame_path(i) for i in rec.frame_indices]
@@ -222,7 +236,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
         work_examples = Path(tmp) / "examples.jsonl"
         shutil.copyfile(examples_src, work_examples)  # rejects are appended again, not to the original
         with simulated_cell(cell) as (arm, drives):
-            sink = Comparison(recorded, drives, strict)
+            sink = Comparison(recorded, drives, strict, cut_short=_cut_short(rec))
             control = RecordedApprovals(rec.decisions, f"recording {directory}")
             loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=FileCamera(frames), arm=arm,
                             control=control, examples_path=work_examples, sink=sink,
@@ -233,11 +247,69 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
             say(f"replaying {len(frames)} frames, {len(recorded)} decisions")
             try:
                 loop.run()
+            except RecordingEnds:
+                pass  # reported below
             except StopRun:
                 pass  # the recorded session stopped here too, or the comparison says where not
             except CellError as e:
                 sink._diverged(f"the replay failed at decision #{sink.position}: {e}")
+    if sink.cut_short and not sink.found:
+        raise BadInput(f"recording {directory} is incomplete ({'; '.join(rec.problems)}): its {sink.position} "
+                       f"recorded decisions match the replay, but how the session went on is not recorded")
     if sink.position < len(recorded):
         sink._diverged(f"the replay ended after {sink.position} of {len(recorded)} recorded decisions; next: "
                        f"{recorded[sink.position].get('type')}")
     return {"decisions": len(recorded), "matched": sink.position - len(sink.found), "differences": sink.found}
+
+
+def _cut_short(rec) -> bool:
+    """A recording whose end is missing: its writer was never closed (the session crashed or was
+    killed), or its last decision line was torn off."""
+    from cell.recording import DECISIONS
+
+    return rec.manifest.get("status") == "recording" or any(
+        p.startswith(f"{DECISIONS} line") and "is torn" in p for p in rec.problems)
+
+
+def _check_can_log(rec, directory) -> None:
+    """The CAN log the manifest names is part of the recording: missing, unreadable, or (in a
+    recording closed as complete) torn or empty is a corrupt recording."""
+    from cell.recording import CAN_LOG
+
+    if not (rec.manifest.get("files") or {}).get("can_log"):
+        return  # a recording made without one
+    if rec.can_log_path is None:
+        raise BadInput(f"recording {directory}: the CAN log {CAN_LOG} is missing")
+    n_before = len(rec.problems)
+    messages = rec.can_messages()  # BadInput when python-can cannot read it
+    if rec.manifest.get("status") == "complete":
+        if len(rec.problems) > n_before:
+            raise BadInput(f"recording {directory}: {CAN_LOG} is cut off (its last line is torn), but the "
+                           "session was closed as complete")
+        if not messages:
+            raise BadInput(f"recording {directory}: {CAN_LOG} holds no CAN traffic, but the session was "
+                           "closed as complete")
+    at_close = rec.manifest.get("can_frames_at_close")
+    if isinstance(at_close, int) and not isinstance(at_close, bool) and len(messages) < at_close:
+        raise BadInput(f"recording {directory}: {CAN_LOG} holds {len(messages)} CAN frames, the manifest says it "
+                       f"held {at_close} when the session was closed (cut off)")
+
+
+def _check_rrd(rec, directory) -> None:
+    """The rerun recording the manifest names is part of the recording (replay does not read it,
+    but a recording that lost it is not the session as recorded)."""
+    from cell.recording import RRD
+
+    name = (rec.manifest.get("files") or {}).get("rrd")
+    if not name or rec.manifest.get("status") == "recording":
+        return  # none was written, or the writer never got to say
+    path = rec.dir / RRD
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4)
+    except FileNotFoundError:
+        raise BadInput(f"recording {directory}: the rerun recording {RRD} is missing") from None
+    except OSError as e:
+        raise BadInput(f"recording {directory}: {RRD} cannot be read: {e.strerror or e}") from None
+    if not head.startswith(b"RRF"):  # rerun's file header (RRF2 in rerun 0.41)
+        raise BadInput(f"recording {directory}: {RRD} is not a rerun recording")

@@ -153,6 +153,14 @@ def run_session(cfg: RunConfig) -> dict:
     say = cfg.progress or (lambda s: None)
     assembly_path = Path(cfg.assembly) if cfg.assembly else default_assembly_path()
     assembly = load_assembly(assembly_path)
+    ids = {p.id for p in assembly.parts}
+    for opt, named in (("--sim-miss", cfg.faults.miss), ("--sim-stuck", cfg.faults.stuck)):
+        unknown = sorted(set(named) - ids)
+        if unknown:  # a misspelt fault would be no fault: the run would test nothing it was asked to
+            from cell.errors import BadInput
+
+            raise BadInput(f"{opt} {', '.join(unknown)}: no such part in {assembly_path} "
+                           f"(parts: {', '.join(sorted(ids))})")
     cell_path = cfg.cell or assembly.cell_path
     cell = load_cell(cell_path)
     cal_path = Path(cfg.calibration) if cfg.calibration else default_calibration_path()
@@ -173,6 +181,8 @@ def run_session(cfg: RunConfig) -> dict:
         stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
         examples_out = folder / ("examples.jsonl" if cfg.record else f"examples-{stamp}.jsonl")
 
+    if cfg.save_rrd:  # before the recording is made: a run that cannot start leaves no recording behind
+        _check_rrd_path(Path(cfg.save_rrd))
     recorder = None
     if cfg.record:
         from cell.recording import RecordingWriter
@@ -194,7 +204,16 @@ def run_session(cfg: RunConfig) -> dict:
     if rrd or cfg.rerun:
         from cell.viz import Viz
 
-        viz = Viz("disassembly-cell", spawn=cfg.rerun, save_path=rrd)
+        try:
+            viz = Viz("disassembly-cell", spawn=cfg.rerun, save_path=rrd)
+        except BaseException as e:
+            if recorder is not None:
+                recorder.close("incomplete", {"status": "not started", "error": str(e)})
+            if isinstance(e, (OSError, RuntimeError)) and rrd:
+                from cell.errors import BadInput
+
+                raise BadInput(f"cannot write the rerun recording {rrd}: {e}") from None
+            raise
 
     control = RunControl(require_approval=cfg.require_approval)
     status, summary = "complete", None
@@ -226,6 +245,9 @@ def run_session(cfg: RunConfig) -> dict:
         except KeyboardInterrupt:
             arm.stop()  # quick stop of every axis before the drives are disabled
             status = "stopped"
+            if recorder is not None and (recorder.last_decision or {}).get("type") != "stop":
+                # where the operator stopped it: replay ends there too instead of diverging
+                recorder.write_decision({"type": "stop", "source": "operator", "reason": "interrupted at the terminal"})
             raise
         except (StopRun, Stopped) as e:
             status = "stopped"
@@ -247,6 +269,19 @@ def run_session(cfg: RunConfig) -> dict:
             if recorder is not None:
                 recorder.close("complete" if status == "complete" else "incomplete", summary)
     return summary
+
+
+def _check_rrd_path(path: Path) -> None:
+    from cell.errors import BadInput
+
+    if path.is_dir():
+        raise BadInput(f"--save {path} is a directory, not a .rrd file")
+    if path.parent.exists() and not path.parent.is_dir():
+        raise BadInput(f"--save {path}: {path.parent} is a file, not a folder")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise BadInput(f"--save {path}: cannot make its folder: {e.strerror or e}") from None
 
 
 def _simulated_sources(cfg: RunConfig, cell, cal, assembly: Assembly, can_log, stack: contextlib.ExitStack):

@@ -1,0 +1,316 @@
+"""Bad recording directories, damaged recordings and concurrent example appends: each is a
+clear error (exit 2), never a traceback, a wrong exit code or a lost or mixed-up file."""
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+from conftest import run_cli
+
+from cell.recording import RecordingReader
+
+
+def test_cell_run_refuses_to_record_into_a_non_empty_directory_and_leaves_it_alone(tmp_path, capsys):
+    d = tmp_path / "notes"
+    (d / "frames").mkdir(parents=True)
+    (d / "decisions.jsonl").write_text('{"type": "mine"}\n')
+    (d / "frames" / "000009.png").write_bytes(b"not a recording's frame")
+    before = {p: p.read_bytes() for p in d.rglob("*") if p.is_file()}
+    code, _, err = run_cli("run", "--record", d, capsys=capsys)
+    assert code == 2 and "not empty" in err and "Traceback" not in err
+    assert {p: p.read_bytes() for p in d.rglob("*") if p.is_file()} == before
+
+
+def test_cell_run_record_where_nothing_can_be_written_is_bad_input(tmp_path, capsys):
+    f = tmp_path / "a-file"
+    f.write_text("x")
+    code, _, err = run_cli("run", "--record", f / "session", capsys=capsys)
+    assert code == 2 and "cannot write the recording" in err and "Traceback" not in err
+    assert f.read_text() == "x"
+
+
+def _append_same_ids(args):
+    import dataclasses
+
+    from cell.errors import BadInput
+    from cell.examples import append_examples, load_examples
+
+    path, n = args
+    src = load_examples(None)[:3]
+    refused = 0
+    for i in range(n):
+        try:
+            append_examples(path, [dataclasses.replace(src[i % 3], id=f"same-{i}")])
+        except BadInput as e:
+            assert "already in" in str(e)
+            refused += 1
+    return refused
+
+
+def test_concurrent_appenders_of_the_same_ids_never_write_a_duplicate(tmp_path):
+    """The id check runs under the file's lock: two processes adding the same next id (two
+    stations, or a station and a run) add it once, the other is refused; the file stays readable."""
+    import multiprocessing
+
+    from cell.examples import load_examples
+
+    path = tmp_path / "examples.jsonl"
+    with multiprocessing.get_context("fork").Pool(6) as pool:
+        refused = pool.map(_append_same_ids, [(path, 6)] * 6)
+    ids = [e.id for e in load_examples(path)]
+    assert sorted(ids) == [f"same-{i}" for i in range(6)]
+    assert sum(refused) == 6 * 6 - 6
+
+
+SHIPPED = Path(__file__).resolve().parent.parent / "recordings" / "shipped"
+
+
+def _copy_of_shipped(tmp_path) -> Path:
+    d = tmp_path / "copy"
+    shutil.copytree(SHIPPED, d)
+    return d
+
+
+def _cut_off_mid_session(d: Path, keep: int = 7) -> None:
+    """What a session killed mid-way leaves: the manifest still says "recording", the decision
+    lines up to `keep`, then half a line; the frames up to the last perception."""
+    lines = (d / "decisions.jsonl").read_text().splitlines()
+    (d / "decisions.jsonl").write_text("\n".join(lines[:keep]) + "\n" + lines[keep][: len(lines[keep]) // 2])
+    frames = {json.loads(x)["frame"] for x in lines[:keep] if json.loads(x)["type"] == "perception"}
+    for f in (d / "frames").iterdir():
+        if int(f.stem) not in frames:
+            f.unlink()
+    m = json.loads((d / "manifest.json").read_text())
+    m.update(status="recording", closed=None, counts={"frames": 0, "decisions": 0})
+    m.pop("summary", None)
+    (d / "manifest.json").write_text(json.dumps(m))
+
+
+def test_replay_of_a_session_killed_mid_way_says_incomplete_not_divergence(tmp_path, capsys):
+    d = _copy_of_shipped(tmp_path)
+    _cut_off_mid_session(d)
+    assert RecordingReader(d).status == "incomplete"
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 2, err
+    assert "incomplete" in err and "7 recorded decisions match" in err and "divergence" not in err
+
+
+def test_replay_of_a_killed_session_still_names_a_divergence_within_what_was_recorded(tmp_path, capsys):
+    d = _copy_of_shipped(tmp_path)
+    _cut_off_mid_session(d)
+    lines = (d / "decisions.jsonl").read_text().split("\n")
+    g = json.loads(lines[1])
+    g["opening_mm"] += 3.0
+    lines[1] = json.dumps(g)
+    (d / "decisions.jsonl").write_text("\n".join(lines))
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 1 and "decision #1 (grasp, nut): opening_mm" in err
+
+
+def _torn_can_log(d: Path) -> None:
+    raw = (d / "can.log").read_bytes()
+    (d / "can.log").write_bytes(raw[: len(raw) // 2 + 7])
+
+
+def _empty_can_log(d: Path) -> None:
+    (d / "can.log").write_bytes(b"")
+
+
+@pytest.mark.parametrize("damage, match", [
+    (lambda d: (d / "can.log").unlink(), "can.log is missing"),
+    (_torn_can_log, "can.log is cut off"),
+    (_empty_can_log, "can.log holds no CAN traffic"),
+    (lambda d: (d / "can.log").write_text("this is no candump log\n"), "not a readable candump log"),
+])
+def test_replay_refuses_a_complete_recording_whose_can_log_is_damaged(tmp_path, capsys, damage, match):
+    d = _copy_of_shipped(tmp_path)
+    damage(d)
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 2 and match in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("where", ["a-dir", "a-file/x.rrd"])
+def test_cell_run_save_where_no_rrd_can_be_written_is_bad_input_and_leaves_no_recording(tmp_path, capsys, where):
+    (tmp_path / "a-dir").mkdir()
+    (tmp_path / "a-file").write_text("x")
+    rec = tmp_path / "session"
+    code, _, err = run_cli("run", "--record", rec, "--save", tmp_path / where, capsys=capsys)
+    assert code == 2 and "--save" in err and "Traceback" not in err
+    assert not rec.exists()  # not a recording that says "recording" forever, as if the run had crashed
+
+
+def _edit_manifest(**changes):
+    def damage(d: Path) -> None:
+        m = json.loads((d / "manifest.json").read_text())
+        for k, v in changes.items():
+            if "." in k:
+                outer, inner = k.split(".")
+                m[outer][inner] = v
+            else:
+                m[k] = v
+        (d / "manifest.json").write_text(json.dumps(m))
+    return damage
+
+
+def _middle_frame_lost_in_a_crash(d: Path) -> None:
+    _edit_manifest(status="recording")(d)  # an unclosed manifest states no counts to check against
+    (d / "frames" / "000001.png").unlink()
+
+
+@pytest.mark.parametrize("damage, match", [
+    (_edit_manifest(counts="x"), "'counts' must be an object"),
+    (_edit_manifest(**{"files.calibration": 7}), "'files.calibration' must be a file name or null"),
+    (_edit_manifest(meta=5), "'meta' must be an object"),
+    (_edit_manifest(**{"meta.on_no_grasp": "explode"}), "meta.on_no_grasp must be 'stop' or 'skip'"),
+    (_middle_frame_lost_in_a_crash, "frame 1 (frames/000001.png) is missing"),
+])
+def test_replay_refuses_a_malformed_manifest_or_a_lost_frame(tmp_path, capsys, damage, match):
+    d = _copy_of_shipped(tmp_path)
+    damage(d)
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 2 and match in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--sim-miss", "nutt"], "--sim-miss nutt: no such part"),
+    (["--sim-stuck", "washr"], "--sim-stuck washr: no such part"),
+    (["--sim-miss", "nut:0"], "N must be at least 1"),
+])
+def test_cell_run_refuses_a_simulated_fault_on_a_part_that_is_not_there(tmp_path, capsys, argv, match):
+    code, _, err = run_cli("run", *argv, capsys=capsys)
+    assert code == 2 and match in err and "Traceback" not in err
+
+
+def test_replay_with_a_bad_example_file_names_that_file(tmp_path, capsys):
+    bad = tmp_path / "mine.jsonl"
+    bad.write_text("{not json\n")
+    code, _, err = run_cli("replay", SHIPPED, "--examples", bad, capsys=capsys)
+    assert code == 2 and f"example file {bad} line 1" in err
+
+
+def _a_directory_instead_of(name):
+    def damage(d: Path) -> None:
+        (d / name).unlink()
+        (d / name).mkdir()
+    return damage
+
+
+def _nan_in_a_decision(d: Path) -> None:
+    lines = (d / "decisions.jsonl").read_text().splitlines()
+    lines[1] = lines[1].replace('"opening_mm":', '"opening_mm":NaN,"was":', 1)
+    (d / "decisions.jsonl").write_text("\n".join(lines) + "\n")
+
+
+@pytest.mark.parametrize("damage, match", [
+    (_a_directory_instead_of("decisions.jsonl"), "decisions.jsonl cannot be read"),
+    (_a_directory_instead_of("can.log"), "can.log cannot be read"),
+    (_nan_in_a_decision, "decisions.jsonl line 2: not valid JSON (NaN is not JSON)"),
+])
+def test_replay_refuses_unreadable_recording_files(tmp_path, capsys, damage, match):
+    d = _copy_of_shipped(tmp_path)
+    damage(d)
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 2 and match in err and "Traceback" not in err
+
+
+def test_sigterm_ends_cell_run_like_ctrl_c_and_the_recording_replays_to_there(tmp_path, capsys):
+    """SIGTERM quick-stops the arm and closes the recording as incomplete, with the stop in it
+    (it used to kill the run outright: a recording still saying "recording", like a crash); a
+    recording stopped at the terminal replays up to the stop (it used to 'diverge' there)."""
+    import signal
+    import subprocess
+    import sys
+    from importlib import resources
+
+    d = json.loads((resources.files("cell") / "data" / "assemblies" / "default.json").read_text())
+    d["parts"] = [p for p in d["parts"] if p["id"] in ("nut", "washer", "pcb")]
+    d["sequence"] = ["nut", "washer", "pcb"]
+    asm = tmp_path / "short.json"
+    asm.write_text(json.dumps(d))
+    rec = tmp_path / "session"
+    proc = subprocess.Popen([sys.executable, "-m", "cell", "run", str(asm), "--record", str(rec), "--seed", "3"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for line in proc.stdout:
+            if line.startswith("[removed]"):
+                proc.send_signal(signal.SIGTERM)
+                break
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130 and "Traceback" not in err, err
+    r = RecordingReader(rec)
+    assert r.manifest["status"] == "incomplete" and r.decisions[-1]["type"] == "stop"
+    code, out, err = run_cli("replay", rec, capsys=capsys)
+    assert code == 0, err
+
+
+def test_examples_generate_overwrite_waits_for_an_append_in_progress(tmp_path, capsys):
+    """--overwrite takes the appenders' lock: an appender that read the old file and is writing
+    it back with its line would otherwise put the old lines over the new file (the overwrite lost)."""
+    import fcntl
+    import threading
+    import time
+
+    from cell.examples import load_examples
+
+    out = tmp_path / "examples.jsonl"
+    shutil.copyfile(SHIPPED / "examples_at_start.jsonl", out)
+    before = out.read_bytes()
+    done = {}
+    with open(tmp_path / ".examples.jsonl.lock", "w") as lock:  # as append_examples holds it
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        t = threading.Thread(target=lambda: done.setdefault("code", run_cli(
+            "examples", "generate", "--out", out, "--overwrite", "--count", "1")))
+        t.start()
+        time.sleep(3.0)
+        assert out.read_bytes() == before  # still waiting for the appender
+    t.join(60)
+    assert done["code"] == 0 and out.read_bytes() != before and len(load_examples(out)) >= 1
+
+
+def test_the_manifest_states_the_can_frames_logged_at_close(tmp_path):
+    import time
+
+    import can
+
+    from cell.recording import RecordingWriter
+
+    w = RecordingWriter(tmp_path / "r")
+    with can.Bus(interface="virtual", channel="hardening-can-count") as bus, \
+            can.Bus(interface="virtual", channel="hardening-can-count") as sender:
+        w.attach_can_logger(bus)
+        for i in range(25):
+            sender.send(can.Message(arbitration_id=0x600 + i, data=[i], is_extended_id=False))
+        t0 = time.monotonic()
+        while (w.can_log_path.read_bytes().count(b"\n") if w.can_log_path.exists() else 0) < 25:
+            assert time.monotonic() - t0 < 5
+            time.sleep(0.02)
+        w.close("complete")
+    assert json.loads((tmp_path / "r" / "manifest.json").read_text())["can_frames_at_close"] == 25
+    assert len(RecordingReader(tmp_path / "r").can_messages()) == 25
+
+
+def test_replay_refuses_a_can_log_cut_off_at_a_line_boundary(tmp_path, capsys):
+    """Cut at a line boundary, the log reads as whole: the count at close says it was longer."""
+    d = _copy_of_shipped(tmp_path)
+    n = (d / "can.log").read_bytes().count(b"\n")
+    _edit_manifest(can_frames_at_close=n)(d)
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 0, err  # all there
+    lines = (d / "can.log").read_bytes().split(b"\n")
+    (d / "can.log").write_bytes(b"\n".join(lines[: n // 2]) + b"\n")
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 2 and f"holds {n // 2} CAN frames, the manifest says it held {n}" in err
+
+
+@pytest.mark.parametrize("damage, match", [
+    (lambda d: (d / "session.rrd").unlink(), "session.rrd is missing"),
+    (lambda d: (d / "session.rrd").write_bytes(b"\x00" * 64), "session.rrd is not a rerun recording"),
+])
+def test_replay_refuses_a_complete_recording_that_lost_its_rrd(tmp_path, capsys, damage, match):
+    d = _copy_of_shipped(tmp_path)
+    damage(d)
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 2 and match in err

@@ -85,3 +85,41 @@ def test_slanted_faces_only_add_pressed_pairs_and_still_stop_at_a_bump():
               & (np.abs(P.m[:, 0] - 350) > 3) & (np.abs(P.m[:, 0] - 350) < 8)
               & (np.maximum(P.pi[:, 1], P.pj[:, 1]) < 15.5))
     assert beside.any() and not np.isin(np.flatnonzero(beside), cr.survivors).any()
+
+
+def _on_outline_mm(target, P, kept):
+    return np.array([[target.polygon.boundary.distance(Point(c)) for c in (P.ci[k], P.cj[k])] for k in kept])
+
+
+def test_the_reported_contacts_are_on_the_material_the_pads_touch():
+    # on the web the pad stops at its side, 0.5 mm proud of the face under the candidate: the pad's
+    # line runs in front of the outline there, the material it touches does not
+    on = SynthesisParams(slanted_faces=True, contacts_on_material=True)
+    off = SynthesisParams(slanted_faces=True, contacts_on_material=False)
+    P_on, cr_on, _ = cascade_for(WEB, on)
+    P_off, cr_off, _ = cascade_for(WEB, off)
+    assert np.array_equal(cr_on.survivors, cr_off.survivors)  # the same verdicts, only what is reported moves
+    kept = np.intersect1d(np.flatnonzero(across_the_web(P_on)), cr_on.survivors)
+    assert len(kept) >= 3
+    assert _on_outline_mm(WEB, P_off, kept).max() > 0.1  # the pad's line: up to 0.5 mm off the web's face
+    assert _on_outline_mm(WEB, P_on, kept).max() < 1e-6  # on the face
+    moved = np.linalg.norm(P_on.ci[kept] - P_off.ci[kept], axis=1)
+    assert moved.max() <= 0.5 + 1e-9  # no further than the pad's compliance
+    gz = grasp_z_mm(WEB.z_bottom_mm, WEB.z_top_mm, CELL.gripper)
+    for k in kept:
+        assert np.allclose(P_on.center[k], 0.5 * (P_on.ci[k] + P_on.cj[k]))
+        assert check_grasp(WEB, np.array([P_on.ci[k], P_on.cj[k]]), P_on.axis_deg(k), gz, (), CELL).ok
+
+
+def test_a_pad_across_a_notch_reports_a_point_of_the_part_not_the_gap():
+    # a concave 11-gon (a segmented outline) whose chosen pad lies across a notch: the middle of the
+    # touching material is over the gap, 0.97 mm from the outline; the contact is on the nearer side
+    target = parse_part({"id": "t", "z_top": 35.485, "outline": [
+        [425.7222, -174.3889], [469.7793, -183.2455], [488.5585, -189.2691], [493.5194, -211.0794],
+        [470.6206, -203.74], [473.493, -227.1121], [452.2384, -216.1085], [437.7714, -218.8563],
+        [425.4525, -207.366], [428.3968, -202.4424], [428.9516, -190.5188]]})
+    far = {}
+    for flag in (False, True):
+        P, cr, _ = cascade_for(target, SynthesisParams(contacts_on_material=flag))
+        far[flag] = _on_outline_mm(target, P, cr.survivors).max()
+    assert far[False] > 0.5 and far[True] < 1e-6

@@ -157,6 +157,40 @@ class BandEdges:
         return x, y
 
 
+    def on_material(self, rows: np.ndarray, t: np.ndarray, l: np.ndarray):
+        """For the bands `rows` (r,) and a point (t, l) on each one's pad line (band coordinates, (r,)):
+        the nearest point (x, y), each (r,), of the material the pad touches there, that is of the
+        clipped edges no more than PAD_COMPLIANCE_MM behind t (nan: none). The pad line's point is where
+        the pad stops; this one is where it touches the part (on a slanted face or across a notch the
+        pad line runs up to PAD_COMPLIANCE_MM in front of the outline)."""
+        r = len(rows)
+        pos = np.full(len(self.cx), -1)
+        pos[rows] = np.arange(r)
+        k = np.flatnonzero(pos.take(self.bi) >= 0)
+        nb = pos.take(self.bi.take(k))
+        tA, dt, lA, dl = self.tA.take(k), self.dt.take(k), self.lA.take(k), self.dl.take(k)
+        s0, s1 = self.s0.take(k), self.s1.take(k)
+        tr, lr = t.take(nb), l.take(nb)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # the stretch of each piece within PAD_COMPLIANCE_MM of the pad line, [lo, hi] along the edge
+            sc = (tr - PAD_COMPLIANCE_MM - tA) / dt
+            lo = np.where(dt > 0, np.maximum(s0, sc), s0)
+            hi = np.where(dt < 0, np.minimum(s1, sc), s1)
+            touching = (lo <= hi) & ((dt != 0) | (tA >= tr - PAD_COMPLIANCE_MM - 1e-12))
+            den = dt * dt + dl * dl
+            s = np.clip(np.where(den > 0, ((tr - tA) * dt + (lr - lA) * dl) / den, lo), lo, hi)
+        et, el = tA + s * dt, lA + s * dl
+        d2 = np.where(touching, (et - tr) ** 2 + (el - lr) ** 2, np.inf)
+        best = np.full(r, np.inf)
+        np.minimum.at(best, nb, d2)
+        pick = np.flatnonzero(np.isfinite(d2) & (d2 <= best.take(nb)))  # ties: the last one written wins
+        bt, bl = np.full(r, np.nan), np.full(r, np.nan)
+        bt[nb.take(pick)], bl[nb.take(pick)] = et.take(pick), el.take(pick)
+        cx, cy, ux, uy = self.cx.take(rows), self.cy.take(rows), self.ux.take(rows), self.uy.take(rows)
+        vx, vy = self.vx.take(rows), self.vy.take(rows)
+        return cx + ux * bt + vx * bl, cy + uy * bt + vy * bl
+
+
 def _overlapping_edges(ctx: Context, lox, loy, hix, hiy):
     """(band, edge) index pairs whose bounding boxes overlap (touching counts, as for the STRtree):
     a broadcast comparison for few edges or bands, else the STRtree (same pairs, other order)."""

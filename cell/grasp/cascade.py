@@ -13,7 +13,10 @@ then exact checks (shapely, closed-form IK) only on the survivors:
                        band: that point, found exactly, must be the candidate (within
                        contact_tol), or the candidate must be among the material touching the
                        pad (within PAD_COMPLIANCE of the first touch: a slanted face); the
-                       touch becomes the reported contact. Real opening in stroke.
+                       touch becomes the reported contact, moved onto the material the pad
+                       touches (the nearest point of it: the pad's line can run up to
+                       PAD_COMPLIANCE in front of a slanted face or across a notch). Real
+                       opening in stroke.
     ik (exact)         closed-form SCARA inverse kinematics within the joint limits
     fingers_obstacles  each finger's footprint swept from the approach opening to the contact
                        against every obstacle taller than the grasp z (lower ones are passed over)
@@ -189,6 +192,14 @@ def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
             lateral[q] = np.where(press, np.abs((px - cxq) * vxq + (py - cyq) * vyq), lateral.take(q))
         ok2 = np.isfinite(lateral) & (T <= tt + tol + EPS_MM) & (lateral <= tol + EPS_MM)
     ok = ok2[:k] & ok2[k:]
+    if ctx.params.contacts_on_material:  # report where the pads touch the part, not the pad line in front of it
+        rows = np.flatnonzero(np.concatenate([ok, ok]))
+        if len(rows):
+            dx, dy = x.take(rows) - cx.take(rows), y.take(rows) - cy.take(rows)
+            ux_r, uy_r, vx_r, vy_r = ux.take(rows), uy.take(rows), vx.take(rows), vy.take(rows)
+            sx, sy = band.on_material(rows, dx * ux_r + dy * uy_r, dx * vx_r + dy * vy_r)
+            found = np.isfinite(sx)
+            x[rows], y[rows] = np.where(found, sx, x.take(rows)), np.where(found, sy, y.take(rows))
     ci, cj = np.column_stack([x[:k], y[:k]]), np.column_stack([x[k:], y[k:]])
     h = 0.5 * _dot2(ci - cj, u)
     with np.errstate(invalid="ignore"):

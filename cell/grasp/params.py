@@ -27,6 +27,11 @@ class SynthesisParams:
     # the candidate as the contact. Recordings made before this option existed replay with it
     # off (cell.runtime.replay); docs/data.md gives the figures both ways.
     slanted_faces: bool = True
+    # The reported contact is the nearest point of the material the pad touches to where the pad
+    # stops (on a face slanted to the pad, or across a notch, the pad's line runs up to its 0.5 mm
+    # compliance in front of the outline); off, the point on the pad's line, as recordings made
+    # before this option existed have it (cell.runtime.replay).
+    contacts_on_material: bool = True
     # Obstacles widened by this much for the fingers and the palm: 0 for outlines given exactly (a
     # scene file); the cell loop plans on measured poses and keeps a margin (cell.runtime.loop).
     obstacle_margin_mm: float = 0.0

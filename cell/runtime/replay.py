@@ -35,9 +35,10 @@ class RecordingEnds(Exception):  # noqa: N818 - not a CellError, like Divergence
 
 
 # The planner settings a recording keeps (meta.planner), with the values that held before each was
-# recorded: a recording made before `slanted_faces` planned without it, with leaves of 2 rows and
-# no margin around the other parts.
-RECORDED_PLANNER = {"slanted_faces": False, "tree_min_samples_leaf": 2, "obstacle_margin_mm": 0.0}
+# recorded: a recording made before `slanted_faces` planned without it, with leaves of 2 rows, no
+# margin around the other parts, and contacts reported on the pad's line (not moved onto the material).
+RECORDED_PLANNER = {"slanted_faces": False, "tree_min_samples_leaf": 2, "obstacle_margin_mm": 0.0,
+                    "contacts_on_material": False}
 
 
 def planner_meta(params: SynthesisParams) -> dict:
@@ -49,8 +50,9 @@ def planner_from_meta(planner, where: str) -> SynthesisParams:
     if not isinstance(planner, dict):
         raise BadInput(f"{where}: manifest meta.planner must be an object")
     values = {k: planner.get(k, old) for k, old in RECORDED_PLANNER.items()}
-    if not isinstance(values["slanted_faces"], bool):
-        raise BadInput(f"{where}: manifest meta.planner.slanted_faces must be true or false")
+    for flag in ("slanted_faces", "contacts_on_material"):
+        if not isinstance(values[flag], bool):
+            raise BadInput(f"{where}: manifest meta.planner.{flag} must be true or false")
     leaf = values["tree_min_samples_leaf"]
     if isinstance(leaf, bool) or not isinstance(leaf, int) or leaf < 1:
         raise BadInput(f"{where}: manifest meta.planner.tree_min_samples_leaf must be a whole number >= 1")

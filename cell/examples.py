@@ -144,7 +144,7 @@ def load_examples(path: str | Path | None = None, *, allow_empty: bool = False) 
     """Read and validate an example file (None: the shipped default)."""
     path = Path(path) if path is not None else default_examples_path()
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # a BOM is not content
     except FileNotFoundError:
         raise BadInput(f"example file {path} does not exist") from None
     except (OSError, UnicodeDecodeError) as e:

@@ -81,7 +81,7 @@ def read_json(path: str | os.PathLike, what: str):
     """Parse a JSON file; `what` names the file's role in error messages ("cell file")."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # a BOM (Windows editors write one) is not content
     except FileNotFoundError:
         raise BadInput(f"{what} {path} does not exist") from None
     except IsADirectoryError:

@@ -219,3 +219,19 @@ def test_json_nested_too_deeply_is_bad_input_not_a_recursion_error(tmp_path):
     for load in (load_scene, load_assembly, load_cell):
         with pytest.raises(BadInput, match="nested too deeply"):
             load(path)
+
+
+def test_files_starting_with_a_utf8_bom_are_read(tmp_path):
+    # editors on Windows start UTF-8 files with a byte order mark; it is not content
+    bom = "\ufeff"
+    scene = tmp_path / "scene.json"
+    scene.write_text(bom + json.dumps({"units": "mm", "parts": [{"id": "sq", "outline": SQUARE, "z_top": 10}],
+                                       "target": "sq"}), encoding="utf-8")
+    assert load_scene(scene).target == "sq"
+    cell = tmp_path / "cell.json"
+    cell.write_text(bom + default_cell_path().read_text(encoding="utf-8"), encoding="utf-8")
+    assert load_cell(cell) == load_cell(default_cell_path())
+    ex = tmp_path / "ex.jsonl"
+    append_examples(ex, [_example("a")])
+    ex.write_text(bom + ex.read_text(encoding="utf-8"), encoding="utf-8")
+    assert [e.id for e in load_examples(ex)] == ["a"]

@@ -84,7 +84,8 @@ def arm(sim_drives, open_test_bus, sim_clock, cell_cfg):
     from drivers import Arm
 
     clock = None if ON_REAL_BUS else sim_clock
-    a = Arm(open_test_bus(), cell_cfg, clock=clock, sdo_timeout_s=0.2)  # wall time: 50 ms ran out on a loaded 2-core machine
+    # the SDO timeout is wall time: 50 ms ran out once at setup on a loaded 2-core machine
+    a = Arm(open_test_bus(), cell_cfg, clock=clock, sdo_timeout_s=0.2)
     a.connect()
     yield a
     a.disconnect()

@@ -179,7 +179,7 @@ def append_examples(path: str | Path, examples: list[GraspExample]) -> None:
         parse_example(e.to_json(), f"new example {e.id}")
     def check(old: bytes) -> None:  # under the file's lock: a concurrent appender's ids are in `old`
         try:
-            text = old.decode("utf-8")
+            text = old.decode("utf-8-sig")
         except UnicodeDecodeError as e:
             raise BadInput(f"example file {path} cannot be read: {e}") from None
         existing = {e.id for e in _parse_examples(text, path, allow_empty=True)}

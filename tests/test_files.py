@@ -235,3 +235,5 @@ def test_files_starting_with_a_utf8_bom_are_read(tmp_path):
     append_examples(ex, [_example("a")])
     ex.write_text(bom + ex.read_text(encoding="utf-8"), encoding="utf-8")
     assert [e.id for e in load_examples(ex)] == ["a"]
+    append_examples(ex, [_example("b")])  # and appended to
+    assert [e.id for e in load_examples(ex)] == ["a", "b"]

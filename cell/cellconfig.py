@@ -135,10 +135,7 @@ def load_cell(path: str | Path | None = None) -> Cell:
     """Read and validate a cell file; None means the shipped default cell."""
     if path is None:
         return default_cell()
-    try:
-        raw = read_json(path, "cell file")
-    except RecursionError:  # json's decoder recurses per nesting level
-        raise BadInput(f"cell file {path} is not valid JSON: nested too deeply") from None
+    raw = read_json(path, "cell file")
     return parse_cell(raw, source=str(path))
 
 

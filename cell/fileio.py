@@ -92,6 +92,8 @@ def read_json(path: str | os.PathLike, what: str):
         return json.loads(text)
     except json.JSONDecodeError as e:
         raise BadInput(f"{what} {path} is not valid JSON: {e.msg} at line {e.lineno} column {e.colno}") from None
+    except RecursionError:  # json's decoder recurses per nesting level: [[[[...]]]] 100000 deep
+        raise BadInput(f"{what} {path} is not valid JSON: nested too deeply") from None
 
 
 def _fsync_dir(directory: Path) -> None:

@@ -143,20 +143,13 @@ class Assembly:
 
 
 def load_scene(path: str | Path) -> Scene:
-    raw = _read(path, "scene file")
+    raw = read_json(path, "scene file")
     return parse_scene(raw, str(path), base_dir=Path(path).parent)
 
 
 def load_assembly(path: str | Path) -> Assembly:
-    raw = _read(path, "assembly file")
+    raw = read_json(path, "assembly file")
     return parse_assembly(raw, str(path), base_dir=Path(path).parent)
-
-
-def _read(path, what: str):
-    try:
-        return read_json(path, what)
-    except RecursionError:  # json's decoder recurses per nesting level: [[[[...]]]] 100000 deep
-        raise BadInput(f"{what} {path} is not valid JSON: nested too deeply") from None
 
 
 def parse_scene(raw, source: str = "<scene>", base_dir: Path | None = None) -> Scene:

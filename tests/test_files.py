@@ -216,7 +216,9 @@ def test_holes_that_are_not_inside_the_outline_are_still_refused(holes):
 def test_json_nested_too_deeply_is_bad_input_not_a_recursion_error(tmp_path):
     path = tmp_path / "deep.json"
     path.write_text("[" * 100_000 + "]" * 100_000)
-    for load in (load_scene, load_assembly, load_cell):
+    from calibration import load_calibration
+
+    for load in (load_scene, load_assembly, load_cell, load_calibration):  # every file read by read_json
         with pytest.raises(BadInput, match="nested too deeply"):
             load(path)
 

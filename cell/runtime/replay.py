@@ -33,7 +33,6 @@ class RecordingEnds(Exception):  # noqa: N818 - not a CellError, like Divergence
     """The replay went on past the last decision of a recording that was never closed."""
 
 
-
 # The planner settings a recording keeps (meta.planner), with the values that held before each was
 # recorded: a recording made before `slanted_faces` planned without it, with leaves of 2 rows, no
 # margin around the other parts, and contacts reported on the pad's line (not moved onto the material).

@@ -28,7 +28,7 @@ import numpy as np
 
 from calibration.camera import Calibration
 from cell.errors import BadInput
-from cell.fileio import read_json, to_jsonable, write_json_atomic
+from cell.fileio import has_bool, read_json, to_jsonable, write_json_atomic
 
 FORMAT = "disassembly-cell/calibration"
 VERSION = 1
@@ -158,7 +158,7 @@ def _finite(v, where, fail) -> float:
 
 
 def _matrix(v, shape, where, fail) -> np.ndarray:
-    if _has_bool(v):
+    if has_bool(v):
         fail(f"{where} must be a {shape[0]} x {shape[1]} list of numbers (true/false are not numbers)")
     try:
         arr = np.array(v, dtype=float)
@@ -167,7 +167,3 @@ def _matrix(v, shape, where, fail) -> np.ndarray:
     if arr.shape != shape or not np.all(np.isfinite(arr)):
         fail(f"{where} must be a {shape[0]} x {shape[1]} list of finite numbers")
     return arr
-
-
-def _has_bool(v) -> bool:
-    return isinstance(v, bool) or (isinstance(v, list) and any(_has_bool(x) for x in v))

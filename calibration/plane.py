@@ -19,6 +19,7 @@ import numpy as np
 from calibration.camera import HALF_PX, Calibration, pose_matrix
 from calibration.intrinsics import aruco_dictionary
 from cell.errors import BadInput
+from cell.fileio import has_bool
 
 PLANE_TOLERANCE_MM = 1.0  # the points' z may differ this much and still count as one plane
 MIN_POINTS = 4
@@ -59,7 +60,7 @@ def parse_markers(raw, source: str) -> tuple[str, dict[int, np.ndarray]]:
         raise BadInput(f"{source}: 'markers' must be an object {{\"ID\": [[x, y, z] x 4], ...}}")
     out = {}
     for key, corners in markers.items():
-        if _has_bool(corners):
+        if has_bool(corners):
             raise BadInput(f"{source}: marker {key}: corners must be 4 points [x, y, z] in mm (true/false are "
                            "not numbers)")
         try:
@@ -111,10 +112,6 @@ def marker_residuals(cal: Calibration, detected: dict[int, np.ndarray], known: d
         warnings.insert(0, f"the markers fit badly: {rms:.1f} px RMS reprojection, {cal.report['residual_mm']:.1f} mm "
                            "RMS on the plane (expect about 1 px); check the markers' coordinates and corner order")
     return per, warnings
-
-
-def _has_bool(v) -> bool:
-    return isinstance(v, bool) or (isinstance(v, list) and any(_has_bool(x) for x in v))
 
 
 def fit_plane_mapping(uv_px, xyz_mm, size: tuple[int, int], camera_matrix: np.ndarray | None = None,

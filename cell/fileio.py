@@ -135,3 +135,9 @@ def to_jsonable(obj, *, nonfinite: str = "error"):
     if obj is None or isinstance(obj, (str, int, bool)):
         return obj
     raise TypeError(f"a {type(obj).__name__} cannot be written as JSON")
+
+
+def has_bool(v) -> bool:
+    """Is there a true/false anywhere in this JSON value's nested lists? (Python takes True for 1:
+    a matrix or a point given as [true, 0] must be refused, not read as numbers.)"""
+    return isinstance(v, bool) or (isinstance(v, list) and any(has_bool(x) for x in v))

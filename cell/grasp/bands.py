@@ -77,10 +77,7 @@ class BandEdges:
         if max(half_widths) > np.min(self.half_width):
             raise ValueError(f"a band {max(half_widths)} mm wide cannot be cut from one {np.min(self.half_width)} mm "
                              "wide")
-        pos = np.full(len(self.cx), -1)
-        pos[rows] = np.arange(len(rows))
-        keep = np.flatnonzero(pos.take(self.bi) >= 0)
-        bi = pos.take(self.bi.take(keep))
+        keep, bi = self._pieces_of(rows)
         n, nr = len(half_widths), len(rows)
         bi = np.concatenate([bi + w * nr for w in range(n)])
         tA, lA, dt, dl, s0, s1 = (np.concatenate([a.take(keep)] * n) for a in (self.tA, self.lA, self.dt, self.dl,
@@ -99,6 +96,13 @@ class BandEdges:
         return BandEdges(self.cx.take(rr), self.cy.take(rr), self.ux.take(rr), self.uy.take(rr), self.vx.take(rr),
                          self.vy.take(rr), self.t_max.take(rr), np.repeat(np.asarray(half_widths, float), nr),
                          bi.take(k), s0.take(k), s1.take(k), tA.take(k), lA.take(k), dt.take(k), dl.take(k))
+
+    def _pieces_of(self, rows: np.ndarray):
+        """The pieces of the bands `rows`: their indices (k,) and each one's position in `rows`."""
+        pos = np.full(len(self.cx), -1)
+        pos[rows] = np.arange(len(rows))
+        keep = np.flatnonzero(pos.take(self.bi) >= 0)
+        return keep, pos.take(self.bi.take(keep))
 
     def first_touch(self, ctx: Context, slanted: bool = False, touch: bool = True):
         """T (b,): the largest distance along u of the target's material in each band (-inf: none), and
@@ -132,11 +136,7 @@ class BandEdges:
         pb, p0, p1, pA, pdt = self.bi, self.s0, self.s1, self.tA, self.dt
         limit = T.take(pb) - PAD_COMPLIANCE_MM
         if slanted:
-            with np.errstate(divide="ignore", invalid="ignore"):
-                sc = (limit - pA) / pdt  # where the edge is PAD_COMPLIANCE_MM behind T
-            lo_s = np.where(pdt > 0, np.maximum(p0, sc), p0)
-            hi_s = np.where(pdt < 0, np.minimum(p1, sc), p1)
-            near = (lo_s <= hi_s + 1e-12) & ((pdt != 0) | (pA >= limit))
+            lo_s, hi_s, near = _behind_limit(limit, pA, pdt, p0, p1)
         else:  # as before `slanted_faces`: only the clipped edges' ends within PAD_COMPLIANCE_MM
             e0, e1 = pA + p0 * pdt >= limit, pA + p1 * pdt >= limit
             lo_s, hi_s = np.where(e0, p0, p1), np.where(e1, p1, p0)
@@ -164,19 +164,11 @@ class BandEdges:
         the pad stops; this one is where it touches the part (on a slanted face or across a notch the
         pad line runs up to PAD_COMPLIANCE_MM in front of the outline)."""
         r = len(rows)
-        pos = np.full(len(self.cx), -1)
-        pos[rows] = np.arange(r)
-        k = np.flatnonzero(pos.take(self.bi) >= 0)
-        nb = pos.take(self.bi.take(k))
+        k, nb = self._pieces_of(rows)
         tA, dt, lA, dl = self.tA.take(k), self.dt.take(k), self.lA.take(k), self.dl.take(k)
-        s0, s1 = self.s0.take(k), self.s1.take(k)
         tr, lr = t.take(nb), l.take(nb)
+        lo, hi, touching = _behind_limit(tr - PAD_COMPLIANCE_MM, tA, dt, self.s0.take(k), self.s1.take(k))
         with np.errstate(divide="ignore", invalid="ignore"):
-            # the stretch of each piece within PAD_COMPLIANCE_MM of the pad line, [lo, hi] along the edge
-            sc = (tr - PAD_COMPLIANCE_MM - tA) / dt
-            lo = np.where(dt > 0, np.maximum(s0, sc), s0)
-            hi = np.where(dt < 0, np.minimum(s1, sc), s1)
-            touching = (lo <= hi) & ((dt != 0) | (tA >= tr - PAD_COMPLIANCE_MM - 1e-12))
             den = dt * dt + dl * dl
             s = np.clip(np.where(den > 0, ((tr - tA) * dt + (lr - lA) * dl) / den, lo), lo, hi)
         et, el = tA + s * dt, lA + s * dl
@@ -189,6 +181,16 @@ class BandEdges:
         cx, cy, ux, uy = self.cx.take(rows), self.cy.take(rows), self.ux.take(rows), self.uy.take(rows)
         vx, vy = self.vx.take(rows), self.vy.take(rows)
         return cx + ux * bt + vx * bl, cy + uy * bt + vy * bl
+
+
+def _behind_limit(limit, tA, dt, s0, s1):
+    """The stretch [lo, hi] of each piece (edge A + s * D, s in [s0, s1]) that lies at t >= limit
+    along the band, and whether there is one: the material a pad on the line limit + compliance touches."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sc = (limit - tA) / dt  # where the edge crosses the limit
+    lo = np.where(dt > 0, np.maximum(s0, sc), s0)
+    hi = np.where(dt < 0, np.minimum(s1, sc), s1)
+    return lo, hi, (lo <= hi + 1e-12) & ((dt != 0) | (tA >= limit))
 
 
 def _overlapping_edges(ctx: Context, lox, loy, hix, hiy):

@@ -160,8 +160,18 @@ def parse_scene(raw, source: str = "<scene>", base_dir: Path | None = None) -> S
     if not isinstance(target, str):
         raise BadInput(f"{source}: 'target' must be a part id string, got {target!r}")
     scene = Scene(parts, target, cell_path, source)
-    scene.part(target)  # a target that is not in the scene is bad input
+    _require_straight_up(scene.part(target), source)  # a target that is not in the scene is bad input too
     return scene
+
+
+def _require_straight_up(p: Part, source: str) -> None:
+    """The 2D normal grasp lifts a part straight up: any other disassembly direction is bad input."""
+    d = np.asarray(p.direction, float)
+    n = float(np.linalg.norm(d))
+    if not (n > 0 and np.allclose(d / n, UP)):  # a direction, not a length: [0, 0, 2] is up too
+        raise BadInput(
+            f"{source}: part {p.id!r} has disassembly direction {list(p.direction)}; the 2D normal "
+            "grasp supports only straight up [0, 0, 1]")
 
 
 def parse_assembly(raw, source: str = "<assembly>", base_dir: Path | None = None) -> Assembly:
@@ -180,12 +190,7 @@ def parse_assembly(raw, source: str = "<assembly>", base_dir: Path | None = None
             f"repeated {', '.join(dup)}" if dup else "")
         raise BadInput(f"{source}: the sequence must name every part exactly once ({why})")
     for p in parts:
-        d = np.asarray(p.direction, float)
-        n = float(np.linalg.norm(d))
-        if not (n > 0 and np.allclose(d / n, UP)):  # a direction, not a length: [0, 0, 2] is up too
-            raise BadInput(
-                f"{source}: part {p.id!r} has disassembly direction {list(p.direction)}; the 2D normal "
-                "grasp supports only straight up [0, 0, 1]")
+        _require_straight_up(p, source)
     return Assembly(parts, tuple(seq), str(raw.get("name", Path(source).stem)), cell_path, source)
 
 
@@ -227,6 +232,8 @@ def parse_part(raw, where: str = "part") -> Part:
     zb, zt = _num(raw.get("z_bottom", 0.0), f"{where} z_bottom"), _num(raw.get("z_top"), f"{where} z_top")
     if zt <= zb:
         raise BadInput(f"{where}: z_top ({zt}) must be above z_bottom ({zb})")
+    if zb < 0:  # CONTRACT: the table surface is z = 0; nothing lies below it
+        raise BadInput(f"{where}: z_bottom ({zb}) is below the table (z = 0 mm in the base frame)")
     direction = raw.get("direction", list(UP))
     if not (isinstance(direction, list) and len(direction) == 3):
         raise BadInput(f"{where}: 'direction' must be [dx, dy, dz]")

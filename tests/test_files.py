@@ -68,12 +68,24 @@ def test_scene_normalises_orientation_and_keeps_holes():
     ({"parts": [{"id": "a", "outline": SQUARE, "z_top": 0, "z_bottom": 2}], "target": "a"}, "z_top"),
     ({"parts": [{"id": "a", "outline": [[0, 0], [1, 1]], "z_top": 1}], "target": "a"}, "at least 3"),
     ({"parts": [], "target": "a"}, "non-empty"),
+    ({"parts": [{"id": "a", "outline": SQUARE, "z_bottom": -5, "z_top": 10}], "target": "a"}, "below the table"),
+    ({"parts": [{"id": "a", "outline": SQUARE, "z_top": 1, "direction": [1, 0, 0]}], "target": "a"},
+     "straight up"),
     ({"parts": [{"id": "a", "outline": SQUARE, "z_top": 1}, {"id": "a", "outline": SQUARE, "z_top": 1}],
       "target": "a"}, "duplicate"),
 ])
 def test_bad_scenes(raw, match):
     with pytest.raises(BadInput, match=match):
         parse_scene(raw)
+
+
+def test_a_scene_refuses_only_its_target_moving_other_than_up():
+    # the obstacles stay where they are in this step: their own directions do not matter here
+    parts = [{"id": "a", "outline": SQUARE, "z_top": 1},
+             {"id": "b", "outline": [[20, 0], [30, 0], [30, 10], [20, 10]], "z_top": 1, "direction": [1, 0, 0]}]
+    assert parse_scene({"parts": parts, "target": "a"}).target == "a"
+    with pytest.raises(BadInput, match="'b' has disassembly direction"):
+        parse_scene({"parts": parts, "target": "b"})
 
 
 def test_assembly_refuses_other_directions_and_bad_sequences():

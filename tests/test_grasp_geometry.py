@@ -121,11 +121,11 @@ def test_relative_distance_is_size_free_and_mm_distance_is_not():
 
 
 def test_contact_with_a_neighbour_is_not_free_area_but_a_part_underneath_is():
-    target = shapes.rectangle("t", 60, 30, center=(350, 0), z_top_mm=15)
+    target = shapes.rectangle("t", 60, 30, center=(350, 0), z_top_mm=20, z_bottom_mm=5)  # on the plate
     touching = shapes.rectangle("n", 20, 30, center=(350 + 30 + 10 + 1.0, 0), z_top_mm=10)  # 1 mm gap
     apart = shapes.rectangle("far", 20, 30, center=(350 + 30 + 10 + 3.0, 0), z_top_mm=10)  # 3 mm gap
     below = parse_part({"id": "plate", "outline": [[250, -100], [450, -100], [450, 100], [250, 100]],
-                        "z_bottom": -5, "z_top": 0})
+                        "z_bottom": 0, "z_top": 5})
     assert [p.id for p in side_neighbours(target, [touching, apart, below])] == ["n", "far"]
     op, free = candidate_points(target, [touching, below], PARAMS)
     blocked = op.points[~free]

@@ -46,6 +46,10 @@ from drivers.pump import BusPump
 
 HOST_NODE_ID = 0x7F  # the host's own heartbeat id (the drives watch it)
 HEARTBEAT_DEADLINE_FACTOR = 3.0  # a node is silent after this many of its heartbeat periods
+# A watchdog run this much of a deadline after the previous one was itself held up (a loaded
+# machine, a long pause of the process): heartbeats that arrived meanwhile may still be queued
+# behind it, so silence is counted from that run on, not from the last heartbeat handled
+WATCH_STARVED_SHARE = 0.5
 POSITION_TOLERANCE_COUNTS = 2
 QUICK_STOP_DECEL_FACTOR = 2.0  # quick stop / fault reaction deceleration = this x the max acceleration
 TPDO_EVENT_TIMER_MS = 50  # status at least every 50 ms when nothing changes (the watch sees a stuck drive)
@@ -105,6 +109,8 @@ class Arm:
         self._connected = False
         self._pending: tuple[dict, float] = ({}, 0.0)
         self.state_at_failure: dict | None = None
+        self._watched_s: float | None = None  # when the watchdog last ran
+        self._silence_from_s = -math.inf  # silence before this (a held-up watchdog) is not counted
 
     # --- lifecycle -------------------------------------------------------------------------
     @property
@@ -262,6 +268,11 @@ class Arm:
     def _watch(self) -> None:
         """Periodic check of every node: heartbeat deadline, EMCY, FAULT state."""
         now = self.clock.now()
+        with self._lock:
+            if self._watched_s is not None and now - self._watched_s > WATCH_STARVED_SHARE * self.heartbeat_deadline_s:
+                self._silence_from_s = now
+            self._watched_s = now
+            silence_from_s = self._silence_from_s
         for ax in list(self.axes.values()):
             err: DriverError | None = None
             if ax.emcy_seq != self._emcy_seen.get(ax.name, 0):
@@ -284,7 +295,7 @@ class Arm:
             if (
                 err is None
                 and ax.last_heartbeat_s is not None
-                and now - ax.last_heartbeat_s > self.heartbeat_deadline_s
+                and now - max(ax.last_heartbeat_s, silence_from_s) > self.heartbeat_deadline_s
             ):
                 err = NodeSilent(
                     f"{ax.name} (node {ax.node_id}): no heartbeat for {now - ax.last_heartbeat_s:.3f} s "

@@ -1,0 +1,84 @@
+"""Wall-time stalls of the process (a loaded machine, a long GC pause) are not a silent node.
+
+The simulated drives and the host share one clock thread in `cell hw status` and `cell run`:
+when that thread is held up for longer than a heartbeat deadline, nobody sent heartbeats, and
+both watches used to declare the other side silent. A watch that was itself held up cannot
+tell, so it counts silence from when it runs again; a node that really falls silent is still
+caught within a deadline."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+from drivers_fixtures import *  # noqa: F403 - the bus, drives and arm fixtures
+from drivers_fixtures import needs_sim
+
+from drivers import Arm, sim
+from drivers.clock import RealClock
+
+pytestmark = needs_sim
+
+STALL_S = 0.6  # twice the default cell's 300 ms heartbeat deadlines
+
+
+@pytest.fixture
+def real_clock():
+    clock = RealClock()
+    yield clock
+    clock.close()
+
+
+def _stall_clock_thread(clock, seconds):
+    """Hold up the clock's job thread once, as a loaded machine does."""
+    done = []
+
+    def block():
+        if not done:
+            done.append(True)
+            time.sleep(seconds)
+
+    job = clock.every(0.01, block, name="stall")
+    deadline = time.monotonic() + 5
+    while not done and time.monotonic() < deadline:
+        time.sleep(0.005)
+    time.sleep(seconds + 0.05)
+    job.cancel()
+
+
+def _wait_for(cond, seconds):
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        if cond():
+            return True
+        time.sleep(0.01)
+    return cond()
+
+
+def test_a_stall_of_the_shared_clock_thread_faults_nobody(open_test_bus, real_clock, cell_cfg):
+    with sim.serve(open_test_bus(), cell_cfg, clock=real_clock) as drives, \
+            Arm(open_test_bus(), cell_cfg, clock=real_clock, sdo_timeout_s=0.5) as arm:
+        _stall_clock_thread(real_clock, STALL_S)
+        time.sleep(0.5)  # more than a deadline of normal running after the stall
+        assert arm.faults == {}
+        assert all(d.state == "OPERATION_ENABLED" and d.error_code == 0 for d in drives.drives.values())
+
+
+def test_a_host_silent_across_a_stall_is_still_caught_by_the_drives(open_test_bus, real_clock, cell_cfg):
+    with sim.serve(open_test_bus(), cell_cfg, clock=real_clock) as drives, \
+            Arm(open_test_bus(), cell_cfg, clock=real_clock, sdo_timeout_s=0.5) as arm:
+        arm._host_job.cancel()  # the host's heartbeat stops for good
+        _stall_clock_thread(real_clock, STALL_S)
+        deadline_s = 3 * cell_cfg.can.host_heartbeat_ms / 1000.0
+        assert _wait_for(lambda: all(d.state == "FAULT" for d in drives.drives.values()), deadline_s + 0.5)
+        assert all(d.error_code == 0x8130 for d in drives.drives.values())
+
+
+def test_a_node_silent_across_a_stall_is_still_caught_by_the_host(open_test_bus, real_clock, cell_cfg):
+    with sim.serve(open_test_bus(), cell_cfg, clock=real_clock) as drives, \
+            Arm(open_test_bus(), cell_cfg, clock=real_clock, sdo_timeout_s=0.5) as arm:
+        drives.inject_fault("silent", "j3")
+        _stall_clock_thread(real_clock, STALL_S)
+        assert _wait_for(lambda: "j3" in arm.faults, arm.heartbeat_deadline_s + 0.5)
+        assert "j3 (node 3): no heartbeat" in arm.faults["j3"]
+        assert not (set(arm.faults) - {"j3"})  # the others were heard

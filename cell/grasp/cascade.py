@@ -156,8 +156,10 @@ def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     ux, uy = np.concatenate([u[:, 0], -u[:, 0]]), np.concatenate([u[:, 1], -u[:, 1]])
     tt = np.concatenate([t, t])
     slanted = bool(ctx.params.slanted_faces)
+    # (material exactly on the band's side, tol beside the pad, is outside it whatever the float noise:
+    # an edge running along that side (an L's inner corner) must not count at one pose and not another)
     band = BandEdges.clip(ctx, cx, cy, ux, uy, tt - 2 * tol, tt + g.approach_clearance_mm + g.pad_thickness_mm,
-                          g.pad_width_mm / 2 + tol)
+                          g.pad_width_mm / 2 + tol - EPS_MM)
     T, (x, y) = band.first_touch(ctx, slanted)
     vx, vy = band.vx, band.vy
     lateral = np.abs((x - cx) * vx + (y - cy) * vy)

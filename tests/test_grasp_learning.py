@@ -1,6 +1,8 @@
 """Learning from examples: labels for both trees, the trees' readable rules, and behaviour that
 follows the examples (not hard-coded)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -207,25 +209,49 @@ def test_a_step_5_hook_that_refuses_a_grasp_gets_the_next_best():
         GraspPlanner(CELL, faces_examples(), choose=lambda *a: None).plan(Scene((RECT,), "r"))
 
 
-def test_one_taught_example_on_a_large_gear_makes_large_gears_plannable():
-    """The shipped examples' tree 1 rejects the tooth tips of the large gears (no grasp at all);
-    one grasp the operator shows on one of them, at one pose, is enough at other poses and for
-    the next size up: what teaching on the station does."""
+def test_a_contact_labels_only_the_outline_its_pad_touches():
+    """On a gear the operator's pad rests on the tooth tips: those points take the contact's label,
+    the roots and flanks under the same pad get none (they used to be labelled valid too). On a
+    flat face every sample under the pad is touched, as before."""
     from cell import parts_library as lib
+    from cell.grasp.learning import point_training
     from cell.operator import Operator, _example
 
-    shipped = load_examples(None)
     op = Operator(CELL, np.random.default_rng(0))
-    shown = lib.place(lib.part("spur_gear_l"), 300, -100, 35)
-    g = op.choose_grasp(shown, [])
-    taught = _example(op, "taught-gear", shown, g.contacts_mm, g.axis_deg, g.grasp_z_mm, g.judgement, [], {}, 0)
-    before, after = GraspPlanner(CELL, shipped), GraspPlanner(CELL, [*shipped, taught])
+    half_pad = CELL.gripper.pad_width_mm / 2
+    gear = lib.place(lib.part("spur_gear_l"), 300, -100, 35)
+    g = op.choose_grasp(gear, [])
+    ex = _example(op, "gear", gear, g.contacts_mm, g.axis_deg, g.grasp_z_mm, g.judgement, [], {}, 0)
+    params = SynthesisParams()
+    X_touched, y_touched = point_training(ex, params, half_pad)
+    X_band, _ = point_training(ex, dataclasses.replace(params, label_touched_only=False), half_pad)
+    tip_r_mm = np.hypot(*(gear.outline_mm - gear.polygon.centroid.coords[0]).T).max()
+    assert y_touched.all() and 0 < len(X_touched) < len(X_band) / 2
+    # the labelled points are the tips: their distance to the centre (dist_cog_mm) is the tip radius
+    assert X_touched[:, 0].min() > 0.97 * tip_r_mm
+    assert X_band[:, 0].min() < 0.9 * tip_r_mm  # the band took in the roots
+    flat = faces_examples()[0]
+    assert len(point_training(flat, params, half_pad)[1]) == len(
+        point_training(flat, dataclasses.replace(params, label_touched_only=False), half_pad)[1])
+
+
+def test_large_gears_are_planned_across_their_tips_with_the_shipped_examples():
+    """Labelled by every point under the pads, the shipped examples' tree 1 kept only points
+    within 39 mm of the centre of gravity, and gears L and XL had no grasp at all; labelled by
+    what the pads touch, both are held across the tips, at poses the examples never showed."""
+    from cell import parts_library as lib
+    from cell.physics import check_grasp
+
+    shipped = load_examples(None)
+    before = GraspPlanner(CELL, shipped, SynthesisParams(label_touched_only=False))
+    now = GraspPlanner(CELL, shipped)
     for name, x, y, th in [("spur_gear_l", 350, 0, 20), ("spur_gear_xl", 420, 120, -60)]:
         gear = lib.place(lib.part(name), x, y, th)
         with pytest.raises(NoFeasibleGrasp):
             before.plan(Scene((gear,), gear.id))
-        grasp = after.plan(Scene((gear,), gear.id)).grasp
+        grasp = now.plan(Scene((gear,), gear.id)).grasp
         assert grasp.opening_mm > 50  # across the gear, tip to tip (no other pair clears the teeth)
+        assert check_grasp(gear, grasp.contacts_mm, grasp.axis_deg, grasp.grasp_z_mm, cell=CELL).ok
 
 
 @pytest.mark.parametrize("side_mm", [11.0, 15.0, 23.0])

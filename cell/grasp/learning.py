@@ -52,7 +52,8 @@ def point_training(ex: GraspExample, params: SynthesisParams, half_pad_mm: float
     ring_idx, arc = resample(rings, params.step_mm)
     rows, labels = [], []
     op = None
-    for c, lab in zip(ex.contacts_mm, contact_labels(ex), strict=True):
+    contacts = np.asarray(ex.contacts_mm, float)
+    for c, lab in zip(contacts, contact_labels(ex), strict=True):
         if lab is None:
             continue
         r, s, _ = project_to_outline(rings, c)
@@ -64,11 +65,32 @@ def point_training(ex: GraspExample, params: SynthesisParams, half_pad_mm: float
         if op is None:
             op = describe_points(rings, ring_idx, arc, params.scales_mm)
             X_all = local_attributes(op, ex.part)
+        if params.label_touched_only:
+            sel &= _touched(op.points, c, contacts, half_pad_mm)
+            if not sel.any():
+                continue
         rows.append(X_all[sel])
         labels.append(np.full(sel.sum(), lab))
     if not rows:
         return np.zeros((0, 2 + len(params.scales_mm))), np.zeros(0, bool)
     return np.vstack(rows), np.concatenate(labels)
+
+
+TOUCH_DEPTH_MM = 1.0  # outline this far behind a pad's face (along the closing axis) is not touched by it
+
+
+def _touched(points: np.ndarray, c: np.ndarray, contacts: np.ndarray, half_pad_mm: float) -> np.ndarray:
+    """(z,) bool: outline points the pad seated at contact c touches: under the pad (within
+    half_pad_mm across the closing axis) and at most TOUCH_DEPTH_MM behind its face. The
+    closing axis points from the contacts' centroid to c (for two jaws: from the other contact).
+    Across gear teeth or a notch the pad rests on the tips: the roots under it are not what
+    the operator chose to hold, so they get no label."""
+    a = c - contacts.mean(axis=0)
+    a = a / max(float(np.linalg.norm(a)), 1e-12)
+    rel = points - c
+    depth = -(rel @ a)  # behind the face, into the part
+    lateral = np.abs(rel[:, 0] * a[1] - rel[:, 1] * a[0])
+    return (lateral <= half_pad_mm + 1e-9) & (np.abs(depth) <= TOUCH_DEPTH_MM)
 
 
 def set_attributes_of_example(ex: GraspExample, params: SynthesisParams, shifts=(0,)) -> np.ndarray:

@@ -41,6 +41,9 @@ class SynthesisParams:
     # 4, not 2: a leaf of 2 rows (one heatsink grasp's contacts) let square corners through (docs/grasp.md)
     tree_min_samples_leaf: int = 4
     augment_shift_steps: int = 1  # each example set is augmented by its neighbours +- this many steps
+    # A contact labels only the outline its pad touches (not the roots between teeth under it);
+    # off, every point within half a pad width along the outline, as older recordings have it
+    label_touched_only: bool = True
 
     def __post_init__(self):
         for f in fields(self):

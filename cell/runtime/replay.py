@@ -35,9 +35,10 @@ class RecordingEnds(Exception):  # noqa: N818 - not a CellError, like Divergence
 
 # The planner settings a recording keeps (meta.planner), with the values that held before each was
 # recorded: a recording made before `slanted_faces` planned without it, with leaves of 2 rows, no
-# margin around the other parts, and contacts reported on the pad's line (not moved onto the material).
+# margin around the other parts, contacts reported on the pad's line (not moved onto the material),
+# and every outline point under a pad labelled by its contact (not only those the pad touches).
 RECORDED_PLANNER = {"slanted_faces": False, "tree_min_samples_leaf": 2, "obstacle_margin_mm": 0.0,
-                    "contacts_on_material": False}
+                    "contacts_on_material": False, "label_touched_only": False}
 
 
 def planner_meta(params: SynthesisParams) -> dict:
@@ -49,7 +50,7 @@ def planner_from_meta(planner, where: str) -> SynthesisParams:
     if not isinstance(planner, dict):
         raise BadInput(f"{where}: manifest meta.planner must be an object")
     values = {k: planner.get(k, old) for k, old in RECORDED_PLANNER.items()}
-    for flag in ("slanted_faces", "contacts_on_material"):
+    for flag in ("slanted_faces", "contacts_on_material", "label_touched_only"):
         if not isinstance(values[flag], bool):
             raise BadInput(f"{where}: manifest meta.planner.{flag} must be true or false")
     leaf = values["tree_min_samples_leaf"]

@@ -159,3 +159,53 @@ def test_the_page_shows_the_cell_and_approves_in_a_browser(live, browser):  # no
         "return document.querySelectorAll('#overlay .part').length") == 2)
     driver.find_element("id", "btn-approve").click()
     WebDriverWait(driver, T).until(lambda _: "washer" in world.removed)
+
+
+def test_stop_on_the_page_quick_stops_a_pick_under_way(tmp_path):
+    """Stop during a pick stops the arm now (the real cell's drives run in wall time), not after
+    the whole pick; the run ends stopped, not in a fault."""
+    from calibration import load_calibration
+    from drivers import simulated_cell
+    from drivers.clock import RealClock
+
+    d = json.loads(DEFAULT.read_text())
+    d["parts"] = [p for p in d["parts"] if p["id"] == "washer"]
+    d["sequence"] = ["washer"]
+    assembly = parse_assembly(d)
+    cell, cal = default_cell(), load_calibration()
+    examples = tmp_path / "examples.jsonl"
+    shutil.copyfile(default_examples_path(), examples)
+    control = RunControl(require_approval=True)
+    ended = []
+    with simulated_cell(cell, clock=RealClock()) as (arm, drives):
+        world = SimWorld(list(assembly.parts), cell, drives)
+        loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=SimCameraSource(world, cal, 0),
+                        arm=arm, control=control, examples_path=examples, options=LoopOptions(interactive=True))
+        with StationServer(LoopBackend(loop), control, port=0) as server:
+            def work():
+                try:
+                    loop.run()
+                except Stopped:
+                    ended.append("stopped")
+
+            t = threading.Thread(target=work, daemon=True)
+            t.start()
+            assert call(server, "/api/run", {})[0] == 200
+            control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+            assert call(server, "/api/approve", {})[0] == 200
+            deadline = time.monotonic() + T
+            while control.snapshot()["checkpoint"] != "pick":
+                assert time.monotonic() < deadline
+                time.sleep(0.01)
+            time.sleep(0.3)  # the arm is on its way to the part (a pick takes seconds)
+            t_stop = time.monotonic()
+            assert call(server, "/api/stop", {"reason": "hand in the cell"})[0] == 200
+            t.join(3)
+            assert not t.is_alive() and ended == ["stopped"]
+            assert time.monotonic() - t_stop < 2.0
+            before = arm.joints()
+            time.sleep(0.3)
+            assert arm.joints() == before  # standing still
+            assert world.removed == []
+            assert control.state == "stopped", control.snapshot()["message"]
+        world.close()

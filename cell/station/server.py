@@ -58,6 +58,8 @@ class StationBackend(Protocol):
     teach(part_id, p1_px, p2_px) -> dict: make a valid example from two contact points in px
         (map to mm, snap to the outline, current configuration), append it atomically,
         rebuild the model; raise BadInput (400) or InvalidCommand (409) to refuse.
+    stop() (optional): quick-stop the arm; called after RunControl.stop() on the page's Stop,
+        so a motion under way ends at once rather than at the loop's next checkpoint.
     """
 
     def snapshot(self) -> dict: ...
@@ -268,7 +270,11 @@ class StationServer:
             return rc.reject(reason[:500], by=by)
         if cmd == "stop":
             reason = body.get("reason", "")
-            return rc.stop(reason[:500] if isinstance(reason, str) else "", by=by)
+            state = rc.stop(reason[:500] if isinstance(reason, str) else "", by=by)
+            halt = getattr(self.backend, "stop", None)
+            if callable(halt):  # quick-stop the arm now: a pick under way ends here, not at its end
+                halt()
+            return state
         if cmd == "reset":
             return rc.reset(by=by)
         if cmd == "approval":

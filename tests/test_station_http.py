@@ -199,3 +199,38 @@ def test_cli_serves_and_exits(tmp_path, capsys):
     out = capsys.readouterr().out
     assert code == 0 and f"#token={TOKEN}" in out and "http://127.0.0.1:" in out
     assert main(["station", "--port", "70000"]) == 2
+
+
+def raw_request(server, head: bytes, body: bytes = b"") -> tuple[int | None, dict | None]:
+    """Send bytes as they are (urllib would fix up a bad Content-Length); the status and JSON body
+    of the answer, (None, None) when the server hung up without one."""
+    import socket
+
+    with socket.create_connection((server.host, server.port), timeout=T) as s:
+        s.sendall(head + body)
+        out = b""
+        try:
+            while chunk := s.recv(65536):
+                out += chunk
+        except ConnectionResetError:
+            pass
+    if not out:
+        return None, None
+    status = int(out.split(b" ", 2)[1])
+    return status, json.loads(out.split(b"\r\n\r\n", 1)[1] or b"{}")
+
+
+def post_head(server, path, length, token=TOKEN) -> bytes:
+    return (f"POST {path} HTTP/1.1\r\nHost: 127.0.0.1:{server.port}\r\nContent-Type: application/json\r\n"
+            + (f"X-Cell-Token: {token}\r\n" if token else "") + f"Content-Length: {length}\r\n\r\n").encode()
+
+
+@pytest.mark.parametrize("body", [b"[" * 50_000, b'{"reason": ' + b"7" * 5000 + b"}",
+                                  b'{"part": "cap", "p1_px": [' + b"1" * 5000 + b', 1], "p2_px": [1, 1]}'],
+                         ids=["nested-too-deep", "huge-integer", "huge-integer-in-teach"])
+def test_bodies_json_cannot_hold_are_400_not_500(station, tmp_path, body):
+    server, control, _ = station
+    for cmd in ("reject", "teach"):
+        status, r = raw_request(server, post_head(server, f"/api/{cmd}", len(body)), body)
+        assert status == 400 and r["ok"] is False and "JSON" in r["error"], r
+    assert not (tmp_path / "examples.jsonl").exists()

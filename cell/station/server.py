@@ -188,6 +188,10 @@ class _Handler(BaseHTTPRequestHandler):
             body = json.loads(raw.decode("utf-8"))
         except (UnicodeDecodeError, json.JSONDecodeError):
             raise BadInput("request body must be a JSON object") from None
+        except RecursionError:  # json's decoder recurses per nesting level: [[[[...]]]]
+            raise BadInput("request body is not valid JSON: nested too deeply") from None
+        except ValueError:  # an integer of more digits than int() converts (4300)
+            raise BadInput("request body is not valid JSON: a number has too many digits") from None
         if not isinstance(body, dict):
             raise BadInput("request body must be a JSON object")
         return body

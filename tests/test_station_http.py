@@ -234,3 +234,14 @@ def test_bodies_json_cannot_hold_are_400_not_500(station, tmp_path, body):
         status, r = raw_request(server, post_head(server, f"/api/{cmd}", len(body)), body)
         assert status == 400 and r["ok"] is False and "JSON" in r["error"], r
     assert not (tmp_path / "examples.jsonl").exists()
+
+
+@pytest.mark.parametrize("length", ["100000000", "abc", "-5"])
+def test_a_bad_content_length_gets_an_answer_with_or_without_the_token(station, length, capfd):
+    server, control, _ = station
+    status, r = raw_request(server, post_head(server, "/api/run", length, token=None), b"{}")
+    assert status == 403 and r["ok"] is False  # the token is checked first, and answered
+    status, r = raw_request(server, post_head(server, "/api/run", length), b"{}")
+    assert status == 400 and ("Content-Length" in r["error"] or "too large" in r["error"]), r
+    assert control.state == "idle"
+    assert "Traceback" not in capfd.readouterr().err

@@ -245,3 +245,19 @@ def test_a_bad_content_length_gets_an_answer_with_or_without_the_token(station, 
     assert status == 400 and ("Content-Length" in r["error"] or "too large" in r["error"]), r
     assert control.state == "idle"
     assert "Traceback" not in capfd.readouterr().err
+
+
+@pytest.mark.parametrize("method,path,allow", [
+    ("PUT", "/api/run", "POST"), ("DELETE", "/api/teach", "POST"), ("PATCH", "/", "GET, HEAD"),
+    ("OPTIONS", "/api/stop", "POST"), ("GET", "/api/run", "POST"), ("GET", "/api/teach", "POST"),
+    ("POST", "/api/state", "GET, HEAD"), ("POST", "/api/frame.png", "GET, HEAD")])
+def test_a_wrong_method_is_405_in_json_and_changes_nothing(station, method, path, allow):
+    server, control, _ = station
+    req = urllib.request.Request(server.base_url + path.lstrip("/"), method=method,
+                                 data=b"{}" if method != "GET" else None, headers={"X-Cell-Token": TOKEN})
+    with pytest.raises(urllib.error.HTTPError) as e:
+        urllib.request.urlopen(req, timeout=T)
+    assert e.value.code == 405 and e.value.headers["Allow"] == allow
+    assert e.value.headers["Content-Type"] == "application/json"
+    assert "not allowed" in json.loads(e.value.read())["error"]
+    assert control.state == "idle"

@@ -261,3 +261,24 @@ def test_a_wrong_method_is_405_in_json_and_changes_nothing(station, method, path
     assert e.value.headers["Content-Type"] == "application/json"
     assert "not allowed" in json.loads(e.value.read())["error"]
     assert control.state == "idle"
+
+
+def test_cli_ends_cleanly_on_sigterm(tmp_path):
+    """`cell station` under a service manager: SIGTERM ends it as Ctrl-C does (loop closed, exit 0)."""
+    import signal
+    import subprocess
+    import sys
+
+    p = subprocess.Popen([sys.executable, "-m", "cell", "station", "--port", "0", "--token", TOKEN,
+                          "--examples", str(tmp_path / "e.jsonl")], stdout=subprocess.PIPE, text=True)
+    try:
+        for line in p.stdout:
+            if line.startswith("open:"):
+                break
+        time.sleep(0.2)
+        p.send_signal(signal.SIGTERM)
+        out, _ = p.communicate(timeout=10)
+    finally:
+        p.kill()
+    assert p.returncode == 0, p.returncode
+    assert "closed" in out

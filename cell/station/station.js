@@ -72,9 +72,22 @@ async function poll() {
     const r = await fetch("/api/state", {cache: "no-store"});
     if (r.ok && !busy) render(await r.json());
   } catch (e) {
-    $("message").textContent = "the cell does not answer";
+    offline();
   }
   setTimeout(poll, POLL_MS);
+}
+
+// The station is gone (the run ended, the cell was shut down): say so, and offer no command
+// until it answers again (the last state received would be a lie: a green "running").
+function offline() {
+  const badge = $("state");
+  badge.textContent = "offline";
+  badge.className = "badge state-offline";
+  $("message").textContent = "the cell does not answer (the run may have ended: see the cell's terminal)";
+  for (const b of document.querySelectorAll(".panel button:not(#btn-token)")) b.disabled = true;
+  $("approve-each").disabled = true;
+  teach = null;
+  drawTeach();
 }
 
 // ---- drawing
@@ -109,7 +122,9 @@ function render(data) {
   $("btn-approve").disabled = s !== "awaiting_approval";
   $("btn-reject").disabled = s !== "awaiting_approval";
   $("btn-reset").disabled = !["fault", "stopped", "done"].includes(s);
+  $("btn-teach").disabled = false;
   const ae = $("approve-each");
+  ae.disabled = false;
   if (document.activeElement !== ae) ae.checked = !!c.require_approval;
 
   const p = c.proposal;

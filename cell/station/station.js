@@ -156,6 +156,7 @@ function drawFrame(f) {
   if (f.width_px && f.height_px) {
     svg.setAttribute("viewBox", "0 0 " + f.width_px + " " + f.height_px);
     $("view").style.aspectRatio = f.width_px + " / " + f.height_px;
+    $("view").style.maxWidth = "calc((100vh - 100px) * " + f.width_px + " / " + f.height_px + ")";
   }
   $("frameno").textContent = f.index == null ? "–" : f.index;
   $("noframe").classList.toggle("hidden", f.index != null);

@@ -209,3 +209,25 @@ def test_stop_on_the_page_quick_stops_a_pick_under_way(tmp_path):
             assert world.removed == []
             assert control.state == "stopped", control.snapshot()["message"]
         world.close()
+
+
+@pytest.mark.skipif(not (Path(CHROMIUM).exists() and Path(CHROMEDRIVER).exists()),
+                    reason="the browser test needs Debian's chromium and chromium-driver (apt-get install)")
+def test_labels_and_contacts_are_readable_on_the_cells_full_size_frame(live, browser):  # noqa: F811
+    """The cell's camera frame (1280 x 1024) is drawn at about half size: the part names and the
+    proposed contacts must stay a readable size on the screen, not shrink with the image."""
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, loop, examples, world = live
+    d = browser
+    d.set_window_size(1366, 768)
+    d.get(server.url)
+    WebDriverWait(d, T).until(lambda x: x.find_element("id", "btn-run").is_enabled())
+    d.find_element("id", "btn-run").click()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    WebDriverWait(d, T).until(
+        lambda x: x.execute_script("return document.querySelectorAll('#proposal .contact').length") == 2)
+    label_h, contact_w = d.execute_script(
+        """const r = (sel) => document.querySelector(sel).getBoundingClientRect();
+           return [r('#parts .part-label').height, r('#proposal .contact').width];""")
+    assert label_h >= 11 and contact_w >= 7, (label_h, contact_w)

@@ -202,3 +202,44 @@ def test_the_reason_of_a_fault_and_of_a_stop_is_on_the_page(browser, station):
     control.stop("light curtain interrupted", by="safety")
     wait.until(lambda _: d.find_element(By.ID, "message").text == "light curtain interrupted")
     assert d.find_element(By.ID, "state").text.lower() == "stopped"
+
+
+def test_when_the_cell_stops_answering_the_page_says_so_and_offers_no_commands(browser, station):
+    """The run ended (`cell run --station` closes the station with it) or the cell is gone: the page
+    must not go on showing a green RUNNING with live buttons."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, cell, _ = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.05)
+    d.get(server.url)
+    d.find_element(By.ID, "btn-run").click()
+    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "awaiting approval")
+    server.close()
+    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "offline")
+    assert "does not answer" in d.find_element(By.ID, "message").text
+    for b in ("btn-run", "btn-pause", "btn-step", "btn-stop", "btn-approve", "btn-reject", "btn-reset",
+              "btn-teach", "approve-each"):
+        assert not d.find_element(By.ID, b).is_enabled(), b
+
+
+@pytest.mark.parametrize("size", [(1366, 768), (1920, 1080)])
+def test_the_whole_frame_and_the_approve_button_fit_the_window(browser, station, size):
+    """A station PC's common screen sizes: the frame (with the grasp drawn on it) is seen whole
+    without scrolling, next to Stop and Approve."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, cell, _ = station
+    d = browser
+    d.set_window_size(*size)
+    d.get(server.url)
+    d.find_element(By.ID, "btn-run").click()
+    WebDriverWait(d, T).until(lambda _: d.find_element(By.ID, "state").text.lower() == "awaiting approval")
+    view, approve, inner_h, inner_w = d.execute_script(
+        """const r = (id) => document.getElementById(id).getBoundingClientRect().toJSON();
+           return [r('view'), r('btn-approve'), innerHeight, innerWidth];""")
+    assert view["bottom"] <= inner_h and approve["bottom"] <= inner_h, (view, approve, inner_h)
+    assert view["width"] > 0.4 * inner_w  # and still large
+    assert d.execute_script("return document.documentElement.scrollWidth") <= inner_w

@@ -159,3 +159,75 @@ def test_the_page_shows_the_cell_and_approves_in_a_browser(live, browser):  # no
         "return document.querySelectorAll('#overlay .part').length") == 2)
     driver.find_element("id", "btn-approve").click()
     WebDriverWait(driver, T).until(lambda _: "washer" in world.removed)
+
+
+def test_stop_on_the_page_quick_stops_a_pick_under_way(tmp_path):
+    """Stop during a pick stops the arm now (the real cell's drives run in wall time), not after
+    the whole pick; the run ends stopped, not in a fault."""
+    from calibration import load_calibration
+    from drivers import simulated_cell
+    from drivers.clock import RealClock
+
+    d = json.loads(DEFAULT.read_text())
+    d["parts"] = [p for p in d["parts"] if p["id"] == "washer"]
+    d["sequence"] = ["washer"]
+    assembly = parse_assembly(d)
+    cell, cal = default_cell(), load_calibration()
+    examples = tmp_path / "examples.jsonl"
+    shutil.copyfile(default_examples_path(), examples)
+    control = RunControl(require_approval=True)
+    ended = []
+    with simulated_cell(cell, clock=RealClock()) as (arm, drives):
+        world = SimWorld(list(assembly.parts), cell, drives)
+        loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=SimCameraSource(world, cal, 0),
+                        arm=arm, control=control, examples_path=examples, options=LoopOptions(interactive=True))
+        with StationServer(LoopBackend(loop), control, port=0) as server:
+            def work():
+                try:
+                    loop.run()
+                except Stopped:
+                    ended.append("stopped")
+
+            t = threading.Thread(target=work, daemon=True)
+            t.start()
+            assert call(server, "/api/run", {})[0] == 200
+            control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+            assert call(server, "/api/approve", {})[0] == 200
+            deadline = time.monotonic() + T
+            while control.snapshot()["checkpoint"] != "pick":
+                assert time.monotonic() < deadline
+                time.sleep(0.01)
+            time.sleep(0.3)  # the arm is on its way to the part (a pick takes seconds)
+            t_stop = time.monotonic()
+            assert call(server, "/api/stop", {"reason": "hand in the cell"})[0] == 200
+            t.join(3)
+            assert not t.is_alive() and ended == ["stopped"]
+            assert time.monotonic() - t_stop < 2.0
+            before = arm.joints()
+            time.sleep(0.3)
+            assert arm.joints() == before  # standing still
+            assert world.removed == []
+            assert control.state == "stopped", control.snapshot()["message"]
+        world.close()
+
+
+@pytest.mark.skipif(not (Path(CHROMIUM).exists() and Path(CHROMEDRIVER).exists()),
+                    reason="the browser test needs Debian's chromium and chromium-driver (apt-get install)")
+def test_labels_and_contacts_are_readable_on_the_cells_full_size_frame(live, browser):  # noqa: F811
+    """The cell's camera frame (1280 x 1024) is drawn at about half size: the part names and the
+    proposed contacts must stay a readable size on the screen, not shrink with the image."""
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, loop, examples, world = live
+    d = browser
+    d.set_window_size(1366, 768)
+    d.get(server.url)
+    WebDriverWait(d, T).until(lambda x: x.find_element("id", "btn-run").is_enabled())
+    d.find_element("id", "btn-run").click()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    WebDriverWait(d, T).until(
+        lambda x: x.execute_script("return document.querySelectorAll('#proposal .contact').length") == 2)
+    label_h, contact_w = d.execute_script(
+        """const r = (sel) => document.querySelector(sel).getBoundingClientRect();
+           return [r('#parts .part-label').height, r('#proposal .contact').width];""")
+    assert label_h >= 11 and contact_w >= 7, (label_h, contact_w)

@@ -199,3 +199,86 @@ def test_cli_serves_and_exits(tmp_path, capsys):
     out = capsys.readouterr().out
     assert code == 0 and f"#token={TOKEN}" in out and "http://127.0.0.1:" in out
     assert main(["station", "--port", "70000"]) == 2
+
+
+def raw_request(server, head: bytes, body: bytes = b"") -> tuple[int | None, dict | None]:
+    """Send bytes as they are (urllib would fix up a bad Content-Length); the status and JSON body
+    of the answer, (None, None) when the server hung up without one."""
+    import socket
+
+    with socket.create_connection((server.host, server.port), timeout=T) as s:
+        s.sendall(head + body)
+        out = b""
+        try:
+            while chunk := s.recv(65536):
+                out += chunk
+        except ConnectionResetError:
+            pass
+    if not out:
+        return None, None
+    status = int(out.split(b" ", 2)[1])
+    return status, json.loads(out.split(b"\r\n\r\n", 1)[1] or b"{}")
+
+
+def post_head(server, path, length, token=TOKEN) -> bytes:
+    return (f"POST {path} HTTP/1.1\r\nHost: 127.0.0.1:{server.port}\r\nContent-Type: application/json\r\n"
+            + (f"X-Cell-Token: {token}\r\n" if token else "") + f"Content-Length: {length}\r\n\r\n").encode()
+
+
+@pytest.mark.parametrize("body", [b"[" * 50_000, b'{"reason": ' + b"7" * 5000 + b"}",
+                                  b'{"part": "cap", "p1_px": [' + b"1" * 5000 + b', 1], "p2_px": [1, 1]}'],
+                         ids=["nested-too-deep", "huge-integer", "huge-integer-in-teach"])
+def test_bodies_json_cannot_hold_are_400_not_500(station, tmp_path, body):
+    server, control, _ = station
+    for cmd in ("reject", "teach"):
+        status, r = raw_request(server, post_head(server, f"/api/{cmd}", len(body)), body)
+        assert status == 400 and r["ok"] is False and "JSON" in r["error"], r
+    assert not (tmp_path / "examples.jsonl").exists()
+
+
+@pytest.mark.parametrize("length", ["100000000", "abc", "-5"])
+def test_a_bad_content_length_gets_an_answer_with_or_without_the_token(station, length, capfd):
+    server, control, _ = station
+    status, r = raw_request(server, post_head(server, "/api/run", length, token=None), b"{}")
+    assert status == 403 and r["ok"] is False  # the token is checked first, and answered
+    status, r = raw_request(server, post_head(server, "/api/run", length), b"{}")
+    assert status == 400 and ("Content-Length" in r["error"] or "too large" in r["error"]), r
+    assert control.state == "idle"
+    assert "Traceback" not in capfd.readouterr().err
+
+
+@pytest.mark.parametrize("method,path,allow", [
+    ("PUT", "/api/run", "POST"), ("DELETE", "/api/teach", "POST"), ("PATCH", "/", "GET, HEAD"),
+    ("OPTIONS", "/api/stop", "POST"), ("GET", "/api/run", "POST"), ("GET", "/api/teach", "POST"),
+    ("POST", "/api/state", "GET, HEAD"), ("POST", "/api/frame.png", "GET, HEAD")])
+def test_a_wrong_method_is_405_in_json_and_changes_nothing(station, method, path, allow):
+    server, control, _ = station
+    req = urllib.request.Request(server.base_url + path.lstrip("/"), method=method,
+                                 data=b"{}" if method != "GET" else None, headers={"X-Cell-Token": TOKEN})
+    with pytest.raises(urllib.error.HTTPError) as e:
+        urllib.request.urlopen(req, timeout=T)
+    assert e.value.code == 405 and e.value.headers["Allow"] == allow
+    assert e.value.headers["Content-Type"] == "application/json"
+    assert "not allowed" in json.loads(e.value.read())["error"]
+    assert control.state == "idle"
+
+
+def test_cli_ends_cleanly_on_sigterm(tmp_path):
+    """`cell station` under a service manager: SIGTERM ends it as Ctrl-C does (loop closed, exit 0)."""
+    import signal
+    import subprocess
+    import sys
+
+    p = subprocess.Popen([sys.executable, "-m", "cell", "station", "--port", "0", "--token", TOKEN,
+                          "--examples", str(tmp_path / "e.jsonl")], stdout=subprocess.PIPE, text=True)
+    try:
+        for line in p.stdout:
+            if line.startswith("open:"):
+                break
+        time.sleep(0.2)
+        p.send_signal(signal.SIGTERM)
+        out, _ = p.communicate(timeout=10)
+    finally:
+        p.kill()
+    assert p.returncode == 0, p.returncode
+    assert "closed" in out

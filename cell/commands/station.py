@@ -27,6 +27,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     import time
 
+    from cell.commands.run import _sigterm_as_interrupt
     from cell.errors import BadInput
     from cell.runtime.control import RunControl
     from cell.station.demo import DemoCell
@@ -40,7 +41,7 @@ def run(args) -> int:
     cell = DemoCell(control, args.examples, motion_s=args.motion_s)
     server = StationServer(cell, control, host=args.host, port=args.port, token=args.token,
                            allow_remote=args.allow_remote)
-    with server:
+    with server, _sigterm_as_interrupt():  # SIGTERM (a service manager, kill) ends it as Ctrl-C does
         cell.start()
         print(f"operator station (demo cell) at {server.base_url}", flush=True)
         print(f"open: {server.url}", flush=True)
@@ -56,4 +57,5 @@ def run(args) -> int:
             pass
         finally:
             cell.close()
+    print("station closed", flush=True)
     return 0

@@ -38,6 +38,10 @@ class LoopBackend:
                 "examples": {"path": str(lp.examples_path), "count": len(lp.examples)},
                 "remaining": list(lp.remaining), "removed": [r.part for r in lp.reports]}
 
+    def stop(self) -> None:
+        """The page's Stop (after RunControl.stop): quick-stop every axis now, mid-pick too."""
+        self.loop.arm.stop()
+
     def frame_png(self) -> bytes | None:
         frame = self.loop.state.frame
         if frame is None:

@@ -185,6 +185,8 @@ class CellLoop:
             except Faulted:
                 continue  # a fault was reported meanwhile: the next checkpoint holds until reset
             except CellError as e:  # drive faults and anything else the cell reports
+                if self.control.stop_requested:  # the operator's stop quick-stopped the arm: no fault,
+                    continue  # the next checkpoint raises Stopped
                 self._stop_and_ask(getattr(e, "node", None) or "cell", str(e))
         summary = self.summary()
         self.sink.write_decision({"type": "summary", **summary})

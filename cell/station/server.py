@@ -15,7 +15,8 @@ gets 403 and changes nothing. GETs need none (looking is harmless). The server b
 127.0.0.1 by default and then also refuses requests whose Host header is not a loopback
 name (a web page elsewhere cannot reach the arm through DNS rebinding); the custom header
 makes every POST a CORS-preflighted request, which the server never grants to other origins.
-Status codes: 400 bad input, 403 token/host, 404, 409 a command the state does not allow.
+Status codes: 400 bad input, 403 token/host, 404, 405 a method the route does not take (with
+Allow), 409 a command the state does not allow.
 """
 
 from __future__ import annotations
@@ -43,6 +44,8 @@ STATIC = {"/": ("index.html", "text/html; charset=utf-8"),
           "/index.html": ("index.html", "text/html; charset=utf-8"),
           "/station.js": ("station.js", "text/javascript; charset=utf-8"),
           "/station.css": ("station.css", "text/css; charset=utf-8")}
+GET_ONLY = ("/api/state", "/api/frame.png", "/favicon.ico", *STATIC)
+COMMANDS = ("run", "pause", "step", "approve", "reject", "stop", "reset", "approval", "teach")
 
 
 class StationBackend(Protocol):
@@ -58,6 +61,8 @@ class StationBackend(Protocol):
     teach(part_id, p1_px, p2_px) -> dict: make a valid example from two contact points in px
         (map to mm, snap to the outline, current configuration), append it atomically,
         rebuild the model; raise BadInput (400) or InvalidCommand (409) to refuse.
+    stop() (optional): quick-stop the arm; called after RunControl.stop() on the page's Stop,
+        so a motion under way ends at once rather than at the loop's next checkpoint.
     """
 
     def snapshot(self) -> dict: ...
@@ -107,6 +112,21 @@ class _Handler(BaseHTTPRequestHandler):
     def _error(self, status: int, message: str) -> None:
         self._json(status, {"ok": False, "error": message})
 
+    def _not_allowed(self, allow: str) -> None:
+        self._send(405, json.dumps({"ok": False, "error": f"{self.command} is not allowed here: use {allow}"}
+                                   ).encode("utf-8"), "application/json", {"Allow": allow})
+
+    def _allowed_methods(self, path: str) -> str:
+        return "POST" if path.startswith("/api/") and path[len("/api/"):] in COMMANDS else "GET, HEAD"
+
+    def _other_method(self):
+        """PUT, DELETE, PATCH, OPTIONS (a CORS preflight: never granted), ...: 405, nothing done."""
+        if not self._host_ok():
+            return self._error(403, "this station only answers requests for 127.0.0.1 / localhost")
+        return self._not_allowed(self._allowed_methods(urlsplit(self.path).path))
+
+    do_PUT = do_DELETE = do_PATCH = do_OPTIONS = do_TRACE = do_CONNECT = _other_method
+
     def _host_ok(self) -> bool:
         if not self.station.loopback_only:
             return True
@@ -136,6 +156,8 @@ class _Handler(BaseHTTPRequestHandler):
                 return self._send(200, png, "image/png")
             if path == "/favicon.ico":
                 return self._send(204, b"", "image/x-icon")
+            if self._allowed_methods(path) == "POST":
+                return self._not_allowed("POST")
         except Exception as e:  # the loop's backend failed: say so, keep serving
             log.exception("GET %s failed", path)
             return self._error(500, f"{type(e).__name__}: {e}")
@@ -150,11 +172,13 @@ class _Handler(BaseHTTPRequestHandler):
         st = self.station
         given = self.headers.get(TOKEN_HEADER, "")
         if not given or not hmac.compare_digest(given.encode(), st.token.encode()):
-            # read and drop the body so the connection stays sane, then refuse
-            self._read_body(ignore=True)
+            self._drop_body()
             return self._error(403, f"a valid token is required in the {TOKEN_HEADER} header "
                                     "(it is printed when the station starts)")
         path = urlsplit(self.path).path
+        if path in GET_ONLY:
+            self._drop_body()
+            return self._not_allowed("GET, HEAD")
         if not path.startswith("/api/"):
             return self._error(404, f"no such command: {path}")
         cmd = path[len("/api/"):]
@@ -172,11 +196,20 @@ class _Handler(BaseHTTPRequestHandler):
             return self._error(500, f"{type(e).__name__}: {e}")
         return self._json(200, {"ok": True, "result": result, **st.state()})
 
+    def _drop_body(self) -> None:
+        """Read and drop the body of a request that is refused, so the connection stays sane."""
+        try:
+            self._read_body(ignore=True)
+        except BadInput:
+            pass  # a body too large or of a bad length is left unread: the refusal is the same
+
     def _read_body(self, ignore: bool = False) -> dict:
         try:
             n = int(self.headers.get("Content-Length") or 0)
         except ValueError:
-            raise BadInput("Content-Length must be a number") from None
+            n = -1
+        if n < 0:
+            raise BadInput("Content-Length must be a number of bytes (0 or more)")
         if n > MAX_BODY_BYTES:
             raise BadInput(f"request body too large ({n} bytes, at most {MAX_BODY_BYTES})")
         raw = self.rfile.read(n) if n > 0 else b""
@@ -186,6 +219,10 @@ class _Handler(BaseHTTPRequestHandler):
             body = json.loads(raw.decode("utf-8"))
         except (UnicodeDecodeError, json.JSONDecodeError):
             raise BadInput("request body must be a JSON object") from None
+        except RecursionError:  # json's decoder recurses per nesting level: [[[[...]]]]
+            raise BadInput("request body is not valid JSON: nested too deeply") from None
+        except ValueError:  # an integer of more digits than int() converts (4300)
+            raise BadInput("request body is not valid JSON: a number has too many digits") from None
         if not isinstance(body, dict):
             raise BadInput("request body must be a JSON object")
         return body
@@ -268,7 +305,11 @@ class StationServer:
             return rc.reject(reason[:500], by=by)
         if cmd == "stop":
             reason = body.get("reason", "")
-            return rc.stop(reason[:500] if isinstance(reason, str) else "", by=by)
+            state = rc.stop(reason[:500] if isinstance(reason, str) else "", by=by)
+            halt = getattr(self.backend, "stop", None)
+            if callable(halt):  # quick-stop the arm now: a pick under way ends here, not at its end
+                halt()
+            return state
         if cmd == "reset":
             return rc.reset(by=by)
         if cmd == "approval":

@@ -72,9 +72,22 @@ async function poll() {
     const r = await fetch("/api/state", {cache: "no-store"});
     if (r.ok && !busy) render(await r.json());
   } catch (e) {
-    $("message").textContent = "the cell does not answer";
+    offline();
   }
   setTimeout(poll, POLL_MS);
+}
+
+// The station is gone (the run ended, the cell was shut down): say so, and offer no command
+// until it answers again (the last state received would be a lie: a green "running").
+function offline() {
+  const badge = $("state");
+  badge.textContent = "offline";
+  badge.className = "badge state-offline";
+  $("message").textContent = "the cell does not answer (the run may have ended: see the cell's terminal)";
+  for (const b of document.querySelectorAll(".panel button:not(#btn-token)")) b.disabled = true;
+  $("approve-each").disabled = true;
+  teach = null;
+  drawTeach();
 }
 
 // ---- drawing
@@ -109,7 +122,9 @@ function render(data) {
   $("btn-approve").disabled = s !== "awaiting_approval";
   $("btn-reject").disabled = s !== "awaiting_approval";
   $("btn-reset").disabled = !["fault", "stopped", "done"].includes(s);
+  $("btn-teach").disabled = false;
   const ae = $("approve-each");
+  ae.disabled = false;
   if (document.activeElement !== ae) ae.checked = !!c.require_approval;
 
   const p = c.proposal;
@@ -141,6 +156,7 @@ function drawFrame(f) {
   if (f.width_px && f.height_px) {
     svg.setAttribute("viewBox", "0 0 " + f.width_px + " " + f.height_px);
     $("view").style.aspectRatio = f.width_px + " / " + f.height_px;
+    $("view").style.maxWidth = "calc((100vh - 100px) * " + f.width_px + " / " + f.height_px + ")";
   }
   $("frameno").textContent = f.index == null ? "–" : f.index;
   $("noframe").classList.toggle("hidden", f.index != null);
@@ -150,15 +166,23 @@ function drawFrame(f) {
   }
 }
 
+// Image px per screen px: marks and labels keep their size on the screen whatever the frame's
+// size (the cell's 1280 x 1024 frame is drawn at about half size).
+function pxPerScreenPx() {
+  const svg = $("overlay"), w = svg.getBoundingClientRect().width;
+  return w > 0 ? svg.viewBox.baseVal.width / w : 1;
+}
+
 function drawParts(parts, target) {
-  const g = $("parts");
+  const g = $("parts"), k = pxPerScreenPx();
   g.replaceChildren();
   for (const part of parts) {
     const cls = "part" + (part.id === target ? " target" : "") + (teach && teach.part === part.id ? " selected" : "");
     const poly = el("polygon", {points: ptsAttr(part.outline_px), class: cls, "data-part": part.id}, g);
     poly.addEventListener("click", (ev) => onPartClick(ev, part.id));
     const [u, v] = centroid(part.outline_px);
-    el("text", {x: u, y: v, class: "part-label", "text-anchor": "middle"}, g).textContent = part.id;
+    el("text", {x: u, y: v, class: "part-label", "text-anchor": "middle", "font-size": 14 * k,
+                "stroke-width": 3 * k}, g).textContent = part.id;
   }
 }
 
@@ -170,7 +194,8 @@ function drawProposal(pp) {
   for (const f of pp.fingers_px || []) el("polygon", {points: ptsAttr(f), class: "finger"}, g);
   const cs = pp.contacts_px || [];
   if (cs.length === 2) el("line", {x1: cs[0][0], y1: cs[0][1], x2: cs[1][0], y2: cs[1][1], class: "axis"}, g);
-  for (const q of cs) el("circle", {cx: q[0], cy: q[1], r: 4, class: "contact"}, g);
+  const k = pxPerScreenPx();
+  for (const q of cs) el("circle", {cx: q[0], cy: q[1], r: 5 * k, class: "contact"}, g);
 }
 
 function drawLog(events) {
@@ -204,7 +229,7 @@ function drawTeach() {
   $("btn-teach").classList.toggle("active", !!teach);
   const st = $("teach-status");
   if (!teach) { st.textContent = ""; return; }
-  if (teach.p1) el("circle", {cx: teach.p1[0], cy: teach.p1[1], r: 5, class: "teachmark"}, g);
+  if (teach.p1) el("circle", {cx: teach.p1[0], cy: teach.p1[1], r: 6 * pxPerScreenPx(), class: "teachmark"}, g);
   st.textContent = teach.stage === "part" ? "Teach: click the part to grasp"
     : teach.stage === "p1" ? "Teach " + teach.part + ": click the first contact on its edge"
     : "Teach " + teach.part + ": click the second contact";

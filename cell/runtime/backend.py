@@ -77,8 +77,8 @@ class LoopBackend:
                           {"kind": "station-teach", "by": "operator", "at": now.isoformat(),
                            "note": f"taught on frame {lp.state.frame_index}"},
                           obstacles=others, grasp_z_mm=z, joints=joints)
-        lp.add_example(ex)
-        return {"ok": True, "example_id": ex.id, "n_examples": len(lp.examples),
+        n_examples = lp.teach(ex)
+        return {"ok": True, "example_id": ex.id, "n_examples": n_examples,
                 "contacts_mm": np.round(contacts, 2).tolist(),
                 "opening_mm": round(opening, 2), "joints": None if joints is None else joints.rounded(3).as_dict(),
                 }

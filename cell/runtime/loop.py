@@ -31,7 +31,7 @@ from shapely.geometry import Polygon
 from cell.cellconfig import Cell
 from cell.configuration import path_link_collisions
 from cell.errors import BadInput, CellError, NoFeasibleGrasp
-from cell.examples import GraspExample, append_examples, load_examples
+from cell.examples import GraspExample, append_examples, load_examples, parse_example
 from cell.fileio import write_atomic
 from cell.grasp.params import SynthesisParams
 from cell.grasp.synthesis import Grasp, GraspPlanner
@@ -99,6 +99,12 @@ class PartReport:
                 "cycle_s": round(self.cycle_s, 3), "reason": self.reason}
 
 
+def _as_saved(example: GraspExample) -> GraspExample:
+    """The example as the example file (and a recording) hold it, rounded: a live run learns exactly
+    what a replay of it reads back."""
+    return parse_example(example.to_json(), f"example {example.id}")
+
+
 class DecisionSink:
     """Where decisions go (a RecordingWriter, a replay comparison); the default drops them."""
 
@@ -122,7 +128,8 @@ class LoopState:
 class CellLoop:
     def __init__(self, *, cell: Cell, calibration, assembly: Assembly, camera, arm, control: RunControl,
                  examples_path: str | Path, sink: DecisionSink | None = None, viz=None,
-                 options: LoopOptions | None = None, planner_params=None, examples_out: str | Path | None = None):
+                 options: LoopOptions | None = None, planner_params=None, examples_out: str | Path | None = None,
+                 taught=None):
         from cell.vision import SegmentParams
 
         self.cell, self.cal, self.assembly = cell, calibration, assembly
@@ -147,26 +154,61 @@ class CellLoop:
         self._pick: dict | None = None
         self._taken_by_hand: dict | None = None  # a pick whose part the operator was asked to take out of the jaws
         self._examples_lock = threading.Lock()
+        self._taught: list[GraspExample] = []  # taught on the station, not yet learned by the loop
+        # where the loop finds taught examples at each plan: the station's (default), or a replay's
+        self._taught_source = taught or self._drain_taught
         self.home_first: Joints | None = None  # set: move there once the operator lets the loop run
+        self.examples = load_examples(self.examples_path)
         self.rebuild_planner()
 
     # ------------------------------------------------------------------ learning
     def rebuild_planner(self) -> None:
-        """Re-read the example file and fit both trees again (after a reject or a teach)."""
-        self.examples = load_examples(self.examples_path)
+        """Fit both trees again on the examples learned so far (after a reject or a teach)."""
         self.planner = GraspPlanner(self.cell, self.examples, self.planner_params)
 
     def add_example(self, example: GraspExample) -> None:
-        """Append an example and rebuild the model (from the loop thread or the station's)."""
+        """Append an example (a reject, from the loop thread) and rebuild the model."""
         with self._examples_lock:
-            if self.examples_out != self.examples_path:
-                if not self.examples_out.exists():
-                    write_atomic(self.examples_out, self.examples_path.read_bytes())
-                self.examples_path = self.examples_out
-            append_examples(self.examples_path, [example])
+            self._save(example)
+            self.examples = [*self.examples, _as_saved(example)]
             self.rebuild_planner()
         self.control.log("example", f"{'valid' if example.valid else 'invalid'} example {example.id} added; "
                          "model rebuilt", id=example.id)
+
+    def teach(self, example: GraspExample) -> int:
+        """A grasp taught on the station (its thread): saved to the example file at once, learned by
+        the loop at its next plan, where it is recorded ('example' decision) so that a replay learns
+        it at the same point. Returns the number of examples the next plan learns from."""
+        with self._examples_lock:
+            self._save(example)
+            self._taught.append(example)
+            n = len(self.examples) + len(self._taught)
+        self.control.log("example", f"valid example {example.id} taught; the next plan learns it", id=example.id)
+        return n
+
+    def _save(self, example: GraspExample) -> None:
+        """Append to the examples file (the first new example starts `examples_out` as a copy)."""
+        if self.examples_out != self.examples_path:
+            if not self.examples_out.exists():
+                write_atomic(self.examples_out, self.examples_path.read_bytes())
+            self.examples_path = self.examples_out
+        append_examples(self.examples_path, [example])
+
+    def _drain_taught(self) -> list[GraspExample]:
+        with self._examples_lock:
+            taught, self._taught = self._taught, []
+        return taught
+
+    def _learn_taught(self) -> None:
+        """Before a plan: learn what was taught since the last one, and record it."""
+        taught = self._taught_source()
+        if not taught:
+            return
+        for ex in taught:
+            self.sink.write_decision({"type": "example", "source": "station-teach", "example": ex.to_json()})
+        with self._examples_lock:
+            self.examples = [*self.examples, *map(_as_saved, taught)]
+            self.rebuild_planner()
 
     # ------------------------------------------------------------------ the loop
     def run(self) -> dict:
@@ -408,6 +450,7 @@ class CellLoop:
         return next((cid for cid in found if cid in self.poses and part.lies_on(self.poses[cid])), None)
 
     def _plan(self, scene: Scene, part_id: str) -> list[Grasp] | None:
+        self._learn_taught()
         try:
             result = self.planner.plan(scene)
         except NoFeasibleGrasp as e:

@@ -131,6 +131,17 @@ class Comparison:
             if not self.strict and expected.get("type") != record.get("type"):
                 self._resync(record)
 
+    def examples_taught_here(self) -> list:
+        """The examples the recorded session learned before the plan the replay is at (its
+        'example' decisions from here on): the replay learns them at the same point."""
+        from cell.examples import parse_example
+
+        out, i = [], self.position
+        while i < len(self.recorded) and self.recorded[i].get("type") == "example":
+            out.append(parse_example(self.recorded[i].get("example"), f"recorded decision #{i} (example)"))
+            i += 1
+        return out
+
     def _diverged(self, what: str) -> None:
         if self.strict:
             raise Divergence(what)
@@ -243,7 +254,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
             loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=FileCamera(frames), arm=arm,
                             control=control, examples_path=work_examples, sink=sink,
                             options=LoopOptions(on_no_grasp=meta.get("on_no_grasp", "stop")),
-                            planner_params=planner_params)
+                            planner_params=planner_params, taught=sink.examples_taught_here)
             arm.move_joints(home_joints(cell))
             control.run(by="replay")
             say(f"replaying {len(frames)} frames, {len(recorded)} decisions")

@@ -1,0 +1,105 @@
+"""A grasp taught on the station during a recorded run replays: the loop learns it at its next
+plan and records it there, and `cell replay` learns it at the same point. (It used to be
+learned at once, unrecorded: the replay planned without it and diverged.)"""
+
+import json
+import re
+import threading
+import time
+import urllib.error
+import urllib.request
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from cell.examples import load_examples
+from cell.recording import RecordingReader
+from cell.runtime.session import RunConfig, run_session
+from conftest import run_cli
+
+DEFAULT = Path(str(resources.files("cell") / "data" / "assemblies" / "default.json"))
+T = 60.0
+TOKEN = "teach-test-token"
+
+
+def _post(url, token, path, body):
+    req = urllib.request.Request(url + path, data=json.dumps(body).encode(), method="POST")
+    req.add_header("Content-Type", "application/json")
+    req.add_header("X-Cell-Token", token)
+    with urllib.request.urlopen(req, timeout=T) as r:
+        return json.loads(r.read())
+
+
+def _state(url):
+    with urllib.request.urlopen(url + "/api/state", timeout=T) as r:
+        return json.loads(r.read())
+
+
+def _wait(url, pred, what):
+    deadline = time.monotonic() + T
+    while time.monotonic() < deadline:
+        s = _state(url)
+        if pred(s):
+            return s
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}: {s['control']['state']}")
+
+
+def test_a_grasp_taught_mid_run_is_recorded_and_replays(tmp_path, capsys):
+    d = json.loads(DEFAULT.read_text())
+    d["parts"] = [p for p in d["parts"] if p["id"] in ("nut", "washer")]
+    d["sequence"] = ["washer", "nut"]
+    d.pop("cell", None)
+    assembly = tmp_path / "two.json"
+    assembly.write_text(json.dumps(d))
+    rec = tmp_path / "session"
+    lines, result = [], {}
+
+    def work():
+        cfg = RunConfig(assembly=assembly, record=rec, seed=1, station=True, require_approval=True,
+                        station_port=0, station_token=TOKEN, progress=lines.append)
+        result["summary"] = run_session(cfg)
+
+    t = threading.Thread(target=work, daemon=True)
+    t.start()
+    deadline = time.monotonic() + T
+    while not any("operator station:" in s for s in lines):
+        assert time.monotonic() < deadline and t.is_alive(), lines
+        time.sleep(0.05)
+    url = re.search(r"(http://127\.0\.0\.1:\d+)", next(s for s in lines if "operator station:" in s)).group(1)
+    _post(url, TOKEN, "/api/run", {})
+    s = _wait(url, lambda s: s["control"]["state"] == "awaiting_approval", "the first proposal")
+    proposal = s["control"]["proposal"]
+    assert proposal["target"] == "washer"
+    # teach the washer across another diameter than proposed, then reject the proposal: the loop
+    # plans again, learning the taught grasp first (the nearest example: its own grasp is chosen)
+    washer = next(p for p in s["cell"]["parts"] if p["id"] == "washer")
+    ring = np.asarray(washer["outline_px"], float)
+    c = ring.mean(axis=0)
+    k = int(np.argmax(np.abs((ring - c) @ np.array([1.0, 1.0]))))
+    p1 = ring[k]
+    p2 = ring[int(np.argmin(np.linalg.norm(ring - (2 * c - p1), axis=1)))]
+    taught = _post(url, TOKEN, "/api/teach", {"part": "washer", "p1_px": p1.tolist(), "p2_px": p2.tolist()})["result"]
+    seq = _state(url)["control"]["seq"]
+    _post(url, TOKEN, "/api/reject", {"reason": "not there"})
+    while t.is_alive():  # approve every proposal from here on (the station closes with the run)
+        try:
+            s = _state(url)
+            if s["control"]["state"] == "awaiting_approval" and s["control"]["seq"] != seq:
+                seq = s["control"]["seq"]
+                _post(url, TOKEN, "/api/approve", {})
+        except urllib.error.URLError:
+            break
+        time.sleep(0.05)
+    t.join(T)
+    assert result["summary"]["status"] == "complete", result
+    code, out, err = run_cli("replay", rec, capsys=capsys)
+    assert code == 0 and "decisions match" in out, err
+    decisions = RecordingReader(rec).decisions
+    kinds = [x["type"] for x in decisions]
+    at = kinds.index("example")
+    assert decisions[at]["example"]["id"] == taught["example_id"]
+    # recorded after the rejection and before the plan that learned it
+    assert kinds[at - 1] == "decision" and not decisions[at - 1]["approved"] and kinds[at + 1] == "grasp"
+    assert taught["example_id"] in {e.id for e in load_examples(rec / "examples.jsonl")}

@@ -139,8 +139,32 @@ def load_cell(path: str | Path | None = None) -> Cell:
     return parse_cell(raw, source=str(path))
 
 
+# Every key a cell file may hold, per object: a misspelt key ("pad_widht_mm", "configuraton") would
+# otherwise be ignored and leave the default in place without a word.
+_SCARA_KEYS = ("l1_mm", "l2_mm", "j1_deg", "j2_deg", "j3_mm", "j4_deg", "link1_width_mm", "link2_width_mm",
+               "link1_bottom_z_mm", "link2_bottom_z_mm", "max_velocity", "max_acceleration", "max_step")
+_GRIPPER_KEYS = ("opening_mm", "pad_width_mm", "pad_thickness_mm", "pad_height_mm", "finger_length_mm",
+                 "approach_clearance_mm", "palm_length_mm", "palm_width_mm", "palm_offset_mm", "grip_force_n",
+                 "max_force_n", "speed_mm_s")
+_KEYS = {
+    "": ("format", "version", "name", "scara", "gripper", "tray", "workspace", "motion", "configuration",
+         "camera", "can"),
+    "scara": _SCARA_KEYS, "gripper": _GRIPPER_KEYS,
+    "scara.max_velocity": JOINTS, "scara.max_acceleration": JOINTS, "scara.max_step": JOINTS,
+    "tray": ("x_mm", "y_mm"), "workspace": ("x_mm", "y_mm"),
+    "motion": ("safe_z_mm", "dropoff_mm", "home_joints"),
+    "motion.home_joints": ("j1_deg", "j2_deg", "j3_mm", "j4_deg"),
+    "configuration": ("joint_weights",), "configuration.joint_weights": JOINTS,
+    "camera": ("width_px", "height_px", "height_mm"),
+    "can": ("bitrate", "heartbeat_ms", "host_heartbeat_ms", "nodes"),
+    "can.nodes": (*JOINTS, "gripper"),
+    **{f"can.nodes.{n}": ("node_id", "unit", "counts_per_unit") for n in (*JOINTS, "gripper")},
+}
+
+
 def parse_cell(raw, source: str = "<dict>") -> Cell:
     r = _Reader(raw, source)
+    _check_keys(raw, "", source)
     if raw.get("format", FORMAT) != FORMAT:
         raise BadInput(f"cell file {source}: 'format' must be {FORMAT!r}")
     if r.num(raw, "version") != 1:
@@ -209,6 +233,18 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
             raise BadInput(f"cell file {source}: configuration.joint_weights must not all be zero")
     name = raw.get("name", Path(source).stem)
     return Cell(str(name), scara, gripper, tray, ws, motion, camera, can, weights, source=source)
+
+
+def _check_keys(d, where: str, source: str) -> None:
+    """Refuse a key the cell file does not know, in `d` and the objects below it."""
+    if not isinstance(d, dict) or where not in _KEYS:
+        return  # a wrong type is reported by the reader, with the key
+    unknown = sorted(set(d) - set(_KEYS[where]))
+    if unknown:
+        at = f"{where}." if where else ""
+        raise BadInput(f"cell file {source}: unknown key {at}{unknown[0]} (known: {', '.join(_KEYS[where])})")
+    for k, v in d.items():
+        _check_keys(v, f"{where}.{k}" if where else k, source)
 
 
 class _Reader:

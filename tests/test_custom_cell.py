@@ -1,0 +1,44 @@
+"""A cell file other than the default is honoured, and a bad one is refused (exit 2, the key named)."""
+
+import json
+
+import pytest
+from conftest import run_cli
+
+from cell.cellconfig import default_cell_path
+
+
+def cell_dict() -> dict:
+    return json.loads(default_cell_path().read_text())
+
+
+def write_cell(path, mutate):
+    d = cell_dict()
+    mutate(d)
+    path.write_text(json.dumps(d))
+    return path
+
+
+SCENE = {"units": "mm", "target": "bar",
+         "parts": [{"id": "bar", "outline": [[290, -30], [310, -30], [310, 30], [290, 30]], "z_top": 12}]}
+
+
+@pytest.fixture
+def scene(tmp_path):
+    path = tmp_path / "bar.json"
+    path.write_text(json.dumps(SCENE))
+    return path
+
+
+@pytest.mark.parametrize("mutate,key", [
+    (lambda d: d.__setitem__("configuraton", {"joint_weights": {"j1": 1, "j2": 0, "j3": 0, "j4": 0}}),
+     "configuraton"),
+    (lambda d: d["gripper"].__setitem__("pad_widht_mm", 20), "gripper.pad_widht_mm"),
+    (lambda d: d["scara"]["max_velocity"].__setitem__("j5", 10), "scara.max_velocity.j5"),
+    (lambda d: d["can"]["nodes"]["j1"].__setitem__("nodeid", 7), "can.nodes.j1.nodeid"),
+])
+def test_an_unknown_key_is_bad_input_not_ignored(tmp_path, scene, capsys, mutate, key):
+    cell = write_cell(tmp_path / "cell.json", mutate)
+    code, out, err = run_cli("grasp", scene, "--json", "--cell", cell, capsys=capsys)
+    assert code == 2 and out == ""
+    assert f"unknown key {key}" in err and "Traceback" not in err

@@ -206,6 +206,7 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
         dropoff_mm=tuple(r.vec(m, "dropoff_mm", 3, "motion")),
         home_joints={k: r.num(home, k, "motion.home_joints") for k in ("j1_deg", "j2_deg", "j3_mm", "j4_deg")},
     )
+    _check_motion_within_limits(motion, scara, source)
     c = r.obj(raw, "camera")
     camera = Camera(r.count(c, "width_px", "camera"), r.count(c, "height_px", "camera"),
                     r.pos(c, "height_mm", "camera"))
@@ -233,6 +234,17 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
             raise BadInput(f"cell file {source}: configuration.joint_weights must not all be zero")
     name = raw.get("name", Path(source).stem)
     return Cell(str(name), scara, gripper, tray, ws, motion, camera, can, weights, source=source)
+
+
+def _check_motion_within_limits(motion: Motion, scara: Scara, source: str) -> None:
+    """Home and the heights the arm travels at must lie within the joint limits: the drives would
+    start outside their own software limits, or the first move of a run be refused."""
+    checks = [(f"home_joints.{k}", v, k) for k, v in motion.home_joints.items()]
+    checks += [("safe_z_mm", motion.safe_z_mm, "j3_mm"), ("dropoff_mm z", motion.dropoff_mm[2], "j3_mm")]
+    for key, v, limit in checks:
+        lo, hi = scara.limits(limit[:2])
+        if not lo <= v <= hi:
+            raise BadInput(f"cell file {source}: motion.{key} = {v:g} is outside scara.{limit} [{lo:g}, {hi:g}]")
 
 
 def _check_keys(d, where: str, source: str) -> None:

@@ -1,6 +1,7 @@
 """A cell file other than the default is honoured, and a bad one is refused (exit 2, the key named)."""
 
 import json
+import re
 
 import pytest
 from conftest import run_cli
@@ -42,3 +43,16 @@ def test_an_unknown_key_is_bad_input_not_ignored(tmp_path, scene, capsys, mutate
     code, out, err = run_cli("grasp", scene, "--json", "--cell", cell, capsys=capsys)
     assert code == 2 and out == ""
     assert f"unknown key {key}" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("mutate,match", [
+    (lambda d: d["scara"].__setitem__("j2_deg", [-60, 60]), r"motion.home_joints.j2_deg = 90 is outside scara.j2_deg"),
+    (lambda d: d["motion"].__setitem__("safe_z_mm", 250), r"motion.safe_z_mm = 250 is outside scara.j3_mm"),
+    (lambda d: d["motion"]["dropoff_mm"].__setitem__(2, -5), r"motion.dropoff_mm z = -5 is outside scara.j3_mm"),
+])
+def test_home_and_travel_heights_outside_the_joint_limits_are_bad_input(tmp_path, capsys, mutate, match):
+    # the simulated drives started at home 90 deg outside their own limits [-60, 60] and said so nowhere
+    cell = write_cell(tmp_path / "cell.json", mutate)
+    code, out, err = run_cli("hw", "status", "--json", "--cell", cell, capsys=capsys)
+    assert code == 2 and out == ""
+    assert re.search(match, err), err

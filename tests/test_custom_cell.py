@@ -56,3 +56,24 @@ def test_home_and_travel_heights_outside_the_joint_limits_are_bad_input(tmp_path
     code, out, err = run_cli("hw", "status", "--json", "--cell", cell, capsys=capsys)
     assert code == 2 and out == ""
     assert re.search(match, err), err
+
+
+def test_run_of_a_cell_with_another_camera_sees_frames_of_its_size(tmp_path, capsys):
+    # the shipped calibration is the default camera's: the run was refused (1280 x 1024 against
+    # 640 x 480) unless the caller also made a calibration for the cell's camera
+    import cv2
+
+    from cell.runtime.session import default_assembly_path
+
+    cell = write_cell(tmp_path / "cell.json", lambda d: d.__setitem__(
+        "camera", {"width_px": 640, "height_px": 480, "height_mm": 700.0}))
+    d = json.loads(default_assembly_path().read_text())
+    d["parts"], d["sequence"] = [p for p in d["parts"] if p["id"] == "nut"], ["nut"]
+    (tmp_path / "nut.json").write_text(json.dumps(d))
+    rec = tmp_path / "rec"
+    code, out, err = run_cli("run", tmp_path / "nut.json", "--cell", cell, "--record", rec, "--json", capsys=capsys)
+    assert code == 0, err
+    summary = json.loads(out.splitlines()[-1])
+    assert (summary["parts_total"], summary["parts_removed"]) == (1, 1)
+    frames = sorted((rec / "frames").glob("*.png"))
+    assert frames and cv2.imread(str(frames[0])).shape[:2] == (480, 640)

@@ -312,7 +312,7 @@ class _Reader:
         v = d.get(key)
         if not isinstance(v, list) or len(v) != n:
             self._fail(where, key, f"must be a list of {n} numbers, got {v!r}")
-        return [self.num({"_": x}, "_", f"{where}.{key}") for x in v]
+        return [self.num({f"{key}[{i}]": x}, f"{key}[{i}]", where) for i, x in enumerate(v)]
 
     def range(self, d, key, where=""):
         lo, hi = self.vec(d, key, 2, where)

@@ -77,3 +77,11 @@ def test_run_of_a_cell_with_another_camera_sees_frames_of_its_size(tmp_path, cap
     assert (summary["parts_total"], summary["parts_removed"]) == (1, 1)
     frames = sorted((rec / "frames").glob("*.png"))
     assert frames and cv2.imread(str(frames[0])).shape[:2] == (480, 640)
+
+
+def test_a_nan_inside_a_range_names_its_place(tmp_path, scene, capsys):
+    # the message said "gripper.opening_mm._ must be a finite number"
+    cell = tmp_path / "cell.json"
+    cell.write_text(default_cell_path().read_text().replace('"opening_mm": [0.0, 80.0]', '"opening_mm": [0.0, NaN]'))
+    code, out, err = run_cli("grasp", scene, "--json", "--cell", cell, capsys=capsys)
+    assert code == 2 and "gripper.opening_mm[1] must be a finite number, got nan" in err

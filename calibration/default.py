@@ -48,6 +48,25 @@ def default_cell_calibration() -> Calibration:
                        0.0, "default cell camera", report)
 
 
+VIEW_MARGIN = 1.28  # the view is this much wider than the tray: the default's 640 mm over 500 mm
+
+
+def nominal_calibration(width_px: int, height_px: int, camera_z_mm: float, tray_x_mm, tray_y_mm) -> Calibration:
+    """An ideal camera (no tilt, no distortion) looking straight down from `camera_z_mm` over the
+    centre of the tray, u along base +y as in the default, the focal length the largest that keeps
+    the tray and a margin in view: what the simulated cell uses for a cell file whose camera or
+    tray is not the default's (the shipped calibration would render another image size or miss
+    the tray)."""
+    span_x, span_y = tray_x_mm[1] - tray_x_mm[0], tray_y_mm[1] - tray_y_mm[0]
+    focal = camera_z_mm * min(width_px / (VIEW_MARGIN * span_y), height_px / (VIEW_MARGIN * span_x))
+    k = np.array([[focal, 0.0, (width_px - 1) / 2], [0.0, focal, (height_px - 1) / 2], [0.0, 0.0, 1.0]])
+    centre = (sum(tray_x_mm) / 2, sum(tray_y_mm) / 2, camera_z_mm)
+    report = {"method": "nominal", "note": "an ideal camera over the cell file's tray "
+              "(calibration.default.nominal_calibration); replace with `cell calibrate plane` on a real cell"}
+    return Calibration(width_px, height_px, k, np.zeros(5), pose_matrix(_R_DOWN, centre), None, 0.0,
+                       f"nominal {width_px} x {height_px} camera at z {camera_z_mm:g}", report)
+
+
 if __name__ == "__main__":
     from calibration.calfile import default_calibration_path, save_calibration
 

@@ -139,8 +139,32 @@ def load_cell(path: str | Path | None = None) -> Cell:
     return parse_cell(raw, source=str(path))
 
 
+# Every key a cell file may hold, per object: a misspelt key ("pad_widht_mm", "configuraton") would
+# otherwise be ignored and leave the default in place without a word.
+_SCARA_KEYS = ("l1_mm", "l2_mm", "j1_deg", "j2_deg", "j3_mm", "j4_deg", "link1_width_mm", "link2_width_mm",
+               "link1_bottom_z_mm", "link2_bottom_z_mm", "max_velocity", "max_acceleration", "max_step")
+_GRIPPER_KEYS = ("opening_mm", "pad_width_mm", "pad_thickness_mm", "pad_height_mm", "finger_length_mm",
+                 "approach_clearance_mm", "palm_length_mm", "palm_width_mm", "palm_offset_mm", "grip_force_n",
+                 "max_force_n", "speed_mm_s")
+_KEYS = {
+    "": ("format", "version", "name", "scara", "gripper", "tray", "workspace", "motion", "configuration",
+         "camera", "can"),
+    "scara": _SCARA_KEYS, "gripper": _GRIPPER_KEYS,
+    "scara.max_velocity": JOINTS, "scara.max_acceleration": JOINTS, "scara.max_step": JOINTS,
+    "tray": ("x_mm", "y_mm"), "workspace": ("x_mm", "y_mm"),
+    "motion": ("safe_z_mm", "dropoff_mm", "home_joints"),
+    "motion.home_joints": ("j1_deg", "j2_deg", "j3_mm", "j4_deg"),
+    "configuration": ("joint_weights",), "configuration.joint_weights": JOINTS,
+    "camera": ("width_px", "height_px", "height_mm"),
+    "can": ("bitrate", "heartbeat_ms", "host_heartbeat_ms", "nodes"),
+    "can.nodes": (*JOINTS, "gripper"),
+    **{f"can.nodes.{n}": ("node_id", "unit", "counts_per_unit") for n in (*JOINTS, "gripper")},
+}
+
+
 def parse_cell(raw, source: str = "<dict>") -> Cell:
     r = _Reader(raw, source)
+    _check_keys(raw, "", source)
     if raw.get("format", FORMAT) != FORMAT:
         raise BadInput(f"cell file {source}: 'format' must be {FORMAT!r}")
     if r.num(raw, "version") != 1:
@@ -182,6 +206,7 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
         dropoff_mm=tuple(r.vec(m, "dropoff_mm", 3, "motion")),
         home_joints={k: r.num(home, k, "motion.home_joints") for k in ("j1_deg", "j2_deg", "j3_mm", "j4_deg")},
     )
+    _check_motion_within_limits(motion, scara, source)
     c = r.obj(raw, "camera")
     camera = Camera(r.count(c, "width_px", "camera"), r.count(c, "height_px", "camera"),
                     r.pos(c, "height_mm", "camera"))
@@ -209,6 +234,29 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
             raise BadInput(f"cell file {source}: configuration.joint_weights must not all be zero")
     name = raw.get("name", Path(source).stem)
     return Cell(str(name), scara, gripper, tray, ws, motion, camera, can, weights, source=source)
+
+
+def _check_motion_within_limits(motion: Motion, scara: Scara, source: str) -> None:
+    """Home and the heights the arm travels at must lie within the joint limits: the drives would
+    start outside their own software limits, or the first move of a run be refused."""
+    checks = [(f"home_joints.{k}", v, k) for k, v in motion.home_joints.items()]
+    checks += [("safe_z_mm", motion.safe_z_mm, "j3_mm"), ("dropoff_mm z", motion.dropoff_mm[2], "j3_mm")]
+    for key, v, limit in checks:
+        lo, hi = scara.limits(limit[:2])
+        if not lo <= v <= hi:
+            raise BadInput(f"cell file {source}: motion.{key} = {v:g} is outside scara.{limit} [{lo:g}, {hi:g}]")
+
+
+def _check_keys(d, where: str, source: str) -> None:
+    """Refuse a key the cell file does not know, in `d` and the objects below it."""
+    if not isinstance(d, dict) or where not in _KEYS:
+        return  # a wrong type is reported by the reader, with the key
+    unknown = sorted(set(d) - set(_KEYS[where]))
+    if unknown:
+        at = f"{where}." if where else ""
+        raise BadInput(f"cell file {source}: unknown key {at}{unknown[0]} (known: {', '.join(_KEYS[where])})")
+    for k, v in d.items():
+        _check_keys(v, f"{where}.{k}" if where else k, source)
 
 
 class _Reader:
@@ -264,7 +312,7 @@ class _Reader:
         v = d.get(key)
         if not isinstance(v, list) or len(v) != n:
             self._fail(where, key, f"must be a list of {n} numbers, got {v!r}")
-        return [self.num({"_": x}, "_", f"{where}.{key}") for x in v]
+        return [self.num({f"{key}[{i}]": x}, f"{key}[{i}]", where) for i, x in enumerate(v)]
 
     def range(self, d, key, where=""):
         lo, hi = self.vec(d, key, 2, where)

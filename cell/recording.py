@@ -102,12 +102,14 @@ class RecordingWriter:
     directory : path of the recording directory.
     cell_file : the cell file used, copied as cell.json (None: the embedded default cell).
     calibration_file : the calibration used, copied as calibration.json (None: none used).
+    nominal_calibration : a calibration with no file of its own (the simulated cell's nominal camera for a
+        cell file's camera), written as calibration.json instead.
     examples_file : the teaching-example file; its path and sha256 go into the manifest.
     meta : free JSON-able information for the manifest (command line, assembly, ...).
     """
 
     def __init__(self, directory, *, cell_file=None, calibration_file=None, examples_file=None,
-                 meta: dict | None = None):
+                 meta: dict | None = None, nominal_calibration=None):
         self.dir = Path(directory)
         if (self.dir / MANIFEST).exists():
             raise BadInput(f"recording directory {self.dir} already holds a recording; choose a new name")
@@ -130,7 +132,8 @@ class RecordingWriter:
         ex = Path(examples_file) if examples_file is not None else None
         if ex is not None and not ex.is_file():
             raise BadInput(f"example file {ex} does not exist")
-        files = {"cell": "cell.json", "calibration": "calibration.json" if cal else None, "decisions": DECISIONS,
+        has_cal = cal is not None or nominal_calibration is not None
+        files = {"cell": "cell.json", "calibration": "calibration.json" if has_cal else None, "decisions": DECISIONS,
                  "frames": FRAMES_DIR, "can_log": CAN_LOG, "rrd": RRD}
         try:
             self.dir.mkdir(parents=True, exist_ok=True)
@@ -138,6 +141,10 @@ class RecordingWriter:
             shutil.copyfile(cell_src, self.dir / "cell.json")
             if cal is not None:
                 shutil.copyfile(cal, self.dir / "calibration.json")
+            elif nominal_calibration is not None:
+                from calibration.calfile import calibration_to_json
+
+                write_json_atomic(self.dir / "calibration.json", calibration_to_json(nominal_calibration))
             examples = {"path": str(ex.resolve()), "sha256": _sha256(ex)} if ex is not None else None
         except OSError as e:
             raise BadInput(f"cannot write the recording into {self.dir}: {e.strerror or e}") from None
@@ -154,7 +161,8 @@ class RecordingWriter:
             "software": {"name": "disassembly-cell", "version": __version__,
                          "python": platform.python_version()},
             "cell_source": str(Path(cell_file).resolve()) if cell_file is not None else "embedded default",
-            "calibration_source": str(Path(calibration_file).resolve()) if calibration_file else None,
+            "calibration_source": (str(Path(calibration_file).resolve()) if calibration_file
+                                   else nominal_calibration.name if nominal_calibration is not None else None),
             "examples": examples, "files": files, "counts": {"frames": 0, "decisions": 0},
             "meta": to_jsonable(meta or {}),
         }

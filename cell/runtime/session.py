@@ -145,11 +145,25 @@ def _overlap_excess(part: Part, placed: list[Part], nominal: dict[str, Part]) ->
     return excess
 
 
+def _calibration(cfg: RunConfig, cell):
+    """(file, calibration): --calibration, else the shipped one of the default camera over the default
+    tray; the simulated cell of a cell file with another camera or tray gets a nominal camera of its
+    own (file None), so the frames have the cell's size and show its tray."""
+    from calibration import default_calibration_path, load_calibration
+    from calibration.default import nominal_calibration
+    from cell.cellconfig import default_cell
+
+    default = default_cell()
+    if cfg.calibration or cfg.real_cell is not None or (cell.camera, cell.tray) == (default.camera, default.tray):
+        path = Path(cfg.calibration) if cfg.calibration else default_calibration_path()
+        return path, load_calibration(path)
+    cam = cell.camera
+    return None, nominal_calibration(cam.width_px, cam.height_px, cam.height_mm, cell.tray.x_mm, cell.tray.y_mm)
+
+
 def run_session(cfg: RunConfig) -> dict:
     """Run the disassembly in the simulated cell, or on the real one (`cfg.real_cell`); returns
     the summary (with 'status')."""
-    from calibration import default_calibration_path, load_calibration
-
     say = cfg.progress or (lambda s: None)
     assembly_path = Path(cfg.assembly) if cfg.assembly else default_assembly_path()
     assembly = load_assembly(assembly_path)
@@ -163,8 +177,7 @@ def run_session(cfg: RunConfig) -> dict:
                            f"(parts: {', '.join(sorted(ids))})")
     cell_path = cfg.cell or assembly.cell_path
     cell = load_cell(cell_path)
-    cal_path = Path(cfg.calibration) if cfg.calibration else default_calibration_path()
-    cal = load_calibration(cal_path)
+    cal_path, cal = _calibration(cfg, cell)
     if (cal.width_px, cal.height_px) != (cell.camera.width_px, cell.camera.height_px):
         from cell.errors import BadInput
 
@@ -190,7 +203,7 @@ def run_session(cfg: RunConfig) -> dict:
         from cell.runtime.replay import planner_meta
 
         recorder = RecordingWriter(cfg.record, cell_file=cell_path, calibration_file=cal_path,
-                                   examples_file=examples_path,
+                                   nominal_calibration=None if cal_path else cal, examples_file=examples_path,
                                    meta={"assembly": assembly.to_json(), "assembly_path": str(assembly_path),
                                          "seed": cfg.seed, "shift_mm": cfg.shift_mm,
                                          "on_no_grasp": cfg.on_no_grasp,

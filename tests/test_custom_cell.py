@@ -1,0 +1,87 @@
+"""A cell file other than the default is honoured, and a bad one is refused (exit 2, the key named)."""
+
+import json
+import re
+
+import pytest
+from conftest import run_cli
+
+from cell.cellconfig import default_cell_path
+
+
+def cell_dict() -> dict:
+    return json.loads(default_cell_path().read_text())
+
+
+def write_cell(path, mutate):
+    d = cell_dict()
+    mutate(d)
+    path.write_text(json.dumps(d))
+    return path
+
+
+SCENE = {"units": "mm", "target": "bar",
+         "parts": [{"id": "bar", "outline": [[290, -30], [310, -30], [310, 30], [290, 30]], "z_top": 12}]}
+
+
+@pytest.fixture
+def scene(tmp_path):
+    path = tmp_path / "bar.json"
+    path.write_text(json.dumps(SCENE))
+    return path
+
+
+@pytest.mark.parametrize("mutate,key", [
+    (lambda d: d.__setitem__("configuraton", {"joint_weights": {"j1": 1, "j2": 0, "j3": 0, "j4": 0}}),
+     "configuraton"),
+    (lambda d: d["gripper"].__setitem__("pad_widht_mm", 20), "gripper.pad_widht_mm"),
+    (lambda d: d["scara"]["max_velocity"].__setitem__("j5", 10), "scara.max_velocity.j5"),
+    (lambda d: d["can"]["nodes"]["j1"].__setitem__("nodeid", 7), "can.nodes.j1.nodeid"),
+])
+def test_an_unknown_key_is_bad_input_not_ignored(tmp_path, scene, capsys, mutate, key):
+    cell = write_cell(tmp_path / "cell.json", mutate)
+    code, out, err = run_cli("grasp", scene, "--json", "--cell", cell, capsys=capsys)
+    assert code == 2 and out == ""
+    assert f"unknown key {key}" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("mutate,match", [
+    (lambda d: d["scara"].__setitem__("j2_deg", [-60, 60]), r"motion.home_joints.j2_deg = 90 is outside scara.j2_deg"),
+    (lambda d: d["motion"].__setitem__("safe_z_mm", 250), r"motion.safe_z_mm = 250 is outside scara.j3_mm"),
+    (lambda d: d["motion"]["dropoff_mm"].__setitem__(2, -5), r"motion.dropoff_mm z = -5 is outside scara.j3_mm"),
+])
+def test_home_and_travel_heights_outside_the_joint_limits_are_bad_input(tmp_path, capsys, mutate, match):
+    # the simulated drives started at home 90 deg outside their own limits [-60, 60] and said so nowhere
+    cell = write_cell(tmp_path / "cell.json", mutate)
+    code, out, err = run_cli("hw", "status", "--json", "--cell", cell, capsys=capsys)
+    assert code == 2 and out == ""
+    assert re.search(match, err), err
+
+
+def test_run_of_a_cell_with_another_camera_sees_frames_of_its_size(tmp_path, capsys):
+    # the shipped calibration is the default camera's: the run was refused (1280 x 1024 against
+    # 640 x 480) unless the caller also made a calibration for the cell's camera
+    import cv2
+
+    from cell.runtime.session import default_assembly_path
+
+    cell = write_cell(tmp_path / "cell.json", lambda d: d.__setitem__(
+        "camera", {"width_px": 640, "height_px": 480, "height_mm": 700.0}))
+    d = json.loads(default_assembly_path().read_text())
+    d["parts"], d["sequence"] = [p for p in d["parts"] if p["id"] == "nut"], ["nut"]
+    (tmp_path / "nut.json").write_text(json.dumps(d))
+    rec = tmp_path / "rec"
+    code, out, err = run_cli("run", tmp_path / "nut.json", "--cell", cell, "--record", rec, "--json", capsys=capsys)
+    assert code == 0, err
+    summary = json.loads(out.splitlines()[-1])
+    assert (summary["parts_total"], summary["parts_removed"]) == (1, 1)
+    frames = sorted((rec / "frames").glob("*.png"))
+    assert frames and cv2.imread(str(frames[0])).shape[:2] == (480, 640)
+
+
+def test_a_nan_inside_a_range_names_its_place(tmp_path, scene, capsys):
+    # the message said "gripper.opening_mm._ must be a finite number"
+    cell = tmp_path / "cell.json"
+    cell.write_text(default_cell_path().read_text().replace('"opening_mm": [0.0, 80.0]', '"opening_mm": [0.0, NaN]'))
+    code, out, err = run_cli("grasp", scene, "--json", "--cell", cell, capsys=capsys)
+    assert code == 2 and "gripper.opening_mm[1] must be a finite number, got nan" in err

@@ -247,11 +247,19 @@ def _check_motion_within_limits(motion: Motion, scara: Scara, source: str) -> No
             raise BadInput(f"cell file {source}: motion.{key} = {v:g} is outside scara.{limit} [{lo:g}, {hi:g}]")
 
 
+NOTE_KEYS = ("comment", "description", "notes")  # free text anywhere, as are keys starting with "_"
+
+
+def _is_note(key) -> bool:
+    """A key for people, not the cell (JSON has no comments): allowed in every object."""
+    return isinstance(key, str) and (key.startswith("_") or key in NOTE_KEYS)
+
+
 def _check_keys(d, where: str, source: str) -> None:
     """Refuse a key the cell file does not know, in `d` and the objects below it."""
     if not isinstance(d, dict) or where not in _KEYS:
         return  # a wrong type is reported by the reader, with the key
-    unknown = sorted(set(d) - set(_KEYS[where]))
+    unknown = sorted(k for k in set(d) - set(_KEYS[where]) if not _is_note(k))
     if unknown:
         at = f"{where}." if where else ""
         raise BadInput(f"cell file {source}: unknown key {at}{unknown[0]} (known: {', '.join(_KEYS[where])})")

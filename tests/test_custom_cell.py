@@ -45,6 +45,17 @@ def test_an_unknown_key_is_bad_input_not_ignored(tmp_path, scene, capsys, mutate
     assert f"unknown key {key}" in err and "Traceback" not in err
 
 
+def test_notes_for_people_are_allowed_in_a_cell_file(tmp_path, scene, capsys):
+    def annotate(d):
+        d["description"] = "cell 2, line B"
+        d["scara"]["_comment"] = "links measured 2026-11-30"
+        d["gripper"]["notes"] = "soft pads"
+
+    code, out, err = run_cli("grasp", scene, "--json", "--cell", write_cell(tmp_path / "cell.json", annotate),
+                             capsys=capsys)
+    assert code == 0, err
+
+
 @pytest.mark.parametrize("mutate,match", [
     (lambda d: d["scara"].__setitem__("j2_deg", [-60, 60]), r"motion.home_joints.j2_deg = 90 is outside scara.j2_deg"),
     (lambda d: d["motion"].__setitem__("safe_z_mm", 250), r"motion.safe_z_mm = 250 is outside scara.j3_mm"),

@@ -83,9 +83,11 @@ def test_a_grasp_taught_mid_run_is_recorded_and_replays(tmp_path, capsys):
     taught = _post(url, TOKEN, "/api/teach", {"part": "washer", "p1_px": p1.tolist(), "p2_px": p2.tolist()})["result"]
     seq = _state(url)["control"]["seq"]
     _post(url, TOKEN, "/api/reject", {"reason": "not there"})
+    states = set()
     while t.is_alive():  # approve every proposal from here on (the station closes with the run)
         try:
             s = _state(url)
+            states.add(s["control"]["state"])
             if s["control"]["state"] == "awaiting_approval" and s["control"]["seq"] != seq:
                 seq = s["control"]["seq"]
                 _post(url, TOKEN, "/api/approve", {})
@@ -94,6 +96,7 @@ def test_a_grasp_taught_mid_run_is_recorded_and_replays(tmp_path, capsys):
         time.sleep(0.05)
     t.join(T)
     assert result["summary"]["status"] == "complete", result
+    assert "done" in states  # the station answered long enough after the run for the page to show it
     code, out, err = run_cli("replay", rec, capsys=capsys)
     assert code == 0 and "decisions match" in out, err
     decisions = RecordingReader(rec).decisions

@@ -243,3 +243,18 @@ def test_the_whole_frame_and_the_approve_button_fit_the_window(browser, station,
     assert view["bottom"] <= inner_h and approve["bottom"] <= inner_h, (view, approve, inner_h)
     assert view["width"] > 0.4 * inner_w  # and still large
     assert d.execute_script("return document.documentElement.scrollWidth") <= inner_w
+
+
+def test_a_run_that_ended_before_the_station_closed_says_how_it_ended(browser, station):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, cell, _ = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.05)
+    d.get(server.url)
+    control.stop("end of shift")
+    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "stopped")
+    server.close()
+    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "offline")
+    assert "the run is stopped and the cell closed the station" in d.find_element(By.ID, "message").text

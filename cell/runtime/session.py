@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import threading
+import time
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -25,6 +26,7 @@ from cell.runtime.simworld import SimWorld, WorldFaults
 from cell.scene import Assembly, Part, load_assembly
 
 EXAMPLES_AT_START = "examples_at_start.jsonl"
+STATION_LINGER_S = 2.0  # the station answers this long after the run ends: the page shows how it ended
 OVERLAP_SLACK_MM2 = 0.5  # displaced parts may overlap this much more than designed (rasterising, rounding)
 
 
@@ -357,6 +359,8 @@ def _with_station(loop: CellLoop, control: RunControl, cfg: RunConfig, say) -> d
         try:
             while t.is_alive():
                 t.join(0.2)
+            if "summary" in result:  # done: the page polls a few more times and shows it
+                time.sleep(STATION_LINGER_S)
         except KeyboardInterrupt:
             control.stop("interrupted at the terminal")
             loop.arm.stop()  # a pick in progress ends now, not when it is done

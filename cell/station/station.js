@@ -83,7 +83,10 @@ function offline() {
   const badge = $("state");
   badge.textContent = "offline";
   badge.className = "badge state-offline";
-  $("message").textContent = "the cell does not answer (the run may have ended: see the cell's terminal)";
+  const ended = last && last.control && ["done", "stopped"].includes(last.control.state);
+  $("message").textContent = ended
+    ? "the run is " + last.control.state + " and the cell closed the station (the summary is in the cell's terminal)"
+    : "the cell does not answer (the run may have ended: see the cell's terminal)";
   for (const b of document.querySelectorAll(".panel button:not(#btn-token)")) b.disabled = true;
   $("approve-each").disabled = true;
   teach = null;

@@ -51,7 +51,8 @@ class LoopBackend:
 
     def teach(self, part_id: str, p1_px, p2_px) -> dict:
         lp = self.loop
-        part = lp.state.seen.get(part_id)
+        seen = dict(lp.state.seen)  # one frame's parts: the loop may move on to the next meanwhile
+        part = seen.get(part_id)
         if part is None:
             raise BadInput(f"part {part_id!r} is not in the current frame")
         px = np.array([p1_px, p2_px], float)
@@ -69,7 +70,7 @@ class LoopBackend:
         z = grasp_z_mm(part.z_bottom_mm, part.z_top_mm, lp.cell.gripper)
         centre = contacts.mean(axis=0)
         axis = float(np.degrees(np.arctan2(d[1], d[0])))
-        others = tuple(p for p in lp.state.seen.values() if p.id != part_id)
+        others = tuple(p for p in seen.values() if p.id != part_id)
         joints = choose_configuration(inverse(centre[0], centre[1], z, axis, lp.cell.scara), lp.examples, lp.cell,
                                       (part, *others))
         now = datetime.now(UTC)

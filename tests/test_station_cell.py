@@ -100,13 +100,13 @@ def test_operator_runs_rejects_teaches_and_approves_over_http(live):
     code, png = call(server, "/api/frame.png")
     assert code == 200 and png[:4] == b"\x89PNG"
 
-    # teach a grasp across the nut: a valid example with a configuration, model rebuilt
+    # teach a grasp across the nut: a valid example with a configuration, saved at once, learned at the next plan
     p1, p2 = across(loop.state.seen["nut"], loop.cal)
     code, r = call(server, "/api/teach", {"part": "nut", "p1_px": p1.tolist(), "p2_px": p2.tolist()})
     assert code == 200, r
     taught = load_examples(examples)[-1]
     assert taught.valid and taught.source["kind"] == "station-teach" and taught.joints is not None
-    assert taught.part.id == "nut" and len(loop.examples) == n0 + 1
+    assert taught.part.id == "nut" and r["result"]["n_examples"] == n0 + 1 and len(loop.examples) == n0
     code, r = call(server, "/api/teach", {"part": "washer", "p1_px": [5, 5], "p2_px": [9, 9]})
     assert code == 400 and "outline" in r["error"]
 
@@ -126,7 +126,8 @@ def test_operator_runs_rejects_teaches_and_approves_over_http(live):
     assert control.state == AWAITING_APPROVAL, control.snapshot()["fault"]
     rejected = load_examples(examples)[-1]
     assert not rejected.valid and rejected.source["note"] == "pads on the threads"
-    assert rejected.part.id == "washer" and len(loop.examples) == n0 + 2
+    assert rejected.part.id == "washer" and len(loop.examples) == n0 + 2  # the reject, then the taught one
+    assert [e.id for e in loop.examples[-2:]] == [rejected.id, taught.id]
     second = np.array(control.snapshot()["proposal"]["contacts"])
     assert min(np.abs(second - first).max(), np.abs(second[::-1] - first).max()) > 6.0
 

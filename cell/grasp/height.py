@@ -12,9 +12,17 @@ from cell.cellconfig import Gripper
 TIP_ABOVE_BOTTOM_MM = 1.0
 PAD_ABOVE_TOP_MM = 2.0
 TIP_BELOW_TOP_MM = 2.0  # CONTRACT: grasp z <= z_top - 2; a part less tall than this has no grasp z
+PRINTED_DECIMALS = 4  # grasp z and J3 as `cell grasp --json` prints them (cell.grasp.synthesis)
 
 
 def grasp_z_mm(z_bottom_mm: float, z_top_mm: float, gripper: Gripper) -> float:
     z = max(z_bottom_mm + TIP_ABOVE_BOTTOM_MM, z_top_mm - gripper.pad_height_mm + PAD_ABOVE_TOP_MM)
-    z = min(z, z_top_mm - TIP_BELOW_TOP_MM)
+    z = min(z, _printed_at_most(z_top_mm - TIP_BELOW_TOP_MM))
     return max(z, z_bottom_mm)
+
+
+def _printed_at_most(limit_mm: float) -> float:
+    """The limit itself when it prints exactly, else the printed value just below it: a 2-3 mm
+    tall part is held at z_top - 2, and rounded up (0.324575 -> 0.3246) that was above it."""
+    q = round(limit_mm, PRINTED_DECIMALS)
+    return q if q <= limit_mm else q - 10.0 ** -PRINTED_DECIMALS

@@ -28,7 +28,7 @@ from cell.grasp.height import TIP_BELOW_TOP_MM, grasp_z_mm
 from cell.grasp.learning import LearnedModel, fit_model, nearest_example
 from cell.grasp.outline import part_rings
 from cell.grasp.params import SynthesisParams
-from cell.kinematics import Joints
+from cell.kinematics import Joints, normalize_axis_deg
 from cell.scene import Scene
 
 
@@ -50,7 +50,7 @@ class Grasp:
 
     def to_json(self) -> dict:
         d = {"target": self.target, "contacts": np.round(self.contacts_mm, 4).tolist(),
-             "center": np.round(self.center_mm, 4).tolist(), "angle_deg": round(float(self.axis_deg), 4),
+             "center": np.round(self.center_mm, 4).tolist(), "angle_deg": _printed_axis_deg(self.axis_deg),
              "opening_mm": round(float(self.opening_mm), 4), "grasp_z_mm": round(float(self.grasp_z_mm), 4),
              "joints": self.joints.rounded().as_dict() if self.joints else None,
              "normals": np.round(self.normals, 4).tolist(),
@@ -58,6 +58,11 @@ class Grasp:
              "distance_to_example": round(float(self.distance_to_example), 4),
              "nearest_example": self.nearest_example}
         return d
+
+
+def _printed_axis_deg(axis_deg: float) -> float:
+    # folded again after rounding: -89.99996 rounds to -90.0, outside CONTRACT's (-90, 90]
+    return normalize_axis_deg(round(float(axis_deg), 4))
 
 
 def choose_joints(grasp: Grasp, examples: list[GraspExample], cell: Cell, scene: Scene) -> Joints | None:

@@ -96,3 +96,18 @@ def test_a_nan_inside_a_range_names_its_place(tmp_path, scene, capsys):
     cell.write_text(default_cell_path().read_text().replace('"opening_mm": [0.0, 80.0]', '"opening_mm": [0.0, NaN]'))
     code, out, err = run_cli("grasp", scene, "--json", "--cell", cell, capsys=capsys)
     assert code == 2 and "gripper.opening_mm[1] must be a finite number, got nan" in err
+
+
+@pytest.mark.parametrize("l1_l2,dropoff,says", [
+    ((250, 200), None, "outside the arm's reach"),  # the default drop-off, shorter links
+    ((325, 275), [650.0, 0.0, 100.0], "outside the arm's reach"),
+])
+def test_a_dropoff_out_of_reach_is_bad_input_before_anything_moves(tmp_path, capsys, l1_l2, dropoff, says):
+    def mutate(d):
+        d["scara"]["l1_mm"], d["scara"]["l2_mm"] = l1_l2
+        if dropoff is not None:
+            d["motion"]["dropoff_mm"] = dropoff
+
+    cell = write_cell(tmp_path / "cell.json", mutate)
+    code, out, err = run_cli("run", "--json", "--cell", cell, capsys=capsys)
+    assert code == 2 and "motion.dropoff_mm" in err and says in err and "Traceback" not in err, err

@@ -179,6 +179,7 @@ def run_session(cfg: RunConfig) -> dict:
                            f"(parts: {', '.join(sorted(ids))})")
     cell_path = cfg.cell or assembly.cell_path
     cell = load_cell(cell_path)
+    _require_dropoff_reachable(cell, cell_path)
     cal_path, cal = _calibration(cfg, cell)
     if (cal.width_px, cal.height_px) != (cell.camera.width_px, cell.camera.height_px):
         from cell.errors import BadInput
@@ -284,6 +285,22 @@ def run_session(cfg: RunConfig) -> dict:
             if recorder is not None:
                 recorder.close("complete" if status == "complete" else "incomplete", summary)
     return summary
+
+
+def _require_dropoff_reachable(cell, cell_path) -> None:
+    """A drop-off the arm cannot reach is a bad cell file, found before anything moves (it used to
+    end the run after the first grip, with exit 1)."""
+    from cell.kinematics import inverse
+
+    x, y, z = cell.motion.dropoff_mm
+    if not inverse(x, y, z, 0.0, cell.scara):
+        from cell.errors import BadInput
+
+        r = float(np.hypot(x, y))
+        lo, hi = cell.scara.reach_mm
+        why = (f"{r:.1f} mm from the base, outside the arm's reach {lo:.1f}-{hi:.1f} mm" if not lo <= r <= hi
+               else "not reachable within the joint limits")
+        raise BadInput(f"cell file {cell_path or '(default)'}: motion.dropoff_mm {[x, y, z]} is {why}")
 
 
 def _check_rrd_path(path: Path) -> None:

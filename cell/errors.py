@@ -27,7 +27,8 @@ class NoFeasibleGrasp(CellError):
 
     exit_code = 3
 
-    def __init__(self, reason: str, counts: dict | None = None):
+    def __init__(self, reason: str, counts: dict | None = None, partial: dict | None = None):
         super().__init__(reason)
         self.reason = reason
         self.counts = counts or {}
+        self.partial = partial or {}  # what the steps made before none was left (for --explain)

@@ -249,3 +249,21 @@ def test_a_part_narrower_than_the_smallest_opening_says_so(tmp_path, examples, c
     r = json.loads(out)
     assert code == 3 and r["error"] == "no_feasible_grasp", r
     assert "narrower than the gripper's smallest opening" in r["reason"] and "20 mm" in r["reason"]
+
+
+def test_explain_says_why_there_is_no_grasp(tmp_path, examples, capsys):
+    # a box boxed in by a wall taller than the palm's bottom on each long side: the pairs across
+    # it get through the cheap stages and stop where the fingers meet the walls
+    box = shapes.rectangle("box", 50, 30, (330, 0), 0)
+    walls = [shapes.rectangle(f"w{k}", 70, 6, (330, s * 19.0), 0, z_top_mm=80) for k, s in enumerate((-1, 1))]
+    path = write_scene(tmp_path / "boxed.json", [box, *walls], "box")
+    code, out, err = run_cli("grasp", path, "--examples", examples, "--explain", "--json", capsys=capsys)
+    d = json.loads(out)
+    assert code == 3 and d["error"] == "no_feasible_grasp"
+    stopped = [line for line in d["explain"] if line.startswith("rejected pair")]
+    assert stopped and all("stage (" in line and "pairs stopped here" in line for line in stopped)
+    # one line per stage that stopped pairs, with how many: together every pair of valid points
+    total = sum(int(line.rsplit("; ", 1)[1].split()[0]) for line in stopped)
+    assert total == d["counts"]["pairs"]
+    code, text, _ = run_cli("grasp", path, "--examples", examples, "--explain", capsys=capsys)
+    assert code == 3 and "  rejected pair" in text

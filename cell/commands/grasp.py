@@ -72,7 +72,7 @@ def run(args) -> int:
                        "counts": {k: v for k, v in e.counts.items() if k != "time_ms"},
                        "time_ms": e.counts.get("time_ms")}
                 code = 3
-                _emit(out, path, many, args, None, planner)
+                _emit(out, path, many, args, None, planner, e.partial)
                 continue
             _emit(result.to_json(), path, many, args, result, planner)
         except BadInput as e:
@@ -87,22 +87,23 @@ def run(args) -> int:
     return code
 
 
-def _emit(obj, path, many, args, result, planner):
+def _emit(obj, path, many, args, result, planner, partial=None):
+    """Print one scene's outcome; with --explain, why (for a grasp, or for none: `partial`)."""
     if many:
         obj = {"scene": Path(path).name, **obj}
-    if args.json:
-        if args.explain and result is not None:
-            from cell.grasp.explain import explain
+    lines = None
+    if args.explain:
+        from cell.grasp.explain import explain, explain_failure
 
-            obj["explain"] = explain(result, planner)
+        lines = explain(result, planner) if result is not None else explain_failure(partial or {}, planner)
+    if args.json:
+        if lines is not None:
+            obj["explain"] = lines
         print(json.dumps(obj), flush=True)
         return
     print(summary(obj, path))
-    if args.explain and result is not None:
-        from cell.grasp.explain import explain
-
-        for line in explain(result, planner):
-            print("  " + line)
+    for line in lines or ():
+        print("  " + line)
 
 
 def summary(obj, path) -> str:

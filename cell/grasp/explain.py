@@ -19,7 +19,7 @@ STAGE_WHY = {
 
 
 def explain(result, planner, n_samples: int = 3, seed: int = 0) -> list[str]:
-    rng = np.random.default_rng(seed)
+    """The chosen grasp's rules, then a sample of what each step rejected."""
     pt, st = planner.model.point_tree, planner.model.set_tree
     g = result.grasp
     vidx = np.flatnonzero(result.point_valid)
@@ -30,24 +30,45 @@ def explain(result, planner, n_samples: int = 3, seed: int = 0) -> list[str]:
     lines.append(f"chosen set: tree 2 {st.rule_for(g.global_attributes)}")
     lines.append(f"chosen set: nearest accepted example {g.nearest_example} at distance "
                  f"{g.distance_to_example:.3f} (normalised global attributes)")
-    if result.outline is not None and not result.free.all():
-        blocked = np.flatnonzero(~result.free)
+    made = {k: getattr(result, k) for k in ("outline", "free", "candidates", "candidate_attributes", "point_valid",
+                                            "pairs", "cascade", "reachable_pairs", "reachable_attributes",
+                                            "set_valid")}
+    return lines + rejections(made, planner, n_samples, seed)
+
+
+def explain_failure(partial: dict, planner, n_samples: int = 3, seed: int = 0) -> list[str]:
+    """No grasp: a sample of what each step that ran rejected (`NoFeasibleGrasp.partial`)."""
+    return rejections(partial, planner, n_samples, seed)
+
+
+def rejections(made: dict, planner, n_samples: int = 3, seed: int = 0) -> list[str]:
+    """A sample of the outline that is not free, the points tree 1 rejects, one pair per cascade
+    stage that stopped some, and the sets tree 2 rejects, as far as the steps in `made` ran."""
+    rng = np.random.default_rng(seed)
+    pt, st = planner.model.point_tree, planner.model.set_tree
+    lines = []
+    outline, free = made.get("outline"), made.get("free")
+    if outline is not None and free is not None and not free.all():
+        blocked = np.flatnonzero(~free)
         i = int(rng.choice(blocked))
-        lines.append(f"not a candidate: {int((~result.free).sum())} outline points within "
+        lines.append(f"not a candidate: {len(blocked)} outline points within "
                      f"{planner.params.free_gap_mm:g} mm of another part, e.g. "
-                     f"{np.round(result.outline.points[i], 2).tolist()} (contact is not free area)")
-    bad = np.flatnonzero(~result.point_valid)
-    for i in rng.choice(bad, size=min(n_samples, len(bad)), replace=False) if len(bad) else []:
-        lines.append(f"rejected point {np.round(result.candidates.points[i], 2).tolist()}: tree 1 "
-                     f"{pt.rule_for(result.candidate_attributes[i])}")
-    P, rb = result.pairs, result.cascade.rejected_by
-    for s, name in enumerate(STAGES):
-        idx = np.flatnonzero(rb == s)
-        for k in rng.choice(idx, size=min(1, len(idx)), replace=False) if len(idx) else []:
-            lines.append(f"rejected pair {np.round(P.pi[k], 1).tolist()} - {np.round(P.pj[k], 1).tolist()}: "
-                         f"{name} stage ({STAGE_WHY[name]}); {len(idx)} pairs stopped here")
-    badsets = np.flatnonzero(~result.set_valid)
-    for q in rng.choice(badsets, size=min(n_samples, len(badsets)), replace=False) if len(badsets) else []:
-        c = result.reachable_pairs[q]
-        lines.append(f"rejected set {np.round(c, 1).tolist()}: tree 2 {st.rule_for(result.reachable_attributes[q])}")
+                     f"{np.round(outline.points[i], 2).tolist()} (contact is not free area)")
+    if made.get("point_valid") is not None:
+        bad = np.flatnonzero(~made["point_valid"])
+        for i in rng.choice(bad, size=min(n_samples, len(bad)), replace=False) if len(bad) else []:
+            lines.append(f"rejected point {np.round(made['candidates'].points[i], 2).tolist()}: tree 1 "
+                         f"{pt.rule_for(made['candidate_attributes'][i])}")
+    if made.get("cascade") is not None:
+        P, rb = made["pairs"], made["cascade"].rejected_by
+        for s, name in enumerate(STAGES):
+            idx = np.flatnonzero(rb == s)
+            for k in rng.choice(idx, size=min(1, len(idx)), replace=False) if len(idx) else []:
+                lines.append(f"rejected pair {np.round(P.pi[k], 1).tolist()} - {np.round(P.pj[k], 1).tolist()}: "
+                             f"{name} stage ({STAGE_WHY[name]}); {len(idx)} pairs stopped here")
+    if made.get("set_valid") is not None:
+        badsets = np.flatnonzero(~made["set_valid"])
+        for q in rng.choice(badsets, size=min(n_samples, len(badsets)), replace=False) if len(badsets) else []:
+            c = made["reachable_pairs"][q]
+            lines.append(f"rejected set {np.round(c, 1).tolist()}: tree 2 {st.rule_for(made['reachable_attributes'][q])}")
     return lines

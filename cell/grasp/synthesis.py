@@ -139,10 +139,11 @@ class GraspPlanner:
         obstacles = scene.obstacles
         counts = {k: 0 for k in ("candidates", "valid_points", "pairs", "reachable", "valid_sets")}
         times = {}
+        partial: dict = {}  # what the steps made so far: `cell grasp --explain` says why none was left
 
         def fail(reason):
             counts["time_ms"] = round((time.perf_counter() - t_start) * 1e3, 3)
-            raise NoFeasibleGrasp(reason, counts)
+            raise NoFeasibleGrasp(reason, counts, partial)
 
         gz = grasp_z_mm(target.z_bottom_mm, target.z_top_mm, cell.gripper)
         if gz > target.z_top_mm - TIP_BELOW_TOP_MM + 1e-9:  # CONTRACT: z_bottom <= grasp z <= z_top - 2
@@ -157,6 +158,7 @@ class GraspPlanner:
         counts["outline_points"] = len(op_all)
         counts["candidates"] = len(cand)
         times["candidates"] = (time.perf_counter() - t0) * 1e3
+        partial.update(outline=op_all, free=free, candidates=cand)
         if len(cand) == 0:
             fail(f"no free outline: every outline point is within {p.free_gap_mm:g} mm of another part")
 
@@ -166,6 +168,7 @@ class GraspPlanner:
         vp = cand.subset(point_valid)
         counts["valid_points"] = len(vp)
         times["valid_points"] = (time.perf_counter() - t0) * 1e3
+        partial.update(candidate_attributes=L, point_valid=point_valid)
         if len(vp) < p.n_contacts:
             fail(f"tree 1 keeps {len(vp)} of {len(cand)} candidate points: fewer than {p.n_contacts} valid "
                  "contact points")
@@ -180,6 +183,7 @@ class GraspPlanner:
         counts["reachable"] = len(cr.survivors)
         counts["exact_checks"] = cr.exact_checks
         times["cascade"] = (time.perf_counter() - t0) * 1e3
+        partial.update(pairs=P, cascade=cr)
         if len(cr.survivors) == 0:
             fail(self._empty_stage_reason(cr, ctx, P))
 
@@ -191,6 +195,7 @@ class GraspPlanner:
         set_valid = self.model.set_tree.predict(G)
         counts["valid_sets"] = int(set_valid.sum())
         times["valid_sets"] = (time.perf_counter() - t0) * 1e3
+        partial.update(reachable_pairs=contacts, reachable_attributes=G, set_valid=set_valid)
         if not set_valid.any():
             fail(f"tree 2 rejects all {len(k)} reachable contact sets")
 

@@ -47,7 +47,10 @@ class PlannerCache:
 
         key = str(Path(cell_path).resolve()) if cell_path else None
         if key not in self._by_cell:
+            from cell.heap import freeze_startup
+
             self._by_cell[key] = GraspPlanner(load_cell(cell_path), self.examples, self.params)
+            freeze_startup()  # no full collection of the start-up objects inside a scene's time_ms
         return self._by_cell[key]
 
 

@@ -250,6 +250,9 @@ def run_session(cfg: RunConfig) -> dict:
                         examples_path=examples_path, examples_out=examples_out, sink=recorder, viz=viz,
                         options=LoopOptions(on_no_grasp=cfg.on_no_grasp, interactive=cfg.station))
         _progress(control, say)
+        from cell.heap import freeze_startup
+
+        freeze_startup()  # full collections of the start-up objects would stall plans and picks
         try:
             if cfg.station:
                 loop.home_first = home_joints(cell)  # nothing moves before the operator presses Run

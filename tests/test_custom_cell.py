@@ -111,3 +111,19 @@ def test_a_dropoff_out_of_reach_is_bad_input_before_anything_moves(tmp_path, cap
     cell = write_cell(tmp_path / "cell.json", mutate)
     code, out, err = run_cli("run", "--json", "--cell", cell, capsys=capsys)
     assert code == 2 and "motion.dropoff_mm" in err and says in err and "Traceback" not in err, err
+
+
+def test_an_assembly_out_of_the_cameras_view_is_bad_input_before_anything_moves(tmp_path, capsys):
+    # the default camera sees x from about 94 to 606 mm on the table: a pulley at x 620-660 is out
+    # of its view (the run used to stop at it with "pulley is not found", exit 1)
+    from importlib import resources
+
+    d = json.loads((resources.files("cell") / "data" / "assemblies" / "default.json").read_text())
+    d.pop("cell", None)
+    pulley = next(p for p in d["parts"] if p["id"] == "pulley")
+    pulley["outline"] = [[x + 219.0, y] for x, y in pulley["outline"]]
+    pulley["holes"] = [[[x + 219.0, y] for x, y in h] for h in pulley.get("holes", [])]
+    path = tmp_path / "far.json"
+    path.write_text(json.dumps(d))
+    code, out, err = run_cli("run", path, "--json", capsys=capsys)
+    assert code == 2 and "'pulley'" in err and "not all in the camera's view" in err and "Traceback" not in err, err

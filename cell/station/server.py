@@ -59,8 +59,9 @@ class StationBackend(Protocol):
          "examples": {"path": str, "count": int}, ...free keys shown as they are}
     frame_png() -> bytes | None: the current frame as PNG.
     teach(part_id, p1_px, p2_px) -> dict: make a valid example from two contact points in px
-        (map to mm, snap to the outline, current configuration), append it atomically,
-        rebuild the model; raise BadInput (400) or InvalidCommand (409) to refuse.
+        (map to mm, snap to the outline, current configuration), append it atomically; the
+        planner learns it (the cell loop: at its next plan); raise BadInput (400) or
+        InvalidCommand (409) to refuse.
     stop() (optional): quick-stop the arm; called after RunControl.stop() on the page's Stop,
         so a motion under way ends at once rather than at the loop's next checkpoint.
     """

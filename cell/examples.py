@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from cell.errors import BadInput
-from cell.fileio import append_lines_atomic
+from cell.fileio import DuplicateKey, append_lines_atomic, unique_keys
 from cell.kinematics import Joints
 from cell.scene import Part, parse_part
 
@@ -159,9 +159,11 @@ def _parse_examples(text: str, path: Path, allow_empty: bool) -> list[GraspExamp
         if not line.strip():
             continue
         try:
-            raw = json.loads(line)
+            raw = json.loads(line, object_pairs_hook=unique_keys)
         except json.JSONDecodeError as e:
             raise BadInput(f"example file {path} line {lineno}: not valid JSON ({e.msg})") from None
+        except DuplicateKey as e:
+            raise BadInput(f"example file {path} line {lineno}: {e}") from None
         ex = parse_example(raw, f"example file {path} line {lineno}")
         if ex.id in seen:
             raise BadInput(f"example file {path} line {lineno}: duplicate example id {ex.id!r}")

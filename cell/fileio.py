@@ -77,6 +77,21 @@ def append_lines_atomic(path: str | os.PathLike, lines: list[str], check=None) -
         write_atomic(path, old + new)
 
 
+class DuplicateKey(ValueError):
+    """A JSON object names a key twice: json keeps the last silently (a cell file with two
+    `j1_deg` would run with whichever came last)."""
+
+
+def unique_keys(pairs: list) -> dict:
+    """`object_pairs_hook` for json.loads: the object as a dict, refusing a key given twice."""
+    out = {}
+    for k, v in pairs:
+        if k in out:
+            raise DuplicateKey(f"key {k!r} appears twice in one object")
+        out[k] = v
+    return out
+
+
 def read_json(path: str | os.PathLike, what: str):
     """Parse a JSON file; `what` names the file's role in error messages ("cell file")."""
     path = Path(path)
@@ -89,9 +104,11 @@ def read_json(path: str | os.PathLike, what: str):
     except (OSError, UnicodeDecodeError) as e:
         raise BadInput(f"{what} {path} cannot be read: {e}") from None
     try:
-        return json.loads(text)
+        return json.loads(text, object_pairs_hook=unique_keys)
     except json.JSONDecodeError as e:
         raise BadInput(f"{what} {path} is not valid JSON: {e.msg} at line {e.lineno} column {e.colno}") from None
+    except DuplicateKey as e:
+        raise BadInput(f"{what} {path}: {e}") from None
     except RecursionError:  # json's decoder recurses per nesting level: [[[[...]]]] 100000 deep
         raise BadInput(f"{what} {path} is not valid JSON: nested too deeply") from None
 

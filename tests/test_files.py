@@ -251,3 +251,26 @@ def test_files_starting_with_a_utf8_bom_are_read(tmp_path):
     assert [e.id for e in load_examples(ex)] == ["a"]
     append_examples(ex, [_example("b")])  # and appended to
     assert [e.id for e in load_examples(ex)] == ["a", "b"]
+
+
+def test_a_key_given_twice_in_one_object_is_bad_input(tmp_path, capsys):
+    # json keeps the last one silently: a cell file with two l1_mm would run with whichever came last
+    from conftest import run_cli
+
+    text = default_cell_path().read_text(encoding="utf-8")
+    cell = tmp_path / "cell.json"
+    cell.write_text(text.replace('"l1_mm": 325', '"l1_mm": 325, "l1_mm": 100', 1), encoding="utf-8")
+    assert '"l1_mm": 100' in cell.read_text()
+    with pytest.raises(BadInput, match="key 'l1_mm' appears twice"):
+        load_cell(cell)
+    scene = tmp_path / "scene.json"
+    scene.write_text('{"units": "mm", "target": "sq", "target": "sq", "parts": []}')
+    code, out, err = run_cli("grasp", scene, "--json", capsys=capsys)
+    assert code == 2 and "key 'target' appears twice" in err
+    ex = tmp_path / "ex.jsonl"
+    append_examples(ex, [_example("a")])
+    ex.write_text(ex.read_text().replace('"valid":true', '"valid":true,"valid":false', 1))
+    with pytest.raises(BadInput, match="line 1: key 'valid' appears twice"):
+        load_examples(ex)
+    # the same key in two different objects is fine
+    assert load_cell(default_cell_path()).scara.l1_mm == 325

@@ -208,13 +208,18 @@ def _parse_common(raw, source, base_dir):
     dup = sorted({i for i in ids if ids.count(i) > 1})
     if dup:
         raise BadInput(f"{source}: duplicate part ids: {', '.join(dup)}")
+    return parts, own_cell_path(raw, source, base_dir)
+
+
+def own_cell_path(raw: dict, source: str, base_dir: Path | None) -> str | None:
+    """A scene's or assembly's own "cell" file, relative to the file's folder `base_dir`; None: none."""
     cell_path = raw.get("cell")
     if cell_path is not None:
         if not isinstance(cell_path, str):
             raise BadInput(f"{source}: 'cell' must be a path string")
         if base_dir is not None and not Path(cell_path).is_absolute():
             cell_path = str(base_dir / cell_path)
-    return parts, cell_path
+    return cell_path
 
 
 def parse_part(raw, where: str = "part") -> Part:

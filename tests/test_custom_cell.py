@@ -127,3 +127,21 @@ def test_an_assembly_out_of_the_cameras_view_is_bad_input_before_anything_moves(
     path.write_text(json.dumps(d))
     code, out, err = run_cli("run", path, "--json", capsys=capsys)
     assert code == 2 and "'pulley'" in err and "not all in the camera's view" in err and "Traceback" not in err, err
+
+
+def test_render_follows_the_cells_camera(tmp_path, scene, capsys):
+    # a cell with a 640 x 480 camera: the frame has its size (it was always the default 1280 x 1024)
+    cell = write_cell(tmp_path / "cell.json", lambda d: d["camera"].update(width_px=640, height_px=480))
+    out = tmp_path / "frame.png"
+    code, text, err = run_cli("render", scene, "--out", out, "--cell", cell, "--no-noise", capsys=capsys)
+    assert code == 0, err
+    assert (json.loads(text)["width_px"], json.loads(text)["height_px"]) == (640, 480)
+    # and the scene's own cell file, relative to the scene
+    d = json.loads(scene.read_text())
+    d["cell"] = "cell.json"
+    own = tmp_path / "own.json"
+    own.write_text(json.dumps(d))
+    code, text, err = run_cli("render", own, "--out", out, capsys=capsys)
+    assert code == 0 and json.loads(text)["width_px"] == 640, err
+    code, text, err = run_cli("render", scene, "--out", out, capsys=capsys)
+    assert code == 0 and json.loads(text)["width_px"] == 1280

@@ -8,7 +8,9 @@ import json
 def add_arguments(p) -> None:
     p.add_argument("scene", metavar="SCENE.json", help="scene or assembly file (parts in mm)")
     p.add_argument("--out", required=True, metavar="FRAME.png", help="image file to write")
-    p.add_argument("--calibration", metavar="FILE", help="camera calibration (default: the default cell's)")
+    p.add_argument("--calibration", metavar="FILE", help="camera calibration (default: the cell's camera)")
+    p.add_argument("--cell", metavar="FILE", help="cell file (default: the scene's own, else the default cell): "
+                   "without --calibration its camera's size and tray set the view (as `cell run` does)")
     p.add_argument("--seed", type=int, default=0, help="noise and texture seed (same seed, same frame)")
     p.add_argument("--no-shadows", action="store_true")
     p.add_argument("--no-highlights", action="store_true")
@@ -19,11 +21,13 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from dataclasses import replace
+    from pathlib import Path
 
-    from calibration import load_calibration
+    from cell.cellconfig import load_cell
     from cell.errors import BadInput
+    from cell.runtime.session import camera_calibration
     from cell.fileio import read_json, write_json_atomic
-    from cell.scene import parse_part
+    from cell.scene import own_cell_path, parse_part
     from cell.vision.simcamera import SimCamera, SimCameraOptions
     from cell.vision.sources import write_image
 
@@ -31,7 +35,8 @@ def run(args) -> int:
     if not isinstance(raw, dict) or not isinstance(raw.get("parts"), list):
         raise BadInput(f"{args.scene}: expected a scene or assembly object with a 'parts' list")
     parts = [parse_part(p, f"{args.scene}: part #{i}") for i, p in enumerate(raw["parts"])]
-    cal = load_calibration(args.calibration)
+    cell_path = args.cell or own_cell_path(raw, str(args.scene), Path(args.scene).parent)
+    _, cal = camera_calibration(load_cell(cell_path), args.calibration)
     opts = SimCameraOptions(seed=args.seed)
     if args.no_shadows:
         opts = replace(opts, shadows=False)
@@ -52,3 +57,4 @@ def run(args) -> int:
     print(json.dumps({"out": str(args.out), "parts": len(parts), "width_px": frame.shape[1],
                       "height_px": frame.shape[0], "seed": args.seed}))
     return 0
+

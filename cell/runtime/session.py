@@ -149,15 +149,26 @@ def _overlap_excess(part: Part, placed: list[Part], nominal: dict[str, Part]) ->
 
 def _calibration(cfg: RunConfig, cell):
     """(file, calibration): --calibration, else the shipped one of the default camera over the default
-    tray; the simulated cell of a cell file with another camera or tray gets a nominal camera of its
-    own (file None), so the frames have the cell's size and show its tray."""
+    tray (always for the real cell); the simulated cell of a cell file with another camera or tray
+    gets a nominal camera of its own (file None), so the frames have the cell's size and show its tray."""
+    from calibration import default_calibration_path, load_calibration
+
+    if cfg.real_cell is not None and not cfg.calibration:
+        return default_calibration_path(), load_calibration(default_calibration_path())
+    return camera_calibration(cell, cfg.calibration)
+
+
+def camera_calibration(cell, path=None):
+    """(file, calibration) of the simulated camera of `cell`: `path` when given; else the shipped
+    calibration when the cell's camera and tray are the default's, else a nominal camera of the
+    cell's size and height over its tray (file None)."""
     from calibration import default_calibration_path, load_calibration
     from calibration.default import nominal_calibration
     from cell.cellconfig import default_cell
 
     default = default_cell()
-    if cfg.calibration or cfg.real_cell is not None or (cell.camera, cell.tray) == (default.camera, default.tray):
-        path = Path(cfg.calibration) if cfg.calibration else default_calibration_path()
+    if path or (cell.camera, cell.tray) == (default.camera, default.tray):
+        path = Path(path) if path else default_calibration_path()
         return path, load_calibration(path)
     cam = cell.camera
     return None, nominal_calibration(cam.width_px, cam.height_px, cam.height_mm, cell.tray.x_mm, cell.tray.y_mm)

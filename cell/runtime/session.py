@@ -320,12 +320,13 @@ def _require_parts_in_view(assembly: Assembly, cal, assembly_path) -> None:
 def _require_dropoff_reachable(cell, cell_path) -> None:
     """A drop-off the arm cannot reach is a bad cell file, found before anything moves (it used to
     end the run after the first grip, with exit 1)."""
-    from cell.kinematics import inverse
+    from cell.errors import BadInput, CellError
+    from cell.runtime.motion import dropoff_options
 
-    x, y, z = cell.motion.dropoff_mm
-    if not inverse(x, y, z, 0.0, cell.scara):
-        from cell.errors import BadInput
-
+    try:
+        dropoff_options(cell, home_joints(cell))  # the drop-off the loop will move to, solved as it will be
+    except CellError:
+        x, y, z = cell.motion.dropoff_mm
         r = float(np.hypot(x, y))
         lo, hi = cell.scara.reach_mm
         why = (f"{r:.1f} mm from the base, outside the arm's reach {lo:.1f}-{hi:.1f} mm" if not lo <= r <= hi

@@ -32,8 +32,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
-
 import numpy as np
 import shapely
 
@@ -67,6 +65,8 @@ def stage_stroke(ctx: Context, P: Pairs, idx) -> np.ndarray:
 
 
 def stage_reach(ctx: Context, P: Pairs, idx) -> np.ndarray:
+    if P.points is not None and _midpoints_surely_reachable(ctx, P.points):
+        return np.ones(len(idx), bool)
     dense = _dense(P, idx)
     m = P.m if dense else P.m.take(idx, 0)
     x, y = m[:, 0], m[:, 1]
@@ -76,6 +76,25 @@ def stage_reach(ctx: Context, P: Pairs, idx) -> np.ndarray:
     ok = ((r >= rmin - e) & (r <= rmax + e) & (x >= ws.x_mm[0] - e) & (x <= ws.x_mm[1] + e)
           & (y >= ws.y_mm[0] - e) & (y <= ws.y_mm[1] + e))
     return ok.take(idx) if dense else ok
+
+
+def _midpoints_surely_reachable(ctx: Context, points: np.ndarray) -> bool:
+    """Does every midpoint of two of the points pass the reach stage? It does when the points' bounding
+    box lies inside the workspace, every point inside the annulus's outer circle (both convex: they hold
+    the midpoints) and the box clear of its inner disc (1e-6 mm to spare for rounding): the usual case,
+    decided from the z' points instead of the s pairs."""
+    if not len(points):
+        return True
+    lo, hi = points.min(0), points.max(0)
+    ws, e, spare = ctx.cell.workspace, CHEAP_MARGIN_MM, 1e-6
+    if not (lo[0] >= ws.x_mm[0] - e + spare and hi[0] <= ws.x_mm[1] + e - spare
+            and lo[1] >= ws.y_mm[0] - e + spare and hi[1] <= ws.y_mm[1] + e - spare):
+        return False
+    rmin, rmax = ctx.cell.scara.reach_mm
+    if float(np.max(points[:, 0] ** 2 + points[:, 1] ** 2)) > (rmax + e - spare) ** 2:
+        return False
+    gap_x, gap_y = max(lo[0], -hi[0], 0.0), max(lo[1], -hi[1], 0.0)  # the box's distance from the base, by axis
+    return math.hypot(gap_x, gap_y) >= rmin - e + spare
 
 
 def stage_antipodal(ctx: Context, P: Pairs, idx) -> np.ndarray:
@@ -273,31 +292,44 @@ STAGE_FUNCS = {"stroke": stage_stroke, "reach": stage_reach, "antipodal": stage_
                "fingers_obstacles": stage_fingers_obstacles, "palm": stage_palm}
 
 
-@dataclass
 class CascadeResult:
-    survivors: np.ndarray  # pair indices that passed every stage
-    rejected_by: np.ndarray  # (s,) index into STAGES of the stage that rejected each pair, -1 if kept
-    kept: dict  # stage -> number of pairs it kept
-    exact_checks: int  # pair evaluations in the exact stages
-    time_ms: dict  # stage -> wall time
+    """survivors: pair indices that passed every stage; kept: stage -> number of pairs it kept;
+    exact_checks: pair evaluations in the exact stages; time_ms: stage -> wall time; rejected_by (s,):
+    index into STAGES of the stage that rejected each pair, -1 if kept (worked out when first read,
+    from each stage's verdicts: only `cell grasp --explain` looks at it)."""
+
+    def __init__(self, n_pairs: int, survivors: np.ndarray, verdicts: list, kept: dict, exact_checks: int,
+                 time_ms: dict):
+        self.survivors, self.kept, self.exact_checks, self.time_ms = survivors, kept, exact_checks, time_ms
+        self._n, self._verdicts, self._rejected_by = n_pairs, verdicts, None
+
+    @property
+    def rejected_by(self) -> np.ndarray:
+        if self._rejected_by is None:
+            rb = np.full(self._n, -1)
+            for stage, pairs, ok in reversed(self._verdicts):  # the first stage that rejects a pair wins
+                rb[pairs.compress(~ok)] = stage
+            self._rejected_by = rb
+        return self._rejected_by
 
 
 def run_cascade(ctx: Context, P: Pairs, stages=STAGES) -> CascadeResult:
     import time
 
     alive = np.arange(len(P))
-    rejected_by = np.full(len(P), -1)
-    kept, times, exact = {}, {}, 0
-    for name in stages:
-        t0 = time.perf_counter()
-        if name in EXACT_STAGES:
-            exact += len(alive)
-        ok = STAGE_FUNCS[name](ctx, P, alive) if len(alive) else np.zeros(0, bool)
-        rejected_by[alive[~ok]] = STAGES.index(name)
-        alive = alive[ok]
-        kept[name] = len(alive)
-        times[name] = (time.perf_counter() - t0) * 1e3
-    return CascadeResult(alive, rejected_by, kept, exact, times)
+    verdicts, kept, times, exact = [], {}, {}, 0
+    with np.errstate(divide="ignore", invalid="ignore"):  # once here: each errstate costs microseconds
+        for name in stages:
+            t0 = time.perf_counter()
+            if name in EXACT_STAGES:
+                exact += len(alive)
+            ok = STAGE_FUNCS[name](ctx, P, alive) if len(alive) else np.zeros(0, bool)
+            if not ok.all():
+                verdicts.append((STAGES.index(name), alive, ok))
+                alive = alive.compress(ok)
+            kept[name] = len(alive)
+            times[name] = (time.perf_counter() - t0) * 1e3
+    return CascadeResult(len(P), alive, verdicts, kept, exact, times)
 
 
 def run_brute_force(ctx: Context, P: Pairs) -> CascadeResult:
@@ -307,23 +339,23 @@ def run_brute_force(ctx: Context, P: Pairs) -> CascadeResult:
 
     every = np.arange(len(P))
     ok = np.ones(len(P), bool)
-    rejected_by = np.full(len(P), -1)
-    times, exact = {}, 0
-    for name in ("stroke", "reach", "antipodal", *EXACT_STAGES):
-        t0 = time.perf_counter()
-        if name in EXACT_STAGES:
-            exact += len(P)
-        if name in ("fingers_obstacles", "palm", "ik"):
-            # these need the contacts' geometry, which exists where the contacts stage found one
-            has = np.isfinite(P.center[:, 0])
-            r = np.zeros(len(P), bool)
-            r[has] = STAGE_FUNCS[name](ctx, P, every[has])
-        else:
-            r = STAGE_FUNCS[name](ctx, P, every)
-        rejected_by[(rejected_by < 0) & ~r] = STAGES.index(name)
-        ok &= r
-        times[name] = (time.perf_counter() - t0) * 1e3
-    return CascadeResult(np.flatnonzero(ok), rejected_by, {"feasible": int(ok.sum())}, exact, times)
+    verdicts, times, exact = [], {}, 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for name in ("stroke", "reach", "antipodal", *EXACT_STAGES):
+            t0 = time.perf_counter()
+            if name in EXACT_STAGES:
+                exact += len(P)
+            if name in ("fingers_obstacles", "palm", "ik"):
+                # these need the contacts' geometry, which exists where the contacts stage found one
+                has = np.isfinite(P.center[:, 0])
+                r = np.zeros(len(P), bool)
+                r[has] = STAGE_FUNCS[name](ctx, P, every[has])
+            else:
+                r = STAGE_FUNCS[name](ctx, P, every)
+            verdicts.append((STAGES.index(name), every, r))
+            ok &= r
+            times[name] = (time.perf_counter() - t0) * 1e3
+    return CascadeResult(len(P), np.flatnonzero(ok), verdicts, {"feasible": int(ok.sum())}, exact, times)
 
 
 class _Solutions(Sequence):

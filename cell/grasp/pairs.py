@@ -142,6 +142,7 @@ class Pairs:
     si: np.ndarray | None = None  # (s, 2) outline-sample index of p_i and p_j
 
     w: np.ndarray | None = None  # (s, 2) p_i - p_j, the stages reuse it
+    points: np.ndarray | None = None  # (z', 2) the valid points the pairs are made of
 
     def __post_init__(self):
         if self.w is None:
@@ -171,7 +172,7 @@ class Pairs:
         nan2 = np.full((len(i), 2), np.nan)
         si = None if sample_index is None else np.column_stack([sample_index[i], sample_index[j]])
         return cls(np.column_stack([i, j]), pi, pj, ni, nj, d, u, m, t, nan2.copy(), nan2.copy(), nan2.copy(),
-                   np.full(len(i), np.nan), si=si, w=w)
+                   np.full(len(i), np.nan), si=si, w=w, points=points)
 
     def axis_deg(self, k: int) -> float:
         return normalize_axis_deg(math.degrees(math.atan2(self.u[k, 1], self.u[k, 0])))

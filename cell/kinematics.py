@@ -132,14 +132,17 @@ def reachable_mask(x_mm, y_mm, z_mm: float, axis_deg, scara: Scara) -> np.ndarra
     inside = (c2 <= 1.0 + 1e-12) & (c2 >= -1.0 - 1e-12)
     c2 = np.clip(c2, -1.0, 1.0)
     z_ok = scara.j3_mm[0] - 1e-9 <= z_mm <= scara.j3_mm[1] + 1e-9
+    if not z_ok:
+        return np.zeros(x.shape, bool)
     ok = np.zeros(x.shape, bool)
-    for sign in (1.0, -1.0):
-        t2 = sign * np.arccos(c2)
-        j1 = (np.degrees(np.arctan2(y, x) - np.arctan2(l2 * np.sin(t2), l1 + l2 * np.cos(t2))) + 180.0) % 360.0 - 180.0
+    t = np.arccos(c2)
+    to_wrist = np.arctan2(y, x)
+    lo4, hi4 = scara.j4_deg
+    for t2 in (t, -t):  # both elbows (-t exactly, as sign * t)
+        j1 = (np.degrees(to_wrist - np.arctan2(l2 * np.sin(t2), l1 + l2 * np.cos(t2))) + 180.0) % 360.0 - 180.0
         j2 = np.degrees(t2)
         base = a - j1 - j2
-        lo4, hi4 = scara.j4_deg
         some_j4 = np.floor((hi4 - base) / 180.0 + 1e-9) >= np.ceil((lo4 - base) / 180.0 - 1e-9)
         ok |= ((j1 >= scara.j1_deg[0] - 1e-9) & (j1 <= scara.j1_deg[1] + 1e-9)
                & (j2 >= scara.j2_deg[0] - 1e-9) & (j2 <= scara.j2_deg[1] + 1e-9) & some_j4)
-    return ok & inside & z_ok
+    return ok & inside

@@ -32,6 +32,14 @@ CELL = default_cell()
 PARAMS = SynthesisParams()
 
 
+
+@pytest.fixture(autouse=True)
+def _errstate_as_in_the_cascade():
+    """Some tests call stages and band geometry directly: nan and inf are ordinary values there."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        yield
+
+
 def cascade_for(target, obstacles=()):
     """Every free outline point counts as valid here: the cascade alone decides."""
     op, free = candidate_points(target, obstacles, PARAMS)
@@ -79,6 +87,21 @@ def test_an_unreachable_centre_stops_at_the_reach_stage():
     assert cr.kept["stroke"] > 0 and cr.kept["reach"] == 0
     with pytest.raises(NoFeasibleGrasp, match="reach"):
         permissive_planner().plan(Scene((far,), "t"))
+
+
+@pytest.mark.parametrize("center, shortcut", [((350, 0), True), ((590, 0), False), ((60, 0), False),
+                                              ((300, 440), False), ((-40, 200), False)])
+def test_reach_verdicts_from_the_points_box_are_the_per_pair_ones(center, shortcut):
+    """Mid-tray every midpoint is surely reachable (decided from the points' box); a part across the
+    outer or inner circle or the workspace's side is checked pair by pair: the same verdicts."""
+    P, _, ctx = cascade_for(shapes.rectangle("t", 80, 40, center=center, angle_deg=30))
+    assert cascade._midpoints_surely_reachable(ctx, P.points) is shortcut
+    x, y = P.m[:, 0], P.m[:, 1]
+    r, (rmin, rmax), ws, e = np.hypot(x, y), CELL.scara.reach_mm, CELL.workspace, cascade.CHEAP_MARGIN_MM
+    plain = ((r >= rmin - e) & (r <= rmax + e) & (x >= ws.x_mm[0] - e) & (x <= ws.x_mm[1] + e)
+             & (y >= ws.y_mm[0] - e) & (y <= ws.y_mm[1] + e))
+    assert np.array_equal(cascade.stage_reach(ctx, P, np.arange(len(P))), plain)
+    assert plain.all() if shortcut else not plain.all()
 
 
 def _under(P, k, x_lo, x_hi):
@@ -307,10 +330,10 @@ def test_liang_barsky_matches_the_plain_clip(n):
 def test_antipodal_verdicts_match_the_plain_formula():
     P, _, ctx = cascade_for(shapes.gear("g", 30, 12, 4))
     every = np.arange(len(P))
-    w = (P.pi - P.pj) / np.maximum(P.d, 1e-12)[:, None]
-    c = np.cos(np.radians(ctx.params.max_normal_angle_deg))
-    lateral = 0.5 * np.abs(w[:, 0] * P.u[:, 1] - w[:, 1] * P.u[:, 0]) * P.d
-    plain = (((P.ni * w).sum(1) >= c - 1e-9) & ((P.nj * -w).sum(1) >= c - 1e-9)
+    w = P.pi - P.pj  # each normal within max_normal_angle of the line: n . w >= cos(angle) |w|
+    c = np.cos(np.radians(ctx.params.max_normal_angle_deg)) - 1e-9
+    lateral = 0.5 * np.abs(w[:, 0] * P.u[:, 1] - w[:, 1] * P.u[:, 0])
+    plain = (((P.ni * w).sum(1) >= c * P.d) & ((P.nj * -w).sum(1) >= c * P.d)
              & (lateral <= ctx.params.contact_tol_mm + cascade.EPS_MM))
     fast = cascade.stage_antipodal(ctx, P, every)
     assert plain.any() and not plain.all() and np.array_equal(fast, plain)

@@ -2,7 +2,8 @@
 
 One vectorised Liang-Barsky pass over the (band, edge) pairs whose bounding boxes overlap gives
 the pieces of the target's outline inside each band; the first touch and the touching point
-follow from them (used by the cascade's exact `contacts` stage).
+follow from them (used by the cascade's exact `contacts` stage). nan and inf are ordinary values:
+call under the cascade's np.errstate (cascade.py).
 """
 
 from __future__ import annotations
@@ -83,14 +84,13 @@ class BandEdges:
         tA, lA, dt, dl, s0, s1 = (np.concatenate([a.take(keep)] * n) for a in (self.tA, self.lA, self.dt, self.dl,
                                                                                    self.s0, self.s1))
         hw = np.repeat(np.asarray(half_widths, float), len(keep))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inside = np.ones(len(bi), bool)
-            for p, q in ((-dl, lA + hw), (dl, hw - lA)):
-                r = q / p
-                s0 = np.where(p < 0, np.maximum(s0, r), s0)
-                s1 = np.where(p > 0, np.minimum(s1, r), s1)
-                inside &= ~((p == 0) & (q < 0))
-            inside &= s0 <= s1
+        inside = np.ones(len(bi), bool)
+        for p, q in ((-dl, lA + hw), (dl, hw - lA)):
+            r = q / p
+            s0 = np.where(p < 0, np.maximum(s0, r), s0)
+            s1 = np.where(p > 0, np.minimum(s1, r), s1)
+            inside &= ~((p == 0) & (q < 0))
+        inside &= s0 <= s1
         k = np.flatnonzero(inside)
         rr = np.concatenate([rows] * n)
         return BandEdges(self.cx.take(rr), self.cy.take(rr), self.ux.take(rr), self.uy.take(rr), self.vx.take(rr),
@@ -150,10 +150,9 @@ class BandEdges:
         np.minimum.at(lo_l, nb, np.minimum(lat_lo, lat_hi))
         np.maximum.at(hi_l, nb, np.maximum(lat_lo, lat_hi))
         has = lo_l < np.inf  # the bands with touching material (the lateral extremes are finite)
-        with np.errstate(invalid="ignore"):
-            mid = 0.5 * (lo_l + hi_l)
-            x = np.where(has, self.cx + self.ux * T + self.vx * mid, np.nan)
-            y = np.where(has, self.cy + self.uy * T + self.vy * mid, np.nan)
+        mid = 0.5 * (lo_l + hi_l)
+        x = np.where(has, self.cx + self.ux * T + self.vx * mid, np.nan)
+        y = np.where(has, self.cy + self.uy * T + self.vy * mid, np.nan)
         return x, y
 
 
@@ -168,9 +167,8 @@ class BandEdges:
         tA, dt, lA, dl = self.tA.take(k), self.dt.take(k), self.lA.take(k), self.dl.take(k)
         tr, lr = t.take(nb), l.take(nb)
         lo, hi, touching = _behind_limit(tr - PAD_COMPLIANCE_MM, tA, dt, self.s0.take(k), self.s1.take(k))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            den = dt * dt + dl * dl
-            s = np.clip(np.where(den > 0, ((tr - tA) * dt + (lr - lA) * dl) / den, lo), lo, hi)
+        den = dt * dt + dl * dl
+        s = np.clip(np.where(den > 0, ((tr - tA) * dt + (lr - lA) * dl) / den, lo), lo, hi)
         et, el = tA + s * dt, lA + s * dl
         d2 = np.where(touching, (et - tr) ** 2 + (el - lr) ** 2, np.inf)
         best = np.full(r, np.inf)
@@ -186,8 +184,7 @@ class BandEdges:
 def _behind_limit(limit, tA, dt, s0, s1):
     """The stretch [lo, hi] of each piece (edge A + s * D, s in [s0, s1]) that lies at t >= limit
     along the band, and whether there is one: the material a pad on the line limit + compliance touches."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sc = (limit - tA) / dt  # where the edge crosses the limit
+    sc = (limit - tA) / dt  # where the edge crosses the limit
     lo = np.where(dt > 0, np.maximum(s0, sc), s0)
     hi = np.where(dt < 0, np.minimum(s1, sc), s1)
     return lo, hi, (lo <= hi + 1e-12) & ((dt != 0) | (tA >= limit))
@@ -208,18 +205,17 @@ def _liang_barsky(tA, dt, lA, dl, t_min, t_max, half_width):
     The entering parameter is the largest of the boundaries' where p < 0 (and 0), the leaving one the
     smallest where p > 0 (and 1)."""
     bounds = ((-dt, tA - t_min), (dt, t_max - tA), (-dl, lA + half_width), (dl, half_width - lA))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        if len(tA) <= LB_STACKED_MAX:  # few segments: the four boundaries at once, rows of (4, n)
-            p, q = np.stack([b[0] for b in bounds]), np.stack([b[1] for b in bounds])
-            r = q / p
-            s0 = np.maximum(np.where(p < 0, r, -np.inf).max(0), 0.0)
-            s1 = np.minimum(np.where(p > 0, r, np.inf).min(0), 1.0)
-            return s0, s1, ~((p == 0) & (q < 0)).any(0) & (s0 <= s1)
-        s0, s1 = np.zeros(len(tA)), np.ones(len(tA))
-        inside = np.ones(len(tA), bool)
-        for p, q in bounds:
-            r = q / p
-            s0 = np.where(p < 0, np.maximum(s0, r), s0)
-            s1 = np.where(p > 0, np.minimum(s1, r), s1)
-            inside &= ~((p == 0) & (q < 0))
+    if len(tA) <= LB_STACKED_MAX:  # few segments: the four boundaries at once, rows of (4, n)
+        p, q = np.stack([b[0] for b in bounds]), np.stack([b[1] for b in bounds])
+        r = q / p
+        s0 = np.maximum(np.where(p < 0, r, -np.inf).max(0), 0.0)
+        s1 = np.minimum(np.where(p > 0, r, np.inf).min(0), 1.0)
+        return s0, s1, ~((p == 0) & (q < 0)).any(0) & (s0 <= s1)
+    s0, s1 = np.zeros(len(tA)), np.ones(len(tA))
+    inside = np.ones(len(tA), bool)
+    for p, q in bounds:
+        r = q / p
+        s0 = np.where(p < 0, np.maximum(s0, r), s0)
+        s1 = np.where(p > 0, np.minimum(s1, r), s1)
+        inside &= ~((p == 0) & (q < 0))
     return s0, s1, inside & (s0 <= s1)

@@ -26,6 +26,10 @@ The cheap stages only reject what an exact stage would also reject (the stroke, 
 antipodal conditions are part of the definition of a feasible pair), so the cascade and
 the brute force (every exact stage on every pair) keep the same pairs; `cell bench grasp`
 checks that in every run.
+
+nan and inf are ordinary values here (no material in a band, no touch): the stages and the band
+geometry run under one np.errstate in run_cascade and run_brute_force (each errstate costs
+microseconds, and a cascade is about a millisecond); call them the same way.
 """
 
 from __future__ import annotations
@@ -80,37 +84,38 @@ def stage_reach(ctx: Context, P: Pairs, idx) -> np.ndarray:
 
 def _midpoints_surely_reachable(ctx: Context, points: np.ndarray) -> bool:
     """Does every midpoint of two of the points pass the reach stage? It does when the points' bounding
-    box lies inside the workspace, every point inside the annulus's outer circle (both convex: they hold
-    the midpoints) and the box clear of its inner disc (1e-6 mm to spare for rounding): the usual case,
+    box lies inside the workspace and inside the annulus's outer circle (both convex: they hold the
+    midpoints) and clear of its inner disc (1e-6 mm to spare for rounding): the usual case,
     decided from the z' points instead of the s pairs."""
     if not len(points):
         return True
-    lo, hi = points.min(0), points.max(0)
+    x, y = points[:, 0], points[:, 1]
+    x0, x1, y0, y1 = float(x.min()), float(x.max()), float(y.min()), float(y.max())
     ws, e, spare = ctx.cell.workspace, CHEAP_MARGIN_MM, 1e-6
-    if not (lo[0] >= ws.x_mm[0] - e + spare and hi[0] <= ws.x_mm[1] + e - spare
-            and lo[1] >= ws.y_mm[0] - e + spare and hi[1] <= ws.y_mm[1] + e - spare):
+    if not (x0 >= ws.x_mm[0] - e + spare and x1 <= ws.x_mm[1] + e - spare
+            and y0 >= ws.y_mm[0] - e + spare and y1 <= ws.y_mm[1] + e - spare):
         return False
     rmin, rmax = ctx.cell.scara.reach_mm
-    if float(np.max(points[:, 0] ** 2 + points[:, 1] ** 2)) > (rmax + e - spare) ** 2:
-        return False
-    gap_x, gap_y = max(lo[0], -hi[0], 0.0), max(lo[1], -hi[1], 0.0)  # the box's distance from the base, by axis
-    return math.hypot(gap_x, gap_y) >= rmin - e + spare
+    far = math.hypot(max(-x0, x1), max(-y0, y1))  # the box's corner furthest from the base
+    near = math.hypot(max(x0, -x1, 0.0), max(y0, -y1, 0.0))  # the box's distance from the base
+    return far <= rmax + e - spare and near >= rmin - e + spare
 
 
 def stage_antipodal(ctx: Context, P: Pairs, idx) -> np.ndarray:
-    c = math.cos(math.radians(ctx.params.max_normal_angle_deg))
+    # n . w/|w| >= c written as n . w >= c |w|: no division, the same condition
+    c = math.cos(math.radians(ctx.params.max_normal_angle_deg)) - 1e-9
     dense = _dense(P, idx)
     d = P.d if dense else P.d.take(idx)
-    w = (P.w if dense else P.w.take(idx, 0)) / np.maximum(d, 1e-12)[:, None]  # unit, p_j towards p_i
-    ok = _dot2(P.ni if dense else P.ni.take(idx, 0), w) >= c - 1e-9
+    w = P.w if dense else P.w.take(idx, 0)
+    ni = P.ni if dense else P.ni.take(idx, 0)
+    ok = ni[:, 0] * w[:, 0] + ni[:, 1] * w[:, 1] >= c * d
     # the other two conditions only where the first holds (most pairs fail it): same verdicts
     k = np.flatnonzero(ok)
-    w, d = w.take(k, 0), d.take(k)
     sub = k if dense else idx.take(k)
-    u = P.u.take(sub, 0)
-    lateral = 0.5 * np.abs(w[:, 0] * u[:, 1] - w[:, 1] * u[:, 0]) * d
-    # (n_j . -w) >= c, written as -(n_j . w) >= c: negation is exact, the verdict the same
-    ok[k] = (-_dot2(P.nj.take(sub, 0), w) >= c - 1e-9) & (lateral <= ctx.params.contact_tol_mm + EPS_MM)
+    w, d, u, nj = w.take(k, 0), d.take(k), P.u.take(sub, 0), P.nj.take(sub, 0)
+    wx, wy = w[:, 0], w[:, 1]
+    lateral = 0.5 * np.abs(wx * u[:, 1] - wy * u[:, 0])  # |w x u| / 2: the points' offset across the axis
+    ok[k] = (-(nj[:, 0] * wx + nj[:, 1] * wy) >= c * d) & (lateral <= ctx.params.contact_tol_mm + EPS_MM)
     return ok.take(idx) if dense else ok
 
 
@@ -182,36 +187,35 @@ def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     T, (x, y) = band.first_touch(ctx, slanted)
     vx, vy = band.vx, band.vy
     lateral = np.abs((x - cx) * vx + (y - cy) * vy)
-    with np.errstate(invalid="ignore"):
-        # the pad stops at the candidate: the first touch is within tol of it along and across the
-        # axis. A face slightly slanted to the pad (a tapered web) is first touched at the band's
-        # side and the middle of the touching stretch lies mm from the candidate; when the
-        # candidate itself is within PAD_COMPLIANCE_MM of the first touch the pad presses on it
-        # too: the contact is then on the first-touch line, on the pair's closing line when the
-        # pad presses there as well, else across from the candidate
-        pi, pj = P.pi.take(idx, 0), P.pj.take(idx, 0)  # p_i is on the +u side (its normal is near u)
-        ax, ay = np.concatenate([pi[:, 0], pj[:, 0]]) - cx, np.concatenate([pi[:, 1], pj[:, 1]]) - cy
-        pressed = np.isfinite(lateral) & (lateral > tol + EPS_MM) & (T <= tt + tol + EPS_MM)
-        pressed &= slanted
-        if pressed.any():
-            q = np.flatnonzero(pressed)
-            nq = len(q)
-            # the pad itself (not the band widened by tol), and a thin band on the pair's closing line,
-            # in one pass (the thin band's verdict is used only where the pad presses on the candidate)
-            Tn, _ = band.narrowed(q, (g.pad_width_mm / 2, 0.05)).first_touch(ctx, touch=False)
-            Tp, T0 = Tn[:nq], Tn[nq:]
-            ax_q, ay_q = ax.take(q), ay.take(q)
-            uxq, uyq, vxq, vyq = ux.take(q), uy.take(q), vx.take(q), vy.take(q)
-            press = np.isfinite(Tp) & (Tp <= ax_q * uxq + ay_q * uyq + PAD_COMPLIANCE_MM + EPS_MM)
-            # the contact on the first-touch line: on the pair's closing line when the pad presses
-            # there too, else across from the candidate
-            lat_c = np.where(T0 >= Tp - PAD_COMPLIANCE_MM, 0.0, ax_q * vxq + ay_q * vyq)
-            cxq, cyq = cx.take(q), cy.take(q)
-            px, py = cxq + uxq * Tp + vxq * lat_c, cyq + uyq * Tp + vyq * lat_c
-            x[q] = np.where(press, px, x.take(q))
-            y[q] = np.where(press, py, y.take(q))
-            lateral[q] = np.where(press, np.abs((px - cxq) * vxq + (py - cyq) * vyq), lateral.take(q))
-        ok2 = np.isfinite(lateral) & (T <= tt + tol + EPS_MM) & (lateral <= tol + EPS_MM)
+    # the pad stops at the candidate: the first touch is within tol of it along and across the
+    # axis. A face slightly slanted to the pad (a tapered web) is first touched at the band's
+    # side and the middle of the touching stretch lies mm from the candidate; when the
+    # candidate itself is within PAD_COMPLIANCE_MM of the first touch the pad presses on it
+    # too: the contact is then on the first-touch line, on the pair's closing line when the
+    # pad presses there as well, else across from the candidate
+    pi, pj = P.pi.take(idx, 0), P.pj.take(idx, 0)  # p_i is on the +u side (its normal is near u)
+    ax, ay = np.concatenate([pi[:, 0], pj[:, 0]]) - cx, np.concatenate([pi[:, 1], pj[:, 1]]) - cy
+    pressed = np.isfinite(lateral) & (lateral > tol + EPS_MM) & (T <= tt + tol + EPS_MM)
+    pressed &= slanted
+    if pressed.any():
+        q = np.flatnonzero(pressed)
+        nq = len(q)
+        # the pad itself (not the band widened by tol), and a thin band on the pair's closing line,
+        # in one pass (the thin band's verdict is used only where the pad presses on the candidate)
+        Tn, _ = band.narrowed(q, (g.pad_width_mm / 2, 0.05)).first_touch(ctx, touch=False)
+        Tp, T0 = Tn[:nq], Tn[nq:]
+        ax_q, ay_q = ax.take(q), ay.take(q)
+        uxq, uyq, vxq, vyq = ux.take(q), uy.take(q), vx.take(q), vy.take(q)
+        press = np.isfinite(Tp) & (Tp <= ax_q * uxq + ay_q * uyq + PAD_COMPLIANCE_MM + EPS_MM)
+        # the contact on the first-touch line: on the pair's closing line when the pad presses
+        # there too, else across from the candidate
+        lat_c = np.where(T0 >= Tp - PAD_COMPLIANCE_MM, 0.0, ax_q * vxq + ay_q * vyq)
+        cxq, cyq = cx.take(q), cy.take(q)
+        px, py = cxq + uxq * Tp + vxq * lat_c, cyq + uyq * Tp + vyq * lat_c
+        x[q] = np.where(press, px, x.take(q))
+        y[q] = np.where(press, py, y.take(q))
+        lateral[q] = np.where(press, np.abs((px - cxq) * vxq + (py - cyq) * vyq), lateral.take(q))
+    ok2 = np.isfinite(lateral) & (T <= tt + tol + EPS_MM) & (lateral <= tol + EPS_MM)
     ok = ok2[:k] & ok2[k:]
     if ctx.params.contacts_on_material:  # report where the pads touch the part, not the pad line in front of it
         rows = np.flatnonzero(np.concatenate([ok, ok]))
@@ -223,8 +227,7 @@ def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
             x[rows], y[rows] = np.where(found, sx, x.take(rows)), np.where(found, sy, y.take(rows))
     ci, cj = np.column_stack([x[:k], y[:k]]), np.column_stack([x[k:], y[k:]])
     h = 0.5 * _dot2(ci - cj, u)
-    with np.errstate(invalid="ignore"):
-        ok &= (2 * h >= g.opening_mm[0] - EPS_MM) & (2 * h + 2 * g.approach_clearance_mm <= g.opening_mm[1] + EPS_MM)
+    ok &= (2 * h >= g.opening_mm[0] - EPS_MM) & (2 * h + 2 * g.approach_clearance_mm <= g.opening_mm[1] + EPS_MM)
     P.ci[idx], P.cj[idx] = ci, cj
     P.center[idx] = 0.5 * (ci + cj)
     P.h[idx] = h
@@ -237,8 +240,7 @@ def stage_ik(ctx: Context, P: Pairs, idx) -> np.ndarray:
     x, y = c[:, 0], c[:, 1]
     ws = ctx.cell.workspace
     axis = np.degrees(np.arctan2(u[:, 1], u[:, 0]))
-    with np.errstate(invalid="ignore"):
-        inside = (np.isfinite(x) & (x >= ws.x_mm[0]) & (x <= ws.x_mm[1]) & (y >= ws.y_mm[0]) & (y <= ws.y_mm[1]))
+    inside = (np.isfinite(x) & (x >= ws.x_mm[0]) & (x <= ws.x_mm[1]) & (y >= ws.y_mm[0]) & (y <= ws.y_mm[1]))
     if inside.all():  # the usual case: no subset to gather
         ok = reachable_mask(x, y, ctx.grasp_z_mm, axis, ctx.cell.scara)
     else:
@@ -318,7 +320,7 @@ def run_cascade(ctx: Context, P: Pairs, stages=STAGES) -> CascadeResult:
 
     alive = np.arange(len(P))
     verdicts, kept, times, exact = [], {}, {}, 0
-    with np.errstate(divide="ignore", invalid="ignore"):  # once here: each errstate costs microseconds
+    with np.errstate(divide="ignore", invalid="ignore"):  # once here (the module's docstring)
         for name in stages:
             t0 = time.perf_counter()
             if name in EXACT_STAGES:

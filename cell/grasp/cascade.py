@@ -225,11 +225,12 @@ def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
             sx, sy = band.on_material(rows, dx * ux_r + dy * uy_r, dx * vx_r + dy * vy_r)
             found = np.isfinite(sx)
             x[rows], y[rows] = np.where(found, sx, x.take(rows)), np.where(found, sy, y.take(rows))
-    ci, cj = np.column_stack([x[:k], y[:k]]), np.column_stack([x[k:], y[k:]])
-    h = 0.5 * _dot2(ci - cj, u)
+    xi, yi, xj, yj = x[:k], y[:k], x[k:], y[k:]
+    h = 0.5 * ((xi - xj) * u[:, 0] + (yi - yj) * u[:, 1])
     ok &= (2 * h >= g.opening_mm[0] - EPS_MM) & (2 * h + 2 * g.approach_clearance_mm <= g.opening_mm[1] + EPS_MM)
-    P.ci[idx], P.cj[idx] = ci, cj
-    P.center[idx] = 0.5 * (ci + cj)
+    # written column by column: numpy's row assignment into (s, 2) arrays costs several times more
+    for col, vi, vj in ((0, xi, xj), (1, yi, yj)):
+        P.ci[:, col][idx], P.cj[:, col][idx], P.center[:, col][idx] = vi, vj, 0.5 * (vi + vj)
     P.h[idx] = h
     return ok
 

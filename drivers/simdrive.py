@@ -500,7 +500,8 @@ class SimDrive:
                 self._host_seen_s = None  # watching restarts with the next heartbeat heard
                 self._move(now)  # the mechanics go on (the fault reaction ramp), in silence
                 return
-            starved = self._stepped_s is not None and now - self._stepped_s > HOST_WATCH_STARVED_SHARE * self._host_deadline_s
+            starved = (self._stepped_s is not None
+                       and now - self._stepped_s > HOST_WATCH_STARVED_SHARE * self._host_deadline_s)
             self._stepped_s = now
             if self._host_id and self._host_seen_s is not None and self._host_deadline_s > 0:
                 if starved:

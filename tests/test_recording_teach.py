@@ -11,11 +11,11 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
+from conftest import run_cli
 
 from cell.examples import load_examples
 from cell.recording import RecordingReader
 from cell.runtime.session import RunConfig, run_session
-from conftest import run_cli
 
 DEFAULT = Path(str(resources.files("cell") / "data" / "assemblies" / "default.json"))
 T = 60.0

@@ -4,6 +4,7 @@ the same run: time ratio, number of exact checks, and whether both keep the same
 
 from __future__ import annotations
 
+import functools
 import json
 import statistics
 import time
@@ -152,9 +153,7 @@ def run(args) -> int:
         if result is not None:
             ctx = result.context
 
-            def fresh():
-                return Pairs.of(op_pts.points, op_pts.normals, result.valid_sample_index)
-
+            fresh = functools.partial(Pairs.of, op_pts.points, op_pts.normals, result.valid_sample_index)
             tc, tb, cr, br, bstages = side_by_side(ctx, fresh)
             row.update(counts=result.counts, stage_ms={k: round(v, 3) for k, v in result.stage_time_ms.items()},
                        cascade_ms=round(min(tc), 3), brute_ms=round(min(tb), 3),
@@ -174,7 +173,8 @@ def run(args) -> int:
     summary = {"examples": source, "n_examples": len(examples), "fit_ms": round(fit_ms, 2),
                "median_synthesis_ms": round(statistics.median(r["median_ms"] for r in rows), 3),
                "median_speedup": round(statistics.median(r["speedup"] for r in ok), 1) if ok else None,
-               "median_speedup_of_medians": round(statistics.median(r["speedup_median"] for r in ok), 1) if ok else None,
+               "median_speedup_of_medians": (round(statistics.median(r["speedup_median"] for r in ok), 1)
+                                             if ok else None),
                "median_bound": round(statistics.median(r["bound"] for r in ok), 1) if ok else None,
                "speedup_at_least_20x": sum(r["speedup"] >= 20 for r in ok), "planned": len(ok),
                "all_same_pairs": all(r["same_pairs"] for r in ok)}

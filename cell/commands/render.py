@@ -25,8 +25,8 @@ def run(args) -> int:
 
     from cell.cellconfig import load_cell
     from cell.errors import BadInput
-    from cell.runtime.session import camera_calibration
     from cell.fileio import read_json, write_json_atomic
+    from cell.runtime.session import camera_calibration
     from cell.scene import own_cell_path, parse_part
     from cell.vision.simcamera import SimCamera, SimCameraOptions
     from cell.vision.sources import write_image

@@ -36,12 +36,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+
 import numpy as np
 import shapely
 
 from cell.grasp.bands import PAD_COMPLIANCE_MM, BandEdges
 from cell.grasp.footprints import axis_rect_bounds, axis_rects, rect_polygons
-from cell.grasp.pairs import EPS_MM, Context, Pairs, _dot2
+from cell.grasp.pairs import EPS_MM, Context, Pairs
 from cell.kinematics import Joints, inverse, reachable_mask
 
 __all__ = ["STAGES", "EXACT_STAGES", "Context", "Pairs", "CascadeResult", "run_cascade", "run_brute_force",

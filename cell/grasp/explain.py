@@ -70,5 +70,6 @@ def rejections(made: dict, planner, n_samples: int = 3, seed: int = 0) -> list[s
         badsets = np.flatnonzero(~made["set_valid"])
         for q in rng.choice(badsets, size=min(n_samples, len(badsets)), replace=False) if len(badsets) else []:
             c = made["reachable_pairs"][q]
-            lines.append(f"rejected set {np.round(c, 1).tolist()}: tree 2 {st.rule_for(made['reachable_attributes'][q])}")
+            rule = st.rule_for(made["reachable_attributes"][q])
+            lines.append(f"rejected set {np.round(c, 1).tolist()}: tree 2 {rule}")
     return lines

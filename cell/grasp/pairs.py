@@ -23,6 +23,9 @@ from cell.scene import Part
 # contact_tol apart across the axis).
 EPS_MM = 1e-6
 Z_EPS_MM = 1e-6
+# The exact stages see a target's outline with at most one vertex per this much arc length (on
+# average; `exact_outline`): a quarter of contact_tol's 1 mm and half a 0.5 mm/px camera pixel.
+EXACT_SPACING_MM = 0.5
 
 
 @dataclass
@@ -72,9 +75,8 @@ class Context:
             shapely.prepare(u)
             return u
 
-        tg = shapely.Polygon(target.polygon.exterior, target.polygon.interiors)
+        tg, rings = exact_outline(target)
         shapely.prepare(tg)
-        rings = [target.outline_mm, *target.holes_mm]
         a = np.vstack(rings)
         b = np.vstack([np.roll(r, -1, axis=0) for r in rings])
         tree = shapely.STRtree(shapely.linestrings(np.stack([a, b], axis=1)))
@@ -94,6 +96,37 @@ class Context:
         return cls(target, cell, params, grasp_z_mm, tg, fo, po, [o.id for o in tall],
                    a, b, tree, samples, first, count, *_edge_columns(a, b), _part_boxes(fo),
                    _part_boxes(po), nx, ny)
+
+
+def exact_outline(target: Part):
+    """The target's material as the exact stages see it: its polygon and its rings (outline, then
+    holes), each thinned to one vertex per EXACT_SPACING_MM of arc length where it has more on
+    average (a finely tessellated CAD outline, a high-resolution camera's): the contacts stage's
+    cost grows with the edges in each pad's band. Rings no denser than that, as the parts library's
+    and 0.5 mm/px camera outlines are, are kept as they are."""
+    rings = [np.asarray(r, float) for r in (target.outline_mm, *target.holes_mm)]
+    thinned = [_thinned(r, EXACT_SPACING_MM) for r in rings]
+    if any(t is not r for t, r in zip(thinned, rings, strict=True)):
+        poly = shapely.Polygon(thinned[0], thinned[1:])
+        if poly.is_valid:  # thinning a sliver narrower than the spacing could make it cross itself
+            return poly, thinned
+    return shapely.Polygon(target.polygon.exterior, target.polygon.interiors), rings
+
+
+def _thinned(ring: np.ndarray, spacing_mm: float) -> np.ndarray:
+    """The first vertex in each stretch of spacing_mm of arc length along the ring; the ring itself
+    when it has no more than a vertex per spacing_mm on average. The outline moves by no more than
+    the material between kept vertices (under spacing_mm along it, a fraction of that across)."""
+    seg = np.hypot(*(np.roll(ring, -1, axis=0) - ring).T)
+    perimeter = float(seg.sum())
+    if len(ring) * spacing_mm <= perimeter:
+        return ring
+    at = np.concatenate([[0.0], np.cumsum(seg[:-1])])  # arc length at each vertex
+    stretch = np.floor(at / spacing_mm)
+    keep = np.flatnonzero(np.diff(stretch, prepend=-1.0) > 0)
+    if perimeter - at[keep[-1]] < 0.5 * spacing_mm:  # the last kept vertex next to the first
+        keep = keep[:-1]
+    return ring[keep] if len(keep) >= 3 else ring
 
 
 def _part_boxes(geom) -> np.ndarray | None:

@@ -331,7 +331,7 @@ def _require_dropoff_reachable(cell, cell_path) -> None:
         lo, hi = cell.scara.reach_mm
         why = (f"{r:.1f} mm from the base, outside the arm's reach {lo:.1f}-{hi:.1f} mm" if not lo <= r <= hi
                else "not reachable within the joint limits")
-        raise BadInput(f"cell file {cell_path or '(default)'}: motion.dropoff_mm {[x, y, z]} is {why}")
+        raise BadInput(f"cell file {cell_path or '(default)'}: motion.dropoff_mm {[x, y, z]} is {why}") from None
 
 
 def _check_rrd_path(path: Path) -> None:

@@ -218,10 +218,14 @@ class Arm:
 
     def disconnect(self) -> None:
         """Disable the drives cleanly (they hold no torque and stop watching the host), stop
-        the host heartbeat and the receive thread. The bus stays open."""
+        the host heartbeat and the receive thread. The bus stays open. A move still running (one
+        sent without waiting, or left by an error while it ran) is quick-stopped first: a drive
+        told to shut down mid-move may let its axis coast (0x605B), so it stops on its ramp."""
         if not self._connected:
             return
         try:
+            if self._pending[0] or any(self._moving(ax) for ax in self.axes.values()):
+                self._stop_all()
             for ax in self.axes.values():
                 if ax.last_heartbeat_s is None or self._faults.get(ax.name) is not None:
                     continue
@@ -327,6 +331,11 @@ class Arm:
             self._stop_all()
             self._pending = ({}, 0.0)
             self._latch(DriverError("quick stop requested by the operator"), key="stop")
+
+    @staticmethod
+    def _moving(ax) -> bool:
+        """Enabled, its last statusword without target reached: a profile-position move runs."""
+        return ax.state == "OPERATION_ENABLED" and ax.status is not None and not ax.status.target_reached
 
     def _stop_all(self) -> None:
         """Quick-stop every axis that still obeys, then wait (on the clock) until all stand still."""

@@ -330,7 +330,11 @@ class Axis:
             pass  # a silent drive stops on its own when it misses the host's heartbeat
 
     def disable(self) -> None:
-        if self.state not in ("FAULT", "SWITCH_ON_DISABLED", "UNKNOWN"):
+        """No torque: shutdown (402 transition 8 or 6), or, from QUICK STOP ACTIVE, where shutdown
+        is no transition, disable voltage (12)."""
+        if self.state == "QUICK_STOP_ACTIVE":
+            self.send_controlword(codec.CW_DISABLE_VOLTAGE)
+        elif self.state not in ("FAULT", "SWITCH_ON_DISABLED", "UNKNOWN"):
             self.send_controlword(codec.CW_SHUTDOWN)
 
     def fault_reset(self) -> None:

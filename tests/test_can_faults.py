@@ -212,3 +212,30 @@ def test_stop_ramps_down_with_the_quick_stop_deceleration(arm, sim_drives):
     with pytest.raises(FaultLatched, match="stop: quick stop requested"):
         arm.move_joints(arm.joints())
     _assert_recovers(arm, sim_drives)
+
+
+def test_disconnect_during_a_move_stops_it_on_the_ramp_before_disabling(arm, sim_drives):
+    """A move sent without waiting, then disconnect: the axis stops on its quick-stop ramp (a real
+    drive told to shut down mid-move may coast), then every drive is left without torque."""
+    start = arm.joints()
+    arm.move_joints(Joints(start.j1_deg - 100.0, start.j2_deg, start.j3_mm, start.j4_deg), wait=False)
+    arm.clock.sleep(0.4)  # cruising at the j1 speed limit
+    v = arm.cell.scara.max_velocity["j1"]
+    at_disconnect = sim_drives.positions()["j1"]
+    arm.disconnect()
+    stopped = sim_drives.positions()["j1"]
+    decel = 2.0 * arm.cell.scara.max_acceleration["j1"]  # QUICK_STOP_DECEL_FACTOR
+    assert at_disconnect - stopped == pytest.approx(v * v / (2 * decel), abs=0.5)
+    arm.clock.sleep(1.0)
+    assert {d.state for d in sim_drives.drives.values()} <= {"READY_TO_SWITCH_ON", "SWITCH_ON_DISABLED"}
+    assert sim_drives.positions()["j1"] == stopped
+
+
+def test_disconnect_after_a_stop_leaves_the_drives_without_torque(arm, sim_drives):
+    """Quick stop ACTIVE holds torque, and shutdown is no transition from it: disconnect disables
+    voltage there (402 transition 12), so no drive is left holding after the host is gone."""
+    arm.stop()
+    assert sim_drives.drives["j1"].state == "QUICK_STOP_ACTIVE"
+    arm.disconnect()
+    arm.clock.sleep(1.0)
+    assert all(d.state == "SWITCH_ON_DISABLED" for d in sim_drives.drives.values())

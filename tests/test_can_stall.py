@@ -4,7 +4,9 @@ The simulated drives and the host share one clock thread in `cell hw status` and
 when that thread is held up for longer than a heartbeat deadline, nobody sent heartbeats, and
 both watches used to declare the other side silent. A watch that was itself held up cannot
 tell, so it counts silence from when it runs again; a node that really falls silent is still
-caught within a deadline."""
+caught, a deadline after the process runs normally again. The waits below allow LOADED_S more:
+on a loaded machine every step that runs late restarts the count (seen once, with two test runs
+and a benchmark on the 2 cores)."""
 
 from __future__ import annotations
 
@@ -20,6 +22,7 @@ from drivers.clock import RealClock
 pytestmark = needs_sim
 
 STALL_S = 0.6  # twice the default cell's 300 ms heartbeat deadlines
+LOADED_S = 2.0
 
 
 @pytest.fixture
@@ -70,7 +73,7 @@ def test_a_host_silent_across_a_stall_is_still_caught_by_the_drives(open_test_bu
         arm._host_job.cancel()  # the host's heartbeat stops for good
         _stall_clock_thread(real_clock, STALL_S)
         deadline_s = 3 * cell_cfg.can.host_heartbeat_ms / 1000.0
-        assert _wait_for(lambda: all(d.state == "FAULT" for d in drives.drives.values()), deadline_s + 0.5)
+        assert _wait_for(lambda: all(d.state == "FAULT" for d in drives.drives.values()), deadline_s + LOADED_S)
         assert all(d.error_code == 0x8130 for d in drives.drives.values())
 
 
@@ -79,6 +82,6 @@ def test_a_node_silent_across_a_stall_is_still_caught_by_the_host(open_test_bus,
             Arm(open_test_bus(), cell_cfg, clock=real_clock, sdo_timeout_s=0.5) as arm:
         drives.inject_fault("silent", "j3")
         _stall_clock_thread(real_clock, STALL_S)
-        assert _wait_for(lambda: "j3" in arm.faults, arm.heartbeat_deadline_s + 0.5)
+        assert _wait_for(lambda: "j3" in arm.faults, arm.heartbeat_deadline_s + LOADED_S)
         assert "j3 (node 3): no heartbeat" in arm.faults["j3"]
         assert not (set(arm.faults) - {"j3"})  # the others were heard

@@ -333,7 +333,8 @@ def test_antipodal_verdicts_match_the_plain_formula():
     w = P.pi - P.pj  # each normal within max_normal_angle of the line: n . w >= cos(angle) |w|
     c = np.cos(np.radians(ctx.params.max_normal_angle_deg)) - 1e-9
     lateral = 0.5 * np.abs(w[:, 0] * P.u[:, 1] - w[:, 1] * P.u[:, 0])
-    plain = (((P.ni * w).sum(1) >= c * P.d) & ((P.nj * -w).sum(1) >= c * P.d)
+    d = np.maximum(P.d, 1e-12)
+    plain = (((P.ni * w).sum(1) >= c * d) & ((P.nj * -w).sum(1) >= c * d)
              & (lateral <= ctx.params.contact_tol_mm + cascade.EPS_MM))
     fast = cascade.stage_antipodal(ctx, P, every)
     assert plain.any() and not plain.all() and np.array_equal(fast, plain)
@@ -438,3 +439,16 @@ def test_an_obstacle_margin_keeps_fingers_off_neighbours_they_would_graze():
     assert min(gaps) == pytest.approx(15.5, abs=0.01)
     with pytest.raises(NoFeasibleGrasp, match="fingers_obstacles|precheck"):
         GraspPlanner(CELL, shapes.hand_made_examples(), SynthesisParams(obstacle_margin_mm=1.0)).plan(scene)
+
+
+def test_coincident_points_where_a_hole_touches_the_outline_face_no_way():
+    """A hole touching the outline at a sample gives a pair of one point twice (|w| = 0): no
+    closing line, so the antipodal stage rejects it (n . w >= cos |w| alone would hold, 0 >= 0)."""
+    ox, oy = 330.0, -20.0
+    part = parse_part({"id": "t", "outline": [[ox, oy], [ox + 40, oy], [ox + 40, oy + 40], [ox, oy + 40]],
+                       "holes": [[[ox + 24, oy + 4], [ox + 18, oy + 4], [ox + 21, oy]]], "z_bottom": 0,
+                       "z_top": 12}, "t")
+    P, cr, _ = cascade_for(part)
+    same = np.flatnonzero(P.d == 0)
+    assert len(same) == 1
+    assert cr.rejected_by[same[0]] == STAGES.index("antipodal")

@@ -103,10 +103,11 @@ def _midpoints_surely_reachable(ctx: Context, points: np.ndarray) -> bool:
 
 
 def stage_antipodal(ctx: Context, P: Pairs, idx) -> np.ndarray:
-    # n . w/|w| >= c written as n . w >= c |w|: no division, the same condition
+    # n . w/|w| >= c written as n . w >= c |w|: no division, the same condition (|w| at least
+    # 1e-12: two coincident points, where a hole touches the outline, face no way)
     c = math.cos(math.radians(ctx.params.max_normal_angle_deg)) - 1e-9
     dense = _dense(P, idx)
-    d = P.d if dense else P.d.take(idx)
+    d = np.maximum(P.d if dense else P.d.take(idx), 1e-12)
     w = P.w if dense else P.w.take(idx, 0)
     ni = P.ni if dense else P.ni.take(idx, 0)
     ok = ni[:, 0] * w[:, 0] + ni[:, 1] * w[:, 1] >= c * d
@@ -150,18 +151,22 @@ def _outline_ahead(ctx: Context, P: Pairs, idx) -> np.ndarray:
     the outline) lies in that pad's band further out than the candidate point by more than
     contact_tol: the pad would stop there first, so the `contacts` stage would reject the pair."""
     g, tol = ctx.cell.gripper, ctx.params.contact_tol_mm
-    hw = g.pad_width_mm / 2 + tol
+    # the samples lie on the outline as given, the exact stages' material up to the shift from it
+    # (a thinned outline, pairs.exact_outline): by that much further inside the band, to be sure
+    shift = ctx.outline_shift_mm
+    hw = g.pad_width_mm / 2 + tol - shift
     k = len(idx)
     # both points at once: p_i's pad closes along -u from the +u side (side +1), p_j's from -u
     s = P.si.take(idx, 0).T.ravel()  # (2k,) p_i's samples, then p_j's
     m, u, t = P.m.take(idx, 0), P.u.take(idx, 0), P.t.take(idx)
     mx, my, t = np.concatenate([m[:, 0], m[:, 0]]), np.concatenate([m[:, 1], m[:, 1]]), np.concatenate([t, t])
     usx, usy = np.concatenate([u[:, 0], -u[:, 0]]), np.concatenate([u[:, 1], -u[:, 1]])
-    t_max = t + g.approach_clearance_mm + g.pad_thickness_mm
+    t_max = t + g.approach_clearance_mm + g.pad_thickness_mm - shift
     dx, dy = ctx.neighbour_x.take(s, 0) - mx[:, None], ctx.neighbour_y.take(s, 0) - my[:, None]  # (2k, 2K)
     tq = dx * usx[:, None] + dy * usy[:, None]
     lq = dx * -usy[:, None] + dy * usx[:, None]
-    hit = ((np.abs(lq) <= hw - EPS_MM) & (tq <= t_max[:, None] - EPS_MM) & (tq > t[:, None] + tol + EPS_MM)).any(1)
+    hit = ((np.abs(lq) <= hw - EPS_MM) & (tq <= t_max[:, None] - EPS_MM)
+           & (tq > t[:, None] + tol + shift + EPS_MM)).any(1)
     return hit[:k] | hit[k:]
 
 

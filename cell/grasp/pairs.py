@@ -58,6 +58,7 @@ class Context:
     palm_boxes: np.ndarray | None = None  # (n, 4) the same for the palm obstacles
     neighbour_x: np.ndarray | None = None  # (N, 2K) the samples on the same ring within K steps of each sample
     neighbour_y: np.ndarray | None = None
+    outline_shift_mm: float = 0.0  # how far the exact stages' outline lies from the given one at most
 
     @classmethod
     def build(cls, target: Part, obstacles, cell: Cell, params: SynthesisParams, grasp_z_mm: float,
@@ -75,7 +76,7 @@ class Context:
             shapely.prepare(u)
             return u
 
-        tg, rings = exact_outline(target)
+        tg, rings, shift = exact_outline(target)
         shapely.prepare(tg)
         a = np.vstack(rings)
         b = np.vstack([np.roll(r, -1, axis=0) for r in rings])
@@ -95,38 +96,52 @@ class Context:
         fo, po = union(tall), union(palm)
         return cls(target, cell, params, grasp_z_mm, tg, fo, po, [o.id for o in tall],
                    a, b, tree, samples, first, count, *_edge_columns(a, b), _part_boxes(fo),
-                   _part_boxes(po), nx, ny)
+                   _part_boxes(po), nx, ny, shift)
 
 
 def exact_outline(target: Part):
-    """The target's material as the exact stages see it: its polygon and its rings (outline, then
-    holes), each thinned to one vertex per EXACT_SPACING_MM of arc length where it has more on
-    average (a finely tessellated CAD outline, a high-resolution camera's): the contacts stage's
-    cost grows with the edges in each pad's band. Rings no denser than that, as the parts library's
-    and 0.5 mm/px camera outlines are, are kept as they are."""
+    """The target's material as the exact stages see it: its polygon, its rings (outline, then
+    holes) and how far they lie from the given ones at most (mm). Each ring is thinned to one vertex
+    per EXACT_SPACING_MM of arc length where it has more on average (a finely tessellated CAD
+    outline, a camera's at finer than 0.5 mm per pixel): the contacts stage's cost grows with the
+    edges in each pad's band. Rings no denser than that, as the parts library's are, are kept."""
     rings = [np.asarray(r, float) for r in (target.outline_mm, *target.holes_mm)]
-    thinned = [_thinned(r, EXACT_SPACING_MM) for r in rings]
-    if any(t is not r for t, r in zip(thinned, rings, strict=True)):
+    kept = [_kept(r, EXACT_SPACING_MM) for r in rings]
+    if any(k is not None for k in kept):
+        thinned = [r if k is None else r[k] for r, k in zip(rings, kept, strict=True)]
         poly = shapely.Polygon(thinned[0], thinned[1:])
         if poly.is_valid:  # thinning a sliver narrower than the spacing could make it cross itself
-            return poly, thinned
-    return shapely.Polygon(target.polygon.exterior, target.polygon.interiors), rings
+            return poly, thinned, max(_shift(r, k) for r, k in zip(rings, kept, strict=True))
+    return shapely.Polygon(target.polygon.exterior, target.polygon.interiors), rings, 0.0
 
 
-def _thinned(ring: np.ndarray, spacing_mm: float) -> np.ndarray:
-    """The first vertex in each stretch of spacing_mm of arc length along the ring; the ring itself
-    when it has no more than a vertex per spacing_mm on average. The outline moves by no more than
-    the material between kept vertices (under spacing_mm along it, a fraction of that across)."""
+def _kept(ring: np.ndarray, spacing_mm: float) -> np.ndarray | None:
+    """Indices of the first vertex in each stretch of spacing_mm of arc length along the ring; None
+    when the ring has no more than a vertex per spacing_mm on average (it is kept whole)."""
     seg = np.hypot(*(np.roll(ring, -1, axis=0) - ring).T)
     perimeter = float(seg.sum())
     if len(ring) * spacing_mm <= perimeter:
-        return ring
+        return None
     at = np.concatenate([[0.0], np.cumsum(seg[:-1])])  # arc length at each vertex
     stretch = np.floor(at / spacing_mm)
     keep = np.flatnonzero(np.diff(stretch, prepend=-1.0) > 0)
     if perimeter - at[keep[-1]] < 0.5 * spacing_mm:  # the last kept vertex next to the first
         keep = keep[:-1]
-    return ring[keep] if len(keep) >= 3 else ring
+    return keep if len(keep) >= 3 else None
+
+
+def _shift(ring: np.ndarray, keep: np.ndarray | None) -> float:
+    """The largest distance of a vertex of `ring` from the chord between the kept vertices around it:
+    how far any point of the ring lies from the thinned ring at most (the distance to a segment is
+    convex along each edge, so its largest value is at a vertex)."""
+    if keep is None:
+        return 0.0
+    span = np.searchsorted(keep, np.arange(len(ring)), side="right") - 1  # the kept vertex before each
+    span[span < 0] = len(keep) - 1  # before the first kept vertex: on the closing chord
+    p, q = ring[keep[span]], ring[keep[(span + 1) % len(keep)]]
+    d = q - p
+    s = np.clip(((ring - p) * d).sum(1) / np.maximum((d * d).sum(1), 1e-300), 0.0, 1.0)
+    return float(np.hypot(*(ring - (p + s[:, None] * d)).T).max())
 
 
 def _part_boxes(geom) -> np.ndarray | None:

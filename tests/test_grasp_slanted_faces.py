@@ -1,6 +1,7 @@
 """`SynthesisParams.slanted_faces`: a pad on a face slanted to it by a few degrees (a tapered web)."""
 
 import numpy as np
+import pytest
 from shapely.geometry import Point
 
 from cell.cellconfig import default_cell
@@ -123,3 +124,43 @@ def test_a_pad_across_a_notch_reports_a_point_of_the_part_not_the_gap():
         P, cr, _ = cascade_for(target, SynthesisParams(contacts_on_material=flag))
         far[flag] = _on_outline_mm(target, P, cr.survivors).max()
     assert far[False] > 0.5 and far[True] < 1e-6
+
+
+# an irregular star a checker drew at random: a pad closing on its slanted tips touched them at its edge
+STAR = [[362.4138, 0.7098], [366.4774, 1.7445], [367.2337, 4.6443], [364.9594, 7.7373], [361.2435, 7.1311],
+        [363.5024, 10.8328], [354.8574, 9.6865], [351.6202, 13.1429], [350.7642, 12.1913], [350.5743, 15.7018],
+        [332.1922, -2.8916], [335.0347, -5.5871], [335.1787, -5.7235], [335.2146, -5.7577], [335.9343, -6.44],
+        [335.9702, -6.4742], [339.2023, -7.2129], [340.3814, -7.6065], [338.6266, -12.2859], [339.7014, -12.9203],
+        [346.3446, -14.9487], [348.3922, -13.5217], [352.4282, -16.1634], [353.2943, -16.7289], [354.9013, -17.7778],
+        [357.0136, -14.9777], [361.5709, -9.8848], [365.3732, -7.8646], [365.4338, -7.7281], [367.3906, -3.3122]]
+
+
+def test_contacts_offset_across_the_axis_are_refused_so_the_grasp_passes_the_physical_check():
+    """Pads on slanted tips touch at their edges: the contacts' line ran 11.8 deg off the closing axis
+    and the physical check refused the grasp the planner chose. Within max_contact_skew_deg (3, the
+    check's own limit) the planner picks one it accepts."""
+    from dataclasses import replace
+
+    from cell.examples import load_examples
+    from cell.grasp.synthesis import GraspPlanner
+    from cell.scene import Scene
+
+    part = replace(shapes.rectangle("t", 10, 10, z_top_mm=33.7), outline_mm=np.array(STAR), holes_mm=[])
+    examples = load_examples(None)
+    verdicts = {}
+    for skew in (90.0, SynthesisParams().max_contact_skew_deg):
+        g = GraspPlanner(CELL, examples, SynthesisParams(max_contact_skew_deg=skew)).plan(Scene((part,), "t")).grasp
+        verdicts[skew] = check_grasp(part, g.contacts_mm, g.axis_deg, g.grasp_z_mm)
+        line = np.degrees(np.arctan2(*(g.contacts_mm[1] - g.contacts_mm[0])[::-1]))
+        skew_deg = abs((line - g.axis_deg + 90.0) % 180.0 - 90.0)
+        assert (skew_deg <= skew + 1e-6) if skew < 90 else skew_deg > 10
+    assert not verdicts[90.0].ok and "off the line through the contacts" in verdicts[90.0].reasons[0]
+    assert verdicts[3.0].ok, verdicts[3.0].reasons
+
+
+def test_the_contact_skew_limit_must_be_an_angle_in_0_to_90():
+    from cell.errors import BadInput
+
+    for bad in (0.0, -1.0, 91.0):
+        with pytest.raises(BadInput, match="max_contact_skew_deg"):
+            SynthesisParams(max_contact_skew_deg=bad)

@@ -234,6 +234,9 @@ def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     xi, yi, xj, yj = x[:k], y[:k], x[k:], y[k:]
     h = 0.5 * ((xi - xj) * u[:, 0] + (yi - yj) * u[:, 1])
     ok &= (2 * h >= g.opening_mm[0] - EPS_MM) & (2 * h + 2 * g.approach_clearance_mm <= g.opening_mm[1] + EPS_MM)
+    if ctx.params.max_contact_skew_deg < 90:  # the contacts' line along the axis (params.py)
+        across = np.abs((xi - xj) * -u[:, 1] + (yi - yj) * u[:, 0])
+        ok &= across <= math.tan(math.radians(ctx.params.max_contact_skew_deg)) * np.abs(2 * h) + EPS_MM
     # written column by column: numpy's row assignment into (s, 2) arrays costs several times more
     for col, vi, vj in ((0, xi, xj), (1, yi, yj)):
         P.ci[:, col][idx], P.cj[:, col][idx], P.center[:, col][idx] = vi, vj, 0.5 * (vi + vj)

@@ -32,6 +32,11 @@ class SynthesisParams:
     # compliance in front of the outline); off, the point on the pad's line, as recordings made
     # before this option existed have it (cell.runtime.replay).
     contacts_on_material: bool = True
+    # The line through the reported contacts within this of the closing axis. Contacts offset across
+    # the axis (a pad touching a slanted face at its edge) make a couple the grip must resist, and
+    # the physical check holds grasps to 3 degrees (cell.physics.AXIS_TOL_DEG). 90 turns it off, as
+    # recordings made before it existed have it (cell.runtime.replay).
+    max_contact_skew_deg: float = 3.0
     # Obstacles widened by this much for the fingers and the palm: 0 for outlines given exactly (a
     # scene file); the cell loop plans on measured poses and keeps a margin (cell.runtime.loop).
     obstacle_margin_mm: float = 0.0
@@ -58,6 +63,9 @@ class SynthesisParams:
         if self.step_mm < MIN_STEP_MM:
             raise BadInput(f"synthesis parameter step_mm must be at least {MIN_STEP_MM:g} mm (all pairs of "
                            f"points are formed: a finer step costs memory with the square), got {self.step_mm:g}")
+        if not 0 < self.max_contact_skew_deg <= 90:
+            raise BadInput(f"synthesis parameter max_contact_skew_deg must be in (0, 90] degrees, got "
+                           f"{self.max_contact_skew_deg:g}")
         if self.n_contacts != 2:
             raise BadInput(f"this cell's gripper has two jaws: n_contacts must be 2, got {self.n_contacts}")
 

@@ -36,9 +36,10 @@ class RecordingEnds(Exception):  # noqa: N818 - not a CellError, like Divergence
 # The planner settings a recording keeps (meta.planner), with the values that held before each was
 # recorded: a recording made before `slanted_faces` planned without it, with leaves of 2 rows, no
 # margin around the other parts, contacts reported on the pad's line (not moved onto the material),
-# and every outline point under a pad labelled by its contact (not only those the pad touches).
+# every outline point under a pad labelled by its contact (not only those the pad touches), and any
+# angle between the contacts' line and the closing axis.
 RECORDED_PLANNER = {"slanted_faces": False, "tree_min_samples_leaf": 2, "obstacle_margin_mm": 0.0,
-                    "contacts_on_material": False, "label_touched_only": False}
+                    "contacts_on_material": False, "label_touched_only": False, "max_contact_skew_deg": 90.0}
 
 
 def planner_meta(params: SynthesisParams) -> dict:
@@ -59,6 +60,9 @@ def planner_from_meta(planner, where: str) -> SynthesisParams:
     margin = values["obstacle_margin_mm"]
     if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 0 <= margin < math.inf:
         raise BadInput(f"{where}: manifest meta.planner.obstacle_margin_mm must be a number of mm >= 0")
+    skew = values["max_contact_skew_deg"]
+    if isinstance(skew, bool) or not isinstance(skew, (int, float)) or not 0 < skew <= 90:
+        raise BadInput(f"{where}: manifest meta.planner.max_contact_skew_deg must be a number of degrees in (0, 90]")
     return SynthesisParams(**values)
 
 def differences(recorded, replayed, path: str = "") -> list[str]:

@@ -196,16 +196,23 @@ def test_following_error_trips_when_the_demand_leaves_the_window(arm, sim_drives
     assert 0 < demand_gap < 40.0 - window_deg  # jammed early, far from the target
 
 
-def test_stop_ramps_down_with_the_quick_stop_deceleration(arm, sim_drives):
+def _stop_while_cruising(arm, sim_drives, stop) -> float:
+    """Send a long j1 move without waiting, `stop()` it at cruising speed; assert it ran out on the
+    quick-stop ramp (v^2 / 2d = 11.25 deg past where it was stopped); j1's position after it."""
     start = arm.joints()
     arm.move_joints(Joints(start.j1_deg - 100.0, start.j2_deg, start.j3_mm, start.j4_deg), wait=False)
     arm.clock.sleep(0.4)  # cruising at the j1 speed limit
     v = arm.cell.scara.max_velocity["j1"]
     at_stop = sim_drives.positions()["j1"]
-    arm.stop()
+    stop()
     stopped = sim_drives.positions()["j1"]
     decel = 2.0 * arm.cell.scara.max_acceleration["j1"]  # QUICK_STOP_DECEL_FACTOR
-    assert at_stop - stopped == pytest.approx(v * v / (2 * decel), abs=0.5)  # v^2 / 2d = 11.25 deg
+    assert at_stop - stopped == pytest.approx(v * v / (2 * decel), abs=0.5)
+    return stopped
+
+
+def test_stop_ramps_down_with_the_quick_stop_deceleration(arm, sim_drives):
+    _stop_while_cruising(arm, sim_drives, arm.stop)
     assert sim_drives.drives["j1"].state == "QUICK_STOP_ACTIVE"
     _assert_frozen(arm, sim_drives)
     assert set(arm.faults) == {"stop"}
@@ -217,15 +224,7 @@ def test_stop_ramps_down_with_the_quick_stop_deceleration(arm, sim_drives):
 def test_disconnect_during_a_move_stops_it_on_the_ramp_before_disabling(arm, sim_drives):
     """A move sent without waiting, then disconnect: the axis stops on its quick-stop ramp (a real
     drive told to shut down mid-move may coast), then every drive is left without torque."""
-    start = arm.joints()
-    arm.move_joints(Joints(start.j1_deg - 100.0, start.j2_deg, start.j3_mm, start.j4_deg), wait=False)
-    arm.clock.sleep(0.4)  # cruising at the j1 speed limit
-    v = arm.cell.scara.max_velocity["j1"]
-    at_disconnect = sim_drives.positions()["j1"]
-    arm.disconnect()
-    stopped = sim_drives.positions()["j1"]
-    decel = 2.0 * arm.cell.scara.max_acceleration["j1"]  # QUICK_STOP_DECEL_FACTOR
-    assert at_disconnect - stopped == pytest.approx(v * v / (2 * decel), abs=0.5)
+    stopped = _stop_while_cruising(arm, sim_drives, arm.disconnect)
     arm.clock.sleep(1.0)
     assert {d.state for d in sim_drives.drives.values()} <= {"READY_TO_SWITCH_ON", "SWITCH_ON_DISABLED"}
     assert sim_drives.positions()["j1"] == stopped

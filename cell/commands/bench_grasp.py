@@ -153,7 +153,6 @@ def run(args) -> int:
                "error": err}
         if result is not None:
             ctx = result.context
-
             fresh = functools.partial(Pairs.of, op_pts.points, op_pts.normals, result.valid_sample_index)
             tc, tb, (cr, Pc), (br, Pb), bstages = side_by_side(ctx, fresh)
             kept = np.sort(cr.survivors)

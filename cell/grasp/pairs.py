@@ -24,7 +24,7 @@ from cell.scene import Part
 EPS_MM = 1e-6
 Z_EPS_MM = 1e-6
 # The exact stages see a target's outline with at most one vertex per this much arc length (on
-# average; `exact_outline`): a quarter of contact_tol's 1 mm and half a 0.5 mm/px camera pixel.
+# average; `exact_outline`): half of contact_tol's 1 mm, a pixel of a 0.5 mm/px camera.
 EXACT_SPACING_MM = 0.5
 
 

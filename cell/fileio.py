@@ -11,6 +11,7 @@ import fcntl
 import json
 import math
 import os
+import stat
 import tempfile
 from pathlib import Path
 
@@ -92,10 +93,20 @@ def unique_keys(pairs: list) -> dict:
     return out
 
 
+MAX_JSON_BYTES = 256 * 2**20  # a scene of 200 parts drawn every 0.02 mm is 12 MB
+
+
 def read_json(path: str | os.PathLike, what: str):
-    """Parse a JSON file; `what` names the file's role in error messages ("cell file")."""
+    """Parse a JSON file; `what` names the file's role in error messages ("cell file"). Only regular
+    files of at most MAX_JSON_BYTES: a FIFO would block, /dev/zero would fill the memory."""
     path = Path(path)
     try:
+        st = path.stat()
+        if stat.S_ISREG(st.st_mode) and st.st_size > MAX_JSON_BYTES:
+            raise BadInput(f"{what} {path} is {st.st_size / 2**20:.0f} MB: more than the "
+                           f"{MAX_JSON_BYTES / 2**20:.0f} MB a {what} may have")
+        if not stat.S_ISREG(st.st_mode) and not stat.S_ISDIR(st.st_mode):
+            raise BadInput(f"{what} {path} is not a regular file")
         text = path.read_text(encoding="utf-8-sig")  # a BOM (Windows editors write one) is not content
     except FileNotFoundError:
         raise BadInput(f"{what} {path} does not exist") from None

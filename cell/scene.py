@@ -243,6 +243,13 @@ def parse_part(raw, where: str = "part") -> Part:
     if not (isinstance(direction, list) and len(direction) == 3):
         raise BadInput(f"{where}: 'direction' must be [dx, dy, dz]")
     direction = tuple(_num(d, f"{where} direction") for d in direction)
+    if holes:  # a hole around or across the outline is no hole in it
+        shell = Polygon(outline)
+        shell = (shell if shell.is_valid else shapely.make_valid(shell)).buffer(1e-6)
+        for i, h in enumerate(holes):
+            hole = Polygon(h)
+            if hole.is_valid and not shell.contains(hole):
+                raise BadInput(f"{where} hole #{i}: lies outside the outline (holes must be inside it)")
     poly = Polygon(outline, holes)
     if not poly.is_valid:
         poly = _repaired(poly, where)
@@ -283,6 +290,10 @@ def _repaired(poly: Polygon, where: str) -> Polygon:
 def _ring(raw, where) -> np.ndarray:
     if not isinstance(raw, list) or len(raw) < 3:
         raise BadInput(f"{where}: must be a list of at least 3 [x, y] points")
+    # numbers only: numpy would read true as 1 and "330" as 330
+    if any(not isinstance(p, list) or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in p)
+           for p in raw):
+        raise BadInput(f"{where}: every point must be [x, y] with numbers")
     try:
         arr = np.asarray(raw, dtype=float)
     except OverflowError:  # an integer literal too large for a float (JSON allows any length)

@@ -267,3 +267,43 @@ def test_explain_says_why_there_is_no_grasp(tmp_path, examples, capsys):
     assert total == d["counts"]["pairs"]
     code, text, _ = run_cli("grasp", path, "--examples", examples, "--explain", capsys=capsys)
     assert code == 3 and "  rejected pair" in text
+
+
+@pytest.mark.parametrize("part, message", [
+    # a hole around the outline used to be planned as a frame 62 mm wide around a 60 mm part
+    ({"outline": [[320, -20], [380, -20], [380, 20], [320, 20]],
+      "holes": [[[319, -21], [381, -21], [381, 21], [319, 21]]]}, "hole #0: lies outside the outline"),
+    ({"outline": [[320, -20], [380, -20], [380, 20], [320, 20]],
+      "holes": [[[370, -5], [400, -5], [400, 5], [370, 5]]]}, "hole #0: lies outside the outline"),
+    ({"outline": [[True, -20], [380, -20], [380, 20], [320, 20]]}, "every point must be [x, y] with numbers"),
+    ({"outline": [["320", "-20"], [380, -20], [380, 20], [320, 20]]}, "every point must be [x, y] with numbers"),
+    # 40 m of outline: all pairs of its 16568 points would take 2 GB and more
+    ({"outline": [[-4650, -5000], [5350, -5000], [5350, 5000], [-4650, 5000]]}, "more than the planner takes"),
+])
+def test_scenes_a_checker_found_planned_or_crashing_are_bad_input(tmp_path, examples, part, message, capsys):
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps({"units": "mm", "target": "t", "parts": [{"id": "t", "z_top": 12, **part}]}))
+    code, out, err = run_cli("grasp", path, "--examples", examples, capsys=capsys)
+    assert code == 2 and message in err and "Traceback" not in err, err
+
+
+def test_a_scene_file_that_is_no_regular_file_is_bad_input(tmp_path, examples, capsys):
+    import os
+
+    fifo = tmp_path / "scene.fifo"
+    os.mkfifo(fifo)  # reading it would block for ever
+    for path in (fifo, "/dev/zero"):  # /dev/zero would fill the memory
+        code, _, err = run_cli("grasp", path, "--examples", examples, capsys=capsys)
+        assert code == 2 and "is not a regular file" in err
+
+
+def test_a_part_narrower_than_the_smallest_opening_is_said_to_be_narrower(tmp_path, examples, capsys):
+    d = json.loads(default_cell_path().read_text())
+    d["gripper"]["opening_mm"] = [25, 80]
+    cell = tmp_path / "cell.json"
+    cell.write_text(json.dumps(d))
+    path = write_scene(tmp_path / "s.json", [shapes.rectangle("sq", 20, 20, (350, 0))], "sq")
+    code, out, err = run_cli("grasp", path, "--json", "--cell", cell, "--examples", examples, capsys=capsys)
+    assert code == 3
+    reason = json.loads(out)["reason"]
+    assert "narrower than the gripper's smallest opening" in reason and "wider" not in reason

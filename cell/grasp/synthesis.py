@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cell.cellconfig import Cell
-from cell.errors import NoFeasibleGrasp
+from cell.errors import BadInput, NoFeasibleGrasp
 from cell.examples import GraspExample
 from cell.grasp.attributes import OutlinePoints, global_attributes, global_names, local_attributes
 from cell.grasp.candidates import candidate_points
@@ -30,6 +30,10 @@ from cell.grasp.outline import part_rings
 from cell.grasp.params import SynthesisParams
 from cell.kinematics import Joints, normalize_axis_deg
 from cell.scene import Scene
+
+# valid contact points at most: all pairs are formed (~200 bytes each), 3.1 M pairs is ~0.6 GB; a part
+# that fits the workspace has under 1600 at the 2 mm step
+MAX_VALID_POINTS = 2500
 
 
 @dataclass(eq=False)
@@ -173,6 +177,14 @@ class GraspPlanner:
             fail(f"tree 1 keeps {len(vp)} of {len(cand)} candidate points: fewer than {p.n_contacts} valid "
                  "contact points")
 
+        if len(vp) > MAX_VALID_POINTS:  # every pair is formed: memory grows with the square
+            raise BadInput(f"part {target.id!r}: {len(vp)} valid contact points, "
+                           f"{len(vp) * (len(vp) - 1) // 2} pairs: more than the planner takes "
+                           f"({MAX_VALID_POINTS} points, {MAX_VALID_POINTS * (MAX_VALID_POINTS - 1) // 2} pairs, "
+                           f"about 0.6 GB). The outline is {target.polygon.length / 1000:.1f} m long; the cell's "
+                           f"workspace is {self.cell.workspace.x_mm[1] - self.cell.workspace.x_mm[0]:g} x "
+                           f"{self.cell.workspace.y_mm[1] - self.cell.workspace.y_mm[0]:g} mm (a larger --step-mm "
+                           "takes fewer points)")
         t0 = time.perf_counter()
         P = Pairs.of(vp.points, vp.normals, cand_index[point_valid])
         counts["pairs"] = len(P)
@@ -276,7 +288,15 @@ class GraspPlanner:
             every = np.arange(len(P))
             facing = stage_antipodal(ctx, P, every)
             if facing.any() and not (facing & stage_stroke(ctx, P, every)).any():
-                closest = float(P.d[facing].min())
+                closest, farthest = float(P.d[facing].min()), float(P.d[facing].max())
+                if farthest < g.opening_mm[0]:
+                    return (f"the part is narrower than the gripper's smallest opening: facing contact points are "
+                            f"at most {farthest:.1f} mm apart, the jaws close to {g.opening_mm[0]:g} mm at the least")
+                if closest < g.opening_mm[0]:
+                    return (f"no facing contact points fit the jaws: they are {closest:.1f}-{farthest:.1f} mm apart, "
+                            f"the jaws take {g.opening_mm[0]:g}-{g.opening_mm[1] - 2 * g.approach_clearance_mm:g} "
+                            f"mm (opening {g.opening_mm[1]:g} mm minus 2 x {g.approach_clearance_mm:g} mm approach "
+                            "clearance)")
                 return (f"the part is wider than the gripper's stroke: facing contact points are at least "
                         f"{closest:.1f} mm apart, the jaws take at most "
                         f"{g.opening_mm[1] - 2 * g.approach_clearance_mm:g} mm (opening {g.opening_mm[1]:g} mm "

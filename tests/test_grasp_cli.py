@@ -237,18 +237,25 @@ def test_a_noisy_self_crossing_camera_contour_is_planned(tmp_path, examples, cap
     assert 34 < d["opening_mm"] < 36.5 or 59 < d["opening_mm"] < 61.5
 
 
-def test_a_part_narrower_than_the_smallest_opening_says_so(tmp_path, examples, capsys):
-    """A cell whose jaws close to 20 mm at the least, a part 8 x 6 mm: the reason named only the
-    largest opening ("contact distance at most 70 mm"), which the part is well within."""
+@pytest.mark.parametrize("smallest_mm, part", [
+    # jaws that close to 20 mm at the least, a part 8 x 6 mm: the reason named only the largest
+    # opening ("contact distance at most 70 mm"), which the part is well within
+    (20.0, shapes.rectangle("p", 8, 6, (320, 40))),
+    # 25 mm at the least, a 20 mm square: its diagonal pairs fit the stroke, its facing ones do not,
+    # and the reason called the part wider than the stroke
+    (25.0, shapes.rectangle("p", 20, 20, (350, 0))),
+])
+def test_a_part_narrower_than_the_smallest_opening_says_so(tmp_path, examples, smallest_mm, part, capsys):
     d = json.loads(default_cell_path().read_text())
-    d["gripper"]["opening_mm"] = [20.0, 80.0]
+    d["gripper"]["opening_mm"] = [smallest_mm, 80.0]
     cell = tmp_path / "cell.json"
     cell.write_text(json.dumps(d))
-    path = write_scene(tmp_path / "pin.json", [shapes.rectangle("pin", 8, 6, (320, 40))], "pin")
+    path = write_scene(tmp_path / "pin.json", [part], "p")
     code, out, err = run_cli("grasp", path, "--json", "--examples", examples, "--cell", cell, capsys=capsys)
     r = json.loads(out)
     assert code == 3 and r["error"] == "no_feasible_grasp", r
-    assert "narrower than the gripper's smallest opening" in r["reason"] and "20 mm" in r["reason"]
+    assert "narrower than the gripper's smallest opening" in r["reason"] and f"{smallest_mm:g} mm" in r["reason"]
+    assert "wider" not in r["reason"]
 
 
 def test_explain_says_why_there_is_no_grasp(tmp_path, examples, capsys):
@@ -296,14 +303,3 @@ def test_a_scene_file_that_is_no_regular_file_is_bad_input(tmp_path, examples, c
         code, _, err = run_cli("grasp", path, "--examples", examples, capsys=capsys)
         assert code == 2 and "is not a regular file" in err
 
-
-def test_a_part_narrower_than_the_smallest_opening_is_said_to_be_narrower(tmp_path, examples, capsys):
-    d = json.loads(default_cell_path().read_text())
-    d["gripper"]["opening_mm"] = [25, 80]
-    cell = tmp_path / "cell.json"
-    cell.write_text(json.dumps(d))
-    path = write_scene(tmp_path / "s.json", [shapes.rectangle("sq", 20, 20, (350, 0))], "sq")
-    code, out, err = run_cli("grasp", path, "--json", "--cell", cell, "--examples", examples, capsys=capsys)
-    assert code == 3
-    reason = json.loads(out)["reason"]
-    assert "narrower than the gripper's smallest opening" in reason and "wider" not in reason

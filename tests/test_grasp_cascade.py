@@ -277,13 +277,10 @@ def _obstacle_scene():
     return box, others
 
 
-def test_row_norms_and_dot_products_match_numpy_bit_for_bit():
+def test_row_norms_match_numpy_bit_for_bit():
     rng = np.random.default_rng(0)
     a = rng.normal(size=(5000, 2)) * np.exp(rng.normal(size=(5000, 2)) * 4)
-    b = rng.normal(size=(5000, 2))
     assert np.array_equal(pairs._norm2(a), np.linalg.norm(a, axis=1))
-    assert np.array_equal(pairs._dot2(a, b), (a * b).sum(1))
-    assert np.array_equal(-pairs._dot2(a, b), (a * -b).sum(1))
 
 
 @settings(max_examples=40, deadline=None)

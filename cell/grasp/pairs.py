@@ -229,9 +229,3 @@ class Pairs:
 def _norm2(a: np.ndarray) -> np.ndarray:
     """Row lengths of a (k, 2): np.linalg.norm(a, axis=1), bit for bit, without its reduction's cost."""
     return np.sqrt(a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1])
-
-
-def _dot2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row dot products of two (k, 2): (a * b).sum(1), bit for bit (a sum over an axis of length 2 costs
-    ten times the two products and the addition)."""
-    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]

@@ -255,10 +255,16 @@ class GraspPlanner:
     def _empty_stage_reason(self, cr: CascadeResult, ctx: Context, P: Pairs) -> str:
         g, p = self.cell.gripper, self.params
         first = next(n for n in STAGES if cr.kept[n] == 0)
+        smallest, widest = g.opening_mm[0], g.opening_mm[1] - 2 * g.approach_clearance_mm
+        clearance = f"opening {g.opening_mm[1]:g} mm minus 2 x {g.approach_clearance_mm:g} mm approach clearance"
+
+        def narrower(which: str, at_most_mm: float) -> str:
+            return (f"the part is narrower than the gripper's smallest opening: {which}contact points are at most "
+                    f"{at_most_mm:.1f} mm apart, the jaws close to {smallest:g} mm at the least")
+
         why = {
             "stroke": f"every pair of valid points is outside the jaw stroke (contact distance at most "
-                      f"{g.opening_mm[1] - 2 * g.approach_clearance_mm:g} mm: opening {g.opening_mm[1]:g} mm "
-                      f"minus 2 x {g.approach_clearance_mm:g} mm approach clearance)",
+                      f"{widest:g} mm: {clearance})",
             "reach": "no pair centre is within the arm's reach and the workspace",
             "antipodal": f"no two valid points face each other (normals within {p.max_normal_angle_deg:g} deg "
                          "of the closing line)",
@@ -271,16 +277,13 @@ class GraspPlanner:
                                  f"obstacle taller than the grasp z ({', '.join(ctx.finger_obstacle_ids)})",
             "palm": "every remaining pair collides: the palm overlaps an obstacle taller than its bottom",
         }[first]
-        if first == "stroke" and len(P) and g.opening_mm[0] > 0:
-            narrow = P.d < g.opening_mm[0]
+        if first == "stroke" and len(P) and smallest > 0:
+            narrow = P.d < smallest
             if narrow.all():
-                return (f"the part is narrower than the gripper's smallest opening: contact points are at most "
-                        f"{float(P.d.max()):.1f} mm apart, the jaws close to {g.opening_mm[0]:g} mm at the least")
+                return narrower("", float(P.d.max()))
             if narrow.any():
-                widest = g.opening_mm[1] - 2 * g.approach_clearance_mm
                 why = (f"every pair of valid points is either closer than the jaws' smallest opening "
-                       f"({g.opening_mm[0]:g} mm) or farther apart than {widest:g} mm (opening "
-                       f"{g.opening_mm[1]:g} mm minus 2 x {g.approach_clearance_mm:g} mm approach clearance)")
+                       f"({smallest:g} mm) or farther apart than {widest:g} mm ({clearance})")
         if STAGES.index(first) > STAGES.index("stroke"):
             # Facing points exist, but none close enough: say so, it is the usual cause.
             from cell.grasp.cascade import stage_antipodal, stage_stroke
@@ -289,18 +292,13 @@ class GraspPlanner:
             facing = stage_antipodal(ctx, P, every)
             if facing.any() and not (facing & stage_stroke(ctx, P, every)).any():
                 closest, farthest = float(P.d[facing].min()), float(P.d[facing].max())
-                if farthest < g.opening_mm[0]:
-                    return (f"the part is narrower than the gripper's smallest opening: facing contact points are "
-                            f"at most {farthest:.1f} mm apart, the jaws close to {g.opening_mm[0]:g} mm at the least")
-                if closest < g.opening_mm[0]:
+                if farthest < smallest:
+                    return narrower("facing ", farthest)
+                if closest < smallest:
                     return (f"no facing contact points fit the jaws: they are {closest:.1f}-{farthest:.1f} mm apart, "
-                            f"the jaws take {g.opening_mm[0]:g}-{g.opening_mm[1] - 2 * g.approach_clearance_mm:g} "
-                            f"mm (opening {g.opening_mm[1]:g} mm minus 2 x {g.approach_clearance_mm:g} mm approach "
-                            "clearance)")
+                            f"the jaws take {smallest:g}-{widest:g} mm ({clearance})")
                 return (f"the part is wider than the gripper's stroke: facing contact points are at least "
-                        f"{closest:.1f} mm apart, the jaws take at most "
-                        f"{g.opening_mm[1] - 2 * g.approach_clearance_mm:g} mm (opening {g.opening_mm[1]:g} mm "
-                        f"minus 2 x {g.approach_clearance_mm:g} mm approach clearance)")
+                        f"{closest:.1f} mm apart, the jaws take at most {widest:g} mm ({clearance})")
         return f"no reachable pair ({first} stage): {why}"
 
     def rules(self) -> dict:

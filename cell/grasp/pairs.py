@@ -112,7 +112,8 @@ def exact_outline(target: Part):
         poly = shapely.Polygon(thinned[0], thinned[1:])
         if poly.is_valid:  # thinning a sliver narrower than the spacing could make it cross itself
             return poly, thinned, max(_shift(r, k) for r, k in zip(rings, kept, strict=True))
-    return shapely.Polygon(target.polygon.exterior, target.polygon.interiors), rings, 0.0
+    given = target.polygon  # a new Polygon at every read
+    return shapely.Polygon(given.exterior, given.interiors), rings, 0.0
 
 
 def _kept(ring: np.ndarray, spacing_mm: float) -> np.ndarray | None:

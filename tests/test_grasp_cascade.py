@@ -183,9 +183,7 @@ def test_the_cascade_keeps_exactly_what_the_brute_force_keeps():
               shapes.rectangle("wall", 20, 120, (340, 100), 0, z_top_mm=80)]
     for target, obstacles in ((box, others), (shapes.gear("g", 30, 12, 4), []), (shapes.l_shape("l"), [])):
         P, cr, ctx = cascade_for(target, obstacles)
-        P2 = Pairs(  # a fresh copy: nothing computed by the cascade carries over
-            P.ij, P.pi, P.pj, P.ni, P.nj, P.d, P.u, P.m, P.t, P.ci * np.nan, P.cj * np.nan,
-                   P.center * np.nan, P.h * np.nan, {}, P.si)
+        P2 = P.fresh()
         br = run_brute_force(ctx, P2)
         assert np.array_equal(np.sort(cr.survivors), np.sort(br.survivors))
         assert cr.exact_checks < br.exact_checks
@@ -242,8 +240,7 @@ def test_random_scenes_survivors_are_collision_free_and_match_the_brute_force(w,
         if not o.polygon.intersects(target.polygon):
             others.append(o)
     P, cr, ctx = cascade_for(target, others)
-    fresh = Pairs(P.ij, P.pi, P.pj, P.ni, P.nj, P.d, P.u, P.m, P.t, P.ci * np.nan, P.cj * np.nan,
-                  P.center * np.nan, P.h * np.nan, {}, P.si)
+    fresh = P.fresh()
     br = run_brute_force(ctx, fresh)
     assert np.array_equal(np.sort(cr.survivors), np.sort(br.survivors))
     gz = ctx.grasp_z_mm
@@ -338,8 +335,7 @@ def test_antipodal_verdicts_match_the_plain_formula():
 
 
 def _contacts(ctx, P, idx):
-    fresh = Pairs(P.ij, P.pi, P.pj, P.ni, P.nj, P.d, P.u, P.m, P.t, P.ci * np.nan, P.cj * np.nan,
-                  P.center * np.nan, P.h * np.nan, {}, P.si)
+    fresh = P.fresh()
     ok = cascade.stage_contacts(ctx, fresh, idx)
     return ok, fresh.ci, fresh.cj, fresh.h
 
@@ -449,3 +445,52 @@ def test_coincident_points_where_a_hole_touches_the_outline_face_no_way():
     same = np.flatnonzero(P.d == 0)
     assert len(same) == 1
     assert cr.rejected_by[same[0]] == STAGES.index("antipodal")
+
+
+def _outline_ahead_everywhere(ctx, P, idx):
+    """The pre-check's outline test on every row (no bound deciding rows first), for comparison."""
+    g, tol, shift = ctx.cell.gripper, ctx.params.contact_tol_mm, ctx.outline_shift_mm
+    hw = g.pad_width_mm / 2 + tol - shift
+    hits = []
+    for side, col in ((1.0, 0), (-1.0, 1)):
+        s = P.sample_index[P.ij[idx, col]]
+        m, us, t = P.m[idx], side * P.u[idx], P.t[idx]
+        dx, dy = ctx.neighbour_x[s] - m[:, :1], ctx.neighbour_y[s] - m[:, 1:]
+        tq, lq = dx * us[:, :1] + dy * us[:, 1:], -dx * us[:, 1:] + dy * us[:, :1]
+        t_max = t + g.approach_clearance_mm + g.pad_thickness_mm - shift
+        hits.append(((np.abs(lq) <= hw - pairs.EPS_MM) & (tq <= t_max[:, None] - pairs.EPS_MM)
+                     & (tq > t[:, None] + tol + shift + pairs.EPS_MM)).any(1))
+    return hits[0] | hits[1]
+
+
+@pytest.mark.parametrize("target", [shapes.rectangle("bar", 240, 60, (350, 0), 10), shapes.gear("g", 30, 12, 4),
+                                    shapes.l_shape("l", 70, 50, 18, (420, 150), 25),
+                                    shapes.disc("ring", 30, (300, -120), hole_r_mm=12)], ids=lambda p: p.id)
+def test_the_outline_pre_check_looks_only_where_a_neighbour_can_be_ahead(target):
+    """Rows whose bound says no neighbour can lie ahead (straight stretches, axes along the
+    normal) are not looked at: the verdicts are those of the test on every row."""
+    P, _, ctx = cascade_for(target)
+    idx = np.arange(len(P))
+    idx = idx[cascade.stage_stroke(ctx, P, idx) & cascade.stage_antipodal(ctx, P, idx)]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        fast = cascade._outline_ahead(ctx, P, idx)
+    assert np.array_equal(fast, _outline_ahead_everywhere(ctx, P, idx))
+    if target.id in ("g", "l"):
+        assert fast.any() and not fast.all()
+
+
+def test_the_pre_check_tells_convex_targets():
+    def ctx_of(part):
+        return Context.build(part, [], CELL, PARAMS, 5.0)
+
+    u_with_repeats = parse_part({"id": "u", "outline": [[358, 106], [410, 108], [409, 130], [357, 128], [357, 128],
+                                                        [357.5, 117.6], [399, 119], [399, 119], [399.3, 117.7],
+                                                        [357.6, 116.3], [357.6, 116.3]], "z_top": 10})
+    collinear = parse_part({"id": "c", "outline": [[330, 0], [350, 0], [370, 0], [370, 30], [330, 30]], "z_top": 10})
+    assert cascade._convex(ctx_of(shapes.rectangle("r", 50, 30, angle_deg=33)))
+    assert cascade._convex(ctx_of(shapes.disc("d", 20)))
+    assert cascade._convex(ctx_of(collinear))  # a vertex on a straight edge turns neither way
+    assert not cascade._convex(ctx_of(shapes.disc("ring", 20, hole_r_mm=5)))  # a hole: material is not convex
+    assert not cascade._convex(ctx_of(shapes.l_shape("l")))
+    assert not cascade._convex(ctx_of(shapes.gear("g")))
+    assert not cascade._convex(ctx_of(u_with_repeats))  # repeated vertices do not hide the U's inner corners

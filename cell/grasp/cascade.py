@@ -7,8 +7,9 @@ then exact checks (shapely, closed-form IK) only on the survivors:
     reach              pair centre inside the SCARA's annulus and the workspace (2 mm margin)
     antipodal          each normal within max_normal_angle of the line between the points, and
                        the points on one closing line (lateral offset <= contact_tol)
-    precheck           points on the fingers' paths inside the target, a tall obstacle, or
-                       the pair centre inside a palm-high obstacle: a certain collision
+    precheck           points on the fingers' paths inside a tall obstacle or a non-convex target,
+                       the pair centre inside a palm-high obstacle, or the outline next to a point
+                       ahead of it in its pad's band: a certain collision or a pad stopped early
     contacts (exact)   each pad closes along the axis and stops at the first material in its
                        band: that point, found exactly, must be the candidate (within
                        contact_tol), or the candidate must be among the material touching the
@@ -125,25 +126,49 @@ def stage_precheck(ctx: Context, P: Pairs, idx) -> np.ndarray:
     """Conservative: a point that every exact footprint of this pair would cover lies inside
     material, or the outline next to a point juts out into its pad's band (docs/grasp.md)."""
     g = ctx.cell.gripper
-    m, u, t = P.m.take(idx, 0), P.u.take(idx, 0), P.t.take(idx)
-    tol = ctx.params.contact_tol_mm
-    reach = g.approach_clearance_mm + g.pad_thickness_mm
-    offs = np.array([tol + 1.5, 0.5 * (tol + reach), reach - 1.5])
-    # both fingers' points in one shapely call: m + side * u * (t + off) is m + u * (side * (t + off)),
-    # exactly, as side is +-1
-    a = t[:, None] + offs[None, :]
-    a = np.concatenate([a, -a], axis=1)  # (k, 6)
-    x = (m[:, 0, None] + u[:, 0, None] * a).ravel()
-    y = (m[:, 1, None] + u[:, 1, None] * a).ravel()
-    hit = shapely.contains_xy(ctx.target_geom, x, y)
-    if ctx.finger_obstacles is not None:
-        hit |= shapely.contains_xy(ctx.finger_obstacles, x, y)
-    ok = ~hit.reshape(len(idx), -1).any(1)
+    k = len(idx)
+    m = P.m.take(idx, 0)
+    ok = np.ones(k, bool)
+    # material on the fingers' paths: tall obstacles, and the target itself unless it is convex
+    # (there the material in front of a pad is the outline next to its point, which
+    # _outline_ahead looks at: on the parts library the test never rejected a pair more)
+    geoms = [o for o in (None if _convex(ctx) else ctx.target_geom, ctx.finger_obstacles) if o is not None]
+    if geoms:
+        u, t = P.u.take(idx, 0), P.t.take(idx)
+        tol = ctx.params.contact_tol_mm
+        reach = g.approach_clearance_mm + g.pad_thickness_mm
+        offs = np.array([tol + 1.5, 0.5 * (tol + reach), reach - 1.5])
+        # both fingers' points in one shapely call: m + side * u * (t + off) is m + u * (side * (t + off)),
+        # exactly, as side is +-1
+        a = t[:, None] + offs[None, :]
+        a = np.concatenate([a, -a], axis=1)  # (k, 6)
+        x = (m[:, 0, None] + u[:, 0, None] * a).ravel()
+        y = (m[:, 1, None] + u[:, 1, None] * a).ravel()
+        hit = shapely.contains_xy(geoms[0], x, y)
+        for o in geoms[1:]:
+            hit |= shapely.contains_xy(o, x, y)
+        ok = ~hit.reshape(k, -1).any(1)
     if ctx.palm_obstacles is not None:
         ok &= ~shapely.contains_xy(ctx.palm_obstacles, m[:, 0], m[:, 1])
-    if ctx.samples is not None and P.si is not None:
+    if ctx.samples is not None and P.sample_index is not None:
         ok &= ~_outline_ahead(ctx, P, idx)
     return ok
+
+
+def _convex(ctx: Context) -> bool:
+    """Is the target's material convex: no holes, and its outline (repeated vertices left out) turns
+    the same way at every vertex? Near-straight vertices (not turning back), within 1e-9 of the
+    edges' lengths' product, turn neither way."""
+    if ctx.target.holes_mm:
+        return False
+    dx, dy = ctx.edge_dx, ctx.edge_dy
+    length2 = dx * dx + dy * dy
+    if not (length2 > 0).all():
+        dx, dy, length2 = dx[length2 > 0], dy[length2 > 0], length2[length2 > 0]
+    nx, ny, nl2 = (np.concatenate([a[1:], a[:1]]) for a in (dx, dy, length2))  # the next edge (np.roll costs more)
+    cross = dx * ny - dy * nx
+    straight = (np.abs(cross) <= 1e-9 * np.sqrt(length2 * nl2)) & (dx * nx + dy * ny > 0)
+    return bool(((cross > 0) | straight).all() or ((cross < 0) | straight).all())
 
 
 def _outline_ahead(ctx: Context, P: Pairs, idx) -> np.ndarray:
@@ -156,17 +181,37 @@ def _outline_ahead(ctx: Context, P: Pairs, idx) -> np.ndarray:
     shift = ctx.outline_shift_mm
     hw = g.pad_width_mm / 2 + tol - shift
     k = len(idx)
-    # both points at once: p_i's pad closes along -u from the +u side (side +1), p_j's from -u
-    s = P.si.take(idx, 0).T.ravel()  # (2k,) p_i's samples, then p_j's
-    m, u, t = P.m.take(idx, 0), P.u.take(idx, 0), P.t.take(idx)
-    mx, my, t = np.concatenate([m[:, 0], m[:, 0]]), np.concatenate([m[:, 1], m[:, 1]]), np.concatenate([t, t])
+    # each valid point's neighbours, and how far ahead of it they can lie: a neighbour r from the point
+    # (a along its normal n, b across) lies a cos(th) + b sin(th) <= max(a, 0) + |b| |sin(th)| ahead
+    # along a closing axis th from n (|th| < 90 degrees). Where that bound is within tol (a point on a
+    # straight stretch, an axis along its normal: the usual case) no neighbour can be ahead; the
+    # test below (same verdicts) looks at the other rows only
+    nbx, nby = ctx.neighbour_x.take(P.sample_index, 0), ctx.neighbour_y.take(P.sample_index, 0)  # (z', 2K)
+    px, py = P.points[:, 0, None], P.points[:, 1, None]
+    n_x, n_y = P.normals[:, 0], P.normals[:, 1]
+    rx, ry = nbx - px, nby - py
+    ahead = np.maximum((rx * n_x[:, None] + ry * n_y[:, None]).max(1), 0.0)
+    across = np.abs(ry * n_x[:, None] - rx * n_y[:, None]).max(1)
+    # the 2k rows: p_i's pad closes along -u from the +u side (side +1), p_j's from -u
+    pt = P.ij.take(idx, 0).T.ravel()  # (2k,) p_i's point, then p_j's
+    u = P.u.take(idx, 0)
     usx, usy = np.concatenate([u[:, 0], -u[:, 0]]), np.concatenate([u[:, 1], -u[:, 1]])
-    t_max = t + g.approach_clearance_mm + g.pad_thickness_mm - shift
-    dx, dy = ctx.neighbour_x.take(s, 0) - mx[:, None], ctx.neighbour_y.take(s, 0) - my[:, None]  # (2k, 2K)
-    tq = dx * usx[:, None] + dy * usy[:, None]
-    lq = dx * -usy[:, None] + dy * usx[:, None]
-    hit = ((np.abs(lq) <= hw - EPS_MM) & (tq <= t_max[:, None] - EPS_MM)
-           & (tq > t[:, None] + tol + shift + EPS_MM)).any(1)
+    nxr, nyr = n_x.take(pt), n_y.take(pt)
+    cos, sin = usx * nxr + usy * nyr, np.abs(usx * nyr - usy * nxr)
+    rows = np.flatnonzero((cos <= 0) | (ahead.take(pt) + across.take(pt) * sin > tol + shift))
+    hit = np.zeros(2 * k, bool)
+    if len(rows):
+        m, t = P.m.take(idx, 0), P.t.take(idx)
+        pair = rows % k
+        mx, my, tr = m[:, 0].take(pair), m[:, 1].take(pair), t.take(pair)
+        ux_r, uy_r = usx.take(rows), usy.take(rows)
+        t_max = tr + g.approach_clearance_mm + g.pad_thickness_mm - shift
+        q = pt.take(rows)
+        dx, dy = nbx.take(q, 0) - mx[:, None], nby.take(q, 0) - my[:, None]  # (r, 2K)
+        tq = dx * ux_r[:, None] + dy * uy_r[:, None]
+        lq = dx * -uy_r[:, None] + dy * ux_r[:, None]
+        hit[rows] = ((np.abs(lq) <= hw - EPS_MM) & (tq <= t_max[:, None] - EPS_MM)
+                     & (tq > tr[:, None] + tol + shift + EPS_MM)).any(1)
     return hit[:k] | hit[k:]
 
 

@@ -188,10 +188,10 @@ class Pairs:
     h: np.ndarray = None
     joints: dict = field(default_factory=dict)
     ik: tuple | None = None  # (grasp z, scara) once the ik stage ran: joints_of solves from it
-    si: np.ndarray | None = None  # (s, 2) outline-sample index of p_i and p_j
-
     w: np.ndarray | None = None  # (s, 2) p_i - p_j, the stages reuse it
     points: np.ndarray | None = None  # (z', 2) the valid points the pairs are made of
+    normals: np.ndarray | None = None  # (z', 2) their outward normals
+    sample_index: np.ndarray | None = None  # (z',) each point's index among the target's outline samples
 
     def __post_init__(self):
         if self.w is None:
@@ -219,9 +219,16 @@ class Pairs:
         m = 0.5 * (pi + pj)
         t = 0.5 * (w[:, 0] * u[:, 0] + w[:, 1] * u[:, 1])
         nan2 = np.full((len(i), 2), np.nan)
-        si = None if sample_index is None else np.column_stack([sample_index[i], sample_index[j]])
+        si = None if sample_index is None else np.asarray(sample_index, int)
         return cls(np.column_stack([i, j]), pi, pj, ni, nj, d, u, m, t, nan2.copy(), nan2.copy(), nan2.copy(),
-                   np.full(len(i), np.nan), si=si, w=w, points=points)
+                   np.full(len(i), np.nan), w=w, points=points, normals=normals, sample_index=si)
+
+    def fresh(self) -> Pairs:
+        """The same pairs with nothing the stages computed (contacts, IK) carried over."""
+        nan2 = np.full((len(self), 2), np.nan)
+        return Pairs(self.ij, self.pi, self.pj, self.ni, self.nj, self.d, self.u, self.m, self.t, nan2.copy(),
+                     nan2.copy(), nan2.copy(), np.full(len(self), np.nan), w=self.w, points=self.points,
+                     normals=self.normals, sample_index=self.sample_index)
 
     def axis_deg(self, k: int) -> float:
         return normalize_axis_deg(math.degrees(math.atan2(self.u[k, 1], self.u[k, 0])))

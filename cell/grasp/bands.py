@@ -168,7 +168,7 @@ class BandEdges:
         tr, lr = t.take(nb), l.take(nb)
         lo, hi, touching = _behind_limit(tr - PAD_COMPLIANCE_MM, tA, dt, self.s0.take(k), self.s1.take(k))
         den = dt * dt + dl * dl
-        s = np.clip(np.where(den > 0, ((tr - tA) * dt + (lr - lA) * dl) / den, lo), lo, hi)
+        s = np.minimum(np.maximum(np.where(den > 0, ((tr - tA) * dt + (lr - lA) * dl) / den, lo), lo), hi)  # np.clip
         et, el = tA + s * dt, lA + s * dl
         d2 = np.where(touching, (et - tr) ** 2 + (el - lr) ** 2, np.inf)
         best = np.full(r, np.inf)
@@ -206,7 +206,8 @@ def _liang_barsky(tA, dt, lA, dl, t_min, t_max, half_width):
     smallest where p > 0 (and 1)."""
     bounds = ((-dt, tA - t_min), (dt, t_max - tA), (-dl, lA + half_width), (dl, half_width - lA))
     if len(tA) <= LB_STACKED_MAX:  # few segments: the four boundaries at once, rows of (4, n)
-        p, q = np.stack([b[0] for b in bounds]), np.stack([b[1] for b in bounds])
+        # (np.stack costs several times a concatenate of the same rows)
+        p, q = (np.concatenate([b[c] for b in bounds]).reshape(4, -1) for c in (0, 1))
         r = q / p
         s0 = np.maximum(np.where(p < 0, r, -np.inf).max(0), 0.0)
         s1 = np.minimum(np.where(p > 0, r, np.inf).min(0), 1.0)

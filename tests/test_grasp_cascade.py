@@ -1,9 +1,12 @@
 """The cascade of step 3: each stage rejects what it should, the cheap stages only what the exact
 ones would, and what survives is really reachable and collision-free."""
 
+import json
+
 import numpy as np
 import pytest
 import shapely
+from conftest import run_cli
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import Point
@@ -26,6 +29,7 @@ from cell.grasp.height import grasp_z_mm
 from cell.grasp.params import SynthesisParams
 from cell.grasp.synthesis import GraspPlanner
 from cell.kinematics import forward, normalize_axis_deg
+from cell.physics import check_grasp
 from cell.scene import Scene, parse_part
 
 CELL = default_cell()
@@ -494,3 +498,27 @@ def test_the_pre_check_tells_convex_targets():
     assert not cascade._convex(ctx_of(shapes.l_shape("l")))
     assert not cascade._convex(ctx_of(shapes.gear("g")))
     assert not cascade._convex(ctx_of(u_with_repeats))  # repeated vertices do not hide the U's inner corners
+
+
+def test_a_part_wider_than_the_stroke_where_the_pads_stop_is_refused(tmp_path, capsys):
+    """A 90-gon 70.46 mm across its flats: 70.46 + 2 x 5 mm clearance exceeds the 80 mm stroke. On
+    a chord off the centre its contacts are 69.9 mm apart, but each pad, 12 mm wide, stops on the
+    disc's widest part in front of them (0.28 mm further out, within its compliance)."""
+    disc = shapes.disc("d", 35.25, n=90)
+    scene = Scene((disc,), "d")
+    old = GraspPlanner(CELL, shapes.hand_made_examples(), SynthesisParams(stroke_at_pad_lines=False)).plan(scene)
+    g = old.grasp
+    assert g.opening_mm + 2 * CELL.gripper.approach_clearance_mm <= 80.0
+    verdict = check_grasp(disc, g.contacts_mm, g.axis_deg, g.grasp_z_mm)
+    assert verdict.jaw_width_mm > 70.0 and any("pads stop" in r for r in verdict.reasons)
+    with pytest.raises(NoFeasibleGrasp, match="wider than the gripper's stroke where the pads stop"):
+        GraspPlanner(CELL, shapes.hand_made_examples()).plan(scene)
+    path = tmp_path / "disc.json"
+    path.write_text(json.dumps({"units": "mm", "parts": [{"id": "d", "outline": disc.outline_mm.tolist(),
+                                                          "z_top": disc.z_top_mm}], "target": "d"}))
+    code, out, err = run_cli("grasp", path, capsys=capsys)
+    assert code == 3 and "where the pads stop" in out + err
+    # 70 mm across the corners (69.96 across the flats): the pads fit
+    narrower = shapes.disc("d", 35.0, n=90)
+    g = GraspPlanner(CELL, shapes.hand_made_examples()).plan(Scene((narrower,), "d")).grasp
+    assert check_grasp(narrower, g.contacts_mm, g.axis_deg, g.grasp_z_mm).ok

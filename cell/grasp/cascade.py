@@ -279,6 +279,8 @@ def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     xi, yi, xj, yj = x[:k], y[:k], x[k:], y[k:]
     h = 0.5 * ((xi - xj) * u[:, 0] + (yi - yj) * u[:, 1])
     ok &= (2 * h >= g.opening_mm[0] - EPS_MM) & (2 * h + 2 * g.approach_clearance_mm <= g.opening_mm[1] + EPS_MM)
+    if ctx.params.stroke_at_pad_lines:
+        ok &= _pads_clear_in_stroke(ctx, band, T, ok)
     if ctx.params.max_contact_skew_deg < 90:  # the contacts' line along the axis (params.py)
         across = np.abs((xi - xj) * -u[:, 1] + (yi - yj) * u[:, 0])
         ok &= across <= math.tan(math.radians(ctx.params.max_contact_skew_deg)) * np.abs(2 * h) + EPS_MM
@@ -287,6 +289,23 @@ def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
         P.ci[:, col][idx], P.cj[:, col][idx], P.center[:, col][idx] = vi, vj, 0.5 * (vi + vj)
     P.h[idx] = h
     return ok
+
+
+def _pads_clear_in_stroke(ctx: Context, band: BandEdges, T: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """(k,) for the pairs `ok` (k,): does the gap between the lines where the pads stop, plus the
+    approach clearance on both sides, fit the stroke? The reported contacts can lie up to the pad's
+    compliance behind those lines (a slanted face, a notch, a face the pad presses on at its side):
+    a part wider than the stroke must not fit because its contacts do. The bands' first touches T
+    (2k,) are widened by contact_tol beside the pad, so they can only overstate the gap: the pad's
+    own (narrower) band decides where they put a pair over the stroke."""
+    g, k = ctx.cell.gripper, len(ok)
+    limit = g.opening_mm[1] + EPS_MM - 2 * g.approach_clearance_mm
+    over = np.flatnonzero(ok & (T[:k] + T[k:] > limit))
+    fits = np.ones(k, bool)
+    if len(over):
+        Tp, _ = band.narrowed(np.concatenate([over, over + k]), (g.pad_width_mm / 2,)).first_touch(ctx, touch=False)
+        fits[over] = Tp[:len(over)] + Tp[len(over):] <= limit
+    return fits
 
 
 def stage_ik(ctx: Context, P: Pairs, idx) -> np.ndarray:

@@ -37,6 +37,11 @@ class SynthesisParams:
     # the physical check holds grasps to 3 degrees (cell.physics.AXIS_TOL_DEG). 90 turns it off, as
     # recordings made before it existed have it (cell.runtime.replay).
     max_contact_skew_deg: float = 3.0
+    # The approach opening is checked against the stroke at the lines where the pads stop, not at the
+    # reported contacts (up to the pads' 0.5 mm compliance behind them): a 70.46 mm disc no longer
+    # fits an 80 mm stroke with 5 mm clearances on a 69.9 mm chord. Off, as recordings made before
+    # it existed have it (cell.runtime.replay).
+    stroke_at_pad_lines: bool = True
     # Obstacles widened by this much for the fingers and the palm: 0 for outlines given exactly (a
     # scene file); the cell loop plans on measured poses and keeps a margin (cell.runtime.loop).
     obstacle_margin_mm: float = 0.0

@@ -153,7 +153,7 @@ class Operator:
     def choose_grasp(self, part: Part, obstacles=(), top_k: int = 3) -> OperatorGrasp | None:
         """The operator's own grasp of `part` among `obstacles`, or None if it finds none."""
         view = _view(part)
-        gz = default_grasp_z_mm(part.z_bottom_mm, part.z_top_mm, self.cell.gripper)
+        gz = default_grasp_z_mm(part.z_bottom_mm, part.z_top_mm, self.cell.gripper, self.cell.scara.j3_mm)
         good: list[OperatorGrasp] = []
         for offsets in (OFFSETS_MM, FINE_OFFSETS_MM):  # a finer search only when the usual one fails
             for c, theta in self.candidate_lines(part, offsets):
@@ -177,7 +177,7 @@ class Operator:
         """A grasp a person would reject, of a random kind (pad on a corner, off centre, slanted,
         colliding ...), with the operator's judgement; None if none was found in `tries`."""
         view = _view(part)
-        gz = default_grasp_z_mm(part.z_bottom_mm, part.z_top_mm, self.cell.gripper)
+        gz = default_grasp_z_mm(part.z_bottom_mm, part.z_top_mm, self.cell.gripper, self.cell.scara.j3_mm)
         stroke = self.cell.gripper.opening_mm[1] - 2 * self.cell.gripper.approach_clearance_mm
         ring = view.outer_ring
         for _ in range(tries):

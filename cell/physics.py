@@ -137,7 +137,7 @@ def check_grasp(part: Part, contacts_mm, axis_deg: float | None = None, grasp_z_
     line_deg = math.degrees(math.atan2(c[1, 1] - c[0, 1], c[1, 0] - c[0, 0])) if d_rep > 1e-9 else 0.0
     theta = line_deg if axis_deg is None else float(axis_deg)
     if grasp_z_mm is None:
-        grasp_z_mm = default_grasp_z_mm(part.z_bottom_mm, part.z_top_mm, g)
+        grasp_z_mm = default_grasp_z_mm(part.z_bottom_mm, part.z_top_mm, g, cell.scara.j3_mm)
     reasons: list[str] = []
     if axis_deg is not None and d_rep > 1e-9:
         skew = abs((line_deg - theta + 90.0) % 180.0 - 90.0)
@@ -288,7 +288,7 @@ def close_jaws(part: Part, centre_mm, axis_deg: float, opening_mm: float, grasp_
     v = check_grasp(part, [c - half * a, c + half * a], axis_deg, grasp_z_mm, (), cell)
     if v.jaw_width_mm is None:
         return None
-    zg = default_grasp_z_mm(part.z_bottom_mm, part.z_top_mm, g) if grasp_z_mm is None else grasp_z_mm
+    zg = default_grasp_z_mm(part.z_bottom_mm, part.z_top_mm, g, cell.scara.j3_mm) if grasp_z_mm is None else grasp_z_mm
     if min(zg + g.pad_height_mm, part.z_top_mm) <= max(zg, part.z_bottom_mm):
         return None
     return v.jaw_width_mm
@@ -333,7 +333,7 @@ def lift_clear(part: Part, others, contacts_mm=None, grasp_z_mm: float | None = 
     if contacts_mm is not None:
         fingers, palm = gripper_footprint(contacts_mm, None, cell)
         if grasp_z_mm is None:
-            grasp_z_mm = default_grasp_z_mm(part.z_bottom_mm, part.z_top_mm, cell.gripper)
+            grasp_z_mm = default_grasp_z_mm(part.z_bottom_mm, part.z_top_mm, cell.gripper, cell.scara.j3_mm)
     for o in others:
         if o.id == part.id:
             continue

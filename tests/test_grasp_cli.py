@@ -100,6 +100,25 @@ def test_a_target_thinner_than_the_pads_need_has_no_grasp(tmp_path, examples, ca
         assert z_bottom <= d["grasp_z_mm"] <= z_top - 2
 
 
+
+@pytest.mark.parametrize("z_top,j3_low,grasp_z", [(15.0, 5.0, 5.0), (30.0, 5.0, 12.0), (6.0, 5.0, None)])
+def test_the_grasp_z_rises_to_what_j3_can_reach(tmp_path, examples, capsys, z_top, j3_low, grasp_z):
+    """A cell whose J3 stops above the usual tip height (1 mm over the tray for a 15 mm part) grasps
+    at J3's lowest z while that stays within [z_bottom, z_top - 2]; a part too low for it is told so."""
+    raw = json.loads(default_cell_path().read_text())
+    raw["scara"]["j3_mm"] = [j3_low, 200.0]
+    cell = tmp_path / "high_j3.json"
+    cell.write_text(json.dumps(raw))
+    part = shapes.rectangle("box", 50, 30, (320, 40), 10, z_top_mm=z_top)
+    path = write_scene(tmp_path / "box.json", [part], "box")
+    code, out, _ = run_cli("grasp", path, "--json", "--examples", examples, "--cell", cell, capsys=capsys)
+    d = json.loads(out)
+    if grasp_z is None:
+        assert code == 3 and f"J3 reaches down to {j3_low:g} mm" in d["reason"], d
+    else:
+        assert code == 0 and d["grasp_z_mm"] == grasp_z and d["joints"]["j3_mm"] == grasp_z, d
+
+
 BOWTIE = [[300, 0], [340, 40], [340, 0], [300, 40]]
 
 

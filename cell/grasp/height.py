@@ -15,10 +15,22 @@ TIP_BELOW_TOP_MM = 2.0  # CONTRACT: grasp z <= z_top - 2; a part less tall than 
 PRINTED_DECIMALS = 4  # grasp z and J3 as `cell grasp --json` prints them (cell.grasp.synthesis)
 
 
-def grasp_z_mm(z_bottom_mm: float, z_top_mm: float, gripper: Gripper) -> float:
+def grasp_z_mm(z_bottom_mm: float, z_top_mm: float, gripper: Gripper,
+               j3_mm: tuple[float, float] | None = None) -> float:
+    """The grasp z of a part from z_bottom to z_top. With the arm's J3 range (finger-tip z), a z the
+    arm cannot take moves to the nearest it can, as long as that stays within CONTRACT.md's
+    [z_bottom, z_top - 2] (the pads then cover less of the part): a cell whose J3 stops above the
+    usual tip height still grasps the parts tall enough for it."""
+    top = _printed_at_most(z_top_mm - TIP_BELOW_TOP_MM)
     z = max(z_bottom_mm + TIP_ABOVE_BOTTOM_MM, z_top_mm - gripper.pad_height_mm + PAD_ABOVE_TOP_MM)
-    z = min(z, _printed_at_most(z_top_mm - TIP_BELOW_TOP_MM))
-    return max(z, z_bottom_mm)
+    z = max(min(z, top), z_bottom_mm)
+    if j3_mm is not None:
+        lo, hi = _printed_at_least(j3_mm[0]), _printed_at_most(j3_mm[1])
+        if z < lo and lo <= top:
+            z = lo
+        elif z > hi and hi >= z_bottom_mm:
+            z = hi
+    return z
 
 
 def _printed_at_most(limit_mm: float) -> float:
@@ -26,3 +38,9 @@ def _printed_at_most(limit_mm: float) -> float:
     tall part is held at z_top - 2, and rounded up (0.324575 -> 0.3246) that was above it."""
     q = round(limit_mm, PRINTED_DECIMALS)
     return q if q <= limit_mm else q - 10.0 ** -PRINTED_DECIMALS
+
+
+def _printed_at_least(limit_mm: float) -> float:
+    """The limit itself when it prints exactly, else the printed value just above it."""
+    q = round(limit_mm, PRINTED_DECIMALS)
+    return q if q >= limit_mm else q + 10.0 ** -PRINTED_DECIMALS

@@ -150,7 +150,7 @@ class GraspPlanner:
             counts["time_ms"] = round((time.perf_counter() - t_start) * 1e3, 3)
             raise NoFeasibleGrasp(reason, counts, partial)
 
-        gz = grasp_z_mm(target.z_bottom_mm, target.z_top_mm, cell.gripper)
+        gz = grasp_z_mm(target.z_bottom_mm, target.z_top_mm, cell.gripper, cell.scara.j3_mm)
         if gz > target.z_top_mm - TIP_BELOW_TOP_MM + 1e-9:  # CONTRACT: z_bottom <= grasp z <= z_top - 2
             fail(f"the part is {target.height_mm:g} mm tall: the pads need a grasp z at least "
                  f"{TIP_BELOW_TOP_MM:g} mm below its top and not below its bottom")
@@ -273,7 +273,7 @@ class GraspPlanner:
                         "than the grasp z)",
             "contacts": "for every facing pair a jaw pad would touch other material first (a protrusion "
                         "in its band) or land on the part",
-            "ik": "no grasp pose is reachable within the joint limits",
+            "ik": "no grasp pose is reachable within the joint limits" + self._j3_note(ctx),
             "fingers_obstacles": "every remaining pair collides: a finger's swept footprint overlaps an "
                                  f"obstacle taller than the grasp z ({', '.join(ctx.finger_obstacle_ids)})",
             "palm": "every remaining pair collides: the palm overlaps an obstacle taller than its bottom",
@@ -311,6 +311,15 @@ class GraspPlanner:
                 return (f"the part is wider than the gripper's stroke: facing contact points are at least "
                         f"{closest:.1f} mm apart, the jaws take at most {widest:g} mm ({clearance})")
         return f"no reachable pair ({first} stage): {why}"
+
+    def _j3_note(self, ctx: Context) -> str:
+        lo, hi = self.cell.scara.j3_mm
+        if ctx.grasp_z_mm < lo - 1e-9:
+            return (f" (J3 reaches down to {lo:g} mm, the grasp z is {ctx.grasp_z_mm:g} mm: the part's top, "
+                    f"{ctx.target.z_top_mm:g} mm, is less than {TIP_BELOW_TOP_MM:g} mm above J3's lowest)")
+        if ctx.grasp_z_mm > hi + 1e-9:
+            return f" (J3 reaches up to {hi:g} mm, the grasp z is {ctx.grasp_z_mm:g} mm)"
+        return ""
 
     def rules(self) -> dict:
         return {"points": self.model.point_tree.rules(), "sets": self.model.set_tree.rules()}

@@ -67,7 +67,7 @@ class LoopBackend:
         lo, hi = lp.cell.gripper.opening_mm
         if not lo < opening <= hi:
             raise BadInput(f"the two contacts are {opening:.1f} mm apart; the jaws open {lo:g} to {hi:g} mm")
-        z = grasp_z_mm(part.z_bottom_mm, part.z_top_mm, lp.cell.gripper)
+        z = grasp_z_mm(part.z_bottom_mm, part.z_top_mm, lp.cell.gripper, lp.cell.scara.j3_mm)
         centre = contacts.mean(axis=0)
         axis = float(np.degrees(np.arctan2(d[1], d[0])))
         others = tuple(p for p in seen.values() if p.id != part_id)

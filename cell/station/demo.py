@@ -156,7 +156,7 @@ class DemoCell:
         if not (lo < opening <= hi):
             raise BadInput(f"the two contacts are {opening:.1f} mm apart; the gripper holds "
                            f"{lo:g} to {hi:g} mm")
-        z = grasp_z_mm(part.z_bottom_mm, part.z_top_mm, self.cell.gripper)
+        z = grasp_z_mm(part.z_bottom_mm, part.z_top_mm, self.cell.gripper, self.cell.scara.j3_mm)
         d = snapped[1] - snapped[0]
         axis = normalize_axis_deg(math.degrees(math.atan2(d[1], d[0])))
         centre = snapped.mean(axis=0)
@@ -278,7 +278,7 @@ class DemoCell:
             contacts = np.array([nearest_points(boundary, Point(q))[0].coords[0] for q in (a, b)])
             how = "across the minimum rectangle"
         opening = float(np.linalg.norm(contacts[1] - contacts[0]))
-        z = grasp_z_mm(part.z_bottom_mm, part.z_top_mm, self.cell.gripper)
+        z = grasp_z_mm(part.z_bottom_mm, part.z_top_mm, self.cell.gripper, self.cell.scara.j3_mm)
         d = contacts[1] - contacts[0]
         axis = normalize_axis_deg(math.degrees(math.atan2(d[1], d[0])))
         centre = contacts.mean(axis=0)

@@ -252,6 +252,7 @@ def parse_part(raw, where: str = "part") -> Part:
                 raise BadInput(f"{where} hole #{i}: lies outside the outline (holes must be inside it)")
     poly = Polygon(outline, holes)
     if not poly.is_valid:
+        _no_overlapping_holes(holes, where)
         poly = _repaired(poly, where)
     if poly.area <= 0:
         raise BadInput(f"{where}: the outline has no area")
@@ -269,6 +270,19 @@ def parse_part(raw, where: str = "part") -> Part:
 # bow tie, a figure eight or a hole outside the outline changes more than that: still refused.
 REPAIR_PIECE_MM2 = 1.0
 REPAIR_SHARE = 0.01
+
+
+def _no_overlapping_holes(holes: list[np.ndarray], where: str) -> None:
+    """Refuse holes that overlap or lie in one another: the material between them is not defined
+    (a repair read it as hole or as an island depending on how the part was turned)."""
+    rings = [Polygon(h) for h in holes]
+    rings = [r if r.is_valid else shapely.make_valid(r) for r in rings]
+    if len(rings) < 2:
+        return
+    tree = shapely.STRtree(rings)
+    for i, j in zip(*tree.query(rings, predicate="intersects"), strict=True):
+        if i < j and rings[i].intersection(rings[j]).area > 0:
+            raise BadInput(f"{where}: holes #{i} and #{j} overlap (holes must be apart; draw one hole for both)")
 
 
 def _repaired(poly: Polygon, where: str) -> Polygon:

@@ -2,6 +2,7 @@ import json
 
 import numpy as np
 import pytest
+from shapely.geometry import Polygon
 
 from cell.cellconfig import default_cell_path, load_cell, parse_cell
 from cell.errors import BadInput
@@ -221,9 +222,31 @@ def test_an_outline_that_really_crosses_itself_is_still_refused(outline):
     [[[280, 10], [290, 10], [290, 20], [280, 20]]],  # wholly outside
 ])
 def test_holes_that_are_not_inside_the_outline_are_still_refused(holes):
-    # a hole out of the outline is named as such; overlapping holes make no valid polygon
-    with pytest.raises(BadInput, match="lies outside the outline|not a valid polygon"):
+    # a hole out of the outline is named as such, and so are overlapping holes
+    with pytest.raises(BadInput, match="lies outside the outline|holes #0 and #1 overlap"):
         parse_part({"id": "a", "outline": SQUARE, "holes": holes, "z_top": 5})
+
+
+@pytest.mark.parametrize("angle_deg", [0.0, 1.7, 30.0])
+@pytest.mark.parametrize("second", [
+    [[345, -5], [355, -5], [355, 5], [345, 5]],  # overlapping the first, edges on one line when not turned
+    [[342, -3], [348, -3], [348, 3], [342, 3]],  # inside the first
+])
+def test_overlapping_holes_are_refused_at_any_turn(angle_deg, second):
+    """Before, two overlapping axis-aligned holes were repaired into one and planned, the same
+    turned by 1.7 deg refused: the material between them was read differently."""
+    from shapely import affinity
+
+    def turned(ring):
+        return [list(c) for c in affinity.rotate(Polygon(ring), angle_deg, origin=(350, 0)).exterior.coords[:-1]]
+
+    outline = [[320, -25], [380, -25], [380, 25], [320, 25]]
+    first = [[340, -5], [350, -5], [350, 5], [340, 5]]
+    raw = {"id": "t", "outline": turned(outline), "holes": [turned(first), turned(second)], "z_top": 12}
+    with pytest.raises(BadInput, match="holes #0 and #1 overlap"):
+        parse_part(raw)
+    apart = {**raw, "holes": [turned(first), turned([[360, -5], [370, -5], [370, 5], [360, 5]])]}
+    assert len(parse_part(apart).holes_mm) == 2
 
 
 def test_json_nested_too_deeply_is_bad_input_not_a_recursion_error(tmp_path):

@@ -522,3 +522,21 @@ def test_a_part_wider_than_the_stroke_where_the_pads_stop_is_refused(tmp_path, c
     narrower = shapes.disc("d", 35.0, n=90)
     g = GraspPlanner(CELL, shapes.hand_made_examples()).plan(Scene((narrower,), "d")).grasp
     assert check_grasp(narrower, g.contacts_mm, g.axis_deg, g.grasp_z_mm).ok
+
+
+def test_the_contacts_stage_in_chunks_gives_what_one_pass_gives(monkeypatch):
+    """Pairs whose bands overlap many edges go through in chunks (a comb of fine teeth made 3 GB
+    in one pass): the verdicts and the contacts are those of one pass, bit for bit."""
+    P, cr, ctx = cascade_for(shapes.gear("g", 30, 24, 3))
+    idx = np.flatnonzero((cr.rejected_by >= STAGES.index("contacts")) | (cr.rejected_by == -1))
+    assert cascade._pairs_per_chunk(ctx, P, idx) == len(idx)  # a gear's pairs: one pass
+    whole = _contacts(ctx, P, idx)
+    monkeypatch.setattr(cascade, "CHUNK_ESTIMATE_ABOVE", 0)
+    monkeypatch.setattr(cascade, "CONTACT_PIECES_PER_CHUNK", 2000)
+    monkeypatch.setattr(cascade, "MIN_CHUNK_PAIRS", 8)
+    size = cascade._pairs_per_chunk(ctx, P, idx)
+    assert size < len(idx) / 2
+    chunked = _contacts(ctx, P, idx)
+    assert whole[0].any() and not whole[0].all()
+    for a, b in zip(whole, chunked, strict=True):
+        assert np.array_equal(a, b, equal_nan=True)

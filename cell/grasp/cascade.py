@@ -218,9 +218,43 @@ def _outline_ahead(ctx: Context, P: Pairs, idx) -> np.ndarray:
 # --- exact stages: shapely and IK on the survivors only -------------------------------------
 
 
+# The contacts stage clips every edge whose box overlaps a pad's band: on a comb of 0.25 mm teeth
+# that is a hundred edges per band, and 70000 pairs made 14 million pieces (3 GB). The pairs go
+# through in chunks of at most about this many pieces (same verdicts: each band is on its own).
+CONTACT_PIECES_PER_CHUNK = 400_000
+CHUNK_ESTIMATE_ABOVE = 4_000_000  # bands x edges below which one pass is surely small enough
+MIN_CHUNK_PAIRS = 256  # fewer would cost more in numpy's per-call overhead than they save
+
+
 def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     """Close each pad along the axis; it stops at the first material in its band. That point must
     be the candidate's (within contact_tol, along and across the axis)."""
+    size = _pairs_per_chunk(ctx, P, idx)
+    if size >= len(idx):
+        return _contacts(ctx, P, idx)
+    return np.concatenate([_contacts(ctx, P, idx[a:a + size]) for a in range(0, len(idx), size)])
+
+
+def _pairs_per_chunk(ctx: Context, P: Pairs, idx) -> int:
+    """How many pairs the contacts stage takes at once: all of them unless their bands would
+    overlap more than CONTACT_PIECES_PER_CHUNK edges' boxes, estimated from about 256 bands."""
+    k, n_edges = len(idx), len(ctx.edge_ax)
+    if 2 * k * n_edges <= CHUNK_ESTIMATE_ABOVE:
+        return k
+    g = ctx.cell.gripper
+    some = idx[::max(1, k // 128)]
+    m, u, t = P.m.take(some, 0), P.u.take(some, 0), P.t.take(some)
+    lox, loy, hix, hiy = axis_rect_bounds(np.concatenate([m[:, 0], m[:, 0]]), np.concatenate([m[:, 1], m[:, 1]]),
+                                          np.concatenate([u[:, 0], -u[:, 0]]), np.concatenate([u[:, 1], -u[:, 1]]),
+                                          np.concatenate([t, t]) - 2 * ctx.params.contact_tol_mm,
+                                          np.concatenate([t, t]) + g.approach_clearance_mm + g.pad_thickness_mm,
+                                          g.pad_width_mm / 2 + ctx.params.contact_tol_mm)
+    per_band = ((lox[:, None] <= ctx.edge_hix) & (hix[:, None] >= ctx.edge_lox) & (loy[:, None] <= ctx.edge_hiy)
+                & (hiy[:, None] >= ctx.edge_loy)).sum(1).mean()
+    return max(MIN_CHUNK_PAIRS, int(CONTACT_PIECES_PER_CHUNK / (2 * max(float(per_band), 1.0))))
+
+
+def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     k = len(idx)
     if k == 0:
         return np.zeros(0, bool)
@@ -279,11 +313,13 @@ def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     xi, yi, xj, yj = x[:k], y[:k], x[k:], y[k:]
     h = 0.5 * ((xi - xj) * u[:, 0] + (yi - yj) * u[:, 1])
     ok &= (2 * h >= g.opening_mm[0] - EPS_MM) & (2 * h + 2 * g.approach_clearance_mm <= g.opening_mm[1] + EPS_MM)
-    if ctx.params.stroke_at_pad_lines:
-        ok &= _pads_clear_in_stroke(ctx, band, T, ok)
     if ctx.params.max_contact_skew_deg < 90:  # the contacts' line along the axis (params.py)
         across = np.abs((xi - xj) * -u[:, 1] + (yi - yj) * u[:, 0])
         ok &= across <= math.tan(math.radians(ctx.params.max_contact_skew_deg)) * np.abs(2 * h) + EPS_MM
+    if ctx.params.stroke_at_pad_lines:
+        fits = _pads_clear_in_stroke(ctx, band, T, ok)
+        P.stroke_refused += int((ok & ~fits).sum())  # for the message when no pair is left
+        ok &= fits
     # written column by column: numpy's row assignment into (s, 2) arrays costs several times more
     for col, vi, vj in ((0, xi, xj), (1, yi, yj)):
         P.ci[:, col][idx], P.cj[:, col][idx], P.center[:, col][idx] = vi, vj, 0.5 * (vi + vj)

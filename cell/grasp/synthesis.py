@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -24,7 +24,7 @@ from cell.examples import GraspExample
 from cell.grasp.attributes import OutlinePoints, global_attributes, global_names, local_attributes
 from cell.grasp.bands import PAD_COMPLIANCE_MM
 from cell.grasp.candidates import candidate_points
-from cell.grasp.cascade import STAGES, CascadeResult, Context, Pairs, joints_of, run_cascade, stage_contacts
+from cell.grasp.cascade import STAGES, CascadeResult, Context, Pairs, joints_of, run_cascade
 from cell.grasp.height import TIP_BELOW_TOP_MM, grasp_z_mm
 from cell.grasp.learning import LearnedModel, fit_model, nearest_example
 from cell.grasp.outline import part_rings
@@ -285,16 +285,12 @@ class GraspPlanner:
             if narrow.any():
                 why = (f"every pair of valid points is either closer than the jaws' smallest opening "
                        f"({smallest:g} mm) or farther apart than {widest:g} mm ({clearance})")
-        if first == "contacts" and p.stroke_at_pad_lines:
+        if first == "contacts" and P.stroke_refused:
             # Contacts that fit the stroke on pads stopped wider apart than the stroke allows (a disc
             # just wider than it, grasped on a chord): say so, not "a protrusion"
-            at_contacts = np.flatnonzero(cr.rejected_by == STAGES.index("contacts"))
-            loose = replace(ctx, params=p.with_(stroke_at_pad_lines=False))
-            with np.errstate(divide="ignore", invalid="ignore"):
-                if stage_contacts(loose, P.fresh(), at_contacts).any():
-                    return (f"the part is wider than the gripper's stroke where the pads stop: contact points "
-                            f"fit (at most {widest:g} mm apart) only where the pads would stop on material up "
-                            f"to {PAD_COMPLIANCE_MM:g} mm further out ({clearance})")
+            return (f"the part is wider than the gripper's stroke where the pads stop: contact points fit "
+                    f"(at most {widest:g} mm apart) only where the pads would stop on material up to "
+                    f"{PAD_COMPLIANCE_MM:g} mm further out ({clearance})")
         if STAGES.index(first) > STAGES.index("stroke"):
             # Facing points exist, but none close enough: say so, it is the usual cause.
             from cell.grasp.cascade import stage_antipodal, stage_stroke

@@ -185,7 +185,7 @@ def check_grasp(part: Part, contacts_mm, axis_deg: float | None = None, grasp_z_
         reasons.append(f"the part ({jaw_width:.1f} mm) is thinner than the smallest opening")
     if jaw_width + 2 * g.approach_clearance_mm > g.opening_mm[1] + 1e-6 >= approach:
         # the contacts fit, but the pads stop further out (on material in front of them)
-        reasons.append(f"the pads stop {jaw_width:.2f} mm apart: with the approach clearance that exceeds the "
+        reasons.append(f"the pads stop {jaw_width:.3f} mm apart: with the approach clearance that exceeds the "
                        f"stroke ({g.opening_mm[1]:g} mm)")
     contact_error = float(max(abs(xl - x_rep[0]), abs(xr - x_rep[1])))
     if contact_error > CONTACT_TOL_MM:

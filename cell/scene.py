@@ -272,6 +272,9 @@ REPAIR_PIECE_MM2 = 1.0
 REPAIR_SHARE = 0.01
 
 
+HOLE_OVERLAP_MM2 = 1e-6  # holes sharing an edge overlap by float noise (1e-14 mm2) once turned
+
+
 def _no_overlapping_holes(holes: list[np.ndarray], where: str) -> None:
     """Refuse holes that overlap or lie in one another: the material between them is not defined
     (a repair read it as hole or as an island depending on how the part was turned)."""
@@ -281,7 +284,7 @@ def _no_overlapping_holes(holes: list[np.ndarray], where: str) -> None:
         return
     tree = shapely.STRtree(rings)
     for i, j in zip(*tree.query(rings, predicate="intersects"), strict=True):
-        if i < j and rings[i].intersection(rings[j]).area > 0:
+        if i < j and rings[i].intersection(rings[j]).area > HOLE_OVERLAP_MM2:
             raise BadInput(f"{where}: holes #{i} and #{j} overlap (holes must be apart; draw one hole for both)")
 
 

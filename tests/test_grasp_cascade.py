@@ -540,3 +540,25 @@ def test_the_contacts_stage_in_chunks_gives_what_one_pass_gives(monkeypatch):
     assert whole[0].any() and not whole[0].all()
     for a, b in zip(whole, chunked, strict=True):
         assert np.array_equal(a, b, equal_nan=True)
+
+
+
+def test_the_stroke_at_the_pads_lines_is_the_physical_checks():
+    """A 27 x 69.87 mm box with a 0.28 mm bump on one end. The pads are centred on the line
+    through the contacts, as the gripper and the physical check have them: measured on the line
+    through the candidates instead, the planner kept a pair the check refused ("the pads stop
+    70.14 mm apart"), and refused others it passed."""
+    outline = [[363.310955, -35.946729], [363.261305, 33.924261], [350.298135, 33.915049],
+               [349.797937, 34.193711], [348.797937, 34.193], [348.298136, 33.913628], [336.262564, 33.905076],
+               [336.312214, -35.965914]]
+    target = parse_part({"id": "bump", "outline": outline, "z_top": 15})
+    P, cr, ctx = cascade_for(target)
+    loose = Context.build(target, [], CELL, SynthesisParams(stroke_at_pad_lines=False), ctx.grasp_z_mm,
+                          ctx.samples, np.repeat(np.arange(1), len(ctx.samples)))
+    P2 = P.fresh()
+    every = run_cascade(loose, P2).survivors
+    assert len(every) > len(cr.survivors) > 0  # the pad-line stroke refuses some pairs here
+    for k in every:
+        verdict = check_grasp(target, [P2.ci[k], P2.cj[k]], P2.axis_deg(k), ctx.grasp_z_mm, (), CELL)
+        refused_by_check = any("pads stop" in r for r in verdict.reasons)
+        assert refused_by_check == (k not in set(cr.survivors.tolist())), (k, verdict.reasons)

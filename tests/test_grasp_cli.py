@@ -119,6 +119,27 @@ def test_the_grasp_z_rises_to_what_j3_can_reach(tmp_path, examples, capsys, z_to
         assert code == 0 and d["grasp_z_mm"] == grasp_z and d["joints"]["j3_mm"] == grasp_z, d
 
 
+
+@pytest.mark.parametrize("z_top,grasp_z", [(45.0, 10.0), (100.0, None)])
+def test_the_grasp_z_falls_to_j3_top_only_with_the_palm_above_the_part(tmp_path, examples, capsys, z_top, grasp_z):
+    """J3 up to 10 mm: a 45 mm part (usual z 27) is held at 10, its palm 40 mm higher still above
+    the part's top; a 100 mm part is not, the palm would be inside it (a review found it planned)."""
+    raw = json.loads(default_cell_path().read_text())
+    raw["scara"]["j3_mm"] = [0.0, 10.0]
+    raw["motion"].update(safe_z_mm=10.0, dropoff_mm=[330.0, 380.0, 10.0])
+    raw["motion"]["home_joints"]["j3_mm"] = 10.0
+    cell = tmp_path / "low_j3.json"
+    cell.write_text(json.dumps(raw))
+    part = shapes.rectangle("block", 50, 30, (320, 40), 10, z_top_mm=z_top)
+    path = write_scene(tmp_path / "block.json", [part], "block")
+    code, out, _ = run_cli("grasp", path, "--json", "--examples", examples, "--cell", cell, capsys=capsys)
+    d = json.loads(out)
+    if grasp_z is None:
+        assert code == 3 and "J3 reaches up to 10 mm" in d["reason"], d
+    else:
+        assert code == 0 and d["grasp_z_mm"] == grasp_z, d
+
+
 BOWTIE = [[300, 0], [340, 40], [340, 0], [300, 40]]
 
 

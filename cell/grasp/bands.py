@@ -190,13 +190,18 @@ def _behind_limit(limit, tA, dt, s0, s1):
     return lo, hi, (lo <= hi + 1e-12) & ((dt != 0) | (tA >= limit))
 
 
+def edge_box_overlaps(ctx: Context, lox, loy, hix, hiy) -> np.ndarray:
+    """(b, E): does band b's bounding box overlap (or touch) the box of the target's edge e?"""
+    hit = (lox[:, None] <= ctx.edge_hix) & (hix[:, None] >= ctx.edge_lox)
+    hit &= (loy[:, None] <= ctx.edge_hiy) & (hiy[:, None] >= ctx.edge_loy)
+    return hit
+
+
 def _overlapping_edges(ctx: Context, lox, loy, hix, hiy):
     """(band, edge) index pairs whose bounding boxes overlap (touching counts, as for the STRtree):
     a broadcast comparison for few edges or bands, else the STRtree (same pairs, other order)."""
     if len(ctx.edge_ax) <= OVERLAP_BROADCAST_EDGES or len(lox) * len(ctx.edge_ax) <= OVERLAP_BROADCAST_MAX:
-        hit = (lox[:, None] <= ctx.edge_hix) & (hix[:, None] >= ctx.edge_lox)
-        hit &= (loy[:, None] <= ctx.edge_hiy) & (hiy[:, None] >= ctx.edge_loy)
-        return np.nonzero(hit)
+        return np.nonzero(edge_box_overlaps(ctx, lox, loy, hix, hiy))
     return ctx.edge_tree.query(shapely.box(lox, loy, hix, hiy))
 
 

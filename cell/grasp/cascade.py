@@ -41,7 +41,7 @@ from collections.abc import Sequence
 import numpy as np
 import shapely
 
-from cell.grasp.bands import PAD_COMPLIANCE_MM, BandEdges
+from cell.grasp.bands import PAD_COMPLIANCE_MM, BandEdges, edge_box_overlaps
 from cell.grasp.footprints import axis_rect_bounds, axis_rects, rect_polygons
 from cell.grasp.pairs import EPS_MM, Context, Pairs
 from cell.kinematics import Joints, inverse, reachable_mask
@@ -241,17 +241,24 @@ def _pairs_per_chunk(ctx: Context, P: Pairs, idx) -> int:
     k, n_edges = len(idx), len(ctx.edge_ax)
     if 2 * k * n_edges <= CHUNK_ESTIMATE_ABOVE:
         return k
-    g = ctx.cell.gripper
     some = idx[::max(1, k // 128)]
-    m, u, t = P.m.take(some, 0), P.u.take(some, 0), P.t.take(some)
-    lox, loy, hix, hiy = axis_rect_bounds(np.concatenate([m[:, 0], m[:, 0]]), np.concatenate([m[:, 1], m[:, 1]]),
-                                          np.concatenate([u[:, 0], -u[:, 0]]), np.concatenate([u[:, 1], -u[:, 1]]),
-                                          np.concatenate([t, t]) - 2 * ctx.params.contact_tol_mm,
-                                          np.concatenate([t, t]) + g.approach_clearance_mm + g.pad_thickness_mm,
-                                          g.pad_width_mm / 2 + ctx.params.contact_tol_mm)
-    per_band = ((lox[:, None] <= ctx.edge_hix) & (hix[:, None] >= ctx.edge_lox) & (loy[:, None] <= ctx.edge_hiy)
-                & (hiy[:, None] >= ctx.edge_loy)).sum(1).mean()
+    m = P.m.take(some, 0)
+    bands = _pad_bands(ctx, P.u.take(some, 0), P.t.take(some), m[:, 0], m[:, 1], ctx.params.contact_tol_mm)
+    per_band = edge_box_overlaps(ctx, *axis_rect_bounds(*bands)).sum(1).mean()
     return max(MIN_CHUNK_PAIRS, int(CONTACT_PIECES_PER_CHUNK / (2 * max(float(per_band), 1.0))))
+
+
+def _pad_bands(ctx: Context, u: np.ndarray, t: np.ndarray, cx: np.ndarray, cy: np.ndarray, beside_mm: float):
+    """The 2k bands the pads of k pairs (axis u (k, 2), half distance t (k,)) close through: p_i's pad
+    (closing along -u from the +u side), then p_j's; each from 2 x contact_tol inside the candidate
+    to the approach opening's outer face, the pad's half width plus beside_mm across, centred on
+    the line through (cx, cy) (k,) along u. Returns cx, cy, ux, uy, t_min, t_max, half_width, as
+    BandEdges.clip and axis_rect_bounds take them."""
+    g = ctx.cell.gripper
+    tt = np.concatenate([t, t])
+    return (np.concatenate([cx, cx]), np.concatenate([cy, cy]), np.concatenate([u[:, 0], -u[:, 0]]),
+            np.concatenate([u[:, 1], -u[:, 1]]), tt - 2 * ctx.params.contact_tol_mm,
+            tt + g.approach_clearance_mm + g.pad_thickness_mm, g.pad_width_mm / 2 + beside_mm)
 
 
 def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
@@ -260,15 +267,12 @@ def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
         return np.zeros(0, bool)
     g, tol = ctx.cell.gripper, ctx.params.contact_tol_mm
     m, u, t = P.m.take(idx, 0), P.u.take(idx, 0), P.t.take(idx)
-    # the 2k bands: p_i's pad (closing along -u from the +u side), then p_j's
-    cx, cy = np.concatenate([m[:, 0], m[:, 0]]), np.concatenate([m[:, 1], m[:, 1]])
-    ux, uy = np.concatenate([u[:, 0], -u[:, 0]]), np.concatenate([u[:, 1], -u[:, 1]])
-    tt = np.concatenate([t, t])
-    slanted = bool(ctx.params.slanted_faces)
     # (material exactly on the band's side, tol beside the pad, is outside it whatever the float noise:
     # an edge running along that side (an L's inner corner) must not count at one pose and not another)
-    band = BandEdges.clip(ctx, cx, cy, ux, uy, tt - 2 * tol, tt + g.approach_clearance_mm + g.pad_thickness_mm,
-                          g.pad_width_mm / 2 + tol - EPS_MM)
+    cx, cy, ux, uy, t_min, t_max, half_width = _pad_bands(ctx, u, t, m[:, 0], m[:, 1], tol - EPS_MM)
+    tt = np.concatenate([t, t])
+    slanted = bool(ctx.params.slanted_faces)
+    band = BandEdges.clip(ctx, cx, cy, ux, uy, t_min, t_max, half_width)
     T, (x, y) = band.first_touch(ctx, slanted)
     vx, vy = band.vx, band.vy
     lateral = np.abs((x - cx) * vx + (y - cy) * vy)
@@ -317,7 +321,7 @@ def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
         across = np.abs((xi - xj) * -u[:, 1] + (yi - yj) * u[:, 0])
         ok &= across <= math.tan(math.radians(ctx.params.max_contact_skew_deg)) * np.abs(2 * h) + EPS_MM
     if ctx.params.stroke_at_pad_lines:
-        fits = _pads_clear_in_stroke(ctx, band, T, ok)
+        fits = _pads_clear_in_stroke(ctx, P, idx, ok, h, 0.5 * (xi + xj), 0.5 * (yi + yj))
         P.stroke_refused += int((ok & ~fits).sum())  # for the message when no pair is left
         ok &= fits
     # written column by column: numpy's row assignment into (s, 2) arrays costs several times more
@@ -327,20 +331,27 @@ def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     return ok
 
 
-def _pads_clear_in_stroke(ctx: Context, band: BandEdges, T: np.ndarray, ok: np.ndarray) -> np.ndarray:
-    """(k,) for the pairs `ok` (k,): does the gap between the lines where the pads stop, plus the
-    approach clearance on both sides, fit the stroke? The reported contacts can lie up to the pad's
-    compliance behind those lines (a slanted face, a notch, a face the pad presses on at its side):
-    a part wider than the stroke must not fit because its contacts do. The bands' first touches T
-    (2k,) are widened by contact_tol beside the pad, so they can only overstate the gap: the pad's
-    own (narrower) band decides where they put a pair over the stroke."""
-    g, k = ctx.cell.gripper, len(ok)
+def _pads_clear_in_stroke(ctx: Context, P: Pairs, idx, ok: np.ndarray, h: np.ndarray, cx, cy) -> np.ndarray:
+    """(k,) for the pairs `ok` among idx (k,): does the gap between the lines where the pads stop,
+    plus the approach clearance on both sides, fit the stroke? The reported contacts can lie up to
+    the pad's compliance behind those lines (a slanted face, a notch, a face the pad presses on at
+    its side): a part wider than the stroke must not fit because its contacts do. The pads are
+    centred on the line through the contacts' midpoint (cx, cy), as the gripper and the physical
+    check have them. Only pairs whose contacts are within 2 x (contact_tol + compliance) of the
+    limit are looked at: elsewhere the contacts stage has found no material that far in front of
+    the contacts in the (wider) band around them."""
+    g, tol, k = ctx.cell.gripper, ctx.params.contact_tol_mm, len(idx)
     limit = g.opening_mm[1] + EPS_MM - 2 * g.approach_clearance_mm
-    over = np.flatnonzero(ok & (T[:k] + T[k:] > limit))
+    near = np.flatnonzero(ok & (2 * h > limit - 2 * (tol + PAD_COMPLIANCE_MM)))
     fits = np.ones(k, bool)
-    if len(over):
-        Tp, _ = band.narrowed(np.concatenate([over, over + k]), (g.pad_width_mm / 2,)).first_touch(ctx, touch=False)
-        fits[over] = Tp[:len(over)] + Tp[len(over):] <= limit
+    if len(near):
+        rows = np.asarray(idx).take(near)
+        u, t, m = P.u.take(rows, 0), P.t.take(rows), P.m.take(rows, 0)
+        # the band centre on the contacts' line: t along u is the same from it as from the midpoint m
+        off = (cx.take(near) - m[:, 0]) * -u[:, 1] + (cy.take(near) - m[:, 1]) * u[:, 0]
+        pads = BandEdges.clip(ctx, *_pad_bands(ctx, u, t, m[:, 0] - u[:, 1] * off, m[:, 1] + u[:, 0] * off, 0.0))
+        Tp, _ = pads.first_touch(ctx, touch=False)
+        fits[near] = Tp[:len(near)] + Tp[len(near):] <= limit
     return fits
 
 

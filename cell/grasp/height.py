@@ -19,8 +19,9 @@ def grasp_z_mm(z_bottom_mm: float, z_top_mm: float, gripper: Gripper,
                j3_mm: tuple[float, float] | None = None) -> float:
     """The grasp z of a part from z_bottom to z_top. With the arm's J3 range (finger-tip z), a z the
     arm cannot take moves to the nearest it can, as long as that stays within CONTRACT.md's
-    [z_bottom, z_top - 2] (the pads then cover less of the part): a cell whose J3 stops above the
-    usual tip height still grasps the parts tall enough for it."""
+    [z_bottom, z_top - 2] (the pads then cover less of the part) and, moving down, keeps the palm
+    (palm_offset above the tips) above the part: a cell whose J3 stops above the usual tip height
+    still grasps the parts tall enough for it."""
     top = _printed_at_most(z_top_mm - TIP_BELOW_TOP_MM)
     z = max(z_bottom_mm + TIP_ABOVE_BOTTOM_MM, z_top_mm - gripper.pad_height_mm + PAD_ABOVE_TOP_MM)
     z = max(min(z, top), z_bottom_mm)
@@ -28,8 +29,8 @@ def grasp_z_mm(z_bottom_mm: float, z_top_mm: float, gripper: Gripper,
         lo, hi = _printed_at_least(j3_mm[0]), _printed_at_most(j3_mm[1])
         if z < lo and lo <= top:
             z = lo
-        elif z > hi and hi >= z_bottom_mm:
-            z = hi
+        elif z > hi and hi >= z_bottom_mm and hi + gripper.palm_offset_mm >= z_top_mm:
+            z = hi  # lower, but the palm stays above the part's top
     return z
 
 

@@ -42,6 +42,9 @@ class SynthesisParams:
     # fits an 80 mm stroke with 5 mm clearances on a 69.9 mm chord. Off, as recordings made before
     # it existed have it (cell.runtime.replay).
     stroke_at_pad_lines: bool = True
+    # The grasp z moves into J3's range where the usual one is outside it (cell.grasp.height). Off,
+    # as recordings made before it existed have it (cell.runtime.replay).
+    grasp_z_within_j3: bool = True
     # Obstacles widened by this much for the fingers and the palm: 0 for outlines given exactly (a
     # scene file); the cell loop plans on measured poses and keeps a margin (cell.runtime.loop).
     obstacle_margin_mm: float = 0.0

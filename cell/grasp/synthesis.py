@@ -65,6 +65,16 @@ class Grasp:
         return d
 
 
+def _least_width_mm(part) -> float:
+    """The part's width in its narrowest direction: the least, over its convex hull's edges, of the
+    hull's extent across the edge."""
+    hull = np.asarray(part.polygon.convex_hull.exterior.coords, float)
+    d = np.diff(hull, axis=0)
+    n = np.column_stack([-d[:, 1], d[:, 0]]) / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
+    depth = np.einsum("kj,kij->ki", n, hull[None, :-1, :] - hull[:-1, None, :])  # edge k's normal, to vertex i
+    return float((depth.max(1) - depth.min(1)).min())
+
+
 def _printed_axis_deg(axis_deg: float) -> float:
     # folded again after rounding: -89.99996 rounds to -90.0, outside CONTRACT's (-90, 90]
     return normalize_axis_deg(round(float(axis_deg), 4))
@@ -150,7 +160,8 @@ class GraspPlanner:
             counts["time_ms"] = round((time.perf_counter() - t_start) * 1e3, 3)
             raise NoFeasibleGrasp(reason, counts, partial)
 
-        gz = grasp_z_mm(target.z_bottom_mm, target.z_top_mm, cell.gripper, cell.scara.j3_mm)
+        j3 = cell.scara.j3_mm if p.grasp_z_within_j3 else None
+        gz = grasp_z_mm(target.z_bottom_mm, target.z_top_mm, cell.gripper, j3)
         if gz > target.z_top_mm - TIP_BELOW_TOP_MM + 1e-9:  # CONTRACT: z_bottom <= grasp z <= z_top - 2
             fail(f"the part is {target.height_mm:g} mm tall: the pads need a grasp z at least "
                  f"{TIP_BELOW_TOP_MM:g} mm below its top and not below its bottom")
@@ -285,6 +296,11 @@ class GraspPlanner:
             if narrow.any():
                 why = (f"every pair of valid points is either closer than the jaws' smallest opening "
                        f"({smallest:g} mm) or farther apart than {widest:g} mm ({clearance})")
+        if first == "contacts" and not P.stroke_refused:
+            across = _least_width_mm(ctx.target)
+            if across > widest + 1e-6:  # facing points fit on chords, but the part's widest stretch is in the band
+                why += (f"; the part is at least {across:.1f} mm across in every direction, the jaws take at most "
+                        f"{widest:g} mm ({clearance})")
         if first == "contacts" and P.stroke_refused:
             # Contacts that fit the stroke on pads stopped wider apart than the stroke allows (a disc
             # just wider than it, grasped on a chord): say so, not "a protrusion"

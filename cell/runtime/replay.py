@@ -40,7 +40,7 @@ class RecordingEnds(Exception):  # noqa: N818 - not a CellError, like Divergence
 # angle between the contacts' line and the closing axis.
 RECORDED_PLANNER = {"slanted_faces": False, "tree_min_samples_leaf": 2, "obstacle_margin_mm": 0.0,
                     "contacts_on_material": False, "label_touched_only": False, "max_contact_skew_deg": 90.0,
-                    "stroke_at_pad_lines": False}
+                    "stroke_at_pad_lines": False, "grasp_z_within_j3": False}
 
 
 def planner_meta(params: SynthesisParams) -> dict:
@@ -52,7 +52,8 @@ def planner_from_meta(planner, where: str) -> SynthesisParams:
     if not isinstance(planner, dict):
         raise BadInput(f"{where}: manifest meta.planner must be an object")
     values = {k: planner.get(k, old) for k, old in RECORDED_PLANNER.items()}
-    for flag in ("slanted_faces", "contacts_on_material", "label_touched_only", "stroke_at_pad_lines"):
+    for flag in ("slanted_faces", "contacts_on_material", "label_touched_only", "stroke_at_pad_lines",
+                 "grasp_z_within_j3"):
         if not isinstance(values[flag], bool):
             raise BadInput(f"{where}: manifest meta.planner.{flag} must be true or false")
     leaf = values["tree_min_samples_leaf"]

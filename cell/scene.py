@@ -245,11 +245,14 @@ def parse_part(raw, where: str = "part") -> Part:
     direction = tuple(_num(d, f"{where} direction") for d in direction)
     if holes:  # a hole around or across the outline is no hole in it
         shell = Polygon(outline)
-        shell = (shell if shell.is_valid else shapely.make_valid(shell)).buffer(1e-6)
+        shell = shell if shell.is_valid else shapely.make_valid(shell)
+        wider = shell.buffer(HOLE_OUTSIDE_TOL_MM)
         for i, h in enumerate(holes):
             hole = Polygon(h)
-            if hole.is_valid and not shell.contains(hole):
+            if hole.is_valid and not wider.contains(hole):
                 raise BadInput(f"{where} hole #{i}: lies outside the outline (holes must be inside it)")
+            if hole.is_valid and hole.area >= shell.area - HOLE_OVERLAP_MM2:
+                raise BadInput(f"{where} hole #{i}: covers the whole outline (the part would have no material)")
     poly = Polygon(outline, holes)
     if not poly.is_valid:
         _no_overlapping_holes(holes, where)
@@ -273,6 +276,9 @@ REPAIR_SHARE = 0.01
 
 
 HOLE_OVERLAP_MM2 = 1e-6  # holes sharing an edge overlap by float noise (1e-14 mm2) once turned
+# A hole may reach this far out of the outline (a vertex on it, rounded to the 4 decimals files
+# are written with, lies up to 5e-5 mm out); the polygon is then repaired like any other
+HOLE_OUTSIDE_TOL_MM = 1e-3
 
 
 def _no_overlapping_holes(holes: list[np.ndarray], where: str) -> None:

@@ -326,6 +326,11 @@ def test_explain_says_why_there_is_no_grasp(tmp_path, examples, capsys):
     ({"outline": [["320", "-20"], [380, -20], [380, 20], [320, 20]]}, "every point must be [x, y] with numbers"),
     # 40 m of outline: all pairs of its 16568 points would take 2 GB and more
     ({"outline": [[-4650, -5000], [5350, -5000], [5350, 5000], [-4650, 5000]]}, "more than the planner takes"),
+    # 4 km of outline: refused before its 2 million points are sampled (it took 9 s and 1.2 GB)
+    ({"outline": [[-5e5, -5e5], [5e5, -5e5], [5e5, 5e5], [-5e5, 5e5]]}, "2000000 points at the 2 mm step"),
+    # a hole equal to the outline was planned as a solid part
+    ({"outline": [[320, -20], [380, -20], [380, 20], [320, 20]],
+      "holes": [[[320, -20], [380, -20], [380, 20], [320, 20]]]}, "hole #0: covers the whole outline"),
 ])
 def test_scenes_a_checker_found_planned_or_crashing_are_bad_input(tmp_path, examples, part, message, capsys):
     path = tmp_path / "s.json"
@@ -343,3 +348,15 @@ def test_a_scene_file_that_is_no_regular_file_is_bad_input(tmp_path, examples, c
         code, _, err = run_cli("grasp", path, "--examples", examples, capsys=capsys)
         assert code == 2 and "is not a regular file" in err
 
+
+
+
+@pytest.mark.parametrize("diameter_mm", [71.0, 75.0])
+def test_a_disc_wider_than_the_stroke_is_told_so(tmp_path, examples, capsys, diameter_mm):
+    """Chords of it fit the stroke, so the stroke stage keeps pairs; the pads then meet the disc
+    further out. The reason was "a protrusion in its band" or "puts a finger on material"."""
+    disc = shapes.disc("d", diameter_mm / 2, (330, 20), n=90)
+    path = write_scene(tmp_path / "disc.json", [disc], "d")
+    code, out, _ = run_cli("grasp", path, "--json", "--examples", examples, capsys=capsys)
+    reason = json.loads(out)["reason"]
+    assert code == 3 and reason.startswith("the part is wider than the gripper's stroke: at least"), reason

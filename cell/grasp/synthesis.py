@@ -35,6 +35,9 @@ from cell.scene import Scene
 # valid contact points at most: all pairs are formed (~200 bytes each), 3.1 M pairs is ~0.6 GB; a part
 # that fits the workspace has under 1600 at the 2 mm step
 MAX_VALID_POINTS = 2500
+# Outline samples (candidates) at most: 100 m of outline at the 2 mm step. A 1 km square took 9 s
+# and 1.2 GB to be refused for its valid points; it is refused before it is sampled.
+MAX_OUTLINE_SAMPLES = 50_000
 
 
 @dataclass(eq=False)
@@ -166,6 +169,12 @@ class GraspPlanner:
             fail(f"the part is {target.height_mm:g} mm tall: the pads need a grasp z at least "
                  f"{TIP_BELOW_TOP_MM:g} mm below its top and not below its bottom")
 
+        samples = target.polygon.length / p.step_mm
+        if samples > MAX_OUTLINE_SAMPLES:  # before sampling it: the attributes cost memory with the samples
+            raise BadInput(f"part {target.id!r}: its outline is {target.polygon.length / 1000:.1f} m long, "
+                           f"{samples:.0f} points at the {p.step_mm:g} mm step: more than the planner takes "
+                           f"({MAX_OUTLINE_SAMPLES} points, {MAX_OUTLINE_SAMPLES * p.step_mm / 1000:g} m); "
+                           f"{self._workspace_note()}")
         t0 = time.perf_counter()
         rings = part_rings(target)
         op_all, free = candidate_points(target, obstacles, p, rings)
@@ -193,10 +202,8 @@ class GraspPlanner:
             raise BadInput(f"part {target.id!r}: {len(vp)} valid contact points, "
                            f"{len(vp) * (len(vp) - 1) // 2} pairs: more than the planner takes "
                            f"({MAX_VALID_POINTS} points, {MAX_VALID_POINTS * (MAX_VALID_POINTS - 1) // 2} pairs, "
-                           f"about 0.6 GB). The outline is {target.polygon.length / 1000:.1f} m long; the cell's "
-                           f"workspace is {self.cell.workspace.x_mm[1] - self.cell.workspace.x_mm[0]:g} x "
-                           f"{self.cell.workspace.y_mm[1] - self.cell.workspace.y_mm[0]:g} mm (a larger --step-mm "
-                           "takes fewer points)")
+                           f"about 0.6 GB). The outline is {target.polygon.length / 1000:.1f} m long; "
+                           f"{self._workspace_note()}")
         t0 = time.perf_counter()
         P = Pairs.of(vp.points, vp.normals, cand_index[point_valid])
         counts["pairs"] = len(P)
@@ -296,11 +303,12 @@ class GraspPlanner:
             if narrow.any():
                 why = (f"every pair of valid points is either closer than the jaws' smallest opening "
                        f"({smallest:g} mm) or farther apart than {widest:g} mm ({clearance})")
-        if first == "contacts" and not P.stroke_refused:
+        if first in ("precheck", "contacts") and not P.stroke_refused:
             across = _least_width_mm(ctx.target)
             if across > widest + 1e-6:  # facing points fit on chords, but the part's widest stretch is in the band
-                why += (f"; the part is at least {across:.1f} mm across in every direction, the jaws take at most "
-                        f"{widest:g} mm ({clearance})")
+                return (f"the part is wider than the gripper's stroke: at least {across:.1f} mm across in every "
+                        f"direction, the jaws take at most {widest:g} mm ({clearance}); the facing points that fit "
+                        f"lie on chords where a finger meets the part further out ({first} stage)")
         if first == "contacts" and P.stroke_refused:
             # Contacts that fit the stroke on pads stopped wider apart than the stroke allows (a disc
             # just wider than it, grasped on a chord): say so, not "a protrusion"
@@ -323,6 +331,11 @@ class GraspPlanner:
                 return (f"the part is wider than the gripper's stroke: facing contact points are at least "
                         f"{closest:.1f} mm apart, the jaws take at most {widest:g} mm ({clearance})")
         return f"no reachable pair ({first} stage): {why}"
+
+    def _workspace_note(self) -> str:
+        ws = self.cell.workspace
+        return (f"the cell's workspace is {ws.x_mm[1] - ws.x_mm[0]:g} x {ws.y_mm[1] - ws.y_mm[0]:g} mm (a larger "
+                "--step-mm takes fewer points)")
 
     def _j3_note(self, ctx: Context) -> str:
         lo, hi = self.cell.scara.j3_mm

@@ -476,9 +476,11 @@ def test_the_outline_pre_check_looks_only_where_a_neighbour_can_be_ahead(target)
     P, _, ctx = cascade_for(target)
     idx = np.arange(len(P))
     idx = idx[cascade.stage_stroke(ctx, P, idx) & cascade.stage_antipodal(ctx, P, idx)]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        fast = cascade._outline_ahead(ctx, P, idx)
-    assert np.array_equal(fast, _outline_ahead_everywhere(ctx, P, idx))
+    many = np.tile(idx, len(P.points) // len(idx) + 1)  # more rows than points: the bound decides rows
+    assert 2 * len(many) > len(P.points)
+    fast = cascade._outline_ahead(ctx, P, many)
+    assert np.array_equal(fast, _outline_ahead_everywhere(ctx, P, many))
+    assert np.array_equal(cascade._outline_ahead(ctx, P, idx), fast[:len(idx)])
     if target.id in ("g", "l"):
         assert fast.any() and not fast.all()
 
@@ -491,13 +493,13 @@ def test_the_pre_check_tells_convex_targets():
                                                         [357.5, 117.6], [399, 119], [399, 119], [399.3, 117.7],
                                                         [357.6, 116.3], [357.6, 116.3]], "z_top": 10})
     collinear = parse_part({"id": "c", "outline": [[330, 0], [350, 0], [370, 0], [370, 30], [330, 30]], "z_top": 10})
-    assert cascade._convex(ctx_of(shapes.rectangle("r", 50, 30, angle_deg=33)))
-    assert cascade._convex(ctx_of(shapes.disc("d", 20)))
-    assert cascade._convex(ctx_of(collinear))  # a vertex on a straight edge turns neither way
-    assert not cascade._convex(ctx_of(shapes.disc("ring", 20, hole_r_mm=5)))  # a hole: material is not convex
-    assert not cascade._convex(ctx_of(shapes.l_shape("l")))
-    assert not cascade._convex(ctx_of(shapes.gear("g")))
-    assert not cascade._convex(ctx_of(u_with_repeats))  # repeated vertices do not hide the U's inner corners
+    assert ctx_of(shapes.rectangle("r", 50, 30, angle_deg=33)).target_convex
+    assert ctx_of(shapes.disc("d", 20)).target_convex
+    assert ctx_of(collinear).target_convex  # a vertex on a straight edge turns neither way
+    assert not ctx_of(shapes.disc("ring", 20, hole_r_mm=5)).target_convex  # a hole: material is not convex
+    assert not ctx_of(shapes.l_shape("l")).target_convex
+    assert not ctx_of(shapes.gear("g")).target_convex
+    assert not ctx_of(u_with_repeats).target_convex  # repeated vertices do not hide the U's inner corners
 
 
 def test_a_part_wider_than_the_stroke_where_the_pads_stop_is_refused(tmp_path, capsys):

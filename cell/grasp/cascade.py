@@ -132,7 +132,7 @@ def stage_precheck(ctx: Context, P: Pairs, idx) -> np.ndarray:
     # material on the fingers' paths: tall obstacles, and the target itself unless it is convex
     # (there the material in front of a pad is the outline next to its point, which
     # _outline_ahead looks at: on the parts library the test never rejected a pair more)
-    geoms = [o for o in (None if _convex(ctx) else ctx.target_geom, ctx.finger_obstacles) if o is not None]
+    geoms = [o for o in (None if ctx.target_convex else ctx.target_geom, ctx.finger_obstacles) if o is not None]
     if geoms:
         u, t = P.u.take(idx, 0), P.t.take(idx)
         tol = ctx.params.contact_tol_mm
@@ -155,22 +155,6 @@ def stage_precheck(ctx: Context, P: Pairs, idx) -> np.ndarray:
     return ok
 
 
-def _convex(ctx: Context) -> bool:
-    """Is the target's material convex: no holes, and its outline (repeated vertices left out) turns
-    the same way at every vertex? Near-straight vertices (not turning back), within 1e-9 of the
-    edges' lengths' product, turn neither way."""
-    if ctx.target.holes_mm:
-        return False
-    dx, dy = ctx.edge_dx, ctx.edge_dy
-    length2 = dx * dx + dy * dy
-    if not (length2 > 0).all():
-        dx, dy, length2 = dx[length2 > 0], dy[length2 > 0], length2[length2 > 0]
-    nx, ny, nl2 = (np.concatenate([a[1:], a[:1]]) for a in (dx, dy, length2))  # the next edge (np.roll costs more)
-    cross = dx * ny - dy * nx
-    straight = (np.abs(cross) <= 1e-9 * np.sqrt(length2 * nl2)) & (dx * nx + dy * ny > 0)
-    return bool(((cross > 0) | straight).all() or ((cross < 0) | straight).all())
-
-
 def _outline_ahead(ctx: Context, P: Pairs, idx) -> np.ndarray:
     """(k,) True where an outline sample next to p_i or p_j (same ring, within the pad's reach along
     the outline) lies in that pad's band further out than the candidate point by more than
@@ -187,18 +171,21 @@ def _outline_ahead(ctx: Context, P: Pairs, idx) -> np.ndarray:
     # straight stretch, an axis along its normal: the usual case) no neighbour can be ahead; the
     # test below (same verdicts) looks at the other rows only
     nbx, nby = ctx.neighbour_x.take(P.sample_index, 0), ctx.neighbour_y.take(P.sample_index, 0)  # (z', 2K)
-    px, py = P.points[:, 0, None], P.points[:, 1, None]
-    n_x, n_y = P.normals[:, 0], P.normals[:, 1]
-    rx, ry = nbx - px, nby - py
-    ahead = np.maximum((rx * n_x[:, None] + ry * n_y[:, None]).max(1), 0.0)
-    across = np.abs(ry * n_x[:, None] - rx * n_y[:, None]).max(1)
     # the 2k rows: p_i's pad closes along -u from the +u side (side +1), p_j's from -u
     pt = P.ij.take(idx, 0).T.ravel()  # (2k,) p_i's point, then p_j's
     u = P.u.take(idx, 0)
     usx, usy = np.concatenate([u[:, 0], -u[:, 0]]), np.concatenate([u[:, 1], -u[:, 1]])
-    nxr, nyr = n_x.take(pt), n_y.take(pt)
-    cos, sin = usx * nxr + usy * nyr, np.abs(usx * nyr - usy * nxr)
-    rows = np.flatnonzero((cos <= 0) | (ahead.take(pt) + across.take(pt) * sin > tol + shift))
+    if 2 * k > len(P.points):  # the bound is worked out per point: worth it for more rows than points
+        px, py = P.points[:, 0, None], P.points[:, 1, None]
+        n_x, n_y = P.normals[:, 0], P.normals[:, 1]
+        rx, ry = nbx - px, nby - py
+        ahead = np.maximum((rx * n_x[:, None] + ry * n_y[:, None]).max(1), 0.0)
+        across = np.abs(ry * n_x[:, None] - rx * n_y[:, None]).max(1)
+        nxr, nyr = n_x.take(pt), n_y.take(pt)
+        cos, sin = usx * nxr + usy * nyr, np.abs(usx * nyr - usy * nxr)
+        rows = np.flatnonzero((cos <= 0) | (ahead.take(pt) + across.take(pt) * sin > tol + shift))
+    else:
+        rows = np.arange(2 * k)
     hit = np.zeros(2 * k, bool)
     if len(rows):
         m, t = P.m.take(idx, 0), P.t.take(idx)

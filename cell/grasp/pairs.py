@@ -59,6 +59,7 @@ class Context:
     neighbour_x: np.ndarray | None = None  # (N, 2K) the samples on the same ring within K steps of each sample
     neighbour_y: np.ndarray | None = None
     outline_shift_mm: float = 0.0  # how far the exact stages' outline lies from the given one at most
+    target_convex: bool = False  # no holes and an outline that turns one way (`convex`)
 
     @classmethod
     def build(cls, target: Part, obstacles, cell: Cell, params: SynthesisParams, grasp_z_mm: float,
@@ -94,9 +95,10 @@ class Context:
             near = first[:, None] + (np.arange(len(samples))[:, None] - first[:, None] + offs[None, :]) % count[:, None]
             nx, ny = samples[:, 0].take(near), samples[:, 1].take(near)
         fo, po = union(tall), union(palm)
+        edges = _edge_columns(a, b)
         return cls(target, cell, params, grasp_z_mm, tg, fo, po, [o.id for o in tall],
-                   a, b, tree, samples, first, count, *_edge_columns(a, b), _part_boxes(fo),
-                   _part_boxes(po), nx, ny, shift)
+                   a, b, tree, samples, first, count, *edges, _part_boxes(fo),
+                   _part_boxes(po), nx, ny, shift, not target.holes_mm and convex(edges[2], edges[3]))
 
 
 def exact_outline(target: Part):
@@ -143,6 +145,19 @@ def _shift(ring: np.ndarray, keep: np.ndarray | None) -> float:
     d = q - p
     s = np.clip(((ring - p) * d).sum(1) / np.maximum((d * d).sum(1), 1e-300), 0.0, 1.0)
     return float(np.hypot(*(ring - (p + s[:, None] * d)).T).max())
+
+
+def convex(dx: np.ndarray, dy: np.ndarray) -> bool:
+    """Does a ring of edges (directions dx, dy, (E,)) turn the same way at every vertex, repeated
+    vertices left out? Near-straight vertices (not turning back), within 1e-9 of the edges'
+    lengths' product, turn neither way. A valid polygon's outline that does is convex."""
+    length2 = dx * dx + dy * dy
+    if not (length2 > 0).all():
+        dx, dy, length2 = dx[length2 > 0], dy[length2 > 0], length2[length2 > 0]
+    nx, ny, nl2 = (np.concatenate([a[1:], a[:1]]) for a in (dx, dy, length2))  # the next edge (np.roll costs more)
+    cross = dx * ny - dy * nx
+    straight = (np.abs(cross) <= 1e-9 * np.sqrt(length2 * nl2)) & (dx * nx + dy * ny > 0)
+    return bool(((cross > 0) | straight).all() or ((cross < 0) | straight).all())
 
 
 def _part_boxes(geom) -> np.ndarray | None:

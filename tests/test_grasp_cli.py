@@ -101,43 +101,29 @@ def test_a_target_thinner_than_the_pads_need_has_no_grasp(tmp_path, examples, ca
 
 
 
-@pytest.mark.parametrize("z_top,j3_low,grasp_z", [(15.0, 5.0, 5.0), (30.0, 5.0, 12.0), (6.0, 5.0, None)])
-def test_the_grasp_z_rises_to_what_j3_can_reach(tmp_path, examples, capsys, z_top, j3_low, grasp_z):
-    """A cell whose J3 stops above the usual tip height (1 mm over the tray for a 15 mm part) grasps
-    at J3's lowest z while that stays within [z_bottom, z_top - 2]; a part too low for it is told so."""
+@pytest.mark.parametrize("j3_mm,z_top,expected", [
+    ((5.0, 200.0), 15.0, 5.0),  # usual z 1: up to J3's lowest, within [z_bottom, z_top - 2]
+    ((5.0, 200.0), 30.0, 12.0),  # usual z 12 is reachable: unchanged
+    ((5.0, 200.0), 6.0, "J3 reaches down to 5 mm"),  # z_top - 2 = 4 is below J3's lowest
+    ((0.0, 10.0), 45.0, 10.0),  # usual z 27: down to J3's top, the palm (40 mm up) above the part
+    ((0.0, 10.0), 100.0, "J3 reaches up to 10 mm"),  # the palm would be inside it (a review found it planned)
+])
+def test_the_grasp_z_moves_into_j3s_range_where_it_may(tmp_path, examples, capsys, j3_mm, z_top, expected):
     raw = json.loads(default_cell_path().read_text())
-    raw["scara"]["j3_mm"] = [j3_low, 200.0]
-    cell = tmp_path / "high_j3.json"
+    raw["scara"]["j3_mm"] = list(j3_mm)
+    if j3_mm[1] < raw["motion"]["safe_z_mm"]:  # the cell's own heights within J3, or it is refused
+        raw["motion"].update(safe_z_mm=j3_mm[1], dropoff_mm=[330.0, 380.0, j3_mm[1]])
+        raw["motion"]["home_joints"]["j3_mm"] = j3_mm[1]
+    cell = tmp_path / "cell.json"
     cell.write_text(json.dumps(raw))
     part = shapes.rectangle("box", 50, 30, (320, 40), 10, z_top_mm=z_top)
     path = write_scene(tmp_path / "box.json", [part], "box")
     code, out, _ = run_cli("grasp", path, "--json", "--examples", examples, "--cell", cell, capsys=capsys)
     d = json.loads(out)
-    if grasp_z is None:
-        assert code == 3 and f"J3 reaches down to {j3_low:g} mm" in d["reason"], d
+    if isinstance(expected, str):
+        assert code == 3 and expected in d["reason"], d
     else:
-        assert code == 0 and d["grasp_z_mm"] == grasp_z and d["joints"]["j3_mm"] == grasp_z, d
-
-
-
-@pytest.mark.parametrize("z_top,grasp_z", [(45.0, 10.0), (100.0, None)])
-def test_the_grasp_z_falls_to_j3_top_only_with_the_palm_above_the_part(tmp_path, examples, capsys, z_top, grasp_z):
-    """J3 up to 10 mm: a 45 mm part (usual z 27) is held at 10, its palm 40 mm higher still above
-    the part's top; a 100 mm part is not, the palm would be inside it (a review found it planned)."""
-    raw = json.loads(default_cell_path().read_text())
-    raw["scara"]["j3_mm"] = [0.0, 10.0]
-    raw["motion"].update(safe_z_mm=10.0, dropoff_mm=[330.0, 380.0, 10.0])
-    raw["motion"]["home_joints"]["j3_mm"] = 10.0
-    cell = tmp_path / "low_j3.json"
-    cell.write_text(json.dumps(raw))
-    part = shapes.rectangle("block", 50, 30, (320, 40), 10, z_top_mm=z_top)
-    path = write_scene(tmp_path / "block.json", [part], "block")
-    code, out, _ = run_cli("grasp", path, "--json", "--examples", examples, "--cell", cell, capsys=capsys)
-    d = json.loads(out)
-    if grasp_z is None:
-        assert code == 3 and "J3 reaches up to 10 mm" in d["reason"], d
-    else:
-        assert code == 0 and d["grasp_z_mm"] == grasp_z, d
+        assert code == 0 and d["grasp_z_mm"] == expected and d["joints"]["j3_mm"] == expected, d
 
 
 BOWTIE = [[300, 0], [340, 40], [340, 0], [300, 40]]

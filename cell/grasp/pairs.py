@@ -59,7 +59,7 @@ class Context:
     neighbour_x: np.ndarray | None = None  # (N, 2K) the samples on the same ring within K steps of each sample
     neighbour_y: np.ndarray | None = None
     outline_shift_mm: float = 0.0  # how far the exact stages' outline lies from the given one at most
-    target_convex: bool = False  # no holes and an outline that turns one way (`convex`)
+    target_convex: bool = False  # no holes and an outline that turns one way (`_turns_one_way`)
 
     @classmethod
     def build(cls, target: Part, obstacles, cell: Cell, params: SynthesisParams, grasp_z_mm: float,
@@ -98,7 +98,7 @@ class Context:
         edges = _edge_columns(a, b)
         return cls(target, cell, params, grasp_z_mm, tg, fo, po, [o.id for o in tall],
                    a, b, tree, samples, first, count, *edges, _part_boxes(fo),
-                   _part_boxes(po), nx, ny, shift, not target.holes_mm and convex(edges[2], edges[3]))
+                   _part_boxes(po), nx, ny, shift, not target.holes_mm and _turns_one_way(edges[2], edges[3]))
 
 
 def exact_outline(target: Part):
@@ -147,7 +147,7 @@ def _shift(ring: np.ndarray, keep: np.ndarray | None) -> float:
     return float(np.hypot(*(ring - (p + s[:, None] * d)).T).max())
 
 
-def convex(dx: np.ndarray, dy: np.ndarray) -> bool:
+def _turns_one_way(dx: np.ndarray, dy: np.ndarray) -> bool:
     """Does a ring of edges (directions dx, dy, (E,)) turn the same way at every vertex, repeated
     vertices left out? Near-straight vertices (not turning back), within 1e-9 of the edges'
     lengths' product, turn neither way. A valid polygon's outline that does is convex."""

@@ -343,7 +343,10 @@ class GraspPlanner:
             return (f" (J3 reaches down to {lo:g} mm, the grasp z is {ctx.grasp_z_mm:g} mm: the part's top, "
                     f"{ctx.target.z_top_mm:g} mm, is less than {TIP_BELOW_TOP_MM:g} mm above J3's lowest)")
         if ctx.grasp_z_mm > hi + 1e-9:
-            return f" (J3 reaches up to {hi:g} mm, the grasp z is {ctx.grasp_z_mm:g} mm)"
+            palm = self.cell.gripper.palm_offset_mm
+            why = (f": lower, the palm ({palm:g} mm above the tips) would be inside the part, {ctx.target.z_top_mm:g} "
+                   "mm tall" if hi + palm < ctx.target.z_top_mm else "")
+            return f" (J3 reaches up to {hi:g} mm, the grasp z is {ctx.grasp_z_mm:g} mm{why})"
         return ""
 
     def rules(self) -> dict:

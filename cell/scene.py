@@ -249,9 +249,11 @@ def parse_part(raw, where: str = "part") -> Part:
         wider = shell.buffer(HOLE_OUTSIDE_TOL_MM)
         for i, h in enumerate(holes):
             hole = Polygon(h)
-            if hole.is_valid and not wider.contains(hole):
+            if not hole.is_valid:  # a self-crossing hole: the polygon's repair decides
+                continue
+            if not wider.contains(hole):
                 raise BadInput(f"{where} hole #{i}: lies outside the outline (holes must be inside it)")
-            if hole.is_valid and hole.area >= shell.area - HOLE_OVERLAP_MM2:
+            if hole.area >= shell.area - HOLE_OVERLAP_MM2:
                 raise BadInput(f"{where} hole #{i}: covers the whole outline (the part would have no material)")
     poly = Polygon(outline, holes)
     if not poly.is_valid:

@@ -307,13 +307,14 @@ def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     if ctx.params.max_contact_skew_deg < 90:  # the contacts' line along the axis (params.py)
         across = np.abs((xi - xj) * -u[:, 1] + (yi - yj) * u[:, 0])
         ok &= across <= math.tan(math.radians(ctx.params.max_contact_skew_deg)) * np.abs(2 * h) + EPS_MM
+    mid_x, mid_y = 0.5 * (xi + xj), 0.5 * (yi + yj)  # the grasp centre
     if ctx.params.stroke_at_pad_lines:
-        fits = _pads_clear_in_stroke(ctx, P, idx, ok, h, 0.5 * (xi + xj), 0.5 * (yi + yj))
+        fits = _pads_clear_in_stroke(ctx, P, idx, ok, h, mid_x, mid_y)
         P.stroke_refused += int((ok & ~fits).sum())  # for the message when no pair is left
         ok &= fits
     # written column by column: numpy's row assignment into (s, 2) arrays costs several times more
-    for col, vi, vj in ((0, xi, xj), (1, yi, yj)):
-        P.ci[:, col][idx], P.cj[:, col][idx], P.center[:, col][idx] = vi, vj, 0.5 * (vi + vj)
+    for col, vi, vj, mid in ((0, xi, xj, mid_x), (1, yi, yj, mid_y)):
+        P.ci[:, col][idx], P.cj[:, col][idx], P.center[:, col][idx] = vi, vj, mid
     P.h[idx] = h
     return ok
 

@@ -235,9 +235,9 @@ class Pairs:
         m = 0.5 * (pi + pj)
         t = 0.5 * (w[:, 0] * u[:, 0] + w[:, 1] * u[:, 1])
         nan2 = np.full((len(i), 2), np.nan)
-        si = None if sample_index is None else np.asarray(sample_index, int)
+        sample_index = None if sample_index is None else np.asarray(sample_index, int)
         return cls(np.column_stack([i, j]), pi, pj, ni, nj, d, u, m, t, nan2.copy(), nan2.copy(), nan2.copy(),
-                   np.full(len(i), np.nan), w=w, points=points, normals=normals, sample_index=si)
+                   np.full(len(i), np.nan), w=w, points=points, normals=normals, sample_index=sample_index)
 
     def fresh(self) -> Pairs:
         """The same pairs with nothing the stages computed (contacts, IK) carried over."""

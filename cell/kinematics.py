@@ -122,27 +122,41 @@ def _wrap180(a: float) -> float:
     return (a + 180.0) % 360.0 - 180.0
 
 
+# Up to this many points both elbows go through one pass (half the numpy calls, each of which costs
+# microseconds on the cascade's few hundred pairs); more go elbow by elbow (cheaper for large batches).
+ELBOWS_STACKED_MAX = 2048
+
+
+def _elbow_within_limits(t2, to_wrist, a, scara: Scara) -> np.ndarray:
+    """For elbow angles t2 (J2 in radians) reaching wrist directions to_wrist: are J1, J2 and some
+    J4 turn of the axis a (degrees) within the limits?"""
+    l1, l2 = scara.l1_mm, scara.l2_mm
+    j1 = (np.degrees(to_wrist - np.arctan2(l2 * np.sin(t2), l1 + l2 * np.cos(t2))) + 180.0) % 360.0 - 180.0
+    j2 = np.degrees(t2)
+    base = a - j1 - j2
+    lo4, hi4 = scara.j4_deg
+    some_j4 = np.floor((hi4 - base) / 180.0 + 1e-9) >= np.ceil((lo4 - base) / 180.0 - 1e-9)
+    return ((j1 >= scara.j1_deg[0] - 1e-9) & (j1 <= scara.j1_deg[1] + 1e-9)
+            & (j2 >= scara.j2_deg[0] - 1e-9) & (j2 <= scara.j2_deg[1] + 1e-9) & some_j4)
+
+
 def reachable_mask(x_mm, y_mm, z_mm: float, axis_deg, scara: Scara) -> np.ndarray:
     """Vectorised `bool(inverse(x, y, z, axis, scara))`: does any solution within the joint
     limits exist? Shapes (n,) in, (n,) bool out. The cascade asks this for every pair; the
     solutions themselves are only worked out for the grasps that are looked at."""
     x, y, a = (np.asarray(v, float) for v in (x_mm, y_mm, axis_deg))
+    if not scara.j3_mm[0] - 1e-9 <= z_mm <= scara.j3_mm[1] + 1e-9:
+        return np.zeros(x.shape, bool)
     l1, l2 = scara.l1_mm, scara.l2_mm
     c2 = (x * x + y * y - l1 * l1 - l2 * l2) / (2 * l1 * l2)
     inside = (c2 <= 1.0 + 1e-12) & (c2 >= -1.0 - 1e-12)
-    c2 = np.clip(c2, -1.0, 1.0)
-    z_ok = scara.j3_mm[0] - 1e-9 <= z_mm <= scara.j3_mm[1] + 1e-9
-    if not z_ok:
-        return np.zeros(x.shape, bool)
-    ok = np.zeros(x.shape, bool)
-    t = np.arccos(c2)
+    t = np.arccos(np.minimum(np.maximum(c2, -1.0), 1.0))  # np.clip, at a fraction of its call's cost
     to_wrist = np.arctan2(y, x)
-    lo4, hi4 = scara.j4_deg
-    for t2 in (t, -t):  # both elbows (-t exactly, as sign * t)
-        j1 = (np.degrees(to_wrist - np.arctan2(l2 * np.sin(t2), l1 + l2 * np.cos(t2))) + 180.0) % 360.0 - 180.0
-        j2 = np.degrees(t2)
-        base = a - j1 - j2
-        some_j4 = np.floor((hi4 - base) / 180.0 + 1e-9) >= np.ceil((lo4 - base) / 180.0 - 1e-9)
-        ok |= ((j1 >= scara.j1_deg[0] - 1e-9) & (j1 <= scara.j1_deg[1] + 1e-9)
-               & (j2 >= scara.j2_deg[0] - 1e-9) & (j2 <= scara.j2_deg[1] + 1e-9) & some_j4)
+    if x.ndim == 1 and len(x) <= ELBOWS_STACKED_MAX:  # both elbows in one pass (-t exactly, as sign * t)
+        ok = _elbow_within_limits(np.concatenate([t, -t]), np.concatenate([to_wrist, to_wrist]),
+                                  np.concatenate([a, a]), scara)
+        return (ok[:len(x)] | ok[len(x):]) & inside
+    ok = np.zeros(x.shape, bool)
+    for t2 in (t, -t):
+        ok |= _elbow_within_limits(t2, to_wrist, a, scara)
     return ok & inside

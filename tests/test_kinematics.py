@@ -68,3 +68,15 @@ def test_the_vectorised_reachability_agrees_with_the_solutions(x, y, z, axis):
     from cell.kinematics import reachable_mask
 
     assert bool(reachable_mask([x], [y], z, [axis], SCARA)[0]) == bool(inverse(x, y, z, axis, SCARA))
+
+
+def test_the_reachability_of_many_points_agrees_with_the_solutions():
+    # more points than go through both elbows in one pass: the elbow-by-elbow path, point by point
+    from cell.kinematics import ELBOWS_STACKED_MAX, reachable_mask
+
+    rng = np.random.default_rng(3)
+    n = ELBOWS_STACKED_MAX + 500
+    x, y, axis = rng.uniform(-650, 650, n), rng.uniform(-650, 650, n), rng.uniform(-400, 400, n)
+    many = reachable_mask(x, y, 50.0, axis, SCARA)
+    assert 0 < many.sum() < n
+    assert [bool(v) for v in many] == [bool(inverse(a, b, 50.0, c, SCARA)) for a, b, c in zip(x, y, axis, strict=True)]

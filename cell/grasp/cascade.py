@@ -62,12 +62,17 @@ def _dense(P: Pairs, idx) -> bool:
     return 2 * len(idx) > len(P)
 
 
+def _picked(ok: np.ndarray, P: Pairs, idx) -> np.ndarray:
+    """idx's verdicts from a dense stage's verdicts on every pair (idx is sorted: all of them is every pair)."""
+    return ok if len(idx) == len(P) else ok.take(idx)
+
+
 def stage_stroke(ctx: Context, P: Pairs, idx) -> np.ndarray:
     g = ctx.cell.gripper
     dense = _dense(P, idx)
     d = P.d if dense else P.d.take(idx)
     ok = (d >= g.opening_mm[0] - EPS_MM) & (d + 2 * g.approach_clearance_mm <= g.opening_mm[1] + EPS_MM)
-    return ok.take(idx) if dense else ok
+    return _picked(ok, P, idx) if dense else ok
 
 
 def stage_reach(ctx: Context, P: Pairs, idx) -> np.ndarray:
@@ -81,7 +86,7 @@ def stage_reach(ctx: Context, P: Pairs, idx) -> np.ndarray:
     ws, e = ctx.cell.workspace, CHEAP_MARGIN_MM
     ok = ((r >= rmin - e) & (r <= rmax + e) & (x >= ws.x_mm[0] - e) & (x <= ws.x_mm[1] + e)
           & (y >= ws.y_mm[0] - e) & (y <= ws.y_mm[1] + e))
-    return ok.take(idx) if dense else ok
+    return _picked(ok, P, idx) if dense else ok
 
 
 def _midpoints_surely_reachable(ctx: Context, points: np.ndarray) -> bool:
@@ -119,7 +124,7 @@ def stage_antipodal(ctx: Context, P: Pairs, idx) -> np.ndarray:
     wx, wy = w[:, 0], w[:, 1]
     lateral = 0.5 * np.abs(wx * u[:, 1] - wy * u[:, 0])  # |w x u| / 2: the points' offset across the axis
     ok[k] = (-(nj[:, 0] * wx + nj[:, 1] * wy) >= c * d) & (lateral <= ctx.params.contact_tol_mm + EPS_MM)
-    return ok.take(idx) if dense else ok
+    return _picked(ok, P, idx) if dense else ok
 
 
 def stage_precheck(ctx: Context, P: Pairs, idx) -> np.ndarray:

@@ -237,12 +237,12 @@ class GraspPlanner:
         normals = np.stack([P.ni[k], P.nj[k]], axis=1)
         centers = 0.5 * (contacts[:, 0] + contacts[:, 1])
         openings = np.linalg.norm(contacts[:, 0] - contacts[:, 1], axis=1)
-        ranked = []
-        for o in order:
-            q, pk = sel[o], k[sel[o]]
-            ranked.append(Grasp(target.id, contacts[q], normals[q], centers[q], P.axis_deg(pk), float(openings[q]),
-                                gz, joints_of(P, pk), None, float(dist[o]), G[q], self.model.example_ids[ex_idx[o]],
-                                (int(ij[q, 0]), int(ij[q, 1]))))
+        q = sel[order]  # the valid sets, nearest first (rows of contacts, G, ...), as Python values where scalar
+        ids = self.model.example_ids
+        ranked = [Grasp(target.id, c, n, m, P.axis_deg(pk), w, gz, joints_of(P, pk), None, dk, g, ids[e], (a, b))
+                  for c, n, m, pk, w, dk, g, e, (a, b) in zip(
+                      contacts[q], normals[q], centers[q], k[q].tolist(), openings[q].tolist(), dist[order].tolist(),
+                      G[q], ex_idx[order].tolist(), ij[q].tolist(), strict=True)]
         # Step 5's hook may refuse a grasp (None: no configuration clears the parts): take the
         # next best, as the paper's "retry with the next grasp".
         refused = 0

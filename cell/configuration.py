@@ -59,11 +59,13 @@ def link_collisions(j: Joints, cell: Cell, parts: Sequence[Part]) -> list[str]:
     collides with a link when it is taller than the link's underside and overlaps the
     link's plan-view footprint (the segment between its joints, as wide as the link)."""
     s = cell.scara
+    highest = max((p.z_top_mm for p in parts), default=-np.inf)
+    if highest <= min(s.link1_bottom_z_mm, s.link2_bottom_z_mm):
+        return []  # the usual tray: every part below both links (no footprint to build)
     base, elbow, wrist = elbow_points(j, s)
-    links = (
-        (LineString([base, elbow]).buffer(s.link1_width_mm / 2), s.link1_bottom_z_mm),
-        (LineString([elbow, wrist]).buffer(s.link2_width_mm / 2), s.link2_bottom_z_mm),
-    )
+    links = [(LineString(ends).buffer(width / 2), bottom_z) for ends, width, bottom_z in (
+        ([base, elbow], s.link1_width_mm, s.link1_bottom_z_mm), ([elbow, wrist], s.link2_width_mm, s.link2_bottom_z_mm))
+        if highest > bottom_z]
     hit = []
     for p in parts:
         for footprint, bottom_z in links:

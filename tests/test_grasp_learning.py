@@ -205,6 +205,13 @@ def test_a_step_5_hook_that_refuses_a_grasp_gets_the_next_best():
     assert res.counts["configuration_refused"] == 2
     assert np.array_equal(res.grasp.contacts_mm, base.ranked[2].contacts_mm)
     assert res.grasp.joints == res.grasp.joint_options[-1] and len(res.ranked) == len(base.ranked) - 2
+    # the ranking is read like a list: the same grasp object at every read, negative and sliced indices
+    rest = res.ranked
+    assert rest[0] is res.grasp and rest[-1] is rest[len(rest) - 1] and rest[1:3] == [rest[1], rest[2]]
+    assert [np.round(g.contacts_mm, 6).tolist() for g in rest] == [
+        np.round(g.contacts_mm, 6).tolist() for g in list(base.ranked)[2:]]
+    with pytest.raises(IndexError):
+        rest[len(rest)]
     with pytest.raises(NoFeasibleGrasp, match="step 5"):
         GraspPlanner(CELL, faces_examples(), choose=lambda *a: None).plan(Scene((RECT,), "r"))
 

@@ -13,7 +13,7 @@ them in `GraspPlanner.__init__`.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -68,6 +68,41 @@ class Grasp:
         return d
 
 
+class RankedGrasps(Sequence):
+    """The valid sets as Grasps, nearest to an example first (rows `rows` of the reachable sets'
+    arrays). Each Grasp is built when first read, then kept: a plan reads one or two of hundreds."""
+
+    def __init__(self, target: str, grasp_z_mm: float, P: Pairs, pairs: np.ndarray, rows: np.ndarray,
+                 contacts, normals, centers, openings, G, distances, example_ids: list, first: int = 0, built=None):
+        self._target, self._gz, self._P, self._pairs, self._rows = target, grasp_z_mm, P, pairs, rows
+        self._arrays = (contacts, normals, centers, openings, G, distances, example_ids)
+        self._first, self._built = first, {} if built is None else built
+
+    def __len__(self) -> int:
+        return len(self._rows) - self._first
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[r] for r in range(*i.indices(len(self)))]
+        n = len(self)
+        if not -n <= i < n:
+            raise IndexError(f"grasp {i} of {n}")
+        r = self._first + (i % n)
+        if r not in self._built:
+            q = int(self._rows[r])
+            contacts, normals, centers, openings, G, distances, ids = self._arrays
+            pk, (a, b) = int(self._pairs[q]), self._P.ij[self._pairs[q]].tolist()
+            self._built[r] = Grasp(self._target, contacts[q], normals[q], centers[q], self._P.axis_deg(pk),
+                                   float(openings[q]), self._gz, joints_of(self._P, pk), None, float(distances[r]),
+                                   G[q], ids[r], (a, b))
+        return self._built[r]
+
+    def after_first(self) -> RankedGrasps:
+        """The same ranking without its first grasp (step 5 refused it)."""
+        return RankedGrasps(self._target, self._gz, self._P, self._pairs, self._rows, *self._arrays,
+                            first=min(self._first + 1, len(self._rows)), built=self._built)
+
+
 def _least_width_mm(part) -> float:
     """The part's width in its narrowest direction: the least, over its convex hull's edges, of the
     hull's extent across the edge."""
@@ -95,7 +130,7 @@ def choose_joints(grasp: Grasp, examples: list[GraspExample], cell: Cell, scene:
 @dataclass(eq=False)
 class SynthesisResult:
     grasp: Grasp
-    ranked: list[Grasp]  # every valid reachable set, nearest to an example first (joints chosen for
+    ranked: Sequence[Grasp]  # every valid reachable set, nearest to an example first (joints chosen for
     # the first only; `GraspPlanner.choose_for(grasp, scene)` runs step 5 for another)
     counts: dict
     time_ms: float
@@ -237,23 +272,19 @@ class GraspPlanner:
         normals = np.stack([P.ni[k], P.nj[k]], axis=1)
         centers = 0.5 * (contacts[:, 0] + contacts[:, 1])
         openings = np.linalg.norm(contacts[:, 0] - contacts[:, 1], axis=1)
-        q = sel[order]  # the valid sets, nearest first (rows of contacts, G, ...), as Python values where scalar
-        ids = self.model.example_ids
-        ranked = [Grasp(target.id, c, n, m, P.axis_deg(pk), w, gz, joints_of(P, pk), None, dk, g, ids[e], (a, b))
-                  for c, n, m, pk, w, dk, g, e, (a, b) in zip(
-                      contacts[q], normals[q], centers[q], k[q].tolist(), openings[q].tolist(), dist[order].tolist(),
-                      G[q], ex_idx[order].tolist(), ij[q].tolist(), strict=True)]
+        ranked = RankedGrasps(target.id, gz, P, k, sel[order], contacts, normals, centers, openings,
+                              G, dist[order], [self.model.example_ids[e] for e in ex_idx[order].tolist()])
         # Step 5's hook may refuse a grasp (None: no configuration clears the parts): take the
         # next best, as the paper's "retry with the next grasp".
         refused = 0
-        while ranked:
+        while len(ranked):
             ranked[0].joints = self.choose(ranked[0], self.examples, cell, scene)
             if ranked[0].joints is not None:
                 break
-            ranked.pop(0)
+            ranked = ranked.after_first()
             refused += 1
         counts["configuration_refused"] = refused
-        if not ranked:
+        if not len(ranked):
             fail(f"no arm configuration for any of the {refused} valid contact sets (step 5 refused them all)")
         best = ranked[0]
         # the alternatives keep their joint options; step 5 runs for one when it is needed

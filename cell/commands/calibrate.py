@@ -26,6 +26,7 @@ def add_arguments(p) -> None:
     p.add_argument("--marker", type=float, metavar="MM", help="ChArUco marker side (same unit as --square)")
     p.add_argument("--dictionary", default="DICT_6X6_250", help="ChArUco dictionary (default DICT_6X6_250)")
     p.add_argument("--name", default=None, help="name stored in the calibration file")
+    p.add_argument("--json", action="store_true", help="accepted for symmetry: the result is always JSON")
 
 
 def run(args) -> int:

@@ -12,6 +12,10 @@ import sys
 from cell.commands._vision_args import numbers
 
 MIN_MARKERS = 3
+# A fit this bad is an error in the inputs, not a poor camera: the Festo frames fit to 1.1-1.5 px, and
+# one marker's corners listed one off gave 31-38 px (21 mm on the table). Such a file is not written
+# unless --accept-poor-fit says so: `cell run` would pick 20 mm beside the parts.
+REFUSE_REPROJECTION_PX = 10.0
 
 
 def add_arguments(p) -> None:
@@ -24,6 +28,9 @@ def add_arguments(p) -> None:
     g.add_argument("--camera-matrix", metavar="FX,FY,CX,CY", help="intrinsics (OpenCV's cx, cy), no distortion")
     g.add_argument("--intrinsics", metavar="FILE", help="a calibration file with intrinsics")
     p.add_argument("--name", default=None, help="name stored in the calibration file")
+    p.add_argument("--accept-poor-fit", action="store_true",
+                   help=f"write the file even with a fit worse than {REFUSE_REPROJECTION_PX:g} px RMS reprojection")
+    p.add_argument("--json", action="store_true", help="accepted for symmetry: the result is always JSON")
 
 
 def run(args) -> int:
@@ -79,6 +86,14 @@ def run(args) -> int:
                            "markers_duplicated": duplicated,
                            "per_marker_residual_mm": per_marker, "warnings": warnings})
     cal.report["image"] = str(args.image)
+    rms = cal.report.get("reprojection_rms_px")
+    if rms is not None and rms > REFUSE_REPROJECTION_PX and not args.accept_poor_fit:
+        hints = [w for w in warnings if not w.startswith("the markers fit badly")]
+        raise BadInput(f"the {'markers' if args.markers else 'points'} fit {rms:.1f} px RMS reprojection "
+                       f"({cal.report['residual_mm']:.1f} mm RMS on the plane; more than {REFUSE_REPROJECTION_PX:g} px "
+                       f"is an error in the coordinates or the corner order): {args.out} not written"
+                       + ("; " + "; ".join(hints) if hints else "")
+                       + " (--accept-poor-fit writes it anyway)")
     save_calibration(cal, args.out)
     out = {**cal.report, **out, "out": str(args.out)}
     print(json.dumps(out))

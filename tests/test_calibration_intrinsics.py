@@ -159,3 +159,20 @@ def test_cli_intrinsics_unreadable_image(tmp_path, capsys):
     code, _, err = run_cli("calibrate", "intrinsics", *sorted(CHESS.glob("left*.jpg")), bad, "--pattern", "9x6",
                            "--square", "1", "--out", tmp_path / "x.json", capsys=capsys)
     assert code == 2 and "bad.jpg is not a readable image" in err
+
+
+def test_the_sector_detector_is_taken_only_where_it_finds_more_boards(chess_ref):
+    # blurred views that only SB finds; SB misses left04 and left05, which the classic detector finds:
+    # one such view must not cost those two, four of them win
+    ref = chess_ref["opencv_python_test_calibration"]
+    plain = _images(CHESS)
+    named = dict(plain)
+    blurred = [(f"{n}-blurred-{s}", cv2.GaussianBlur(named[n], (0, 0), s)) for s in (3, 4)
+               for n in ("left09.jpg", "left11.jpg")]
+    one = calibrate_intrinsics(plain + blurred[:1], (9, 6), 1.0)
+    assert one.board["detector"] == "classic" and len(one.images_used) == 13
+    assert {"left04.jpg", "left05.jpg"} <= set(one.images_used) and blurred[0][0] not in one.images_used
+    assert abs(one.rms_px - ref["rms"]) < ref["rms_tolerance_abs"]
+    four = calibrate_intrinsics(plain + blurred, (9, 6), 1.0)
+    assert four.board["detector"] == "sb" and len(four.images_used) == 15
+    assert "left04.jpg" not in four.images_used and {n for n, _ in blurred} <= set(four.images_used)

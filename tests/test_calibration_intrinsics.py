@@ -91,6 +91,17 @@ def test_charuco_matches_published_calibration():
     assert abs(k[0, 2] - pub[0, 2]) < 1.0 and abs(k[1, 2] - pub[1, 2]) < 3.0
 
 
+def test_charuco_at_half_the_resolution_is_detected_at_twice_the_size():
+    # 320 x 240 px: OpenCV finds 4-10 of the 24 corners (two views fewer than 6); again at twice the size, 13-22
+    half = [(n, cv2.resize(g, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA))
+            for n, g in _images(CHARUCO, "img_0*.jpg")]
+    r = calibrate_intrinsics(half, (5, 7), 0.04, charuco={"marker_mm": 0.02, "dictionary": "DICT_6X6_250"})
+    assert len(r.images_used) == 4 and min(v.n_points for v in r.views) >= 12
+    k = r.camera_matrix  # the full-size fit: 457.3, 461.3, 317.2, 275.6 (a weaker fit on fewer corners)
+    assert k[0, 0] == pytest.approx(457.3 / 2, rel=0.06) and k[1, 1] == pytest.approx(461.3 / 2, rel=0.06)
+    assert k[0, 2] == pytest.approx((317.2 - 0.5) / 2, abs=2.0) and r.rms_px < 0.2
+
+
 def test_cli_intrinsics_writes_a_loadable_file_and_lists_missing_boards(tmp_path, capsys):
     blank = tmp_path / "blank.png"
     cv2.imwrite(str(blank), np.full((480, 640), 128, np.uint8))

@@ -157,16 +157,20 @@ class BandEdges:
 
 
     def on_material(self, rows: np.ndarray, t: np.ndarray, l: np.ndarray):
-        """For the bands `rows` (r,) and a point (t, l) on each one's pad line (band coordinates, (r,)):
-        the nearest point (x, y), each (r,), of the material the pad touches there, that is of the
+        """For the bands `rows` (r,; None: every band) and a point (t, l) on each one's pad line (band
+        coordinates, (r,)): the nearest point (x, y), each (r,), of the material the pad touches there, that is of the
         clipped edges no more than PAD_COMPLIANCE_MM behind t (nan: none). The pad line's point is where
         the pad stops; this one is where it touches the part (on a slanted face or across a notch the
         pad line runs up to PAD_COMPLIANCE_MM in front of the outline)."""
-        r = len(rows)
-        k, nb = self._pieces_of(rows)
-        tA, dt, lA, dl = self.tA.take(k), self.dt.take(k), self.lA.take(k), self.dl.take(k)
+        if rows is None:  # every band: its pieces as they are
+            r, nb = len(self.cx), self.bi
+            tA, dt, lA, dl, s0, s1 = self.tA, self.dt, self.lA, self.dl, self.s0, self.s1
+        else:
+            r = len(rows)
+            k, nb = self._pieces_of(rows)
+            tA, dt, lA, dl, s0, s1 = (a.take(k) for a in (self.tA, self.dt, self.lA, self.dl, self.s0, self.s1))
         tr, lr = t.take(nb), l.take(nb)
-        lo, hi, touching = _behind_limit(tr - PAD_COMPLIANCE_MM, tA, dt, self.s0.take(k), self.s1.take(k))
+        lo, hi, touching = _behind_limit(tr - PAD_COMPLIANCE_MM, tA, dt, s0, s1)
         den = dt * dt + dl * dl
         s = np.minimum(np.maximum(np.where(den > 0, ((tr - tA) * dt + (lr - lA) * dl) / den, lo), lo), hi)  # np.clip
         et, el = tA + s * dt, lA + s * dl
@@ -176,8 +180,10 @@ class BandEdges:
         pick = np.flatnonzero(np.isfinite(d2) & (d2 <= best.take(nb)))  # ties: the last one written wins
         bt, bl = np.full(r, np.nan), np.full(r, np.nan)
         bt[nb.take(pick)], bl[nb.take(pick)] = et.take(pick), el.take(pick)
-        cx, cy, ux, uy = self.cx.take(rows), self.cy.take(rows), self.ux.take(rows), self.uy.take(rows)
-        vx, vy = self.vx.take(rows), self.vy.take(rows)
+        if rows is None:
+            cx, cy, ux, uy, vx, vy = self.cx, self.cy, self.ux, self.uy, self.vx, self.vy
+        else:
+            cx, cy, ux, uy, vx, vy = (a.take(rows) for a in (self.cx, self.cy, self.ux, self.uy, self.vx, self.vy))
         return cx + ux * bt + vx * bl, cy + uy * bt + vy * bl
 
 

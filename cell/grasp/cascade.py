@@ -274,13 +274,14 @@ def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     # candidate itself is within PAD_COMPLIANCE_MM of the first touch the pad presses on it
     # too: the contact is then on the first-touch line, on the pair's closing line when the
     # pad presses there as well, else across from the candidate
-    pi, pj = P.pi.take(idx, 0), P.pj.take(idx, 0)  # p_i is on the +u side (its normal is near u)
-    ax, ay = np.concatenate([pi[:, 0], pj[:, 0]]) - cx, np.concatenate([pi[:, 1], pj[:, 1]]) - cy
-    pressed = np.isfinite(lateral) & (lateral > tol + EPS_MM) & (T <= tt + tol + EPS_MM)
-    pressed &= slanted
-    if pressed.any():
+    finite = np.isfinite(lateral)
+    stops = T <= tt + tol + EPS_MM  # the pad stops within tol of the candidate along the axis
+    pressed = finite & (lateral > tol + EPS_MM) & stops if slanted else None
+    if pressed is not None and pressed.any():
         q = np.flatnonzero(pressed)
         nq = len(q)
+        pi, pj = P.pi.take(idx, 0), P.pj.take(idx, 0)  # p_i is on the +u side (its normal is near u)
+        ax, ay = np.concatenate([pi[:, 0], pj[:, 0]]) - cx, np.concatenate([pi[:, 1], pj[:, 1]]) - cy
         # the pad itself (not the band widened by tol), and a thin band on the pair's closing line,
         # in one pass (the thin band's verdict is used only where the pad presses on the candidate)
         Tn, _ = band.narrowed(q, (g.pad_width_mm / 2, 0.05)).first_touch(ctx, touch=False)
@@ -296,27 +297,24 @@ def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
         x[q] = np.where(press, px, x.take(q))
         y[q] = np.where(press, py, y.take(q))
         lateral[q] = np.where(press, np.abs((px - cxq) * vxq + (py - cyq) * vyq), lateral.take(q))
-    ok2 = np.isfinite(lateral) & (T <= tt + tol + EPS_MM) & (lateral <= tol + EPS_MM)
+        finite = np.isfinite(lateral)
+    ok2 = finite & stops & (lateral <= tol + EPS_MM)
     ok = ok2[:k] & ok2[k:]
     if ctx.params.contacts_on_material:  # report where the pads touch the part, not the pad line in front of it
-        rows = np.flatnonzero(np.concatenate([ok, ok]))
-        if len(rows):
-            dx, dy = x.take(rows) - cx.take(rows), y.take(rows) - cy.take(rows)
-            ux_r, uy_r, vx_r, vy_r = ux.take(rows), uy.take(rows), vx.take(rows), vy.take(rows)
-            sx, sy = band.on_material(rows, dx * ux_r + dy * uy_r, dx * vx_r + dy * vy_r)
-            found = np.isfinite(sx)
-            x[rows], y[rows] = np.where(found, sx, x.take(rows)), np.where(found, sy, y.take(rows))
+        x, y = _onto_material(band, ok, x, y, cx, cy, ux, uy, vx, vy)
     xi, yi, xj, yj = x[:k], y[:k], x[k:], y[k:]
     h = 0.5 * ((xi - xj) * u[:, 0] + (yi - yj) * u[:, 1])
-    ok &= (2 * h >= g.opening_mm[0] - EPS_MM) & (2 * h + 2 * g.approach_clearance_mm <= g.opening_mm[1] + EPS_MM)
+    gap = 2 * h
+    ok &= (gap >= g.opening_mm[0] - EPS_MM) & (gap + 2 * g.approach_clearance_mm <= g.opening_mm[1] + EPS_MM)
     if ctx.params.max_contact_skew_deg < 90:  # the contacts' line along the axis (params.py)
         across = np.abs((xi - xj) * -u[:, 1] + (yi - yj) * u[:, 0])
-        ok &= across <= math.tan(math.radians(ctx.params.max_contact_skew_deg)) * np.abs(2 * h) + EPS_MM
+        ok &= across <= math.tan(math.radians(ctx.params.max_contact_skew_deg)) * np.abs(gap) + EPS_MM
     mid_x, mid_y = 0.5 * (xi + xj), 0.5 * (yi + yj)  # the grasp centre
     if ctx.params.stroke_at_pad_lines:
-        fits = _pads_clear_in_stroke(ctx, P, idx, ok, h, mid_x, mid_y)
-        P.stroke_refused += int((ok & ~fits).sum())  # for the message when no pair is left
-        ok &= fits
+        fits = _pads_clear_in_stroke(ctx, P, idx, ok, gap, mid_x, mid_y)
+        if fits is not None:
+            P.stroke_refused += int((ok & ~fits).sum())  # for the message when no pair is left
+            ok &= fits
     # written column by column: numpy's row assignment into (s, 2) arrays costs several times more
     for col, vi, vj, mid in ((0, xi, xj, mid_x), (1, yi, yj, mid_y)):
         P.ci[:, col][idx], P.cj[:, col][idx], P.center[:, col][idx] = vi, vj, mid
@@ -324,27 +322,48 @@ def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     return ok
 
 
-def _pads_clear_in_stroke(ctx: Context, P: Pairs, idx, ok: np.ndarray, h: np.ndarray, cx, cy) -> np.ndarray:
-    """(k,) for the pairs `ok` among idx (k,): does the gap between the lines where the pads stop,
-    plus the approach clearance on both sides, fit the stroke? The reported contacts can lie up to
-    the pad's compliance behind those lines (a slanted face, a notch, a face the pad presses on at
-    its side): a part wider than the stroke must not fit because its contacts do. The pads are
-    centred on the line through the contacts' midpoint (cx, cy), as the gripper and the physical
-    check have them. Only pairs whose contacts are within 2 x (contact_tol + compliance) of the
-    limit are looked at: elsewhere the contacts stage has found no material that far in front of
-    the contacts in the (wider) band around them."""
+def _onto_material(band: BandEdges, ok: np.ndarray, x, y, cx, cy, ux, uy, vx, vy):
+    """The touches (x, y) (2k,) of the pairs `ok` (k,) moved onto the material the pads touch
+    (`BandEdges.on_material`); the other bands' as they are. Every band when every pair is ok
+    (the cascade's usual case: no gathering)."""
+    if ok.all():
+        dx, dy = x - cx, y - cy
+        sx, sy = band.on_material(None, dx * ux + dy * uy, dx * vx + dy * vy)
+        found = np.isfinite(sx)
+        return np.where(found, sx, x), np.where(found, sy, y)
+    rows = np.flatnonzero(np.concatenate([ok, ok]))
+    if len(rows):
+        dx, dy = x.take(rows) - cx.take(rows), y.take(rows) - cy.take(rows)
+        ux_r, uy_r, vx_r, vy_r = ux.take(rows), uy.take(rows), vx.take(rows), vy.take(rows)
+        sx, sy = band.on_material(rows, dx * ux_r + dy * uy_r, dx * vx_r + dy * vy_r)
+        found = np.isfinite(sx)
+        x[rows], y[rows] = np.where(found, sx, x.take(rows)), np.where(found, sy, y.take(rows))
+    return x, y
+
+
+def _pads_clear_in_stroke(ctx: Context, P: Pairs, idx, ok: np.ndarray, gap: np.ndarray, cx, cy) -> np.ndarray | None:
+    """(k,) for the pairs `ok` among idx (k,), contacts `gap` (k,) apart: does the gap between the
+    lines where the pads stop, plus the approach clearance on both sides, fit the stroke? The
+    reported contacts can lie up to the pad's compliance behind those lines (a slanted face, a
+    notch, a face the pad presses on at its side): a part wider than the stroke must not fit
+    because its contacts do. The pads are centred on the line through the contacts' midpoint (cx,
+    cy), as the gripper and the physical check have them. Only pairs whose contacts are within
+    2 x (contact_tol + compliance) of the limit are looked at: elsewhere the contacts stage has
+    found no material that far in front of the contacts in the (wider) band around them. None: no
+    pair is that near (all fit)."""
     g, tol, k = ctx.cell.gripper, ctx.params.contact_tol_mm, len(idx)
     limit = g.opening_mm[1] + EPS_MM - 2 * g.approach_clearance_mm
-    near = np.flatnonzero(ok & (2 * h > limit - 2 * (tol + PAD_COMPLIANCE_MM)))
+    near = np.flatnonzero(ok & (gap > limit - 2 * (tol + PAD_COMPLIANCE_MM)))
+    if not len(near):
+        return None
+    rows = np.asarray(idx).take(near)
+    u, t, m = P.u.take(rows, 0), P.t.take(rows), P.m.take(rows, 0)
+    # the band centre on the contacts' line: t along u is the same from it as from the midpoint m
+    off = (cx.take(near) - m[:, 0]) * -u[:, 1] + (cy.take(near) - m[:, 1]) * u[:, 0]
+    pads = BandEdges.clip(ctx, *_pad_bands(ctx, u, t, m[:, 0] - u[:, 1] * off, m[:, 1] + u[:, 0] * off, 0.0))
+    Tp, _ = pads.first_touch(ctx, touch=False)
     fits = np.ones(k, bool)
-    if len(near):
-        rows = np.asarray(idx).take(near)
-        u, t, m = P.u.take(rows, 0), P.t.take(rows), P.m.take(rows, 0)
-        # the band centre on the contacts' line: t along u is the same from it as from the midpoint m
-        off = (cx.take(near) - m[:, 0]) * -u[:, 1] + (cy.take(near) - m[:, 1]) * u[:, 0]
-        pads = BandEdges.clip(ctx, *_pad_bands(ctx, u, t, m[:, 0] - u[:, 1] * off, m[:, 1] + u[:, 0] * off, 0.0))
-        Tp, _ = pads.first_touch(ctx, touch=False)
-        fits[near] = Tp[:len(near)] + Tp[len(near):] <= limit
+    fits[near] = Tp[:len(near)] + Tp[len(near):] <= limit
     return fits
 
 

@@ -141,10 +141,13 @@ class BandEdges:
             e0, e1 = pA + p0 * pdt >= limit, pA + p1 * pdt >= limit
             lo_s, hi_s = np.where(e0, p0, p1), np.where(e1, p1, p0)
             near = e0 | e1
-        k = np.flatnonzero(near)
-        nb, lA, dl = pb.take(k), self.lA.take(k), self.dl.take(k)
-        lat_lo = lA + lo_s.take(k) * dl  # across the axis, at both ends of the stretch
-        lat_hi = lA + hi_s.take(k) * dl
+        if near.all():  # (one piece per band, at its end: the usual case, no gathering)
+            nb, lA, dl = pb, self.lA, self.dl
+        else:
+            k = np.flatnonzero(near)
+            nb, lA, dl, lo_s, hi_s = pb.take(k), self.lA.take(k), self.dl.take(k), lo_s.take(k), hi_s.take(k)
+        lat_lo = lA + lo_s * dl  # across the axis, at both ends of the stretch
+        lat_hi = lA + hi_s * dl
         lo_l = np.full(b, np.inf)
         hi_l = np.full(b, -np.inf)
         np.minimum.at(lo_l, nb, np.minimum(lat_lo, lat_hi))
@@ -179,7 +182,10 @@ class BandEdges:
         np.minimum.at(best, nb, d2)
         pick = np.flatnonzero(np.isfinite(d2) & (d2 <= best.take(nb)))  # ties: the last one written wins
         bt, bl = np.full(r, np.nan), np.full(r, np.nan)
-        bt[nb.take(pick)], bl[nb.take(pick)] = et.take(pick), el.take(pick)
+        if len(pick) == len(d2):  # every piece (one per band): no gathering
+            bt[nb], bl[nb] = et, el
+        else:
+            bt[nb.take(pick)], bl[nb.take(pick)] = et.take(pick), el.take(pick)
         if rows is None:
             cx, cy, ux, uy, vx, vy = self.cx, self.cy, self.ux, self.uy, self.vx, self.vy
         else:

@@ -34,6 +34,27 @@ PALM_RGB = (180, 120, 255)
 CONTOUR_RGB = (0, 220, 255)
 ARM_RGB = (200, 200, 200)
 JOINT_NAMES = ("j1", "j2", "j3", "j4")
+FLUSH_TIMEOUT_S = 5.0  # for the viewer's gRPC sink to take what was logged (a file sink is quicker)
+
+
+def _spawn_viewer(rr, rec) -> None:
+    """Start a rerun viewer for `rec`: the `rerun` next to this Python (its venv's, found without the
+    venv on PATH) or on PATH. None found, or one that cannot start, is a clear error."""
+    import shutil
+    import sys
+
+    from cell.errors import BadInput
+
+    beside = Path(sys.executable).with_name("rerun")
+    exe = str(beside) if beside.exists() else shutil.which("rerun")
+    if exe is None:
+        raise BadInput("--rerun: no rerun viewer found (the `rerun` executable of rerun-sdk); "
+                       "--save FILE.rrd writes the recording for a viewer elsewhere")
+    try:
+        rr.spawn(connect=False, hide_welcome_screen=True, recording=rec, executable_path=exe)
+    except (RuntimeError, OSError) as e:
+        raise BadInput(f"--rerun: the rerun viewer {exe} did not start ({str(e).splitlines()[0]}); "
+                       "--save FILE.rrd writes the recording instead") from None
 
 
 def _xy(points, what: str) -> np.ndarray:
@@ -104,8 +125,8 @@ class Viz:
         if self.save_path is not None:
             self.save_path.parent.mkdir(parents=True, exist_ok=True)
             sinks.append(rr.FileSink(str(self.save_path)))
-        if spawn:
-            rr.spawn(connect=False, hide_welcome_screen=True)
+        if spawn:  # this stream's viewer (the module-level default stream is never set up: spawn would skip it)
+            _spawn_viewer(rr, self.rec)
             sinks.append(rr.GrpcSink())
         if sinks:
             self.rec.set_sinks(*sinks)
@@ -115,6 +136,7 @@ class Viz:
             self.rec.log(f"arm/joints/{name}", rr.SeriesLines(names=f"{name} ({unit})"), static=True)
         self.rec.log("gripper/width", rr.SeriesLines(names="opening (mm)"), static=True)
         self.frame_index: int | None = None
+        self._viewer_gone = False
 
     # -- per frame
     def frame(self, i: int, frame_bgr: np.ndarray) -> None:
@@ -215,11 +237,23 @@ class Viz:
 
     # -- end
     def flush(self) -> None:
-        self.rec.flush()
+        """Push what was logged to the sinks. A viewer that never came up (no display) or went away does
+        not hold the run: the flush gives up after FLUSH_TIMEOUT_S, says so once on stderr, and the
+        later ones do not wait again."""
+        if self._viewer_gone:
+            return
+        try:
+            self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+        except RuntimeError as e:  # rerun's "Flush timed out"
+            import sys
+
+            self._viewer_gone = True
+            print(f"cell: warning: the rerun viewer did not take the recording ({e}); the run goes on without it"
+                  + (f", {self.save_path} is written" if self.save_path is not None else ""), file=sys.stderr)
 
     def close(self) -> None:
         """Flush and close the sinks (the .rrd file gets its footer)."""
-        self.rec.flush()
+        self.flush()
         self.rec.disconnect()
 
     def __enter__(self) -> Viz:

@@ -81,3 +81,43 @@ def test_bad_shapes_are_refused(tmp_path):
     with pytest.raises(ValueError, match="space"):
         viz.candidates(np.zeros((1, 2)), [True], space="inch")
     viz.close()
+
+
+def test_a_viewer_that_never_takes_the_stream_does_not_hold_the_run(tmp_path, capsys, monkeypatch):
+    # `cell run --rerun` on a machine without a display: the viewer's port never answers. The
+    # flush gives up after FLUSH_TIMEOUT_S, once, and the .rrd file is still complete.
+    import socket
+    import time
+
+    import rerun as rr
+
+    import cell.viz as viz_module
+
+    monkeypatch.setattr(viz_module, "FLUSH_TIMEOUT_S", 0.5)
+    with socket.socket() as s:  # a local port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    path = tmp_path / "s.rrd"
+    t0 = time.monotonic()
+    viz = Viz("test-cell", save_path=path)
+    viz.rec.set_sinks(rr.FileSink(str(path)), rr.GrpcSink(f"rerun+http://127.0.0.1:{port}/proxy"))
+    for i in range(3):
+        viz.frame(i, np.zeros((40, 60, 3), np.uint8))
+        viz.event(f"frame {i}")
+        viz.flush()
+    viz.close()
+    assert time.monotonic() - t0 < 15
+    warned = [line for line in capsys.readouterr().err.splitlines() if line.startswith("cell: warning")]
+    assert len(warned) == 1 and "rerun viewer did not take the recording" in warned[0]
+    assert len(_column(_read_rrd(path)["/log/events"], "TextLog:text")) == 3
+
+
+def test_no_viewer_to_spawn_is_a_clear_error(tmp_path, monkeypatch):
+    import sys
+
+    from cell.errors import BadInput
+
+    monkeypatch.setattr(sys, "executable", str(tmp_path / "no-venv" / "python"))
+    monkeypatch.setenv("PATH", str(tmp_path))
+    with pytest.raises(BadInput, match="no rerun viewer found"):
+        Viz("test-cell", spawn=True)

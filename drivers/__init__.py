@@ -17,6 +17,7 @@ from drivers.bus import open_bus
 from drivers.clock import RealClock, SimClock
 from drivers.errors import (
     BusFault,
+    BusUnavailable,
     DriveFault,
     DriverError,
     FaultLatched,
@@ -40,6 +41,7 @@ __all__ = [
     "RealClock",
     "SimClock",
     "BusFault",
+    "BusUnavailable",
     "DriveFault",
     "DriverError",
     "FaultLatched",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import can
 
 from cell.errors import BadInput
-from drivers.errors import BusFault
+from drivers.errors import BusUnavailable
 
 DEFAULT_INTERFACE = "virtual"
 DEFAULT_CHANNEL = "disassembly-cell"
@@ -29,4 +29,4 @@ def open_bus(
             return can.Bus(interface=interface, channel=channel, **kwargs)
         return can.Bus(interface=interface, channel=channel, bitrate=bitrate, **kwargs)
     except (can.CanError, OSError, ValueError, ImportError) as e:
-        raise BusFault(f"cannot open CAN interface {interface!r} channel {channel!r}: {e}") from None
+        raise BusUnavailable(f"cannot open CAN interface {interface!r} channel {channel!r}: {e}") from None

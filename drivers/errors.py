@@ -9,6 +9,7 @@
         +-- NodeSilent               a node's heartbeat (or boot-up) missed its deadline
         +-- SdoError                 an SDO transfer failed (no answer, or aborted)
         +-- BusFault                 error frames or a broken bus
+        |   +-- BusUnavailable (+BadInput)  the interface or channel named cannot be opened (exit 2)
         +-- FaultLatched             a command while a fault is latched: call reset_faults()
         +-- MoveTimeout              a move did not reach its target in time
 
@@ -64,6 +65,13 @@ class SdoError(DriverError):
 
 class BusFault(DriverError):
     pass
+
+
+class BusUnavailable(BusFault, BadInput):
+    """The CAN interface or channel the user named cannot be opened (no such device, no driver
+    library): bad input, exit 2, like any path that cannot be used."""
+
+    exit_code = 2
 
 
 class FaultLatched(DriverError):

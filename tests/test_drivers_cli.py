@@ -218,6 +218,14 @@ def test_unknown_interface_is_bad_input(capsys):
     assert code == 2 and "unknown CAN interface 'nonsense'" in err and "socketcan" in err
 
 
+def test_an_interface_that_cannot_be_opened_is_bad_input(capsys):
+    # a channel that does not exist (or no SocketCAN in this kernel at all): the user named a device
+    # that cannot be used, exit 2 like a path, not a hardware fault
+    code, out, err = run_cli("hw", "status", "--interface", "socketcan", "--channel", "vcan-none-77", "--json",
+                             capsys=capsys)
+    assert code == 2 and out == "" and "cannot open CAN interface 'socketcan' channel 'vcan-none-77'" in err
+
+
 @pytest.mark.parametrize(
     "argv",
     [

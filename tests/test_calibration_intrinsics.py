@@ -135,6 +135,8 @@ def test_cli_intrinsics_bad_input(tmp_path, capsys, args, match):
 
 @pytest.mark.parametrize("args, match", [  # each of these was a cv2.error or MemoryError traceback, exit 1
     (["--pattern", "9x6", "--square", "inf"], "finite positive"),
+    (["--pattern", "9x6", "--square", "1e300"], "finite positive length from"),  # exit 1: an OpenCV assertion
+    (["--pattern", "9x6", "--square", "1e-30"], "finite positive length from"),
     (["--pattern", "9x6", "--subpix-win", "1000"], "half-window 1000 does not fit in 640 x 480"),
     (["--pattern", "99999x99999"], "cannot be seen in 640 x 480 px images"),
 ])

@@ -7,6 +7,10 @@ import sys
 
 from cell.commands._vision_args import grid
 
+# OpenCV's calibration asserts, or overflows, on squares of 1e-30 or 1e38, and loses accuracy at 1e6
+# (fx 533 -> 596 on OpenCV's boards); any real board in mm, m or inches is well inside
+SQUARE_RANGE = (1e-4, 1e5)
+
 
 def add_arguments(p) -> None:
     p.add_argument("images", nargs="+", metavar="IMAGE", help="photographs of the board")
@@ -36,8 +40,9 @@ def run(args) -> int:
     from cell.vision.sources import read_image
 
     pattern = grid(args.pattern, "--pattern")
-    if not (args.square > 0 and args.square != float("inf")):
-        raise BadInput("--square must be a finite positive length")
+    if not (SQUARE_RANGE[0] <= args.square <= SQUARE_RANGE[1]):  # NaN fails too
+        raise BadInput(f"--square must be a finite positive length from {SQUARE_RANGE[0]:g} to {SQUARE_RANGE[1]:g} "
+                       f"(the unit of the result's translations), got {args.square:g}")
     charuco = None
     if args.charuco:
         if args.marker is None or not 0 < args.marker < args.square:  # NaN fails both

@@ -314,3 +314,30 @@ def test_replay_refuses_a_complete_recording_that_lost_its_rrd(tmp_path, capsys,
     damage(d)
     code, _, err = run_cli("replay", d, capsys=capsys)
     assert code == 2 and match in err
+
+
+def test_a_run_that_fails_mid_way_is_recorded_as_failed_and_replays_as_incomplete(tmp_path, capsys, monkeypatch):
+    # a full disk after the first part (seen on a 3 MB tmpfs): the run ends with exit 2, and its
+    # recording used to be closed as "complete", which replay then called a divergence (exit 1)
+    import errno
+
+    from cell.runtime.loop import CellLoop
+
+    plan, calls = CellLoop._plan, []
+
+    def plan_until_the_disk_fills(self, scene, part_id):
+        calls.append(part_id)
+        if len(calls) == 2:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return plan(self, scene, part_id)
+
+    monkeypatch.setattr(CellLoop, "_plan", plan_until_the_disk_fills)
+    d = tmp_path / "rec"
+    code, _, err = run_cli("run", "--record", d, "--json", capsys=capsys)
+    assert code == 2 and "No space left on device" in err
+    m = json.loads((d / "manifest.json").read_text())
+    assert m["status"] == "incomplete" and m["summary"]["status"] == "failed"
+    assert m["summary"]["parts_removed"] == 1 and "No space left" in m["summary"]["error"]
+    monkeypatch.setattr(CellLoop, "_plan", plan)
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 2 and "incomplete" in err and "divergence" not in err

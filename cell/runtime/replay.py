@@ -283,10 +283,13 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
 
 def _cut_short(rec) -> bool:
     """A recording whose end is missing: its writer was never closed (the session crashed or was
-    killed), or its last decision line was torn off."""
+    killed), the session failed (an error ended it, e.g. a full disk: closed as incomplete with
+    status "failed", no decision says where), or its last decision line was torn off."""
     from cell.recording import DECISIONS
 
-    return rec.manifest.get("status") == "recording" or any(
+    summary = rec.manifest.get("summary") or {}
+    failed = rec.manifest.get("status") == "incomplete" and summary.get("status") == "failed"
+    return rec.manifest.get("status") == "recording" or failed or any(
         p.startswith(f"{DECISIONS} line") and "is torn" in p for p in rec.problems)
 
 

@@ -285,6 +285,10 @@ def run_session(cfg: RunConfig) -> dict:
             status = "stopped"
             summary = {**loop.summary(), "stopped": str(e)}
             say(f"stopped: {e}")
+        except BaseException as e:  # a fault, a full disk, a bug: the session did not complete
+            status = "failed"
+            summary = {**loop.summary(), "error": f"{type(e).__name__}: {e}"}
+            raise
         finally:
             summary = summary or loop.summary()
             summary.update(status=status)
@@ -299,7 +303,13 @@ def run_session(cfg: RunConfig) -> dict:
                 viz.close()
                 summary["rrd"] = str(rrd)
             if recorder is not None:
-                recorder.close("complete" if status == "complete" else "incomplete", summary)
+                try:
+                    recorder.close("complete" if status == "complete" else "incomplete", summary)
+                except OSError:
+                    if status == "complete":
+                        raise
+                    # (a full disk: the manifest keeps "recording", which reads as incomplete too; the
+                    # error that ended the run is the one to report)
     return summary
 
 

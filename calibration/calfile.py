@@ -28,7 +28,7 @@ import numpy as np
 
 from calibration.camera import Calibration
 from cell.errors import BadInput
-from cell.fileio import has_bool, read_json, to_jsonable, write_json_atomic
+from cell.fileio import has_non_number, read_json, to_jsonable, write_json_atomic
 
 FORMAT = "disassembly-cell/calibration"
 VERSION = 1
@@ -158,8 +158,8 @@ def _finite(v, where, fail) -> float:
 
 
 def _matrix(v, shape, where, fail) -> np.ndarray:
-    if has_bool(v):
-        fail(f"{where} must be a {shape[0]} x {shape[1]} list of numbers (true/false are not numbers)")
+    if has_non_number(v):
+        fail(f"{where} must be a {shape[0]} x {shape[1]} list of numbers (true/false and strings are not numbers)")
     try:
         arr = np.array(v, dtype=float)
     except (TypeError, ValueError):

@@ -19,7 +19,7 @@ import numpy as np
 from calibration.camera import HALF_PX, Calibration, pose_matrix
 from calibration.intrinsics import aruco_dictionary
 from cell.errors import BadInput
-from cell.fileio import has_bool
+from cell.fileio import has_non_number
 
 PLANE_TOLERANCE_MM = 1.0  # the points' z may differ this much and still count as one plane
 MIN_POINTS = 4
@@ -60,9 +60,9 @@ def parse_markers(raw, source: str) -> tuple[str, dict[int, np.ndarray]]:
         raise BadInput(f"{source}: 'markers' must be an object {{\"ID\": [[x, y, z] x 4], ...}}")
     out = {}
     for key, corners in markers.items():
-        if has_bool(corners):
-            raise BadInput(f"{source}: marker {key}: corners must be 4 points [x, y, z] in mm (true/false are "
-                           "not numbers)")
+        if has_non_number(corners):
+            raise BadInput(f"{source}: marker {key}: corners must be 4 points [x, y, z] in mm (true/false and "
+                           "strings are not numbers)")
         try:
             mid = int(key)
         except ValueError:

@@ -31,9 +31,11 @@ from pathlib import Path
 import numpy as np
 
 from cell.errors import BadInput
-from cell.fileio import DuplicateKey, append_lines_atomic, unique_keys
+from cell.fileio import DuplicateKey, append_lines_atomic, has_non_number, unique_keys
 from cell.kinematics import Joints
 from cell.scene import Part, parse_part
+
+JOINT_KEYS = ("j1_deg", "j2_deg", "j3_mm", "j4_deg")
 
 FORMAT = "grasp-example"
 VERSION = 1
@@ -93,6 +95,8 @@ def parse_example(raw, where: str = "example") -> GraspExample:
         raise BadInput(f"{where}: 'part' is missing")
     part = parse_part(raw["part"], f"{where}: part")
     contacts = raw.get("contacts")
+    if has_non_number(contacts):
+        raise BadInput(f"{where}: 'contacts' must be a list of [x, y] numbers (true/false and strings are not numbers)")
     try:
         c = np.asarray(contacts, dtype=float)
     except (TypeError, ValueError):
@@ -124,6 +128,9 @@ def parse_example(raw, where: str = "example") -> GraspExample:
         raise BadInput(f"{where}: 'grasp_z_mm' must be a number")
     joints = raw.get("joints")
     if joints is not None:
+        if isinstance(joints, dict) and has_non_number([joints.get(k, 0) for k in JOINT_KEYS]):
+            raise BadInput(f"{where}: 'joints' must have numbers j1_deg, j2_deg, j3_mm, j4_deg (true/false and "
+                           "strings are not numbers)")
         try:
             joints = Joints.from_dict(joints)
         except (KeyError, TypeError, ValueError):

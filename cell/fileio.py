@@ -165,7 +165,8 @@ def to_jsonable(obj, *, nonfinite: str = "error"):
     raise TypeError(f"a {type(obj).__name__} cannot be written as JSON")
 
 
-def has_bool(v) -> bool:
-    """Is there a true/false anywhere in this JSON value's nested lists? (Python takes True for 1:
-    a matrix or a point given as [true, 0] must be refused, not read as numbers.)"""
-    return isinstance(v, bool) or (isinstance(v, list) and any(has_bool(x) for x in v))
+def has_non_number(v) -> bool:
+    """Is there a true/false or a string anywhere in this JSON value's nested lists? (numpy reads True
+    as 1 and "100" as 100: a matrix or a point given as [true, 0] or ["100", 0] must be refused, not
+    read as numbers.)"""
+    return isinstance(v, (bool, str)) or (isinstance(v, list) and any(has_non_number(x) for x in v))

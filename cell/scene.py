@@ -167,6 +167,8 @@ def parse_scene(raw, source: str = "<scene>", base_dir: Path | None = None) -> S
 def _require_straight_up(p: Part, source: str) -> None:
     """The 2D normal grasp lifts a part straight up: any other disassembly direction is bad input."""
     d = np.asarray(p.direction, float)
+    top = float(np.abs(d).max())
+    d = d / top if top > 0 else d  # first to its largest component: 1e308 or 1e-300 squared is no float
     n = float(np.linalg.norm(d))
     if not (n > 0 and np.allclose(d / n, UP)):  # a direction, not a length: [0, 0, 2] is up too
         raise BadInput(

@@ -150,11 +150,15 @@ def test_homography_is_validated_whatever_its_scale(tmp_path):
     # entries near the float limit: det() overflowed to a huge number and the file was accepted
     with pytest.raises(BadInput, match="homography.px_to_mm is singular"):
         load_calibration(_homography_file(tmp_path, [[1e308, 1e308, 0], [0, 1, 0], [0, 0, 1]]))
-    with pytest.raises(BadInput, match="true/false are not numbers"):
+    with pytest.raises(BadInput, match="true/false and strings are not numbers"):
         load_calibration(_homography_file(tmp_path, [[True, 0, 0], [0, 1, 0], [0, 0, 1]]))
     d = json.loads(default_calibration_path().read_text())
     d["pose"]["cam2base"][3][3] = True
-    with pytest.raises(BadInput, match="true/false are not numbers"):
+    with pytest.raises(BadInput, match="true/false and strings are not numbers"):
+        load_calibration(_write(tmp_path, d))
+    d = json.loads(default_calibration_path().read_text())
+    d["pose"]["cam2base"] = [[str(v) for v in row] for row in d["pose"]["cam2base"]]  # read as numbers before
+    with pytest.raises(BadInput, match="pose.cam2base.*strings are not numbers"):
         load_calibration(_write(tmp_path, d))
 
 

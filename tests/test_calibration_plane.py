@@ -168,7 +168,10 @@ def test_fewer_than_three_markers_is_bad_input(tmp_path, capsys):
     ({"dictionary": "DICT_4X4_50", "markers": {"x": [[0, 0, 0]] * 4}}, "not an integer"),
     # true taken for 1.0: the frame was calibrated (52 mm residual) and exit 0
     ({"dictionary": "DICT_4X4_50", "markers": {"0": [[True, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]}},
-     "true/false are not numbers"),
+     "true/false and strings are not numbers"),
+    # numbers written as strings: numpy read "0" as 0.0 and the frame was calibrated, exit 0
+    ({"dictionary": "DICT_4X4_50", "markers": {"0": [["0", "0", "0"], [1, 0, 0], [1, 1, 0], [0, 1, 0]]}},
+     "true/false and strings are not numbers"),
     ("{not json", "not valid JSON"),
 ])
 def test_bad_markers_files(tmp_path, capsys, content, match):

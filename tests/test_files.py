@@ -102,7 +102,9 @@ def test_assembly_refuses_other_directions_and_bad_sequences():
 
 
 @pytest.mark.parametrize("direction,ok", [([0, 0, 1], True), ([0, 0, 2.5], True), ([0, 0, 1e-3], True),
-                                          ([0, 0, -1], False), ([0, 0, 0], False), ([0, 1, 1], False)])
+                                          ([0, 0, 1e308], True), ([0, 0, 1e-300], True),  # (refused: squared)
+                                          ([0, 0, -1], False), ([0, 0, 0], False), ([0, 1, 1], False),
+                                          ([1e-300, 0, 1e-300], False)])
 def test_an_upward_direction_of_any_length_is_straight_up(direction, ok):
     parts = [{"id": "a", "outline": SQUARE, "z_top": 1, "direction": direction}]
     if ok:
@@ -144,6 +146,14 @@ def test_bad_example_lines_name_the_line(tmp_path):
     p.write_text("\n")
     with pytest.raises(BadInput, match="holds no examples"):
         load_examples(p)
+    # numbers as strings: numpy read "300" as 300.0 and the example was taken
+    for key, value in (("contacts", [["300", "20"], [340, 20]]),
+                       ("joints", {"j1_deg": "10", "j2_deg": 20, "j3_mm": 5, "j4_deg": 0})):
+        bad = _example("s").to_json()
+        bad[key] = value
+        p.write_text(json.dumps(bad) + "\n")
+        with pytest.raises(BadInput, match=f"line 1.*'{key}'.*strings are not numbers"):
+            load_examples(p)
 
 
 def test_atomic_write_leaves_no_temp_files(tmp_path):

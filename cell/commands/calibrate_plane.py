@@ -114,14 +114,16 @@ def parse_points(raw, source: str):
     import numpy as np
 
     from cell.errors import BadInput
+    from cell.fileio import has_non_number
 
     pts = raw.get("points") if isinstance(raw, dict) else None
     if not isinstance(pts, list) or not pts:
         raise BadInput(f"{source}: expected {{\"points\": [{{\"px\": [u, v], \"mm\": [x, y, z]}}, ...]}}")
     uv, xyz = [], []
     for i, p in enumerate(pts):
-        if isinstance(p, dict) and (_is_bool_in(p.get("px")) or _is_bool_in(p.get("mm"))):
-            raise BadInput(f"{source}: point #{i} needs 'px': [u, v] and 'mm': [x, y, z] (true/false are not numbers)")
+        if isinstance(p, dict) and (has_non_number(p.get("px")) or has_non_number(p.get("mm"))):
+            raise BadInput(f"{source}: point #{i} needs 'px': [u, v] and 'mm': [x, y, z] (true/false and strings "
+                           "are not numbers)")
         try:
             a = np.array(p["px"], float)
             b = np.array(p["mm"], float)
@@ -132,7 +134,3 @@ def parse_points(raw, source: str):
         uv.append(a)
         xyz.append(b)
     return np.array(uv), np.array(xyz)
-
-
-def _is_bool_in(v) -> bool:
-    return isinstance(v, bool) or (isinstance(v, list) and any(_is_bool_in(x) for x in v))

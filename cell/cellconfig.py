@@ -21,6 +21,7 @@ FORMAT = "disassembly-cell/cell"
 # mostly follows the part's position. J3 is the same for every solution (the grasp z).
 DEFAULT_JOINT_WEIGHTS = {"j1": 0.25, "j2": 0.5, "j3": 0.0, "j4": 1.0}
 JOINTS = ("j1", "j2", "j3", "j4")
+NODE_UNITS = {"j1": "deg", "j2": "deg", "j3": "mm", "j4": "deg", "gripper": "mm"}  # the units CONTRACT fixes
 
 
 def default_cell_path() -> Path:
@@ -219,8 +220,9 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
         if not 1 <= node_id <= 127:
             raise BadInput(f"cell file {source}: can.nodes.{name}.node_id must be 1..127, got {node_id}")
         unit = n.get("unit")
-        if unit not in ("deg", "mm"):
-            raise BadInput(f"cell file {source}: can.nodes.{name}.unit must be 'deg' or 'mm'")
+        if unit != NODE_UNITS[name]:  # CONTRACT: J1, J2, J4 in degrees, J3 and the gripper in mm
+            raise BadInput(f"cell file {source}: can.nodes.{name}.unit must be {NODE_UNITS[name]!r} "
+                           f"({'a revolute joint' if NODE_UNITS[name] == 'deg' else 'a linear axis'}), got {unit!r}")
         nodes[name] = CanNode(name, node_id, unit, r.pos(n, "counts_per_unit", f"can.nodes.{name}"))
     if len({n.node_id for n in nodes.values()}) != len(nodes):
         raise BadInput(f"cell file {source}: can.nodes have duplicate node ids")

@@ -36,6 +36,10 @@ def test_default_cell_matches_the_contract():
     (lambda d: d["can"]["nodes"]["j1"].__setitem__("node_id", 1.5), "can.nodes.j1.node_id must be a whole number"),
     (lambda d: d["camera"].__setitem__("width_px", 0.5), "camera.width_px must be a whole number"),
     (lambda d: d["can"].__setitem__("bitrate", 500000.5), "can.bitrate must be a whole number"),
+    # units CONTRACT fixes: j1 in mm or j3 in deg was accepted, and `cell hw status` reported them so
+    (lambda d: d["can"]["nodes"]["j1"].__setitem__("unit", "mm"), "can.nodes.j1.unit must be 'deg'"),
+    (lambda d: d["can"]["nodes"]["j3"].__setitem__("unit", "deg"), "can.nodes.j3.unit must be 'mm'"),
+    (lambda d: d["can"]["nodes"]["gripper"].__setitem__("unit", "deg"), "can.nodes.gripper.unit must be 'mm'"),
 ])
 def test_bad_cell_files_are_refused_with_the_key(mutate, match):
     d = json.loads(default_cell_path().read_text())

@@ -25,6 +25,7 @@ PLANE_TOLERANCE_MM = 1.0  # the points' z may differ this much and still count a
 MIN_POINTS = 4
 COLLINEAR_RATIO = 1e-3  # the points' second spread direction against the first: below this, a line
 WARN_REPROJECTION_PX = 3.0  # the Festo frames fit to 0.9 - 1.1 px; one marker's corners listed one off: 37 px
+MIN_MARKER_AREA_MM2 = 1.0  # a marker's square, at least (printed markers are 20-100 mm a side)
 CORNER_ORDER_GAIN = 3.0  # another corner order must fit this many times better (and 2 mm) to be named
 
 
@@ -74,6 +75,11 @@ def parse_markers(raw, source: str) -> tuple[str, dict[int, np.ndarray]]:
         if arr.shape != (4, 3) or not np.all(np.isfinite(arr)):
             raise BadInput(f"{source}: marker {key}: corners must be 4 points [x, y, z] in mm, got shape "
                            f"{arr.shape}")
+        x, y = arr[:, 0], arr[:, 1]
+        area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+        if area < MIN_MARKER_AREA_MM2:  # four equal corners fitted to nothing (a copy-paste slip)
+            raise BadInput(f"{source}: marker {key}: its corners enclose {area:.3g} mm2 on the plane; a marker's "
+                           "4 corners are the corners of its square")
         out[mid] = arr
     return dictionary, out
 

@@ -17,6 +17,8 @@ until a fault reset (controlword bit 7 rising edge), as on a real drive.
 
 from __future__ import annotations
 
+import os
+
 import can
 import canopen
 
@@ -166,9 +168,14 @@ def serve(
     With no clock, motion runs in real time in a background thread (`RealClock`); pass a
     `drivers.clock.SimClock` shared with the master for fast deterministic runs. The bus
     stays the caller's: leaving the handle stops the drives but does not shut the bus down.
+    `cell` may also be the path of a cell file (read and validated as `--cell FILE` is).
     """
     if cell is None:
         from cell.cellconfig import default_cell
 
         cell = default_cell()
+    elif isinstance(cell, (str, os.PathLike)):
+        from cell.cellconfig import load_cell
+
+        cell = load_cell(cell)
     return SimHandle(bus, cell, clock, tick_s, tpdo_event_ms)

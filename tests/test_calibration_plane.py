@@ -172,6 +172,7 @@ def test_fewer_than_three_markers_is_bad_input(tmp_path, capsys):
     # numbers written as strings: numpy read "0" as 0.0 and the frame was calibrated, exit 0
     ({"dictionary": "DICT_4X4_50", "markers": {"0": [["0", "0", "0"], [1, 0, 0], [1, 1, 0], [0, 1, 0]]}},
      "true/false and strings are not numbers"),
+    ({"dictionary": "DICT_4X4_50", "markers": {"0": [[5, 5, 0]] * 4}}, "its corners enclose 0 mm2"),
     ("{not json", "not valid JSON"),
 ])
 def test_bad_markers_files(tmp_path, capsys, content, match):
@@ -252,6 +253,11 @@ def test_map_cli_both_ways_with_negative_coordinates(capsys):
     code, stdout, _ = run_cli("map", DEFAULT, "--px", *[f"{u},{v}" for u, v in px],
                               "--z", "10", "--json", capsys=capsys)
     assert np.allclose(json.loads(stdout)["mm"], [[350, -120.5], [0, 0]], atol=1e-3)
+    # negative values in scientific notation are values too (argparse took "-1.205e2" for an option)
+    code, stdout, err = run_cli("map", DEFAULT, "--mm", "3.5e2,-1.205e2", "-1e2,5", "--z", "10", "--json",
+                                capsys=capsys)
+    assert code == 0, err
+    assert np.allclose(json.loads(stdout)["px"][0], px[0], atol=1e-6)
 
 
 @pytest.mark.parametrize("args, match", [

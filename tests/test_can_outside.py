@@ -268,3 +268,20 @@ def test_clocks_refuse_a_nan_sleep():
         with pytest.raises(ValueError, match="nan"):
             clock.sleep(float("nan"))
         clock.close()
+
+
+def test_serve_takes_a_cell_file_path_too(open_test_bus, sim_clock, tmp_path):
+    import json
+
+    from cell.cellconfig import default_cell_path
+
+    d = json.loads(default_cell_path().read_text())
+    d["can"]["nodes"]["j2"]["node_id"] = 42
+    path = tmp_path / "cell.json"
+    path.write_text(json.dumps(d))
+    with sim.serve(open_test_bus(), str(path), clock=sim_clock) as drives:
+        assert {n["name"]: n["node_id"] for n in drives.nodes}["j2"] == 42
+    from cell.errors import BadInput
+
+    with pytest.raises(BadInput):
+        sim.serve(open_test_bus(), tmp_path / "missing.json", clock=sim_clock)

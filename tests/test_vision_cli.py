@@ -246,3 +246,14 @@ def test_junk_between_jpeg_markers_is_read(tmp_path, capsys):
     assert np.array_equal(read_image(p), read_image(EXTERNAL / "opencv-objects/stuff.jpg"))
     code, out, err = run_cli("segment", p, "--json", capsys=capsys)
     assert code == 0 and len(json.loads(out)["parts"]) >= 5, err
+
+
+def test_segment_z_needs_a_calibration_and_out_never_overwrites_an_input(tmp_path, capsys):
+    photo = tmp_path / "left01.jpg"
+    photo.write_bytes((EXTERNAL / "opencv-chessboard/left01.jpg").read_bytes())
+    code, out, err = run_cli("segment", photo, "--z", "10", "--json", capsys=capsys)
+    assert code == 2 and out == "" and "--z" in err and "--calibration" in err
+    before = photo.read_bytes()
+    code, out, err = run_cli("calibrate", "intrinsics", photo, "--pattern", "9x6", "--square", "1", "--out", photo,
+                             capsys=capsys)
+    assert code == 2 and "one of the inputs" in err and photo.read_bytes() == before

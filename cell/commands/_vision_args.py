@@ -6,8 +6,9 @@ import re
 
 from cell.errors import BadInput
 
-# let "-120.5,30" be a value, not an option (argparse only knows plain negative numbers)
-_NEG_VALUE = re.compile(r"^-\d+$|^-\d*\.\d+$|^-?[\d.]+(,-?[\d.]+)+$|^-[\d.]+(,-?[\d.]+)*$")
+# let "-120.5,30" or "-1e2,5" be a value, not an option (argparse only knows plain negative numbers)
+_NUM = r"(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+_NEG_VALUE = re.compile(rf"^-{_NUM}(?:,-?{_NUM})*$|^-?{_NUM}(?:,-?{_NUM})+$")
 
 
 def allow_negative_pairs(parser) -> None:
@@ -59,3 +60,13 @@ def finite(value: float | None, what: str, minimum: float | None = None) -> floa
 
 def _finite(x: float) -> bool:
     return x == x and abs(x) != float("inf")
+
+
+def refuse_out_over_an_input(out, inputs) -> None:
+    """--out naming one of the command's own input files would replace it with the result."""
+    from pathlib import Path
+
+    target = Path(out).resolve()
+    for path in inputs:
+        if path is not None and Path(path).resolve() == target:
+            raise BadInput(f"--out {out} is one of the inputs: it would be overwritten; name another file")

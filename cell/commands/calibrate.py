@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import sys
 
-from cell.commands._vision_args import grid
+from cell.commands._vision_args import grid, refuse_out_over_an_input
 
 # OpenCV's calibration asserts, or overflows, on squares of 1e-30 or 1e38, and loses accuracy at 1e6
 # (fx 533 -> 596 on OpenCV's boards); any real board in mm, m or inches is well inside
@@ -50,6 +50,7 @@ def run(args) -> int:
         charuco = {"marker_mm": args.marker, "dictionary": args.dictionary}
     if args.subpix_win is not None and args.subpix_win < 1:
         raise BadInput("--subpix-win must be at least 1")
+    refuse_out_over_an_input(args.out, args.images)
     images = [(str(path), read_image(path, grey=True)) for path in args.images]
     result = calibrate_intrinsics(images, pattern, args.square, detector=args.detector, charuco=charuco,
                                   reject_outliers=args.reject_outliers, subpix_win=args.subpix_win)

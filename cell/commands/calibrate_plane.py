@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 import sys
 
-from cell.commands._vision_args import numbers
+from cell.commands._vision_args import numbers, refuse_out_over_an_input
 
 MIN_MARKERS = 3
 # A fit this bad is an error in the inputs, not a poor camera: the Festo frames fit to 1.1-1.5 px, and
@@ -48,6 +48,7 @@ def run(args) -> int:
     from cell.fileio import read_json
     from cell.vision.sources import read_image
 
+    refuse_out_over_an_input(args.out, [args.image, args.markers, args.points, args.intrinsics])
     frame = read_image(args.image)
     h, w = frame.shape[:2]
     k = dist = None

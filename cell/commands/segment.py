@@ -37,6 +37,10 @@ def run(args) -> int:
     finite(args.min_area_mm2, "--min-area-mm2", 0.0)
     finite(args.min_area_px, "--min-area-px", 0.0)
     cal = None
+    if args.z is not None and not args.calibration:
+        from cell.errors import BadInput
+
+        raise BadInput("--z is the height the outlines are mapped to in mm: it needs --calibration")
     if args.calibration:
         cal = load_calibration(args.calibration)
         if not cal.can_map:

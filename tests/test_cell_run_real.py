@@ -101,6 +101,7 @@ def test_the_operator_says_no_and_nothing_opens(monkeypatch, washer_only, capsys
     (["--interface", "virtual"], "needs both --interface"),
     (["--camera", "0"], "needs both --interface"),
     (["--channel", "can0"], "for the real cell"),
+    (["--sim", "--interface", "socketcan", "--camera", "0"], "--sim is the simulated cell"),
     (["--interface", "virtual", "--camera", "0", "--sim-miss", "nut"], "not of the real cell"),
     (["--interface", "virtual", "--camera", "0", "--seed", "3"], "--seed: options of the simulated world"),
     (["--interface", "virtual", "--channel", "nobody-here", "--camera", "no/such/folder"], "cannot be opened"),

@@ -17,8 +17,9 @@ import sys
 
 def add_arguments(p):
     p.add_argument("assembly", nargs="?", help="assembly JSON file (default: the shipped default assembly)")
-    p.add_argument("--sim", action="store_true", default=True,
-                   help="simulated cell: world, camera and CANopen drives on the virtual bus (the default)")
+    p.add_argument("--sim", action="store_true",
+                   help="simulated cell: world, camera and CANopen drives on the virtual bus (the default; "
+                        "not with --interface or --camera)")
     p.add_argument("--record", metavar="DIR", help="record the session into DIR (e.g. recordings/<name>)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on the last stdout line")
     p.add_argument("--rerun", action="store_true", help="show the run live in a rerun viewer")
@@ -122,6 +123,9 @@ def _real_cell(args, world_options: dict):
     from cell.errors import BadInput
     from cell.runtime.session import RealCell
 
+    if args.sim and (args.interface is not None or args.camera is not None):
+        raise BadInput("--sim is the simulated cell; --interface and --camera select the real one: give one or "
+                       "the other")
     if args.interface is None and args.camera is None:
         if args.channel or args.yes:
             raise BadInput("--channel and --yes are for the real cell: give --interface and --camera too")

@@ -54,7 +54,14 @@ def load_calibration(path: str | Path | None = None, *, size: tuple[int, int] | 
 
 
 def save_calibration(cal: Calibration, path: str | Path) -> None:
-    """Write `cal` atomically (a crash leaves the old file or the new one, never half)."""
+    """Write `cal` atomically (a crash leaves the old file or the new one, never half). A lens model
+    that `load_calibration` would refuse (a fit of too few or too similar views can fold the image)
+    is not written."""
+    if cal.camera_matrix is not None and not _lens_keeps_order(cal.camera_matrix, np.ravel(cal.dist),
+                                                               int(cal.width_px), int(cal.height_px)):
+        coefficients = np.round(np.ravel(cal.dist), 4).tolist()
+        raise BadInput(f"the fitted distortion {coefficients} folds or collapses the image: {path} not written; "
+                       "more views, tilted in several directions, give a lens model")
     try:
         write_json_atomic(path, calibration_to_json(cal))
     except OSError as e:  # a directory, a read-only place, a full disk: the user's to fix
@@ -119,6 +126,10 @@ def parse_calibration(raw, source: str = "<calibration>") -> Calibration:
             fail("intrinsics.dist must be a list of 4, 5, 8, 12 or 14 numbers (OpenCV's order)")
         dist = np.array([_finite(x, "intrinsics.dist", fail) for x in dist_raw])
         k = np.array([[vals["fx"], skew, vals["cx"]], [0.0, vals["fy"], vals["cy"]], [0.0, 0.0, 1.0]])
+        if not _lens_keeps_order(k, dist, w, h):
+            fail("intrinsics.dist folds or collapses the image: points along its rows or columns come out of "
+                 "order, or far closer or further apart than a pinhole camera's, when undistorted; that is no lens "
+                 "(check the coefficients' order: k1, k2, p1, p2, k3, ...)")
     pose = raw.get("pose")
     if pose is not None:
         if k is None:
@@ -149,6 +160,41 @@ def parse_calibration(raw, source: str = "<calibration>") -> Calibration:
         fail("'report' must be an object")
     return Calibration(w, h, k, dist if dist is not None else np.zeros(5), cam2base, hom, plane_z,
                        str(raw.get("name", Path(source).stem)), report)
+
+
+LENS_SPREAD_RANGE = (0.1, 10.0)  # undistorted image extent / pinhole extent that a lens can give
+LENS_ROUND_TRIP_PX = 0.5
+
+
+def _lens_keeps_order(k: np.ndarray, dist: np.ndarray, w: int, h: int, n: int = 9) -> bool:
+    """Do points along the image's borders and middle lines stay in order, finite and about as far apart
+    as a pinhole camera's, when undistorted?
+    A real lens maps the image one to one; dist = [1e10, 0, ...] sent every pixel to about one point
+    (every part outline collapsed), a large k2 folds the corners back."""
+    import cv2
+
+    us, vs = np.linspace(0.0, w - 1.0, n), np.linspace(0.0, h - 1.0, n)
+    lines = [np.stack([us, np.full(n, v)], 1) for v in (0.0, (h - 1) / 2, h - 1.0)]
+    lines += [np.stack([np.full(n, u), vs], 1) for u in (0.0, (w - 1) / 2, w - 1.0)]
+    pts = np.concatenate(lines).reshape(-1, 1, 2)
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-10)  # converged, not OpenCV's 5 steps
+    with np.errstate(all="ignore"):
+        und = cv2.undistortPoints(pts, k, dist, None, None, None, criteria).reshape(6, n, 2)
+    if not np.all(np.isfinite(und)):
+        return False
+    # the undistorted points must distort back onto the pixels (OpenCV's iteration gives up on a
+    # diverging model, e.g. k1 = -50, and hands the pinhole points back unchanged)
+    rays = np.concatenate([und.reshape(-1, 2), np.ones((und.size // 2, 1))], axis=1)
+    back, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), k, dist)
+    if not np.all(np.abs(back.reshape(-1, 2) - pts.reshape(-1, 2)) < LENS_ROUND_TRIP_PX):
+        return False
+    along = np.concatenate([und[:3, :, 0], und[3:, :, 1]])  # x along the rows, y along the columns
+    if not np.all(np.diff(along, axis=1) > 0):
+        return False
+    # ... and spread about as far as the pinhole image's (wide-angle barrel: a few times; 1e10: 1e-3)
+    pinhole = np.array([(w - 1) / k[0, 0]] * 3 + [(h - 1) / k[1, 1]] * 3)
+    ratio = (along[:, -1] - along[:, 0]) / pinhole
+    return bool(np.all((ratio > LENS_SPREAD_RANGE[0]) & (ratio < LENS_SPREAD_RANGE[1])))
 
 
 def _finite(v, where, fail) -> float:

@@ -184,3 +184,22 @@ def test_homography_refuses_points_beyond_the_horizon():
         cal.px_to_mm([[10, -2000]])  # used to come back as the point (-10, 2000) on the plane
     with pytest.raises(BadInput, match="beyond the plane's horizon"):
         cal.mm_to_px([[0, 2000]])  # the point it maps to: its "image" (0, -2000) lies beyond the horizon
+
+
+@pytest.mark.parametrize("dist", [[1e10, 0, 0, 0, 0], [0, 0, 0, 0, -1e6]])
+def test_a_distortion_that_no_lens_has_is_refused(tmp_path, dist):
+    # dist[0] = 1e10 was read, and mapped every pixel to about one point on the table
+    d = json.loads(default_calibration_path().read_text())
+    d["intrinsics"]["dist"] = dist
+    with pytest.raises(BadInput, match="intrinsics.dist folds or collapses the image"):
+        load_calibration(_write(tmp_path, d))
+    d["intrinsics"]["dist"] = [-0.2813, 0.0291, 0.0012, -0.0001, 0.1549]  # OpenCV's own boards' lens
+    assert load_calibration(_write(tmp_path, d)).dist[0] == pytest.approx(-0.2813)
+    from dataclasses import replace
+
+    from calibration import save_calibration
+
+    bad = replace(load_calibration(_write(tmp_path, d)), dist=np.array(dist, float))
+    with pytest.raises(BadInput, match="folds or collapses the image.*not written"):
+        save_calibration(bad, tmp_path / "never.json")
+    assert not (tmp_path / "never.json").exists()

@@ -39,6 +39,10 @@ def test_festo_frames_fit_to_about_a_millimetre(tmp_path, capsys, image, with_in
     # sub-pixel marker corners: 0.51 - 0.61 mm (0.64 - 0.85 mm with OpenCV's unrefined corners)
     assert res["residual_mm"] < 0.7
     assert res["mm_per_px"] == pytest.approx(0.56, abs=0.01)
+    # each marker under the fit to the other three: what an unseen point is off by, above the fit's own
+    held, own = res["holdout_residual_mm"], res["per_marker_residual_mm"]
+    assert sorted(held) == ["0", "1", "2", "3"] and all(held[m] > own[m] for m in held)
+    assert res["holdout_residual_max_mm"] == max(held.values()) < 5.0
     if with_intrinsics:
         assert res["method"] == "pose"
         assert np.allclose(res["camera_position_mm"], [74, -395, 779], atol=3.0)
@@ -275,3 +279,15 @@ def test_map_cli_bad_points(capsys, args, match):
 def test_map_cli_missing_calibration(tmp_path, capsys):
     code, _, err = run_cli("map", tmp_path / "none.json", "--px", "1,2", capsys=capsys)
     assert code == 2 and "does not exist" in err
+
+
+def test_no_holdout_with_three_markers(tmp_path, capsys):
+    markers, ref = _markers(tmp_path)
+    m = json.loads(markers.read_text())
+    del m["markers"]["3"]
+    markers.write_text(json.dumps(m))
+    code, stdout, _ = run_cli("calibrate", "plane", FESTO / "aruco_img.png", "--markers", markers, "--out",
+                              tmp_path / "p.json", capsys=capsys)
+    res = json.loads(stdout)
+    assert code == 0 and res["markers_used"] == [0, 1, 2]
+    assert res["holdout_residual_mm"] == {} and res["holdout_residual_max_mm"] is None

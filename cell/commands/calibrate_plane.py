@@ -40,6 +40,7 @@ def run(args) -> int:
     from calibration.plane import (
         detect_markers,
         fit_plane_mapping,
+        holdout_residuals,
         marker_residuals,
         markers_correspondences,
         parse_markers,
@@ -83,9 +84,12 @@ def run(args) -> int:
         per_marker, warnings = marker_residuals(cal, detected, known, used)
         if duplicated:
             warnings.insert(0, f"markers seen more than once in the image, left out: {duplicated}")
+        held_out = holdout_residuals(detected, known, used, (w, h), k, dist)
         cal.report.update({"markers_used": out["markers_used"], "markers_missing": out["markers_missing"],
                            "markers_duplicated": duplicated,
-                           "per_marker_residual_mm": per_marker, "warnings": warnings})
+                           "per_marker_residual_mm": per_marker, "warnings": warnings,
+                           "holdout_residual_mm": held_out,
+                           "holdout_residual_max_mm": max(held_out.values()) if held_out else None})
     cal.report["image"] = str(args.image)
     rms = cal.report.get("reprojection_rms_px")
     if rms is not None and rms > REFUSE_REPROJECTION_PX and not args.accept_poor_fit:

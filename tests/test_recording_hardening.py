@@ -341,3 +341,19 @@ def test_a_run_that_fails_mid_way_is_recorded_as_failed_and_replays_as_incomplet
     monkeypatch.setattr(CellLoop, "_plan", plan)
     code, _, err = run_cli("replay", d, capsys=capsys)
     assert code == 2 and "incomplete" in err and "divergence" not in err
+
+
+def test_replay_names_a_host_can_frame_that_differs_from_the_recording(tmp_path, capsys):
+    # a target position the host sent changed in the CAN log: the decisions still match, the commands on
+    # the bus do not (replay used to look only at whether the log was whole: exit 0)
+    d = _copy_of_shipped(tmp_path)
+    log = d / "can.log"
+    lines = log.read_text().splitlines()
+    k = next(i for i, line in enumerate(lines) if " 302#" in line)
+    head, tail = lines[k].split(" 302#")
+    recorded = tail.split()[0]
+    lines[k] = f"{head} 302#10270000 {' '.join(tail.split()[1:])}".rstrip()
+    log.write_text("\n".join(lines) + "\n")
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 1 and "divergence: CAN id 0x302: the host's frame #0" in err
+    assert recorded.lower() in err and "10270000" in err

@@ -254,7 +254,8 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     with tempfile.TemporaryDirectory() as tmp:
         work_examples = Path(tmp) / "examples.jsonl"
         shutil.copyfile(examples_src, work_examples)  # rejects are appended again, not to the original
-        with simulated_cell(cell) as (arm, drives):
+        replay_can = Path(tmp) / "replay_can.log"
+        with simulated_cell(cell, record=str(replay_can)) as (arm, drives):
             sink = Comparison(recorded, drives, strict, cut_short=_cut_short(rec))
             control = RecordedApprovals(rec.decisions, f"recording {directory}")
             loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=FileCamera(frames), arm=arm,
@@ -272,13 +273,46 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
                 pass  # the recorded session stopped here too, or the comparison says where not
             except CellError as e:
                 sink._diverged(f"the replay failed at decision #{sink.position}: {e}")
+        # (the drives' session wrote its log when it closed)
+        can_difference = (first_host_frame_difference(rec.can_messages(), replay_can)
+                          if rec.manifest.get("status") == "complete" and rec.can_log_path is not None else None)
     if sink.cut_short and not sink.found:
         raise BadInput(f"recording {directory} is incomplete ({'; '.join(rec.problems)}): its {sink.position} "
                        f"recorded decisions match the replay, but how the session went on is not recorded")
     if sink.position < len(recorded):
         sink._diverged(f"the replay ended after {sink.position} of {len(recorded)} recorded decisions; next: "
                        f"{recorded[sink.position].get('type')}")
+    if can_difference and not sink.found:  # the decisions match: do the commands on the bus?
+        sink._diverged(can_difference)
     return {"decisions": len(recorded), "matched": sink.position - len(sink.found), "differences": sink.found}
+
+
+def _host_frames(messages) -> dict[int, list[bytes]]:
+    """The frames the host sends, by CAN id, in order: NMT (0x000), the drives' receive PDOs (0x200-0x57f)
+    and SDO requests (0x600-0x67f). The drives' answers, heartbeats and their timing are left out: the
+    host's commands are what must repeat (they do, frame for frame, in a simulated replay)."""
+    out: dict[int, list[bytes]] = {}
+    for m in messages:
+        i = m.arbitration_id
+        if i == 0 or 0x200 <= i < 0x580 or 0x600 <= i < 0x680:
+            out.setdefault(i, []).append(bytes(m.data))
+    return out
+
+
+def first_host_frame_difference(recorded_messages, replayed_log) -> str | None:
+    """Where the host's CAN frames of the replay differ from the recording's (None: nowhere)."""
+    import can
+
+    rec, rep = _host_frames(recorded_messages), _host_frames(can.LogReader(str(replayed_log)))
+    for i in sorted(set(rec) | set(rep)):
+        a, b = rec.get(i, []), rep.get(i, [])
+        for k, (x, y) in enumerate(zip(a, b)):
+            if x != y:
+                return (f"CAN id 0x{i:03X}: the host's frame #{k} is {y.hex()} in the replay, {x.hex()} in the "
+                        "recording")
+        if len(a) != len(b):
+            return f"CAN id 0x{i:03X}: the host sent {len(b)} frames in the replay, {len(a)} in the recording"
+    return None
 
 
 def _cut_short(rec) -> bool:

@@ -273,8 +273,8 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
                 pass  # the recorded session stopped here too, or the comparison says where not
             except CellError as e:
                 sink._diverged(f"the replay failed at decision #{sink.position}: {e}")
-        # (the drives' session wrote its log when it closed)
-        # (a session with real drives answers in its own time: the host's polling and retries need not repeat)
+        # the host's commands on the bus, now that the drives' session has closed its log; only for the
+        # simulated cell (real drives answer in their own time: the host's polling need not repeat)
         simulated = meta.get("real_cell") is None
         can_difference = (first_host_frame_difference(rec.can_messages(), replay_can)
                           if simulated and rec.manifest.get("status") == "complete" and rec.can_log_path is not None

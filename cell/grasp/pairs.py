@@ -220,23 +220,23 @@ class Pairs:
     def of(cls, points: np.ndarray, normals: np.ndarray, sample_index: np.ndarray | None = None) -> Pairs:
         """sample_index (z',): each point's index among the target's outline samples (enables the
         pre-check's look at the outline next to each point)."""
-        i, j = np.triu_indices(len(points), k=1)
+        i, j, ij = _pair_indices(len(points))
         points, normals = np.asarray(points, float), np.asarray(normals, float)
         pi, pj, ni, nj = points.take(i, 0), points.take(j, 0), normals.take(i, 0), normals.take(j, 0)
         w = pi - pj
         d = _norm2(w)
         u = ni - nj
         un = _norm2(u)
-        degenerate = un < 1e-9
+        degenerate = un < 1e-9  # the same normal twice (one face): the axis is the line between the points
         if degenerate.any():
-            u[degenerate] = w[degenerate]
+            np.copyto(u, w, where=degenerate[:, None])  # (boolean row indexing costs several times more)
             un = _norm2(u)
         u /= np.maximum(un, 1e-12)[:, None]
         m = 0.5 * (pi + pj)
         t = 0.5 * (w[:, 0] * u[:, 0] + w[:, 1] * u[:, 1])
         nan2 = np.full((len(i), 2), np.nan)
         sample_index = None if sample_index is None else np.asarray(sample_index, int)
-        return cls(np.column_stack([i, j]), pi, pj, ni, nj, d, u, m, t, nan2.copy(), nan2.copy(), nan2.copy(),
+        return cls(ij, pi, pj, ni, nj, d, u, m, t, nan2.copy(), nan2.copy(), nan2.copy(),
                    np.full(len(i), np.nan), w=w, points=points, normals=normals, sample_index=sample_index)
 
     def fresh(self) -> Pairs:
@@ -248,6 +248,18 @@ class Pairs:
 
     def axis_deg(self, k: int) -> float:
         return normalize_axis_deg(math.degrees(math.atan2(self.u[k, 1], self.u[k, 0])))
+
+
+def _pair_indices(n: int):
+    """i, j (s,) and ij (s, 2) of every pair i < j of n points, in np.triu_indices(n, k=1)'s order
+    (row by row), built from ranges: triu_indices builds and scans an n x n mask, 4x slower."""
+    after = np.arange(n - 1, -1, -1)  # each point's partners after it
+    first = np.cumsum(after) - after  # the place of each point's first pair
+    i = np.repeat(np.arange(n), after)
+    j = np.arange(int(after.sum())) + np.repeat(np.arange(1, n + 1) - first, after)
+    ij = np.empty((len(i), 2), i.dtype)
+    ij[:, 0], ij[:, 1] = i, j
+    return i, j, ij
 
 
 def _norm2(a: np.ndarray) -> np.ndarray:

@@ -5,8 +5,9 @@ when that thread is held up for longer than a heartbeat deadline, nobody sent he
 both watches used to declare the other side silent. A watch that was itself held up cannot
 tell, so it counts silence from when it runs again; a node that really falls silent is still
 caught, a deadline after the process runs normally again. The waits below allow LOADED_S more:
-on a loaded machine every step that runs late restarts the count (seen once, with two test runs
-and a benchmark on the 2 cores)."""
+on a loaded machine every step that runs late restarts the count (seen once with 2 s, with two
+test runs and a benchmark on the 2 cores). The waits end as soon as the fault is seen, so the
+allowance costs nothing when the machine is not loaded."""
 
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ from drivers.clock import RealClock
 pytestmark = needs_sim
 
 STALL_S = 0.6  # twice the default cell's 300 ms heartbeat deadlines
-LOADED_S = 2.0
+LOADED_S = 5.0
 
 
 @pytest.fixture

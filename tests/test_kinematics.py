@@ -39,10 +39,13 @@ def test_unreachable_points_have_no_solution():
 
 
 def test_joint_limits_remove_solutions():
-    # Behind the robot (negative x) J1 would need > 132 deg for most points.
-    sols = inverse(-400, 10, 10, 0, SCARA)
+    # Beside and behind the base one elbow needs J1 past 132 deg (145.8 here), the other does not (62.3)
+    sols = inverse(-100, 400, 10, 0, SCARA)
+    unlimited = inverse(-100, 400, 10, 0, SCARA, within_limits=False)
+    assert 0 < len(sols) < len(unlimited)
     assert all(abs(q.j1_deg) <= 132 for q in sols)
-    assert len(sols) < len(inverse(-400, 10, 10, 0, SCARA, within_limits=False))
+    assert any(abs(q.j1_deg) > 132 for q in unlimited)
+    assert inverse(-400, 10, 10, 0, SCARA) == []  # straight behind: J1 would need 135-138 deg either way
 
 
 def test_limit_violations_name_the_joint():

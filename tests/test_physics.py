@@ -112,10 +112,13 @@ def test_finger_collisions_depend_on_the_obstacle_height(cell_cfg):
 
 
 def test_finger_landing_on_the_part_itself():
-    # an L: closing along x at y = 35 reports the stem, but the first finger's footprint covers the foot
+    # an L: closing along x at y = 12 reports the stem, but the second finger's footprint (its pad
+    # band y 6..18) covers the foot (x 10..60, y 0..10); at y = 20 the band clears the foot
     ell = Part("ell", np.array([[0, 0], [60, 0], [60, 10], [10, 10], [10, 50], [0, 50]], float), z_top_mm=20)
     v = check_grasp(ell, [[0, 12], [10, 12]], axis_deg=0)
-    assert not v.ok
+    assert not v.ok and "the second finger lands on the part at the approach opening" in v.reasons
+    assert not any("first finger" in r for r in v.reasons)
+    assert check_grasp(ell, [[0, 20], [10, 20]], axis_deg=0).ok
 
 
 def test_lift_clear():

@@ -98,6 +98,39 @@ def test_festo_frame_with_its_calibration(tmp_path, capsys):
     assert Polygon(p["outline_mm"]).area / p["area_px"] == pytest.approx(0.56 ** 2, rel=0.1)
 
 
+@pytest.mark.parametrize("image", ["aruco_img.png", "aruco_img2.png"])
+def test_festo_markers_land_on_their_published_positions_and_the_covers_keep_their_size(tmp_path, capsys, image):
+    """Frame -> calibration -> segmentation -> mm, end to end on a real cell, against published
+    figures: each ArUco marker's card is found as one part whose centroid lies on the marker's
+    published centre (robot frame), and the four phone covers come out the same size in both
+    frames, whole and apart (visual reading: 4 covers of one phone; no size is published)."""
+    from shapely.geometry import Polygon
+
+    ref = json.loads((EXTERNAL / "p5binpicking-festo-table" / "published_reference.json").read_text())
+    markers = dict(ref["marker_corners_robot_frame_mm"])
+    markers["1"] = markers["1"][1:] + markers["1"][:1]  # the corner order that fits (SOURCE.md)
+    m = tmp_path / "m.json"
+    m.write_text(json.dumps({"dictionary": "DICT_4X4_50", "markers": markers}))
+    frame, cal = EXTERNAL / "p5binpicking-festo-table" / image, tmp_path / "cal.json"
+    assert run_cli("calibrate", "plane", frame, "--markers", m, "--out", cal, capsys=capsys)[0] == 0
+    code, out, _ = run_cli("segment", frame, "--calibration", cal, "--json", capsys=capsys)
+    assert code == 0
+    parts = json.loads(out)["parts"]
+    centroids = np.array([p["centroid_mm"][:2] for p in parts])  # (x, y) on the table plane
+    for mid, corners in markers.items():
+        centre = np.mean(corners, axis=0)[:2]
+        d = np.hypot(*(centroids - centre).T)
+        k = int(np.argmin(d))
+        assert d[k] < 2.5, f"marker {mid}: nearest part {d[k]:.1f} mm from its published centre"
+        assert 3000 < Polygon(parts[k]["outline_mm"]).area < 4800  # the card, about 59 mm square
+    covers = [p for p in parts if 6000 < Polygon(p["outline_mm"]).area < 8000]
+    assert len(covers) == 4 and not any(p["cut_off"] or p["merged"] for p in covers)
+    for p in covers:
+        c = np.array(Polygon(p["outline_mm"]).minimum_rotated_rectangle.exterior.coords)[:3]
+        short, long = sorted(float(np.hypot(*(c[i + 1] - c[i]))) for i in range(2))
+        assert 58 < short < 69 and 112 < long < 123, (short, long)
+
+
 def test_parts_crowding_the_middle_of_the_view_are_not_taken_for_the_tray():
     """pills.png with a third blister pack pasted over the middle (overlapping the left one): the
     packs now fill most of the centre, which the tray colour is looked for with more weight. The

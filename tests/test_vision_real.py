@@ -77,16 +77,25 @@ def test_cli_segment_on_a_real_photo(capsys):
         assert key in parts[0]
 
 
-def test_festo_frame_with_its_calibration(tmp_path, capsys):
-    """A real cell frame: parts on paper, mapped to the robot frame through the ArUco calibration."""
-    ref = json.loads((EXTERNAL / "p5binpicking-festo-table" / "published_reference.json").read_text())
+FESTO = EXTERNAL / "p5binpicking-festo-table"
+
+
+def festo_calibrated(tmp_path, capsys, image: str):
+    """The published markers (marker 1's corners in the order that fits, SOURCE.md), a plane
+    calibration of `image` from them, and the path of the frame and of the calibration."""
+    ref = json.loads((FESTO / "published_reference.json").read_text())
     markers = dict(ref["marker_corners_robot_frame_mm"])
     markers["1"] = markers["1"][1:] + markers["1"][:1]
     m = tmp_path / "m.json"
     m.write_text(json.dumps({"dictionary": "DICT_4X4_50", "markers": markers}))
-    image = EXTERNAL / "p5binpicking-festo-table" / "aruco_img.png"
-    cal = tmp_path / "cal.json"
-    assert run_cli("calibrate", "plane", image, "--markers", m, "--out", cal, capsys=capsys)[0] == 0
+    frame, cal = FESTO / image, tmp_path / "cal.json"
+    assert run_cli("calibrate", "plane", frame, "--markers", m, "--out", cal, capsys=capsys)[0] == 0
+    return markers, frame, cal
+
+
+def test_festo_frame_with_its_calibration(tmp_path, capsys):
+    """A real cell frame: parts on paper, mapped to the robot frame through the ArUco calibration."""
+    _, image, cal = festo_calibrated(tmp_path, capsys, "aruco_img.png")
     code, out, _ = run_cli("segment", image, "--calibration", cal, "--json", capsys=capsys)
     assert code == 0
     parts = json.loads(out)["parts"]
@@ -106,13 +115,7 @@ def test_festo_markers_land_on_their_published_positions_and_the_covers_keep_the
     frames, whole and apart (visual reading: 4 covers of one phone; no size is published)."""
     from shapely.geometry import Polygon
 
-    ref = json.loads((EXTERNAL / "p5binpicking-festo-table" / "published_reference.json").read_text())
-    markers = dict(ref["marker_corners_robot_frame_mm"])
-    markers["1"] = markers["1"][1:] + markers["1"][:1]  # the corner order that fits (SOURCE.md)
-    m = tmp_path / "m.json"
-    m.write_text(json.dumps({"dictionary": "DICT_4X4_50", "markers": markers}))
-    frame, cal = EXTERNAL / "p5binpicking-festo-table" / image, tmp_path / "cal.json"
-    assert run_cli("calibrate", "plane", frame, "--markers", m, "--out", cal, capsys=capsys)[0] == 0
+    markers, frame, cal = festo_calibrated(tmp_path, capsys, image)
     code, out, _ = run_cli("segment", frame, "--calibration", cal, "--json", capsys=capsys)
     assert code == 0
     parts = json.loads(out)["parts"]

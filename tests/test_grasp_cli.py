@@ -350,3 +350,24 @@ def test_a_disc_wider_than_the_stroke_is_told_so(tmp_path, examples, capsys, dia
     code, out, _ = run_cli("grasp", path, "--json", "--examples", examples, capsys=capsys)
     reason = json.loads(out)["reason"]
     assert code == 3 and reason.startswith("the part is wider than the gripper's stroke: at least"), reason
+
+
+def test_explain_shows_each_rejected_set_once(tmp_path, examples):
+    # pairs of other candidates can end on the same contacts (the pads seat on one stretch): the sample
+    # of rejected sets shows distinct contacts, up to three of them
+    from cell.examples import load_examples
+    from cell.grasp.explain import rejections
+    from cell.grasp.synthesis import GraspPlanner
+
+    planner = GraspPlanner(CELL, load_examples(examples))
+    result = planner.plan(Scene((shapes.rectangle("bar", 80, 60, (340, 0), 0),), "bar"))
+    contacts = np.array(result.reachable_pairs, float)
+    assert len(contacts) >= 4
+    contacts[1:-2] = contacts[0]  # every set but the last two has the first one's contacts
+    made = {"reachable_pairs": contacts, "reachable_attributes": result.reachable_attributes,
+            "set_valid": np.zeros(len(contacts), bool)}
+    shown = [line.split(":")[0] for line in rejections(made, planner) if line.startswith("rejected set")]
+    assert len(shown) == 3 and len(set(shown)) == 3
+    made["set_valid"][-2:] = True  # only the copies are rejected: one line
+    shown = [line for line in rejections(made, planner) if line.startswith("rejected set")]
+    assert len(shown) == 1

@@ -68,8 +68,18 @@ def rejections(made: dict, planner, n_samples: int = 3, seed: int = 0) -> list[s
                              f"{name} stage ({STAGE_WHY[name]}); {len(idx)} pairs stopped here")
     if made.get("set_valid") is not None:
         badsets = np.flatnonzero(~made["set_valid"])
-        for q in rng.choice(badsets, size=min(n_samples, len(badsets)), replace=False) if len(badsets) else []:
-            c = made["reachable_pairs"][q]
+        shown = np.round(made["reachable_pairs"], 1)
+        for q in _distinct_sample(badsets, shown, n_samples, rng):
             rule = st.rule_for(made["reachable_attributes"][q])
-            lines.append(f"rejected set {np.round(c, 1).tolist()}: tree 2 {rule}")
+            lines.append(f"rejected set {shown[q].tolist()}: tree 2 {rule}")
     return lines
+
+
+def _distinct_sample(rows: np.ndarray, shown: np.ndarray, n: int, rng) -> np.ndarray:
+    """Up to n of `rows`, drawn at random among those whose `shown` values differ: pairs of other
+    candidates can have the same contacts (a pad seats on the same stretch), and one line each is enough."""
+    if not len(rows):
+        return rows
+    _, first = np.unique(shown[rows].reshape(len(rows), -1), axis=0, return_index=True)
+    distinct = rows[np.sort(first)]
+    return rng.choice(distinct, size=min(n, len(distinct)), replace=False)

@@ -103,17 +103,47 @@ def chessboard_object_points(pattern: tuple[int, int], square_mm: float) -> np.n
 
 def detect_chessboard(gray: np.ndarray, pattern: tuple[int, int], detector: str = "classic",
                       subpix_win: int | None = SUBPIX_WIN[0]):
-    """Corners (n, 1, 2) float32 in OpenCV's pixel-centre frame, or None when not found.
-    `subpix_win` None: the classic detector's corners before `cornerSubPix` (see `refine_corners`)."""
+    """Corners (n, 1, 2) float32 in OpenCV's pixel-centre frame, or None when not found
+    (`find_chessboard`). `subpix_win` None: the classic detector's corners before `cornerSubPix`
+    (see `refine_corners`)."""
+    corners, _ = find_chessboard(gray, pattern, detector)
+    if corners is None or detector == "sb" or subpix_win is None:
+        return corners
+    return refine_corners(gray, corners, subpix_win)
+
+
+# A board in a large image (a 12 MP camera) can be missed at full size: the classic detector found 7 of
+# OpenCV's 13 boards upscaled to 4000 x 3000 px (all 13 up to 3200 x 2400 px, and all 13 on a copy of the
+# 4000 x 3000 ones reduced to 1600 px). Where a detector finds no board in an image larger than this a
+# side, it looks again on a copy reduced to this size; the corners are mapped back to full size (and the
+# classic detector's refined there by `cornerSubPix`, as always). Images up to this size are not affected.
+DETECT_MAX_PX = 1600
+
+
+def find_chessboard(gray: np.ndarray, pattern: tuple[int, int], detector: str = "classic"):
+    """(corners (n, 1, 2) float32 at full size or None, whether they were found on the reduced copy),
+    the classic detector's before `cornerSubPix`."""
+    if detector not in ("classic", "sb"):
+        raise BadInput(f"unknown chessboard detector {detector!r} (classic, sb, auto)")
+    corners = _find_chessboard(gray, pattern, detector)
+    h, w = gray.shape[:2]
+    if corners is not None or max(w, h) <= DETECT_MAX_PX:
+        return corners, False
+    f = DETECT_MAX_PX / max(w, h)
+    size = (max(1, round(w * f)), max(1, round(h * f)))
+    small = _find_chessboard(cv2.resize(gray, size, interpolation=cv2.INTER_AREA), pattern, detector)
+    if small is None:
+        return None, False
+    # pixel centres: u at the reduced size is (u + 0.5) * size / w - 0.5
+    return ((small + 0.5) / np.array([size[0] / w, size[1] / h], np.float32) - 0.5).astype(np.float32), True
+
+
+def _find_chessboard(gray: np.ndarray, pattern: tuple[int, int], detector: str):
     if detector == "classic":
         found, corners = cv2.findChessboardCorners(gray, pattern)
-        if not found:
-            return None
-        return corners if subpix_win is None else refine_corners(gray, corners, subpix_win)
-    if detector == "sb":
-        found, corners = cv2.findChessboardCornersSB(gray, pattern)
-        return corners.astype(np.float32) if found else None
-    raise BadInput(f"unknown chessboard detector {detector!r} (classic, sb, auto)")
+        return corners if found else None
+    found, corners = cv2.findChessboardCornersSB(gray, pattern)
+    return corners.astype(np.float32) if found else None
 
 
 def refine_corners(gray: np.ndarray, corners: np.ndarray, subpix_win: int) -> np.ndarray:
@@ -223,7 +253,7 @@ def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[in
             raise BadInput(f"unknown chessboard detector {detector!r} (auto, classic, sb)")
         objp = chessboard_object_points(pattern, square_mm)
         name = order[0]
-        found = [detect_chessboard(g, pattern, name, None) for _, g in images]
+        found, reduced = zip(*(find_chessboard(g, pattern, name) for _, g in images), strict=True)
         if name == "classic" and any(c is not None for c in found):
             if subpix_win is None:
                 subpix_win = min(subpix_win_for([c for c in found if c is not None], pattern), (min(w, h) - 5) // 2)
@@ -235,14 +265,16 @@ def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[in
             # misses boards the classic one finds (left04 and left05 of OpenCV's set), and one hard view
             # must not cost two good ones
             if any(detect_chessboard(images[i][1], pattern, "sb") is not None for i in missed):
-                by_sb = [detect_chessboard(g, pattern, "sb") for _, g in images]
+                by_sb, sb_reduced = zip(*(find_chessboard(g, pattern, "sb") for _, g in images), strict=True)
                 if sum(c is not None for c in by_sb) > sum(c is not None for c in found):
-                    name, found = "sb", by_sb
+                    name, found, reduced = "sb", by_sb, sb_reduced
         for i, corners in enumerate(found):
             views[i].detector = name
             if corners is None:
                 views[i].note = f"board {pattern[0]}x{pattern[1]} not found"
                 continue
+            if reduced[i]:
+                views[i].note = f"found on a copy reduced to {DETECT_MAX_PX} px (missed at full size)"
             obj_pts[i], img_pts[i] = objp, corners
             views[i].found, views[i].n_points = True, len(corners)
         board_info = {"type": "chessboard", "inner_corners": list(pattern), "square": square_mm,

@@ -50,6 +50,23 @@ def test_corner_window_grows_with_the_squares_in_the_image(chess_ref):
     assert fixed.rms_px > 2 * r.rms_px
 
 
+def test_boards_a_large_image_hides_at_full_size_are_found_on_a_reduced_copy():
+    # a 12 MP camera: OpenCV's boards at 4000 x 3000 px. At full size the classic detector misses these
+    # three (and the sector detector two: one view is too few); on a copy reduced to 1600 px it finds
+    # them, and the corners refined at full size give the 640 x 480 calibration scaled by 6.25
+    names = ("left06.jpg", "left08.jpg", "left09.jpg")
+    plain = [(n, g) for n, g in _images(CHESS) if n in names]
+    big = [(n, cv2.resize(g, None, fx=6.25, fy=6.25, interpolation=cv2.INTER_CUBIC)) for n, g in plain]
+    small, r = calibrate_intrinsics(plain, (9, 6), 1.0), calibrate_intrinsics(big, (9, 6), 1.0)
+    assert r.board["detector"] == "classic" and sorted(r.images_used) == sorted(names)
+    assert all(v.note == "found on a copy reduced to 1600 px (missed at full size)" for v in r.views)
+    assert not any(v.note for v in small.views)
+    assert r.camera_matrix[0, 0] / 6.25 == pytest.approx(small.camera_matrix[0, 0], rel=0.005)
+    # pixel centres: c at 1 x is (c + 0.5) * 6.25 - 0.5 at 6.25 x
+    assert (r.camera_matrix[0, 2] + 0.5) / 6.25 - 0.5 == pytest.approx(small.camera_matrix[0, 2], abs=1.0)
+    assert r.rms_px < 8 * small.rms_px  # upscaling blurs: 6.25 x the corner noise, and more
+
+
 def test_sample_recipe_singles_out_left02_and_can_reject_it(chess_ref):
     # OpenCV's C++ sample (11x11 cornerSubPix) publishes per-view errors with left02 at 1.18 px
     ref = chess_ref["left_intrinsics_yml"]["per_view_reprojection_errors"]

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from cell.errors import BadInput
-from cell.fileio import DuplicateKey, append_lines_atomic, has_non_number, unique_keys
+from cell.fileio import DuplicateKey, append_lines_atomic, has_non_number, read_text, unique_keys
 from cell.kinematics import Joints
 from cell.scene import Part, parse_part
 
@@ -84,7 +84,8 @@ class GraspExample:
 def parse_example(raw, where: str = "example") -> GraspExample:
     if not isinstance(raw, dict):
         raise BadInput(f"{where}: must be a JSON object")
-    if raw.get("format", FORMAT) != FORMAT or raw.get("version", VERSION) != VERSION:
+    version = raw.get("version", VERSION)
+    if raw.get("format", FORMAT) != FORMAT or isinstance(version, bool) or version != VERSION:
         raise BadInput(f"{where}: not a {FORMAT} v{VERSION} line (format={raw.get('format')!r}, "
                        f"version={raw.get('version')!r})")
     eid = raw.get("id")
@@ -150,13 +151,7 @@ def parse_example(raw, where: str = "example") -> GraspExample:
 def load_examples(path: str | Path | None = None, *, allow_empty: bool = False) -> list[GraspExample]:
     """Read and validate an example file (None: the shipped default)."""
     path = Path(path) if path is not None else default_examples_path()
-    try:
-        text = path.read_text(encoding="utf-8-sig")  # a BOM is not content
-    except FileNotFoundError:
-        raise BadInput(f"example file {path} does not exist") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise BadInput(f"example file {path} cannot be read: {e}") from None
-    return _parse_examples(text, path, allow_empty)
+    return _parse_examples(read_text(path, "example file"), path, allow_empty)
 
 
 def _parse_examples(text: str, path: Path, allow_empty: bool) -> list[GraspExample]:

@@ -69,6 +69,7 @@ def append_lines_atomic(path: str | os.PathLike, lines: list[str], check=None) -
     raising (a check made before taking the lock could miss a concurrent appender's lines)."""
     path = Path(path)
     with _file_lock(path):
+        check_readable(path, "line file")  # a FIFO would block the read, then be replaced by a file
         old = path.read_bytes() if path.exists() else b""
         if check is not None:
             check(old)
@@ -96,24 +97,46 @@ def unique_keys(pairs: list) -> dict:
 MAX_JSON_BYTES = 256 * 2**20  # a scene of 200 parts drawn every 0.02 mm is 12 MB
 
 
-def read_json(path: str | os.PathLike, what: str):
-    """Parse a JSON file; `what` names the file's role in error messages ("cell file"). Only regular
-    files of at most MAX_JSON_BYTES: a FIFO would block, /dev/zero would fill the memory."""
-    path = Path(path)
+def check_readable(path: Path, what: str, max_bytes: int | None | str = "json") -> None:
+    """Refuse what must not be read whole: anything but a regular file (a FIFO would block,
+    /dev/zero would fill the memory) and files over max_bytes ("json": MAX_JSON_BYTES as it is
+    then; None: any size). A missing file passes (the caller says what that means); `what`
+    names the file's role in the message."""
+    if max_bytes == "json":
+        max_bytes = MAX_JSON_BYTES
     try:
         st = path.stat()
-        if stat.S_ISREG(st.st_mode) and st.st_size > MAX_JSON_BYTES:
-            raise BadInput(f"{what} {path} is {st.st_size / 2**20:.0f} MB: more than the "
-                           f"{MAX_JSON_BYTES / 2**20:.0f} MB a {what} may have")
-        if not stat.S_ISREG(st.st_mode) and not stat.S_ISDIR(st.st_mode):
-            raise BadInput(f"{what} {path} is not a regular file")
-        text = path.read_text(encoding="utf-8-sig")  # a BOM (Windows editors write one) is not content
+    except FileNotFoundError:
+        return
+    except OSError as e:
+        raise BadInput(f"{what} {path} cannot be read: {e}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise BadInput(f"{what} {path} is a directory, not a file")
+    if not stat.S_ISREG(st.st_mode):
+        raise BadInput(f"{what} {path} is not a regular file")
+    if max_bytes is not None and st.st_size > max_bytes:
+        raise BadInput(f"{what} {path} is {st.st_size / 2**20:.0f} MB: more than the "
+                       f"{max_bytes / 2**20:.0f} MB a {what} may have")
+
+
+def read_text(path: str | os.PathLike, what: str) -> str:
+    """A file's text (`check_readable` first), with the error naming the file by its role."""
+    path = Path(path)
+    check_readable(path, what)
+    try:
+        return path.read_text(encoding="utf-8-sig")  # a BOM (Windows editors write one) is not content
     except FileNotFoundError:
         raise BadInput(f"{what} {path} does not exist") from None
     except IsADirectoryError:
         raise BadInput(f"{what} {path} is a directory, not a file") from None
     except (OSError, UnicodeDecodeError) as e:
         raise BadInput(f"{what} {path} cannot be read: {e}") from None
+
+
+def read_json(path: str | os.PathLike, what: str):
+    """Parse a JSON file (`read_text`); `what` names the file's role in error messages ("cell file")."""
+    path = Path(path)
+    text = read_text(path, what)
     try:
         return json.loads(text, object_pairs_hook=unique_keys)
     except json.JSONDecodeError as e:

@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from cell.errors import BadInput
-from cell.fileio import read_json, to_jsonable, write_atomic, write_json_atomic
+from cell.fileio import check_readable, read_json, to_jsonable, write_atomic, write_json_atomic
 
 FORMAT = "cell-recording"
 VERSION = 1
@@ -395,6 +395,7 @@ class RecordingReader:
             if self.manifest["status"] == "recording":
                 return []
             raise BadInput(f"recording {self.dir}: {DECISIONS} is missing")
+        check_readable(path, "recording file", max_bytes=None)  # a long session's log may be large
         try:
             raw = path.read_bytes()
         except OSError as e:
@@ -469,6 +470,7 @@ class RecordingReader:
         path = self.can_log_path
         if path is None:
             return []
+        check_readable(path, "recording file", max_bytes=None)
         try:
             text = path.read_text(encoding="ascii", errors="replace")
         except OSError as e:

@@ -155,9 +155,6 @@ def _edit(**changes):
 BOOL_MEANT = "'valid' must be true or false"
 TWO_POINTS = "'contacts' must be at least two finite [x, y] points"
 PER_CONTACT = "'contact_valid' must be one true/false per contact"
-VERSION_TRUE_BUG = ("BUG: an example line with \"version\": true is read as version 1 (parse_example compares "
-                    "raw.get('version') != 1, and True == 1); calibration and cell files refuse a bool version")
-
 EXAMPLE_CASES = [
     # (id, edit of line 2's JSON, what the message says after "example file PATH line 2")
     ("duplicate-id", _edit(id="a"), ": duplicate example id 'a'"),
@@ -184,8 +181,8 @@ EXAMPLE_CASES = [
     ("format-null", _edit(format=None), ": not a grasp-example v1 line (format=None, version=1)"),
     ("version-2", _edit(version=2), ": not a grasp-example v1 line (format='grasp-example', version=2)"),
     ("version-0", _edit(version=0), ": not a grasp-example v1 line (format='grasp-example', version=0)"),
-    pytest.param("version-true", _edit(version=True), ": not a grasp-example v1 line",
-                 marks=pytest.mark.xfail(strict=True, reason=VERSION_TRUE_BUG), id="version-true"),
+    # a bool is not a version, though True == 1 (calibration and cell files refuse it too)
+    ("version-true", _edit(version=True), ": not a grasp-example v1 line (format='grasp-example', version=True)"),
 ]
 
 
@@ -274,17 +271,19 @@ def test_an_append_to_a_file_that_is_already_unloadable_is_refused(tmp_path):
 
 # --- example files that are not regular files (known bugs) -------------------------------------------
 
-NOT_REGULAR_BUG = ("BUG: load_examples reads the path with Path.read_text, without read_json's checks: a FIFO "
-                   "blocks for ever, /dev/zero or an oversized file fills the memory (`cell rules --examples "
-                   "/dev/zero`: 'internal error: MemoryError', exit 1); read_json refuses them as 'is not a "
-                   "regular file' / 'more than the 256 MB'")
-
-
-@pytest.mark.xfail(strict=True, reason=NOT_REGULAR_BUG)
 def test_an_example_file_that_is_a_fifo_is_refused(fifo):  # noqa: F811 - the imported fixture
-    # today the read blocks until the fixture's helper opens and closes the FIFO, then says "holds no examples"
+    # (it was read like a file: the read blocked until the fixture's helper opened and closed the FIFO)
     with pytest.raises(BadInput, match="is not a regular file"):
         load_examples(fifo)
+
+
+def test_examples_are_not_appended_to_a_fifo(fifo):  # noqa: F811 - the imported fixture
+    # (the appender read the FIFO like a file, then replaced it with a regular file)
+    import stat
+
+    with pytest.raises(BadInput, match="is not a regular file"):
+        append_examples(fifo, [_example("a")])
+    assert stat.S_ISFIFO(fifo.stat().st_mode)
 
 
 # The child maps the planner's libraries first, then may take 512 MB more: were a file read, it
@@ -304,12 +303,11 @@ print(json.dumps(runs))
 """
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=NOT_REGULAR_BUG)  # a crashed child is an error
 def test_an_example_file_too_big_to_read_is_exit_2(tmp_path):
     big = _sparse(tmp_path / "big.jsonl", 2 * 2**30)
     done = subprocess.run([sys.executable, "-c", CHILD, "/dev/zero", str(big)], cwd=ROOT,
                           capture_output=True, text=True, timeout=60)
     (zero_code, zero_err), (big_code, big_err) = json.loads(done.stdout)
-    assert (zero_code, big_code) == (2, 2), (zero_err, big_err)  # today: 1, 1 ("internal error: MemoryError")
+    assert (zero_code, big_code) == (2, 2), (zero_err, big_err)  # it was 1, 1: "internal error: MemoryError"
     assert "example file /dev/zero is not a regular file" in zero_err
     assert f"example file {big} is 2048 MB: more than the 256 MB" in big_err

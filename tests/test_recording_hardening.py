@@ -196,6 +196,26 @@ def _a_directory_instead_of(name):
     return damage
 
 
+def _a_fifo_instead_of(name):
+    def damage(d: Path) -> None:
+        import os
+        import threading
+
+        (d / name).unlink()
+        os.mkfifo(d / name)
+
+        def unblock():  # should the check go, a read that waits gets an end of file (no hang)
+            for _ in range(600):
+                try:
+                    os.close(os.open(d / name, os.O_WRONLY | os.O_NONBLOCK))
+                except OSError:  # nobody is reading yet
+                    pass
+                threading.Event().wait(0.05)
+
+        threading.Thread(target=unblock, daemon=True).start()
+    return damage
+
+
 def _nan_in_a_decision(d: Path) -> None:
     lines = (d / "decisions.jsonl").read_text().splitlines()
     lines[1] = lines[1].replace('"opening_mm":', '"opening_mm":NaN,"was":', 1)
@@ -203,8 +223,10 @@ def _nan_in_a_decision(d: Path) -> None:
 
 
 @pytest.mark.parametrize("damage, match", [
-    (_a_directory_instead_of("decisions.jsonl"), "decisions.jsonl cannot be read"),
-    (_a_directory_instead_of("can.log"), "can.log cannot be read"),
+    (_a_directory_instead_of("decisions.jsonl"), "decisions.jsonl is a directory, not a file"),
+    (_a_directory_instead_of("can.log"), "can.log is a directory, not a file"),
+    (_a_fifo_instead_of("decisions.jsonl"), "decisions.jsonl is not a regular file"),
+    (_a_fifo_instead_of("can.log"), "can.log is not a regular file"),
     (_nan_in_a_decision, "decisions.jsonl line 2: not valid JSON (NaN is not JSON)"),
 ])
 def test_replay_refuses_unreadable_recording_files(tmp_path, capsys, damage, match):

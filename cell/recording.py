@@ -452,6 +452,7 @@ class RecordingReader:
         import cv2
 
         p = self.frame_path(index)
+        check_readable(p, "recording frame")
         img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
         if img is None:
             raise BadInput(f"recording frame {p} cannot be decoded as PNG")

@@ -7,6 +7,7 @@ import cv2
 import numpy as np
 import pytest
 from conftest import EXTERNAL, run_cli
+from test_fileio_atomic import fifo  # noqa: F401 - the fixture
 
 from calibration import Calibration, default_calibration_path, save_calibration
 from cell.errors import BadInput
@@ -136,6 +137,14 @@ def test_segment_cli_missing_and_directory(tmp_path, capsys):
     assert code == 2 and "does not exist" in err
     code, _, err = run_cli("segment", tmp_path, "--json", capsys=capsys)
     assert code == 2 and "is a directory" in err
+
+
+@pytest.mark.parametrize("command", [["segment"], ["calibrate", "intrinsics", "--pattern", "9x6", "--square", "1"]])
+def test_an_image_that_is_a_fifo_is_bad_input(fifo, tmp_path, capsys, command):  # noqa: F811 - the fixture
+    # (the image was read like a file: `cell segment` waited for ever for a writer)
+    extra = ["--out", tmp_path / "cal.json"] if "intrinsics" in command else ["--json"]
+    code, out, err = run_cli(*command, *[fifo] * (3 if "intrinsics" in command else 1), *extra, capsys=capsys)
+    assert code == 2 and f"image {fifo} is not a regular file" in err and out == ""
 
 
 def test_render_cli_writes_frame_and_truth(tmp_path, capsys):

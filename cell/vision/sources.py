@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from cell.errors import BadInput
+from cell.fileio import check_readable
 
 
 def read_image(path: str | Path, grey: bool = False) -> np.ndarray:
@@ -25,6 +26,7 @@ def read_image(path: str | Path, grey: bool = False) -> np.ndarray:
         raise BadInput(f"image {path} does not exist")
     if path.is_dir():
         raise BadInput(f"image {path} is a directory, not an image file")
+    check_readable(path, "image")  # a FIFO would block, a device fill the memory
     try:
         data = np.fromfile(str(path), dtype=np.uint8)
     except OSError as e:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 
 from cell.kinematics import Joints, forward, limit_violations
+from drivers import codec
 
 JOINT_FIELDS = (
     ("j1", "j1_deg", "deg"),
@@ -22,6 +23,10 @@ JOINT_FIELDS = (
 def command_violations(cell, target: Joints, current: Joints | None) -> list[str]:
     """Human-readable reasons why `target` must not be sent (empty list: it may be sent).
 
+    The command as asked and, when that passes, as the drives get it (`as_sent`: each joint
+    rounded to a whole count): a tool asked for exactly on the workspace's edge can land a few
+    micrometres past it once rounded.
+
     Parameters
     ----------
     cell : cell.cellconfig.Cell
@@ -33,22 +38,47 @@ def command_violations(cell, target: Joints, current: Joints | None) -> list[str
     values = (target.j1_deg, target.j2_deg, target.j3_mm, target.j4_deg)
     if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
         return [f"joint values must be finite numbers, got {target}"]
-    out = list(limit_violations(target, cell.scara))
+    out = _pose_violations(cell, target, current, "")
+    if not out:
+        sent = as_sent(cell, target)
+        if sent != target:
+            out = _pose_violations(cell, sent, current, " (as sent: each joint rounded to a whole drive count)")
+    return out
+
+
+def as_sent(cell, target: Joints) -> Joints:
+    """The joint values the drives are sent: each rounded to a whole count of its node
+    (`can.nodes.*.counts_per_unit` of the cell file), as `Arm.move_joints` sends them."""
+    nodes = cell.can.nodes
+    return Joints(*(codec.from_counts(codec.to_counts(getattr(target, field), nodes[joint].counts_per_unit),
+                                      nodes[joint].counts_per_unit) for joint, field, _ in JOINT_FIELDS))
+
+
+def _pose_violations(cell, target: Joints, current: Joints | None, suffix: str) -> list[str]:
+    out = [v + suffix for v in limit_violations(target, cell.scara)]
     tool = forward(target, cell.scara)
     ws = cell.workspace
     if not ws.contains(tool.x_mm, tool.y_mm):
         out.append(
-            f"tool at x = {tool.x_mm:.1f}, y = {tool.y_mm:.1f} mm outside the workspace "
-            f"x in [{ws.x_mm[0]:g}, {ws.x_mm[1]:g}], y in [{ws.y_mm[0]:g}, {ws.y_mm[1]:g}]"
+            f"tool at x = {_mm(tool.x_mm, ws.x_mm)}, y = {_mm(tool.y_mm, ws.y_mm)} mm outside the workspace "
+            f"x in [{ws.x_mm[0]:g}, {ws.x_mm[1]:g}], y in [{ws.y_mm[0]:g}, {ws.y_mm[1]:g}]{suffix}"
         )
     if current is not None:
         for joint, field, unit in JOINT_FIELDS:
             step = abs(getattr(target, field) - getattr(current, field))
             if step > cell.scara.max_step[joint] + 1e-9:
-                out.append(
-                    f"{joint.upper()} step {step:.3f} {unit} larger than max_step {cell.scara.max_step[joint]:g} {unit}"
-                )
+                out.append(f"{joint.upper()} step {step:.3f} {unit} larger than max_step "
+                           f"{cell.scara.max_step[joint]:g} {unit}{suffix}")
     return out
+
+
+def _mm(value: float, bounds: tuple[float, float]) -> str:
+    """A coordinate to 0.1 mm, or to the nanometre, or to the last digit, where fewer digits would show
+    it on a bound it is past."""
+    for text in (f"{value:.1f}", f"{value:.6f}".rstrip("0")):
+        if float(text) not in bounds:
+            return text
+    return repr(value)
 
 
 def gripper_violations(cell, width_mm: float, force_n: float | None = None) -> list[str]:

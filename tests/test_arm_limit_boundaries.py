@@ -29,6 +29,7 @@ from drivers_fixtures import needs_sim
 
 from cell.kinematics import Joints, forward, inverse
 from drivers.errors import LimitError
+from drivers.limits import as_sent
 
 pytestmark = needs_sim
 
@@ -148,6 +149,9 @@ WORKSPACE_BOUNDS = {
     "y-min": ("y", -450.0, 300.0, +1, -1),
     "y-max": ("y", 450.0, 300.0, -1, +1),
 }
+# the pose asked for exactly on the bound, as the drives get it (each joint rounded to a whole count):
+# inside x min, 1.7-1.9 um past the others
+PAST_THE_BOUND_AS_SENT = {"x-min": False, "x-max": True, "y-min": True, "y-max": True}
 
 
 def joints_with_tool_at(scara, coord: str, value_mm: float, other_mm: float, elbow: int,
@@ -173,13 +177,30 @@ def tool_xy(j: Joints, scara) -> tuple[float, float]:
 
 
 @pytest.mark.parametrize("bound", WORKSPACE_BOUNDS)
-def test_a_tool_exactly_on_a_workspace_bound_is_sent(arm, sim_drives, bound):
-    coord, value, other, elbow, _ = WORKSPACE_BOUNDS[bound]
+def test_a_tool_exactly_on_a_workspace_bound_is_sent_unless_its_counts_land_past_it(arm, sim_drives, spy, bound):
+    coord, value, other, elbow, outward = WORKSPACE_BOUNDS[bound]
     target = joints_with_tool_at(arm.cell.scara, coord, value, other, elbow)
     x, y = tool_xy(target, arm.cell.scara)
     assert (x, y)[coord == "y"] == value  # exactly on the bound, not a float inside it
     assert (x, y)[coord == "x"] == pytest.approx(other)
-    assert_drives_at(sim_drives, arm.move_joints(target))
+    sent_x, sent_y = tool_xy(as_sent(arm.cell, target), arm.cell.scara)
+    past_um = outward * ((sent_x, sent_y)[coord == "y"] - value) * 1e3
+    assert (past_um > 0) == PAST_THE_BOUND_AS_SENT[bound] and past_um < 5
+    if not PAST_THE_BOUND_AS_SENT[bound]:
+        assert_drives_at(sim_drives, arm.move_joints(target))
+        return
+    # (the box was checked on the joints asked for only, and the drives were sent a pose past it)
+    message = refused_before_any_frame(spy, sim_drives, lambda: arm.move_joints(target))
+    assert message == (f"move refused, nothing sent: tool at {_shown(coord, sent_x, sent_y)} mm outside the "
+                       "workspace x in [-50, 560], y in [-450, 450] (as sent: each joint rounded to a whole "
+                       "drive count)")
+
+
+def _shown(coord: str, x: float, y: float) -> str:
+    """The tool as the refusal shows it: the coordinate past the bound to the nanometre (to 0.1 mm it
+    would read as the bound itself), the other to 0.1 mm."""
+    x_text, y_text = (f"{v:.6f}".rstrip("0") if c == coord else f"{v:.1f}" for c, v in (("x", x), ("y", y)))
+    return f"x = {x_text}, y = {y_text}"
 
 
 @pytest.mark.parametrize("bound", WORKSPACE_BOUNDS)
@@ -190,16 +211,8 @@ def test_a_tool_just_past_a_workspace_bound_is_refused_before_any_frame(arm, sim
     assert 0 < outward * ((x, y)[coord == "y"] - value) < 2 * PAST_BOX_MM
     message = refused_before_any_frame(spy, sim_drives, lambda: arm.move_joints(target))
     # the only reason given: this bound (joints, steps and the other coordinate are fine)
-    assert message == (f"move refused, nothing sent: tool at x = {x:.1f}, y = {y:.1f} mm outside "
+    assert message == (f"move refused, nothing sent: tool at {_shown(coord, x, y)} mm outside "
                        "the workspace x in [-50, 560], y in [-450, 450]")
-
-
-@pytest.mark.xfail(strict=True, reason="BUG (boundary gap): the box is checked on the requested joints, not on "
-                   "the whole counts sent; the sent pose lies 1.9 um past y max")
-def test_the_pose_sent_for_a_tool_on_a_workspace_bound_is_inside_the_box(arm):
-    coord, value, other, elbow, _ = WORKSPACE_BOUNDS["y-max"]
-    sent = arm.move_joints(joints_with_tool_at(arm.cell.scara, coord, value, other, elbow))
-    assert arm.cell.workspace.contains(*tool_xy(sent, arm.cell.scara))
 
 
 # ------------------------------------------------------------------ J3 travel [0, 200] mm and its tolerance
@@ -369,7 +382,8 @@ class TestCarryOffPreCheck:
         from cell.examples import default_examples_path
         from cell.runtime.control import RunControl
         from cell.runtime.loop import CellLoop, PartReport
-        from cell.runtime.motion import pick_commands
+        from cell.cellconfig import default_cell
+        from cell.runtime.motion import dropoff_joints, pick_commands
         from cell.scene import Scene, load_assembly
         from drivers.execute import run_commands
 
@@ -382,7 +396,9 @@ class TestCarryOffPreCheck:
         grasp = loop.planner.plan(Scene(tuple(loop._on_tray()), part)).grasp
         sim_drives.gripper_object_width_mm = grasp.opening_mm
         safe_z = loop._safe_z_mm(part, grasp.grasp_z_mm)
-        to_grip = pick_commands(grasp.joints, grasp.opening_mm, cell_cfg, safe_z_mm=safe_z)[:4]
+        # (by way of the default drop-off: past the edge, none of this cell's can be sent)
+        to_grip = pick_commands(grasp.joints, grasp.opening_mm, cell_cfg, safe_z_mm=safe_z,
+                                drop=dropoff_joints(default_cell(), grasp.joints))[:4]
         assert to_grip[-1].label == "grip" and run_commands(arm, to_grip)[-1]["holding"]
         loop._pick = {"part": part, "grasp": grasp, "report": PartReport(part, "removed"), "attempt": 0,
                       "stage": "gripped"}
@@ -405,8 +421,9 @@ class TestCarryOffPreCheck:
         loop, part = loop_holding_a_part
         pick = loop._pick
         message = refused_before_any_frame(spy, sim_drives, loop._recover_pick, CellError)
-        # refused by the pre-check, for carry, lower and retreat (not by the arm after the lift)
-        why = "tool at x = 300.0, y = 450.0 mm outside the workspace x in [-50, 560], y in [-450, 450]"
-        assert message == (f"{part} is still in the jaws and cannot be carried off ({'; '.join([why] * 3)}): "
+        # refused before the lift: no drop-off configuration can be sent
+        why = ("the drop-off (300.0, 450.001, 120.0) cannot be sent to the arm: tool at x = 300.0, y = 450.001 mm "
+               "outside the workspace x in [-50, 560], y in [-450, 450]")
+        assert message == (f"{part} is still in the jaws and cannot be carried off ({why}): "
                            "take it out by hand, then reset")
         assert loop._taken_by_hand is pick and loop._pick is None

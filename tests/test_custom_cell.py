@@ -101,6 +101,11 @@ def test_a_nan_inside_a_range_names_its_place(tmp_path, scene, capsys):
 @pytest.mark.parametrize("l1_l2,dropoff,says", [
     ((250, 200), None, "outside the arm's reach"),  # the default drop-off, shorter links
     ((325, 275), [650.0, 0.0, 100.0], "outside the arm's reach"),
+    # within reach but past the workspace box (y max 450): every carry would have been refused with
+    # the part in the jaws; on the box's edge every configuration lands past it, by float noise or once
+    # its joints are rounded to whole drive counts
+    ((325, 275), [300.0, 460.0, 120.0], "cannot be sent to the arm: tool at x = 300.0, y = 460.0 mm outside"),
+    ((325, 275), [330.0, 450.0, 120.0], "cannot be sent to the arm: tool at x = 330.0, y = 450.00000000000006 mm"),
 ])
 def test_a_dropoff_out_of_reach_is_bad_input_before_anything_moves(tmp_path, capsys, l1_l2, dropoff, says):
     def mutate(d):

@@ -14,6 +14,7 @@ import numpy as np
 from cell.cellconfig import Cell
 from cell.errors import CellError
 from cell.kinematics import Joints, inverse
+from drivers.limits import command_violations
 
 
 @dataclass(frozen=True)
@@ -48,6 +49,12 @@ def dropoff_options(cell: Cell, near: Joints) -> list[Joints]:
     options = inverse(x, y, z, 0.0, cell.scara)
     if not options:
         raise CellError(f"the drop-off {cell.motion.dropoff_mm} is not reachable with the cell's joint limits")
+    # only what the arm may be sent: on the workspace's edge a configuration can land a few micrometres
+    # past it once its joints are rounded to the drives' counts (drivers.limits.as_sent)
+    refused = [command_violations(cell, o, None) for o in options]
+    if all(refused):
+        raise CellError(f"the drop-off {cell.motion.dropoff_mm} cannot be sent to the arm: {refused[0][0]}")
+    options = [o for o, why in zip(options, refused, strict=True) if not why]
     q = near.as_array()
     return sorted(options, key=lambda o: float(np.sum(np.abs((o.as_array() - q)[[0, 1, 3]]))))
 

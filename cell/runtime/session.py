@@ -335,13 +335,14 @@ def _require_dropoff_reachable(cell, cell_path) -> None:
 
     try:
         dropoff_options(cell, home_joints(cell))  # the drop-off the loop will move to, solved as it will be
-    except CellError:
+    except CellError as e:
         x, y, z = cell.motion.dropoff_mm
         r = float(np.hypot(x, y))
         lo, hi = cell.scara.reach_mm
-        why = (f"{r:.1f} mm from the base, outside the arm's reach {lo:.1f}-{hi:.1f} mm" if not lo <= r <= hi
-               else "not reachable within the joint limits")
-        raise BadInput(f"cell file {cell_path or '(default)'}: motion.dropoff_mm {[x, y, z]} is {why}") from None
+        why = (f"is {r:.1f} mm from the base, outside the arm's reach {lo:.1f}-{hi:.1f} mm" if not lo <= r <= hi
+               else "cannot be sent to the arm: " + str(e).split(": ", 1)[1] if "cannot be sent" in str(e)
+               else "is not reachable within the joint limits")
+        raise BadInput(f"cell file {cell_path or '(default)'}: motion.dropoff_mm {[x, y, z]} {why}") from None
 
 
 def _check_rrd_path(path: Path) -> None:

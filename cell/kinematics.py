@@ -135,7 +135,15 @@ def _elbow_within_limits(t2, to_wrist, a, scara: Scara) -> np.ndarray:
     j2 = np.degrees(t2)
     base = a - j1 - j2
     lo4, hi4 = scara.j4_deg
-    some_j4 = np.floor((hi4 - base) / 180.0 + 1e-9) >= np.ceil((lo4 - base) / 180.0 - 1e-9)
+    # the turns k `inverse` tries, and whether one of them is within the limits as `limit_violations`
+    # has them (1e-9 deg): the turns' own 1e-9 is of a half turn, 1.8e-7 deg, so the outermost may not be
+    k_lo, k_hi = np.ceil((lo4 - base) / 180.0 - 1e-9), np.floor((hi4 - base) / 180.0 + 1e-9)
+    if hi4 - lo4 >= 181.0:  # a turn just past one limit has a neighbour well inside: any turn will do
+        some_j4 = k_hi >= k_lo
+    else:
+        j4_lo, j4_hi = base + 180.0 * k_lo, base + 180.0 * k_hi
+        some_j4 = (k_hi >= k_lo) & ((k_hi - k_lo >= 2) | ((j4_lo >= lo4 - 1e-9) & (j4_lo <= hi4 + 1e-9))
+                                     | ((j4_hi >= lo4 - 1e-9) & (j4_hi <= hi4 + 1e-9)))
     return ((j1 >= scara.j1_deg[0] - 1e-9) & (j1 <= scara.j1_deg[1] + 1e-9)
             & (j2 >= scara.j2_deg[0] - 1e-9) & (j2 <= scara.j2_deg[1] + 1e-9) & some_j4)
 

@@ -340,15 +340,12 @@ HOOK_2MM = part([[320, -15], [380, -15], [380, 22], [330, 22], [330, 17.25], [37
 TAB = part([[320, -15], [380, -15], [380, 15], [355, 15], [355, 25], [345, 25], [345, 15], [320, 15]])
 
 
-@pytest.mark.xfail(strict=True, reason="real bug: stage_precheck tests points at contact_tol + 1.5, the middle and "
-                   "reach - 1.5 mm beyond each candidate (reach = approach clearance + pad thickness); with a reach "
-                   "under contact_tol + 2 mm they lie past the finger's end or behind the contact inside the part, "
-                   "and the cheap stage rejects pairs the exact stages keep (cascade != brute force)")
 @pytest.mark.parametrize("target, pi, thickness_mm", [(HOOK_2MM, (350, 15), 2.0), (TAB, (330, 15), 1.0)],
                          ids=["2mm pads under a 2.25mm overhang", "1mm pads beside a tab"])
 def test_precheck_keeps_what_the_exact_stages_keep_with_thin_pads_and_no_approach_clearance(target, pi, thickness_mm):
     """Pads 2 mm thick clear an overhang 2.25 mm above the contact, and 1 mm pads a flat face; the
-    pre-check looks 2.5 mm out, inside the overhang, and 0.5 mm behind the contact, inside the part."""
+    pre-check looked 2.5 mm out, inside the overhang, and 0.5 mm behind the contact, inside the part,
+    and rejected pairs the exact stages keep (cascade != brute force)."""
     cell = with_gripper(approach_clearance_mm=0.0, pad_thickness_mm=thickness_mm)
     ctx, P = one_pair(target, pi, (pi[0], -15), cell=cell)
     assert kept("contacts", ctx, P) and kept("fingers_obstacles", ctx, P) and kept("palm", ctx, P)
@@ -550,10 +547,9 @@ def test_ik_needs_a_j4_turn_within_its_limits_for_the_closing_axis(axis_deg, rea
     assert bool(inverse(350.0, 0.0, GRASP_Z_MM, axis_deg, cell.scara)) is reachable
 
 
-@pytest.mark.xfail(strict=True, reason="real bug: reachable_mask allows J4 1e-9 of a half turn (1.8e-7 deg) beyond "
-                   "its limits, inverse and limit_violations 1e-9 deg: the ik stage keeps a pair whose joint "
-                   "solutions (joints_of) are empty")
 def test_the_ik_stage_keeps_only_pairs_with_joint_solutions_just_beyond_a_j4_limit():
+    # reachable_mask allowed J4 1e-9 of a half turn (1.8e-7 deg) past its limits, inverse 1e-9 deg: the
+    # ik stage kept a pair whose joint solutions (joints_of) were empty
     cell = with_scara(j4_deg=(-20.0, 20.0))
     axis_deg = J12_AT_350 + 20 + 1e-8  # J4 1e-8 deg beyond its limit
     assert not inverse(350.0, 0.0, GRASP_Z_MM, axis_deg, cell.scara)

@@ -73,6 +73,24 @@ def test_the_vectorised_reachability_agrees_with_the_solutions(x, y, z, axis):
     assert bool(reachable_mask([x], [y], z, [axis], SCARA)[0]) == bool(inverse(x, y, z, axis, SCARA))
 
 
+@settings(max_examples=300, deadline=None)
+@given(x=st.floats(200, 500), y=st.floats(-250, 250), past_deg=st.sampled_from([0.0, 1e-10, 1e-8, 1e-6, -1e-8]),
+       limit=st.sampled_from([0, 1]), elbow=st.sampled_from([1.0, -1.0]))
+def test_the_reachability_agrees_with_the_solutions_at_a_narrow_j4_limit(x, y, past_deg, limit, elbow):
+    # J4 within (-20, 20): one turn of the axis at most, and the axis asked for puts J4 just at, inside or
+    # past a limit (the turns' own slack, 1e-9 of a half turn, let 1e-8 deg past through)
+    from dataclasses import replace
+
+    from cell.kinematics import reachable_mask
+
+    scara = replace(SCARA, j4_deg=(-20.0, 20.0))
+    j = next((q for q in inverse(x, y, 50.0, 0.0, SCARA, within_limits=False) if q.j2_deg * elbow >= 0), None)
+    if j is None:
+        return
+    axis = j.j1_deg + j.j2_deg + (scara.j4_deg[limit] + (1 if limit else -1) * past_deg)
+    assert bool(reachable_mask([x], [y], 50.0, [axis], scara)[0]) == bool(inverse(x, y, 50.0, axis, scara))
+
+
 def test_the_reachability_of_many_points_agrees_with_the_solutions():
     # more points than go through both elbows in one pass: the elbow-by-elbow path, point by point
     from cell.kinematics import ELBOWS_STACKED_MAX, reachable_mask

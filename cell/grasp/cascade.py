@@ -138,11 +138,15 @@ def stage_precheck(ctx: Context, P: Pairs, idx) -> np.ndarray:
     # (there the material in front of a pad is the outline next to its point, which
     # _outline_ahead looks at: on the parts library the test never rejected a pair more)
     geoms = [o for o in (None if ctx.target_convex else ctx.target_geom, ctx.finger_obstacles) if o is not None]
-    if geoms:
+    tol = ctx.params.contact_tol_mm
+    reach = g.approach_clearance_mm + g.pad_thickness_mm
+    # points beyond the candidate that every exact footprint covers: the pad stops up to tol (and its
+    # compliance) from the candidate, and the finger reaches `reach` beyond where it stops. Thin pads
+    # with little clearance leave none (the points were then past the finger's end or behind the contact)
+    offs = np.array([o for o in (tol + 1.5, 0.5 * (tol + reach), reach - 1.5)
+                     if tol + PAD_COMPLIANCE_MM <= o <= reach - tol - PAD_COMPLIANCE_MM])
+    if geoms and len(offs):
         u, t = P.u.take(idx, 0), P.t.take(idx)
-        tol = ctx.params.contact_tol_mm
-        reach = g.approach_clearance_mm + g.pad_thickness_mm
-        offs = np.array([tol + 1.5, 0.5 * (tol + reach), reach - 1.5])
         # both fingers' points in one shapely call: m + side * u * (t + off) is m + u * (side * (t + off)),
         # exactly, as side is +-1
         a = t[:, None] + offs[None, :]

@@ -16,7 +16,7 @@ What `check_grasp` models, and why:
 * Collision. Each finger's footprint swept from the approach opening to its contact is
   checked against every other part whose top is above the grasp z; the palm (90 x 40,
   centred, long side along the axis, bottom at grasp z + 40) against parts whose top is above
-  the palm's bottom. The pads' vertical band must overlap the part.
+  the palm's bottom, the part held included. The pads' vertical band must overlap the part.
 * Friction cone (antipodal). A flat pad pushes along the axis. Where the pad face touches
   the part at an extreme point (a flat, a vertex, a tangent point of a curve) the force
   lies inside the contact's normal cone, so the contact holds. Where only the pad's edge
@@ -251,6 +251,10 @@ def check_grasp(part: Part, contacts_mm, axis_deg: float | None = None, grasp_z_
     fingers = [to_base(box(-s_open - t, -half_w, xl, half_w)), to_base(box(xr, -half_w, s_open + t, half_w))]
     palm = to_base(_palm_box(g))
     palm_z = grasp_z_mm + g.palm_offset_mm
+    # the obstacles skip the part itself, and the palm can come down on it too (a low grasp z on a
+    # tall part): gripped at z 5, a 60 mm tall part was accepted with the palm 15 mm inside it
+    if part.z_top_mm > palm_z + 1e-9 and palm.intersection(part.polygon).area > _AREA_EPS:
+        reasons.append(f"the palm (bottom z {palm_z:g} mm) would hit the part held (top z {part.z_top_mm:g} mm)")
     for o in obstacles:
         if o.id == part.id:
             continue

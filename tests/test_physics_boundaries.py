@@ -381,12 +381,15 @@ def test_gripper_footprint_closed_at_a_given_jaw_width():
 
 # --- real bugs ----------------------------------------------------------------------------------------
 
-@pytest.mark.xfail(strict=True, reason="bug: check_grasp checks the palm against the other parts only, never "
-                   "against the part held: gripped at z 5 mm, a 60 mm tall part is accepted with the palm's "
-                   "bottom (z 45 mm) 15 mm inside it")
-def test_palm_inside_the_held_part_is_refused():
-    v = check_grasp(rect("tall", 300, -20, 340, 20, z_top=60), ACROSS, grasp_z_mm=5.0)
-    assert not v.ok and any("palm" in r for r in v.reasons)
+@pytest.mark.parametrize("grasp_z_mm, ok", [(20.0, True), (19.9, False), (5.0, False)])
+def test_palm_against_the_held_part(grasp_z_mm, ok):
+    # a 60 mm tall part: the palm's bottom (grasp z + 40) must not be below its top; the obstacles
+    # skip the part itself, so this was never checked
+    v = check_grasp(rect("tall", 300, -20, 340, 20, z_top=60), ACROSS, grasp_z_mm=grasp_z_mm)
+    assert v.ok is ok, v.reasons
+    assert v.reasons == (() if ok else (f"the palm (bottom z {grasp_z_mm + 40:g} mm) would hit the part held "
+                                        "(top z 60 mm)",))
+    assert v.collisions == ()
 
 
 BAND_EDGE_BUG = pytest.mark.xfail(strict=True, reason=(

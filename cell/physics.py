@@ -22,10 +22,12 @@ What `check_grasp` models, and why:
   lies inside the contact's normal cone, so the contact holds. Where only the pad's edge
   touches a slope (the extreme point of the band is on the band's border), the contact
   normal is the slope's normal, and it must lie within the friction angle atan(mu) of the
-  axis, or the part squeezes out.
+  axis, or the part squeezes out. That slope is the contact patch's: `PATCH_DEPTH_MM` deep
+  over its width (narrower than `SHARP_PATCH_MM`, else the compliant face seats).
 * Sharp corners. A contact is on a sharp corner when the patch the pad touches is narrower
   than `SHARP_PATCH_MM` and the outline turns by at least `SHARP_TURN_DEG` within 1 mm
-  each side. One pad on a corner is tolerated; both are not (the part would pivot).
+  each side (a patch cut by the band's border included, when the first touch is inside the
+  band). One pad on a corner is tolerated; both are not (the part would pivot).
 * Centre of gravity near the jaw line (friction/torque argument). The part hangs from the
   pads, weight W = m g at the centre of gravity (uniform density; `meta["mass_g"]` when the
   part carries it, else aluminium). Three ways to lose it, each with safety factor
@@ -51,6 +53,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+import shapely
 from shapely import affinity
 from shapely.geometry import LinearRing, Point, box
 
@@ -208,11 +211,16 @@ def check_grasp(part: Part, contacts_mm, axis_deg: float | None = None, grasp_z_
         real_local.append(p)
         patches.append(patch)
         widths.append(width)
-        normal, turn = _normal_and_turn(rings, p)
-        on_band_edge = width < SHARP_PATCH_MM and (abs(y0 + half_w) < 1e-6 or abs(y1 - half_w) < 1e-6)
-        push = np.array([1.0, 0.0]) if k == 0 else np.array([-1.0, 0.0])  # pad force direction
-        if on_band_edge and normal is not None:
-            ang = math.degrees(math.acos(max(-1.0, min(1.0, float(-normal @ push)))))
+        _, turn = _normal_and_turn(rings, p)
+        # Only the pad's edge pushes when the first touch (the material's extreme along the axis)
+        # lies on the band's border. A patch merely reaching the border is still the face on an
+        # extreme point, and may be a sharp corner (both pads on a diamond's 90 deg tips up to
+        # 0.5 mm inside the border passed). On the border the slope is the patch's own,
+        # PATCH_DEPTH_MM deep over its width: a chord of the outline around p reached across a
+        # corner just outside the band (tips up to 0.08 mm outside passed as 10..16 deg slopes).
+        on_band_edge = width < SHARP_PATCH_MM and _touch_on_band_edge(inner, xface, half_w)
+        if on_band_edge:
+            ang = math.degrees(math.atan2(PATCH_DEPTH_MM, width))
         else:
             ang = 0.0  # the pad face seats on an extreme point: force inside the normal cone
         slope.append(ang)
@@ -382,6 +390,14 @@ def outline_normal_and_turn(rings, p, delta_mm: float = 1.0):
     sit on), negative in a concave corner.
     """
     return _normal_and_turn(rings, np.asarray(p, float), delta_mm)
+
+
+def _touch_on_band_edge(inner, xface: float, half_w: float, tol: float = 1e-7) -> bool:
+    """Whether all of `inner`'s material at x = xface (its extreme along the axis, where the pad
+    first touches) lies on one edge of the band (y = -half_w or +half_w)."""
+    xy = shapely.get_coordinates(inner)
+    ys = xy[np.abs(xy[:, 0] - xface) <= tol, 1]
+    return any(np.all(np.abs(ys - e) <= tol) for e in (-half_w, half_w)) if ys.size else False
 
 
 def _normal_and_turn(rings, p: np.ndarray, delta_mm: float = 1.0):

@@ -392,20 +392,24 @@ def test_palm_against_the_held_part(grasp_z_mm, ok):
     assert v.collisions == ()
 
 
-BAND_EDGE_BUG = pytest.mark.xfail(strict=True, reason=(
-    "bug: a pad whose patch touches its band's edge is never 'sharp', and the slope there is a chord across the "
-    "corner: both pads on the 90 deg tips of a diamond are accepted when the tips are within 0.5 mm of the band's "
-    "edge (5.6..6.08 mm off the jaw line), refused further inside"))
+SHARP_TIPS = ("both pads sit on sharp corners",)
+EDGES_ON_45_DEG = tuple(f"contact {k} is outside the friction cone (45.0 deg > 16.7 deg): the pad's edge pushes "
+                        "on a slope" for k in (0, 1))
 
 
-@pytest.mark.parametrize("dy_mm", [0.0, 5.0, pytest.param(5.6, marks=BAND_EDGE_BUG),
-                                   pytest.param(6.0, marks=BAND_EDGE_BUG)])
-def test_both_pads_on_the_90_deg_tips_of_a_diamond_are_refused(dy_mm):
-    # the jaw line dy above the tips: the tips (1 mm patches) 6 - dy mm inside the pad band's lower edge
+@pytest.mark.parametrize("dy_mm, reasons", [
+    (0.0, SHARP_TIPS), (5.0, SHARP_TIPS),
+    (5.6, SHARP_TIPS), (5.999, SHARP_TIPS),  # the 1 mm patches reach the band's edge: still the tips
+    (6.0, EDGES_ON_45_DEG), (6.05, EDGES_ON_45_DEG),  # the tips on / outside the edge: the pads' edges on the sides
+])
+def test_both_pads_on_the_90_deg_tips_of_a_diamond_are_refused(dy_mm, reasons):
+    # the jaw line dy above the tips: the tips 6 - dy mm inside the pad band's lower edge. Before the
+    # fix a patch touching the band's edge was never sharp and its slope was a chord across the tip:
+    # dy 5.6..6.08 mm was accepted
     diamond = Part("d", np.array([[-20, 0], [0, -20], [20, 0], [0, 20]], float), z_top_mm=10)
     v = check_grasp(diamond, [[-20, dy_mm], [20, dy_mm]], axis_deg=0)
-    assert v.jaw_width_mm == pytest.approx(40.0)
-    assert not v.ok and any("sharp corners" in r or "friction cone" in r for r in v.reasons)
+    assert v.jaw_width_mm == pytest.approx(40.0 - 2 * max(dy_mm - 6.0, 0.0))  # the band's lower edge cuts the tips
+    assert v.reasons == reasons
 
 
 @pytest.mark.parametrize("part, part_width_mm, opening_mm", [

@@ -172,9 +172,8 @@ def check_grasp(part: Part, contacts_mm, axis_deg: float | None = None, grasp_z_
     local_part = to_local(part.polygon)
     band = box(-_BIG, -half_w, _BIG, half_w)
     material = local_part.intersection(band)
-    for side, body in (("first", box(-s_open - t, -half_w, -s_open, half_w)),
-                       ("second", box(s_open, -half_w, s_open + t, half_w))):
-        if material.intersection(body).area > _AREA_EPS:
+    for side, lands in zip(("first", "second"), _fingers_land(material, s_open, g)):
+        if lands:
             reasons.append(f"the {side} finger lands on the part at the approach opening")
     inner = material.intersection(box(-s_open, -half_w, s_open, half_w))
     empty = inner.is_empty or inner.area <= _AREA_EPS
@@ -290,13 +289,20 @@ def close_jaws(part: Part, centre_mm, axis_deg: float, opening_mm: float, grasp_
     `centre_mm` along `axis_deg`, close on `part` (None: they close on nothing).
 
     The pads stop at the first material of the part inside their 12 mm band (see
-    `check_grasp`); a part outside the band or above the pads leaves the jaws closing fully.
+    `check_grasp`); a part outside the band or above the pads leaves the jaws closing fully,
+    and so does one that a finger lands on (jaws opened narrower than the part): no grip.
     """
     cell = cell or default_cell()
     g = cell.gripper
     a = np.array([math.cos(math.radians(axis_deg)), math.sin(math.radians(axis_deg))])
-    half = max(opening_mm / 2 - g.approach_clearance_mm, 1e-3)
     c = np.asarray(centre_mm, float)
+    # the fingers open at +-opening/2 (check_grasp's approach opening cannot be narrower than
+    # 2 x clearance): one landing on the part does not grip it; a 40 mm square closed from 30 mm
+    # reported 30 mm
+    local = affinity.rotate(affinity.translate(part.polygon, -c[0], -c[1]), -axis_deg, origin=(0, 0))
+    if any(_fingers_land(local, opening_mm / 2, g)):
+        return None
+    half = max(opening_mm / 2 - g.approach_clearance_mm, 1e-3)
     v = check_grasp(part, [c - half * a, c + half * a], axis_deg, grasp_z_mm, (), cell)
     if v.jaw_width_mm is None:
         return None
@@ -324,6 +330,13 @@ def gripper_footprint(contacts_mm, jaw_width_mm: float | None = None, cell: Cell
 
     fingers = [to_base(box(-half - t, -hw, -half, hw)), to_base(box(half, -hw, half + t, hw))]
     return fingers, to_base(_palm_box(g))
+
+
+def _fingers_land(local_part, s_open: float, g) -> list[bool]:
+    """Whether each finger's footprint, open with its pad face at -s_open / +s_open on the
+    grasp frame's axis, covers the part (grasp frame)."""
+    hw, t = g.pad_width_mm / 2, g.pad_thickness_mm
+    return [local_part.intersection(box(x0, -hw, x0 + t, hw)).area > _AREA_EPS for x0 in (-s_open - t, s_open)]
 
 
 def _palm_box(g):

@@ -7,7 +7,7 @@ wide and 10 mm thick, 2 x 5 mm approach clearance, stroke 0..80 mm, palm 90 x 40
 bottom 40 mm above the finger tips, grip force 40 N, mu 0.3, safety factor 2. A 10 mm tall part
 on the tray is gripped at z 1 mm (palm bottom at z 41 mm).
 
-The tests marked xfail(strict=True) reproduce real bugs of the check (see their reasons).
+The last three tests pin real bugs of the check that a mutation-testing pass found (fixed).
 """
 
 import dataclasses
@@ -379,7 +379,8 @@ def test_gripper_footprint_closed_at_a_given_jaw_width():
     assert palm.bounds == (-25.0, -20.0, 65.0, 20.0)
 
 
-# --- real bugs ----------------------------------------------------------------------------------------
+# --- the palm against the part held, both pads at a band's edge, jaws opened narrower than the part --------
+# (three bugs a mutation-testing pass found; each of these cases failed before the fix)
 
 @pytest.mark.parametrize("grasp_z_mm, ok", [(20.0, True), (19.9, False), (5.0, False)])
 def test_palm_against_the_held_part(grasp_z_mm, ok):
@@ -412,13 +413,13 @@ def test_both_pads_on_the_90_deg_tips_of_a_diamond_are_refused(dy_mm, reasons):
     assert v.reasons == reasons
 
 
-@pytest.mark.parametrize("part, part_width_mm, opening_mm", [
-    (SQUARE, 40.0, 30.0),  # fingers land on the square: reported 30 mm
-    (rect("pin", 315.5, -4.5, 324.5, 4.5), 9.0, 6.0),  # pads start 10 mm apart, not 6: reported 9 mm
+PIN = rect("pin", 315.5, -4.5, 324.5, 4.5)  # 9 mm: narrower than the pads' 2 x 5 mm approach clearance
+
+
+@pytest.mark.parametrize("part, opening_mm, width_mm", [
+    (SQUARE, 40.0, 40.0), (SQUARE, 39.9, None), (SQUARE, 30.0, None),  # reported 39.9 and 30 mm before
+    (PIN, 9.0, 9.0), (PIN, 8.9, None), (PIN, 6.0, None),  # the pads really 6 mm apart, not 10: 9 mm before
 ])
-@pytest.mark.xfail(strict=True, reason="bug: close_jaws reports a width for jaws opened narrower than the part "
-                   "(the fingers land on it): 30 mm for a 40 mm square, and 9 mm from a 6 mm opening (the pads "
-                   "start at least 2 x approach clearance apart)")
-def test_close_jaws_opened_narrower_than_the_part(part, part_width_mm, opening_mm):
-    w = close_jaws(part, (320, 0), 0.0, opening_mm)
-    assert w is None or part_width_mm <= w <= opening_mm
+def test_close_jaws_opened_narrower_than_the_part_grips_nothing(part, opening_mm, width_mm):
+    # a finger lands on the part: no grip (None, as for jaws closing on nothing)
+    assert close_jaws(part, (320, 0), 0.0, opening_mm) == width_mm

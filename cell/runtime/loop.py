@@ -38,7 +38,7 @@ from cell.grasp.synthesis import Grasp, GraspPlanner
 from cell.kinematics import Joints
 from cell.runtime.control import Faulted, RunControl, Stopped
 from cell.runtime.matching import Region, locate, unexplained
-from cell.runtime.motion import above, carry_off_commands, dropoff_options, pick_commands
+from cell.runtime.motion import above, approach_opening_mm, carry_off_commands, dropoff_options, pick_commands
 from cell.scene import Assembly, Part, Scene
 
 TRAVEL_MARGIN_MM = 20.0  # above the tallest part on the tray, when travelling
@@ -242,16 +242,17 @@ class CellLoop:
             self.arm.move_joints(home)
         if self._taken_by_hand is not None:  # the operator took the part out of the jaws and reset
             pick, self._taken_by_hand = self._taken_by_hand, None
-            self._retreat()
+            self._retreat(pick["grasp"])
             self._picked(pick, "taken out of the jaws by hand after a drive fault")
             return
         faulted = bool(self.arm.faults)
         if faulted:
             self.arm.reset_faults()
         if self._pick is not None:  # a pick was cut short (a drive fault, a refused move)
+            grasp = self._pick["grasp"]
             if self._recover_pick():
                 return  # the part left the tray in the jaws: the next frame checks that
-            self._retreat()
+            self._retreat(grasp)
         elif faulted:
             self._retreat()
         frame, index = self._read_frame()
@@ -317,7 +318,7 @@ class CellLoop:
             self.control.log("miss", f"{part_id}: the jaws closed to {records[-1]['width_mm']:.1f} mm, expected "
                              f"{grasp.opening_mm:.1f} mm: missed", part=part_id)
             t3 = self.arm.clock.now()
-            self._retreat()
+            self._retreat(grasp)
             report.motion_s += self.arm.clock.now() - t3
             attempt += 1
             if attempt > self.options.grip_retries:
@@ -635,10 +636,18 @@ class CellLoop:
         self.control.log("removed", f"{pid} removed in {report.cycle_s:.2f} s" + (f" ({reason})" if reason else ""),
                          part=pid)
 
-    def _retreat(self) -> None:
-        """Open the jaws and go straight up to the safe height where the arm is."""
+    def _retreat(self, grasp: Grasp | None = None) -> None:
+        """Let go and go straight up to the safe height where the arm is, then open the jaws fully.
+        Below the safe height the jaws open only to `grasp`'s approach opening, the width the planner
+        cleared the fingers for there (fully, they overlapped a neighbour of the drive unit's clip), and
+        not at all without a grasp (nothing is known to be clear)."""
+        safe_z = self.cell.motion.safe_z_mm
+        at = self.arm.joints()
+        if at.j3_mm < safe_z and grasp is not None:
+            self.arm.gripper.open(approach_opening_mm(grasp.opening_mm, self.cell))
+        if at.j3_mm < safe_z:
+            self.arm.move_joints(above(at, safe_z))
         self.arm.gripper.open()
-        self.arm.move_joints(above(self.arm.joints(), self.cell.motion.safe_z_mm))
 
     def _stop_and_ask(self, source: str, why: str) -> None:
         self.sink.write_decision({"type": "stop", "source": source, "reason": why})

@@ -72,7 +72,7 @@ def pick_commands(grasp_joints: Joints, opening_mm: float, cell: Cell, safe_z_mm
     safe = cell.motion.safe_z_mm if safe_z_mm is None else safe_z_mm
     if safe <= grasp_joints.j3_mm:
         raise CellError(f"the travel height {safe:g} mm is not above the grasp z {grasp_joints.j3_mm:g} mm")
-    approach_mm = min(opening_mm + 2 * g.approach_clearance_mm, g.opening_mm[1])
+    approach_mm = approach_opening_mm(opening_mm, cell)
     return [
         Command("move", "approach", above(grasp_joints, safe)),
         Command("open", "pre-open", width_mm=approach_mm),
@@ -80,6 +80,14 @@ def pick_commands(grasp_joints: Joints, opening_mm: float, cell: Cell, safe_z_mm
         Command("grip", "grip", width_mm=opening_mm, force_n=g.grip_force_n),
         *carry_off_commands(grasp_joints, grasp_joints, cell, safe, drop),
     ]
+
+
+def approach_opening_mm(opening_mm: float, cell: Cell) -> float:
+    """How far the jaws open above and around a grasp: the contacts' distance + 2 x the approach
+    clearance (CONTRACT), within the stroke. The planner cleared the fingers up to this opening at
+    the grasp's depth, and no further."""
+    g = cell.gripper
+    return min(opening_mm + 2 * g.approach_clearance_mm, g.opening_mm[1])
 
 
 def carry_off_commands(from_joints: Joints, grasp_joints: Joints, cell: Cell, safe_z_mm: float,

@@ -30,7 +30,6 @@ import numpy as np
 
 from cell.errors import BadInput
 
-SUBPIX_WIN = (5, 5)
 SUBPIX_WIN_PER_SQUARE = 0.13  # half-window / square side px: 5 on OpenCV's boards (median spacing 37.8 px)
 SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.1)
 OUTLIER_FACTOR = 3.0
@@ -99,17 +98,6 @@ def chessboard_object_points(pattern: tuple[int, int], square_mm: float) -> np.n
     cols, rows = pattern
     grid = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2)
     return np.column_stack([grid * square_mm, np.zeros(len(grid))]).astype(np.float32)
-
-
-def detect_chessboard(gray: np.ndarray, pattern: tuple[int, int], detector: str = "classic",
-                      subpix_win: int | None = SUBPIX_WIN[0]):
-    """Corners (n, 1, 2) float32 in OpenCV's pixel-centre frame, or None when not found
-    (`find_chessboard`). `subpix_win` None: the classic detector's corners before `cornerSubPix`
-    (see `refine_corners`)."""
-    corners, _ = find_chessboard(gray, pattern, detector)
-    if corners is None or detector == "sb" or subpix_win is None:
-        return corners
-    return refine_corners(gray, corners, subpix_win)
 
 
 # A board in a large image (a 12 MP camera) can be missed at full size: the classic detector found 7 of
@@ -264,8 +252,10 @@ def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[in
             # without a board must not change the detector of the others), and more of them in all: SB
             # misses boards the classic one finds (left04 and left05 of OpenCV's set), and one hard view
             # must not cost two good ones
-            if any(detect_chessboard(images[i][1], pattern, "sb") is not None for i in missed):
-                by_sb, sb_reduced = zip(*(find_chessboard(g, pattern, "sb") for _, g in images), strict=True)
+            missed_by_sb = {i: find_chessboard(images[i][1], pattern, "sb") for i in missed}
+            if any(c is not None for c, _ in missed_by_sb.values()):  # (each view looked at once by SB)
+                by_sb, sb_reduced = zip(*(missed_by_sb.get(i) or find_chessboard(g, pattern, "sb")
+                                          for i, (_, g) in enumerate(images)), strict=True)
                 if sum(c is not None for c in by_sb) > sum(c is not None for c in found):
                     name, found, reduced = "sb", by_sb, sb_reduced
         for i, corners in enumerate(found):

@@ -643,9 +643,9 @@ class CellLoop:
         not at all without a grasp (nothing is known to be clear)."""
         safe_z = self.cell.motion.safe_z_mm
         at = self.arm.joints()
-        if at.j3_mm < safe_z and grasp is not None:
-            self.arm.gripper.open(approach_opening_mm(grasp.opening_mm, self.cell))
         if at.j3_mm < safe_z:
+            if grasp is not None:
+                self.arm.gripper.open(approach_opening_mm(grasp.opening_mm, self.cell))
             self.arm.move_joints(above(at, safe_z))
         self.arm.gripper.open()
 

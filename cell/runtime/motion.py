@@ -53,10 +53,19 @@ def dropoff_options(cell: Cell, near: Joints) -> list[Joints]:
     # past it once its joints are rounded to the drives' counts (drivers.limits.as_sent)
     refused = [command_violations(cell, o, None) for o in options]
     if all(refused):
-        raise CellError(f"the drop-off {cell.motion.dropoff_mm} cannot be sent to the arm: {refused[0][0]}")
+        raise DropoffRefused(cell.motion.dropoff_mm, refused[0][0])
     options = [o for o, why in zip(options, refused, strict=True) if not why]
     q = near.as_array()
     return sorted(options, key=lambda o: float(np.sum(np.abs((o.as_array() - q)[[0, 1, 3]]))))
+
+
+class DropoffRefused(CellError):
+    """The drop-off is reachable, but the arm may be sent none of its configurations (`why`: the
+    first one's reason)."""
+
+    def __init__(self, dropoff_mm, why: str):
+        super().__init__(f"the drop-off {dropoff_mm} cannot be sent to the arm: {why}")
+        self.why = why
 
 
 def dropoff_joints(cell: Cell, near: Joints) -> Joints:

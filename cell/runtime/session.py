@@ -331,18 +331,20 @@ def _require_dropoff_reachable(cell, cell_path) -> None:
     """A drop-off the arm cannot reach is a bad cell file, found before anything moves (it used to
     end the run after the first grip, with exit 1)."""
     from cell.errors import BadInput, CellError
-    from cell.runtime.motion import dropoff_options
+    from cell.runtime.motion import DropoffRefused, dropoff_options
 
+    x, y, z = cell.motion.dropoff_mm
     try:
         dropoff_options(cell, home_joints(cell))  # the drop-off the loop will move to, solved as it will be
-    except CellError as e:
-        x, y, z = cell.motion.dropoff_mm
+        return
+    except DropoffRefused as e:
+        why = f"cannot be sent to the arm: {e.why}"
+    except CellError:
         r = float(np.hypot(x, y))
         lo, hi = cell.scara.reach_mm
         why = (f"is {r:.1f} mm from the base, outside the arm's reach {lo:.1f}-{hi:.1f} mm" if not lo <= r <= hi
-               else "cannot be sent to the arm: " + str(e).split(": ", 1)[1] if "cannot be sent" in str(e)
                else "is not reachable within the joint limits")
-        raise BadInput(f"cell file {cell_path or '(default)'}: motion.dropoff_mm {[x, y, z]} {why}") from None
+    raise BadInput(f"cell file {cell_path or '(default)'}: motion.dropoff_mm {[x, y, z]} {why}")
 
 
 def _check_rrd_path(path: Path) -> None:

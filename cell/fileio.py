@@ -97,12 +97,12 @@ def unique_keys(pairs: list) -> dict:
 MAX_JSON_BYTES = 256 * 2**20  # a scene of 200 parts drawn every 0.02 mm is 12 MB
 
 
-def check_readable(path: Path, what: str, max_bytes: int | None | str = "json") -> None:
+def check_readable(path: Path, what: str, max_bytes: float | None = None) -> None:
     """Refuse what must not be read whole: anything but a regular file (a FIFO would block,
-    /dev/zero would fill the memory) and files over max_bytes ("json": MAX_JSON_BYTES as it is
-    then; None: any size). A missing file passes (the caller says what that means); `what`
+    /dev/zero would fill the memory) and files over max_bytes (None: MAX_JSON_BYTES as it is
+    then; math.inf: any size). A missing file passes (the caller says what that means); `what`
     names the file's role in the message."""
-    if max_bytes == "json":
+    if max_bytes is None:
         max_bytes = MAX_JSON_BYTES
     try:
         st = path.stat()
@@ -114,7 +114,7 @@ def check_readable(path: Path, what: str, max_bytes: int | None | str = "json") 
         raise BadInput(f"{what} {path} is a directory, not a file")
     if not stat.S_ISREG(st.st_mode):
         raise BadInput(f"{what} {path} is not a regular file")
-    if max_bytes is not None and st.st_size > max_bytes:
+    if st.st_size > max_bytes:
         raise BadInput(f"{what} {path} is {st.st_size / 2**20:.0f} MB: more than the "
                        f"{max_bytes / 2**20:.0f} MB a {what} may have")
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 import platform
 import re
@@ -395,7 +396,7 @@ class RecordingReader:
             if self.manifest["status"] == "recording":
                 return []
             raise BadInput(f"recording {self.dir}: {DECISIONS} is missing")
-        check_readable(path, "recording file", max_bytes=None)  # a long session's log may be large
+        check_readable(path, "recording file", max_bytes=math.inf)  # a long session's log may be large
         try:
             raw = path.read_bytes()
         except OSError as e:
@@ -471,7 +472,7 @@ class RecordingReader:
         path = self.can_log_path
         if path is None:
             return []
-        check_readable(path, "recording file", max_bytes=None)
+        check_readable(path, "recording file", max_bytes=math.inf)
         try:
             text = path.read_text(encoding="ascii", errors="replace")
         except OSError as e:

@@ -24,9 +24,7 @@ def read_image(path: str | Path, grey: bool = False) -> np.ndarray:
     path = Path(path)
     if not path.exists():
         raise BadInput(f"image {path} does not exist")
-    if path.is_dir():
-        raise BadInput(f"image {path} is a directory, not an image file")
-    check_readable(path, "image")  # a FIFO would block, a device fill the memory
+    check_readable(path, "image")  # a directory, a FIFO (it would block), a device (it would fill the memory)
     try:
         data = np.fromfile(str(path), dtype=np.uint8)
     except OSError as e:

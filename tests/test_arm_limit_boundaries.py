@@ -379,10 +379,10 @@ class TestCarryOffPreCheck:
         from pathlib import Path
 
         from calibration import load_calibration
+        from cell.cellconfig import default_cell
         from cell.examples import default_examples_path
         from cell.runtime.control import RunControl
         from cell.runtime.loop import CellLoop, PartReport
-        from cell.cellconfig import default_cell
         from cell.runtime.motion import dropoff_joints, pick_commands
         from cell.scene import Scene, load_assembly
         from drivers.execute import run_commands

@@ -226,6 +226,7 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
         nodes[name] = CanNode(name, node_id, unit, r.pos(n, "counts_per_unit", f"can.nodes.{name}"))
     if len({n.node_id for n in nodes.values()}) != len(nodes):
         raise BadInput(f"cell file {source}: can.nodes have duplicate node ids")
+    _check_rates_countable(scara, gripper, nodes, source)
     can = CanConfig(r.count(cn, "bitrate", "can"), r.count(cn, "heartbeat_ms", "can"),
                     r.count(cn, "host_heartbeat_ms", "can"), nodes)
     weights = dict(DEFAULT_JOINT_WEIGHTS)
@@ -247,6 +248,18 @@ def _check_motion_within_limits(motion: Motion, scara: Scara, source: str) -> No
         lo, hi = scara.limits(limit[:2])
         if not lo <= v <= hi:
             raise BadInput(f"cell file {source}: motion.{key} = {v:g} is outside scara.{limit} [{lo:g}, {hi:g}]")
+
+
+def _check_rates_countable(scara: Scara, gripper: Gripper, nodes: dict, source: str) -> None:
+    """The drives take speeds and accelerations in whole counts/s (counts/s^2), rounded down to stay within
+    the limits: a limit under one count would leave none to send."""
+    rates = [(f"scara.max_velocity.{j}", scara.max_velocity[j], j) for j in JOINTS]
+    rates += [(f"scara.max_acceleration.{j}", scara.max_acceleration[j], j) for j in JOINTS]
+    rates += [("gripper.speed_mm_s", gripper.speed_mm_s, "gripper")]
+    for key, limit, node in rates:
+        if limit * nodes[node].counts_per_unit < 1:
+            raise BadInput(f"cell file {source}: {key} = {limit:g} is under one count "
+                           f"(can.nodes.{node}.counts_per_unit = {nodes[node].counts_per_unit:g})")
 
 
 NOTE_KEYS = ("comment", "description", "notes")  # free text anywhere, as are keys starting with "_"

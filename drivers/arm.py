@@ -191,10 +191,11 @@ class Arm:
             velocity, accel = c.scara.max_velocity[ax.name], c.scara.max_acceleration[ax.name]
         ax.sdo_write(0x607D, 1, ax.to_counts(lo))
         ax.sdo_write(0x607D, 2, ax.to_counts(hi))
-        v = max(1, round(velocity * ax.counts_per_unit))
+        # rounded down: never past the cell file's limits (the cell file is refused where they are under a count)
+        v = codec.rate_counts_within(velocity, ax.counts_per_unit)
         ax.sdo_write(0x6081, 0, v)
         self._velocity_counts[ax.name] = v
-        a = max(1, round(accel * ax.counts_per_unit))
+        a = codec.rate_counts_within(accel, ax.counts_per_unit)
         ax.sdo_write(0x6083, 0, a)
         ax.sdo_write(0x6084, 0, a)
         ax.sdo_write(0x6085, 0, max(1, round(QUICK_STOP_DECEL_FACTOR * accel * ax.counts_per_unit)))
@@ -459,7 +460,7 @@ class Arm:
             # at least the mean speed, so that a move of a few counts does not crawl at 1 count/s
             mean_counts_s = abs(counts - ax.status.position_counts) / duration_s if duration_s > 0 else 1.0
             v_counts = max(1, round(v * ax.counts_per_unit), math.ceil(mean_counts_s))
-            v_counts = min(v_counts, round(s.max_velocity[joint] * ax.counts_per_unit))
+            v_counts = min(v_counts, codec.rate_counts_within(s.max_velocity[joint], ax.counts_per_unit))
             if self._velocity_counts.get(joint) != v_counts:
                 self._guarded(ax.sdo_write, 0x6081, 0, v_counts)
                 self._velocity_counts[joint] = v_counts

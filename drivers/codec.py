@@ -317,6 +317,15 @@ def to_counts(value: float, counts_per_unit: float) -> int:
     return _check_i32(round(value * counts_per_unit))
 
 
+def rate_counts_within(limit_per_s: float, counts_per_unit: float) -> int:
+    """A speed or acceleration limit (unit/s or unit/s^2) -> the most counts/s (counts/s^2) within it:
+    rounded down, as rounding to the nearest could send up to half a count past the limit
+    (1e-9 count of float noise forgiven: 0.29 x 100 is 28.999999999999996)."""
+    if not (math.isfinite(limit_per_s) and limit_per_s > 0):
+        raise ValueError(f"a rate limit must be a positive number, got {limit_per_s}")
+    return _check_i32(math.floor(limit_per_s * counts_per_unit + 1e-9))
+
+
 def from_counts(counts: int, counts_per_unit: float) -> float:
     """Drive counts -> joint value (deg or mm)."""
     return counts / counts_per_unit

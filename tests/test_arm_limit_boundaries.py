@@ -287,7 +287,10 @@ def test_gripper_grip_outside_its_stroke_is_refused_before_any_frame(arm, sim_dr
 
 
 # ------------------------------------------------------------------ profile velocity 0x6081 clamp
-SLOW_MAX_VELOCITY = 10.0  # unit/s, with 1 count per unit: the mean speed of a 1-count move is above it
+# unit/s, with 1 count per unit: the mean speed of a 1-count move is above it, and the limit is not a
+# whole count (rounding to the nearest would send 11 counts/s, 0.4 past it)
+SLOW_MAX_VELOCITY = 10.6
+SLOW_MAX_COUNTS = 10
 
 
 def _sdo_writes_6081(frames, node_id: int) -> list[int]:
@@ -298,7 +301,7 @@ def _sdo_writes_6081(frames, node_id: int) -> list[int]:
 
 @pytest.mark.parametrize("joint", FIELDS)
 class TestProfileVelocityClamp:
-    """One joint with a coarse encoder (1 count per unit) and max_velocity 10 unit/s: a move of
+    """One joint with a coarse encoder (1 count per unit) and max_velocity 10.6 unit/s: a move of
     0.6 unit is one count, whose mean speed (14 counts/s over its 0.074 s) exceeds the maximum."""
 
     @pytest.fixture
@@ -321,6 +324,9 @@ class TestProfileVelocityClamp:
         arm.move_joints(t)
         return _sdo_writes_6081(_drain(spy), arm.cell.can.nodes[joint].node_id)
 
+    def test_connect_sets_the_maximum_rounded_down(self, arm, sim_drives, joint):
+        assert sim_drives.drives[joint].node.sdo[0x6081].raw == SLOW_MAX_COUNTS
+
     def test_below_the_maximum_the_velocity_is_sent_unclamped(self, arm, sim_drives, spy, joint):
         sent = self.move_and_hear_0x6081(arm, spy, joint, -1.0, lead="j2" if joint != "j2" else "j4")
         assert len(sent) == 1 and 1 <= sent[0] < SLOW_MAX_VELOCITY  # about 2.4 counts/s
@@ -330,8 +336,8 @@ class TestProfileVelocityClamp:
         self.move_and_hear_0x6081(arm, spy, joint, -1.0, lead="j2" if joint != "j2" else "j4")  # 0x6081 lowered
         start = getattr(arm.joints(), FIELDS[joint])
         sent = self.move_and_hear_0x6081(arm, spy, joint, -0.6)
-        assert sent == [round(SLOW_MAX_VELOCITY)]  # sent over CAN ...
-        assert sim_drives.drives[joint].node.sdo[0x6081].raw == round(SLOW_MAX_VELOCITY)  # ... and stored
+        assert sent == [SLOW_MAX_COUNTS]  # sent over CAN, rounded down to stay within the limit ...
+        assert sim_drives.drives[joint].node.sdo[0x6081].raw == SLOW_MAX_COUNTS  # ... and stored
         assert sim_drives.drives[joint].position() == start - 1.0  # the one-count move ran
 
 

@@ -40,6 +40,11 @@ def test_default_cell_matches_the_contract():
     (lambda d: d["can"]["nodes"]["j1"].__setitem__("unit", "mm"), "can.nodes.j1.unit must be 'deg'"),
     (lambda d: d["can"]["nodes"]["j3"].__setitem__("unit", "deg"), "can.nodes.j3.unit must be 'mm'"),
     (lambda d: d["can"]["nodes"]["gripper"].__setitem__("unit", "deg"), "can.nodes.gripper.unit must be 'mm'"),
+    # limits the drives get in whole counts/s, rounded down: under one count leaves none to send
+    (lambda d: d["can"]["nodes"]["j2"].__setitem__("counts_per_unit", 0.001),
+     r"scara.max_velocity.j2 = \S+ is under one count \(can.nodes.j2.counts_per_unit = 0.001\)"),
+    (lambda d: d["scara"]["max_acceleration"].__setitem__("j3", 0.0005), "scara.max_acceleration.j3 = 0.0005 is under"),
+    (lambda d: d["gripper"].__setitem__("speed_mm_s", 0.0009), "gripper.speed_mm_s = 0.0009 is under one count"),
 ])
 def test_bad_cell_files_are_refused_with_the_key(mutate, match):
     d = json.loads(default_cell_path().read_text())

@@ -1,0 +1,26 @@
+"""Speed and acceleration limits become whole counts/s for the drives: rounded down, never past the limit."""
+
+import math
+
+import pytest
+
+from drivers.codec import rate_counts_within
+
+
+@pytest.mark.parametrize(("limit", "counts_per_unit", "counts"), [
+    (10.6, 1.0, 10),  # round() sent 11: 0.4 count/s past the limit
+    (10.4, 1.0, 10),
+    (180.0, 1000.0, 180000),
+    (0.29, 100.0, 29),  # 28.999999999999996 in floats: the noise is not a count less
+    (1.0, 1.0, 1),
+])
+def test_a_rate_limit_is_rounded_down_to_whole_counts(limit, counts_per_unit, counts):
+    got = rate_counts_within(limit, counts_per_unit)
+    assert got == counts
+    assert got <= limit * counts_per_unit + 1e-9
+
+
+@pytest.mark.parametrize("limit", [0.0, -1.0, math.nan, math.inf])
+def test_a_rate_limit_that_is_not_a_positive_number_is_refused(limit):
+    with pytest.raises(ValueError, match="positive number"):
+        rate_counts_within(limit, 1000.0)

@@ -592,3 +592,31 @@ def test_a_missed_grip_opens_the_jaws_at_depth_no_wider_than_the_fingers_clear_t
         fingers = finger_footprints(jaws, cell)
         hit = [p.id for p in others if p.z_top_mm > tool.z_mm and any(f.intersects(p.polygon) for f in fingers)]
         assert not hit, f"the jaws opened to {width_mm:.1f} mm at z {tool.z_mm:.1f} mm: the fingers overlap {hit}"
+
+
+@pytest.mark.parametrize("post_top_mm", [60.0, 140.0, 195.0])
+@pytest.mark.parametrize("with_grasp", [True, False])
+def test_after_a_miss_the_empty_jaws_go_up_above_the_tallest_part_before_they_open_fully(loop, cell, post_top_mm,
+                                                                                         with_grasp):
+    """A post next to the nut: after a missed grip (or a fault) the arm goes straight up to the safe
+    height or, when the post is taller, to 20 mm above it (J3's 200 mm at most), and only there opens
+    fully. It went up to the cell's 150 mm only, and the next move across the tray started below a
+    140 mm post's top."""
+    nut = box("nut", *NUT_XY_MM, 13.0)
+    post = box("post", NUT_XY_MM[0] + 40.0, NUT_XY_MM[1], post_top_mm)
+    on_tray(loop, nut, post)
+    arm_at(loop, NUT_GRASP)
+    moves, opens = [], []
+    move, open_jaws = loop.arm.move_joints, loop.arm.gripper.open
+    loop.arm.move_joints = lambda j, **kw: (moves.append(j), move(j, **kw))[1]
+    loop.arm.gripper.open = lambda w=None: (opens.append((w, loop.arm.joints().j3_mm)), open_jaws(w))[1]
+    try:
+        loop._retreat(grasp_of(nut, cell, NUT_GRASP.j3_mm, joints=NUT_GRASP) if with_grasp else None)
+    finally:
+        loop.arm.move_joints, loop.arm.gripper.open = move, open_jaws
+    expected_z = min(max(cell.motion.safe_z_mm, post_top_mm + 20.0), cell.scara.j3_mm[1])
+    assert len(moves) == 1 and moves[0].j3_mm == pytest.approx(expected_z)
+    assert np.allclose(moves[0].as_array()[[0, 1, 3]], NUT_GRASP.as_array()[[0, 1, 3]], atol=1e-3)  # straight up
+    full = [z for w, z in opens if w is None]
+    assert len(full) == 1 and full[0] == pytest.approx(expected_z, abs=1e-3)  # fully open only up there
+    assert len(opens) == (2 if with_grasp else 1)

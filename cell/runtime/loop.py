@@ -636,12 +636,19 @@ class CellLoop:
         self.control.log("removed", f"{pid} removed in {report.cycle_s:.2f} s" + (f" ({reason})" if reason else ""),
                          part=pid)
 
+    def _retreat_z_mm(self) -> float:
+        """How high the empty jaws go up after a miss or a fault: the safe height, or above the tallest part
+        on the tray by the travel margin (the next move starts there and heads across the tray), at most
+        as high as J3 goes."""
+        tallest = max((p.z_top_mm for p in self._on_tray()), default=0.0)
+        return min(max(self.cell.motion.safe_z_mm, tallest + TRAVEL_MARGIN_MM), self.cell.scara.j3_mm[1])
+
     def _retreat(self, grasp: Grasp | None = None) -> None:
-        """Let go and go straight up to the safe height where the arm is, then open the jaws fully.
-        Below the safe height the jaws open only to `grasp`'s approach opening, the width the planner
-        cleared the fingers for there (fully, they overlapped a neighbour of the drive unit's clip), and
-        not at all without a grasp (nothing is known to be clear)."""
-        safe_z = self.cell.motion.safe_z_mm
+        """Let go and go straight up where the arm is to the travel height of empty jaws (`_retreat_z_mm`),
+        then open the jaws fully. Below it the jaws open only to `grasp`'s approach opening, the width the
+        planner cleared the fingers for there (fully, they overlapped a neighbour of the drive unit's clip),
+        and not at all without a grasp (nothing is known to be clear)."""
+        safe_z = self._retreat_z_mm()
         at = self.arm.joints()
         if at.j3_mm < safe_z:
             if grasp is not None:

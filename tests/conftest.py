@@ -1,4 +1,5 @@
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -13,6 +14,20 @@ def cell_cfg():
     from cell.cellconfig import default_cell
 
     return default_cell()
+
+
+@pytest.fixture(scope="module", autouse=True)
+def no_driver_threads_outlive_the_module(request):
+    """A test module's buses, receive threads and wall-time clocks end with it: a RealClock's thread
+    left by tests/test_station_cell.py made every drivers test run after it in the process fail at
+    teardown, and only the alphabetical order hid it. This names the module that leaked."""
+    yield
+    from drivers_fixtures import _driver_threads
+
+    deadline = time.monotonic() + 2.0
+    while _driver_threads() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert not _driver_threads(), f"{request.module.__name__} left threads running: {_driver_threads()}"
 
 
 def run_cli(*argv, capsys=None):

@@ -178,7 +178,10 @@ def test_stop_on_the_page_quick_stops_a_pick_under_way(tmp_path):
     shutil.copyfile(default_examples_path(), examples)
     control = RunControl(require_approval=True)
     ended = []
-    with simulated_cell(cell, clock=RealClock()) as (arm, drives):
+    clock = RealClock()  # ours to close, as `cell hw` does: its thread outlived the test and failed later drivers tests
+    with contextlib.ExitStack() as stack:
+        stack.callback(clock.close)
+        arm, drives = stack.enter_context(simulated_cell(cell, clock=clock))
         world = SimWorld(list(assembly.parts), cell, drives)
         loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=SimCameraSource(world, cal, 0),
                         arm=arm, control=control, examples_path=examples, options=LoopOptions(interactive=True))

@@ -30,17 +30,18 @@ What `check_grasp` models, and why:
   band). One pad on a corner is tolerated; both are not (the part would pivot).
 * Centre of gravity near the jaw line (friction/torque argument). The part hangs from the
   pads, weight W = m g at the centre of gravity (uniform density; `meta["mass_g"]` when the
-  part carries it, else aluminium). Three ways to lose it, each with safety factor
-  `SAFETY`:
-  - slip straight down: W <= 2 mu N;
-  - rotate about the jaw line (the line through the contacts): the lever arm is the
-    distance d_perp from the centre of gravity to that line; each pad resists with the
-    torsional friction of its patch, mu N rho, where rho is the patch's mean radius
-    (sqrt(w^2 + h^2) / 4 for a w x h patch: exact for a line, 8 % under for a square).
-    W d_perp <= 2 mu N rho;
-  - tilt about the horizontal axis across the jaws: lever arm e, the centre of gravity's
-    offset along the axis from the grasp centre; the two pads' vertical frictions form a
-    couple of arm d (the jaw width). W e <= mu N d.
+  part carries it, else aluminium), with safety factor `SAFETY` on W. Each pad has one
+  friction budget, mu N, for everything it holds:
+  - vertical force: each pad carries W / 2, plus or minus the couple W e / d that holds a
+    centre of gravity e along the axis off the pads' midpoint (d the jaw width), so the pad
+    nearer it carries f = W (1/2 + e/d) <= mu N (slip, the tilt across the jaws included);
+  - torsion: rolling about the jaw line (lever arm d_perp, the centre of gravity's distance
+    from the line through the contacts) is resisted by each pad's torsional friction, mu N rho
+    with rho its patch's mean radius (sqrt(w^2 + h^2) / 4 for a w x h patch: exact for a
+    line, 8 % under for a square), less what its vertical force already uses: the soft-finger
+    limit curve m <= mu N rho (1 - (f / mu N)^2). So W d_perp <= sum of those.
+  Until 2026-12-02 slip, roll and tilt were three separate tests, each with the whole budget:
+  a grasp needing up to twice the friction there is passed.
 * Stroke. The approach opening must be within the gripper's opening range.
 
 `lift_clear` checks that the part and the closed gripper can move straight up: nothing still
@@ -90,7 +91,7 @@ class GraspCheck:
     patch_width_mm: tuple[float, float]
     cog_offset_mm: float  # distance from the centre of gravity to the jaw line
     cog_along_mm: float  # centre of gravity's offset along the axis from the grasp centre
-    torque_ratio: float  # worst demand / capacity over the three ways to lose the part (<= 1: holds)
+    torque_ratio: float  # SAFETY x weight over the largest weight the pads' friction holds (<= 1: holds)
     extra: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
@@ -238,20 +239,18 @@ def check_grasp(part: Part, contacts_mm, axis_deg: float | None = None, grasp_z_
     u = (p1 - p0) / max(np.linalg.norm(p1 - p0), 1e-9)
     rel = cog - p0
     cog_offset = abs(rel[0] * u[1] - rel[1] * u[0])
-    cog_along = abs(cog[0] - 0.5 * (xl + xr))
+    cog_along_signed = cog[0] - 0.5 * (xl + xr)  # + towards the second pad
+    cog_along = abs(cog_along_signed)
     weight_n = part_mass_g(part) / 1000.0 * G_M_S2
-    n_grip = g.grip_force_n
     h = max(h_pad, 0.0)
     rho = [math.hypot(max(w, 1.0), h) / 4.0 for w in widths]
-    ratios = {
-        "slip": SAFETY * weight_n / (2 * MU * n_grip),
-        "roll about the jaw line": SAFETY * weight_n * cog_offset / max(MU * n_grip * sum(rho), 1e-9),
-        "tilt across the jaws": SAFETY * weight_n * cog_along / max(MU * n_grip * jaw_width, 1e-9),
-    }
+    shares = _pad_shares(cog_along_signed, jaw_width)
+    ratios = _hold_ratios(weight_n, g.grip_force_n, cog_offset, shares, rho)
     worst = max(ratios, key=ratios.get)
     if ratios[worst] > 1.0:
         reasons.append(f"the part would {worst} out of the jaws (demand/capacity {ratios[worst]:.2f}; centre "
-                       f"of gravity {cog_offset:.1f} mm from the jaw line)")
+                       f"of gravity {cog_offset:.1f} mm from the jaw line, {cog_along:.1f} mm along it from "
+                       "the pads' midpoint)")
 
     # collisions: fingers swept along the closing stroke, palm
     collisions: list[str] = []
@@ -280,7 +279,7 @@ def check_grasp(part: Part, contacts_mm, axis_deg: float | None = None, grasp_z_
                       contact_error, tuple(collisions), (sharp[0], sharp[1]), (slope[0], slope[1]),
                       (widths[0], widths[1]),
                       float(cog_offset), float(cog_along), float(ratios[worst]),
-                      extra={"ratios": ratios, "grasp_z_mm": grasp_z_mm})
+                      extra={"ratios": ratios, "pad_shares": shares, "grasp_z_mm": grasp_z_mm})
 
 
 def close_jaws(part: Part, centre_mm, axis_deg: float, opening_mm: float, grasp_z_mm: float | None = None,
@@ -337,6 +336,34 @@ def _fingers_land(local_part, s_open: float, g) -> list[bool]:
     grasp frame's axis, covers the part (grasp frame)."""
     hw, t = g.pad_width_mm / 2, g.pad_thickness_mm
     return [local_part.intersection(box(x0, -hw, x0 + t, hw)).area > _AREA_EPS for x0 in (-s_open - t, s_open)]
+
+
+def _pad_shares(cog_along_mm: float, jaw_width_mm: float) -> tuple[float, float]:
+    """Each pad's vertical friction as a multiple of the weight W: half each, plus and minus the
+    couple that holds a centre of gravity `cog_along_mm` (+ towards the second pad) off the pads'
+    midpoint (f1 - f0 = 2 W e / d). Pressure shifting over the pads' height could also carry part
+    of that moment; it is left out, which only errs on the safe side."""
+    couple = cog_along_mm / max(jaw_width_mm, 1e-9)
+    return 0.5 - couple, 0.5 + couple
+
+
+def _hold_ratios(weight_n: float, grip_n: float, cog_offset_mm: float, shares, rho_mm) -> dict[str, float]:
+    """SAFETY x the weight over the largest weight the pads hold, per way it is lost (<= 1: holds).
+
+    Both ways draw on one friction budget per pad (N the grip force, f_k = shares[k] W its vertical
+    force, m_k its part of the torsion W d_perp): f_k <= mu N, and the soft-finger limit curve of a
+    pad patch, m_k <= mu N rho_k (1 - (f_k / mu N)^2). That parabola is the exact limit curve of a
+    uniformly pressed line across the load (a thin plate's edge) and lies inside that of every
+    rectangular patch; the usual ellipse lies outside it (2x the torsion at f = 0.87 mu N).
+    The torsion splits between the pads as it must, so the grip holds while
+    W d_perp <= sum_k mu N rho_k (1 - (f_k / mu N)^2): a quadratic in W, solved below.
+    """
+    load = SAFETY * weight_n / (MU * grip_n)  # the weight with its margin, in units of one pad's mu N
+    rho_sum = max(sum(rho_mm), 1e-9)
+    a2 = sum(r * s * s for r, s in zip(rho_mm, shares, strict=True))  # torsion lost per unit load^2
+    d = cog_offset_mm
+    return {"slip": load * max(abs(s) for s in shares),  # the pad carrying more
+            "roll about the jaw line": load * (d + math.sqrt(d * d + 4.0 * a2 * rho_sum)) / (2.0 * rho_sum)}
 
 
 def _palm_box(g):

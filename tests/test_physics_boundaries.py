@@ -216,7 +216,8 @@ def test_one_pad_on_a_sharp_corner_is_tolerated():
     assert v.ok, v.reasons
 
 
-# --- centre of gravity: slip, roll about the jaw line, tilt across the jaws --------------------------
+# --- centre of gravity: slip (tilt included) and roll about the jaw line, one friction budget per pad -
+# (tests/test_physics_friction.py checks the shared budget against the pads' conditions themselves)
 
 @pytest.mark.parametrize("meta, mass_g", [
     ({}, 43.2), ({"mass_g": 0}, 43.2), ({"mass_g": -5.0}, 43.2), ({"mass_g": "heavy"}, 43.2),
@@ -247,29 +248,38 @@ def tipped_plate(mass_g):
 
 
 TIP_X = 30 + 20 / math.tan(math.radians(30))
-TIP_COG_Y = 1800 * 10 / (1800 + 20 * (TIP_X - 30))
+TIP_AREA = 20 * (TIP_X - 30)
+TIP_COG_Y = 1800 * 10 / (1800 + TIP_AREA)
+TIP_COG_X = (1800 * 15 + TIP_AREA * (30 + (TIP_X - 30) / 3)) / (1800 + TIP_AREA)  # 10 mm nearer the flat pad
 # the tip's 0.58 mm patch counts as 1 mm wide in its torsion radius: hypot(1, 2) / 4
-RHO_TIPPED = (math.hypot(12, 2) + math.hypot(1, 2)) / 4
+RHO_TIPPED = (math.hypot(12, 2) / 4, math.hypot(1, 2) / 4)
 RHO_BAR = math.hypot(12, 18) / 4  # the bar's 12 mm patch over the 18 mm the pads (z 2..22) overlap it
+
+
+def hold_ratio(mass_g, d_perp_mm, along_mm, jaw_mm, rho_mm=(RHO_BAR, RHO_BAR)):
+    """2 W over the largest weight the pads hold (mu N = 12 N each): pad k's vertical force is
+    W (1/2 -+ along / jaw); what the torsion W d_perp needs, sum mu N rho_k (1 - (f_k / mu N)^2) gives."""
+    load = 2 * mass_g / 1000 * 9.81 / 12
+    shares = (0.5 - along_mm / jaw_mm, 0.5 + along_mm / jaw_mm)
+    a2, r = sum(rk * s * s for rk, s in zip(rho_mm, shares)), sum(rho_mm)
+    return {"slip": load * max(map(abs, shares)),
+            "roll about the jaw line": load * (d_perp_mm + math.sqrt(d_perp_mm ** 2 + 4 * a2 * r)) / (2 * r)}
+
+
 CG_CASES = [  # part, contacts, cog offset from the jaw line / along it (mm), the way out, demand/capacity
     # slip: 2 W / (2 x 0.3 x 40 N) with W = m g, 1 at 1223 g
     (rect("sq", 300, -20, 340, 20, mass_g=1200.0), ACROSS, 0.0, 0.0, "slip", 2 * 1.2 * 9.81 / 24),
     (rect("sq", 300, -20, 340, 20, mass_g=1250.0), ACROSS, 0.0, 0.0, "slip", 2 * 1.25 * 9.81 / 24),
-    # roll: 2 W x 50 mm / (0.3 x 40 N x 2 rho), 1 at 132 g; either end (the offset's sign differs)
-    (bar(130.0), [[10, -10], [10, 10]], 50.0, 0.0, "roll about the jaw line", 2 * 0.130 * 9.81 * 50 / (24 * RHO_BAR)),
-    (bar(130.0), [[110, -10], [110, 10]], 50.0, 0.0, "roll about the jaw line", 2 * 0.130 * 9.81 * 50 / (24 * RHO_BAR)),
-    (bar(135.0), [[10, -10], [10, 10]], 50.0, 0.0, "roll about the jaw line", 2 * 0.135 * 9.81 * 50 / (24 * RHO_BAR)),
-    (bar(135.0), [[110, -10], [110, 10]], 50.0, 0.0, "roll about the jaw line", 2 * 0.135 * 9.81 * 50 / (24 * RHO_BAR)),
-    # tilt: 2 W x 18 mm / (0.3 x 40 N x 20 mm jaw width), 1 at 680 g; both contact orders
-    (h_plate(660.0), [[0, 0], [20, 0]], 0.0, 18.0, "tilt across the jaws", 2 * 0.660 * 9.81 * 18 / 240),
-    (h_plate(660.0), [[20, 0], [0, 0]], 0.0, 18.0, "tilt across the jaws", 2 * 0.660 * 9.81 * 18 / 240),
-    (h_plate(690.0), [[0, 0], [20, 0]], 0.0, 18.0, "tilt across the jaws", 2 * 0.690 * 9.81 * 18 / 240),
-    (h_plate(690.0), [[20, 0], [0, 0]], 0.0, 18.0, "tilt across the jaws", 2 * 0.690 * 9.81 * 18 / 240),
-    # roll with one pad on a sharp tip
-    (tipped_plate(302.0), [[0, 0], [TIP_X, 0]], TIP_COG_Y, None, "roll about the jaw line",
-     2 * 0.302 * 9.81 * TIP_COG_Y / (12 * RHO_TIPPED)),
-    (tipped_plate(310.0), [[0, 0], [TIP_X, 0]], TIP_COG_Y, None, "roll about the jaw line",
-     2 * 0.310 * 9.81 * TIP_COG_Y / (12 * RHO_TIPPED)),
+    # roll: 2 W x 50 mm against the torsion W / 2 leaves each pad, 1 at 131 g; either end (the offset's sign differs)
+    *[(bar(m), c, 50.0, 0.0, "roll about the jaw line", hold_ratio(m, 50.0, 0.0, 20.0)["roll about the jaw line"])
+      for m in (128.0, 133.0) for c in ([[10, -10], [10, 10]], [[110, -10], [110, 10]])],
+    # tilt: the second pad carries 2 W (1/2 + 18 / 20) of 12 N, 1 at 437 g; both contact orders
+    *[(h_plate(m), c, 0.0, 18.0, "slip", 2 * m / 1000 * 9.81 * 1.4 / 12)
+      for m in (430.0, 445.0) for c in ([[0, 0], [20, 0]], [[20, 0], [0, 0]])],
+    # roll with one pad on a sharp tip, the flat pad carrying more of the weight, 1 at 281 g
+    *[(tipped_plate(m), [[0, 0], [TIP_X, 0]], TIP_COG_Y, TIP_X / 2 - TIP_COG_X, "roll about the jaw line",
+       hold_ratio(m, TIP_COG_Y, TIP_COG_X - TIP_X / 2, TIP_X, RHO_TIPPED)["roll about the jaw line"])
+      for m in (275.0, 286.0)],
 ]
 
 
@@ -278,15 +288,15 @@ CG_CASES = [  # part, contacts, cog offset from the jaw line / along it (mm), th
 def test_centre_of_gravity_ratio_either_side_of_1(part, contacts, offset_mm, along_mm, way, ratio):
     v = check_grasp(part, contacts)
     assert v.cog_offset_mm == pytest.approx(offset_mm, abs=1e-9)
-    if along_mm is not None:
-        assert v.cog_along_mm == pytest.approx(along_mm, abs=1e-9)
+    assert v.cog_along_mm == pytest.approx(along_mm, abs=1e-9)
     assert v.extra["ratios"][way] == pytest.approx(ratio) and v.torque_ratio == pytest.approx(ratio)
     assert 0.97 < ratio < 1.03
     if ratio <= 1:
         assert v.ok, v.reasons
     else:
         assert v.reasons == (f"the part would {way} out of the jaws (demand/capacity {ratio:.2f}; centre of "
-                             f"gravity {offset_mm:.1f} mm from the jaw line)",)
+                             f"gravity {offset_mm:.1f} mm from the jaw line, {along_mm:.1f} mm along it from the "
+                             "pads' midpoint)",)
 
 
 def test_tilt_arm_is_measured_from_where_the_pads_stop_not_from_the_reported_centre():

@@ -24,6 +24,8 @@ What `check_grasp` models, and why:
   normal is the slope's normal, and it must lie within the friction angle atan(mu) of the
   axis, or the part squeezes out. That slope is the contact patch's: `PATCH_DEPTH_MM` deep
   over its width (narrower than `SHARP_PATCH_MM`, else the compliant face seats).
+  Material that turns back towards the border within the patch is a tip of the part, not a
+  slope: refused the same way, and the reason says so.
 * Sharp corners. A contact is on a sharp corner when the patch the pad touches is narrower
   than `SHARP_PATCH_MM` and the outline turns by at least `SHARP_TURN_DEG` within 1 mm
   each side (a patch cut by the band's border included, when the first touch is inside the
@@ -197,7 +199,7 @@ def check_grasp(part: Part, contacts_mm, axis_deg: float | None = None, grasp_z_
 
     # the contact patches and where they are
     rings = _rings(local_part)
-    patches, real_local, sharp, slope, widths = [], [], [], [], []
+    patches, real_local, sharp, slope, widths, tips = [], [], [], [], [], []
     for k, (x0, x1) in enumerate(((xl, xl + PATCH_DEPTH_MM), (xr - PATCH_DEPTH_MM, xr))):
         patch = inner.intersection(box(x0, -half_w, x1, half_w))
         if patch.is_empty:  # numerically degenerate; fall back to the extreme point
@@ -219,6 +221,7 @@ def check_grasp(part: Part, contacts_mm, axis_deg: float | None = None, grasp_z_
         # PATCH_DEPTH_MM deep over its width: a chord of the outline around p reached across a
         # corner just outside the band (tips up to 0.08 mm outside passed as 10..16 deg slopes).
         on_band_edge = width < SHARP_PATCH_MM and _touch_on_band_edge(inner, xface, half_w)
+        tips.append(on_band_edge and _tip_in_patch(patch, xface, half_w))
         if on_band_edge:
             ang = math.degrees(math.atan2(PATCH_DEPTH_MM, width))
         else:
@@ -228,8 +231,7 @@ def check_grasp(part: Part, contacts_mm, axis_deg: float | None = None, grasp_z_
     friction_deg = math.degrees(math.atan(MU))
     for k, ang in enumerate(slope):
         if ang > friction_deg:
-            reasons.append(f"contact {k} is outside the friction cone ({ang:.1f} deg > "
-                           f"{friction_deg:.1f} deg): the pad's edge pushes on a slope")
+            reasons.append(_edge_reason(k, ang, friction_deg, widths[k], tips[k]))
     if all(sharp):
         reasons.append("both pads sit on sharp corners")
 
@@ -336,6 +338,29 @@ def _fingers_land(local_part, s_open: float, g) -> list[bool]:
     grasp frame's axis, covers the part (grasp frame)."""
     hw, t = g.pad_width_mm / 2, g.pad_thickness_mm
     return [local_part.intersection(box(x0, -hw, x0 + t, hw)).area > _AREA_EPS for x0 in (-s_open - t, s_open)]
+
+
+def _edge_reason(k: int, slope_deg: float, friction_deg: float, width_mm: float, tip: bool) -> str:
+    """Why contact k, where only the pad's edge touches, fails: a slope outside the friction cone, or
+    a tip of the part barely inside the band, where the patch's "slope" is no face of the part (a
+    tooth tip 0.05 mm inside read "84.1 deg > 16.7 deg: the pad's edge pushes on a slope")."""
+    if tip:
+        return (f"contact {k}: only the pad's edge touches the part, on a tip reaching {width_mm:.2f} mm into "
+                f"its band (under the {PATCH_DEPTH_MM / MU:.2f} mm an edge needs to hold)")
+    for decimals in (1, 2, 3):  # as many as tell the two apart (16.70 > 16.70 read "16.7 deg > 16.7 deg")
+        if round(slope_deg, decimals) > round(friction_deg, decimals):
+            break
+    return (f"contact {k} is outside the friction cone ({slope_deg:.{decimals}f} deg > {friction_deg:.{decimals}f} "
+            "deg): the pad's edge pushes on a slope")
+
+
+def _tip_in_patch(patch, xface: float, half_w: float) -> bool:
+    """Whether the material the pad's edge touches turns back towards the band's border within the
+    patch (its farthest point from the border lies short of the patch's far side): a tip, not a slope."""
+    xy = shapely.get_coordinates(patch)
+    from_border = half_w - np.abs(xy[:, 1])
+    far = from_border >= from_border.max() - 1e-9
+    return bool(np.abs(xy[far, 0] - xface).max() < PATCH_DEPTH_MM - 1e-6)
 
 
 def _pad_shares(cog_along_mm: float, jaw_width_mm: float) -> tuple[float, float]:

@@ -179,6 +179,36 @@ def test_friction_cone_on_a_slope_at_either_band_edge(side, phi_deg, patch_mm, s
         assert v.ok, v.reasons
 
 
+def test_a_slope_just_outside_the_friction_cone_reads_as_outside():
+    # 16.72 deg against atan(0.3) = 16.699 deg: said to one decimal, that was "16.7 deg > 16.7 deg"
+    part, contacts = leaning(16.72, 0)
+    v = check_grasp(part, contacts, axis_deg=0)
+    assert v.reasons == ("contact 0 is outside the friction cone (16.72 deg > 16.70 deg): the pad's edge pushes "
+                         "on a slope",)
+
+
+def toothed(tip_y_mm, mirror):
+    """A bar below the pad band (y -20..-12) with a post across the band (x 30..40) and a tooth (base x 0..3,
+    tip at x 1, y tip_y_mm): the tooth's left flank crosses the band's lower border y -6 left of its tip,
+    so only the first pad's edge touches it, on the border (mirror: x -> -x, the second pad's)."""
+    g = unary_union([box(0, -20, 40, -12), box(30, -12, 40, 20), Polygon([(0, -12), (1, tip_y_mm), (3, -12)])])
+    xy = np.asarray(g.exterior.coords)[:-1] * ([-1, 1] if mirror else [1, 1])
+    return Part("toothed", xy, (), 0.0, 10.0, meta={"mass_g": 5.0})
+
+
+@pytest.mark.parametrize("mirror, side", [(False, 0), (True, 1)])
+@pytest.mark.parametrize("tip_y_mm, inside_mm", [(-5.95, 0.05), (-4.5, 1.5)])
+def test_the_pads_edge_on_a_tip_just_inside_the_band_is_told_as_a_tip(tip_y_mm, inside_mm, mirror, side):
+    # refused as before, but it was "contact 0 is outside the friction cone (84.3 deg > 16.7 deg): the pad's
+    # edge pushes on a slope" (0.5 mm of compliance over a 0.05 mm patch; 18.4 deg for the 1.5 mm tip, whose
+    # flank is 7.6 deg): no face of the part has that slope
+    contacts = [[-40, 0], [-1, 0]] if mirror else [[1, 0], [40, 0]]
+    v = check_grasp(toothed(tip_y_mm, mirror), contacts, axis_deg=0)
+    assert v.patch_width_mm[side] == pytest.approx(inside_mm)
+    assert v.reasons == (f"contact {side}: only the pad's edge touches the part, on a tip reaching {inside_mm:.2f} "
+                         "mm into its band (under the 1.67 mm an edge needs to hold)",)
+
+
 # --- sharp corners: patch narrower than 2 mm and the outline turning 50 deg within 1 mm ---------------
 
 def pointed_bar(turn_deg, flat_left=False):

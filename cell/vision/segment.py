@@ -19,6 +19,7 @@ Pixel coordinates are CONTRACT-frame (origin at the top-left pixel's top-left co
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
@@ -32,23 +33,40 @@ from cell.vision.touching import pick
 
 SMALL_FRAME_PX = 960
 WALL_FACING_COS = 0.3
+DEFAULT_FRAME_PX = (1280, 1024)  # the default cell's camera (0.5 mm/px): the pixel defaults below are for it
+# the pixel-sized defaults on the default camera; a field left None takes these, grown with the frame
+DEFAULT_CAMERA_PX = {"scale": 2, "min_area_px": 300.0, "min_hole_area_px": 20.0, "sharp_edge": 0.06,
+                     "min_lobe_radius_px": 6.0}
+
+
+def frame_size_factor(shape) -> float:
+    """How many times the default camera's frame a frame of `shape` (h, w, ...) is, by the long
+    side, at least 1: a camera of the tray with a longer side (either way up, any aspect) has that
+    many more pixels per mm. Smaller frames keep the default camera's pixel thresholds (a speck
+    stays well above pixel noise)."""
+    return max(1.0, max(shape[:2]) / max(DEFAULT_FRAME_PX))
 
 
 @dataclass(frozen=True)
 class SegmentParams:
-    """Segmentation parameters; the defaults suit the default cell (0.5 mm/px)."""
+    """Segmentation parameters; the defaults suit the default cell (0.5 mm/px).
+
+    The pixel-sized ones left None follow the frame (`for_frame`): the default camera's values
+    (DEFAULT_CAMERA_PX) on frames up to its size, grown with the frame's linear size above it
+    (areas by its square), so a 12 MP frame of the tray is read like a default one. A value
+    given is used as it is."""
 
     tray: str = "auto"  # "bright": the tray is the bright side (back-lit panel in a dark surround)
-    scale: int = 2  # detection runs at 1 / scale resolution; outlines are refined at full resolution
-    min_area_px: float = 300.0  # full-resolution px; smaller regions are specks (75 mm^2 at 0.5 mm/px)
-    min_hole_area_px: float = 20.0
+    scale: int | None = None  # detection runs at 1 / scale resolution; outlines are refined at full resolution
+    min_area_px: float | None = None  # full-resolution px; smaller regions are specks (75 mm^2 at 0.5 mm/px)
+    min_hole_area_px: float | None = None
     chroma_min: float = 0.035  # L1 change of normalised colour that marks a part
     brighter_min: float = 0.12  # relative brightness above the tray that marks a part
     darker_min: float = 0.45  # relative darkening no shadow reaches: a part for sure
     noise_k: float = 5.0  # ... and the change must stand this many noise spreads above the tray's
     hysteresis: float = 0.6  # pixels this fraction of the way to a threshold join a part they touch
     shadow_aware: bool = True  # False: any darkening beyond `brighter_min` is a part
-    sharp_edge: float = 0.06  # ratio change per full-res px that counts as a sharp (material) edge
+    sharp_edge: float | None = None  # ratio change per full-res px that counts as a sharp (material) edge
     sharp_fraction: float = 0.6  # share of a shadow-like region's border that must be sharp
     vertical_px: tuple[float, float] | None = None  # image of the vertical (walls face it); None: centre
     refine: bool = True
@@ -60,14 +78,38 @@ class SegmentParams:
     neck_flag: float = 0.9  # ... and flag `merged` up to this ratio
     colour_split: float = 30.0  # CIE Lab distance (lightness counted half) between touching parts told apart
     seam_contrast_dn: float = 12.0  # brightness change along a cut that shows two parts meet there
+    min_lobe_radius_px: float | None = None  # full-res px: teeth and tabs are not lobes of touching parts
 
     @classmethod
     def for_calibration(cls, cal, min_area_mm2: float = 75.0, z_mm: float = 0.0, **kw) -> SegmentParams:
-        """Parameters with the speck threshold given in mm^2 on the plane at z."""
+        """Parameters with the speck threshold given in mm^2 on the plane at z; the other pixel-sized
+        ones are the default camera's whatever the frame's size (as they always were)."""
         mm_per_px = cal.mm_per_px(z_mm)
         vp = tuple(float(v) for v in cal.vertical_vanishing_px())
-        return cls(min_area_px=min_area_mm2 / mm_per_px ** 2, min_hole_area_px=max(6.0, 2.5 / mm_per_px ** 2),
-                   vertical_px=kw.pop("vertical_px", vp), **kw)
+        fixed = {**DEFAULT_CAMERA_PX, "min_area_px": min_area_mm2 / mm_per_px ** 2,
+                 "min_hole_area_px": max(6.0, 2.5 / mm_per_px ** 2), "vertical_px": vp}
+        return cls(**{**fixed, **kw})
+
+    def for_frame(self, shape) -> SegmentParams:
+        """These parameters with every pixel-sized one left None set for a frame of `shape` (h, w, ...):
+        the default camera's value x the frame's size factor f (areas x f^2; the sharp edge's ratio
+        change per pixel / f; the detection scale x the whole number nearest f, so that a detection
+        pixel stays about the default's size in the scene)."""
+        unset = [k for k in DEFAULT_CAMERA_PX if getattr(self, k) is None]
+        if not unset:
+            return self
+        f = frame_size_factor(shape)
+        grown = {"scale": DEFAULT_CAMERA_PX["scale"] * _nearest_whole(f),
+                 "min_area_px": DEFAULT_CAMERA_PX["min_area_px"] * f * f,
+                 "min_hole_area_px": DEFAULT_CAMERA_PX["min_hole_area_px"] * f * f,
+                 "sharp_edge": DEFAULT_CAMERA_PX["sharp_edge"] / f,
+                 "min_lobe_radius_px": DEFAULT_CAMERA_PX["min_lobe_radius_px"] * f}
+        return replace(self, **{k: grown[k] for k in unset})
+
+
+def _nearest_whole(x: float) -> int:
+    """The whole number nearest x >= 1, halves down (the finer detection)."""
+    return max(1, math.ceil(x - 0.5))
 
 
 @dataclass
@@ -116,8 +158,8 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
     reference_bgr : ndarray of shape (h, w, 3), optional
         The empty tray under the same lighting; without it the tray is estimated.
     """
-    p = params or SegmentParams()
     frame = _as_bgr(frame_bgr)
+    p = (params or SegmentParams()).for_frame(frame.shape)
     segs = _segment(frame, p, reference_bgr)
     if reference_bgr is None and p.tray == "auto" and _tray_taken_for_a_part(segs, frame.shape):
         # a back-lit panel in a dark surround: the dark side outnumbered the panel, so the panel came
@@ -149,7 +191,9 @@ def _segment(frame: np.ndarray, p: SegmentParams, reference_bgr: np.ndarray | No
     h, w = frame.shape[:2]
     s = max(1, int(p.scale)) if w >= SMALL_FRAME_PX else 1  # small frames are detected at full resolution
     dw, dh = w // s, h // s
-    det_u8 = cv2.resize(frame, (dw, dh), interpolation=cv2.INTER_AREA) if s > 1 else frame
+    # the last w % s columns and h % s rows are left out, so that each detection pixel is s x s
+    # frame pixels exactly (`_to_full`; 4000 px / 6 would stretch by 6.006, 4 px at the far border)
+    det_u8 = cv2.resize(frame[:dh * s, :dw * s], (dw, dh), interpolation=cv2.INTER_AREA) if s > 1 else frame
     det = det_u8.astype(np.float32)
     # the blurred copies do not depend on the tray: made in a helper thread while the tray is fitted
     # (OpenCV releases the GIL; the fit is mostly Python and small numpy calls)
@@ -158,7 +202,7 @@ def _segment(frame: np.ndarray, p: SegmentParams, reference_bgr: np.ndarray | No
         ref = _as_bgr(reference_bgr)
         if ref.shape != frame.shape:
             raise BadInput(f"the reference image is {ref.shape[1]} x {ref.shape[0]} px, the frame {w} x {h} px")
-        bg = reference_background(ref, (dw, dh))
+        bg = reference_background(ref[:dh * s, :dw * s], (dw, dh))
         bg_coarse = None
     else:
         field, _ = fit_tray_field(det, p.tray, fit_copy_of_whole_dn(det_u8))
@@ -733,6 +777,7 @@ def refine_rings(frame: np.ndarray, rings: list[np.ndarray], is_hole: list[bool]
     todo = [i for i, r in enumerate(rings) if len(r) >= 5]
     if not todo:
         return list(rings)
+    p = p.for_frame(frame.shape)
     # all rings' points in one array; each point's neighbours k steps along its own ring
     lens = np.array([len(rings[i]) for i in todo])
     starts = np.concatenate(([0], np.cumsum(lens)[:-1]))
@@ -867,7 +912,8 @@ def segment_to_mm(seg: Segment, cal, z_mm: float, z_bottom_mm: float | None = No
     if img is not None and not seg.cut_off and cal.has_pose:
         from cell.vision.topface import top_face_px
 
-        face = top_face_px(seg, img, cal, z_mm, z_bottom_mm, params or SegmentParams.for_calibration(cal, z_mm=z_mm))
+        p = (params or SegmentParams.for_calibration(cal, z_mm=z_mm)).for_frame(img.shape)
+        face = top_face_px(seg, img, cal, z_mm, z_bottom_mm, p)
         if face is not None:
             return cal.px_to_mm(face[0], z_mm), [cal.px_to_mm(h, z_mm) for h in face[1]]
     vp = cal.vertical_vanishing_px()

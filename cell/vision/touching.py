@@ -15,7 +15,6 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-MIN_LOBE_RADIUS_PX = 6.0  # full-resolution px: teeth and tabs are not lobes
 COVER_MIN = 0.9
 MAX_SPLIT_DEPTH = 6
 MIN_PIECE_HALF_WIDTH = 4.0  # detection px: a colour piece narrower than this is a wall, not a part
@@ -47,8 +46,7 @@ def split_necks(regions, p, min_area_det: float, bgr: np.ndarray | None = None
     -------
     list of (x0, y0, bool mask of shape (h, w), merged) : the parts, in their region's box.
     """
-    scale = max(1, int(p.scale))
-    r_min = MIN_LOBE_RADIUS_PX / scale
+    r_min = p.min_lobe_radius_px / max(1, int(p.scale))  # (p set for the frame: `SegmentParams.for_frame`)
     out = []
     for x0, y0, sub in regions:
         bgr_box = None if bgr is None else bgr[y0:y0 + sub.shape[0], x0:x0 + sub.shape[1]]

@@ -70,7 +70,8 @@ class SegmentParams:
     sharp_fraction: float = 0.6  # share of a shadow-like region's border that must be sharp
     vertical_px: tuple[float, float] | None = None  # image of the vertical (walls face it); None: centre
     refine: bool = True
-    full_res_holes: bool = True  # look for holes again at full resolution (small holes blur away at half)
+    full_res_holes: bool = True  # look for holes again at 1 / (scale / 2) (full resolution on the default
+    # camera; small holes blur away at detection resolution)
     refine_range_px: float = 4.0
     min_edge_contrast_dn: float = 10.0
     split_touching: bool = True
@@ -554,8 +555,11 @@ def _touching_groups(boxes) -> list[tuple[int, int, int, int]]:
 def _regions_to_segments(pieces, frame: np.ndarray, det: np.ndarray, bg: np.ndarray, p: SegmentParams,
                          scale: int) -> list[Segment]:
     """Pieces (x0, y0, bool mask, merged) -> segments: outlines, holes (also the small ones seen
-    only at full resolution), all refined at full resolution in one pass."""
+    only at finer resolution), all refined at full resolution in one pass."""
     dh, dw = det.shape[:2]
+    # small holes are looked for at the default camera's full resolution: 1 / k of a larger frame
+    k = max(1, scale // DEFAULT_CAMERA_PX["scale"])
+    fine = None  # the frame at 1 / k, made when the first region needs it
     found = []  # (outline, holes, merged, cut_off, mean colour) per region, before refinement
     for px0, py0, piece, merged in pieces:
         piece = piece.view(np.uint8)
@@ -585,10 +589,11 @@ def _regions_to_segments(pieces, frame: np.ndarray, det: np.ndarray, bg: np.ndar
                      and cv2.contourArea(contours[j]) >= p.min_hole_area_px / scale ** 2]
             outline = _to_full(c, scale)
             hole_rings = [_to_full(hh, scale) for hh in holes]
-            if scale > 1 and p.full_res_holes:
+            if scale > k and p.full_res_holes:
                 # keep the holes seen at detection resolution; add the small ones only seen here
                 dips = _tray_dips(det, bg, sub, mean, (x0, y0, x1, y1), p)
-                for ring in _holes_full_res(frame, bg, outline, mean, (x0, y0, x1, y1), p, scale, dips):
+                fine = _reduced(frame, k) if fine is None and dips is not None else fine
+                for ring in _holes_fine(fine, k, bg, outline, mean, (x0, y0, x1, y1), p, scale, dips):
                     centre = ring.mean(axis=0)
                     if not any(cv2.pointPolygonTest(hh.astype(np.float32), (float(centre[0]), float(centre[1])),
                                                     False) >= 0 for hh in hole_rings):
@@ -716,24 +721,35 @@ def _chroma_of(part_bgr, tray_mean_bgr) -> float:
     return abs(p0 / sp - t0 / st) + abs(p1 / sp - t1 / st) + abs(p2 / sp - t2 / st)
 
 
-def _holes_full_res(frame, bg, outline, part_bgr, box, p: SegmentParams, scale: int, dips=None
-                    ) -> list[np.ndarray]:
-    """Holes found at full resolution inside a region's outline: pixels that look like the tray
-    (its chroma, at most shadow-dark) and lie nearer the tray's colour than the part's. Small
-    holes blur into their part at detection resolution; here they keep their pixels. With
-    `dips` (from `_tray_dips`) only that part of the region is looked at."""
+def _reduced(frame: np.ndarray, k: int) -> np.ndarray:
+    """The frame at 1 / k, each pixel the mean of k x k (the last w % k columns and h % k rows
+    left out: pixel i spans frame pixels i k .. (i + 1) k exactly)."""
+    if k == 1:
+        return frame
+    h, w = frame.shape[:2]
+    return cv2.resize(frame[:h // k * k, :w // k * k], (w // k, h // k), interpolation=cv2.INTER_AREA)
+
+
+def _holes_fine(fine, k: int, bg, outline, part_bgr, box, p: SegmentParams, scale: int, dips=None
+                ) -> list[np.ndarray]:
+    """Holes found inside a region's outline on `fine`, the frame at 1 / k (full resolution on
+    the default camera, k = 1): pixels that look like the tray (its chroma, at most shadow-dark)
+    and lie nearer the tray's colour than the part's. Small holes blur into their part at
+    detection resolution; here they keep their pixels. With `dips` (from `_tray_dips`) only that
+    part of the region is looked at. Rings in full-resolution CONTRACT coordinates."""
     if dips is None:
         return []
     bx0, by0 = box[0], box[1]
     m = 3  # detection px of margin around the dips
     box = (max(bx0 + dips[0] - m, box[0]), max(by0 + dips[1] - m, box[1]), min(bx0 + dips[2] + m, box[2]),
            min(by0 + dips[3] + m, box[3]))
-    x0, y0, x1, y1 = (v * scale for v in box)
-    h, w = frame.shape[:2]
-    x1, y1 = min(x1, w), min(y1, h)
-    img = frame[y0:y1, x0:x1].astype(np.float32)
+    r_fine = scale / k  # fine px per detection px (whole unless an odd scale was given)
+    h, w = fine.shape[:2]
+    x0, y0 = math.floor(box[0] * r_fine), math.floor(box[1] * r_fine)
+    x1, y1 = min(math.ceil(box[2] * r_fine), w), min(math.ceil(box[3] * r_fine), h)
+    img = fine[y0:y1, x0:x1].astype(np.float32)
     inside = np.zeros((y1 - y0, x1 - x0), np.uint8)
-    cv2.fillPoly(inside, [np.round((outline - (x0, y0) - 0.5) * 4).astype(np.int32)], 1, cv2.LINE_8, 2)
+    cv2.fillPoly(inside, [np.round((outline / k - (x0, y0) - 0.5) * 4).astype(np.int32)], 1, cv2.LINE_8, 2)
     inside = cv2.erode(inside, np.ones((5, 5), np.uint8))  # away from the outline's blur
     if not inside.any():
         return []
@@ -749,9 +765,10 @@ def _holes_full_res(frame, bg, outline, part_bgr, box, p: SegmentParams, scale: 
     contours, _ = cv2.findContours(holes, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     rings = []
     for c in contours:
-        if cv2.contourArea(c) < p.min_hole_area_px:
+        if cv2.contourArea(c) < p.min_hole_area_px / k ** 2:
             continue
-        rings.append(c.reshape(-1, 2).astype(float) + (x0 + 0.5, y0 + 0.5))  # pixel centres, CONTRACT frame
+        # fine pixel centres -> CONTRACT frame (a fine pixel spans k frame pixels)
+        rings.append((c.reshape(-1, 2).astype(float) + (x0 + 0.5, y0 + 0.5)) * k)
     return rings
 
 

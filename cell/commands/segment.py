@@ -19,7 +19,8 @@ def add_arguments(p) -> None:
     p.add_argument("--min-area-mm2", type=float, default=75.0,
                    help="with a calibration: regions smaller than this are specks (default 75)")
     p.add_argument("--min-area-px", type=float, default=None,
-                   help="regions smaller than this many pixels are specks (default 300, or from --min-area-mm2)")
+                   help="regions smaller than this many pixels are specks (default: from --min-area-mm2 with "
+                        "a calibration, else 300 on a frame up to 1280 px long, x (long side / 1280)^2 above)")
     p.add_argument("--backlit", action="store_true",
                    help="the tray is the bright side of the frame (a back-lit panel in a dark surround)")
     p.add_argument("--no-shadow-aware", action="store_true",

@@ -23,7 +23,11 @@ def _conditions():
     return list(CONDITIONS)
 
 
+LARGE_FRAME_PX = (4000, 3200)  # (w, h): the default camera's 1280 x 1024 x 3.125, 12.8 MP
+
+
 def run(args) -> int:
+    import cv2
     import numpy as np
 
     from calibration import load_calibration
@@ -53,8 +57,12 @@ def run(args) -> int:
     frame = SimCamera(cal, SimCameraOptions(seed=args.seed)).render(
         random_layout(np.random.default_rng(args.seed), 8))
     timing = {"timing": "segment_frame, 8 parts, all effects", **time_segmentation(frame, params, args.repeats)}
+    # a 12 MP camera of the same tray, without a calibration: the thresholds follow the frame's size
+    large = cv2.resize(frame, LARGE_FRAME_PX, interpolation=cv2.INTER_CUBIC)
+    timing_large = {"timing": "segment_frame, the same frame upscaled, no calibration",
+                    **time_segmentation(large, SegmentParams(), args.repeats)}
     if args.json:
-        for r in rows + [timing]:
+        for r in rows + [timing, timing_large]:
             print(json.dumps(r))
         return 0
     print(f"segmentation accuracy on rendered frames ({args.frames} frames x {args.parts} "
@@ -67,7 +75,11 @@ def run(args) -> int:
               f"{r['outline_mean_mm']:6.3f} {r['outline_rms_mm']:6.3f} {r['outline_p95_mm']:6.3f} "
               f"{r['part_rms_median_mm']:8.3f}/{r['part_rms_max_mm']:<8.3f} "
               f"{r['centroid_mean_mm']:8.3f}/{r['centroid_p95_mm']:<8.3f}")
-    print(f"time to segment a {timing['frame']} frame: median {timing['median_ms']:.1f} ms wall "
-          f"(p10 {timing['p10_ms']:.1f}, p90 {timing['p90_ms']:.1f}), {timing['cpu_median_ms']:.1f} ms CPU, "
-          f"{timing['repeats']} runs")
+    print(f"time to segment a {timing['frame']} frame: {_times(timing)}")
+    print(f"the same frame upscaled to {timing_large['frame']}, no calibration: {_times(timing_large)}")
     return 0
+
+
+def _times(t: dict) -> str:
+    return (f"median {t['median_ms']:.1f} ms wall (p10 {t['p10_ms']:.1f}, p90 {t['p90_ms']:.1f}), "
+            f"{t['cpu_median_ms']:.1f} ms CPU, {t['repeats']} runs, {t['regions']} regions")

@@ -114,8 +114,9 @@ def run_benchmark(frames: int = 12, parts_per_frame: int = 6, seed: int = 0, con
 
 
 def time_segmentation(frame: np.ndarray, params: SegmentParams | None = None, repeats: int = 30) -> dict:
-    """Median and spread of the wall time to segment `frame` (after one warm-up run)."""
-    segment_frame(frame, params)
+    """Median and spread of the wall time to segment `frame` (after one warm-up run), and the
+    number of regions found."""
+    regions = len(segment_frame(frame, params))
     ts, cpu = [], []
     for _ in range(repeats):
         t0, c0 = time.perf_counter(), time.process_time()
@@ -125,4 +126,4 @@ def time_segmentation(frame: np.ndarray, params: SegmentParams | None = None, re
     # CPU time is reported too: on a shared machine wall time also counts other processes
     return {"median_ms": float(np.median(ts)), "p10_ms": float(np.percentile(ts, 10)),
             "p90_ms": float(np.percentile(ts, 90)), "cpu_median_ms": float(np.median(cpu)), "repeats": repeats,
-            "frame": f"{frame.shape[1]}x{frame.shape[0]}"}
+            "frame": f"{frame.shape[1]}x{frame.shape[0]}", "regions": regions}

@@ -3,9 +3,10 @@
 Pipeline (one frame, see docs/vision.md for the parameters and why):
 1. The tray's colour field B: a reference image of the empty tray when given, else a
    robust smooth fit to the frame itself (background.py).
-2. At half resolution, per pixel: brightness ratio r = sum(I) / sum(B) and chroma change
-   c = |I / sum(I) - B / sum(B)|_1. A pixel is part if its chroma changed, or it is
-   brighter than the tray, or darker than any shadow can make the tray.
+2. At 1 / scale resolution (half on the default camera; larger frames: `SegmentParams.for_frame`),
+   per pixel: brightness ratio r = sum(I) / sum(B) and chroma change c = |I / sum(I) - B / sum(B)|_1.
+   A pixel is part if its chroma changed, or it is brighter than the tray, or darker than any
+   shadow can make the tray.
 3. Shadow-like pixels (darker, same chroma) are part only where the region they form is
    bounded by sharp edges (walls of parts, grey parts); soft-edged regions are shadows.
 4. Specks below a minimum area are dropped; parts touching each other are separated at

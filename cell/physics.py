@@ -142,6 +142,10 @@ def check_grasp(part: Part, contacts_mm, axis_deg: float | None = None, grasp_z_
     d_rep = float(np.linalg.norm(c[1] - c[0]))
     line_deg = math.degrees(math.atan2(c[1, 1] - c[0, 1], c[1, 0] - c[0, 0])) if d_rep > 1e-9 else 0.0
     theta = line_deg if axis_deg is None else float(axis_deg)
+    if math.cos(math.radians(line_deg - theta)) < 0:
+        # the same axis (mod 180) turned to run from the first contact to the second: the pads come in the
+        # contacts' order, so "contact k" below is the k-th one given (it was the second when the axis ran back)
+        theta += 180.0
     if grasp_z_mm is None:
         grasp_z_mm = default_grasp_z_mm(part.z_bottom_mm, part.z_top_mm, g, cell.scara.j3_mm)
     reasons: list[str] = []

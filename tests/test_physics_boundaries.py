@@ -246,6 +246,19 @@ def test_one_pad_on_a_sharp_corner_is_tolerated():
     assert v.ok, v.reasons
 
 
+@pytest.mark.parametrize("axis_deg", [None, 0.0, 180.0, -180.0, 0.5, 179.5])
+@pytest.mark.parametrize("contacts", [[[0, 0], [40, 0]], [[40, 0], [0, 0]]], ids=["flat_first", "tip_first"])
+def test_contact_k_is_the_k_th_contact_given_whichever_way_the_axis_runs(axis_deg, contacts):
+    """The pads' results come in the order the contacts were given: with the axis given the other way
+    round (the planner's axis is mod 180), "contact 0" and sharp[0] were the second contact's."""
+    v = check_grasp(pointed_bar(90, flat_left=True), contacts, axis_deg=axis_deg)
+    tip_first = contacts[0][0] == 40
+    assert v.sharp == ((True, False) if tip_first else (False, True))
+    assert v.patch_width_mm == pytest.approx((1.0, 12.0) if tip_first else (12.0, 1.0), abs=1e-3)
+    assert v.contacts_mm[0] == pytest.approx(contacts[0], abs=0.2)  # (0.5 deg off the line: 0.175 mm aside)
+    assert v.ok, v.reasons
+
+
 # --- centre of gravity: slip (tilt included) and roll about the jaw line, one friction budget per pad -
 # (tests/test_physics_friction.py checks the shared budget against the pads' conditions themselves)
 

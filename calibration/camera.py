@@ -86,6 +86,27 @@ class Calibration:
     def size(self) -> tuple[int, int]:
         return self.width_px, self.height_px
 
+    def resized(self, width_px: int, height_px: int) -> Calibration:
+        """The calibration of this camera's frames resized to `width_px` x `height_px` (a frame
+        upscaled or reduced as a whole): the same pose and lens, the intrinsics scaled with the
+        image; a homography's pixels scaled too. In the CONTRACT frame a pixel (u, v) becomes
+        (u sx, v sy); OpenCV's matrix counts from pixel centres, so its cx becomes
+        (cx + 0.5) sx - 0.5."""
+        if int(width_px) < 1 or int(height_px) < 1:
+            raise BadInput(f"a resized calibration needs a positive size, got {width_px} x {height_px}")
+        sx, sy = int(width_px) / self.width_px, int(height_px) / self.height_px
+        k = None
+        if self.camera_matrix is not None:
+            k = self.camera_matrix.astype(float).copy()
+            k[0, :2] *= sx
+            k[1, 1] *= sy
+            k[0, 2] = (k[0, 2] + HALF_PX) * sx - HALF_PX
+            k[1, 2] = (k[1, 2] + HALF_PX) * sy - HALF_PX
+        h = None if self.homography is None else self.homography @ np.diag([1.0 / sx, 1.0 / sy, 1.0])
+        return Calibration(int(width_px), int(height_px), k, self.dist.copy(),
+                           None if self.cam2base is None else self.cam2base.copy(), h, self.plane_z_mm,
+                           f"{self.name} resized to {int(width_px)} x {int(height_px)}", dict(self.report))
+
     def check_frame(self, frame: np.ndarray, what: str = "frame") -> None:
         """Refuse a frame whose size is not the calibration's."""
         h, w = frame.shape[:2]

@@ -28,13 +28,16 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
+from calibration.default import CAMERA_MM, FOCAL_PX, HEIGHT_PX, WIDTH_PX
 from cell.errors import BadInput
 from cell.vision.background import field_at, fit_copy_of_whole_dn, fit_tray_field, reference_background
 from cell.vision.touching import pick
 
 SMALL_FRAME_PX = 960
 WALL_FACING_COS = 0.3
-DEFAULT_FRAME_PX = (1280, 1024)  # the default cell's camera (0.5 mm/px): the pixel defaults below are for it
+DEFAULT_FRAME_PX = (WIDTH_PX, HEIGHT_PX)  # the default cell's camera: the pixel defaults below are for it
+DEFAULT_MM_PER_PX = CAMERA_MM[2] / FOCAL_PX  # ... on the table (z = 0) it sees 0.5 mm per px (calibration/default.py)
+SAME_CAMERA_SPREAD = 0.05  # a calibration within this of the default's px per mm reads as the default camera
 # the pixel-sized defaults on the default camera; a field left None takes these, grown with the frame
 DEFAULT_CAMERA_PX = {"scale": 2, "min_area_px": 300.0, "min_hole_area_px": 20.0, "sharp_edge": 0.06,
                      "min_lobe_radius_px": 6.0}
@@ -46,6 +49,26 @@ def frame_size_factor(shape) -> float:
     many more pixels per mm. Smaller frames keep the default camera's pixel thresholds (a speck
     stays well above pixel noise)."""
     return max(1.0, max(shape[:2]) / max(DEFAULT_FRAME_PX))
+
+
+def calibration_size_factor(cal) -> float:
+    """How many times the default camera's pixels per mm a calibrated camera has on the
+    calibration's plane (at the image centre): DEFAULT_MM_PER_PX / its mm per px, at least 1, and 1
+    within SAME_CAMERA_SPREAD of it (the default camera's own mm per px varies by more across its
+    view and with the parts' heights: 6 % at 45 mm; a recalibrated default cell stays the default).
+    A camera coarser than the default keeps the default camera's pixel sizes, as smaller frames do."""
+    f = DEFAULT_MM_PER_PX / cal.mm_per_px()
+    return f if f >= 1.0 + SAME_CAMERA_SPREAD else 1.0
+
+
+def _pixel_sizes(f: float, k: int) -> dict:
+    """The default camera's pixel-sized values for a camera with f times its pixels per mm, detected
+    at 1 / (2 k): areas x f^2, the sharp edge's ratio change per pixel / f, the lobe x f."""
+    return {"scale": DEFAULT_CAMERA_PX["scale"] * k,
+            "min_area_px": DEFAULT_CAMERA_PX["min_area_px"] * f * f,
+            "min_hole_area_px": DEFAULT_CAMERA_PX["min_hole_area_px"] * f * f,
+            "sharp_edge": DEFAULT_CAMERA_PX["sharp_edge"] / f,
+            "min_lobe_radius_px": DEFAULT_CAMERA_PX["min_lobe_radius_px"] * f}
 
 
 @dataclass(frozen=True)
@@ -84,12 +107,23 @@ class SegmentParams:
 
     @classmethod
     def for_calibration(cls, cal, min_area_mm2: float = 75.0, z_mm: float = 0.0, **kw) -> SegmentParams:
-        """Parameters with the speck threshold given in mm^2 on the plane at z; the other pixel-sized
-        ones are the default camera's whatever the frame's size (as they always were)."""
+        """Parameters for the calibrated camera's frames. The speck and hole areas are given in mm^2 on
+        the plane at z; the other pixel-sized ones follow the camera's pixels per mm as `for_frame`
+        follows a frame's size, with f = `calibration_size_factor(cal)` (1 for the default cell's
+        camera and any coarser one: the default camera's values): the smallest lobe x f, and the
+        detection at 1 / (2 k) with the sharp edge's ratio change per pixel / g, where g is f but not
+        above the frame's own size factor and k the whole number nearest g. These two are about the
+        detection copy's pixels: a close-up camera whose frame is no larger than the default's keeps
+        its detection copy and its edge threshold (per mm a lower one lets the noise of a finer
+        copy through; small frames are detected at full size anyway). Keyword arguments win."""
         mm_per_px = cal.mm_per_px(z_mm)
         vp = tuple(float(v) for v in cal.vertical_vanishing_px())
-        fixed = {**DEFAULT_CAMERA_PX, "min_area_px": min_area_mm2 / mm_per_px ** 2,
-                 "min_hole_area_px": max(6.0, 2.5 / mm_per_px ** 2), "vertical_px": vp}
+        f = calibration_size_factor(cal)
+        g = min(f, frame_size_factor((cal.height_px, cal.width_px)))
+        fixed = {**_pixel_sizes(g, _nearest_whole(g)),
+                 "min_lobe_radius_px": DEFAULT_CAMERA_PX["min_lobe_radius_px"] * f,  # a size in the scene
+                 "min_area_px": min_area_mm2 / mm_per_px ** 2, "min_hole_area_px": max(6.0, 2.5 / mm_per_px ** 2),
+                 "vertical_px": vp}
         return cls(**{**fixed, **kw})
 
     def for_frame(self, shape) -> SegmentParams:
@@ -101,11 +135,7 @@ class SegmentParams:
         if not unset:
             return self
         f = frame_size_factor(shape)
-        grown = {"scale": DEFAULT_CAMERA_PX["scale"] * _nearest_whole(f),
-                 "min_area_px": DEFAULT_CAMERA_PX["min_area_px"] * f * f,
-                 "min_hole_area_px": DEFAULT_CAMERA_PX["min_hole_area_px"] * f * f,
-                 "sharp_edge": DEFAULT_CAMERA_PX["sharp_edge"] / f,
-                 "min_lobe_radius_px": DEFAULT_CAMERA_PX["min_lobe_radius_px"] * f}
+        grown = _pixel_sizes(f, _nearest_whole(f))
         return replace(self, **{k: grown[k] for k in unset})
 
 

@@ -22,13 +22,18 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
-from cell.vision.segment import _signed_area, refine_rings  # (segment.py imports this module lazily)
+# (segment.py imports this module lazily)
+from cell.vision.segment import _signed_area, calibration_size_factor, refine_rings
 
 MIN_WALL_PX = 1.0  # narrower walls: the two planes map the silhouette within half a pixel
 WALL_SHADE = 0.81  # a wall pixel is darker than this x the top's level (walls: about 0.6 - 0.7)
 TOP_LEVEL_PERCENTILE = 60  # the top face is most of the silhouette; highlights are a few per cent
+# the sweep's test on the default camera (0.5 mm/px); a camera with f times its px per mm
+# (`calibration_size_factor`) takes lengths x f and areas x f^2: the silhouette it checks comes from a
+# detection of the default's pixel size in mm (segment.py), so its flaws are as large in mm
 SWEEP_TOLERANCE = 1.5  # silhouette pixels the swept top face may miss or add, per pixel of perimeter
 THICK_MISMATCH_PX = 40  # the largest region of the mismatch 3 px thick (corners and shading leave up to ~20)
+THICK_PX = 3
 _SUBPIX = 4  # fillPoly fractional bits
 
 
@@ -88,7 +93,7 @@ def top_face_px(seg, frame: np.ndarray, cal, z_top_mm: float, z_bottom_mm: float
         return None
     face = (labels == 1 + int(np.argmax(np.bincount(labels.ravel())[1:]))).astype(np.uint8)
     perimeter = cv2.arcLength(raster(outline).astype(np.float32) / (1 << _SUBPIX), True)
-    if not _explains(face, silhouette, d, gradient, c - origin, perimeter):
+    if not _explains(face, silhouette, d, gradient, c - origin, perimeter, calibration_size_factor(cal)):
         return None
     contours, hierarchy = cv2.findContours(face, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
     outers, holes = [], []
@@ -118,13 +123,14 @@ def _moved_out(ring: np.ndarray, by_px: float, hole: bool) -> np.ndarray:
 
 
 def _explains(face: np.ndarray, silhouette: np.ndarray, d: np.ndarray, gradient: np.ndarray, c: np.ndarray,
-              perimeter_px: float) -> bool:
+              perimeter_px: float, px_factor: float = 1.0) -> bool:
     """Does the top face swept from top to bottom (each pixel p by f * (d + gradient @ (p - c)),
     f from 0 to 1) give back the silhouette? Rasterising leaves a band of a pixel or two along
     the boundary; anything thicker (silhouette the swept face misses: a dark label taken for a
     hole, wider than the walls' sweep fills; swept face beyond the silhouette: walls as bright
     as the top taken for top) is refused, and so is a total over SWEEP_TOLERANCE pixels per
-    pixel of perimeter. c: the point where the shift is d, in the masks' pixel indices."""
+    pixel of perimeter. c: the point where the shift is d, in the masks' pixel indices. px_factor: the
+    camera's px per mm over the default camera's (the thickness and both tolerances grow with it)."""
     steps = int(np.ceil(np.hypot(*d))) + 1
     swept = face.copy()
     size = (face.shape[1], face.shape[0])
@@ -135,8 +141,9 @@ def _explains(face: np.ndarray, silhouette: np.ndarray, d: np.ndarray, gradient:
         swept |= cv2.warpAffine(face, shift, size, flags=cv2.INTER_NEAREST)
     swept = cv2.morphologyEx(swept, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
     mismatch = (swept != silhouette).astype(np.uint8)
-    thick = cv2.erode(mismatch, np.ones((3, 3), np.uint8))  # what is left of regions 3 px thick or more
+    t = 2 * round((THICK_PX * px_factor - 1) / 2) + 1  # odd, THICK_PX on the default camera
+    thick = cv2.erode(mismatch, np.ones((t, t), np.uint8))  # what is left of regions t px thick or more
     n, _, stats, _ = cv2.connectedComponentsWithStats(thick, connectivity=8)
-    if n > 1 and stats[1:, cv2.CC_STAT_AREA].max() > THICK_MISMATCH_PX:
+    if n > 1 and stats[1:, cv2.CC_STAT_AREA].max() > THICK_MISMATCH_PX * px_factor ** 2:
         return False
-    return int(np.count_nonzero(mismatch)) <= SWEEP_TOLERANCE * perimeter_px
+    return int(np.count_nonzero(mismatch)) <= SWEEP_TOLERANCE * px_factor * perimeter_px

@@ -28,12 +28,13 @@ from cell.vision.segment import _signed_area, calibration_size_factor, refine_ri
 MIN_WALL_PX = 1.0  # narrower walls: the two planes map the silhouette within half a pixel
 WALL_SHADE = 0.81  # a wall pixel is darker than this x the top's level (walls: about 0.6 - 0.7)
 TOP_LEVEL_PERCENTILE = 60  # the top face is most of the silhouette; highlights are a few per cent
-# the sweep's test on the default camera (0.5 mm/px); a camera with f times its px per mm
-# (`calibration_size_factor`) takes lengths x f and areas x f^2: the silhouette it checks comes from a
-# detection of the default's pixel size in mm (segment.py), so its flaws are as large in mm
+# the face's opening and the sweep's test on the default camera (0.5 mm/px); a camera with f times its
+# px per mm (`calibration_size_factor`) takes lengths x f and areas x f^2: the silhouette it checks
+# comes from a detection of the default's pixel size in mm (segment.py), so its flaws are as large in
+# mm, and so is the band of an edge's blur (a strip of it enclosed by the face is no hole)
 SWEEP_TOLERANCE = 1.5  # silhouette pixels the swept top face may miss or add, per pixel of perimeter
 THICK_MISMATCH_PX = 40  # the largest region of the mismatch 3 px thick (corners and shading leave up to ~20)
-THICK_PX = 3
+THICK_PX = 3  # the face is opened by this, and the mismatch's regions this thick are looked at
 _SUBPIX = 4  # fillPoly fractional bits
 
 
@@ -87,13 +88,15 @@ def top_face_px(seg, frame: np.ndarray, cal, z_top_mm: float, z_bottom_mm: float
     brightness = cv2.GaussianBlur(frame[v0:v1, u0:u1].astype(np.float32).sum(axis=2), (3, 3), 0.8)
     level = float(np.percentile(brightness[inside], TOP_LEVEL_PERCENTILE))
     face = (inside & (brightness >= WALL_SHADE * level)).astype(np.uint8)
-    face = cv2.morphologyEx(face, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    px_factor = calibration_size_factor(cal)  # the camera's px per mm over the default camera's
+    k = _odd_px(THICK_PX, px_factor)  # 3 x 3 on the default camera: 1.5 mm
+    face = cv2.morphologyEx(face, cv2.MORPH_OPEN, np.ones((k, k), np.uint8))
     n, labels = cv2.connectedComponents(face, connectivity=8)
     if n < 2:
         return None
     face = (labels == 1 + int(np.argmax(np.bincount(labels.ravel())[1:]))).astype(np.uint8)
     perimeter = cv2.arcLength(raster(outline).astype(np.float32) / (1 << _SUBPIX), True)
-    if not _explains(face, silhouette, d, gradient, c - origin, perimeter, calibration_size_factor(cal)):
+    if not _explains(face, silhouette, d, gradient, c - origin, perimeter, px_factor):
         return None
     contours, hierarchy = cv2.findContours(face, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
     outers, holes = [], []
@@ -112,6 +115,11 @@ def top_face_px(seg, frame: np.ndarray, cal, z_top_mm: float, z_bottom_mm: float
     out = [np.where(np.all(f == r, axis=1)[:, None], _moved_out(r, 0.5, h), f)
            for r, f, h in zip(rings, refined, is_hole, strict=True)]
     return out[0], out[1:]
+
+
+def _odd_px(px: int, px_factor: float) -> int:
+    """The odd kernel size nearest `px` (odd) x px_factor: `px` on the default camera."""
+    return 2 * round((px * px_factor - 1) / 2) + 1
 
 
 def _moved_out(ring: np.ndarray, by_px: float, hole: bool) -> np.ndarray:
@@ -141,7 +149,7 @@ def _explains(face: np.ndarray, silhouette: np.ndarray, d: np.ndarray, gradient:
         swept |= cv2.warpAffine(face, shift, size, flags=cv2.INTER_NEAREST)
     swept = cv2.morphologyEx(swept, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
     mismatch = (swept != silhouette).astype(np.uint8)
-    t = 2 * round((THICK_PX * px_factor - 1) / 2) + 1  # odd, THICK_PX on the default camera
+    t = _odd_px(THICK_PX, px_factor)
     thick = cv2.erode(mismatch, np.ones((t, t), np.uint8))  # what is left of regions t px thick or more
     n, _, stats, _ = cv2.connectedComponentsWithStats(thick, connectivity=8)
     if n > 1 and stats[1:, cv2.CC_STAT_AREA].max() > THICK_MISMATCH_PX * px_factor ** 2:

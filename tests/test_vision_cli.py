@@ -176,11 +176,14 @@ def test_bench_vision_prints_figures(capsys):
                            "all effects", "--json", capsys=capsys)
     assert code == 0
     rows = [json.loads(line) for line in out.splitlines()]
-    acc, timing, large = rows[0], rows[-2], rows[-1]
+    acc, timing, large, large_cal = rows[0], rows[-3], rows[-2], rows[-1]
     assert acc["condition"] == "all effects" and acc["found"] == acc["parts"] == 3
     assert 0.0 < acc["outline_rms_mm"] < 0.6 and acc["centroid_mean_mm"] < 0.5
     assert timing["median_ms"] > 0 and timing["frame"] == "1280x1024" and timing["regions"] == 8
     assert large["frame"] == "4000x3200" and large["regions"] == 8  # the same 8 parts at 12 MP, no specks
+    assert timing["detection_scale"] == 2 and large["detection_scale"] == 6
+    # with its calibration resized to it: the same parts, detected as coarsely (was 1 / 2 whatever the frame)
+    assert large_cal["frame"] == "4000x3200" and large_cal["regions"] == 8 and large_cal["detection_scale"] == 6
     code, _, err = run_cli("bench", "vision", "--conditions", "foggy", capsys=capsys)
     assert code == 2 and "unknown condition" in err
 

@@ -18,7 +18,7 @@ from shapely.geometry import Polygon
 
 from calibration import Calibration, load_calibration
 from cell.vision.sample_parts import random_layout, random_layout_of
-from cell.vision.segment import SegmentParams, segment_frame, segment_to_mm
+from cell.vision.segment import SMALL_FRAME_PX, SegmentParams, segment_frame, segment_to_mm
 from cell.vision.simcamera import SimCamera, SimCameraOptions, densify
 
 MATCH_SHARE = 0.6  # of a segment's area on a part's silhouette (2 px margin) for the two to match
@@ -114,8 +114,8 @@ def run_benchmark(frames: int = 12, parts_per_frame: int = 6, seed: int = 0, con
 
 
 def time_segmentation(frame: np.ndarray, params: SegmentParams | None = None, repeats: int = 30) -> dict:
-    """Median and spread of the wall time to segment `frame` (after one warm-up run), and the
-    number of regions found."""
+    """Median and spread of the wall time to segment `frame` (after one warm-up run), the
+    number of regions found and the detection scale used."""
     regions = len(segment_frame(frame, params))
     ts, cpu = [], []
     for _ in range(repeats):
@@ -126,4 +126,11 @@ def time_segmentation(frame: np.ndarray, params: SegmentParams | None = None, re
     # CPU time is reported too: on a shared machine wall time also counts other processes
     return {"median_ms": float(np.median(ts)), "p10_ms": float(np.percentile(ts, 10)),
             "p90_ms": float(np.percentile(ts, 90)), "cpu_median_ms": float(np.median(cpu)), "repeats": repeats,
-            "frame": f"{frame.shape[1]}x{frame.shape[0]}", "regions": regions}
+            "frame": f"{frame.shape[1]}x{frame.shape[0]}", "regions": regions, "detection_scale": _detection_scale(
+                frame, params)}
+
+
+def _detection_scale(frame: np.ndarray, params: SegmentParams | None) -> int:
+    """1 / the resolution `segment_frame` detects `frame` at with `params`."""
+    p = (params or SegmentParams()).for_frame(frame.shape)
+    return max(1, int(p.scale)) if frame.shape[1] >= SMALL_FRAME_PX else 1

@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 import pytest
 from conftest import EXTERNAL, run_cli
+from shapely.geometry import Polygon
 
 from calibration import load_calibration
 from cell.vision import SegmentParams, SimCamera, SimCameraOptions, read_image, segment_frame, segment_to_mm
@@ -221,3 +222,86 @@ def test_a_speck_area_given_wins_on_a_12_mp_photo(photo_pairs, tmp_path, capsys)
     assert len(given) > len(auto)  # the specks of 300 - 1500 px are kept when asked for
     assert min(p["area_px"] for p in given) < 0.5 * DEFAULT_MIN_AREA_PX * ratio ** 2
     assert min(p["area_px"] for p in auto) >= 0.5 * DEFAULT_MIN_AREA_PX * ratio ** 2
+
+
+# ---- with a calibration: the sizes follow the camera's px per mm --------------------------------
+
+BIG_CAL = CAL.resized(4000, 3200)  # the default camera's intrinsics x 3.125: 0.16 mm/px
+
+
+def parts_in_mm(segs: list[Segment], cal, frame, parts) -> dict:
+    """part id -> (area mm^2, centroid mm, holes) of each segment, mapped as the cell loop maps
+    it (walls and top faces, at the nearest true part's heights)."""
+    out = {}
+    for seg in segs:
+        c = cal.px_to_mm(seg.centroid_px)[0]
+        part = min(parts, key=lambda p: np.hypot(*(np.asarray(p.polygon.centroid.coords[0]) - c)))
+        outline, holes = segment_to_mm(seg, cal, part.z_top_mm, part.z_bottom_mm, frame)
+        poly = Polygon(outline, holes)
+        assert part.id not in out, f"two segments on {part.id}"
+        out[part.id] = (poly.area, np.asarray(poly.centroid.coords[0]), len(holes))
+    return out
+
+
+def test_a_calibrated_12_mp_frame_is_detected_coarsely_and_gives_the_default_frames_parts_in_mm(rendered_pair):
+    """The frame upscaled to 4000 x 3200 with the calibration resized to it: detected at 1 / 6 as
+    without a calibration (it was 1 / 2 with the default camera's 0.5 mm/px sizes whatever the
+    camera), and in mm the parts are the 1280 x 1024 frame's: the same parts and holes, areas
+    within 1.2 % and centroids within 0.35 mm on these layouts (2 % and 0.5 mm asked). Layout 3's
+    plate_3 is the exception on the default frame's side: there 3 slivers of shadow inside it are
+    taken for small holes (its 2 true holes at 12 MP); it is held to the truth instead."""
+    parts, frame, big = rendered_pair
+    params = SegmentParams.for_calibration(BIG_CAL)
+    assert params.scale == 6 and params.for_frame(big.shape) == params  # the coarser detection is the one run
+    small = parts_in_mm(segment_frame(frame, SegmentParams.for_calibration(CAL)), CAL, frame, parts)
+    large = parts_in_mm(segment_frame(big, params), BIG_CAL, big, parts)
+    assert sorted(large) == sorted(small) == sorted(p.id for p in parts)
+    for part in parts:
+        (a0, c0, h0), (a1, c1, h1) = small[part.id], large[part.id]
+        assert h1 == len(part.holes_mm), part.id
+        if h0 != len(part.holes_mm):
+            assert (part.id, h0) == ("plate_3", 5)  # the one known miss of the 1280 frame
+            assert a1 == pytest.approx(part.polygon.area, rel=0.02)
+            assert np.hypot(*(c1 - part.polygon.centroid.coords[0])) < 0.5
+            continue
+        assert a1 == pytest.approx(a0, rel=0.02), part.id
+        assert np.hypot(*(c1 - c0)) < 0.5, part.id
+
+
+def test_with_a_calibration_the_pixel_sizes_follow_its_px_per_mm_and_given_values_win():
+    from dataclasses import replace
+
+    from calibration import Calibration
+    from cell.vision.segment import DEFAULT_MM_PER_PX, calibration_size_factor
+
+    assert DEFAULT_MM_PER_PX == 0.5
+    sizes = ("scale", "sharp_edge", "min_lobe_radius_px")
+    default = {k: DEFAULT_CAMERA_PX[k] for k in sizes}
+    at_default = SegmentParams.for_calibration(CAL)
+    assert calibration_size_factor(CAL) == 1.0 and {k: getattr(at_default, k) for k in sizes} == default
+    assert at_default.min_area_px == pytest.approx(300, rel=1e-4)  # 75 mm^2 at 0.5 mm/px
+    big = SegmentParams.for_calibration(BIG_CAL)
+    f = calibration_size_factor(BIG_CAL)
+    assert f == pytest.approx(3.125, rel=1e-4) and BIG_CAL.mm_per_px() == pytest.approx(0.16, rel=1e-4)
+    assert big.scale == 6 and big.sharp_edge == pytest.approx(0.06 / f)
+    assert big.min_lobe_radius_px == pytest.approx(6 * f)
+    assert big.min_area_px == pytest.approx(300 * f * f, rel=1e-4)  # still 75 mm^2
+    # a frame without a calibration gets the same sizes from its size alone
+    assert SegmentParams().for_frame((3200, 4000)).scale == 6
+    assert SegmentParams.for_calibration(CAL.resized(2560, 2048)).scale == 4
+    # within 5 % of the default camera's px per mm, and any coarser camera: the default camera's sizes
+    for cal in (CAL.resized(1331, 1065), CAL.resized(640, 512),
+                Calibration(1920, 1080, homography=np.diag([0.56, 0.56, 1.0]))):  # the Festo frames' 0.56 mm/px
+        assert calibration_size_factor(cal) == 1.0
+        assert {k: getattr(SegmentParams.for_calibration(cal), k) for k in sizes} == default
+    # a close-up camera of the default's frame size, 3 x its px per mm: the lobe follows the scene, the
+    # detection copy (and its edge threshold) stays the default's
+    k = CAL.camera_matrix.copy()
+    k[0, 0] *= 3
+    k[1, 1] *= 3
+    close = SegmentParams.for_calibration(replace(CAL, camera_matrix=k))
+    assert close.scale == 2 and close.sharp_edge == 0.06 and close.min_lobe_radius_px == pytest.approx(18, rel=1e-3)
+    # values given win
+    given = SegmentParams.for_calibration(BIG_CAL, scale=2, sharp_edge=0.05)
+    assert given.scale == 2 and given.sharp_edge == 0.05 and given.min_lobe_radius_px == big.min_lobe_radius_px
+    assert replace(big, min_area_px=50.0).for_frame((3200, 4000)).min_area_px == 50.0

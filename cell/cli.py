@@ -47,6 +47,14 @@ COMMANDS: list[tuple[tuple[str, ...], str, str]] = [
 
 
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # "-1e1", "-1,-1,5,5" are values, not options (argparse knows only "-5" and "-.5"): without this,
+        # `hw jog j1 -1e1` said "the following arguments are required: step"
+        from cell.commands._vision_args import allow_negative_pairs
+
+        allow_negative_pairs(self)
+
     def error(self, message):  # argparse's own usage errors are bad input too: exit 2
         self.print_usage(sys.stderr)
         raise BadInput(message)
@@ -86,6 +94,8 @@ def main(argv: list[str] | None = None) -> int:
         if not hasattr(args, "_module"):
             parser.print_help(sys.stderr)
             return 2
+        if isinstance(getattr(args, "seed", None), int) and args.seed < 0:  # numpy's generators refuse it
+            raise BadInput(f"--seed must be 0 or more, got {args.seed}")
         return int(importlib.import_module(args._module).run(args) or 0)
     except CellError as e:
         print(f"cell: error: {e}", file=sys.stderr)

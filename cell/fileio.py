@@ -41,6 +41,19 @@ def write_atomic(path: str | os.PathLike, data: str | bytes) -> None:
     _fsync_dir(path.parent)
 
 
+def check_writable(path: str | os.PathLike, what: str) -> None:
+    """Refuse, before any work is done, an output path that cannot become a file: a directory, or a
+    path under a file (`write_atomic` would fail only after the work, naming its temp file)."""
+    path = Path(path)
+    if path.is_dir():
+        raise BadInput(f"{what} {path} is a directory, not a file")
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise BadInput(f"{what} {path}: {parent} is a file, not a folder")
+            return
+
+
 def write_json_atomic(path: str | os.PathLike, obj) -> None:
     write_atomic(path, json.dumps(obj, indent=2) + "\n")
 

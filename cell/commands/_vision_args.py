@@ -62,11 +62,11 @@ def _finite(x: float) -> bool:
     return x == x and abs(x) != float("inf")
 
 
-def refuse_out_over_an_input(out, inputs) -> None:
+def refuse_out_over_an_input(out, inputs, option: str = "--out") -> None:
     """--out naming one of the command's own input files would replace it with the result."""
     from pathlib import Path
 
     target = Path(out).resolve()
     for path in inputs:
         if path is not None and Path(path).resolve() == target:
-            raise BadInput(f"--out {out} is one of the inputs: it would be overwritten; name another file")
+            raise BadInput(f"{option} {out} is one of the inputs: it would be overwritten; name another file")

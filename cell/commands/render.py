@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 
 def add_arguments(p) -> None:
@@ -21,7 +22,6 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from dataclasses import replace
-    from pathlib import Path
 
     from cell.cellconfig import load_cell
     from cell.errors import BadInput
@@ -36,7 +36,13 @@ def run(args) -> int:
         raise BadInput(f"{args.scene}: expected a scene or assembly object with a 'parts' list")
     parts = [parse_part(p, f"{args.scene}: part #{i}") for i, p in enumerate(raw["parts"])]
     cell_path = args.cell or own_cell_path(raw, str(args.scene), Path(args.scene).parent)
+    _check_outputs(args, [args.scene, cell_path, args.calibration])  # before the rendering, not after
     _, cal = camera_calibration(load_cell(cell_path), args.calibration)
+    camera = cal.camera_position_mm()
+    for p in parts:  # the shadow of a part 50 m tall took minutes to draw; one over the lens cannot be drawn
+        if camera is not None and p.z_top_mm >= camera[2]:
+            raise BadInput(f"{args.scene}: part {p.id!r} reaches z = {p.z_top_mm:g} mm, at or above the camera "
+                           f"(z = {camera[2]:.0f} mm): the camera cannot see it")
     opts = SimCameraOptions(seed=args.seed)
     if args.no_shadows:
         opts = replace(opts, shadows=False)
@@ -58,3 +64,20 @@ def run(args) -> int:
                       "height_px": frame.shape[0], "seed": args.seed}))
     return 0
 
+
+def _check_outputs(args, inputs) -> None:
+    """--out and --truth: writable, in an image format OpenCV writes, neither over an input nor each other."""
+    import cv2
+
+    from cell.commands._vision_args import refuse_out_over_an_input
+    from cell.errors import BadInput
+    from cell.fileio import check_writable
+
+    check_writable(args.out, "--out")
+    suffix = Path(args.out).suffix or ".png"  # write_image writes PNG when the name has no extension
+    if not cv2.haveImageWriter("frame" + suffix):
+        raise BadInput(f"--out {args.out}: OpenCV writes no {suffix!r} images; use .png")
+    refuse_out_over_an_input(args.out, inputs)
+    if args.truth:
+        check_writable(args.truth, "--truth")
+        refuse_out_over_an_input(args.truth, [*inputs, args.out], "--truth")

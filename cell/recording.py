@@ -346,6 +346,9 @@ class RecordingReader:
         self.decisions = self._read_decisions()
         self._frames = self._index_frames()
         counts = m.get("counts") or {}
+        for key in ("decisions", "frames"):  # "14" for 14 gave "holds 14 decisions, the manifest says 14"
+            if key in counts and (isinstance(counts[key], bool) or not isinstance(counts[key], int)):
+                raise BadInput(f"{mpath}: 'counts.{key}' must be a whole number, not {counts[key]!r}")
         if m["status"] != "recording":  # a closed manifest states its counts: they must match
             if counts.get("decisions") != len(self.decisions):
                 raise BadInput(f"recording {self.dir}: {DECISIONS} holds {len(self.decisions)} decisions, "
@@ -454,7 +457,10 @@ class RecordingReader:
 
         p = self.frame_path(index)
         check_readable(p, "recording frame")
-        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        try:
+            img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        except cv2.error as e:  # e.g. a header claiming more pixels than OpenCV decodes
+            raise BadInput(f"recording frame {p} cannot be decoded as PNG (OpenCV: {getattr(e, 'err', e)})") from None
         if img is None:
             raise BadInput(f"recording frame {p} cannot be decoded as PNG")
         return img

@@ -1,0 +1,49 @@
+"""`cell replay` on recordings damaged in ways the hardening tests did not try: exit 2, one clear line."""
+
+import json
+import shutil
+import struct
+import zlib
+from pathlib import Path
+
+import pytest
+from conftest import run_cli
+
+SHIPPED = Path(__file__).resolve().parent.parent / "recordings" / "shipped"
+
+
+def _png_header_only(width: int, height: int) -> bytes:
+    """A PNG whose header claims width x height pixels (more than OpenCV decodes) with little data."""
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 1000))
+            + chunk(b"IEND", b""))
+
+
+def _damage_frame(d: Path):
+    (d / "frames" / "000001.png").write_bytes(_png_header_only(60000, 60000))
+
+
+def _counts_as_strings(d: Path):
+    m = json.loads((d / "manifest.json").read_text())
+    m["counts"] = {k: str(v) for k, v in m["counts"].items()}
+    (d / "manifest.json").write_text(json.dumps(m))
+
+
+@pytest.mark.parametrize("damage, message", [
+    # was: internal error (cv2.error: pixels <= CV_IO_MAX_IMAGE_PIXELS)
+    (_damage_frame, "000001.png cannot be decoded as PNG (OpenCV: pixels <= CV_IO_MAX_IMAGE_PIXELS)"),
+    # was: "decisions.jsonl holds 14 decisions, the manifest says 14"
+    (_counts_as_strings, "'counts.decisions' must be a whole number, not '14'"),
+])
+def test_replay_refuses_the_damage_in_one_clear_line(tmp_path, capsys, damage, message):
+    d = tmp_path / "rec"
+    shutil.copytree(SHIPPED, d)
+    damage(d)
+    before = {p: p.read_bytes() for p in d.rglob("*") if p.is_file()}
+    code, out, err = run_cli("replay", d, capsys=capsys)
+    assert code == 2 and message in err and "internal error" not in err, err
+    assert len(err.strip().splitlines()) == 1
+    assert {p: p.read_bytes() for p in d.rglob("*") if p.is_file()} == before  # reading never changes it

@@ -77,6 +77,9 @@ def run(args) -> int:
     )
 
 
+MAX_DWELL_S = 600.0  # a SimClock steps through every heartbeat of the dwell: 1e300 s never ended
+
+
 def _check_times(args) -> None:
     """--dwell / --seconds: a finite time, not negative (NaN would wait forever on a SimClock)."""
     from cell.errors import BadInput
@@ -85,6 +88,8 @@ def _check_times(args) -> None:
         value = getattr(args, option, None)
         if value is not None and not (math.isfinite(value) and value >= 0):
             raise BadInput(f"--{option} {value:g}: give a finite number of seconds, 0 or more")
+    if getattr(args, "dwell", None) is not None and args.dwell > MAX_DWELL_S:
+        raise BadInput(f"--dwell {args.dwell:g}: at most {MAX_DWELL_S:g} s at the corner")
 
 
 # --- sessions -------------------------------------------------------------------------------
@@ -230,7 +235,8 @@ def _serve(args, cell) -> int:
                 file=sys.stderr,
                 flush=True,
             )
-            stop.wait(args.seconds)
+            # threading waits at most TIMEOUT_MAX (292 years): --seconds 1e300 was an OverflowError
+            stop.wait(None if args.seconds is None else min(args.seconds, threading.TIMEOUT_MAX))
     finally:
         bus.shutdown()
         for s, h in old.items():
@@ -296,8 +302,14 @@ def _gripper(args, cell) -> int:
 
     if args.action == "grip" and args.width is None:
         raise BadInput("gripper grip needs --width (the expected part width, mm)")
+    if args.action == "open" and (args.width is not None or args.force is not None):
+        raise BadInput("--width and --force are for grip; open takes neither")
     if args.part is not None and not _simulated(args):
         raise BadInput("--part places a part in the simulated cell only")
+    top = cell.gripper.opening_mm[1]
+    if args.part is not None and not 0 < args.part <= top:  # NaN fails too
+        raise BadInput(f"--part {args.part:g}: the width of a part between the jaws, more than 0 and at most "
+                       f"the opening, {top:g} mm")
     with _session(args, cell) as (arm, drives):
         if drives is not None:
             drives.gripper_object_width_mm = args.part

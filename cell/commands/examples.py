@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import sys
 
+MAX_COUNT = 10000  # accepted grasps in one session (the paper's: 60)
+
 
 def add_arguments(parser) -> None:
     parser.add_argument("--out", required=True, help="example file to write (JSON Lines)")
@@ -31,11 +33,11 @@ def run(args) -> int:
     from cell.cellconfig import load_cell
     from cell.errors import BadInput
     from cell.examples import append_examples
-    from cell.fileio import replace_lines_atomic
+    from cell.fileio import check_writable, replace_lines_atomic
     from cell.operator import generate_examples
 
-    if args.count < 1:
-        raise BadInput("--count must be at least 1")
+    if not 1 <= args.count <= MAX_COUNT:  # a few a second: 1e23 ran without end
+        raise BadInput(f"--count must be 1..{MAX_COUNT}, got {args.count}")
     if not (0.0 <= args.rejections <= 1.0 and 0.0 <= args.neighbours <= 1.0):
         raise BadInput("--rejections and --neighbours are shares between 0 and 1")
     out = Path(args.out)
@@ -43,7 +45,10 @@ def run(args) -> int:
         raise BadInput(f"{out} exists: pass --append to add to it or --overwrite to replace it")
     if out.exists() and out.is_dir():
         raise BadInput(f"--out {out} is a folder")
+    check_writable(out, "--out")  # before the session, not after it
     families = [f.strip() for f in args.families.split(",") if f.strip()] if args.families else None
+    if families == []:  # "," or " ": was an IndexError, not the whole library
+        raise BadInput(f"--families {args.families!r} names no family")
     cell = load_cell(args.cell)
 
     def progress(i, n):

@@ -1,0 +1,26 @@
+"""`cell examples generate` with values it crashed or never ended on: exit 2, one line, no file written."""
+
+import pytest
+from conftest import run_cli
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--families", ",,,"], "--families ',,,' names no family"),  # was: internal error (IndexError)
+    (["--families", " "], "names no family"),
+    (["--count", "99999999999999999999999"], "--count must be 1..10000"),  # was: ran without end
+    (["--count", "0"], "--count must be 1..10000"),
+])
+def test_bad_session_options_are_refused_before_the_session(tmp_path, capsys, extra, message):
+    out = tmp_path / "e.jsonl"
+    code, stdout, err = run_cli("examples", "generate", "--out", out, "--count", "1", *extra, capsys=capsys)
+    assert code == 2 and message in err and "internal error" not in err, err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_out_path_under_a_file_is_refused_before_the_session(tmp_path, capsys):
+    """It was refused after the session, with '[Errno 17] File exists: ...'."""
+    (tmp_path / "f").write_text("x")
+    code, stdout, err = run_cli("examples", "generate", "--out", tmp_path / "f" / "e.jsonl", "--count", "1",
+                                capsys=capsys)
+    assert code == 2 and "is a file, not a folder" in err and "examples:" not in err, err
+    assert (tmp_path / "f").read_text() == "x"

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import argparse
 
+MAX_MOTION_S = 600.0
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--host", default="127.0.0.1", help="interface to bind (default 127.0.0.1: this PC only)")
@@ -25,18 +27,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    import math
+    import threading
     import time
 
     from cell.commands.run import _sigterm_as_interrupt
     from cell.errors import BadInput
+    from cell.fileio import check_writable
     from cell.runtime.control import RunControl
     from cell.station.demo import DemoCell
     from cell.station.server import StationServer
 
     if not (0 <= args.port <= 65535):
         raise BadInput(f"--port must be 0..65535, not {args.port}")
-    if args.motion_s < 0:
-        raise BadInput("--motion-s must not be negative")
+    # NaN or 1e300 s made the pick thread's sleep raise (the page waited for a pick that had died)
+    if not 0 <= args.motion_s <= MAX_MOTION_S:
+        raise BadInput(f"--motion-s must be 0..{MAX_MOTION_S:g} s, got {args.motion_s:g}")
+    if args.for_s is not None and not (math.isfinite(args.for_s) and args.for_s >= 0):
+        raise BadInput(f"--for-s {args.for_s:g}: give a finite number of seconds, 0 or more")
+    check_writable(args.examples, "--examples")  # a path under a file failed only at the first taught grasp
     control = RunControl(require_approval=args.approve_each)
     cell = DemoCell(control, args.examples, motion_s=args.motion_s)
     server = StationServer(cell, control, host=args.host, port=args.port, token=args.token,
@@ -48,8 +57,8 @@ def run(args) -> int:
         print(f"token: {server.token}", flush=True)
         print(f"examples: {args.examples}", flush=True)
         try:
-            if args.for_s is not None:
-                time.sleep(max(0.0, args.for_s))
+            if args.for_s is not None:  # at most TIMEOUT_MAX (292 years): 1e300 was an OverflowError
+                time.sleep(min(args.for_s, threading.TIMEOUT_MAX))
             else:
                 while True:
                     time.sleep(3600)

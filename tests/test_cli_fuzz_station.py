@@ -1,0 +1,40 @@
+"""`cell station` with times and paths it accepted or crashed on: exit 2 and one line, before serving."""
+
+import pytest
+from conftest import run_cli
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--motion-s", "nan"], "--motion-s must be 0..600 s"),  # was: served; the pick thread's sleep raised
+    (["--motion-s", "1e300"], "--motion-s must be 0..600 s"),
+    (["--for-s", "nan"], "--for-s nan: give a finite number"),  # was: served 0 s, exit 0
+    (["--for-s", "-1"], "--for-s -1: give a finite number"),
+    (["--for-s", "inf"], "--for-s inf: give a finite number"),
+    (["--examples", "f/e.jsonl"], "--examples f/e.jsonl: f is a file, not a folder"),  # was: served, failed
+    # at the first taught grasp
+])
+def test_station_refuses_bad_values_before_serving(tmp_path, monkeypatch, capsys, extra, message):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "f").write_text("x")
+    code, out, err = run_cli("station", "--port", "0", "--for-s", "0", *extra, capsys=capsys)
+    assert code == 2 and message in err and out == "", err
+    assert [p.name for p in tmp_path.iterdir()] == ["f"] and (tmp_path / "f").read_text() == "x"
+
+
+def test_station_serves_for_longer_than_a_sleep_can_be(tmp_path, monkeypatch, capsys):
+    """--for-s 1e300 was 'internal error: OverflowError'; it sleeps as long as the platform can."""
+    import time
+
+    monkeypatch.chdir(tmp_path)
+    slept, real_sleep = [], time.sleep
+
+    def sleep(s):
+        if s < 1e6:  # the demo cell's own short sleeps
+            return real_sleep(s)
+        slept.append(s)
+        raise KeyboardInterrupt  # the operator's Ctrl-C, at once
+
+    monkeypatch.setattr(time, "sleep", sleep)
+    code, out, err = run_cli("station", "--port", "0", "--for-s", "1e300", capsys=capsys)
+    assert code == 0 and "station closed" in out, err
+    assert 1e9 < slept[0] < 1e300

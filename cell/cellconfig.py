@@ -22,6 +22,12 @@ FORMAT = "disassembly-cell/cell"
 DEFAULT_JOINT_WEIGHTS = {"j1": 0.25, "j2": 0.5, "j3": 0.0, "j4": 1.0}
 JOINTS = ("j1", "j2", "j3", "j4")
 NODE_UNITS = {"j1": "deg", "j2": "deg", "j3": "mm", "j4": "deg", "gripper": "mm"}  # the units CONTRACT fixes
+# Bounds past which a cell file is not a cell: a pad 1e9 mm wide or J4 up to 1e9 deg made `cell grasp` run
+# without end (1e308: an OverflowError), a camera of 1e9 px asked for terabytes.
+MAX_VALUE = 1e6  # any number in the file (mm, deg, s, counts/unit, bit/s)
+CAMERA_PX = (16, 25_000_000)  # the smallest side, the most pixels (a 25 MP frame)
+MAX_HEARTBEAT_MS = 0xFFFF  # 0x1017 producer heartbeat time: UNSIGNED16
+HEARTBEAT_DEADLINE_FACTOR = 3  # drivers.arm.HEARTBEAT_DEADLINE_FACTOR: the host's deadline in 0x1016 is 16 bits too
 
 
 def default_cell_path() -> Path:
@@ -211,6 +217,9 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
     c = r.obj(raw, "camera")
     camera = Camera(r.count(c, "width_px", "camera"), r.count(c, "height_px", "camera"),
                     r.pos(c, "height_mm", "camera"))
+    if min(camera.width_px, camera.height_px) < CAMERA_PX[0] or camera.width_px * camera.height_px > CAMERA_PX[1]:
+        raise BadInput(f"cell file {source}: camera {camera.width_px} x {camera.height_px} px: each side at least "
+                       f"{CAMERA_PX[0]} px, at most {CAMERA_PX[1] / 1e6:g} MP in all")
     cn = r.obj(raw, "can")
     nodes_raw = r.obj(cn, "nodes", "can")
     nodes = {}
@@ -227,8 +236,14 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
     if len({n.node_id for n in nodes.values()}) != len(nodes):
         raise BadInput(f"cell file {source}: can.nodes have duplicate node ids")
     _check_rates_countable(scara, gripper, nodes, source)
+    _check_counts_fit(scara, gripper, nodes, source)
     can = CanConfig(r.count(cn, "bitrate", "can"), r.count(cn, "heartbeat_ms", "can"),
                     r.count(cn, "host_heartbeat_ms", "can"), nodes)
+    host_top = MAX_HEARTBEAT_MS // HEARTBEAT_DEADLINE_FACTOR
+    for key, top in (("heartbeat_ms", MAX_HEARTBEAT_MS), ("host_heartbeat_ms", host_top)):
+        if getattr(can, key) > top:
+            raise BadInput(f"cell file {source}: can.{key} = {getattr(can, key)} is more than {top} ms "
+                           "(a 16-bit time in the drives' heartbeat objects)")
     weights = dict(DEFAULT_JOINT_WEIGHTS)
     if "configuration" in raw:
         w = r.obj(r.obj(raw, "configuration"), "joint_weights", "configuration")
@@ -260,6 +275,21 @@ def _check_rates_countable(scara: Scara, gripper: Gripper, nodes: dict, source: 
         if limit * nodes[node].counts_per_unit < 1:
             raise BadInput(f"cell file {source}: {key} = {limit:g} is under one count "
                            f"(can.nodes.{node}.counts_per_unit = {nodes[node].counts_per_unit:g})")
+
+
+def _check_counts_fit(scara: Scara, gripper: Gripper, nodes: dict, source: str) -> None:
+    """Positions, speeds and accelerations go to the drives as INTEGER32 counts: a joint limit of 360 deg at
+    1e9 counts per degree was an internal error at the first move."""
+    values = [(f"scara.{j}{'_mm' if j == 'j3' else '_deg'}", max(map(abs, scara.limits(j))), j) for j in JOINTS]
+    values += [(f"scara.max_velocity.{j}", scara.max_velocity[j], j) for j in JOINTS]
+    values += [(f"scara.max_acceleration.{j}", scara.max_acceleration[j], j) for j in JOINTS]
+    values += [("gripper.opening_mm", max(map(abs, gripper.opening_mm)), "gripper"),
+               ("gripper.speed_mm_s", gripper.speed_mm_s, "gripper")]
+    for key, v, node in values:
+        if v * nodes[node].counts_per_unit >= 2**31:
+            raise BadInput(f"cell file {source}: {key} = {v:g} is {v * nodes[node].counts_per_unit:.3g} counts "
+                           f"(can.nodes.{node}.counts_per_unit = {nodes[node].counts_per_unit:g}): more than a "
+                           "drive's 32-bit position holds")
 
 
 NOTE_KEYS = ("comment", "description", "notes")  # free text anywhere, as are keys starting with "_"
@@ -304,6 +334,8 @@ class _Reader:
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v):
             r = repr(v)
             self._fail(where, key, f"must be a finite number, got {r if len(r) <= 40 else r[:37] + '...'}")
+        if abs(v) > MAX_VALUE:
+            self._fail(where, key, f"must be within +-{MAX_VALUE:g} (the units are mm, deg, s), got {v:g}")
         return float(v)
 
     def integer(self, d, key, where=""):

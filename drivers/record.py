@@ -12,6 +12,7 @@ from pathlib import Path
 import can
 
 from cell.errors import BadInput
+from cell.fileio import check_writable
 from drivers.clock import Clock
 from drivers.pump import BusPump
 
@@ -36,6 +37,7 @@ class BusRecorder:
         self.path = Path(path)
         if self.path.suffix.lower() not in SUFFIXES:
             raise BadInput(f"CAN log {self.path}: use one of {', '.join(SUFFIXES)} (python-can's formats)")
+        check_writable(self.path, "CAN log")  # was "[Errno 17] File exists: 'x'" for x.json/log.asc
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.clock = clock
         self.frames = 0

@@ -29,7 +29,7 @@ def add_arguments(p) -> None:
                    help="leave out views that do not fit and calibrate again")
     p.add_argument("--charuco", action="store_true", help="the board is a ChArUco board")
     p.add_argument("--marker", type=float, metavar="MM", help="ChArUco marker side (same unit as --square)")
-    p.add_argument("--dictionary", default="DICT_6X6_250", help="ChArUco dictionary (default DICT_6X6_250)")
+    p.add_argument("--dictionary", default=None, help="ChArUco dictionary (default DICT_6X6_250)")
     p.add_argument("--name", default=None, help="name stored in the calibration file")
     p.add_argument("--json", action="store_true", help="accepted for symmetry: the result is always JSON")
 
@@ -48,7 +48,9 @@ def run(args) -> int:
     if args.charuco:
         if args.marker is None or not 0 < args.marker < args.square:  # NaN fails both
             raise BadInput("--charuco needs --marker MM, smaller than --square")
-        charuco = {"marker_mm": args.marker, "dictionary": args.dictionary}
+        charuco = {"marker_mm": args.marker, "dictionary": args.dictionary or "DICT_6X6_250"}
+    elif args.marker is not None or args.dictionary is not None:  # a chessboard has neither: dropped silently
+        raise BadInput("--marker and --dictionary describe a ChArUco board: give --charuco too")
     if args.subpix_win is not None and args.subpix_win < 1:
         raise BadInput("--subpix-win must be at least 1")
     refuse_out_over_an_input(args.out, args.images)

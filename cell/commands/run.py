@@ -63,6 +63,8 @@ def run(args) -> int:
     args.shift_mm = 2.0 if args.shift_mm is None else args.shift_mm
     if args.approve and not args.station:
         raise BadInput("--approve needs --station: someone must be there to approve")
+    if args.token is not None and not args.station:  # was dropped without a word
+        raise BadInput("--token is the operator station's: give --station too")
     if args.seed < 0:
         raise BadInput("--seed must not be negative")
     if not 0 <= args.port <= 65535:

@@ -237,6 +237,9 @@ def parse_part(raw, where: str = "part") -> Part:
         raise BadInput(f"{where}: 'holes' must be a list of rings")
     holes = [_ring(h, f"{where} hole #{i}") for i, h in enumerate(holes_raw)]
     zb, zt = _num(raw.get("z_bottom", 0.0), f"{where} z_bottom"), _num(raw.get("z_top"), f"{where} z_top")
+    if max(abs(zb), abs(zt)) > MAX_COORD_MM:  # as for the outline: not mm of a part on the tray
+        raise BadInput(f"{where}: z_bottom and z_top must be within {MAX_COORD_MM:g} mm of the table "
+                       f"(got {max(abs(zb), abs(zt)):g}; the units are mm)")
     if zt <= zb:
         raise BadInput(f"{where}: z_top ({zt}) must be above z_bottom ({zb})")
     if zb < 0:  # CONTRACT: the table surface is z = 0; nothing lies below it

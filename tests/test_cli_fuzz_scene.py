@@ -1,0 +1,23 @@
+"""Scene heights no part on the tray has: bad input naming the part, as outline coordinates that far are."""
+
+import json
+
+import pytest
+from conftest import run_cli
+
+from cell.examples import append_examples
+from cell.grasp import shapes
+from cell.scene import Scene
+
+
+@pytest.mark.parametrize("z_top", [1e308, 2e6])
+def test_a_part_taller_than_a_kilometre_is_bad_input(tmp_path, capsys, z_top):
+    """It was planned: exit 3, 'the grasp z is 1e+308 mm'; `cell render` drew its shadow without end."""
+    raw = Scene((shapes.rectangle("box", 50, 30, (300, 100), 30),), "box").to_json()
+    raw["parts"][0]["z_top"] = z_top
+    scene = tmp_path / "scene.json"
+    scene.write_text(json.dumps(raw))
+    examples = tmp_path / "ex.jsonl"
+    append_examples(examples, shapes.hand_made_examples())
+    code, out, err = run_cli("grasp", scene, "--json", "--examples", examples, capsys=capsys)
+    assert code == 2 and out == "" and "part 'box': z_bottom and z_top must be within 1e+06 mm" in err, err

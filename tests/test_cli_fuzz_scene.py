@@ -21,3 +21,18 @@ def test_a_part_taller_than_a_kilometre_is_bad_input(tmp_path, capsys, z_top):
     append_examples(examples, shapes.hand_made_examples())
     code, out, err = run_cli("grasp", scene, "--json", "--examples", examples, capsys=capsys)
     assert code == 2 and out == "" and "part 'box': z_bottom and z_top must be within 1e+06 mm" in err, err
+
+
+@pytest.mark.parametrize("z_top", [800.0, 2000.0])
+def test_cell_run_names_a_part_that_reaches_the_camera(tmp_path, capsys, z_top):
+    """It said only 'some points are behind the camera'."""
+    from cell.runtime.session import default_assembly_path
+
+    raw = json.loads(default_assembly_path().read_text())
+    raw["parts"][0]["z_top"] = z_top
+    assembly = tmp_path / "asm.json"
+    assembly.write_text(json.dumps(raw))
+    code, out, err = run_cli("run", assembly, "--record", tmp_path / "rec", capsys=capsys)
+    pid = raw["parts"][0]["id"]
+    assert code == 2 and f"part {pid!r} reaches z = {z_top:g} mm, at or above the camera (z = 800 mm)" in err, err
+    assert not (tmp_path / "rec").exists()

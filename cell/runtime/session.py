@@ -211,7 +211,9 @@ def run_session(cfg: RunConfig) -> dict:
         examples_out = folder / ("examples.jsonl" if cfg.record else f"examples-{stamp}.jsonl")
 
     if cfg.save_rrd:  # before the recording is made: a run that cannot start leaves no recording behind
-        _check_rrd_path(Path(cfg.save_rrd))
+        from cell.cellconfig import default_cell_path
+
+        _check_rrd_path(Path(cfg.save_rrd), [assembly_path, cell_path or default_cell_path(), cal_path, examples_path])
     recorder = None
     if cfg.record:
         from cell.recording import RecordingWriter
@@ -353,9 +355,12 @@ def _require_dropoff_reachable(cell, cell_path) -> None:
     raise BadInput(f"cell file {cell_path or '(default)'}: motion.dropoff_mm {[x, y, z]} {why}")
 
 
-def _check_rrd_path(path: Path) -> None:
+def _check_rrd_path(path: Path, inputs) -> None:
     from cell.errors import BadInput
 
+    for p in inputs:  # it replaced the assembly or the example file with the .rrd
+        if p is not None and Path(p).resolve() == path.resolve():
+            raise BadInput(f"--save {path} is one of the run's input files: it would be overwritten; name another")
     if path.is_dir():
         raise BadInput(f"--save {path} is a directory, not a .rrd file")
     if path.parent.exists() and not path.parent.is_dir():

@@ -39,3 +39,17 @@ def test_a_negative_seed_is_bad_input_not_an_internal_error(tmp_path, monkeypatc
     code, out, err = run_cli(*argv, capsys=capsys)
     assert code == 2 and "--seed must be 0 or more" in err and "internal error" not in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["map", "CAL", "--mm", "300,0", "1e30,1e30"], "--mm 1e30,1e30: coordinates must be within 1e+06 mm"),  # was:
+    # mapped to 1.1e13 px, exit 0
+    (["map", "CAL", "--px", "100,100", "--z", "-1e300"], "--z must be within 1e+06 mm of the table"),
+    (["segment", "nowhere.png", "--calibration", "CAL", "--z", "1e300"], "--z must be within 1e+06 mm"),
+])
+def test_heights_and_points_a_kilometre_off_are_bad_input(capsys, argv, message):
+    from calibration import default_calibration_path
+
+    argv = [default_calibration_path() if a == "CAL" else a for a in argv]
+    code, out, err = run_cli(*argv, capsys=capsys)
+    assert code == 2 and message in err and out == "", err

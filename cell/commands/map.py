@@ -20,8 +20,12 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from calibration import load_calibration
+    from cell.errors import BadInput
+    from cell.scene import MAX_COORD_MM
 
     finite(args.z, "--z")
+    if args.z is not None and abs(args.z) > MAX_COORD_MM:
+        raise BadInput(f"--z must be within {MAX_COORD_MM:g} mm of the table, got {args.z:g}")
     cal = load_calibration(args.calibration)
     if args.px:
         pts = [pair(t, "--px") for t in args.px]
@@ -29,6 +33,10 @@ def run(args) -> int:
         key = "mm"
     else:
         pts = [pair(t, "--mm") for t in args.mm]
+        far = [t for t, p in zip(args.mm, pts, strict=True) if max(map(abs, p)) > MAX_COORD_MM]
+        if far:  # 1e30,1e30 was mapped to 1.1e13 px, exit 0
+            raise BadInput(f"--mm {far[0]}: coordinates must be within {MAX_COORD_MM:g} mm of the base "
+                           "(the units are mm)")
         res = cal.mm_to_px(pts, args.z)
         key = "px"
     out = {key: [[round(float(a), 4), round(float(b), 4)] for a, b in res],

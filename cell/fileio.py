@@ -23,6 +23,7 @@ from cell.errors import BadInput
 def write_atomic(path: str | os.PathLike, data: str | bytes) -> None:
     """Replace `path` with `data` so that readers see the old or the new file, never a mix."""
     path = Path(path)
+    _refuse_to_replace_a_special_file(path, "cannot write")
     path.parent.mkdir(parents=True, exist_ok=True)
     raw = data.encode("utf-8") if isinstance(data, str) else data
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
@@ -41,12 +42,25 @@ def write_atomic(path: str | os.PathLike, data: str | bytes) -> None:
     _fsync_dir(path.parent)
 
 
+def _refuse_to_replace_a_special_file(path: Path, what: str) -> None:
+    """The temp file is renamed over `path`: over a FIFO or a device (--out /dev/null, run as root) that
+    would put a plain file in its place. (A directory the rename refuses by itself.)"""
+    try:
+        st = path.stat()
+    except OSError:
+        return  # missing (the usual case) or unreachable: the write itself says what is wrong
+    if not stat.S_ISREG(st.st_mode) and not stat.S_ISDIR(st.st_mode):
+        raise BadInput(f"{what} {path}: it is not a regular file (a pipe or a device); it is written by renaming "
+                       "a new file over it, which would replace it")
+
+
 def check_writable(path: str | os.PathLike, what: str) -> None:
-    """Refuse, before any work is done, an output path that cannot become a file: a directory, or a
-    path under a file (`write_atomic` would fail only after the work, naming its temp file)."""
+    """Refuse, before any work is done, an output path that cannot become a file: a directory, a FIFO or
+    a device, or a path under a file (`write_atomic` would fail only after the work, naming its temp file)."""
     path = Path(path)
     if path.is_dir():
         raise BadInput(f"{what} {path} is a directory, not a file")
+    _refuse_to_replace_a_special_file(path, what)
     for parent in path.parents:
         if parent.exists():
             if not parent.is_dir():

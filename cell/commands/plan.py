@@ -54,7 +54,7 @@ def run(args) -> int:
         for s in steps:
             path = Path(args.figures) / figure_name(s.step, s.scene.target)
             try:
-                step_figure(s, cell, path)
+                _write_figure_atomically(s, cell, path, step_figure)
             except OSError as e:
                 raise BadInput(f"--figures {args.figures}: cannot write {path.name}: {e.strerror}") from None
         if not args.json:
@@ -63,6 +63,19 @@ def run(args) -> int:
     if not args.json:
         print(f"{len(steps) - len(failed)} of {len(steps)} steps have a grasp")
     return 3 if failed else 0
+
+
+def _write_figure_atomically(step_plan, cell, path, draw) -> None:
+    """Draw into a temp folder, then replace `path` whole (savefig straight into the folder left half a
+    PNG when drawing failed or the process was stopped part way)."""
+    import tempfile
+    from pathlib import Path
+
+    from cell.fileio import write_atomic
+
+    with tempfile.TemporaryDirectory(prefix="cell-figure-") as tmp:
+        drawn = draw(step_plan, cell, Path(tmp) / path.name)
+        write_atomic(path, Path(drawn).read_bytes())
 
 
 def figure_name(step: int, part_id: str) -> str:

@@ -71,6 +71,7 @@ def _available() -> list[tuple[tuple[str, ...], str, str]]:
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="cell", description="Disassembly cell controller: grasp synthesis learned "
                      "from examples, vision, CANopen drives.")
+    parser._commands = {}  # words -> the command's own parser
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     groups: dict[str, argparse._SubParsersAction] = {}
     for words, module, help_ in _available():
@@ -83,7 +84,18 @@ def build_parser() -> argparse.ArgumentParser:
             p = groups[words[0]].add_parser(words[1], help=help_, description=help_)
         p.set_defaults(_module=module, _words=words)
         importlib.import_module(module).add_arguments(p)
+        parser._commands[words] = p
     return parser
+
+
+def _refuse_empty_values(parser, args) -> None:
+    """`--record "$DIR"` with DIR unset was no recording, `run "$ASM"` the default assembly, `study --out ""`
+    the current folder: an empty value is never a path, a name or a number here."""
+    for action in parser._commands[args._words]._actions:
+        v = getattr(args, action.dest, None)
+        if v == "" or (isinstance(v, list) and "" in v):
+            name = action.option_strings[-1] if action.option_strings else (action.metavar or action.dest.upper())
+            raise BadInput(f"{name} is empty: give a value")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -94,6 +106,7 @@ def main(argv: list[str] | None = None) -> int:
         if not hasattr(args, "_module"):
             parser.print_help(sys.stderr)
             return 2
+        _refuse_empty_values(parser, args)
         if isinstance(getattr(args, "seed", None), int) and args.seed < 0:  # numpy's generators refuse it
             raise BadInput(f"--seed must be 0 or more, got {args.seed}")
         return int(importlib.import_module(args._module).run(args) or 0)

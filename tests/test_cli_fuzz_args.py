@@ -53,3 +53,23 @@ def test_heights_and_points_a_kilometre_off_are_bad_input(capsys, argv, message)
     argv = [default_calibration_path() if a == "CAL" else a for a in argv]
     code, out, err = run_cli(*argv, capsys=capsys)
     assert code == 2 and message in err and out == "", err
+
+
+@pytest.mark.parametrize("argv, name", [
+    (["run", "", "--json"], "ASSEMBLY"),  # was: the shipped default assembly, exit 0
+    (["run", "--record", ""], "--record"),  # was: a run with no recording, exit 0
+    (["run", "--save", ""], "--save"),
+    (["grasp", "scene.json", "--cell", ""], "--cell"),  # was: the default cell
+    (["study", "--budget", "tiny", "--out", ""], "--out"),  # was: the study written into the current folder
+    (["plan", "asm.json", "--figures", ""], "--figures"),  # was: no figures
+    (["render", "scene.json", "--out", "f.png", "--truth", ""], "--truth"),  # was: no truth file
+    (["segment", "frame.png", "--calibration", ""], "--calibration"),  # was: no mm
+    (["hw", "status", "--simulated-time", "--channel", ""], "--channel"),
+    (["examples", "generate", "--out", "e.jsonl", "--families", ""], "--families"),  # was: the whole library
+])
+def test_an_empty_value_is_bad_input_not_the_default(tmp_path, monkeypatch, capsys, argv, name):
+    """`--record "$DIR"` with DIR unset must not quietly run without a recording."""
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_cli(*argv, capsys=capsys)
+    assert code == 2 and err.strip().splitlines()[-1] == f"cell: error: {name} is empty: give a value", err
+    assert out == "" and list(tmp_path.iterdir()) == []

@@ -217,8 +217,8 @@ def own_cell_path(raw: dict, source: str, base_dir: Path | None) -> str | None:
     """A scene's or assembly's own "cell" file, relative to the file's folder `base_dir`; None: none."""
     cell_path = raw.get("cell")
     if cell_path is not None:
-        if not isinstance(cell_path, str):
-            raise BadInput(f"{source}: 'cell' must be a path string")
+        if not isinstance(cell_path, str) or not cell_path.strip():  # "" named the scene's own folder
+            raise BadInput(f"{source}: 'cell' must be a path string, got {cell_path!r}")
         if base_dir is not None and not Path(cell_path).is_absolute():
             cell_path = str(base_dir / cell_path)
     return cell_path

@@ -36,3 +36,13 @@ def test_cell_run_names_a_part_that_reaches_the_camera(tmp_path, capsys, z_top):
     pid = raw["parts"][0]["id"]
     assert code == 2 and f"part {pid!r} reaches z = {z_top:g} mm, at or above the camera (z = 800 mm)" in err, err
     assert not (tmp_path / "rec").exists()
+
+
+def test_an_empty_cell_key_is_named(tmp_path, capsys):
+    """It was read as the scene's own folder: 'cell file /tmp/... is a directory, not a file'."""
+    raw = Scene((shapes.rectangle("box", 50, 30, (300, 100), 30),), "box").to_json()
+    raw["cell"] = ""
+    scene = tmp_path / "scene.json"
+    scene.write_text(json.dumps(raw))
+    code, out, err = run_cli("grasp", scene, "--json", capsys=capsys)
+    assert code == 2 and f"{scene}: 'cell' must be a path string, got ''" in err, err

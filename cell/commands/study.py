@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import sys
 
+MAX_EXAMPLES = 10000  # per problem (the paper's study: 400, about two minutes)
+
 
 def add_arguments(parser) -> None:
     parser.add_argument("--out", default="study", help="output folder (default ./study)")
@@ -35,8 +37,8 @@ def run(args) -> int:
 
     budget = Budget.named(args.budget)
     if args.examples is not None:
-        if args.examples < 20:
-            raise BadInput("--examples must be at least 20")
+        if not 20 <= args.examples <= MAX_EXAMPLES:  # 1e11 labelled points would never end
+            raise BadInput(f"--examples must be 20..{MAX_EXAMPLES}, got {args.examples}")
         budget = replace(budget, n=args.examples, sizes=tuple(s for s in budget.sizes if s < args.examples))
     if args.folds is not None:
         if not 2 <= args.folds <= budget.n // 2:

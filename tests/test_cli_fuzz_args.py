@@ -73,3 +73,20 @@ def test_an_empty_value_is_bad_input_not_the_default(tmp_path, monkeypatch, caps
     code, out, err = run_cli(*argv, capsys=capsys)
     assert code == 2 and err.strip().splitlines()[-1] == f"cell: error: {name} is empty: give a value", err
     assert out == "" and list(tmp_path.iterdir()) == []
+
+
+def test_a_camera_matrix_of_1e300_pixels_is_named(tmp_path, capsys):
+    """It was refused as 'the plane z = 0.0 mm is not in front of the camera for some pixels'."""
+    import json
+
+    import cv2
+    import numpy as np
+
+    cv2.imwrite(str(tmp_path / "f.png"), np.zeros((480, 640, 3), np.uint8))
+    points = {"points": [{"px": [100 * i + 50, 80 * j + 40], "mm": [200 + 10 * i, -50 + 10 * j, 0]}
+                         for i in range(3) for j in range(3)]}
+    (tmp_path / "p.json").write_text(json.dumps(points))
+    code, out, err = run_cli("calibrate", "plane", tmp_path / "f.png", "--points", tmp_path / "p.json", "--out",
+                             tmp_path / "o.json", "--camera-matrix", "1e300,1e300,320,240", capsys=capsys)
+    assert code == 2 and "--camera-matrix 1e300,1e300,320,240: pixels, each within 1e6" in err, err
+    assert not (tmp_path / "o.json").exists()

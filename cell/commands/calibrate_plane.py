@@ -57,6 +57,9 @@ def run(args) -> int:
         fx, fy, cx, cy = numbers(args.camera_matrix, 4, "--camera-matrix")
         if fx <= 0 or fy <= 0:
             raise BadInput("--camera-matrix: fx and fy must be positive")
+        if max(fx, fy, abs(cx), abs(cy)) > 1e6:  # 1e300 was 'the plane z = 0.0 mm is not in front of the camera'
+            raise BadInput(f"--camera-matrix {args.camera_matrix}: pixels, each within 1e6 (fx, fy of a real lens "
+                           "are hundreds to tens of thousands)")
         k, dist = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]]), np.zeros(5)
     elif args.intrinsics:
         intr = load_calibration(args.intrinsics, size=(w, h))

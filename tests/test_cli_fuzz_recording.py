@@ -32,7 +32,15 @@ def _counts_as_strings(d: Path):
     (d / "manifest.json").write_text(json.dumps(m))
 
 
+def _planner_a_list(d: Path):
+    m = json.loads((d / "manifest.json").read_text())
+    m["meta"]["planner"] = []
+    (d / "manifest.json").write_text(json.dumps(m))
+
+
 @pytest.mark.parametrize("damage, message", [
+    # was: read as a recording made before the planner was kept, then "divergence" (exit 1)
+    (_planner_a_list, "manifest meta.planner must be an object"),
     # was: internal error (cv2.error: pixels <= CV_IO_MAX_IMAGE_PIXELS)
     (_damage_frame, "000001.png cannot be decoded as PNG (OpenCV: pixels <= CV_IO_MAX_IMAGE_PIXELS)"),
     # was: "decisions.jsonl holds 14 decisions, the manifest says 14"

@@ -241,7 +241,8 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     if meta.get("on_no_grasp", "stop") not in ("stop", "skip"):
         raise BadInput(f"recording {directory}: manifest meta.on_no_grasp must be 'stop' or 'skip', "
                        f"not {meta.get('on_no_grasp')!r}")
-    planner_params = planner_from_meta(meta.get("planner") or {}, f"recording {directory}")
+    planner = meta.get("planner")  # absent (or null) in recordings made before it was kept; [] is no planner
+    planner_params = planner_from_meta({} if planner is None else planner, f"recording {directory}")
     recorded = [d for d in rec.decisions if d.get("type") != "summary"]
     frames = [rec.frame_path(i) for i in rec.frame_indices]
     if not frames:

@@ -24,6 +24,9 @@ from conftest import ROOT, run_cli
     # a SimClock stepped through every heartbeat of 1e300 s (no end); real time: OverflowError, exit 1
     (["corner", "--dwell", "1e300", "--simulated-time"], "--dwell 1e+300: at most 600 s"),
     (["corner", "--dwell", "1e300"], "--dwell 1e+300: at most 600 s"),
+    # ignored on a real bus (it runs in real time), where the bus could not be opened anyway here
+    (["status", "--interface", "socketcan", "--channel", "vcan-none-77", "--simulated-time"],
+     "--simulated-time is for the simulated drives (--interface virtual), not socketcan"),
 ])
 def test_hw_refuses_values_out_of_range(capsys, argv, message):
     code, out, err = run_cli("hw", *argv, capsys=capsys)

@@ -69,6 +69,10 @@ def run(args) -> int:
     from cell.cellconfig import load_cell
 
     _check_times(args)
+    if getattr(args, "simulated_time", False) and not _simulated(args):  # was ignored: the real bus runs in real time
+        from cell.errors import BadInput
+
+        raise BadInput(f"--simulated-time is for the simulated drives (--interface virtual), not {args.interface}")
     cell = load_cell(args.cell)
     if args._words[1] == "sim":
         return _serve(args, cell)

@@ -25,7 +25,7 @@ NODE_UNITS = {"j1": "deg", "j2": "deg", "j3": "mm", "j4": "deg", "gripper": "mm"
 # Bounds past which a cell file is not a cell: a pad 1e9 mm wide or J4 up to 1e9 deg made `cell grasp` run
 # without end (1e308: an OverflowError), a camera of 1e9 px asked for terabytes.
 MAX_VALUE = 1e6  # any number in the file (mm, deg, s, counts/unit, bit/s)
-CAMERA_PX = (16, 25_000_000)  # the smallest side, the most pixels (a 25 MP frame)
+CAMERA_PX = (16, 100_000_000)  # the smallest side, the most pixels (100 MP: above any machine-vision camera a cell would use)
 MAX_HEARTBEAT_MS = 0xFFFF  # 0x1017 producer heartbeat time: UNSIGNED16
 HEARTBEAT_DEADLINE_FACTOR = 3  # drivers.arm.HEARTBEAT_DEADLINE_FACTOR: the host's deadline in 0x1016 is 16 bits too
 

@@ -31,7 +31,7 @@ CPU = ("can", "nodes", "j4", "counts_per_unit")
     # `cell render` asked for terabytes (MemoryError) or numpy refused the shape (ValueError): internal errors
     ([(("camera", "width_px"), 1e9)], "camera.width_px must be within +-1e+06"),
     ([(("camera", "width_px"), 1e6)], "camera 1000000 x 1024 px"),
-    ([(("camera", "height_px"), 100000)], "at most 25 MP in all"),
+    ([(("camera", "height_px"), 100000)], "at most 100 MP in all"),
     ([(("camera", "width_px"), 8)], "each side at least 16 px"),
     ([(("camera", "height_mm"), 1e308)], "camera.height_mm must be within"),  # was ZeroDivisionError
     # `cell hw status`: internal errors at bring-up (the drives' objects are 16 and 32 bits)

@@ -33,7 +33,13 @@ def read_image(path: str | Path, grey: bool = False) -> np.ndarray:
         raise BadInput(f"image {path} is empty (0 bytes)")
     # ANYDEPTH: without it OpenCV keeps the top 8 of 16 bits, and a 10 - 14 bit camera's frame stored in
     # a 16-bit PNG (values up to 1023 - 16383) came out nearly black (pills.png at 12 bits: 4 regions, not 2)
-    img, noise = _decode_quietly(data, cv2.IMREAD_ANYDEPTH | (cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_COLOR))
+    try:
+        img, noise = _decode_quietly(data, cv2.IMREAD_ANYDEPTH | (cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_COLOR))
+        if img is None and not grey:  # OpenCV decodes a grey float TIFF as it is only, not as colour
+            img, noise = _decode_quietly(data, cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYDEPTH)
+            img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR) if img is not None and img.ndim == 2 else None
+    except cv2.error as e:  # e.g. a header claiming more pixels than OpenCV decodes (60000 x 60000)
+        raise BadInput(f"image {path} cannot be decoded (OpenCV: {getattr(e, 'err', e)})") from None
     if img is None or img.size == 0:
         raise BadInput(f"image {path} is not a readable image (corrupt, truncated or not an image format)")
     damage = [line for line in noise if line.startswith(_DAMAGE) and (_HARMLESS not in line or _BEFORE_END in line)]
@@ -61,7 +67,8 @@ def _decode_quietly(data: np.ndarray, flags: int):
     else written to stderr meanwhile (another thread) is passed on."""
     quiet = cv2.utils.logging.getLogLevel()
     with _DECODE_LOCK, tempfile.TemporaryFile() as capture:
-        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+        # silent: a file OpenCV cannot read is reported by the caller, its own log line was noise on stderr
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
         sys.stderr.flush()
         try:
             saved = os.dup(2)
@@ -97,7 +104,9 @@ def _to_uint8(img: np.ndarray, path: Path) -> np.ndarray:
         if depth == 8:
             return img.astype(np.uint8)
         return cv2.convertScaleAbs(img, alpha=255.0 / (2 ** depth - 1))
-    if img.dtype in (np.float32, np.float64) and np.all(np.isfinite(img)):
+    if img.dtype in (np.float32, np.float64):
+        if not np.all(np.isfinite(img)):
+            raise BadInput(f"image {path} has {img.dtype} pixels that are not finite numbers (nan or inf)")
         top = float(img.max())
         return cv2.convertScaleAbs(img, alpha=255.0 if top <= 1.0 else 255.0 / top)
     raise BadInput(f"image {path} has {img.dtype} pixels; 8- or 16-bit integer or float images are read")

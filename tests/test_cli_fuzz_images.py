@@ -1,0 +1,58 @@
+"""Bad image files given to the commands that read images: a clear message and exit code 2."""
+
+import cv2
+import numpy as np
+import pytest
+from conftest import run_cli
+from test_cli_fuzz_recording import _png_header_only
+
+
+def test_a_png_claiming_more_pixels_than_opencv_decodes_is_bad_input(tmp_path, capsys):
+    # was exit 1, "internal error: cv2.error ... pixels <= CV_IO_MAX_IMAGE_PIXELS"
+    big = tmp_path / "big.png"
+    big.write_bytes(_png_header_only(60000, 60000))
+    code, out, err = run_cli("segment", big, "--json", capsys=capsys)
+    assert code == 2 and out == ""
+    assert f"image {big} cannot be decoded (OpenCV:" in err and "internal error" not in err
+    code, _, err = run_cli("calibrate", "intrinsics", big, big, big, "--pattern", "9x6", "--square", "25",
+                           "--out", tmp_path / "k.json", capsys=capsys)
+    assert code == 2 and "cannot be decoded" in err and not (tmp_path / "k.json").exists()
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_a_float_image_with_pixels_that_are_not_numbers_says_so(tmp_path, capsys, bad):
+    # the message read "has float32 pixels; 8- or 16-bit integer or float images are read"
+    img = np.full((64, 64, 3), 0.5, np.float32)
+    img[3, 4] = bad
+    path = tmp_path / "frame.tiff"
+    assert cv2.imwrite(str(path), img)
+    code, _, err = run_cli("segment", path, "--json", capsys=capsys)
+    assert code == 2 and "has float32 pixels that are not finite numbers (nan or inf)" in err
+
+
+def test_a_grey_float_tiff_is_read_as_grey(tmp_path):
+    # OpenCV decodes a one-channel float TIFF only as it is: it was "not a readable image"
+    from cell.vision.sources import read_image
+
+    img = np.zeros((40, 60), np.float32)
+    img[10:20, 10:30] = 1.0
+    path = tmp_path / "grey.tiff"
+    assert cv2.imwrite(str(path), img)
+    got = read_image(path)
+    assert got.shape == (40, 60, 3) and got.dtype == np.uint8
+    assert (got[10:20, 10:30] == 255).all() and got.sum() == 255 * 3 * 200
+
+
+def test_a_file_opencv_cannot_read_leaves_only_our_message_on_stderr(tmp_path):
+    import subprocess
+    import sys
+
+    # a truncated TIFF: libtiff's complaints came through OpenCV's log as two "[ERROR:0@0.049] ..." lines
+    whole = tmp_path / "whole.tiff"
+    assert cv2.imwrite(str(whole), np.full((64, 64, 3), 100, np.uint8))
+    path = tmp_path / "frame.tiff"
+    path.write_bytes(whole.read_bytes()[:200])
+    done = subprocess.run([sys.executable, "-m", "cell", "segment", str(path), "--json"], capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 2 and done.stdout == ""
+    assert done.stderr == f"cell: error: image {path} is not a readable image (corrupt, truncated or not an image format)\n"

@@ -55,7 +55,7 @@ def parse_markers(raw, source: str) -> tuple[str, dict[int, np.ndarray]]:
     dictionary = raw.get("dictionary")
     if not isinstance(dictionary, str):
         raise BadInput(f"{source}: 'dictionary' must name an ArUco dictionary, e.g. \"DICT_4X4_50\"")
-    aruco_dictionary(dictionary)
+    n_ids = aruco_dictionary(dictionary).bytesList.shape[0]
     markers = raw.get("markers")
     if not isinstance(markers, dict) or not markers:
         raise BadInput(f"{source}: 'markers' must be an object {{\"ID\": [[x, y, z] x 4], ...}}")
@@ -68,6 +68,8 @@ def parse_markers(raw, source: str) -> tuple[str, dict[int, np.ndarray]]:
             mid = int(key)
         except ValueError:
             raise BadInput(f"{source}: marker id {key!r} is not an integer") from None
+        if not 0 <= mid < n_ids:  # it could never be detected: it was reported as 'not found'
+            raise BadInput(f"{source}: marker id {key} is not in {dictionary} (ids 0..{n_ids - 1})")
         try:
             arr = np.array(corners, dtype=float)
         except (TypeError, ValueError):

@@ -177,6 +177,9 @@ def test_fewer_than_three_markers_is_bad_input(tmp_path, capsys):
     ({"dictionary": "DICT_4X4_50", "markers": {"0": [["0", "0", "0"], [1, 0, 0], [1, 1, 0], [0, 1, 0]]}},
      "true/false and strings are not numbers"),
     ({"dictionary": "DICT_4X4_50", "markers": {"0": [[5, 5, 0]] * 4}}, "its corners enclose 0 mm2"),
+    # ids the dictionary has not: they could never be detected and were reported as 'not found'
+    *[({"dictionary": "DICT_4X4_50", "markers": {mid: [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]}},
+       f"marker id {mid} is not in DICT_4X4_50 (ids 0..49)") for mid in ("-1", "50", "99999999999999999999")],
     ("{not json", "not valid JSON"),
 ])
 def test_bad_markers_files(tmp_path, capsys, content, match):

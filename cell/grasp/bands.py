@@ -92,9 +92,9 @@ class BandEdges:
         g = frame.take(bi, axis=2)  # (2, 3, p): each piece's band
         e = ctx.edge_ad.take(ei, axis=2)  # (2, 2, p): each piece's edge, start and direction
         e[:, 0] -= g[:, 0]  # the start from the band's centre
-        piece = np.empty((3, 2, len(bi)))
-        prod = e[:, :, None] * g[:, None, 1:]  # (2, 2, 2, p): component x quantity x (u, v)
-        np.add(prod[0], prod[1], out=piece[1:])  # [[tA, lA], [dt, dl]]
+        piece = np.empty((3, 2, len(bi)))  # rows 1 and 2: [tA, lA], [dt, dl], the x terms plus the y terms
+        np.multiply(e[0, :, None], g[0, None, 1:], out=piece[1:])
+        piece[1:] += e[1, :, None] * g[1, None, 1:]
         limits = np.concatenate([t_min, t_max]).reshape(2, b).take(bi, axis=1)
         inside = _liang_barsky_stacked(piece, limits, half_width)
         if inside.all():
@@ -160,13 +160,13 @@ class BandEdges:
 
     def _far_corners_inside(self, ctx: Context) -> np.ndarray | None:
         """(b,) is either far corner of each band inside the target? None: neither is, for any band.
-        Corners outside the target's convex hull (`Context.hull_normal`) are not asked of shapely
-        (its containment test costs ~40 ns a point; the hull's half-planes are a few numpy calls)."""
+        Corners outside the target's convex hull (`Context.surely_outside`) are not asked of shapely
+        (its containment test costs 40-70 ns a point; the hull's half-planes, a few numpy calls)."""
         b = self.frame.shape[2]
         far = self.frame[:, 0] + self.frame[:, 1] * self.t_max
         w = self.frame[:, 2] * self.half_width
         corners = np.concatenate([far - w, far + w], axis=1)  # (2, 2b)
-        maybe = ~_outside_hull(ctx, corners)
+        maybe = ~ctx.surely_outside(corners)
         if not maybe.any():
             return None
         inside = np.zeros(2 * b, bool)
@@ -254,15 +254,6 @@ def _is_range(bi: np.ndarray, b: int) -> bool:
     return len(bi) == b and (b < 2 or bool((bi[1:] > bi[:-1]).all()))
 
 
-def _outside_hull(ctx: Context, xy: np.ndarray) -> np.ndarray:
-    """(n,) True for the points xy (2, n) surely outside the target: beyond one of its convex hull's
-    edges by more than the rounding of the test (`Context.hull_normal`)."""
-    if ctx.hull_normal is None:
-        return np.zeros(xy.shape[1], bool)
-    # (a matrix product rounds otherwise than n_x x + n_y y, by far less than the limit's margin)
-    return (ctx.hull_normal @ xy > ctx.hull_limit[:, None]).any(0)
-
-
 def edge_box_overlaps(ctx: Context, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """(b, E): does band b's bounding box (lo, hi, each (2, b)) overlap (or touch) the box of the
     target's edge e? (A transposed view: worked out edge by edge, numpy's loops run along the bands,
@@ -283,15 +274,18 @@ def _overlapping_edges(ctx: Context, lo: np.ndarray, hi: np.ndarray):
 def _liang_barsky_stacked(piece: np.ndarray, limits: np.ndarray, half_width: float) -> np.ndarray:
     """Clip the pieces' segments (piece (3, 2, p): [tA, lA] and [dt, dl] in rows 1 and 2) to
     limits[0] <= t <= limits[1] (limits (2, p)), |l| <= half_width: s0, s1 written into row 0; returns
-    inside (p,). The boundaries in `_liang_barsky`'s order: the same values, fewer numpy calls."""
+    inside (p,). The boundaries in `_liang_barsky`'s order: the same values."""
     tA, lA = piece[1, 0], piece[1, 1]
-    p_ = piece[2][:, None] * _NEG_POS  # (2, 2, p): -dt, dt, -dl, dl
-    q_ = np.empty_like(p_)
-    np.subtract(tA, limits[0], out=q_[0, 0])
-    np.subtract(limits[1], tA, out=q_[0, 1])
-    np.add(lA, half_width, out=q_[1, 0])
-    np.subtract(half_width, lA, out=q_[1, 1])
-    s0, s1, inside = _liang_barsky_rows(p_.reshape(4, -1), q_.reshape(4, -1))
+    if piece.shape[2] > LB_STACKED_MAX:  # many: boundary by boundary, as _liang_barsky has them
+        s0, s1, inside = _liang_barsky(tA, piece[2, 0], lA, piece[2, 1], limits[0], limits[1], half_width)
+    else:  # the four boundaries' p and q as (4, p) rows built in place (fewer numpy calls)
+        p_ = piece[2][:, None] * _NEG_POS  # (2, 2, p): -dt, dt, -dl, dl
+        q_ = np.empty_like(p_)
+        np.subtract(tA, limits[0], out=q_[0, 0])
+        np.subtract(limits[1], tA, out=q_[0, 1])
+        np.add(lA, half_width, out=q_[1, 0])
+        np.subtract(half_width, lA, out=q_[1, 1])
+        s0, s1, inside = _liang_barsky_rows(p_.reshape(4, -1), q_.reshape(4, -1))
     piece[0, 0], piece[0, 1] = s0, s1
     return inside
 
@@ -299,25 +293,23 @@ def _liang_barsky_stacked(piece: np.ndarray, limits: np.ndarray, half_width: flo
 def _liang_barsky(tA, dt, lA, dl, t_min, t_max, half_width):
     """Clip segments (in band coordinates) to t_min <= t <= t_max, |l| <= half_width: s0, s1, inside."""
     bounds = ((-dt, tA - t_min), (dt, t_max - tA), (-dl, lA + half_width), (dl, half_width - lA))
-    # (np.stack costs several times a concatenate of the same rows)
-    p, q = (np.concatenate([b[c] for b in bounds]).reshape(4, -1) for c in (0, 1))
-    return _liang_barsky_rows(p, q)
+    if len(tA) <= LB_STACKED_MAX:  # (np.stack costs several times a concatenate of the same rows)
+        return _liang_barsky_rows(*(np.concatenate([b[c] for b in bounds]).reshape(4, -1) for c in (0, 1)))
+    s0, s1 = np.zeros(len(tA)), np.ones(len(tA))
+    inside = np.ones(len(tA), bool)
+    for p, q in bounds:
+        r = q / p
+        s0 = np.where(p < 0, np.maximum(s0, r), s0)
+        s1 = np.where(p > 0, np.minimum(s1, r), s1)
+        inside &= ~((p == 0) & (q < 0))
+    return s0, s1, inside & (s0 <= s1)
 
 
 def _liang_barsky_rows(p: np.ndarray, q: np.ndarray):
-    """Liang-Barsky on the four boundaries' p and q (4, n): s0, s1, inside. The entering parameter is
-    the largest of the boundaries' q / p where p < 0 (and 0), the leaving one the smallest where p > 0
-    (and 1); a segment parallel to a boundary (p = 0) outside it (q < 0) is outside."""
-    if p.shape[1] <= LB_STACKED_MAX:  # few segments: the four boundaries at once
-        r = q / p
-        s0 = np.maximum(np.where(p < 0, r, -np.inf).max(0), 0.0)
-        s1 = np.minimum(np.where(p > 0, r, np.inf).min(0), 1.0)
-        return s0, s1, ~((p == 0) & (q < 0)).any(0) & (s0 <= s1)
-    s0, s1 = np.zeros(p.shape[1]), np.ones(p.shape[1])
-    inside = np.ones(p.shape[1], bool)
-    for pb, qb in zip(p, q, strict=True):
-        r = qb / pb
-        s0 = np.where(pb < 0, np.maximum(s0, r), s0)
-        s1 = np.where(pb > 0, np.minimum(s1, r), s1)
-        inside &= ~((pb == 0) & (qb < 0))
-    return s0, s1, inside & (s0 <= s1)
+    """Liang-Barsky on the four boundaries' p and q (4, n), all at once: s0, s1, inside. The entering
+    parameter is the largest of the boundaries' q / p where p < 0 (and 0), the leaving one the smallest
+    where p > 0 (and 1); a segment parallel to a boundary (p = 0) outside it (q < 0) is outside."""
+    r = q / p
+    s0 = np.maximum(np.where(p < 0, r, -np.inf).max(0), 0.0)
+    s1 = np.minimum(np.where(p > 0, r, np.inf).min(0), 1.0)
+    return s0, s1, ~((p == 0) & (q < 0)).any(0) & (s0 <= s1)

@@ -43,7 +43,7 @@ import shapely
 
 from cell.grasp.bands import PAD_COMPLIANCE_MM, BandEdges, band_bounds, edge_box_overlaps
 from cell.grasp.footprints import axis_rect_bounds, axis_rects, rect_polygons
-from cell.grasp.pairs import EPS_MM, Context, Pairs
+from cell.grasp.pairs import CHEAP_MARGIN_MM, EPS_MM, Context, Pairs, midpoints_surely_reachable, neighbour_reach
 from cell.kinematics import Joints, inverse, reachable_mask
 
 __all__ = ["STAGES", "EXACT_STAGES", "Context", "Pairs", "CascadeResult", "run_cascade", "run_brute_force",
@@ -51,7 +51,6 @@ __all__ = ["STAGES", "EXACT_STAGES", "Context", "Pairs", "CascadeResult", "run_c
 
 STAGES = ("stroke", "reach", "antipodal", "precheck", "contacts", "ik", "fingers_obstacles", "palm")
 EXACT_STAGES = ("contacts", "ik", "fingers_obstacles", "palm")
-CHEAP_MARGIN_MM = 2.0
 
 
 # --- cheap stages: vectorised over the pairs idx -------------------------------------------
@@ -76,7 +75,10 @@ def stage_stroke(ctx: Context, P: Pairs, idx) -> np.ndarray:
 
 
 def stage_reach(ctx: Context, P: Pairs, idx) -> np.ndarray:
-    if P.points is not None and _midpoints_surely_reachable(ctx, P.points):
+    # every midpoint passes when the points' box does (midpoints_surely_reachable): the usual case. The
+    # scene's outline samples' box holds that of pairs of samples; it is looked at once per scene
+    if ((ctx.samples_reachable and P.sample_index is not None)
+            or (P.points is not None and _midpoints_surely_reachable(ctx, P.points))):
         return np.ones(len(idx), bool)
     dense = _dense(P, idx)
     m = P.m if dense else P.m.take(idx, 0)
@@ -90,22 +92,7 @@ def stage_reach(ctx: Context, P: Pairs, idx) -> np.ndarray:
 
 
 def _midpoints_surely_reachable(ctx: Context, points: np.ndarray) -> bool:
-    """Does every midpoint of two of the points pass the reach stage? It does when the points' bounding
-    box lies inside the workspace and inside the annulus's outer circle (both convex: they hold the
-    midpoints) and clear of its inner disc (1e-6 mm to spare for rounding): the usual case,
-    decided from the z' points instead of the s pairs."""
-    if not len(points):
-        return True
-    x, y = points[:, 0], points[:, 1]
-    x0, x1, y0, y1 = float(x.min()), float(x.max()), float(y.min()), float(y.max())
-    ws, e, spare = ctx.cell.workspace, CHEAP_MARGIN_MM, 1e-6
-    if not (x0 >= ws.x_mm[0] - e + spare and x1 <= ws.x_mm[1] + e - spare
-            and y0 >= ws.y_mm[0] - e + spare and y1 <= ws.y_mm[1] + e - spare):
-        return False
-    rmin, rmax = ctx.cell.scara.reach_mm
-    far = math.hypot(max(-x0, x1), max(-y0, y1))  # the box's corner furthest from the base
-    near = math.hypot(max(x0, -x1, 0.0), max(y0, -y1, 0.0))  # the box's distance from the base
-    return far <= rmax + e - spare and near >= rmin - e + spare
+    return midpoints_surely_reachable(ctx.cell, points, CHEAP_MARGIN_MM)
 
 
 def stage_antipodal(ctx: Context, P: Pairs, idx) -> np.ndarray:
@@ -130,38 +117,61 @@ def stage_antipodal(ctx: Context, P: Pairs, idx) -> np.ndarray:
 def stage_precheck(ctx: Context, P: Pairs, idx) -> np.ndarray:
     """Conservative: a point that every exact footprint of this pair would cover lies inside
     material, or the outline next to a point juts out into its pad's band (docs/grasp.md)."""
-    g = ctx.cell.gripper
     k = len(idx)
-    m = P.m.take(idx, 0)
     ok = np.ones(k, bool)
     # material on the fingers' paths: tall obstacles, and the target itself unless it is convex
     # (there the material in front of a pad is the outline next to its point, which
     # _outline_ahead looks at: on the parts library the test never rejected a pair more)
-    geoms = [o for o in (None if ctx.target_convex else ctx.target_geom, ctx.finger_obstacles) if o is not None]
-    tol = ctx.params.contact_tol_mm
-    reach = g.approach_clearance_mm + g.pad_thickness_mm
-    # points beyond the candidate that every exact footprint covers: the pad stops up to tol (and its
-    # compliance) from the candidate, and the finger reaches `reach` beyond where it stops. Thin pads
-    # with little clearance leave none (the points were then past the finger's end or behind the contact)
-    offs = np.array([o for o in (tol + 1.5, 0.5 * (tol + reach), reach - 1.5)
-                     if tol + PAD_COMPLIANCE_MM <= o <= reach - tol - PAD_COMPLIANCE_MM])
-    if geoms and len(offs):
-        u, t = P.u.take(idx, 0), P.t.take(idx)
-        # both fingers' points in one shapely call: m + side * u * (t + off) is m + u * (side * (t + off)),
-        # exactly, as side is +-1
-        a = t[:, None] + offs[None, :]
-        a = np.concatenate([a, -a], axis=1)  # (k, 6)
-        x = (m[:, 0, None] + u[:, 0, None] * a).ravel()
-        y = (m[:, 1, None] + u[:, 1, None] * a).ravel()
-        hit = shapely.contains_xy(geoms[0], x, y)
-        for o in geoms[1:]:
-            hit |= shapely.contains_xy(o, x, y)
-        ok = ~hit.reshape(k, -1).any(1)
+    target = None if ctx.target_convex else ctx.target_geom
+    if target is not None or ctx.finger_obstacles is not None:
+        offs = _path_offsets(ctx)
+        if len(offs):
+            m, u, t = P.m.take(idx, 0), P.u.take(idx, 0), P.t.take(idx)
+            # both fingers' points in one pass: m + side * u * (t + off) is m + u * (side * (t + off)),
+            # exactly, as side is +-1
+            a = t[:, None] + offs[None, :]
+            a = np.concatenate([a, -a], axis=1)  # (k, 6)
+            xy = np.stack([(m[:, 0, None] + u[:, 0, None] * a).ravel(), (m[:, 1, None] + u[:, 1, None] * a).ravel()])
+            ok = ~_in_material(ctx, target, xy).reshape(k, -1).any(1)
     if ctx.palm_obstacles is not None:
+        m = P.m.take(idx, 0)
         ok &= ~shapely.contains_xy(ctx.palm_obstacles, m[:, 0], m[:, 1])
     if ctx.samples is not None and P.sample_index is not None:
         ok &= ~_outline_ahead(ctx, P, idx)
     return ok
+
+
+def _path_offsets(ctx: Context) -> np.ndarray:
+    """Where beyond the candidate (along the closing axis) the points lie that every exact footprint
+    covers: the pad stops up to tol (and its compliance) from the candidate, and the finger reaches
+    clearance + pad thickness beyond where it stops. Thin pads with little clearance leave none (the
+    points were then past the finger's end or behind the contact)."""
+    g, tol = ctx.cell.gripper, ctx.params.contact_tol_mm
+    reach = g.approach_clearance_mm + g.pad_thickness_mm
+    return np.array([o for o in (tol + 1.5, 0.5 * (tol + reach), reach - 1.5)
+                     if tol + PAD_COMPLIANCE_MM <= o <= reach - tol - PAD_COMPLIANCE_MM])
+
+
+def _in_material(ctx: Context, target, xy: np.ndarray) -> np.ndarray:
+    """(n,) are the points xy (2, n) inside the target (None: not asked) or a finger-high obstacle?
+    Only points inside the target's convex hull, or an obstacle part's box, are asked of shapely
+    (about 40-70 ns a point); the others cannot be inside."""
+    hit = np.zeros(xy.shape[1], bool)
+    for geom, maybe in ((target, None if target is None else ~ctx.surely_outside(xy)),
+                        (ctx.finger_obstacles, _in_boxes(ctx.finger_boxes, xy))):
+        if geom is None or not maybe.any():
+            continue
+        r = np.flatnonzero(maybe)
+        hit[r] |= shapely.contains_xy(geom, xy[0].take(r), xy[1].take(r))
+    return hit
+
+
+def _in_boxes(boxes: np.ndarray | None, xy: np.ndarray) -> np.ndarray | None:
+    """(n,) is each point xy (2, n) in (or on) one of the boxes (m, 4) (x0, y0, x1, y1)? None for None."""
+    if boxes is None:
+        return None
+    x, y = xy[0], xy[1]
+    return ((x >= boxes[:, :1]) & (x <= boxes[:, 2:3]) & (y >= boxes[:, 1:2]) & (y <= boxes[:, 3:])).any(0)
 
 
 def _outline_ahead(ctx: Context, P: Pairs, idx) -> np.ndarray:
@@ -174,41 +184,48 @@ def _outline_ahead(ctx: Context, P: Pairs, idx) -> np.ndarray:
     shift = ctx.outline_shift_mm
     hw = g.pad_width_mm / 2 + tol - shift
     k = len(idx)
-    # each valid point's neighbours, and how far ahead of it they can lie: a neighbour r from the point
+    # the 2k rows: p_i's pad closes along -u from the +u side (side +1), p_j's from -u
+    pt = P.ij.take(idx, 0).T.ravel()  # (2k,) p_i's point, then p_j's
+    sample = P.sample_index.take(pt)
+    u = P.u.take(idx, 0)
+    us = np.concatenate([u.T, -u.T], axis=1)  # (2, 2k)
+    # each point's neighbours, and how far ahead of it they can lie: a neighbour r from the point
     # (a along its normal n, b across) lies a cos(th) + b sin(th) <= max(a, 0) + |b| |sin(th)| ahead
     # along a closing axis th from n (|th| < 90 degrees). Where that bound is within tol (a point on a
     # straight stretch, an axis along its normal: the usual case) no neighbour can be ahead; the
     # test below (same verdicts) looks at the other rows only
-    nbx, nby = ctx.neighbour_x.take(P.sample_index, 0), ctx.neighbour_y.take(P.sample_index, 0)  # (z', 2K)
-    # the 2k rows: p_i's pad closes along -u from the +u side (side +1), p_j's from -u
-    pt = P.ij.take(idx, 0).T.ravel()  # (2k,) p_i's point, then p_j's
-    u = P.u.take(idx, 0)
-    usx, usy = np.concatenate([u[:, 0], -u[:, 0]]), np.concatenate([u[:, 1], -u[:, 1]])
-    if 2 * k > len(P.points):  # the bound is worked out per point: worth it for more rows than points
-        px, py = P.points[:, 0, None], P.points[:, 1, None]
-        n_x, n_y = P.normals[:, 0], P.normals[:, 1]
-        rx, ry = nbx - px, nby - py
-        ahead = np.maximum((rx * n_x[:, None] + ry * n_y[:, None]).max(1), 0.0)
-        across = np.abs(ry * n_x[:, None] - rx * n_y[:, None]).max(1)
-        nxr, nyr = n_x.take(pt), n_y.take(pt)
-        cos, sin = usx * nxr + usy * nyr, np.abs(usx * nyr - usy * nxr)
-        rows = np.flatnonzero((cos <= 0) | (ahead.take(pt) + across.take(pt) * sin > tol + shift))
-    else:
-        rows = np.arange(2 * k)
+    cue = _row_cues(ctx, P, pt, sample)  # (4, 2k): n_x, n_y, ahead, across
+    c, s = us * cue[:2], us * cue[1::-1]
+    cos, sin = c[0] + c[1], np.abs(s[0] - s[1])
+    rows = np.flatnonzero((cos <= 0) | (cue[2] + cue[3] * sin > tol + shift))
+    if not len(rows):
+        return np.zeros(k, bool)
+    m, t = P.m.take(idx, 0), P.t.take(idx)
+    pair = rows % k
+    mx, my, tr = m[:, 0].take(pair), m[:, 1].take(pair), t.take(pair)
+    ux_r, uy_r = us[0].take(rows), us[1].take(rows)
+    t_max = tr + g.approach_clearance_mm + g.pad_thickness_mm - shift
+    q = sample.take(rows)
+    dx, dy = ctx.neighbour_x.take(q, 0) - mx[:, None], ctx.neighbour_y.take(q, 0) - my[:, None]  # (r, 2K)
+    tq = dx * ux_r[:, None] + dy * uy_r[:, None]
+    lq = dx * -uy_r[:, None] + dy * ux_r[:, None]
     hit = np.zeros(2 * k, bool)
-    if len(rows):
-        m, t = P.m.take(idx, 0), P.t.take(idx)
-        pair = rows % k
-        mx, my, tr = m[:, 0].take(pair), m[:, 1].take(pair), t.take(pair)
-        ux_r, uy_r = usx.take(rows), usy.take(rows)
-        t_max = tr + g.approach_clearance_mm + g.pad_thickness_mm - shift
-        q = pt.take(rows)
-        dx, dy = nbx.take(q, 0) - mx[:, None], nby.take(q, 0) - my[:, None]  # (r, 2K)
-        tq = dx * ux_r[:, None] + dy * uy_r[:, None]
-        lq = dx * -uy_r[:, None] + dy * ux_r[:, None]
-        hit[rows] = ((np.abs(lq) <= hw - EPS_MM) & (tq <= t_max[:, None] - EPS_MM)
-                     & (tq > tr[:, None] + tol + shift + EPS_MM)).any(1)
+    hit[rows] = ((np.abs(lq) <= hw - EPS_MM) & (tq <= t_max[:, None] - EPS_MM)
+                 & (tq > tr[:, None] + tol + shift + EPS_MM)).any(1)
     return hit[:k] | hit[k:]
+
+
+def _row_cues(ctx: Context, P: Pairs, pt: np.ndarray, sample: np.ndarray) -> np.ndarray:
+    """(4, r) for rows of points pt (r,) (their outline samples `sample`): the point's normal (x, y)
+    and how far its neighbours lie ahead of it along the normal and across it at most. From the
+    scene's samples when Context.build had their normals (per scene, outside the timed cascade),
+    else worked out for the pairs' points."""
+    if ctx.sample_cue is not None:
+        return ctx.sample_cue.take(sample, axis=1)
+    n = P.normals
+    ahead, across = neighbour_reach(P.points, n, ctx.neighbour_x.take(P.sample_index, 0),
+                                    ctx.neighbour_y.take(P.sample_index, 0))
+    return np.stack([n[:, 0], n[:, 1], ahead, across]).take(pt, axis=1)
 
 
 # --- exact stages: shapely and IK on the survivors only -------------------------------------

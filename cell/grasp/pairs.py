@@ -26,6 +26,7 @@ Z_EPS_MM = 1e-6
 # The exact stages see a target's outline with at most one vertex per this much arc length (on
 # average; `exact_outline`): half of contact_tol's 1 mm, a pixel of a 0.5 mm/px camera.
 EXACT_SPACING_MM = 0.5
+CHEAP_MARGIN_MM = 2.0  # the cascade's reach stage keeps pair centres this far outside the arm's reach
 
 
 @dataclass
@@ -57,6 +58,16 @@ class Context:
     target_convex: bool = False  # no holes and an outline that turns one way (`_turns_one_way`)
     hull_normal: np.ndarray | None = None  # (H, 2) outward unit normals of edges of the target's convex hull
     hull_limit: np.ndarray | None = None  # (H,) a point p with n . p above this is outside the target
+    sample_cue: np.ndarray | None = None  # (4, N) each sample's normal (x, y), its neighbours' `neighbour_reach`
+    samples_reachable: bool = False  # every midpoint of two samples passes the reach stage (its margin included)
+
+    def surely_outside(self, xy: np.ndarray) -> np.ndarray:
+        """(n,) True for the points xy (2, n) surely outside the target: beyond an edge of its convex
+        hull by more than the rounding of the test (HULL_MARGIN_MM)."""
+        if self.hull_normal is None:
+            return np.zeros(xy.shape[1], bool)
+        # (a matrix product rounds otherwise than n_x x + n_y y, by far less than the margin)
+        return (self.hull_normal @ xy > self.hull_limit[:, None]).any(0)
 
     edge_ax = property(lambda self: self.edge_ad[0, 0])  # by component, as views
     edge_ay = property(lambda self: self.edge_ad[1, 0])
@@ -65,7 +76,11 @@ class Context:
 
     @classmethod
     def build(cls, target: Part, obstacles, cell: Cell, params: SynthesisParams, grasp_z_mm: float,
-              samples: np.ndarray | None = None, sample_ring: np.ndarray | None = None) -> Context:
+              samples: np.ndarray | None = None, sample_ring: np.ndarray | None = None,
+              sample_normals: np.ndarray | None = None) -> Context:
+        """samples (N, 2) and sample_ring (N,): the target's outline samples and their rings, for the
+        pre-check's look at the outline next to each point; with sample_normals (N, 2) its bound on
+        how far they lie ahead is worked out here, once per scene."""
         tall = [o for o in obstacles if o.z_top_mm > grasp_z_mm + Z_EPS_MM]
         palm_z = grasp_z_mm + cell.gripper.palm_offset_mm
         palm = [o for o in obstacles if o.z_top_mm > palm_z + Z_EPS_MM]
@@ -96,6 +111,10 @@ class Context:
             offs = np.array(_neighbour_offsets(cell, params))
             near = first[:, None] + (np.arange(len(samples))[:, None] - first[:, None] + offs[None, :]) % count[:, None]
             nx, ny = samples[:, 0].take(near), samples[:, 1].take(near)
+        cue = None
+        if samples is not None and sample_normals is not None:
+            n = np.asarray(sample_normals, float)
+            cue = np.stack([n[:, 0], n[:, 1], *neighbour_reach(samples, n, nx, ny)])
         fo, po = union(tall), union(palm)
         ad, lo, hi = _edge_arrays(a, b)
         # per scene, outside the timed cascade: the hull's half-planes spare the contacts stage most of
@@ -104,7 +123,35 @@ class Context:
         return cls(target, cell, params, grasp_z_mm, tg, fo, po, [o.id for o in tall],
                    a, b, tree, samples, first, count, ad, lo, hi, _part_boxes(fo),
                    _part_boxes(po), nx, ny, shift, not target.holes_mm and _turns_one_way(ad[0, 1], ad[1, 1]),
-                   hull_n, hull_lim)
+                   hull_n, hull_lim, cue,
+                   samples is not None and midpoints_surely_reachable(cell, samples, CHEAP_MARGIN_MM))
+
+
+def midpoints_surely_reachable(cell: Cell, points: np.ndarray, margin_mm: float) -> bool:
+    """Does every midpoint of two of the points (n, 2) lie in the SCARA's annulus and the workspace,
+    margin_mm widened? It does when the points' bounding box lies inside the workspace and inside the
+    annulus's outer circle (both convex: they hold the midpoints) and clear of its inner disc (1e-6 mm
+    to spare for rounding): the usual case, decided from the points instead of their pairs."""
+    if not len(points):
+        return True
+    x, y = points[:, 0], points[:, 1]
+    x0, x1, y0, y1 = float(x.min()), float(x.max()), float(y.min()), float(y.max())
+    ws, e, spare = cell.workspace, margin_mm, 1e-6
+    if not (x0 >= ws.x_mm[0] - e + spare and x1 <= ws.x_mm[1] + e - spare
+            and y0 >= ws.y_mm[0] - e + spare and y1 <= ws.y_mm[1] + e - spare):
+        return False
+    rmin, rmax = cell.scara.reach_mm
+    far = math.hypot(max(-x0, x1), max(-y0, y1))  # the box's corner furthest from the base
+    near = math.hypot(max(x0, -x1, 0.0), max(y0, -y1, 0.0))  # the box's distance from the base
+    return far <= rmax + e - spare and near >= rmin - e + spare
+
+
+def neighbour_reach(points: np.ndarray, normals: np.ndarray, nbx: np.ndarray, nby: np.ndarray):
+    """How far each point's (n, 2) neighbours (nbx, nby, each (n, 2K)) lie ahead of it along its normal
+    (not below 0) and across it at most, each (n,): the pre-check's bound (cascade._outline_ahead)."""
+    rx, ry = nbx - points[:, 0, None], nby - points[:, 1, None]
+    n_x, n_y = normals[:, 0, None], normals[:, 1, None]
+    return np.maximum((rx * n_x + ry * n_y).max(1), 0.0), np.abs(ry * n_x - rx * n_y).max(1)
 
 
 def exact_outline(target: Part):

@@ -242,7 +242,7 @@ class GraspPlanner:
         t0 = time.perf_counter()
         P = Pairs.of(vp.points, vp.normals, cand_index[point_valid])
         counts["pairs"] = len(P)
-        ctx = Context.build(target, obstacles, cell, p, gz, op_all.points, op_all.ring)
+        ctx = Context.build(target, obstacles, cell, p, gz, op_all.points, op_all.ring, op_all.normals)
         cr = run_cascade(ctx, P)
         for name in STAGES:
             counts[f"after_{name}"] = cr.kept[name]

@@ -41,7 +41,7 @@ from collections.abc import Sequence
 import numpy as np
 import shapely
 
-from cell.grasp.bands import PAD_COMPLIANCE_MM, BandEdges, band_bounds, edge_box_overlaps
+from cell.grasp.bands import PAD_COMPLIANCE_MM, BandEdges, edge_box_overlaps
 from cell.grasp.footprints import axis_rect_bounds, axis_rects, rect_polygons
 from cell.grasp.pairs import CHEAP_MARGIN_MM, EPS_MM, Context, Pairs, midpoints_surely_reachable, neighbour_reach
 from cell.kinematics import Joints, inverse, reachable_mask
@@ -251,34 +251,27 @@ def stage_contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
 def _pairs_per_chunk(ctx: Context, P: Pairs, idx) -> int:
     """How many pairs the contacts stage takes at once: all of them unless their bands would
     overlap more than CONTACT_PIECES_PER_CHUNK edges' boxes, estimated from about 256 bands."""
-    k, n_edges = len(idx), ctx.edge_ad.shape[2]
+    k, n_edges = len(idx), len(ctx.edge_ax)
     if 2 * k * n_edges <= CHUNK_ESTIMATE_ABOVE:
         return k
     some = idx[::max(1, k // 128)]
-    frame, t_min, t_max, hw = _pad_bands(ctx, P.m.take(some, 0), P.u.take(some, 0), P.t.take(some),
-                                         ctx.params.contact_tol_mm)
-    per_band = edge_box_overlaps(ctx, *band_bounds(frame, t_min, t_max, hw)).sum(1).mean()
+    m = P.m.take(some, 0)
+    bands = _pad_bands(ctx, P.u.take(some, 0), P.t.take(some), m[:, 0], m[:, 1], ctx.params.contact_tol_mm)
+    per_band = edge_box_overlaps(ctx, *axis_rect_bounds(*bands)).sum(1).mean()
     return max(MIN_CHUNK_PAIRS, int(CONTACT_PIECES_PER_CHUNK / (2 * max(float(per_band), 1.0))))
 
 
-def _pad_bands(ctx: Context, centre: np.ndarray, u: np.ndarray, t: np.ndarray, beside_mm: float):
+def _pad_bands(ctx: Context, u: np.ndarray, t: np.ndarray, cx: np.ndarray, cy: np.ndarray, beside_mm: float):
     """The 2k bands the pads of k pairs (axis u (k, 2), half distance t (k,)) close through: p_i's pad
     (closing along -u from the +u side), then p_j's; each from 2 x contact_tol inside the candidate
     to the approach opening's outer face, the pad's half width plus beside_mm across, centred on
-    the line through centre (k, 2) along u. Returns the bands' frame (`bands.band_frame`), t_min,
-    t_max and half_width, as BandEdges.clip_frame takes them."""
-    g, k = ctx.cell.gripper, len(t)
-    frame = np.empty((2, 3, 2 * k))  # p_j's pad: u and v the other way (exact negations)
-    frame[:, 0, :k] = frame[:, 0, k:] = centre.T
-    frame[:, 1, :k] = u.T
-    np.negative(u.T, out=frame[:, 1, k:])
-    # v = (-u_y, u_x): (-u_y, u_x) for p_i's pad, (u_y, -u_x) for p_j's
-    np.negative(u[:, 1], out=frame[0, 2, :k])
-    frame[1, 2, :k], frame[0, 2, k:] = u[:, 0], u[:, 1]
-    np.negative(u[:, 0], out=frame[1, 2, k:])
+    the line through (cx, cy) (k,) along u. Returns cx, cy, ux, uy, t_min, t_max, half_width, as
+    BandEdges.clip and axis_rect_bounds take them."""
+    g = ctx.cell.gripper
     tt = np.concatenate([t, t])
-    return (frame, tt - 2 * ctx.params.contact_tol_mm, tt + g.approach_clearance_mm + g.pad_thickness_mm,
-            g.pad_width_mm / 2 + beside_mm)
+    return (np.concatenate([cx, cx]), np.concatenate([cy, cy]), np.concatenate([u[:, 0], -u[:, 0]]),
+            np.concatenate([u[:, 1], -u[:, 1]]), tt - 2 * ctx.params.contact_tol_mm,
+            tt + g.approach_clearance_mm + g.pad_thickness_mm, g.pad_width_mm / 2 + beside_mm)
 
 
 def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
@@ -289,13 +282,15 @@ def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     m, u, t = P.m.take(idx, 0), P.u.take(idx, 0), P.t.take(idx)
     # (material exactly on the band's side, tol beside the pad, is outside it whatever the float noise:
     # an edge running along that side (an L's inner corner) must not count at one pose and not another)
-    frame, t_min, t_max, half_width = _pad_bands(ctx, m, u, t, tol - EPS_MM)
+    cx, cy, ux, uy, t_min, t_max, half_width = _pad_bands(ctx, u, t, m[:, 0], m[:, 1], tol - EPS_MM)
     tt = np.concatenate([t, t])
     slanted = bool(ctx.params.slanted_faces)
-    band = BandEdges.clip_frame(ctx, frame, t_min, t_max, half_width)
-    T, xy = band.first_touch(ctx, slanted)  # xy (2, 2k): x then y of each pad's touch
-    tl = _band_coordinates(frame, xy)
-    lateral = np.abs(tl[1])
+    band = BandEdges.clip(ctx, cx, cy, ux, uy, t_min, t_max, half_width)
+    T, (x, y) = band.first_touch(ctx, slanted)
+    vx, vy = band.vx, band.vy
+    dx, dy = x - cx, y - cy  # the touches from the bands' centres, and across them (kept for _onto_material)
+    l_touch = dx * vx + dy * vy
+    lateral = np.abs(l_touch)
     # the pad stops at the candidate: the first touch is within tol of it along and across the
     # axis. A face slightly slanted to the pad (a tapered web) is first touched at the band's
     # side and the middle of the touching stretch lies mm from the candidate; when the
@@ -306,84 +301,78 @@ def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     stops = T <= tt + tol + EPS_MM  # the pad stops within tol of the candidate along the axis
     pressed = finite & (lateral > tol + EPS_MM) & stops if slanted else None
     if pressed is not None and pressed.any():
-        _press(ctx, P, idx, band, np.flatnonzero(pressed), xy)
-        tl = _band_coordinates(frame, xy)
-        lateral = np.abs(tl[1])
+        q = np.flatnonzero(pressed)
+        nq = len(q)
+        pi, pj = P.pi.take(idx, 0), P.pj.take(idx, 0)  # p_i is on the +u side (its normal is near u)
+        ax, ay = np.concatenate([pi[:, 0], pj[:, 0]]) - cx, np.concatenate([pi[:, 1], pj[:, 1]]) - cy
+        # the pad itself (not the band widened by tol), and a thin band on the pair's closing line,
+        # in one pass (the thin band's verdict is used only where the pad presses on the candidate)
+        Tn, _ = band.narrowed(q, (g.pad_width_mm / 2, 0.05)).first_touch(ctx, touch=False)
+        Tp, T0 = Tn[:nq], Tn[nq:]
+        ax_q, ay_q = ax.take(q), ay.take(q)
+        uxq, uyq, vxq, vyq = ux.take(q), uy.take(q), vx.take(q), vy.take(q)
+        press = np.isfinite(Tp) & (Tp <= ax_q * uxq + ay_q * uyq + PAD_COMPLIANCE_MM + EPS_MM)
+        # the contact on the first-touch line: on the pair's closing line when the pad presses
+        # there too, else across from the candidate
+        lat_c = np.where(T0 >= Tp - PAD_COMPLIANCE_MM, 0.0, ax_q * vxq + ay_q * vyq)
+        cxq, cyq = cx.take(q), cy.take(q)
+        px, py = cxq + uxq * Tp + vxq * lat_c, cyq + uyq * Tp + vyq * lat_c
+        x[q] = np.where(press, px, x.take(q))
+        y[q] = np.where(press, py, y.take(q))
+        dx, dy = x - cx, y - cy
+        l_touch = dx * vx + dy * vy
+        lateral = np.abs(l_touch)
         finite = np.isfinite(lateral)
     ok2 = finite & stops & (lateral <= tol + EPS_MM)
     ok = ok2[:k] & ok2[k:]
     if ctx.params.contacts_on_material:  # report where the pads touch the part, not the pad line in front of it
-        xy = _onto_material(band, ok, xy, tl)
-    xy_i, xy_j = xy[:, :k], xy[:, k:]
-    along = (xy_i - xy_j) * u.T
-    h = 0.5 * (along[0] + along[1])
+        x, y = _onto_material(band, ok, x, y, (dx, dy, l_touch), cx, cy, ux, uy, vx, vy)
+    xi, yi, xj, yj = x[:k], y[:k], x[k:], y[k:]
+    h = 0.5 * ((xi - xj) * u[:, 0] + (yi - yj) * u[:, 1])
     gap = 2 * h
     ok &= (gap >= g.opening_mm[0] - EPS_MM) & (gap + 2 * g.approach_clearance_mm <= g.opening_mm[1] + EPS_MM)
     if ctx.params.max_contact_skew_deg < 90:  # the contacts' line along the axis (params.py)
-        across = (xy_i - xy_j) * frame[:, 2, :k]  # v = (-u_y, u_x)
-        across = np.abs(across[0] + across[1])
+        across = np.abs((xi - xj) * -u[:, 1] + (yi - yj) * u[:, 0])
         ok &= across <= math.tan(math.radians(ctx.params.max_contact_skew_deg)) * np.abs(gap) + EPS_MM
-    mid = 0.5 * (xy_i + xy_j)  # (2, k): the grasp centre
+    mid_x, mid_y = 0.5 * (xi + xj), 0.5 * (yi + yj)  # the grasp centre
     if ctx.params.stroke_at_pad_lines:
-        fits = _pads_clear_in_stroke(ctx, P, idx, ok, gap, mid)
+        fits = _pads_clear_in_stroke(ctx, P, idx, ok, gap, mid_x, mid_y)
         if fits is not None:
             P.stroke_refused += int((ok & ~fits).sum())  # for the message when no pair is left
             ok &= fits
     # written column by column: numpy's row assignment into (s, 2) arrays costs several times more
-    for col in (0, 1):
-        P.ci[:, col][idx], P.cj[:, col][idx], P.center[:, col][idx] = xy_i[col], xy_j[col], mid[col]
+    for col, vi, vj, mid in ((0, xi, xj, mid_x), (1, yi, yj, mid_y)):
+        P.ci[:, col][idx], P.cj[:, col][idx], P.center[:, col][idx] = vi, vj, mid
     P.h[idx] = h
     return ok
 
 
-def _band_coordinates(frame: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """(2, b): t (along u) and l (along v) of the points xy (2, b) from their bands' centres."""
-    d = xy - frame[:, 0]
-    prod = d[:, None] * frame[:, 1:]  # (2, 2, b): component x (u, v)
-    return prod[0] + prod[1]
-
-
-def _press(ctx: Context, P: Pairs, idx, band: BandEdges, q: np.ndarray, xy: np.ndarray) -> None:
-    """The bands q whose first touch lies beside the candidate (beyond tol across the axis): where the
-    pad presses on the candidate too (within PAD_COMPLIANCE_MM of its own first touch), the touch xy
-    (2, b) is moved onto the first-touch line, on the pair's closing line when the pad presses there
-    as well, else across from the candidate."""
-    g, k, nq = ctx.cell.gripper, len(idx), len(q)
-    pi, pj = P.pi.take(idx, 0), P.pj.take(idx, 0)  # p_i is on the +u side (its normal is near u)
-    c, u, v = (band.frame[:, r].take(q, axis=1) for r in (0, 1, 2))
-    a = np.concatenate([pi, pj]).T.take(q, axis=1) - c  # the candidates from the bands' centres
-    # the pad itself (not the band widened by tol), and a thin band on the pair's closing line,
-    # in one pass (the thin band's verdict is used only where the pad presses on the candidate)
-    Tn, _ = band.narrowed(q, (g.pad_width_mm / 2, 0.05)).first_touch(ctx, touch=False)
-    Tp, T0 = Tn[:nq], Tn[nq:]
-    au, av = a * u, a * v
-    press = np.isfinite(Tp) & (Tp <= au[0] + au[1] + PAD_COMPLIANCE_MM + EPS_MM)
-    lat_c = np.where(T0 >= Tp - PAD_COMPLIANCE_MM, 0.0, av[0] + av[1])
-    p = c + u * Tp + v * lat_c
-    xy[:, q] = np.where(press, p, xy.take(q, axis=1))
-
-
-def _onto_material(band: BandEdges, ok: np.ndarray, xy: np.ndarray, tl: np.ndarray) -> np.ndarray:
-    """The touches xy (2, 2k) (band coordinates tl) of the pairs `ok` (k,) moved onto the material the
-    pads touch (`BandEdges.on_material`); the other bands' as they are. Every band when every pair is
-    ok (the cascade's usual case: no gathering)."""
+def _onto_material(band: BandEdges, ok: np.ndarray, x, y, d, cx, cy, ux, uy, vx, vy):
+    """The touches (x, y) (2k,) of the pairs `ok` (k,) moved onto the material the pads touch
+    (`BandEdges.on_material`); the other bands' as they are. d: the touches from the bands' centres
+    (x - cx, y - cy) and their l. Every band when every pair is ok (the cascade's usual case: no
+    gathering)."""
+    dx, dy, l = d
     if ok.all():
-        s = band.on_material(None, tl)
-        return np.where(np.isfinite(s[0]), s, xy)
+        sx, sy = band.on_material(None, dx * ux + dy * uy, l)
+        found = np.isfinite(sx)
+        return np.where(found, sx, x), np.where(found, sy, y)
     rows = np.flatnonzero(np.concatenate([ok, ok]))
     if len(rows):
-        s = band.on_material(rows, tl.take(rows, axis=1))
-        xy[:, rows] = np.where(np.isfinite(s[0]), s, xy.take(rows, axis=1))
-    return xy
+        dx, dy = dx.take(rows), dy.take(rows)
+        sx, sy = band.on_material(rows, dx * ux.take(rows) + dy * uy.take(rows), l.take(rows))
+        found = np.isfinite(sx)
+        x[rows], y[rows] = np.where(found, sx, x.take(rows)), np.where(found, sy, y.take(rows))
+    return x, y
 
 
-def _pads_clear_in_stroke(ctx: Context, P: Pairs, idx, ok: np.ndarray, gap: np.ndarray, mid) -> np.ndarray | None:
+def _pads_clear_in_stroke(ctx: Context, P: Pairs, idx, ok: np.ndarray, gap: np.ndarray, cx, cy) -> np.ndarray | None:
     """(k,) for the pairs `ok` among idx (k,), contacts `gap` (k,) apart: does the gap between the
     lines where the pads stop, plus the approach clearance on both sides, fit the stroke? The
     reported contacts can lie up to the pad's compliance behind those lines (a slanted face, a
     notch, a face the pad presses on at its side): a part wider than the stroke must not fit
-    because its contacts do. The pads are centred on the line through the contacts' midpoint mid
-    (2, k), as the gripper and the physical check have them. Only pairs whose contacts are within
+    because its contacts do. The pads are centred on the line through the contacts' midpoint (cx,
+    cy), as the gripper and the physical check have them. Only pairs whose contacts are within
     2 x (contact_tol + compliance) of the limit are looked at: elsewhere the contacts stage has
     found no material that far in front of the contacts in the (wider) band around them. None: no
     pair is that near (all fit)."""
@@ -395,9 +384,8 @@ def _pads_clear_in_stroke(ctx: Context, P: Pairs, idx, ok: np.ndarray, gap: np.n
     rows = np.asarray(idx).take(near)
     u, t, m = P.u.take(rows, 0), P.t.take(rows), P.m.take(rows, 0)
     # the band centre on the contacts' line: t along u is the same from it as from the midpoint m
-    off = (mid[0].take(near) - m[:, 0]) * -u[:, 1] + (mid[1].take(near) - m[:, 1]) * u[:, 0]
-    centre = np.column_stack([m[:, 0] - u[:, 1] * off, m[:, 1] + u[:, 0] * off])
-    pads = BandEdges.clip_frame(ctx, *_pad_bands(ctx, centre, u, t, 0.0))
+    off = (cx.take(near) - m[:, 0]) * -u[:, 1] + (cy.take(near) - m[:, 1]) * u[:, 0]
+    pads = BandEdges.clip(ctx, *_pad_bands(ctx, u, t, m[:, 0] - u[:, 1] * off, m[:, 1] + u[:, 0] * off, 0.0))
     Tp, _ = pads.first_touch(ctx, touch=False)
     fits = np.ones(k, bool)
     fits[near] = Tp[:len(near)] + Tp[len(near):] <= limit

@@ -47,9 +47,14 @@ class Context:
     samples: np.ndarray | None = None  # (N, 2) the target's outline samples, ring after ring
     sample_ring_first: np.ndarray | None = None  # (N,) index of the first sample of each sample's ring
     sample_ring_count: np.ndarray | None = None  # (N,) number of samples on that ring
-    edge_ad: np.ndarray = None  # (2, 2, E): x then y of every edge's start and direction (end - start)
-    edge_lo: np.ndarray = None  # (2, E): x then y of the low corner of every edge's bounding box
-    edge_hi: np.ndarray = None  # (2, E): the high corner
+    edge_ax: np.ndarray = None  # (E,) the edges' start, direction (end - start) and bounding boxes, by component
+    edge_ay: np.ndarray = None
+    edge_dx: np.ndarray = None
+    edge_dy: np.ndarray = None
+    edge_lox: np.ndarray = None
+    edge_loy: np.ndarray = None
+    edge_hix: np.ndarray = None
+    edge_hiy: np.ndarray = None
     finger_boxes: np.ndarray | None = None  # (n, 4) bounding boxes of the finger obstacles' parts
     palm_boxes: np.ndarray | None = None  # (n, 4) the same for the palm obstacles
     neighbour_x: np.ndarray | None = None  # (N, 2K) the samples on the same ring within K steps of each sample
@@ -69,10 +74,6 @@ class Context:
         # (a matrix product rounds otherwise than n_x x + n_y y, by far less than the margin)
         return (self.hull_normal @ xy > self.hull_limit[:, None]).any(0)
 
-    edge_ax = property(lambda self: self.edge_ad[0, 0])  # by component, as views
-    edge_ay = property(lambda self: self.edge_ad[1, 0])
-    edge_dx = property(lambda self: self.edge_ad[0, 1])
-    edge_dy = property(lambda self: self.edge_ad[1, 1])
 
     @classmethod
     def build(cls, target: Part, obstacles, cell: Cell, params: SynthesisParams, grasp_z_mm: float,
@@ -116,13 +117,13 @@ class Context:
             n = np.asarray(sample_normals, float)
             cue = np.stack([n[:, 0], n[:, 1], *neighbour_reach(samples, n, nx, ny)])
         fo, po = union(tall), union(palm)
-        ad, lo, hi = _edge_arrays(a, b)
+        edges = _edge_columns(a, b)
         # per scene, outside the timed cascade: the hull's half-planes spare the contacts stage most of
         # its containment tests (bands.BandEdges._far_corners_inside)
         hull_n, hull_lim = _hull_half_planes(tg)
         return cls(target, cell, params, grasp_z_mm, tg, fo, po, [o.id for o in tall],
-                   a, b, tree, samples, first, count, ad, lo, hi, _part_boxes(fo),
-                   _part_boxes(po), nx, ny, shift, not target.holes_mm and _turns_one_way(ad[0, 1], ad[1, 1]),
+                   a, b, tree, samples, first, count, *edges, _part_boxes(fo),
+                   _part_boxes(po), nx, ny, shift, not target.holes_mm and _turns_one_way(edges[2], edges[3]),
                    hull_n, hull_lim, cue,
                    samples is not None and midpoints_surely_reachable(cell, samples, CHEAP_MARGIN_MM))
 
@@ -224,10 +225,12 @@ def _neighbour_offsets(cell: Cell, params: SynthesisParams) -> list[int]:
     return [*range(-K, 0), *range(1, K + 1)]
 
 
-def _edge_arrays(a: np.ndarray, b: np.ndarray):
-    """Edges from a to b (E, 2) by component: start and direction (2, 2, E), bounding box lo and hi (2, E)."""
-    ad = np.ascontiguousarray(np.stack([a, b - a], axis=1).transpose(2, 1, 0))
-    return ad, np.ascontiguousarray(np.minimum(a, b).T), np.ascontiguousarray(np.maximum(a, b).T)
+def _edge_columns(a: np.ndarray, b: np.ndarray) -> list[np.ndarray]:
+    """Edges from a to b (E, 2): start x, y, direction x, y, bounding box lo x, y, hi x, y, each (E,)."""
+    d = b - a
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    return [np.ascontiguousarray(c) for c in (a[:, 0], a[:, 1], d[:, 0], d[:, 1], lo[:, 0], lo[:, 1], hi[:, 0],
+                                              hi[:, 1])]
 
 
 HULL_EDGES_MAX = 16  # the longest hull edges kept: each costs a numpy row per band corner tested

@@ -66,13 +66,13 @@ class Context:
     sample_cue: np.ndarray | None = None  # (4, N) each sample's normal (x, y), its neighbours' `neighbour_reach`
     samples_reachable: bool = False  # every midpoint of two samples passes the reach stage (its margin included)
 
-    def surely_outside(self, xy: np.ndarray) -> np.ndarray:
-        """(n,) True for the points xy (2, n) surely outside the target: beyond an edge of its convex
-        hull by more than the rounding of the test (HULL_MARGIN_MM)."""
+    def surely_outside(self, xy: np.ndarray, beyond_mm: float = 0.0) -> np.ndarray:
+        """(n,) True for the points xy (2, n) surely outside the target by more than beyond_mm: beyond
+        an edge of its convex hull by that plus the rounding of the test (HULL_MARGIN_MM)."""
         if self.hull_normal is None:
             return np.zeros(xy.shape[1], bool)
         # (a matrix product rounds otherwise than n_x x + n_y y, by far less than the margin)
-        return (self.hull_normal @ xy > self.hull_limit[:, None]).any(0)
+        return (self.hull_normal @ xy > (self.hull_limit + beyond_mm)[:, None]).any(0)
 
 
     @classmethod

@@ -148,6 +148,37 @@ def _elbow_within_limits(t2, to_wrist, a, scara: Scara) -> np.ndarray:
             & (j2 >= scara.j2_deg[0] - 1e-9) & (j2 <= scara.j2_deg[1] + 1e-9) & some_j4)
 
 
+def box_surely_reachable(x0: float, y0: float, x1: float, y1: float, z_mm: float, scara: Scara,
+                         margin_deg: float = 1e-6) -> bool:
+    """Is `reachable_mask` True at every point of the box [x0, x1] x [y0, y1] (right of the base), for
+    any closing axis? Sufficient: J4 spans more than a half turn (some turn of any axis fits), z is
+    within J3, and one elbow reaches the whole box with J1 and J2 margin_deg inside their limits (far
+    above the mask's rounding), from the box's range of distance r and direction phi from the base:
+    the elbow angle t = arccos(c2(r)) falls with r, and J1 = phi -+ beta(t) with beta the angle link 1
+    makes with the wrist's direction (largest at cos t = -l2 / l1)."""
+    lo4, hi4 = scara.j4_deg
+    if hi4 - lo4 < 181.0 or not scara.j3_mm[0] <= z_mm <= scara.j3_mm[1] or x0 <= 0.0:
+        return False
+    l1, l2 = scara.l1_mm, scara.l2_mm
+    corners = [(x0, y0), (x0, y1), (x1, y0), (x1, y1)]
+    r_lo, r_hi = math.hypot(x0, max(y0, -y1, 0.0)), max(math.hypot(x, y) for x, y in corners)
+    c_lo, c_hi = ((r * r - l1 * l1 - l2 * l2) / (2 * l1 * l2) for r in (r_lo, r_hi))
+    if c_lo < -1.0 + 1e-9 or c_hi > 1.0 - 1e-9:
+        return False
+    t_lo, t_hi = math.acos(c_hi), math.acos(c_lo)
+    ts = [t_lo, t_hi] + ([math.acos(-l2 / l1)] if l2 <= l1 and t_lo < math.acos(-l2 / l1) < t_hi else [])
+    betas = [math.degrees(math.atan2(l2 * math.sin(t), l1 + l2 * math.cos(t))) for t in ts]
+    phis = [math.degrees(math.atan2(y, x)) for x, y in corners]  # x > 0: the extremes are at corners
+    (p_lo, p_hi), (b_lo, b_hi), (j2_lo, j2_hi) = (min(phis), max(phis)), (min(betas), max(betas)), scara.j2_deg
+    j1_lo, j1_hi = scara.j1_deg[0] + margin_deg, scara.j1_deg[1] - margin_deg
+    t_deg = (math.degrees(t_lo), math.degrees(t_hi))
+    elbow_up = (j2_lo + margin_deg <= t_deg[0] and t_deg[1] <= j2_hi - margin_deg
+                and j1_lo <= p_lo - b_hi and p_hi - b_lo <= j1_hi)  # J2 = t, J1 = phi - beta
+    elbow_down = (j2_lo + margin_deg <= -t_deg[1] and -t_deg[0] <= j2_hi - margin_deg
+                  and j1_lo <= p_lo + b_lo and p_hi + b_hi <= j1_hi)  # J2 = -t, J1 = phi + beta
+    return elbow_up or elbow_down
+
+
 def reachable_mask(x_mm, y_mm, z_mm: float, axis_deg, scara: Scara) -> np.ndarray:
     """Vectorised `bool(inverse(x, y, z, axis, scara))`: does any solution within the joint
     limits exist? Shapes (n,) in, (n,) bool out. The cascade asks this for every pair; the

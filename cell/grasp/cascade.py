@@ -394,17 +394,22 @@ def _pads_clear_in_stroke(ctx: Context, P: Pairs, idx, ok: np.ndarray, gap: np.n
 
 def stage_ik(ctx: Context, P: Pairs, idx) -> np.ndarray:
     idx = np.asarray(idx, int)
-    c, u = P.center.take(idx, 0), P.u.take(idx, 0)
+    c = P.center.take(idx, 0)
     x, y = c[:, 0], c[:, 1]
+    P.ik = (ctx.grasp_z_mm, ctx.cell.scara)  # the solutions, for the pairs that get looked at: joints_of
+    if ctx.ik_box is not None:  # every point of this box is reachable (Context.build): the usual case
+        x0, y0, x1, y1 = ctx.ik_box
+        sure = (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)
+        if sure.all():
+            return sure
+    u = P.u.take(idx, 0)
     ws = ctx.cell.workspace
     axis = np.degrees(np.arctan2(u[:, 1], u[:, 0]))
     inside = (np.isfinite(x) & (x >= ws.x_mm[0]) & (x <= ws.x_mm[1]) & (y >= ws.y_mm[0]) & (y <= ws.y_mm[1]))
-    if inside.all():  # the usual case: no subset to gather
-        ok = reachable_mask(x, y, ctx.grasp_z_mm, axis, ctx.cell.scara)
-    else:
-        ok = np.zeros(len(idx), bool)
-        ok[inside] = reachable_mask(x[inside], y[inside], ctx.grasp_z_mm, axis[inside], ctx.cell.scara)
-    P.ik = (ctx.grasp_z_mm, ctx.cell.scara)  # the solutions, for the pairs that get looked at: joints_of
+    if inside.all():  # no subset to gather
+        return reachable_mask(x, y, ctx.grasp_z_mm, axis, ctx.cell.scara)
+    ok = np.zeros(len(idx), bool)
+    ok[inside] = reachable_mask(x[inside], y[inside], ctx.grasp_z_mm, axis[inside], ctx.cell.scara)
     return ok
 
 

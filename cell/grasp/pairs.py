@@ -15,7 +15,7 @@ import shapely
 
 from cell.cellconfig import Cell
 from cell.grasp.params import SynthesisParams
-from cell.kinematics import normalize_axis_deg
+from cell.kinematics import box_surely_reachable, normalize_axis_deg
 from cell.scene import Part
 
 # Comparisons against a tolerance allow this much float noise, so that the verdict on a pair
@@ -65,6 +65,7 @@ class Context:
     hull_limit: np.ndarray | None = None  # (H,) a point p with n . p above this is outside the target
     sample_cue: np.ndarray | None = None  # (4, N) each sample's normal (x, y), its neighbours' `neighbour_reach`
     samples_reachable: bool = False  # every midpoint of two samples passes the reach stage (its margin included)
+    ik_box: tuple | None = None  # (x0, y0, x1, y1) around the target, in the workspace, every point reachable
 
     def surely_outside(self, xy: np.ndarray, beyond_mm: float = 0.0) -> np.ndarray:
         """(n,) True for the points xy (2, n) surely outside the target by more than beyond_mm: beyond
@@ -125,7 +126,22 @@ class Context:
                    a, b, tree, samples, first, count, *edges, _part_boxes(fo),
                    _part_boxes(po), nx, ny, shift, not target.holes_mm and _turns_one_way(edges[2], edges[3]),
                    hull_n, hull_lim, cue,
-                   samples is not None and midpoints_surely_reachable(cell, samples, CHEAP_MARGIN_MM))
+                   samples is not None and midpoints_surely_reachable(cell, samples, CHEAP_MARGIN_MM),
+                   _ik_box(tg, cell, grasp_z_mm))
+
+
+IK_BOX_MARGIN_MM = 5.0  # around the target's bounds: contacts' centres lie within its hull (or near it)
+
+
+def _ik_box(geom, cell: Cell, grasp_z_mm: float) -> tuple | None:
+    """The target's bounding box, IK_BOX_MARGIN_MM wider, when it lies in the workspace and every
+    point of it is surely reachable at the grasp z (kinematics.box_surely_reachable): the ik stage
+    then passes the pairs whose contacts' centre lies in it without solving (per scene)."""
+    x0, y0, x1, y1 = (float(v) for v in shapely.bounds(geom))
+    e, ws = IK_BOX_MARGIN_MM, cell.workspace
+    box = (x0 - e, y0 - e, x1 + e, y1 + e)
+    inside = ws.x_mm[0] <= box[0] and box[2] <= ws.x_mm[1] and ws.y_mm[0] <= box[1] and box[3] <= ws.y_mm[1]
+    return box if inside and box_surely_reachable(*box, grasp_z_mm, cell.scara) else None
 
 
 def midpoints_surely_reachable(cell: Cell, points: np.ndarray, margin_mm: float) -> bool:

@@ -67,16 +67,18 @@ class BandEdges:
         vx, vy = -uy, ux
         lox, loy, hix, hiy = axis_rect_bounds(cx, cy, ux, uy, t_min, t_max, half_width)
         bi, ei = _overlapping_edges(ctx, lox, loy, hix, hiy)  # the clip below is exact
-        c_x, c_y, u_x, u_y = cx.take(bi), cy.take(bi), ux.take(bi), uy.take(bi)
+        b = len(cx)
+        one_each = _is_range(bi, b)  # one edge's box per band (a straight face): the bands as they are
+        c_x, c_y, u_x, u_y, lo, hi = ((cx, cy, ux, uy, t_min, t_max) if one_each else
+                                      (a.take(bi) for a in (cx, cy, ux, uy, t_min, t_max)))
         v_x = -u_y
         acx, acy = ctx.edge_ax.take(ei) - c_x, ctx.edge_ay.take(ei) - c_y
         dx, dy = ctx.edge_dx.take(ei), ctx.edge_dy.take(ei)
         tA, lA = acx * u_x + acy * u_y, acx * v_x + acy * u_x
         dt, dl = dx * u_x + dy * u_y, dx * v_x + dy * u_x
-        s0, s1, inside = _liang_barsky(tA, dt, lA, dl, t_min.take(bi), t_max.take(bi), half_width)
-        b = len(cx)
+        s0, s1, inside = _liang_barsky(tA, dt, lA, dl, lo, hi, half_width)
         if inside.all():  # (no gathering)
-            return cls(cx, cy, ux, uy, vx, vy, t_max, half_width, bi, s0, s1, tA, lA, dt, dl, _is_range(bi, b))
+            return cls(cx, cy, ux, uy, vx, vy, t_max, half_width, bi, s0, s1, tA, lA, dt, dl, one_each)
         k = np.flatnonzero(inside)
         bi = bi.take(k)
         return cls(cx, cy, ux, uy, vx, vy, t_max, half_width, bi, s0.take(k), s1.take(k), tA.take(k), lA.take(k),

@@ -478,22 +478,41 @@ class CascadeResult:
         return self._rejected_by
 
 
+# The cheap stages that look at every pair when most are alive (`_dense`): while only they have run and
+# most pairs are left, the cascade keeps the survivors as a mask and asks them about every pair (the
+# same verdicts; compressing 10^4 indices costs ~13 us, a stage's pick of its survivors' verdicts ~4 us)
+MASKED_STAGES = ("stroke", "reach", "antipodal")
+
+
 def run_cascade(ctx: Context, P: Pairs, stages=STAGES) -> CascadeResult:
     import time
 
-    alive = np.arange(len(P))
+    every = np.arange(len(P))
+    alive, mask, n_alive = every, np.ones(len(P), bool), len(P)  # mask: None once alive holds the survivors
     verdicts, kept, times, exact = [], {}, {}, 0
     with np.errstate(divide="ignore", invalid="ignore"):  # once here (the module's docstring)
         for name in stages:
             t0 = time.perf_counter()
-            if name in EXACT_STAGES:
-                exact += len(alive)
-            ok = STAGE_FUNCS[name](ctx, P, alive) if len(alive) else np.zeros(0, bool)
-            if not ok.all():
-                verdicts.append((STAGES.index(name), alive, ok))
-                alive = alive.compress(ok)
-            kept[name] = len(alive)
+            if mask is not None and (name not in MASKED_STAGES or not 2 * n_alive > len(P)):
+                alive, mask = np.flatnonzero(mask), None
+            if mask is not None:
+                ok = STAGE_FUNCS[name](ctx, P, every)
+                if not ok.all():
+                    verdicts.append((STAGES.index(name), every, ok))
+                    mask &= ok
+                    n_alive = int(np.count_nonzero(mask))
+            else:
+                if name in EXACT_STAGES:
+                    exact += len(alive)
+                ok = STAGE_FUNCS[name](ctx, P, alive) if len(alive) else np.zeros(0, bool)
+                if not ok.all():
+                    verdicts.append((STAGES.index(name), alive, ok))
+                    alive = alive.compress(ok)
+                n_alive = len(alive)
+            kept[name] = n_alive
             times[name] = (time.perf_counter() - t0) * 1e3
+    if mask is not None:
+        alive = np.flatnonzero(mask)
     return CascadeResult(len(P), alive, verdicts, kept, exact, times)
 
 

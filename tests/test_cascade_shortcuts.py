@@ -1,0 +1,162 @@
+"""The cascade's shortcuts decide what the plain computation decides: the per-scene parts Context.build
+works out (the target's hull half-planes, the outline samples' cues, the box where the arm surely
+reaches), the mask the cheap stages share, and the bands with one piece each."""
+
+import dataclasses
+import random
+
+import numpy as np
+import pytest
+import shapely
+
+from cell.cellconfig import default_cell
+from cell.grasp import bands, cascade, shapes
+from cell.grasp.candidates import candidate_points
+from cell.grasp.cascade import STAGE_FUNCS, STAGES, Context, Pairs, run_cascade
+from cell.grasp.height import grasp_z_mm
+from cell.grasp.params import SynthesisParams
+from cell.kinematics import box_surely_reachable, reachable_mask
+
+CELL = default_cell()
+PARAMS = SynthesisParams()
+TARGETS = [shapes.rectangle("bar", 240, 60, (350, 0), 10), shapes.gear("gear", 30, 12, 4, (330, 60)),
+           shapes.l_shape("ell", 70, 50, 18, (420, 150), 25), shapes.disc("ring", 30, (300, -120), hole_r_mm=12),
+           shapes.rectangle("box", 50, 30, (300, 100), 30)]
+NEIGHBOURS = [shapes.rectangle("post", 30, 30, (350, 50), 0, z_top_mm=60),
+              shapes.rectangle("plate", 80, 40, (300, 100), 0, z_top_mm=3)]
+
+
+@pytest.fixture(autouse=True)
+def _errstate_as_in_the_cascade():
+    with np.errstate(divide="ignore", invalid="ignore"):
+        yield
+
+
+def scene(target, obstacles=()):
+    """The context as the planner builds it (with the samples' normals), one without them (the cues
+    worked out for the pairs' points), and every pair of free outline points."""
+    op, free = candidate_points(target, obstacles, PARAMS)
+    idx = np.flatnonzero(free)
+    vp = op.subset(idx)
+    gz = grasp_z_mm(target.z_bottom_mm, target.z_top_mm, CELL.gripper)
+    planned = Context.build(target, list(obstacles), CELL, PARAMS, gz, op.points, op.ring, op.normals)
+    plain = Context.build(target, list(obstacles), CELL, PARAMS, gz, op.points, op.ring)
+    return planned, plain, Pairs.of(vp.points, vp.normals, idx)
+
+
+@pytest.mark.parametrize("target", TARGETS, ids=lambda p: p.id)
+def test_points_beyond_the_hull_half_planes_are_outside_the_target(target):
+    ctx = Context.build(target, [], CELL, PARAMS, 5.0)
+    x0, y0, x1, y1 = shapely.bounds(ctx.target_geom)
+    rng = np.random.default_rng(0)
+    xy = np.stack([rng.uniform(x0 - 20, x1 + 20, 20000), rng.uniform(y0 - 20, y1 + 20, 20000)])
+    out = ctx.surely_outside(xy)
+    assert 0 < out.sum() < len(out)
+    assert not shapely.contains_xy(ctx.target_geom, xy[0][out], xy[1][out]).any()
+    far = ctx.surely_outside(xy, 3.0)
+    assert (far <= out).all() and (shapely.distance(ctx.target_geom, shapely.points(xy[:, far].T)) > 3.0).all()
+
+
+@pytest.mark.parametrize("target", TARGETS, ids=lambda p: p.id)
+def test_the_samples_cues_are_the_pairs_points_own(target):
+    planned, plain, P = scene(target)
+    idx = np.arange(len(P))
+    pt = P.ij.T.ravel()
+    assert np.array_equal(cascade._row_cues(planned, P, pt, P.sample_index.take(pt)),
+                          cascade._row_cues(plain, P, pt, P.sample_index.take(pt)))
+    assert np.array_equal(cascade._outline_ahead(planned, P, idx), cascade._outline_ahead(plain, P, idx))
+
+
+def test_the_samples_box_decides_the_reach_stage_as_the_points_box():
+    for target in (*TARGETS, shapes.rectangle("edge", 80, 40, (590, 0), 30)):
+        planned, _, P = scene(target)
+        assert planned.samples_reachable == cascade._midpoints_surely_reachable(planned, planned.samples)
+        if planned.samples_reachable:
+            assert cascade._midpoints_surely_reachable(planned, P.points)
+
+
+def test_every_point_of_a_surely_reachable_box_is_reachable():
+    """Random links, joint limits, J4 ranges and boxes: wherever box_surely_reachable says so, the
+    solver reaches every point (corners, sides, inside) along any axis."""
+    rng, nrng = random.Random(1), np.random.default_rng(1)
+    certified = 0
+    for _ in range(3000):
+        j1, j2, c1, c2 = rng.uniform(20, 180), rng.uniform(20, 170), rng.uniform(-40, 40), rng.uniform(-30, 30)
+        scara = dataclasses.replace(CELL.scara, l1_mm=rng.uniform(150, 400), l2_mm=rng.uniform(150, 400),
+                                    j1_deg=(c1 - j1, c1 + j1), j2_deg=(c2 - j2, c2 + j2),
+                                    j4_deg=rng.choice([(-360.0, 360.0), (-91.0, 91.0)]))
+        x0, y0 = rng.uniform(1, 500), rng.uniform(-400, 300)
+        x1, y1 = x0 + rng.uniform(1, 300), y0 + rng.uniform(1, 300)
+        if not box_surely_reachable(x0, y0, x1, y1, 10.0, scara):
+            continue
+        certified += 1
+        x = np.concatenate([nrng.uniform(x0, x1, 200), [x0, x0, x1, x1], np.full(10, x0), np.full(10, x1)])
+        y = np.concatenate([nrng.uniform(y0, y1, 200), [y0, y1, y0, y1], nrng.uniform(y0, y1, 20)])
+        assert reachable_mask(x, y, 10.0, nrng.uniform(-180, 180, len(x)), scara).all()
+    assert certified > 100
+    assert not box_surely_reachable(300, -20, 340, 20, 10.0, dataclasses.replace(CELL.scara, j4_deg=(-90.0, 90.0)))
+    assert not box_surely_reachable(300, -20, 340, 20, 250.0, CELL.scara)  # above J3's range
+
+
+def _through(ctx, P, last):
+    """The pairs that reach the stage after `last` (the cascade's own stages, in order)."""
+    alive = np.arange(len(P))
+    for name in STAGES[:STAGES.index(last) + 1]:
+        alive = alive.compress(STAGE_FUNCS[name](ctx, P, alive))
+    return alive
+
+
+@pytest.mark.parametrize("target", TARGETS, ids=lambda p: p.id)
+def test_the_ik_box_passes_what_the_solver_passes(target):
+    planned, _, P = scene(target)
+    assert planned.ik_box is not None
+    idx = _through(planned, P, "contacts")
+    solved = dataclasses.replace(planned, ik_box=None)
+    assert np.array_equal(cascade.stage_ik(planned, P, idx), cascade.stage_ik(solved, P, idx))
+    outside = dataclasses.replace(planned, ik_box=(0.0, 0.0, 1.0, 1.0))  # no centre in it: solved as before
+    assert np.array_equal(cascade.stage_ik(outside, P, idx), cascade.stage_ik(solved, P, idx))
+
+
+def _plain_cascade(ctx, P):
+    """The cascade as it was before the mask: each stage on the indices of the survivors."""
+    alive, verdicts, kept, exact = np.arange(len(P)), [], {}, 0
+    for name in STAGES:
+        if name in cascade.EXACT_STAGES:
+            exact += len(alive)
+        ok = STAGE_FUNCS[name](ctx, P, alive) if len(alive) else np.zeros(0, bool)
+        if not ok.all():
+            verdicts.append((STAGES.index(name), alive, ok))
+            alive = alive.compress(ok)
+        kept[name] = len(alive)
+    return cascade.CascadeResult(len(P), alive, verdicts, kept, exact, {})
+
+
+@pytest.mark.parametrize("obstacles", [(), NEIGHBOURS], ids=["alone", "neighbours"])
+@pytest.mark.parametrize("target", TARGETS + [shapes.rectangle("wide", 75, 20, (350, 0), 5)], ids=lambda p: p.id)
+def test_the_masked_cheap_stages_keep_and_reject_what_the_plain_loop_does(target, obstacles):
+    planned, _, P = scene(target, obstacles)
+    masked, plain = run_cascade(planned, P), _plain_cascade(planned, P.fresh())
+    assert np.array_equal(masked.survivors, plain.survivors)
+    assert masked.kept == plain.kept and masked.exact_checks == plain.exact_checks
+    assert np.array_equal(masked.rejected_by, plain.rejected_by)
+
+
+@pytest.mark.parametrize("middle", [False, True], ids=["all", "middle"])
+@pytest.mark.parametrize("target", TARGETS, ids=lambda p: p.id)
+def test_one_piece_per_band_gives_what_the_per_band_scatters_give(target, middle):
+    planned, _, P = scene(target)
+    idx = _through(planned, P, "precheck")
+    if middle:  # the pairs across the middle of the part: on the bar one piece of a face per band
+        c = np.asarray(shapely.centroid(planned.target_geom).coords[0])
+        idx = idx[np.hypot(*(P.m[idx] - c).T) < 10]
+    m, u, t = P.m[idx], P.u[idx], P.t[idx]
+    band = bands.BandEdges.clip(planned, *cascade._pad_bands(planned, u, t, m[:, 0], m[:, 1], 1.0 - 1e-6))
+    scattered = dataclasses.replace(band, one_each=False)
+    for slanted in (True, False):
+        T, (x, y) = band.first_touch(planned, slanted)
+        T2, (x2, y2) = scattered.first_touch(planned, slanted)
+        assert all(np.array_equal(a, b, equal_nan=True) for a, b in ((T, T2), (x, x2), (y, y2)))
+    tl = (x - band.cx) * band.ux + (y - band.cy) * band.uy, (x - band.cx) * band.vx + (y - band.cy) * band.vy
+    assert all(np.array_equal(a, b, equal_nan=True)
+               for a, b in zip(band.on_material(None, *tl), scattered.on_material(None, *tl), strict=True))
+    assert band.one_each or not (middle and target.id == "bar")

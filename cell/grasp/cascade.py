@@ -223,8 +223,8 @@ def _row_cues(ctx: Context, P: Pairs, pt: np.ndarray, sample: np.ndarray) -> np.
     if ctx.sample_cue is not None:
         return ctx.sample_cue.take(sample, axis=1)
     n = P.normals
-    ahead, across = neighbour_reach(P.points, n, ctx.neighbour_x.take(P.sample_index, 0),
-                                    ctx.neighbour_y.take(P.sample_index, 0))
+    ahead, across = neighbour_reach(P.points, n, ctx.neighbour_x.T.take(P.sample_index, axis=1),
+                                    ctx.neighbour_y.T.take(P.sample_index, axis=1))
     return np.stack([n[:, 0], n[:, 1], ahead, across]).take(pt, axis=1)
 
 

@@ -116,7 +116,8 @@ class Context:
         cue = None
         if samples is not None and sample_normals is not None:
             n = np.asarray(sample_normals, float)
-            cue = np.stack([n[:, 0], n[:, 1], *neighbour_reach(samples, n, nx, ny)])
+            by_neighbour = samples[:, 0].take(near.T), samples[:, 1].take(near.T)  # (2K, N): the bound's loops along N
+            cue = np.stack([n[:, 0], n[:, 1], *neighbour_reach(samples, n, *by_neighbour)])
         fo, po = union(tall), union(palm)
         edges = _edge_columns(a, b)
         # per scene, outside the timed cascade: the hull's half-planes spare the contacts stage most of
@@ -164,11 +165,12 @@ def midpoints_surely_reachable(cell: Cell, points: np.ndarray, margin_mm: float)
 
 
 def neighbour_reach(points: np.ndarray, normals: np.ndarray, nbx: np.ndarray, nby: np.ndarray):
-    """How far each point's (n, 2) neighbours (nbx, nby, each (n, 2K)) lie ahead of it along its normal
-    (not below 0) and across it at most, each (n,): the pre-check's bound (cascade._outline_ahead)."""
-    rx, ry = nbx - points[:, 0, None], nby - points[:, 1, None]
-    n_x, n_y = normals[:, 0, None], normals[:, 1, None]
-    return np.maximum((rx * n_x + ry * n_y).max(1), 0.0), np.abs(ry * n_x - rx * n_y).max(1)
+    """How far each point's (n, 2) neighbours (nbx, nby, each (2K, n): neighbour by neighbour) lie ahead of
+    it along its normal (not below 0) and across it at most, each (n,): the pre-check's bound
+    (cascade._outline_ahead)."""
+    rx, ry = nbx - points[:, 0], nby - points[:, 1]
+    n_x, n_y = normals[:, 0], normals[:, 1]
+    return np.maximum((rx * n_x + ry * n_y).max(0), 0.0), np.abs(ry * n_x - rx * n_y).max(0)
 
 
 def exact_outline(target: Part):

@@ -142,28 +142,25 @@ class BandEdges:
 
     def _far_corners_inside(self, ctx: Context) -> np.ndarray | None:
         """(b,): is either far corner of each band inside the target? None: neither is, for any band.
-        Corners outside the target's convex hull (`Context.surely_outside`) are not asked of shapely
-        (its containment test costs 40-70 ns a point; the hull's half-planes, a few numpy calls). First
-        the far sides' middles, half_width further out (then both corners are): usually all of them."""
+        A band whose far side's middle lies beyond an edge of the target's convex hull by more than half
+        its width has both corners beyond it (`Context.surely_outside`): shapely is not asked (its
+        containment test costs 40-70 ns a point, the hull's half-planes a few ns). Usually all of them."""
         b, hw = len(self.cx), self.half_width
         far = np.empty((2, b))
         np.add(self.cx, self.ux * self.t_max, out=far[0])
         np.add(self.cy, self.uy * self.t_max, out=far[1])
-        if ctx.surely_outside(far, float(np.max(hw))).all():
+        clear = ctx.surely_outside(far, float(np.max(hw)))
+        if clear.all():
             return None
-        wx, wy = self.vx * hw, self.vy * hw
-        xy = np.empty((2, 2 * b))
-        np.subtract(far[0], wx, out=xy[0, :b])
-        np.add(far[0], wx, out=xy[0, b:])
-        np.subtract(far[1], wy, out=xy[1, :b])
-        np.add(far[1], wy, out=xy[1, b:])
-        maybe = ~ctx.surely_outside(xy)
-        if not maybe.any():
-            return None
-        inside = np.zeros(2 * b, bool)
-        r = np.flatnonzero(maybe)
-        inside[r] = shapely.contains_xy(ctx.target_geom, xy[0].take(r), xy[1].take(r))
-        return inside[:b] | inside[b:]
+        r = np.flatnonzero(~clear)
+        fx, fy, vx, vy = far[0].take(r), far[1].take(r), self.vx.take(r), self.vy.take(r)
+        w = hw if np.ndim(hw) == 0 else hw.take(r)
+        wx, wy = vx * w, vy * w
+        inside = shapely.contains_xy(ctx.target_geom, np.concatenate([fx - wx, fx + wx]),
+                                     np.concatenate([fy - wy, fy + wy]))
+        far_in = np.zeros(b, bool)
+        far_in[r] = inside[:len(r)] | inside[len(r):]
+        return far_in
 
     def _touch(self, T: np.ndarray, slanted: bool):
         # the touching material: the parts of the clipped edges within PAD_COMPLIANCE_MM of the first

@@ -170,7 +170,10 @@ def box_surely_reachable(x0: float, y0: float, x1: float, y1: float, z_mm: float
     betas = [math.degrees(math.atan2(l2 * math.sin(t), l1 + l2 * math.cos(t))) for t in ts]
     phis = [math.degrees(math.atan2(y, x)) for x, y in corners]  # x > 0: the extremes are at corners
     (p_lo, p_hi), (b_lo, b_hi), (j2_lo, j2_hi) = (min(phis), max(phis)), (min(betas), max(betas)), scara.j2_deg
-    j1_lo, j1_hi = scara.j1_deg[0] + margin_deg, scara.j1_deg[1] - margin_deg
+    # J1 as the solver has it, in [-180, 180): limits past that add no room here, and J1 = phi -+ beta is
+    # taken unwrapped, so a box needing a wrap is not certified (l2 > l1 lets beta pass 90 deg: with J1 in
+    # [-300, 100] a box at (35, -205) was certified with no solution there)
+    j1_lo, j1_hi = max(scara.j1_deg[0], -180.0) + margin_deg, min(scara.j1_deg[1], 180.0) - margin_deg
     t_deg = (math.degrees(t_lo), math.degrees(t_hi))
     elbow_up = (j2_lo + margin_deg <= t_deg[0] and t_deg[1] <= j2_hi - margin_deg
                 and j1_lo <= p_lo - b_hi and p_hi - b_lo <= j1_hi)  # J2 = t, J1 = phi - beta

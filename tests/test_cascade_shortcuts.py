@@ -98,6 +98,24 @@ def test_every_point_of_a_surely_reachable_box_is_reachable():
     assert not box_surely_reachable(300, -20, 340, 20, 250.0, CELL.scara)  # above J3's range
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_a_box_is_not_certified_where_j1_would_have_to_wrap(seed):
+    """J1 limits past +-180 deg and a forearm longer than the upper arm (beta passes 90 deg), boxes near the
+    base: the solver wraps J1 into [-180, 180), so the box test must not certify a J1 it reads unwrapped."""
+    scara = dataclasses.replace(CELL.scara, l1_mm=100.0, l2_mm=300.0, j1_deg=(-300.0, 100.0), j2_deg=(-150.0, 179.0),
+                                j3_mm=(0.0, 200.0), j4_deg=(-360.0, 360.0))
+    assert not box_surely_reachable(30, -210, 40, -200, 10.0, scara)  # certified before, unreachable everywhere
+    assert not reachable_mask(np.array([35.0]), np.array([-205.0]), 10.0, np.array([0.0]), scara).any()
+    rng, nrng = random.Random(seed), np.random.default_rng(seed)
+    for _ in range(2000):
+        x0, y0 = rng.uniform(1, 150), rng.uniform(-380, 300)
+        x1, y1 = x0 + rng.uniform(1, 40), y0 + rng.uniform(1, 40)
+        if box_surely_reachable(x0, y0, x1, y1, 10.0, scara):
+            x = np.concatenate([nrng.uniform(x0, x1, 50), [x0, x0, x1, x1]])
+            y = np.concatenate([nrng.uniform(y0, y1, 50), [y0, y1, y0, y1]])
+            assert reachable_mask(x, y, 10.0, nrng.uniform(-180, 180, len(x)), scara).all()
+
+
 def _through(ctx, P, last):
     """The pairs that reach the stage after `last` (the cascade's own stages, in order)."""
     alive = np.arange(len(P))

@@ -67,3 +67,23 @@ def test_a_part_just_below_the_camera_is_drawn(scene, tmp_path, capsys):
     code, out, err = run_cli("render", scene, "--out", "frame", "--truth", "t.json", "--no-noise", capsys=capsys)
     assert code == 0, err
     assert (tmp_path / "frame").read_bytes()[:4] == b"\x89PNG" and json.loads((tmp_path / "t.json").read_text())
+
+
+@pytest.mark.parametrize("which", ["cell", "calibration"])
+def test_truth_over_the_shipped_default_it_read_is_refused(scene, tmp_path, monkeypatch, capsys, which):
+    """With no --cell or --calibration named, the shipped defaults are inputs too: --truth naming one replaced
+    it with the truth JSON (exit 0), and every command then failed on it. Copies stand in for the shipped
+    files here, so that a regression cannot damage the real ones."""
+    import calibration
+    import cell.cellconfig
+    from cell.cellconfig import default_cell_path
+
+    copies = {"cell": tmp_path / "default_cell.json", "calibration": tmp_path / "default_cal.json"}
+    shutil.copy(default_cell_path(), copies["cell"])
+    shutil.copy(default_calibration_path(), copies["calibration"])
+    monkeypatch.setattr(cell.cellconfig, "default_cell_path", lambda: copies["cell"])
+    monkeypatch.setattr(calibration, "default_calibration_path", lambda: copies["calibration"])
+    before = _files(tmp_path)
+    code, out, err = run_cli("render", scene, "--out", "frame.png", "--truth", copies[which], capsys=capsys)
+    assert code == 2 and out == "" and f"--truth {copies[which]} is one of the inputs" in err
+    assert _files(tmp_path) == before

@@ -23,7 +23,7 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from dataclasses import replace
 
-    from cell.cellconfig import load_cell
+    from cell.cellconfig import default_cell_path, load_cell
     from cell.errors import BadInput
     from cell.fileio import read_json, write_json_atomic
     from cell.runtime.session import camera_calibration
@@ -35,9 +35,10 @@ def run(args) -> int:
     if not isinstance(raw, dict) or not isinstance(raw.get("parts"), list):
         raise BadInput(f"{args.scene}: expected a scene or assembly object with a 'parts' list")
     parts = [parse_part(p, f"{args.scene}: part #{i}") for i, p in enumerate(raw["parts"])]
-    cell_path = args.cell or own_cell_path(raw, str(args.scene), Path(args.scene).parent)
-    _check_outputs(args, [args.scene, cell_path, args.calibration])  # before the rendering, not after
-    _, cal = camera_calibration(load_cell(cell_path), args.calibration)
+    cell_path = args.cell or own_cell_path(raw, str(args.scene), Path(args.scene).parent) or default_cell_path()
+    cal_path, cal = camera_calibration(load_cell(cell_path), args.calibration)
+    # before the rendering, not after; the files read include the shipped defaults when none was named
+    _check_outputs(args, [args.scene, cell_path, cal_path])
     camera = cal.camera_position_mm()
     for p in parts:  # the shadow of a part 50 m tall took minutes to draw; one over the lens cannot be drawn
         if camera is not None and p.z_top_mm >= camera[2]:

@@ -24,10 +24,14 @@ JOINTS = ("j1", "j2", "j3", "j4")
 NODE_UNITS = {"j1": "deg", "j2": "deg", "j3": "mm", "j4": "deg", "gripper": "mm"}  # the units CONTRACT fixes
 # Bounds past which a cell file is not a cell: a pad 1e9 mm wide or J4 up to 1e9 deg made `cell grasp` run
 # without end (1e308: an OverflowError), a camera of 1e9 px asked for terabytes.
-MAX_VALUE = 1e6  # any number in the file (mm, deg, s, counts/unit, bit/s)
+MAX_VALUE = 1e6  # any number in the file (mm, deg, s, ms, bit/s) but counts_per_unit (a 23-bit encoder behind
+# an 80:1 gear is 1.9e6 counts/deg): its bound is what the drives' 32-bit objects hold (_check_drive_counts)
 CAMERA_PX = (16, 100_000_000)  # the smallest side, the most pixels (100 MP: above any machine-vision camera a cell would use)
+# How the drivers derive the drives' settings from the cell file (here, so the file's checks see them too)
+HEARTBEAT_DEADLINE_FACTOR = 3.0  # a node is silent after this many of its heartbeat periods
+GRIPPER_ACCEL_FACTOR = 10.0  # gripper acceleration = this x its speed, per second
+QUICK_STOP_DECEL_FACTOR = 2.0  # quick stop / fault reaction deceleration = this x the max acceleration
 MAX_HEARTBEAT_MS = 0xFFFF  # 0x1017 producer heartbeat time: UNSIGNED16
-HEARTBEAT_DEADLINE_FACTOR = 3  # drivers.arm.HEARTBEAT_DEADLINE_FACTOR: the host's deadline in 0x1016 is 16 bits too
 
 
 def default_cell_path() -> Path:
@@ -232,14 +236,13 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
         if unit != NODE_UNITS[name]:  # CONTRACT: J1, J2, J4 in degrees, J3 and the gripper in mm
             raise BadInput(f"cell file {source}: can.nodes.{name}.unit must be {NODE_UNITS[name]!r} "
                            f"({'a revolute joint' if NODE_UNITS[name] == 'deg' else 'a linear axis'}), got {unit!r}")
-        nodes[name] = CanNode(name, node_id, unit, r.pos(n, "counts_per_unit", f"can.nodes.{name}"))
+        nodes[name] = CanNode(name, node_id, unit, r.pos(n, "counts_per_unit", f"can.nodes.{name}", cap=math.inf))
     if len({n.node_id for n in nodes.values()}) != len(nodes):
         raise BadInput(f"cell file {source}: can.nodes have duplicate node ids")
-    _check_rates_countable(scara, gripper, nodes, source)
-    _check_counts_fit(scara, gripper, nodes, source)
+    _check_drive_counts(scara, gripper, nodes, source)
     can = CanConfig(r.count(cn, "bitrate", "can"), r.count(cn, "heartbeat_ms", "can"),
                     r.count(cn, "host_heartbeat_ms", "can"), nodes)
-    host_top = MAX_HEARTBEAT_MS // HEARTBEAT_DEADLINE_FACTOR
+    host_top = int(MAX_HEARTBEAT_MS // HEARTBEAT_DEADLINE_FACTOR)  # the host's deadline in 0x1016 is 16 bits too
     for key, top in (("heartbeat_ms", MAX_HEARTBEAT_MS), ("host_heartbeat_ms", host_top)):
         if getattr(can, key) > top:
             raise BadInput(f"cell file {source}: can.{key} = {getattr(can, key)} is more than {top} ms "
@@ -265,31 +268,30 @@ def _check_motion_within_limits(motion: Motion, scara: Scara, source: str) -> No
             raise BadInput(f"cell file {source}: motion.{key} = {v:g} is outside scara.{limit} [{lo:g}, {hi:g}]")
 
 
-def _check_rates_countable(scara: Scara, gripper: Gripper, nodes: dict, source: str) -> None:
-    """The drives take speeds and accelerations in whole counts/s (counts/s^2), rounded down to stay within
-    the limits: a limit under one count would leave none to send."""
+def _check_drive_counts(scara: Scara, gripper: Gripper, nodes: dict, source: str) -> None:
+    """What the drives get in counts must be sendable. Positions, speeds and accelerations are 32-bit counts (a
+    joint limit of 360 deg at 1e9 counts per degree was an internal error at the first move); speeds and
+    accelerations go in whole counts/s (counts/s^2) rounded down to stay within the limits, so one under a
+    count would leave none to send."""
+    gripper_accel = GRIPPER_ACCEL_FACTOR * gripper.speed_mm_s
     rates = [(f"scara.max_velocity.{j}", scara.max_velocity[j], j) for j in JOINTS]
     rates += [(f"scara.max_acceleration.{j}", scara.max_acceleration[j], j) for j in JOINTS]
-    rates += [("gripper.speed_mm_s", gripper.speed_mm_s, "gripper")]
+    rates += [("gripper.speed_mm_s", gripper.speed_mm_s, "gripper"),
+              (f"gripper's acceleration ({GRIPPER_ACCEL_FACTOR:g} x speed_mm_s)", gripper_accel, "gripper")]
     for key, limit, node in rates:
         if limit * nodes[node].counts_per_unit < 1:
             raise BadInput(f"cell file {source}: {key} = {limit:g} is under one count "
                            f"(can.nodes.{node}.counts_per_unit = {nodes[node].counts_per_unit:g})")
-
-
-def _check_counts_fit(scara: Scara, gripper: Gripper, nodes: dict, source: str) -> None:
-    """Positions, speeds and accelerations go to the drives as INTEGER32 counts: a joint limit of 360 deg at
-    1e9 counts per degree was an internal error at the first move."""
-    values = [(f"scara.{j}{'_mm' if j == 'j3' else '_deg'}", max(map(abs, scara.limits(j))), j) for j in JOINTS]
-    values += [(f"scara.max_velocity.{j}", scara.max_velocity[j], j) for j in JOINTS]
-    values += [(f"scara.max_acceleration.{j}", scara.max_acceleration[j], j) for j in JOINTS]
-    values += [("gripper.opening_mm", max(map(abs, gripper.opening_mm)), "gripper"),
-               ("gripper.speed_mm_s", gripper.speed_mm_s, "gripper")]
-    for key, v, node in values:
-        if v * nodes[node].counts_per_unit >= 2**31:
-            raise BadInput(f"cell file {source}: {key} = {v:g} is {v * nodes[node].counts_per_unit:.3g} counts "
-                           f"(can.nodes.{node}.counts_per_unit = {nodes[node].counts_per_unit:g}): more than a "
-                           "drive's 32-bit position holds")
+    positions = [(f"scara.{j}{'_mm' if j == 'j3' else '_deg'}", max(map(abs, scara.limits(j))), j) for j in JOINTS]
+    positions += [("gripper.opening_mm", max(map(abs, gripper.opening_mm)), "gripper")]
+    rates += [(f"the quick stop's deceleration ({QUICK_STOP_DECEL_FACTOR:g} x {key})", QUICK_STOP_DECEL_FACTOR * v,
+               node) for key, v, node in rates if "acceleration" in key]
+    for values, top, kind in ((positions, 2**31, "INTEGER32 position"), (rates, 2**32, "UNSIGNED32 rate")):
+        for key, v, node in values:
+            if v * nodes[node].counts_per_unit >= top:
+                raise BadInput(f"cell file {source}: {key} = {v:g} is {v * nodes[node].counts_per_unit:.3g} counts "
+                               f"(can.nodes.{node}.counts_per_unit = {nodes[node].counts_per_unit:g}): more than "
+                               f"a drive's {kind} holds")
 
 
 NOTE_KEYS = ("comment", "description", "notes")  # free text anywhere, as are keys starting with "_"
@@ -329,13 +331,13 @@ class _Reader:
             self._fail(where, key, "is missing or not an object")
         return v
 
-    def num(self, d, key, where=""):
+    def num(self, d, key, where="", cap: float = MAX_VALUE):
         v = d.get(key)
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v):
             r = repr(v)
             self._fail(where, key, f"must be a finite number, got {r if len(r) <= 40 else r[:37] + '...'}")
-        if abs(v) > MAX_VALUE:
-            self._fail(where, key, f"must be within +-{MAX_VALUE:g} (the units are mm, deg, s), got {v:g}")
+        if abs(v) > cap:
+            self._fail(where, key, f"must be within +-{cap:g}, got {v:g}")
         return float(v)
 
     def integer(self, d, key, where=""):
@@ -351,8 +353,8 @@ class _Reader:
             self._fail(where, key, f"must be positive, got {v}")
         return v
 
-    def pos(self, d, key, where=""):
-        v = self.num(d, key, where)
+    def pos(self, d, key, where="", cap: float = MAX_VALUE):
+        v = self.num(d, key, where, cap)
         if v <= 0:
             self._fail(where, key, f"must be positive, got {v}")
         return v

@@ -24,6 +24,7 @@ import threading
 import can
 import canopen
 
+from cell.cellconfig import HEARTBEAT_DEADLINE_FACTOR, QUICK_STOP_DECEL_FACTOR
 from cell.kinematics import Joints
 from drivers import codec
 from drivers.axis import Axis
@@ -45,13 +46,11 @@ from drivers.profile import coordinated_move_s, coordinated_path, velocity_for_d
 from drivers.pump import BusPump
 
 HOST_NODE_ID = 0x7F  # the host's own heartbeat id (the drives watch it)
-HEARTBEAT_DEADLINE_FACTOR = 3.0  # a node is silent after this many of its heartbeat periods
 # A watchdog run this much of a deadline after the previous one was itself held up (a loaded
 # machine, a long pause of the process): heartbeats that arrived meanwhile may still be queued
 # behind it, so silence is counted from that run on, not from the last heartbeat handled
 WATCH_STARVED_SHARE = 0.5
 POSITION_TOLERANCE_COUNTS = 2
-QUICK_STOP_DECEL_FACTOR = 2.0  # quick stop / fault reaction deceleration = this x the max acceleration
 TPDO_EVENT_TIMER_MS = 50  # status at least every 50 ms when nothing changes (the watch sees a stuck drive)
 
 

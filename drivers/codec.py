@@ -323,7 +323,10 @@ def rate_counts_within(limit_per_s: float, counts_per_unit: float) -> int:
     (1e-9 count of float noise forgiven: 0.29 x 100 is 28.999999999999996)."""
     if not (math.isfinite(limit_per_s) and limit_per_s > 0):
         raise ValueError(f"a rate limit must be a positive number, got {limit_per_s}")
-    return _check_i32(math.floor(limit_per_s * counts_per_unit + 1e-9))
+    counts = math.floor(limit_per_s * counts_per_unit + 1e-9)
+    if counts > 0xFFFFFFFF:  # 0x6081 / 0x6083 / 0x6084 / 0x6085 are UNSIGNED32
+        raise ValueError(f"a rate of {counts} counts does not fit UNSIGNED32")
+    return counts
 
 
 def from_counts(counts: int, counts_per_unit: float) -> float:

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from cell.cellconfig import GRIPPER_ACCEL_FACTOR
 from drivers.eds import GRIP_FORCE_INDEX
 from drivers.errors import LimitError
 from drivers.limits import gripper_violations
@@ -18,7 +19,6 @@ from drivers.profile import trapezoid
 if TYPE_CHECKING:
     from drivers.arm import Arm
 
-GRIPPER_ACCEL_FACTOR = 10.0  # gripper acceleration = this x its speed, per second
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,8 @@ NODE_UNITS = {"j1": "deg", "j2": "deg", "j3": "mm", "j4": "deg", "gripper": "mm"
 # without end (1e308: an OverflowError), a camera of 1e9 px asked for terabytes.
 MAX_VALUE = 1e6  # any number in the file (mm, deg, s, ms, bit/s) but counts_per_unit (a 23-bit encoder behind
 # an 80:1 gear is 1.9e6 counts/deg): its bound is what the drives' 32-bit objects hold (_check_drive_counts)
-CAMERA_PX = (16, 100_000_000)  # the smallest side, the most pixels (100 MP: above any machine-vision camera a cell would use)
+# the smallest side, the most pixels (100 MP: above any machine-vision camera a cell would use)
+CAMERA_PX = (16, 100_000_000)
 # How the drivers derive the drives' settings from the cell file (here, so the file's checks see them too)
 HEARTBEAT_DEADLINE_FACTOR = 3.0  # a node is silent after this many of its heartbeat periods
 GRIPPER_ACCEL_FACTOR = 10.0  # gripper acceleration = this x its speed, per second

@@ -92,6 +92,8 @@ def _refuse_empty_values(parser, args) -> None:
     """`--record "$DIR"` with DIR unset was no recording, `run "$ASM"` the default assembly, `study --out ""`
     the current folder: an empty value is never a path, a name or a number here."""
     for action in parser._commands[args._words]._actions:
+        if args._words == ("grasp",) and action.dest == "scenes":
+            continue  # each scene gets its own line, "" a bad_input one among the others (CONTRACT's batch form)
         v = getattr(args, action.dest, None)
         if v == "" or (isinstance(v, list) and "" in v):
             name = action.option_strings[-1] if action.option_strings else (action.metavar or action.dest.upper())

@@ -143,6 +143,8 @@ class Assembly:
 
 
 def load_scene(path: str | Path) -> Scene:
+    if str(path) == "":  # Path("") is the current folder: "scene file . is a directory" said nothing useful
+        raise BadInput("scene file name is empty: give a path")
     raw = read_json(path, "scene file")
     return parse_scene(raw, str(path), base_dir=Path(path).parent)
 

@@ -1,5 +1,7 @@
 """Command-line values that argparse or numpy mishandled: found by trying bad inputs on every command."""
 
+import json
+
 import pytest
 from conftest import run_cli
 
@@ -90,3 +92,19 @@ def test_a_camera_matrix_of_1e300_pixels_is_named(tmp_path, capsys):
                              tmp_path / "o.json", "--camera-matrix", "1e300,1e300,320,240", capsys=capsys)
     assert code == 2 and "--camera-matrix 1e300,1e300,320,240: pixels, each within 1e6" in err, err
     assert not (tmp_path / "o.json").exists()
+
+
+def test_an_empty_scene_among_several_gets_its_own_line(tmp_path, monkeypatch, capsys):
+    """CONTRACT's batch form: one line per scene. An empty name aborted the whole batch with no line;
+    before that it read the current folder ("scene file . is a directory")."""
+    from cell.grasp import shapes
+    from cell.scene import Scene
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "a.json").write_text(json.dumps(Scene((shapes.rectangle("box", 50, 30, (300, 100), 30),),
+                                                      "box").to_json()))
+    code, out, err = run_cli("grasp", "a.json", "", "a.json", "--json", capsys=capsys)
+    lines = [json.loads(line) for line in out.splitlines()]
+    assert code == 2 and [x["scene"] for x in lines] == ["a.json", "", "a.json"]
+    assert "contacts" in lines[0] and lines[0]["contacts"] == lines[2]["contacts"]
+    assert lines[1] == {"scene": "", "error": "bad_input", "reason": "scene file name is empty: give a path"}

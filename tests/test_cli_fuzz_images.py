@@ -55,4 +55,5 @@ def test_a_file_opencv_cannot_read_leaves_only_our_message_on_stderr(tmp_path):
     done = subprocess.run([sys.executable, "-m", "cell", "segment", str(path), "--json"], capture_output=True,
                           text=True, timeout=120)
     assert done.returncode == 2 and done.stdout == ""
-    assert done.stderr == f"cell: error: image {path} is not a readable image (corrupt, truncated or not an image format)\n"
+    assert done.stderr == (f"cell: error: image {path} is not a readable image (corrupt, truncated or not an "
+                           "image format)\n")

@@ -606,7 +606,7 @@ def test_after_a_miss_the_empty_jaws_go_up_above_the_tallest_part_before_they_op
     post = box("post", NUT_XY_MM[0] + 40.0, NUT_XY_MM[1], post_top_mm)
     on_tray(loop, nut, post)
     arm_at(loop, NUT_GRASP)
-    moves, opens = [], []
+    moves, opens, seen = [], [], max((e["n"] for e in loop.control.snapshot()["events"]), default=0)
     move, open_jaws = loop.arm.move_joints, loop.arm.gripper.open
     loop.arm.move_joints = lambda j, **kw: (moves.append(j), move(j, **kw))[1]
     loop.arm.gripper.open = lambda w=None: (opens.append((w, loop.arm.joints().j3_mm)), open_jaws(w))[1]
@@ -620,3 +620,9 @@ def test_after_a_miss_the_empty_jaws_go_up_above_the_tallest_part_before_they_op
     full = [z for w, z in opens if w is None]
     assert len(full) == 1 and full[0] == pytest.approx(expected_z, abs=1e-3)  # fully open only up there
     assert len(opens) == (2 if with_grasp else 1)
+    said = [e for e in loop.control.snapshot()["events"] if e["event"] == "retreat" and e["n"] > seen]
+    if post_top_mm + 20.0 > cell.scara.j3_mm[1]:  # J3's top caps it: said, not hidden
+        assert said and said[-1]["message"].startswith(f"the empty jaws go up to J3's top, 200 mm, "
+                                                      f"{200 - post_top_mm:.0f} mm over the tallest part")
+    else:
+        assert not said

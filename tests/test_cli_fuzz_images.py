@@ -57,3 +57,23 @@ def test_a_file_opencv_cannot_read_leaves_only_our_message_on_stderr(tmp_path):
     assert done.returncode == 2 and done.stdout == ""
     assert done.stderr == (f"cell: error: image {path} is not a readable image (corrupt, truncated or not an "
                            "image format)\n")
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("channels", [1, 3])
+@pytest.mark.parametrize("grey", [False, True])
+def test_float_tiffs_are_read_in_either_mode(tmp_path, dtype, channels, grey):
+    """OpenCV decodes float TIFFs only as they are: a colour one read as grey (calibrate intrinsics) and a
+    float64 grey one were 'not a readable image' or an OpenCV error; negative pixels came out as their
+    absolute value."""
+    from cell.vision.sources import read_image
+
+    img = np.zeros((40, 60), dtype)
+    img[10:20, 10:30] = 1.0
+    img[30:35, 40:50] = -0.5  # below black
+    path = tmp_path / "frame.tiff"
+    assert cv2.imwrite(str(path), img if channels == 1 else np.dstack([img] * 3))
+    got = read_image(path, grey=grey)
+    assert got.dtype == np.uint8 and got.shape == ((40, 60) if grey else (40, 60, 3))
+    plane = got if grey else got[..., 0]
+    assert (plane[10:20, 10:30] == 255).all() and (plane[30:35, 40:50] == 0).all() and plane.sum() == 255 * 200

@@ -33,11 +33,12 @@ def read_image(path: str | Path, grey: bool = False) -> np.ndarray:
         raise BadInput(f"image {path} is empty (0 bytes)")
     # ANYDEPTH: without it OpenCV keeps the top 8 of 16 bits, and a 10 - 14 bit camera's frame stored in
     # a 16-bit PNG (values up to 1023 - 16383) came out nearly black (pills.png at 12 bits: 4 regions, not 2)
+    as_is = False
     try:
         img, noise = _decode_quietly(data, cv2.IMREAD_ANYDEPTH | (cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_COLOR))
-        if img is None and not grey:  # OpenCV decodes a grey float TIFF as it is only, not as colour
+        if img is None:  # OpenCV decodes a float TIFF as it is only (grey as grey, colour as colour)
             img, noise = _decode_quietly(data, cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYDEPTH)
-            img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR) if img is not None and img.ndim == 2 else None
+            as_is = True
     except cv2.error as e:  # e.g. a header claiming more pixels than OpenCV decodes (60000 x 60000)
         raise BadInput(f"image {path} cannot be decoded (OpenCV: {getattr(e, 'err', e)})") from None
     if img is None or img.size == 0:
@@ -45,7 +46,19 @@ def read_image(path: str | Path, grey: bool = False) -> np.ndarray:
     damage = [line for line in noise if line.startswith(_DAMAGE) and (_HARMLESS not in line or _BEFORE_END in line)]
     if damage:  # decoded, but with made-up pixels where the data was broken: not a frame to act on
         raise BadInput(f"image {path} is corrupt (the decoder says: {damage[0]})")
-    return _to_uint8(img, path)
+    img = _to_uint8(img, path)
+    return _with_channels(img, grey, path) if as_is else img
+
+
+def _with_channels(img: np.ndarray, grey: bool, path: Path) -> np.ndarray:
+    """An 8-bit image decoded as it is, as grey (h, w) or BGR (h, w, 3)."""
+    channels = 1 if img.ndim == 2 else img.shape[2]
+    convert = {(1, True): None, (1, False): cv2.COLOR_GRAY2BGR, (3, True): cv2.COLOR_BGR2GRAY, (3, False): None,
+               (4, True): cv2.COLOR_BGRA2GRAY, (4, False): cv2.COLOR_BGRA2BGR}
+    if (channels, grey) not in convert:
+        raise BadInput(f"image {path} has {channels} channels; grey, colour or colour with alpha images are read")
+    code = convert[(channels, grey)]
+    return img if code is None else cv2.cvtColor(img, code)
 
 
 # what libjpeg says when it decodes a damaged file anyway (the missing part grey or smeared)
@@ -107,6 +120,7 @@ def _to_uint8(img: np.ndarray, path: Path) -> np.ndarray:
     if img.dtype in (np.float32, np.float64):
         if not np.all(np.isfinite(img)):
             raise BadInput(f"image {path} has {img.dtype} pixels that are not finite numbers (nan or inf)")
+        img = np.maximum(img, 0.0)  # below black is black (convertScaleAbs took |x|: -0.5 came out mid-grey)
         top = float(img.max())
         return cv2.convertScaleAbs(img, alpha=255.0 if top <= 1.0 else 255.0 / top)
     raise BadInput(f"image {path} has {img.dtype} pixels; 8- or 16-bit integer or float images are read")

@@ -58,6 +58,16 @@ def finite(value: float | None, what: str, minimum: float | None = None) -> floa
     return value
 
 
+def plane_z(value: float | None, what: str = "--z") -> float | None:
+    """A plane's height: finite, and no further from the table than a part's top can be."""
+    from cell.scene import MAX_COORD_MM
+
+    finite(value, what)
+    if value is not None and abs(value) > MAX_COORD_MM:
+        raise BadInput(f"{what} must be within {MAX_COORD_MM:g} mm of the table, got {value:g}")
+    return value
+
+
 def _finite(x: float) -> bool:
     return x == x and abs(x) != float("inf")
 

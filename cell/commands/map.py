@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from cell.commands._vision_args import allow_negative_pairs, finite, pair
+from cell.commands._vision_args import allow_negative_pairs, pair, plane_z
 
 
 def add_arguments(p) -> None:
@@ -23,9 +23,7 @@ def run(args) -> int:
     from cell.errors import BadInput
     from cell.scene import MAX_COORD_MM
 
-    finite(args.z, "--z")
-    if args.z is not None and abs(args.z) > MAX_COORD_MM:
-        raise BadInput(f"--z must be within {MAX_COORD_MM:g} mm of the table, got {args.z:g}")
+    plane_z(args.z)
     cal = load_calibration(args.calibration)
     if args.px:
         pts = [pair(t, "--px") for t in args.px]

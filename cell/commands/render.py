@@ -26,7 +26,7 @@ def run(args) -> int:
     from cell.cellconfig import default_cell_path, load_cell
     from cell.errors import BadInput
     from cell.fileio import read_json, write_json_atomic
-    from cell.runtime.session import camera_calibration
+    from cell.runtime.session import camera_calibration, refuse_parts_at_the_camera
     from cell.scene import own_cell_path, parse_part
     from cell.vision.simcamera import SimCamera, SimCameraOptions
     from cell.vision.sources import write_image
@@ -39,11 +39,7 @@ def run(args) -> int:
     cal_path, cal = camera_calibration(load_cell(cell_path), args.calibration)
     # before the rendering, not after; the files read include the shipped defaults when none was named
     _check_outputs(args, [args.scene, cell_path, cal_path])
-    camera = cal.camera_position_mm()
-    for p in parts:  # the shadow of a part 50 m tall took minutes to draw; one over the lens cannot be drawn
-        if camera is not None and p.z_top_mm >= camera[2]:
-            raise BadInput(f"{args.scene}: part {p.id!r} reaches z = {p.z_top_mm:g} mm, at or above the camera "
-                           f"(z = {camera[2]:.0f} mm): the camera cannot see it")
+    refuse_parts_at_the_camera(parts, cal, args.scene)
     opts = SimCameraOptions(seed=args.seed)
     if args.no_shadows:
         opts = replace(opts, shadows=False)

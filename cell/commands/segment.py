@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import sys
 
-from cell.commands._vision_args import finite
+from cell.commands._vision_args import finite, plane_z
 
 
 def add_arguments(p) -> None:
@@ -31,15 +31,10 @@ def run(args) -> int:
     from dataclasses import replace
 
     from calibration import load_calibration
-    from cell.scene import MAX_COORD_MM
     from cell.vision.segment import SegmentParams, segment_frame, segment_to_mm
     from cell.vision.sources import read_image
 
-    finite(args.z, "--z")
-    if args.z is not None and abs(args.z) > MAX_COORD_MM:  # no part's top is that far
-        from cell.errors import BadInput
-
-        raise BadInput(f"--z must be within {MAX_COORD_MM:g} mm of the table, got {args.z:g}")
+    plane_z(args.z)
     finite(args.min_area_mm2, "--min-area-mm2", 0.0)
     finite(args.min_area_px, "--min-area-px", 0.0)
     cal = None

@@ -315,16 +315,23 @@ def run_session(cfg: RunConfig) -> dict:
     return summary
 
 
+def refuse_parts_at_the_camera(parts, cal, source) -> None:
+    """A part reaching the camera's height cannot be seen (nor drawn: the shadow of one 50 m tall took
+    minutes)."""
+    camera = cal.camera_position_mm()
+    for p in parts:
+        if camera is not None and p.z_top_mm >= camera[2]:
+            from cell.errors import BadInput
+
+            raise BadInput(f"{source}: part {p.id!r} reaches z = {p.z_top_mm:g} mm, at or above the camera "
+                           f"(z = {camera[2]:.0f} mm): the camera cannot see it")
+
+
 def _require_parts_in_view(assembly: Assembly, cal, assembly_path) -> None:
     """Every part of the assembly lies where the camera sees it whole (its outline at its top, through
     the calibration); one out of view used to stop the run later as 'not found' (exit 1)."""
-    camera = cal.camera_position_mm()
+    refuse_parts_at_the_camera(assembly.parts, cal, assembly_path)  # was "some points are behind the camera"
     for p in assembly.parts:
-        if camera is not None and p.z_top_mm >= camera[2]:  # was "some points are behind the camera"
-            from cell.errors import BadInput
-
-            raise BadInput(f"{assembly_path}: part {p.id!r} reaches z = {p.z_top_mm:g} mm, at or above the camera "
-                           f"(z = {camera[2]:.0f} mm): the camera cannot see it")
         px = cal.mm_to_px(p.outline_mm, p.z_top_mm)
         if not (np.isfinite(px).all() and (px >= 0).all() and (px[:, 0] <= cal.width_px).all()
                 and (px[:, 1] <= cal.height_px).all()):

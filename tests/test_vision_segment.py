@@ -348,6 +348,20 @@ def test_levels_labelled_in_one_stack_fall_apart_where_each_level_labelled_alone
     assert apart_seen >= 20  # the case that matters was there
 
 
+def test_elliptic_dilation_row_by_row_equals_opencvs():
+    import cv2
+
+    from cell.vision.touching import DIRECT_ELLIPSE_MAX_PX, dilate_ellipse
+
+    rng = np.random.default_rng(5)
+    for _ in range(150):  # sparse to dense masks, kernels from OpenCV's own range past the saturation
+        mask = (rng.random(tuple(int(v) for v in rng.integers(1, 300, 2))) < rng.choice([0.0, 5e-4, 0.01, 0.3])
+                ).astype(np.uint8)
+        size = int(rng.integers(DIRECT_ELLIPSE_MAX_PX // 2 - 2, 270)) * 2 + 1
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+        assert np.array_equal(dilate_ellipse(mask, size), cv2.dilate(mask, kernel)), (mask.shape, size)
+
+
 def test_nearest_crossing_by_its_order_equals_the_least_distance():
     from cell.vision.segment import _profile_steps
 

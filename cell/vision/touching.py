@@ -180,8 +180,7 @@ def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, bgr: np.ndarray 
         lobe_peaks = peak_of[big]
         is_big = np.zeros(n, np.uint8)
         is_big[big] = 1
-        grown = cv2.dilate(is_big[cores],
-                           cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * int(level) + 3,) * 2))
+        grown = dilate_ellipse(is_big[cores], 2 * int(level) + 3)
         cover = float((grown.view(bool) & sub.view(bool)).sum()) / float(sub.sum())
         if cover < COVER_MIN:
             # lobes joined by bars or arms: one part with a shape of its own; but three or more
@@ -211,6 +210,44 @@ def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, bgr: np.ndarray 
             return "merged", None
         return "split", parts
     return "one", None
+
+
+DIRECT_ELLIPSE_MAX_PX = 51  # larger elliptic kernels: dilated row by row (OpenCV's time grows with the kernel's area)
+
+
+def dilate_ellipse(mask: np.ndarray, size_px: int) -> np.ndarray:
+    """cv2.dilate(mask, the MORPH_ELLIPSE kernel of size_px x size_px (odd)) of a 0/1 uint8 mask,
+    0/1 uint8, bit for bit. Above DIRECT_ELLIPSE_MAX_PX the kernel is taken row by row: each of its
+    rows is a run of half-width w centred on the anchor, so a pixel is reached from the row dy away
+    when that row has a set pixel within w along it (the rows' distances to their nearest set pixel
+    are computed once). A 235 px kernel on a 540 x 513 region: 114 -> 8 ms (tested against OpenCV)."""
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size_px, size_px))
+    if size_px <= DIRECT_ELLIPSE_MAX_PX or size_px > 2 * 254 + 1:  # (the rows' distances saturate at 255)
+        return cv2.dilate(mask, kernel)
+    half_widths = kernel.sum(axis=1) // 2
+    r = size_px // 2
+    h = mask.shape[0]
+    dist = _row_distance_u8(mask)
+    out = np.zeros_like(mask)
+    for i, w in enumerate(half_widths):
+        dy = i - r  # the kernel's row dy below the anchor reaches pixels dy rows above its set pixels
+        if abs(dy) >= h:
+            continue
+        src, dst = dist[max(dy, 0):h + min(dy, 0)], out[max(-dy, 0):h + min(-dy, 0)]
+        # (row slices of contiguous arrays: OpenCV works on them in place)
+        cv2.bitwise_or(dst, cv2.threshold(src, float(w), 1, cv2.THRESH_BINARY_INV)[1], dst=dst)
+    return out
+
+
+def _row_distance_u8(mask: np.ndarray) -> np.ndarray:
+    """Per pixel, the distance (px) along its row to the nearest set pixel of the 0/1 mask, at most
+    255 (rows without one: 255), uint8."""
+    w = mask.shape[1]
+    x = np.arange(w, dtype=np.int32)
+    on = mask.view(bool)
+    left = np.maximum.accumulate(np.where(on, x, -256), axis=1)  # (-256, w + 255: beyond 255 either way)
+    right = np.minimum.accumulate(np.where(on, x, w + 255)[:, ::-1], axis=1)[:, ::-1]
+    return np.minimum(np.minimum(x - left, right - x), 255).astype(np.uint8)
 
 
 def _levels_that_fall_apart(dt: np.ndarray, levels: np.ndarray) -> np.ndarray:

@@ -154,3 +154,25 @@ def test_parts_crowding_the_middle_of_the_view_are_not_taken_for_the_tray():
     union |= inside
     # the right pack on its own, and the left with the pasted one over it as one region of their union
     assert sorted(s.area_px for s in segs)[1] == pytest.approx(union.sum(), rel=0.03)
+
+
+def test_a_second_pass_with_the_field_of_the_first_is_not_run_and_would_give_the_same_segments():
+    """The Festo frame's tray is its bright side: the back-lit check asks for a second pass, whose
+    field is the one fitted first. Its segments, worked out anyway, are the first pass's."""
+    from dataclasses import replace
+
+    from cell.vision import segment as seg_mod
+
+    frame = read_image(FESTO / "aruco_img.png")
+    p = SegmentParams().for_frame(frame.shape)
+    d = seg_mod._detection_copies(frame, p)
+    first, lit = seg_mod._fitted_field(d, "auto"), seg_mod._fitted_field(d, "bright")
+    assert np.array_equal(first, lit)
+    segs = seg_mod._segment(frame, p, d, *seg_mod._field_tray(first, d))
+    assert seg_mod._tray_taken_for_a_part(segs, frame.shape)  # the second pass is asked for
+    again = seg_mod._segment(frame, replace(p, tray="bright"), d, *seg_mod._field_tray(lit, d))
+    for found in (again, segment_frame(frame)):
+        assert len(found) == len(segs)
+        for a, b in zip(found, segs):
+            assert np.array_equal(a.outline_px, b.outline_px) and a.area_px == b.area_px
+            assert all(np.array_equal(h, g) for h, g in zip(a.holes_px, b.holes_px, strict=True))

@@ -22,8 +22,10 @@ from __future__ import annotations
 
 import math
 import os
+from concurrent.futures import Future
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -192,15 +194,23 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
     """
     frame = _as_bgr(frame_bgr)
     p = (params or SegmentParams()).for_frame(frame.shape)
-    segs = _segment(frame, p, reference_bgr)
-    if reference_bgr is None and p.tray == "auto" and _tray_taken_for_a_part(segs, frame.shape):
+    d = _detection_copies(frame, p)
+    if reference_bgr is not None:
+        return _segment(frame, p, d, *_reference_tray(reference_bgr, frame, d))
+    tray_field = _fitted_field(d, p.tray)
+    segs = _segment(frame, p, d, *_field_tray(tray_field, d))
+    if p.tray == "auto" and _tray_taken_for_a_part(segs, frame.shape):
         # a back-lit panel in a dark surround: the dark side outnumbered the panel, so the panel came
         # out as one part cut by the border with the parts as its holes; the panel as the tray
         # shows more whole parts (and costs a second pass only on such frames). Counted, not
         # summed: a tray beside a lighter table would be one whole part as large as the tray
-        lit = _segment(frame, replace(p, tray="bright"), None)
-        if _whole_parts(lit) > _whole_parts(segs):
-            return lit
+        lit_field = _fitted_field(d, "bright")
+        # the tray model only chooses the field: where the bright side's field is the one fitted
+        # already (the Festo frames: their tray is the bright side), so are the segments
+        if not np.array_equal(lit_field, tray_field):
+            lit = _segment(frame, replace(p, tray="bright"), d, *_field_tray(lit_field, d))
+            if _whole_parts(lit) > _whole_parts(segs):
+                return lit
     return segs
 
 
@@ -218,8 +228,16 @@ def _whole_parts(segs: list[Segment]) -> int:
     return sum(not s.cut_off for s in segs)
 
 
-def _segment(frame: np.ndarray, p: SegmentParams, reference_bgr: np.ndarray | None) -> list[Segment]:
-    """`segment_frame` with the tray model `p.tray` as given."""
+class _Detection(NamedTuple):
+    """A frame's detection copies: the same whatever the tray is taken to be."""
+
+    scale: int  # the detection runs at 1 / scale
+    det_u8: np.ndarray  # (h // scale, w // scale, 3) uint8
+    det: np.ndarray  # ... float32
+    smoothed: Future  # of `smoothed_copies(det)`
+
+
+def _detection_copies(frame: np.ndarray, p: SegmentParams) -> _Detection:
     h, w = frame.shape[:2]
     s = max(1, int(p.scale)) if w >= SMALL_FRAME_PX else 1  # small frames are detected at full resolution
     dw, dh = w // s, h // s
@@ -229,23 +247,40 @@ def _segment(frame: np.ndarray, p: SegmentParams, reference_bgr: np.ndarray | No
     det = det_u8.astype(np.float32)
     # the blurred copies do not depend on the tray: made in a helper thread while the tray is fitted
     # (OpenCV releases the GIL; the fit is mostly Python and small numpy calls)
-    smoothed = _helper().submit(smoothed_copies, det)
-    if reference_bgr is not None:
-        ref = _as_bgr(reference_bgr)
-        if ref.shape != frame.shape:
-            raise BadInput(f"the reference image is {ref.shape[1]} x {ref.shape[0]} px, the frame {w} x {h} px")
-        bg = reference_background(ref[:dh * s, :dw * s], (dw, dh))
-        bg_coarse = None
-    else:
-        field, _ = fit_tray_field(det, p.tray, fit_copy_of_whole_dn(det_u8))
-        bg = field_at(field, (dw, dh))
-        # the coarse copy straight from the fitted field, not by averaging `bg` (the same smooth field)
-        bg_coarse = field_at(field, (max(1, dw // COARSE), max(1, dh // COARSE)))
-    mask, boxes = part_mask(det, bg, p, s, smoothed.result(), bg_coarse)
+    return _Detection(s, det_u8, det, _helper().submit(smoothed_copies, det))
+
+
+def _fitted_field(d: _Detection, tray: str) -> np.ndarray:
+    """The tray's colour field fitted to the detection copy (`fit_tray_field`), on its small copy."""
+    return fit_tray_field(d.det, tray, fit_copy_of_whole_dn(d.det_u8))[0]
+
+
+def _field_tray(field: np.ndarray, d: _Detection) -> tuple[np.ndarray, np.ndarray]:
+    """The fitted field at detection size and at 1 / COARSE of it."""
+    dh, dw = d.det.shape[:2]
+    # the coarse copy straight from the fitted field, not by averaging the other (the same smooth field)
+    return field_at(field, (dw, dh)), field_at(field, (max(1, dw // COARSE), max(1, dh // COARSE)))
+
+
+def _reference_tray(reference_bgr: np.ndarray, frame: np.ndarray, d: _Detection) -> tuple[np.ndarray, None]:
+    """The empty tray's image at detection size (the coarse copy: averaged from it later)."""
+    ref = _as_bgr(reference_bgr)
+    if ref.shape != frame.shape:
+        raise BadInput(f"the reference image is {ref.shape[1]} x {ref.shape[0]} px, "
+                       f"the frame {frame.shape[1]} x {frame.shape[0]} px")
+    dh, dw = d.det.shape[:2]
+    return reference_background(ref[:dh * d.scale, :dw * d.scale], (dw, dh)), None
+
+
+def _segment(frame: np.ndarray, p: SegmentParams, d: _Detection, bg: np.ndarray, bg_coarse: np.ndarray | None
+             ) -> list[Segment]:
+    """`segment_frame` with the tray's colour `bg` at detection size (and `bg_coarse` at 1 / COARSE
+    of it, or None)."""
+    mask, boxes = part_mask(d.det, bg, p, d.scale, d.smoothed.result(), bg_coarse)
     if not mask.any():
         return []  # the empty tray
-    pieces = _split_regions(mask, boxes, p, s, det_u8)
-    segs = _regions_to_segments(pieces, frame, det, bg, p, s)
+    pieces = _split_regions(mask, boxes, p, d.scale, d.det_u8)
+    segs = _regions_to_segments(pieces, frame, d.det, bg, p, d.scale)
     segs.sort(key=lambda g: -g.area_px)
     return segs
 

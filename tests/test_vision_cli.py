@@ -188,6 +188,17 @@ def test_bench_vision_prints_figures(capsys):
     assert code == 2 and "unknown condition" in err
 
 
+def test_bench_vision_times_real_photos_given(tmp_path, capsys):
+    photo = EXTERNAL / "simplecv-coins" / "wshed.jpg"
+    args = ["bench", "vision", "--frames", "1", "--parts", "1", "--repeats", "1", "--conditions", "plain (no effects)"]
+    code, out, _ = run_cli(*args, "--photos", photo, "--json", capsys=capsys)
+    assert code == 0
+    last = json.loads(out.splitlines()[-1])
+    assert str(photo) in last["timing"] and last["frame"] == "256x192" and last["median_ms"] > 0
+    code, out, err = run_cli(*args, "--photos", tmp_path / "none.png", capsys=capsys)
+    assert code == 2 and out == "" and "does not exist" in err
+
+
 def test_truncated_image_gives_one_clear_line_without_decoder_noise(tmp_path, frame_file):
     # OpenCV's decoder warns on the process's own stderr (not Python's): only a subprocess sees it
     import subprocess

@@ -14,6 +14,8 @@ def add_arguments(p) -> None:
     p.add_argument("--repeats", type=int, default=30, help="timing repeats (default 30)")
     p.add_argument("--library", action="store_true",
                    help="draw the parts from the parts library (cell/parts_library.py) instead of the sample parts")
+    p.add_argument("--photos", nargs="+", default=[], metavar="IMAGE",
+                   help="also time these image files (real camera frames), without a calibration")
     p.add_argument("--json", action="store_true", help="print one JSON object per line")
 
 
@@ -65,8 +67,14 @@ def run(args) -> int:
     large_cal = cal.resized(*LARGE_FRAME_PX)
     timing_large_cal = {"timing": "segment_frame, the same frame upscaled, its calibration resized",
                         **time_segmentation(large, SegmentParams.for_calibration(large_cal), args.repeats)}
+    from cell.vision.sources import read_image
+
+    photos = [(path, read_image(path)) for path in args.photos]  # (all bad files refused before any timing)
+    timing_photos = [{"timing": f"segment_frame, {path}, no calibration", **time_segmentation(img, SegmentParams(),
+                                                                                               args.repeats)}
+                     for path, img in photos]
     if args.json:
-        for r in rows + [timing, timing_large, timing_large_cal]:
+        for r in rows + [timing, timing_large, timing_large_cal] + timing_photos:
             print(json.dumps(r))
         return 0
     print(f"segmentation accuracy on rendered frames ({args.frames} frames x {args.parts} "
@@ -83,6 +91,8 @@ def run(args) -> int:
     print(f"the same frame upscaled to {timing_large['frame']}, no calibration: {_times(timing_large)}")
     print(f"the same frame upscaled to {timing_large_cal['frame']}, its calibration resized: "
           f"{_times(timing_large_cal)}")
+    for (path, _), t in zip(photos, timing_photos):
+        print(f"{path} ({t['frame']}): {_times(t)}")
     return 0
 
 

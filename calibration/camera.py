@@ -5,7 +5,7 @@ Two kinds of mapping, both behind one class:
 - pose: intrinsics (camera matrix + lens distortion) and the camera's pose in the base
   frame (`cam2base`, 4 x 4). A pixel is undistorted into a ray and the ray is cut with the
   plane z = z_mm, so any plane height works (part tops are not at z = 0).
-- homography: a 3 x 3 plane-to-image homography fitted without intrinsics. It is exact
+- homography: a 3 x 3 image-to-plane homography (pixels to mm) fitted without intrinsics. It is exact
   only on its own plane (`plane_z_mm`); other heights are refused.
 
 Pixel coordinates follow CONTRACT.md: origin at the top-left pixel's top-left corner, so

@@ -24,7 +24,8 @@ def add_arguments(p) -> None:
     p.add_argument("--subpix-win", type=int, default=None, metavar="N",
                    help="cornerSubPix half window of the classic detector, and of ChArUco corners refined "
                         "again (default: 0.13 x the squares' size in px, 5 on OpenCV's 640 x 480 boards; "
-                        "ChArUco: OpenCV's own window up to 10 px)")
+                        "ChArUco: OpenCV's own window of up to 10 px, or 0.13 x the squares, at most 0.7 x the "
+                        "white margin to the markers, once that is wider)")
     p.add_argument("--reject-outliers", action="store_true",
                    help="leave out views that do not fit and calibrate again")
     p.add_argument("--charuco", action="store_true", help="the board is a ChArUco board")

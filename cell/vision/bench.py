@@ -18,7 +18,7 @@ from shapely.geometry import Polygon
 
 from calibration import Calibration, load_calibration
 from cell.vision.sample_parts import random_layout, random_layout_of
-from cell.vision.segment import SMALL_FRAME_PX, SegmentParams, segment_frame, segment_to_mm
+from cell.vision.segment import SegmentParams, detection_scale, segment_frame, segment_to_mm
 from cell.vision.simcamera import SimCamera, SimCameraOptions, densify
 
 MATCH_SHARE = 0.6  # of a segment's area on a part's silhouette (2 px margin) for the two to match
@@ -132,5 +132,4 @@ def time_segmentation(frame: np.ndarray, params: SegmentParams | None = None, re
 
 def _detection_scale(frame: np.ndarray, params: SegmentParams | None) -> int:
     """1 / the resolution `segment_frame` detects `frame` at with `params`."""
-    p = (params or SegmentParams()).for_frame(frame.shape)
-    return max(1, int(p.scale)) if frame.shape[1] >= SMALL_FRAME_PX else 1
+    return detection_scale(frame.shape, (params or SegmentParams()).for_frame(frame.shape))

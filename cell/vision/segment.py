@@ -237,9 +237,14 @@ class _Detection(NamedTuple):
     smoothed: Future  # of `smoothed_copies(det)`
 
 
+def detection_scale(frame_shape, p: SegmentParams) -> int:
+    """1 / the resolution a frame of `frame_shape` is detected at with `p` (its sizes set: `for_frame`)."""
+    return max(1, int(p.scale)) if frame_shape[1] >= SMALL_FRAME_PX else 1  # small frames: at full resolution
+
+
 def _detection_copies(frame: np.ndarray, p: SegmentParams) -> _Detection:
     h, w = frame.shape[:2]
-    s = max(1, int(p.scale)) if w >= SMALL_FRAME_PX else 1  # small frames are detected at full resolution
+    s = detection_scale(frame.shape, p)
     dw, dh = w // s, h // s
     # the last w % s columns and h % s rows are left out, so that each detection pixel is s x s
     # frame pixels exactly (`_to_full`; 4000 px / 6 would stretch by 6.006, 4 px at the far border)

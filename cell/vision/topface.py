@@ -31,7 +31,9 @@ TOP_LEVEL_PERCENTILE = 60  # the top face is most of the silhouette; highlights 
 # the face's opening and the sweep's test on the default camera (0.5 mm/px); a camera with f times its
 # px per mm (`calibration_size_factor`) takes lengths x f and areas x f^2: the silhouette it checks
 # comes from a detection of the default's pixel size in mm (segment.py), so its flaws are as large in
-# mm, and so is the band of an edge's blur (a strip of it enclosed by the face is no hole)
+# mm, and so is the band of an edge's blur (a strip of it enclosed by the face is no hole). A close-up
+# camera whose frames are no larger than the default's is detected finer than that (segment.py keeps 1/2
+# there): its opening is then wider in pixels than its silhouette's flaws need; not tried on real frames
 SWEEP_TOLERANCE = 1.5  # silhouette pixels the swept top face may miss or add, per pixel of perimeter
 THICK_MISMATCH_PX = 40  # the largest region of the mismatch 3 px thick (corners and shading leave up to ~20)
 THICK_PX = 3  # the face is opened by this, and the mismatch's regions this thick are looked at

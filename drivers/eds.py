@@ -15,7 +15,7 @@ import canopen
 
 from drivers import codec
 
-U8, U16, U32, I8, I32, VSTR = 0x0005, 0x0006, 0x0007, 0x0002, 0x0004, 0x0009
+U8, U16, U32, I8, I16, I32, VSTR = 0x0005, 0x0006, 0x0007, 0x0002, 0x0003, 0x0004, 0x0009
 VAR, ARRAY, RECORD = 0x7, 0x8, 0x9
 
 AXIS_EDS = "scara_axis.eds"
@@ -118,6 +118,13 @@ def _objects(gripper: bool) -> list[tuple]:
         var(0x603F, "Error code", U16, "ro", "0", 1),
         var(0x6040, "Controlword", U16, "rw", "0", 1),
         var(0x6041, "Statusword", U16, "ro", "0", 1),
+        # how the drive stops on leaving OPERATION ENABLED (CiA 402; the values the simulated
+        # drives honour are in drivers.simdrive.OPTION_CODES, any other is refused)
+        var(0x605A, "Quick stop option code", I16, "rw", "6"),
+        var(0x605B, "Shutdown option code", I16, "rw", "0"),
+        var(0x605C, "Disable operation option code", I16, "rw", "1"),
+        var(0x605D, "Halt option code", I16, "rw", "1"),
+        var(0x605E, "Fault reaction option code", I16, "rw", "2"),
         var(0x6060, "Modes of operation", I8, "rw", "0", 1),
         var(0x6061, "Modes of operation display", I8, "ro", "0", 1),
         var(0x6064, "Position actual value", I32, "ro", "0", 1),

@@ -29,6 +29,34 @@ FAULT_KINDS = ("silent", "emcy", "following_error", "drop_sdo", "error_frames")
 NMT_OPERATIONAL, NMT_PREOP, NMT_STOPPED, NMT_INIT = 0x05, 0x7F, 0x04, 0x00
 HOST_WATCH_STARVED_SHARE = 0.5  # a step this much of the host deadline after the last one: we were held up
 QUICK_STOP_DECEL_FACTOR = 2.0  # quick stop / fault reaction ramp = this x the profile acceleration
+# An axis whose drive function is disabled while it moves (option code 0, "disable drive function")
+# is no longer driven: it runs out on friction alone, at this x its max acceleration (a figure of
+# the simulated mechanics, not an object of the drive; no gravity, no holding brake)
+COAST_DECEL_FACTOR = 0.5
+
+# CiA 402 option codes (CiA 402-2 / IEC 61800-7-201): how the drive stops when it leaves OPERATION
+# ENABLED. Per value: the deceleration object of the ramp, or None for "disable drive function"
+# (the axis coasts). The values a drive supports are its own; these drives refuse the others
+# (current- and voltage-limit stops, 3/4/7/8) with SDO abort 0x06090030.
+QUICK_STOP_OPTIONS = {  # 0x605A: (ramp, state after the ramp); transition 11
+    0: (None, "SWITCH_ON_DISABLED"),  # disable drive function
+    1: (0x6084, "SWITCH_ON_DISABLED"),  # slow down on the slow-down ramp, then SWITCH ON DISABLED
+    2: (0x6085, "SWITCH_ON_DISABLED"),  # quick stop ramp, then SWITCH ON DISABLED
+    5: (0x6084, "QUICK_STOP_ACTIVE"),  # slow-down ramp, stay in QUICK STOP ACTIVE
+    6: (0x6085, "QUICK_STOP_ACTIVE"),  # quick stop ramp, stay in QUICK STOP ACTIVE (this drive's default)
+}
+SHUTDOWN_OPTIONS = {0: None, 1: 0x6084}  # 0x605B, transition 8: coast (default) / slow-down ramp
+DISABLE_OPERATION_OPTIONS = {0: None, 1: 0x6084}  # 0x605C, transition 5: coast / slow-down ramp (default)
+HALT_OPTIONS = {1: 0x6084, 2: 0x6085}  # 0x605D: slow-down ramp (default) / quick stop ramp, stay enabled
+FAULT_REACTION_OPTIONS = {0: None, 1: 0x6084, 2: 0x6085}  # 0x605E: coast / slow-down / quick stop (default)
+OPTION_CODES = {
+    0x605A: QUICK_STOP_OPTIONS,
+    0x605B: SHUTDOWN_OPTIONS,
+    0x605C: DISABLE_OPERATION_OPTIONS,
+    0x605D: HALT_OPTIONS,
+    0x605E: FAULT_REACTION_OPTIONS,
+}
+DISABLED_STATES = ("NOT_READY_TO_SWITCH_ON", "SWITCH_ON_DISABLED", "READY_TO_SWITCH_ON", "SWITCHED_ON")
 
 
 @dataclass
@@ -37,7 +65,8 @@ class _Motion:
     start_counts: float
     target_counts: int
     profile: Trapezoid
-    stopping: bool = False  # a quick-stop or fault-reaction ramp to standstill
+    stopping: bool = False  # a ramp to standstill (quick stop, halt, fault reaction, ...)
+    coasting: bool = False  # the drive function is disabled: the axis runs out on friction alone
 
 
 def _next_phase(last_s: float, period_s: float, now_s: float) -> float:
@@ -68,6 +97,7 @@ class SimDrive:
     ):
         self.name, self.node_id, self.eds, self.clock = name, node_id, eds, clock
         self.counts_per_unit = counts_per_unit
+        self.coast_decel_counts = COAST_DECEL_FACTOR * acceleration * counts_per_unit
         self._lock = threading.RLock()
         self.network = network
         self.node = canopen.LocalNode(node_id, object_dictionary(eds, node_id))
@@ -115,6 +145,10 @@ class SimDrive:
         self.motion: _Motion | None = None
         self.pending: tuple[int, bool] | None = None  # buffered set-point (single set-point mode)
         self.halted: int | None = None  # the target a halt (controlword bit 8) interrupted
+        # the state a transition that waits for its ramp enters at standstill (shutdown and disable
+        # operation stay in OPERATION ENABLED until then; quick stop 1/2 in QUICK STOP ACTIVE;
+        # the fault reaction in FAULT REACTION ACTIVE)
+        self.after_ramp: str | None = None
         self.emcy_log: list[int] = []
         # host heartbeat watch (0x1016)
         self._host_id = 0
@@ -192,6 +226,8 @@ class SimDrive:
                 raise SdoAbortedError(0x06090030)
             elif index in self._rpdo_handlers and subindex == 1:
                 self._subscribe_rpdo(index, value)
+            elif index in OPTION_CODES and value not in OPTION_CODES[index]:
+                raise SdoAbortedError(0x06090030)  # value range of parameter exceeded
 
     def _subscribe_rpdo(self, comm_index: int, cob_entry: int) -> None:
         handler = self._rpdo_handlers[comm_index]
@@ -295,47 +331,99 @@ class SimDrive:
         self._store(0x6060, 0, mode)
         self._publish()
 
+    def _option(self, index: int):
+        """What the option code `index` (0x605A-0x605E) asks for; its value was checked on writing."""
+        return OPTION_CODES[index][int(self._get(index))]
+
     def _on_controlword(self, cw: int) -> None:
         prev, self.controlword = self.controlword, cw
         self._store(0x6040, 0, cw)
         cmd = codec.command_of(cw)
         s = self.state
+        # OPERATION ENABLED also while a shutdown or disable operation waits for its ramp: those
+        # commands are still taken (disable voltage, quick stop, the other of the two), no set-point
+        enabled = s == "OPERATION_ENABLED"
         if s in ("FAULT", "FAULT_REACTION_ACTIVE"):
             if s == "FAULT" and cw & codec.CW_FAULT_RESET and not prev & codec.CW_FAULT_RESET:
                 self._fault_reset()
         elif cmd == "DISABLE_VOLTAGE":
-            self._enter("SWITCH_ON_DISABLED")
+            self._disable("SWITCH_ON_DISABLED")  # 7, 9, 10, 12: the drive function off at once
         elif cmd == "QUICK_STOP":
-            self._enter("QUICK_STOP_ACTIVE" if s == "OPERATION_ENABLED" else "SWITCH_ON_DISABLED")
+            if enabled:
+                self._quick_stop()  # 11
+            elif s != "QUICK_STOP_ACTIVE":  # (in QUICK STOP ACTIVE, a quick stop is no transition)
+                self._disable("SWITCH_ON_DISABLED")  # 7, 10
         elif cmd == "SHUTDOWN":
-            if s in ("SWITCH_ON_DISABLED", "SWITCHED_ON", "OPERATION_ENABLED"):
-                self._enter("READY_TO_SWITCH_ON")
+            if enabled:
+                self._leave_enabled("READY_TO_SWITCH_ON", self._option(0x605B))  # 8
+            elif s in ("SWITCH_ON_DISABLED", "SWITCHED_ON"):
+                self._disable("READY_TO_SWITCH_ON")  # 2, 6
         elif cmd == "SWITCH_ON":
-            if s in ("READY_TO_SWITCH_ON", "OPERATION_ENABLED"):
-                self._enter("SWITCHED_ON")
-        elif cmd == "ENABLE_OPERATION":
-            if s in ("SWITCHED_ON", "QUICK_STOP_ACTIVE"):
-                self._enter("OPERATION_ENABLED")
+            if enabled:
+                self._leave_enabled("SWITCHED_ON", self._option(0x605C))  # 5
             elif s == "READY_TO_SWITCH_ON":
-                self._enter("SWITCHED_ON")
-        if s == self.state == "OPERATION_ENABLED" and self.mode == codec.PP_MODE:
+                self._disable("SWITCHED_ON")  # 3
+        elif cmd == "ENABLE_OPERATION":
+            # 4; 16 only where the quick stop stays in QUICK STOP ACTIVE (0x605A 5-8)
+            if s == "SWITCHED_ON" or (s == "QUICK_STOP_ACTIVE" and self.after_ramp is None):
+                self._enable()
+            elif s == "READY_TO_SWITCH_ON":
+                self._disable("SWITCHED_ON")  # taken as switch on (3)
+        if s == self.state == "OPERATION_ENABLED" and self.after_ramp is None and self.mode == codec.PP_MODE:
             # only a drive that was already enabled takes a set-point: the controlword that
             # enables it never starts a move, even with bit 4 set (enabling never jumps)
             self._profile_position(prev, cw)
         self._publish()
 
-    def _enter(self, state: str) -> None:
-        if state == "QUICK_STOP_ACTIVE":
-            self._ramp_down()  # decelerate with the quick stop deceleration 0x6085
-            self.ack = False
-        elif state != "OPERATION_ENABLED":
-            self._stop_motion()
-            self.ack = False
-        elif self.state != "OPERATION_ENABLED":
+    def _enable(self) -> None:
+        if self.state != "OPERATION_ENABLED":
             # enabling never jumps: hold the actual position until the next set-point
             self._stop_motion()
             self.target_reached = True
+        self.state = "OPERATION_ENABLED"
+
+    def _disable(self, state: str) -> None:
+        """Enter a state without the drive function (SWITCH ON DISABLED, READY TO SWITCH ON,
+        SWITCHED ON): a motion still running is no longer driven and coasts."""
+        self._coast()
+        self.pending = self.halted = self.after_ramp = None
+        self.ack = False
         self.state = state
+
+    def _leave_enabled(self, target: str, decel_index: int | None) -> None:
+        """Shutdown (8) or disable operation (5) as its option code says: with a ramp, the drive
+        stays in OPERATION ENABLED while it slows down and enters `target` at standstill; with
+        "disable drive function" (None) it enters `target` at once and the axis coasts."""
+        if decel_index is None:
+            self._disable(target)
+            return
+        self._ramp_down(decel_index)
+        self.ack = False
+        self.after_ramp = target
+        if self.motion is None:
+            self._end_ramp()
+
+    def _quick_stop(self) -> None:
+        """Quick stop (11) as 0x605A says: QUICK STOP ACTIVE while the axis ramps down, then either
+        stay there (5, 6) or go on to SWITCH ON DISABLED (1, 2); 0 disables the drive function."""
+        decel_index, final = self._option(0x605A)
+        if decel_index is None:
+            self._disable(final)
+            return
+        self._ramp_down(decel_index)
+        self.ack = False
+        self.state = "QUICK_STOP_ACTIVE"
+        self.after_ramp = None if final == "QUICK_STOP_ACTIVE" else final
+        if self.motion is None and self.after_ramp is not None:
+            self._end_ramp()
+
+    def _end_ramp(self) -> None:
+        """Standstill after the ramp of a transition: enter its state (FAULT after the fault reaction)."""
+        state, self.after_ramp = self.after_ramp, None
+        if state == "FAULT":
+            self.state = "FAULT"
+        else:
+            self._disable(state)
 
     def _profile_position(self, prev: int, cw: int) -> None:
         rising = cw & codec.CW_NEW_SET_POINT and not prev & codec.CW_NEW_SET_POINT
@@ -356,9 +444,10 @@ class SimDrive:
         elif not cw & codec.CW_NEW_SET_POINT and self.ack and self.pending is None:
             self.ack = False  # (a buffered set-point keeps it: the buffer is full)
         if halt and self.motion is not None and not self.motion.stopping:
-            # halt: stop on the profile deceleration 0x6084; the target is kept for the release
+            # halt: stop as 0x605D says (default: the profile deceleration 0x6084); the target is
+            # kept for the release
             target, pending = self.motion.target_counts, self.pending
-            self._ramp_down(0x6084)
+            self._ramp_down(self._option(0x605D))
             self.halted, self.pending = target, pending
             if self.motion is None:
                 self.target_reached = True
@@ -394,34 +483,59 @@ class SimDrive:
         self.motion = None
         self.pending = None
         self.halted = None
+        self.after_ramp = None
 
     def _ramp_down(self, decel_index: int = 0x6085) -> None:
-        """Replace the running move by a ramp to standstill at the quick stop deceleration
-        (or, for a halt, the profile deceleration 0x6084)."""
+        """Replace the running move by a ramp to standstill at the deceleration of object
+        `decel_index` (quick stop 0x6085, profile 0x6084). A ramp already running at that
+        deceleration goes on; a coasting axis is not driven, so it cannot be ramped."""
         m = self.motion
         self.pending = None
         self.halted = None
-        if m is None or m.stopping:
+        if m is None or m.coasting:
             return
+        d = float(self._get(decel_index))
+        if m.stopping and m.profile.decel == d:
+            return
+        self._stop_on(m, d)
+
+    def _coast(self) -> None:
+        """The drive function is off: a running motion goes on undriven, slowed by friction alone."""
+        m = self.motion
+        if m is not None and not m.coasting:
+            self._stop_on(m, self.coast_decel_counts, coasting=True)
+
+    def _stop_on(self, m: _Motion, d: float, coasting: bool = False) -> None:
         now = self.clock.now()
         v0 = m.profile.velocity_at(now - m.t0_s)
-        d = float(self._get(decel_index))
         if v0 == 0.0 or d <= 0:
             self.motion = None
             return
         t_s = abs(v0) / d
         ramp = Trapezoid(v0 * t_s / 2, abs(v0), d, d, 0.0, 0.0, t_s)
-        self.motion = _Motion(now, self.position_counts, round(self.position_counts + ramp.distance), ramp, True)
+        self.motion = _Motion(
+            now, self.position_counts, round(self.position_counts + ramp.distance), ramp, True, coasting
+        )
 
     def _fault(self, code: int, *, following_error: bool = False) -> None:
         if self.state in ("FAULT", "FAULT_REACTION_ACTIVE"):
             return
-        if self.motion is not None and self._jammed_at is None:
-            self._ramp_down()  # fault reaction: stop on the ramp, then FAULT (in _move)
-            self.state = "FAULT_REACTION_ACTIVE"
+        m = self.motion
+        if self._jammed_at is not None:
+            self._stop_motion()  # the axis is blocked mechanically
+        elif m is not None and not m.coasting:
+            # the fault reaction (0x605E): a ramp in FAULT REACTION ACTIVE, then FAULT (in _move),
+            # or "disable drive function": FAULT at once and the axis coasts
+            decel_index = self._option(0x605E)
+            if decel_index is None:
+                self._coast()
+            else:
+                self._ramp_down(decel_index)
+        self.pending = self.halted = None
+        if self.motion is not None and not self.motion.coasting:
+            self.state, self.after_ramp = "FAULT_REACTION_ACTIVE", "FAULT"
         else:
-            self._stop_motion()
-            self.state = "FAULT"
+            self.state, self.after_ramp = "FAULT", None
         self.ack = False
         self.following_error = following_error
         self.error_code = code
@@ -510,7 +624,8 @@ class SimDrive:
                     # from now; a real drive keeps time on its own and needs no such rule
                     self._host_seen_s = max(self._host_seen_s, now)
                 if now - self._host_seen_s > self._host_deadline_s and "FAULT" not in self.state:
-                    if self.state in ("OPERATION_ENABLED", "QUICK_STOP_ACTIVE") or self.motion:
+                    driven = self.motion is not None and not self.motion.coasting
+                    if self.state in ("OPERATION_ENABLED", "QUICK_STOP_ACTIVE") or driven:
                         self._fault(0x8130)
                     self._host_seen_s = None  # report once; re-armed by the next heartbeat
             self._move(now)
@@ -538,17 +653,22 @@ class SimDrive:
         if self._jammed_at is not None:
             # the actual position stays; the drive faults once the demand leaves the window
             self.position_counts = self._jammed_at
+            if m.coasting:  # (undriven: nothing follows a demand)
+                self.motion = None
+                return
             if abs(demand - self._jammed_at) > int(self._get(0x6065)):
                 self._fault(0x8611, following_error=True)
             return
         self.position_counts = demand
         if self._blocked(m):
+            if self.motion is None and self.after_ramp is not None:
+                self._end_ramp()
             return
         if m.stopping:
             if elapsed >= m.profile.duration_s:
                 self.motion = None
-                if self.state == "FAULT_REACTION_ACTIVE":
-                    self.state = "FAULT"
+                if self.after_ramp is not None:
+                    self._end_ramp()
                 elif self.halted is not None:
                     if self.controlword & codec.CW_HALT:
                         self.target_reached = True  # halted: statusword bit 10 = standstill

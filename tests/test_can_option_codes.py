@@ -1,0 +1,230 @@
+"""CiA 402 option codes of the simulated drives (0x605A quick stop, 0x605B shutdown, 0x605C
+disable operation, 0x605D halt, 0x605E fault reaction): how a drive stops when it leaves
+OPERATION ENABLED during a move. A canopen master writes the option code by SDO, sends a move and
+then the command, and follows position actual (0x6064) and the statusword by SDO on the
+simulated clock: the ramp's deceleration (0x6084 or 0x6085), the state during the ramp and at
+standstill; "disable drive function" gives up the axis at once (it coasts, undriven)."""
+
+from __future__ import annotations
+
+import canopen
+import pytest
+from drivers_fixtures import *  # noqa: F403 - bus fixtures
+from drivers_fixtures import needs_sim
+
+from drivers import codec, sim
+from drivers.simdrive import COAST_DECEL_FACTOR
+
+pytestmark = needs_sim
+
+SW_TARGET_REACHED = 1 << 10
+CW_SHUTDOWN, CW_SWITCH_ON, CW_ENABLE, CW_QUICK_STOP, CW_DISABLE_VOLTAGE = 0x06, 0x07, 0x0F, 0x02, 0x00
+CW_HALT = 0x100
+VALUE_RANGE_EXCEEDED = 0x06090030
+COAST = "coast"  # the axis is no longer driven: it runs out on friction alone
+
+
+@pytest.fixture
+def j1(open_test_bus, sim_clock, cell_cfg):
+    """The simulated drives in simulated time and a canopen master node for j1."""
+    with sim.serve(open_test_bus(), cell_cfg, clock=sim_clock) as drives:
+        network = canopen.Network(open_test_bus())
+        network.connect()
+        try:
+            info = next(n for n in drives.nodes if n["name"] == "j1")
+            node = canopen.BaseNode402(info["node_id"], info["eds"])
+            network.add_node(node)
+            yield drives, node
+        finally:
+            network.disconnect()
+
+
+def _state(node) -> str:
+    return codec.state_name(node.sdo[0x6041].raw)
+
+
+def _enable_pp(node, sim_clock) -> None:
+    node.nmt.state = "OPERATIONAL"
+    for cw in (CW_SHUTDOWN, CW_SWITCH_ON, CW_ENABLE):
+        node.sdo[0x6040].raw = cw
+    node.sdo[0x6060].raw = codec.PP_MODE
+    sim_clock.sleep(0.01)
+    assert _state(node) == "OPERATION_ENABLED"
+
+
+def _cruising(node, sim_clock) -> tuple[int, float]:
+    """A 100-degree move of j1 sent with the handshake, at its profile velocity after 0.4 s
+    (0.25 s to accelerate): the position then and the velocity (counts, counts/s)."""
+    start = node.sdo[0x6064].raw
+    node.sdo[0x607A].raw = start + 100_000
+    node.sdo[0x6040].raw = CW_ENABLE | codec.CW_NEW_SET_POINT
+    node.sdo[0x6040].raw = CW_ENABLE
+    sim_clock.sleep(0.4)
+    assert _state(node) == "OPERATION_ENABLED" and not node.sdo[0x6041].raw & SW_TARGET_REACHED
+    return node.sdo[0x6064].raw, float(node.sdo[0x6081].raw)
+
+
+def _follow(node, sim_clock, duration_s: float) -> list[tuple[float, int, int]]:
+    """(seconds since now, position actual, statusword) every 10 ms for `duration_s`."""
+    t0, samples = sim_clock.now(), []
+    while sim_clock.now() - t0 < duration_s - 1e-9:
+        sim_clock.sleep(0.01)
+        samples.append((sim_clock.now() - t0, node.sdo[0x6064].raw, node.sdo[0x6041].raw))
+    return samples
+
+
+def _decel(node, cell_cfg, ramp) -> float:
+    if ramp == COAST:
+        return COAST_DECEL_FACTOR * cell_cfg.scara.max_acceleration["j1"] * cell_cfg.can.nodes["j1"].counts_per_unit
+    return float(node.sdo[ramp].raw)
+
+
+def _assert_ramp(samples, p0: int, v: float, d: float, during: set[str], after: str) -> None:
+    """Along the ramp p0 + v t - d t^2 / 2 until v / d, then standing at p0 + v^2 / 2d; the
+    state is one of `during` while it moves and `after` once it stands."""
+    t_stop = v / d
+    for t, pos, sw in samples:
+        tr = min(t, t_stop)
+        assert pos == pytest.approx(p0 + v * tr - d * tr * tr / 2, abs=3), f"at {t:.2f} s"
+        if t < t_stop - 0.011:
+            assert codec.state_name(sw) in during, f"at {t:.2f} s: {codec.state_name(sw)}"
+        elif t > t_stop + 0.011:
+            assert codec.state_name(sw) == after, f"at {t:.2f} s: {codec.state_name(sw)}"
+    assert samples[-1][0] > t_stop + 0.1 and samples[-1][1] == round(p0 + v * v / (2 * d))
+
+
+def test_the_option_codes_are_in_the_dictionary_with_their_defaults(j1):
+    _, node = j1
+    assert [node.sdo[i].raw for i in (0x605A, 0x605B, 0x605C, 0x605D, 0x605E)] == [6, 0, 1, 1, 2]
+    int16 = canopen.objectdictionary.INTEGER16
+    assert [node.object_dictionary[i].data_type for i in range(0x605A, 0x605F)] == [int16] * 5
+
+
+@pytest.mark.parametrize(
+    ("index", "value", "command", "ramp", "during", "after"),
+    [
+        # 0x605C disable operation (transition 5): 1 = slow-down ramp, then SWITCHED ON (default)
+        (0x605C, 1, CW_SWITCH_ON, 0x6084, {"OPERATION_ENABLED"}, "SWITCHED_ON"),
+        (0x605C, 0, CW_SWITCH_ON, COAST, {"SWITCHED_ON"}, "SWITCHED_ON"),
+        # 0x605B shutdown (transition 8): 0 = disable drive function, the axis coasts (default)
+        (0x605B, 0, CW_SHUTDOWN, COAST, {"READY_TO_SWITCH_ON"}, "READY_TO_SWITCH_ON"),
+        (0x605B, 1, CW_SHUTDOWN, 0x6084, {"OPERATION_ENABLED"}, "READY_TO_SWITCH_ON"),
+        # 0x605A quick stop (transition 11): 6 = quick stop ramp, stay in QUICK STOP ACTIVE (default)
+        (0x605A, 6, CW_QUICK_STOP, 0x6085, {"QUICK_STOP_ACTIVE"}, "QUICK_STOP_ACTIVE"),
+        (0x605A, 5, CW_QUICK_STOP, 0x6084, {"QUICK_STOP_ACTIVE"}, "QUICK_STOP_ACTIVE"),
+        (0x605A, 2, CW_QUICK_STOP, 0x6085, {"QUICK_STOP_ACTIVE"}, "SWITCH_ON_DISABLED"),
+        (0x605A, 1, CW_QUICK_STOP, 0x6084, {"QUICK_STOP_ACTIVE"}, "SWITCH_ON_DISABLED"),
+        (0x605A, 0, CW_QUICK_STOP, COAST, {"SWITCH_ON_DISABLED"}, "SWITCH_ON_DISABLED"),
+        # disable voltage (transition 9) has no option code: the drive function goes off at once
+        (None, None, CW_DISABLE_VOLTAGE, COAST, {"SWITCH_ON_DISABLED"}, "SWITCH_ON_DISABLED"),
+        # 0x605D halt (controlword bit 8): stays in OPERATION ENABLED (1 = slow-down ramp, default)
+        (0x605D, 1, CW_ENABLE | CW_HALT, 0x6084, {"OPERATION_ENABLED"}, "OPERATION_ENABLED"),
+        (0x605D, 2, CW_ENABLE | CW_HALT, 0x6085, {"OPERATION_ENABLED"}, "OPERATION_ENABLED"),
+    ],
+    ids=lambda p: f"0x{p:04X}" if isinstance(p, int) and p > 8 else None,
+)
+def test_leaving_operation_enabled_during_a_move(j1, sim_clock, cell_cfg, index, value, command, ramp, during, after):
+    _, node = j1
+    if index is not None:
+        node.sdo[index].raw = value
+        assert node.sdo[index].raw == value
+    _enable_pp(node, sim_clock)
+    p0, v = _cruising(node, sim_clock)
+    node.sdo[0x6040].raw = command
+    first = _state(node)
+    assert first in during  # at once: QUICK STOP ACTIVE, or the target state when it coasts
+    samples = _follow(node, sim_clock, 0.8)
+    d = _decel(node, cell_cfg, ramp)
+    _assert_ramp(samples, p0, v, d, during, after)
+    if command & CW_HALT:
+        assert samples[-1][2] & SW_TARGET_REACHED  # halted: bit 10 reports standstill
+    if ramp == COAST:  # undriven, it runs out further than on either ramp
+        assert d < min(node.sdo[0x6084].raw, node.sdo[0x6085].raw)
+
+
+@pytest.mark.parametrize(
+    ("value", "ramp", "during"),
+    [
+        (2, 0x6085, {"FAULT_REACTION_ACTIVE"}),  # slow down on the quick stop ramp (default)
+        (1, 0x6084, {"FAULT_REACTION_ACTIVE"}),  # slow down on the slow-down ramp
+        (0, COAST, {"FAULT"}),  # disable drive function, the motor is free to rotate
+    ],
+)
+def test_fault_reaction_during_a_move(j1, sim_clock, cell_cfg, value, ramp, during):
+    drives, node = j1
+    node.sdo[0x605E].raw = value
+    _enable_pp(node, sim_clock)
+    p0, v = _cruising(node, sim_clock)
+    drives.inject_fault("emcy", "j1", code=0x2310)  # over-current: the drive faults at once
+    assert _state(node) in during
+    samples = _follow(node, sim_clock, 0.8)
+    _assert_ramp(samples, p0, v, _decel(node, cell_cfg, ramp), during, "FAULT")
+    assert node.sdo[0x603F].raw == 0x2310
+
+
+def test_a_ramped_shutdown_takes_no_set_point_and_yields_to_a_quick_stop(j1, sim_clock, cell_cfg):
+    """While a shutdown (0x605B = 1) ramps down, the drive still reports OPERATION ENABLED but
+    takes no set-point; a quick stop then replaces the slow-down ramp by the quick stop ramp
+    (and 0x605A = 6 keeps it in QUICK STOP ACTIVE, not READY TO SWITCH ON)."""
+    _, node = j1
+    node.sdo[0x605B].raw = 1
+    _enable_pp(node, sim_clock)
+    _cruising(node, sim_clock)
+    node.sdo[0x6040].raw = CW_SHUTDOWN
+    sim_clock.sleep(0.05)
+    assert _state(node) == "OPERATION_ENABLED"
+    node.sdo[0x607A].raw = 0
+    node.sdo[0x6040].raw = CW_ENABLE | codec.CW_NEW_SET_POINT
+    assert not node.sdo[0x6041].raw & codec.SW_SET_POINT_ACK  # not taken
+    node.sdo[0x6040].raw = CW_QUICK_STOP
+    p0 = node.sdo[0x6064].raw
+    v = 180_000 - node.sdo[0x6084].raw * 0.05  # 50 ms into the slow-down ramp
+    samples = _follow(node, sim_clock, 0.5)
+    _assert_ramp(samples, p0, v, float(node.sdo[0x6085].raw), {"QUICK_STOP_ACTIVE"}, "QUICK_STOP_ACTIVE")
+
+
+def test_a_quick_stop_that_ends_in_switch_on_disabled_cannot_be_re_enabled_during_its_ramp(j1, sim_clock):
+    """Transition 16 (enable operation in QUICK STOP ACTIVE) exists only for 0x605A 5-8."""
+    _, node = j1
+    node.sdo[0x605A].raw = 2
+    _enable_pp(node, sim_clock)
+    _cruising(node, sim_clock)
+    node.sdo[0x6040].raw = CW_QUICK_STOP
+    node.sdo[0x6040].raw = CW_ENABLE
+    assert _state(node) == "QUICK_STOP_ACTIVE"
+    sim_clock.sleep(0.3)
+    assert _state(node) == "SWITCH_ON_DISABLED"
+
+
+def test_at_standstill_the_transitions_are_immediate(j1, sim_clock):
+    """No move running: a ramped shutdown or disable operation has nothing to slow down."""
+    _, node = j1
+    node.sdo[0x605B].raw = 1
+    _enable_pp(node, sim_clock)
+    node.sdo[0x6040].raw = CW_SWITCH_ON
+    assert _state(node) == "SWITCHED_ON"
+    node.sdo[0x6040].raw = CW_ENABLE
+    node.sdo[0x6040].raw = CW_SHUTDOWN
+    assert _state(node) == "READY_TO_SWITCH_ON"
+
+
+@pytest.mark.parametrize(
+    ("index", "values"),
+    [
+        (0x605A, [3, 4, 7, 8, 9, -1]),  # current / voltage limit stops: not supported; out of range
+        (0x605B, [2, -1]),
+        (0x605C, [2, -1]),
+        (0x605D, [0, 3, 4]),
+        (0x605E, [3, 4, -1]),
+    ],
+)
+def test_an_unsupported_option_code_is_refused(j1, index, values):
+    """CiA 301: a value the drive does not support aborts with 0x06090030 (value range of
+    parameter exceeded); the object keeps its value."""
+    _, node = j1
+    before = node.sdo[index].raw
+    for value in values:
+        with pytest.raises(canopen.SdoAbortedError) as e:
+            node.sdo[index].raw = value
+        assert e.value.code == VALUE_RANGE_EXCEEDED
+        assert node.sdo[index].raw == before

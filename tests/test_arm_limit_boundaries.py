@@ -340,6 +340,35 @@ class TestProfileVelocityClamp:
         assert sim_drives.drives[joint].node.sdo[0x6081].raw == SLOW_MAX_COUNTS  # ... and stored
         assert sim_drives.drives[joint].position() == start - 1.0  # the one-count move ran
 
+    def test_a_move_at_the_maximum_right_after_connect_sends_no_0x6081(self, arm, sim_drives, spy, joint):
+        """connect() set 0x6081 to the maximum and the arm remembers it: no SDO write mid-sequence to set it again."""
+        start = getattr(arm.joints(), FIELDS[joint])
+        assert self.move_and_hear_0x6081(arm, spy, joint, -0.6) == []
+        assert sim_drives.drives[joint].position() == start - 1.0
+
+
+class TestAccelerationRoundedDown:
+    """The acceleration and deceleration 0x6083 / 0x6084 are rounded down like the velocity: 0.6 count/s^2
+    over a whole count (default cell, 1000 counts per unit) is not sent as the next count."""
+
+    @pytest.fixture
+    def cell_cfg(self):
+        from cell.cellconfig import default_cell
+
+        c = default_cell()
+        s = dataclasses.replace(c.scara, max_acceleration={j: a + 0.0006 for j, a in c.scara.max_acceleration.items()})
+        g = dataclasses.replace(c.gripper, speed_mm_s=c.gripper.speed_mm_s + 0.00006)  # its acceleration: 10 x
+        return dataclasses.replace(c, scara=s, gripper=g)
+
+    def test_connect_sets_the_acceleration_and_deceleration_rounded_down(self, arm, sim_drives, cell_cfg):
+        wanted = {**{j: math.floor(a * 1000) for j, a in cell_cfg.scara.max_acceleration.items()},
+                  "gripper": 10 * 60_000}
+        assert {j: a % 1000 for j, a in wanted.items()} == dict.fromkeys(wanted, 0)  # x.6 counts/s^2 -> x
+        for name, counts in wanted.items():
+            sdo = sim_drives.drives[name].node.sdo
+            assert (name, sdo[0x6083].raw, sdo[0x6084].raw) == (name, counts, counts)
+        assert sim_drives.drives["gripper"].node.sdo[0x6081].raw == 60_000
+
 
 # ------------------------------------------------------------------ pre-open: min(opening + 2 x 5 mm, 80 mm)
 @pytest.mark.parametrize(

@@ -285,9 +285,13 @@ def _check_drive_counts(scara: Scara, gripper: Gripper, nodes: dict, source: str
                            f"(can.nodes.{node}.counts_per_unit = {nodes[node].counts_per_unit:g})")
     positions = [(f"scara.{j}{'_mm' if j == 'j3' else '_deg'}", max(map(abs, scara.limits(j))), j) for j in JOINTS]
     positions += [("gripper.opening_mm", max(map(abs, gripper.opening_mm)), "gripper")]
-    rates += [(f"the quick stop's deceleration ({QUICK_STOP_DECEL_FACTOR:g} x {key})", QUICK_STOP_DECEL_FACTOR * v,
-               node) for key, v, node in rates if "acceleration" in key]
-    for values, top, kind in ((positions, 2**31, "INTEGER32 position"), (rates, 2**32, "UNSIGNED32 rate")):
+    quick_stops = [(f"the quick stop's deceleration ({QUICK_STOP_DECEL_FACTOR:g} x {key})",
+                    QUICK_STOP_DECEL_FACTOR * v, node) for key, v, node in rates if "acceleration" in key]
+    # as the drivers send them: positions and the quick stop's deceleration rounded to the nearest count, so
+    # half a count under the top is the top (2147483647.75 counts was an internal error at bring-up); the
+    # other rates rounded down
+    for values, top, kind in ((positions, 2**31 - 0.5, "INTEGER32 position"), (rates, 2**32, "UNSIGNED32 rate"),
+                              (quick_stops, 2**32 - 0.5, "UNSIGNED32 rate")):
         for key, v, node in values:
             if v * nodes[node].counts_per_unit >= top:
                 raise BadInput(f"cell file {source}: {key} = {v:g} is {v * nodes[node].counts_per_unit:.3g} counts "

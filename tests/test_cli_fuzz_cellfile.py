@@ -69,3 +69,81 @@ def test_counts_that_fit_32_bits_are_taken(tmp_path, capsys):
     cell = _cell_file(tmp_path, [(("can", "nodes", "j1", "counts_per_unit"), 1e6)])  # 132 deg: 1.32e8 counts
     code, out, err = run_cli("hw", "status", "--simulated-time", "--cell", cell, capsys=capsys)
     assert code == 0, err
+
+
+# ------------------------------------------------------------------ the bounds pinned (mutation pass)
+def _parse(edits):
+    from cell.cellconfig import parse_cell
+
+    raw = json.loads(default_cell_path().read_text())
+    for path, value in edits:
+        d = raw
+        for k in path[:-1]:
+            d = d[k]
+        d[path[-1]] = value
+    return parse_cell(raw, "cell.json")
+
+
+def _refused(edits, message):
+    from cell.errors import BadInput
+
+    with pytest.raises(BadInput) as e:
+        _parse(edits)
+    assert message in str(e.value), str(e.value)
+
+
+@pytest.mark.parametrize("edits", [
+    [(("camera", "width_px"), 10_000), (("camera", "height_px"), 10_000)],  # 100 MP exactly
+    [(("camera", "width_px"), 16), (("camera", "height_px"), 16)],  # the smallest side
+    [(("can", "heartbeat_ms"), 0xFFFF), (("can", "host_heartbeat_ms"), 0xFFFF // 3)],  # 16 bits, 3 x 21845
+    [(("gripper", "speed_mm_s"), 0.001)],  # exactly one count/s (1000 counts per mm)
+    [(("scara", "j4_deg"), [-1e6, 1e6])],  # the bound of any number
+])
+def test_numbers_on_the_bounds_are_taken(edits):
+    _parse(edits)
+
+
+@pytest.mark.parametrize("edits, message", [
+    ([(("camera", "width_px"), 10_000), (("camera", "height_px"), 10_001)], "at most 100 MP in all"),
+    ([(("camera", "width_px"), 1280), (("camera", "height_px"), 15)], "each side at least 16 px"),
+    ([(("camera", "width_px"), 15), (("camera", "height_px"), 1024)], "each side at least 16 px"),
+    ([(("can", "heartbeat_ms"), 0x10000)], "can.heartbeat_ms = 65536 is more than 65535 ms"),
+    ([(("can", "host_heartbeat_ms"), 21846)], "can.host_heartbeat_ms = 21846 is more than 21845 ms"),
+    ([(("scara", "j4_deg"), [-1e9, 360])], "scara.j4_deg[0] must be within +-1e+06"),  # negative too
+    ([(("scara", "j4_deg"), [-3000, 360]), (CPU, 1e6)], "scara.j4_deg = 3000 is 3e+09 counts"),  # the lower limit
+])
+def test_numbers_just_past_the_bounds_are_refused(edits, message):
+    _refused(edits, message)
+
+
+# Counts as the drivers send them, on a power-of-two encoder (the products are exact): positions and the
+# quick stop's deceleration 0x6085 are rounded to the nearest count, the other rates rounded down. A limit
+# within half a count under 2^31 (2^32) passed the check and was an internal error at bring-up:
+# "ValueError: position 2147483648 counts does not fit INTEGER32", "Value does not fit in specified type".
+J4 = ("scara", "j4_deg")
+J4_ACCEL = ("scara", "max_acceleration", "j4")
+J4_VELOCITY = ("scara", "max_velocity", "j4")
+
+
+@pytest.mark.parametrize("edits, message", [
+    ([(J4, [-360, 2147483647.5 / 4096]), (CPU, 4096)], "scara.j4_deg = 524288 is 2.15e+09 counts"),
+    ([(J4_ACCEL, 4294967295.5 / 8192), (CPU, 4096)],
+     "the quick stop's deceleration (2 x scara.max_acceleration.j4) = 1.04858e+06 is 4.29e+09 counts"),
+    ([(J4_VELOCITY, 2**32 / 8192), (CPU, 8192)], "scara.max_velocity.j4 = 524288 is 4.29e+09 counts"),
+])
+def test_counts_that_round_past_32_bits_are_refused(tmp_path, capsys, edits, message):
+    cell = _cell_file(tmp_path, edits)
+    code, out, err = run_cli("hw", "status", "--simulated-time", "--cell", cell, capsys=capsys)
+    assert code == 2 and message in err and "internal error" not in err and out == "", err
+
+
+@pytest.mark.parametrize("edits", [
+    [(J4, [-360, 2147483647.25 / 4096]), (CPU, 4096)],  # 2147483647 counts
+    [(J4_ACCEL, 4294967295.25 / 8192), (CPU, 4096)],  # 0x6085: 4294967295 counts/s^2
+    [(J4_VELOCITY, (2**32 - 0.75) / 8192), (CPU, 8192)],  # 0x6081: 4294967295 counts/s
+])
+def test_counts_that_round_to_32_bits_are_taken(tmp_path, capsys, edits):
+    cell = _cell_file(tmp_path, edits)
+    code, out, err = run_cli("hw", "status", "--simulated-time", "--json", "--cell", cell, capsys=capsys)
+    assert code == 0, err
+    assert [json.loads(line)["state"] for line in out.splitlines()] == ["OPERATION_ENABLED"] * 5

@@ -626,3 +626,50 @@ def test_after_a_miss_the_empty_jaws_go_up_above_the_tallest_part_before_they_op
                                                       f"{200 - post_top_mm:.0f} mm over the tallest part")
     else:
         assert not said
+
+
+def _retreat_seen(loop, grasp):
+    """`loop._retreat(grasp)`: the moves sent, the jaws' openings (width, J3 there) and the retreat lines said."""
+    moves, opens, seen = [], [], max((e["n"] for e in loop.control.snapshot()["events"]), default=0)
+    move, open_jaws = loop.arm.move_joints, loop.arm.gripper.open
+    loop.arm.move_joints = lambda j, **kw: (moves.append(j), move(j, **kw))[1]
+    loop.arm.gripper.open = lambda w=None: (opens.append((w, loop.arm.joints().j3_mm)), open_jaws(w))[1]
+    try:
+        loop._retreat(grasp)
+    finally:
+        loop.arm.move_joints, loop.arm.gripper.open = move, open_jaws
+    said = [e for e in loop.control.snapshot()["events"] if e["event"] == "retreat" and e["n"] > seen]
+    return moves, opens, said
+
+
+@pytest.mark.parametrize(("start_z_mm", "post_top_mm", "unexplained_top_mm", "up_to_mm"), [
+    (8.0, None, None, 150.0),  # nothing on the tray but the nut: the safe height (no made-up tallest part)
+    (8.0, None, 160.0, 180.0),  # material no part explains counts as a part: 20 mm above it
+    (8.0, 180.0, None, 200.0),  # 20 mm above the post is J3's top exactly: the margin is had, nothing said
+    (150.0, None, None, None),  # already at the safe height: no move
+    (190.0, None, None, None),  # above it: no move down (the jaws open fully where they are)
+])
+def test_the_retreat_goes_only_up_to_its_height(loop, cell, start_z_mm, post_top_mm, unexplained_top_mm, up_to_mm):
+    nut = box("nut", *NUT_XY_MM, 13.0)
+    parts = [nut] + ([box("post", NUT_XY_MM[0] + 40.0, NUT_XY_MM[1], post_top_mm)] if post_top_mm else [])
+    unexplained = [box("blob", NUT_XY_MM[0], NUT_XY_MM[1] - 40.0, unexplained_top_mm)] if unexplained_top_mm else []
+    on_tray(loop, *parts, unexplained=unexplained)
+    arm_at(loop, Joints(NUT_GRASP.j1_deg, NUT_GRASP.j2_deg, start_z_mm, NUT_GRASP.j4_deg))
+    moves, opens, said = _retreat_seen(loop, grasp_of(nut, cell, NUT_GRASP.j3_mm, joints=NUT_GRASP))
+    assert not said
+    if up_to_mm is None:
+        assert moves == [] and opens == [(None, pytest.approx(start_z_mm, abs=1e-3))]
+    else:
+        assert len(moves) == 1 and moves[0].j3_mm == pytest.approx(up_to_mm)
+        # below it, the jaws open to the grasp's approach opening (its 20 mm + 2 x the clearance), not more
+        assert opens == [(pytest.approx(20.0 + 2 * cell.gripper.approach_clearance_mm), pytest.approx(start_z_mm,
+                                                                                                       abs=1e-3)),
+                         (None, pytest.approx(up_to_mm, abs=1e-3))]
+
+
+def test_with_nothing_left_on_the_tray_the_retreat_goes_to_the_safe_height(loop, cell):
+    on_tray(loop)
+    arm_at(loop, NUT_GRASP)
+    moves, opens, said = _retreat_seen(loop, None)
+    assert len(moves) == 1 and moves[0].j3_mm == pytest.approx(cell.motion.safe_z_mm) and not said
+    assert opens == [(None, pytest.approx(cell.motion.safe_z_mm, abs=1e-3))]

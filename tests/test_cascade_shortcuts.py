@@ -178,3 +178,65 @@ def test_one_piece_per_band_gives_what_the_per_band_scatters_give(target, middle
     assert all(np.array_equal(a, b, equal_nan=True)
                for a, b in zip(band.on_material(None, *tl), scattered.on_material(None, *tl), strict=True))
     assert band.one_each or not (middle and target.id == "bar")
+
+
+def _scara(l1, l2, j1, j2, j4):
+    return dataclasses.replace(CELL.scara, l1_mm=l1, l2_mm=l2, j1_deg=j1, j2_deg=j2, j3_mm=(0.0, 200.0), j4_deg=j4)
+
+
+def _grid(x0, y0, x1, y1, n=41):
+    x, y = np.meshgrid(np.linspace(x0, x1, n), np.linspace(y0, y1, n))
+    return x.ravel(), y.ravel()
+
+
+# Found in a mutation pass: each box below was certified by a mutant of one term of the test (the term in
+# the comment dropped or changed) although the solver does not reach some of its points.
+@pytest.mark.parametrize(("box", "z_mm", "scara"), [
+    ((300.0, -20.0, 340.0, 20.0), -1.0, CELL.scara),  # z below J3's range
+    ((-185.105, -254.874, 71.209, -78.817), 10.0, _scara(262.179, 367.637, (-180.722, 129.869), (-171.284, 153.946),
+                                                         (-90.5, 90.5))),  # x0 <= 0: left of the base
+    ((351.941, -112.908, 355.581, 116.602), 10.0, _scara(283.659, 157.642, (-10.062, 109.784), (-74.056, 109.762),
+                                                         (-90.5, 90.5))),  # across y = 0: the nearest point is on it
+    ((198.103, -269.685, 471.058, -69.56), 10.0, _scara(373.506, 183.442, (-74.775, 235.328), (-118.71, 220.649),
+                                                        (-91.0, 91.0))),  # beta's maximum inside the elbow range
+    ((42.99, 213.95, 68.11, 224.72), 10.0, _scara(100.0, 300.0, (-100.0, 300.0), (-179.0, 150.0),
+                                                  (-360.0, 360.0))),  # J1 past +180 (the solver wraps it)
+    ((409.271, -387.963, 571.08, -243.52), 10.0, _scara(299.152, 392.219, (-253.371, 51.021), (42.161, 148.981),
+                                                        (-360.0, 360.0))),  # elbow up: J2's lower limit
+    ((477.986, -71.139, 541.74, 9.813), 10.0, _scara(226.969, 390.421, (24.47, 173.113), (-126.507, -91.236),
+                                                     (-360.0, 360.0))),  # elbow down: J2's upper limit
+])
+def test_a_box_with_an_unreachable_point_is_not_certified(box, z_mm, scara):
+    x, y = _grid(*box)
+    assert not reachable_mask(x, y, z_mm, np.zeros(len(x)), scara).all()
+    assert not box_surely_reachable(*box, z_mm, scara)
+
+
+# ... and these, reachable everywhere, were not certified by a mutant (the shortcut lost, the solver runs)
+@pytest.mark.parametrize(("box", "scara"), [
+    ((300.0, -20.0, 340.0, 20.0), dataclasses.replace(CELL.scara, j4_deg=(-90.5, 90.5))),  # J4 spans 181 deg
+    ((255.513, 146.883, 271.253, 232.292), _scara(266.675, 204.821, (-14.692, 183.602), (-99.983, 146.647),
+                                                  (-360.0, 360.0))),  # beta's maximum outside the elbow range
+    ((293.901, -97.813, 337.271, -95.04), _scara(258.18, 195.379, (-212.83, 107.441), (-199.194, 83.126),
+                                                 (-91.0, 91.0))),  # elbow down only
+    ((280.017, -230.818, 429.842, 64.47), _scara(379.372, 267.864, (-122.807, 118.173), (-85.153, 176.556),
+                                                 (-91.0, 91.0))),  # elbow up only
+])
+def test_a_box_reachable_by_one_elbow_is_certified(box, scara):
+    x, y = _grid(*box)
+    for axis_deg in (-90.0, 0.0, 45.0, 90.0):
+        assert reachable_mask(x, y, 10.0, np.full(len(x), axis_deg), scara).all()
+    assert box_surely_reachable(*box, 10.0, scara)
+
+
+def test_the_ik_box_is_the_targets_bounds_5_mm_wider_inside_the_workspace_and_surely_reachable():
+    from cell.grasp.pairs import _ik_box
+
+    square = shapely.box(330.0, -10.0, 350.0, 10.0)
+    assert _ik_box(square, CELL, 10.0) == (325.0, -15.0, 355.0, 15.0)
+    assert _ik_box(square, CELL, 250.0) is None  # above J3's range: nothing there is reachable
+    x1 = CELL.workspace.x_mm[1]
+    near_edge = shapely.box(x1 - 30.0, -10.0, x1 - 2.0, 10.0)  # in the workspace, its 5 mm margin is not
+    assert box_surely_reachable(*near_edge.bounds, 10.0, CELL.scara)
+    assert _ik_box(near_edge, CELL, 10.0) is None
+    assert _ik_box(shapely.box(x1 - 30.0, -10.0, x1 - 5.0, 10.0), CELL, 10.0) == (x1 - 35.0, -15.0, x1, 15.0)

@@ -140,7 +140,7 @@ def test_counts_that_round_past_32_bits_are_refused(tmp_path, capsys, edits, mes
 @pytest.mark.parametrize("edits", [
     [(J4, [-360, 2147483647.25 / 4096]), (CPU, 4096)],  # 2147483647 counts
     [(J4_ACCEL, 4294967295.25 / 8192), (CPU, 4096)],  # 0x6085: 4294967295 counts/s^2
-    [(J4_VELOCITY, (2**32 - 0.75) / 8192), (CPU, 8192)],  # 0x6081: 4294967295 counts/s
+    [(J4_VELOCITY, (2**32 - 0.25) / 8192), (CPU, 8192)],  # 0x6081: rounded down, 4294967295 counts/s
 ])
 def test_counts_that_round_to_32_bits_are_taken(tmp_path, capsys, edits):
     cell = _cell_file(tmp_path, edits)

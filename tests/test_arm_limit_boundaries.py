@@ -346,6 +346,17 @@ class TestProfileVelocityClamp:
         assert self.move_and_hear_0x6081(arm, spy, joint, -0.6) == []
         assert sim_drives.drives[joint].position() == start - 1.0
 
+    def test_a_move_of_one_count_goes_at_least_at_its_mean_speed(self, arm, spy, joint):
+        """0.6 unit is one whole count: the profile for 0.6 unit over the lead's duration (about 1.2 counts/s)
+        would be rounded to 1 count/s, and the count take about twice the move's duration."""
+        lead = "j2" if joint != "j2" else "j4"
+        start = arm.joints()
+        target = with_joint(with_joint(start, joint, getattr(start, FIELDS[joint]) - 0.6), lead,
+                            getattr(start, FIELDS[lead]) + 60.0)
+        duration_s = arm.move_time_s(start, target)
+        assert 1 / duration_s < SLOW_MAX_VELOCITY
+        assert self.move_and_hear_0x6081(arm, spy, joint, -0.6, lead=lead) == [math.ceil(1 / duration_s)]
+
 
 class TestAccelerationRoundedDown:
     """The acceleration and deceleration 0x6083 / 0x6084 are rounded down like the velocity: 0.6 count/s^2

@@ -121,9 +121,10 @@ class SimDrive:
         c = counts_per_unit
         self._store(0x607D, 1, codec.to_counts(limits[0], c))
         self._store(0x607D, 2, codec.to_counts(limits[1], c))
-        self._store(0x6081, 0, max(1, round(velocity * c)))
-        self._store(0x6083, 0, max(1, round(acceleration * c)))
-        self._store(0x6084, 0, max(1, round(acceleration * c)))
+        # rounded down, as the host sends them (a limit a quarter count under 2^32 rounded up past UNSIGNED32)
+        self._store(0x6081, 0, max(1, codec.rate_counts_within(velocity, c)))
+        self._store(0x6083, 0, max(1, codec.rate_counts_within(acceleration, c)))
+        self._store(0x6084, 0, max(1, codec.rate_counts_within(acceleration, c)))
         self._store(0x6085, 0, max(1, round(QUICK_STOP_DECEL_FACTOR * acceleration * c)))
         self._store(0x1017, 0, heartbeat_ms)
         self._store(0x1800, 5, tpdo_event_ms)

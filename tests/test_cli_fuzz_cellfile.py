@@ -8,15 +8,20 @@ from conftest import run_cli
 from cell.cellconfig import default_cell_path
 
 
-def _cell_file(tmp_path, edits):
+def _edited(edits) -> dict:
+    """The default cell file's JSON with each (key path, value) of `edits` set."""
     raw = json.loads(default_cell_path().read_text())
     for path, value in edits:
         d = raw
         for k in path[:-1]:
             d = d[k]
         d[path[-1]] = value
+    return raw
+
+
+def _cell_file(tmp_path, edits):
     cell = tmp_path / "cell.json"
-    cell.write_text(json.dumps(raw))
+    cell.write_text(json.dumps(_edited(edits)))
     return cell
 
 
@@ -75,13 +80,7 @@ def test_counts_that_fit_32_bits_are_taken(tmp_path, capsys):
 def _parse(edits):
     from cell.cellconfig import parse_cell
 
-    raw = json.loads(default_cell_path().read_text())
-    for path, value in edits:
-        d = raw
-        for k in path[:-1]:
-            d = d[k]
-        d[path[-1]] = value
-    return parse_cell(raw, "cell.json")
+    return parse_cell(_edited(edits), "cell.json")
 
 
 def _refused(edits, message):

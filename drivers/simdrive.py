@@ -513,9 +513,11 @@ class SimDrive:
             return
         t_s = abs(v0) / d
         ramp = Trapezoid(v0 * t_s / 2, abs(v0), d, d, 0.0, 0.0, t_s)
-        self.motion = _Motion(
-            now, self.position_counts, round(self.position_counts + ramp.distance), ramp, True, coasting
-        )
+        # from where the axis is now, not where the last tick left it: a command between two ticks (10 ms)
+        # lost the travel since, 1620 counts at 180000 counts/s
+        here = self._jammed_at if self._jammed_at is not None else m.start_counts + m.profile.position_at(
+            now - m.t0_s)
+        self.motion = _Motion(now, here, round(here + ramp.distance), ramp, True, coasting)
 
     def _fault(self, code: int, *, following_error: bool = False) -> None:
         if self.state in ("FAULT", "FAULT_REACTION_ACTIVE"):

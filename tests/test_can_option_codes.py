@@ -228,3 +228,19 @@ def test_an_unsupported_option_code_is_refused(j1, index, values):
             node.sdo[index].raw = value
         assert e.value.code == VALUE_RANGE_EXCEEDED
         assert node.sdo[index].raw == before
+
+
+@pytest.mark.parametrize("between_ticks_s", [0.0, 0.004, 0.009])
+def test_a_stop_between_two_ticks_ramps_from_where_the_axis_is(j1, sim_clock, between_ticks_s):
+    """The drive steps every 10 ms; a quick stop that arrives between two steps ramps from where the
+    axis is then. It ramped from the last step's position: 9 ms late at 180000 counts/s, 1620 counts
+    short."""
+    _, node = j1
+    _enable_pp(node, sim_clock)
+    p_tick, v = _cruising(node, sim_clock)  # 0.4 s: on a step
+    sim_clock.sleep(between_ticks_s)
+    p0 = p_tick + v * between_ticks_s  # cruising: where the axis is when the quick stop comes
+    node.sdo[0x6040].raw = CW_QUICK_STOP
+    d = float(node.sdo[0x6085].raw)
+    sim_clock.sleep(v / d + 0.2)
+    assert node.sdo[0x6064].raw == pytest.approx(p0 + v * v / (2 * d), abs=2)

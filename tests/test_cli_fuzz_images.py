@@ -77,3 +77,17 @@ def test_float_tiffs_are_read_in_either_mode(tmp_path, dtype, channels, grey):
     assert got.dtype == np.uint8 and got.shape == ((40, 60) if grey else (40, 60, 3))
     plane = got if grey else got[..., 0]
     assert (plane[10:20, 10:30] == 255).all() and (plane[30:35, 40:50] == 0).all() and plane.sum() == 255 * 200
+
+
+@pytest.mark.parametrize("grey", [False, True])
+def test_a_float_tiff_with_alpha_is_scaled_by_its_colours_not_its_alpha(tmp_path, grey):
+    """Colours in [0, 1] with an alpha of 255: the scale came from the alpha, and the frame read nearly black."""
+    from cell.vision.sources import read_image
+
+    bgr = np.zeros((20, 30, 3), np.float32)
+    bgr[5:10, 5:10] = 0.9
+    path = tmp_path / "alpha.tiff"
+    assert cv2.imwrite(str(path), np.dstack([bgr, np.full((20, 30), 255.0, np.float32)]))
+    got = read_image(path, grey=grey)
+    plane = got if grey else got[..., 2]
+    assert plane[5:10, 5:10].min() == round(0.9 * 255) and plane.sum() == 25 * round(0.9 * 255)

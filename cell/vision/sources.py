@@ -46,15 +46,18 @@ def read_image(path: str | Path, grey: bool = False) -> np.ndarray:
     damage = [line for line in noise if line.startswith(_DAMAGE) and (_HARMLESS not in line or _BEFORE_END in line)]
     if damage:  # decoded, but with made-up pixels where the data was broken: not a frame to act on
         raise BadInput(f"image {path} is corrupt (the decoder says: {damage[0]})")
+    if as_is and img.ndim == 3 and img.shape[2] in (2, 4):  # alpha is no brightness: off before scaling
+        img = img[..., :img.shape[2] - 1]  # (a float alpha of 255 made colours in [0, 1] nearly black)
     img = _to_uint8(img, path)
     return _with_channels(img, grey, path) if as_is else img
 
 
 def _with_channels(img: np.ndarray, grey: bool, path: Path) -> np.ndarray:
     """An 8-bit image decoded as it is, as grey (h, w) or BGR (h, w, 3)."""
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[..., 0]
     channels = 1 if img.ndim == 2 else img.shape[2]
-    convert = {(1, True): None, (1, False): cv2.COLOR_GRAY2BGR, (3, True): cv2.COLOR_BGR2GRAY, (3, False): None,
-               (4, True): cv2.COLOR_BGRA2GRAY, (4, False): cv2.COLOR_BGRA2BGR}
+    convert = {(1, True): None, (1, False): cv2.COLOR_GRAY2BGR, (3, True): cv2.COLOR_BGR2GRAY, (3, False): None}
     if (channels, grey) not in convert:
         raise BadInput(f"image {path} has {channels} channels; grey, colour or colour with alpha images are read")
     code = convert[(channels, grey)]

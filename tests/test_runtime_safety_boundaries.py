@@ -594,7 +594,7 @@ def test_a_missed_grip_opens_the_jaws_at_depth_no_wider_than_the_fingers_clear_t
         assert not hit, f"the jaws opened to {width_mm:.1f} mm at z {tool.z_mm:.1f} mm: the fingers overlap {hit}"
 
 
-@pytest.mark.parametrize("post_top_mm", [60.0, 140.0, 195.0])
+@pytest.mark.parametrize("post_top_mm", [60.0, 140.0, 195.0, 230.0])
 @pytest.mark.parametrize("with_grasp", [True, False])
 def test_after_a_miss_the_empty_jaws_go_up_above_the_tallest_part_before_they_open_fully(loop, cell, post_top_mm,
                                                                                          with_grasp):
@@ -622,8 +622,10 @@ def test_after_a_miss_the_empty_jaws_go_up_above_the_tallest_part_before_they_op
     assert len(opens) == (2 if with_grasp else 1)
     said = [e for e in loop.control.snapshot()["events"] if e["event"] == "retreat" and e["n"] > seen]
     if post_top_mm + 20.0 > cell.scara.j3_mm[1]:  # J3's top caps it: said, not hidden
-        assert said and said[-1]["message"].startswith(f"the empty jaws go up to J3's top, 200 mm, "
-                                                      f"{200 - post_top_mm:.0f} mm over the tallest part")
+        where = (f"{200 - post_top_mm:.0f} mm over" if post_top_mm <= 200
+                 else f"{post_top_mm - 200:.0f} mm below the top of")
+        assert said and said[-1]["message"].startswith(
+            f"the empty jaws go up to J3's top, 200 mm, {where} the tallest part")
     else:
         assert not said
 

@@ -643,8 +643,9 @@ class CellLoop:
         tallest = max((p.z_top_mm for p in self._on_tray()), default=0.0)
         wanted, top = max(self.cell.motion.safe_z_mm, tallest + TRAVEL_MARGIN_MM), self.cell.scara.j3_mm[1]
         if wanted > top:  # said, not hidden: the next pick's travel height check refuses to go on from here
-            self.control.log("retreat", f"the empty jaws go up to J3's top, {top:g} mm, {top - tallest:.0f} mm over "
-                             f"the tallest part on the tray (a {TRAVEL_MARGIN_MM:g} mm margin was wanted)")
+            where = (f"{top - tallest:.0f} mm over" if top >= tallest else f"{tallest - top:.0f} mm below the top of")
+            self.control.log("retreat", f"the empty jaws go up to J3's top, {top:g} mm, {where} the tallest part on "
+                             f"the tray (a {TRAVEL_MARGIN_MM:g} mm margin was wanted)")
         return min(wanted, top)
 
     def _retreat(self, grasp: Grasp | None = None) -> None:

@@ -58,6 +58,13 @@ def finite(value: float | None, what: str, minimum: float | None = None) -> floa
     return value
 
 
+def seconds(value: float | None, what: str) -> float | None:
+    """A time in seconds: finite and not negative (NaN would wait forever on a SimClock); None passes."""
+    if value is not None and not (_finite(value) and value >= 0):
+        raise BadInput(f"{what} {value:g}: give a finite number of seconds, 0 or more")
+    return value
+
+
 def plane_z(value: float | None, what: str = "--z") -> float | None:
     """A plane's height: finite, and no further from the table than a part's top can be."""
     from cell.scene import MAX_COORD_MM

@@ -86,12 +86,11 @@ MAX_DWELL_S = 600.0  # a SimClock steps through every heartbeat of the dwell: 1e
 
 def _check_times(args) -> None:
     """--dwell / --seconds: a finite time, not negative (NaN would wait forever on a SimClock)."""
+    from cell.commands._vision_args import seconds
     from cell.errors import BadInput
 
     for option in ("dwell", "seconds"):
-        value = getattr(args, option, None)
-        if value is not None and not (math.isfinite(value) and value >= 0):
-            raise BadInput(f"--{option} {value:g}: give a finite number of seconds, 0 or more")
+        seconds(getattr(args, option, None), f"--{option}")
     if getattr(args, "dwell", None) is not None and args.dwell > MAX_DWELL_S:
         raise BadInput(f"--dwell {args.dwell:g}: at most {MAX_DWELL_S:g} s at the corner")
 

@@ -27,10 +27,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    import math
     import threading
     import time
 
+    from cell.commands._vision_args import seconds
     from cell.commands.run import _sigterm_as_interrupt
     from cell.errors import BadInput
     from cell.fileio import check_writable
@@ -43,8 +43,7 @@ def run(args) -> int:
     # NaN or 1e300 s made the pick thread's sleep raise (the page waited for a pick that had died)
     if not 0 <= args.motion_s <= MAX_MOTION_S:
         raise BadInput(f"--motion-s must be 0..{MAX_MOTION_S:g} s, got {args.motion_s:g}")
-    if args.for_s is not None and not (math.isfinite(args.for_s) and args.for_s >= 0):
-        raise BadInput(f"--for-s {args.for_s:g}: give a finite number of seconds, 0 or more")
+    seconds(args.for_s, "--for-s")
     check_writable(args.examples, "--examples")  # a path under a file failed only at the first taught grasp
     control = RunControl(require_approval=args.approve_each)
     cell = DemoCell(control, args.examples, motion_s=args.motion_s)

@@ -116,12 +116,13 @@ class BandEdges:
         keep = np.flatnonzero(pos.take(self.bi) >= 0)
         return keep, pos.take(self.bi.take(keep))
 
-    def _per_band(self, values: np.ndarray, empty: float, at) -> np.ndarray:
-        """(b,): the pieces' values (p,) reduced per band by the ufunc.at `at` (`empty` where a band has none)."""
-        if self.one_each:
+    def _per_band(self, values: np.ndarray, empty: float, at, bands: np.ndarray | None = None) -> np.ndarray:
+        """(b,): values (p,) of the pieces (or of those whose bands are `bands`, (p,)) reduced per band by the
+        ufunc.at `at` (`empty` where a band has none)."""
+        if bands is None and self.one_each:
             return values
         out = np.full(len(self.cx), empty)
-        at(out, self.bi, values)
+        at(out, self.bi if bands is None else bands, values)
         return out
 
     def first_touch(self, ctx: Context, slanted: bool = False, touch: bool = True):
@@ -178,21 +179,15 @@ class BandEdges:
             e0, e1 = pA + p0 * pdt >= limit, pA + p1 * pdt >= limit
             lo_s, hi_s = np.where(e0, p0, p1), np.where(e1, p1, p0)
             near = e0 | e1
-        every = near.all()
-        if every:  # (one piece per band, at its end: the usual case, no gathering)
-            nb, lA, dl = pb, self.lA, self.dl
+        if near.all():  # (one piece per band, at its end: the usual case, no gathering)
+            nb, lA, dl = None, self.lA, self.dl
         else:
             k = np.flatnonzero(near)
             nb, lA, dl, lo_s, hi_s = pb.take(k), self.lA.take(k), self.dl.take(k), lo_s.take(k), hi_s.take(k)
         lat_lo = lA + lo_s * dl  # across the axis, at both ends of the stretch
         lat_hi = lA + hi_s * dl
-        if self.one_each and every:
-            lo_l, hi_l = np.minimum(lat_lo, lat_hi), np.maximum(lat_lo, lat_hi)
-        else:
-            lo_l = np.full(b, np.inf)
-            hi_l = np.full(b, -np.inf)
-            np.minimum.at(lo_l, nb, np.minimum(lat_lo, lat_hi))
-            np.maximum.at(hi_l, nb, np.maximum(lat_lo, lat_hi))
+        lo_l = self._per_band(np.minimum(lat_lo, lat_hi), np.inf, np.minimum.at, nb)
+        hi_l = self._per_band(np.maximum(lat_lo, lat_hi), -np.inf, np.maximum.at, nb)
         has = lo_l < np.inf  # the bands with touching material (the lateral extremes are finite)
         mid = 0.5 * (lo_l + hi_l)
         x = np.where(has, self.cx + self.ux * T + self.vx * mid, np.nan)

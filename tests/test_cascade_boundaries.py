@@ -272,6 +272,23 @@ def test_precheck_and_palm_reject_a_pair_centred_on_a_palm_high_pin():
     assert kept("precheck", ctx, P)
 
 
+# a plate with a notch 0.75 mm deep in each face, x 343.5..356.9: a pad across it (12 mm + contact_tol
+# each side) rests on both rims, and the contact moves onto the nearer rim, 6.5 mm from the closing line
+NOTCHED = part([[320, -15], [343.5, -15], [343.5, -14.25], [356.9, -14.25], [356.9, -15], [380, -15], [380, 15],
+                [356.9, 15], [356.9, 14.25], [343.5, 14.25], [343.5, 15], [320, 15]])
+
+
+def test_precheck_keeps_a_pair_whose_fingers_sit_beside_the_closing_line_in_a_notch():
+    """Across the notches' floors at x 350 the contacts lie on the rims at x 343.5: the fingers (x
+    337.5..349.5) clear a tall post at x 349.6..352.6 that stands on the pair's closing line, 7.25 mm
+    beyond the candidate. The pre-check must not reject what the exact stages keep."""
+    post = box(349.6, 20, 352.6, 26, "post", TALL_MM)
+    ctx, P = one_pair(NOTCHED, (350, 14.25), (350, -14.25), obstacles=[post])
+    assert kept("contacts", ctx, P) and abs(P.center[0, 0] - 343.5) < 1e-9
+    assert kept("ik", ctx, P) and kept("fingers_obstacles", ctx, P) and kept("palm", ctx, P)
+    assert kept("precheck", ctx, P)
+
+
 def _samples_along(ring, step_mm=2.0):
     """Outline samples every step_mm from each vertex (the last one on each edge nearer)."""
     out = []

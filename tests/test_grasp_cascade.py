@@ -568,3 +568,23 @@ def test_the_stroke_at_the_pads_lines_is_the_physical_checks():
         verdict = check_grasp(target, [P2.ci[k], P2.cj[k]], P2.axis_deg(k), ctx.grasp_z_mm, (), CELL)
         refused_by_check = any("pads stop" in r for r in verdict.reasons)
         assert refused_by_check == (k not in set(cr.survivors.tolist())), (k, verdict.reasons)
+
+
+def test_the_cascade_keeps_what_the_brute_force_keeps_where_a_notch_moves_the_fingers_off_the_closing_line():
+    """A plate with a shallow notch (0.75 mm) in each face, 13.4 mm wide, and a tall post beyond it: across
+    the notches the pads rest on the rims and the contacts move onto the nearer rim, up to 6.5 mm across
+    from the pair's closing line (more than half the 12 mm pad). Every pair the exact stages keep is kept,
+    this one among them."""
+    c = 350.0
+    top = [[c + 30, 15], [c + 6.9, 15], [c + 6.9, 14.25], [c - 6.5, 14.25], [c - 6.5, 15], [c - 30, 15]]
+    bottom = [[c - 30, -15], [c - 6.5, -15], [c - 6.5, -14.25], [c + 6.9, -14.25], [c + 6.9, -15], [c + 30, -15]]
+    target = parse_part({"id": "notched", "outline": bottom + top, "z_top": 15})
+    post = shapes.rectangle("post", 3, 6, center=(c + 1.1, 23), z_top_mm=30)
+    P, cr, ctx = cascade_for(target, [post])
+    B = P.fresh()
+    br = run_brute_force(ctx, B)
+    k = br.survivors
+    d, u = B.center[k] - B.m[k], B.u[k]
+    across = np.abs(d[:, 0] * u[:, 1] - d[:, 1] * u[:, 0])  # the contacts' centre from the pair's closing line
+    assert across.max() > CELL.gripper.pad_width_mm / 2  # the case probed: the fingers off the closing line
+    assert np.array_equal(np.sort(cr.survivors), np.sort(k))

@@ -43,7 +43,15 @@ import shapely
 
 from cell.grasp.bands import PAD_COMPLIANCE_MM, BandEdges, edge_box_overlaps
 from cell.grasp.footprints import axis_rect_bounds, axis_rects, rect_polygons
-from cell.grasp.pairs import CHEAP_MARGIN_MM, EPS_MM, Context, Pairs, midpoints_surely_reachable, neighbour_reach
+from cell.grasp.pairs import (
+    CHEAP_MARGIN_MM,
+    EPS_MM,
+    Context,
+    Pairs,
+    convex_near,
+    midpoints_surely_reachable,
+    neighbour_reach,
+)
 from cell.kinematics import Joints, inverse, reachable_mask
 
 __all__ = ["STAGES", "EXACT_STAGES", "Context", "Pairs", "CascadeResult", "run_cascade", "run_brute_force",
@@ -132,7 +140,14 @@ def stage_precheck(ctx: Context, P: Pairs, idx) -> np.ndarray:
             a = t[:, None] + offs[None, :]
             a = np.concatenate([a, -a], axis=1)  # (k, 6)
             xy = np.stack([(m[:, 0, None] + u[:, 0, None] * a).ravel(), (m[:, 1, None] + u[:, 1, None] * a).ravel()])
-            ok = ~_in_material(ctx, target, xy).reshape(k, -1).any(1)
+            # the points are on the pair's closing line: the fingers cover it where the contacts' centre
+            # surely lies less than half a pad across from it (the target's points are in the contacts
+            # stage's band, which is centred on that line, whatever the contacts)
+            covered = None
+            if ctx.finger_obstacles is not None:
+                covered = np.repeat(_centre_across_bound_mm(ctx, P, idx) < ctx.cell.gripper.pad_width_mm / 2 - EPS_MM,
+                                    a.shape[1])
+            ok = ~_in_material(ctx, target, xy, covered).reshape(k, -1).any(1)
     if ctx.palm_obstacles is not None:
         m = P.m.take(idx, 0)
         ok &= ~shapely.contains_xy(ctx.palm_obstacles, m[:, 0], m[:, 1])
@@ -143,22 +158,73 @@ def stage_precheck(ctx: Context, P: Pairs, idx) -> np.ndarray:
 
 def _path_offsets(ctx: Context) -> np.ndarray:
     """Where beyond the candidate (along the closing axis) the points lie that every exact footprint
-    covers: the pad stops up to tol (and its compliance) from the candidate, and the finger reaches
-    clearance + pad thickness beyond where it stops. Thin pads with little clearance leave none (the
-    points were then past the finger's end or behind the contact)."""
+    covers (along the axis; `_centre_across_bound_mm` says where across): a contact lies from the
+    compliance and the outline's shift behind the candidate to tol ahead of it (`_contact_along_bounds_mm`),
+    and the finger reaches clearance + pad thickness beyond it. Thin pads with little clearance leave
+    none (the points were then past the finger's end or behind the contact)."""
     g, tol = ctx.cell.gripper, ctx.params.contact_tol_mm
     reach = g.approach_clearance_mm + g.pad_thickness_mm
+    behind, _ = _contact_along_bounds_mm(ctx)
     return np.array([o for o in (tol + 1.5, 0.5 * (tol + reach), reach - 1.5)
-                     if tol + PAD_COMPLIANCE_MM <= o <= reach - tol - PAD_COMPLIANCE_MM])
+                     if tol + PAD_COMPLIANCE_MM <= o <= reach - max(tol + PAD_COMPLIANCE_MM, behind)])
 
 
-def _in_material(ctx: Context, target, xy: np.ndarray) -> np.ndarray:
-    """(n,) are the points xy (2, n) inside the target (None: not asked) or a finger-high obstacle?
-    Only points inside the target's convex hull, or an obstacle part's box, are asked of shapely
-    (about 40-70 ns a point); the others cannot be inside."""
+# Where the contacts stage puts a pair's contacts, from the pair alone (the pre-check's footprints rest
+# on it). Band coordinates: t along the closing axis u from the pair's midpoint m, l across it. The pad
+# of p_i (at t along u, at most contact_tol across) stops on the line T of the first material in its band
+# (the pad + contact_tol each side, centred on m's line), at most tol ahead of p_i (the stage asks that)
+# and not behind it by more than the outline's shift (the exact material comes that near p_i); the touch
+# on that line lies at most tol across (asked too). _onto_material then moves it to the nearest material
+# within PAD_COMPLIANCE_MM behind that line: t' in [t - shift - compliance, t + tol], and anywhere in the
+# band across (a notch under the touch, its rims at the band's sides: up to half the pad + tol across,
+# tests/test_cascade_boundaries.py). Where the material in convex_region_mm of p_i is convex, the band
+# has material under the touch within the compliance (the touch lies between the touching material's
+# sides), so the move is at most that (`_onto_material_move_mm`).
+
+def _contact_along_bounds_mm(ctx: Context) -> tuple[float, float]:
+    """How far behind and ahead of its candidate (along the closing axis) a contact can lie."""
+    return ctx.outline_shift_mm + PAD_COMPLIANCE_MM, ctx.params.contact_tol_mm + EPS_MM
+
+
+def _onto_material_move_mm(ctx: Context) -> float:
+    """How far the contacts stage can move a touch onto the material when the material near the candidate
+    is convex: the compliance (from the touch's line to the material under it), with a pressing pad the
+    thin band's half width on the closing line, and where the outline was thinned a little more per mm of
+    shift (the candidate then lies up to that shift off the exact material: the move runs towards the
+    first touch, at most half the pad + tol + shift across, rising compliance + shift over it)."""
+    g, tol, shift = ctx.cell.gripper, ctx.params.contact_tol_mm, ctx.outline_shift_mm
+    beside = g.pad_width_mm / 2 + tol + shift
+    return PAD_COMPLIANCE_MM + CLOSING_LINE_BAND_MM + shift * (1 + beside / (PAD_COMPLIANCE_MM + shift))
+
+
+def _centre_across_bound_mm(ctx: Context, P: Pairs, idx) -> np.ndarray:
+    """(k,): how far across the closing line the contacts' centre (the fingers' and the palm's centre
+    line) can lie for the pairs idx: the mean of the contacts' bounds, each anywhere in its band or, where
+    the material near its candidate is convex, within tol + the move onto the material."""
+    g, tol = ctx.cell.gripper, ctx.params.contact_tol_mm
+    convex = _points_convex(ctx, P)
+    near = tol + EPS_MM + _onto_material_move_mm(ctx)
+    band = g.pad_width_mm / 2 + tol
+    ij = P.ij.take(idx, 0)
+    return 0.5 * (np.where(convex.take(ij[:, 0]), near, band) + np.where(convex.take(ij[:, 1]), near, band))
+
+
+def _points_convex(ctx: Context, P: Pairs) -> np.ndarray:
+    """(z',): is the material near each of the pairs' points convex (`convex_near`)? The scene's samples'
+    verdicts when Context.build had them (per scene), else worked out for the points."""
+    if ctx.sample_convex is not None and P.sample_index is not None:
+        return ctx.sample_convex.take(P.sample_index)
+    return convex_near(ctx, P.points, P.normals)
+
+
+def _in_material(ctx: Context, target, xy: np.ndarray, asked: np.ndarray | None = None) -> np.ndarray:
+    """(n,) are the points xy (2, n) inside the target (None: not asked) or a finger-high obstacle (only
+    the points `asked` (n,), None: all)? Only points inside the target's convex hull, or an obstacle
+    part's box, are asked of shapely (about 40-70 ns a point); the others cannot be inside."""
     hit = np.zeros(xy.shape[1], bool)
+    boxed = _in_boxes(ctx.finger_boxes, xy)
     for geom, maybe in ((target, None if target is None else ~ctx.surely_outside(xy)),
-                        (ctx.finger_obstacles, _in_boxes(ctx.finger_boxes, xy))):
+                        (ctx.finger_obstacles, boxed if asked is None or boxed is None else boxed & asked)):
         if geom is None or not maybe.any():
             continue
         r = np.flatnonzero(maybe)
@@ -235,6 +301,7 @@ def _row_cues(ctx: Context, P: Pairs, pt: np.ndarray, sample: np.ndarray) -> np.
 # that is a hundred edges per band, and 70000 pairs made 14 million pieces (3 GB). The pairs go
 # through in chunks of at most about this many pieces (same verdicts: each band is on its own).
 CONTACT_PIECES_PER_CHUNK = 400_000
+CLOSING_LINE_BAND_MM = 0.05  # half the width of the thin band on the pair's closing line a pressing pad is asked about
 CHUNK_ESTIMATE_ABOVE = 4_000_000  # bands x edges below which one pass is surely small enough
 MIN_CHUNK_PAIRS = 256  # fewer would cost more in numpy's per-call overhead than they save
 
@@ -307,7 +374,7 @@ def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
         ax, ay = np.concatenate([pi[:, 0], pj[:, 0]]) - cx, np.concatenate([pi[:, 1], pj[:, 1]]) - cy
         # the pad itself (not the band widened by tol), and a thin band on the pair's closing line,
         # in one pass (the thin band's verdict is used only where the pad presses on the candidate)
-        Tn, _ = band.narrowed(q, (g.pad_width_mm / 2, 0.05)).first_touch(ctx, touch=False)
+        Tn, _ = band.narrowed(q, (g.pad_width_mm / 2, CLOSING_LINE_BAND_MM)).first_touch(ctx, touch=False)
         Tp, T0 = Tn[:nq], Tn[nq:]
         ax_q, ay_q = ax.take(q), ay.take(q)
         uxq, uyq, vxq, vyq = ux.take(q), uy.take(q), vx.take(q), vy.take(q)

@@ -66,6 +66,11 @@ class Context:
     sample_cue: np.ndarray | None = None  # (4, N) each sample's normal (x, y), its neighbours' `neighbour_reach`
     samples_reachable: bool = False  # every midpoint of two samples passes the reach stage (its margin included)
     ik_box: tuple | None = None  # (x0, y0, x1, y1) around the target, in the workspace, every point reachable
+    edge_prev: np.ndarray | None = None  # (E,) the edge before each edge on its ring
+    edge_ring: np.ndarray | None = None  # (E,) the ring of each edge (0: the outline, then the holes)
+    vertex_turn: np.ndarray | None = None  # (E,) how far the ring turns at each edge's start (rad, > 0 round the material)
+    vertex_convex: np.ndarray | None = None  # (E,) does it turn round the material there (or run straight on)?
+    sample_convex: np.ndarray | None = None  # (N,) the material in `convex_region_mm` of each sample is convex
 
     def surely_outside(self, xy: np.ndarray, beyond_mm: float = 0.0) -> np.ndarray:
         """(n,) True for the points xy (2, n) surely outside the target by more than beyond_mm: beyond
@@ -81,8 +86,9 @@ class Context:
               samples: np.ndarray | None = None, sample_ring: np.ndarray | None = None,
               sample_normals: np.ndarray | None = None) -> Context:
         """samples (N, 2) and sample_ring (N,): the target's outline samples and their rings, for the
-        pre-check's look at the outline next to each point; with sample_normals (N, 2) its bound on
-        how far they lie ahead is worked out here, once per scene."""
+        pre-check's look at the outline next to each point; with sample_normals (N, 2) (the pairs' points'
+        own) its bound on how far they lie ahead, and with finger-high obstacles whether the material near
+        each sample is convex (`convex_near`), are worked out here, once per scene."""
         tall = [o for o in obstacles if o.z_top_mm > grasp_z_mm + Z_EPS_MM]
         palm_z = grasp_z_mm + cell.gripper.palm_offset_mm
         palm = [o for o in obstacles if o.z_top_mm > palm_z + Z_EPS_MM]
@@ -123,12 +129,15 @@ class Context:
         # per scene, outside the timed cascade: the hull's half-planes spare the contacts stage most of
         # its containment tests (bands.BandEdges._far_corners_inside)
         hull_n, hull_lim = _hull_half_planes(tg)
-        return cls(target, cell, params, grasp_z_mm, tg, fo, po, [o.id for o in tall],
-                   a, b, tree, samples, first, count, *edges, _part_boxes(fo),
-                   _part_boxes(po), nx, ny, shift, not target.holes_mm and _turns_one_way(edges[2], edges[3]),
-                   hull_n, hull_lim, cue,
-                   samples is not None and midpoints_surely_reachable(cell, samples, CHEAP_MARGIN_MM),
-                   _ik_box(tg, cell, grasp_z_mm))
+        ctx = cls(target, cell, params, grasp_z_mm, tg, fo, po, [o.id for o in tall],
+                  a, b, tree, samples, first, count, *edges, _part_boxes(fo),
+                  _part_boxes(po), nx, ny, shift, not target.holes_mm and _turns_one_way(edges[2], edges[3]),
+                  hull_n, hull_lim, cue,
+                  samples is not None and midpoints_surely_reachable(cell, samples, CHEAP_MARGIN_MM),
+                  _ik_box(tg, cell, grasp_z_mm), *_vertex_turns(rings))
+        if cue is not None and fo is not None:  # the pre-check's bound on where the fingers sit (cascade.py)
+            ctx.sample_convex = convex_near(ctx, samples, n)
+        return ctx
 
 
 IK_BOX_MARGIN_MM = 5.0  # around the target's bounds: contacts' centres lie within its hull (or near it)
@@ -217,6 +226,97 @@ def _shift(ring: np.ndarray, keep: np.ndarray | None) -> float:
     d = q - p
     s = np.clip(((ring - p) * d).sum(1) / np.maximum((d * d).sum(1), 1e-300), 0.0, 1.0)
     return float(np.hypot(*(ring - (p + s[:, None] * d)).T).max())
+
+
+def _vertex_turns(rings: list[np.ndarray]):
+    """For the edges of the rings (one from each vertex to the next, ring after ring): the edge before each
+    on its ring, its ring, and the turn at its start (rad; the material lies left of every edge, so > 0 is
+    round the material) and whether that is a turn round the material or a straight run on (as
+    `_turns_one_way` has it), each (E,)."""
+    sizes = np.array([len(r) for r in rings])
+    first = np.repeat(np.cumsum(sizes) - sizes, sizes)
+    e = np.arange(int(sizes.sum()))
+    prev = first + (e - first - 1) % np.repeat(sizes, sizes)
+    d = np.vstack([np.roll(r, -1, axis=0) - r for r in rings])
+    a, b = d.take(prev, 0), d
+    cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    dot = a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]
+    straight = (np.abs(cross) <= 1e-9 * np.hypot(*a.T) * np.hypot(*b.T)) & (dot > 0)
+    return prev, np.repeat(np.arange(len(rings)), sizes), np.arctan2(cross, dot), (cross > 0) | straight
+
+
+def convex_region_mm(ctx: Context) -> tuple[float, float]:
+    """The region around a candidate whose material decides where its pad's contact ends up (the cascade's
+    bound on it): how far from the candidate (radius) and how far behind it along its normal (behind). The
+    pad's band reaches half the pad + contact_tol across beyond the candidate's own offset (contact_tol);
+    along the closing axis from contact_tol ahead to the compliance plus twice the outline's shift behind;
+    the axis is within max_normal_angle_deg of the normal. 1e-3 mm to spare."""
+    from cell.grasp.bands import PAD_COMPLIANCE_MM
+
+    tol, shift = ctx.params.contact_tol_mm, ctx.outline_shift_mm
+    across, back = ctx.cell.gripper.pad_width_mm / 2 + 2 * tol, PAD_COMPLIANCE_MM + 2 * shift
+    tilt = math.sin(min(math.radians(ctx.params.max_normal_angle_deg) + 1e-6, math.pi / 2))
+    return math.hypot(across, max(tol, back)) + 1e-3, back + across * tilt + 1e-3
+
+
+def convex_near(ctx: Context, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(n,): is the target's material (exact_outline) in the region `convex_region_mm` of each point (n, 2)
+    with its outward normal (n, 2) convex? The region is the disc of that radius less what lies further
+    behind the point along its normal. True where the edges that meet it are consecutive edges of one ring
+    turning only round the material (or straight on), by less than a half turn in all, or a whole ring
+    turning so (a convex part): the material in the region is then the region cut by those edges'
+    half-planes (the edges before and after the run end outside it, so beyond their ends the half-planes'
+    other sides are air there). False where this cannot tell (a notch, a slot, a hole or the far side of a
+    thin part just behind the point)."""
+    n, n_edges = len(points), len(ctx.edge_prev)
+    if n == 0:
+        return np.zeros(0, bool)
+    near_point, edge = _edges_meeting(ctx, np.asarray(points, float), np.asarray(normals, float),
+                                      *convex_region_mm(ctx))
+    key = near_point * n_edges + edge
+    order = np.argsort(key, kind="stable")
+    key, near_point, edge = key.take(order), near_point.take(order), edge.take(order)
+    prev_key = near_point * n_edges + ctx.edge_prev.take(edge)
+    at = np.minimum(np.searchsorted(key, prev_key), max(len(key) - 1, 0))
+    after_near = key.take(at) == prev_key if len(key) else np.zeros(0, bool)  # the vertex before lies in the run
+    count = np.bincount(near_point, minlength=n)
+    runs = np.bincount(near_point, weights=~after_near, minlength=n)
+    reflex = np.bincount(near_point, weights=after_near & ~ctx.vertex_convex.take(edge), minlength=n)
+    turning = np.bincount(near_point, weights=np.where(after_near, ctx.vertex_turn.take(edge), 0.0), minlength=n)
+    ring = ctx.edge_ring.take(edge)
+    ring_lo, ring_hi = np.full(n, n_edges), np.full(n, -1)
+    np.minimum.at(ring_lo, near_point, ring)
+    np.maximum.at(ring_hi, near_point, ring)
+    one_run = (runs == 1) & (turning < math.pi - 1e-9)
+    whole_ring = (runs == 0) & (count > 0)
+    return (count == 0) | ((ring_lo == ring_hi) & (reflex == 0) & (one_run | whole_ring))
+
+
+NEAR_EDGES_BROADCAST_MAX = 200_000  # points x edges up to which all of them are compared (else the STRtree first)
+
+
+def _edges_meeting(ctx: Context, points: np.ndarray, normals: np.ndarray, radius_mm: float, behind_mm: float):
+    """(point, edge) index pairs (each (p,)) of the points (n, 2) and the target's edges that meet the disc of
+    radius_mm round the point less what lies more than behind_mm behind it along its normal (n, 2): each
+    edge clipped to that half-plane, then its distance from the point (1e-9 mm to spare: an edge is left
+    out only where it surely misses the region)."""
+    if len(points) * len(ctx.edge_ax) <= NEAR_EDGES_BROADCAST_MAX:
+        q, e = np.indices((len(points), len(ctx.edge_ax))).reshape(2, -1)
+    else:  # the edges within the radius first
+        q, e = ctx.edge_tree.query(shapely.points(points), predicate="dwithin", distance=radius_mm + 1e-6)
+    ax, ay, dx, dy = (c.take(e) for c in (ctx.edge_ax, ctx.edge_ay, ctx.edge_dx, ctx.edge_dy))
+    rx, ry = points[:, 0].take(q) - ax, points[:, 1].take(q) - ay  # from each edge's start to the point
+    nx, ny = normals[:, 0].take(q), normals[:, 1].take(q)
+    # along the edge a + s d, the point's normal reads n . (a - p) + s n . d: at least -behind from s0 to s1
+    h0, hd = -(nx * rx + ny * ry) + behind_mm + 1e-9, nx * dx + ny * dy
+    cut = -h0 / np.where(hd != 0, hd, 1.0)
+    s0 = np.where(hd > 0, np.maximum(cut, 0.0), 0.0)
+    s1 = np.where(hd < 0, np.minimum(cut, 1.0), 1.0)
+    inside = (s0 <= s1) & ((hd != 0) | (h0 >= 0))
+    s = np.minimum(np.maximum((rx * dx + ry * dy) / np.maximum(dx * dx + dy * dy, 1e-300), s0), s1)
+    ex, ey = rx - s * dx, ry - s * dy
+    meets = inside & (ex * ex + ey * ey <= (radius_mm + 1e-9) ** 2)
+    return q.compress(meets), e.compress(meets)
 
 
 def _turns_one_way(dx: np.ndarray, dy: np.ndarray) -> bool:

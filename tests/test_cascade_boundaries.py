@@ -211,13 +211,14 @@ TALL_MM = 40.0  # an obstacle taller than the grasp z (1 mm) and lower than the 
     (box(340, 29.99, 360, 40, "o", TALL_MM), True, False),  # 14.99 mm: the finger's outer face reaches it
     (box(340, 30.0, 360, 40, "o", TALL_MM), True, False),  # 15 mm: touching counts
     (box(340, 30.01, 360, 40, "o", TALL_MM), True, True),  # 15.01 mm: clear
+    (box(353, 16, 370, 25, "o", TALL_MM), False, False),  # beside the closing line, under the finger's side
     (box(356.0, 16, 370, 25, "o", TALL_MM), True, False),  # beside, touching the finger's side (6 mm)
     (box(356.01, 16, 370, 25, "o", TALL_MM), True, True),  # 0.01 mm clear of its side
     (box(340, 20, 360, 26, "o", GRASP_Z_MM), True, True),  # level with the grasp z: passed over
     (box(340, 20, 360, 26, "o", GRASP_Z_MM + 1e-7), True, True),  # within Z_EPS_MM
     (box(340, 20, 360, 26, "o", GRASP_Z_MM + 0.01), False, False),
     (box(340, 20, 360, 26, "o", GRASP_Z_MM + 0.5), False, False),
-], ids=["+u path", "-u path", "12mm out", "14.99mm out", "15mm out", "15.01mm out", "6mm beside",
+], ids=["+u path", "-u path", "12mm out", "14.99mm out", "15mm out", "15.01mm out", "3mm beside", "6mm beside",
         "6.01mm beside", "z=grasp z", "z=grasp z+1e-7", "z=grasp z+0.01", "z=grasp z+0.5"])
 def test_a_finger_hits_obstacles_taller_than_the_grasp_z_on_its_path_from_the_opening(obstacle, precheck, fingers):
     """Pair across the plate's 30 mm; each finger's footprint runs from the contact 15 mm out
@@ -281,11 +282,24 @@ NOTCHED = part([[320, -15], [343.5, -15], [343.5, -14.25], [356.9, -14.25], [356
 def test_precheck_keeps_a_pair_whose_fingers_sit_beside_the_closing_line_in_a_notch():
     """Across the notches' floors at x 350 the contacts lie on the rims at x 343.5: the fingers (x
     337.5..349.5) clear a tall post at x 349.6..352.6 that stands on the pair's closing line, 7.25 mm
-    beyond the candidate. The pre-check must not reject what the exact stages keep."""
+    beyond the candidate, and the palm (x 323.5..363.5) a palm-high tower 14-22 mm across from that line.
+    The pre-check must not reject what the exact stages keep."""
     post = box(349.6, 20, 352.6, 26, "post", TALL_MM)
-    ctx, P = one_pair(NOTCHED, (350, 14.25), (350, -14.25), obstacles=[post])
+    tower = box(364, 40, 372, 48, "tower", 80.0)
+    ctx, P = one_pair(NOTCHED, (350, 14.25), (350, -14.25), obstacles=[post, tower])
     assert kept("contacts", ctx, P) and abs(P.center[0, 0] - 343.5) < 1e-9
     assert kept("ik", ctx, P) and kept("fingers_obstacles", ctx, P) and kept("palm", ctx, P)
+    assert kept("precheck", ctx, P)
+
+
+def test_precheck_asks_nothing_of_a_palm_narrower_than_the_contacts_play_across():
+    """A 12 mm palm over the notch's pair (contacts' centre at x 343.5: palm x 337.5..349.5) clears a
+    palm-high post at x 349.8..352 on the pair's closing line: with contacts that may lie 7 mm across, no
+    point of a 12 mm palm is surely covered, and the pre-check must not ask any."""
+    cell = with_gripper(palm_width_mm=12.0)
+    post = box(349.8, 40, 352, 48, "post", 80.0)
+    ctx, P = one_pair(NOTCHED, (350, 14.25), (350, -14.25), obstacles=[post], cell=cell)
+    assert kept("contacts", ctx, P) and kept("palm", ctx, P)
     assert kept("precheck", ctx, P)
 
 
@@ -609,3 +623,17 @@ def test_the_palm_hits_obstacles_taller_than_its_bottom_under_its_90x40mm_footpr
     ctx, P = after_contacts(PLATE, [obstacle])
     assert kept("palm", ctx, P) is clear
     assert kept("fingers_obstacles", ctx, P)
+    assert kept("precheck", ctx, P) or not clear  # it rejects only what the palm's check rejects
+
+
+@pytest.mark.parametrize("obstacle", [box(345, 40, 355, 50, "o", 60.0), box(365, 40, 375, 50, "o", 60.0),
+                                      box(365, -5, 375, 5, "o", 60.0)],
+                         ids=["+u end", "+u end, beside", "beside the middle"])
+def test_precheck_rejects_a_palm_high_obstacle_under_the_palm_away_from_the_pairs_midpoint(obstacle):
+    """Across a flat plate the contacts lie within 1.55 mm of the pair's closing line and 0.75 mm of its
+    midpoint along it: the palm surely covers 44.25 mm along and 18.45 mm across from the midpoint, and the
+    pre-check asks its corners and sides' middles."""
+    ctx, P = after_contacts(PLATE, [obstacle])
+    assert not kept("palm", ctx, P)
+    ctx, P = one_pair(PLATE, (350, 15), (350, -15), obstacles=[obstacle])
+    assert not kept("precheck", ctx, P)

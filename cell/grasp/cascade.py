@@ -124,36 +124,99 @@ def stage_antipodal(ctx: Context, P: Pairs, idx) -> np.ndarray:
 
 def stage_precheck(ctx: Context, P: Pairs, idx) -> np.ndarray:
     """Conservative: a point that every exact footprint of this pair would cover lies inside
-    material, or the outline next to a point juts out into its pad's band (docs/grasp.md)."""
-    k = len(idx)
-    ok = np.ones(k, bool)
+    material, or the outline next to a point juts out into its pad's band (docs/grasp.md). The tests
+    run in turn, each on the pairs the ones before left (the cheapest and most telling first)."""
+    idx = np.asarray(idx)
+    # how far across the closing line the fingers' and the palm's centre line can lie (palm-high
+    # obstacles are finger-high too)
+    across = None if ctx.finger_obstacles is None else _centre_across_bound_mm(ctx, P, idx)
+    alive = np.arange(len(idx))  # the rows no test has rejected
+    for test in _precheck_tests(ctx, P, across is not None):
+        if not len(alive):
+            break
+        hit = test(idx.take(alive), None if across is None else across.take(alive))
+        alive = alive.compress(~hit)
+    ok = np.zeros(len(idx), bool)
+    ok[alive] = True
+    return ok
+
+
+def _precheck_tests(ctx: Context, P: Pairs, obstacles: bool) -> list:
+    """The pre-check's tests for this scene, each (pairs idx (r,), their `across` (r,) or None) -> (r,) hit."""
+    tests = []
+    if ctx.samples is not None and P.sample_index is not None:
+        tests.append(lambda rows, across: _outline_ahead(ctx, P, rows))
+    if ctx.palm_obstacles is not None:  # few points a pair, and where there are palm-high parts it rejects many
+        tests.append(lambda rows, across: _palm_blocked(ctx, P, rows, across))
     # material on the fingers' paths: tall obstacles, and the target itself unless it is convex
     # (there the material in front of a pad is the outline next to its point, which
     # _outline_ahead looks at: on the parts library the test never rejected a pair more)
     target = None if ctx.target_convex else ctx.target_geom
-    if target is not None or ctx.finger_obstacles is not None:
-        offs = _path_offsets(ctx)
-        if len(offs):
-            m, u, t = P.m.take(idx, 0), P.u.take(idx, 0), P.t.take(idx)
-            # both fingers' points in one pass: m + side * u * (t + off) is m + u * (side * (t + off)),
-            # exactly, as side is +-1
-            a = t[:, None] + offs[None, :]
-            a = np.concatenate([a, -a], axis=1)  # (k, 6)
-            xy = np.stack([(m[:, 0, None] + u[:, 0, None] * a).ravel(), (m[:, 1, None] + u[:, 1, None] * a).ravel()])
-            # the points are on the pair's closing line: the fingers cover it where the contacts' centre
-            # surely lies less than half a pad across from it (the target's points are in the contacts
-            # stage's band, which is centred on that line, whatever the contacts)
-            covered = None
-            if ctx.finger_obstacles is not None:
-                covered = np.repeat(_centre_across_bound_mm(ctx, P, idx) < ctx.cell.gripper.pad_width_mm / 2 - EPS_MM,
-                                    a.shape[1])
-            ok = ~_in_material(ctx, target, xy, covered).reshape(k, -1).any(1)
-    if ctx.palm_obstacles is not None:
-        m = P.m.take(idx, 0)
-        ok &= ~shapely.contains_xy(ctx.palm_obstacles, m[:, 0], m[:, 1])
-    if ctx.samples is not None and P.sample_index is not None:
-        ok &= ~_outline_ahead(ctx, P, idx)
-    return ok
+    offs = _path_offsets(ctx) if target is not None or obstacles else np.zeros(0)
+    if len(offs):
+        tests.append(lambda rows, across: _fingers_blocked(ctx, target, P, rows, offs, across))
+    return tests
+
+
+def _fingers_blocked(ctx: Context, target, P: Pairs, idx, offs: np.ndarray, across: np.ndarray | None) -> np.ndarray:
+    """(k,): does material lie where every exact footprint of a finger of the pairs idx would be? offs
+    (n,) beyond each candidate along the axis (`_path_offsets`); the target (None: not asked) on the
+    pair's closing line, which runs through the contacts stage's bands whatever the contacts; the
+    finger-high obstacles (across None: not asked) on that line and at both sides of the stretch the
+    fingers surely cover, half a pad less `across` (k,) either side of it."""
+    k = len(idx)
+    m, u, t = P.m.take(idx, 0), P.u.take(idx, 0), P.t.take(idx)
+    # both fingers' points in one pass: m + side * u * (t + off) is m + u * (side * (t + off)),
+    # exactly, as side is +-1
+    a = t[:, None] + offs[None, :]
+    a = np.concatenate([a, -a], axis=1)  # (k, 2n)
+    x, y = m[:, 0, None] + u[:, 0, None] * a, m[:, 1, None] + u[:, 1, None] * a
+    hit = np.zeros(k, bool)
+    if target is not None:
+        xy = np.stack([x.ravel(), y.ravel()])
+        hit = _in_geom(target, xy, ~ctx.surely_outside(xy)).reshape(k, -1).any(1)
+    if across is not None:
+        side = ctx.cell.gripper.pad_width_mm / 2 - across - EPS_MM  # (k,) covered either side of the line
+        asked = (side >= 0) & ~hit
+        if asked.all():  # (the usual case: no gathering)
+            hit = _in_obstacles(ctx.finger_obstacles, ctx.finger_boxes, _beside(x, y, u, side, (0.0, 1.0, -1.0)), k)
+        elif asked.any():
+            r = np.flatnonzero(asked)
+            xy = _beside(x.take(r, 0), y.take(r, 0), u.take(r, 0), side.take(r), (0.0, 1.0, -1.0))
+            hit[r] = _in_obstacles(ctx.finger_obstacles, ctx.finger_boxes, xy, len(r))
+    return hit
+
+
+def _in_obstacles(obstacles, boxes: np.ndarray, xy: np.ndarray, k: int) -> np.ndarray:
+    """(k,): is one of each of k pairs' points xy (2, k n) (pair by pair) inside the obstacles? Only the
+    points in one of their parts' boxes (n, 4) are asked of shapely."""
+    return _in_geom(obstacles, xy, _in_boxes(boxes, xy)).reshape(k, -1).any(1)
+
+
+def _beside(x: np.ndarray, y: np.ndarray, u: np.ndarray, side: np.ndarray, sides: tuple) -> np.ndarray:
+    """(2, len(sides) r n): the points (x, y) (r, n) of r pairs (axis u (r, 2)) moved across the axis by
+    each of `sides` times side (r,)."""
+    s = np.array(sides)[None, :, None]
+    return np.stack([(x[:, None, :] + s * (-u[:, 1] * side)[:, None, None]).ravel(),
+                     (y[:, None, :] + s * (u[:, 0] * side)[:, None, None]).ravel()])
+
+
+def _palm_blocked(ctx: Context, P: Pairs, idx, across: np.ndarray) -> np.ndarray:
+    """(k,): does a palm-high obstacle lie where every exact palm footprint of the pairs idx would be? The
+    palm is centred on the contacts' centre, which lies within `_contact_along_bounds_mm` along the axis of
+    the pair's midpoint and across (k,) across it: it surely covers the rectangle round the midpoint that
+    much smaller. Its corners, its sides' middles and its centre are asked."""
+    g = ctx.cell.gripper
+    behind, ahead = _contact_along_bounds_mm(ctx)
+    along = g.palm_length_mm / 2 - 0.5 * (behind + ahead) - EPS_MM
+    side = g.palm_width_mm / 2 - across - EPS_MM  # (k,)
+    if along < 0:  # (a palm shorter than the contacts' play: no point is surely under it)
+        return np.zeros(len(idx), bool)
+    m, u = P.m.take(idx, 0), P.u.take(idx, 0)
+    a = np.array([0.0, along, -along])
+    x, y = m[:, 0, None] + u[:, 0, None] * a, m[:, 1, None] + u[:, 1, None] * a  # (k, 3) along the axis
+    hit = _in_obstacles(ctx.palm_obstacles, ctx.palm_boxes, _beside(x, y, u, side, (0.0, 1.0, -1.0)), len(idx))
+    return hit & (side >= 0)  # (a palm narrower than the contacts' play across: none either)
 
 
 def _path_offsets(ctx: Context) -> np.ndarray:
@@ -217,18 +280,14 @@ def _points_convex(ctx: Context, P: Pairs) -> np.ndarray:
     return convex_near(ctx, P.points, P.normals)
 
 
-def _in_material(ctx: Context, target, xy: np.ndarray, asked: np.ndarray | None = None) -> np.ndarray:
-    """(n,) are the points xy (2, n) inside the target (None: not asked) or a finger-high obstacle (only
-    the points `asked` (n,), None: all)? Only points inside the target's convex hull, or an obstacle
-    part's box, are asked of shapely (about 40-70 ns a point); the others cannot be inside."""
+def _in_geom(geom, xy: np.ndarray, maybe: np.ndarray) -> np.ndarray:
+    """(n,) are the points xy (2, n) inside the prepared geom? Only the points `maybe` (n,) (inside the
+    target's convex hull, or an obstacle part's box) are asked of shapely (about 40-70 ns a point); the
+    others cannot be inside."""
     hit = np.zeros(xy.shape[1], bool)
-    boxed = _in_boxes(ctx.finger_boxes, xy)
-    for geom, maybe in ((target, None if target is None else ~ctx.surely_outside(xy)),
-                        (ctx.finger_obstacles, boxed if asked is None or boxed is None else boxed & asked)):
-        if geom is None or not maybe.any():
-            continue
-        r = np.flatnonzero(maybe)
-        hit[r] |= shapely.contains_xy(geom, xy[0].take(r), xy[1].take(r))
+    r = np.flatnonzero(maybe)
+    if len(r):
+        hit[r] = shapely.contains_xy(geom, xy[0].take(r), xy[1].take(r))
     return hit
 
 

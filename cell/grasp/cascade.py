@@ -7,9 +7,10 @@ then exact checks (shapely, closed-form IK) only on the survivors:
     reach              pair centre inside the SCARA's annulus and the workspace (2 mm margin)
     antipodal          each normal within max_normal_angle of the line between the points, and
                        the points on one closing line (lateral offset <= contact_tol)
-    precheck           points on the fingers' paths inside a tall obstacle or a non-convex target,
-                       the pair centre inside a palm-high obstacle, or the outline next to a point
-                       ahead of it in its pad's band: a certain collision or a pad stopped early
+    precheck           the outline next to a point ahead of it in its pad's band, points every palm
+                       footprint covers inside a palm-high obstacle, points on the fingers' paths
+                       inside a tall obstacle or a non-convex target: a certain collision or a pad
+                       stopped early (every footprint: from bounds on where the contacts can lie)
     contacts (exact)   each pad closes along the axis and stops at the first material in its
                        band: that point, found exactly, must be the candidate (within
                        contact_tol), or the candidate must be among the material touching the
@@ -130,12 +131,17 @@ def stage_precheck(ctx: Context, P: Pairs, idx) -> np.ndarray:
     # how far across the closing line the fingers' and the palm's centre line can lie (palm-high
     # obstacles are finger-high too)
     across = None if ctx.finger_obstacles is None else _centre_across_bound_mm(ctx, P, idx)
-    alive = np.arange(len(idx))  # the rows no test has rejected
+    alive, rows, rows_across = None, idx, across  # alive: the rows no test has rejected (None: all)
     for test in _precheck_tests(ctx, P, across is not None):
-        if not len(alive):
-            break
-        hit = test(idx.take(alive), None if across is None else across.take(alive))
-        alive = alive.compress(~hit)
+        hit = test(rows, rows_across)
+        if hit.any():
+            left = np.flatnonzero(~hit)
+            alive = left if alive is None else alive.take(left)
+            if not len(alive):
+                break
+            rows, rows_across = idx.take(alive), None if across is None else across.take(alive)
+    if alive is None:
+        return np.ones(len(idx), bool)
     ok = np.zeros(len(idx), bool)
     ok[alive] = True
     return ok

@@ -68,7 +68,7 @@ class Context:
     ik_box: tuple | None = None  # (x0, y0, x1, y1) around the target, in the workspace, every point reachable
     edge_prev: np.ndarray | None = None  # (E,) the edge before each edge on its ring
     edge_ring: np.ndarray | None = None  # (E,) the ring of each edge (0: the outline, then the holes)
-    vertex_turn: np.ndarray | None = None  # (E,) how far the ring turns at each edge's start (rad, > 0 round the material)
+    vertex_turn: np.ndarray | None = None  # (E,) the ring's turn at each edge's start (rad, > 0 round the material)
     vertex_convex: np.ndarray | None = None  # (E,) does it turn round the material there (or run straight on)?
     sample_convex: np.ndarray | None = None  # (N,) the material in `convex_region_mm` of each sample is convex
 

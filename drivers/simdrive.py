@@ -307,11 +307,19 @@ class SimDrive:
     def statusword(self) -> int:
         return codec.statusword_for(
             self.state,
-            target_reached=self.target_reached and self.state == "OPERATION_ENABLED",
+            target_reached=self._target_reached_bit(),
             ack=self.ack,
             following_error=self.following_error,
             internal_limit=self.internal_limit,
         )
+
+    def _target_reached_bit(self) -> bool:
+        """Statusword bit 10. In OPERATION ENABLED: the target reached, or standstill after a halt. In
+        QUICK STOP ACTIVE: the quick stop ramp has ended and the axis stands (CiA 402, for 0x605A 5-8; with
+        1 or 2 the drive leaves QUICK STOP ACTIVE at standstill). Clear in the other states."""
+        if self.state == "OPERATION_ENABLED":
+            return self.target_reached
+        return self.state == "QUICK_STOP_ACTIVE" and self.motion is None
 
     @property
     def error_register(self) -> int:

@@ -13,7 +13,7 @@ from drivers_fixtures import *  # noqa: F403 - bus fixtures
 from drivers_fixtures import needs_sim
 
 from drivers import codec, sim
-from drivers.simdrive import COAST_DECEL_FACTOR
+from drivers.simdrive import COAST_DECEL_FACTOR, QUICK_STOP_OPTIONS
 
 pytestmark = needs_sim
 
@@ -244,3 +244,44 @@ def test_a_stop_between_two_ticks_ramps_from_where_the_axis_is(j1, sim_clock, be
     d = float(node.sdo[0x6085].raw)
     sim_clock.sleep(v / d + 0.2)
     assert node.sdo[0x6064].raw == pytest.approx(p0 + v * v / (2 * d), abs=2)
+
+
+@pytest.mark.parametrize("value", [6, 5])
+def test_quick_stop_active_reports_target_reached_once_the_ramp_has_ended(j1, sim_clock, cell_cfg, value):
+    """CiA 402 statusword bit 10: with 0x605A = 5-8 it is set when the quick stop is over and the axis
+    stands (in QUICK STOP ACTIVE), clear while the axis still ramps down."""
+    _, node = j1
+    node.sdo[0x605A].raw = value
+    _enable_pp(node, sim_clock)
+    p0, v = _cruising(node, sim_clock)
+    node.sdo[0x6040].raw = CW_QUICK_STOP
+    assert not node.sdo[0x6041].raw & SW_TARGET_REACHED
+    d = _decel(node, cell_cfg, QUICK_STOP_OPTIONS[value][0])
+    samples = _follow(node, sim_clock, 0.5)
+    _assert_ramp(samples, p0, v, d, {"QUICK_STOP_ACTIVE"}, "QUICK_STOP_ACTIVE")
+    t_stop = v / d
+    assert all(not sw & SW_TARGET_REACHED for t, _, sw in samples if t < t_stop - 0.011)
+    assert all(sw & SW_TARGET_REACHED for t, _, sw in samples if t > t_stop + 0.011)
+
+
+def test_a_quick_stop_at_standstill_reports_target_reached_at_once(j1, sim_clock):
+    _, node = j1
+    _enable_pp(node, sim_clock)
+    node.sdo[0x6040].raw = CW_QUICK_STOP
+    sw = node.sdo[0x6041].raw
+    assert codec.state_name(sw) == "QUICK_STOP_ACTIVE" and sw & SW_TARGET_REACHED
+
+
+@pytest.mark.parametrize("value", [2, 1])
+def test_a_quick_stop_that_ends_in_switch_on_disabled_reports_no_target_reached_while_it_ramps(j1, sim_clock, value):
+    """Bit 10 in QUICK STOP ACTIVE is for 0x605A 5-8; with 1 or 2 the drive ramps in QUICK STOP ACTIVE
+    (bit 10 clear) and then leaves it."""
+    _, node = j1
+    node.sdo[0x605A].raw = value
+    _enable_pp(node, sim_clock)
+    _cruising(node, sim_clock)
+    node.sdo[0x6040].raw = CW_QUICK_STOP
+    samples = _follow(node, sim_clock, 0.5)
+    ramping = [sw for _, _, sw in samples if codec.state_name(sw) == "QUICK_STOP_ACTIVE"]
+    assert ramping and not any(sw & SW_TARGET_REACHED for sw in ramping)
+    assert codec.state_name(samples[-1][2]) == "SWITCH_ON_DISABLED"

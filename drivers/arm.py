@@ -509,8 +509,10 @@ class Arm:
 
     @staticmethod
     def _arrived(ax: Axis, counts: int) -> bool:
+        """Target reached in OPERATION ENABLED, at the target: bit 10 also reports the end of a quick
+        stop ramp in QUICK STOP ACTIVE (CiA 402), which is no arrival even a count or two short."""
         st = ax.status
-        if st is None or not st.target_reached or st.ack:
+        if st is None or st.state != "OPERATION_ENABLED" or not st.target_reached or st.ack:
             return False
         return abs(st.position_counts - counts) <= POSITION_TOLERANCE_COUNTS or st.internal_limit
 

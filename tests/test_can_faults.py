@@ -238,3 +238,26 @@ def test_disconnect_after_a_stop_leaves_the_drives_without_torque(arm, sim_drive
     arm.disconnect()
     arm.clock.sleep(1.0)
     assert all(d.state == "SWITCH_ON_DISABLED" for d in sim_drives.drives.values())
+
+
+def test_an_axis_quick_stopped_just_short_of_its_target_has_not_arrived(arm, sim_drives, open_test_bus):
+    """Statusword bit 10 also reports the end of a quick stop ramp in QUICK STOP ACTIVE: a move whose
+    axis another master quick-stops 3 ms before its end (it stands 1.6 counts short, within the host's
+    2-count tolerance, bit 10 set) has not arrived; it ends in MoveTimeout, not as a finished move."""
+    import can
+
+    from drivers import MoveTimeout
+
+    start = arm.joints()
+    arm.move_joints(Joints(start.j1_deg + 5.0, start.j2_deg, start.j3_mm, start.j4_deg), wait=False)
+    j1 = sim_drives.drives["j1"]
+    arm.clock.advance_to(j1.motion.t0_s + j1.motion.profile.duration_s - 0.003)
+    other_master = open_test_bus()
+    other_master.send(can.Message(arbitration_id=0x201, data=b"\x02\x00", is_extended_id=False))
+    arm.clock.settle()
+    arm.clock.sleep(0.05)
+    st = arm.axes["j1"].status
+    assert st.state == "QUICK_STOP_ACTIVE" and st.target_reached
+    assert abs(st.position_counts - arm.axes["j1"].to_counts(start.j1_deg + 5.0)) <= 2
+    with pytest.raises(MoveTimeout, match="j1: target not reached"):
+        arm.wait_idle()

@@ -149,6 +149,9 @@ class SimDrive:
         # operation stay in OPERATION ENABLED until then; quick stop 1/2 in QUICK STOP ACTIVE;
         # the fault reaction in FAULT REACTION ACTIVE)
         self.after_ramp: str | None = None
+        # enable operation (transition 4 or 16) received while the axis still ramped down or coasted:
+        # held, and taken at standstill unless another command replaced it (the controlword is a level)
+        self.enable_held = False
         self.emcy_log: list[int] = []
         # host heartbeat watch (0x1016)
         self._host_id = 0
@@ -348,6 +351,8 @@ class SimDrive:
         self._store(0x6040, 0, cw)
         cmd = codec.command_of(cw)
         s = self.state
+        if cmd != "ENABLE_OPERATION":
+            self.enable_held = False  # another command replaces a held enable operation
         # OPERATION ENABLED also while a shutdown or disable operation waits for its ramp: those
         # commands are still taken (disable voltage, quick stop, the other of the two), no set-point
         enabled = s == "OPERATION_ENABLED"
@@ -384,11 +389,24 @@ class SimDrive:
         self._publish()
 
     def _enable(self) -> None:
-        if self.state != "OPERATION_ENABLED":
-            # enabling never jumps: hold the actual position until the next set-point
-            self._stop_motion()
-            self.target_reached = True
+        """Transition 4 or 16. Not while the axis still ramps down or coasts (no drive stops it in zero
+        time): the drive stays in its state and takes the held command at standstill (`_take_held_enable`)."""
+        if self.motion is not None:  # out of OPERATION ENABLED every motion is a stop
+            self.enable_held = True
+            return
+        self.enable_held = False
+        # enabling never jumps: hold the actual position until the next set-point
+        self._stop_motion()
+        self.target_reached = True
         self.state = "OPERATION_ENABLED"
+
+    def _take_held_enable(self) -> None:
+        """At standstill, an enable operation held during the ramp or coast, if its transition is still one."""
+        if not self.enable_held or self.motion is not None:
+            return
+        self.enable_held = False
+        if self.state == "SWITCHED_ON" or (self.state == "QUICK_STOP_ACTIVE" and self.after_ramp is None):
+            self._enable()
 
     def _disable(self, state: str) -> None:
         """Enter a state without the drive function (SWITCH ON DISABLED, READY TO SWITCH ON,
@@ -530,6 +548,7 @@ class SimDrive:
     def _fault(self, code: int, *, following_error: bool = False) -> None:
         if self.state in ("FAULT", "FAULT_REACTION_ACTIVE"):
             return
+        self.enable_held = False
         m = self.motion
         if self._jammed_at is not None:
             self._stop_motion()  # the axis is blocked mechanically
@@ -579,6 +598,7 @@ class SimDrive:
         the actual position stays (absolute encoders) and becomes the target."""
         self.state = "NOT_READY_TO_SWITCH_ON"
         self._stop_motion()
+        self.enable_held = False
         self.ack, self.error_code, self.following_error, self.mode = False, 0, False, 0
         self.controlword, self.internal_limit, self.target_reached = 0, False, True
         self._restore_power_on(0x2000, 0xFFFF)
@@ -622,7 +642,7 @@ class SimDrive:
                 if self.state == "OPERATION_ENABLED":
                     self._fault(0x8130)
                 self._host_seen_s = None  # watching restarts with the next heartbeat heard
-                self._move(now)  # the mechanics go on (the fault reaction ramp), in silence
+                self._advance(now)  # the mechanics go on (the fault reaction ramp), in silence
                 return
             starved = (self._stepped_s is not None
                        and now - self._stepped_s > HOST_WATCH_STARVED_SHARE * self._host_deadline_s)
@@ -638,12 +658,17 @@ class SimDrive:
                     if self.state in ("OPERATION_ENABLED", "QUICK_STOP_ACTIVE") or driven:
                         self._fault(0x8130)
                     self._host_seen_s = None  # report once; re-armed by the next heartbeat
-            self._move(now)
+            self._advance(now)
             self._publish(now)
             hb_s = int(self._get(0x1017)) / 1000.0
             if hb_s > 0 and now - self._last_hb_s >= hb_s - 1e-9:
                 self._last_hb_s = _next_phase(self._last_hb_s, hb_s, now)
                 self.network.send_message(codec.HEARTBEAT_BASE + self.node_id, codec.pack_heartbeat(self.nmt))
+
+    def _advance(self, now: float) -> None:
+        """One step of the mechanics, then what waits for standstill."""
+        self._move(now)
+        self._take_held_enable()
 
     def _move(self, now: float) -> None:
         m = self.motion

@@ -184,3 +184,35 @@ def test_the_host_restores_the_pdo_communication_it_needs(open_test_bus, sim_clo
             s = arm.joints()
             arm.move_joints(Joints(s.j1_deg, s.j2_deg, s.j3_mm - 30.0, s.j4_deg))
             assert drives.positions()["j3"] == pytest.approx(s.j3_mm - 30.0)
+
+
+def test_base_node_402_leaving_quick_stop_waits_for_the_end_of_the_ramp(open_test_bus):
+    """canopen's BaseNode402 asks for OPERATION ENABLED (transition 16) at once after a quick stop of a
+    j1 cruising at 180 deg/s: the drive stays in QUICK STOP ACTIVE until its ramp (v^2 / 2d = 11250
+    counts) has ended, then enables where the axis stands. It used to enable at once and stop dead."""
+    with sim.serve(open_test_bus()) as drives:  # real-time motion
+        network = canopen.Network(open_test_bus())
+        network.connect()
+        try:
+            node = canopen.BaseNode402(1, drives.nodes[0]["eds"])
+            network.add_node(node)
+            node.nmt.wait_for_heartbeat(timeout=2.0)
+            node.setup_402_state_machine(read_pdos=True)
+            node.nmt.state = "OPERATIONAL"
+            node.state = "OPERATION ENABLED"
+            node.op_mode = "PROFILED POSITION"
+            node.sdo[0x607A].raw = node.sdo[0x6064].raw - 120_000
+            node.controlword = 0x1F
+            _wait_bit(node, SW_ACK, True)
+            node.controlword = 0x0F
+            time.sleep(0.4)  # cruising at 180000 counts/s
+            at_stop = node.sdo[0x6064].raw
+            node.state = "QUICK STOP ACTIVE"
+            node.state = "OPERATION ENABLED"
+            enabled_at = node.sdo[0x6064].raw
+            time.sleep(0.2)
+            assert node.state == "OPERATION ENABLED" and node.sdo[0x6064].raw == enabled_at  # standing
+            d = node.sdo[0x6085].raw
+            assert at_stop - enabled_at >= 0.9 * 180_000**2 / (2 * d)  # the whole ramp ran out
+        finally:
+            network.disconnect()

@@ -285,3 +285,71 @@ def test_a_quick_stop_that_ends_in_switch_on_disabled_reports_no_target_reached_
     ramping = [sw for _, _, sw in samples if codec.state_name(sw) == "QUICK_STOP_ACTIVE"]
     assert ramping and not any(sw & SW_TARGET_REACHED for sw in ramping)
     assert codec.state_name(samples[-1][2]) == "SWITCH_ON_DISABLED"
+
+
+# --- enabling while the axis still ramps down or coasts ----------------------------------------
+# A drive cannot stop a moving axis in zero time: enable operation (transition 4, or 16 out of QUICK STOP
+# ACTIVE) while the axis still ramps or coasts leaves the drive in its state, reporting it; the command
+# is held (the controlword is a level, CiA 402) and the transition is taken at standstill, unless another
+# command has replaced it meanwhile.
+
+
+@pytest.mark.parametrize("value", [6, 5])
+def test_enable_operation_during_a_quick_stop_ramp_is_taken_at_standstill(j1, sim_clock, cell_cfg, value):
+    _, node = j1
+    node.sdo[0x605A].raw = value
+    _enable_pp(node, sim_clock)
+    p0, v = _cruising(node, sim_clock)
+    node.sdo[0x6040].raw = CW_QUICK_STOP
+    node.sdo[0x6040].raw = CW_ENABLE  # transition 16 asked for at once
+    assert _state(node) == "QUICK_STOP_ACTIVE"
+    node.sdo[0x607A].raw = p0 - 50_000
+    node.sdo[0x6040].raw = CW_ENABLE | codec.CW_NEW_SET_POINT  # no set-point is taken meanwhile
+    assert not node.sdo[0x6041].raw & codec.SW_SET_POINT_ACK
+    d = _decel(node, cell_cfg, QUICK_STOP_OPTIONS[value][0])
+    samples = _follow(node, sim_clock, 0.5)
+    _assert_ramp(samples, p0, v, d, {"QUICK_STOP_ACTIVE"}, "OPERATION_ENABLED")
+    assert samples[-1][2] & SW_TARGET_REACHED  # enabled where it stands: enabling never jumps
+    node.sdo[0x6040].raw = CW_ENABLE
+    node.sdo[0x6040].raw = CW_ENABLE | codec.CW_NEW_SET_POINT  # a set-point edge now moves it
+    sim_clock.sleep(1.0)
+    assert node.sdo[0x6064].raw == p0 - 50_000
+
+
+@pytest.mark.parametrize(
+    ("index", "value", "stop", "state"),
+    [
+        (0x605C, 0, [CW_SWITCH_ON], "SWITCHED_ON"),  # disable operation, coasting
+        (0x605B, 0, [CW_SHUTDOWN, CW_SWITCH_ON], "SWITCHED_ON"),  # shutdown, coasting; switched on again
+        (None, None, [CW_DISABLE_VOLTAGE, CW_SHUTDOWN, CW_SWITCH_ON], "SWITCHED_ON"),  # disable voltage
+        (0x605A, 0, [CW_QUICK_STOP, CW_SHUTDOWN, CW_SWITCH_ON], "SWITCHED_ON"),  # quick stop, coasting
+    ],
+    ids=["605C=0", "605B=0", "disable-voltage", "605A=0"],
+)
+def test_enable_operation_while_the_axis_coasts_is_taken_at_standstill(j1, sim_clock, cell_cfg, index, value, stop,
+                                                                       state):
+    """Transition 4 while the undriven axis still runs out: SWITCHED ON until it stands, then enabled."""
+    _, node = j1
+    if index is not None:
+        node.sdo[index].raw = value
+    _enable_pp(node, sim_clock)
+    p0, v = _cruising(node, sim_clock)
+    for cw in stop:
+        node.sdo[0x6040].raw = cw
+    node.sdo[0x6040].raw = CW_ENABLE
+    assert _state(node) == state
+    samples = _follow(node, sim_clock, 1.2)
+    _assert_ramp(samples, p0, v, _decel(node, cell_cfg, COAST), {state}, "OPERATION_ENABLED")
+
+
+def test_an_enable_held_during_the_ramp_is_dropped_by_the_next_command(j1, sim_clock, cell_cfg):
+    """The held command is the controlword's: a quick stop sent again (no transition in QUICK STOP
+    ACTIVE) replaces it, and the drive stays in QUICK STOP ACTIVE at standstill."""
+    _, node = j1
+    _enable_pp(node, sim_clock)
+    p0, v = _cruising(node, sim_clock)
+    node.sdo[0x6040].raw = CW_QUICK_STOP
+    node.sdo[0x6040].raw = CW_ENABLE
+    node.sdo[0x6040].raw = CW_QUICK_STOP
+    samples = _follow(node, sim_clock, 0.5)
+    _assert_ramp(samples, p0, v, float(node.sdo[0x6085].raw), {"QUICK_STOP_ACTIVE"}, "QUICK_STOP_ACTIVE")

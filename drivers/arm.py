@@ -51,6 +51,7 @@ HOST_NODE_ID = 0x7F  # the host's own heartbeat id (the drives watch it)
 # behind it, so silence is counted from that run on, not from the last heartbeat handled
 WATCH_STARVED_SHARE = 0.5
 POSITION_TOLERANCE_COUNTS = 2
+STANDSTILL_MARGIN_S = 2.0  # waiting for standstill after a stop: this much past the slowest quick stop ramp
 TPDO_EVENT_TIMER_MS = 50  # status at least every 50 ms when nothing changes (the watch sees a stuck drive)
 
 
@@ -347,16 +348,32 @@ class Arm:
                     pass  # stopping the others matters more than this one's answer
         self._wait_standstill()
 
-    def _wait_standstill(self, timeout_s: float = 2.0) -> None:
-        """Until no drive ramps any more: positions unchanged over a poll, no fault reaction."""
+    def _wait_standstill(self, timeout_s: float | None = None) -> None:
+        """Until no drive ramps any more: positions unchanged over a poll, no fault reaction, and every drive
+        in QUICK STOP ACTIVE reporting the end of its ramp (statusword bit 10, CiA 402). A drive enables an
+        axis only once it stands. By default up to STANDSTILL_MARGIN_S past the cell's slowest quick stop."""
+        if timeout_s is None:
+            timeout_s = STANDSTILL_MARGIN_S + self._slowest_quick_stop_s()
         deadline = self.clock.now() + timeout_s
         last = None
         while self.clock.now() < deadline:
             now = {n: (ax.status.position_counts if ax.status else None, ax.state) for n, ax in self.axes.items()}
-            if now == last and not any(st == "FAULT_REACTION_ACTIVE" for _, st in now.values()):
+            ramping = any(
+                ax.state == "FAULT_REACTION_ACTIVE"
+                or (ax.state == "QUICK_STOP_ACTIVE" and not ax.status.target_reached)
+                for ax in self.axes.values()
+            )
+            if now == last and not ramping:
                 return
             last = now
             self.clock.sleep(max(self.poll_s, 0.02))
+
+    def _slowest_quick_stop_s(self) -> float:
+        """The longest quick stop ramp of the cell: from max velocity at the quick stop deceleration (the
+        gripper accelerates at GRIPPER_ACCEL_FACTOR x its speed, so it stops in 1 / (2 x 10) s)."""
+        s = self.cell.scara
+        ramps = [s.max_velocity[j] / (QUICK_STOP_DECEL_FACTOR * s.max_acceleration[j]) for j in s.max_velocity]
+        return max(ramps + [1.0 / (QUICK_STOP_DECEL_FACTOR * GRIPPER_ACCEL_FACTOR)])
 
     def _check_faults(self, during_move: bool) -> None:
         with self._lock:

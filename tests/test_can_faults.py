@@ -261,3 +261,24 @@ def test_an_axis_quick_stopped_just_short_of_its_target_has_not_arrived(arm, sim
     assert abs(st.position_counts - arm.axes["j1"].to_counts(start.j1_deg + 5.0)) <= 2
     with pytest.raises(MoveTimeout, match="j1: target not reached"):
         arm.wait_idle()
+
+
+def test_stop_waits_for_a_quick_stop_ramp_longer_than_two_seconds(open_test_bus, sim_clock, cell_cfg):
+    """A slow j1 (4 deg/s^2; the quick stop at 8 deg/s^2 from 20 deg/s takes 2.5 s): stop() returns once
+    every axis stands, and reset_faults() enables j1 where it stands (a drive enables a moving axis only
+    at standstill). stop() gave up waiting after 2 s while j1 still ran down."""
+    import dataclasses
+
+    s = dataclasses.replace(cell_cfg.scara, max_velocity={**cell_cfg.scara.max_velocity, "j1": 30.0},
+                            max_acceleration={**cell_cfg.scara.max_acceleration, "j1": 4.0})
+    cell = dataclasses.replace(cell_cfg, scara=s)
+    with sim.serve(open_test_bus(), cell, clock=sim_clock) as drives, \
+            Arm(open_test_bus(), cell, clock=sim_clock) as arm:
+        start = arm.joints()
+        arm.move_joints(Joints(start.j1_deg - 100.0, start.j2_deg, start.j3_mm, start.j4_deg), wait=False)
+        arm.clock.sleep(5.0)  # 20 deg/s at the top of its triangle
+        arm.stop()
+        assert drives.drives["j1"].motion is None
+        assert arm.axes["j1"].status.state == "QUICK_STOP_ACTIVE" and arm.axes["j1"].status.target_reached
+        _assert_frozen(arm, drives)
+        _assert_recovers(arm, drives)

@@ -129,6 +129,15 @@ class SimHandle:
             raise ValueError(f"unknown node {node!r}; one of {sorted(self.drives)}")
         self.drives[node].arm(kind, **kw)
 
+    def configure_option_codes(self, node: str | None = None, **kw) -> None:
+        """Drives of another make (all nodes, or one): factory option codes, the values they take by
+        SDO, objects they lack; see `SimDrive.configure_option_codes`."""
+        if node is not None and node not in self.drives:
+            raise ValueError(f"unknown node {node!r}; one of {sorted(self.drives)}")
+        for name, d in self.drives.items():
+            if node in (None, name):
+                d.configure_option_codes(**kw)
+
     def heal(self, node: str | None = None) -> None:
         """Undo injected misbehaviour (all nodes, or one); latched drive faults stay latched."""
         for name, d in self.drives.items():

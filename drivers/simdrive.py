@@ -130,6 +130,9 @@ class SimDrive:
         self._store(0x1800, 5, tpdo_event_ms)
         # the power-on values (CiA 301: what the NMT resets restore), as stored by commissioning
         self._power_on = {i: dict(subs) for i, subs in self.node.data_store.items()}
+        # the option code values this drive takes by SDO, and the objects it lacks (`configure_option_codes`)
+        self._accepted = {index: set(values) for index, values in OPTION_CODES.items()}
+        self._missing: set[int] = set()
         # drive state
         self.nmt = NMT_INIT
         self.state = "NOT_READY_TO_SWITCH_ON"
@@ -185,7 +188,7 @@ class SimDrive:
         it does not have, 0x06090011 for a sub-index the object does not have (a VAR has only
         sub-index 0; an ARRAY only the entries its EDS declares)."""
         od = self.node.object_dictionary
-        if index not in od:
+        if index not in od or index in self._missing:
             raise SdoAbortedError(0x06020000)
         obj = od[index]
         if isinstance(obj, canopen.objectdictionary.ODVariable):
@@ -229,7 +232,7 @@ class SimDrive:
                 raise SdoAbortedError(0x06090030)
             elif index in self._rpdo_handlers and subindex == 1:
                 self._subscribe_rpdo(index, value)
-            elif index in OPTION_CODES and value not in OPTION_CODES[index]:
+            elif index in OPTION_CODES and value not in self._accepted[index]:
                 raise SdoAbortedError(0x06090030)  # value range of parameter exceeded
 
     def _subscribe_rpdo(self, comm_index: int, cob_entry: int) -> None:
@@ -341,6 +344,26 @@ class SimDrive:
         self.mode = mode
         self._store(0x6060, 0, mode)
         self._publish()
+
+    def configure_option_codes(self, values: dict[int, int] | None = None, *,
+                               accepted: dict[int, set[int]] | None = None, missing=()) -> None:
+        """Make this drive one of another make, as commissioning left it: `values` its factory (power-on)
+        option codes, index -> value; `accepted` the values it takes by SDO, index -> set (others are
+        refused with abort 0x06090030); `missing` the option code objects it lacks (abort 0x06020000 on
+        any SDO access; it still stops as its `values` say). Only values this simulation honours."""
+        values, accepted, missing = values or {}, accepted or {}, set(missing)
+        asked = [(i, {v}) for i, v in values.items()] + [(i, set(a)) for i, a in accepted.items()]
+        asked += [(i, set()) for i in missing]
+        for index, wanted in asked:
+            if index not in OPTION_CODES or not wanted <= set(OPTION_CODES[index]):
+                raise ValueError(f"0x{index:04X} {sorted(wanted)}: not an option code value the simulation models")
+        with self._lock:
+            for index, value in values.items():
+                self._store(index, 0, value)
+                self._power_on[index] = dict(self.node.data_store[index])
+            for index, allowed in accepted.items():
+                self._accepted[index] = set(allowed)
+            self._missing = missing
 
     def _option(self, index: int):
         """What the option code `index` (0x605A-0x605E) asks for; its value was checked on writing."""

@@ -353,3 +353,57 @@ def test_an_enable_held_during_the_ramp_is_dropped_by_the_next_command(j1, sim_c
     node.sdo[0x6040].raw = CW_QUICK_STOP
     samples = _follow(node, sim_clock, 0.5)
     _assert_ramp(samples, p0, v, float(node.sdo[0x6085].raw), {"QUICK_STOP_ACTIVE"}, "QUICK_STOP_ACTIVE")
+
+
+# --- drives of another make: factory values, refused values, missing objects -------------------
+OBJECT_DOES_NOT_EXIST = 0x06020000
+
+
+def test_a_drive_with_other_factory_values_keeps_them_across_a_reset_node(j1, sim_clock):
+    drives, node = j1
+    drives.configure_option_codes("j1", values={0x605A: 2, 0x605E: 1})
+    assert (node.sdo[0x605A].raw, node.sdo[0x605E].raw) == (2, 1)
+    node.sdo[0x605A].raw = 6
+    node.nmt.send_command(0x81)  # Reset Node: the power-on (factory) values again
+    sim_clock.sleep(0.05)
+    assert (node.sdo[0x605A].raw, node.sdo[0x605E].raw) == (2, 1)
+
+
+def test_a_drive_that_takes_fewer_values_refuses_the_others(j1):
+    drives, node = j1
+    drives.configure_option_codes("j1", values={0x605A: 2}, accepted={0x605A: {0, 2}})
+    with pytest.raises(canopen.SdoAbortedError) as e:
+        node.sdo[0x605A].raw = 6
+    assert e.value.code == VALUE_RANGE_EXCEEDED and node.sdo[0x605A].raw == 2
+    node.sdo[0x605A].raw = 0
+    assert node.sdo[0x605A].raw == 0
+
+
+def test_a_drive_without_the_objects_aborts_every_access_and_stops_as_it_is_built(j1, sim_clock):
+    """0x605A and 0x605E are optional in CiA 402: a drive without them answers 0x06020000 (object does not
+    exist) and stops its own way, here the quick stop ramp, then SWITCH ON DISABLED."""
+    drives, node = j1
+    drives.configure_option_codes("j1", values={0x605A: 2}, missing={0x605A, 0x605E})
+    for index in (0x605A, 0x605E):
+        with pytest.raises(canopen.SdoAbortedError) as e:
+            _ = node.sdo[index].raw
+        assert e.value.code == OBJECT_DOES_NOT_EXIST
+        with pytest.raises(canopen.SdoAbortedError) as e:
+            node.sdo[index].raw = 2
+        assert e.value.code == OBJECT_DOES_NOT_EXIST
+    assert node.sdo[0x605B].raw == 0  # the others are there
+    _enable_pp(node, sim_clock)
+    p0, v = _cruising(node, sim_clock)
+    node.sdo[0x6040].raw = CW_QUICK_STOP
+    samples = _follow(node, sim_clock, 0.5)
+    _assert_ramp(samples, p0, v, float(node.sdo[0x6085].raw), {"QUICK_STOP_ACTIVE"}, "SWITCH_ON_DISABLED")
+
+
+def test_only_modelled_option_code_values_can_be_configured(j1):
+    drives, _ = j1
+    for kw in ({"values": {0x605A: 7}}, {"accepted": {0x605E: {2, 3}}}, {"missing": {0x6060}},
+               {"values": {0x6060: 1}}):
+        with pytest.raises(ValueError, match="not an option code value"):
+            drives.configure_option_codes("j1", **kw)
+    with pytest.raises(ValueError, match="unknown node"):
+        drives.configure_option_codes("j9", values={0x605A: 2})

@@ -18,6 +18,7 @@ Safety supervision, all in the host:
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 
@@ -44,6 +45,8 @@ from drivers.gripper import GRIPPER_ACCEL_FACTOR, Gripper
 from drivers.limits import JOINT_FIELDS, command_violations
 from drivers.profile import coordinated_move_s, coordinated_path, velocity_for_duration
 from drivers.pump import BusPump
+
+log = logging.getLogger(__name__)
 
 HOST_NODE_ID = 0x7F  # the host's own heartbeat id (the drives watch it)
 # A watchdog run this much of a deadline after the previous one was itself held up (a loaded
@@ -118,9 +121,10 @@ class Arm:
         return self._connected
 
     def connect(self, *, enable: bool = True) -> None:
-        """Bring every node up: boot-up/heartbeat deadline, SDO set-up (heartbeats both ways,
-        software limits, profile parameters), NMT start, and (unless `enable=False`) the 402
-        state machine to OPERATION ENABLED with target = actual position."""
+        """Bring every node up: boot-up/heartbeat deadline, SDO set-up (PDOs, quick stop and fault
+        reaction option codes, heartbeats both ways, software limits, profile parameters), NMT start,
+        and (unless `enable=False`) the 402 state machine to OPERATION ENABLED with target = actual
+        position. A drive that keeps other option codes is logged (`drivers.option_codes`)."""
         if self._connected:
             return
         self._network = canopen.Network(self.bus)
@@ -178,6 +182,8 @@ class Arm:
                 node_id=ax.node_id,
             )
         ax.setup_pdos(TPDO_EVENT_TIMER_MS)
+        for warning in ax.setup_option_codes():  # quick stop 0x605A = 6, fault reaction 0x605E = 2
+            log.warning("%s", warning)
         ax.sdo_write(0x1017, 0, c.can.heartbeat_ms)
         deadline_ms = round(HEARTBEAT_DEADLINE_FACTOR * c.can.host_heartbeat_ms)
         ax.sdo_write(0x1016, 1, codec.consumer_heartbeat_entry(HOST_NODE_ID, deadline_ms))
@@ -326,8 +332,9 @@ class Arm:
 
     def stop(self) -> None:
         """Quick-stop every enabled axis now (Ctrl-C, an operator's stop) and wait until they
-        stand still. Latched like a fault: the drives stay in QUICK STOP ACTIVE and commands are
-        refused until `reset_faults()`."""
+        stand still. Latched like a fault: the drives stay in QUICK STOP ACTIVE (0x605A = 6, set at
+        connect; a drive that kept 1 or 2 ends in SWITCH ON DISABLED) and commands are refused until
+        `reset_faults()`, which enables them from either."""
         if self._connected:
             self._stop_all()
             self._pending = ({}, 0.0)

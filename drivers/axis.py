@@ -16,7 +16,7 @@ import time
 import canopen
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
-from drivers import codec
+from drivers import codec, option_codes
 from drivers.clock import Clock
 from drivers.eds import object_dictionary
 from drivers.errors import DriveFault, NodeSilent, SdoError
@@ -66,6 +66,7 @@ class Axis:
         self.last_emcy: codec.Emcy | None = None
         self.emcy_seq = 0
         self.controlword = 0
+        self.option_codes: dict[int, int | None] = {}  # 0x605A, 0x605E as set up at connect (None: missing)
         self._subs = [
             (codec.TPDO1_BASE + node_id, self._on_tpdo1),
             (codec.EMCY_BASE + node_id, self._on_emcy),
@@ -180,6 +181,40 @@ class Axis:
         for k, base in enumerate(codec.RPDO_BASES):
             self._ensure_cob_id(0x1400 + k, base + self.node_id)
             self._ensure(0x1400 + k, 2, codec.PDO_EVENT_DRIVEN)
+
+    def setup_option_codes(self) -> list[str]:
+        """The quick stop and fault reaction option codes the host relies on (`drivers.option_codes.WANTED`):
+        written where they differ and read back. Returns a warning per object the drive lacks (SDO abort
+        0x06020000) or keeps at another value (a refused write, say 0x06090030); raises DriveFault where
+        its quick stop would not stop the axis under control. `self.option_codes` keeps what the drive has
+        (None: no such object)."""
+        warnings = []
+        for index, wanted in option_codes.WANTED.items():
+            have, refused = self._option_code(index), None
+            if have is not None and have != wanted:
+                try:
+                    self._sdo_var(index, 0).raw = wanted
+                except SdoAbortedError as e:
+                    refused = e.code
+                except SdoCommunicationError as e:
+                    raise self._sdo_failed(e, f"writing 0x{index:04X}:0 = {wanted}") from None
+                have = self.sdo_read(index)  # what it took
+            self.option_codes[index] = have
+            warning = option_codes.review(self.name, self.node_id, index, have, refused)
+            if warning is not None:
+                warnings.append(warning)
+        return warnings
+
+    def _option_code(self, index: int) -> int | None:
+        """An option code's value, None when the drive has no such object."""
+        try:
+            return self._sdo_var(index, 0).raw
+        except SdoAbortedError as e:
+            if e.code == option_codes.OBJECT_DOES_NOT_EXIST:
+                return None
+            raise self._sdo_failed(e, f"reading 0x{index:04X}:0") from None
+        except SdoCommunicationError as e:
+            raise self._sdo_failed(e, f"reading 0x{index:04X}:0") from None
 
     def _ensure(self, index: int, subindex: int, value: int) -> None:
         """Write only what differs: fewer frames, and no writes a drive may refuse while running."""

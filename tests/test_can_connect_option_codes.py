@@ -1,0 +1,154 @@
+"""The host sets the quick stop and fault reaction option codes at connect (0x605A = 6, 0x605E = 2) and
+reads them back; drives of another make (simulated, over the virtual bus) that ship other values, refuse
+them or lack the objects are driven as `drivers.option_codes` decides, with a warning, or refused."""
+
+from __future__ import annotations
+
+import logging
+
+import pytest
+from drivers_fixtures import *  # noqa: F403 - bus fixtures
+from drivers_fixtures import needs_sim
+
+from cell.kinematics import Joints
+from drivers import Arm, DriveFault, sim
+
+pytestmark = needs_sim
+
+NODES = ("j1", "j2", "j3", "j4", "gripper")
+
+
+@pytest.fixture
+def drives(open_test_bus, sim_clock, cell_cfg):
+    with sim.serve(open_test_bus(), cell_cfg, clock=sim_clock) as handle:
+        yield handle
+
+
+@pytest.fixture
+def connect(drives, open_test_bus, sim_clock, cell_cfg, caplog):
+    """Connect an arm to the drives as configured by the test; yields (arm, warnings logged)."""
+    arms = []
+
+    def _connect():
+        arm = Arm(open_test_bus(), cell_cfg, clock=sim_clock)
+        arms.append(arm)
+        with caplog.at_level(logging.WARNING, logger="drivers.arm"):
+            arm.connect()
+        return arm, [r.getMessage() for r in caplog.records if r.name == "drivers.arm"]
+
+    yield _connect
+    for arm in arms:
+        arm.disconnect()
+
+
+def _codes(drives):
+    return {name: (d._get(0x605A), d._get(0x605E)) for name, d in drives.drives.items()}
+
+
+def _stop_mid_move(arm, drives):
+    start = arm.joints()
+    arm.move_joints(Joints(start.j1_deg - 60.0, start.j2_deg - 30.0, start.j3_mm - 100.0, start.j4_deg + 90.0),
+                    wait=False)
+    arm.clock.sleep(0.2)
+    arm.stop()
+    stopped = drives.positions()
+    arm.clock.sleep(0.5)
+    assert drives.positions() == stopped  # standing
+    assert stopped["j1"] > start.j1_deg - 60.0 + 1.0  # stopped mid-way
+
+
+def _recovers(arm, drives):
+    arm.reset_faults()
+    assert arm.faults == {} and {s["state"] for s in arm.state().values()} == {"OPERATION_ENABLED"}
+    start = arm.joints()
+    arm.move_joints(Joints(start.j1_deg + 3.0, start.j2_deg, start.j3_mm, start.j4_deg))
+    assert drives.positions()["j1"] == pytest.approx(start.j1_deg + 3.0, abs=1e-3)
+
+
+def test_connect_sets_the_option_codes_of_drives_that_ship_others(drives, connect):
+    drives.configure_option_codes(values={0x605A: 2, 0x605E: 1})
+    arm, warnings = connect()
+    assert _codes(drives) == {n: (6, 2) for n in NODES}
+    assert all(ax.option_codes == {0x605A: 6, 0x605E: 2} for ax in arm.axes.values())
+    assert warnings == []
+    _stop_mid_move(arm, drives)
+    assert {d.state for d in drives.drives.values()} == {"QUICK_STOP_ACTIVE"}  # 6: it stays there
+
+
+def test_connect_writes_no_option_code_a_drive_already_has(drives, connect, open_test_bus):
+    tap = open_test_bus()
+    arm, warnings = connect()
+    assert warnings == [] and _codes(drives) == {n: (6, 2) for n in NODES}
+    frames = []
+    while (msg := tap.recv(0)) is not None:
+        frames.append(msg)
+    sdo = [bytes(m.data) for m in frames if 0x601 <= m.arbitration_id <= 0x605]
+    index = [int.from_bytes(d[1:3], "little") for d in sdo]
+    reads = [i for d, i in zip(sdo, index) if d[0] == 0x40]
+    writes = [i for d, i in zip(sdo, index) if d[0] & 0xE0 == 0x20]
+    assert reads.count(0x605A) == reads.count(0x605E) == 5  # one read each: verified, nothing to write
+    assert 0x605A not in writes and 0x605E not in writes
+
+
+def test_drives_that_refuse_the_quick_stop_value_stop_in_switch_on_disabled_and_the_host_copes(drives, connect):
+    """Factory 0x605A = 2 that will not take 6: bring-up goes on with a warning per node; a stop then ends
+    in SWITCH ON DISABLED, the host waits for standstill there, re-enables, and moves again; so does an
+    EMCY during a move."""
+    drives.configure_option_codes(values={0x605A: 2}, accepted={0x605A: {2}})
+    arm, warnings = connect()
+    assert len(warnings) == 5
+    assert warnings[0] == (
+        "j1 (node 1): quick stop option code 0x605A stays 2 (the quick stop ramp, then SWITCH ON DISABLED): "
+        "writing 6 was refused with SDO abort 0x06090030; after a quick stop the host waits for standstill "
+        "and re-enables from there")
+    assert _codes(drives) == {n: (2, 2) for n in NODES}
+    assert arm.axes["j3"].option_codes == {0x605A: 2, 0x605E: 2}
+    _stop_mid_move(arm, drives)
+    assert {d.state for d in drives.drives.values()} == {"SWITCH_ON_DISABLED"}
+    assert set(arm.faults) == {"stop"}
+    _recovers(arm, drives)
+    start = arm.joints()
+    drives.inject_fault("emcy", "j2", code=0x2310, after_s=0.1)
+    with pytest.raises(DriveFault, match="j2"):
+        arm.move_joints(Joints(start.j1_deg - 40.0, start.j2_deg - 30.0, start.j3_mm, start.j4_deg))
+    assert drives.drives["j1"].state == "SWITCH_ON_DISABLED" and drives.drives["j2"].state == "FAULT"
+    _recovers(arm, drives)
+    arm.stop()
+    arm.disconnect()  # from SWITCH ON DISABLED: nothing to send, no drive holds torque
+    assert {d.state for d in drives.drives.values()} == {"SWITCH_ON_DISABLED"}
+
+
+def test_drives_without_the_objects_are_driven_with_a_warning(drives, connect):
+    drives.configure_option_codes(values={0x605A: 2}, missing={0x605A, 0x605E})
+    arm, warnings = connect()
+    assert len(warnings) == 10
+    assert warnings[0].startswith("j1 (node 1): quick stop option code 0x605A missing (SDO abort 0x06020000, "
+                                  "object does not exist): its quick stop is the drive's own")
+    assert warnings[1] == ("j1 (node 1): fault reaction option code 0x605E missing (SDO abort 0x06020000, "
+                           "object does not exist): a fault on this drive stops its axis as the drive is built")
+    assert arm.axes["gripper"].option_codes == {0x605A: None, 0x605E: None}
+    _stop_mid_move(arm, drives)
+    assert {d.state for d in drives.drives.values()} == {"SWITCH_ON_DISABLED"}
+    _recovers(arm, drives)
+
+
+def test_a_drive_whose_quick_stop_lets_the_axis_coast_is_refused_at_bring_up(drives, connect):
+    drives.configure_option_codes("j3", values={0x605A: 0}, accepted={0x605A: {0}})
+    before = drives.positions()
+    with pytest.raises(DriveFault, match=r"^j3 \(node 3\): quick stop option code 0x605A is 0 \(disable drive "
+                       r"function: the axis coasts\) and writing 6 was refused with SDO abort 0x06090030: its "
+                       r"quick stop would let the axis coast, so the host will not drive it") as e:
+        connect()
+    assert e.value.node == "j3"  # nothing was enabled, nothing moved
+    assert {d.state for d in drives.drives.values()} == {"SWITCH_ON_DISABLED"}
+    assert drives.positions() == before
+
+
+def test_a_refused_fault_reaction_is_a_warning(drives, connect):
+    drives.configure_option_codes("gripper", values={0x605E: 0}, accepted={0x605E: {0}})
+    arm, warnings = connect()
+    assert warnings == [
+        "gripper (node 5): fault reaction option code 0x605E stays 0 (disable drive function: the axis coasts): "
+        "writing 2 was refused with SDO abort 0x06090030; a fault on this drive stops its axis that way"]
+    assert arm.is_connected and arm.axes["gripper"].option_codes == {0x605A: 6, 0x605E: 0}
+

@@ -4,6 +4,7 @@ over the virtual bus in the same process, with the simulated motion in real time
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 
 import canopen
 import pytest
@@ -22,6 +23,26 @@ def _wait_bit(node, bit, value=True, timeout_s=2.0):
     while bool(node.statusword & bit) != value:
         assert time.monotonic() < deadline, f"statusword bit {bit:#x} not {value}"
         node.check_statusword()
+
+
+@contextmanager
+def _j1_in_profile_position(open_test_bus):
+    """The simulated drives (real-time motion) and canopen's BaseNode402 on j1 (node 1), walked to
+    OPERATION ENABLED in profile position mode: (drives, node)."""
+    with sim.serve(open_test_bus()) as drives:
+        network = canopen.Network(open_test_bus())
+        network.connect()
+        try:
+            node = canopen.BaseNode402(1, drives.nodes[0]["eds"])
+            network.add_node(node)
+            node.nmt.wait_for_heartbeat(timeout=2.0)
+            node.setup_402_state_machine(read_pdos=True)
+            node.nmt.state = "OPERATIONAL"
+            node.state = "OPERATION ENABLED"
+            node.op_mode = "PROFILED POSITION"
+            yield drives, node
+        finally:
+            network.disconnect()  # also shuts the master bus down
 
 
 def test_serve_handle_lists_the_nodes_and_their_eds(open_test_bus):
@@ -97,35 +118,23 @@ def test_base_node_402_drives_a_simulated_node(open_test_bus, cell_cfg, name):
 
 
 def test_drive_faults_on_a_target_outside_0x607d(open_test_bus, cell_cfg):
-    with sim.serve(open_test_bus()) as drives:
-        network = canopen.Network(open_test_bus())
-        network.connect()
-        try:
-            node = canopen.BaseNode402(1, drives.nodes[0]["eds"])
-            network.add_node(node)
-            node.nmt.wait_for_heartbeat(timeout=2.0)
-            node.setup_402_state_machine(read_pdos=True)
-            node.nmt.state = "OPERATIONAL"
-            node.state = "OPERATION ENABLED"
-            node.op_mode = "PROFILED POSITION"
-            hi = node.sdo[0x607D][2].raw
-            assert hi == round(cell_cfg.scara.j1_deg[1] * 1000)
-            emcys = []
-            node.emcy.add_callback(emcys.append)
-            node.sdo[0x607A].raw = hi + 1
-            node.controlword = 0x1F
-            deadline = time.monotonic() + 2.0
-            while node.state != "FAULT":
-                assert time.monotonic() < deadline
-                node.check_statusword()
-            assert node.sdo[0x603F].raw == 0x8612
-            deadline = time.monotonic() + 1.0
-            while not emcys and time.monotonic() < deadline:
-                time.sleep(0.01)
-            assert emcys and emcys[0].code == 0x8612
-            assert drives.positions()["j1"] == pytest.approx(cell_cfg.motion.home_joints["j1_deg"])
-        finally:
-            network.disconnect()
+    with _j1_in_profile_position(open_test_bus) as (drives, node):
+        hi = node.sdo[0x607D][2].raw
+        assert hi == round(cell_cfg.scara.j1_deg[1] * 1000)
+        emcys = []
+        node.emcy.add_callback(emcys.append)
+        node.sdo[0x607A].raw = hi + 1
+        node.controlword = 0x1F
+        deadline = time.monotonic() + 2.0
+        while node.state != "FAULT":
+            assert time.monotonic() < deadline
+            node.check_statusword()
+        assert node.sdo[0x603F].raw == 0x8612
+        deadline = time.monotonic() + 1.0
+        while not emcys and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert emcys and emcys[0].code == 0x8612
+        assert drives.positions()["j1"] == pytest.approx(cell_cfg.motion.home_joints["j1_deg"])
 
 
 def test_pdo_settings_can_be_saved_and_sync_drives_the_tpdo(open_test_bus, sim_clock):
@@ -190,29 +199,17 @@ def test_base_node_402_leaving_quick_stop_waits_for_the_end_of_the_ramp(open_tes
     """canopen's BaseNode402 asks for OPERATION ENABLED (transition 16) at once after a quick stop of a
     j1 cruising at 180 deg/s: the drive stays in QUICK STOP ACTIVE until its ramp (v^2 / 2d = 11250
     counts) has ended, then enables where the axis stands. It used to enable at once and stop dead."""
-    with sim.serve(open_test_bus()) as drives:  # real-time motion
-        network = canopen.Network(open_test_bus())
-        network.connect()
-        try:
-            node = canopen.BaseNode402(1, drives.nodes[0]["eds"])
-            network.add_node(node)
-            node.nmt.wait_for_heartbeat(timeout=2.0)
-            node.setup_402_state_machine(read_pdos=True)
-            node.nmt.state = "OPERATIONAL"
-            node.state = "OPERATION ENABLED"
-            node.op_mode = "PROFILED POSITION"
-            node.sdo[0x607A].raw = node.sdo[0x6064].raw - 120_000
-            node.controlword = 0x1F
-            _wait_bit(node, SW_ACK, True)
-            node.controlword = 0x0F
-            time.sleep(0.4)  # cruising at 180000 counts/s
-            at_stop = node.sdo[0x6064].raw
-            node.state = "QUICK STOP ACTIVE"
-            node.state = "OPERATION ENABLED"
-            enabled_at = node.sdo[0x6064].raw
-            time.sleep(0.2)
-            assert node.state == "OPERATION ENABLED" and node.sdo[0x6064].raw == enabled_at  # standing
-            d = node.sdo[0x6085].raw
-            assert at_stop - enabled_at >= 0.9 * 180_000**2 / (2 * d)  # the whole ramp ran out
-        finally:
-            network.disconnect()
+    with _j1_in_profile_position(open_test_bus) as (drives, node):
+        node.sdo[0x607A].raw = node.sdo[0x6064].raw - 120_000
+        node.controlword = 0x1F
+        _wait_bit(node, SW_ACK, True)
+        node.controlword = 0x0F
+        time.sleep(0.4)  # cruising at 180000 counts/s
+        at_stop = node.sdo[0x6064].raw
+        node.state = "QUICK STOP ACTIVE"
+        node.state = "OPERATION ENABLED"
+        enabled_at = node.sdo[0x6064].raw
+        time.sleep(0.2)
+        assert node.state == "OPERATION ENABLED" and node.sdo[0x6064].raw == enabled_at  # standing
+        d = node.sdo[0x6085].raw
+        assert at_stop - enabled_at >= 0.9 * 180_000**2 / (2 * d)  # the whole ramp ran out

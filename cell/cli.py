@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
+import logging
 import os
 import sys
 
@@ -100,8 +101,27 @@ def _refuse_empty_values(parser, args) -> None:
             raise BadInput(f"{name} is empty: give a value")
 
 
+def warnings_to_stderr(logger: logging.Logger | None = None) -> None:
+    """Warnings the library logs (a drive that keeps its own quick stop, ...) reach the user as
+    `cell: warning: ...` beside `cell: error: ...`, not as Python's bare last-resort lines. Left as it is
+    when the logger already has a handler (an application or pytest set one up)."""
+    logger = logging.getLogger() if logger is None else logger
+    if logger.handlers:
+        return
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_CellFormatter())
+    handler.setLevel(logging.WARNING)
+    logger.addHandler(handler)
+
+
+class _CellFormatter(logging.Formatter):
+    def format(self, record: logging.LogRecord) -> str:
+        return f"cell: {record.levelname.lower()}: {record.getMessage()}"
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    warnings_to_stderr()
     try:
         parser = build_parser()
         args = parser.parse_args(argv)

@@ -34,3 +34,37 @@ def test_an_os_error_is_bad_input(monkeypatch, capsys):
     code, out, err = run_cli("rules", capsys=capsys)
     assert code == 2 and err.strip() == "cell: error: [Errno 13] Permission denied: '/x/examples'"
 
+
+
+def test_library_warnings_reach_the_user_as_cell_warnings(capsys):
+    """A warning the drivers log (a drive keeping its own quick stop) is one `cell: warning:` line on
+    stderr, like the CLI's errors; info stays quiet; a second set-up adds no second handler."""
+    import logging
+
+    from cell.cli import warnings_to_stderr
+
+    logger = logging.getLogger("tests.cell_warnings")
+    logger.propagate = False
+    try:
+        warnings_to_stderr(logger)
+        warnings_to_stderr(logger)
+        logger.warning("j1 (node 1): quick stop 0x605A = %d kept", 2)
+        logger.info("not shown")
+        assert capsys.readouterr().err == "cell: warning: j1 (node 1): quick stop 0x605A = 2 kept\n"
+    finally:
+        logger.handlers.clear()
+
+
+def test_the_cli_leaves_an_existing_logging_set_up_alone():
+    import logging
+
+    from cell.cli import warnings_to_stderr
+
+    logger = logging.getLogger("tests.cell_warnings_set_up")
+    mine = logging.NullHandler()
+    logger.addHandler(mine)
+    try:
+        warnings_to_stderr(logger)
+        assert logger.handlers == [mine]
+    finally:
+        logger.handlers.clear()

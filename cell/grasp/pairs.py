@@ -66,11 +66,16 @@ class Context:
     sample_cue: np.ndarray | None = None  # (4, N) each sample's normal (x, y), its neighbours' `neighbour_reach`
     samples_reachable: bool = False  # every midpoint of two samples passes the reach stage (its margin included)
     ik_box: tuple | None = None  # (x0, y0, x1, y1) around the target, in the workspace, every point reachable
-    edge_prev: np.ndarray | None = None  # (E,) the edge before each edge on its ring
-    edge_ring: np.ndarray | None = None  # (E,) the ring of each edge (0: the outline, then the holes)
-    vertex_turn: np.ndarray | None = None  # (E,) the ring's turn at each edge's start (rad, > 0 round the material)
-    vertex_convex: np.ndarray | None = None  # (E,) does it turn round the material there (or run straight on)?
+    ring_sizes: tuple = ()  # edges per ring (the outline, then the holes), in the edge columns' order
     sample_convex: np.ndarray | None = None  # (N,) the material in `convex_region_mm` of each sample is convex
+    _turns: tuple | None = field(default=None, repr=False)  # vertex_turns(), once worked out
+
+    def vertex_turns(self) -> tuple:
+        """(edge_prev, edge_ring, vertex_turn, vertex_convex) of `_vertex_turns`, worked out on first use: only
+        `convex_near` asks (the pre-check, where there are finger-high obstacles), not every plan."""
+        if self._turns is None:
+            self._turns = _vertex_turns(self.ring_sizes, self.edge_dx, self.edge_dy)
+        return self._turns
 
     def surely_outside(self, xy: np.ndarray, beyond_mm: float = 0.0) -> np.ndarray:
         """(n,) True for the points xy (2, n) surely outside the target by more than beyond_mm: beyond
@@ -134,7 +139,7 @@ class Context:
                   _part_boxes(po), nx, ny, shift, not target.holes_mm and _turns_one_way(edges[2], edges[3]),
                   hull_n, hull_lim, cue,
                   samples is not None and midpoints_surely_reachable(cell, samples, CHEAP_MARGIN_MM),
-                  _ik_box(tg, cell, grasp_z_mm), *_vertex_turns(rings))
+                  _ik_box(tg, cell, grasp_z_mm), tuple(len(r) for r in rings))
         if cue is not None and fo is not None:  # the pre-check's bound on where the fingers sit (cascade.py)
             ctx.sample_convex = convex_near(ctx, samples, n)
         return ctx
@@ -228,21 +233,21 @@ def _shift(ring: np.ndarray, keep: np.ndarray | None) -> float:
     return float(np.hypot(*(ring - (p + s[:, None] * d)).T).max())
 
 
-def _vertex_turns(rings: list[np.ndarray]):
-    """For the edges of the rings (one from each vertex to the next, ring after ring): the edge before each
-    on its ring, its ring, and the turn at its start (rad; the material lies left of every edge, so > 0 is
-    round the material) and whether that is a turn round the material or a straight run on (as
-    `_turns_one_way` has it), each (E,)."""
-    sizes = np.array([len(r) for r in rings])
+def _vertex_turns(ring_sizes: tuple, dx: np.ndarray, dy: np.ndarray):
+    """For the edges of rings of ring_sizes edges each (directions dx, dy (E,), ring after ring, one edge from
+    each vertex to the next): the edge before each on its ring, its ring, and the turn at its start (rad;
+    the material lies left of every edge, so > 0 is round the material) and whether that is a turn round
+    the material or a straight run on (as `_turns_one_way` has it), each (E,)."""
+    sizes = np.array(ring_sizes)
     first = np.repeat(np.cumsum(sizes) - sizes, sizes)
     e = np.arange(int(sizes.sum()))
     prev = first + (e - first - 1) % np.repeat(sizes, sizes)
-    d = np.vstack([np.roll(r, -1, axis=0) - r for r in rings])
+    d = np.column_stack([dx, dy])
     a, b = d.take(prev, 0), d
     cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
     dot = a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]
     straight = (np.abs(cross) <= 1e-9 * np.hypot(*a.T) * np.hypot(*b.T)) & (dot > 0)
-    return prev, np.repeat(np.arange(len(rings)), sizes), np.arctan2(cross, dot), (cross > 0) | straight
+    return prev, np.repeat(np.arange(len(sizes)), sizes), np.arctan2(cross, dot), (cross > 0) | straight
 
 
 def convex_region_mm(ctx: Context) -> tuple[float, float]:
@@ -268,22 +273,23 @@ def convex_near(ctx: Context, points: np.ndarray, normals: np.ndarray) -> np.nda
     half-planes (the edges before and after the run end outside it, so beyond their ends the half-planes'
     other sides are air there). False where this cannot tell (a notch, a slot, a hole or the far side of a
     thin part just behind the point)."""
-    n, n_edges = len(points), len(ctx.edge_prev)
+    n, n_edges = len(points), len(ctx.edge_ax)
     if n == 0:
         return np.zeros(0, bool)
+    edge_prev, edge_ring, vertex_turn, vertex_convex = ctx.vertex_turns()
     near_point, edge = _edges_meeting(ctx, np.asarray(points, float), np.asarray(normals, float),
                                       *convex_region_mm(ctx))
     key = near_point * n_edges + edge
     order = np.argsort(key, kind="stable")
     key, near_point, edge = key.take(order), near_point.take(order), edge.take(order)
-    prev_key = near_point * n_edges + ctx.edge_prev.take(edge)
+    prev_key = near_point * n_edges + edge_prev.take(edge)
     at = np.minimum(np.searchsorted(key, prev_key), max(len(key) - 1, 0))
     after_near = key.take(at) == prev_key if len(key) else np.zeros(0, bool)  # the vertex before lies in the run
     count = np.bincount(near_point, minlength=n)
     runs = np.bincount(near_point, weights=~after_near, minlength=n)
-    reflex = np.bincount(near_point, weights=after_near & ~ctx.vertex_convex.take(edge), minlength=n)
-    turning = np.bincount(near_point, weights=np.where(after_near, ctx.vertex_turn.take(edge), 0.0), minlength=n)
-    ring = ctx.edge_ring.take(edge)
+    reflex = np.bincount(near_point, weights=after_near & ~vertex_convex.take(edge), minlength=n)
+    turning = np.bincount(near_point, weights=np.where(after_near, vertex_turn.take(edge), 0.0), minlength=n)
+    ring = edge_ring.take(edge)
     ring_lo, ring_hi = np.full(n, n_edges), np.full(n, -1)
     np.minimum.at(ring_lo, near_point, ring)
     np.maximum.at(ring_hi, near_point, ring)

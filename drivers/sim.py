@@ -11,8 +11,9 @@ position limits (0x607D) as a second line of defence, and a gripper that stops o
 of a given width or closes fully when there is none.
 
 Fault injection (`SimHandle.inject_fault`) covers: a silent node, an EMCY during a move, a
-following error, dropped SDO answers, error frames on the bus. Faults latch in the drive
-until a fault reset (controlword bit 7 rising edge), as on a real drive.
+following error, dropped SDO answers, error frames on the bus, and a drive leaving OPERATION
+ENABLED without a fault (its own quick stop, STO). Faults latch in the drive until a fault
+reset (controlword bit 7 rising edge), as on a real drive.
 """
 
 from __future__ import annotations
@@ -108,6 +109,10 @@ class SimHandle:
             next move), 'following_error' (the axis jams `after_s` into its next move, default
             at once; the drive faults with EMCY 0x8611 and statusword bit 13 when the demand
             leaves the following error window 0x6065),
+            'quick_stop' (the drive quick-stops on its own, as by its quick stop input: transition
+            11 as 0x605A says, no fault), 'disable' (STO: the drive function off at once, SWITCH
+            ON DISABLED, the axis coasts, no fault); both, like 'emcy', at once or `after_s` into
+            the next move,
             'drop_sdo' (the next `count` SDO answers are lost; default all, until `heal`),
             'error_frames' (`count` error frames on the bus, default 3; no node needed).
         """

@@ -25,7 +25,9 @@ from drivers.profile import Trapezoid, trapezoid
 log = logging.getLogger(__name__)
 
 TPDO_EVENT_MS = 50  # TPDO1 is also sent at least this often (canopen's BaseNode402 waits 0.2 s)
-FAULT_KINDS = ("silent", "emcy", "following_error", "drop_sdo", "error_frames")
+FAULT_KINDS = ("silent", "emcy", "following_error", "drop_sdo", "error_frames", "quick_stop", "disable")
+# injected events that act on the drive at once, or `after_s` into its next move
+TIMED_EVENTS = ("emcy", "quick_stop", "disable")
 NMT_OPERATIONAL, NMT_PREOP, NMT_STOPPED, NMT_INIT = 0x05, 0x7F, 0x04, 0x00
 HOST_WATCH_STARVED_SHARE = 0.5  # a step this much of the host deadline after the last one: we were held up
 QUICK_STOP_DECEL_FACTOR = 2.0  # quick stop / fault reaction ramp = this x the profile acceleration
@@ -706,7 +708,7 @@ class SimDrive:
                     self._jammed_at = self.position_counts  # the axis is blocked mechanically
                 else:
                     self.position_counts = demand
-                    self._fault(f["code"])
+                    self._event(f)
                     return
         if self._jammed_at is not None:
             # the actual position stays; the drive faults once the demand leaves the window
@@ -795,14 +797,28 @@ class SimDrive:
             elif kind == "following_error":
                 # the axis jams `after_s` into its next move; the drive trips on its window (0x6065)
                 self._armed.append({"kind": kind, "after_s": float(kw.get("after_s") or 0.0)})
-            elif kind == "emcy":
-                code = int(kw.get("code", 0x2310))
+            elif kind in TIMED_EVENTS:
+                event = {"kind": kind, "code": int(kw.get("code", 0x2310))}
                 if kw.get("after_s") is None:
-                    self._fault(code)
+                    self._event(event)
+                    self._publish()
                 else:
-                    self._armed.append({"kind": kind, "after_s": float(kw["after_s"]), "code": code})
+                    self._armed.append({**event, "after_s": float(kw["after_s"])})
             else:
                 raise ValueError(f"unknown fault kind {kind!r}; one of {FAULT_KINDS}")
+
+    def _event(self, event: dict) -> None:
+        """An injected event from the drive's own side: an EMCY fault; a quick stop (its quick stop input,
+        transition 11 as 0x605A says); or STO ('disable': the drive function off at once, SWITCH ON
+        DISABLED, the axis coasts). The master's controlword is left as it was: the drive acts on the next
+        command it receives, not on the level it still holds."""
+        kind = event["kind"]
+        if kind == "emcy":
+            self._fault(event["code"])
+        elif kind == "quick_stop" and self.state == "OPERATION_ENABLED":
+            self._quick_stop()
+        elif kind == "disable" and "FAULT" not in self.state:
+            self._disable("SWITCH_ON_DISABLED")
 
     def heal(self) -> None:
         """Stop injected misbehaviour (the node talks again); latched drive faults stay."""

@@ -18,6 +18,7 @@ from drivers.clock import RealClock, SimClock
 from drivers.errors import (
     BusFault,
     BusUnavailable,
+    DriveDisabled,
     DriveFault,
     DriverError,
     FaultLatched,
@@ -42,6 +43,7 @@ __all__ = [
     "SimClock",
     "BusFault",
     "BusUnavailable",
+    "DriveDisabled",
     "DriveFault",
     "DriverError",
     "FaultLatched",

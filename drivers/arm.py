@@ -13,7 +13,9 @@ Safety supervision, all in the host:
   deadline at connect);
 - EMCY frames, FAULT states, heartbeat timeouts, SDO failures and error frames latch a
   fault: the running move is quick-stopped on every axis, the error names the node and
-  the reason, and nothing moves again until `reset_faults()`.
+  the reason, and nothing moves again until `reset_faults()`. So does an axis of the move
+  that leaves OPERATION ENABLED without a fault (`DriveDisabled`: a quick stop or STO from
+  the drive's side, another master), seen in its next TPDO1.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from drivers.clock import Clock, RealClock
 from drivers.eds import AXIS_EDS, GRIP_FORCE_INDEX, GRIPPER_EDS, eds_path
 from drivers.errors import (
     BusFault,
+    DriveDisabled,
     DriveFault,
     DriverError,
     FaultLatched,
@@ -303,6 +306,8 @@ class Arm:
                     node_id=ax.node_id,
                     emcy_code=ax.last_emcy.code if ax.last_emcy else None,
                 )
+            if err is None:
+                err = self._left_operation(ax)
             if (
                 err is None
                 and ax.last_heartbeat_s is not None
@@ -316,6 +321,23 @@ class Arm:
                 )
             if err is not None:
                 self._latch(err)
+
+    def _left_operation(self, ax: Axis) -> DriveDisabled | None:
+        """An axis of the running move that left OPERATION ENABLED without a fault while the host still
+        commands enable operation (a quick stop or STO from the drive's side, another master): it will
+        never arrive, and the others must not go on alone. The host's own stops send another command."""
+        st = ax.status
+        if ax.name not in self._pending[0] or st is None or st.state == "OPERATION_ENABLED" or "FAULT" in st.state:
+            return None
+        if codec.command_of(ax.controlword) != "ENABLE_OPERATION":
+            return None
+        return DriveDisabled(
+            f"{ax.name} (node {ax.node_id}): left OPERATION ENABLED during a move without a fault, now in "
+            f"{st.state} (stopped from the drive's side: its quick stop input, STO or another master)",
+            node=ax.name,
+            node_id=ax.node_id,
+            state=st.state,
+        )
 
     def _latch(self, err: DriverError, key: str | None = None) -> None:
         """Remember the first fault per node ('bus' for the bus, 'stop' for an operator's stop)."""
@@ -396,6 +418,7 @@ class Arm:
         """Clear latched faults: fault-reset every faulted drive and enable all again. Raises
         (and stays latched) when a node is still silent or faults again."""
         self._require_connected()
+        self._pending = ({}, 0.0)  # the move the fault ended is over (a move sent without waiting)
         self._watch()
         self._wait_standstill()  # a drive in its fault reaction finishes its ramp first
         for ax in self.axes.values():
@@ -461,8 +484,8 @@ class Arm:
         Refuses (`LimitError`, nothing sent) anything outside the joint limits, the workspace
         box or the maximum step; refuses (`FaultLatched`) while a fault is latched. Returns
         the command actually sent (the targets rounded to whole counts). With `wait`, returns
-        when every axis reports target reached; a fault during the move quick-stops all axes
-        and raises the node's error.
+        when every axis reports target reached; a fault during the move, or an axis leaving
+        OPERATION ENABLED (`DriveDisabled`), quick-stops all axes and raises the node's error.
         """
         self._begin_command()
         current = self.joints()

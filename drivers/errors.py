@@ -6,6 +6,7 @@
         |                            raised before any frame is sent
         +-- NotConnected             a command before connect() or after disconnect()
         +-- DriveFault               a node reported a fault (EMCY, fault state, following error)
+        |   +-- DriveDisabled        a moving axis left OPERATION ENABLED without a fault
         +-- NodeSilent               a node's heartbeat (or boot-up) missed its deadline
         +-- SdoError                 an SDO transfer failed (no answer, or aborted)
         +-- BusFault                 error frames or a broken bus
@@ -53,6 +54,16 @@ class DriveFault(DriverError):
     ):
         super().__init__(message, node=node, node_id=node_id)
         self.emcy_code = emcy_code
+
+
+class DriveDisabled(DriveFault):
+    """A drive left OPERATION ENABLED during a move without a fault, while the host still commanded
+    enable operation: its own quick stop input, STO, another master. `state` is the CiA 402 state
+    found (QUICK_STOP_ACTIVE, SWITCH_ON_DISABLED, ...). Latched and handled like a fault."""
+
+    def __init__(self, message: str, *, node: str | None = None, node_id: int | None = None, state: str = ""):
+        super().__init__(message, node=node, node_id=node_id)
+        self.state = state
 
 
 class NodeSilent(DriverError):

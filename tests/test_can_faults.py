@@ -243,10 +243,11 @@ def test_disconnect_after_a_stop_leaves_the_drives_without_torque(arm, sim_drive
 def test_an_axis_quick_stopped_just_short_of_its_target_has_not_arrived(arm, sim_drives, open_test_bus):
     """Statusword bit 10 also reports the end of a quick stop ramp in QUICK STOP ACTIVE: a move whose
     axis another master quick-stops 3 ms before its end (it stands 1.6 counts short, within the host's
-    2-count tolerance, bit 10 set) has not arrived; it ends in MoveTimeout, not as a finished move."""
+    2-count tolerance, bit 10 set) has not arrived; it ends in DriveDisabled naming the axis and the state
+    (was MoveTimeout before the host watched for it), not as a finished move."""
     import can
 
-    from drivers import MoveTimeout
+    from drivers import DriveDisabled
 
     start = arm.joints()
     arm.move_joints(Joints(start.j1_deg + 5.0, start.j2_deg, start.j3_mm, start.j4_deg), wait=False)
@@ -259,7 +260,7 @@ def test_an_axis_quick_stopped_just_short_of_its_target_has_not_arrived(arm, sim
     st = arm.axes["j1"].status
     assert st.state == "QUICK_STOP_ACTIVE" and st.target_reached
     assert abs(st.position_counts - arm.axes["j1"].to_counts(start.j1_deg + 5.0)) <= 2
-    with pytest.raises(MoveTimeout, match="j1: target not reached"):
+    with pytest.raises(DriveDisabled, match=r"j1 \(node 1\): left OPERATION ENABLED .* QUICK_STOP_ACTIVE"):
         arm.wait_idle()
 
 

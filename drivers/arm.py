@@ -224,7 +224,7 @@ class Arm:
                     )
                 )
                 continue
-            ax.enable()
+            ax.enable(STANDSTILL_MARGIN_S + self._slowest_quick_stop_s(), self.poll_s)
 
     def disconnect(self) -> None:
         """Disable the drives cleanly (they hold no torque and stop watching the host), stop

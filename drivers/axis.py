@@ -22,6 +22,9 @@ from drivers.eds import object_dictionary
 from drivers.errors import DriveFault, NodeSilent, SdoError
 
 ANSWER_TIMEOUT_S = 1.0  # wall time a drive gets to answer a controlword with a TPDO
+# time (on the shared clock) a quick stop ramp may take before enable() gives up; the arm passes
+# its own bound (2 s past the cell's slowest quick stop ramp)
+QUICK_STOP_END_TIMEOUT_S = 10.0
 
 
 class Axis:
@@ -306,9 +309,12 @@ class Axis:
             clock.sleep(step_s)
 
     # --- CiA 402 state machine -------------------------------------------------------------
-    def enable(self) -> None:
+    def enable(self, quick_stop_timeout_s: float = QUICK_STOP_END_TIMEOUT_S, step_s: float = 0.01) -> None:
         """Walk the 402 state machine to OPERATION ENABLED in profile position mode, with the
-        target set to the actual position first so that enabling never jumps."""
+        target set to the actual position first so that enabling never jumps. From QUICK STOP
+        ACTIVE it first waits (on the clock, up to `quick_stop_timeout_s`) for the end of the quick
+        stop ramp: statusword bit 10 where the drive stays there (0x605A 5-8; then transition 16),
+        or SWITCH ON DISABLED where it does not (1, 2; then the walk from there)."""
         if self.status is None:
             self.wait_status(lambda s: True, None, "first TPDO")
         if self.state == "FAULT":
@@ -333,6 +339,9 @@ class Axis:
             state = self.state
             if state == "OPERATION_ENABLED":
                 return
+            if state == "QUICK_STOP_ACTIVE" and not self._quick_stop_ended():
+                self._wait_quick_stop_end(quick_stop_timeout_s, step_s)
+                continue
             if state not in steps:
                 raise DriveFault(
                     f"{self.name} (node {self.node_id}): cannot enable from {state}",
@@ -343,8 +352,8 @@ class Axis:
             if cw is None:
                 self.wait_status(lambda s, n=nxt: s.state == n, None, nxt)
                 continue
-            if state == "SWITCHED_ON":
-                # the drive may have drifted while switched on: target = actual, once more
+            if state in ("SWITCHED_ON", "QUICK_STOP_ACTIVE"):
+                # the drive may have drifted while switched on, or ramped down: target = actual, once more
                 self.send_target(self.status.position_counts)
             seq = self.send_controlword(cw)
             self.wait_status(lambda s, n=nxt: s.state == n, seq, nxt)
@@ -353,6 +362,27 @@ class Axis:
             node=self.name,
             node_id=self.node_id,
         )
+
+    def _quick_stop_ended(self) -> bool:
+        """Out of QUICK STOP ACTIVE, or in it with bit 10 where the drive stays there (0x605A 5-8, or not
+        known); where it goes on to SWITCH ON DISABLED (1-4), transition 16 is none: wait for that."""
+        if self.state != "QUICK_STOP_ACTIVE":
+            return True
+        leaves = self.option_codes.get(option_codes.QUICK_STOP) in range(1, 5)
+        return self.status.target_reached and not leaves
+
+    def _wait_quick_stop_end(self, timeout_s: float, step_s: float) -> None:
+        """Wait on the clock, not wall time: a ramp takes time, simulated or not."""
+        deadline = self.clock.now() + timeout_s
+        while not self._quick_stop_ended():
+            if self.clock.now() >= deadline:
+                raise DriveFault(
+                    f"{self.name} (node {self.node_id}): still in QUICK STOP ACTIVE {timeout_s:g} s on "
+                    f"(statusword bit 10 {'set' if self.status.target_reached else 'clear'}); not enabled",
+                    node=self.name,
+                    node_id=self.node_id,
+                )
+            self.clock.sleep(step_s)
 
     def quick_stop(self, confirm_timeout_s: float = 0.2) -> None:
         """Quick stop (402 transition 11) and wait briefly for the drive to confirm it."""

@@ -1,6 +1,7 @@
 """A drive that leaves OPERATION ENABLED during a move without a fault (its own quick stop input, STO,
 another master): the host sees it in the axis' next TPDO1, quick-stops the other axes as on a fault,
-raises DriveDisabled naming the axis and the state, and sends nothing more until reset_faults()."""
+raises DriveDisabled naming the axis and the state, and sends nothing more until reset_faults().
+And Axis.enable() out of QUICK STOP ACTIVE waits for the end of the ramp on its own."""
 
 from __future__ import annotations
 
@@ -108,3 +109,46 @@ def test_another_master_quick_stopping_an_axis_in_real_time(open_test_bus, cell_
             assert {drives.drives[n].state for n in ("j1", "j2", "j4", "gripper")} == {"QUICK_STOP_ACTIVE"}
     finally:
         clock.close()
+
+
+def _stopped_mid_ramp(arm, sim_drives):
+    """j1 cruising, then quick-stopped from the drive's side; returns j1's ramp time left (s)."""
+    start = arm.joints()
+    arm.move_joints(Joints(start.j1_deg - 100.0, start.j2_deg, start.j3_mm, start.j4_deg), wait=False)
+    arm.clock.sleep(0.4)  # cruising at 180 deg/s: the quick stop ramp takes 0.125 s
+    sim_drives.inject_fault("quick_stop", "j1")
+    arm.clock.sleep(0.02)
+    m = sim_drives.drives["j1"].motion
+    assert m is not None and m.stopping
+    return m.t0_s + m.profile.duration_s - arm.clock.now()
+
+
+@pytest.mark.parametrize(("quick_stop_code", "through"), [(6, "QUICK_STOP_ACTIVE"), (2, "SWITCH_ON_DISABLED")])
+def test_axis_enable_out_of_quick_stop_waits_for_the_end_of_the_ramp(
+    sim_drives, open_test_bus, sim_clock, cell_cfg, quick_stop_code, through
+):
+    """Axis.enable() alone (not the arm's wait): from QUICK STOP ACTIVE while the axis still ramps it
+    waits on the clock for bit 10 (0x605A = 6, then transition 16) or SWITCH ON DISABLED (2, then the
+    walk from there), and enables where the axis stands, the target set there. It used to send enable
+    operation at once and wait 1 s of wall time for a state that needs simulated time to come."""
+    sim_drives.configure_option_codes(values={0x605A: quick_stop_code}, accepted={0x605A: {quick_stop_code}})
+    with Arm(open_test_bus(), cell_cfg, clock=sim_clock) as arm, _tap(open_test_bus, sim_clock) as heard:
+        ramp_left_s = _stopped_mid_ramp(arm, sim_drives)
+        assert ramp_left_s > 0.05
+        t0 = sim_clock.now()
+        arm.axes["j1"].enable()
+        j1 = sim_drives.drives["j1"]
+        assert j1.state == "OPERATION_ENABLED" and j1.motion is None
+        assert sim_clock.now() - t0 >= ramp_left_s
+        assert j1._get(0x607A) == round(j1.position_counts)  # enabling never jumps
+        assert through in {codec.unpack_tpdo1(m.data).state for _, m in heard if m.arbitration_id == 0x181}
+        before = j1.position()
+        sim_clock.sleep(0.2)
+        assert j1.position() == before
+
+
+def test_axis_enable_gives_up_on_a_quick_stop_that_never_ends(sim_drives, open_test_bus, sim_clock, cell_cfg):
+    with Arm(open_test_bus(), cell_cfg, clock=sim_clock) as arm:
+        _stopped_mid_ramp(arm, sim_drives)
+        with pytest.raises(DriveFault, match=r"j1 \(node 1\): still in QUICK STOP ACTIVE 0.05 s on .*bit 10 clear"):
+            arm.axes["j1"].enable(quick_stop_timeout_s=0.05)

@@ -559,15 +559,16 @@ class SimDrive:
     def _stop_on(self, m: _Motion, d: float, coasting: bool = False) -> None:
         now = self.clock.now()
         v0 = m.profile.velocity_at(now - m.t0_s)
-        if v0 == 0.0 or d <= 0:
+        if v0 == 0.0 or d <= 0 or self._jammed_at is not None:
+            # a jammed axis already stands (velocity actual 0): its stop ends at once, as its fault
+            # reaction does; a ramp of the demand alone would never end (no bit 10, no state after it)
             self.motion = None
             return
         t_s = abs(v0) / d
         ramp = Trapezoid(v0 * t_s / 2, abs(v0), d, d, 0.0, 0.0, t_s)
         # from where the axis is now, not where the last tick left it: a command between two ticks (10 ms)
         # lost the travel since, 1620 counts at 180000 counts/s
-        here = self._jammed_at if self._jammed_at is not None else m.start_counts + m.profile.position_at(
-            now - m.t0_s)
+        here = m.start_counts + m.profile.position_at(now - m.t0_s)
         self.motion = _Motion(now, here, round(here + ramp.distance), ramp, True, coasting)
 
     def _fault(self, code: int, *, following_error: bool = False) -> None:
@@ -711,11 +712,9 @@ class SimDrive:
                     self._event(f)
                     return
         if self._jammed_at is not None:
-            # the actual position stays; the drive faults once the demand leaves the window
+            # the actual position stays; the drive faults once the demand leaves the window (a stop of a
+            # jammed axis ends at once, in _stop_on: only a move's demand runs on here)
             self.position_counts = self._jammed_at
-            if m.coasting:  # (undriven: nothing follows a demand)
-                self.motion = None
-                return
             if abs(demand - self._jammed_at) > int(self._get(0x6065)):
                 self._fault(0x8611, following_error=True)
             return

@@ -130,21 +130,25 @@ class SimHandle:
             return
         if kind not in FAULT_KINDS:
             raise ValueError(f"unknown fault kind {kind!r}; one of {FAULT_KINDS}")
-        if node not in self.drives:
-            raise ValueError(f"unknown node {node!r}; one of {sorted(self.drives)}")
+        self._check_node(node, all_allowed=False)
         self.drives[node].arm(kind, **kw)
+
+    def _check_node(self, node: str | None, *, all_allowed: bool = True) -> None:
+        """A misspelt node would make a test's misbehaviour (or its cure) silently apply to nobody."""
+        if not (node in self.drives or (all_allowed and node is None)):
+            raise ValueError(f"unknown node {node!r}; one of {sorted(self.drives)}")
 
     def configure_option_codes(self, node: str | None = None, **kw) -> None:
         """Drives of another make (all nodes, or one): factory option codes, the values they take by
         SDO, objects they lack; see `SimDrive.configure_option_codes`."""
-        if node is not None and node not in self.drives:
-            raise ValueError(f"unknown node {node!r}; one of {sorted(self.drives)}")
+        self._check_node(node)
         for name, d in self.drives.items():
             if node in (None, name):
                 d.configure_option_codes(**kw)
 
     def heal(self, node: str | None = None) -> None:
         """Undo injected misbehaviour (all nodes, or one); latched drive faults stay latched."""
+        self._check_node(node)
         for name, d in self.drives.items():
             if node in (None, name):
                 d.heal()

@@ -283,3 +283,16 @@ def test_stop_waits_for_a_quick_stop_ramp_longer_than_two_seconds(open_test_bus,
         assert arm.axes["j1"].status.state == "QUICK_STOP_ACTIVE" and arm.axes["j1"].status.target_reached
         _assert_frozen(arm, drives)
         _assert_recovers(arm, drives)
+
+
+def test_heal_refuses_an_unknown_node_as_inject_fault_does(sim_drives):
+    """A misspelt node healed nobody without a word: the test then ran on with the fault in place."""
+    sim_drives.inject_fault("silent", "j4")
+    unknown = r"unknown node 'J4'; one of \['gripper', 'j1', 'j2', 'j3', 'j4'\]"
+    with pytest.raises(ValueError, match=unknown):
+        sim_drives.inject_fault("silent", "J4")
+    with pytest.raises(ValueError, match=unknown):
+        sim_drives.heal("J4")
+    assert sim_drives.drives["j4"].silent  # nothing was healed
+    sim_drives.heal("j4")
+    assert not sim_drives.drives["j4"].silent

@@ -156,6 +156,9 @@ class Arm:
                 ax.wait_heartbeat(self.clock, self.boot_timeout_s, self.poll_s, start_s=t0)
             for ax in self.axes.values():
                 self._configure(ax)
+            # CiA 301: a drive watches the host from the first heartbeat it hears after 0x1016 is set: start
+            # every watch now, not a period later (a host gone meanwhile would never be noticed)
+            self._send_host_heartbeat()
             for ax in self.axes.values():
                 ax.nmt(codec.NMT_START)
             for ax in self.axes.values():

@@ -296,3 +296,22 @@ def test_heal_refuses_an_unknown_node_as_inject_fault_does(sim_drives):
     assert sim_drives.drives["j4"].silent  # nothing was healed
     sim_drives.heal("j4")
     assert not sim_drives.drives["j4"].silent
+
+
+
+def test_every_drive_watches_the_host_as_soon_as_connect_returns(open_test_bus, sim_clock, cell_cfg):
+    """A host gone right after connect, before its next periodic heartbeat, is still caught: connect sends
+    one once every 0x1016 is set (CiA 301: a drive watches from the first heartbeat it hears after that).
+    With a 1 s host heartbeat and a 0.2 s connect no drive heard one and none watched; with 100 ms, the
+    last node configured (the gripper) now and then heard none on a loaded machine (test_can_stall)."""
+    import dataclasses
+
+    cell = dataclasses.replace(cell_cfg, can=dataclasses.replace(cell_cfg.can, host_heartbeat_ms=1000))
+    with sim.serve(open_test_bus(), cell, clock=sim_clock) as drives:
+        arm = Arm(open_test_bus(), cell, clock=sim_clock)
+        arm.connect()
+        assert sim_clock.now() < 1.0  # connect took less than a host heartbeat period
+        arm._host_job.cancel()  # the host is gone
+        sim_clock.sleep(3.0 + 0.05)  # its deadline: 3 periods
+        assert {n: d.error_code for n, d in drives.drives.items()} == dict.fromkeys(drives.drives, 0x8130)
+        arm.disconnect()

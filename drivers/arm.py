@@ -309,8 +309,8 @@ class Arm:
                     node_id=ax.node_id,
                     emcy_code=ax.last_emcy.code if ax.last_emcy else None,
                 )
-            if err is None:
-                err = self._left_operation(ax)
+            if err is None and ax.name in self._pending[0]:
+                err = self._left_operation(ax, "during a move")
             if (
                 err is None
                 and ax.last_heartbeat_s is not None
@@ -325,17 +325,20 @@ class Arm:
             if err is not None:
                 self._latch(err)
 
-    def _left_operation(self, ax: Axis) -> DriveDisabled | None:
-        """An axis of the running move that left OPERATION ENABLED without a fault while the host still
-        commands enable operation (a quick stop or STO from the drive's side, another master): it will
-        never arrive, and the others must not go on alone. The host's own stops send another command."""
+    @staticmethod
+    def _left_operation(ax: Axis, when: str) -> DriveDisabled | None:
+        """An axis that left OPERATION ENABLED without a fault while the host still commands enable
+        operation (a quick stop or STO from the drive's side, another master). During a move it will never
+        arrive and the others must not go on alone; before one, the host's enable operation with the
+        set-point would re-enable it (transition 16) behind that side's back. The host's own stops send
+        another command."""
         st = ax.status
-        if ax.name not in self._pending[0] or st is None or st.state == "OPERATION_ENABLED" or "FAULT" in st.state:
+        if st is None or st.state == "OPERATION_ENABLED" or "FAULT" in st.state:
             return None
         if codec.command_of(ax.controlword) != "ENABLE_OPERATION":
             return None
         return DriveDisabled(
-            f"{ax.name} (node {ax.node_id}): left OPERATION ENABLED during a move without a fault, now in "
+            f"{ax.name} (node {ax.node_id}): left OPERATION ENABLED {when} without a fault, now in "
             f"{st.state} (stopped from the drive's side: its quick stop input, STO or another master)",
             node=ax.name,
             node_id=ax.node_id,
@@ -448,11 +451,17 @@ class Arm:
 
     # --- commands --------------------------------------------------------------------------
     def _begin_command(self) -> None:
-        """Every command: connected, the previous move finished, no fault latched."""
+        """Every command: connected, the previous move finished, no fault latched, every drive the host
+        enabled still in OPERATION ENABLED."""
         self._require_connected()
         if self._pending[0]:
             self.wait_idle()
         self._check_faults(during_move=False)
+        for ax in self.axes.values():
+            err = self._left_operation(ax, "while idle")
+            if err is not None:
+                self._latch(err)
+                raise err  # nothing sent: the axes still enabled stand
 
     def _require_connected(self) -> None:
         if not self._connected:

@@ -1,6 +1,7 @@
 """A drive that leaves OPERATION ENABLED during a move without a fault (its own quick stop input, STO,
 another master): the host sees it in the axis' next TPDO1, quick-stops the other axes as on a fault,
-raises DriveDisabled naming the axis and the state, and sends nothing more until reset_faults().
+raises DriveDisabled naming the axis and the state, and sends nothing more until reset_faults(); an
+idle axis found so refuses the next command before anything is sent.
 And Axis.enable() out of QUICK STOP ACTIVE waits for the end of the ramp on its own."""
 
 from __future__ import annotations
@@ -49,7 +50,8 @@ def _host_command(msg: can.Message) -> bool:
 
 def _left_at_s(heard, node_id: int, state: str) -> float:
     """When the node's TPDO1 first reported `state`."""
-    return next(t for t, m in heard if m.arbitration_id == 0x180 + node_id and codec.unpack_tpdo1(m.data).state == state)
+    tpdo1 = 0x180 + node_id
+    return next(t for t, m in heard if m.arbitration_id == tpdo1 and codec.unpack_tpdo1(m.data).state == state)
 
 
 @pytest.mark.parametrize(("kind", "state"), [("quick_stop", "QUICK_STOP_ACTIVE"), ("disable", "SWITCH_ON_DISABLED")])
@@ -88,6 +90,24 @@ def test_a_drive_leaving_operation_mid_move_stops_the_others_and_raises_at_once(
     assert all(s["state"] == "OPERATION_ENABLED" for s in arm.state().values())
     arm.move_joints(target)
     assert sim_drives.positions()["j2"] == pytest.approx(target.j2_deg, abs=1e-3)
+
+
+def test_an_idle_axis_left_operation_refuses_the_next_command_and_sends_nothing(arm, sim_drives, open_test_bus):
+    """j2 quick-stops on its own while the arm stands: the next move raises DriveDisabled before any frame.
+    The host's set-point controlword (enable operation + bit 4) used to re-enable such a drive (transition
+    16 out of QUICK STOP ACTIVE) behind its back, then time out waiting 1 s for the acknowledge."""
+    sim_drives.inject_fault("quick_stop", "j2")
+    arm.clock.sleep(0.05)
+    with _tap(open_test_bus, arm.clock) as heard:
+        with pytest.raises(DriveDisabled, match=r"j2 \(node 2\): left OPERATION ENABLED while idle .* QUICK_STOP"):
+            arm.move_joints(_long_move(arm))
+        with pytest.raises(FaultLatched, match="j2"):
+            arm.gripper.open()
+        arm.clock.sleep(0.5)
+        assert not [m for _, m in heard if _host_command(m)]
+    assert sim_drives.drives["j2"].state == "QUICK_STOP_ACTIVE"
+    arm.reset_faults()
+    assert sim_drives.drives["j2"].state == "OPERATION_ENABLED"
 
 
 def test_another_master_quick_stopping_an_axis_in_real_time(open_test_bus, cell_cfg):

@@ -105,30 +105,51 @@ def chessboard_object_points(pattern: tuple[int, int], square_mm: float) -> np.n
     return np.column_stack([grid * square_mm, np.zeros(len(grid))]).astype(np.float32)
 
 
-# A board in a large image (a 12 MP camera) can be missed at full size: the classic detector found 7 of
-# OpenCV's 13 boards upscaled to 4000 x 3000 px (all 13 up to 3200 x 2400 px, and all 13 on a copy of the
-# 4000 x 3000 ones reduced to 1600 px). Where a detector finds no board in an image larger than this a
-# side, it looks again on a copy reduced to this size; the corners are mapped back to full size (and the
-# classic detector's refined there by `cornerSubPix`, as always). Images up to this size are not affected.
+# Large images (a 12 MP phone or DSLR photo) are searched on reduced copies, never at full size: the
+# classic detector's time grows with every dark blob of the image, not with the board (a 6000 x 4000 photo of
+# a textured table without a board: more than 8 minutes at full size, 32 s at 3200 px, 0.7 s at 1600 px; a
+# board pasted small into a 12 MP photo: 20-40 s an image at full size, 0.03 s at 1600 px), and at full size it
+# missed 6 of OpenCV's 13 boards upscaled to 4000 x 3000 px (all 13 on the 1600 px copy). The corners found on
+# a copy are mapped back and refined at full size with `cornerSubPix` (for both detectors). Images up to
+# DETECT_MAX_PX a side are searched at full size, as before.
 DETECT_MAX_PX = 1600
+# A board too small for the 1600 px copy (squares under about 6 px there: OpenCV's 9 x 6 board 224 px wide in a
+# 4032 px photo) is looked for by the sector detector, which stays fast on large images, on a copy of at most
+# this size (found there; 0.8 - 1.2 s for both copies of a 12 MP photo without a board, 1.6 - 2.8 s with 3200 px).
+# The classic detector is not run on such a copy (32 s at 3200 px on the textured 6000 x 4000 photo).
+DETECT_FINE_MAX_PX = 2400
+
+
+def detection_levels(size: tuple[int, int], detector: str) -> list[int | None]:
+    """The long sides of the copies a detector searches, in order (None: the image itself)."""
+    long_side = max(size)
+    if long_side <= DETECT_MAX_PX:
+        return [None]
+    if detector == "classic":
+        return [DETECT_MAX_PX]
+    return [DETECT_MAX_PX, None if long_side <= DETECT_FINE_MAX_PX else DETECT_FINE_MAX_PX]
 
 
 def find_chessboard(gray: np.ndarray, pattern: tuple[int, int], detector: str = "classic"):
-    """(corners (n, 1, 2) float32 at full size or None, whether they were found on the reduced copy),
-    the classic detector's before `cornerSubPix`."""
+    """(corners (n, 1, 2) float32 at full size or None, the long side of the reduced copy they were found on or
+    None for the image itself); corners found on a copy still need refining at full size (`refine_corners`),
+    as the classic detector's always do."""
     if detector not in ("classic", "sb"):
         raise BadInput(f"unknown chessboard detector {detector!r} (classic, sb, auto)")
-    corners = _find_chessboard(gray, pattern, detector)
     h, w = gray.shape[:2]
-    if corners is not None or max(w, h) <= DETECT_MAX_PX:
-        return corners, False
-    f = DETECT_MAX_PX / max(w, h)
-    size = (max(1, round(w * f)), max(1, round(h * f)))
-    small = _find_chessboard(cv2.resize(gray, size, interpolation=cv2.INTER_AREA), pattern, detector)
-    if small is None:
-        return None, False
-    # pixel centres: u at the reduced size is (u + 0.5) * size / w - 0.5
-    return ((small + 0.5) / np.array([size[0] / w, size[1] / h], np.float32) - 0.5).astype(np.float32), True
+    for level in detection_levels((w, h), detector):
+        if level is None:
+            corners = _find_chessboard(gray, pattern, detector)
+            if corners is not None:
+                return corners, None
+            continue
+        f = level / max(w, h)
+        size = (max(1, round(w * f)), max(1, round(h * f)))
+        small = _find_chessboard(cv2.resize(gray, size, interpolation=cv2.INTER_AREA), pattern, detector)
+        if small is not None:
+            # pixel centres: u at the reduced size is (u + 0.5) * size / w - 0.5
+            return ((small + 0.5) / np.array([size[0] / w, size[1] / h], np.float32) - 0.5).astype(np.float32), level
+    return None, None
 
 
 def _find_chessboard(gray: np.ndarray, pattern: tuple[int, int], detector: str):
@@ -167,6 +188,24 @@ def aruco_dictionary(name: str):
 # up to this many pixels a side): OpenCV's marker detector loses small markers (its tutorial's board at
 # 320 x 240 px: 4-10 of 24 corners, 13-22 at twice the size), the corners are refined on either.
 CHARUCO_UPSCALE_MAX_PX = 2000
+
+
+# OpenCV drops marker candidates whose perimeter is under 0.03 x the image's long side: 19 px at 640 px, but
+# 121 px at 4032 px, so OpenCV's own board pasted at its size into a 12 MP photo was found in none of 4 views
+# (markers of 25 px a side). Images larger than this get the rate that keeps the smallest perimeter at 0.03 x
+# this many px (30 px, markers of 7.5 px a side, which no dictionary's cells can be read below); the 4 views then
+# give all 24 corners each, in 0.5 s a 12 MP view (0.6 - 0.8 s on a 24 MP photo without a board). Images up to
+# this size are detected as before.
+CHARUCO_MIN_PERIMETER_REF_PX = 1000
+
+
+def charuco_marker_params(size: tuple[int, int]):
+    """ArUco detector parameters for ChArUco boards in images of `size` (see CHARUCO_MIN_PERIMETER_REF_PX)."""
+    params = cv2.aruco.DetectorParameters()
+    long_side = max(size)
+    if long_side > CHARUCO_MIN_PERIMETER_REF_PX:
+        params.minMarkerPerimeterRate = params.minMarkerPerimeterRate * CHARUCO_MIN_PERIMETER_REF_PX / long_side
+    return params
 
 
 def _charuco_corners(det, gray: np.ndarray, n_all: int):
@@ -251,9 +290,7 @@ def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[in
         raise BadInput("no images given")
     if not (np.isfinite(square_mm) and square_mm > 0):
         raise BadInput(f"the square side must be a finite positive length, got {square_mm!r}")
-    sizes = {img.shape[:2] for _, img in images}
-    if len(sizes) != 1:
-        raise BadInput("the images have different sizes: " + ", ".join(f"{w}x{h}" for h, w in sorted(sizes)))
+    _refuse_mixed_sizes(images)
     h, w = images[0][1].shape[:2]
     squares = pattern if charuco is not None else (pattern[0] + 1, pattern[1] + 1)
     if max(squares) * MIN_SQUARE_PX > max(w, h) or min(squares) * MIN_SQUARE_PX > min(w, h):
@@ -270,7 +307,7 @@ def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[in
     if charuco is not None:
         board = charuco_board(pattern, square_mm, float(charuco["marker_mm"]), charuco.get("dictionary",
                                                                                            "DICT_6X6_250"))
-        det = cv2.aruco.CharucoDetector(board)
+        det = cv2.aruco.CharucoDetector(board, cv2.aruco.CharucoParameters(), charuco_marker_params((w, h)))
         n_all = (pattern[0] - 1) * (pattern[1] - 1)
         for i, (_, gray) in enumerate(images):
             corners, ids, n = _charuco_corners(det, gray, n_all)
@@ -290,10 +327,10 @@ def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[in
         objp = chessboard_object_points(pattern, square_mm)
         name = order[0]
         found, reduced = zip(*(find_chessboard(g, pattern, name) for _, g in images), strict=True)
-        if name == "classic" and any(c is not None for c in found):
-            if subpix_win is None:
-                subpix_win = min(subpix_win_for([c for c in found if c is not None], pattern), (min(w, h) - 5) // 2)
-            found = [None if c is None else refine_corners(g, c, subpix_win) for c, (_, g) in zip(found, images)]
+        classic_win = subpix_win
+        if name == "classic":
+            found, classic_win = _refine_views(images, found, [True] * len(found), pattern, subpix_win, (w, h))
+        sb_win = None
         missed = [i for i, c in enumerate(found) if c is None]
         if len(order) > 1 and missed:
             # switch to SB for every view only if it finds boards the classic detector missed (an image
@@ -306,17 +343,21 @@ def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[in
                                           for i, (_, g) in enumerate(images)), strict=True)
                 if sum(c is not None for c in by_sb) > sum(c is not None for c in found):
                     name, found, reduced = "sb", by_sb, sb_reduced
+        if name == "sb":  # SB's corners are sub-pixel at the size it saw: those of a reduced copy are refined
+            found, sb_win = _refine_views(images, found, [r is not None for r in reduced], pattern, subpix_win,
+                                          (w, h))
         for i, corners in enumerate(found):
             views[i].detector = name
             if corners is None:
-                views[i].note = f"board {pattern[0]}x{pattern[1]} not found"
+                views[i].note = (f"board {pattern[0]}x{pattern[1]} not found (a chessboard is found only when all "
+                                 "its inner corners are in the image; a ChArUco board may be cut off)")
                 continue
             if reduced[i]:
-                views[i].note = f"found on a copy reduced to {DETECT_MAX_PX} px (missed at full size)"
+                views[i].note = f"found on a copy reduced to {reduced[i]} px, corners refined at full size"
             obj_pts[i], img_pts[i] = objp, corners
             views[i].found, views[i].n_points = True, len(corners)
         board_info = {"type": "chessboard", "inner_corners": list(pattern), "square": square_mm,
-                      "detector": name, "subpix_win": subpix_win if name == "classic" else None}
+                      "detector": name, "subpix_win": classic_win if name == "classic" else sb_win}
 
     use = [i for i, v in enumerate(views) if v.found]
     if len(use) < MIN_VIEWS:
@@ -342,6 +383,43 @@ def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[in
                               board=board_info)
     result.warnings = _warnings(result)
     return result
+
+
+def _refuse_mixed_sizes(images) -> None:
+    """One camera matrix holds for one image size: a set of several sizes is refused, naming the images of each
+    (a resized or cropped copy, or a turned camera, has another matrix)."""
+    by_size: dict[tuple[int, int], list[str]] = {}
+    for name, img in images:
+        by_size.setdefault((img.shape[1], img.shape[0]), []).append(str(name))
+    if len(by_size) == 1:
+        return
+
+    def names(ns):
+        return ", ".join(ns[:3]) + (f" and {len(ns) - 3} more" if len(ns) > 3 else "")
+
+    listed = "; ".join(f"{w}x{h} ({len(ns)}): {names(ns)}"
+                       for (w, h), ns in sorted(by_size.items(), key=lambda kv: (-len(kv[1]), kv[0])))
+    if any((h, w) in by_size for w, h in by_size):
+        hint = ("portrait and landscape views are mixed: images are read as they are displayed (a JPEG's EXIF "
+                "orientation applied, as `cell segment` reads frames), so a camera turned between shots, or "
+                "photos whose EXIF orientation differs, give both; turn them all to the orientation the camera "
+                "will be used in, or calibrate each orientation apart")
+    else:
+        hint = ("one camera matrix holds for one image size: calibrate each size apart (a resized or cropped "
+                "copy has another camera matrix)")
+    raise BadInput(f"the images have different sizes: {listed}; {hint}")
+
+
+def _refine_views(images, found, refine, pattern, subpix_win, size):
+    """(the found corners, those flagged in `refine` refined at full size with `cornerSubPix`, the half-window
+    used: `subpix_win` or one for all views from their squares, `subpix_win_for`; None when nothing was refined)."""
+    todo = [c is not None and r for c, r in zip(found, refine, strict=True)]
+    if not any(todo):
+        return list(found), subpix_win
+    if subpix_win is None:
+        subpix_win = min(subpix_win_for([c for c in found if c is not None], pattern), (min(size) - 5) // 2)
+    return [refine_corners(g, c, subpix_win) if t else c
+            for c, t, (_, g) in zip(found, todo, images, strict=True)], subpix_win
 
 
 def _fit(obj_pts, img_pts, use, size):

@@ -59,7 +59,7 @@ def test_boards_a_large_image_hides_at_full_size_are_found_on_a_reduced_copy():
     big = [(n, cv2.resize(g, None, fx=6.25, fy=6.25, interpolation=cv2.INTER_CUBIC)) for n, g in plain]
     small, r = calibrate_intrinsics(plain, (9, 6), 1.0), calibrate_intrinsics(big, (9, 6), 1.0)
     assert r.board["detector"] == "classic" and sorted(r.images_used) == sorted(names)
-    assert all(v.note == "found on a copy reduced to 1600 px, corners refined at full size" for v in r.views)
+    assert all(v.note.endswith("corners refined at full size") for v in r.views)  # on a copy or the board's region
     assert not any(v.note for v in small.views)
     assert r.camera_matrix[0, 0] / 6.25 == pytest.approx(small.camera_matrix[0, 0], rel=0.005)
     # pixel centres: c at 1 x is (c + 0.5) * 6.25 - 0.5 at 6.25 x

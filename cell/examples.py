@@ -33,7 +33,7 @@ import numpy as np
 from cell.errors import BadInput
 from cell.fileio import DuplicateKey, append_lines_atomic, has_non_number, read_text, unique_keys
 from cell.kinematics import Joints
-from cell.scene import Part, parse_part
+from cell.scene import MAX_COORD_MM, Part, _finite, parse_part
 
 JOINT_KEYS = ("j1_deg", "j2_deg", "j3_mm", "j4_deg")
 
@@ -100,6 +100,8 @@ def parse_example(raw, where: str = "example") -> GraspExample:
         raise BadInput(f"{where}: 'contacts' must be a list of [x, y] numbers (true/false and strings are not numbers)")
     try:
         c = np.asarray(contacts, dtype=float)
+    except OverflowError:  # an integer literal too large for a float (JSON allows any length)
+        raise BadInput(f"{where}: 'contacts' must be at least two finite [x, y] points (one is too large)") from None
     except (TypeError, ValueError):
         raise BadInput(f"{where}: 'contacts' must be a list of [x, y]") from None
     if c.ndim != 2 or c.shape[1] != 2 or len(c) < 2 or not np.all(np.isfinite(c)):
@@ -125,8 +127,9 @@ def parse_example(raw, where: str = "example") -> GraspExample:
         raise BadInput(f"{where}: 'obstacles' must be a list of parts")
     obs = tuple(parse_part(o, f"{where}: obstacle #{i}") for i, o in enumerate(obstacles))
     gz = raw.get("grasp_z_mm")
-    if gz is not None and (isinstance(gz, bool) or not isinstance(gz, (int, float)) or not math.isfinite(gz)):
-        raise BadInput(f"{where}: 'grasp_z_mm' must be a number")
+    if gz is not None and (isinstance(gz, bool) or not isinstance(gz, (int, float)) or not _finite(gz)
+                           or abs(gz) > MAX_COORD_MM):
+        raise BadInput(f"{where}: 'grasp_z_mm' must be a number of mm within {MAX_COORD_MM:g}")
     joints = raw.get("joints")
     if joints is not None:
         if isinstance(joints, dict) and has_non_number([joints.get(k, 0) for k in JOINT_KEYS]):
@@ -134,10 +137,14 @@ def parse_example(raw, where: str = "example") -> GraspExample:
                            "strings are not numbers)")
         try:
             joints = Joints.from_dict(joints)
+        except OverflowError:  # an integer literal too large for a float
+            raise BadInput(f"{where}: 'joints' must be finite") from None
         except (KeyError, TypeError, ValueError):
             raise BadInput(f"{where}: 'joints' must have numbers j1_deg, j2_deg, j3_mm, j4_deg") from None
         if not all(math.isfinite(v) for v in joints.as_array()):
             raise BadInput(f"{where}: 'joints' must be finite")
+        if max(abs(v) for v in joints.as_array()) > MAX_COORD_MM:  # 1e308 deg overflowed step 5's distances
+            raise BadInput(f"{where}: 'joints' must be within {MAX_COORD_MM:g} (deg, mm)")
     source = raw.get("source")
     if not isinstance(source, dict) or source.get("kind") not in SOURCE_KINDS:
         raise BadInput(f"{where}: 'source' must be an object with 'kind' one of {', '.join(SOURCE_KINDS)}")
@@ -157,7 +164,8 @@ def load_examples(path: str | Path | None = None, *, allow_empty: bool = False) 
 def _parse_examples(text: str, path: Path, allow_empty: bool) -> list[GraspExample]:
     out: list[GraspExample] = []
     seen: set[str] = set()
-    for lineno, line in enumerate(text.splitlines(), 1):
+    # split at newlines only: str.splitlines() also splits at U+2028, U+0085, ..., which a JSON string may hold
+    for lineno, line in enumerate(text.split("\n"), 1):
         if not line.strip():
             continue
         try:
@@ -166,6 +174,8 @@ def _parse_examples(text: str, path: Path, allow_empty: bool) -> list[GraspExamp
             raise BadInput(f"example file {path} line {lineno}: not valid JSON ({e.msg})") from None
         except DuplicateKey as e:
             raise BadInput(f"example file {path} line {lineno}: {e}") from None
+        except RecursionError:  # json's decoder recurses per nesting level: [[[[...]]]] 100000 deep
+            raise BadInput(f"example file {path} line {lineno}: not valid JSON (nested too deeply)") from None
         ex = parse_example(raw, f"example file {path} line {lineno}")
         if ex.id in seen:
             raise BadInput(f"example file {path} line {lineno}: duplicate example id {ex.id!r}")

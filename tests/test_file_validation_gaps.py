@@ -183,6 +183,15 @@ EXAMPLE_CASES = [
     ("version-0", _edit(version=0), ": not a grasp-example v1 line (format='grasp-example', version=0)"),
     # a bool is not a version, though True == 1 (calibration and cell files refuse it too)
     ("version-true", _edit(version=True), ": not a grasp-example v1 line (format='grasp-example', version=True)"),
+    # integer literals no float holds, and numbers no arm has: were internal errors (OverflowError) or, for
+    # 1e308 deg, overflow warnings in step 5's joint distances
+    ("contact-huge-integer", _edit(contacts=[[10**400, 20], [340, 20]]), f" (b): {TWO_POINTS} (one is too large)"),
+    ("grasp_z-huge-integer", _edit(grasp_z_mm=10**400), " (b): 'grasp_z_mm' must be a number of mm within 1e+06"),
+    ("grasp_z-1e308", _edit(grasp_z_mm=1e308), " (b): 'grasp_z_mm' must be a number of mm within 1e+06"),
+    ("joints-huge-integer", _edit(joints={"j1_deg": 10**400, "j2_deg": 0, "j3_mm": 0, "j4_deg": 0}),
+     " (b): 'joints' must be finite"),
+    ("joints-1e308", _edit(joints={"j1_deg": 0, "j2_deg": 0, "j3_mm": 0, "j4_deg": 1e308}),
+     " (b): 'joints' must be within 1e+06 (deg, mm)"),
 ]
 
 

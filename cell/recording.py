@@ -424,8 +424,9 @@ class RecordingReader:
     def _parse_line(self, path: Path, lineno: int, line: bytes) -> dict:
         try:
             rec = json.loads(line.decode("utf-8"), parse_constant=_no_constant)
-        except (UnicodeDecodeError, json.JSONDecodeError) as e:
-            msg = e.msg if isinstance(e, json.JSONDecodeError) else "not UTF-8"
+        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
+            msg = (e.msg if isinstance(e, json.JSONDecodeError) else "not UTF-8" if isinstance(e, UnicodeDecodeError)
+                   else "nested too deeply")  # json's decoder recurses per level: [[[[...]]]] 100000 deep
             raise BadInput(f"recording {path} line {lineno}: not valid JSON ({msg})") from None
         if not isinstance(rec, dict):
             raise BadInput(f"recording {path} line {lineno}: a decision must be a JSON object")

@@ -38,7 +38,15 @@ def _planner_a_list(d: Path):
     (d / "manifest.json").write_text(json.dumps(m))
 
 
+def _deep_decision_line(d: Path):
+    lines = (d / "decisions.jsonl").read_text().splitlines()
+    lines.insert(3, "[" * 100000 + "]" * 100000)  # json's decoder recurses per level
+    (d / "decisions.jsonl").write_text("\n".join(lines) + "\n")
+
+
 @pytest.mark.parametrize("damage, message", [
+    # was: internal error (RecursionError)
+    (_deep_decision_line, "decisions.jsonl line 4: not valid JSON (nested too deeply)"),
     # was: read as a recording made before the planner was kept, then "divergence" (exit 1)
     (_planner_a_list, "manifest meta.planner must be an object"),
     # was: internal error (cv2.error: pixels <= CV_IO_MAX_IMAGE_PIXELS)

@@ -7,6 +7,8 @@ import sys
 
 from cell.commands._vision_args import finite, plane_z
 
+MIN_AREA_MM2 = 75.0  # with a calibration: regions smaller than this are specks
+
 
 def add_arguments(p) -> None:
     p.add_argument("images", nargs="+", metavar="IMAGE", help="image file(s) to segment")
@@ -16,8 +18,8 @@ def add_arguments(p) -> None:
     p.add_argument("--z", type=float, default=None, metavar="MM",
                    help="height of the parts' tops for the mm mapping (default: the calibration's plane)")
     p.add_argument("--reference", metavar="IMAGE", help="image of the empty tray under the same light")
-    p.add_argument("--min-area-mm2", type=float, default=75.0,
-                   help="with a calibration: regions smaller than this are specks (default 75)")
+    p.add_argument("--min-area-mm2", type=float, default=None,
+                   help=f"with a calibration: regions smaller than this are specks (default {MIN_AREA_MM2:g})")
     p.add_argument("--min-area-px", type=float, default=None,
                    help="regions smaller than this many pixels are specks (default: from --min-area-mm2 with "
                         "a calibration, else 300 on a frame up to 1280 px long, x (long side / 1280)^2 above)")
@@ -42,6 +44,10 @@ def run(args) -> int:
         from cell.errors import BadInput
 
         raise BadInput("--z is the height the outlines are mapped to in mm: it needs --calibration")
+    if args.min_area_mm2 is not None and not args.calibration:  # it was ignored without a word
+        from cell.errors import BadInput
+
+        raise BadInput("--min-area-mm2 is an area on the table: it needs --calibration (without one, --min-area-px)")
     if args.calibration:
         cal = load_calibration(args.calibration)
         if not cal.can_map:
@@ -50,7 +56,8 @@ def run(args) -> int:
             raise BadInput(f"calibration {args.calibration} has no image -> base-frame mapping "
                            "(it holds intrinsics only; run `cell calibrate plane`)")
     z = args.z if args.z is not None else (cal.plane_z_mm if cal else 0.0)
-    params = SegmentParams.for_calibration(cal, args.min_area_mm2, z) if cal else SegmentParams()
+    params = SegmentParams.for_calibration(
+        cal, MIN_AREA_MM2 if args.min_area_mm2 is None else args.min_area_mm2, z) if cal else SegmentParams()
     if args.min_area_px is not None:
         params = replace(params, min_area_px=args.min_area_px)
     if args.backlit:

@@ -34,3 +34,39 @@ def test_an_example_line_holding_a_unicode_line_separator_is_one_line(tmp_path, 
                     encoding="utf-8")
     got = load_examples(path)
     assert [e.id for e in got] == ["a", "b"] and got[0].source["note"] == f"held{char}here"
+
+
+def test_min_area_mm2_without_a_calibration_is_bad_input(tmp_path, capsys):
+    """It was ignored without a word (the regions were filtered by the pixel default), exit 0."""
+    import cv2
+    import numpy as np
+
+    cv2.imwrite(str(tmp_path / "f.png"), np.full((64, 80, 3), 200, np.uint8))
+    code, out, err = run_cli("segment", tmp_path / "f.png", "--min-area-mm2", "10", "--json", capsys=capsys)
+    assert code == 2 and out == "" and "--min-area-mm2 is an area on the table: it needs --calibration" in err, err
+
+
+def _points(uv_mm):
+    return {"points": [{"px": list(px), "mm": list(mm)} for px, mm in uv_mm]}
+
+
+GRID = [((100 * i + 50, 80 * j + 40), (200 + 10 * i, -50 + 10 * j, 0)) for i in range(3) for j in range(3)]
+
+
+@pytest.mark.parametrize("points, message", [
+    # integer literals no float holds: were internal errors (OverflowError)
+    (_points([((10**400, 40), (200, -50, 0))] + GRID[1:]), "point #0 needs 'px': [u, v] and 'mm': [x, y, z] "
+                                                            "(finite numbers; one is too large)"),
+    (_points(GRID[:8] + [((250, 200), (10**400, 0, 0))]), "point #8 needs 'px'"),
+    (_points(GRID[:8] + [((250, 200), (1e300, 0, 0))]), "point #8 'mm' must be within 1e+06 mm of the base"),
+])
+def test_calibrate_plane_refuses_points_no_float_or_table_holds(tmp_path, capsys, points, message):
+    import cv2
+    import numpy as np
+
+    cv2.imwrite(str(tmp_path / "f.png"), np.zeros((480, 640, 3), np.uint8))
+    (tmp_path / "p.json").write_text(json.dumps(points))
+    code, out, err = run_cli("calibrate", "plane", tmp_path / "f.png", "--points", tmp_path / "p.json", "--out",
+                             tmp_path / "o.json", capsys=capsys)
+    assert code == 2 and out == "" and message in err and "internal error" not in err, err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "o.json").exists()

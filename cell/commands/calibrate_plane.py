@@ -123,6 +123,7 @@ def parse_points(raw, source: str):
 
     from cell.errors import BadInput
     from cell.fileio import has_non_number
+    from cell.scene import MAX_COORD_MM
 
     pts = raw.get("points") if isinstance(raw, dict) else None
     if not isinstance(pts, list) or not pts:
@@ -135,10 +136,16 @@ def parse_points(raw, source: str):
         try:
             a = np.array(p["px"], float)
             b = np.array(p["mm"], float)
+        except OverflowError:  # an integer literal too large for a float (JSON allows any length)
+            raise BadInput(f"{source}: point #{i} needs 'px': [u, v] and 'mm': [x, y, z] (finite numbers; one is "
+                           "too large)") from None
         except (KeyError, TypeError, ValueError):
             raise BadInput(f"{source}: point #{i} needs 'px': [u, v] and 'mm': [x, y, z]") from None
         if a.shape != (2,) or b.shape != (3,) or not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
             raise BadInput(f"{source}: point #{i} needs 'px': [u, v] and 'mm': [x, y, z] (finite numbers)")
+        if np.abs(b).max() > MAX_COORD_MM:
+            raise BadInput(f"{source}: point #{i} 'mm' must be within {MAX_COORD_MM:g} mm of the base (the units "
+                           "are mm)")
         uv.append(a)
         xyz.append(b)
     return np.array(uv), np.array(xyz)

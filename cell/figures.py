@@ -60,7 +60,8 @@ def step_figure(step_plan, cell: Cell, path: str | Path) -> Path:
         for ax in axes:
             _scene(ax, step_plan, gz)
             _frame(ax, step_plan)
-        fig.suptitle(f"step {step_plan.step}: {scene.target} - no grasp: {step_plan.reason}", fontsize=9)
+        fig.suptitle(f"step {step_plan.step}: {scene.target} - no grasp: {step_plan.reason}", fontsize=9,
+                     parse_math=False)  # a part id is free text: "$x^$" is no TeX to parse
     else:
         g = r.grasp
         for ax in axes:
@@ -87,7 +88,7 @@ def step_figure(step_plan, cell: Cell, path: str | Path) -> Path:
         axes[2].set_title(f"(c) grasp: opening {g.opening_mm:.1f} mm, axis {g.axis_deg:.1f} deg, z {g.grasp_z_mm:.1f}"
                           + (f", elbow {q.elbow}" if q else ""), fontsize=9)
         fig.suptitle(f"step {step_plan.step}: {scene.target}  (dark grey: taller than the grasp z; "
-                     "light grey: lower, passed over)", fontsize=9)
+                     "light grey: lower, passed over)", fontsize=9, parse_math=False)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)

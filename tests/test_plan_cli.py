@@ -85,3 +85,19 @@ def test_figure_names_stay_in_the_folder_whatever_the_part_ids(tmp_path, capsys)
     assert len(written) == 3 and all(figs.joinpath(n).is_file() and n.endswith(".png") for n in written)
     assert written[0].startswith("step_00_") and written[2].startswith("step_02_")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["figs", "ids.json"]
+
+
+def test_figures_draw_part_ids_that_look_like_tex(tmp_path, capsys):
+    """matplotlib read '$...$' in a title as TeX: '$\\frac{$' and '$x^$' ended in an internal error
+    (ParseSyntaxException) after the steps' lines were printed, with the later figures missing. The second part
+    has no grasp (it lies under the first), so the no-grasp title is drawn too."""
+    ids = ["$\\frac{$", "$x^$"]
+    plate = {"id": ids[1], "outline": [[300, -30], [370, -30], [370, 30], [300, 30]], "z_top": 5}
+    top = {"id": ids[0], "outline": [[320, -10], [350, -10], [350, 10], [320, 10]], "z_bottom": 5, "z_top": 17}
+    path = tmp_path / "tex.json"
+    path.write_text(json.dumps({"units": "mm", "parts": [plate, top], "sequence": ids[::-1]}))
+    figs = tmp_path / "figs"
+    code, out, err = run_cli("plan", path, "--json", "--figures", figs, capsys=capsys)
+    assert code == 3 and "internal error" not in err, err
+    assert [json.loads(x)["target"] for x in out.splitlines()] == ids[::-1]
+    assert sorted(p.name for p in figs.iterdir()) == ["step_00__x_.png", "step_01__frac_.png"]

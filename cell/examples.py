@@ -31,7 +31,14 @@ from pathlib import Path
 import numpy as np
 
 from cell.errors import BadInput
-from cell.fileio import DuplicateKey, append_lines_atomic, has_non_number, read_text, unique_keys
+from cell.fileio import (
+    DuplicateKey,
+    append_lines_atomic,
+    has_non_number,
+    read_text,
+    refuse_lone_surrogates,
+    unique_keys,
+)
 from cell.kinematics import Joints
 from cell.scene import MAX_COORD_MM, Part, _finite, parse_part
 
@@ -176,6 +183,7 @@ def _parse_examples(text: str, path: Path, allow_empty: bool) -> list[GraspExamp
             raise BadInput(f"example file {path} line {lineno}: {e}") from None
         except RecursionError:  # json's decoder recurses per nesting level: [[[[...]]]] 100000 deep
             raise BadInput(f"example file {path} line {lineno}: not valid JSON (nested too deeply)") from None
+        refuse_lone_surrogates(line, raw, f"example file {path} line {lineno}")
         ex = parse_example(raw, f"example file {path} line {lineno}")
         if ex.id in seen:
             raise BadInput(f"example file {path} line {lineno}: duplicate example id {ex.id!r}")

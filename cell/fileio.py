@@ -11,6 +11,7 @@ import fcntl
 import json
 import math
 import os
+import re
 import stat
 import tempfile
 from pathlib import Path
@@ -165,13 +166,46 @@ def read_json(path: str | os.PathLike, what: str):
     path = Path(path)
     text = read_text(path, what)
     try:
-        return json.loads(text, object_pairs_hook=unique_keys)
+        obj = json.loads(text, object_pairs_hook=unique_keys)
     except json.JSONDecodeError as e:
         raise BadInput(f"{what} {path} is not valid JSON: {e.msg} at line {e.lineno} column {e.colno}") from None
     except DuplicateKey as e:
         raise BadInput(f"{what} {path}: {e}") from None
     except RecursionError:  # json's decoder recurses per nesting level: [[[[...]]]] 100000 deep
         raise BadInput(f"{what} {path} is not valid JSON: nested too deeply") from None
+    refuse_lone_surrogates(text, obj, f"{what} {path}")
+    return obj
+
+
+_SURROGATE_ESCAPE = re.compile(r"\\[uU][dD][89a-fA-F][0-9a-fA-F]{2}")
+
+
+def refuse_lone_surrogates(text: str, obj, where: str) -> None:
+    """JSON's `\\udc80` escape gives a string no UTF-8 text holds (half of a UTF-16 pair): as a part id it ended
+    `cell plan --figures` in an internal error (the font cannot draw it). Only a text that has such an escape
+    is walked (a pair, `\\ud83d\\ude00`, is one character after parsing, and passes)."""
+    if not _SURROGATE_ESCAPE.search(text):
+        return
+
+    def walk(v, at: str):
+        if isinstance(v, str):
+            try:
+                v.encode("utf-8")
+            except UnicodeEncodeError:
+                raise BadInput(f"{where}: {at or 'the value'} holds a lone UTF-16 surrogate escape "
+                               f"({ascii(v)[1:-1][:60]}): no character") from None
+        elif isinstance(v, dict):
+            for k, x in v.items():
+                walk(k, at)
+                walk(x, f"{at}.{k}" if at else str(k))
+        elif isinstance(v, list):
+            for i, x in enumerate(v):
+                walk(x, f"{at}[{i}]")
+
+    try:
+        walk(obj, "")
+    except RecursionError:
+        raise BadInput(f"{where} is not valid JSON: nested too deeply") from None
 
 
 def _fsync_dir(directory: Path) -> None:

@@ -272,6 +272,7 @@ def parse_part(raw, where: str = "part") -> Part:
     outer = np.asarray(poly.exterior.coords, float)[:-1]
     inner = tuple(np.asarray(r.coords, float)[:-1] for r in poly.interiors)
     meta = {k: v for k, v in raw.items() if k not in ("id", "outline", "holes", "z_bottom", "z_top", "direction")}
+    _refuse_non_finite(meta, where)
     return Part(pid, outer, inner, zb, zt, direction, meta)
 
 
@@ -342,6 +343,21 @@ def _ring(raw, where) -> np.ndarray:
     if np.allclose(arr[0], arr[-1]) and len(arr) > 3:
         arr = arr[:-1]  # tolerate a repeated first point
     return arr
+
+
+def _refuse_non_finite(meta: dict, where: str) -> None:
+    """The free keys are kept and written again (a recording's manifest holds the assembly): NaN or Infinity
+    in one ended `cell run` in an internal error with a half-made recording folder."""
+    def bad(v) -> bool:
+        if isinstance(v, float):
+            return not math.isfinite(v)
+        if isinstance(v, dict):
+            return any(bad(x) for x in v.values())
+        return isinstance(v, list) and any(bad(x) for x in v)
+
+    for k, v in meta.items():
+        if bad(v):
+            raise BadInput(f"{where}: {k!r} holds NaN or Infinity, which JSON cannot store")
 
 
 def _num(v, where) -> float:

@@ -70,3 +70,60 @@ def test_calibrate_plane_refuses_points_no_float_or_table_holds(tmp_path, capsys
                              tmp_path / "o.json", capsys=capsys)
     assert code == 2 and out == "" and message in err and "internal error" not in err, err
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "o.json").exists()
+
+
+def _asm(tmp_path, **first_part_keys):
+    from cell.runtime.session import default_assembly_path
+
+    raw = json.loads(default_assembly_path().read_text())
+    raw["parts"][0].update(first_part_keys)
+    path = tmp_path / "asm.json"
+    path.write_text(json.dumps(raw))
+    return path, raw["parts"][0]["id"]
+
+
+@pytest.mark.parametrize("value", [float("nan"), [1.0, float("inf")], {"a": float("-inf")}])
+def test_nan_in_a_free_part_key_is_bad_input(tmp_path, capsys, value):
+    """Free keys are kept and written again: `cell run --record` ended in an internal error ('a non-finite
+    number (nan): JSON cannot store it') and left a recording folder without a manifest."""
+    path, pid = _asm(tmp_path, family=value)
+    code, out, err = run_cli("run", path, "--record", tmp_path / "rec", capsys=capsys)
+    assert code == 2 and "internal error" not in err, err
+    assert err.strip() == f"cell: error: {path}: part {pid!r}: 'family' holds NaN or Infinity, which JSON cannot store"
+    assert not (tmp_path / "rec").exists()
+
+
+LONE = '"\\udc80"'  # a JSON escape of half a UTF-16 pair: no character
+
+
+def test_a_lone_surrogate_in_a_json_file_is_bad_input(tmp_path, capsys):
+    """As a part id it ended `cell plan --figures` in an internal error (the font cannot draw it)."""
+    from cell.runtime.session import default_assembly_path
+
+    raw = json.loads(default_assembly_path().read_text())
+    old = raw["parts"][2]["id"]
+    text = json.dumps(raw).replace(f'"{old}"', LONE)
+    path = tmp_path / "asm.json"
+    path.write_text(text)
+    code, out, err = run_cli("plan", path, "--json", "--figures", tmp_path / "figs", capsys=capsys)
+    assert code == 2 and out == "" and "internal error" not in err, err
+    assert err.strip() == (f"cell: error: assembly file {path}: parts[2].id holds a lone UTF-16 surrogate escape "
+                           "(\\udc80): no character")
+
+
+def test_a_surrogate_pair_is_one_character_and_passes(tmp_path, capsys):
+    from cell.fileio import read_json
+
+    path = tmp_path / "x.json"
+    path.write_text('{"id": "\\ud83d\\ude00"}')
+    assert read_json(path, "x file") == {"id": "\U0001F600"}
+
+
+def test_a_lone_surrogate_in_an_example_line_is_bad_input(tmp_path):
+    from cell.errors import BadInput
+
+    path = tmp_path / "ex.jsonl"
+    path.write_text(json.dumps(_example("a").to_json()) + "\n"
+                    + json.dumps(_example("b").to_json()).replace('"b"', LONE, 1) + "\n")
+    with pytest.raises(BadInput, match=r"^example file .* line 2: id holds a lone UTF-16 surrogate escape"):
+        load_examples(path)

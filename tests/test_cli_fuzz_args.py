@@ -108,3 +108,17 @@ def test_an_empty_scene_among_several_gets_its_own_line(tmp_path, monkeypatch, c
     assert code == 2 and [x["scene"] for x in lines] == ["a.json", "", "a.json"]
     assert "contacts" in lines[0] and lines[0]["contacts"] == lines[2]["contacts"]
     assert lines[1] == {"scene": "", "error": "bad_input", "reason": "scene file name is empty: give a path"}
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["bench", "can", "--n", "99999999999999"], "--n must be 1..100000, got 99999999999999"),
+    (["bench", "can", "--n", "0"], "--n must be 1..100000, got 0"),
+    (["bench", "grasp", "--repeat", "99999999999999"], "--repeat must be 1..1000"),
+    (["bench", "vision", "--frames", "99999999999999"], "--frames and --repeats must be at most 1000"),
+    (["bench", "vision", "--frames", "1", "--repeats", "99999999999999"], "--frames and --repeats must be at most 1000"),
+    (["bench", "stability", "--poses", "99999999999999"], "--poses must be 1..100"),
+])
+def test_benchmark_counts_that_would_never_end_are_bad_input(capsys, argv, message):
+    """`bench can --n 99999999999999` ran without end (every round trip's time kept in memory)."""
+    code, out, err = run_cli(*argv, capsys=capsys)
+    assert code == 2 and out == "" and message in err, err

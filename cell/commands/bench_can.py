@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+MAX_N = 100000  # round trips per figure: about 10-20 s each at the most
+
 
 def add_arguments(p) -> None:
     p.add_argument("--n", type=int, default=200, help="round trips per figure (default 200)")
@@ -16,8 +18,8 @@ def run(args) -> int:
     from cell.errors import BadInput
     from drivers import bench
 
-    if args.n < 1:
-        raise BadInput("--n must be at least 1")
+    if not 1 <= args.n <= MAX_N:  # 1e14 ran without end (and would have stored every time)
+        raise BadInput(f"--n must be 1..{MAX_N}, got {args.n}")
     cell = load_cell(args.cell)
     rt = bench.round_trips(cell, args.n)
     pick = bench.pick_cycle(cell)

@@ -9,6 +9,8 @@ import json
 import statistics
 import time
 
+MAX_REPEAT = 1000  # plans per scene (default 15)
+
 
 def add_arguments(p):
     p.add_argument("--repeat", type=int, default=15, help="plans per scene for the median time (default 15)")
@@ -117,8 +119,8 @@ def run(args) -> int:
     from cell.grasp.shapes import hand_made_examples
     from cell.grasp.synthesis import GraspPlanner
 
-    if args.repeat < 1:
-        raise BadInput("--repeat must be at least 1")
+    if not 1 <= args.repeat <= MAX_REPEAT:  # 1e14 plans per scene would never end
+        raise BadInput(f"--repeat must be 1..{MAX_REPEAT}, got {args.repeat}")
     if args.examples:
         examples, source = load_examples(args.examples), args.examples
     elif default_examples_path().exists():

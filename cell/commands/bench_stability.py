@@ -10,6 +10,8 @@ from __future__ import annotations
 import json
 import sys
 
+MAX_POSES = 100  # random poses per part (default 3; 3 take about a minute)
+
 
 def add_arguments(parser) -> None:
     parser.add_argument("--examples", default=None, help="example file (default: the shipped examples)")
@@ -41,8 +43,8 @@ def run(args) -> int:
         simple_shapes,
     )
 
-    if args.poses < 1:
-        raise BadInput("--poses must be at least 1")
+    if not 1 <= args.poses <= MAX_POSES:  # 1e14 poses per part would never end
+        raise BadInput(f"--poses must be 1..{MAX_POSES}, got {args.poses}")
     cell = load_cell(args.cell)
     examples = load_examples(args.examples)
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+MAX_COUNT = 1000  # frames per condition, timing repeats (defaults 12, 30)
+
 
 def add_arguments(p) -> None:
     p.add_argument("--frames", type=int, default=12, help="rendered frames per condition (default 12)")
@@ -41,6 +43,8 @@ def run(args) -> int:
 
     if args.frames < 1 or args.parts < 1 or args.repeats < 1:
         raise BadInput("--frames, --parts and --repeats must be at least 1")
+    if max(args.frames, args.repeats) > MAX_COUNT:  # 1e14 frames or repeats would never end
+        raise BadInput(f"--frames and --repeats must be at most {MAX_COUNT}")
     conditions = args.conditions or list(CONDITIONS)
     unknown = [c for c in conditions if c not in CONDITIONS]
     if unknown:

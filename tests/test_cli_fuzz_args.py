@@ -122,3 +122,17 @@ def test_benchmark_counts_that_would_never_end_are_bad_input(capsys, argv, messa
     """`bench can --n 99999999999999` ran without end (every round trip's time kept in memory)."""
     code, out, err = run_cli(*argv, capsys=capsys)
     assert code == 2 and out == "" and message in err, err
+
+
+def test_a_bad_photo_is_refused_before_the_benchmark(tmp_path, monkeypatch, capsys):
+    """It was refused after the whole benchmark had run (80 s)."""
+    import cell.vision.bench
+
+    def no_benchmark(*a, **k):
+        raise AssertionError("the benchmark ran before the photos were read")
+
+    monkeypatch.setattr(cell.vision.bench, "run_benchmark", no_benchmark)
+    (tmp_path / "bad.png").write_text("not an image")
+    code, out, err = run_cli("bench", "vision", "--frames", "1", "--repeats", "1", "--photos", tmp_path / "bad.png",
+                             capsys=capsys)
+    assert code == 2 and out == "" and "is not a readable image" in err, err

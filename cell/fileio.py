@@ -27,7 +27,10 @@ def write_atomic(path: str | os.PathLike, data: str | bytes) -> None:
     _refuse_to_replace_a_special_file(path, "cannot write")
     path.parent.mkdir(parents=True, exist_ok=True)
     raw = data.encode("utf-8") if isinstance(data, str) else data
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as e:  # name the file asked for, not the temp file that could not be made
+        raise OSError(e.errno, e.strerror, str(path)) from None
     try:
         # mkstemp makes 0600 files; keep an existing file's mode, else the usual 0644
         os.fchmod(fd, path.stat().st_mode & 0o777 if path.exists() else 0o644)
@@ -66,6 +69,8 @@ def check_writable(path: str | os.PathLike, what: str) -> None:
         if parent.exists():
             if not parent.is_dir():
                 raise BadInput(f"{what} {path}: {parent} is a file, not a folder")
+            if not os.access(parent, os.W_OK | os.X_OK):  # the file is made there (a temp file, renamed)
+                raise BadInput(f"{what} {path}: the folder {parent} is not writable")
             return
 
 

@@ -127,3 +127,38 @@ def test_a_lone_surrogate_in_an_example_line_is_bad_input(tmp_path):
                     + json.dumps(_example("b").to_json()).replace('"b"', LONE, 1) + "\n")
     with pytest.raises(BadInput, match=r"^example file .* line 2: id holds a lone UTF-16 surrogate escape"):
         load_examples(path)
+
+
+def test_an_output_folder_that_is_not_writable_is_refused_before_the_work(tmp_path, monkeypatch, capsys):
+    """`render --out o.png --truth ro/t.json` wrote o.png, then failed on the truth file naming its temp file
+    ('Permission denied: .../ro/.t.json.8dtisxls.tmp'). (Tests run as root, who may write anywhere: the
+    folder's verdict is stubbed.)"""
+    import os
+
+    from cell.grasp import shapes
+    from cell.scene import Scene
+
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode, **kw: False if str(p) == str(ro) else real_access(p, mode, **kw))
+    scene = tmp_path / "s.json"
+    scene.write_text(json.dumps(Scene((shapes.rectangle("box", 50, 30, (300, 100), 30),), "box").to_json()))
+    code, out, err = run_cli("render", scene, "--out", tmp_path / "o.png", "--truth", ro / "t.json", capsys=capsys)
+    assert code == 2 and out == "" and err.strip() == f"cell: error: --truth {ro / 't.json'}: the folder {ro} is not writable"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ro", "s.json"]
+
+
+def test_a_write_that_cannot_start_names_the_file_not_its_temp_file(tmp_path, monkeypatch):
+    import errno
+    import tempfile
+
+    from cell.fileio import write_atomic
+
+    def denied(*a, **k):
+        raise PermissionError(errno.EACCES, "Permission denied", str(tmp_path / ".o.json.x1y2z3.tmp"))
+
+    monkeypatch.setattr(tempfile, "mkstemp", denied)
+    with pytest.raises(PermissionError) as e:
+        write_atomic(tmp_path / "o.json", "{}")
+    assert e.value.filename == str(tmp_path / "o.json") and ".tmp" not in str(e.value)

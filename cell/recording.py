@@ -437,7 +437,11 @@ class RecordingReader:
         d = self.dir / FRAMES_DIR
         out = {}
         if d.is_dir():
-            for p in d.iterdir():
+            try:
+                names = [p for p in d.iterdir()]
+            except OSError as e:
+                raise BadInput(f"recording {self.dir}: {FRAMES_DIR}/ cannot be read: {e.strerror or e}") from None
+            for p in names:
                 m = _FRAME_RE.match(p.name)
                 if m:
                     out[int(m.group(1))] = p
@@ -458,6 +462,10 @@ class RecordingReader:
 
         p = self.frame_path(index)
         check_readable(p, "recording frame")
+        try:  # imread says only None: an unreadable file was reported as 'cannot be decoded as PNG'
+            open(p, "rb").close()
+        except OSError as e:
+            raise BadInput(f"recording frame {p} cannot be read: {e.strerror or e}") from None
         try:
             img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
         except cv2.error as e:  # e.g. a header claiming more pixels than OpenCV decodes

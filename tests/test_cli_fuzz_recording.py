@@ -63,3 +63,37 @@ def test_replay_refuses_the_damage_in_one_clear_line(tmp_path, capsys, damage, m
     assert code == 2 and message in err and "internal error" not in err, err
     assert len(err.strip().splitlines()) == 1
     assert {p: p.read_bytes() for p in d.rglob("*") if p.is_file()} == before  # reading never changes it
+
+
+def _as_a_user_bound_by_file_modes():
+    """argv prefix under which mode 000 means unreadable: none for a user, setpriv without the DAC override for
+    root (who reads anything); None when neither works here."""
+    import os
+
+    if os.geteuid() != 0:
+        return []
+    return ["setpriv", "--bounding-set", "-dac_override,-dac_read_search", "--"] if shutil.which("setpriv") else None
+
+
+@pytest.mark.parametrize("denied, message", [
+    ("frames/000001.png", "recording frame {d}/frames/000001.png cannot be read: Permission denied"),  # was: 'cannot
+    # be decoded as PNG'
+    ("frames", "recording {d}: frames/ cannot be read: Permission denied"),  # was: '[Errno 13] ...' without context
+])
+def test_replay_names_an_unreadable_frame_or_frames_folder(tmp_path, denied, message):
+    import os
+    import subprocess
+    import sys
+
+    prefix = _as_a_user_bound_by_file_modes()
+    if prefix is None:
+        pytest.skip("running as root without setpriv: file modes do not bind")
+    d = tmp_path / "rec"
+    shutil.copytree(SHIPPED, d)
+    os.chmod(d / denied, 0)
+    try:
+        p = subprocess.run([*prefix, sys.executable, "-m", "cell", "replay", str(d)], capture_output=True, text=True,
+                           cwd=Path(__file__).resolve().parent.parent, timeout=120)
+    finally:
+        os.chmod(d / denied, 0o755)
+    assert p.returncode == 2 and p.stderr.strip() == f"cell: error: {message.format(d=d)}", p.stderr

@@ -162,3 +162,16 @@ def test_a_write_that_cannot_start_names_the_file_not_its_temp_file(tmp_path, mo
     with pytest.raises(PermissionError) as e:
         write_atomic(tmp_path / "o.json", "{}")
     assert e.value.filename == str(tmp_path / "o.json") and ".tmp" not in str(e.value)
+
+
+@pytest.mark.parametrize("shape", [(1, 20000, 3), (3, 8000), (1, 1, 3), (20000, 1, 3)])
+def test_a_frame_one_pixel_thin_is_segmented_not_an_internal_error(tmp_path, capsys, shape):
+    """A 20000 x 1 px image was detected on a copy of 0 rows: internal error (cv2.error in resize)."""
+    import cv2
+    import numpy as np
+
+    path = tmp_path / "thin é.png"  # and a name with a space and an accent
+    cv2.imwrite(str(path), np.full(shape, 180, np.uint8))
+    code, out, err = run_cli("segment", path, "--json", capsys=capsys)
+    assert code == 0 and "internal error" not in err, err
+    assert json.loads(out)["parts"] == [] and json.loads(out)["width_px"] == shape[1]

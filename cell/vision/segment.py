@@ -239,7 +239,10 @@ class _Detection(NamedTuple):
 
 def detection_scale(frame_shape, p: SegmentParams) -> int:
     """1 / the resolution a frame of `frame_shape` is detected at with `p` (its sizes set: `for_frame`)."""
-    return max(1, int(p.scale)) if frame_shape[1] >= SMALL_FRAME_PX else 1  # small frames: at full resolution
+    if frame_shape[1] < SMALL_FRAME_PX:
+        return 1  # small frames: at full resolution
+    # ... and never coarser than the frame's short side: a 20000 x 1 px image had a 0-row copy (cv2.error)
+    return max(1, min(int(p.scale), frame_shape[0], frame_shape[1]))
 
 
 def _detection_copies(frame: np.ndarray, p: SegmentParams) -> _Detection:

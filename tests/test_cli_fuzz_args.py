@@ -115,7 +115,8 @@ def test_an_empty_scene_among_several_gets_its_own_line(tmp_path, monkeypatch, c
     (["bench", "can", "--n", "0"], "--n must be 1..100000, got 0"),
     (["bench", "grasp", "--repeat", "99999999999999"], "--repeat must be 1..1000"),
     (["bench", "vision", "--frames", "99999999999999"], "--frames and --repeats must be at most 1000"),
-    (["bench", "vision", "--frames", "1", "--repeats", "99999999999999"], "--frames and --repeats must be at most 1000"),
+    (["bench", "vision", "--frames", "1", "--repeats", "99999999999999"],
+     "--frames and --repeats must be at most 1000"),
     (["bench", "stability", "--poses", "99999999999999"], "--poses must be 1..100"),
 ])
 def test_benchmark_counts_that_would_never_end_are_bad_input(capsys, argv, message):

@@ -134,7 +134,20 @@ def fit_tray_field(image_bgr: np.ndarray, tray: str = "auto", small_bgr: np.ndar
         raise ValueError(f"tray must be 'auto' or 'bright', got {tray!r}")
     codes = (q[:, 0] * nb + q[:, 1]) * nb + q[:, 2]
     a = _design(sh, sw, FIT_DEGREE)[sel]
-    coef, sigma, res = _fit_around(_modal_bgr(codes, weights, nb), a, small)
+    mode_bgr = _modal_bgr(codes, weights, nb)
+    coef, sigma, res = _fit_around(mode_bgr, a, small)
+    grown = None
+    if (res < max(3.0 * sigma, 6.0)).mean() < GROW_BELOW_SHARE:
+        grown = _grown_inliers(small_bgr, mode_bgr)
+    if grown is not None:
+        # uneven light: the tray runs smoothly beyond MODE_RADIUS of its commonest colour (a lamp at
+        # one side), and a field fitted around that colour alone covers only its part of the tray
+        # and is extrapolated wrongly over the rest. Seeded on the tray's samples reached from the
+        # mode in small steps, the fit is kept when it explains more of the view
+        coef_g, sigma_g, res_g = _fit_around(mode_bgr, a, small, inliers=grown.ravel()[sel])
+        limit = max(3.0 * min(sigma, sigma_g), 6.0)
+        if (res_g < limit).sum() > (res < limit).sum():
+            coef, sigma, res = coef_g, sigma_g, res_g
     if tray == "auto" and (res < max(3.0 * sigma, 6.0)).mean() < TRAY_MIN_SHARE:
         # the fit explains less than half the view: large or many parts may outnumber the tray near
         # the centre. The other candidate: the commonest colour of the whole view away from the
@@ -160,10 +173,53 @@ def _modal_bgr(codes: np.ndarray, weights: np.ndarray, nb: int) -> np.ndarray:
     return (np.array([mode // (nb * nb), (mode // nb) % nb, mode % nb]) + 0.5) * MODE_BIN
 
 
-def _fit_around(mode_bgr: np.ndarray, a: np.ndarray, small: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
-    """The smooth field (coefficients (nc, 3)) fitted robustly from the samples near `mode_bgr`,
-    its noise sigma (DN) and every sample's residual (n,)."""
-    inl = _row_norms(small - mode_bgr) < MODE_RADIUS
+GROW_RING = 2  # samples the tray's inliers grow by a round, the fit extrapolated no further
+GROW_ROUNDS = 60
+GROW_BELOW_SHARE = 0.8  # the grown fit is tried when the first explains less of the view than this (an evenly
+# lit tray is explained at 0.9 and more: the rendered frames of the cell, 0.91 - 0.94; photographs 0.77 - 0.88)
+
+
+def _grown_inliers(small_bgr: np.ndarray, mode_bgr: np.ndarray, degree: int = FIT_DEGREE) -> np.ndarray | None:
+    """The samples of the small copy (sh, sw, 3) that a smooth field reaches from the largest patch
+    of samples near `mode_bgr` (within MODE_RADIUS), grown GROW_RING samples a round: each round the
+    field is fitted to the samples reached so far and the ring around them joins where it lies within
+    3 sigma of that field. The field is extrapolated only a ring at a time, so it follows a lighting
+    gradient across the whole tray (whose far side may be far more than MODE_RADIUS from its
+    commonest colour) while a part's edge, a step the field cannot follow, stops it. None when no
+    patch is found. (sh, sw) bool."""
+    sh, sw = small_bgr.shape[:2]
+    flat = np.asarray(small_bgr, np.float64).reshape(-1, 3)
+    near = (_row_norms(flat - mode_bgr) < MODE_RADIUS).reshape(sh, sw)
+    if near.sum() < 8:
+        return None
+    n, lab = cv2.connectedComponents(near.view(np.uint8), connectivity=4)
+    counts = np.bincount(lab.ravel())
+    counts[0] = 0
+    inl = lab == int(np.argmax(counts))
+    a = _design(sh, sw, degree)
+    ay = np.hstack([a, flat])
+    nc = a.shape[1]
+    ridge = 1e-9 * np.eye(nc)
+    kernel = np.ones((2 * GROW_RING + 1, 2 * GROW_RING + 1), np.uint8)
+    for _ in range(GROW_ROUNDS):
+        ayi = np.compress(inl.ravel(), ay, axis=0)
+        normal = ayi.T @ ayi
+        coef = np.linalg.solve(normal[:nc, :nc] + ridge, normal[:nc, nc:])
+        res = _row_norms(flat - a @ coef).reshape(sh, sw)
+        sigma = max(1.4826 * _median(res[inl]), 1.0)
+        ring = cv2.dilate(inl.view(np.uint8), kernel).view(bool) & ~inl
+        add = ring & (res < max(3.0 * sigma, 6.0))
+        if not add.any():
+            break
+        inl = inl | add
+    return inl
+
+
+def _fit_around(mode_bgr: np.ndarray, a: np.ndarray, small: np.ndarray, inliers: np.ndarray | None = None
+                ) -> tuple[np.ndarray, float, np.ndarray]:
+    """The smooth field (coefficients (nc, 3)) fitted robustly from the samples near `mode_bgr`
+    (or from `inliers`, (n,) bool, when given), its noise sigma (DN) and every sample's residual (n,)."""
+    inl = _row_norms(small - mode_bgr) < MODE_RADIUS if inliers is None else inliers.copy()
     if inl.sum() < 0.1 * len(small):
         inl[:] = True
     nc = a.shape[1]

@@ -95,8 +95,8 @@ def fit_copy_of_whole_dn(image_u8: np.ndarray) -> np.ndarray:
     return small
 
 
-def fit_tray_field(image_bgr: np.ndarray, tray: str = "auto", small_bgr: np.ndarray | None = None
-                   ) -> tuple[np.ndarray, float]:
+def fit_tray_field(image_bgr: np.ndarray, tray: str = "auto", small_bgr: np.ndarray | None = None,
+                   seed: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """The tray's colour field, on a copy about FIT_WIDTH_PX wide, and its noise.
 
     Parameters
@@ -108,6 +108,9 @@ def fit_tray_field(image_bgr: np.ndarray, tray: str = "auto", small_bgr: np.ndar
         dark surround that would otherwise outnumber it).
     small_bgr : ndarray of shape (sh, sw, 3), optional
         `fit_copy(image_bgr)` if made already (e.g. by `fit_copy_of_whole_dn`).
+    seed : ndarray of shape (sh, sw), optional
+        Where on the small copy the tray is known to lie (e.g. a region first taken for a part):
+        its colour is looked for there only, and no other candidate is tried.
 
     Returns
     -------
@@ -132,6 +135,8 @@ def fit_tray_field(image_bgr: np.ndarray, tray: str = "auto", small_bgr: np.ndar
         weights = weights * (grey.ravel() > otsu)
     elif tray != "auto":
         raise ValueError(f"tray must be 'auto' or 'bright', got {tray!r}")
+    if seed is not None:
+        weights = weights * np.asarray(seed, np.float64).ravel()[sel]
     codes = (q[:, 0] * nb + q[:, 1]) * nb + q[:, 2]
     a = _design(sh, sw, FIT_DEGREE)[sel]
     mode_bgr = _modal_bgr(codes, weights, nb)
@@ -146,9 +151,9 @@ def fit_tray_field(image_bgr: np.ndarray, tray: str = "auto", small_bgr: np.ndar
         # mode in small steps, the fit is kept when it explains more of the view
         coef_g, sigma_g, res_g = _fit_around(mode_bgr, a, small, inliers=grown.ravel()[sel])
         limit = max(3.0 * min(sigma, sigma_g), 6.0)
-        if (res_g < limit).sum() > (res < limit).sum():
+        if sigma_g <= GROW_MAX_ROUGHER * sigma and (res_g < limit).sum() > (res < limit).sum():
             coef, sigma, res = coef_g, sigma_g, res_g
-    if tray == "auto" and (res < max(3.0 * sigma, 6.0)).mean() < TRAY_MIN_SHARE:
+    if tray == "auto" and seed is None and (res < max(3.0 * sigma, 6.0)).mean() < TRAY_MIN_SHARE:
         # the fit explains less than half the view: large or many parts may outnumber the tray near
         # the centre. The other candidate: the commonest colour of the whole view away from the
         # first one. It is the tray only if it explains more of the view (at the smoother one's
@@ -175,6 +180,7 @@ def _modal_bgr(codes: np.ndarray, weights: np.ndarray, nb: int) -> np.ndarray:
 
 GROW_RING = 2  # samples the tray's inliers grow by a round, the fit extrapolated no further
 GROW_ROUNDS = 60
+GROW_MAX_ROUGHER = 1.5  # ... and kept only when its spread is at most this many times the first fit's
 GROW_BELOW_SHARE = 0.8  # the grown fit is tried when the first explains less of the view than this (an evenly
 # lit tray is explained at 0.9 and more: the rendered frames of the cell, 0.91 - 0.94; photographs 0.77 - 0.88)
 
@@ -201,14 +207,19 @@ def _grown_inliers(small_bgr: np.ndarray, mode_bgr: np.ndarray, degree: int = FI
     nc = a.shape[1]
     ridge = 1e-9 * np.eye(nc)
     kernel = np.ones((2 * GROW_RING + 1, 2 * GROW_RING + 1), np.uint8)
+    sigma0 = None
     for _ in range(GROW_ROUNDS):
         ayi = np.compress(inl.ravel(), ay, axis=0)
         normal = ayi.T @ ayi
         coef = np.linalg.solve(normal[:nc, :nc] + ridge, normal[:nc, nc:])
         res = _row_norms(flat - a @ coef).reshape(sh, sw)
         sigma = max(1.4826 * _median(res[inl]), 1.0)
+        # the spread may grow with the tray reached (a quadratic follows a lamp's falloff only so
+        # far) but to at most GROW_MAX_ROUGHER x the patch's own: a limit that grew with whatever
+        # joined would run away into what lies next to the tray (dark parts on a dark surround)
+        sigma0 = sigma if sigma0 is None else sigma0
         ring = cv2.dilate(inl.view(np.uint8), kernel).view(bool) & ~inl
-        add = ring & (res < max(3.0 * sigma, 6.0))
+        add = ring & (res < max(3.0 * min(sigma, GROW_MAX_ROUGHER * sigma0), 6.0))
         if not add.any():
             break
         inl = inl | add

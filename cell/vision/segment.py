@@ -204,23 +204,87 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
         # out as one part cut by the border with the parts as its holes; the panel as the tray
         # shows more whole parts (and costs a second pass only on such frames). Counted, not
         # summed: a tray beside a lighter table would be one whole part as large as the tray
-        lit_field = _fitted_field(d, "bright")
-        # the tray model only chooses the field: where the bright side's field is the one fitted
-        # already (the Festo frames: their tray is the bright side), so are the segments
-        if not np.array_equal(lit_field, tray_field):
-            lit = _segment(frame, replace(p, tray="bright"), d, *_field_tray(lit_field, d))
-            if _whole_parts(lit) > _whole_parts(segs):
-                return lit
+        # The same with the panel dark and the surround light (light parts on a dark panel, or the
+        # photograph's contrast inverted): the bright side is the surround, the tray taken already;
+        # the panel's own colour, looked for in the region taken for a part, is the other reading
+        seed = _region_seed(segs, frame.shape, d)
+        fields = [_fitted_field(d, "bright")]
+        if _border_hole_share(segs, frame.shape) >= PARTS_AS_HOLES_SHARE:
+            fields.append(_fitted_field(d, "auto", seed))
+        best, tried = segs, [tray_field]
+        for other in fields:
+            # the tray model only chooses the field: where a field is one fitted already (the Festo
+            # frames: their tray is the bright side), so are the segments; a field that agrees with
+            # one tried on the region in question (the lit panel of pca_test1.jpg, fitted from the
+            # bright side and from the region) reads the frame alike: not run again
+            if any(np.array_equal(other, f) or _same_on(other, f, seed) for f in tried):
+                continue
+            tried.append(other)
+            seg_other = _segment(frame, p, d, *_field_tray(other, d))
+            # and it must leave less in the holes of a large region cut by the border (the parts seen
+            # as holes of the tray taken for a part): the Festo frames' table as the tray makes the
+            # paper with the parts on it such a region, 8 - 11 % holes against 1 - 5 % the first time
+            if (_whole_parts(seg_other) > _whole_parts(best)
+                    and _border_hole_share(seg_other, frame.shape) < _border_hole_share(segs, frame.shape)):
+                best = seg_other
+        return best
     return segs
 
 
 TRAY_TAKEN_SHARE = 0.25  # a region cut by the border and this large a share of the frame may be the tray
+# ... and the parts its holes when they are this share of it: then the region's own colour is tried as
+# the tray's (pca_test1.jpg's panel, bright or dark: 0.46; the Festo frames' table: 0.01 - 0.05)
+PARTS_AS_HOLES_SHARE = 0.15
 
 
 def _tray_taken_for_a_part(segs: list[Segment], shape) -> bool:
     """True when a region touching the border covers TRAY_TAKEN_SHARE of the frame and holds holes."""
     frame_px = shape[0] * shape[1]
     return any(s.cut_off and s.holes_px and s.area_px > TRAY_TAKEN_SHARE * frame_px for s in segs)
+
+
+def _border_hole_share(segs: list[Segment], shape) -> float:
+    """The largest share of holes (their area over the area inside the outline) among the regions cut
+    by the border that cover TRAY_TAKEN_SHARE of the frame; 0 without such a region."""
+    frame_px = shape[0] * shape[1]
+    share = 0.0
+    for s in segs:
+        if s.cut_off and s.area_px > TRAY_TAKEN_SHARE * frame_px:
+            holes = sum(abs(_signed_area(h)) for h in s.holes_px)
+            share = max(share, holes / (s.area_px + holes))
+    return share
+
+
+def _region_seed(segs: list[Segment], shape, d: _Detection) -> np.ndarray:
+    """The regions `_tray_taken_for_a_part` names (cut by the border, holes, TRAY_TAKEN_SHARE of the
+    frame), their holes left out, drawn on the tray fit's small copy of the frame (sh, sw) uint8."""
+    frame_px = shape[0] * shape[1]
+    sh, sw = fit_copy_of_whole_dn(d.det_u8).shape[:2]  # (the copy's size; the copy itself is small)
+    fy, fx = sh / shape[0], sw / shape[1]
+    seed = np.zeros((sh, sw), np.uint8)
+    def ring(r: np.ndarray) -> np.ndarray:
+        return np.round(r * (fx, fy) - 0.5).astype(np.int32)
+
+    for s in segs:
+        if s.cut_off and s.holes_px and s.area_px > TRAY_TAKEN_SHARE * frame_px:
+            cv2.fillPoly(seed, [ring(s.outline_px)], 1)
+            cv2.fillPoly(seed, [ring(h) for h in s.holes_px], 0)
+    inner = cv2.erode(seed, np.ones((3, 3), np.uint8))  # away from its edges, where samples mix colours
+    return inner if cv2.countNonZero(inner) else seed
+
+
+SAME_FIELD_DN = 6.0  # two tray fields closer than this (colour distance) on SAME_FIELD_SHARE of a region ...
+SAME_FIELD_SHARE = 0.95  # ... read it alike
+
+
+def _same_on(a: np.ndarray, b: np.ndarray, where: np.ndarray) -> bool:
+    """Whether two fields on the small copy (sh, sw, 3) agree within SAME_FIELD_DN on
+    SAME_FIELD_SHARE of `where` (sh, sw)."""
+    inside = where.astype(bool)
+    if not inside.any():
+        return False
+    dist = np.sqrt(((a[inside] - b[inside]) ** 2).sum(axis=1))
+    return float((dist < SAME_FIELD_DN).mean()) >= SAME_FIELD_SHARE
 
 
 def _whole_parts(segs: list[Segment]) -> int:
@@ -258,9 +322,9 @@ def _detection_copies(frame: np.ndarray, p: SegmentParams) -> _Detection:
     return _Detection(s, det_u8, det, _helper().submit(smoothed_copies, det))
 
 
-def _fitted_field(d: _Detection, tray: str) -> np.ndarray:
+def _fitted_field(d: _Detection, tray: str, seed: np.ndarray | None = None) -> np.ndarray:
     """The tray's colour field fitted to the detection copy (`fit_tray_field`), on its small copy."""
-    return fit_tray_field(d.det, tray, fit_copy_of_whole_dn(d.det_u8))[0]
+    return fit_tray_field(d.det, tray, fit_copy_of_whole_dn(d.det_u8), seed)[0]
 
 
 def _field_tray(field: np.ndarray, d: _Detection) -> tuple[np.ndarray, np.ndarray]:

@@ -27,6 +27,7 @@ MODE_RADIUS = 40.0  # DN around the modal colour taken as the first inliers
 # table 1 DN (a tray filling 45 % of the view, as the default cell's does, must stay the tray)
 ROUGH_TRAY = 2.0
 ROUGH_MIN_DN = 15.0
+TRAY_QUARTER = 0.25  # ... and one explaining less than this is replaced by the other when that explains more
 TRAY_MIN_SHARE = 0.5  # a field that explains less of the view than this is checked against the other candidate
 
 
@@ -153,7 +154,8 @@ def fit_tray_field(image_bgr: np.ndarray, tray: str = "auto", small_bgr: np.ndar
         limit = max(3.0 * min(sigma, sigma_g), 6.0)
         if sigma_g <= GROW_MAX_ROUGHER * sigma and (res_g < limit).sum() > (res < limit).sum():
             coef, sigma, res = coef_g, sigma_g, res_g
-    if tray == "auto" and seed is None and (res < max(3.0 * sigma, 6.0)).mean() < TRAY_MIN_SHARE:
+    share = (res < max(3.0 * sigma, 6.0)).mean()
+    if tray == "auto" and seed is None and share < TRAY_MIN_SHARE:
         # the fit explains less than half the view: large or many parts may outnumber the tray near
         # the centre. The other candidate: the commonest colour of the whole view away from the
         # first one. It is the tray only if it explains more of the view (at the smoother one's
@@ -164,7 +166,10 @@ def fit_tray_field(image_bgr: np.ndarray, tray: str = "auto", small_bgr: np.ndar
             coef2, sigma2, res2 = _fit_around(_modal_bgr(codes, away, nb), a, small)
             limit = max(3.0 * min(sigma, sigma2), 6.0)
             rough = sigma > max(ROUGH_TRAY * sigma2, ROUGH_MIN_DN)
-            if rough and (res2 < limit).sum() > (res < limit).sum():
+            # a field explaining under a quarter of the view is no tray whether rough or smooth: the
+            # noise is measured on the view's quietest quarter, taken for the tray (segment.py), and
+            # the frame comes out empty (the black squares of a ChArUco board on paper, 11 %)
+            if (rough or share < TRAY_QUARTER) and (res2 < limit).sum() > (res < limit).sum():
                 coef, sigma = coef2, sigma2
     return (_design(sh, sw, FIT_DEGREE) @ coef).reshape(sh, sw, 3).astype(np.float32), sigma
 

@@ -235,7 +235,18 @@ def _fit_around(mode_bgr: np.ndarray, a: np.ndarray, small: np.ndarray, inliers:
                 ) -> tuple[np.ndarray, float, np.ndarray]:
     """The smooth field (coefficients (nc, 3)) fitted robustly from the samples near `mode_bgr`
     (or from `inliers`, (n,) bool, when given), its noise sigma (DN) and every sample's residual (n,)."""
-    inl = _row_norms(small - mode_bgr) < MODE_RADIUS if inliers is None else inliers.copy()
+    if inliers is None:
+        dist = _row_norms(small - mode_bgr)
+        inl = dist < MODE_RADIUS
+        # a tray spread wider than MODE_RADIUS (a back-lit panel's glow with its contrast raised,
+        # gamma 2: 9 % of the samples near its mode) is looked for in a wider ball before the whole
+        # view is taken (which fits the mean of everything: every pixel a part or none)
+        for radius in (2 * MODE_RADIUS, 4 * MODE_RADIUS):
+            if inl.sum() >= 0.1 * len(small):
+                break
+            inl = dist < radius
+    else:
+        inl = inliers.copy()
     if inl.sum() < 0.1 * len(small):
         inl[:] = True
     nc = a.shape[1]

@@ -108,3 +108,33 @@ def test_a_tray_spread_wider_than_the_mode_radius_is_not_fitted_as_the_mean_of_e
     field, sigma = fit_tray_field(img.astype(np.float32), "bright", fit_copy_of_whole_dn(img))
     assert sigma < 40
     assert field[field.shape[0] // 2, field.shape[1] // 2].mean() > 60  # the panel, not its dark surround
+
+
+@pytest.mark.skipif(not (FESTO / "aruco_img.png").is_file(), reason=f"{FESTO} is not there (../shared/external)")
+@pytest.mark.parametrize("exposure", [0.35, 0.15])
+def test_an_underexposed_cell_frame_gives_the_parts_of_the_frame(exposure):
+    """The Festo cell frame at a third and a seventh of its exposure (low light). Every colour then
+    lay within the tray colour's 40 DN ball, the tray was fitted as the mean of everything and
+    nothing was found. Brought to a normal exposure first, it gives the frame's own parts: the
+    four covers and the three marker cards not cut by the border (60 x 115 and 59 x 59 mm at
+    0.56 mm/px) where they were; at a seventh, two patches of the table's noise besides."""
+    img = read_image(FESTO / "aruco_img.png")
+    dark = (img * exposure).astype(np.uint8)
+    plain = whole(segment_frame(img), 9000)
+    found = whole(segment_frame(dark), 9000)
+    assert len(plain) == 7
+    assert 0 <= len(found) - len(plain) <= (0 if exposure > 0.3 else 2)
+    for s in plain:
+        t = min(found, key=lambda t: np.hypot(*(t.centroid_px - s.centroid_px)))
+        assert np.hypot(*(t.centroid_px - s.centroid_px)) < 3.0
+        assert t.area_px == pytest.approx(s.area_px, rel=0.05)
+        assert np.allclose(t.mean_bgr, np.array(s.mean_bgr) * exposure, atol=6)  # the dark frame's colours
+
+
+def test_a_dark_or_blank_frame_of_any_size_has_no_parts():
+    rng = np.random.default_rng(3)
+    for frame in (np.zeros((480, 640, 3), np.uint8), np.full((480, 640, 3), 255, np.uint8),
+                  rng.integers(0, 6, (960, 1280, 3), dtype=np.uint8),  # a covered lens: only noise
+                  np.clip(128 + rng.normal(0, 12, (600, 800, 3)), 0, 255).astype(np.uint8),
+                  np.full((3000, 4000, 3), 90, np.uint8), np.full((1, 1, 3), 7, np.uint8)):
+        assert segment_frame(frame) == []

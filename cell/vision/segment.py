@@ -193,6 +193,41 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
         The empty tray under the same lighting; without it the tray is estimated.
     """
     frame = _as_bgr(frame_bgr)
+    gain = exposure_gain(frame)
+    if gain == 1.0:
+        return _segment_frame(frame, params, reference_bgr)
+    # an underexposed frame (low light): its DN-sized steps (the tray colour's histogram bins and
+    # ball, the edges' contrast) are brought to a normal exposure's; ratios and chroma are unchanged
+    ref = None if reference_bgr is None else _gained(_as_bgr(reference_bgr), gain)
+    segs = _segment_frame(_gained(frame, gain), params, ref)
+    for s in segs:
+        s.mean_bgr = tuple(float(v) / gain for v in s.mean_bgr)  # the frame's own colours
+    return segs
+
+
+DARK_FRAME_DN = 128.0  # a frame whose bright end (99.5th percentile of each pixel's brightest channel) is
+EXPOSED_DN = 200.0  # ... below this is scaled so that its bright end lies here, ...
+MAX_GAIN = 8.0  # ... by at most this (3 stops: a covered lens's noise is not blown up into parts)
+
+
+def exposure_gain(frame: np.ndarray) -> float:
+    """The gain that brings an underexposed frame's bright end to EXPOSED_DN (1 for a frame whose bright
+    end reaches DARK_FRAME_DN, every frame of a lit cell): the tray fit's and the edges' steps are in
+    DN and sized for a normal exposure (Festo frame 1 at 0.35 x its exposure: every colour within the
+    tray colour's 40 DN ball, the tray fitted as the mean of everything, no part found)."""
+    sample = frame[::8, ::8]  # (a strided view: a 12 MP frame is looked at in 190 000 pixels)
+    top = float(np.percentile(sample.max(axis=2), 99.5)) if sample.size else 0.0
+    if top >= DARK_FRAME_DN:
+        return 1.0
+    return min(EXPOSED_DN / max(top, 1.0), MAX_GAIN)
+
+
+def _gained(img: np.ndarray, gain: float) -> np.ndarray:
+    return cv2.convertScaleAbs(img, alpha=gain)  # (rounded, saturated to 0 - 255)
+
+
+def _segment_frame(frame: np.ndarray, params: SegmentParams | None, reference_bgr: np.ndarray | None
+                   ) -> list[Segment]:
     p = (params or SegmentParams()).for_frame(frame.shape)
     d = _detection_copies(frame, p)
     if reference_bgr is not None:

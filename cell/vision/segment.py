@@ -773,7 +773,7 @@ def _regions_to_segments(pieces, frame: np.ndarray, det: np.ndarray, bg: np.ndar
     if p.refine and found:  # all rings of the frame in one pass
         rings = [r for o, hs, *_ in found for r in [o, *hs]]
         is_hole = [h for o, hs, *_ in found for h in [False] + [True] * len(hs)]
-        refined = iter(refine_rings(frame, rings, is_hole, p))
+        refined = iter(_tidy_rings(refine_rings(frame, rings, is_hole, p), frame.shape))
         found = [(next(refined), [next(refined) for _ in hs], *rest) for _, hs, *rest in found]
     segs = []
     for outline, hole_rings, merged, cut, mean in found:
@@ -796,6 +796,44 @@ def _regions_to_segments(pieces, frame: np.ndarray, det: np.ndarray, bg: np.ndar
             continue  # a sliver whose pixels passed the speck filter but whose outline did not
         segs.append(Segment(outline, holes, float(area), cen, bool(merged), cut, tuple(float(m) for m in mean)))
     return segs
+
+
+def _tidy_rings(rings: list[np.ndarray], shape) -> list[np.ndarray]:
+    """Refined rings kept within the frame ([0, w] x [0, h]: a point the refinement moved past the
+    border is off the picture) and simple: where moving the points along their normals made a ring
+    cross itself (tiny loops where the edge profile is noisy, or a point pushed across a narrow
+    neck), the ring becomes the outline of the largest piece of area it encloses (Festo frame 2
+    with noise added: 6 of 23 outlines and 3 of 67 holes crossed themselves; shapely and the scene
+    files' reader need simple rings). Rings that are simple and inside are returned as they are."""
+    import shapely
+
+    h, w = shape[:2]
+    out = []
+    for r in rings:
+        if r.size and (r.min() < 0.0 or r[:, 0].max() > w or r[:, 1].max() > h):
+            r = np.column_stack([np.clip(r[:, 0], 0.0, w), np.clip(r[:, 1], 0.0, h)])
+        out.append(r)
+    big = [i for i, r in enumerate(out) if len(r) >= 4]
+    if not big:
+        return out
+    lr = shapely.linearrings(np.concatenate([out[i] for i in big]),
+                             indices=np.repeat(np.arange(len(big)), [len(out[i]) for i in big]))
+    for i in np.asarray(big)[~shapely.is_simple(lr)]:
+        out[i] = _untangled(out[i])
+    return out
+
+
+def _untangled(ring: np.ndarray) -> np.ndarray:
+    """The exterior of the largest piece of area a self-crossing ring encloses, in the ring's own
+    orientation (the ring unchanged when it encloses none)."""
+    import shapely
+
+    fixed = shapely.make_valid(shapely.Polygon(ring))
+    pieces = [g for g in shapely.get_parts(shapely.get_parts(fixed)) if g.geom_type == "Polygon" and g.area > 0]
+    if not pieces:
+        return ring
+    ext = np.asarray(max(pieces, key=lambda g: g.area).exterior.coords, float)[:-1]
+    return ext if (_signed_area(ext) > 0) == (_signed_area(ring) > 0) else ext[::-1].copy()
 
 
 def _hole_holds(hole: np.ndarray, outline: np.ndarray, p: SegmentParams, area: float | None = None) -> bool:

@@ -808,16 +808,16 @@ def _tidy_rings(rings: list[np.ndarray], shape) -> list[np.ndarray]:
     import shapely
 
     h, w = shape[:2]
-    out = []
-    for r in rings:
-        if r.size and (r.min() < 0.0 or r[:, 0].max() > w or r[:, 1].max() > h):
-            r = np.column_stack([np.clip(r[:, 0], 0.0, w), np.clip(r[:, 1], 0.0, h)])
-        out.append(r)
+    out = list(rings)
     big = [i for i, r in enumerate(out) if len(r) >= 4]
     if not big:
         return out
-    lr = shapely.linearrings(np.concatenate([out[i] for i in big]),
-                             indices=np.repeat(np.arange(len(big)), [len(out[i]) for i in big]))
+    pts = np.concatenate([out[i] for i in big])
+    if pts.min() < 0.0 or pts[:, 0].max() > w or pts[:, 1].max() > h:  # (one test for all rings)
+        out = [np.column_stack([np.clip(r[:, 0], 0.0, w), np.clip(r[:, 1], 0.0, h)])
+               if r.size and (r.min() < 0.0 or r[:, 0].max() > w or r[:, 1].max() > h) else r for r in out]
+        pts = np.concatenate([out[i] for i in big])
+    lr = shapely.linearrings(pts, indices=np.repeat(np.arange(len(big)), [len(out[i]) for i in big]))
     for i in np.asarray(big)[~shapely.is_simple(lr)]:
         out[i] = _untangled(out[i])
     return out

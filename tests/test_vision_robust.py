@@ -4,10 +4,12 @@ read in place from ../shared/external (SOURCE.md there gives their published fig
 copied into the project."""
 
 
+import json
+
 import cv2
 import numpy as np
 import pytest
-from conftest import EXTERNAL
+from conftest import EXTERNAL, run_cli
 
 from cell.vision import read_image, segment_frame
 
@@ -161,3 +163,20 @@ def test_outlines_are_simple_polygons_inside_the_frame():
                 assert r.min() >= 0 and r[:, 0].max() <= w and r[:, 1].max() <= h
             poly = Polygon(s.outline_px, s.holes_px)
             assert poly.area == pytest.approx(s.area_px, rel=0.01)
+
+
+def test_a_strip_of_a_frame_is_segmented_not_refused_with_a_traceback():
+    """A 3 x 5000 px frame was reduced to a detection copy of no rows (OpenCV's resize asserted);
+    a 60 px strip of pills.png stretched to 4000 px keeps its two packs."""
+    assert segment_frame(np.full((3, 5000, 3), 120, np.uint8)) == []
+    assert segment_frame(np.full((5000, 3, 3), 120, np.uint8)) == []
+    strip = cv2.resize(read_image(PILLS / "pills.png"), (4000, 60), interpolation=cv2.INTER_AREA)
+    assert len([s for s in segment_frame(strip) if s.area_px > 5000]) == 2
+
+
+def test_cli_strip_and_blank_frames(tmp_path, capsys):
+    for name, img in (("strip.png", np.full((3, 5000, 3), 120, np.uint8)),
+                      ("blank.jpg", np.full((3000, 4000, 3), 200, np.uint8))):
+        cv2.imwrite(str(tmp_path / name), img)
+        code, out, err = run_cli("segment", tmp_path / name, "--json", capsys=capsys)
+        assert code == 0 and json.loads(out)["parts"] == [] and "Traceback" not in err

@@ -338,10 +338,12 @@ class _Detection(NamedTuple):
 
 def detection_scale(frame_shape, p: SegmentParams) -> int:
     """1 / the resolution a frame of `frame_shape` is detected at with `p` (its sizes set: `for_frame`)."""
-    if frame_shape[1] < SMALL_FRAME_PX:
-        return 1  # small frames: at full resolution
-    # ... and never coarser than the frame's short side: a 20000 x 1 px image had a 0-row copy (cv2.error)
-    return max(1, min(int(p.scale), frame_shape[0], frame_shape[1]))
+    s = max(1, int(p.scale)) if frame_shape[1] >= SMALL_FRAME_PX else 1  # small frames: at full resolution
+    # a strip of a frame (3 x 5000 px) keeps a few detection pixels across (it was reduced to none)
+    return max(1, min(s, min(frame_shape[:2]) // MIN_DETECTION_PX))
+
+
+MIN_DETECTION_PX = 4  # the fewest detection pixels across a frame
 
 
 def _detection_copies(frame: np.ndarray, p: SegmentParams) -> _Detection:

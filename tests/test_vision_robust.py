@@ -182,3 +182,20 @@ def test_cli_strip_and_blank_frames(tmp_path, capsys):
         cv2.imwrite(str(tmp_path / name), img)
         code, out, err = run_cli("segment", tmp_path / name, "--json", capsys=capsys)
         assert code == 0 and json.loads(out)["parts"] == [] and "Traceback" not in err
+
+
+@pytest.mark.parametrize("name, count, min_area", [("pca_test1.jpg", 6, 5000), ("pills.png", 2, 20000)])
+def test_counts_and_areas_follow_rotation_flip_and_scale(name, count, min_area):
+    """The published counts (6 bars, SOURCE.md's PCA tutorial figure; 2 blister packs) under
+    rotation, mirroring and rescaling, with the areas x the scale squared (within 3 %)."""
+    img = read_image((OBJECTS if name == "pca_test1.jpg" else PILLS) / name)
+    plain = sorted(s.area_px for s in whole(segment_frame(img), min_area))
+    assert len(plain) == count
+    variants = [(cv2.rotate(img, cv2.ROTATE_90_CLOCKWISE), 1.0), (cv2.rotate(img, cv2.ROTATE_180), 1.0),
+                (np.ascontiguousarray(img[:, ::-1]), 1.0),
+                (cv2.resize(img, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA), 0.5),
+                (cv2.resize(img, None, fx=2, fy=2, interpolation=cv2.INTER_CUBIC), 2.0)]
+    for frame, f in variants:
+        areas = sorted(s.area_px / f ** 2 for s in whole(segment_frame(frame), min_area * f ** 2))
+        assert len(areas) == count
+        assert np.allclose(areas, plain, rtol=0.03)

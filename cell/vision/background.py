@@ -148,8 +148,9 @@ def fit_tray_field(image_bgr: np.ndarray, tray: str = "auto", small_bgr: np.ndar
     if grown is not None:
         # uneven light: the tray runs smoothly beyond MODE_RADIUS of its commonest colour (a lamp at
         # one side), and a field fitted around that colour alone covers only its part of the tray
-        # and is extrapolated wrongly over the rest. Seeded on the tray's samples reached from the
-        # mode in small steps, the fit is kept when it explains more of the view
+        # and is extrapolated wrongly over the rest. Fitted to the tray's samples reached from that
+        # colour's patch a ring at a time (`_grown_inliers`), the field is kept when it explains more
+        # of the view and is not much rougher
         coef_g, sigma_g, res_g = _fit_around(mode_bgr, a, small, inliers=grown.ravel()[sel])
         limit = max(3.0 * min(sigma, sigma_g), 6.0)
         if sigma_g <= GROW_MAX_ROUGHER * sigma and (res_g < limit).sum() > (res < limit).sum():

@@ -13,10 +13,11 @@ import json
 import math
 import signal
 import sys
-import threading
+import time
 
 JOG_MAX = {"deg": 10.0, "mm": 10.0}  # the largest jog step: "a small step"
 CORNERS = ("near-left", "near-right", "far-left", "far-right")  # near = small x, left = +y
+STOP_POLL_S = 0.1  # how soon `cell hw sim` notices SIGINT or SIGTERM
 
 
 def add_arguments(p) -> None:
@@ -222,10 +223,12 @@ def _serve(args, cell) -> int:
     """Serve the simulated drives until SIGINT/SIGTERM (or --seconds)."""
     from drivers import open_bus, sim
 
-    stop = threading.Event()
+    # a plain flag, polled: a handler that sets a threading.Event can deadlock when the signal comes while the
+    # main thread holds that Event's lock inside wait() (seen once in 400 SIGTERMs under load)
+    stopped = []
 
     def _on_signal(signum, frame):
-        stop.set()
+        stopped.append(signum)
 
     old = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     bus = open_bus(args.interface, args.channel or ("cell-sim" if _simulated(args) else "vcan0"), cell.can.bitrate)
@@ -238,8 +241,9 @@ def _serve(args, cell) -> int:
                 file=sys.stderr,
                 flush=True,
             )
-            # threading waits at most TIMEOUT_MAX (292 years): --seconds 1e300 was an OverflowError
-            stop.wait(None if args.seconds is None else min(args.seconds, threading.TIMEOUT_MAX))
+            end_s = math.inf if args.seconds is None else time.monotonic() + args.seconds
+            while not stopped and time.monotonic() < end_s:
+                time.sleep(min(STOP_POLL_S, max(0.0, end_s - time.monotonic())))
     finally:
         bus.shutdown()
         for s, h in old.items():

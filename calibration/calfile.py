@@ -27,12 +27,15 @@ from pathlib import Path
 import numpy as np
 
 from calibration.camera import Calibration
+from cell.cellconfig import CAMERA_PX
 from cell.errors import BadInput
 from cell.fileio import has_non_number, read_json, to_jsonable, write_json_atomic
 
 FORMAT = "disassembly-cell/calibration"
 VERSION = 1
 MAX_HOMOGRAPHY_COND = 1e12  # a fitted px -> mm homography of a 1920 x 1080 frame: about 1e5
+MAX_PX = 1e6  # fx, fy and the principal point: a real lens's fx is hundreds to tens of thousands of px
+MAX_MM = 1e6  # camera position and plane height, as coordinates in scene files
 
 
 def default_calibration_path() -> Path:
@@ -108,6 +111,8 @@ def parse_calibration(raw, source: str = "<calibration>") -> Calibration:
     for key, v in (("width_px", w), ("height_px", h)):
         if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
             fail(f"image.{key} must be a positive integer, got {v!r}")
+    if min(w, h) < CAMERA_PX[0] or w * h > CAMERA_PX[1]:  # checked before the lens model, which samples the image
+        fail(f"image {w} x {h} px: each side at least {CAMERA_PX[0]} px, at most {CAMERA_PX[1] / 1e6:g} MP in all")
 
     k = dist = cam2base = hom = None
     plane_z = 0.0
@@ -119,8 +124,16 @@ def parse_calibration(raw, source: str = "<calibration>") -> Calibration:
         for key in ("fx", "fy", "cx", "cy"):
             vals[key] = _finite(intr.get(key), f"intrinsics.{key}", fail)
         skew = _finite(intr.get("skew", 0.0), "intrinsics.skew", fail)
-        if vals["fx"] <= 0 or vals["fy"] <= 0:
-            fail("intrinsics.fx and fy must be positive")
+        if not (1.0 <= vals["fx"] <= MAX_PX and 1.0 <= vals["fy"] <= MAX_PX):
+            # 1e300 or 1e-300 were refused as a distortion that 'folds the image': name the key instead
+            fail(f"intrinsics.fx and fy must be between 1 and {MAX_PX:g} px (a real lens: hundreds to tens of "
+                 f"thousands), got {vals['fx']:g} and {vals['fy']:g}")
+        for key, size in (("cx", w), ("cy", h)):
+            if abs(vals[key] - size / 2) > 10 * size:
+                fail(f"intrinsics.{key} = {vals[key]:g} px is not near the {size} px image (the principal point "
+                     "lies in or close to the image)")
+        if abs(skew) > vals["fx"]:
+            fail(f"intrinsics.skew = {skew:g} px: at most fx ({vals['fx']:g}); it is about 0 for a real camera")
         dist_raw = intr.get("dist", [0.0] * 5)
         if not isinstance(dist_raw, list) or len(dist_raw) not in (4, 5, 8, 12, 14):
             fail("intrinsics.dist must be a list of 4, 5, 8, 12 or 14 numbers (OpenCV's order)")
@@ -143,6 +156,9 @@ def parse_calibration(raw, source: str = "<calibration>") -> Calibration:
         if not np.allclose(cam2base[3], [0, 0, 0, 1]):
             fail("pose.cam2base last row must be [0, 0, 0, 1]")
         plane_z = _finite(pose.get("plane_z_mm", 0.0), "pose.plane_z_mm", fail)
+        if np.abs(cam2base[:3, 3]).max() > MAX_MM or abs(plane_z) > MAX_MM:
+            fail(f"pose.cam2base's position and plane_z_mm must be within {MAX_MM:g} mm of the base")
+        _check_sees_plane(k, cam2base, plane_z, w, h, fail)
     homr = raw.get("homography")
     if homr is not None:
         if not isinstance(homr, dict):
@@ -153,6 +169,8 @@ def parse_calibration(raw, source: str = "<calibration>") -> Calibration:
         if not np.isfinite(cond) or cond > MAX_HOMOGRAPHY_COND:
             fail("homography.px_to_mm is singular (or too badly conditioned to invert)")
         plane_z = _finite(homr.get("plane_z_mm", plane_z), "homography.plane_z_mm", fail)
+        if abs(plane_z) > MAX_MM:
+            fail(f"homography.plane_z_mm must be within {MAX_MM:g} mm of the base")
     if k is None and hom is None:
         fail("the file has neither 'intrinsics' nor 'homography'")
     report = raw.get("report", {})
@@ -197,10 +215,34 @@ def _is_lens_model(k: np.ndarray, dist: np.ndarray, w: int, h: int, n: int = 9) 
     return bool(np.all((ratio > LENS_SPREAD_RANGE[0]) & (ratio < LENS_SPREAD_RANGE[1])))
 
 
+def _check_sees_plane(k: np.ndarray, cam2base: np.ndarray, plane_z_mm: float, w: int, h: int, fail) -> None:
+    """The image centre must look at the plane the pose was made for, in front of the camera: a camera
+    placed below the table, or turned to look up, maps no pixel onto it. (A steeply tilted camera may
+    see past the plane's horizon at an edge; such pixels are refused when mapped.)"""
+    centre = np.array([(w / 2 - k[0, 2]) / k[0, 0], (h / 2 - k[1, 2]) / k[1, 1], 1.0])
+    ray = cam2base[:3, :3] @ centre
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (plane_z_mm - cam2base[2, 3]) / ray[2]
+    if not (np.isfinite(s) and s > 0):
+        fail(f"pose: the camera at z = {cam2base[2, 3]:g} mm, looking along "
+             f"{np.round(ray / np.linalg.norm(ray), 3).tolist()}, does not see the plane z = {plane_z_mm:g} mm "
+             "at the image centre (is it below the plane, or turned to look up? the pose is the camera's in "
+             "the base frame, z up)")
+
+
 def _finite(v, where, fail) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        fail(f"{where} must be a finite number, got {v!r}")
+    try:  # an integer beyond a float (10**400) overflows math.isfinite
+        ok = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+    except OverflowError:
+        ok = False
+    if not ok:
+        fail(f"{where} must be a finite number, got {_short(v)}")
     return float(v)
+
+
+def _short(v) -> str:
+    text = repr(v)
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def _matrix(v, shape, where, fail) -> np.ndarray:
@@ -208,7 +250,7 @@ def _matrix(v, shape, where, fail) -> np.ndarray:
         fail(f"{where} must be a {shape[0]} x {shape[1]} list of numbers (true/false and strings are not numbers)")
     try:
         arr = np.array(v, dtype=float)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # OverflowError: an integer beyond a float
         fail(f"{where} must be a {shape[0]} x {shape[1]} list of numbers")
     if arr.shape != shape or not np.all(np.isfinite(arr)):
         fail(f"{where} must be a {shape[0]} x {shape[1]} list of finite numbers")

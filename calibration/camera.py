@@ -138,7 +138,8 @@ class Calibration:
             with np.errstate(divide="ignore", invalid="ignore"):
                 s = (z - t[2]) / dz
             if np.any(~np.isfinite(s)) or np.any(s <= 0):
-                raise BadInput(f"the plane z = {z} mm is not in front of the camera for some pixels")
+                raise BadInput(f"calibration {self.name!r}: the plane z = {z:g} mm is not in front of the camera "
+                               "for some pixels (beyond its horizon, or a plane above the camera)")
             return _finite_result((t[None, :] + s[:, None] * rays)[:, :2], "px_to_mm")
         if self.homography is not None:
             self._check_plane(z)
@@ -178,7 +179,7 @@ class Calibration:
         base2cam = np.linalg.inv(self.cam2base)
         pc = xyz @ base2cam[:3, :3].T + base2cam[:3, 3]
         if np.any(pc[:, 2] <= 0):
-            raise BadInput("some points are behind the camera")
+            raise BadInput(f"calibration {self.name!r}: some points are behind the camera (above it)")
         img, _ = cv2.projectPoints(pc.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), self.camera_matrix, self.dist)
         return img.reshape(-1, 2) + HALF_PX
 

@@ -20,6 +20,7 @@ from calibration.camera import HALF_PX, Calibration, pose_matrix
 from calibration.intrinsics import aruco_dictionary
 from cell.errors import BadInput
 from cell.fileio import has_non_number
+from cell.scene import MAX_COORD_MM
 
 PLANE_TOLERANCE_MM = 1.0  # the points' z may differ this much and still count as one plane
 MIN_POINTS = 4
@@ -72,11 +73,13 @@ def parse_markers(raw, source: str) -> tuple[str, dict[int, np.ndarray]]:
             raise BadInput(f"{source}: marker id {key} is not in {dictionary} (ids 0..{n_ids - 1})")
         try:
             arr = np.array(corners, dtype=float)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):  # OverflowError: an integer beyond a float
             raise BadInput(f"{source}: marker {key}: corners must be 4 points [x, y, z] in mm") from None
         if arr.shape != (4, 3) or not np.all(np.isfinite(arr)):
             raise BadInput(f"{source}: marker {key}: corners must be 4 points [x, y, z] in mm, got shape "
                            f"{arr.shape}")
+        if np.abs(arr).max() > MAX_COORD_MM:  # as in scene files; 1e300 overflowed the fit
+            raise BadInput(f"{source}: marker {key}: corners must be within {MAX_COORD_MM:g} mm of the base")
         x, y = arr[:, 0], arr[:, 1]
         area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
         if area < MIN_MARKER_AREA_MM2:  # four equal corners fitted to nothing (a copy-paste slip)

@@ -1,9 +1,11 @@
 """The calibration model and file: round trips, heights, validation, the default cell's camera."""
 
 import json
+import re
 
 import numpy as np
 import pytest
+from conftest import run_cli
 
 from calibration import Calibration, default_calibration_path, load_calibration, save_calibration
 from calibration.calfile import calibration_to_json
@@ -117,6 +119,46 @@ def test_malformed_files_are_refused(tmp_path, mutate, match):
         load_calibration(_write(tmp_path, d))
 
 
+BIG_INT = "1" + "0" * 400  # an integer no float holds
+
+
+@pytest.mark.parametrize("mutate, match", [
+    # each was an internal error (OverflowError) or refused as a distortion that 'folds the image'
+    (lambda d: d["intrinsics"].update(fx="BIG"), "intrinsics.fx must be a finite number"),
+    (lambda d: d["pose"]["cam2base"][0].__setitem__(3, "BIG"), "pose.cam2base must be a 4 x 4 list of numbers"),
+    (lambda d: d["homography"].update(px_to_mm=[[1, 0, 0], [0, 1, 0], [0, 0, "BIG"]]),
+     "homography.px_to_mm must be a 3 x 3 list of numbers"),
+    (lambda d: d["image"].update(width_px=10**9), "image 1000000000 x 1024 px: each side at least 16 px"),
+    (lambda d: d["image"].update(height_px=8), "each side at least 16 px"),
+    (lambda d: d["intrinsics"].update(fx=1e300), "fx and fy must be between 1 and 1e+06 px"),
+    (lambda d: d["intrinsics"].update(fy=1e-300), "fx and fy must be between 1 and 1e+06 px"),
+    (lambda d: d["intrinsics"].update(cx=1e200), "intrinsics.cx = 1e+200 px is not near the 1280 px image"),
+    (lambda d: d["intrinsics"].update(skew=1e9), "intrinsics.skew = 1e+09 px: at most fx"),
+    (lambda d: d["pose"]["cam2base"][1].__setitem__(3, 1e200), "position and plane_z_mm must be within 1e+06 mm"),
+    (lambda d: d["pose"].update(plane_z_mm=-1e7), "position and plane_z_mm must be within 1e+06 mm"),
+    # a camera under the table; one turned to look up (x and z axes flipped: still a rotation)
+    (lambda d: d["pose"]["cam2base"][2].__setitem__(3, -800.0), "the camera at z = -800 mm"),
+    (lambda d: d["pose"].update(cam2base=[[-r[0], r[1], -r[2], r[3]] for r in d["pose"]["cam2base"][:3]]
+                                + [[0, 0, 0, 1]]), "does not see the plane z = 0 mm"),
+])
+def test_out_of_range_files_are_refused_naming_the_key(tmp_path, capsys, mutate, match):
+    d = json.loads(default_calibration_path().read_text())
+    d["homography"] = {"px_to_mm": [[0.3, 0, 0], [0, 0.3, 0], [0, 0, 1]], "plane_z_mm": 0.0}
+    mutate(d)
+    path = _write(tmp_path, json.dumps(d).replace('"BIG"', BIG_INT))
+    with pytest.raises(BadInput, match=re.escape(match)):
+        load_calibration(path)
+    code, stdout, err = run_cli("map", path, "--px", "640,512", capsys=capsys)  # the CLI: exit 2, one line
+    assert code == 2 and stdout == "" and err.startswith(f"cell: error: calibration file {path}:")
+    assert err.count("\n") == 1
+
+
+def test_a_plane_beyond_the_horizon_names_the_calibration():
+    cal = load_calibration()
+    with pytest.raises(BadInput, match="calibration 'default cell camera': the plane z = 900 mm is not in front"):
+        cal.px_to_mm([[640, 512]], 900.0)  # above the camera, at 800 mm
+
+
 def test_not_json_is_refused(tmp_path):
     with pytest.raises(BadInput, match="not valid JSON"):
         load_calibration(_write(tmp_path, '{"format": "disassembly-cell/calibration", '))
@@ -163,8 +205,6 @@ def test_homography_is_validated_whatever_its_scale(tmp_path):
 
 
 def test_map_never_prints_infinity(tmp_path, capsys):
-    from conftest import run_cli
-
     # a valid homography (identity x 1e307) whose products overflow: used to print {"mm": [[Infinity, ...]]}
     path = _homography_file(tmp_path, (1e307 * np.eye(3)).tolist())
     code, out, err = run_cli("map", path, "--px", "100,100", "--json", capsys=capsys)

@@ -181,6 +181,11 @@ def test_fewer_than_three_markers_is_bad_input(tmp_path, capsys):
     *[({"dictionary": "DICT_4X4_50", "markers": {mid: [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]}},
        f"marker id {mid} is not in DICT_4X4_50 (ids 0..49)") for mid in ("-1", "50", "99999999999999999999")],
     ("{not json", "not valid JSON"),
+    # an integer no float holds was an internal error (OverflowError); 1e300 mm is no place in the cell
+    ('{"dictionary": "DICT_4X4_50", "markers": {"0": [[1%s, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]}}' % ("0" * 400),
+     "corners must be 4 points"),
+    ({"dictionary": "DICT_4X4_50", "markers": {"0": [[1e300, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]}},
+     "within 1e+06 mm of the base"),
 ])
 def test_bad_markers_files(tmp_path, capsys, content, match):
     p = tmp_path / "m.json"

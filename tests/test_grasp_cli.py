@@ -85,6 +85,22 @@ def test_no_feasible_grasp_exits_3_with_the_reason(tmp_path, examples, capsys):
     assert code == 3 and "no feasible grasp" in out
 
 
+@pytest.mark.parametrize("strip_top_mm, code", [(0.5, 0), (30.0, 3)])
+def test_strips_lower_than_the_grasp_z_touching_the_long_sides_leave_them_free(tmp_path, capsys, strip_top_mm, code):
+    """A 40 x 70 box between two strips 1 mm away: 0.5 mm strips are passed over by pads and fingers (the
+    box held across its 40 mm, from the long sides); 30 mm strips leave no free long side and the box is
+    wider than the stroke the other way. Shipped examples."""
+    box = shapes.rectangle("box", 40, 70, (320, 35), 0, z_top_mm=12)
+    strips = [shapes.rectangle(f"s{i}", 20, 110, (320 + i * 31, 35), 0, z_top_mm=strip_top_mm) for i in (-1, 1)]
+    path = write_scene(tmp_path / "strips.json", [box, *strips], "box")
+    got, out, _ = run_cli("grasp", path, "--json", capsys=capsys)
+    d = json.loads(out)
+    assert got == code
+    if code == 0:
+        assert d["opening_mm"] == pytest.approx(40.0, abs=0.5)
+        assert d["grasp_z_mm"] > strip_top_mm
+
+
 @pytest.mark.parametrize("z_bottom,z_top,code", [(0.0, 1.5, 3), (20.0, 21.9, 3), (0.0, 2.0, 0), (20.0, 22.0, 0)])
 def test_a_target_thinner_than_the_pads_need_has_no_grasp(tmp_path, examples, capsys, z_bottom, z_top, code):
     """CONTRACT: grasp z within [z_bottom, z_top - 2]. A part less than 2 mm tall has no such z: it

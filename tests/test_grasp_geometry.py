@@ -135,6 +135,18 @@ def test_contact_with_a_neighbour_is_not_free_area_but_a_part_underneath_is():
     assert free_mask(op.points, [], 1.5).all()
 
 
+def test_a_neighbour_no_higher_than_the_grasp_z_leaves_the_outline_free():
+    # the pads hold the target above the grasp z and pass over a lower part beside it, as the fingers do
+    target = shapes.rectangle("t", 60, 30, center=(350, 0), z_top_mm=20, z_bottom_mm=0)
+    low = shapes.rectangle("low", 20, 30, center=(350 + 30 + 10 + 1.0, 0), z_top_mm=10)  # 1 mm gap
+    assert [p.id for p in side_neighbours(target, [low], grasp_z_mm=10.0)] == []  # its top at the grasp z
+    assert [p.id for p in side_neighbours(target, [low], grasp_z_mm=9.9)] == ["low"]
+    _, free = candidate_points(target, [low], PARAMS, grasp_z_mm=12.0)
+    assert free.all()
+    op, free = candidate_points(target, [low], PARAMS, grasp_z_mm=8.0)
+    assert len(op.points[~free]) == 15 and np.allclose(op.points[~free][:, 0], 380.0)
+
+
 def test_ring_project_and_at_are_inverse():
     ring = Ring.of(shapes.gear("g", 30).outline_mm)
     for s in np.linspace(0, ring.length_mm, 17, endpoint=False):

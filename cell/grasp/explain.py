@@ -52,7 +52,7 @@ def rejections(made: dict, planner, n_samples: int = 3, seed: int = 0) -> list[s
         blocked = np.flatnonzero(~free)
         i = int(rng.choice(blocked))
         lines.append(f"not a candidate: {len(blocked)} outline points within "
-                     f"{planner.params.free_gap_mm:g} mm of another part, e.g. "
+                     f"{planner.params.free_gap_mm:g} mm of another part above the grasp z, e.g. "
                      f"{np.round(outline.points[i], 2).tolist()} (contact is not free area)")
     if made.get("point_valid") is not None:
         bad = np.flatnonzero(~made["point_valid"])

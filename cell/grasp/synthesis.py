@@ -212,7 +212,7 @@ class GraspPlanner:
                            f"{self._workspace_note()}")
         t0 = time.perf_counter()
         rings = part_rings(target)
-        op_all, free = candidate_points(target, obstacles, p, rings)
+        op_all, free = candidate_points(target, obstacles, p, rings, gz)
         cand_index = np.flatnonzero(free)
         cand = op_all.subset(cand_index)
         counts["outline_points"] = len(op_all)
@@ -220,7 +220,8 @@ class GraspPlanner:
         times["candidates"] = (time.perf_counter() - t0) * 1e3
         partial.update(outline=op_all, free=free, candidates=cand)
         if len(cand) == 0:
-            fail(f"no free outline: every outline point is within {p.free_gap_mm:g} mm of another part")
+            fail(f"no free outline: every outline point is within {p.free_gap_mm:g} mm of another part above the "
+                 f"grasp z ({gz:g} mm)")
 
         t0 = time.perf_counter()
         L = local_attributes(cand, target)

@@ -60,6 +60,12 @@ def save_calibration(cal: Calibration, path: str | Path) -> None:
     """Write `cal` atomically (a crash leaves the old file or the new one, never half). A lens model
     that `load_calibration` would refuse (a fit of too few or too similar views can fold the image)
     is not written."""
+    def refuse(why: str):
+        raise BadInput(f"{why}: {path} not written")
+
+    if cal.camera_matrix is not None and cal.cam2base is not None:  # what load_calibration would refuse
+        _check_sees_plane(cal.camera_matrix, np.asarray(cal.cam2base, float), float(cal.plane_z_mm),
+                          int(cal.width_px), int(cal.height_px), refuse)
     if cal.camera_matrix is not None and not _is_lens_model(cal.camera_matrix, np.ravel(cal.dist),
                                                                int(cal.width_px), int(cal.height_px)):
         coefficients = np.round(np.ravel(cal.dist), 4).tolist()
@@ -216,18 +222,18 @@ def _is_lens_model(k: np.ndarray, dist: np.ndarray, w: int, h: int, n: int = 9) 
 
 
 def _check_sees_plane(k: np.ndarray, cam2base: np.ndarray, plane_z_mm: float, w: int, h: int, fail) -> None:
-    """The image centre must look at the plane the pose was made for, in front of the camera: a camera
-    placed below the table, or turned to look up, maps no pixel onto it. (A steeply tilted camera may
-    see past the plane's horizon at an edge; such pixels are refused when mapped.)"""
+    """The camera must be above the plane the pose was made for and its image centre look down onto
+    it: a camera under the table, or one looking up at it (markers given in a mirrored, y-down frame
+    fit such a pose), sees no part from above. (A steeply tilted camera may see past the plane's
+    horizon at an edge; such pixels are refused when mapped.)"""
     centre = np.array([(w / 2 - k[0, 2]) / k[0, 0], (h / 2 - k[1, 2]) / k[1, 1], 1.0])
     ray = cam2base[:3, :3] @ centre
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = (plane_z_mm - cam2base[2, 3]) / ray[2]
-    if not (np.isfinite(s) and s > 0):
+    height_mm = cam2base[2, 3] - plane_z_mm
+    if not (height_mm > 0 and ray[2] < 0):
         fail(f"pose: the camera at z = {cam2base[2, 3]:g} mm, looking along "
-             f"{np.round(ray / np.linalg.norm(ray), 3).tolist()}, does not see the plane z = {plane_z_mm:g} mm "
-             "at the image centre (is it below the plane, or turned to look up? the pose is the camera's in "
-             "the base frame, z up)")
+             f"{np.round(ray / np.linalg.norm(ray), 3).tolist()}, does not look down onto the plane z = "
+             f"{plane_z_mm:g} mm from above (the pose is the camera's in the base frame, z up; base "
+             "coordinates given in a mirrored frame, y down, fit a camera below the plane)")
 
 
 def _finite(v, where, fail) -> float:

@@ -139,7 +139,7 @@ BIG_INT = "1" + "0" * 400  # an integer no float holds
     # a camera under the table; one turned to look up (x and z axes flipped: still a rotation)
     (lambda d: d["pose"]["cam2base"][2].__setitem__(3, -800.0), "the camera at z = -800 mm"),
     (lambda d: d["pose"].update(cam2base=[[-r[0], r[1], -r[2], r[3]] for r in d["pose"]["cam2base"][:3]]
-                                + [[0, 0, 0, 1]]), "does not see the plane z = 0 mm"),
+                                + [[0, 0, 0, 1]]), "does not look down onto the plane z = 0 mm"),
 ])
 def test_out_of_range_files_are_refused_naming_the_key(tmp_path, capsys, mutate, match):
     d = json.loads(default_calibration_path().read_text())

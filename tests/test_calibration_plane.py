@@ -166,6 +166,22 @@ def test_fewer_than_three_markers_is_bad_input(tmp_path, capsys):
     assert not (tmp_path / "p.json").exists()
 
 
+def test_markers_in_a_mirrored_frame_give_no_calibration(tmp_path, capsys):
+    """Base coordinates given y down (a board's own frame) fit a camera under the table looking up: it
+    was written and mapped pixels; now it is refused and nothing is written."""
+    markers, ref = _markers(tmp_path)
+    m = json.loads(markers.read_text())
+    m["markers"] = {key: [[x, -y, z] for x, y, z in corners] for key, corners in m["markers"].items()}
+    markers.write_text(json.dumps(m))
+    k = np.array(ref["camera_matrix_realsense_sdk"])
+    out = tmp_path / "plane.json"
+    code, stdout, err = run_cli("calibrate", "plane", FESTO / "aruco_img.png", "--markers", markers, "--out", out,
+                                "--camera-matrix", f"{k[0, 0]},{k[1, 1]},{k[0, 2]},{k[1, 2]}", "--accept-poor-fit",
+                                capsys=capsys)
+    assert code == 2 and stdout == "" and not out.exists()
+    assert "does not look down onto the plane z = 0 mm from above" in err and "mirrored frame, y down" in err
+
+
 @pytest.mark.parametrize("content, match", [
     ({"dictionary": "DICT_9X9_1", "markers": {"0": [[0, 0, 0]] * 4}}, "unknown ArUco dictionary"),
     ({"dictionary": "DICT_4X4_50", "markers": {"0": [[0, 0]] * 4}}, "4 points"),

@@ -260,7 +260,7 @@ def test_touched_points_with_true_for_a_number_are_bad_input(tmp_path, capsys):
 @pytest.mark.parametrize("px, mm", [
     (lambda i: [100 * i, 100 * i], lambda i: [10 * i, 10 * i, 0]),       # all on one line: was exit 0, 6.6 mm
     (lambda i: [100, 100], lambda i: [10 * i, 5 * i * i, 0]),            # one pixel
-    (lambda i: [100 * i, 50 * i * i], lambda i: [0, 0, 0]),              # one base point
+    (lambda i: [100 * i, 40 * i * i], lambda i: [0, 0, 0]),              # one base point (pixels in the frame)
 ])
 @pytest.mark.parametrize("with_intrinsics", [True, False])
 def test_points_on_a_line_are_bad_input(tmp_path, capsys, px, mm, with_intrinsics):
@@ -271,6 +271,43 @@ def test_points_on_a_line_are_bad_input(tmp_path, capsys, px, mm, with_intrinsic
                              "--out", tmp_path / "c.json", *extra, capsys=capsys)
     assert code == 2 and out == "" and "lie on one line" in err
     assert not (tmp_path / "c.json").exists()
+
+
+def _linear_points(uvs):
+    """Pixel / base pairs of one exact linear mapping (0.1 mm a pixel): any subset fits to nothing."""
+    return {"points": [{"px": [u, v], "mm": [200 + u / 10, -50 + v / 10, 0]} for u, v in uvs]}
+
+
+INSIDE = [(50 + 100 * i, 40 + 80 * j) for i in range(3) for j in range(3)]
+
+
+@pytest.mark.parametrize("px", [(-50, 40), (50, -0.5), (640.5, 40), (50, 481), (-1e3, 1e4)])
+def test_touched_points_outside_the_image_are_bad_input(tmp_path, capsys, px):
+    """A pixel outside the frame cannot be where a touched point was seen; it fitted (exit 0, the file written)
+    when it lay on the same mapping as the others."""
+    import cv2
+
+    cv2.imwrite(str(tmp_path / "f.png"), np.zeros((480, 640, 3), np.uint8))
+    pts = tmp_path / "points.json"
+    pts.write_text(json.dumps(_linear_points(INSIDE + [px])))
+    code, out, err = run_cli("calibrate", "plane", tmp_path / "f.png", "--points", pts,
+                             "--out", tmp_path / "c.json", capsys=capsys)
+    assert code == 2 and out == "" and len(err.strip().splitlines()) == 1 and "internal error" not in err, err
+    assert f"point #9 'px' [{px[0]:g}, {px[1]:g}] lies outside the image {tmp_path / 'f.png'} (640 x 480 px" in err
+    assert not (tmp_path / "c.json").exists()
+
+
+def test_touched_points_on_the_image_border_are_accepted(tmp_path, capsys):
+    """The frame covers [0, w] x [0, h] (CONTRACT: origin at the top-left pixel's top-left corner)."""
+    import cv2
+
+    cv2.imwrite(str(tmp_path / "f.png"), np.zeros((480, 640, 3), np.uint8))
+    pts = tmp_path / "points.json"
+    pts.write_text(json.dumps(_linear_points(INSIDE + [(0, 0), (640, 0), (0, 480), (640, 480), (320, 480)])))
+    code, out, err = run_cli("calibrate", "plane", tmp_path / "f.png", "--points", pts,
+                             "--out", tmp_path / "c.json", capsys=capsys)
+    assert code == 0, err
+    assert json.loads(out)["points"] == 14 and (tmp_path / "c.json").exists()
 
 
 def test_map_cli_both_ways_with_negative_coordinates(capsys):

@@ -1,7 +1,7 @@
 """`cell calibrate plane IMAGE --markers MARKERS.json --out FILE [--camera-matrix ... | --intrinsics FILE]`.
 
 Also `--points POINTS.json` instead of markers: points touched with the gripper tip,
-`{"points": [{"px": [u, v], "mm": [x, y, z]}, ...]}` (u, v in the CONTRACT pixel frame).
+`{"points": [{"px": [u, v], "mm": [x, y, z]}, ...]}` (u, v in the CONTRACT pixel frame, within the image).
 """
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ def run(args) -> int:
                            f"(found ids {sorted(detected)}, need at least {MIN_MARKERS} of {sorted(known)}"
                            + (f"; seen more than once, left out: {duplicated}" if duplicated else "") + ")")
     else:
-        uv, xyz = parse_points(read_json(args.points, "points file"), args.points)
+        uv, xyz = parse_points(read_json(args.points, "points file"), args.points, (w, h), args.image)
     cal = fit_plane_mapping(uv, xyz, (w, h), k, dist, args.name or "plane calibration")
     warnings: list[str] = []
     if args.markers:
@@ -118,7 +118,10 @@ def cv_grey(frame):
     return cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
 
 
-def parse_points(raw, source: str):
+def parse_points(raw, source: str, size: tuple[int, int] | None = None, image=None):
+    """The points file's pixel / base-frame pairs. With `size` (w, h), a pixel outside the image is refused:
+    no point touched on the table can be seen there. The image covers [0, w] x [0, h] in the CONTRACT frame
+    (origin at the top-left pixel's top-left corner), border included."""
     import numpy as np
 
     from cell.errors import BadInput
@@ -146,6 +149,11 @@ def parse_points(raw, source: str):
         if np.abs(b).max() > MAX_COORD_MM:
             raise BadInput(f"{source}: point #{i} 'mm' must be within {MAX_COORD_MM:g} mm of the base (the units "
                            "are mm)")
+        if size is not None and not (0 <= a[0] <= size[0] and 0 <= a[1] <= size[1]):
+            raise BadInput(f"{source}: point #{i} 'px' [{a[0]:g}, {a[1]:g}] lies outside the image"
+                           + (f" {image}" if image is not None else "")
+                           + f" ({size[0]} x {size[1]} px: u within 0..{size[0]}, v within 0..{size[1]}, from the "
+                           "top-left pixel's top-left corner)")
         uv.append(a)
         xyz.append(b)
     return np.array(uv), np.array(xyz)

@@ -56,6 +56,23 @@ class _Parser(argparse.ArgumentParser):
 
         allow_negative_pairs(self)
 
+    # A command taking several positional files (`grasp A.json --json B.json`) parses them intermixed with
+    # its options: argparse's plain parse took the positionals before the first option only, and refused
+    # the later ones as "unrecognized arguments". Set by build_parser for such commands.
+    intermixed = False
+    _parsing_intermixed = False
+
+    def parse_known_args(self, args=None, namespace=None):
+        # With "--" the plain parse, as before: Python 3.11's intermixed parse takes the "--" away in its first
+        # pass, and `grasp --json -- -a.json` then read -a.json as an unknown option
+        if not self.intermixed or self._parsing_intermixed or (args is not None and "--" in args):
+            return super().parse_known_args(args, namespace)
+        self._parsing_intermixed = True  # parse_known_intermixed_args calls parse_known_args twice
+        try:
+            return self.parse_known_intermixed_args(args, namespace)
+        finally:
+            self._parsing_intermixed = False
+
     def error(self, message):  # argparse's own usage errors are bad input too: exit 2
         self.print_usage(sys.stderr)
         raise BadInput(message)
@@ -85,6 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
             p = groups[words[0]].add_parser(words[1], help=help_, description=help_)
         p.set_defaults(_module=module, _words=words)
         importlib.import_module(module).add_arguments(p)
+        p.intermixed = any(not a.option_strings and a.nargs in ("+", "*") for a in p._actions)
         parser._commands[words] = p
     return parser
 

@@ -94,20 +94,68 @@ def test_a_camera_matrix_of_1e300_pixels_is_named(tmp_path, capsys):
     assert not (tmp_path / "o.json").exists()
 
 
-def test_an_empty_scene_among_several_gets_its_own_line(tmp_path, monkeypatch, capsys):
-    """CONTRACT's batch form: one line per scene. An empty name aborted the whole batch with no line;
-    before that it read the current folder ("scene file . is a directory")."""
+def _box_scene(path):
     from cell.grasp import shapes
     from cell.scene import Scene
 
+    path.write_text(json.dumps(Scene((shapes.rectangle("box", 50, 30, (300, 100), 30),), "box").to_json()))
+
+
+def test_an_empty_scene_among_several_gets_its_own_line(tmp_path, monkeypatch, capsys):
+    """CONTRACT's batch form: one line per scene. An empty name aborted the whole batch with no line;
+    before that it read the current folder ("scene file . is a directory")."""
     monkeypatch.chdir(tmp_path)
-    (tmp_path / "a.json").write_text(json.dumps(Scene((shapes.rectangle("box", 50, 30, (300, 100), 30),),
-                                                      "box").to_json()))
+    _box_scene(tmp_path / "a.json")
     code, out, err = run_cli("grasp", "a.json", "", "a.json", "--json", capsys=capsys)
     lines = [json.loads(line) for line in out.splitlines()]
     assert code == 2 and [x["scene"] for x in lines] == ["a.json", "", "a.json"]
     assert "contacts" in lines[0] and lines[0]["contacts"] == lines[2]["contacts"]
     assert lines[1] == {"scene": "", "error": "bad_input", "reason": "scene file name is empty: give a path"}
+
+
+def test_scenes_after_an_option_are_scenes_too(tmp_path, monkeypatch, capsys):
+    """CONTRACT's batch form with the files among the options: `grasp a.json --json b.json` was refused
+    as 'unrecognized arguments: b.json' (argparse took positionals before the first option only)."""
+    monkeypatch.chdir(tmp_path)
+    for name in ("a.json", "b.json", "c.json", "-d.json"):
+        _box_scene(tmp_path / name)
+    code, out, err = run_cli("grasp", "a.json", "--json", "b.json", "--step-mm", "2", "c.json", capsys=capsys)
+    lines = [json.loads(line) for line in out.splitlines()]
+    assert code == 0 and [x["scene"] for x in lines] == ["a.json", "b.json", "c.json"], err
+    assert lines[0]["contacts"] == lines[1]["contacts"] == lines[2]["contacts"]
+    # "--" still ends the options: a file named like one comes after it
+    code, out, err = run_cli("grasp", "--json", "--", "-d.json", capsys=capsys)
+    assert code == 0 and json.loads(out)["target"] == "box", err
+
+
+def test_images_after_an_option_are_images_too(tmp_path, monkeypatch, capsys):
+    """`segment` and `calibrate intrinsics` take several images the same way."""
+    import cv2
+    import numpy as np
+
+    monkeypatch.chdir(tmp_path)
+    for name in ("a.png", "b.png", "c.png"):
+        cv2.imwrite(name, np.zeros((48, 64, 3), np.uint8))
+    code, out, err = run_cli("segment", "a.png", "--json", "b.png", capsys=capsys)
+    assert code == 0 and [json.loads(line)["image"] for line in out.splitlines()] == ["a.png", "b.png"], err
+    code, out, err = run_cli("calibrate", "intrinsics", "a.png", "--pattern", "9x6", "b.png", "--square", "1",
+                             "c.png", "--out", "o.json", capsys=capsys)
+    assert code == 2 and "the board was found in 0 of 3 images" in err, err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["grasp", "a.json", "--bogus", "b.json"], "unrecognized arguments: --bogus b.json"),
+    (["grasp", "--json"], "the following arguments are required: SCENE"),
+    (["segment", "a.png", "--json", "--z"], "argument --z: expected one argument"),
+    # a command taking one file still takes one
+    (["plan", "a.json", "--json", "b.json"], "unrecognized arguments: b.json"),
+    (["render", "a.json", "--out", "o.png", "b.json"], "unrecognized arguments: b.json"),
+])
+def test_unknown_or_extra_arguments_among_positionals_are_still_named(tmp_path, monkeypatch, capsys, argv, message):
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_cli(*argv, capsys=capsys)
+    assert code == 2 and out == "" and err.strip().splitlines()[-1] == f"cell: error: {message}", err
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize("argv, message", [

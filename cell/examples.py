@@ -10,7 +10,7 @@ A line (keys marked * are required):
      "contact_valid": [true, false],          # optional per-contact verdict (a rejected grasp
                                               #   may have one good and one bad contact)
      "obstacles": [{part}, ...],              # optional: the parts around it at the time
-     "grasp_z_mm": 4.0,                       # optional
+     "grasp_z_mm": 4.0,                       # optional; finger-tip z, not below the part's z_bottom
      "joints": {"j1_deg", "j2_deg", "j3_mm", "j4_deg"},   # optional arm configuration
      "source"*: {"kind": "simulated-operator" | "station-teach" | "station-reject" | "manual",
                  "by": "...", "at": "2026-11-23T10:00:00Z", "note": "why"}}
@@ -49,6 +49,7 @@ VERSION = 1
 SOURCE_KINDS = ("simulated-operator", "station-teach", "station-reject", "manual")
 # A contact further than this from the part's outline is not a contact on that part.
 MAX_CONTACT_OFFSET_MM = 5.0
+GRASP_Z_DECIMALS = 4  # grasp_z_mm as a line holds it (to_json); the part's z_bottom is written unrounded
 
 
 def default_examples_path() -> Path:
@@ -80,7 +81,7 @@ class GraspExample:
         if self.obstacles:
             d["obstacles"] = [o.to_json() for o in self.obstacles]
         if self.grasp_z_mm is not None:
-            d["grasp_z_mm"] = round(float(self.grasp_z_mm), 4)
+            d["grasp_z_mm"] = round(float(self.grasp_z_mm), GRASP_Z_DECIMALS)
         if self.joints is not None:
             d["joints"] = {k: round(v, 4) for k, v in self.joints.as_dict().items()}
         d["source"] = dict(self.source)
@@ -137,6 +138,13 @@ def parse_example(raw, where: str = "example") -> GraspExample:
     if gz is not None and (isinstance(gz, bool) or not isinstance(gz, (int, float)) or not _finite(gz)
                            or abs(gz) > MAX_COORD_MM):
         raise BadInput(f"{where}: 'grasp_z_mm' must be a number of mm within {MAX_COORD_MM:g}")
+    # The finger tips go no lower than the part rests (CONTRACT: z_bottom <= grasp z), and never into the table
+    # (parse_part keeps z_bottom >= 0). Compared as the line holds it: a z the station took at z_bottom is not
+    # below it once rounded
+    if gz is not None and gz < round(part.z_bottom_mm, GRASP_Z_DECIMALS):
+        below = ("the table (z = 0 in the base frame)" if gz < 0
+                 else f"the part's bottom (z_bottom {part.z_bottom_mm:g})")
+        raise BadInput(f"{where}: 'grasp_z_mm' {gz:g} mm puts the finger tips below {below}: no grasp goes there")
     joints = raw.get("joints")
     if joints is not None:
         if isinstance(joints, dict) and has_non_number([joints.get(k, 0) for k in JOINT_KEYS]):

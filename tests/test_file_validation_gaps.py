@@ -18,9 +18,12 @@ from test_fileio_atomic import _names, _sparse, fifo  # noqa: F401 - the fifo fi
 from test_files import SQUARE, _example
 
 from calibration import default_calibration_path, load_calibration
+from cell.cellconfig import default_cell
 from cell.errors import BadInput
 from cell.examples import append_examples, load_examples
+from cell.grasp.height import grasp_z_mm
 from cell.kinematics import Joints
+from cell.scene import parse_part
 
 NAN, INF = float("nan"), float("inf")
 DROP = object()  # in an edit: remove the key
@@ -192,6 +195,11 @@ EXAMPLE_CASES = [
      " (b): 'joints' must be finite"),
     ("joints-1e308", _edit(joints={"j1_deg": 0, "j2_deg": 0, "j3_mm": 0, "j4_deg": 1e308}),
      " (b): 'joints' must be within 1e+06 (deg, mm)"),
+    # finger tips no grasp can have: were accepted and taught
+    ("grasp_z-below-the-table", _edit(grasp_z_mm=-0.5),
+     " (b): 'grasp_z_mm' -0.5 mm puts the finger tips below the table (z = 0 in the base frame)"),
+    ("grasp_z-below-the-part", lambda d: d.update(grasp_z_mm=4.0, part={**d["part"], "z_bottom": 5.0, "z_top": 15.0}),
+     " (b): 'grasp_z_mm' 4 mm puts the finger tips below the part's bottom (z_bottom 5)"),
 ]
 
 
@@ -251,6 +259,7 @@ APPEND_CASES = [
     ("unknown-source-kind", lambda: [replace(_example("n"), source={"kind": "robot"})], "'source' must be an object"),
     ("grasp_z-nan", lambda: [replace(_example("n"), grasp_z_mm=NAN)], "'grasp_z_mm' must be a number"),
     ("joints-nan", lambda: [replace(_example("n"), joints=Joints(NAN, 0.0, 0.0, 0.0))], "'joints' must be finite"),
+    ("grasp_z-below-the-table", lambda: [replace(_example("n"), grasp_z_mm=-1.0)], "below the table"),
     # all or nothing: the good example before the bad one is not written either
     ("good-then-bad", lambda: [_example("n"), _off_the_part(_example("m"))], "new example m"),
 ]
@@ -266,6 +275,17 @@ def test_an_append_that_would_make_the_file_unloadable_is_refused_before_writing
     assert path.read_bytes() == before and path.stat().st_ino == inode  # not even rewritten
     assert _names(tmp_path) == ["ex.jsonl"]  # no temp file left
     assert [e.id for e in load_examples(path)] == ["a", "b"]
+
+
+def test_a_grasp_z_at_the_parts_bottom_is_kept(tmp_path):
+    """CONTRACT's lowest grasp z is z_bottom itself (the station takes it for a part under 2 mm tall): the
+    line's 4 decimals must not put it below a z_bottom written with more."""
+    part = parse_part({"id": "shim", "outline": SQUARE, "z_bottom": 0.12344, "z_top": 1.5})
+    z = grasp_z_mm(part.z_bottom_mm, part.z_top_mm, default_cell().gripper)
+    assert z == part.z_bottom_mm
+    path = tmp_path / "ex.jsonl"
+    append_examples(path, [replace(_example("n"), part=part, grasp_z_mm=z), replace(_example("m"), grasp_z_mm=0.0)])
+    assert [e.grasp_z_mm for e in load_examples(path)] == [0.1234, 0.0]
 
 
 def test_an_append_to_a_file_that_is_already_unloadable_is_refused(tmp_path):

@@ -118,9 +118,9 @@ def cv_grey(frame):
     return cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
 
 
-def parse_points(raw, source: str, size: tuple[int, int] | None = None, image=None):
-    """The points file's pixel / base-frame pairs. With `size` (w, h), a pixel outside the image is refused:
-    no point touched on the table can be seen there. The image covers [0, w] x [0, h] in the CONTRACT frame
+def parse_points(raw, source: str, size: tuple[int, int], image) -> tuple:
+    """The points file's pixel / base-frame pairs. A pixel outside `image` of `size` (w, h) is refused: no
+    point touched on the table can be seen there. The image covers [0, w] x [0, h] in the CONTRACT frame
     (origin at the top-left pixel's top-left corner), border included."""
     import numpy as np
 
@@ -149,10 +149,9 @@ def parse_points(raw, source: str, size: tuple[int, int] | None = None, image=No
         if np.abs(b).max() > MAX_COORD_MM:
             raise BadInput(f"{source}: point #{i} 'mm' must be within {MAX_COORD_MM:g} mm of the base (the units "
                            "are mm)")
-        if size is not None and not (0 <= a[0] <= size[0] and 0 <= a[1] <= size[1]):
-            raise BadInput(f"{source}: point #{i} 'px' [{a[0]:g}, {a[1]:g}] lies outside the image"
-                           + (f" {image}" if image is not None else "")
-                           + f" ({size[0]} x {size[1]} px: u within 0..{size[0]}, v within 0..{size[1]}, from the "
+        if not (0 <= a[0] <= size[0] and 0 <= a[1] <= size[1]):
+            raise BadInput(f"{source}: point #{i} 'px' [{a[0]:g}, {a[1]:g}] lies outside the image {image} "
+                           f"({size[0]} x {size[1]} px: u within 0..{size[0]}, v within 0..{size[1]}, from the "
                            "top-left pixel's top-left corner)")
         uv.append(a)
         xyz.append(b)

@@ -10,7 +10,7 @@ A line (keys marked * are required):
      "contact_valid": [true, false],          # optional per-contact verdict (a rejected grasp
                                               #   may have one good and one bad contact)
      "obstacles": [{part}, ...],              # optional: the parts around it at the time
-     "grasp_z_mm": 4.0,                       # optional; finger-tip z, not below the part's z_bottom
+     "grasp_z_mm": 4.0,                       # optional; finger-tip z, from the part's z_bottom to below its z_top
      "joints": {"j1_deg", "j2_deg", "j3_mm", "j4_deg"},   # optional arm configuration
      "source"*: {"kind": "simulated-operator" | "station-teach" | "station-reject" | "manual",
                  "by": "...", "at": "2026-11-23T10:00:00Z", "note": "why"}}
@@ -145,6 +145,9 @@ def parse_example(raw, where: str = "example") -> GraspExample:
         below = ("the table (z = 0 in the base frame)" if gz < 0
                  else f"the part's bottom (z_bottom {part.z_bottom_mm:g})")
         raise BadInput(f"{where}: 'grasp_z_mm' {gz:g} mm puts the finger tips below {below}: no grasp goes there")
+    if gz is not None and gz >= round(part.z_top_mm, GRASP_Z_DECIMALS):  # the pads, above the tips, hold nothing
+        raise BadInput(f"{where}: 'grasp_z_mm' {gz:g} mm puts the finger tips at or above the part's top "
+                       f"(z_top {part.z_top_mm:g}): the pads would hold nothing")
     joints = raw.get("joints")
     if joints is not None:
         if isinstance(joints, dict) and has_non_number([joints.get(k, 0) for k in JOINT_KEYS]):

@@ -200,6 +200,8 @@ EXAMPLE_CASES = [
      " (b): 'grasp_z_mm' -0.5 mm puts the finger tips below the table (z = 0 in the base frame)"),
     ("grasp_z-below-the-part", lambda d: d.update(grasp_z_mm=4.0, part={**d["part"], "z_bottom": 5.0, "z_top": 15.0}),
      " (b): 'grasp_z_mm' 4 mm puts the finger tips below the part's bottom (z_bottom 5)"),
+    ("grasp_z-at-the-top", lambda d: d.update(grasp_z_mm=15.0, part={**d["part"], "z_bottom": 5.0, "z_top": 15.0}),
+     " (b): 'grasp_z_mm' 15 mm puts the finger tips at or above the part's top (z_top 15): the pads would hold"),
 ]
 
 

@@ -82,11 +82,14 @@ def run(args) -> int:
                 d["z_mm"] = z
             parts.append(d)
         h, w = frame.shape[:2]
-        out = {"image": str(path), "width_px": w, "height_px": h, "parts": parts}
+        # regions cut by the border that lie outside the tray (its surround), left out of `parts`
+        outside = len(segs.outside_tray)
+        out = {"image": str(path), "width_px": w, "height_px": h, "parts": parts, "outside_tray": outside}
         if args.json:
             print(json.dumps(out))
         else:
-            print(f"{path}: {len(parts)} part(s)")
+            print(f"{path}: {len(parts)} part(s)" + (f"; {outside} region(s) outside the tray left out" if outside
+                                                      else ""))
             for i, d in enumerate(parts):
                 flags = ", ".join(f for f in ("merged", "cut_off") if d[f])
                 print(f"  #{i}: area {d['area_px']:.0f} px, centroid ({d['centroid_px'][0]:.1f}, "

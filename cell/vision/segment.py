@@ -33,6 +33,7 @@ import numpy as np
 from calibration.default import CAMERA_MM, FOCAL_PX, HEIGHT_PX, WIDTH_PX
 from cell.errors import BadInput
 from cell.vision.background import field_at, fit_copy_of_whole_dn, fit_tray_field, reference_background
+from cell.vision.outside import split_outside
 from cell.vision.touching import pick
 
 SMALL_FRAME_PX = 960
@@ -106,6 +107,7 @@ class SegmentParams:
     colour_split: float = 30.0  # CIE Lab distance (lightness counted half) between touching parts told apart
     seam_contrast_dn: float = 12.0  # brightness change along a cut that shows two parts meet there
     min_lobe_radius_px: float | None = None  # full-res px: teeth and tabs are not lobes of touching parts
+    drop_outside_tray: bool = True  # leave out regions cut by the border that lie outside the tray (outside.py)
 
     @classmethod
     def for_calibration(cls, cal, min_area_mm2: float = 75.0, z_mm: float = 0.0, **kw) -> SegmentParams:
@@ -181,9 +183,21 @@ class Segment:
                 "merged": bool(self.merged), "cut_off": bool(self.cut_off)}
 
 
+class SegmentList(list):
+    """`segment_frame`'s result: the part regions on the tray, largest first (a list of `Segment`),
+    and in `outside_tray` the regions left out because they lie outside the tray (the surround of a
+    tray or back-lit panel that does not fill the view; cell/vision/outside.py), largest first."""
+
+    def __init__(self, segs=(), outside_tray=()):
+        super().__init__(segs)
+        self.outside_tray: list[Segment] = list(outside_tray)
+
+
 def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
-                  reference_bgr: np.ndarray | None = None) -> list[Segment]:
-    """Segment one frame into part regions, largest first.
+                  reference_bgr: np.ndarray | None = None) -> SegmentList:
+    """Segment one frame into part regions, largest first. Regions cut by the image border that lie
+    outside the tray (its surround, where the tray does not fill the view) are left out of the list
+    and given in its `outside_tray` (`SegmentParams.drop_outside_tray=False` keeps them in).
 
     Parameters
     ----------
@@ -200,7 +214,7 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
     # ball, the edges' contrast) are brought to a normal exposure's; ratios and chroma are unchanged
     ref = None if reference_bgr is None else _gained(_as_bgr(reference_bgr), gain)
     segs = _segment_frame(_gained(frame, gain), params, ref)
-    for s in segs:
+    for s in [*segs, *segs.outside_tray]:
         s.mean_bgr = tuple(float(v) / gain for v in s.mean_bgr)  # the frame's own colours
     return segs
 
@@ -227,9 +241,23 @@ def _gained(img: np.ndarray, gain: float) -> np.ndarray:
 
 
 def _segment_frame(frame: np.ndarray, params: SegmentParams | None, reference_bgr: np.ndarray | None
-                   ) -> list[Segment]:
+                   ) -> SegmentList:
     p = (params or SegmentParams()).for_frame(frame.shape)
     d = _detection_copies(frame, p)
+    segs = _segments_of(frame, p, d, reference_bgr)
+    if not p.drop_outside_tray:
+        return SegmentList(segs)
+    # the surround of a tray that does not fill the view (outside.py); the outlines' refinement range
+    # is how far a region's edge may lie from where the tray's pixels end
+    on_tray, outside = split_outside(segs, d.det.shape[:2], d.scale, p.min_area_px,
+                                     max(p.refine_range_px, 2.0 * p.scale))
+    return SegmentList(on_tray, outside)
+
+
+def _segments_of(frame: np.ndarray, p: SegmentParams, d: _Detection, reference_bgr: np.ndarray | None
+                 ) -> list[Segment]:
+    """Every region of the frame, the surround of the tray included: the tray's colour from the
+    reference image or fitted, and for a frame whose tray looks taken for a part the other readings."""
     if reference_bgr is not None:
         return _segment(frame, p, d, *_reference_tray(reference_bgr, frame, d))
     tray_field = _fitted_field(d, p.tray)

@@ -132,3 +132,21 @@ def test_pca_test1_gives_the_six_bars_and_nothing_else(variant):
         areas = np.array([s.area_px for s in segs]) / scale
         assert areas.min() > 12000 and areas.max() / areas.min() < 1.3
         assert sum(s.area_px for s in segs.outside_tray) / scale > 150000  # (at half size in two pieces)
+
+
+def test_a_region_lying_inside_another_is_no_tray():
+    """The tray's extent is the frame outside every region's outline: a region lying inside another
+    (in its hole, or overlapping it) must not open a window of 'tray' in it. Filled in one call the
+    outlines cancelled where they overlapped (even-odd), and the inner region's area became a piece of
+    tray that pulled the hull over the surround."""
+    from cell.vision.outside import split_outside
+    from cell.vision.segment import Segment
+
+    def box(u0, v0, u1, v1):
+        return np.array([[u0, v0], [u1, v0], [u1, v1], [u0, v1]], float)
+
+    surround = Segment(box(0, 0, 100, 200), [box(20, 20, 80, 180)], cut_off=True)  # the left half of 200 x 200
+    inner = Segment(box(25, 25, 75, 175))  # in the surround's hole
+    part = Segment(box(140, 90, 160, 110))  # on the tray, the right half
+    kept, out = split_outside([surround, inner, part], (200, 200), 1, 100.0, 4.0)
+    assert out == [surround] and kept == [inner, part]

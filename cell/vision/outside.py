@@ -52,8 +52,8 @@ def tray_extent(segs, det_hw: tuple[int, int], scale: int, min_area_px: float) -
     strip is no tray."""
     dh, dw = det_hw
     filled = np.zeros((dh, dw), np.uint8)
-    if segs:
-        cv2.fillPoly(filled, [_det_points(s.outline_px, scale) for s in segs], 1, lineType=cv2.LINE_8, shift=SHIFT)
+    for s in segs:  # one at a time: polygons filled in one call cancel where they overlap (even-odd)
+        cv2.fillPoly(filled, [_det_points(s.outline_px, scale)], 1, lineType=cv2.LINE_8, shift=SHIFT)
     tray = 1 - filled
     side = max(3, 2 * int(math.sqrt(max(min_area_px, 1.0)) / scale / 2) + 1)  # odd, detection px
     opened = cv2.morphologyEx(tray, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_RECT, (side, side)))

@@ -348,12 +348,17 @@ def _ring(raw, where) -> np.ndarray:
 def _refuse_non_finite(meta: dict, where: str) -> None:
     """The free keys are kept and written again (a recording's manifest holds the assembly): NaN or Infinity
     in one ended `cell run` in an internal error with a half-made recording folder."""
-    def bad(v) -> bool:
-        if isinstance(v, float):
-            return not math.isfinite(v)
-        if isinstance(v, dict):
-            return any(bad(x) for x in v.values())
-        return isinstance(v, list) and any(bad(x) for x in v)
+    def bad(v) -> bool:  # a walk with a stack: a key nested 330 deep overflowed a recursive one (RecursionError)
+        todo = [v]
+        while todo:
+            x = todo.pop()
+            if isinstance(x, float) and not math.isfinite(x):
+                return True
+            if isinstance(x, dict):
+                todo.extend(x.values())
+            elif isinstance(x, list):
+                todo.extend(x)
+        return False
 
     for k, v in meta.items():
         if bad(v):

@@ -176,3 +176,18 @@ def test_a_frame_one_pixel_thin_is_segmented_not_an_internal_error(tmp_path, cap
     code, out, err = run_cli("segment", path, "--json", capsys=capsys)
     assert code == 0 and "internal error" not in err, err
     assert json.loads(out)["parts"] == [] and json.loads(out)["width_px"] == shape[1]
+
+
+@pytest.mark.parametrize("depth, code", [(400, 0), (5000, 2)])
+def test_a_deeply_nested_free_part_key(tmp_path, capsys, depth, code):
+    """The NaN check walked a free key recursively: nested 330 deep or more it ended in an internal error
+    (RecursionError) although JSON's reader took it; now it is checked like any other key. Nesting JSON's
+    reader refuses (about 990 deep from the command line, less under pytest's deeper stack) is bad input
+    naming the file."""
+    path, _ = _asm(tmp_path)
+    text = path.read_text().replace('"z_top"', '"deep": ' + "[" * depth + "1.0" + "]" * depth + ', "z_top"', 1)
+    path.write_text(text)
+    got, out, err = run_cli("plan", path, "--json", capsys=capsys)
+    assert got == code and "internal error" not in err, err
+    if code == 2:
+        assert err.startswith("cell: error: ") and "nested too deeply" in err

@@ -150,3 +150,24 @@ def test_a_region_lying_inside_another_is_no_tray():
     part = Segment(box(140, 90, 160, 110))  # on the tray, the right half
     kept, out = split_outside([surround, inner, part], (200, 200), 1, 100.0, 4.0)
     assert out == [surround] and kept == [inner, part]
+
+
+@pytest.mark.parametrize("gap_px", [10, 16, 40])
+def test_a_row_of_parts_cut_by_the_border_a_few_pixels_apart_is_kept(gap_px):
+    """Four dark plates lined up along the bottom border of a light tray filling the view, from corner
+    to corner, gaps narrower than the speck width between them: the opening of the tray-coloured area
+    closed the gaps, the hull stopped above the row, and the plates were left out as a wall of surround
+    (found in review). The tray reaches the border through the gaps: every plate is kept, cut off."""
+    rng = np.random.default_rng(0)
+    h, w, n, depth = 1024, 1280, 4, 150
+    img = np.empty((h, w, 3), np.float32)
+    img[:] = (200, 205, 198)
+    width = (w - (n - 1) * gap_px) // n  # the row runs from the left border to the right one
+    for k in range(n):
+        x0 = k * (width + gap_px)
+        cv2.rectangle(img, (x0, h - depth + (k % 2) * 20), (x0 + width - 1, h - 1), (40, 45, 50), -1)
+    cv2.circle(img, (640, 400), 80, (40, 45, 50), -1)
+    img = cv2.GaussianBlur(img, (0, 0), 1.2) + rng.normal(0, 2.5, img.shape)
+    segs = segment_frame(np.clip(np.round(img), 0, 255).astype(np.uint8))
+    assert segs.outside_tray == [] and len(segs) == n + 1
+    assert sum(s.cut_off for s in segs) == n

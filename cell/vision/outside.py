@@ -64,6 +64,7 @@ def tray_extent(segs, det_hw: tuple[int, int], scale: int, min_area_px: float) -
         return None
     areas = np.array([cv2.contourArea(c) for c in contours])
     points = [c.reshape(-1, 2) for c, a in zip(contours, areas, strict=True) if a >= PIECE_SHARE * areas.max()]
+    points += _border_reaches(tray, [c for c, a in zip(contours, areas, strict=True) if a >= PIECE_SHARE * areas.max()])
     xy = np.concatenate(points)
     top, bottom = (xy[:, 1] == 0).any(), (xy[:, 1] == dh - 1).any()
     left, right = (xy[:, 0] == 0).any(), (xy[:, 0] == dw - 1).any()
@@ -74,6 +75,20 @@ def tray_extent(segs, det_hw: tuple[int, int], scale: int, min_area_px: float) -
     hull = np.zeros((dh, dw), np.uint8)
     cv2.fillConvexPoly(hull, cv2.convexHull(np.concatenate(points)), 1)
     return hull
+
+
+def _border_reaches(tray: np.ndarray, pieces: list) -> list[np.ndarray]:
+    """The border pixels the tray reaches through gaps narrower than the opening (between parts lined up
+    along the border, or where a part nearly meets it): tray-coloured pixels on the frame's border whose
+    connected tray area (unopened, 8-connected) holds one of the kept `pieces`. Without them a row of
+    parts cut by the border, a few pixels apart, was taken for a wall of surround and left out."""
+    dh, dw = tray.shape
+    _, labels = cv2.connectedComponents(tray, connectivity=8)
+    kept = {int(labels[c[0, 0, 1], c[0, 0, 0]]) for c in pieces} - {0}
+    rows = np.r_[np.zeros(dw, int), np.full(dw, dh - 1), np.arange(dh), np.arange(dh)]
+    cols = np.r_[np.arange(dw), np.arange(dw), np.zeros(dh, int), np.full(dh, dw - 1)]
+    on = np.isin(labels[rows, cols], list(kept))
+    return [np.stack([cols[on], rows[on]], 1).astype(np.int32)] if on.any() else []
 
 
 def _det_points(ring: np.ndarray, scale: int) -> np.ndarray:

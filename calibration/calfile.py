@@ -20,7 +20,6 @@ CONTRACT-frame pixels (see calibration/camera.py). Lengths in mm.
 
 from __future__ import annotations
 
-import math
 from importlib import resources
 from pathlib import Path
 
@@ -29,7 +28,7 @@ import numpy as np
 from calibration.camera import Calibration
 from cell.cellconfig import CAMERA_PX
 from cell.errors import BadInput
-from cell.fileio import has_non_number, read_json, to_jsonable, write_json_atomic
+from cell.fileio import has_non_number, is_finite_number, read_json, short_repr, to_jsonable, write_json_atomic
 
 FORMAT = "disassembly-cell/calibration"
 VERSION = 1
@@ -237,18 +236,9 @@ def _check_sees_plane(k: np.ndarray, cam2base: np.ndarray, plane_z_mm: float, w:
 
 
 def _finite(v, where, fail) -> float:
-    try:  # an integer beyond a float (10**400) overflows math.isfinite
-        ok = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
-    except OverflowError:
-        ok = False
-    if not ok:
-        fail(f"{where} must be a finite number, got {_short(v)}")
+    if not is_finite_number(v):
+        fail(f"{where} must be a finite number, got {short_repr(v)}")
     return float(v)
-
-
-def _short(v) -> str:
-    text = repr(v)
-    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def _matrix(v, shape, where, fail) -> np.ndarray:

@@ -13,7 +13,7 @@ from importlib import resources
 from pathlib import Path
 
 from cell.errors import BadInput
-from cell.fileio import read_json
+from cell.fileio import is_finite_number, read_json, short_repr
 
 FORMAT = "disassembly-cell/cell"
 # Joints nearer the contacts say more about the kind of grasp (paper section 7): the wrist
@@ -338,9 +338,8 @@ class _Reader:
 
     def num(self, d, key, where="", cap: float = MAX_VALUE):
         v = d.get(key)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v):
-            r = repr(v)
-            self._fail(where, key, f"must be a finite number, got {r if len(r) <= 40 else r[:37] + '...'}")
+        if not is_finite_number(v):
+            self._fail(where, key, f"must be a finite number, got {short_repr(v)}")
         if abs(v) > cap:
             self._fail(where, key, f"must be within +-{cap:g}, got {v:g}")
         return float(v)
@@ -385,10 +384,3 @@ class _Reader:
     def per_joint(self, d, key):
         o = self.obj(d, key, "scara")
         return {j: self.pos(o, j, f"scara.{key}") for j in JOINTS}
-
-
-def _finite(v: int | float) -> bool:
-    try:
-        return math.isfinite(v)
-    except OverflowError:  # an int too large for a float (JSON allows any length)
-        return False

@@ -35,12 +35,13 @@ from cell.fileio import (
     DuplicateKey,
     append_lines_atomic,
     has_non_number,
+    is_finite_number,
     read_text,
     refuse_lone_surrogates,
     unique_keys,
 )
 from cell.kinematics import Joints
-from cell.scene import MAX_COORD_MM, Part, _finite, parse_part
+from cell.scene import MAX_COORD_MM, Part, parse_part
 
 JOINT_KEYS = ("j1_deg", "j2_deg", "j3_mm", "j4_deg")
 
@@ -135,8 +136,7 @@ def parse_example(raw, where: str = "example") -> GraspExample:
         raise BadInput(f"{where}: 'obstacles' must be a list of parts")
     obs = tuple(parse_part(o, f"{where}: obstacle #{i}") for i, o in enumerate(obstacles))
     gz = raw.get("grasp_z_mm")
-    if gz is not None and (isinstance(gz, bool) or not isinstance(gz, (int, float)) or not _finite(gz)
-                           or abs(gz) > MAX_COORD_MM):
+    if gz is not None and (not is_finite_number(gz) or abs(gz) > MAX_COORD_MM):
         raise BadInput(f"{where}: 'grasp_z_mm' must be a number of mm within {MAX_COORD_MM:g}")
     # The finger tips go no lower than the part rests (CONTRACT: z_bottom <= grasp z), and never into the table
     # (parse_part keeps z_bottom >= 0). Compared as the line holds it: a z the station took at z_bottom is not

@@ -254,6 +254,23 @@ def to_jsonable(obj, *, nonfinite: str = "error"):
     raise TypeError(f"a {type(obj).__name__} cannot be written as JSON")
 
 
+def is_finite_number(v) -> bool:
+    """Is this JSON value a finite number? true/false are not numbers, and an integer literal too large for
+    a float (JSON allows any length: 10**400) overflows math.isfinite."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    try:
+        return math.isfinite(v)
+    except OverflowError:
+        return False
+
+
+def short_repr(v) -> str:
+    """A value as an error message quotes it: at most 40 characters."""
+    r = repr(v)
+    return r if len(r) <= 40 else r[:37] + "..."
+
+
 def has_non_number(v) -> bool:
     """Is there a true/false or a string anywhere in this JSON value's nested lists? (numpy reads True
     as 1 and "100" as 100: a matrix or a point given as [true, 0] or ["100", 0] must be refused, not

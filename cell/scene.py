@@ -19,7 +19,7 @@ from shapely.geometry import Polygon
 from shapely.validation import explain_validity
 
 from cell.errors import BadInput
-from cell.fileio import read_json
+from cell.fileio import is_finite_number, read_json, short_repr
 
 UP = (0.0, 0.0, 1.0)
 # Outline coordinates beyond 1 km from the base are not millimetres of a part on the tray (and a
@@ -366,18 +366,6 @@ def _refuse_non_finite(meta: dict, where: str) -> None:
 
 
 def _num(v, where) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v):
-        raise BadInput(f"{where}: must be a finite number, got {_short(v)}")
+    if not is_finite_number(v):
+        raise BadInput(f"{where}: must be a finite number, got {short_repr(v)}")
     return float(v)
-
-
-def _finite(v: int | float) -> bool:
-    try:
-        return math.isfinite(v)
-    except OverflowError:  # an int too large for a float
-        return False
-
-
-def _short(v) -> str:
-    r = repr(v)
-    return r if len(r) <= 40 else r[:37] + "..."

@@ -1,4 +1,4 @@
-"""Small argument helpers shared by the vision and calibration commands."""
+"""Small argument helpers shared by the commands (vision, calibration, hardware, benchmarks)."""
 
 from __future__ import annotations
 
@@ -55,6 +55,13 @@ def finite(value: float | None, what: str, minimum: float | None = None) -> floa
         raise BadInput(f"{what} must be a finite number (got {value!r})")
     if minimum is not None and value < minimum:
         raise BadInput(f"{what} must be at least {minimum:g} (got {value!r})")
+    return value
+
+
+def count(value: int, what: str, maximum: int) -> int:
+    """A count option, 1..`maximum`: a count that would run without end is bad input with its range."""
+    if not 1 <= value <= maximum:
+        raise BadInput(f"{what} must be 1..{maximum}, got {value}")
     return value
 
 

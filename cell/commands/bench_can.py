@@ -15,11 +15,10 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from cell.cellconfig import load_cell
-    from cell.errors import BadInput
+    from cell.commands._vision_args import count
     from drivers import bench
 
-    if not 1 <= args.n <= MAX_N:  # 1e14 ran without end (and would have stored every time)
-        raise BadInput(f"--n must be 1..{MAX_N}, got {args.n}")
+    count(args.n, "--n", MAX_N)  # 1e14 ran without end (and would have stored every time)
     cell = load_cell(args.cell)
     rt = bench.round_trips(cell, args.n)
     pick = bench.pick_cycle(cell)

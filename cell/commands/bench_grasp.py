@@ -113,14 +113,14 @@ def run(args) -> int:
     import numpy as np
 
     from cell.cellconfig import default_cell
+    from cell.commands._vision_args import count
     from cell.errors import BadInput, NoFeasibleGrasp
     from cell.examples import default_examples_path, load_examples
     from cell.grasp.cascade import Pairs
     from cell.grasp.shapes import hand_made_examples
     from cell.grasp.synthesis import GraspPlanner
 
-    if not 1 <= args.repeat <= MAX_REPEAT:  # 1e14 plans per scene would never end
-        raise BadInput(f"--repeat must be 1..{MAX_REPEAT}, got {args.repeat}")
+    count(args.repeat, "--repeat", MAX_REPEAT)  # 1e14 plans per scene would never end
     if args.examples:
         examples, source = load_examples(args.examples), args.examples
     elif default_examples_path().exists():

@@ -30,7 +30,7 @@ def run(args) -> int:
 
     from cell import parts_library as L
     from cell.cellconfig import load_cell
-    from cell.errors import BadInput
+    from cell.commands._vision_args import count
     from cell.examples import load_examples
     from cell.study.stability import (
         StabilityTally,
@@ -43,8 +43,7 @@ def run(args) -> int:
         simple_shapes,
     )
 
-    if not 1 <= args.poses <= MAX_POSES:  # 1e14 poses per part would never end
-        raise BadInput(f"--poses must be 1..{MAX_POSES}, got {args.poses}")
+    count(args.poses, "--poses", MAX_POSES)  # 1e14 poses per part would never end
     cell = load_cell(args.cell)
     examples = load_examples(args.examples)
 

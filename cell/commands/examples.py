@@ -31,13 +31,13 @@ def run(args) -> int:
     from pathlib import Path
 
     from cell.cellconfig import load_cell
+    from cell.commands._vision_args import count
     from cell.errors import BadInput
     from cell.examples import append_examples
     from cell.fileio import check_writable, replace_lines_atomic
     from cell.operator import generate_examples
 
-    if not 1 <= args.count <= MAX_COUNT:  # a few a second: 1e23 ran without end
-        raise BadInput(f"--count must be 1..{MAX_COUNT}, got {args.count}")
+    count(args.count, "--count", MAX_COUNT)  # a few a second: 1e23 ran without end
     if not (0.0 <= args.rejections <= 1.0 and 0.0 <= args.neighbours <= 1.0):
         raise BadInput("--rejections and --neighbours are shares between 0 and 1")
     out = Path(args.out)

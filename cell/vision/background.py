@@ -142,9 +142,8 @@ def fit_tray_field(image_bgr: np.ndarray, tray: str = "auto", small_bgr: np.ndar
     a = _design(sh, sw, FIT_DEGREE)[sel]
     mode_bgr = _modal_bgr(codes, weights, nb)
     coef, sigma, res = _fit_around(mode_bgr, a, small)
-    grown = None
-    if (res < max(3.0 * sigma, 6.0)).mean() < GROW_BELOW_SHARE:
-        grown = _grown_inliers(small_bgr, mode_bgr)
+    share = (res < max(3.0 * sigma, 6.0)).mean()  # the share of the view the field explains
+    grown = _grown_inliers(small_bgr, mode_bgr) if share < GROW_BELOW_SHARE else None
     if grown is not None:
         # uneven light: the tray runs smoothly beyond MODE_RADIUS of its commonest colour (a lamp at
         # one side), and a field fitted around that colour alone covers only its part of the tray
@@ -155,7 +154,7 @@ def fit_tray_field(image_bgr: np.ndarray, tray: str = "auto", small_bgr: np.ndar
         limit = max(3.0 * min(sigma, sigma_g), 6.0)
         if sigma_g <= GROW_MAX_ROUGHER * sigma and (res_g < limit).sum() > (res < limit).sum():
             coef, sigma, res = coef_g, sigma_g, res_g
-    share = (res < max(3.0 * sigma, 6.0)).mean()
+            share = (res < max(3.0 * sigma, 6.0)).mean()
     if tray == "auto" and seed is None and share < TRAY_MIN_SHARE:
         # the fit explains less than half the view: large or many parts may outnumber the tray near
         # the centre. The other candidate: the commonest colour of the whole view away from the

@@ -63,8 +63,8 @@ def tray_extent(segs, det_hw: tuple[int, int], scale: int, min_area_px: float) -
     if not contours:
         return None
     areas = np.array([cv2.contourArea(c) for c in contours])
-    points = [c.reshape(-1, 2) for c, a in zip(contours, areas, strict=True) if a >= PIECE_SHARE * areas.max()]
-    points += _border_reaches(tray, [c for c, a in zip(contours, areas, strict=True) if a >= PIECE_SHARE * areas.max()])
+    pieces = [c for c, a in zip(contours, areas, strict=True) if a >= PIECE_SHARE * areas.max()]
+    points = [c.reshape(-1, 2) for c in pieces] + _border_reaches(tray, pieces)
     xy = np.concatenate(points)
     top, bottom = (xy[:, 1] == 0).any(), (xy[:, 1] == dh - 1).any()
     left, right = (xy[:, 0] == 0).any(), (xy[:, 0] == dw - 1).any()

@@ -272,7 +272,8 @@ def _segments_of(frame: np.ndarray, p: SegmentParams, d: _Detection, reference_b
         # the panel's own colour, looked for in the region taken for a part, is the other reading
         seed = _region_seed(segs, frame.shape, d)
         fields = [_fitted_field(d, "bright")]
-        if _border_hole_share(segs, frame.shape) >= PARTS_AS_HOLES_SHARE:
+        first_hole_share = _border_hole_share(segs, frame.shape)
+        if first_hole_share >= PARTS_AS_HOLES_SHARE:
             fields.append(_fitted_field(d, "auto", seed))
         best, tried = segs, [tray_field]
         for other in fields:
@@ -288,7 +289,7 @@ def _segments_of(frame: np.ndarray, p: SegmentParams, d: _Detection, reference_b
             # as holes of the tray taken for a part): the Festo frames' table as the tray makes the
             # paper with the parts on it such a region, 8 - 11 % holes against 1 - 5 % the first time
             if (_whole_parts(seg_other) > _whole_parts(best)
-                    and _border_hole_share(seg_other, frame.shape) < _border_hole_share(segs, frame.shape)):
+                    and _border_hole_share(seg_other, frame.shape) < first_hole_share):
                 best = seg_other
         return best
     return segs
@@ -882,18 +883,22 @@ LOOP_SPAN = 24  # loops up to this many points long are looked for segment by se
 # through shapely's STRtree
 
 
+def _crossing_params(p: np.ndarray, e: np.ndarray, q: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where segments p + t e and q + u f (rows) meet: (t, u); both in (0, 1) where they cross, NaN or
+    infinite where they are parallel."""
+    den = e[:, 0] * f[:, 1] - e[:, 1] * f[:, 0]
+    pq = q - p
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return (pq[:, 0] * f[:, 1] - pq[:, 1] * f[:, 0]) / den, (pq[:, 0] * e[:, 1] - pq[:, 1] * e[:, 0]) / den
+
+
 def _crossings_near(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Pairs (i, i + d), 2 <= d <= LOOP_SPAN, of a ring's segments a -> b that cross."""
     n = len(a)
     e = b - a
     ii, jj = [], []
     for d in range(2, min(LOOP_SPAN, n // 2 - 1) + 1):
-        c, f = np.roll(a, -d, axis=0), np.roll(e, -d, axis=0)
-        den = e[:, 0] * f[:, 1] - e[:, 1] * f[:, 0]
-        ac = c - a
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = (ac[:, 0] * f[:, 1] - ac[:, 1] * f[:, 0]) / den
-            u = (ac[:, 0] * e[:, 1] - ac[:, 1] * e[:, 0]) / den
+        t, u = _crossing_params(a, e, np.roll(a, -d, axis=0), np.roll(e, -d, axis=0))
         hit = np.flatnonzero((t > 0) & (t < 1) & (u > 0) & (u < 1))
         ii.append(hit)
         jj.append((hit + d) % n)
@@ -909,12 +914,7 @@ def _crossings_all(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray
     i, j = shapely.STRtree(boxes).query(boxes)  # boxes that meet (no predicate: GEOS's takes 5 x as long)
     keep = np.abs(i - j) > 1
     i, j = i[keep], j[keep]
-    e, f = b[i] - a[i], b[j] - a[j]
-    den = e[:, 0] * f[:, 1] - e[:, 1] * f[:, 0]
-    ac = a[j] - a[i]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (ac[:, 0] * f[:, 1] - ac[:, 1] * f[:, 0]) / den
-        u = (ac[:, 0] * e[:, 1] - ac[:, 1] * e[:, 0]) / den
+    t, u = _crossing_params(a[i], b[i] - a[i], a[j], b[j] - a[j])
     hit = (t > 0) & (t < 1) & (u > 0) & (u < 1)
     return i[hit], j[hit]
 
@@ -934,11 +934,8 @@ def _loops_cut(ring: np.ndarray, everywhere: bool = False) -> np.ndarray:
     i, j = i[keep], j[keep]
     if not len(i):
         return ring
-    e, f = b[i] - a[i], b[j] - a[j]
-    den = e[:, 0] * f[:, 1] - e[:, 1] * f[:, 0]
-    ac = a[j] - a[i]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (ac[:, 0] * f[:, 1] - ac[:, 1] * f[:, 0]) / den
+    e = b[i] - a[i]
+    t, _ = _crossing_params(a[i], e, a[j], b[j] - a[j])
     cross = a[i] + t[:, None] * e
     inner = j - i  # points i + 1 .. j lie on one side, j + 1 .. i (round the end) on the other
     start = np.where(inner <= n - inner, i + 1, j + 1)

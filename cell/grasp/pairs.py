@@ -298,7 +298,9 @@ def convex_near(ctx: Context, points: np.ndarray, normals: np.ndarray) -> np.nda
     return (count == 0) | ((ring_lo == ring_hi) & (reflex == 0) & (one_run | whole_ring))
 
 
-NEAR_EDGES_BROADCAST_MAX = 200_000  # points x edges up to which all of them are compared (else the STRtree first)
+NEAR_EDGES_BROADCAST_MAX = 16_000  # points x edges up to which all of them are compared (else the STRtree
+# first): the crossover measured on the library (broadcast 0.3 ms at 15 000, the tree 0.4; at 107 000, from a
+# camera outline, 6 ms against 1.2)
 
 
 def _edges_meeting(ctx: Context, points: np.ndarray, normals: np.ndarray, radius_mm: float, behind_mm: float):

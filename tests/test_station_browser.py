@@ -258,3 +258,100 @@ def test_a_run_that_ended_before_the_station_closed_says_how_it_ended(browser, s
     server.close()
     wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "offline")
     assert "the run is stopped and the cell closed the station" in d.find_element(By.ID, "message").text
+
+
+# ---------------------------------------------------------------- what an operator trips over
+RECORD_POSTS = """window.__posts = [];
+const orig = window.fetch;
+window.fetch = (u, o) => { if (o && o.method === 'POST') window.__posts.push(String(u)); return orig(u, o); };"""
+
+
+def posts(d):
+    return [u.rsplit("/", 1)[-1] for u in d.execute_script("return window.__posts")]
+
+
+def open_page(d, server, state):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    d.get(server.url)
+    WebDriverWait(d, T, poll_frequency=0.05).until(
+        lambda _: d.find_element(By.ID, "state").text.lower() == state)
+    d.execute_script(RECORD_POSTS)
+
+
+def keys(d, *k):
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    ActionChains(d).send_keys(*k).perform()
+
+
+def test_browser_shortcuts_with_ctrl_do_not_approve_reject_or_pause(browser, station):
+    """Ctrl+A (select all), Ctrl+R (reload), Ctrl+P (print) are the browser's: Ctrl+A approved the
+    grasp waiting on the page."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.keys import Keys
+
+    server, control, _, _ = station
+    d = browser
+    control.run()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    open_page(d, server, "awaiting approval")
+    for k in "aprt":
+        ActionChains(d).key_down(Keys.CONTROL).send_keys(k).key_up(Keys.CONTROL).perform()
+        ActionChains(d).key_down(Keys.ALT).send_keys(k).key_up(Keys.ALT).perform()
+    assert posts(d) == []
+    assert control.state == AWAITING_APPROVAL
+    assert not any(e["event"] in ("approve", "reject", "pause") for e in control.snapshot(200)["events"])
+
+
+def test_r_with_an_empty_reason_focuses_the_field_without_typing_an_r_into_it(browser, station):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    control.run()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    open_page(d, server, "awaiting approval")
+    keys(d, "r")
+    reason = d.find_element(By.ID, "reason")
+    assert d.switch_to.active_element == reason
+    assert reason.get_attribute("value") == ""  # was "r": the key's own character landed in the field
+    keys(d, "tilted, a spring")  # typing the reason: letters that are shortcuts elsewhere do nothing
+    assert reason.get_attribute("value") == "tilted, a spring"
+    assert posts(d) == []
+    keys(d, "\ue007")  # Enter rejects with that reason
+    WebDriverWait(d, T).until(lambda _: any(e["event"] == "reject" for e in control.snapshot(200)["events"]))
+    assert [e["message"] for e in control.snapshot(200)["events"] if e["event"] == "reject"] == [
+        "grasp rejected: tilted, a spring"]
+
+
+def test_a_shortcut_whose_button_is_disabled_sends_nothing_and_says_why(browser, station):
+    """'a' with no grasp waiting used to post approve (a 409 and a red toast); a key held down sent a
+    step per auto-repeat."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    open_page(d, server, "idle")
+    keys(d, "a")
+    WebDriverWait(d, T).until(lambda _: "Approve is not available now" in d.find_element(By.ID, "toast").text)
+    assert posts(d) == []
+    # a held space: the first keydown steps, its auto-repeats do not
+    d.execute_script("""for (const repeat of [false, true, true, true])
+        document.body.dispatchEvent(new KeyboardEvent('keydown', {key: ' ', repeat, bubbles: true}));""")
+    assert posts(d) == ["step"]
+
+
+def test_space_on_the_focused_approve_each_checkbox_toggles_it_and_does_not_step(browser, station):
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    open_page(d, server, "idle")
+    d.execute_script("document.getElementById('approve-each').focus()")
+    keys(d, " ")
+    WebDriverWait(d, T).until(lambda _: not control.require_approval)
+    assert posts(d) == ["approval"]

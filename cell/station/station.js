@@ -275,9 +275,43 @@ function startTeach() {
   if (last) render(last); else drawTeach();
 }
 
+function cancelTeach() {
+  if (!teach) return;
+  teach = null;
+  if (last) render(last); else drawTeach();
+}
+
 function reject() {
   const reason = $("reason").value.trim();
   return post("reject", {reason}).then((r) => { if (r) $("reason").value = ""; });
+}
+
+// ---- keyboard: space step, p pause, a approve, r reject, t teach, Esc cancels teaching.
+// Each key does what its button does, and only when that button is enabled (no command the state
+// cannot take, none while the cell is offline). Never with Ctrl/Alt/Meta (Ctrl+A, Ctrl+R, Ctrl+P are
+// the browser's: select all must not approve a grasp), never while typing in a text field, once per
+// press (a held key does not repeat the command).
+const KEY_BUTTONS = {" ": "btn-step", "p": "btn-pause", "a": "btn-approve", "r": "btn-reject", "t": "btn-teach"};
+
+function onKey(ev) {
+  if (ev.ctrlKey || ev.metaKey || ev.altKey || ev.isComposing) return;
+  const t = ev.target;
+  if (t.isContentEditable || t.tagName === "TEXTAREA" || t.tagName === "SELECT") return;
+  if (t.tagName === "INPUT" && t.type !== "checkbox") return;  // the reason, the token
+  if (ev.key === "Escape") { cancelTeach(); return; }
+  if (ev.key === " " && t.tagName === "INPUT") return;  // space toggles the focused checkbox, as usual
+  const key = ev.key.length === 1 ? ev.key.toLowerCase() : ev.key;
+  const id = KEY_BUTTONS[key];
+  if (!id) return;
+  ev.preventDefault();  // no scrolling, no click of a focused button, no "r" typed into the reason
+  if (ev.repeat) return;
+  const b = $(id);
+  if (b.disabled) {
+    toast(b.textContent.replace(/^\W+/, "") + " is not available now (" + $("state").textContent + ")");
+    return;
+  }
+  if (id === "btn-reject" && !$("reason").value.trim()) { $("reason").focus(); return; }
+  b.click();
 }
 
 // ---- wiring
@@ -297,15 +331,7 @@ function init() {
   });
   $("reason").addEventListener("keydown", (ev) => { if (ev.key === "Enter") reject(); });
   $("frame").addEventListener("load", () => $("noframe").classList.add("hidden"));
-  document.addEventListener("keydown", (ev) => {
-    if (ev.target.tagName === "INPUT" && ev.target.type !== "checkbox") return;
-    if (ev.key === " ") { ev.preventDefault(); post("step"); }
-    else if (ev.key === "a") post("approve");
-    else if (ev.key === "r") { if ($("reason").value.trim()) reject(); else $("reason").focus(); }
-    else if (ev.key === "p") post("pause");
-    else if (ev.key === "t") startTeach();
-    else if (ev.key === "Escape") { teach = null; drawTeach(); if (last) render(last); }
-  });
+  document.addEventListener("keydown", onKey);
   poll();
 }
 

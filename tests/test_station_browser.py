@@ -355,3 +355,39 @@ def test_space_on_the_focused_approve_each_checkbox_toggles_it_and_does_not_step
     keys(d, " ")
     WebDriverWait(d, T).until(lambda _: not control.require_approval)
     assert posts(d) == ["approval"]
+
+
+def frame_offset(d, u, v):
+    """Offset from the overlay's centre of image pixel (u, v), for ActionChains."""
+    svg = d.find_element("id", "overlay")
+    dx, dy = d.execute_script(
+        """const svg = arguments[0], p = svg.createSVGPoint();
+           p.x = arguments[1]; p.y = arguments[2];
+           const q = p.matrixTransform(svg.getScreenCTM()), r = svg.getBoundingClientRect();
+           return [q.x - (r.left + r.width / 2), q.y - (r.top + r.height / 2)];""", svg, u, v)
+    return svg, round(dx), round(dy)
+
+
+def test_a_slow_tap_on_a_part_while_teaching_selects_it(browser, station):
+    """The page redrew every outline at every poll (300 ms): a part pressed across a redraw (a slow
+    tap on a touchscreen) got no click, and teaching stayed at 'click the part'."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    open_page(d, server, "idle")
+    cap = next(p for p in demo_parts() if p.id == "cap")
+    d.find_element(By.ID, "btn-teach").click()
+    svg, dx, dy = frame_offset(d, *mm_to_px(cap.polygon.centroid.coords[0]))
+    ActionChains(d).move_to_element_with_offset(svg, dx, dy).click_and_hold().perform()
+    d.execute_script("render(last)")  # a poll's answer arrives while the finger is down
+    ActionChains(d).release().perform()
+    WebDriverWait(d, T).until(lambda _: "Teach cap: click the first contact" in d.find_element(By.ID, "teach-status").text)
+    assert d.find_element(By.CSS_SELECTOR, "#parts polygon.selected").get_attribute("data-part") == "cap"
+    # a tap beside every part says so, and teaching waits for the part
+    d.find_element(By.ID, "btn-teach").click()  # off
+    d.find_element(By.ID, "btn-teach").click()  # on again
+    ActionChains(d).move_to_element_with_offset(svg, *frame_offset(d, 5, 5)[1:]).click().perform()
+    WebDriverWait(d, T).until(lambda _: "no part there" in d.find_element(By.ID, "teach-status").text)

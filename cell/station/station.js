@@ -176,13 +176,19 @@ function pxPerScreenPx() {
   return w > 0 ? svg.viewBox.baseVal.width / w : 1;
 }
 
+// Redrawn only when something drawn changed: replacing the polygons at every poll made a slow tap
+// on a part (pressed across a redraw) no click at all. Teach picks the part by where the tap lands
+// (partAt), not by which element got it.
 function drawParts(parts, target) {
   const g = $("parts"), k = pxPerScreenPx();
+  const selected = teach && teach.part;
+  const key = JSON.stringify([parts, target, selected, Math.round(k * 1000)]);
+  if (g.dataset.key === key) return;
+  g.dataset.key = key;
   g.replaceChildren();
   for (const part of parts) {
-    const cls = "part" + (part.id === target ? " target" : "") + (teach && teach.part === part.id ? " selected" : "");
-    const poly = el("polygon", {points: ptsAttr(part.outline_px), class: cls, "data-part": part.id}, g);
-    poly.addEventListener("click", (ev) => onPartClick(ev, part.id));
+    const cls = "part" + (part.id === target ? " target" : "") + (selected === part.id ? " selected" : "");
+    el("polygon", {points: ptsAttr(part.outline_px), class: cls, "data-part": part.id}, g);
     const [u, v] = centroid(part.outline_px);
     el("text", {x: u, y: v, class: "part-label", "text-anchor": "middle", "font-size": 14 * k,
                 "stroke-width": 3 * k}, g).textContent = part.id;
@@ -233,7 +239,7 @@ function drawTeach() {
   const st = $("teach-status");
   if (!teach) { st.textContent = ""; return; }
   if (teach.p1) el("circle", {cx: teach.p1[0], cy: teach.p1[1], r: 6 * pxPerScreenPx(), class: "teachmark"}, g);
-  st.textContent = teach.stage === "part" ? "Teach: click the part to grasp"
+  st.textContent = teach.stage === "part" ? (teach.note || "Teach: click the part to grasp")
     : teach.stage === "p1" ? "Teach " + teach.part + ": click the first contact on its edge"
     : "Teach " + teach.part + ": click the second contact";
 }
@@ -247,16 +253,48 @@ function framePoint(ev) {
   return [Math.round(q.x * 10) / 10, Math.round(q.y * 10) / 10];
 }
 
-function onPartClick(ev, partId) {
-  if (!teach || teach.stage !== "part") return;
-  ev.stopPropagation();
-  teach = {stage: "p1", part: partId};
-  if (last) render(last);
+// The part under image point q: inside its outline (the topmost, drawn last, first), else the one
+// whose edge is nearest within a fingertip (12 screen px): a tap on the edge counts.
+function partAt(q) {
+  const parts = (last && last.cell && last.cell.parts) || [];
+  for (let i = parts.length - 1; i >= 0; i--) if (inside(q, parts[i].outline_px)) return parts[i].id;
+  let best = null, bestD = 12 * pxPerScreenPx();
+  for (const part of parts) {
+    const dd = edgeDistance(q, part.outline_px);
+    if (dd <= bestD) { best = part.id; bestD = dd; }
+  }
+  return best;
+}
+
+function inside(q, pts) {
+  let c = false;
+  for (let i = 0, j = pts.length - 1; i < pts.length; j = i++) {
+    const [ui, vi] = pts[i], [uj, vj] = pts[j];
+    if ((vi > q[1]) !== (vj > q[1]) && q[0] < (uj - ui) * (q[1] - vi) / (vj - vi) + ui) c = !c;
+  }
+  return c;
+}
+
+function edgeDistance(q, pts) {
+  let best = Infinity;
+  for (let i = 0, j = pts.length - 1; i < pts.length; j = i++) {
+    const [au, av] = pts[j], [bu, bv] = pts[i], du = bu - au, dv = bv - av;
+    const t = Math.max(0, Math.min(1, ((q[0] - au) * du + (q[1] - av) * dv) / (du * du + dv * dv || 1)));
+    best = Math.min(best, Math.hypot(q[0] - au - t * du, q[1] - av - t * dv));
+  }
+  return best;
 }
 
 async function onFrameClick(ev) {
-  if (!teach || teach.stage === "part") return;
+  if (!teach) return;
   const p = framePoint(ev);
+  if (teach.stage === "part") {
+    const id = partAt(p);
+    if (id == null) { teach.note = "Teach: no part there; click inside a part's outline"; drawTeach(); return; }
+    teach = {stage: "p1", part: id};
+    if (last) render(last);
+    return;
+  }
   if (teach.stage === "p1") {
     teach = {stage: "p2", part: teach.part, p1: p};
     drawTeach();

@@ -391,3 +391,24 @@ def test_a_slow_tap_on_a_part_while_teaching_selects_it(browser, station):
     d.find_element(By.ID, "btn-teach").click()  # on again
     ActionChains(d).move_to_element_with_offset(svg, *frame_offset(d, 5, 5)[1:]).click().perform()
     WebDriverWait(d, T).until(lambda _: "no part there" in d.find_element(By.ID, "teach-status").text)
+
+
+def test_a_reason_typed_for_one_grasp_is_not_kept_for_the_next(browser, station):
+    """The operator typed a reason, then approved after all: the text stayed, and 'r' on the next
+    grasp rejected it at once with the first grasp's reason."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    control.run()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    open_page(d, server, "awaiting approval")
+    d.find_element(By.ID, "reason").send_keys("finger on the spring")
+    d.find_element(By.ID, "btn-approve").click()
+    WebDriverWait(d, T).until(lambda _: "board" in d.find_element(By.ID, "proposal-text").text)
+    assert d.find_element(By.ID, "reason").get_attribute("value") == ""
+    d.execute_script("document.activeElement.blur()")
+    keys(d, "r")  # asks for a reason, rejects nothing
+    assert d.switch_to.active_element == d.find_element(By.ID, "reason")
+    assert posts(d) == ["approve"] and control.state == AWAITING_APPROVAL

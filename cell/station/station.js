@@ -12,6 +12,7 @@ let last = null;            // last state received
 let frameIndex = null;      // index of the frame shown
 let teach = null;           // null, or {stage: "part" | "p1" | "p2", part, p1}
 let busy = false;
+let proposalKey = null;     // the pending proposal the reason field was typed for
 
 // ---- token: from the URL fragment (#token=...), kept for this tab only, removed from the URL
 function loadToken() {
@@ -131,6 +132,10 @@ function render(data) {
   if (document.activeElement !== ae) ae.checked = !!c.require_approval;
 
   const p = c.proposal;
+  // a reason typed for one grasp is not kept for the next one ('r' would reject that at once)
+  const pkey = p ? JSON.stringify(p) : "";
+  if (proposalKey !== null && pkey !== proposalKey) $("reason").value = "";
+  proposalKey = pkey;
   $("proposal-card").classList.toggle("awaiting", s === "awaiting_approval");
   $("proposal-text").textContent = p ? proposalText(p) : "none";
   const ex = cell.examples;

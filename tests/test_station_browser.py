@@ -412,3 +412,87 @@ def test_a_reason_typed_for_one_grasp_is_not_kept_for_the_next(browser, station)
     keys(d, "r")  # asks for a reason, rejects nothing
     assert d.switch_to.active_element == d.find_element(By.ID, "reason")
     assert posts(d) == ["approve"] and control.state == AWAITING_APPROVAL
+
+
+@pytest.mark.parametrize("size", [(1280, 800), (1920, 1080)])
+def test_with_the_fault_banner_the_frame_and_its_hint_still_fit_the_window(browser, station, size):
+    """The frame's height was the window's less a fixed 100 px: the fault banner (and a header that
+    wraps to two lines) pushed the bottom of the tray and the hint line out of the window."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    d.set_window_size(*size)
+    control.report_fault("j2", "following error 3.1 deg on the way down to the bracket, drive 2 disabled")
+    open_page(d, server, "fault")
+    WebDriverWait(d, T).until(lambda _: d.find_element(By.ID, "fault").is_displayed())
+    view, hint, inner_h, inner_w = d.execute_script(
+        """const r = (id) => document.getElementById(id).getBoundingClientRect().toJSON();
+           return [r('view'), r('hint'), innerHeight, innerWidth];""")
+    assert hint["bottom"] <= inner_h and view["bottom"] <= hint["top"], (view, hint, inner_h)
+    assert view["width"] > 0.4 * inner_w
+
+
+def test_on_a_portrait_tablet_the_frame_spans_the_width_above_the_buttons(browser, station):
+    """800 x 1280: the frame was squeezed into the left half (372 px wide) beside the panel, and the
+    lower half of the screen was empty."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    d.set_window_size(800, 1280)
+    control.run()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    open_page(d, server, "awaiting approval")
+    WebDriverWait(d, T).until(lambda _: "cover" in d.find_element(By.ID, "proposal-text").text)
+    view, run, approve, inner_h, inner_w, scroll_w = d.execute_script(
+        """const r = (id) => document.getElementById(id).getBoundingClientRect().toJSON();
+           return [r('view'), r('btn-run'), r('btn-approve'), innerHeight, innerWidth,
+                   document.documentElement.scrollWidth];""")
+    assert view["width"] > 0.9 * inner_w, view
+    assert view["bottom"] < run["top"] and approve["bottom"] <= inner_h, (view, approve, inner_h)
+    assert scroll_w <= inner_w
+
+
+def test_a_disabled_command_button_does_not_wear_its_colour(browser, station):
+    """Disabled buttons were their colour at 35 % opacity: a dark green Run or dark red Stop read as
+    live on a touchscreen in daylight."""
+    server, control, _, _ = station
+    d = browser
+    open_page(d, server, "idle")  # Run, Step, Stop, Teach enabled; Pause, Approve, Reject, Reset not
+    bg = d.execute_script("""const o = {};
+        for (const b of document.querySelectorAll('.panel button.big'))
+            o[b.id] = [b.disabled, getComputedStyle(b).backgroundColor, getComputedStyle(b).opacity];
+        return o;""")
+    disabled = {k: v[1] for k, v in bg.items() if v[0]}
+    enabled = {k: v[1] for k, v in bg.items() if not v[0]}
+    assert set(disabled) == {"btn-pause", "btn-approve", "btn-reject", "btn-reset"}, bg
+    assert len(set(disabled.values())) == 1  # one grey for every disabled command
+    assert not set(disabled.values()) & set(enabled.values()), bg
+    assert all(v[2] == "1" for v in bg.values())  # the label stays readable
+
+
+def test_after_a_refused_token_the_token_field_is_on_screen_and_focused(browser, station):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    d.set_window_size(1280, 800)
+    control.run()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    d.get(server.base_url)
+    d.execute_script("sessionStorage.setItem('cell-token', 'the-token-of-yesterday')")
+    d.refresh()  # the tab kept an old token (the station was restarted with a new one)
+    WebDriverWait(d, T).until(lambda _: d.find_element(By.ID, "state").text.lower() == "awaiting approval")
+    assert not d.find_element(By.ID, "token-card").is_displayed()
+    d.find_element(By.ID, "btn-approve").click()
+    WebDriverWait(d, T).until(lambda _: "valid token" in d.find_element(By.ID, "toast").text)
+    field = d.find_element(By.ID, "token")
+    top, bottom, inner_h = d.execute_script(
+        "const r = arguments[0].getBoundingClientRect(); return [r.top, r.bottom, innerHeight]", field)
+    assert 0 <= top and bottom <= inner_h, (top, bottom, inner_h)
+    assert d.switch_to.active_element == field
+    assert control.state == AWAITING_APPROVAL

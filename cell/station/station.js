@@ -40,6 +40,7 @@ function toast(text, ok) {
 async function post(cmd, body) {
   if (!token) {
     $("token-card").classList.remove("hidden");
+    $("token").focus();
     toast("enter the station token first");
     return null;
   }
@@ -53,6 +54,7 @@ async function post(cmd, body) {
     const data = await r.json().catch(() => ({ok: false, error: "HTTP " + r.status}));
     if (r.status === 403) {
       $("token-card").classList.remove("hidden");
+      $("token").focus();
     }
     if (!data.ok) {
       toast(data.error || ("HTTP " + r.status));
@@ -92,6 +94,7 @@ function offline() {
   $("approve-each").disabled = true;
   teach = null;
   drawTeach();
+  fitView();
 }
 
 // ---- drawing
@@ -164,14 +167,28 @@ function drawFrame(f) {
   if (f.width_px && f.height_px) {
     svg.setAttribute("viewBox", "0 0 " + f.width_px + " " + f.height_px);
     $("view").style.aspectRatio = f.width_px + " / " + f.height_px;
-    $("view").style.maxWidth = "calc((100vh - 100px) * " + f.width_px + " / " + f.height_px + ")";
   }
+  fitView();
   $("frameno").textContent = f.index == null ? "–" : f.index;
   $("noframe").classList.toggle("hidden", f.index != null);
   if (f.index != null && f.index !== frameIndex) {
     frameIndex = f.index;
     $("frame").src = "/api/frame.png?i=" + f.index;
   }
+}
+
+// The frame as wide as its column, but never taller than the window has room for below what is
+// above it (the header, two lines of it when the message is long, the fault banner) and above the
+// hint line: the whole tray is seen without scrolling. Stacked under a portrait screen's header, at
+// most 55 % of the height, so the buttons below it stay on the screen too.
+function fitView() {
+  const view = $("view"), f = (last && last.cell && last.cell.frame) || {};
+  const ratio = f.width_px && f.height_px ? f.width_px / f.height_px : 640 / 512;
+  const top = view.getBoundingClientRect().top + window.scrollY;
+  const below = $("hint").getBoundingClientRect().height + 6 + 16;  // the hint, its margin, main's padding
+  let room = window.innerHeight - top - below;
+  if (getComputedStyle($("main")).flexDirection === "column") room = Math.min(room, 0.55 * window.innerHeight);
+  view.style.maxWidth = Math.max(160, Math.floor(room * ratio)) + "px";
 }
 
 // Image px per screen px: marks and labels keep their size on the screen whatever the frame's
@@ -374,6 +391,7 @@ function init() {
   });
   $("reason").addEventListener("keydown", (ev) => { if (ev.key === "Enter") reject(); });
   $("frame").addEventListener("load", () => $("noframe").classList.add("hidden"));
+  window.addEventListener("resize", () => { fitView(); if (last) render(last); });
   document.addEventListener("keydown", onKey);
   poll();
 }

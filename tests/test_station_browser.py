@@ -496,3 +496,123 @@ def test_after_a_refused_token_the_token_field_is_on_screen_and_focused(browser,
     assert 0 <= top and bottom <= inner_h, (top, bottom, inner_h)
     assert d.switch_to.active_element == field
     assert control.state == AWAITING_APPROVAL
+
+
+def test_stop_is_offered_in_a_fault_and_abandons_the_sequence(browser, station):
+    """Stop was disabled in a fault, though the cell takes it: Reset was the only way on, and a reset
+    mid-pick moves the arm (it carries the part off)."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    control.report_fault("j1", "drive 1 fault 0x7121 (motor blocked)")
+    open_page(d, server, "fault")
+    assert d.find_element(By.ID, "btn-stop").is_enabled()
+    assert not d.find_element(By.ID, "btn-step").is_enabled() and not d.find_element(By.ID, "btn-run").is_enabled()
+    d.find_element(By.ID, "btn-stop").click()
+    WebDriverWait(d, T).until(lambda _: d.find_element(By.ID, "state").text.lower() == "stopped")
+    assert control.state == "stopped" and posts(d) == ["stop"]
+
+
+def test_the_approve_each_box_always_shows_the_cells_setting(browser, station):
+    """The box was never redrawn while it had the focus (it keeps it after a tap): a toggle that did
+    not reach the cell left it showing the tap ('approve each grasp' on while the cell ran without
+    asking), and a change made elsewhere (the cell's terminal, another tab) did not show."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    wait = WebDriverWait(d, T)
+    control.set_require_approval(False)
+    open_page(d, server, "idle")
+    box = d.find_element(By.ID, "approve-each")
+    assert not box.is_selected()
+    # the toggle does not reach the cell (the connection drops at that moment)
+    d.execute_script("""const orig = window.fetch;
+        window.fetch = (u, o) => String(u).endsWith('/api/approval') ? Promise.reject(new TypeError('network'))
+                                                                       : orig(u, o);""")
+    box.click()
+    wait.until(lambda _: "does not answer" in d.find_element(By.ID, "toast").text)
+    assert d.switch_to.active_element == box and not control.require_approval
+    wait.until(lambda _: not box.is_selected())
+    # changed elsewhere while the box has the focus
+    control.set_require_approval(True, by="terminal")
+    wait.until(lambda _: box.is_selected())
+    assert d.switch_to.active_element == box
+
+
+HOLD_STATE_POLLS = """window.__hold = true; window.__held = [];
+const orig = window.fetch;
+window.fetch = (u, o) => {
+  if (window.__hold && String(u).includes('/api/state')) {
+    const answer = orig(u, o);   // asked now, answered when the test releases it
+    return new Promise((res) => window.__held.push(() => answer.then(res)));
+  }
+  return orig(u, o);
+};"""
+
+
+def test_a_state_polled_before_a_command_does_not_undo_what_the_command_showed(browser, station):
+    """A poll asked before Stop and answered after it flipped the page back to 'awaiting approval'
+    with Approve enabled, until the next poll."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.02)
+    control.run()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    open_page(d, server, "awaiting approval")
+    d.execute_script(HOLD_STATE_POLLS)
+    wait.until(lambda _: d.execute_script("return window.__held.length") == 1)  # asked while awaiting
+    d.find_element(By.ID, "btn-stop").click()
+    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "stopped")  # the command's answer
+    d.execute_script("window.__held.shift()()")  # the stale answer arrives
+    wait.until(lambda _: d.execute_script("return window.__held.length") == 1)  # ... was handled: next poll
+    assert d.find_element(By.ID, "state").text.lower() == "stopped"
+    assert not d.find_element(By.ID, "btn-approve").is_enabled()
+    assert control.state == "stopped"
+
+
+def test_after_the_station_restarts_the_page_shows_the_new_frame(browser, station, tmp_path):
+    """The page kept the frame's number across the restart: the new station's frame 0 was never
+    loaded, and the old tray's picture stood under the new tray's outlines."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, cell, _ = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.05)
+    open_page(d, server, "idle")
+    wait.until(lambda _: d.execute_script("return document.getElementById('frame').complete "
+                                          "&& document.getElementById('frame').naturalWidth") == 640)
+    d.execute_script("window.__loads = 0; document.getElementById('frame').addEventListener('load', "
+                     "() => window.__loads++)")
+    port = server.port
+    server.close()
+    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "offline")
+    assert "stale" in d.find_element(By.ID, "view").get_attribute("class")  # the old picture is greyed
+    control2 = RunControl()
+    cell2 = DemoCell(control2, tmp_path / "examples2.jsonl", parts=demo_parts()[:2], motion_s=0.0)
+    assert cell2.snapshot()["frame"]["index"] == cell.snapshot()["frame"]["index"] == 0
+    with StationServer(cell2, control2, port=port):
+        wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "idle")
+        wait.until(lambda _: len(d.find_elements(By.CSS_SELECTOR, "#parts polygon")) == 2)
+        wait.until(lambda _: d.execute_script("return window.__loads") >= 1)
+        assert "stale" not in d.find_element(By.ID, "view").get_attribute("class")
+
+
+def test_teach_is_not_offered_when_no_part_is_on_the_frame(browser, tmp_path):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    control = RunControl()
+    cell = DemoCell(control, tmp_path / "examples.jsonl", parts=[], motion_s=0.0)
+    with StationServer(cell, control, port=0) as server:
+        d = browser
+        d.get(server.url)
+        WebDriverWait(d, T).until(lambda _: d.find_element(By.ID, "state").text.lower() == "idle")
+        assert not d.find_element(By.ID, "btn-teach").is_enabled()

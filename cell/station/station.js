@@ -12,6 +12,8 @@ let last = null;            // last state received
 let frameIndex = null;      // index of the frame shown
 let teach = null;           // null, or {stage: "part" | "p1" | "p2", part, p1}
 let busy = false;
+let commands = 0;           // commands answered: a state polled before one of them is stale
+let approvalPending = false; // the approve-each box was toggled and the cell has not answered yet
 let proposalKey = null;     // the pending proposal the reason field was typed for
 
 // ---- token: from the URL fragment (#token=...), kept for this tab only, removed from the URL
@@ -60,6 +62,7 @@ async function post(cmd, body) {
       toast(data.error || ("HTTP " + r.status));
       return null;
     }
+    commands++;
     render(data);
     return data;
   } catch (e) {
@@ -72,8 +75,12 @@ async function post(cmd, body) {
 
 async function poll() {
   try {
+    const before = commands;
     const r = await fetch("/api/state", {cache: "no-store"});
-    if (r.ok && !busy) render(await r.json());
+    const data = r.ok ? await r.json() : null;
+    // asked before a command was answered: older than what the command's answer showed (it flipped
+    // the page back to e.g. "awaiting approval" with Approve live, for one poll)
+    if (data && !busy && before === commands) render(data);
   } catch (e) {
     offline();
   }
@@ -92,6 +99,8 @@ function offline() {
     : "the cell does not answer (the run may have ended: see the cell's terminal)";
   for (const b of document.querySelectorAll(".panel button:not(#btn-token)")) b.disabled = true;
   $("approve-each").disabled = true;
+  $("view").classList.add("stale");
+  frameIndex = null;  // a station started again may have a frame of the same number: load it anew
   teach = null;
   drawTeach();
   fitView();
@@ -125,14 +134,15 @@ function render(data) {
   $("btn-run").disabled = !(s === "idle" || s === "paused" || (s === "running" && c.step_mode));
   $("btn-pause").disabled = !(s === "running" || s === "awaiting_approval");
   $("btn-step").disabled = !live;
-  $("btn-stop").disabled = !live;
+  $("btn-stop").disabled = !(live || s === "fault");  // in a fault: abandon the sequence, nothing moves
   $("btn-approve").disabled = s !== "awaiting_approval";
   $("btn-reject").disabled = s !== "awaiting_approval";
   $("btn-reset").disabled = !["fault", "stopped", "done"].includes(s);
-  $("btn-teach").disabled = false;
+  $("btn-teach").disabled = !teach && !(cell.parts || []).length;  // nothing on the frame to teach on
+  $("view").classList.remove("stale");
   const ae = $("approve-each");
   ae.disabled = false;
-  if (document.activeElement !== ae) ae.checked = !!c.require_approval;
+  if (!approvalPending) ae.checked = !!c.require_approval;  // the cell's, also when focused
 
   const p = c.proposal;
   // a reason typed for one grasp is not kept for the next one ('r' would reject that at once)
@@ -383,7 +393,13 @@ function init() {
   $("btn-reject").addEventListener("click", reject);
   $("btn-teach").addEventListener("click", startTeach);
   $("overlay").addEventListener("click", onFrameClick);
-  $("approve-each").addEventListener("change", (ev) => post("approval", {required: ev.target.checked}));
+  $("approve-each").addEventListener("change", async (ev) => {
+    approvalPending = true;
+    const r = await post("approval", {required: ev.target.checked});
+    approvalPending = false;
+    // refused (a wrong token, the cell gone): show the cell's setting, not the click
+    if (!r && last) ev.target.checked = !!last.control.require_approval;
+  });
   $("btn-token").addEventListener("click", () => {
     token = $("token").value.trim();
     sessionStorage.setItem("cell-token", token);

@@ -270,6 +270,12 @@ def posts(d):
     return [u.rsplit("/", 1)[-1] for u in d.execute_script("return window.__posts")]
 
 
+def viewport(d, width, height):
+    """The page's own size, exactly (a window's size includes the browser's frame)."""
+    d.execute_cdp_cmd("Emulation.setDeviceMetricsOverride",
+                      {"width": width, "height": height, "deviceScaleFactor": 1, "mobile": False})
+
+
 def open_page(d, server, state):
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support.ui import WebDriverWait
@@ -616,3 +622,44 @@ def test_teach_is_not_offered_when_no_part_is_on_the_frame(browser, tmp_path):
         d.get(server.url)
         WebDriverWait(d, T).until(lambda _: d.find_element(By.ID, "state").text.lower() == "idle")
         assert not d.find_element(By.ID, "btn-teach").is_enabled()
+
+
+def test_the_page_does_not_scroll_and_the_header_keeps_its_badge_on_one_line(browser, station):
+    """1280 x 800 with a grasp waiting: the log ran 100 px below the window, so the page scrolled
+    (and with it the frame and the buttons); on a portrait tablet the badge broke into
+    'AWAITING / APPROVAL' and the title into two lines."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    viewport(d, 1280, 800)  # the station PC's screen, the browser full screen
+    control.run()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    open_page(d, server, "awaiting approval")
+    WebDriverWait(d, T).until(lambda _: "cover" in d.find_element(By.ID, "proposal-text").text)
+    for n in range(40):
+        control.log("note", f"a long line of the log, number {n}, to fill the card")
+    WebDriverWait(d, T).until(lambda _: "number 39" in d.find_element(By.ID, "log").text)
+    scroll_h, inner_h = d.execute_script("return [document.documentElement.scrollHeight, innerHeight]")
+    assert scroll_h <= inner_h, (scroll_h, inner_h)
+    viewport(d, 800, 1280)
+    WebDriverWait(d, T).until(lambda _: d.execute_script("return innerWidth") == 800)
+    badge, title = d.execute_script("""const r = (q) => document.querySelector(q).getBoundingClientRect().height;
+        return [r('#state'), r('h1')];""")
+    assert badge < 40 and title < 32, (badge, title)  # one line each (15 px and 20 px type)
+
+
+def test_a_toast_does_not_catch_taps_meant_for_what_it_covers(browser, station):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    open_page(d, server, "idle")
+    keys(d, "a")  # "Approve is not available now": a toast for 5 s
+    toast = d.find_element(By.ID, "toast")
+    WebDriverWait(d, T).until(lambda _: toast.is_displayed())
+    hit = d.execute_script("""const r = arguments[0].getBoundingClientRect();
+        return document.elementFromPoint(r.left + r.width / 2, r.top + r.height / 2);""", toast)
+    assert hit != toast

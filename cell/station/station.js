@@ -166,7 +166,7 @@ function proposalText(p) {
   if (p.opening_mm != null) lines.push("opening   " + p.opening_mm + " mm");
   if (p.angle_deg != null) lines.push("axis      " + p.angle_deg + "°");
   if (p.grasp_z_mm != null) lines.push("grasp z   " + p.grasp_z_mm + " mm");
-  if (p.contacts) lines.push("contacts  " + JSON.stringify(p.contacts));
+  if (p.contacts) lines.push("contacts  " + p.contacts.map((c) => c.map((v) => (+v).toFixed(1)).join(", ")).join("  ·  "));
   if (p.joints) lines.push("joints    " + Object.values(p.joints).join(" / "));
   if (p.how) lines.push("(" + p.how + ")");
   return lines.join("\n");
@@ -199,6 +199,11 @@ function fitView() {
   let room = window.innerHeight - top - below;
   if (getComputedStyle($("main")).flexDirection === "column") room = Math.min(room, 0.55 * window.innerHeight);
   view.style.maxWidth = Math.max(160, Math.floor(room * ratio)) + "px";
+  // the log takes the height left under the other cards, so the page itself does not scroll
+  // (scrolling it moved the frame and the buttons away); 90 px at least: then the page scrolls
+  const logCard = document.querySelector(".log-card");
+  const logTop = logCard.getBoundingClientRect().top + window.scrollY;
+  logCard.style.maxHeight = Math.max(90, Math.floor(window.innerHeight - logTop - 16)) + "px";
 }
 
 // Image px per screen px: marks and labels keep their size on the screen whatever the frame's

@@ -663,3 +663,24 @@ def test_a_toast_does_not_catch_taps_meant_for_what_it_covers(browser, station):
     hit = d.execute_script("""const r = arguments[0].getBoundingClientRect();
         return document.elementFromPoint(r.left + r.width / 2, r.top + r.height / 2);""", toast)
     assert hit != toast
+
+
+def test_reject_with_an_empty_reason_asks_for_one_first(browser, station):
+    """Reject rejected at once with 'rejected by the operator' while 'r' asked for a reason: the
+    button now asks too; a second Reject rejects without one."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    control.run()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    open_page(d, server, "awaiting approval")
+    reason = d.find_element(By.ID, "reason")
+    d.find_element(By.ID, "btn-reject").click()
+    assert posts(d) == [] and control.state == AWAITING_APPROVAL
+    assert d.switch_to.active_element == reason and "why?" in reason.get_attribute("placeholder")
+    d.find_element(By.ID, "btn-reject").click()  # no reason after all
+    WebDriverWait(d, T).until(lambda _: any(e["event"] == "reject" for e in control.snapshot(200)["events"]))
+    assert posts(d) == ["reject"]
+    assert "why?" not in reason.get_attribute("placeholder")

@@ -147,7 +147,7 @@ function render(data) {
   const p = c.proposal;
   // a reason typed for one grasp is not kept for the next one ('r' would reject that at once)
   const pkey = p ? JSON.stringify(p) : "";
-  if (proposalKey !== null && pkey !== proposalKey) $("reason").value = "";
+  if (proposalKey !== null && pkey !== proposalKey) { $("reason").value = ""; askReason(false); }
   proposalKey = pkey;
   $("proposal-card").classList.toggle("awaiting", s === "awaiting_approval");
   $("proposal-text").textContent = p ? proposalText(p) : "none";
@@ -356,9 +356,26 @@ function cancelTeach() {
   if (last) render(last); else drawTeach();
 }
 
+// Reject with an empty reason asks for one first (the reason is what the invalid example teaches);
+// a second Reject (or Enter in the empty field) rejects without one.
+const REASON_HINT = "reason for rejecting";
+const REASON_ASK = "why? Enter rejects · Reject again: none";
+
 function reject() {
-  const reason = $("reason").value.trim();
-  return post("reject", {reason}).then((r) => { if (r) $("reason").value = ""; });
+  const field = $("reason"), reason = field.value.trim();
+  if (!reason && !field.classList.contains("ask")) {
+    askReason(true);
+    field.focus();
+    return Promise.resolve(null);
+  }
+  askReason(false);
+  return post("reject", {reason}).then((r) => { if (r) field.value = ""; });
+}
+
+function askReason(on) {
+  const field = $("reason");
+  field.classList.toggle("ask", on);
+  field.placeholder = on ? REASON_ASK : REASON_HINT;
 }
 
 // ---- keyboard: space step, p pause, a approve, r reject, t teach, Esc cancels teaching.
@@ -385,7 +402,7 @@ function onKey(ev) {
     toast(b.textContent.replace(/^\W+/, "") + " is not available now (" + $("state").textContent + ")");
     return;
   }
-  if (id === "btn-reject" && !$("reason").value.trim()) { $("reason").focus(); return; }
+  if (id === "btn-reject" && !$("reason").value.trim()) { askReason(true); $("reason").focus(); return; }
   b.click();
 }
 

@@ -390,7 +390,8 @@ def test_a_slow_tap_on_a_part_while_teaching_selects_it(browser, station):
     ActionChains(d).move_to_element_with_offset(svg, dx, dy).click_and_hold().perform()
     d.execute_script("render(last)")  # a poll's answer arrives while the finger is down
     ActionChains(d).release().perform()
-    WebDriverWait(d, T).until(lambda _: "Teach cap: click the first contact" in d.find_element(By.ID, "teach-status").text)
+    status = d.find_element(By.ID, "teach-status")
+    WebDriverWait(d, T).until(lambda _: "Teach cap: click the first contact" in status.text)
     assert d.find_element(By.CSS_SELECTOR, "#parts polygon.selected").get_attribute("data-part") == "cap"
     # a tap beside every part says so, and teaching waits for the part
     d.find_element(By.ID, "btn-teach").click()  # off

@@ -282,3 +282,34 @@ def test_cli_ends_cleanly_on_sigterm(tmp_path):
         p.kill()
     assert p.returncode == 0, p.returncode
     assert "closed" in out
+
+
+def test_the_demo_parts_keep_their_colour_when_another_leaves_the_tray(tmp_path):
+    """Coloured by their place in the list, the cap turned from purple to blue and the bracket from
+    blue to green when the cover was taken off."""
+    import cv2
+    import numpy as np
+
+    from cell.station.demo import demo_parts
+
+    control = RunControl(require_approval=True)
+    cell = DemoCell(control, tmp_path / "examples.jsonl", motion_s=0.0)
+    cell.start()
+    try:
+        control.run()
+        wait_proposal(control, "cover")
+
+        def colours():
+            img = cv2.imdecode(np.frombuffer(cell.frame_png(), np.uint8), cv2.IMREAD_COLOR)
+            return {p.id: img[tuple(np.round(mm_to_px(p.polygon.representative_point().coords[0]))[::-1]
+                                    .astype(int))].tolist() for p in demo_parts()}
+
+        before = colours()
+        control.approve()
+        wait_proposal(control, "board")  # the cover is off the tray, the next frame drawn
+        after = colours()
+        assert after["cover"] != before["cover"]  # the tray shows where it was
+        for pid in ("board", "bracket", "cap"):
+            assert after[pid] == before[pid], pid
+    finally:
+        cell.close()

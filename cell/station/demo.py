@@ -102,6 +102,10 @@ class DemoCell:
         self.motion_s = float(motion_s)
         self._lock = threading.Lock()
         self._parts = list(parts if parts is not None else demo_parts())
+        # each part keeps its colour when others leave the tray (by position, the cap turned blue and
+        # the bracket green when the cover was taken: the operator looked for the wrong colour)
+        self._colors = {p.id: PART_COLORS_BGR[k % len(PART_COLORS_BGR)]
+                        for k, p in enumerate([*demo_parts(), *self._parts])}
         self._removed: list[str] = []
         self._frame_index: int | None = None
         self._png: bytes | None = None
@@ -331,8 +335,8 @@ class DemoCell:
         cv2.fillPoly(img, [np.round(tray).astype(np.int32)], (105, 105, 100))
         with self._lock:
             parts = list(self._parts)
-        for k, p in enumerate(parts):
-            color = PART_COLORS_BGR[k % len(PART_COLORS_BGR)]
+        for p in parts:
+            color = self._colors.get(p.id, PART_COLORS_BGR[0])
             cv2.fillPoly(img, [np.round(mm_to_px(p.outline_mm) - 0.5).astype(np.int32)], color)
         ok, png = cv2.imencode(".png", img)
         with self._lock:

@@ -685,3 +685,48 @@ def test_reject_with_an_empty_reason_asks_for_one_first(browser, station):
     WebDriverWait(d, T).until(lambda _: any(e["event"] == "reject" for e in control.snapshot(200)["events"]))
     assert posts(d) == ["reject"]
     assert "why?" not in reason.get_attribute("placeholder")
+
+
+def test_teach_starts_over_when_a_new_frame_comes_in_between_the_clicks(browser):
+    """A part chosen and a contact clicked on one frame, the second contact on the next one: the
+    example mixed two frames (the loop had moved on, the part was measured anew)."""
+    import numpy as np
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    from cell.station.live import LiveView
+
+    taught = []
+    view = LiveView(teach_fn=lambda part, p1, p2: taught.append((part, p1, p2)) or
+                    {"example_id": "ex-1", "n_examples": 1})
+    square = [[200, 150], [300, 150], [300, 250], [200, 250]]
+    view.show_frame(0, np.zeros((400, 500, 3), np.uint8))
+    view.show_parts([{"id": "plate", "outline_px": square}])
+    control = RunControl()
+    with StationServer(view, control, port=0) as server:
+        d = browser
+        wait = WebDriverWait(d, T, poll_frequency=0.05)
+        d.get(server.url)
+        wait.until(lambda _: len(d.find_elements(By.CSS_SELECTOR, "#parts polygon")) == 1)
+        status = d.find_element(By.ID, "teach-status")
+
+        def click(u, v):
+            svg, dx, dy = frame_offset(d, u, v)
+            ActionChains(d).move_to_element_with_offset(svg, dx, dy).click().perform()
+
+        d.find_element(By.ID, "btn-teach").click()
+        click(250, 200)
+        click(200, 200)  # the first contact, on frame 0
+        wait.until(lambda _: "second contact" in status.text)
+        moved = [[u + 40, v] for u, v in square]
+        view.show_frame(1, np.zeros((400, 500, 3), np.uint8))
+        view.show_parts([{"id": "plate", "outline_px": moved}])
+        wait.until(lambda _: "new frame" in status.text)
+        click(290, 200)
+        click(240, 200)
+        click(340, 200)
+        wait.until(lambda _: taught)
+        assert len(taught) == 1 and taught[0][0] == "plate", taught
+        # both contacts on frame 1's plate (a click lands within a screen px of the aimed point)
+        assert np.abs(np.array(taught[0][1:]) - [[240, 200], [340, 200]]).max() <= 1.5, taught

@@ -182,6 +182,10 @@ function drawFrame(f) {
   $("frameno").textContent = f.index == null ? "–" : f.index;
   $("noframe").classList.toggle("hidden", f.index != null);
   if (f.index != null && f.index !== frameIndex) {
+    // a part chosen or a contact clicked on the last frame is not where it is on this one
+    if (frameIndex != null && teach && teach.stage !== "part") {
+      teach = {stage: "part", note: "Teach: a new frame came in; click the part again"};
+    }
     frameIndex = f.index;
     $("frame").src = "/api/frame.png?i=" + f.index;
   }

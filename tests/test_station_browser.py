@@ -261,9 +261,12 @@ def test_a_run_that_ended_before_the_station_closed_says_how_it_ended(browser, s
 
 
 # ---------------------------------------------------------------- what an operator trips over
-RECORD_POSTS = """window.__posts = [];
+RECORD_POSTS = """window.__posts = []; window.__bodies = [];
 const orig = window.fetch;
-window.fetch = (u, o) => { if (o && o.method === 'POST') window.__posts.push(String(u)); return orig(u, o); };"""
+window.fetch = (u, o) => {
+  if (o && o.method === 'POST') { window.__posts.push(String(u)); window.__bodies.push(JSON.parse(o.body)); }
+  return orig(u, o);
+};"""
 
 
 def posts(d):
@@ -730,3 +733,29 @@ def test_teach_starts_over_when_a_new_frame_comes_in_between_the_clicks(browser)
         assert len(taught) == 1 and taught[0][0] == "plate", taught
         # both contacts on frame 1's plate (a click lands within a screen px of the aimed point)
         assert np.abs(np.array(taught[0][1:]) - [[240, 200], [340, 200]]).max() <= 1.5, taught
+
+
+def test_approve_and_reject_send_the_grasp_the_page_shows(browser, station):
+    """So the cell refuses a tap that would decide a grasp the operator has not seen (409)."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    control.run()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    shown = control.snapshot(0)["proposal"]
+    open_page(d, server, "awaiting approval")
+    d.find_element(By.ID, "reason").send_keys("rim")
+    d.find_element(By.ID, "btn-reject").click()
+    WebDriverWait(d, T).until(lambda _: d.execute_script("return window.__bodies.length") == 1)
+    assert d.execute_script("return window.__bodies") == [{"reason": "rim", "proposal": shown}]
+    # the page a poll behind: its Approve names the rejected grasp, the cell refuses it
+    d.execute_script(HOLD_STATE_POLLS)  # no poll answered from here on
+    WebDriverWait(d, T).until(lambda _: d.execute_script("return window.__held.length") == 1)
+    WebDriverWait(d, T).until(lambda _: control.snapshot(0)["proposal"] not in (None, shown))
+    d.execute_script("last.control.state = 'awaiting_approval'; last.control.proposal = arguments[0];"
+                     "render(last)", shown)
+    d.find_element(By.ID, "btn-approve").click()
+    WebDriverWait(d, T).until(lambda _: "no longer the one waiting" in d.find_element(By.ID, "toast").text)
+    assert not any(e["event"] == "approve" for e in control.snapshot(200)["events"])

@@ -313,3 +313,27 @@ def test_the_demo_parts_keep_their_colour_when_another_leaves_the_tray(tmp_path)
             assert after[pid] == before[pid], pid
     finally:
         cell.close()
+
+
+def test_approve_and_reject_decide_only_the_grasp_the_page_showed(station):
+    """The page sends the proposal it shows; once another grasp waits (the loop re-proposed after a
+    rejection, a double tap), the decision is refused and the waiting grasp stays undecided."""
+    server, control, _ = station
+    control.set_require_approval(True)
+    assert call(server, "POST", "/api/run")[0] == 200
+    first = wait_proposal(control, "cover")
+    assert call(server, "POST", "/api/reject", {"reason": "too close to the rim", "proposal": first})[0] == 200
+    deadline = time.monotonic() + T
+    while (second := wait_proposal(control, "cover")) == first:  # until the loop proposes again
+        assert time.monotonic() < deadline
+        control.wait_change(control.snapshot(0)["seq"], timeout_s=0.5)
+    assert second["contacts"] != first["contacts"]  # the long side this time
+    for cmd in ("approve", "reject"):
+        status, answer = call(server, "POST", f"/api/{cmd}", {"proposal": first})
+        assert status == 409 and "no longer the one waiting" in answer["error"], answer
+    assert control.state == AWAITING_APPROVAL and control.snapshot(0)["proposal"] == second
+    assert [e["event"] for e in control.snapshot(200)["events"]].count("reject") == 1
+    assert call(server, "POST", "/api/approve", {"proposal": "cover"})[0] == 400
+    status, answer = call(server, "POST", "/api/approve", {"proposal": second})
+    assert status == 200, answer
+    assert call(server, "POST", "/api/approve")[0] in (200, 409)  # without it: as before (scripts)

@@ -7,6 +7,7 @@ Routes (JSON unless said otherwise):
     GET  /api/frame.png        the current camera frame (404 until there is one)
     POST /api/run | pause | step | approve | stop | reset
     POST /api/reject           {"reason": "..."}        (the loop turns it into an invalid example)
+                               approve and reject may carry {"proposal": the one shown}: 409 if another waits
     POST /api/approval         {"required": true|false}  (approve each grasp)
     POST /api/teach            {"part": id, "p1_px": [u, v], "p2_px": [u, v]} -> backend.teach(...)
 
@@ -298,8 +299,10 @@ class StationServer:
         if cmd == "step":
             return rc.step(by=by)
         if cmd == "approve":
+            self._check_shown_proposal(body)
             return rc.approve(by=by)
         if cmd == "reject":
+            self._check_shown_proposal(body)
             reason = body.get("reason", "")
             if not isinstance(reason, str):
                 raise BadInput("'reason' must be a string")
@@ -328,6 +331,20 @@ class StationServer:
                    example=result.get("example_id") if isinstance(result, dict) else None)
             return result
         raise KeyError(f"no such command: {cmd}")
+
+    def _check_shown_proposal(self, body: dict) -> None:
+        """Approve/reject carry the proposal the page showed (`proposal`, optional for scripts):
+        refused (409) when another grasp waits by now, so a tap decides the grasp that was seen
+        (a double tap, or a page a poll behind, would have decided the next one unseen)."""
+        if "proposal" not in body:
+            return
+        shown = body["proposal"]
+        if not isinstance(shown, dict):
+            raise BadInput("'proposal' must be the proposal object shown (from /api/state)")
+        waiting = self.control.snapshot(0)["proposal"]
+        if waiting is not None and shown != waiting:
+            raise InvalidCommand(f"the grasp on the page is no longer the one waiting (now a grasp on "
+                                 f"{waiting.get('target')}): look at it, then decide")
 
     # -- life cycle
     def start(self) -> StationServer:

@@ -373,7 +373,13 @@ function reject() {
     return Promise.resolve(null);
   }
   askReason(false);
-  return post("reject", {reason}).then((r) => { if (r) field.value = ""; });
+  return post("reject", {reason, proposal: shownProposal()}).then((r) => { if (r) field.value = ""; });
+}
+
+// The proposal drawn on the page: approve/reject carry it, and the cell refuses them (409) when
+// another grasp waits by now (a double tap, or a page a poll behind, decided the next grasp unseen).
+function shownProposal() {
+  return (last && last.control && last.control.proposal) || undefined;  // undefined: not sent
 }
 
 function askReason(on) {
@@ -417,6 +423,7 @@ function init() {
     b.addEventListener("click", () => post(b.dataset.cmd));
   }
   $("btn-reject").addEventListener("click", reject);
+  $("btn-approve").addEventListener("click", () => post("approve", {proposal: shownProposal()}));
   $("btn-teach").addEventListener("click", startTeach);
   $("overlay").addEventListener("click", onFrameClick);
   $("approve-each").addEventListener("change", async (ev) => {

@@ -759,3 +759,55 @@ def test_approve_and_reject_send_the_grasp_the_page_shows(browser, station):
     d.find_element(By.ID, "btn-approve").click()
     WebDriverWait(d, T).until(lambda _: "no longer the one waiting" in d.find_element(By.ID, "toast").text)
     assert not any(e["event"] == "approve" for e in control.snapshot(200)["events"])
+
+
+def test_zoom_magnifies_the_parts_and_teach_clicks_stay_in_image_px(browser):
+    """The real cell's parts fill a small middle of its 1280 x 1024 frame: at 1280 x 800 a part of
+    40 px was 26 px on the screen, less than a fingertip, for two contact clicks on its edge."""
+    import numpy as np
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    from cell.station.live import LiveView
+
+    taught = []
+    view = LiveView(teach_fn=lambda part, p1, p2: taught.append((part, p1, p2)) or
+                    {"example_id": "ex-1", "n_examples": 1})
+    frame = np.zeros((1024, 1280, 3), np.uint8)
+    frame[500:531, 600:641] = (0, 255, 0)  # the part, as the camera sees it
+    view.show_frame(0, frame)
+    view.show_parts([{"id": "clip", "outline_px": [[600, 500], [641, 500], [641, 531], [600, 531]]},
+                     {"id": "nut", "outline_px": [[700, 560], [720, 560], [720, 580], [700, 580]]}])
+    with StationServer(view, RunControl(), port=0) as server:
+        d = browser
+        viewport(d, 1280, 800)
+        wait = WebDriverWait(d, T, poll_frequency=0.05)
+        d.get(server.url)
+        wait.until(lambda _: len(d.find_elements(By.CSS_SELECTOR, "#parts polygon")) == 2)
+        wait.until(lambda _: d.execute_script("return document.getElementById('frame').naturalWidth") == 1280)
+
+        def clip_width():
+            return d.find_element(By.CSS_SELECTOR, "#parts polygon[data-part=clip]").rect["width"]
+
+        whole = clip_width()
+        d.find_element(By.ID, "btn-zoom").click()
+        wait.until(lambda _: clip_width() > 3 * whole)
+        # the picture is cropped and scaled as the overlay: image px (620, 515) is one screen point
+        img_pt, svg_pt = d.execute_script(
+            """const img = document.getElementById('frame').getBoundingClientRect();
+               const svg = document.getElementById('overlay'), p = svg.createSVGPoint();
+               p.x = 620; p.y = 515; const q = p.matrixTransform(svg.getScreenCTM());
+               return [[img.left + 620 * img.width / 1280, img.top + 515 * img.height / 1024], [q.x, q.y]];""")
+        assert abs(img_pt[0] - svg_pt[0]) < 1 and abs(img_pt[1] - svg_pt[1]) < 1, (img_pt, svg_pt)
+        # teach with the parts magnified
+        d.find_element(By.ID, "btn-teach").click()
+        for u, v in ((620, 515), (600, 515), (641, 515)):
+            svg, dx, dy = frame_offset(d, u, v)
+            ActionChains(d).move_to_element_with_offset(svg, dx, dy).click().perform()
+        wait.until(lambda _: taught)
+        assert taught[0][0] == "clip"
+        assert np.abs(np.array(taught[0][1:]) - [[600, 515], [641, 515]]).max() <= 0.5, taught
+        keys(d, "z")  # and back to the whole frame
+        wait.until(lambda _: abs(clip_width() - whole) < 1)
+

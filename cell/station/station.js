@@ -14,6 +14,7 @@ let teach = null;           // null, or {stage: "part" | "p1" | "p2", part, p1}
 let busy = false;
 let commands = 0;           // commands answered: a state polled before one of them is stale
 let approvalPending = false; // the approve-each box was toggled and the cell has not answered yet
+let zoom = false;           // show the parts' surroundings magnified rather than the whole frame
 let proposalKey = null;     // the pending proposal the reason field was typed for
 
 // ---- token: from the URL fragment (#token=...), kept for this tab only, removed from the URL
@@ -175,8 +176,14 @@ function proposalText(p) {
 function drawFrame(f) {
   const svg = $("overlay");
   if (f.width_px && f.height_px) {
-    svg.setAttribute("viewBox", "0 0 " + f.width_px + " " + f.height_px);
+    const [x, y, w, h] = shownBox(f);
+    svg.setAttribute("viewBox", x + " " + y + " " + w + " " + h);
     $("view").style.aspectRatio = f.width_px + " / " + f.height_px;
+    const img = $("frame").style;  // the picture cropped and scaled exactly as the overlay
+    img.width = (100 * f.width_px / w) + "%";
+    img.height = (100 * f.height_px / h) + "%";
+    img.left = (-100 * x / w) + "%";
+    img.top = (-100 * y / h) + "%";
   }
   fitView();
   $("frameno").textContent = f.index == null ? "–" : f.index;
@@ -189,6 +196,31 @@ function drawFrame(f) {
     frameIndex = f.index;
     $("frame").src = "/api/frame.png?i=" + f.index;
   }
+}
+
+// The part of the frame shown: all of it, or with Zoom the parts on it (and the proposed grasp) with
+// a margin, at the frame's own aspect ratio (the layout stays, the tray is magnified): a part of
+// 40 px in a 1280 px frame is big enough to put a contact on with a finger. The overlay's viewBox is
+// that box, so clicks and marks stay in image px.
+function shownBox(f) {
+  const W = f.width_px, H = f.height_px, cell = (last && last.cell) || {};
+  const pts = [];
+  for (const part of cell.parts || []) pts.push(...part.outline_px);
+  const pp = cell.proposal_px;
+  if (pp) for (const poly of [pp.palm_px || [], ...(pp.fingers_px || [])]) pts.push(...poly);
+  if (!zoom || !pts.length) return [0, 0, W, H];
+  const us = pts.map((q) => q[0]), vs = pts.map((q) => q[1]);
+  const u0 = Math.min(...us), u1 = Math.max(...us), v0 = Math.min(...vs), v1 = Math.max(...vs);
+  const w = Math.min(W, Math.max(W / 8, 1.3 * Math.max(u1 - u0, (v1 - v0) * W / H))), h = w * H / W;
+  const x = Math.min(Math.max(0, (u0 + u1 - w) / 2), W - w), y = Math.min(Math.max(0, (v0 + v1 - h) / 2), H - h);
+  return [x, y, w, h].map((a) => Math.round(a * 10) / 10);
+}
+
+function toggleZoom() {
+  zoom = !zoom;
+  $("btn-zoom").classList.toggle("active", zoom);
+  $("btn-zoom").setAttribute("aria-pressed", String(zoom));
+  if (last) render(last);
 }
 
 // The frame as wide as its column, but never taller than the window has room for below what is
@@ -393,7 +425,8 @@ function askReason(on) {
 // cannot take, none while the cell is offline). Never with Ctrl/Alt/Meta (Ctrl+A, Ctrl+R, Ctrl+P are
 // the browser's: select all must not approve a grasp), never while typing in a text field, once per
 // press (a held key does not repeat the command).
-const KEY_BUTTONS = {" ": "btn-step", "p": "btn-pause", "a": "btn-approve", "r": "btn-reject", "t": "btn-teach"};
+const KEY_BUTTONS = {" ": "btn-step", "p": "btn-pause", "a": "btn-approve", "r": "btn-reject", "t": "btn-teach",
+                     "z": "btn-zoom"};
 
 function onKey(ev) {
   if (ev.ctrlKey || ev.metaKey || ev.altKey || ev.isComposing) return;
@@ -425,6 +458,7 @@ function init() {
   $("btn-reject").addEventListener("click", reject);
   $("btn-approve").addEventListener("click", () => post("approve", {proposal: shownProposal()}));
   $("btn-teach").addEventListener("click", startTeach);
+  $("btn-zoom").addEventListener("click", toggleZoom);
   $("overlay").addEventListener("click", onFrameClick);
   $("approve-each").addEventListener("change", async (ev) => {
     approvalPending = true;

@@ -811,3 +811,18 @@ def test_zoom_magnifies_the_parts_and_teach_clicks_stay_in_image_px(browser):
         keys(d, "z")  # and back to the whole frame
         wait.until(lambda _: abs(clip_width() - whole) < 1)
 
+
+def test_before_the_first_frame_the_view_shows_no_broken_picture(browser):
+    """`cell run --station` before Run: the empty <img> drew a broken-image icon and its alt text over
+    'no frame yet'."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    from cell.station.live import LiveView
+
+    with StationServer(LiveView(), RunControl(), port=0) as server:
+        d = browser
+        d.get(server.url)
+        WebDriverWait(d, T).until(lambda _: d.find_element(By.ID, "state").text.lower() == "idle")
+        assert d.find_element(By.ID, "noframe").is_displayed()
+        assert not d.find_element(By.ID, "frame").is_displayed()

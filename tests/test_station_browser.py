@@ -826,3 +826,24 @@ def test_before_the_first_frame_the_view_shows_no_broken_picture(browser):
         WebDriverWait(d, T).until(lambda _: d.find_element(By.ID, "state").text.lower() == "idle")
         assert d.find_element(By.ID, "noframe").is_displayed()
         assert not d.find_element(By.ID, "frame").is_displayed()
+
+
+def test_the_fault_banner_asks_for_reset_only_while_the_cell_can_take_one(browser, station):
+    """A fault, then Stop, then the station closed (`cell run --station` ends with the run): the banner
+    still said 'fix it, then Reset' over an offline page whose Reset is disabled."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.05)
+    banner = lambda: d.find_element(By.ID, "fault").text  # noqa: E731
+    control.report_fault("cell", "nut did not leave the tray")
+    open_page(d, server, "fault")
+    wait.until(lambda _: "fix it, then Reset" in banner())
+    d.find_element(By.ID, "btn-stop").click()
+    wait.until(lambda _: "the sequence is stopped" in banner())
+    server.close()
+    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "offline")
+    assert "nut did not leave the tray" in banner() and "Reset" not in banner()
+    assert not d.find_element(By.ID, "btn-reset").is_enabled()

@@ -101,6 +101,11 @@ function offline() {
   for (const b of document.querySelectorAll(".panel button:not(#btn-token)")) b.disabled = true;
   $("approve-each").disabled = true;
   $("view").classList.add("stale");
+  const fault = $("fault");  // nothing can be reset now: say what the fault was, not what to do
+  if (last && last.control && last.control.fault) {
+    fault.textContent = "The last fault, in " + last.control.fault.source + ": " + last.control.fault.why;
+    fault.classList.add("past");
+  }
   frameIndex = null;  // a station started again may have a frame of the same number: load it anew
   teach = null;
   drawTeach();
@@ -128,7 +133,11 @@ function render(data) {
     + (c.checkpoint ? " · at " + c.checkpoint : "");
   const fault = $("fault");
   fault.classList.toggle("hidden", !c.fault);
-  if (c.fault) fault.textContent = "FAULT in " + c.fault.source + ": " + c.fault.why + " — fix it, then Reset";
+  fault.classList.remove("past");
+  if (c.fault) {
+    fault.textContent = "FAULT in " + c.fault.source + ": " + c.fault.why
+      + (c.state === "fault" ? " — fix it, then Reset" : " — the sequence is " + c.state.replace("_", " "));
+  }
 
   // buttons: enabled only where the state allows the command
   const s = c.state, live = ["idle", "paused", "running", "awaiting_approval"].includes(s);

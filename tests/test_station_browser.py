@@ -847,3 +847,72 @@ def test_the_fault_banner_asks_for_reset_only_while_the_cell_can_take_one(browse
     wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "offline")
     assert "nut did not leave the tray" in banner() and "Reset" not in banner()
     assert not d.find_element(By.ID, "btn-reset").is_enabled()
+
+
+def test_the_log_shows_the_station_pcs_clock(browser, station):
+    """The log showed the events' UTC time: an hour or more off the operator's watch (and the
+    cell's terminal) anywhere but in UTC."""
+    from datetime import datetime, timedelta
+
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    d.execute_cdp_cmd("Emulation.setTimezoneOverride", {"timezoneId": "Asia/Tokyo"})  # UTC+9, no DST
+    control.log("note", "the clock check")
+    open_page(d, server, "idle")
+    e = next(e for e in control.snapshot(200)["events"] if e["event"] == "note")
+    tokyo = (datetime.fromisoformat(e["t"].replace("Z", "+00:00")) + timedelta(hours=9)).strftime("%H:%M:%S")
+    line = WebDriverWait(d, T).until(
+        lambda _: next((li.text for li in d.find_elements(By.CSS_SELECTOR, "#log li") if "clock check" in li.text),
+                       None))
+    assert line.startswith(tokyo + " note"), (line, e["t"])
+
+
+def test_enter_in_the_token_field_uses_the_token(browser, station):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    d.get(server.base_url)
+    WebDriverWait(d, T).until(lambda _: d.find_element(By.ID, "token-card").is_displayed())
+    d.find_element(By.ID, "token").send_keys(server.token + "\ue007")
+    WebDriverWait(d, T).until(lambda _: not d.find_element(By.ID, "token-card").is_displayed())
+    d.find_element(By.ID, "btn-step").click()
+    control.wait_for_state(PAUSED, timeout_s=T)
+
+
+def test_a_refused_teach_keeps_the_part_for_another_pair_of_contacts(browser, station):
+    """Teach refused (a contact clicked off the edge): the page dropped everything, and the operator
+    had to press Teach and pick the part again."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, cell, examples = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.05)
+    open_page(d, server, "idle")
+    board = next(p for p in demo_parts() if p.id == "board")
+    o = board.outline_mm
+    centre = board.polygon.centroid.coords[0]
+    status = d.find_element(By.ID, "teach-status")
+
+    def click_mm(xy):
+        svg, dx, dy = frame_offset(d, *mm_to_px(xy))
+        ActionChains(d).move_to_element_with_offset(svg, dx, dy).click().perform()
+
+    d.find_element(By.ID, "btn-teach").click()
+    click_mm(centre)
+    click_mm(centre)  # the middle of the board: 22 mm from its edge, refused
+    wait.until(lambda _: "second contact" in status.text)
+    click_mm(centre)
+    wait.until(lambda _: "from the outline of board" in d.find_element(By.ID, "toast").text)
+    wait.until(lambda _: "Teach board: click the first contact" in status.text)
+    click_mm((o[0] + o[1]) / 2)
+    click_mm((o[2] + o[3]) / 2)
+    wait.until(lambda _: examples.exists())
+    ex = load_examples(examples)
+    assert len(ex) == 1 and ex[0].part.id == "board" and ex[0].valid

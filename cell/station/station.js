@@ -297,13 +297,19 @@ function drawLog(events) {
   ol.replaceChildren();
   for (const e of events.slice().reverse()) {
     const li = document.createElement("li");
-    const t = (e.t || "").slice(11, 19);
+    const t = clock(e.t);
     const ev = document.createElement("span");
     ev.className = "ev ev-" + e.event;
     ev.textContent = e.event;
     li.append(t + " ", ev, " " + (e.message || ""));
     ol.appendChild(li);
   }
+}
+
+// The event's time (UTC in the log) on the station PC's clock, as the operator's watch reads it
+function clock(iso) {
+  const d = new Date(iso || "");
+  return isNaN(d) ? "" : d.toLocaleTimeString("en-GB", {hour12: false});
 }
 
 function centroid(pts) {
@@ -373,12 +379,12 @@ async function onFrameClick(ev) {
   if (teach.stage === "part") {
     const id = partAt(p);
     if (id == null) { teach.note = "Teach: no part there; click inside a part's outline"; drawTeach(); return; }
-    teach = {stage: "p1", part: id};
+    teach = {stage: "p1", part: id, frame: frameIndex};
     if (last) render(last);
     return;
   }
   if (teach.stage === "p1") {
-    teach = {stage: "p2", part: teach.part, p1: p};
+    teach = {stage: "p2", part: teach.part, p1: p, frame: teach.frame};
     drawTeach();
     return;
   }
@@ -386,8 +392,15 @@ async function onFrameClick(ev) {
   teach = null;
   drawTeach();
   const r = await post("teach", {part: t.part, p1_px: t.p1, p2_px: p});
-  if (r) toast("taught " + t.part + ": example " + r.result.example_id
-    + " (" + r.result.n_examples + " examples)", true);
+  if (r) {
+    toast("taught " + t.part + ": example " + r.result.example_id
+      + " (" + r.result.n_examples + " examples)", true);
+  } else if (!teach && frameIndex === t.frame) {
+    // refused (a contact off the edge, too wide for the jaws: the toast says why): the same part,
+    // click its contacts again, rather than Teach and the part all over
+    teach = {stage: "p1", part: t.part, frame: t.frame};
+    if (last) render(last); else drawTeach();
+  }
 }
 
 function startTeach() {
@@ -476,11 +489,13 @@ function init() {
     // refused (a wrong token, the cell gone): show the cell's setting, not the click
     if (!r && last) ev.target.checked = !!last.control.require_approval;
   });
-  $("btn-token").addEventListener("click", () => {
+  const useToken = () => {
     token = $("token").value.trim();
     sessionStorage.setItem("cell-token", token);
     $("token-card").classList.toggle("hidden", !!token);
-  });
+  };
+  $("btn-token").addEventListener("click", useToken);
+  $("token").addEventListener("keydown", (ev) => { if (ev.key === "Enter") useToken(); });
   $("reason").addEventListener("keydown", (ev) => { if (ev.key === "Enter") reject(); });
   $("frame").addEventListener("load", () => $("noframe").classList.add("hidden"));
   window.addEventListener("resize", () => { fitView(); if (last) render(last); });

@@ -104,8 +104,8 @@ class DemoCell:
         self._parts = list(parts if parts is not None else demo_parts())
         # each part keeps its colour when others leave the tray (by position, the cap turned blue and
         # the bracket green when the cover was taken: the operator looked for the wrong colour)
-        self._colors = {p.id: PART_COLORS_BGR[k % len(PART_COLORS_BGR)]
-                        for k, p in enumerate([*demo_parts(), *self._parts])}
+        ids = list(dict.fromkeys(p.id for p in [*demo_parts(), *self._parts]))  # the demo's first, as before
+        self._colors = {pid: PART_COLORS_BGR[k % len(PART_COLORS_BGR)] for k, pid in enumerate(ids)}
         self._removed: list[str] = []
         self._frame_index: int | None = None
         self._png: bytes | None = None

@@ -339,14 +339,14 @@ def test_approve_and_reject_decide_only_the_grasp_the_page_showed(station):
     assert call(server, "POST", "/api/approve")[0] in (200, 409)  # without it: as before (scripts)
 
 
-def test_the_demo_tray_keeps_its_colours_of_before():
+def test_the_demo_tray_keeps_its_colours_of_before(tmp_path):
     """The first frame as it always was: cover orange, board green, bracket blue, cap purple (BGR)."""
     import cv2
     import numpy as np
 
     from cell.station.demo import PART_COLORS_BGR, demo_parts
 
-    cell = DemoCell(RunControl(), "unused.jsonl")
+    cell = DemoCell(RunControl(), tmp_path / "examples.jsonl")
     img = cv2.imdecode(np.frombuffer(cell.frame_png(), np.uint8), cv2.IMREAD_COLOR)
     for k, p in enumerate(demo_parts()):
         u, v = np.round(mm_to_px(p.polygon.representative_point().coords[0])).astype(int)

@@ -916,3 +916,36 @@ def test_a_refused_teach_keeps_the_part_for_another_pair_of_contacts(browser, st
     wait.until(lambda _: examples.exists())
     ex = load_examples(examples)
     assert len(ex) == 1 and ex[0].part.id == "board" and ex[0].valid
+
+
+def test_teach_clicks_land_on_the_part_across_a_turn_of_the_tablet(browser, station):
+    """A guard: the part and the first contact clicked in portrait (800 x 1280), the second after
+    the tablet turned to landscape (1280 x 800, the frame re-laid out): both are image px."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, cell, examples = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.05)
+    viewport(d, 800, 1280)
+    open_page(d, server, "idle")
+    board = next(p for p in demo_parts() if p.id == "board")
+    o = board.outline_mm
+    c1, c2 = (o[0] + o[1]) / 2, (o[2] + o[3]) / 2
+
+    def click_mm(xy):
+        svg, dx, dy = frame_offset(d, *mm_to_px(xy))
+        ActionChains(d).move_to_element_with_offset(svg, dx, dy).click().perform()
+
+    d.find_element(By.ID, "btn-teach").click()
+    click_mm(board.polygon.centroid.coords[0])
+    click_mm(c1)
+    wait.until(lambda _: "second contact" in d.find_element(By.ID, "teach-status").text)
+    portrait_w = d.find_element(By.ID, "view").rect["width"]
+    viewport(d, 1280, 800)
+    wait.until(lambda _: abs(d.find_element(By.ID, "view").rect["width"] - portrait_w) > 50)
+    click_mm(c2)
+    wait.until(lambda _: examples.exists())
+    ex = load_examples(examples)
+    assert abs(ex[0].contacts_mm - [c1, c2]).max() < 3.0

@@ -949,3 +949,27 @@ def test_teach_clicks_land_on_the_part_across_a_turn_of_the_tablet(browser, stat
     wait.until(lambda _: examples.exists())
     ex = load_examples(examples)
     assert abs(ex[0].contacts_mm - [c1, c2]).max() < 3.0
+
+
+def test_a_pause_pressed_while_a_grasp_waits_shows(browser, station):
+    """Pause while a grasp waits takes effect after the decision: the page showed no sign of it (the
+    badge still 'awaiting approval', Pause still live), and operators pressed it again."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.05)
+    control.run()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    open_page(d, server, "awaiting approval")
+    d.find_element(By.ID, "btn-pause").click()
+    wait.until(lambda _: "then pause" in d.find_element(By.ID, "message").text)
+    assert not d.find_element(By.ID, "btn-pause").is_enabled()
+    d.find_element(By.ID, "btn-approve").click()
+    control.wait_for_state(PAUSED, timeout_s=T)
+    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "paused")
+    d.find_element(By.ID, "btn-run").click()
+    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "awaiting approval")
+    assert "then" not in d.find_element(By.ID, "message").text  # the next grasp: nothing pending
+    assert d.find_element(By.ID, "btn-pause").is_enabled()

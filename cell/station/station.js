@@ -127,7 +127,8 @@ function render(data) {
   const badge = $("state");
   badge.textContent = c.state.replace("_", " ");
   badge.className = "badge state-" + c.state;
-  $("message").textContent = c.message;
+  const after = c.state === "awaiting_approval" ? afterDecision(c.events || []) : "";
+  $("message").textContent = c.message + (after ? " — then " + after : "");
   const cur = c.current || {};
   $("current").textContent = (cur.part ? "part " + cur.part : "") + (cur.step != null ? " · step " + cur.step : "")
     + (c.checkpoint ? " · at " + c.checkpoint : "");
@@ -142,7 +143,7 @@ function render(data) {
   // buttons: enabled only where the state allows the command
   const s = c.state, live = ["idle", "paused", "running", "awaiting_approval"].includes(s);
   $("btn-run").disabled = !(s === "idle" || s === "paused" || (s === "running" && c.step_mode));
-  $("btn-pause").disabled = !(s === "running" || s === "awaiting_approval");
+  $("btn-pause").disabled = !(s === "running" || (s === "awaiting_approval" && !after));
   $("btn-step").disabled = !live;
   $("btn-stop").disabled = !(live || s === "fault");  // in a fault: abandon the sequence, nothing moves
   $("btn-approve").disabled = s !== "awaiting_approval";
@@ -169,6 +170,20 @@ function render(data) {
   drawProposal(cell.proposal_px);
   drawLog(c.events || []);
   drawTeach();
+}
+
+// What a Pause or Step pressed while a grasp waits will do after the decision (the state stays
+// "awaiting approval" until then; the page showed no sign of the press): the last of pause, step,
+// run since the proposal, from the event log.
+function afterDecision(events) {
+  for (let i = events.length - 1; i >= 0; i--) {
+    const e = events[i];
+    if (e.event === "proposal") return "";
+    if (e.event === "run") return "";
+    if (e.event === "pause") return "pause";
+    if (e.event === "step") return "pause at the next checkpoint";
+  }
+  return "";
 }
 
 function proposalText(p) {

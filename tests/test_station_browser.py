@@ -966,6 +966,11 @@ def test_a_pause_pressed_while_a_grasp_waits_shows(browser, station):
     d.find_element(By.ID, "btn-pause").click()
     wait.until(lambda _: "then pause" in d.find_element(By.ID, "message").text)
     assert not d.find_element(By.ID, "btn-pause").is_enabled()
+    d.find_element(By.ID, "btn-run").click()  # taken back: runs on after the decision
+    wait.until(lambda _: "then" not in d.find_element(By.ID, "message").text)
+    assert not d.find_element(By.ID, "btn-run").is_enabled() and d.find_element(By.ID, "btn-pause").is_enabled()
+    d.find_element(By.ID, "btn-pause").click()
+    wait.until(lambda _: "then pause" in d.find_element(By.ID, "message").text)
     d.find_element(By.ID, "btn-approve").click()
     control.wait_for_state(PAUSED, timeout_s=T)
     wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "paused")

@@ -142,7 +142,8 @@ function render(data) {
 
   // buttons: enabled only where the state allows the command
   const s = c.state, live = ["idle", "paused", "running", "awaiting_approval"].includes(s);
-  $("btn-run").disabled = !(s === "idle" || s === "paused" || (s === "running" && c.step_mode));
+  $("btn-run").disabled = !(s === "idle" || s === "paused" || (s === "running" && c.step_mode)
+                            || (s === "awaiting_approval" && !!after));  // Run takes the pending pause back
   $("btn-pause").disabled = !(s === "running" || (s === "awaiting_approval" && !after));
   $("btn-step").disabled = !live;
   $("btn-stop").disabled = !(live || s === "fault");  // in a fault: abandon the sequence, nothing moves

@@ -978,3 +978,25 @@ def test_a_pause_pressed_while_a_grasp_waits_shows(browser, station):
     wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "awaiting approval")
     assert "then" not in d.find_element(By.ID, "message").text  # the next grasp: nothing pending
     assert d.find_element(By.ID, "btn-pause").is_enabled()
+
+
+def test_every_control_is_a_fingertip_high(browser, station):
+    """Touch targets of 44 px at least: "approve each grasp" was a 28 px row, "Use token" 38 px, the
+    reason and token fields 40 px."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    viewport(d, 1280, 800)
+    d.get(server.base_url)  # no token: the token card shows too
+    WebDriverWait(d, T).until(lambda _: d.find_element(By.ID, "token-card").is_displayed())
+    sizes = d.execute_script("""const out = {};
+        for (const e of document.querySelectorAll('button, label.toggle, input[type=text], input[type=password]')) {
+            const r = e.getBoundingClientRect();
+            if (r.width && r.height) out[e.id || e.className || e.tagName] = r.height;
+        }
+        return out;""")
+    assert len(sizes) == 13, sizes  # 10 buttons, the toggle, the reason and token fields
+    small = {k: v for k, v in sizes.items() if v < 44}
+    assert not small, small

@@ -1000,3 +1000,18 @@ def test_every_control_is_a_fingertip_high(browser, station):
     assert len(sizes) == 13, sizes  # 10 buttons, the toggle, the reason and token fields
     small = {k: v for k, v in sizes.items() if v < 44}
     assert not small, small
+
+
+def test_the_tab_title_names_the_state(browser, station):
+    """A station page in a background tab said 'Cell station' whatever happened: a grasp waiting or a
+    fault did not show in the tab."""
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    open_page(d, server, "idle")
+    assert d.title == "idle · Cell station"
+    control.report_fault("j3", "brake not released")
+    WebDriverWait(d, T).until(lambda _: d.title == "fault · Cell station")
+    server.close()
+    WebDriverWait(d, T).until(lambda _: d.title == "offline · Cell station")

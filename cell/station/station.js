@@ -94,6 +94,7 @@ function offline() {
   const badge = $("state");
   badge.textContent = "offline";
   badge.className = "badge state-offline";
+  document.title = "offline · Cell station";
   const ended = last && last.control && ["done", "stopped"].includes(last.control.state);
   $("message").textContent = ended
     ? "the run is " + last.control.state + " and the cell closed the station (the summary is in the cell's terminal)"
@@ -127,6 +128,7 @@ function render(data) {
   const badge = $("state");
   badge.textContent = c.state.replace("_", " ");
   badge.className = "badge state-" + c.state;
+  document.title = c.state.replace("_", " ") + " · Cell station";  // a tab in the background shows it too
   const after = c.state === "awaiting_approval" ? afterDecision(c.events || []) : "";
   $("message").textContent = c.message + (after ? " — then " + after : "");
   const cur = c.current || {};

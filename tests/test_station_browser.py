@@ -1015,3 +1015,16 @@ def test_the_tab_title_names_the_state(browser, station):
     WebDriverWait(d, T).until(lambda _: d.title == "fault · Cell station")
     server.close()
     WebDriverWait(d, T).until(lambda _: d.title == "offline · Cell station")
+
+
+def test_on_a_wide_screen_the_buttons_sit_next_to_the_frame(browser, station):
+    """1920 x 1080: the frame's column took the width the frame could not use, and a gap of 328 px
+    opened between the frame and the buttons."""
+    server, control, _, _ = station
+    d = browser
+    viewport(d, 1920, 1080)
+    open_page(d, server, "idle")
+    view, panel = d.execute_script("""const r = (q) => document.querySelector(q).getBoundingClientRect().toJSON();
+        return [r('#view'), r('.panel')];""")
+    assert 0 < panel["left"] - view["right"] <= 20, (view, panel)
+    assert panel["width"] >= 380

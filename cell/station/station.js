@@ -260,8 +260,13 @@ function fitView() {
   const top = view.getBoundingClientRect().top + window.scrollY;
   const below = $("hint").getBoundingClientRect().height + 6 + 16;  // the hint, its margin, main's padding
   let room = window.innerHeight - top - below;
-  if (getComputedStyle($("main")).flexDirection === "column") room = Math.min(room, 0.55 * window.innerHeight);
-  view.style.maxWidth = Math.max(160, Math.floor(room * ratio)) + "px";
+  const stacked = getComputedStyle($("main")).flexDirection === "column";
+  if (stacked) room = Math.min(room, 0.55 * window.innerHeight);
+  const width = Math.max(160, Math.floor(room * ratio));
+  view.style.maxWidth = width + "px";
+  // side by side, the column is no wider than the frame: the panel sits next to it and takes what is
+  // left up to its maximum (on a wide screen a gap of 380 px opened between the frame and the buttons)
+  view.parentElement.style.flexBasis = stacked ? "" : width + 2 + "px";
   // the log takes the height left under the other cards, so the page itself does not scroll
   // (scrolling it moved the frame and the buttons away); 90 px at least: then the page scrolls
   const logCard = document.querySelector(".log-card");

@@ -180,6 +180,9 @@ def test_page_without_token_shows_the_token_field_and_commands_change_nothing(br
     d.find_element(By.ID, "btn-run").click()
     wait.until(lambda _: "valid token" in d.find_element(By.ID, "toast").text)
     assert control.state == "idle"
+    # in the operator's words: what to do, not a header's name
+    assert "open the link the cell printed" in d.find_element(By.ID, "toast").text
+    assert "X-Cell-Token" not in d.find_element(By.ID, "toast").text
 
 
 def test_the_reason_of_a_fault_and_of_a_stop_is_on_the_page(browser, station):

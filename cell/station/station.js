@@ -55,9 +55,12 @@ async function post(cmd, body) {
       body: JSON.stringify(body || {}),
     });
     const data = await r.json().catch(() => ({ok: false, error: "HTTP " + r.status}));
-    if (r.status === 403) {
+    if (r.status === 403 && /token/.test(data.error || "")) {
       $("token-card").classList.remove("hidden");
       $("token").focus();
+      // the server's words are for scripts (a header's name); the operator needs what to do
+      data.error = "this page has no valid token (was the cell restarted?): open the link the cell printed, "
+        + "or enter the token it printed; nothing was done";
     }
     if (!data.ok) {
       toast(data.error || ("HTTP " + r.status));

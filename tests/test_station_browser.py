@@ -1031,3 +1031,19 @@ def test_on_a_wide_screen_the_buttons_sit_next_to_the_frame(browser, station):
         return [r('#view'), r('.panel')];""")
     assert 0 < panel["left"] - view["right"] <= 20, (view, panel)
     assert panel["width"] >= 380
+
+
+def test_approval_turned_off_while_a_grasp_waits_says_that_one_still_waits(browser, station):
+    """Switching 'approve each grasp' off does not decide the grasp already waiting: the page said
+    nothing, and the operator waited for the cell to go on."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    control.run()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    open_page(d, server, "awaiting approval")
+    d.find_element(By.ID, "approve-each").click()
+    WebDriverWait(d, T).until(lambda _: "still needs Approve or Reject" in d.find_element(By.ID, "toast").text)
+    assert not control.require_approval and control.state == AWAITING_APPROVAL

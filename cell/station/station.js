@@ -36,7 +36,8 @@ function toast(text, ok) {
   t.classList.toggle("ok", !!ok);
   t.classList.remove("hidden");
   clearTimeout(toast.timer);
-  toast.timer = setTimeout(() => t.classList.add("hidden"), ok ? 1500 : 5000);
+  // long enough to read: about 60 ms a character; at least 1.5 s for good news, 5 s for a refusal
+  toast.timer = setTimeout(() => t.classList.add("hidden"), Math.max(ok ? 1500 : 5000, 60 * text.length));
 }
 
 // ---- talking to the cell
@@ -512,6 +513,9 @@ function init() {
     approvalPending = true;
     const r = await post("approval", {required: ev.target.checked});
     approvalPending = false;
+    if (r && !r.control.require_approval && r.control.state === "awaiting_approval") {
+      toast("approve each grasp: off from the next grasp; the one waiting still needs Approve or Reject", true);
+    }
     // refused (a wrong token, the cell gone): show the cell's setting, not the click
     if (!r && last) ev.target.checked = !!last.control.require_approval;
   });

@@ -1047,3 +1047,20 @@ def test_approval_turned_off_while_a_grasp_waits_says_that_one_still_waits(brows
     d.find_element(By.ID, "approve-each").click()
     WebDriverWait(d, T).until(lambda _: "still needs Approve or Reject" in d.find_element(By.ID, "toast").text)
     assert not control.require_approval and control.state == AWAITING_APPROVAL
+
+
+def test_on_a_touchscreen_the_last_tapped_button_does_not_stay_lit(browser, station):
+    """:hover sticks to the button last tapped on a touchscreen: Pause stayed brightened after the tap,
+    as if still on. The highlight is for pointers that hover (a mouse) only."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+
+    server, control, _, _ = station
+    d = browser
+    open_page(d, server, "idle")
+    if d.execute_script("return matchMedia('(hover: hover)').matches"):
+        pytest.skip("this browser reports a hovering pointer; the test needs a touch-like one (hover: none)")
+    run = d.find_element(By.ID, "btn-run")
+    ActionChains(d).move_to_element(run).perform()
+    assert d.execute_script("return arguments[0].matches(':hover')", run)
+    assert d.execute_script("return getComputedStyle(arguments[0]).filter", run) == "none"

@@ -1064,3 +1064,28 @@ def test_on_a_touchscreen_the_last_tapped_button_does_not_stay_lit(browser, stat
     ActionChains(d).move_to_element(run).perform()
     assert d.execute_script("return arguments[0].matches(':hover')", run)
     assert d.execute_script("return getComputedStyle(arguments[0]).filter", run) == "none"
+
+
+def test_while_the_cell_does_not_answer_the_page_asks_once_a_second(browser, station):
+    """Offline, the page asked every 300 ms: three refused connections a second, each an error
+    line in the browser's console. The test reads the delays the page asks for, not a clock."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.05)
+    open_page(d, server, "idle")
+    d.execute_script("""window.__delays = []; const st = window.setTimeout;
+        window.setTimeout = (fn, ms, ...a) => {
+            if (fn === poll) window.__delays.push(ms);
+            return st(fn, ms, ...a);
+        };""")
+    wait.until(lambda _: len(d.execute_script("return window.__delays")) >= 1)
+    online = d.execute_script("return window.__delays.slice()")
+    server.close()
+    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "offline")
+    wait.until(lambda _: len(d.execute_script("return window.__delays")) >= len(online) + 2)
+    # (one poll may still have been answered between the two reads above: skip it)
+    offline = d.execute_script("return window.__delays.slice(arguments[0])", len(online) + 1)
+    assert set(online) == {300} and offline and set(offline) == {1000}, (online, offline)

@@ -5,6 +5,7 @@
 
 const SVGNS = "http://www.w3.org/2000/svg";
 const POLL_MS = 300;
+const OFFLINE_POLL_MS = 1000;
 const $ = (id) => document.getElementById(id);
 
 let token = "";
@@ -79,6 +80,7 @@ async function post(cmd, body) {
 }
 
 async function poll() {
+  let answered = true;
   try {
     const before = commands;
     const r = await fetch("/api/state", {cache: "no-store"});
@@ -87,9 +89,12 @@ async function poll() {
     // the page back to e.g. "awaiting approval" with Approve live, for one poll)
     if (data && !busy && before === commands) render(data);
   } catch (e) {
+    answered = false;
     offline();
   }
-  setTimeout(poll, POLL_MS);
+  // while the cell does not answer, once a second: each refused connection is an error line in the
+  // browser's console (three a second filled it), and a second is soon enough to see it back
+  setTimeout(poll, answered ? POLL_MS : OFFLINE_POLL_MS);
 }
 
 // The station is gone (the run ended, the cell was shut down): say so, and offer no command

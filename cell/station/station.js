@@ -11,7 +11,7 @@ const $ = (id) => document.getElementById(id);
 let token = "";
 let last = null;            // last state received
 let frameIndex = null;      // index of the frame shown
-let teach = null;           // null, or {stage: "part" | "p1" | "p2", part, p1}
+let teach = null;           // null, or {stage: "part" | "p1" | "p2", part, p1, frame (its index), note}
 let busy = false;
 let commands = 0;           // commands answered: a state polled before one of them is stale
 let approvalPending = false; // the approve-each box was toggled and the cell has not answered yet

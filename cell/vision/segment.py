@@ -485,6 +485,10 @@ def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int, smo
     # quarter of the view: the 25th percentile of |N(0, s)| is 0.32 s
     _, _, chroma_dn, bright_dn = _colour_change(sparse, np.ascontiguousarray(bg[::4, ::4]))
     noise_c, noise_b = _noise_spreads(chroma_dn, bright_dn)
+    sharp_sq = _sharp_bound_sq(p.sharp_edge, scale)
+    texture = _texture_gradient(sm, bg)
+    if p.noise_k * texture > np.sqrt(sharp_sq):  # a textured tray (cloth): its own grain makes sharp edges
+        sharp_sq = np.float32((p.noise_k * texture) ** 2)
     h, w = det.shape[:2]
     mask = np.zeros((h, w), np.uint8)
     if bg_coarse is None:
@@ -492,8 +496,29 @@ def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int, smo
     boxes = _work_boxes(coarse, bg_coarse, p, (h, w))
     for x0, y0, x1, y1 in boxes:
         mask[y0:y1, x0:x1] = _mask_in_box(sm[y0:y1, x0:x1], bg[y0:y1, x0:x1], p, scale, noise_c, noise_b,
-                                          (x0, y0), (h, w))
+                                          (x0, y0), (h, w), sharp_sq)
     return mask, boxes
+
+
+RAYLEIGH_Q1 = 0.7585  # the 25th percentile of the length of a 2-D N(0, s) vector, in s: sqrt(-2 ln 0.75)
+
+
+def _texture_gradient(sm: np.ndarray, bg: np.ndarray) -> float:
+    """The spread (per detection px, of the brightness ratio r) of the tray's own gradient: its grain
+    and noise, measured like the noise spreads on every 4th pixel, from the quietest quarter (the
+    tray), by central differences (the derivative `_material_shadowlike`'s Sobel x 1/8 measures)."""
+    h, w = sm.shape[:2]
+    if h < 3 or w < 3:
+        return 0.0
+    ny, nx = (h - 2 + 3) // 4, (w - 2 + 3) // 4  # centres at 1, 5, 9, ... with both neighbours inside
+
+    def rsum(a, y, x):
+        return cv2.transform(np.ascontiguousarray(a[y:y + 4 * ny:4, x:x + 4 * nx:4]), _ONES_1x3)
+
+    sb = rsum(bg, 1, 1) + 1.0
+    gx = (rsum(sm, 1, 2) - rsum(sm, 1, 0)) / (2.0 * sb)
+    gy = (rsum(sm, 2, 1) - rsum(sm, 0, 1)) / (2.0 * sb)
+    return _quartile1(np.hypot(gx, gy)) / RAYLEIGH_Q1
 
 
 def _noise_spreads(chroma_dn: np.ndarray, bright_dn: np.ndarray) -> tuple[float, float]:
@@ -567,8 +592,10 @@ def _work_boxes(coarse, bg_coarse, p: SegmentParams, det_hw: tuple[int, int]) ->
     return [tuple(b) for b in boxes]
 
 
-def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: float, origin=(0, 0), det_hw=None):
-    """Part mask (uint8 0/1) in one box (steps 2 and 3)."""
+def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: float, origin=(0, 0), det_hw=None,
+                 sharp_sq: np.float32 | None = None):
+    """Part mask (uint8 0/1) in one box (steps 2 and 3). `sharp_sq`: the squared gradient of r above
+    which an edge is sharp (`part_mask`: the sharp edge's, raised above a textured tray's grain)."""
     r, chroma, chroma_dn, bright_dn = _colour_change(sm, bg)
     strong = _evidence(r, chroma, chroma_dn, bright_dn, p, 1.0, noise_c, noise_b)
     if p.hysteresis < 1.0:  # weaker evidence counts where it is connected to strong evidence,
@@ -590,18 +617,20 @@ def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: 
         from cell.vision.touching import fill_holes
 
         enclosed = fill_holes(strong.view(np.uint8)).view(bool) & ~strong
-        mask |= _material_shadowlike(r, strong, darker & ~enclosed, p, scale, origin, det_hw)
+        mask |= _material_shadowlike(r, strong, darker & ~enclosed, p, scale, origin, det_hw, sharp_sq)
     k = np.ones((3, 3), np.uint8)
     return cv2.morphologyEx(mask, cv2.MORPH_OPEN, k)
 
 
-def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin=(0, 0), det_hw=None) -> np.ndarray:
-    """Shadow-like regions bounded by sharp edges are material (walls, grey parts), not shadow."""
+def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin=(0, 0), det_hw=None,
+                         sharp_sq: np.float32 | None = None) -> np.ndarray:
+    """Shadow-like regions bounded by sharp edges are material (walls, grey parts), not shadow.
+    `sharp_sq`: the squared gradient bound (default: the sharp edge's, `_sharp_bound_sq`)."""
     gx = cv2.Sobel(r, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
     gy = cv2.Sobel(r, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
     # |grad| / scale > sharp_edge (per full-resolution pixel), compared on the squared gradient
     # against the exact float32 bound: no square root and division over the box
-    sharp = gx * gx + gy * gy > _sharp_bound_sq(p.sharp_edge, scale)
+    sharp = gx * gx + gy * gy > (_sharp_bound_sq(p.sharp_edge, scale) if sharp_sq is None else sharp_sq)
     # cut shadow-like regions at sharp edges, so a grey part and its own shadow come apart
     cand = (darker & ~sharp).view(np.uint8)  # (bool arrays viewed as 0/1 bytes for OpenCV: no copies)
     n, lab = cv2.connectedComponents(cand, connectivity=4)

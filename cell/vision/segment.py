@@ -833,8 +833,14 @@ def _regions_to_segments(pieces, frame: np.ndarray, det: np.ndarray, bg: np.ndar
     if p.refine and found:  # all rings of the frame in one pass
         rings = [r for o, hs, *_ in found for r in [o, *hs]]
         is_hole = [h for o, hs, *_ in found for h in [False] + [True] * len(hs)]
-        refined = iter(_tidy_rings(refine_rings(frame, rings, is_hole, p), frame.shape))
+        edges: list = []
+        refined = iter(_tidy_rings(refine_rings(frame, rings, is_hole, p, edges), frame.shape))
+        at = np.cumsum([0] + [1 + len(hs) for _, hs, *_ in found])[:-1]
+        shares = [_edge_share(rings[i], edges[i], frame.shape) for i in at]
         found = [(next(refined), [next(refined) for _ in hs], *rest) for _, hs, *rest in found]
+        # a region with an edge along almost none of its outline is a lighting gradient the tray's
+        # field does not follow (a vignetted corner, a bright patch at the border), not a part
+        found = [f for f, share in zip(found, shares) if share >= MIN_EDGE_SHARE]
     segs = []
     for outline, hole_rings, merged, cut, mean in found:
         # each ring's area and centroid once: they give its orientation, the hole's size and the region's
@@ -856,6 +862,22 @@ def _regions_to_segments(pieces, frame: np.ndarray, det: np.ndarray, bg: np.ndar
             continue  # a sliver whose pixels passed the speck filter but whose outline did not
         segs.append(Segment(outline, holes, float(area), cen, bool(merged), cut, tuple(float(m) for m in mean)))
     return segs
+
+
+MIN_EDGE_SHARE = 0.25  # the share of a region's outline (off the image border) where refinement must find an edge
+
+
+def _edge_share(ring: np.ndarray, found: np.ndarray | None, shape) -> float:
+    """The share of the ring's points off the image border (a region cut there has no edge there)
+    where an edge was found; 1 when too few points to tell."""
+    if found is None:
+        return 1.0
+    h, w = shape[:2]
+    off = (ring[:, 0] > 1.0) & (ring[:, 0] < w - 1.0) & (ring[:, 1] > 1.0) & (ring[:, 1] < h - 1.0)
+    n = int(off.sum())
+    if n < 5:
+        return 1.0
+    return float(np.count_nonzero(found & off)) / n
 
 
 def _tidy_rings(rings: list[np.ndarray], shape) -> list[np.ndarray]:
@@ -1140,15 +1162,19 @@ def refine_ring(frame: np.ndarray, ring: np.ndarray, p: SegmentParams, hole: boo
     return refine_rings(frame, [ring], [hole], p)[0]
 
 
-def refine_rings(frame: np.ndarray, rings: list[np.ndarray], is_hole: list[bool], p: SegmentParams
-                 ) -> list[np.ndarray]:
+def refine_rings(frame: np.ndarray, rings: list[np.ndarray], is_hole: list[bool], p: SegmentParams,
+                 edges: list | None = None) -> list[np.ndarray]:
     """Move each ring point along its normal to the half-way crossing of the colour profile.
 
     The profile across the edge is projected on the colour difference between the part side
     and the other side, so it runs from 1 (part) to 0 (tray, shadow or hole) whatever the
     colours; 0.5 is the edge of an optically blurred step. All rings are sampled in one pass.
+    `edges`, a list: filled with each ring's bool array, per point, of whether an edge was found
+    there (a crossing with the sides `min_edge_contrast_dn` apart; None for rings too short).
     """
     todo = [i for i, r in enumerate(rings) if len(r) >= 5]
+    if edges is not None:
+        edges[:] = [None] * len(rings)
     if not todo:
         return list(rings)
     p = p.for_frame(frame.shape)
@@ -1198,6 +1224,8 @@ def refine_rings(frame: np.ndarray, rings: list[np.ndarray], is_hole: list[bool]
     start = 0
     for i in todo:
         out[i] = moved[start:start + len(rings[i])]
+        if edges is not None:
+            edges[i] = found[start:start + len(rings[i])]
         start += len(rings[i])
     return out
 

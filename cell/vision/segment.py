@@ -501,24 +501,30 @@ def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int, smo
 
 
 RAYLEIGH_Q1 = 0.7585  # the 25th percentile of the length of a 2-D N(0, s) vector, in s: sqrt(-2 ln 0.75)
+TEXTURE_STEP = 8  # the tray's grain is measured on every this many-th detection pixel
 
 
 def _texture_gradient(sm: np.ndarray, bg: np.ndarray) -> float:
     """The spread (per detection px, of the brightness ratio r) of the tray's own gradient: its grain
-    and noise, measured like the noise spreads on every 4th pixel, from the quietest quarter (the
-    tray), by central differences (the derivative `_material_shadowlike`'s Sobel x 1/8 measures)."""
+    and noise, from the quietest quarter (the tray) like the noise spreads, on every 8th pixel (a
+    tenth of a millisecond on the cell's frames; every 4th gives the same within 3 %), by central
+    differences (the derivative `_material_shadowlike`'s Sobel x 1/8 measures)."""
     h, w = sm.shape[:2]
+    st = TEXTURE_STEP
     if h < 3 or w < 3:
         return 0.0
-    ny, nx = (h - 2 + 3) // 4, (w - 2 + 3) // 4  # centres at 1, 5, 9, ... with both neighbours inside
+    ny, nx = (h - 3) // st + 1, (w - 3) // st + 1  # centres at 1, 1 + st, ... with both neighbours inside
 
-    def rsum(a, y, x):
-        return cv2.transform(np.ascontiguousarray(a[y:y + 4 * ny:4, x:x + 4 * nx:4]), _ONES_1x3)
+    def rsum(a, y, x):  # b + g + r on the strided view (no copies)
+        v = a[y:y + st * (ny - 1) + 1:st, x:x + st * (nx - 1) + 1:st]
+        return v[:, :, 0] + v[:, :, 1] + v[:, :, 2]
 
-    sb = rsum(bg, 1, 1) + 1.0
-    gx = (rsum(sm, 1, 2) - rsum(sm, 1, 0)) / (2.0 * sb)
-    gy = (rsum(sm, 2, 1) - rsum(sm, 0, 1)) / (2.0 * sb)
-    return _quartile1(np.hypot(gx, gy)) / RAYLEIGH_Q1
+    sb = 2.0 * (rsum(bg, 1, 1) + 1.0)
+    gx = (rsum(sm, 1, 2) - rsum(sm, 1, 0)) / sb
+    gy = (rsum(sm, 2, 1) - rsum(sm, 0, 1)) / sb
+    g2 = gx * gx
+    g2 += gy * gy
+    return float(np.sqrt(_quartile1(g2))) / RAYLEIGH_Q1
 
 
 def _noise_spreads(chroma_dn: np.ndarray, bright_dn: np.ndarray) -> tuple[float, float]:

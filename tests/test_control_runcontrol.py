@@ -146,6 +146,30 @@ def test_approval_blocks_until_the_operator_decides_and_rejection_carries_the_re
     assert "finger on the connector" in rejected["message"]
 
 
+def test_a_decision_for_the_grasp_the_operator_saw_never_lands_on_the_next_one():
+    """approve/reject carry the proposal shown; under the decision's own lock, a stale one is refused
+    (409 at the station) and the grasp waiting now stays undecided."""
+    rc = RunControl(require_approval=True)
+    loop = Loop(rc, n=2)
+    loop.start()
+    rc.run()
+    rc.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    first = json.loads(json.dumps(rc.snapshot()["proposal"]))  # as the page has it
+    rc.reject("too close to the rim", shown=first)
+    wait_until(lambda: len(loop.decisions) == 1)
+    rc.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    assert rc.snapshot()["proposal"]["target"] == "p1"
+    for decide in (lambda: rc.approve(shown=first), lambda: rc.reject("again", shown=first)):
+        with pytest.raises(InvalidCommand, match="no longer the one waiting.*p1"):
+            decide()
+    time.sleep(0.05)
+    assert len(loop.decisions) == 1 and rc.state == AWAITING_APPROVAL
+    rc.approve(shown=json.loads(json.dumps(rc.snapshot()["proposal"])))
+    rc.wait_for_state(DONE, timeout_s=T)
+    loop.join(T)
+    assert [d.approved for d in loop.decisions] == [False, True]
+
+
 def test_no_approval_required_returns_at_once():
     rc = RunControl(require_approval=False)
     rc.run()

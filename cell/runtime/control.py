@@ -122,6 +122,13 @@ class RunControl:
     def _refuse(self, command: str, why: str):
         raise InvalidCommand(f"cannot {command} while {self._state}: {why}")
 
+    def _refuse_unseen_locked(self, shown: dict | None) -> None:
+        """A decision for the proposal the operator saw must not land on another one that came since
+        (a double tap, a page a poll behind)."""
+        if shown is not None and self._proposal is not None and shown != self._proposal:
+            raise InvalidCommand(f"the grasp on the page is no longer the one waiting (now a grasp on "
+                                 f"{self._proposal.get('target')}): look at it, then decide")
+
     def _wait_locked(self, predicate, timeout_s: float | None, what: str) -> None:
         """Sleep on the condition until predicate() is true; TimeoutError after timeout_s."""
         if not self._cond.wait_for(predicate, timeout=timeout_s):
@@ -187,20 +194,24 @@ class RunControl:
                 self._set_locked(RUNNING, f"stepping{where}", "step", by=by)
             return self._state
 
-    def approve(self, by: str = "operator") -> str:
+    def approve(self, by: str = "operator", shown: dict | None = None) -> str:
+        """Approve the pending grasp; with `shown` (the proposal the operator saw) only if that one
+        still waits, checked under the same lock as the decision."""
         with self._cond:
             if self._state != AWAITING_APPROVAL:
                 self._refuse("approve", "no grasp is waiting for approval")
+            self._refuse_unseen_locked(shown)
             self._decision = Decision(True, "approved by the operator", by)
             self._log_locked("approve", "grasp approved", by=by)
             return self._state
 
-    def reject(self, reason: str = "", by: str = "operator") -> str:
-        """Reject the pending grasp; the reason is kept with the invalid example."""
+    def reject(self, reason: str = "", by: str = "operator", shown: dict | None = None) -> str:
+        """Reject the pending grasp; the reason is kept with the invalid example. `shown` as for approve."""
         reason = (reason or "").strip() or "rejected by the operator"
         with self._cond:
             if self._state != AWAITING_APPROVAL:
                 self._refuse("reject", "no grasp is waiting for approval")
+            self._refuse_unseen_locked(shown)
             self._decision = Decision(False, reason, by)
             self._log_locked("reject", f"grasp rejected: {reason}", by=by)
             return self._state

@@ -299,14 +299,13 @@ class StationServer:
         if cmd == "step":
             return rc.step(by=by)
         if cmd == "approve":
-            self._check_shown_proposal(body)
-            return rc.approve(by=by)
+            return rc.approve(by=by, shown=_shown_proposal(body))
         if cmd == "reject":
-            self._check_shown_proposal(body)
+            shown = _shown_proposal(body)
             reason = body.get("reason", "")
             if not isinstance(reason, str):
                 raise BadInput("'reason' must be a string")
-            return rc.reject(reason[:500], by=by)
+            return rc.reject(reason[:500], by=by, shown=shown)
         if cmd == "stop":
             reason = body.get("reason", "")
             state = rc.stop(reason[:500] if isinstance(reason, str) else "", by=by)
@@ -332,20 +331,6 @@ class StationServer:
             return result
         raise KeyError(f"no such command: {cmd}")
 
-    def _check_shown_proposal(self, body: dict) -> None:
-        """Approve/reject carry the proposal the page showed (`proposal`, optional for scripts):
-        refused (409) when another grasp waits by now, so a tap decides the grasp that was seen
-        (a double tap, or a page a poll behind, would have decided the next one unseen)."""
-        if "proposal" not in body:
-            return
-        shown = body["proposal"]
-        if not isinstance(shown, dict):
-            raise BadInput("'proposal' must be the proposal object shown (from /api/state)")
-        waiting = self.control.snapshot(0)["proposal"]
-        if waiting is not None and shown != waiting:
-            raise InvalidCommand(f"the grasp on the page is no longer the one waiting (now a grasp on "
-                                 f"{waiting.get('target')}): look at it, then decide")
-
     # -- life cycle
     def start(self) -> StationServer:
         self._thread = threading.Thread(target=self.httpd.serve_forever, kwargs={"poll_interval": 0.05},
@@ -365,3 +350,13 @@ class StationServer:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _shown_proposal(body: dict) -> dict | None:
+    """The proposal the page showed when approve/reject was pressed (`proposal`, optional for scripts):
+    RunControl refuses the decision (409) when another grasp waits by now, so a tap decides the grasp
+    that was seen (a double tap, or a page a poll behind, would have decided the next one unseen)."""
+    shown = body.get("proposal")
+    if "proposal" in body and not isinstance(shown, dict):
+        raise BadInput("'proposal' must be the proposal object shown (from /api/state)")
+    return shown

@@ -105,3 +105,37 @@ def test_a_grasp_taught_mid_run_is_recorded_and_replays(tmp_path, capsys):
     # recorded after the rejection and before the plan that learned it
     assert kinds[at - 1] == "decision" and not decisions[at - 1]["approved"] and kinds[at + 1] == "grasp"
     assert taught["example_id"] in {e.id for e in load_examples(rec / "examples.jsonl")}
+
+
+def test_the_station_answers_after_a_run_that_ends_stopped(tmp_path):
+    """`cell run --station` keeps the page answering STATION_LINGER_S after the run, however it ended:
+    after a Stop the page shows "stopped", not a cell that does not answer (it closed at once)."""
+    d = json.loads(DEFAULT.read_text())
+    d["parts"] = [p for p in d["parts"] if p["id"] == "washer"]
+    d["sequence"] = ["washer"]
+    d.pop("cell", None)
+    assembly = tmp_path / "one.json"
+    assembly.write_text(json.dumps(d))
+    lines, ended = [], []
+
+    def work():
+        try:
+            ended.append(run_session(RunConfig(assembly=assembly, seed=1, station=True, require_approval=True,
+                                               station_port=0, station_token=TOKEN, progress=lines.append)))
+        except BaseException as e:  # noqa: BLE001 - asserted below
+            ended.append(e)
+
+    t = threading.Thread(target=work, daemon=True)
+    t.start()
+    deadline = time.monotonic() + T
+    while not any("operator station:" in s for s in lines):
+        assert time.monotonic() < deadline and t.is_alive(), lines
+        time.sleep(0.05)
+    url = re.search(r"(http://127\.0\.0\.1:\d+)", next(s for s in lines if "operator station:" in s)).group(1)
+    _post(url, TOKEN, "/api/run", {})
+    _wait(url, lambda s: s["control"]["state"] == "awaiting_approval", "the proposal")
+    _post(url, TOKEN, "/api/stop", {"reason": "hand in the cell"})
+    time.sleep(0.5)  # the loop has ended by now; the station lingers 2 s after it
+    assert _state(url)["control"]["state"] == "stopped"
+    t.join(T)
+    assert ended and ended[0]["status"] == "stopped", ended

@@ -438,8 +438,8 @@ def _with_station(loop: CellLoop, control: RunControl, cfg: RunConfig, say) -> d
         try:
             while t.is_alive():
                 t.join(0.2)
-            if "summary" in result:  # done: the page polls a few more times and shows it
-                time.sleep(STATION_LINGER_S)
+            # done, stopped or failed: the page polls a few more times and shows how it ended
+            time.sleep(STATION_LINGER_S)
         except KeyboardInterrupt:
             control.stop("interrupted at the terminal")
             loop.arm.stop()  # a pick in progress ends now, not when it is done

@@ -135,10 +135,11 @@ def marker_residuals(cal: Calibration, detected: dict[int, np.ndarray], known: d
         per[str(i)] = round(errs[0], 3)
         best = int(np.argmin(errs))
         if best and errs[best] * CORNER_ORDER_GAIN < errs[0] and errs[0] - errs[best] > 2.0:
-            how = (f"starting from its corner #{best}" if best < 4 else
-                   f"in reverse order starting from its corner #{(3 - (best - 4)) % 4}")
-            warnings.append(f"marker {i}: its corners fit {errs[0]:.1f} -> {errs[best]:.1f} mm when listed {how}; "
-                            "check the corner order (OpenCV's: clockwise from the marker's own top-left)")
+            first = best if best < 4 else (3 - (best - 4)) % 4  # index of the listed corner to start from
+            how = (f"{'backwards ' if best >= 4 else ''}from its {('1st', '2nd', '3rd', '4th')[first]} listed "
+                   f"corner (index {first})")
+            warnings.append(f"marker {i}: its corners are {errs[0]:.1f} mm RMS off as listed, {errs[best]:.1f} mm "
+                            f"read {how}; check the corner order (OpenCV's: clockwise from the marker's own top-left)")
     rms = cal.report.get("reprojection_rms_px")
     if rms is not None and rms > WARN_REPROJECTION_PX:
         warnings.insert(0, f"the markers fit badly: {rms:.1f} px RMS reprojection, {cal.report['residual_mm']:.1f} mm "

@@ -111,7 +111,7 @@ def test_a_marker_listed_in_another_corner_order_is_named(tmp_path, capsys, with
     assert any("fit badly" in w for w in res["warnings"]) and "fit badly" in err
     named = [w for w in res["warnings"] if w.startswith("marker ")]
     assert len(named) == 1 and named[0].startswith("marker 1:")
-    assert "from its corner #1; check the corner order" in named[0]
+    assert "as listed" in named[0] and "read from its 2nd listed corner (index 1); check the corner order" in named[0]
     assert res["per_marker_residual_mm"]["1"] > 20 * res["per_marker_residual_mm"]["0"]
     saved = json.loads((tmp_path / "p.json").read_text())["report"]
     assert saved["warnings"] == res["warnings"]

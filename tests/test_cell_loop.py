@@ -224,6 +224,19 @@ def test_replay_with_other_examples_reports_differences(tmp_path, capsys):
     assert any("grasp" in d for d in result["differences"])
 
 
+def test_replay_with_the_recorded_examples_lists_no_differences(tmp_path, capsys):
+    """The session's own examples passed as --examples make the same picks: nothing differs. The jaws
+    used to close on the planned opening instead of the recorded width, and every pick's `executed`
+    decision was listed as a difference (24.131 recorded, 24.0 replayed)."""
+    p = tmp_path / "same.jsonl"
+    p.write_bytes((SHIPPED / "examples_at_start.jsonl").read_bytes())
+    code, out, err = run_cli("replay", SHIPPED, "--examples", p, "--json", capsys=capsys)
+    assert code == 0, err
+    result = json.loads(out)
+    assert result["differences"] == [] and result["match"]
+    assert result["matched"] == result["decisions"] > 10
+
+
 @pytest.mark.parametrize("node,kind", [("j2", "emcy"), ("j1", "following_error")])
 def test_a_drive_fault_stops_everything_names_the_node_and_replays(short_assembly, tmp_path, capsys, node, kind):
     rec = tmp_path / "fault"

@@ -110,6 +110,17 @@ def test_rules_are_readable_and_say_what_the_tree_does():
     assert planner.model.point_tree.tree_ is not None  # a real tree, with contrast to learn from
 
 
+def test_a_constant_tree_counts_its_training_rows_not_examples():
+    """One accepted example labels a dozen points and nine sets: the constant rule used to say 'all 12
+    examples agree' of a single example."""
+    from cell.grasp.learning import AttributeTree
+
+    tree = AttributeTree(["a"]).fit(np.zeros((12, 1)), np.ones(12, bool))
+    assert tree.rules() == ["ALWAYS valid  (all 12 training rows agree)"]
+    assert AttributeTree(["a"]).fit(np.zeros((0, 1)), np.zeros(0, bool)).rules() == [
+        "ALWAYS valid  (no labelled training rows)"]
+
+
 def test_trees_are_rebuilt_identically_from_the_example_file(tmp_path):
     path = tmp_path / "ex.jsonl"
     append_examples(path, faces_examples())

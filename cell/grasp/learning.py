@@ -182,7 +182,8 @@ class AttributeTree:
 
     def rules(self) -> list[str]:
         if self.tree_ is None:
-            why = "no labelled examples" if self.n_samples_ == 0 else f"all {self.n_samples_} examples agree"
+            # training rows (labelled points or sets), as in the other rules: not the examples
+            why = "no labelled training rows" if self.n_samples_ == 0 else f"all {self.n_samples_} training rows agree"
             return [f"ALWAYS {'valid' if self.constant_ else 'invalid'}  ({why})"]
         return [self._format(c, v, n, share) for _, c, v, n, share in self._path_rules()]
 

@@ -185,3 +185,15 @@ def test_a_bad_photo_is_refused_before_the_benchmark(tmp_path, monkeypatch, caps
     code, out, err = run_cli("bench", "vision", "--frames", "1", "--repeats", "1", "--photos", tmp_path / "bad.png",
                              capsys=capsys)
     assert code == 2 and out == "" and "is not a readable image" in err, err
+
+
+def test_an_unknown_family_is_refused_before_the_stability_benchmark(monkeypatch, capsys):
+    """It was refused after the whole library, the clutter and the simple shapes had been planned (9 s)."""
+    import cell.study.stability
+
+    def no_benchmark(*a, **k):
+        raise AssertionError("the benchmark ran before --families was checked")
+
+    monkeypatch.setattr(cell.study.stability, "evaluate", no_benchmark)
+    code, out, err = run_cli("bench", "stability", "--families", "gear,nosuch", capsys=capsys)
+    assert code == 2 and out == "" and "unknown part families: nosuch" in err, err

@@ -44,6 +44,9 @@ def run(args) -> int:
     )
 
     count(args.poses, "--poses", MAX_POSES)  # 1e14 poses per part would never end
+    families = [f.strip() for f in args.families.split(",") if f.strip()] if args.families else None
+    if families:
+        L.parts(families)  # unknown names are bad input, refused before the benchmark runs
     cell = load_cell(args.cell)
     examples = load_examples(args.examples)
 
@@ -62,9 +65,6 @@ def run(args) -> int:
     baseline = random_baseline(shown, args.seed, cell)
     log(f"simple shapes not in the library: {len(simple_shapes())} x {args.poses} poses")
     simple = evaluate(planner, presentations(simple_shapes(), args.poses, args.seed, cell), cell)
-    families = [f.strip() for f in args.families.split(",") if f.strip()] if args.families else None
-    if families:
-        L.parts(families)  # unknown names are bad input
     per_family = leave_families_out(examples, args.poses, args.seed, cell, families, progress=log, params=params)
     unseen = StabilityTally()
     for t in per_family.values():

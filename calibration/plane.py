@@ -203,9 +203,15 @@ def fit_plane_mapping(uv_px, xyz_mm, size: tuple[int, int], camera_matrix: np.nd
         if hmat is None:
             raise BadInput("no homography fits these points (are they collinear?)")
         cal = Calibration(w, h, None, np.zeros(5), None, hmat, plane_z, name)
-        proj = cal.mm_to_px(xyz[:, :2])
+        proj = None
         method = "homography"
-    err_mm = np.linalg.norm(cal.px_to_mm(uv) - xyz[:, :2], axis=1)
+    try:
+        if proj is None:
+            proj = cal.mm_to_px(xyz[:, :2])
+        err_mm = np.linalg.norm(cal.px_to_mm(uv) - xyz[:, :2], axis=1)
+    except BadInput:  # the fit's horizon runs through its own points: no camera sees them so
+        raise BadInput(f"the {len(uv)} points fit no view of one plane: the best {method} puts some of them "
+                       "beyond the plane's horizon; a pixel or a base coordinate is wrong (check each pair)") from None
     err_px = np.linalg.norm(proj - uv, axis=1)
     report = {"method": method, "points": len(uv), "plane_z_mm": plane_z,
               "residual_mm": float(np.sqrt(np.mean(err_mm ** 2))), "residual_max_mm": float(err_mm.max()),

@@ -352,3 +352,19 @@ def test_no_holdout_with_three_markers(tmp_path, capsys):
     res = json.loads(stdout)
     assert code == 0 and res["markers_used"] == [0, 1, 2]
     assert res["holdout_residual_mm"] == {} and res["holdout_residual_max_mm"] is None
+
+
+def test_touched_points_with_one_wrong_pair_say_a_pair_is_wrong(tmp_path, capsys):
+    """One pair far off the others' mapping bends the homography until its horizon runs through the points.
+    The message was "some points lie beyond the plane's horizon (not on the plane in front of the camera)",
+    which says nothing of what to fix."""
+    import cv2
+
+    cv2.imwrite(str(tmp_path / "f.png"), np.zeros((480, 640, 3), np.uint8))
+    pts = _linear_points(INSIDE)
+    pts["points"].append({"px": [640, 0], "mm": [0, 0, 0]})  # the mapping puts (640, 0) at (264, -50)
+    (tmp_path / "points.json").write_text(json.dumps(pts))
+    code, out, err = run_cli("calibrate", "plane", tmp_path / "f.png", "--points", tmp_path / "points.json",
+                             "--out", tmp_path / "c.json", capsys=capsys)
+    assert code == 2 and out == "" and not (tmp_path / "c.json").exists()
+    assert "the 10 points fit no view of one plane" in err and "a pixel or a base coordinate is wrong" in err, err

@@ -7,6 +7,8 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 SHARED = ROOT.parent / "shared"
 EXTERNAL = SHARED / "external"
+# tests on the shared photographs (../shared/external next to the checkout) skip, saying so, without them
+needs_photos = pytest.mark.skipif(not EXTERNAL.is_dir(), reason=f"{EXTERNAL} (the shared photographs) is not there")
 
 
 @pytest.fixture

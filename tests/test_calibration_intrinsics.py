@@ -5,7 +5,7 @@ import json
 import cv2
 import numpy as np
 import pytest
-from conftest import EXTERNAL, run_cli
+from conftest import EXTERNAL, needs_photos, run_cli
 
 from calibration import load_calibration
 from calibration.intrinsics import calibrate_intrinsics
@@ -24,6 +24,7 @@ def chess_ref():
     return json.loads((CHESS / "published_reference.json").read_text())
 
 
+@needs_photos
 def test_chessboard_matches_opencv_published_calibration(chess_ref):
     ref = chess_ref["opencv_python_test_calibration"]
     r = calibrate_intrinsics(_images(CHESS), (9, 6), 1.0)
@@ -35,6 +36,7 @@ def test_chessboard_matches_opencv_published_calibration(chess_ref):
     assert not any(v.outlier for v in r.views)
 
 
+@needs_photos
 def test_corner_window_grows_with_the_squares_in_the_image(chess_ref):
     # the same boards seen by a camera with 3 x the resolution: corners are 3 x as far apart and as
     # blurred, so the refinement window must grow with them (a fixed 5 px window: 1.83 px RMS)
@@ -50,6 +52,7 @@ def test_corner_window_grows_with_the_squares_in_the_image(chess_ref):
     assert fixed.rms_px > 2 * r.rms_px
 
 
+@needs_photos
 def test_boards_a_large_image_hides_at_full_size_are_found_on_a_reduced_copy():
     # a 12 MP camera: OpenCV's boards at 4000 x 3000 px. At full size the classic detector misses these
     # three (and the sector detector two: one view is too few); on a copy reduced to 1600 px it finds
@@ -67,6 +70,7 @@ def test_boards_a_large_image_hides_at_full_size_are_found_on_a_reduced_copy():
     assert r.rms_px < 8 * small.rms_px  # upscaling blurs: 6.25 x the corner noise, and more
 
 
+@needs_photos
 def test_sample_recipe_singles_out_left02_and_can_reject_it(chess_ref):
     # OpenCV's C++ sample (11x11 cornerSubPix) publishes per-view errors with left02 at 1.18 px
     ref = chess_ref["left_intrinsics_yml"]["per_view_reprojection_errors"]
@@ -78,6 +82,7 @@ def test_sample_recipe_singles_out_left02_and_can_reject_it(chess_ref):
     assert kept.rms_px < r.rms_px - 0.1
 
 
+@needs_photos
 def test_an_image_that_does_not_fit_is_reported():
     imgs = _images(CHESS)
     stretched = cv2.resize(imgs[4][1], None, fx=1.12, fy=1.0)[:, :640]  # a view from "another lens"
@@ -86,6 +91,7 @@ def test_an_image_that_does_not_fit_is_reported():
     assert any("stretched.jpg" in w for w in r.warnings)
 
 
+@needs_photos
 def test_webcam_board_matches_reference_and_warns_about_principal_point():
     r = calibrate_intrinsics(_images(WEBCAM), (7, 7), 1.0, detector="sb")
     assert len(r.images_used) == 13
@@ -95,6 +101,7 @@ def test_webcam_board_matches_reference_and_warns_about_principal_point():
     assert any("principal point" in w and "far from the image centre" in w for w in r.warnings)
 
 
+@needs_photos
 def test_charuco_matches_published_calibration():
     ref = json.loads((CHARUCO / "published_reference.json").read_text())["tutorial_camera_charuco_yml"]
     r = calibrate_intrinsics(_images(CHARUCO, "img_0*.jpg"), (5, 7), 0.04,
@@ -108,6 +115,7 @@ def test_charuco_matches_published_calibration():
     assert abs(k[0, 2] - pub[0, 2]) < 1.0 and abs(k[1, 2] - pub[1, 2]) < 3.0
 
 
+@needs_photos
 def test_charuco_at_half_the_resolution_is_detected_at_twice_the_size():
     # 320 x 240 px: OpenCV finds 4-10 of the 24 corners (two views fewer than 6); again at twice the size, 13-22
     half = [(n, cv2.resize(g, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA))
@@ -122,6 +130,7 @@ def test_charuco_at_half_the_resolution_is_detected_at_twice_the_size():
 CHARUCO_BOARD = {"marker_mm": 0.02, "dictionary": "DICT_6X6_250"}
 
 
+@needs_photos
 def test_charuco_corner_window_grows_with_the_squares_on_a_12mp_camera():
     # OpenCV's views upscaled 6.25 x to 4000 x 3000 px (squares about 320 px): OpenCV's own corner window
     # (10 px at most) gave 3.13 px RMS and cx 5 px, cy 25 px off the 640 x 480 fit (in 640 px units)
@@ -181,6 +190,7 @@ def _rms_off(corners, ids, truth):
     return float(np.sqrt(np.mean(np.sum((corners.reshape(-1, 2) - truth[ids.ravel()]) ** 2, axis=1))))
 
 
+@needs_photos
 def test_cli_intrinsics_writes_a_loadable_file_and_lists_missing_boards(tmp_path, capsys):
     blank = tmp_path / "blank.png"
     cv2.imwrite(str(blank), np.full((480, 640), 128, np.uint8))
@@ -198,6 +208,7 @@ def test_cli_intrinsics_writes_a_loadable_file_and_lists_missing_boards(tmp_path
     assert cal.camera_matrix[0, 2] == pytest.approx(res["cx"])
 
 
+@needs_photos
 @pytest.mark.parametrize("args, match", [
     (["--pattern", "9by6"], "COLSxROWS"),
     (["--pattern", "9x6", "--square", "-1"], "positive"),
@@ -212,6 +223,7 @@ def test_cli_intrinsics_bad_input(tmp_path, capsys, args, match):
     assert not (tmp_path / "x.json").exists()
 
 
+@needs_photos
 @pytest.mark.parametrize("args, match", [  # each of these was a cv2.error or MemoryError traceback, exit 1
     (["--pattern", "9x6", "--square", "inf"], "finite positive"),
     (["--pattern", "9x6", "--square", "1e300"], "finite positive length from"),  # exit 1: an OpenCV assertion
@@ -238,6 +250,7 @@ def test_cli_intrinsics_images_too_small_for_the_board(tmp_path, capsys):
     assert code == 2 and out == "" and "10 x 7 squares cannot be seen in 1 x 1 px" in err
 
 
+@needs_photos
 def test_cli_charuco_wrong_dictionary_names_the_dictionary(tmp_path, capsys):
     code, _, err = run_cli("calibrate", "intrinsics", *sorted(CHARUCO.glob("img_0*.jpg")), "--pattern", "5x7",
                            "--square", "0.04", "--marker", "0.02", "--charuco", "--dictionary", "DICT_4X4_50",
@@ -253,6 +266,7 @@ def test_cli_intrinsics_unreadable_image(tmp_path, capsys):
     assert code == 2 and "bad.jpg is not a readable image" in err
 
 
+@needs_photos
 def test_the_sector_detector_is_taken_only_where_it_finds_more_boards(chess_ref):
     # blurred views that only SB finds; SB misses left04 and left05, which the classic detector finds:
     # one such view must not cost those two, four of them win

@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import EXTERNAL, run_cli
+from conftest import EXTERNAL, needs_photos, run_cli
 
 from calibration import default_calibration_path, load_calibration
 from calibration.plane import fit_plane_mapping
@@ -24,6 +24,7 @@ def _markers(tmp_path, shift_marker1=True, extra=None):
     return p, ref
 
 
+@needs_photos
 @pytest.mark.parametrize("image", ["aruco_img.png", "aruco_img2.png"])
 @pytest.mark.parametrize("with_intrinsics", [True, False])
 def test_festo_frames_fit_to_about_a_millimetre(tmp_path, capsys, image, with_intrinsics):
@@ -89,6 +90,7 @@ def test_marker_corners_are_found_to_sub_pixel_accuracy():
     assert np.sqrt(np.mean(np.concatenate(errors) ** 2)) < 0.5  # OpenCV's unrefined corners: ~0.9 px
 
 
+@needs_photos
 def test_published_corner_order_without_the_fix_is_refused(tmp_path, capsys):
     # 31-38 px, 21 mm on the table: an error in the marker list, not a poor camera; nothing is written
     markers, _ = _markers(tmp_path, shift_marker1=False)
@@ -99,6 +101,7 @@ def test_published_corner_order_without_the_fix_is_refused(tmp_path, capsys):
     assert "Traceback" not in err
 
 
+@needs_photos
 @pytest.mark.parametrize("with_intrinsics", [True, False])
 def test_a_marker_listed_in_another_corner_order_is_named(tmp_path, capsys, with_intrinsics):
     markers, ref = _markers(tmp_path, shift_marker1=False)  # the published list, marker 1 one corner off
@@ -125,6 +128,7 @@ def test_a_marker_listed_in_another_corner_order_is_named(tmp_path, capsys, with
         assert max(res["per_marker_residual_mm"].values()) < 1.0
 
 
+@needs_photos
 def test_a_marker_seen_twice_is_left_out(tmp_path, capsys):
     import cv2
 
@@ -145,6 +149,7 @@ def test_a_marker_seen_twice_is_left_out(tmp_path, capsys):
     assert res["markers_missing"] == [] and "seen more than once" in err and res["residual_mm"] < 1.0
 
 
+@needs_photos
 def test_markers_missing_from_the_image_are_skipped_and_reported(tmp_path, capsys):
     extra = {"7": [[0, 0, 0], [40, 0, 0], [40, 40, 0], [0, 40, 0]]}
     markers, _ = _markers(tmp_path, extra=extra)
@@ -155,6 +160,7 @@ def test_markers_missing_from_the_image_are_skipped_and_reported(tmp_path, capsy
     assert "7" in err
 
 
+@needs_photos
 def test_fewer_than_three_markers_is_bad_input(tmp_path, capsys):
     ref = json.loads((FESTO / "published_reference.json").read_text())
     m = {k: ref["marker_corners_robot_frame_mm"][k] for k in ("0", "2")}
@@ -166,6 +172,7 @@ def test_fewer_than_three_markers_is_bad_input(tmp_path, capsys):
     assert not (tmp_path / "p.json").exists()
 
 
+@needs_photos
 def test_markers_in_a_mirrored_frame_give_no_calibration(tmp_path, capsys):
     """Base coordinates given y down (a board's own frame) fit a camera under the table looking up: it
     was written and mapped pixels; now it is refused and nothing is written."""
@@ -203,6 +210,7 @@ def test_markers_in_a_mirrored_frame_give_no_calibration(tmp_path, capsys):
     ({"dictionary": "DICT_4X4_50", "markers": {"0": [[1e300, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]}},
      "within 1e+06 mm of the base"),
 ])
+@needs_photos
 def test_bad_markers_files(tmp_path, capsys, content, match):
     p = tmp_path / "m.json"
     p.write_text(content if isinstance(content, str) else json.dumps(content))
@@ -211,6 +219,7 @@ def test_bad_markers_files(tmp_path, capsys, content, match):
     assert code == 2 and match in err
 
 
+@needs_photos
 def test_out_that_cannot_be_written_is_bad_input(tmp_path, capsys):
     markers, _ = _markers(tmp_path)
     blocker = tmp_path / "file"
@@ -247,6 +256,7 @@ def test_touched_points_recover_the_default_camera(tmp_path, capsys):
     assert code == 0 and json.loads(stdout)["residual_mm"] < 0.1
 
 
+@needs_photos
 def test_touched_points_with_true_for_a_number_are_bad_input(tmp_path, capsys):
     pts = tmp_path / "points.json"
     good = [{"px": [100.0 * i, 50.0 * i * i], "mm": [10.0 * i, 7.0 * i * i, 0.0]} for i in range(1, 6)]
@@ -257,6 +267,7 @@ def test_touched_points_with_true_for_a_number_are_bad_input(tmp_path, capsys):
     assert not (tmp_path / "c.json").exists()
 
 
+@needs_photos
 @pytest.mark.parametrize("px, mm", [
     (lambda i: [100 * i, 100 * i], lambda i: [10 * i, 10 * i, 0]),       # all on one line: was exit 0, 6.6 mm
     (lambda i: [100, 100], lambda i: [10 * i, 5 * i * i, 0]),            # one pixel
@@ -342,6 +353,7 @@ def test_map_cli_missing_calibration(tmp_path, capsys):
     assert code == 2 and "does not exist" in err
 
 
+@needs_photos
 def test_no_holdout_with_three_markers(tmp_path, capsys):
     markers, ref = _markers(tmp_path)
     m = json.loads(markers.read_text())

@@ -6,7 +6,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from conftest import EXTERNAL, run_cli
+from conftest import EXTERNAL, needs_photos, run_cli
 from test_fileio_atomic import fifo  # noqa: F401 - the fixture
 
 from calibration import Calibration, default_calibration_path, save_calibration
@@ -188,6 +188,7 @@ def test_bench_vision_prints_figures(capsys):
     assert code == 2 and "unknown condition" in err
 
 
+@needs_photos
 def test_bench_vision_times_real_photos_given(tmp_path, capsys):
     photo = EXTERNAL / "simplecv-coins" / "wshed.jpg"
     args = ["bench", "vision", "--frames", "1", "--parts", "1", "--repeats", "1", "--conditions", "plain (no effects)"]
@@ -213,6 +214,7 @@ def test_truncated_image_gives_one_clear_line_without_decoder_noise(tmp_path, fr
                                              "(corrupt, truncated or not an image format)"]
 
 
+@needs_photos
 def test_high_bit_depth_frames_are_read_at_their_depth(tmp_path, capsys):
     """A 10 - 14 bit camera's frame in a 16-bit PNG: OpenCV's default decode kept the top 8 bits (a
     12-bit frame came out with values 0 - 15) and pills.png segmented into 4 regions instead of 2."""
@@ -235,6 +237,7 @@ def test_high_bit_depth_frames_are_read_at_their_depth(tmp_path, capsys):
     assert len(outs[1]) == 2 and outs[1] == outs[0]
 
 
+@needs_photos
 @pytest.mark.parametrize("photo, damage, message", [
     # cut in the middle of the image data: libpng printed "libpng error: PNG input buffer is incomplete" too
     ("p5binpicking-festo-table/aruco_img.png", lambda b: b[:700000], "is not a readable image"),
@@ -260,6 +263,7 @@ def test_damaged_photographs_give_one_clear_line(tmp_path, photo, damage, messag
         FileCamera([p]).read()  # the cell loop's frames go the same way
 
 
+@needs_photos
 def test_junk_between_jpeg_markers_is_read(tmp_path, capsys):
     # libjpeg says "Corrupt JPEG data: 3 extraneous bytes before marker 0xdb" and skips them: the pixels are
     # those of the clean file, so the frame is segmented, not refused as corrupt
@@ -272,6 +276,7 @@ def test_junk_between_jpeg_markers_is_read(tmp_path, capsys):
     assert code == 0 and len(json.loads(out)["parts"]) >= 5, err
 
 
+@needs_photos
 def test_segment_z_needs_a_calibration_and_out_never_overwrites_an_input(tmp_path, capsys):
     photo = tmp_path / "left01.jpg"
     photo.write_bytes((EXTERNAL / "opencv-chessboard/left01.jpg").read_bytes())

@@ -12,7 +12,7 @@ import json
 import cv2
 import numpy as np
 import pytest
-from conftest import EXTERNAL, run_cli
+from conftest import EXTERNAL, needs_photos, run_cli
 from shapely.geometry import Polygon
 
 from calibration import load_calibration
@@ -85,6 +85,7 @@ def unmatched(segs: list[Segment], others: list[Segment]) -> list[tuple[float, f
     return out
 
 
+@needs_photos
 @pytest.mark.parametrize("name", list(PHOTOS))
 def test_a_12_mp_photo_gives_the_parts_of_its_default_size_copy_without_specks(photo_pairs, name):
     small, big, ratio = photo_pairs[name]
@@ -108,6 +109,7 @@ def whole(segs, min_area_px: float) -> list[Segment]:
     return [s for s in segs if not s.cut_off and s.area_px >= min_area_px]
 
 
+@needs_photos
 def test_published_counts_hold_at_12_mp(photo_pairs):
     """The SOURCE.md figures at 4000 px: pca_test1's 6 parts (the PCA tutorial's figure), the 2
     blister packs of pills.png (about 190 x 230 px in the original), the 5 objects of stuff.jpg."""
@@ -210,6 +212,7 @@ def test_pixel_sized_defaults_follow_the_frame_and_given_values_win():
     assert cal_params.for_frame((3000, 4000)) == cal_params and cal_params.scale == 2
 
 
+@needs_photos
 def test_a_speck_area_given_wins_on_a_12_mp_photo(photo_pairs, tmp_path, capsys):
     _, big, ratio = photo_pairs["stuff"]
     path = written(tmp_path, "stuff_4000", big)

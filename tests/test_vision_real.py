@@ -4,9 +4,11 @@ import json
 
 import numpy as np
 import pytest
-from conftest import EXTERNAL, run_cli
+from conftest import EXTERNAL, needs_photos, run_cli
 
 from cell.vision import SegmentParams, read_image, segment_frame
+
+pytestmark = needs_photos
 
 OBJECTS = EXTERNAL / "opencv-objects"
 PILLS = EXTERNAL / "simplecv-coins"

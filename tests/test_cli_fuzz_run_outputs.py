@@ -38,3 +38,11 @@ def test_save_over_the_default_examples_is_refused(tmp_path, monkeypatch, capsys
     code, out, err = run_cli("run", "--save", default, capsys=capsys)
     assert code == 2 and "is one of the run's input files" in err, err
     assert default.read_bytes() == before
+
+
+def test_save_to_a_name_that_is_not_rrd_is_refused_before_the_run(tmp_path, capsys):
+    """--save x.txt ran the whole disassembly and wrote a rerun recording under that name."""
+    target = tmp_path / "view.txt"
+    code, out, err = run_cli("run", "--save", target, capsys=capsys)
+    assert code == 2 and "a rerun recording is a .rrd file; name it view.rrd" in err, err
+    assert not target.exists() and "parts" not in out

@@ -370,6 +370,8 @@ def _check_rrd_path(path: Path, inputs) -> None:
             raise BadInput(f"--save {path} is one of the run's input files: it would be overwritten; name another")
     if path.is_dir():
         raise BadInput(f"--save {path} is a directory, not a .rrd file")
+    if path.suffix.lower() != ".rrd":  # rerun writes whatever name it is given; the viewer opens .rrd files
+        raise BadInput(f"--save {path}: a rerun recording is a .rrd file; name it {path.with_suffix('.rrd').name}")
     if path.parent.exists() and not path.parent.is_dir():
         raise BadInput(f"--save {path}: {path.parent} is a file, not a folder")
     try:

@@ -227,6 +227,32 @@ def test_when_the_cell_stops_answering_the_page_says_so_and_offers_no_commands(b
         assert not d.find_element(By.ID, b).is_enabled(), b
 
 
+def test_when_the_cell_cannot_report_its_state_the_page_says_so_and_comes_back(browser, station, monkeypatch):
+    """A 500 from /api/state left the page showing the last state (a waiting grasp, Approve live) with
+    no sign that anything was wrong."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, cell, _ = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.05)
+    d.get(server.url)
+    d.find_element(By.ID, "btn-run").click()
+    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "awaiting approval")
+
+    def broken():
+        raise RuntimeError("camera buffer gone")
+
+    monkeypatch.setattr(cell, "snapshot", broken)
+    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "offline")
+    message = d.find_element(By.ID, "message").text
+    assert "cannot report its state (HTTP 500" in message and "camera buffer gone" in message, message
+    assert not d.find_element(By.ID, "btn-approve").is_enabled()
+    monkeypatch.undo()
+    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "awaiting approval")
+    assert d.find_element(By.ID, "btn-approve").is_enabled()
+
+
 @pytest.mark.parametrize("size", [(1366, 768), (1920, 1080)])
 def test_the_whole_frame_and_the_approve_button_fit_the_window(browser, station, size):
     """A station PC's common screen sizes: the frame (with the grasp drawn on it) is seen whole

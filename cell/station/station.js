@@ -84,10 +84,17 @@ async function poll() {
   try {
     const before = commands;
     const r = await fetch("/api/state", {cache: "no-store"});
-    const data = r.ok ? await r.json() : null;
-    // asked before a command was answered: older than what the command's answer showed (it flipped
-    // the page back to e.g. "awaiting approval" with Approve live, for one poll)
-    if (data && !busy && before === commands) render(data);
+    if (!r.ok) {  // the cell is there but cannot say its state: the last one shown would be a lie
+      let why = "HTTP " + r.status;
+      try { why += ": " + (await r.json()).error; } catch (_) { /* not JSON: the status says enough */ }
+      answered = false;
+      offline("the cell cannot report its state (" + why + "); commands are off until it can");
+    } else {
+      const data = await r.json();
+      // asked before a command was answered: older than what the command's answer showed (it flipped
+      // the page back to e.g. "awaiting approval" with Approve live, for one poll)
+      if (data && !busy && before === commands) render(data);
+    }
   } catch (e) {
     answered = false;
     offline();
@@ -99,13 +106,13 @@ async function poll() {
 
 // The station is gone (the run ended, the cell was shut down): say so, and offer no command
 // until it answers again (the last state received would be a lie: a green "running").
-function offline() {
+function offline(why) {
   const badge = $("state");
   badge.textContent = "offline";
   badge.className = "badge state-offline";
   document.title = "offline · Cell station";
   const ended = last && last.control && ["done", "stopped"].includes(last.control.state);
-  $("message").textContent = ended
+  $("message").textContent = why ? why : ended
     ? "the run is " + last.control.state + " and the cell closed the station (the summary is in the cell's terminal)"
     : "the cell does not answer (the run may have ended: see the cell's terminal)";
   for (const b of document.querySelectorAll(".panel button:not(#btn-token)")) b.disabled = true;

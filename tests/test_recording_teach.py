@@ -45,6 +45,28 @@ def _wait(url, pred, what):
     raise AssertionError(f"timed out waiting for {what}: {s['control']['state']}")
 
 
+def _run_with_station(assembly, record=None):
+    """`cell run --station --approve` on a thread: (the thread, the station's URL, [its summary or error])."""
+    lines, ended = [], []
+
+    def work():
+        try:
+            ended.append(run_session(RunConfig(assembly=assembly, record=record, seed=1, station=True,
+                                               require_approval=True, station_port=0, station_token=TOKEN,
+                                               progress=lines.append)))
+        except BaseException as e:  # noqa: BLE001 - the test asserts on it
+            ended.append(e)
+
+    t = threading.Thread(target=work, daemon=True)
+    t.start()
+    deadline = time.monotonic() + T
+    while not any("operator station:" in s for s in lines):
+        assert time.monotonic() < deadline and t.is_alive(), (lines, ended)
+        time.sleep(0.05)
+    url = re.search(r"(http://127\.0\.0\.1:\d+)", next(s for s in lines if "operator station:" in s)).group(1)
+    return t, url, ended
+
+
 def test_a_grasp_taught_mid_run_is_recorded_and_replays(tmp_path, capsys):
     d = json.loads(DEFAULT.read_text())
     d["parts"] = [p for p in d["parts"] if p["id"] in ("nut", "washer")]
@@ -53,20 +75,7 @@ def test_a_grasp_taught_mid_run_is_recorded_and_replays(tmp_path, capsys):
     assembly = tmp_path / "two.json"
     assembly.write_text(json.dumps(d))
     rec = tmp_path / "session"
-    lines, result = [], {}
-
-    def work():
-        cfg = RunConfig(assembly=assembly, record=rec, seed=1, station=True, require_approval=True,
-                        station_port=0, station_token=TOKEN, progress=lines.append)
-        result["summary"] = run_session(cfg)
-
-    t = threading.Thread(target=work, daemon=True)
-    t.start()
-    deadline = time.monotonic() + T
-    while not any("operator station:" in s for s in lines):
-        assert time.monotonic() < deadline and t.is_alive(), lines
-        time.sleep(0.05)
-    url = re.search(r"(http://127\.0\.0\.1:\d+)", next(s for s in lines if "operator station:" in s)).group(1)
+    t, url, result = _run_with_station(assembly, rec)
     _post(url, TOKEN, "/api/run", {})
     s = _wait(url, lambda s: s["control"]["state"] == "awaiting_approval", "the first proposal")
     proposal = s["control"]["proposal"]
@@ -94,7 +103,7 @@ def test_a_grasp_taught_mid_run_is_recorded_and_replays(tmp_path, capsys):
             break
         time.sleep(0.05)
     t.join(T)
-    assert result["summary"]["status"] == "complete", result
+    assert result and result[0]["status"] == "complete", result
     assert "done" in states  # the station answered long enough after the run for the page to show it
     code, out, err = run_cli("replay", rec, capsys=capsys)
     assert code == 0 and "decisions match" in out, err
@@ -116,22 +125,7 @@ def test_the_station_answers_after_a_run_that_ends_stopped(tmp_path):
     d.pop("cell", None)
     assembly = tmp_path / "one.json"
     assembly.write_text(json.dumps(d))
-    lines, ended = [], []
-
-    def work():
-        try:
-            ended.append(run_session(RunConfig(assembly=assembly, seed=1, station=True, require_approval=True,
-                                               station_port=0, station_token=TOKEN, progress=lines.append)))
-        except BaseException as e:  # noqa: BLE001 - asserted below
-            ended.append(e)
-
-    t = threading.Thread(target=work, daemon=True)
-    t.start()
-    deadline = time.monotonic() + T
-    while not any("operator station:" in s for s in lines):
-        assert time.monotonic() < deadline and t.is_alive(), lines
-        time.sleep(0.05)
-    url = re.search(r"(http://127\.0\.0\.1:\d+)", next(s for s in lines if "operator station:" in s)).group(1)
+    t, url, ended = _run_with_station(assembly)
     _post(url, TOKEN, "/api/run", {})
     _wait(url, lambda s: s["control"]["state"] == "awaiting_approval", "the proposal")
     _post(url, TOKEN, "/api/stop", {"reason": "hand in the cell"})

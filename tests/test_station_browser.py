@@ -65,13 +65,19 @@ def click_frame_px(driver, u, v):
     """Click the overlay at image pixel (u, v): the page's own SVG transform gives the screen point."""
     from selenium.webdriver.common.action_chains import ActionChains
 
-    svg = driver.find_element("id", "overlay")
-    dx, dy = driver.execute_script(
+    svg, dx, dy = frame_offset(driver, u, v)
+    ActionChains(driver).move_to_element_with_offset(svg, dx, dy).click().perform()
+
+
+def frame_offset(d, u, v):
+    """Offset from the overlay's centre of image pixel (u, v), for ActionChains."""
+    svg = d.find_element("id", "overlay")
+    dx, dy = d.execute_script(
         """const svg = arguments[0], p = svg.createSVGPoint();
            p.x = arguments[1]; p.y = arguments[2];
            const q = p.matrixTransform(svg.getScreenCTM()), r = svg.getBoundingClientRect();
            return [q.x - (r.left + r.width / 2), q.y - (r.top + r.height / 2)];""", svg, u, v)
-    ActionChains(driver).move_to_element_with_offset(svg, round(dx), round(dy)).click().perform()
+    return svg, round(dx), round(dy)
 
 
 def test_operator_runs_approves_teaches_and_rejects_in_a_real_browser(browser, station):
@@ -207,18 +213,26 @@ def test_the_reason_of_a_fault_and_of_a_stop_is_on_the_page(browser, station):
     assert d.find_element(By.ID, "state").text.lower() == "stopped"
 
 
-def test_when_the_cell_stops_answering_the_page_says_so_and_offers_no_commands(browser, station):
-    """The run ended (`cell run --station` closes the station with it) or the cell is gone: the page
-    must not go on showing a green RUNNING with live buttons."""
+def run_to_the_first_proposal(d, server):
+    """Open the page, press Run and wait for the grasp awaiting approval; the page's WebDriverWait."""
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support.ui import WebDriverWait
 
-    server, control, cell, _ = station
-    d = browser
     wait = WebDriverWait(d, T, poll_frequency=0.05)
     d.get(server.url)
     d.find_element(By.ID, "btn-run").click()
     wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "awaiting approval")
+    return wait
+
+
+def test_when_the_cell_stops_answering_the_page_says_so_and_offers_no_commands(browser, station):
+    """The run ended (`cell run --station` closes the station with it) or the cell is gone: the page
+    must not go on showing a green RUNNING with live buttons."""
+    from selenium.webdriver.common.by import By
+
+    server, control, cell, _ = station
+    d = browser
+    wait = run_to_the_first_proposal(d, server)
     server.close()
     wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "offline")
     assert "does not answer" in d.find_element(By.ID, "message").text
@@ -231,14 +245,10 @@ def test_when_the_cell_cannot_report_its_state_the_page_says_so_and_comes_back(b
     """A 500 from /api/state left the page showing the last state (a waiting grasp, Approve live) with
     no sign that anything was wrong."""
     from selenium.webdriver.common.by import By
-    from selenium.webdriver.support.ui import WebDriverWait
 
     server, control, cell, _ = station
     d = browser
-    wait = WebDriverWait(d, T, poll_frequency=0.05)
-    d.get(server.url)
-    d.find_element(By.ID, "btn-run").click()
-    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "awaiting approval")
+    wait = run_to_the_first_proposal(d, server)
 
     def broken():
         raise RuntimeError("camera buffer gone")
@@ -394,16 +404,6 @@ def test_space_on_the_focused_approve_each_checkbox_toggles_it_and_does_not_step
     WebDriverWait(d, T).until(lambda _: not control.require_approval)
     assert posts(d) == ["approval"]
 
-
-def frame_offset(d, u, v):
-    """Offset from the overlay's centre of image pixel (u, v), for ActionChains."""
-    svg = d.find_element("id", "overlay")
-    dx, dy = d.execute_script(
-        """const svg = arguments[0], p = svg.createSVGPoint();
-           p.x = arguments[1]; p.y = arguments[2];
-           const q = p.matrixTransform(svg.getScreenCTM()), r = svg.getBoundingClientRect();
-           return [q.x - (r.left + r.width / 2), q.y - (r.top + r.height / 2)];""", svg, u, v)
-    return svg, round(dx), round(dy)
 
 
 def test_a_slow_tap_on_a_part_while_teaching_selects_it(browser, station):

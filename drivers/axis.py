@@ -4,8 +4,8 @@ profile-position handshake, over PDOs, with every frame packed by `drivers.codec
 Received frames (TPDO1, EMCY, heartbeat) arrive in the bus pump's thread and only update
 this object's view (under a condition variable); every frame is sent from the caller's
 thread. Waiting for an answer that needs no time to pass (an acknowledge, a state change)
-uses a wall-clock timeout; waiting for motion is the arm's business (it sleeps on the
-shared clock).
+uses a wall-clock timeout; what waits for the axis to stand (enabling after a ramp or a
+coast) and waiting for motion sleep on the shared clock.
 """
 
 from __future__ import annotations
@@ -264,12 +264,7 @@ class Axis:
                 if st is not None and (after_seq is None or self.status_seq > after_seq) and pred(st):
                     return st
                 if st is not None and st.state in ("FAULT", "FAULT_REACTION_ACTIVE") and "FAULT" not in what:
-                    raise DriveFault(
-                        f"{self.name} (node {self.node_id}): {self.fault_text()} while waiting for {what}",
-                        node=self.name,
-                        node_id=self.node_id,
-                        emcy_code=self.last_emcy.code if self.last_emcy else None,
-                    )
+                    raise self._faulted_while(what)
                 left = deadline - time.monotonic()
                 if left <= 0:
                     got = st.state if st is not None else "no status"
@@ -280,6 +275,14 @@ class Axis:
                         node_id=self.node_id,
                     )
                 self._cond.wait(left)
+
+    def _faulted_while(self, what: str) -> DriveFault:
+        return DriveFault(
+            f"{self.name} (node {self.node_id}): {self.fault_text()} while waiting for {what}",
+            node=self.name,
+            node_id=self.node_id,
+            emcy_code=self.last_emcy.code if self.last_emcy else None,
+        )
 
     def wait_heartbeat(self, clock: Clock, timeout_s: float, step_s: float, start_s: float | None = None) -> None:
         """Wait for a heartbeat (or boot-up) on the shared clock: the boot-up deadline,
@@ -356,7 +359,10 @@ class Axis:
                 # the drive may have drifted while switched on, or ramped down: target = actual, once more
                 self.send_target(self.status.position_counts)
             seq = self.send_controlword(cw)
-            self.wait_status(lambda s, n=nxt: s.state == n, seq, nxt)
+            if cw == codec.CW_ENABLE_OPERATION:
+                self._wait_enabled(seq, quick_stop_timeout_s, step_s)
+            else:
+                self.wait_status(lambda s, n=nxt: s.state == n, seq, nxt)
         raise DriveFault(
             f"{self.name} (node {self.node_id}): did not reach OPERATION_ENABLED (at {self.state})",
             node=self.name,
@@ -383,6 +389,37 @@ class Axis:
                     node_id=self.node_id,
                 )
             self.clock.sleep(step_s)
+
+    def _wait_enabled(self, after_seq: int, timeout_s: float, step_s: float) -> None:
+        """Wait on the clock, not wall time, for OPERATION ENABLED after enable operation: a drive whose
+        axis still coasts or ramps down holds the command until the axis stands (CiA 402), which takes
+        time, simulated or not. A drive that does not answer at all gives up after `timeout_s` too."""
+        deadline = self.clock.now() + timeout_s
+        self.clock.sleep(0)  # a SimClock settles: the answers already sent are handled
+        waited = False
+        while True:
+            with self._cond:
+                st, fresh = self.status, self.status_seq > after_seq
+            if fresh and st.state == "OPERATION_ENABLED":
+                if waited:  # the axis may have run on past the target set before: set it where it stands
+                    self.send_target(st.position_counts)
+                    self.clock.sleep(0)
+                return
+            if st.state in ("FAULT", "FAULT_REACTION_ACTIVE"):
+                raise self._faulted_while("OPERATION_ENABLED")
+            if self.clock.now() >= deadline:
+                raise NodeSilent(
+                    f"{self.name} (node {self.node_id}): not OPERATION_ENABLED {timeout_s:g} s after enable "
+                    f"operation, last status: {st.state}",
+                    node=self.name,
+                    node_id=self.node_id,
+                )
+            waited = True
+            if self.clock.simulated:
+                self.clock.sleep(step_s)
+            else:
+                with self._cond:  # wall time: wake at the next status rather than a poll later
+                    self._cond.wait(step_s)
 
     def quick_stop(self, confirm_timeout_s: float = 0.2) -> None:
         """Quick stop (402 transition 11) and wait briefly for the drive to confirm it."""

@@ -172,3 +172,31 @@ def test_axis_enable_gives_up_on_a_quick_stop_that_never_ends(sim_drives, open_t
         _stopped_mid_ramp(arm, sim_drives)
         with pytest.raises(DriveFault, match=r"j1 \(node 1\): still in QUICK STOP ACTIVE 0.05 s on .*bit 10 clear"):
             arm.axes["j1"].enable(quick_stop_timeout_s=0.05)
+
+
+def test_axis_enable_while_the_axis_coasts_waits_on_the_clock_for_standstill(sim_drives, open_test_bus, sim_clock,
+                                                                                cell_cfg):
+    """STO mid-move (SWITCH ON DISABLED, the axis coasts), then Axis.enable(): the drive holds enable operation
+    until the axis stands, and the host waits for that on the clock. It used to wait 1 s of wall time, in
+    which simulated time does not move, and raise NodeSilent."""
+    with Arm(open_test_bus(), cell_cfg, clock=sim_clock) as arm, _tap(open_test_bus, sim_clock) as heard:
+        start = arm.joints()
+        arm.move_joints(Joints(start.j1_deg - 100.0, start.j2_deg, start.j3_mm, start.j4_deg), wait=False)
+        arm.clock.sleep(0.4)  # cruising at 180 deg/s: coasting (0.5 x 720 deg/s^2) takes 0.5 s
+        sim_drives.inject_fault("disable", "j1")
+        arm.clock.sleep(0.02)
+        j1 = sim_drives.drives["j1"]
+        assert j1.state == "SWITCH_ON_DISABLED" and j1.motion is not None and j1.motion.coasting
+        coast_left_s = j1.motion.t0_s + j1.motion.profile.duration_s - sim_clock.now()
+        assert coast_left_s > 0.3
+        t0 = sim_clock.now()
+        arm.axes["j1"].enable()
+        assert j1.state == "OPERATION_ENABLED" and j1.motion is None
+        assert sim_clock.now() - t0 >= coast_left_s
+        assert j1._get(0x607A) == round(j1.position_counts)  # enabling never jumps
+        # it reported SWITCHED ON, holding the command, while the axis ran out
+        assert "SWITCHED_ON" in {codec.unpack_tpdo1(m.data).state for t, m in heard if m.arbitration_id == 0x181
+                                 and t >= t0}
+        before = j1.position()
+        sim_clock.sleep(0.2)
+        assert j1.position() == before

@@ -19,7 +19,7 @@ from drivers.clock import RealClock, SimClock
 class ContractSuite:
     """Behaviour every backend of the drives must show. Subclasses choose the clock."""
 
-    timing_slack_s = 0.05  # polling and tick granularity on the shared clock
+    timing_slack_s: float | None = 0.05  # polling and tick granularity on the shared clock
 
     def test_enable_brings_every_node_to_operation_enabled(self, arm):
         st = arm.state()
@@ -35,9 +35,20 @@ class ContractSuite:
         if sim_drives is not None:  # the simulated drives start at the home pose
             assert before.as_dict() == pytest.approx(arm.cell.motion.home_joints)
 
-    def test_move_reaches_target_and_returns_what_was_sent(self, arm, sim_drives):
+    def test_move_reaches_target_and_returns_what_was_sent(self, arm, sim_drives, monkeypatch):
         start = arm.joints()
         target = Joints(start.j1_deg + 5.0, start.j2_deg - 4.0, start.j3_mm - 20.0, start.j4_deg + 12.3456)
+        ran = {}  # the profile each simulated drive started, by axis
+        if sim_drives is not None:
+            from drivers.simdrive import SimDrive
+
+            real_start = SimDrive._start_move
+
+            def start_move(drive, *a):
+                real_start(drive, *a)
+                ran[drive.name] = drive.motion.profile.duration_s
+
+            monkeypatch.setattr(SimDrive, "_start_move", start_move)
         t0 = arm.clock.now()
         sent = arm.move_joints(target)
         elapsed = arm.clock.now() - t0
@@ -46,10 +57,15 @@ class ContractSuite:
         assert arm.joints().as_array() == pytest.approx(sent.as_array(), abs=2e-3)
         if sim_drives is not None:
             assert sim_drives.positions()["j3"] == pytest.approx(target.j3_mm, abs=1e-3)
-        # the move took the coordinated profile time (plus at most a few polling periods)
+        # the move took the coordinated profile time: every axis ran it, and the host waited for its end (and,
+        # on a clock that starved threads cannot hold up, no more than a few polling periods longer)
         expected = arm.move_time_s(start, target)
         assert expected > 0.1
-        assert expected - 0.01 <= elapsed <= expected + self.timing_slack_s
+        if sim_drives is not None:
+            assert ran == pytest.approx(dict.fromkeys(("j1", "j2", "j3", "j4"), expected), abs=0.01)
+        assert expected - 0.01 <= elapsed
+        if self.timing_slack_s is not None:
+            assert elapsed <= expected + self.timing_slack_s
 
     def test_limits_refused_before_any_frame(self, arm, open_test_bus):
         spy = open_test_bus()  # a third participant hears everything sent on the bus
@@ -116,7 +132,9 @@ class TestSimulatedTime(ContractSuite):
 class TestRealTime(ContractSuite):
     """The same suite with the drives' motion in a background thread on wall time."""
 
-    timing_slack_s = 0.5  # wall time on a loaded machine
+    # no bound on the wall time past the profile: a loaded machine holds up the drives' ticks, both receive
+    # threads and the host's polls (0.76 s over, pinned to one busy core); the drives' profiles are checked
+    timing_slack_s = None
 
     @pytest.fixture
     def cell_cfg(self, cell_cfg):

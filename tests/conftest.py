@@ -3,12 +3,18 @@ import time
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
 
 ROOT = Path(__file__).resolve().parent.parent
 SHARED = ROOT.parent / "shared"
 EXTERNAL = SHARED / "external"
 # tests on the shared photographs (../shared/external next to the checkout) skip, saying so, without them
 needs_photos = pytest.mark.skipif(not EXTERNAL.is_dir(), reason=f"{EXTERNAL} (the shared photographs) is not there")
+
+# no per-example wall-time deadline (hypothesis's 200 ms): speed is the benchmarks' business, and a
+# loaded CI core must not fail a property that holds
+settings.register_profile("cell", deadline=None)
+settings.load_profile("cell")
 
 
 @pytest.fixture

@@ -22,7 +22,9 @@ from cell.errors import BadInput
 from cell.fileio import has_non_number
 from cell.scene import MAX_COORD_MM
 
-PLANE_TOLERANCE_MM = 1.0  # the points' z may differ this much and still count as one plane
+PLANE_TOLERANCE_MM = 5.0  # the points' z may differ this much and still count as one (horizontal) plane:
+# coordinates touched up with a robot differ by a few mm; the mapping uses their mean z
+FLAT_Z_MM = 1.0  # ... and up to this much without a warning (and with the planar pose solver)
 MIN_POINTS = 4
 COLLINEAR_RATIO = 1e-3  # the points' second spread direction against the first: below this, a line
 WARN_REPROJECTION_PX = 3.0  # the Festo frames fit to 0.9 - 1.1 px; one marker's corners listed one off: 37 px
@@ -156,7 +158,7 @@ def fit_plane_mapping(uv_px, xyz_mm, size: tuple[int, int], camera_matrix: np.nd
     uv_px : array-like of shape (n, 2)
         Pixels, CONTRACT frame.
     xyz_mm : array-like of shape (n, 3)
-        The same points in the base frame, mm; all at one height (within 1 mm).
+        The same points in the base frame, mm; all at one height (within PLANE_TOLERANCE_MM; the mean is the plane).
     size : (width_px, height_px)
     camera_matrix, dist : optional
         Intrinsics; without them the result is a homography for the points' plane.
@@ -175,7 +177,8 @@ def fit_plane_mapping(uv_px, xyz_mm, size: tuple[int, int], camera_matrix: np.nd
                        "better 12 (three markers) spread over the work area")
     z = xyz[:, 2]
     if np.ptp(z) > PLANE_TOLERANCE_MM:
-        raise BadInput(f"the points are not on one horizontal plane (z from {z.min():.2f} to {z.max():.2f} mm)")
+        raise BadInput(f"the points are not on one horizontal plane (z from {z.min():.2f} to {z.max():.2f} mm, "
+                       f"more than {PLANE_TOLERANCE_MM:g} mm apart)")
     for pts, what in ((uv, "pixels"), (xyz[:, :2], "base points")):
         sv = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False)
         if not sv[0] > 1e-9 or sv[1] < COLLINEAR_RATIO * sv[0]:
@@ -189,7 +192,9 @@ def fit_plane_mapping(uv_px, xyz_mm, size: tuple[int, int], camera_matrix: np.nd
         d = np.zeros(5) if dist is None else np.asarray(dist, float).ravel()
         obj = xyz.astype(np.float64)
         img = (uv - HALF_PX).astype(np.float64)
-        ok, rvec, tvec = cv2.solvePnP(obj, img, k, d, flags=cv2.SOLVEPNP_IPPE)
+        # IPPE takes coplanar points only; SQPnP any (points a few mm off one plane)
+        solver = cv2.SOLVEPNP_IPPE if np.ptp(z) <= FLAT_Z_MM else cv2.SOLVEPNP_SQPNP
+        ok, rvec, tvec = cv2.solvePnP(obj, img, k, d, flags=solver)
         if not ok:
             raise BadInput("the camera pose could not be solved from these points")
         rvec, tvec = cv2.solvePnPRefineLM(obj, img, k, d, rvec, tvec)
@@ -213,7 +218,7 @@ def fit_plane_mapping(uv_px, xyz_mm, size: tuple[int, int], camera_matrix: np.nd
         raise BadInput(f"the {len(uv)} points fit no view of one plane: the best {method} puts some of them "
                        "beyond the plane's horizon; a pixel or a base coordinate is wrong (check each pair)") from None
     err_px = np.linalg.norm(proj - uv, axis=1)
-    report = {"method": method, "points": len(uv), "plane_z_mm": plane_z,
+    report = {"method": method, "points": len(uv), "plane_z_mm": plane_z, "z_spread_mm": float(np.ptp(z)),
               "residual_mm": float(np.sqrt(np.mean(err_mm ** 2))), "residual_max_mm": float(err_mm.max()),
               "reprojection_rms_px": float(np.sqrt(np.mean(err_px ** 2))),
               "mm_per_px": cal.mm_per_px()}

@@ -257,6 +257,38 @@ def test_touched_points_recover_the_default_camera(tmp_path, capsys):
 
 
 @needs_photos
+@pytest.mark.parametrize("with_intrinsics", [True, False])
+def test_points_a_few_mm_off_one_plane_fit_their_mean_plane_with_a_warning(tmp_path, capsys, with_intrinsics):
+    """Coordinates touched up with a robot differ in z by a few mm: they were refused as 'not on one
+    horizontal plane' beyond 1 mm (and the planar pose solver cannot take them). Up to 5 mm they fit
+    the mean plane, with the pose close to the truth and a warning; a tilted fixture is still refused."""
+    truth = load_calibration()
+    rng = np.random.default_rng(5)
+    xy = rng.uniform([210, -240], [490, 240], size=(16, 2))
+    z = 10.0 + rng.uniform(-1.5, 1.5, size=16)  # 3 mm of spread about z = 10
+    uv = truth.project(np.column_stack([xy, z]))
+    frame = tmp_path / "frame.png"
+    import cv2
+
+    cv2.imwrite(str(frame), np.zeros((1024, 1280, 3), np.uint8))
+    extra = ["--intrinsics", DEFAULT] if with_intrinsics else []
+    for name, zs, ok in (("spread", z, True), ("tilted", 10.0 + (xy[:, 1] + 240) * 0.02, False)):
+        pts = tmp_path / f"{name}.json"
+        pts.write_text(json.dumps({"points": [{"px": list(a), "mm": [b[0], b[1], c]}
+                                              for a, b, c in zip(uv.tolist(), xy.tolist(), zs.tolist())]}))
+        code, out, err = run_cli("calibrate", "plane", frame, "--points", pts, *extra,
+                                 "--out", tmp_path / f"{name}-cal.json", capsys=capsys)
+        if not ok:  # 9.6 mm from one side of the tray to the other
+            assert code == 2 and "not on one horizontal plane" in err and "more than 5 mm apart" in err, err
+            continue
+        res = json.loads(out)
+        assert code == 0 and abs(res["plane_z_mm"] - float(z.mean())) < 1e-9
+        assert f"z spans {np.ptp(z):.1f} mm" in err and any("mean plane" in w for w in res["warnings"])
+        assert res["residual_mm"] < 1.0  # 1.5 mm off the plane moves a point < 0.6 mm at the tray's edge
+        if with_intrinsics:
+            assert np.linalg.norm(np.subtract(res["camera_position_mm"], truth.camera_position_mm())) < 3.0
+
+
 def test_touched_points_with_true_for_a_number_are_bad_input(tmp_path, capsys):
     pts = tmp_path / "points.json"
     good = [{"px": [100.0 * i, 50.0 * i * i], "mm": [10.0 * i, 7.0 * i * i, 0.0]} for i in range(1, 6)]

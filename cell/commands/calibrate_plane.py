@@ -38,6 +38,7 @@ def run(args) -> int:
 
     from calibration import load_calibration, save_calibration
     from calibration.plane import (
+        FLAT_Z_MM,
         detect_markers,
         fit_plane_mapping,
         holdout_residuals,
@@ -93,6 +94,10 @@ def run(args) -> int:
                            "per_marker_residual_mm": per_marker, "warnings": warnings,
                            "holdout_residual_mm": held_out,
                            "holdout_residual_max_mm": max(held_out.values()) if held_out else None})
+    if cal.report["z_spread_mm"] > FLAT_Z_MM:
+        warnings.append(f"the {'markers' if args.markers else 'points'}' z spans {cal.report['z_spread_mm']:.1f} mm: "
+                        f"the mapping is for their mean plane, z = {cal.report['plane_z_mm']:.2f} mm")
+        cal.report["warnings"] = warnings
     cal.report["image"] = str(args.image)
     rms = cal.report.get("reprojection_rms_px")
     if rms is not None and rms > REFUSE_REPROJECTION_PX and not args.accept_poor_fit:

@@ -496,7 +496,7 @@ def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int, smo
     boxes = _work_boxes(coarse, bg_coarse, p, (h, w))
     for x0, y0, x1, y1 in boxes:
         mask[y0:y1, x0:x1] = _mask_in_box(sm[y0:y1, x0:x1], bg[y0:y1, x0:x1], p, scale, noise_c, noise_b,
-                                          (x0, y0), (h, w), sharp_sq)
+                                          sharp_sq, (x0, y0), (h, w))
     return mask, boxes
 
 
@@ -598,8 +598,8 @@ def _work_boxes(coarse, bg_coarse, p: SegmentParams, det_hw: tuple[int, int]) ->
     return [tuple(b) for b in boxes]
 
 
-def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: float, origin=(0, 0), det_hw=None,
-                 sharp_sq: np.float32 | None = None):
+def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: float, sharp_sq: np.float32,
+                 origin=(0, 0), det_hw=None):
     """Part mask (uint8 0/1) in one box (steps 2 and 3). `sharp_sq`: the squared gradient of r above
     which an edge is sharp (`part_mask`: the sharp edge's, raised above a textured tray's grain)."""
     r, chroma, chroma_dn, bright_dn = _colour_change(sm, bg)
@@ -623,20 +623,20 @@ def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: 
         from cell.vision.touching import fill_holes
 
         enclosed = fill_holes(strong.view(np.uint8)).view(bool) & ~strong
-        mask |= _material_shadowlike(r, strong, darker & ~enclosed, p, scale, origin, det_hw, sharp_sq)
+        mask |= _material_shadowlike(r, strong, darker & ~enclosed, p, scale, sharp_sq, origin, det_hw)
     k = np.ones((3, 3), np.uint8)
     return cv2.morphologyEx(mask, cv2.MORPH_OPEN, k)
 
 
-def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, origin=(0, 0), det_hw=None,
-                         sharp_sq: np.float32 | None = None) -> np.ndarray:
+def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, sharp_sq: np.float32, origin=(0, 0),
+                         det_hw=None) -> np.ndarray:
     """Shadow-like regions bounded by sharp edges are material (walls, grey parts), not shadow.
-    `sharp_sq`: the squared gradient bound (default: the sharp edge's, `_sharp_bound_sq`)."""
+    `sharp_sq`: the squared gradient of r above which an edge is sharp (`part_mask`)."""
     gx = cv2.Sobel(r, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
     gy = cv2.Sobel(r, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
     # |grad| / scale > sharp_edge (per full-resolution pixel), compared on the squared gradient
     # against the exact float32 bound: no square root and division over the box
-    sharp = gx * gx + gy * gy > (_sharp_bound_sq(p.sharp_edge, scale) if sharp_sq is None else sharp_sq)
+    sharp = gx * gx + gy * gy > sharp_sq
     # cut shadow-like regions at sharp edges, so a grey part and its own shadow come apart
     cand = (darker & ~sharp).view(np.uint8)  # (bool arrays viewed as 0/1 bytes for OpenCV: no copies)
     n, lab = cv2.connectedComponents(cand, connectivity=4)

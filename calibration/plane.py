@@ -176,7 +176,8 @@ def fit_plane_mapping(uv_px, xyz_mm, size: tuple[int, int], camera_matrix: np.nd
         raise BadInput(f"{len(uv)} points given; at least {MIN_POINTS} (one marker) are needed, "
                        "better 12 (three markers) spread over the work area")
     z = xyz[:, 2]
-    if np.ptp(z) > PLANE_TOLERANCE_MM:
+    z_spread = float(np.ptp(z))
+    if z_spread > PLANE_TOLERANCE_MM:
         raise BadInput(f"the points are not on one horizontal plane (z from {z.min():.2f} to {z.max():.2f} mm, "
                        f"more than {PLANE_TOLERANCE_MM:g} mm apart)")
     for pts, what in ((uv, "pixels"), (xyz[:, :2], "base points")):
@@ -193,7 +194,7 @@ def fit_plane_mapping(uv_px, xyz_mm, size: tuple[int, int], camera_matrix: np.nd
         obj = xyz.astype(np.float64)
         img = (uv - HALF_PX).astype(np.float64)
         # IPPE takes coplanar points only; SQPnP any (points a few mm off one plane)
-        solver = cv2.SOLVEPNP_IPPE if np.ptp(z) <= FLAT_Z_MM else cv2.SOLVEPNP_SQPNP
+        solver = cv2.SOLVEPNP_IPPE if z_spread <= FLAT_Z_MM else cv2.SOLVEPNP_SQPNP
         ok, rvec, tvec = cv2.solvePnP(obj, img, k, d, flags=solver)
         if not ok:
             raise BadInput("the camera pose could not be solved from these points")
@@ -218,7 +219,7 @@ def fit_plane_mapping(uv_px, xyz_mm, size: tuple[int, int], camera_matrix: np.nd
         raise BadInput(f"the {len(uv)} points fit no view of one plane: the best {method} puts some of them "
                        "beyond the plane's horizon; a pixel or a base coordinate is wrong (check each pair)") from None
     err_px = np.linalg.norm(proj - uv, axis=1)
-    report = {"method": method, "points": len(uv), "plane_z_mm": plane_z, "z_spread_mm": float(np.ptp(z)),
+    report = {"method": method, "points": len(uv), "plane_z_mm": plane_z, "z_spread_mm": z_spread,
               "residual_mm": float(np.sqrt(np.mean(err_mm ** 2))), "residual_max_mm": float(err_mm.max()),
               "reprojection_rms_px": float(np.sqrt(np.mean(err_px ** 2))),
               "mm_per_px": cal.mm_per_px()}

@@ -438,19 +438,25 @@ async function onFrameClick(ev) {
     // refused (a contact off the edge, too wide for the jaws: the toast says why): the same part,
     // click its contacts again, rather than Teach and the part all over
     teach = {stage: "p1", part: t.part, frame: t.frame};
-    if (last) render(last); else drawTeach();
+    redrawTeach();
   }
+}
+
+// The teaching state changed: the whole page where a state came in (the selected part is drawn
+// with the parts), else the teach marks alone
+function redrawTeach() {
+  if (last) render(last); else drawTeach();
 }
 
 function startTeach() {
   teach = teach ? null : {stage: "part"};
-  if (last) render(last); else drawTeach();
+  redrawTeach();
 }
 
 function cancelTeach() {
   if (!teach) return;
   teach = null;
-  if (last) render(last); else drawTeach();
+  redrawTeach();
 }
 
 // Reject with an empty reason asks for one first (the reason is what the invalid example teaches);

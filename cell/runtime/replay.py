@@ -114,22 +114,23 @@ class Comparison:
         record = json.loads(json.dumps(record))  # the recording holds JSON: compare like with like
         if record.get("type") == "summary":
             return  # timings only: another run's are others
+        expected = self.recorded[self.position] if self.position < len(self.recorded) else None
+        diff = None if expected is None else differences(expected, record)
         if record.get("type") == "commands":
-            self._set_gripper(record)
+            self._set_gripper(record, same_pick=expected is not None and expected.get("type") == "commands"
+                              and not diff)
             if self.strict:
                 self._replay_drive_fault()
-        if self.position >= len(self.recorded):
+        if expected is None:
             if self.cut_short:  # not a divergence: the rest of the session was never recorded
                 raise RecordingEnds()
             self._diverged(f"decision #{self.position} ({record.get('type')}): the recording has no more decisions")
             return
-        expected = self.recorded[self.position]
         self.position += 1
         if expected.get("type") == "stop" and expected.get("source") == "operator":
             from cell.runtime.loop import StopRun
 
             raise StopRun("the operator stopped the recorded session here")  # nobody presses Stop in a replay
-        diff = differences(expected, record)
         if diff:
             self._diverged(f"decision #{self.position - 1} ({expected.get('type')}"
                            f"{', ' + str(expected.get('part')) if expected.get('part') else ''}): {diff[0]}"
@@ -172,13 +173,12 @@ class Comparison:
                     self.drives.inject_fault("emcy", m.group(1), code=int(m.group(2), 16), after_s=0.0)
                 return
 
-    def _set_gripper(self, record: dict) -> None:
+    def _set_gripper(self, record: dict, same_pick: bool) -> None:
         """The recording is the world: the jaws stop where they stopped in the session. With other
-        examples a pick the recording holds too (the same commands) closes on the recorded width as
-        well; another pick closes on its planned opening."""
+        examples a pick the recording holds too (`same_pick`: the same commands) closes on the recorded
+        width as well; another pick closes on its planned opening."""
         width = None
-        expected = self.recorded[self.position] if self.position < len(self.recorded) else {}
-        if self.strict or (expected.get("type") == "commands" and not differences(expected, record)):
+        if self.strict or same_pick:
             for rec in self.recorded[self.position:]:
                 if rec.get("type") == "executed":
                     grips = [r for r in rec.get("records", []) if r.get("action") == "grip"]

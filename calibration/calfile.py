@@ -14,6 +14,10 @@
   "report": {...}                                                     // free-form, kept
 }
 ```
+A calibration on a tilted plane (calibration/tilted.py) is version 2 (a reader of version 1 would
+map on a horizontal plane): `"plane": {"point_mm": [x, y, z], "x_axis": [...], "y_axis": [...],
+"normal": [...]}`, `pose` without `plane_z_mm`, `homography` as `{"px_to_plane_mm": [[3 x 3]]}`
+(pixels to the plane's own 2D frame). Horizontal calibrations are written as version 1, as before.
 `cx`, `cy` are OpenCV's (pixel centres at integers); mapping functions take and give
 CONTRACT-frame pixels (see calibration/camera.py). Lengths in mm.
 """
@@ -26,12 +30,15 @@ from pathlib import Path
 import numpy as np
 
 from calibration.camera import Calibration
+from calibration.tilted import MAX_TILT_DEG, TiltedPlane
 from cell.cellconfig import CAMERA_PX
 from cell.errors import BadInput
 from cell.fileio import has_non_number, is_finite_number, read_json, short_repr, to_jsonable, write_json_atomic
 
 FORMAT = "disassembly-cell/calibration"
-VERSION = 1
+VERSION = 1  # a horizontal plane's (and intrinsics only): written as before
+PLANE_VERSION = 2  # a tilted plane's: a reader of version 1 only would map it on a horizontal plane
+UNIT_TOLERANCE = 1e-6  # the tilted plane's axes: unit, at right angles, normal = x_axis x y_axis
 MAX_HOMOGRAPHY_COND = 1e12  # a fitted px -> mm homography of a 1920 x 1080 frame: about 1e5
 MAX_PX = 1e6  # fx, fy and the principal point: a real lens's fx is hundreds to tens of thousands of px
 MAX_MM = 1e6  # camera position and plane height, as coordinates in scene files
@@ -63,8 +70,8 @@ def save_calibration(cal: Calibration, path: str | Path) -> None:
         raise BadInput(f"{why}: {path} not written")
 
     if cal.camera_matrix is not None and cal.cam2base is not None:  # what load_calibration would refuse
-        _check_sees_plane(cal.camera_matrix, np.asarray(cal.cam2base, float), float(cal.plane_z_mm),
-                          int(cal.width_px), int(cal.height_px), refuse)
+        _check_sees_plane(cal.camera_matrix, np.asarray(cal.cam2base, float), cal.plane_z_mm,
+                          int(cal.width_px), int(cal.height_px), refuse, cal.plane)
     if cal.camera_matrix is not None and not _is_lens_model(cal.camera_matrix, np.ravel(cal.dist),
                                                                int(cal.width_px), int(cal.height_px)):
         coefficients = np.round(np.ravel(cal.dist), 4).tolist()
@@ -85,11 +92,17 @@ def calibration_to_json(cal: Calibration) -> dict:
         d["intrinsics"] = {"fx": float(k[0, 0]), "fy": float(k[1, 1]), "cx": float(k[0, 2]),
                            "cy": float(k[1, 2]), "skew": float(k[0, 1]),
                            "dist": [float(x) for x in np.ravel(cal.dist)]}
+    if cal.plane is not None:
+        d["version"] = PLANE_VERSION
+        p = cal.plane
+        d["plane"] = {key: [float(v) for v in vec] for key, vec in
+                      (("point_mm", p.point_mm), ("x_axis", p.x_axis), ("y_axis", p.y_axis), ("normal", p.normal))}
+    height = {} if cal.plane is not None else {"plane_z_mm": float(cal.plane_z_mm)}
     if cal.cam2base is not None:
-        d["pose"] = {"cam2base": np.asarray(cal.cam2base, float).tolist(), "plane_z_mm": float(cal.plane_z_mm)}
+        d["pose"] = {"cam2base": np.asarray(cal.cam2base, float).tolist(), **height}
     if cal.homography is not None:
-        d["homography"] = {"px_to_mm": np.asarray(cal.homography, float).tolist(),
-                           "plane_z_mm": float(cal.plane_z_mm)}
+        key = "px_to_mm" if cal.plane is None else "px_to_plane_mm"
+        d["homography"] = {key: np.asarray(cal.homography, float).tolist(), **height}
     d["report"] = to_jsonable(cal.report, nonfinite="null")
     return d
 
@@ -107,8 +120,9 @@ def parse_calibration(raw, source: str = "<calibration>") -> Calibration:
     version = raw.get("version")
     if not isinstance(version, int) or isinstance(version, bool):
         fail(f"'version' must be an integer, got {version!r}")
-    if version > VERSION or version < 1:
-        fail(f"version {version} is not supported (this program reads version {VERSION})")
+    if version > PLANE_VERSION or version < 1:
+        fail(f"version {version} is not supported (this program reads version {VERSION}, and {PLANE_VERSION} for a "
+             "tilted plane)")
     img = raw.get("image")
     if not isinstance(img, dict):
         fail("'image' must be an object with width_px and height_px")
@@ -120,7 +134,8 @@ def parse_calibration(raw, source: str = "<calibration>") -> Calibration:
         fail(f"image {w} x {h} px: each side at least {CAMERA_PX[0]} px, at most {CAMERA_PX[1] / 1e6:g} MP in all")
 
     k = dist = cam2base = hom = None
-    plane_z = 0.0
+    plane = _tilted_plane(raw.get("plane"), version, fail)
+    plane_z = 0.0 if plane is None else None
     intr = raw.get("intrinsics")
     if intr is not None:
         if not isinstance(intr, dict):
@@ -160,29 +175,63 @@ def parse_calibration(raw, source: str = "<calibration>") -> Calibration:
             fail("pose.cam2base rotation part is not a rotation matrix")
         if not np.allclose(cam2base[3], [0, 0, 0, 1]):
             fail("pose.cam2base last row must be [0, 0, 0, 1]")
-        plane_z = _finite(pose.get("plane_z_mm", 0.0), "pose.plane_z_mm", fail)
-        if np.abs(cam2base[:3, 3]).max() > MAX_MM or abs(plane_z) > MAX_MM:
+        if plane is None:
+            plane_z = _finite(pose.get("plane_z_mm", 0.0), "pose.plane_z_mm", fail)
+        elif pose.get("plane_z_mm") is not None:
+            fail("pose.plane_z_mm: a calibration on a tilted 'plane' has no one height")
+        if np.abs(cam2base[:3, 3]).max() > MAX_MM or abs(plane_z or 0.0) > MAX_MM:
             fail(f"pose.cam2base's position and plane_z_mm must be within {MAX_MM:g} mm of the base")
-        _check_sees_plane(k, cam2base, plane_z, w, h, fail)
+        _check_sees_plane(k, cam2base, plane_z, w, h, fail, plane)
     homr = raw.get("homography")
     if homr is not None:
         if not isinstance(homr, dict):
             fail("'homography' must be an object or null")
-        hom = _matrix(homr.get("px_to_mm"), (3, 3), "homography.px_to_mm", fail)
+        key = "px_to_mm" if plane is None else "px_to_plane_mm"  # to the plane's own 2D frame
+        if plane is not None and ("px_to_mm" in homr or homr.get("plane_z_mm") is not None):
+            fail("homography: on a tilted 'plane' it is 'px_to_plane_mm', without px_to_mm or plane_z_mm")
+        hom = _matrix(homr.get(key), (3, 3), f"homography.{key}", fail)
         with np.errstate(over="ignore", invalid="ignore"):
             cond = np.linalg.cond(hom)  # scale-free: a homography times any factor is the same mapping
         if not np.isfinite(cond) or cond > MAX_HOMOGRAPHY_COND:
-            fail("homography.px_to_mm is singular (or too badly conditioned to invert)")
-        plane_z = _finite(homr.get("plane_z_mm", plane_z), "homography.plane_z_mm", fail)
-        if abs(plane_z) > MAX_MM:
-            fail(f"homography.plane_z_mm must be within {MAX_MM:g} mm of the base")
+            fail(f"homography.{key} is singular (or too badly conditioned to invert)")
+        if plane is None:
+            plane_z = _finite(homr.get("plane_z_mm", plane_z), "homography.plane_z_mm", fail)
+            if abs(plane_z) > MAX_MM:
+                fail(f"homography.plane_z_mm must be within {MAX_MM:g} mm of the base")
     if k is None and hom is None:
         fail("the file has neither 'intrinsics' nor 'homography'")
     report = raw.get("report", {})
     if not isinstance(report, dict):
         fail("'report' must be an object")
+    if plane is not None and cam2base is None and hom is None:
+        fail("'plane' needs a 'pose' or a 'homography' that maps onto it")
     return Calibration(w, h, k, dist if dist is not None else np.zeros(5), cam2base, hom, plane_z,
-                       str(raw.get("name", Path(source).stem)), report)
+                       str(raw.get("name", Path(source).stem)), report, plane)
+
+
+def _tilted_plane(raw, version: int, fail) -> TiltedPlane | None:
+    """The file's tilted plane (version 2), validated: a point, unit axes at right angles, the normal their
+    cross product and pointing up, not steeper than MAX_TILT_DEG."""
+    if raw is None:
+        return None
+    if version < PLANE_VERSION:
+        fail(f"'plane' (a tilted calibration plane) needs version {PLANE_VERSION}; version {version} files map on "
+             "a horizontal plane")
+    if not isinstance(raw, dict):
+        fail("'plane' must be an object {point_mm, x_axis, y_axis, normal} or null")
+    vec = {key: _matrix(raw.get(key), (3,), f"plane.{key}", fail) for key in ("point_mm", "x_axis", "y_axis",
+                                                                            "normal")}
+    if np.abs(vec["point_mm"]).max() > MAX_MM:
+        fail(f"plane.point_mm must be within {MAX_MM:g} mm of the base")
+    axes = np.array([vec["x_axis"], vec["y_axis"], vec["normal"]])
+    if not (np.allclose(axes @ axes.T, np.eye(3), atol=UNIT_TOLERANCE)
+            and np.allclose(np.cross(vec["x_axis"], vec["y_axis"]), vec["normal"], atol=UNIT_TOLERANCE)):
+        fail("plane.x_axis, y_axis and normal must be unit vectors at right angles, normal = x_axis x y_axis")
+    plane = TiltedPlane(vec["point_mm"], vec["x_axis"], vec["y_axis"])
+    if plane.tilt_deg > MAX_TILT_DEG:  # the normal pointing down is a tilt over 90 degrees
+        fail(f"plane.normal {np.round(vec['normal'], 4).tolist()} is tilted {plane.tilt_deg:.1f} deg from straight "
+             f"up; a calibration plane's normal points up, at most {MAX_TILT_DEG:g} deg from it")
+    return plane
 
 
 LENS_SPREAD_RANGE = (0.1, 10.0)  # undistorted image extent / pinhole extent that a lens can give
@@ -220,13 +269,20 @@ def _is_lens_model(k: np.ndarray, dist: np.ndarray, w: int, h: int, n: int = 9) 
     return bool(np.all((ratio > LENS_SPREAD_RANGE[0]) & (ratio < LENS_SPREAD_RANGE[1])))
 
 
-def _check_sees_plane(k: np.ndarray, cam2base: np.ndarray, plane_z_mm: float, w: int, h: int, fail) -> None:
-    """The camera must be above the plane the pose was made for and its image centre look down onto
-    it: a camera under the table, or one looking up at it (markers given in a mirrored, y-down frame
-    fit such a pose), sees no part from above. (A steeply tilted camera may see past the plane's
-    horizon at an edge; such pixels are refused when mapped.)"""
+def _check_sees_plane(k: np.ndarray, cam2base: np.ndarray, plane_z_mm: float | None, w: int, h: int, fail,
+                      plane: TiltedPlane | None = None) -> None:
+    """The camera must be above the plane the pose was made for (in front of a tilted `plane`) and its image
+    centre look down onto it: a camera under the table, or one looking up at it (markers given in a
+    mirrored, y-down frame fit such a pose), sees no part from above. (A steeply tilted camera may see past
+    the plane's horizon at an edge; such pixels are refused when mapped.)"""
     centre = np.array([(w / 2 - k[0, 2]) / k[0, 0], (h / 2 - k[1, 2]) / k[1, 1], 1.0])
     ray = cam2base[:3, :3] @ centre
+    if plane is not None:
+        if not (plane.off(cam2base[:3, 3])[0] > 0 and ray @ plane.normal < 0):
+            fail(f"pose: the camera at {np.round(cam2base[:3, 3], 1).tolist()} mm, looking along "
+                 f"{np.round(ray / np.linalg.norm(ray), 3).tolist()}, does not look onto the front (upper side) of "
+                 f"the plane {plane.describe()['equation']}")
+        return
     height_mm = cam2base[2, 3] - plane_z_mm
     if not (height_mm > 0 and ray[2] < 0):
         fail(f"pose: the camera at z = {cam2base[2, 3]:g} mm, looking along "
@@ -242,12 +298,13 @@ def _finite(v, where, fail) -> float:
 
 
 def _matrix(v, shape, where, fail) -> np.ndarray:
+    kind = f"a {shape[0]} x {shape[1]} list of" if len(shape) == 2 else f"a list of {shape[0]}"
     if has_non_number(v):
-        fail(f"{where} must be a {shape[0]} x {shape[1]} list of numbers (true/false and strings are not numbers)")
+        fail(f"{where} must be {kind} numbers (true/false and strings are not numbers)")
     try:
         arr = np.array(v, dtype=float)
     except (TypeError, ValueError, OverflowError):  # OverflowError: an integer beyond a float
-        fail(f"{where} must be a {shape[0]} x {shape[1]} list of numbers")
+        fail(f"{where} must be {kind} numbers")
     if arr.shape != shape or not np.all(np.isfinite(arr)):
-        fail(f"{where} must be a {shape[0]} x {shape[1]} list of finite numbers")
+        fail(f"{where} must be {kind} finite numbers")
     return arr

@@ -1,4 +1,5 @@
-"""The camera model: pixels <-> base-frame millimetres on a horizontal plane at height z.
+"""The camera model: pixels <-> base-frame millimetres on a horizontal plane at height z, or on the
+calibration's own plane when that is tilted (`plane`, calibration/tilted.py).
 
 Two kinds of mapping, both behind one class:
 
@@ -6,7 +7,8 @@ Two kinds of mapping, both behind one class:
   frame (`cam2base`, 4 x 4). A pixel is undistorted into a ray and the ray is cut with the
   plane z = z_mm, so any plane height works (part tops are not at z = 0).
 - homography: a 3 x 3 image-to-plane homography (pixels to mm) fitted without intrinsics. It is exact
-  only on its own plane (`plane_z_mm`); other heights are refused.
+  only on its own plane (`plane_z_mm`); other heights are refused. On a tilted plane it maps the image to
+  the plane's own 2D frame, and from there into the base frame.
 
 Pixel coordinates follow CONTRACT.md: origin at the top-left pixel's top-left corner, so
 the centre of pixel (row i, column j) is (j + 0.5, i + 0.5). The camera matrix is stored
@@ -21,6 +23,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from calibration.tilted import TiltedPlane
 from cell.errors import BadInput
 
 HALF_PX = 0.5  # CONTRACT frame = OpenCV pixel-centre frame + 0.5
@@ -52,11 +55,15 @@ class Calibration:
     cam2base : ndarray of shape (4, 4) or None
         Pose of the camera in the robot base frame (mm); None when there is no pose.
     homography : ndarray of shape (3, 3) or None
-        CONTRACT-frame pixels -> base-frame (x, y) on the plane z = `plane_z_mm`.
-    plane_z_mm : float
-        The plane of the calibration's fiducials; the default height for mapping.
+        CONTRACT-frame pixels -> base-frame (x, y) on the plane z = `plane_z_mm` (on a tilted `plane`:
+        -> the plane's own 2D coordinates).
+    plane_z_mm : float or None
+        The height of the calibration's fiducials; the default height for mapping. None with a tilted
+        `plane` (no one height): mapping with z_mm None is then on that plane.
     report : dict
         How the calibration was made (residuals, images used, warnings); kept in the file.
+    plane : TiltedPlane or None
+        The fiducials' plane when it is not horizontal.
     """
 
     width_px: int
@@ -65,9 +72,10 @@ class Calibration:
     dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
     cam2base: np.ndarray | None = None
     homography: np.ndarray | None = None
-    plane_z_mm: float = 0.0
+    plane_z_mm: float | None = 0.0
     name: str = "calibration"
     report: dict = field(default_factory=dict)
+    plane: TiltedPlane | None = None
 
     # ---- what the calibration can do -------------------------------------------------
     @property
@@ -105,7 +113,8 @@ class Calibration:
         h = None if self.homography is None else self.homography @ np.diag([1.0 / sx, 1.0 / sy, 1.0])
         return Calibration(int(width_px), int(height_px), k, self.dist.copy(),
                            None if self.cam2base is None else self.cam2base.copy(), h, self.plane_z_mm,
-                           f"{self.name} resized to {int(width_px)} x {int(height_px)}", dict(self.report))
+                           f"{self.name} resized to {int(width_px)} x {int(height_px)}", dict(self.report),
+                           self.plane)
 
     def check_frame(self, frame: np.ndarray, what: str = "frame") -> None:
         """Refuse a frame whose size is not the calibration's."""
@@ -129,6 +138,8 @@ class Calibration:
         ndarray of shape (n, 2), mm.
         """
         uv = check_points(uv, "px_to_mm")
+        if self.plane is not None and z_mm is None:
+            return self.px_to_xyz(uv)[:, :2]
         z = self._plane(z_mm)
         if self.has_pose:
             rays_cam = self._rays(uv)
@@ -161,6 +172,8 @@ class Calibration:
         ndarray of shape (n, 2), px, lens distortion applied.
         """
         xy = check_points(xy, "mm_to_px")
+        if self.plane is not None and z_mm is None:
+            return self.plane_points_to_px(self.plane.lift(xy))
         z = self._plane(z_mm)
         if self.has_pose:
             xyz = np.column_stack([xy, np.full(len(xy), z)])
@@ -170,6 +183,33 @@ class Calibration:
             centre = _apply_h(self.homography, np.array([[self.width_px / 2.0, self.height_px / 2.0]]))
             return _finite_result(_apply_h(np.linalg.inv(self.homography), xy, centre), "mm_to_px")
         raise BadInput(f"calibration {self.name!r} has intrinsics only: no mapping to the base frame")
+
+    def px_to_xyz(self, uv, z_mm: float | None = None) -> np.ndarray:
+        """Map pixels to base-frame points (n, 3) on the calibration's plane (tilted or not) or, with `z_mm`,
+        on the horizontal plane at that height."""
+        uv = check_points(uv, "px_to_mm")
+        if self.plane is None or z_mm is not None:
+            z = self._plane(z_mm)
+            xy = self.px_to_mm(uv, z)
+            return np.column_stack([xy, np.full(len(xy), z)])
+        if self.has_pose:
+            t = self.cam2base[:3, 3]
+            rays = self._rays(uv) @ self.cam2base[:3, :3].T
+            s = self.plane.cut(t, rays)
+            if np.any(~np.isfinite(s)) or np.any(s <= 0):
+                raise BadInput(f"calibration {self.name!r}: its tilted plane is not in front of the camera for some "
+                               "pixels (beyond its horizon)")
+            return _finite_result(t[None, :] + s[:, None] * rays, "px_to_mm")
+        centre = np.array([[self.width_px / 2.0, self.height_px / 2.0]])
+        return _finite_result(self.plane.from_plane(_apply_h(self.homography, uv, centre)), "px_to_mm")
+
+    def plane_points_to_px(self, xyz: np.ndarray) -> np.ndarray:
+        """Points (n, 3) of the tilted plane -> pixels: projected through the pose, or through the homography
+        from the plane's own 2D coordinates."""
+        if self.has_pose:
+            return _finite_result(self.project(xyz), "mm_to_px")
+        centre = _apply_h(self.homography, np.array([[self.width_px / 2.0, self.height_px / 2.0]]))
+        return _finite_result(_apply_h(np.linalg.inv(self.homography), self.plane.to_plane(xyz), centre), "mm_to_px")
 
     def project(self, xyz_mm) -> np.ndarray:
         """Project base-frame points of shape (n, 3) to pixels (n, 2), CONTRACT frame."""
@@ -206,6 +246,11 @@ class Calibration:
         return z
 
     def _check_plane(self, z: float) -> None:
+        if self.plane is not None:
+            raise BadInput(f"calibration {self.name!r} is a homography for its tilted plane "
+                           f"({self.plane.describe()['equation']}) only: without a camera model it cannot map on "
+                           f"another plane, such as z = {z:g} mm; calibrate with intrinsics (--camera-matrix or "
+                           "--intrinsics) for that")
         if abs(z - self.plane_z_mm) > 1e-6:
             raise BadInput(f"calibration {self.name!r} is a homography for the plane z = {self.plane_z_mm} mm "
                            f"only; mapping at z = {z} mm needs intrinsics and a camera pose")
@@ -225,10 +270,11 @@ class Calibration:
         return p[:2] + HALF_PX
 
     def mm_per_px(self, z_mm: float | None = None) -> float:
-        """Ground sampling distance at the image centre on the plane z, mm per pixel."""
+        """Ground sampling distance at the image centre on the plane z (default the calibration's, tilted or
+        not), mm per pixel."""
         c = np.array([[self.width_px / 2.0, self.height_px / 2.0]])
-        a = self.px_to_mm(c + [[-5.0, 0.0]], z_mm)
-        b = self.px_to_mm(c + [[5.0, 0.0]], z_mm)
+        a = self.px_to_xyz(c + [[-5.0, 0.0]], z_mm)
+        b = self.px_to_xyz(c + [[5.0, 0.0]], z_mm)
         return float(np.linalg.norm(b - a) / 10.0)
 
     def camera_position_mm(self) -> np.ndarray | None:

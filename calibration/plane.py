@@ -7,29 +7,37 @@ Sources of correspondences (all end in `fit_plane_mapping`):
 
 With intrinsics the camera pose is solved (`solvePnP`, IPPE for a plane, then
 Levenberg-Marquardt), so pixels map to any plane height z. Without intrinsics a homography
-is fitted, exact only on the points' plane. The residual is measured where it matters: the
+is fitted, exact only on the points' plane. Points on a tilted plane (z spread over
+PLANE_TOLERANCE_MM) fit their least-squares plane (calibration/tilted.py), which becomes the
+calibration's own plane. The residual is measured where it matters: the
 detected pixels mapped back to the plane, against the known base coordinates, in mm.
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import cv2
 import numpy as np
 
 from calibration.camera import HALF_PX, Calibration, pose_matrix
 from calibration.intrinsics import aruco_dictionary
+from calibration.tilted import fit_plane
 from cell.errors import BadInput
 from cell.fileio import has_non_number
 from cell.scene import MAX_COORD_MM
 
-PLANE_TOLERANCE_MM = 5.0  # the points' z may differ this much and still count as one (horizontal) plane:
-# coordinates touched up with a robot differ by a few mm; the mapping uses their mean z
+PLANE_TOLERANCE_MM = 5.0  # the points' z may differ this much and still count as one horizontal plane:
+# coordinates touched up with a robot differ by a few mm; the mapping uses their mean z. Beyond, the plane
+# is tilted: fitted by least squares (calibration/tilted.py)
 FLAT_Z_MM = 1.0  # ... and up to this much without a warning (and with the planar pose solver)
 MIN_POINTS = 4
 COLLINEAR_RATIO = 1e-3  # the points' second spread direction against the first: below this, a line
 WARN_REPROJECTION_PX = 3.0  # the Festo frames fit to 0.9 - 1.1 px; one marker's corners listed one off: 37 px
 MIN_MARKER_AREA_MM2 = 1.0  # a marker's square, at least (printed markers are 20-100 mm a side)
 CORNER_ORDER_GAIN = 3.0  # another corner order must fit this many times better (and 2 mm) to be named
+MAX_VIEW_ANGLE_DEG = 75.0  # a tilted plane seen further from its normal than this is refused as edge-on: a
+# pixel spans 3.9 x more across it than along it
 
 
 def detect_markers(gray: np.ndarray, dictionary: str, duplicates: list[int] | None = None) -> dict[int, np.ndarray]:
@@ -118,7 +126,8 @@ def holdout_residuals(detected: dict[int, np.ndarray], known: dict[int, np.ndarr
             cal = fit_plane_mapping(uv, xyz, size, camera_matrix, dist)
         except BadInput:
             continue
-        err = np.linalg.norm(cal.px_to_mm(detected[i]) - known[i][:, :2], axis=1)
+        got, want = mapped_and_known(cal, detected[i], known[i])
+        err = np.linalg.norm(got - want, axis=1)
         out[str(i)] = round(float(np.sqrt(np.mean(err ** 2))), 3)
     return out
 
@@ -130,8 +139,7 @@ def marker_residuals(cal: Calibration, detected: dict[int, np.ndarray], known: d
     order (listed from another corner than OpenCV's top-left, or counter-clockwise)."""
     per, warnings = {}, []
     for i in used:
-        got = cal.px_to_mm(detected[i])
-        want = known[i][:, :2]
+        got, want = mapped_and_known(cal, detected[i], known[i])
         orders = [np.roll(want, -k, axis=0) for k in range(4)] + [np.roll(want[::-1], -k, axis=0) for k in range(4)]
         errs = [float(np.sqrt(np.mean(np.sum((got - o) ** 2, axis=1)))) for o in orders]
         per[str(i)] = round(errs[0], 3)
@@ -150,7 +158,8 @@ def marker_residuals(cal: Calibration, detected: dict[int, np.ndarray], known: d
 
 
 def fit_plane_mapping(uv_px, xyz_mm, size: tuple[int, int], camera_matrix: np.ndarray | None = None,
-                      dist: np.ndarray | None = None, name: str = "plane calibration") -> Calibration:
+                      dist: np.ndarray | None = None, name: str = "plane calibration",
+                      names: list[str] | None = None) -> Calibration:
     """Fit the image <-> base mapping to correspondences on one plane.
 
     Parameters
@@ -158,10 +167,13 @@ def fit_plane_mapping(uv_px, xyz_mm, size: tuple[int, int], camera_matrix: np.nd
     uv_px : array-like of shape (n, 2)
         Pixels, CONTRACT frame.
     xyz_mm : array-like of shape (n, 3)
-        The same points in the base frame, mm; all at one height (within PLANE_TOLERANCE_MM; the mean is the plane).
+        The same points in the base frame, mm, on one plane: horizontal (z within PLANE_TOLERANCE_MM; the
+        mean is the plane) or tilted (within OFF_PLANE_MM of the least-squares plane; calibration/tilted.py).
     size : (width_px, height_px)
     camera_matrix, dist : optional
         Intrinsics; without them the result is a homography for the points' plane.
+    names : optional
+        What to call each point in a refusal (default "point #i").
 
     Returns
     -------
@@ -175,55 +187,127 @@ def fit_plane_mapping(uv_px, xyz_mm, size: tuple[int, int], camera_matrix: np.nd
     if len(uv) < MIN_POINTS:
         raise BadInput(f"{len(uv)} points given; at least {MIN_POINTS} (one marker) are needed, "
                        "better 12 (three markers) spread over the work area")
-    z = xyz[:, 2]
-    z_spread = float(np.ptp(z))
-    if z_spread > PLANE_TOLERANCE_MM:
-        raise BadInput(f"the points are not on one horizontal plane (z from {z.min():.2f} to {z.max():.2f} mm, "
-                       f"more than {PLANE_TOLERANCE_MM:g} mm apart)")
     for pts, what in ((uv, "pixels"), (xyz[:, :2], "base points")):
         sv = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False)
         if not sv[0] > 1e-9 or sv[1] < COLLINEAR_RATIO * sv[0]:
             # findHomography fitted such points with a few mm of residual and the file was written (exit 0)
             raise BadInput(f"the {what} lie on one line (or one point): a plane mapping needs points spread "
                            "over the work area, not along a line")
+    z = xyz[:, 2]
+    z_spread = float(np.ptp(z))
+    if z_spread > PLANE_TOLERANCE_MM:
+        return _fit_tilted(uv, xyz, size, camera_matrix, dist, name, names)
     plane_z = float(np.mean(z))
     w, h = size
     if camera_matrix is not None:
         k = np.asarray(camera_matrix, float)
         d = np.zeros(5) if dist is None else np.asarray(dist, float).ravel()
-        obj = xyz.astype(np.float64)
-        img = (uv - HALF_PX).astype(np.float64)
         # IPPE takes coplanar points only; SQPnP any (points a few mm off one plane)
-        solver = cv2.SOLVEPNP_IPPE if z_spread <= FLAT_Z_MM else cv2.SOLVEPNP_SQPNP
-        ok, rvec, tvec = cv2.solvePnP(obj, img, k, d, flags=solver)
-        if not ok:
-            raise BadInput("the camera pose could not be solved from these points")
-        rvec, tvec = cv2.solvePnPRefineLM(obj, img, k, d, rvec, tvec)
-        r, _ = cv2.Rodrigues(rvec)
-        base2cam = pose_matrix(r, tvec.ravel())
-        cal = Calibration(w, h, k, d, np.linalg.inv(base2cam), None, plane_z, name)
-        proj = cal.project(xyz)
-        method = "pose"
+        cam2base = _solve_pose(uv, xyz, k, d, cv2.SOLVEPNP_IPPE if z_spread <= FLAT_Z_MM else cv2.SOLVEPNP_SQPNP)
+        cal = Calibration(w, h, k, d, cam2base, None, plane_z, name)
     else:
         hmat, _ = cv2.findHomography(uv, xyz[:, :2], 0)
         if hmat is None:
             raise BadInput("no homography fits these points (are they collinear?)")
         cal = Calibration(w, h, None, np.zeros(5), None, hmat, plane_z, name)
-        proj = None
-        method = "homography"
+    return _with_report(cal, uv, xyz, {"plane_z_mm": plane_z, "z_spread_mm": z_spread})
+
+
+def _fit_tilted(uv, xyz, size, camera_matrix, dist, name, names) -> Calibration:
+    """The mapping on the points' least-squares plane, tilted more than the horizontal path takes: the pose
+    from the 3D points, or a homography between the image and the plane's own 2D frame."""
+    plane, off = fit_plane(xyz, names)
+    w, h = size
+    if camera_matrix is not None:
+        k = np.asarray(camera_matrix, float)
+        d = np.zeros(5) if dist is None else np.asarray(dist, float).ravel()
+        cal = Calibration(w, h, k, d, _solve_pose(uv, xyz, k, d, cv2.SOLVEPNP_SQPNP), None, None, name, plane=plane)
+        to_camera = cal.camera_position_mm() - plane.point_mm
+        facing = float(plane.normal @ to_camera / np.linalg.norm(to_camera))  # cos of the view's angle
+    else:
+        hmat, _ = cv2.findHomography(uv, plane.to_plane(xyz), 0)
+        if hmat is None:
+            raise BadInput("no homography fits these points (are they collinear?)")
+        cal = Calibration(w, h, None, np.zeros(5), None, hmat, None, name, plane=plane)
+        facing = _homography_facing(hmat)
+    _check_view(plane, facing, cal.has_pose)
+    extra = {"plane_z_mm": None, "z_spread_mm": float(np.ptp(xyz[:, 2])), "plane": plane.describe(),
+             "tilt_deg": round(plane.tilt_deg, 3), "view_angle_deg": round(float(np.degrees(np.arccos(
+                 np.clip(abs(facing), 0.0, 1.0)))), 2),
+             "off_plane_rms_mm": float(np.sqrt(np.mean(off ** 2))), "off_plane_max_mm": float(np.abs(off).max())}
+    return _with_report(cal, uv, xyz, extra)
+
+
+def _homography_facing(px_to_plane: np.ndarray) -> float:
+    """Without intrinsics, the cosine of the angle the plane is seen at, from the homography: the image of a
+    small square about the plane's origin (its points' centroid) is foreshortened by about that, and mirrored
+    (a positive determinant in the image's y-down frame) when the plane is seen from behind; negative then."""
+    to_px = np.linalg.inv(px_to_plane)
+    ab = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    ph = np.column_stack([ab, np.ones(3)]) @ to_px.T
+    uv = ph[:, :2] / ph[:, 2:3]
+    jac = np.column_stack([uv[1] - uv[0], uv[2] - uv[0]])
+    sv = np.linalg.svd(jac, compute_uv=False)
+    return float(-np.sign(np.linalg.det(jac)) * sv[1] / sv[0])
+
+
+def _check_view(plane, facing: float, with_pose: bool) -> None:
+    """Refuse a tilted plane the camera sees from behind or nearly edge-on (`facing`: the cosine of the angle
+    between the plane's normal and the line of sight; negative from behind)."""
+    how = "the camera pose" if with_pose else "the homography (no intrinsics)"
+    if facing <= 0:
+        raise BadInput(f"the camera sees the points' plane ({plane.describe()['equation']}) from behind, by "
+                       f"{how}: its front, the upper side, faces away from the camera; base coordinates given in a "
+                       "mirrored frame (y down) fit such a view")
+    angle = float(np.degrees(np.arccos(min(facing, 1.0))))
+    if angle > MAX_VIEW_ANGLE_DEG:
+        raise BadInput(f"the camera sees the points' plane nearly edge-on, by {how}: {angle:.1f} deg from "
+                       f"its normal (at most {MAX_VIEW_ANGLE_DEG:g}); a pixel spans {1 / facing:.1f} x more "
+                       "across the plane than along it, and mapped points would be that much less accurate")
+
+
+def _solve_pose(uv: np.ndarray, xyz: np.ndarray, k: np.ndarray, d: np.ndarray, solver: int) -> np.ndarray:
+    """The camera's pose in the base frame (cam2base, 4 x 4) from the points: `solver`, then
+    Levenberg-Marquardt."""
+    obj = xyz.astype(np.float64)
+    img = (uv - HALF_PX).astype(np.float64)
+    ok, rvec, tvec = cv2.solvePnP(obj, img, k, d, flags=solver)
+    if not ok:
+        raise BadInput("the camera pose could not be solved from these points")
+    rvec, tvec = cv2.solvePnPRefineLM(obj, img, k, d, rvec, tvec)
+    r, _ = cv2.Rodrigues(rvec)
+    return np.linalg.inv(pose_matrix(r, tvec.ravel()))
+
+
+def mapped_and_known(cal: Calibration, uv: np.ndarray, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels mapped onto the calibration's plane and the known points they should land on: base (x, y) on a
+    horizontal plane (the points' z is the plane's within its tolerance); on a tilted one the points in 3D
+    and the known ones' feet on the plane (their distance off it is reported apart)."""
+    if cal.plane is None:
+        return cal.px_to_mm(uv), xyz[:, :2]
+    return cal.px_to_xyz(uv), cal.plane.foot(xyz)
+
+
+def _with_report(cal: Calibration, uv: np.ndarray, xyz: np.ndarray, plane_keys: dict) -> Calibration:
+    """`cal` with its report: the residual on the plane (mm) and the reprojection (px)."""
+    method = "pose" if cal.has_pose else "homography"
     try:
-        if proj is None:
+        if cal.has_pose:
+            proj = cal.project(xyz)
+        elif cal.plane is None:
             proj = cal.mm_to_px(xyz[:, :2])
-        err_mm = np.linalg.norm(cal.px_to_mm(uv) - xyz[:, :2], axis=1)
+        else:
+            proj = cal.plane_points_to_px(cal.plane.foot(xyz))
+        got, want = mapped_and_known(cal, uv, xyz)
     except BadInput:  # the fit's horizon runs through its own points: no camera sees them so
         raise BadInput(f"the {len(uv)} points fit no view of one plane: the best {method} puts some of them "
                        "beyond the plane's horizon; a pixel or a base coordinate is wrong (check each pair)") from None
+    err_mm = np.linalg.norm(got - want, axis=1)
     err_px = np.linalg.norm(proj - uv, axis=1)
-    report = {"method": method, "points": len(uv), "plane_z_mm": plane_z, "z_spread_mm": z_spread,
+    report = {"method": method, "points": len(uv), **plane_keys,
               "residual_mm": float(np.sqrt(np.mean(err_mm ** 2))), "residual_max_mm": float(err_mm.max()),
               "reprojection_rms_px": float(np.sqrt(np.mean(err_px ** 2))),
               "mm_per_px": cal.mm_per_px()}
     if cal.has_pose:
         report["camera_position_mm"] = [round(float(x), 3) for x in cal.camera_position_mm()]
-    return Calibration(cal.width_px, cal.height_px, cal.camera_matrix, cal.dist, cal.cam2base, cal.homography,
-                       plane_z, name, report)
+    return replace(cal, report=report)

@@ -71,7 +71,8 @@ def _rotation(transform):
 
 NOT_A_ROTATION = "pose.cam2base rotation part is not a rotation matrix"
 POSE_CASES = [
-    ("version-0", _set("version", 0), "version 0 is not supported (this program reads version 1)"),
+    ("version-0", _set("version", 0),
+     "version 0 is not supported (this program reads version 1, and 2 for a tilted plane)"),
     ("version-true", _set("version", True), "'version' must be an integer, got True"),  # true == 1 in Python
     ("version-1.0", _set("version", 1.0), "'version' must be an integer, got 1.0"),
     ("version-string", _set("version", "1"), "'version' must be an integer, got '1'"),

@@ -80,9 +80,11 @@ def run(args) -> int:
             raise BadInput(f"{len(used)} of the markers in {args.markers} were found in {args.image} "
                            f"(found ids {sorted(detected)}, need at least {MIN_MARKERS} of {sorted(known)}"
                            + (f"; seen more than once, left out: {duplicated}" if duplicated else "") + ")")
+        names = [f"marker {i} corner {j}" for i in used for j in range(4)]
     else:
         uv, xyz = parse_points(read_json(args.points, "points file"), args.points, (w, h), args.image)
-    cal = fit_plane_mapping(uv, xyz, (w, h), k, dist, args.name or "plane calibration")
+        names = None  # "point #i", as the points file numbers them
+    cal = fit_plane_mapping(uv, xyz, (w, h), k, dist, args.name or "plane calibration", names)
     warnings: list[str] = []
     if args.markers:
         per_marker, warnings = marker_residuals(cal, detected, known, used)
@@ -94,7 +96,7 @@ def run(args) -> int:
                            "per_marker_residual_mm": per_marker, "warnings": warnings,
                            "holdout_residual_mm": held_out,
                            "holdout_residual_max_mm": max(held_out.values()) if held_out else None})
-    if cal.report["z_spread_mm"] > FLAT_Z_MM:
+    if cal.plane is None and cal.report["z_spread_mm"] > FLAT_Z_MM:
         warnings.append(f"the {'markers' if args.markers else 'points'}' z spans {cal.report['z_spread_mm']:.1f} mm: "
                         f"the mapping is for their mean plane, z = {cal.report['plane_z_mm']:.2f} mm")
         cal.report["warnings"] = warnings

@@ -1,4 +1,7 @@
-"""`cell map CALIBRATION --px U,V ... [--z MM] --json` (or `--mm X,Y ...`): pixels <-> base frame."""
+"""`cell map CALIBRATION --px U,V ... [--z MM] --json` (or `--mm X,Y ...`): pixels <-> base frame.
+
+On a tilted calibration plane (calibration/tilted.py) without --z the points are on that plane: x, y as
+always, and `xyz_mm` gives each point's z too (`z_mm` is null: the plane has no one height)."""
 
 from __future__ import annotations
 
@@ -14,7 +17,7 @@ def add_arguments(p) -> None:
     g.add_argument("--px", nargs="+", metavar="U,V", help="pixels (origin at the top-left pixel's corner)")
     g.add_argument("--mm", nargs="+", metavar="X,Y", help="base-frame points, mm")
     p.add_argument("--z", type=float, default=None, metavar="MM",
-                   help="height of the plane (default: the calibration's plane)")
+                   help="height of a horizontal plane (default: the calibration's plane, tilted or not)")
     p.add_argument("--json", action="store_true", help="print a JSON object")
 
 
@@ -39,9 +42,14 @@ def run(args) -> int:
         key = "px"
     out = {key: [[round(float(a), 4), round(float(b), 4)] for a, b in res],
            "z_mm": cal.plane_z_mm if args.z is None else args.z}
+    on_tilt = cal.plane is not None and args.z is None
+    if on_tilt:  # each point's z on the plane: from the mapped x, y, or the given ones
+        xyz = cal.plane.lift(res if args.px else pts)
+        out.update(xyz_mm=[[round(float(v), 4) for v in p] for p in xyz], plane=cal.plane.describe())
     if args.json:
         print(json.dumps(out))
     else:
-        for src, (a, b) in zip(pts, out[key], strict=True):
-            print(f"{src[0]:g},{src[1]:g} -> {a:.3f},{b:.3f} {key}")
+        for i, (src, (a, b)) in enumerate(zip(pts, out[key], strict=True)):
+            print(f"{src[0]:g},{src[1]:g} -> {a:.3f},{b:.3f} {key}"
+                  + (f" (z {out['xyz_mm'][i][2]:.3f} mm on the tilted plane)" if on_tilt else ""))
     return 0

@@ -200,6 +200,8 @@ class Calibration:
                 raise BadInput(f"calibration {self.name!r}: its tilted plane is not in front of the camera for some "
                                "pixels (beyond its horizon)")
             return _finite_result(t[None, :] + s[:, None] * rays, "px_to_mm")
+        if self.homography is None:
+            raise BadInput(f"calibration {self.name!r} has intrinsics only: no mapping to the base frame")
         centre = np.array([[self.width_px / 2.0, self.height_px / 2.0]])
         return _finite_result(self.plane.from_plane(_apply_h(self.homography, uv, centre)), "px_to_mm")
 
@@ -208,6 +210,8 @@ class Calibration:
         from the plane's own 2D coordinates."""
         if self.has_pose:
             return _finite_result(self.project(xyz), "mm_to_px")
+        if self.homography is None:
+            raise BadInput(f"calibration {self.name!r} has intrinsics only: no mapping to the base frame")
         centre = _apply_h(self.homography, np.array([[self.width_px / 2.0, self.height_px / 2.0]]))
         return _finite_result(_apply_h(np.linalg.inv(self.homography), self.plane.to_plane(xyz), centre), "mm_to_px")
 

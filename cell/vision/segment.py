@@ -529,7 +529,14 @@ def _texture_gradient(sm: np.ndarray, bg: np.ndarray) -> float:
 
 def _noise_spreads(chroma_dn: np.ndarray, bright_dn: np.ndarray) -> tuple[float, float]:
     """Noise spreads (DN) of chroma and brightness from their 25th percentiles: the quietest
-    quarter is the tray, and the 25th percentile of |N(0, s)| is 0.32 s."""
+    quarter is the tray, and the 25th percentile of |N(0, s)| is 0.32 s.
+
+    Right for the brightness (a channel mean: its spread is the channels' sd / sqrt(3)). The chroma
+    change is an L1 over three channels, whose 25th percentile is 1.18 x the channels' sd, so this
+    reads 3.7 x that sd (tests/test_vision_noise.py). Kept: read right (and the bound matched to the
+    brightness's tail, 8.5 sd), the rendered frames keep all their parts under noise, but on the
+    photographs shadows' colour casts, JPEG chroma bled round dark objects and surround touching
+    parts pass as parts (docs/vision.md, Limits)."""
     return _quartile1(chroma_dn) / 0.32 + 1e-3, _quartile1(np.abs(bright_dn)) / 0.32 + 1e-3
 
 

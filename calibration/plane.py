@@ -22,7 +22,7 @@ import numpy as np
 
 from calibration.camera import HALF_PX, Calibration, pose_matrix
 from calibration.intrinsics import aruco_dictionary
-from calibration.tilted import fit_plane
+from calibration.tilted import TiltedPlane, fit_plane
 from cell.errors import BadInput
 from cell.fileio import has_non_number
 from cell.scene import MAX_COORD_MM
@@ -111,11 +111,15 @@ def markers_correspondences(detected: dict[int, np.ndarray], known: dict[int, np
 
 
 def holdout_residuals(detected: dict[int, np.ndarray], known: dict[int, np.ndarray], used: list[int],
-                      size: tuple[int, int], camera_matrix=None, dist=None) -> dict[str, float]:
+                      size: tuple[int, int], camera_matrix=None, dist=None,
+                      plane: TiltedPlane | None = None) -> dict[str, float]:
     """Each marker's RMS error (mm) under the mapping fitted to the other markers: what a point the fit
     did not see is off by. The fit's own residual is 2-6 x smaller on the Festo frames (0.4-0.6 mm
     against 1-3.4 mm held out). Needs 4 markers (3 left to fit); a marker whose others cannot be
-    fitted is left out."""
+    fitted is left out. `plane`: the tilted plane all the markers fit; a pose fitted to the others maps
+    the marker onto it (the others alone may span under PLANE_TOLERANCE_MM of z: a horizontal fit at
+    their mean height, which the marker is not at). A homography fitted so maps the plane's points to
+    their base (x, y) all the same."""
     out = {}
     if len(used) < 4:
         return out
@@ -126,6 +130,8 @@ def holdout_residuals(detected: dict[int, np.ndarray], known: dict[int, np.ndarr
             cal = fit_plane_mapping(uv, xyz, size, camera_matrix, dist)
         except BadInput:
             continue
+        if plane is not None and cal.has_pose:
+            cal = replace(cal, plane=plane, plane_z_mm=None)
         got, want = mapped_and_known(cal, detected[i], known[i])
         err = np.linalg.norm(got - want, axis=1)
         out[str(i)] = round(float(np.sqrt(np.mean(err ** 2))), 3)

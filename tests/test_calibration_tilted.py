@@ -420,3 +420,43 @@ def test_horizontal_calibrations_are_written_as_before(tmp_path):
     save_calibration(CAMERA, path)
     raw = json.loads(path.read_text())
     assert raw["version"] == 1 and "plane" not in raw and raw["pose"]["plane_z_mm"] == 0.0
+
+
+def _ramp_markers(slope: float) -> tuple[dict, dict]:
+    """Four 50 mm markers on the plane z = slope x, three near x = 150 - 230 and one at x = 480, with their
+    pixels through PINHOLE (exact corners): (detected, known)."""
+    known, detected = {}, {}
+    for i, (x0, y0) in enumerate([(150, -250), (150, 150), (180, -50), (480, 0)]):
+        square = np.array([[x0, y0], [x0, y0 + 50], [x0 + 50, y0 + 50], [x0 + 50, y0]], float)
+        known[i] = np.column_stack([square, slope * square[:, 0]])
+        detected[i] = PINHOLE.project(known[i])
+    return detected, known
+
+
+@pytest.mark.parametrize("with_intrinsics", [True, False])
+def test_a_held_out_marker_is_measured_on_the_tilted_plane(with_intrinsics):
+    """Markers 0 - 2 span 4.5 mm of z (a horizontal fit), all four 19 mm: the pose fitted to the three maps
+    marker 3 onto the tilted plane, not their mean height (3.4 mm of parallax on exact corners)."""
+    from calibration.plane import fit_plane_mapping, holdout_residuals, markers_correspondences
+
+    detected, known = _ramp_markers(0.05)
+    uv, xyz, used, _ = markers_correspondences(detected, known)
+    k, d = (K, np.zeros(5)) if with_intrinsics else (None, None)
+    cal = fit_plane_mapping(uv, xyz, SIZE, k, d)
+    assert cal.plane is not None and np.ptp(np.concatenate([known[i] for i in (0, 1, 2)])[:, 2]) <= 5.0
+    held = holdout_residuals(detected, known, used, SIZE, k, d, cal.plane)
+    assert sorted(held) == ["0", "1", "2", "3"] and max(held.values()) < 0.01, held
+
+
+@needs_photos
+def test_festo_markers_turned_a_little_keep_their_held_out_residuals(tmp_path, capsys):
+    """Turned onto z = 0.008 x (6.5 mm of z: tilted; without marker 0 or 1 the rest spans under 5 mm) the
+    held-out residuals are the flat table's (marker 0 was 3.64 mm against 1.74)."""
+    turn = _rot("y", -np.degrees(np.arctan(0.008)))
+    image = FESTO / "aruco_img.png"
+    _, flat, _, _ = _calibrate(tmp_path, capsys, image, _festo_markers(tmp_path), "--camera-matrix", FESTO_K,
+                               name="flat.json")
+    code, res, err, _ = _calibrate(tmp_path, capsys, image, _festo_markers(tmp_path, turn), "--camera-matrix",
+                                   FESTO_K)
+    assert code == 0 and res["plane_z_mm"] is None, err
+    assert res["holdout_residual_mm"] == pytest.approx(flat["holdout_residual_mm"], abs=0.002)

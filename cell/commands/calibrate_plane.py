@@ -90,7 +90,7 @@ def run(args) -> int:
         per_marker, warnings = marker_residuals(cal, detected, known, used)
         if duplicated:
             warnings.insert(0, f"markers seen more than once in the image, left out: {duplicated}")
-        held_out = holdout_residuals(detected, known, used, (w, h), k, dist)
+        held_out = holdout_residuals(detected, known, used, (w, h), k, dist, cal.plane)
         cal.report.update({"markers_used": out["markers_used"], "markers_missing": out["markers_missing"],
                            "markers_duplicated": duplicated,
                            "per_marker_residual_mm": per_marker, "warnings": warnings,

@@ -213,6 +213,8 @@ def _tilted_plane(raw, version: int, fail) -> TiltedPlane | None:
     """The file's tilted plane (version 2), validated: a point, unit axes at right angles, the normal their
     cross product and pointing up, not steeper than MAX_TILT_DEG."""
     if raw is None:
+        if version >= PLANE_VERSION:  # else a pose would map on z = 0, the default height: silently wrong
+            fail(f"version {version} is a tilted plane's calibration, but 'plane' is missing or null")
         return None
     if version < PLANE_VERSION:
         fail(f"'plane' (a tilted calibration plane) needs version {PLANE_VERSION}; version {version} files map on "

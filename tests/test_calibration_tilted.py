@@ -387,6 +387,8 @@ def _edit(key, value):
     (_edit("pose.plane_z_mm", 0.0), "pose.plane_z_mm: a calibration on a tilted 'plane' has no one height"),
     (_edit("pose", None), "'plane' needs a 'pose' or a 'homography' that maps onto it"),
     (_edit("version", 3), "version 3 is not supported (this program reads version 1, and 2 for a tilted plane)"),
+    (_edit("plane", None), "version 2 is a tilted plane's calibration, but 'plane' is missing or null"),
+    (lambda raw: raw.pop("plane"), "version 2 is a tilted plane's calibration, but 'plane' is missing or null"),
 ])
 def test_a_bad_tilted_calibration_file_is_refused_naming_the_key(tmp_path, capsys, change, message):
     _, path = _tilted_file(tmp_path)

@@ -275,8 +275,13 @@ class Calibration:
 
     def mm_per_px(self, z_mm: float | None = None) -> float:
         """Ground sampling distance at the image centre on the plane z (default the calibration's, tilted or
-        not), mm per pixel."""
+        not), mm per pixel: along u; on a tilted plane the side of the square of a pixel's area on it (a
+        pixel spans 1 / cos(view angle) x more across the tilt: mm^2 thresholds in pixels need the area)."""
         c = np.array([[self.width_px / 2.0, self.height_px / 2.0]])
+        if self.plane is not None and z_mm is None:
+            p0, p1, p2, p3 = self.px_to_xyz(c + [[-5.0, -5.0], [5.0, -5.0], [5.0, 5.0], [-5.0, 5.0]])
+            area_mm2 = np.linalg.norm(np.cross(p2 - p0, p3 - p1)) / 2.0  # a quadrilateral's: half its diagonals'
+            return float(np.sqrt(area_mm2) / 10.0)
         a = self.px_to_xyz(c + [[-5.0, 0.0]], z_mm)
         b = self.px_to_xyz(c + [[5.0, 0.0]], z_mm)
         return float(np.linalg.norm(b - a) / 10.0)

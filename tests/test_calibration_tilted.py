@@ -462,3 +462,25 @@ def test_festo_markers_turned_a_little_keep_their_held_out_residuals(tmp_path, c
                                    FESTO_K)
     assert code == 0 and res["plane_z_mm"] is None, err
     assert res["holdout_residual_mm"] == pytest.approx(flat["holdout_residual_mm"], abs=0.002)
+
+
+@pytest.mark.parametrize("with_intrinsics", [True, False])
+def test_mm_per_px_on_a_steep_plane_is_a_pixels_footprint(with_intrinsics):
+    """A plane tilted 60 deg along the image's v (the default camera looks down, v along base x): a pixel
+    covers about 2 x more of it along v than along u. mm_per_px is the side of the square of a pixel's area
+    on the plane (what mm^2 thresholds in pixels need: `segment --min-area-mm2`), not the span along u
+    (which gave half the area)."""
+    from calibration.plane import fit_plane_mapping
+    from cell.vision.segment import SegmentParams
+
+    xy = np.random.default_rng(8).uniform([330, -150], [370, 150], (16, 2))
+    xyz = np.column_stack([xy, np.tan(np.radians(60)) * (xy[:, 0] - 350) + 40])
+    k, d = (K, np.zeros(5)) if with_intrinsics else (None, None)
+    cal = fit_plane_mapping(PINHOLE.project(xyz), xyz, SIZE, k, d)
+    assert cal.plane.tilt_deg == pytest.approx(60.0, abs=1e-6)
+    centre = np.array([SIZE[0] / 2.0, SIZE[1] / 2.0])
+    corners = cal.px_to_xyz(centre + [[-1, -1], [1, -1], [1, 1], [-1, 1]])
+    area_mm2_per_px = np.linalg.norm(np.cross(corners[2] - corners[0], corners[3] - corners[1])) / 2 / 4
+    assert cal.mm_per_px() ** 2 == pytest.approx(area_mm2_per_px, rel=1e-3)
+    params = SegmentParams.for_calibration(cal, 75.0, None)
+    assert params.min_area_px == pytest.approx(75.0 / area_mm2_per_px, rel=1e-3)

@@ -131,7 +131,8 @@ class Calibration:
         ----------
         uv : array-like of shape (n, 2)
         z_mm : float, optional
-            Height of the plane; default `plane_z_mm`.
+            Height of the plane; default `plane_z_mm` (with a tilted `plane`: onto that plane; their z is
+            in `px_to_xyz`).
 
         Returns
         -------
@@ -166,6 +167,8 @@ class Calibration:
         ----------
         xy : array-like of shape (n, 2)
         z_mm : float, optional
+            Height of the plane; default `plane_z_mm` (with a tilted `plane`: the points of that plane above
+            (x, y)).
 
         Returns
         -------

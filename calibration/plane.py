@@ -202,7 +202,7 @@ def fit_plane_mapping(uv_px, xyz_mm, size: tuple[int, int], camera_matrix: np.nd
     z = xyz[:, 2]
     z_spread = float(np.ptp(z))
     if z_spread > PLANE_TOLERANCE_MM:
-        return _fit_tilted(uv, xyz, size, camera_matrix, dist, name, names)
+        return _fit_tilted(uv, xyz, size, camera_matrix, dist, name, names, z_spread)
     plane_z = float(np.mean(z))
     w, h = size
     if camera_matrix is not None:
@@ -219,7 +219,7 @@ def fit_plane_mapping(uv_px, xyz_mm, size: tuple[int, int], camera_matrix: np.nd
     return _with_report(cal, uv, xyz, {"plane_z_mm": plane_z, "z_spread_mm": z_spread})
 
 
-def _fit_tilted(uv, xyz, size, camera_matrix, dist, name, names) -> Calibration:
+def _fit_tilted(uv, xyz, size, camera_matrix, dist, name, names, z_spread: float) -> Calibration:
     """The mapping on the points' least-squares plane, tilted more than the horizontal path takes: the pose
     from the 3D points, or a homography between the image and the plane's own 2D frame."""
     plane, off = fit_plane(xyz, names)
@@ -237,7 +237,7 @@ def _fit_tilted(uv, xyz, size, camera_matrix, dist, name, names) -> Calibration:
         cal = Calibration(w, h, None, np.zeros(5), None, hmat, None, name, plane=plane)
         facing = _homography_facing(hmat)
     _check_view(plane, facing, cal.has_pose)
-    extra = {"plane_z_mm": None, "z_spread_mm": float(np.ptp(xyz[:, 2])), "plane": plane.describe(),
+    extra = {"plane_z_mm": None, "z_spread_mm": z_spread, "plane": plane.describe(),
              "tilt_deg": round(plane.tilt_deg, 3), "view_angle_deg": round(float(np.degrees(np.arccos(
                  np.clip(abs(facing), 0.0, 1.0)))), 2),
              "off_plane_rms_mm": float(np.sqrt(np.mean(off ** 2))), "off_plane_max_mm": float(np.abs(off).max())}

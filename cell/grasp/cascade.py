@@ -55,6 +55,10 @@ from cell.grasp.pairs import (
 )
 from cell.kinematics import Joints, inverse, reachable_mask
 
+# A grasp centre further than this across the axis from its pair's line (more than float noise) has
+# its pads looked at again where the gripper puts them (`_pads_stop_at_contacts`).
+CENTRE_SHIFT_MM = 1e-9
+
 __all__ = ["STAGES", "EXACT_STAGES", "Context", "Pairs", "CascadeResult", "run_cascade", "run_brute_force",
            "joints_of"]
 
@@ -467,6 +471,8 @@ def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
         across = np.abs((xi - xj) * -u[:, 1] + (yi - yj) * u[:, 0])
         ok &= across <= math.tan(math.radians(ctx.params.max_contact_skew_deg)) * np.abs(gap) + EPS_MM
     mid_x, mid_y = 0.5 * (xi + xj), 0.5 * (yi + yj)  # the grasp centre
+    if ctx.params.contacts_on_material and ctx.params.pads_at_grasp_centre:  # the pads move with the centre
+        ok &= _pads_stop_at_contacts(ctx, P, idx, ok, (xi, yi, xj, yj), mid_x, mid_y)
     if ctx.params.stroke_at_pad_lines:
         fits = _pads_clear_in_stroke(ctx, P, idx, ok, gap, mid_x, mid_y)
         if fits is not None:
@@ -513,14 +519,47 @@ def _pads_clear_in_stroke(ctx: Context, P: Pairs, idx, ok: np.ndarray, gap: np.n
     near = np.flatnonzero(ok & (gap > limit - 2 * (tol + PAD_COMPLIANCE_MM)))
     if not len(near):
         return None
-    rows = np.asarray(idx).take(near)
-    u, t, m = P.u.take(rows, 0), P.t.take(rows), P.m.take(rows, 0)
-    # the band centre on the contacts' line: t along u is the same from it as from the midpoint m
-    off = (cx.take(near) - m[:, 0]) * -u[:, 1] + (cy.take(near) - m[:, 1]) * u[:, 0]
-    pads = BandEdges.clip(ctx, *_pad_bands(ctx, u, t, m[:, 0] - u[:, 1] * off, m[:, 1] + u[:, 0] * off, 0.0))
-    Tp, _ = pads.first_touch(ctx, touch=False)
+    _, _, _, Tp = _pads_on_centre_line(ctx, P, np.asarray(idx).take(near), cx.take(near), cy.take(near))
     fits = np.ones(k, bool)
     fits[near] = Tp[:len(near)] + Tp[len(near):] <= limit
+    return fits
+
+
+def _pads_on_centre_line(ctx: Context, P: Pairs, rows, cx, cy):
+    """The pads (no tol beside them) of the pairs `rows` (r,) centred on the line along u through the
+    grasp centres (cx, cy), as the gripper and the physical check have them: the band centres bx, by
+    (r,) on that line level with the pair midpoints (t along u is the same from them as from m), u
+    (r, 2) and each pad's first touch T (2r,: p_i's pads, then p_j's; along u, then along -u)."""
+    u, t, m = P.u.take(rows, 0), P.t.take(rows), P.m.take(rows, 0)
+    off = (cx - m[:, 0]) * -u[:, 1] + (cy - m[:, 1]) * u[:, 0]
+    bx, by = m[:, 0] - u[:, 1] * off, m[:, 1] + u[:, 0] * off
+    T, _ = BandEdges.clip(ctx, *_pad_bands(ctx, u, t, bx, by, 0.0)).first_touch(ctx, touch=False)
+    return bx, by, u, T
+
+
+def _pads_stop_at_contacts(ctx: Context, P: Pairs, idx, ok: np.ndarray, contacts, cx, cy) -> np.ndarray:
+    """(k,): do the pads, centred on the line through the contacts' midpoint (cx, cy) (k,), stop at the
+    contacts (within the pad's compliance)? Contacts moved onto the material (or pressed at a pad's
+    side) can move that midpoint across the axis by up to the band's half width, away from the line
+    the bands were found on; the pads there can meet other material first (a star's slanted arm 4.9 mm
+    in front of both contacts, the jaws stopping 10 mm wider than the opening). Pairs whose centre
+    stayed on the line (almost all) are not looked at."""
+    xi, yi, xj, yj = contacts
+    m, u = P.m.take(idx, 0), P.u.take(idx, 0)
+    off = (cx - m[:, 0]) * -u[:, 1] + (cy - m[:, 1]) * u[:, 0]
+    moved = np.flatnonzero(ok & (np.abs(off) > CENTRE_SHIFT_MM))
+    fits = np.ones(len(ok), bool)
+    if not len(moved):
+        return fits
+    bx, by, uu, T = _pads_on_centre_line(ctx, P, np.asarray(idx).take(moved), cx.take(moved), cy.take(moved))
+    ti = (xi.take(moved) - bx) * uu[:, 0] + (yi.take(moved) - by) * uu[:, 1]
+    tj = (bx - xj.take(moved)) * uu[:, 0] + (by - yj.take(moved)) * uu[:, 1]
+    # the face under a contact slants by up to max_normal_angle to the pad: moved |off| across, the pad
+    # meets it up to |off| tan(that) further out; more is other material (an arm, a rim)
+    reach = PAD_COMPLIANCE_MM + np.abs(off.take(moved)) * math.tan(math.radians(ctx.params.max_normal_angle_deg))
+    n = len(moved)
+    fits[moved] = (np.isfinite(T[:n]) & np.isfinite(T[n:]) & (T[:n] <= ti + reach + EPS_MM)
+                   & (T[n:] <= tj + reach + EPS_MM))
     return fits
 
 

@@ -436,6 +436,7 @@ def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     finite = np.isfinite(lateral)
     stops = T <= tt + tol + EPS_MM  # the pad stops within tol of the candidate along the axis
     pressed = finite & (lateral > tol + EPS_MM) & stops if slanted else None
+    ahead = None  # (2k,) how far the band's first touch lies in front of the line each touch is on
     if pressed is not None and pressed.any():
         q = np.flatnonzero(pressed)
         nq = len(q)
@@ -455,6 +456,8 @@ def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
         px, py = cxq + uxq * Tp + vxq * lat_c, cyq + uyq * Tp + vyq * lat_c
         x[q] = np.where(press, px, x.take(q))
         y[q] = np.where(press, py, y.take(q))
+        ahead = np.zeros(2 * k)
+        ahead[q] = np.where(press, T.take(q) - Tp, 0.0)  # pressed: on the pad's own first-touch line
         dx, dy = x - cx, y - cy
         l_touch = dx * vx + dy * vy
         lateral = np.abs(l_touch)
@@ -472,7 +475,8 @@ def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
         ok &= across <= math.tan(math.radians(ctx.params.max_contact_skew_deg)) * np.abs(gap) + EPS_MM
     mid_x, mid_y = 0.5 * (xi + xj), 0.5 * (yi + yj)  # the grasp centre
     if ctx.params.contacts_on_material and ctx.params.pads_at_grasp_centre:  # the pads move with the centre
-        ok &= _pads_stop_at_contacts(ctx, P, idx, ok, (xi, yi, xj, yj), mid_x, mid_y)
+        ahead_pair = None if ahead is None else np.maximum(ahead[:k], ahead[k:])
+        ok &= _pads_stop_at_contacts(ctx, P, idx, ok, ahead_pair, (xi, yi, xj, yj), mid_x, mid_y)
     if ctx.params.stroke_at_pad_lines:
         fits = _pads_clear_in_stroke(ctx, P, idx, ok, gap, mid_x, mid_y)
         if fits is not None:
@@ -537,17 +541,26 @@ def _pads_on_centre_line(ctx: Context, P: Pairs, rows, cx, cy):
     return bx, by, u, T
 
 
-def _pads_stop_at_contacts(ctx: Context, P: Pairs, idx, ok: np.ndarray, contacts, cx, cy) -> np.ndarray:
+def _pads_stop_at_contacts(ctx: Context, P: Pairs, idx, ok: np.ndarray, ahead, contacts, cx, cy) -> np.ndarray:
     """(k,): do the pads, centred on the line through the contacts' midpoint (cx, cy) (k,), stop at the
     contacts (within the pad's compliance)? Contacts moved onto the material (or pressed at a pad's
     side) can move that midpoint across the axis by up to the band's half width, away from the line
     the bands were found on; the pads there can meet other material first (a star's slanted arm 4.9 mm
-    in front of both contacts, the jaws stopping 10 mm wider than the opening). Pairs whose centre
-    stayed on the line (almost all) are not looked at."""
+    in front of both contacts, the jaws stopping 10 mm wider than the opening). Only pairs that may fail
+    are looked at: a pad moved |off| <= contact_tol lies inside the contacts stage's band (the pad
+    widened by contact_tol each side), so it first touches no further out than that band did, and each
+    contact lies at most the compliance behind the line its touch was put on (BandEdges.on_material),
+    which is that band's first touch or, pressed on a slanted face, `ahead` (k,: the larger of the two
+    pads') behind it; a pair with ahead <= |off| tan(max_normal_angle) passes. The centre moves off its
+    line only where contacts move across the axis; almost every pair is not looked at."""
     xi, yi, xj, yj = contacts
     m, u = P.m.take(idx, 0), P.u.take(idx, 0)
-    off = (cx - m[:, 0]) * -u[:, 1] + (cy - m[:, 1]) * u[:, 0]
-    moved = np.flatnonzero(ok & (np.abs(off) > CENTRE_SHIFT_MM))
+    off = np.abs((cx - m[:, 0]) * -u[:, 1] + (cy - m[:, 1]) * u[:, 0])
+    slant = math.tan(math.radians(ctx.params.max_normal_angle_deg))
+    look = off > ctx.params.contact_tol_mm - EPS_MM
+    if ahead is not None:
+        look |= (off > CENTRE_SHIFT_MM) & (ahead > off * slant)
+    moved = np.flatnonzero(ok & look)
     fits = np.ones(len(ok), bool)
     if not len(moved):
         return fits
@@ -556,7 +569,7 @@ def _pads_stop_at_contacts(ctx: Context, P: Pairs, idx, ok: np.ndarray, contacts
     tj = (bx - xj.take(moved)) * uu[:, 0] + (by - yj.take(moved)) * uu[:, 1]
     # the face under a contact slants by up to max_normal_angle to the pad: moved |off| across, the pad
     # meets it up to |off| tan(that) further out; more is other material (an arm, a rim)
-    reach = PAD_COMPLIANCE_MM + np.abs(off.take(moved)) * math.tan(math.radians(ctx.params.max_normal_angle_deg))
+    reach = PAD_COMPLIANCE_MM + off.take(moved) * slant
     n = len(moved)
     fits[moved] = (np.isfinite(T[:n]) & np.isfinite(T[n:]) & (T[:n] <= ti + reach + EPS_MM)
                    & (T[n:] <= tj + reach + EPS_MM))

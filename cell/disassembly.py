@@ -27,6 +27,7 @@ class StepPlan:
     reason: str | None = None
     counts: dict | None = None
     time_ms: float | None = None
+    blocked_by: tuple[str, ...] = ()  # parts still lying on the target (no grasp can lift it)
 
     @property
     def ok(self) -> bool:
@@ -39,6 +40,8 @@ class StepPlan:
             d["lift"] = {"clear": True}
         else:
             d.update({"target": self.scene.target, "error": self.error, "reason": self.reason})
+            if self.blocked_by:
+                d["lift"] = {"clear": False, "blocked_by": list(self.blocked_by)}
             if self.counts:
                 d["counts"] = {k: v for k, v in self.counts.items() if k != "time_ms"}
             if self.time_ms is not None:
@@ -55,10 +58,10 @@ def parts_on_top(target: Part, present: tuple[Part, ...]) -> list[str]:
 
 def plan_step(planner: GraspPlanner, scene: Scene, step: int) -> StepPlan:
     blockers = parts_on_top(scene.target_part, scene.obstacles)
-    if blockers:
-        return StepPlan(step, scene, None, "lift_blocked",
+    if blockers:  # CONTRACT's one error value for a step without a grasp; `lift` says why
+        return StepPlan(step, scene, None, "no_feasible_grasp",
                         f"{scene.target!r} cannot be lifted straight up: {', '.join(map(repr, blockers))} "
-                        "still lies on it (is the sequence right?)")
+                        "still lies on it (is the sequence right?)", blocked_by=tuple(blockers))
     try:
         return StepPlan(step, scene, planner.plan(scene))
     except NoFeasibleGrasp as e:

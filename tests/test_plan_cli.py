@@ -46,7 +46,8 @@ def test_a_part_with_another_on_it_cannot_be_lifted(tmp_path, capsys):
     code, out, _ = run_cli("plan", _stack(tmp_path, ["plate", "lid"]), "--json", capsys=capsys)
     lines = [json.loads(x) for x in out.splitlines()]
     assert code == 3
-    assert lines[0]["error"] == "lift_blocked" and "'lid'" in lines[0]["reason"]
+    assert lines[0]["error"] == "no_feasible_grasp" and "'lid'" in lines[0]["reason"]  # CONTRACT's error value
+    assert lines[0]["lift"] == {"clear": False, "blocked_by": ["lid"]}
     assert "error" not in lines[1]  # the lid alone is still planned
 
 

@@ -1,8 +1,13 @@
 """The one place where a joint command is checked before any frame leaves (pure).
 
 Joint limits, the workspace box of the cell file (x/y of the tool; the tray lies inside it)
-and the largest step one command may ask for. The drives' software limits (0x607D) are a
-second line of defence; this check comes first and refuses with a message that says why.
+and the largest step one command may ask for; and, from where the arm is, the way there: the
+tool inside the workspace all along the coordinated move (two poses inside it can sweep out
+of it between them: an elbow flip, a swing past the stretched arm), and below the safe height
+straight up or down or across at one height, never across while going up or down (the
+fingers would sweep sideways through what stands on the tray). The drives' software limits
+(0x607D) are a second line of defence; this check comes first and refuses with a message
+that says why.
 """
 
 from __future__ import annotations
@@ -20,12 +25,21 @@ JOINT_FIELDS = (
 )
 
 
+# the path is sampled this finely in J1 and J2: between two samples the tool strays from their chord by at
+# most (l1 + 4 l2) d^2 / 8, 0.014 mm for the default cell, about one drive count
+PATH_STEP_DEG = 0.5
+# below the safe height, what counts as not moving: a drive settles a count or two off its target, so the
+# lift from a grasp starts a few counts beside it
+STILL_MM = 0.5
+STILL_DEG = 0.5
+
+
 def command_violations(cell, target: Joints, current: Joints | None) -> list[str]:
     """Human-readable reasons why `target` must not be sent (empty list: it may be sent).
 
     The command as asked and, when that passes, as the drives get it (`as_sent`: each joint
     rounded to a whole count): a tool asked for exactly on the workspace's edge can land a few
-    micrometres past it once rounded.
+    micrometres past it once rounded. From `current`, also the way there (`path_violations`).
 
     Parameters
     ----------
@@ -43,6 +57,42 @@ def command_violations(cell, target: Joints, current: Joints | None) -> list[str
         sent = as_sent(cell, target)
         if sent != target:
             out = _pose_violations(cell, sent, current, " (as sent: each joint rounded to a whole drive count)")
+    if not out and current is not None:
+        out = path_violations(cell, current, target)
+    return out
+
+
+def path_violations(cell, start: Joints, target: Joints) -> list[str]:
+    """Why the way from `start` to `target` must not be taken: the coordinated move as the drives run it
+    (`drivers.profile.coordinated_path`: each axis on its own trapezoid). The tool must stay inside the
+    workspace all along (unless it starts outside: the way back in is then allowed), and below the safe
+    height it goes straight up or down or across at one height (J3 moving while the tool travels or J4
+    turns, with either end below the safe height, is refused)."""
+    from drivers.profile import coordinated_path
+
+    path = [start, *coordinated_path(cell.scara, start, target, PATH_STEP_DEG)]
+    tools = [forward(j, cell.scara) for j in path]
+    out = []
+    safe = cell.motion.safe_z_mm
+    rise = target.j3_mm - start.j3_mm
+    if min(start.j3_mm, target.j3_mm) < safe and abs(rise) > STILL_MM:
+        x0, y0 = tools[0].x_mm, tools[0].y_mm
+        travel = max(math.hypot(t.x_mm - x0, t.y_mm - y0) for t in tools)
+        turn = abs(target.j4_deg - start.j4_deg)
+        moving = ([f"the tool travels {travel:.1f} mm"] if travel > STILL_MM else []) + (
+            [f"J4 turns {turn:.1f} deg"] if turn > STILL_DEG else [])
+        if moving:
+            out.append(f"J3 goes {'up' if rise > 0 else 'down'} from {start.j3_mm:.1f} to {target.j3_mm:.1f} mm while "
+                       f"{' and '.join(moving)}: below the safe height {safe:g} mm the arm goes straight up or down, "
+                       "or across at one height")
+    ws = cell.workspace
+    if ws.contains(tools[0].x_mm, tools[0].y_mm):
+        for j, t in zip(path, tools, strict=True):
+            if not ws.contains(t.x_mm, t.y_mm):
+                out.append(f"the tool would leave the workspace on the way, at x = {t.x_mm:.1f}, y = {t.y_mm:.1f} mm "
+                           f"(J1 {j.j1_deg:.1f} deg, J2 {j.j2_deg:.1f} deg); the workspace is x in "
+                           f"[{ws.x_mm[0]:g}, {ws.x_mm[1]:g}], y in [{ws.y_mm[0]:g}, {ws.y_mm[1]:g}]")
+                break
     return out
 
 

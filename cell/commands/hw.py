@@ -252,15 +252,9 @@ def _serve(args, cell) -> int:
     return 0
 
 
-def _move_in_steps(arm, target) -> None:
-    from drivers.limits import split_move
-
-    for waypoint in split_move(arm.joints(), target, arm.cell.scara.max_step):
-        arm.move_joints(waypoint)
-
-
 def _home(args, cell) -> int:
     from cell.kinematics import Joints
+    from cell.runtime.motion import go_to
 
     home = Joints.from_dict(cell.motion.home_joints)
     with _session(args, cell) as (arm, _):
@@ -269,8 +263,8 @@ def _home(args, cell) -> int:
         t0 = arm.clock.now()
         with _stop_on_interrupt(arm):
             if start.j3_mm < home.j3_mm:  # lift first, then swing
-                _move_in_steps(arm, Joints(start.j1_deg, start.j2_deg, home.j3_mm, start.j4_deg))
-            _move_in_steps(arm, home)
+                arm.move_joints(Joints(start.j1_deg, start.j2_deg, home.j3_mm, start.j4_deg))
+            go_to(arm, home)
         end = arm.joints()
         _emit(
             args,
@@ -342,29 +336,29 @@ def _gripper(args, cell) -> int:
 
 def _corner(args, cell) -> int:
     from cell.errors import CellError
-    from cell.kinematics import Joints, inverse
+    from cell.kinematics import inverse
+    from cell.runtime.motion import go_to
 
     x = cell.tray.x_mm[0] if args.corner.startswith("near") else cell.tray.x_mm[1]
     y = cell.tray.y_mm[1] if args.corner.endswith("left") else cell.tray.y_mm[0]
     z = cell.motion.safe_z_mm
     with _session(args, cell) as (arm, _):
         start = arm.joints()
-        solutions = inverse(x, y, z, 0.0, cell.scara)
+        # every elbow and J4 turn within the limits; the one nearest to where the arm stands (J4 turned the
+        # least: the jaws' direction does not matter here). Wrapping J4 to the nearest turn went past its limit
+        # from a J4 near it, and the corner was refused
+        solutions = inverse(x, y, z, start.j1_deg + start.j2_deg + start.j4_deg, cell.scara)
         if not solutions:
             raise CellError(f"tray corner ({x:g}, {y:g}) is out of reach")
         w = start.as_array()
         corner = min(solutions, key=lambda q: float(abs(q.as_array() - w).max()))
-        corner = Joints(corner.j1_deg, corner.j2_deg, z, start.j4_deg + _wrap(corner.j4_deg - start.j4_deg))
         confirm_motion(args, f"move to the {args.corner} tray corner ({x:g}, {y:g}) at z {z:g} and back")
         t0 = arm.clock.now()
         with _stop_on_interrupt(arm):
-            lifted = Joints(start.j1_deg, start.j2_deg, max(start.j3_mm, z), start.j4_deg)
-            _move_in_steps(arm, lifted)
-            _move_in_steps(arm, corner)
+            go_to(arm, corner)
             at_corner = arm.joints()
             arm.clock.sleep(args.dwell)
-            _move_in_steps(arm, lifted)
-            _move_in_steps(arm, start)
+            go_to(arm, start)
         end = arm.joints()
         _emit(
             args,
@@ -379,8 +373,3 @@ def _corner(args, cell) -> int:
             f"back at {_joints_text(end)}",
         )
     return 0
-
-
-def _wrap(a: float) -> float:
-    """Equivalent J4 turn nearest zero (the closing axis is a direction mod 180 degrees)."""
-    return (a + 90.0) % 180.0 - 90.0

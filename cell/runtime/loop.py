@@ -38,7 +38,15 @@ from cell.grasp.synthesis import Grasp, GraspPlanner
 from cell.kinematics import Joints
 from cell.runtime.control import Faulted, RunControl, Stopped
 from cell.runtime.matching import Region, locate, unexplained
-from cell.runtime.motion import above, approach_opening_mm, carry_off_commands, dropoff_options, pick_commands
+from cell.runtime.motion import (
+    above,
+    approach_opening_mm,
+    carry_off_commands,
+    dropoff_options,
+    go_to,
+    pick_commands,
+    routed,
+)
 from cell.scene import Assembly, Part, Scene
 
 TRAVEL_MARGIN_MM = 20.0  # above the tallest part on the tray, when travelling
@@ -239,7 +247,7 @@ class CellLoop:
         self.control.checkpoint("frame", step=len(self.assembly.sequence) - len(self.remaining), part=part_id)
         if self.home_first is not None:  # the first motion waits for the operator's Run
             home, self.home_first = self.home_first, None
-            self.arm.move_joints(home)
+            go_to(self.arm, home)  # a real cell's arm may stand anywhere: up first, then across
         if self._taken_by_hand is not None:  # the operator took the part out of the jaws and reset
             pick, self._taken_by_hand = self._taken_by_hand, None
             self._retreat(pick["grasp"])
@@ -564,12 +572,15 @@ class CellLoop:
         LinksWouldHit (the first one's reason) when none does."""
         first = None
         for drop in dropoff_options(self.cell, grasp.joints):
-            commands = commands_to(drop)
             try:
+                # the ways the drivers refuse (the tool sweeping out of the workspace) go round by other moves
+                commands = routed(commands_to(drop), self.arm.joints(), self.cell)
                 self._check_links(part_id, commands, why)
                 return commands
             except LinksWouldHit as e:
                 first = first or e
+            except CellError as e:
+                first = first or LinksWouldHit(f"{why}{e}")
         raise first
 
     def _check_links(self, part_id: str, commands, why: str) -> None:

@@ -114,6 +114,75 @@ def carry_off_commands(from_joints: Joints, grasp_joints: Joints, cell: Cell, sa
     ]
 
 
+# J1 angles tried for an elbow flip that the direct way, or J1 and J2 one after the other, cannot make inside
+# the workspace (the stretched arm must lie in it while J2 passes 0): every 5 degrees, the nearest first
+FLIP_J1_STEP_DEG = 1.0
+
+
+def routed(commands: list[Command], start: Joints, cell: Cell) -> list[Command]:
+    """`commands` from `start` with every move whose way the drivers would refuse (`drivers.limits`: the
+    tool leaving the workspace between two poses inside it, say the elbow flipping where the stretched arm
+    reaches out of it) split by the moves of `way_to`, labelled '<label> (via)'. Moves whose own target is
+    refused stay as they are (the drivers name the reason). CellError when a move has no such way."""
+    out, at = [], start
+    for c in commands:
+        if c.joints is None:
+            out.append(c)
+            continue
+        if command_violations(cell, c.joints, None) or not command_violations(cell, c.joints, at):
+            out.append(c)
+        else:
+            *via, _ = way_to(cell, at, c.joints, c.label)
+            out += [Command("move", f"{c.label} (via)", joints=v) for v in via] + [c]
+        at = c.joints
+    return out
+
+
+def way_to(cell: Cell, start: Joints, target: Joints, label: str = "move") -> list[Joints]:
+    """Moves from `start` ending at `target` that the drivers take, each with its way checked
+    (`command_violations` from the one before): directly; or J1 (with J3, J4) first, then J2; or J2 first;
+    or J1 to where the stretched arm lies inside the workspace, J2 there, then J1 (the nearest such J1
+    first). CellError naming the direct way's reason when none is clear."""
+    flips = np.arange(cell.scara.j1_deg[0], cell.scara.j1_deg[1] + 1e-9, FLIP_J1_STEP_DEG)
+    flips = sorted(flips, key=lambda a: abs(a - start.j1_deg) + abs(a - target.j1_deg))
+    candidates = [[target],
+                  [Joints(target.j1_deg, start.j2_deg, target.j3_mm, target.j4_deg), target],
+                  [Joints(start.j1_deg, target.j2_deg, target.j3_mm, target.j4_deg), target],
+                  *([Joints(float(a), start.j2_deg, target.j3_mm, target.j4_deg),
+                     Joints(float(a), target.j2_deg, target.j3_mm, target.j4_deg), target] for a in flips)]
+    for moves in candidates:
+        at = start
+        for m in moves:
+            if command_violations(cell, m, at):
+                break
+            at = m
+        else:
+            return moves
+    raise CellError(f"no way to '{label}' the arm may take: {'; '.join(command_violations(cell, target, start))}")
+
+
+def go_to(arm, target: Joints) -> None:
+    """Move the arm from wherever it stands to `target` as the drivers allow: below the safe height straight
+    up first (to the target's height, or the safe height), across in steps within `max_step` by ways the
+    drivers take (`way_to`), then straight down. For a start the cell does not choose: home at the start of a
+    run, whose arm may stand anywhere on a real cell (lifting and swinging at once dragged the fingers
+    sideways through the tray)."""
+    from drivers.limits import split_move
+
+    cell, at = arm.cell, arm.joints()
+    safe = cell.motion.safe_z_mm
+    travel = max(at.j3_mm, target.j3_mm) if at.j3_mm >= safe or target.j3_mm >= safe else safe
+    if at.j3_mm < travel:
+        arm.move_joints(above(at, travel))
+        at = arm.joints()
+    for waypoint in split_move(at, above(target, travel), cell.scara.max_step):
+        for move in way_to(cell, at, waypoint, "home"):
+            arm.move_joints(move)
+        at = waypoint
+    if target.j3_mm < travel:
+        arm.move_joints(target)
+
+
 def grip_held(expected_mm: float, reported_mm: float, tolerance_mm: float = 2.0) -> bool:
     """Jaws that stopped near the expected width hold the part; jaws that closed past it
     (by more than the tolerance) missed it."""

@@ -219,6 +219,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     from cell.examples import load_examples
     from cell.recording import RecordingReader
     from cell.runtime.loop import CellLoop, LoopOptions, StopRun
+    from cell.runtime.motion import go_to
     from cell.runtime.session import EXAMPLES_AT_START, home_joints
     from cell.scene import parse_assembly
     from cell.vision import FileCamera
@@ -266,7 +267,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
                             control=control, examples_path=work_examples, sink=sink,
                             options=LoopOptions(on_no_grasp=meta.get("on_no_grasp", "stop")),
                             planner_params=planner_params, taught=sink.examples_taught_here)
-            arm.move_joints(home_joints(cell))
+            go_to(arm, home_joints(cell))
             control.run(by="replay")
             say(f"replaying {len(frames)} frames, {len(recorded)} decisions")
             try:

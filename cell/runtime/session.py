@@ -22,6 +22,7 @@ from cell.examples import default_examples_path
 from cell.fileio import write_atomic
 from cell.runtime.control import RunControl, Stopped
 from cell.runtime.loop import CellLoop, LoopOptions, StopRun
+from cell.runtime.motion import go_to
 from cell.runtime.simworld import SimWorld, WorldFaults
 from cell.scene import Assembly, Part, load_assembly
 
@@ -273,7 +274,7 @@ def run_session(cfg: RunConfig) -> dict:
                 loop.home_first = home_joints(cell)  # nothing moves before the operator presses Run
                 summary = _with_station(loop, control, cfg, say)
             else:
-                arm.move_joints(home_joints(cell))
+                go_to(arm, home_joints(cell))  # a real cell's arm may stand anywhere: up first, then across
                 control.run(by="cell run")
                 summary = loop.run()
         except KeyboardInterrupt:

@@ -1,0 +1,161 @@
+"""The way between two poses, checked where every target leaves for the bus (`drivers.limits.path_violations`,
+called by `Arm.move_joints`): the tool stays inside the workspace all along the coordinated move, and below the
+safe height the arm goes straight up or down, or across at one height. Through the real stack: the simulated
+drives on python-can's virtual bus, what they did read back from their positions (TPDO1)."""
+
+from __future__ import annotations
+
+import json
+from importlib import resources
+from pathlib import Path
+
+import pytest
+from conftest import run_cli
+from drivers_fixtures import arm, channel, needs_sim, open_test_bus, sim_clock, sim_drives  # noqa: F401
+
+from cell.kinematics import Joints, forward
+from drivers import LimitError, codec
+from drivers.record import read_log
+
+pytestmark = needs_sim
+
+HOME = Joints(0.0, 90.0, 200.0, 0.0)
+# the first approach of recordings/shipped (the nut, elbow left) from home (elbow right): the elbow flip took
+# the tool to x = 573.6 mm, 13.6 mm past the workspace's 560, with both ends inside it
+SHIPPED_NUT_APPROACH = Joints(40.693, -97.7142, 150.0, -45.2933)
+
+
+def _track(arm, target, send=None) -> list[Joints]:
+    """Send `target` without waiting (`send`: the arm's move_joints) and read the drives' positions every
+    simulated 5 ms until they stand."""
+    (send or arm.move_joints)(target, wait=False)
+    seen = []
+    for _ in range(2000):
+        seen.append(arm.joints())
+        if all(arm._arrived(arm.axes[n], c) for n, c in arm._pending[0].items()):
+            break
+        arm.clock.sleep(0.005)
+    arm.wait_idle()
+    return seen
+
+
+def _inside(cell, j: Joints) -> bool:
+    t = forward(j, cell.scara)
+    return cell.workspace.contains(t.x_mm, t.y_mm)
+
+
+def test_a_move_whose_ends_lie_inside_the_workspace_but_sweeps_out_of_it_is_refused_and_nothing_moves(arm, cell_cfg):
+    assert _inside(cell_cfg, HOME) and _inside(cell_cfg, SHIPPED_NUT_APPROACH)
+    with pytest.raises(LimitError, match=r"the tool would leave the workspace on the way, at x = 560\.\d"):
+        arm.move_joints(SHIPPED_NUT_APPROACH)
+    assert arm.faults == {}  # refused before any frame: nothing to stop
+    arm.clock.sleep(0.2)
+    assert arm.joints() == HOME  # the drives never got a target
+    # a swing past the stretched arm at one height, both ends inside
+    arm.move_joints(Joints(-50.0, 10.0, 200.0, 0.0))
+    with pytest.raises(LimitError, match="leave the workspace on the way"):
+        arm.move_joints(Joints(40.0, 10.0, 200.0, 0.0))
+    assert arm.joints() == Joints(-50.0, 10.0, 200.0, 0.0)
+
+
+@pytest.mark.parametrize(("start", "target", "needle"), [
+    (HOME, Joints(20.0, 60.0, 20.0, 0.0), "J3 goes down from 200.0 to 20.0 mm while the tool travels"),
+    (Joints(0.0, 90.0, 20.0, 0.0), Joints(10.0, 80.0, 200.0, 0.0), "J3 goes up from 20.0 to 200.0 mm while the tool"),
+    (Joints(0.0, 90.0, 100.0, 0.0), Joints(0.0, 90.0, 20.0, 40.0), "while J4 turns 40.0 deg"),
+])
+def test_below_the_safe_height_the_arm_never_moves_across_while_going_up_or_down(arm, cell_cfg, start, target, needle):
+    for move in (Joints(start.j1_deg, start.j2_deg, 200.0, start.j4_deg), start):  # there, straight down
+        arm.move_joints(move)
+    with pytest.raises(LimitError, match=needle):
+        arm.move_joints(target)
+    assert arm.joints() == start
+
+
+def test_straight_up_and_down_and_across_at_one_height_are_sent(arm, cell_cfg):
+    low = Joints(10.0, 80.0, 20.0, 0.0)
+    for move in (Joints(10.0, 80.0, 200.0, 0.0), low, Joints(14.0, 77.0, 20.0, 5.0), Joints(14.0, 77.0, 200.0, 5.0)):
+        assert arm.move_joints(move) == move
+    # a lift from where a drive settled a few counts beside the grasp is straight up
+    arm.move_joints(Joints(10.0, 80.0, 200.0, 0.0))
+    arm.move_joints(low)
+    assert arm.move_joints(Joints(10.004, 79.997, 150.0, 0.002)) == Joints(10.004, 79.997, 150.0, 0.002)
+
+
+def test_the_routed_way_keeps_the_tool_inside_the_workspace_on_the_drives(arm, cell_cfg):
+    from cell.runtime.motion import way_to
+
+    moves = way_to(cell_cfg, HOME, SHIPPED_NUT_APPROACH, "approach")
+    assert moves[-1] == SHIPPED_NUT_APPROACH and len(moves) > 1
+    seen = [p for m in moves for p in _track(arm, m)]
+    assert len(seen) > 50
+    worst = max(forward(j, cell_cfg.scara).x_mm for j in seen)
+    assert worst <= cell_cfg.workspace.x_mm[1]
+    assert all(_inside(cell_cfg, j) for j in seen)
+
+
+def test_going_home_from_low_on_the_tray_lifts_straight_up_first(arm, cell_cfg):
+    from cell.runtime.motion import go_to
+
+    low = Joints(-30.0, 70.0, 15.0, 20.0)
+    for move in (Joints(-30.0, 70.0, 200.0, 20.0), low):
+        arm.move_joints(move)
+    seen = []
+    real_move = arm.move_joints
+
+    def tracked(target, *, wait=True):
+        seen.extend(_track(arm, target, real_move))
+        return target
+
+    arm.move_joints = tracked
+    try:
+        go_to(arm, HOME)
+    finally:
+        del arm.move_joints
+    assert arm.joints() == HOME
+    below = [j for j in seen if j.j3_mm < cell_cfg.motion.safe_z_mm]
+    assert below, "the drives were seen below the safe height"
+    assert {(j.j1_deg, j.j2_deg, j.j4_deg) for j in below} == {(low.j1_deg, low.j2_deg, low.j4_deg)}
+
+
+def test_hw_corner_from_a_j4_near_its_limit_takes_the_turn_within_it(tmp_path, capsys, cell_cfg):
+    # J4 wrapped to the nearest turn from 355 deg asked for 409.8 deg: 'move refused' and exit 2
+    raw = json.loads((Path(str(resources.files("cell"))) / "data" / "default_cell.json").read_text())
+    raw["motion"]["home_joints"]["j4_deg"] = 355.0
+    path = tmp_path / "cell.json"
+    path.write_text(json.dumps(raw))
+    for corner in ("far-right", "near-left"):
+        code, out, err = run_cli("hw", "corner", "--cell", path, "--simulated-time", "--corner", corner, "--dwell", "0",
+                                 "--json", capsys=capsys)
+        assert code == 0, err
+        got = json.loads(out)
+        assert -360.0 <= got["at_corner"]["j4_deg"] <= 360.0
+        assert got["back"]["j4_deg"] == pytest.approx(355.0)
+
+
+def _positions_on_the_bus(log: Path, cell) -> list[Joints]:
+    """The arm as its drives reported it (TPDO1 position actual of j1-j4), after every report once all four
+    have reported."""
+    ids = {n.node_id: j for j, n in cell.can.nodes.items() if j != "gripper"}
+    now, out = {}, []
+    for msg in read_log(log):
+        node = msg.arbitration_id - codec.TPDO1_BASE
+        if node in ids and len(msg.data) == 7:
+            joint = ids[node]
+            now[joint] = codec.unpack_tpdo1(msg.data).position_counts / cell.can.nodes[joint].counts_per_unit
+            if len(now) == 4:
+                out.append(Joints(now["j1"], now["j2"], now["j3"], now["j4"]))
+    return out
+
+
+def test_cell_run_keeps_the_tool_inside_the_workspace_all_the_way_as_its_drives_report(tmp_path, capsys, cell_cfg):
+    code, out, err = run_cli("run", "--record", tmp_path / "rec", capsys=capsys)
+    assert code == 0, err
+    seen = _positions_on_the_bus(tmp_path / "rec" / "can.log", cell_cfg)
+    assert len(seen) > 1000
+    outside = [j for j in seen if not _inside(cell_cfg, j)]
+    assert outside == []
+    decisions = [json.loads(line) for line in (tmp_path / "rec" / "decisions.jsonl").read_text().splitlines()]
+    labels = [c["label"] for d in decisions if d["type"] == "commands" for c in d["commands"]]
+    assert "approach (via)" in labels  # the nut's elbow flip went round
+    code, out, err = run_cli("replay", tmp_path / "rec", capsys=capsys)
+    assert code == 0, err + out

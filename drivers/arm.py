@@ -271,7 +271,10 @@ class Arm:
     # --- supervision -----------------------------------------------------------------------
     def _send_host_heartbeat(self) -> None:
         if self._network is not None:
-            self._network.send_message(codec.HEARTBEAT_BASE + HOST_NODE_ID, codec.pack_heartbeat(0x05))
+            try:
+                self._network.send_message(codec.HEARTBEAT_BASE + HOST_NODE_ID, codec.pack_heartbeat(0x05))
+            except can.CanError as e:  # latched (the next check stops the arm), not raised in the clock's job
+                self._latch(BusFault(f"bus: sending the host heartbeat failed: {e}"), key="bus")
 
     def _on_frame(self, msg: can.Message) -> None:
         if msg.is_error_frame:
@@ -283,8 +286,10 @@ class Arm:
                     )
 
     def _watch(self) -> None:
-        """Periodic check of every node: heartbeat deadline, EMCY, FAULT state."""
+        """Periodic check of every node: heartbeat deadline, EMCY, FAULT state; and the host's receiving."""
         now = self.clock.now()
+        if self._pump is not None and self._pump.errors:  # the receive thread ended: the host hears nothing
+            self._latch(BusFault(f"bus: receiving failed: {self._pump.errors[0]}"), key="bus")
         with self._lock:
             if self._watched_s is not None and now - self._watched_s > WATCH_STARVED_SHARE * self.heartbeat_deadline_s:
                 self._silence_from_s = now

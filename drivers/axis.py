@@ -13,13 +13,14 @@ from __future__ import annotations
 import threading
 import time
 
+import can
 import canopen
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from drivers import codec, option_codes
 from drivers.clock import Clock
 from drivers.eds import object_dictionary
-from drivers.errors import DriveFault, NodeSilent, SdoError
+from drivers.errors import BusFault, DriveFault, NodeSilent, SdoError
 
 ANSWER_TIMEOUT_S = 1.0  # wall time a drive gets to answer a controlword with a TPDO
 # time (on the shared clock) a quick stop ramp may take before enable() gives up; the arm passes
@@ -156,12 +157,27 @@ class Axis:
             return self._sdo_var(index, subindex).raw
         except (SdoCommunicationError, SdoAbortedError) as e:
             raise self._sdo_failed(e, f"reading 0x{index:04X}:{subindex}") from None
+        except can.CanError as e:
+            raise self._send_failed(e, f"SDO read 0x{index:04X}:{subindex}") from None
 
     def sdo_write(self, index: int, subindex: int, value) -> None:
         try:
             self._sdo_var(index, subindex).raw = value
         except (SdoCommunicationError, SdoAbortedError) as e:
             raise self._sdo_failed(e, f"writing 0x{index:04X}:{subindex} = {value}") from None
+        except can.CanError as e:
+            raise self._send_failed(e, f"SDO write 0x{index:04X}:{subindex}") from None
+
+    def _send_failed(self, e: can.CanError, what: str) -> BusFault:
+        """The host's own interface refused a frame (bus-off, interface down, a full transmit queue): a fault
+        of the bus, latched and stopped like any other, not a bare python-can exception past the supervision."""
+        return BusFault(f"bus: sending {what} to {self.name} (node {self.node_id}) failed: {e}")
+
+    def _send(self, cob_id: int, data: bytes, what: str) -> None:
+        try:
+            self.network.send_message(cob_id, data)
+        except can.CanError as e:
+            raise self._send_failed(e, what) from None
 
     def setup_pdos(self, event_timer_ms: int) -> None:
         """Check the drive's PDO mapping is the one `drivers.codec` packs (a drive mapped
@@ -235,23 +251,23 @@ class Axis:
 
     # --- frames out ------------------------------------------------------------------------
     def nmt(self, command: int) -> None:
-        self.network.send_message(codec.NMT_COB, codec.pack_nmt(command, self.node_id))
+        self._send(codec.NMT_COB, codec.pack_nmt(command, self.node_id), "NMT")
 
     def send_controlword(self, cw: int) -> int:
         """Send the controlword (RPDO1); returns the status sequence number before sending."""
         with self._cond:
             seq = self.status_seq
         self.controlword = cw
-        self.network.send_message(codec.RPDO1_BASE + self.node_id, codec.pack_controlword(cw))
+        self._send(codec.RPDO1_BASE + self.node_id, codec.pack_controlword(cw), f"controlword 0x{cw:04X}")
         return seq
 
     def send_target(self, counts: int) -> None:
-        self.network.send_message(codec.RPDO2_BASE + self.node_id, codec.pack_target(counts))
+        self._send(codec.RPDO2_BASE + self.node_id, codec.pack_target(counts), "target position")
 
     def send_mode(self, mode: int) -> int:
         with self._cond:
             seq = self.status_seq
-        self.network.send_message(codec.RPDO3_BASE + self.node_id, codec.pack_mode(mode))
+        self._send(codec.RPDO3_BASE + self.node_id, codec.pack_mode(mode), "mode of operation")
         return seq
 
     # --- waiting ---------------------------------------------------------------------------

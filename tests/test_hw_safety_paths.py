@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pytest
 from conftest import run_cli
-from drivers_fixtures import arm, channel, needs_sim, open_test_bus, sim_clock, sim_drives  # noqa: F401
+from drivers_fixtures import *  # noqa: F403 - the bus, drives and arm fixtures
+from drivers_fixtures import needs_sim
 
 from cell.kinematics import Joints, forward
 from drivers import LimitError, codec
@@ -25,17 +26,17 @@ HOME = Joints(0.0, 90.0, 200.0, 0.0)
 SHIPPED_NUT_APPROACH = Joints(40.693, -97.7142, 150.0, -45.2933)
 
 
-def _track(arm, target, send=None) -> list[Joints]:
+def _track(cell_arm, target, send=None) -> list[Joints]:
     """Send `target` without waiting (`send`: the arm's move_joints) and read the drives' positions every
     simulated 5 ms until they stand."""
-    (send or arm.move_joints)(target, wait=False)
+    (send or cell_arm.move_joints)(target, wait=False)
     seen = []
     for _ in range(2000):
-        seen.append(arm.joints())
-        if all(arm._arrived(arm.axes[n], c) for n, c in arm._pending[0].items()):
+        seen.append(cell_arm.joints())
+        if all(cell_arm._arrived(cell_arm.axes[n], c) for n, c in cell_arm._pending[0].items()):
             break
-        arm.clock.sleep(0.005)
-    arm.wait_idle()
+        cell_arm.clock.sleep(0.005)
+    cell_arm.wait_idle()
     return seen
 
 

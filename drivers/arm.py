@@ -57,6 +57,7 @@ HOST_NODE_ID = 0x7F  # the host's own heartbeat id (the drives watch it)
 # behind it, so silence is counted from that run on, not from the last heartbeat handled
 WATCH_STARVED_SHARE = 0.5
 POSITION_TOLERANCE_COUNTS = 2
+QUICK_STOP_CONFIRM_S = 0.2  # wall time a drive gets to confirm a quick stop (it stops on its own when the host is gone)
 STANDSTILL_MARGIN_S = 2.0  # waiting for standstill after a stop: this much past the slowest quick stop ramp
 TPDO_EVENT_TIMER_MS = 50  # status at least every 50 ms when nothing changes (the watch sees a stuck drive)
 
@@ -379,13 +380,15 @@ class Arm:
         return ax.state == "OPERATION_ENABLED" and ax.status is not None and not ax.status.target_reached
 
     def _stop_all(self) -> None:
-        """Quick-stop every axis that still obeys, then wait (on the clock) until all stand still."""
+        """Quick-stop every axis still enabled, then wait (on the clock) until all stand still. A faulted node
+        gets the quick stop too, without waiting for its answer: one that only answered late (no set-point
+        acknowledge within the wall-time bound, a starved host) holds the set-point controlword and would run
+        its move alone once it takes it, after every other axis stopped."""
         for ax in self.axes.values():
-            if ax.name not in self._faults:
-                try:
-                    ax.quick_stop()
-                except (can.CanError, DriverError):
-                    pass  # stopping the others matters more than this one's answer
+            try:
+                ax.quick_stop(confirm_timeout_s=0.0 if ax.name in self._faults else QUICK_STOP_CONFIRM_S)
+            except (can.CanError, DriverError):
+                pass  # stopping the others matters more than this one's answer
         self._wait_standstill()
 
     def _wait_standstill(self, timeout_s: float | None = None) -> None:

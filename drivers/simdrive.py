@@ -25,7 +25,8 @@ from drivers.profile import Trapezoid, trapezoid
 log = logging.getLogger(__name__)
 
 TPDO_EVENT_MS = 50  # TPDO1 is also sent at least this often (canopen's BaseNode402 waits 0.2 s)
-FAULT_KINDS = ("silent", "emcy", "following_error", "drop_sdo", "error_frames", "quick_stop", "disable")
+FAULT_KINDS = ("silent", "emcy", "following_error", "drop_sdo", "error_frames", "quick_stop", "disable",
+               "ignore_set_point")
 # injected events that act on the drive at once, or `after_s` into its next move
 TIMED_EVENTS = ("emcy", "quick_stop", "disable")
 NMT_OPERATIONAL, NMT_PREOP, NMT_STOPPED, NMT_INIT = 0x05, 0x7F, 0x04, 0x00
@@ -170,6 +171,7 @@ class SimDrive:
         # injected faults
         self.silent = False
         self.drop_sdo = 0  # number of SDO answers still to drop (-1: all)
+        self.ignore_set_point = False  # alive (heartbeat, TPDO1) but deaf to the new set-point edge
         self._armed: list[dict] = []
         self._jammed_at: float | None = None  # actual position of a blocked axis (following error)
 
@@ -477,7 +479,7 @@ class SimDrive:
             self._disable(state)
 
     def _profile_position(self, prev: int, cw: int) -> None:
-        rising = cw & codec.CW_NEW_SET_POINT and not prev & codec.CW_NEW_SET_POINT
+        rising = cw & codec.CW_NEW_SET_POINT and not prev & codec.CW_NEW_SET_POINT and not self.ignore_set_point
         halt = bool(cw & codec.CW_HALT)
         if rising and not self.ack:
             target = int(self._get(0x607A))
@@ -793,6 +795,8 @@ class SimDrive:
                 self.silent = True
             elif kind == "drop_sdo":
                 self.drop_sdo = int(kw.get("count", -1))
+            elif kind == "ignore_set_point":
+                self.ignore_set_point = True
             elif kind == "following_error":
                 # the axis jams `after_s` into its next move; the drive trips on its window (0x6065)
                 self._armed.append({"kind": kind, "after_s": float(kw.get("after_s") or 0.0)})
@@ -824,6 +828,7 @@ class SimDrive:
         with self._lock:
             self.silent = False
             self.drop_sdo = 0
+            self.ignore_set_point = False
             self._armed.clear()
 
     def position(self) -> float:

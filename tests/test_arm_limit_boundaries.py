@@ -101,13 +101,24 @@ def assert_drives_at(drives, sent: Joints) -> None:
 
 
 # ------------------------------------------------------------------ J1/J2 maximum step (200 / 240 deg)
-# (start, target): exactly max_step on one joint, the other joints' steps and the tool well inside
+# (start, target): exactly max_step on one joint, the other joints' steps and the tool well inside, at the
+# J3 top (no move of J3 below the safe height crosses the tray). A step this large sweeps the tool out of the
+# default workspace on the way (J1: the tool turns 200 deg about the base; J2: the elbow flips through the
+# stretched arm, 600 mm out), which the drivers refuse too: these tests widen the box past the arm's reach
 MAX_STEP_MOVES = {
-    "J1+200deg": (Joints(-100.0, 100.0, 100.0, 0.0), Joints(100.0, -100.0, 100.0, 0.0)),
-    "J1-200deg": (Joints(100.0, -100.0, 100.0, 0.0), Joints(-100.0, 100.0, 100.0, 0.0)),
-    "J2+240deg": (Joints(0.0, -120.0, 100.0, 0.0), Joints(0.0, 120.0, 100.0, 0.0)),
-    "J2-240deg": (Joints(0.0, 120.0, 100.0, 0.0), Joints(0.0, -120.0, 100.0, 0.0)),
+    "J1+200deg": (Joints(-100.0, 100.0, 200.0, 0.0), Joints(100.0, -100.0, 200.0, 0.0)),
+    "J1-200deg": (Joints(100.0, -100.0, 200.0, 0.0), Joints(-100.0, 100.0, 200.0, 0.0)),
+    "J2+240deg": (Joints(0.0, -120.0, 200.0, 0.0), Joints(0.0, 120.0, 200.0, 0.0)),
+    "J2-240deg": (Joints(0.0, 120.0, 200.0, 0.0), Joints(0.0, -120.0, 200.0, 0.0)),
 }
+
+
+@pytest.fixture
+def wide_cell(cell_cfg):
+    """The default cell with a workspace box beyond the arm's reach (600 mm): only max_step limits a step."""
+    from cell.cellconfig import Box2D
+
+    return dataclasses.replace(cell_cfg, workspace=Box2D((-700.0, 700.0), (-700.0, 700.0)))
 
 
 def _step_target(move: str, beyond_deg: float) -> tuple[str, Joints, Joints]:
@@ -118,27 +129,38 @@ def _step_target(move: str, beyond_deg: float) -> tuple[str, Joints, Joints]:
     return joint, start, with_joint(target, joint, getattr(target, FIELDS[joint]) + math.copysign(beyond_deg, step))
 
 
-@pytest.mark.parametrize("beyond_deg", [0.0, WITHIN_TOL], ids=["exactly", "within-tolerance"])
-@pytest.mark.parametrize("move", MAX_STEP_MOVES)
-def test_a_step_of_max_step_or_within_its_tolerance_is_sent(arm, sim_drives, move, beyond_deg):
-    joint, start, target = _step_target(move, beyond_deg)
-    arm.move_joints(start)
-    step_deg = abs(getattr(target, FIELDS[joint]) - getattr(start, FIELDS[joint]))
-    assert step_deg - arm.cell.scara.max_step[joint] == pytest.approx(beyond_deg, abs=1e-12)
-    sent = arm.move_joints(target)
-    assert_drives_at(sim_drives, sent)
-    assert getattr(sent, FIELDS[joint]) == round(getattr(target, FIELDS[joint]), 3)
+class TestMaxStep:
+    @pytest.fixture
+    def cell_cfg(self, wide_cell):
+        return wide_cell
+
+    @pytest.mark.parametrize("beyond_deg", [0.0, WITHIN_TOL], ids=["exactly", "within-tolerance"])
+    @pytest.mark.parametrize("move", MAX_STEP_MOVES)
+    def test_a_step_of_max_step_or_within_its_tolerance_is_sent(self, arm, sim_drives, move, beyond_deg):
+        joint, start, target = _step_target(move, beyond_deg)
+        arm.move_joints(start)
+        step_deg = abs(getattr(target, FIELDS[joint]) - getattr(start, FIELDS[joint]))
+        assert step_deg - arm.cell.scara.max_step[joint] == pytest.approx(beyond_deg, abs=1e-12)
+        sent = arm.move_joints(target)
+        assert_drives_at(sim_drives, sent)
+        assert getattr(sent, FIELDS[joint]) == round(getattr(target, FIELDS[joint]), 3)
+
+    @pytest.mark.parametrize("beyond_deg", [PAST_TOL, HALF_COUNT], ids=["past-tolerance", "half-a-count"])
+    @pytest.mark.parametrize("move", MAX_STEP_MOVES)
+    def test_a_step_just_past_max_step_is_refused_before_any_frame(self, arm, sim_drives, spy, move, beyond_deg):
+        joint, start, target = _step_target(move, beyond_deg)
+        arm.move_joints(start)
+        message = refused_before_any_frame(spy, sim_drives, lambda: arm.move_joints(target))
+        max_step = arm.cell.scara.max_step[joint]
+        assert message == (f"move refused, nothing sent: {joint.upper()} step {max_step + beyond_deg:.3f} deg "
+                           f"larger than max_step {max_step:g} deg")
 
 
-@pytest.mark.parametrize("beyond_deg", [PAST_TOL, HALF_COUNT], ids=["past-tolerance", "half-a-count"])
-@pytest.mark.parametrize("move", MAX_STEP_MOVES)
-def test_a_step_just_past_max_step_is_refused_before_any_frame(arm, sim_drives, spy, move, beyond_deg):
-    joint, start, target = _step_target(move, beyond_deg)
+def test_a_max_step_move_that_sweeps_the_tool_out_of_the_default_workspace_is_refused(arm, sim_drives, spy):
+    joint, start, target = _step_target("J2-240deg", 0.0)
     arm.move_joints(start)
     message = refused_before_any_frame(spy, sim_drives, lambda: arm.move_joints(target))
-    max_step = arm.cell.scara.max_step[joint]
-    assert message == (f"move refused, nothing sent: {joint.upper()} step {max_step + beyond_deg:.3f} deg "
-                       f"larger than max_step {max_step:g} deg")
+    assert message.startswith("move refused, nothing sent: the tool would leave the workspace on the way, at x = 5")
 
 
 # ------------------------------------------------------------------ workspace box x [-50, 560], y [-450, 450]
@@ -155,7 +177,7 @@ PAST_THE_BOUND_AS_SENT = {"x-min": False, "x-max": True, "y-min": True, "y-max":
 
 
 def joints_with_tool_at(scara, coord: str, value_mm: float, other_mm: float, elbow: int,
-                        z_mm: float = 100.0) -> Joints:
+                        z_mm: float = 200.0) -> Joints:
     """A pose (J3 = z_mm, that elbow) whose tool `coord` is `value_mm` to the last float: J1 bisected
     near the inverse kinematics' solution (its J2 and J4 kept)."""
     x, y = (value_mm, other_mm) if coord == "x" else (other_mm, value_mm)
@@ -430,6 +452,7 @@ class TestCarryOffPreCheck:
         from cell.runtime.control import RunControl
         from cell.runtime.loop import CellLoop, PartReport
         from cell.runtime.motion import dropoff_joints, pick_commands
+        from cell.runtime.ways import routed
         from cell.scene import Scene, load_assembly
         from drivers.execute import run_commands
 
@@ -443,8 +466,8 @@ class TestCarryOffPreCheck:
         sim_drives.gripper_object_width_mm = grasp.opening_mm
         safe_z = loop._safe_z_mm(part, grasp.grasp_z_mm)
         # (by way of the default drop-off: past the edge, none of this cell's can be sent)
-        to_grip = pick_commands(grasp.joints, grasp.opening_mm, cell_cfg, safe_z_mm=safe_z,
-                                drop=dropoff_joints(default_cell(), grasp.joints))[:4]
+        to_grip = routed(pick_commands(grasp.joints, grasp.opening_mm, cell_cfg, safe_z_mm=safe_z,
+                                       drop=dropoff_joints(default_cell(), grasp.joints))[:4], arm.joints(), cell_cfg)
         assert to_grip[-1].label == "grip" and run_commands(arm, to_grip)[-1]["holding"]
         loop._pick = {"part": part, "grasp": grasp, "report": PartReport(part, "removed"), "attempt": 0,
                       "stage": "gripped"}

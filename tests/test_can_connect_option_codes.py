@@ -47,7 +47,7 @@ def _codes(drives):
 
 def _stop_mid_move(arm, drives):
     start = arm.joints()
-    arm.move_joints(Joints(start.j1_deg - 60.0, start.j2_deg - 30.0, start.j3_mm - 100.0, start.j4_deg + 90.0),
+    arm.move_joints(Joints(start.j1_deg - 60.0, start.j2_deg - 30.0, start.j3_mm - 50.0, start.j4_deg + 90.0),
                     wait=False)
     arm.clock.sleep(0.2)
     arm.stop()

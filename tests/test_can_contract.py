@@ -178,7 +178,7 @@ def test_fault_latched_error_type_is_a_cell_error():
 @needs_sim
 def test_axes_move_coordinated_and_arrive_together(arm, sim_drives, sim_clock):
     start = arm.joints()
-    target = Joints(start.j1_deg - 30.0, start.j2_deg - 5.0, start.j3_mm - 120.0, start.j4_deg + 200.0)
+    target = Joints(start.j1_deg - 30.0, start.j2_deg - 5.0, start.j3_mm - 50.0, start.j4_deg + 200.0)
     duration = arm.move_time_s(start, target)
     t0 = sim_clock.now()
     arm.move_joints(target, wait=False)

@@ -15,7 +15,7 @@ pytestmark = needs_sim
 
 def _long_move(arm):
     s = arm.joints()
-    return Joints(s.j1_deg - 40.0, s.j2_deg - 30.0, s.j3_mm - 100.0, s.j4_deg + 90.0)
+    return Joints(s.j1_deg - 40.0, s.j2_deg - 30.0, s.j3_mm - 50.0, s.j4_deg + 90.0)
 
 
 def _assert_frozen(arm, sim_drives, seconds=0.5):

@@ -26,7 +26,7 @@ QUICK_STOP_FRAME = codec.pack_controlword(codec.CW_QUICK_STOP)
 
 def _long_move(arm):
     s = arm.joints()
-    return Joints(s.j1_deg - 40.0, s.j2_deg - 30.0, s.j3_mm - 100.0, s.j4_deg + 90.0)
+    return Joints(s.j1_deg - 40.0, s.j2_deg - 30.0, s.j3_mm - 50.0, s.j4_deg + 90.0)
 
 
 @contextlib.contextmanager

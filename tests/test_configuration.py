@@ -134,7 +134,7 @@ def test_the_coordinated_path_is_where_the_simulated_drives_are():
     from drivers import SimClock, simulated_cell
     from drivers.profile import coordinated_path
 
-    start, end = Joints(-60.0, 100.0, 150.0, 0.0), Joints(30.0, 40.0, 120.0, 90.0)
+    start, end = Joints(-60.0, 100.0, 150.0, 0.0), Joints(30.0, 40.0, 150.0, 90.0)
     path = coordinated_path(CELL.scara, start, end, step_deg=1.0)
     assert path[-1] == end and max(abs(p.j1_deg - q.j1_deg) for p, q in zip(path, path[1:])) <= 1.0 + 1e-9
     straight = [(p.j1_deg - start.j1_deg) / (end.j1_deg - start.j1_deg)

@@ -83,7 +83,7 @@ def test_straight_up_and_down_and_across_at_one_height_are_sent(arm, cell_cfg):
 
 
 def test_the_routed_way_keeps_the_tool_inside_the_workspace_on_the_drives(arm, cell_cfg):
-    from cell.runtime.motion import way_to
+    from cell.runtime.ways import way_to
 
     moves = way_to(cell_cfg, HOME, SHIPPED_NUT_APPROACH, "approach")
     assert moves[-1] == SHIPPED_NUT_APPROACH and len(moves) > 1
@@ -95,7 +95,7 @@ def test_the_routed_way_keeps_the_tool_inside_the_workspace_on_the_drives(arm, c
 
 
 def test_going_home_from_low_on_the_tray_lifts_straight_up_first(arm, cell_cfg):
-    from cell.runtime.motion import go_to
+    from cell.runtime.ways import go_to
 
     low = Joints(-30.0, 70.0, 15.0, 20.0)
     for move in (Joints(-30.0, 70.0, 200.0, 20.0), low):

@@ -254,7 +254,7 @@ def _serve(args, cell) -> int:
 
 def _home(args, cell) -> int:
     from cell.kinematics import Joints
-    from cell.runtime.motion import go_to
+    from cell.runtime.ways import go_to
 
     home = Joints.from_dict(cell.motion.home_joints)
     with _session(args, cell) as (arm, _):
@@ -337,7 +337,7 @@ def _gripper(args, cell) -> int:
 def _corner(args, cell) -> int:
     from cell.errors import CellError
     from cell.kinematics import inverse
-    from cell.runtime.motion import go_to
+    from cell.runtime.ways import go_to
 
     x = cell.tray.x_mm[0] if args.corner.startswith("near") else cell.tray.x_mm[1]
     y = cell.tray.y_mm[1] if args.corner.endswith("left") else cell.tray.y_mm[0]

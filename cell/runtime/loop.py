@@ -43,10 +43,9 @@ from cell.runtime.motion import (
     approach_opening_mm,
     carry_off_commands,
     dropoff_options,
-    go_to,
     pick_commands,
-    routed,
 )
+from cell.runtime.ways import go_to, routed
 from cell.scene import Assembly, Part, Scene
 
 TRAVEL_MARGIN_MM = 20.0  # above the tallest part on the tray, when travelling

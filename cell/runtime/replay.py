@@ -219,8 +219,8 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     from cell.examples import load_examples
     from cell.recording import RecordingReader
     from cell.runtime.loop import CellLoop, LoopOptions, StopRun
-    from cell.runtime.motion import go_to
     from cell.runtime.session import EXAMPLES_AT_START, home_joints
+    from cell.runtime.ways import go_to
     from cell.scene import parse_assembly
     from cell.vision import FileCamera
     from drivers import simulated_cell

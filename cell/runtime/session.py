@@ -22,8 +22,8 @@ from cell.examples import default_examples_path
 from cell.fileio import write_atomic
 from cell.runtime.control import RunControl, Stopped
 from cell.runtime.loop import CellLoop, LoopOptions, StopRun
-from cell.runtime.motion import go_to
 from cell.runtime.simworld import SimWorld, WorldFaults
+from cell.runtime.ways import go_to
 from cell.scene import Assembly, Part, load_assembly
 
 EXAMPLES_AT_START = "examples_at_start.jsonl"

@@ -1,0 +1,158 @@
+"""Ways between two poses that the drivers take (pure, but `go_to`, which moves the arm).
+
+`drivers.limits` refuses a move whose way leaves the workspace (two poses inside it can sweep out of
+it between them: an elbow flip through the stretched arm, a swing of the stretched arm past the box)
+or moves across while J3 moves below the safe height. A pick's moves, and the homes of a run, go
+round such ways here by a few moves more, each checked from the one before as the drivers will.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+
+import numpy as np
+
+from cell.cellconfig import Cell
+from cell.errors import CellError
+from cell.kinematics import Joints
+from cell.runtime.motion import Command, above
+from drivers.limits import command_violations
+
+# J1 angles tried for an elbow flip (the stretched arm must lie inside the workspace while J2 passes 0), and J2
+# bends tried for a swing of J1: every degree, the nearest first
+TRY_STEP_DEG = 1.0
+# the last resort, a search on a grid of J1 and J2 (moves of one joint between neighbours): this fine
+GRID_STEP_DEG = 5.0
+
+
+def routed(commands: list[Command], start: Joints, cell: Cell) -> list[Command]:
+    """`commands` from `start` with every move whose way the drivers would refuse split by the moves of
+    `way_to`, labelled '<label> (via)'. Moves whose own target is refused stay as they are (the drivers
+    name the reason). CellError when a move has no such way."""
+    out, at = [], start
+    for c in commands:
+        if c.joints is None:
+            out.append(c)
+            continue
+        if command_violations(cell, c.joints, None) or not command_violations(cell, c.joints, at):
+            out.append(c)
+        else:
+            *via, _ = way_to(cell, at, c.joints, c.label)
+            out += [Command("move", f"{c.label} (via)", joints=v) for v in via] + [c]
+        at = c.joints
+    return out
+
+
+def _clear(cell: Cell, start: Joints, moves: list[Joints]) -> bool:
+    at = start
+    for m in moves:
+        if command_violations(cell, m, at):
+            return False
+        at = m
+    return True
+
+
+def way_to(cell: Cell, start: Joints, target: Joints, label: str = "move") -> list[Joints]:
+    """Moves from `start` ending at `target` that the drivers take, each with its way checked
+    (`command_violations` from the one before): directly; or J1 (with J3, J4) first, then J2; or J2 first;
+    or J1 to where the stretched arm lies inside the workspace, J2 there, then J1; or J2 bent, J1 across,
+    J2 back (the nearest such J1 or J2 first); else the shortest way on a grid of J1 and J2 (`_grid_way`).
+    CellError naming the direct way's reason when none is clear."""
+
+    def nearest(lo_hi, a, b):
+        return sorted(np.arange(lo_hi[0], lo_hi[1] + 1e-9, TRY_STEP_DEG), key=lambda v: abs(v - a) + abs(v - b))
+
+    z, j4 = target.j3_mm, target.j4_deg
+    candidates = itertools.chain(
+        [[target],
+         [Joints(target.j1_deg, start.j2_deg, z, j4), target],
+         [Joints(start.j1_deg, target.j2_deg, z, j4), target]],
+        ([Joints(float(a), start.j2_deg, z, j4), Joints(float(a), target.j2_deg, z, j4), target]
+         for a in nearest(cell.scara.j1_deg, start.j1_deg, target.j1_deg)),
+        ([Joints(start.j1_deg, float(b), z, j4), Joints(target.j1_deg, float(b), z, j4), target]
+         for b in nearest(cell.scara.j2_deg, start.j2_deg, target.j2_deg)))
+    for moves in candidates:
+        if _clear(cell, start, moves):
+            return moves
+    moves = _grid_way(cell, start, target)
+    if moves is not None:
+        return moves
+    raise CellError(f"no way to '{label}' the arm may take: {'; '.join(command_violations(cell, target, start))}")
+
+
+def _grid_way(cell: Cell, start: Joints, target: Joints) -> list[Joints] | None:
+    """The shortest way (in J1 + J2 degrees) over a grid of J1 and J2, one joint moving at a time, at the
+    target's J3 and J4 (taken first, where the arm stands); runs of one joint merged where the drivers take
+    the merged move. None when the grid holds no way."""
+    s = cell.scara
+    z, j4 = target.j3_mm, target.j4_deg
+    first = Joints(start.j1_deg, start.j2_deg, z, j4)
+    if first != start and command_violations(cell, first, start):
+        return None
+    axes = [sorted({*np.arange(lo, hi + 1e-9, GRID_STEP_DEG).tolist(), a, b})
+            for (lo, hi), a, b in ((s.j1_deg, start.j1_deg, target.j1_deg), (s.j2_deg, start.j2_deg, target.j2_deg))]
+    begin = (axes[0].index(start.j1_deg), axes[1].index(start.j2_deg))
+    goal = (axes[0].index(target.j1_deg), axes[1].index(target.j2_deg))
+
+    def pose(node):
+        return Joints(axes[0][node[0]], axes[1][node[1]], z, j4)
+
+    def h(node):
+        return abs(axes[0][node[0]] - target.j1_deg) + abs(axes[1][node[1]] - target.j2_deg)
+
+    came: dict = {begin: None}
+    cost = {begin: 0.0}
+    todo = [(h(begin), begin)]
+    while todo:
+        _, node = heapq.heappop(todo)
+        if node == goal:
+            break
+        for axis, d in ((0, -1), (0, 1), (1, -1), (1, 1)):
+            nxt = (node[0] + d, node[1]) if axis == 0 else (node[0], node[1] + d)
+            if not 0 <= nxt[axis] < len(axes[axis]):
+                continue
+            c = cost[node] + abs(axes[axis][nxt[axis]] - axes[axis][node[axis]])
+            if c < cost.get(nxt, np.inf) and not command_violations(cell, pose(nxt), pose(node)):
+                cost[nxt], came[nxt] = c, node
+                heapq.heappush(todo, (c + h(nxt), nxt))
+    if goal not in came:
+        return None
+    nodes = [goal]
+    while came[nodes[-1]] is not None:
+        nodes.append(came[nodes[-1]])
+    path = nodes[::-1]
+    head = [first] if first != start else []
+    merged = head + [pose(n) for n in _corners(path)[1:-1]] + [target]
+    return merged if _clear(cell, start, merged) else head + [pose(n) for n in path[1:-1]] + [target]
+
+
+def _corners(nodes: list[tuple[int, int]]) -> list[tuple[int, int]]:
+    """The nodes where the moving joint changes (runs of one joint as one move), the ends kept."""
+    out = [nodes[0]]
+    for a, b, c in zip(nodes, nodes[1:], nodes[2:]):
+        if (a[0] == b[0]) != (b[0] == c[0]):
+            out.append(b)
+    return out + [nodes[-1]] if len(nodes) > 1 else out
+
+
+def go_to(arm, target: Joints) -> None:
+    """Move the arm from wherever it stands to `target` as the drivers allow: below the safe height straight
+    up first (to the target's height, or the safe height), across in steps within `max_step` by ways the
+    drivers take (`way_to`), then straight down. For a start the cell does not choose: home at the start of a
+    run, whose arm may stand anywhere on a real cell (lifting and swinging at once dragged the fingers
+    sideways through the tray)."""
+    from drivers.limits import split_move
+
+    cell, at = arm.cell, arm.joints()
+    safe = cell.motion.safe_z_mm
+    travel = max(at.j3_mm, target.j3_mm) if at.j3_mm >= safe or target.j3_mm >= safe else safe
+    if at.j3_mm < travel:
+        arm.move_joints(above(at, travel))
+        at = arm.joints()
+    for waypoint in split_move(at, above(target, travel), cell.scara.max_step):
+        for move in way_to(cell, at, waypoint, "home"):
+            arm.move_joints(move)
+        at = waypoint
+    if target.j3_mm < travel:
+        arm.move_joints(target)

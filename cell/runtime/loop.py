@@ -567,13 +567,19 @@ class CellLoop:
 
     def _clear_way(self, part_id: str, grasp: Grasp, why: str, commands_to) -> list:
         """`commands_to(drop)` for the first drop-off configuration (nearest to the grasp's first:
-        the other elbow, the J4 turns) whose moves keep the links clear of the parts on the tray;
+        the other elbow, the J4 turns) whose moves keep the links clear of the parts on the tray, a way the
+        drivers refuse gone round by other moves (`ways.routed`, the links clear on them too);
         LinksWouldHit (the first one's reason) when none does."""
         first = None
+        others = self._on_tray(but=part_id)
+
+        def links_clear(a: Joints, b: Joints) -> bool:
+            return not path_link_collisions(self.arm.path(a, b), self.cell, others)
+
         for drop in dropoff_options(self.cell, grasp.joints):
             try:
                 # the ways the drivers refuse (the tool sweeping out of the workspace) go round by other moves
-                commands = routed(commands_to(drop), self.arm.joints(), self.cell)
+                commands = routed(commands_to(drop), self.arm.joints(), self.cell, links_clear)
                 self._check_links(part_id, commands, why)
                 return commands
             except LinksWouldHit as e:

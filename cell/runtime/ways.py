@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import heapq
 import itertools
+from collections.abc import Callable
 
 import numpy as np
 
@@ -24,12 +25,14 @@ from drivers.limits import command_violations
 TRY_STEP_DEG = 1.0
 # the last resort, a search on a grid of J1 and J2 (moves of one joint between neighbours): this fine
 GRID_STEP_DEG = 5.0
+LegCheck = Callable[[Joints, Joints], bool]  # (from, to) -> the move may be taken
 
 
-def routed(commands: list[Command], start: Joints, cell: Cell) -> list[Command]:
+def routed(commands: list[Command], start: Joints, cell: Cell, leg_ok: LegCheck | None = None) -> list[Command]:
     """`commands` from `start` with every move whose way the drivers would refuse split by the moves of
-    `way_to`, labelled '<label> (via)'. Moves whose own target is refused stay as they are (the drivers
-    name the reason). CellError when a move has no such way."""
+    `way_to` (each also passing `leg_ok`, the caller's check of a move: the links against the parts on the
+    tray), labelled '<label> (via)'. Moves whose own target is refused stay as they are (the drivers name
+    the reason). CellError when a move has no such way."""
     out, at = [], start
     for c in commands:
         if c.joints is None:
@@ -38,22 +41,23 @@ def routed(commands: list[Command], start: Joints, cell: Cell) -> list[Command]:
         if command_violations(cell, c.joints, None) or not command_violations(cell, c.joints, at):
             out.append(c)
         else:
-            *via, _ = way_to(cell, at, c.joints, c.label)
+            *via, _ = way_to(cell, at, c.joints, c.label, leg_ok)
             out += [Command("move", f"{c.label} (via)", joints=v) for v in via] + [c]
         at = c.joints
     return out
 
 
-def _clear(cell: Cell, start: Joints, moves: list[Joints]) -> bool:
+def _clear(cell: Cell, start: Joints, moves: list[Joints], leg_ok: LegCheck | None) -> bool:
     at = start
     for m in moves:
-        if command_violations(cell, m, at):
+        if command_violations(cell, m, at) or (leg_ok is not None and not leg_ok(at, m)):
             return False
         at = m
     return True
 
 
-def way_to(cell: Cell, start: Joints, target: Joints, label: str = "move") -> list[Joints]:
+def way_to(cell: Cell, start: Joints, target: Joints, label: str = "move",
+           leg_ok: LegCheck | None = None) -> list[Joints]:
     """Moves from `start` ending at `target` that the drivers take, each with its way checked
     (`command_violations` from the one before): directly; or J1 (with J3, J4) first, then J2; or J2 first;
     or J1 to where the stretched arm lies inside the workspace, J2 there, then J1; or J2 bent, J1 across,
@@ -73,22 +77,22 @@ def way_to(cell: Cell, start: Joints, target: Joints, label: str = "move") -> li
         ([Joints(start.j1_deg, float(b), z, j4), Joints(target.j1_deg, float(b), z, j4), target]
          for b in nearest(cell.scara.j2_deg, start.j2_deg, target.j2_deg)))
     for moves in candidates:
-        if _clear(cell, start, moves):
+        if _clear(cell, start, moves, leg_ok):
             return moves
-    moves = _grid_way(cell, start, target)
+    moves = _grid_way(cell, start, target, leg_ok)
     if moves is not None:
         return moves
     raise CellError(f"no way to '{label}' the arm may take: {'; '.join(command_violations(cell, target, start))}")
 
 
-def _grid_way(cell: Cell, start: Joints, target: Joints) -> list[Joints] | None:
+def _grid_way(cell: Cell, start: Joints, target: Joints, leg_ok: LegCheck | None) -> list[Joints] | None:
     """The shortest way (in J1 + J2 degrees) over a grid of J1 and J2, one joint moving at a time, at the
     target's J3 and J4 (taken first, where the arm stands); runs of one joint merged where the drivers take
     the merged move. None when the grid holds no way."""
     s = cell.scara
     z, j4 = target.j3_mm, target.j4_deg
     first = Joints(start.j1_deg, start.j2_deg, z, j4)
-    if first != start and command_violations(cell, first, start):
+    if first != start and not _clear(cell, start, [first], leg_ok):
         return None
     axes = [sorted({*np.arange(lo, hi + 1e-9, GRID_STEP_DEG).tolist(), a, b})
             for (lo, hi), a, b in ((s.j1_deg, start.j1_deg, target.j1_deg), (s.j2_deg, start.j2_deg, target.j2_deg))]
@@ -113,7 +117,7 @@ def _grid_way(cell: Cell, start: Joints, target: Joints) -> list[Joints] | None:
             if not 0 <= nxt[axis] < len(axes[axis]):
                 continue
             c = cost[node] + abs(axes[axis][nxt[axis]] - axes[axis][node[axis]])
-            if c < cost.get(nxt, np.inf) and not command_violations(cell, pose(nxt), pose(node)):
+            if c < cost.get(nxt, np.inf) and _clear(cell, pose(node), [pose(nxt)], leg_ok):
                 cost[nxt], came[nxt] = c, node
                 heapq.heappush(todo, (c + h(nxt), nxt))
     if goal not in came:
@@ -124,7 +128,7 @@ def _grid_way(cell: Cell, start: Joints, target: Joints) -> list[Joints] | None:
     path = nodes[::-1]
     head = [first] if first != start else []
     merged = head + [pose(n) for n in _corners(path)[1:-1]] + [target]
-    return merged if _clear(cell, start, merged) else head + [pose(n) for n in path[1:-1]] + [target]
+    return merged if _clear(cell, start, merged, leg_ok) else head + [pose(n) for n in path[1:-1]] + [target]
 
 
 def _corners(nodes: list[tuple[int, int]]) -> list[tuple[int, int]]:

@@ -551,7 +551,9 @@ def test_a_grasp_with_no_clear_way_is_skipped_for_the_next_one(tmp_path):
     asm.write_text(json.dumps(d))
     s = run_session(RunConfig(assembly=asm, cell=low_arm, seed=3))
     assert s["status"] == "stopped" and s["parts_removed"] == 0 and s["grasps"] == 0
-    assert s["stopped"].startswith("planner: nut: no further grasp to try (nut: on the way to"), s["stopped"]
+    # the last refusal: the way to a grasp of the other elbow, which the drivers refuse directly (the elbow flip
+    # sweeps the tool out of the workspace) and which goes round only over the column
+    assert s["stopped"].startswith("planner: nut: no further grasp to try (nut: "), s["stopped"]
     assert "the arm's links would hit column" in s["stopped"]
 
 

@@ -573,13 +573,15 @@ class CellLoop:
         first = None
         others = self._on_tray(but=part_id)
 
-        def links_clear(a: Joints, b: Joints) -> bool:
-            return not path_link_collisions(self.arm.path(a, b), self.cell, others)
+        def links_clear(a: Joints, b: Joints) -> list[str]:
+            hit = path_link_collisions(self.arm.path(a, b), self.cell, others)
+            return [f"the arm's links would hit {', '.join(hit)}"] if hit else []
 
+        known: dict = {}  # the ways round, found once for every drop-off (the way to the grasp is the same)
         for drop in dropoff_options(self.cell, grasp.joints):
             try:
                 # the ways the drivers refuse (the tool sweeping out of the workspace) go round by other moves
-                commands = routed(commands_to(drop), self.arm.joints(), self.cell, links_clear)
+                commands = routed(commands_to(drop), self.arm.joints(), self.cell, links_clear, known)
                 self._check_links(part_id, commands, why)
                 return commands
             except LinksWouldHit as e:

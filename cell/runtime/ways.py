@@ -21,18 +21,25 @@ from cell.runtime.motion import Command, above
 from drivers.limits import command_violations
 
 # J1 angles tried for an elbow flip (the stretched arm must lie inside the workspace while J2 passes 0), and J2
-# bends tried for a swing of J1: every degree, the nearest first
-TRY_STEP_DEG = 1.0
-# the last resort, a search on a grid of J1 and J2 (moves of one joint between neighbours): this fine
+# bends tried for a swing of J1: every 5 degrees, the nearest first (each try of a pick's way checks the links
+# too, some milliseconds)
+TRY_STEP_DEG = 5.0
+TRY_NEAREST = 16  # of each: the nearest 80 degrees or so (a pick's way beyond them is not worth the time)
+# the last resort of a move without the caller's check (a home from anywhere), a search on a grid of J1 and J2
+# (moves of one joint between neighbours): this fine, at most this many poses looked at
 GRID_STEP_DEG = 5.0
-LegCheck = Callable[[Joints, Joints], bool]  # (from, to) -> the move may be taken
+GRID_MAX_NODES = 5000
+LegCheck = Callable[[Joints, Joints], list[str]]  # (from, to) -> why the move must not be taken (empty: it may)
 
 
-def routed(commands: list[Command], start: Joints, cell: Cell, leg_ok: LegCheck | None = None) -> list[Command]:
+def routed(commands: list[Command], start: Joints, cell: Cell, leg_ok: LegCheck | None = None,
+           known: dict | None = None) -> list[Command]:
     """`commands` from `start` with every move whose way the drivers would refuse split by the moves of
-    `way_to` (each also passing `leg_ok`, the caller's check of a move: the links against the parts on the
-    tray), labelled '<label> (via)'. Moves whose own target is refused stay as they are (the drivers name
-    the reason). CellError when a move has no such way."""
+    `way_to` (each also passing `leg_ok`, the caller's reasons against a move: the links hitting the parts on
+    the tray), labelled '<label> (via)'. Moves whose own target is refused stay as they are (the drivers name
+    the reason). CellError when a move has no such way. `known` keeps the ways found (or refused) for the next
+    call with the same `leg_ok` (the drop-off's options share the way to the grasp)."""
+    known = {} if known is None else known
     out, at = [], start
     for c in commands:
         if c.joints is None:
@@ -41,19 +48,34 @@ def routed(commands: list[Command], start: Joints, cell: Cell, leg_ok: LegCheck 
         if command_violations(cell, c.joints, None) or not command_violations(cell, c.joints, at):
             out.append(c)
         else:
-            *via, _ = way_to(cell, at, c.joints, c.label, leg_ok)
+            key = (at, c.joints, c.label)
+            if key not in known:
+                try:
+                    known[key] = way_to(cell, at, c.joints, c.label, leg_ok)
+                except CellError as e:
+                    known[key] = e
+            if isinstance(known[key], CellError):
+                raise known[key]
+            *via, _ = known[key]
             out += [Command("move", f"{c.label} (via)", joints=v) for v in via] + [c]
         at = c.joints
     return out
 
 
-def _clear(cell: Cell, start: Joints, moves: list[Joints], leg_ok: LegCheck | None) -> bool:
+def _why_not(cell: Cell, start: Joints, moves: list[Joints], leg_ok: LegCheck | None) -> list[str]:
+    """Why the drivers refuse a move of `moves` (taken one after the other from `start`), or, they taking
+    all, why `leg_ok` does ('the arm's links would hit ...'); empty when every move may be taken."""
     at = start
     for m in moves:
-        if command_violations(cell, m, at) or (leg_ok is not None and not leg_ok(at, m)):
-            return False
+        why = command_violations(cell, m, at) or (leg_ok(at, m) if leg_ok is not None else [])
+        if why:
+            return why
         at = m
-    return True
+    return []
+
+
+def _clear(cell: Cell, start: Joints, moves: list[Joints], leg_ok: LegCheck | None) -> bool:
+    return not _why_not(cell, start, moves, leg_ok)
 
 
 def way_to(cell: Cell, start: Joints, target: Joints, label: str = "move",
@@ -61,11 +83,12 @@ def way_to(cell: Cell, start: Joints, target: Joints, label: str = "move",
     """Moves from `start` ending at `target` that the drivers take, each with its way checked
     (`command_violations` from the one before): directly; or J1 (with J3, J4) first, then J2; or J2 first;
     or J1 to where the stretched arm lies inside the workspace, J2 there, then J1; or J2 bent, J1 across,
-    J2 back (the nearest such J1 or J2 first); else the shortest way on a grid of J1 and J2 (`_grid_way`).
+    J2 back (the nearest such J1 or J2 first); else, without `leg_ok`, the shortest way on a grid of J1 and J2
+    (`_grid_way`).
     CellError naming the direct way's reason when none is clear."""
 
     def nearest(lo_hi, a, b):
-        return sorted(np.arange(lo_hi[0], lo_hi[1] + 1e-9, TRY_STEP_DEG), key=lambda v: abs(v - a) + abs(v - b))
+        return sorted(_grid(lo_hi, TRY_STEP_DEG), key=lambda v: abs(v - a) + abs(v - b))[:TRY_NEAREST]
 
     z, j4 = target.j3_mm, target.j4_deg
     candidates = itertools.chain(
@@ -76,25 +99,36 @@ def way_to(cell: Cell, start: Joints, target: Joints, label: str = "move",
          for a in nearest(cell.scara.j1_deg, start.j1_deg, target.j1_deg)),
         ([Joints(start.j1_deg, float(b), z, j4), Joints(target.j1_deg, float(b), z, j4), target]
          for b in nearest(cell.scara.j2_deg, start.j2_deg, target.j2_deg)))
+    round_it = []  # why the first way round the drivers take is not clear (the links would hit a part)
     for moves in candidates:
-        if _clear(cell, start, moves, leg_ok):
+        why = _why_not(cell, start, moves, leg_ok)
+        if not why:
             return moves
-    moves = _grid_way(cell, start, target, leg_ok)
+        if not round_it and len(moves) > 1 and not _why_not(cell, start, moves, None):
+            round_it = why
+    moves = _grid_way(cell, start, target) if leg_ok is None else None
     if moves is not None:
         return moves
-    raise CellError(f"no way to '{label}' the arm may take: {'; '.join(command_violations(cell, target, start))}")
+    direct = _why_not(cell, start, [target], leg_ok)
+    raise CellError(f"no way to '{label}' the arm may take: {'; '.join(direct)}"
+                    + (f"; round it, {'; '.join(round_it)}" if round_it else ""))
 
 
-def _grid_way(cell: Cell, start: Joints, target: Joints, leg_ok: LegCheck | None) -> list[Joints] | None:
+def _grid(lo_hi: tuple[float, float], step: float) -> list[float]:
+    """Whole multiples of `step` within the limits."""
+    return (np.arange(np.ceil(lo_hi[0] / step), np.floor(lo_hi[1] / step) + 1) * step).tolist()
+
+
+def _grid_way(cell: Cell, start: Joints, target: Joints) -> list[Joints] | None:
     """The shortest way (in J1 + J2 degrees) over a grid of J1 and J2, one joint moving at a time, at the
     target's J3 and J4 (taken first, where the arm stands); runs of one joint merged where the drivers take
     the merged move. None when the grid holds no way."""
     s = cell.scara
     z, j4 = target.j3_mm, target.j4_deg
     first = Joints(start.j1_deg, start.j2_deg, z, j4)
-    if first != start and not _clear(cell, start, [first], leg_ok):
+    if first != start and not _clear(cell, start, [first], None):
         return None
-    axes = [sorted({*np.arange(lo, hi + 1e-9, GRID_STEP_DEG).tolist(), a, b})
+    axes = [sorted({*_grid((lo, hi), GRID_STEP_DEG), a, b})
             for (lo, hi), a, b in ((s.j1_deg, start.j1_deg, target.j1_deg), (s.j2_deg, start.j2_deg, target.j2_deg))]
     begin = (axes[0].index(start.j1_deg), axes[1].index(start.j2_deg))
     goal = (axes[0].index(target.j1_deg), axes[1].index(target.j2_deg))
@@ -108,7 +142,7 @@ def _grid_way(cell: Cell, start: Joints, target: Joints, leg_ok: LegCheck | None
     came: dict = {begin: None}
     cost = {begin: 0.0}
     todo = [(h(begin), begin)]
-    while todo:
+    while todo and len(came) < GRID_MAX_NODES:
         _, node = heapq.heappop(todo)
         if node == goal:
             break
@@ -117,7 +151,7 @@ def _grid_way(cell: Cell, start: Joints, target: Joints, leg_ok: LegCheck | None
             if not 0 <= nxt[axis] < len(axes[axis]):
                 continue
             c = cost[node] + abs(axes[axis][nxt[axis]] - axes[axis][node[axis]])
-            if c < cost.get(nxt, np.inf) and _clear(cell, pose(node), [pose(nxt)], leg_ok):
+            if c < cost.get(nxt, np.inf) and _clear(cell, pose(node), [pose(nxt)], None):
                 cost[nxt], came[nxt] = c, node
                 heapq.heappush(todo, (c + h(nxt), nxt))
     if goal not in came:
@@ -128,7 +162,7 @@ def _grid_way(cell: Cell, start: Joints, target: Joints, leg_ok: LegCheck | None
     path = nodes[::-1]
     head = [first] if first != start else []
     merged = head + [pose(n) for n in _corners(path)[1:-1]] + [target]
-    return merged if _clear(cell, start, merged, leg_ok) else head + [pose(n) for n in path[1:-1]] + [target]
+    return merged if _clear(cell, start, merged, None) else head + [pose(n) for n in path[1:-1]] + [target]
 
 
 def _corners(nodes: list[tuple[int, int]]) -> list[tuple[int, int]]:

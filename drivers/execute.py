@@ -18,7 +18,8 @@ def run_commands(
 ) -> list[dict]:
     """Execute `commands` in order; returns one record per executed step:
     `{"label", "action", "t_start_s", "t_end_s", ...}` plus `"joints"` (the command sent) for a
-    move, `"width_mm"` for open/grip and `"holding"` for a grip. With `stop_on_miss`, a grip
+    move, `"width_mm"` for open/grip and `"holding"` for a grip (`"blocked": true` when the jaws stopped wider than
+    expected). With `stop_on_miss`, a grip
     that closes past the expected width ends the list there (the record says holding=False);
     driver errors propagate (the arm has already stopped every axis)."""
     records = []
@@ -32,6 +33,8 @@ def run_commands(
         elif cmd.action == "grip":
             r = arm.gripper.grip(cmd.width_mm, getattr(cmd, "force_n", None))
             rec.update(width_mm=round(r.width_mm, 4), holding=r.holding)
+            if r.blocked:
+                rec["blocked"] = True
         else:
             raise BadInput(f"unknown command action {cmd.action!r} (step {cmd.label!r})")
         rec.update(t_start_s=round(t0, 6), t_end_s=round(arm.clock.now(), 6))

@@ -23,11 +23,13 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class GripResult:
-    """Where the jaws stopped. `holding` is False when they closed past the expected width."""
+    """Where the jaws stopped. `holding` is False when they closed past the expected width, or stopped on
+    something wider (`blocked`: a neighbour, a finger jammed, another part between the jaws)."""
 
     width_mm: float
     holding: bool
     expected_width_mm: float
+    blocked: bool = False
 
 
 class Gripper:
@@ -65,8 +67,9 @@ class Gripper:
 
     def grip(self, expected_width_mm: float, force_n: float | None = None, *, tolerance_mm: float = 2.0) -> GripResult:
         """Close with the force limit (default: the cell file's grip force) and report where the
-        jaws stopped: holding when they stopped on something no narrower than
-        `expected_width_mm - tolerance_mm`; a miss closes past it."""
+        jaws stopped: holding when they stopped on something within `tolerance_mm` of
+        `expected_width_mm`; a miss closes past it; jaws stopped wider than that are blocked, not holding
+        (they reported holding whatever they stopped on, 60 mm for a 24 mm part, and the arm lifted)."""
         arm = self._arm
         arm._begin_command()
         force_n = arm.cell.gripper.grip_force_n if force_n is None else force_n
@@ -80,5 +83,7 @@ class Gripper:
         self._move(arm.cell.gripper.opening_mm[0])
         width = self.width_mm
         st = ax.status
-        holding = bool(st.internal_limit) and width >= expected_width_mm - tolerance_mm
-        return GripResult(width, holding, expected_width_mm)
+        stopped = bool(st.internal_limit)
+        blocked = stopped and width > expected_width_mm + tolerance_mm
+        holding = stopped and not blocked and width >= expected_width_mm - tolerance_mm
+        return GripResult(width, holding, expected_width_mm, blocked)

@@ -115,6 +115,16 @@ class ContractSuite:
         assert result.width_mm == pytest.approx(20.0, abs=1e-3)
         assert not result.holding
 
+    @needs_sim
+    def test_gripper_stopping_on_something_wider_is_blocked_not_holding(self, arm, sim_drives):
+        sim_drives.gripper_object_width_mm = 60.0  # the jaws stop on a neighbour, or a finger jams
+        result = arm.gripper.grip(24.0)
+        assert result.width_mm == pytest.approx(60.0, abs=1e-3)
+        assert result.blocked and not result.holding
+        sim_drives.gripper_object_width_mm = 26.0  # within the 2 mm tolerance: held
+        arm.gripper.open()
+        assert arm.gripper.grip(24.0).holding
+
     def test_grip_force_above_the_maximum_is_refused(self, arm):
         with pytest.raises(LimitError, match="force"):
             arm.gripper.grip(30.0, force_n=arm.cell.gripper.max_force_n + 1)

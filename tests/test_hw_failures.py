@@ -66,3 +66,50 @@ def test_a_drive_that_never_acknowledges_the_set_point_is_quick_stopped_with_the
         arm.move_joints(start)
     arm.reset_faults()
     assert arm.move_joints(target) == target
+
+
+def test_jaws_stopped_wider_than_the_part_are_not_holding_and_never_close_further_on_the_way_up(tmp_path):
+    """The jaws stop 20 mm wider than the nut (on a neighbour, a jammed finger): the grip is blocked, not held
+    (it lifted whatever stopped them), and the retreat opens them no narrower than they stand (it 'opened' them
+    to the approach opening, 10 mm narrower: a squeeze on what blocked them)."""
+    import json
+    from importlib import resources
+    from pathlib import Path
+
+    from calibration import load_calibration
+    from cell.cellconfig import default_cell
+    from cell.examples import default_examples_path
+    from cell.runtime.control import RunControl
+    from cell.runtime.loop import CellLoop
+    from cell.scene import Scene, parse_assembly
+    from drivers import codec, open_bus, simulated_cell
+    from drivers.execute import run_commands
+
+    cell = default_cell()
+    default = json.loads((Path(str(resources.files("cell"))) / "data" / "assemblies" / "default.json").read_text())
+    channel = f"blocked-grip-{tmp_path.name}"
+    tap = open_bus("virtual", channel)
+    try:
+        with simulated_cell(cell, channel=channel) as (arm, drives):
+            loop = CellLoop(cell=cell, calibration=load_calibration(), assembly=parse_assembly(default), camera=None,
+                            arm=arm, control=RunControl(), examples_path=default_examples_path())
+            grasp = loop.planner.plan(Scene(tuple(loop._on_tray()), "nut")).grasp
+            to_grip = loop._clear_pick("nut", grasp)
+            to_grip = to_grip[:[c.label for c in to_grip].index("grip") + 1]
+            drives.gripper_object_width_mm = grasp.opening_mm + 20.0
+            grip = run_commands(arm, to_grip)[-1]
+            assert grip["holding"] is False and grip["blocked"] is True
+            assert grip["width_mm"] == pytest.approx(grasp.opening_mm + 20.0, abs=1e-3)
+            while tap.recv(0) is not None:
+                pass
+            loop._retreat(grasp)
+            assert arm.joints().j3_mm >= cell.motion.safe_z_mm
+            assert drives.positions()["gripper"] == pytest.approx(cell.gripper.opening_mm[1])
+            node = cell.can.nodes["gripper"]
+            targets = []
+            while (msg := tap.recv(0)) is not None:
+                if msg.arbitration_id == codec.RPDO2_BASE + node.node_id:
+                    targets.append(int.from_bytes(msg.data[:4], "little", signed=True) / node.counts_per_unit)
+            assert targets and min(targets) >= grip["width_mm"] - 1e-3, targets
+    finally:
+        tap.shutdown()

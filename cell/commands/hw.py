@@ -328,8 +328,10 @@ def _gripper(args, cell) -> int:
                         "width_mm": r.width_mm,
                         "holding": r.holding,
                         "expected_width_mm": r.expected_width_mm,
+                        "blocked": r.blocked,
                     },
-                    f"gripper closed at {r.width_mm:.2f} mm: " + ("holding" if r.holding else "MISSED"),
+                    f"gripper closed at {r.width_mm:.2f} mm: "
+                    + ("holding" if r.holding else "BLOCKED (wider than expected)" if r.blocked else "MISSED"),
                 )
     return 0
 

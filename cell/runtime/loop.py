@@ -322,7 +322,8 @@ class CellLoop:
             report.motion_s += records[-1]["t_end_s"] - records[0]["t_start_s"]
             if records[-1].get("holding") is not False:
                 break
-            self.control.log("miss", f"{part_id}: the jaws closed to {records[-1]['width_mm']:.1f} mm, expected "
+            how = "stopped at" if records[-1].get("blocked") else "closed to"
+            self.control.log("miss", f"{part_id}: the jaws {how} {records[-1]['width_mm']:.1f} mm, expected "
                              f"{grasp.opening_mm:.1f} mm: missed", part=part_id)
             t3 = self.arm.clock.now()
             self._retreat(grasp)
@@ -674,8 +675,9 @@ class CellLoop:
         safe_z = self._retreat_z_mm()
         at = self.arm.joints()
         if at.j3_mm < safe_z:
-            if grasp is not None:
-                self.arm.gripper.open(approach_opening_mm(grasp.opening_mm, self.cell))
+            if grasp is not None:  # never narrower than the jaws stand: they stopped wider on something
+                width = max(approach_opening_mm(grasp.opening_mm, self.cell), self.arm.gripper.width_mm or 0.0)
+                self.arm.gripper.open(min(width, self.cell.gripper.opening_mm[1]))
             self.arm.move_joints(above(at, safe_z))
         self.arm.gripper.open()
 

@@ -667,6 +667,7 @@ def test_the_retreat_goes_only_up_to_its_height(loop, cell, start_z_mm, post_top
     unexplained = [box("blob", NUT_XY_MM[0], NUT_XY_MM[1] - 40.0, unexplained_top_mm)] if unexplained_top_mm else []
     on_tray(loop, *parts, unexplained=unexplained)
     arm_at(loop, Joints(NUT_GRASP.j1_deg, NUT_GRASP.j2_deg, start_z_mm, NUT_GRASP.j4_deg))
+    assert not loop.arm.gripper.grip(20.0).holding  # the jaws closed past the nut, as after a miss
     moves, opens, said = _retreat_seen(loop, grasp_of(nut, cell, NUT_GRASP.j3_mm, joints=NUT_GRASP))
     assert not said
     if up_to_mm is None:

@@ -24,7 +24,7 @@ from drivers.limits import command_violations
 # bends tried for a swing of J1: every 5 degrees, the nearest first (each try of a pick's way checks the links
 # too, some milliseconds)
 TRY_STEP_DEG = 5.0
-TRY_NEAREST = 16  # of each: the nearest 80 degrees or so (a pick's way beyond them is not worth the time)
+TRY_NEAREST = 30  # of each: the nearest 150 degrees (a pick's way beyond them is not worth the time)
 # the last resort of a move without the caller's check (a home from anywhere), a search on a grid of J1 and J2
 # (moves of one joint between neighbours): this fine, at most this many poses looked at
 GRID_STEP_DEG = 5.0

@@ -120,7 +120,9 @@ def test_a_recording_keeps_the_planner_it_ran_and_replays_with_it(recorded, tmp_
     # a recording made before these settings were kept: the planner of that time
     assert planner_from_meta({"slanted_faces": True}, "here") == SynthesisParams(
         slanted_faces=True, tree_min_samples_leaf=2, obstacle_margin_mm=0.0, contacts_on_material=False,
-        label_touched_only=False, max_contact_skew_deg=90.0, stroke_at_pad_lines=False, grasp_z_within_j3=False)
+        label_touched_only=False, max_contact_skew_deg=90.0, stroke_at_pad_lines=False, grasp_z_within_j3=False,
+        pads_at_grasp_centre=False)
+    assert loop_planner_params().pads_at_grasp_centre  # recorded (the first assertion), so replayed on
     bad = tmp_path / "bad"
     shutil.copytree(rec, bad)
     manifest = json.loads((bad / "manifest.json").read_text())
@@ -134,7 +136,8 @@ def test_a_recording_keeps_the_planner_it_ran_and_replays_with_it(recorded, tmp_
                              ("max_contact_skew_deg", 0, "max_contact_skew_deg must be a number of degrees"),
                              ("max_contact_skew_deg", "3", "max_contact_skew_deg must be a number of degrees"),
                              ("stroke_at_pad_lines", 0, "stroke_at_pad_lines must be true or false"),
-                             ("grasp_z_within_j3", "no", "grasp_z_within_j3 must be true or false")]:
+                             ("grasp_z_within_j3", "no", "grasp_z_within_j3 must be true or false"),
+                             ("pads_at_grasp_centre", 1, "pads_at_grasp_centre must be true or false")]:
         broken = json.loads(json.dumps(manifest))
         broken["meta"]["planner"][key] = value
         (bad / "manifest.json").write_text(json.dumps(broken))

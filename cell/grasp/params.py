@@ -48,8 +48,8 @@ class SynthesisParams:
     # With contacts_on_material, the pads are looked at again where the gripper puts them, centred on
     # the line through the moved contacts' midpoint: they must stop at the contacts, within their
     # compliance and the slant of the face over the move (a star's contacts moved 6.4 mm across the
-    # axis, and the pads there met a slanted arm 4.9 mm in front of them). Not yet in a recording's
-    # meta.planner (cell.runtime.replay).
+    # axis, and the pads there met a slanted arm 4.9 mm in front of them). Off, as recordings made
+    # before it existed have it (cell.runtime.replay).
     pads_at_grasp_centre: bool = True
     # Obstacles widened by this much for the fingers and the palm: 0 for outlines given exactly (a
     # scene file); the cell loop plans on measured poses and keeps a margin (cell.runtime.loop).

@@ -69,6 +69,22 @@ def test_the_real_cell_removes_a_part_seen_by_its_camera(tmp_path, washer_only, 
     assert manifest["status"] == "complete" and manifest["meta"]["real_cell"]["channel"] == channel
 
 
+def test_a_fault_on_the_way_home_is_a_recorded_stop(tmp_path, washer_only, served_drives, capsys):
+    """A real arm may stand anywhere; the first move takes it home. A drive fault on that way stops the run
+    as one during it does, with the stop in the recording (it was an error past the loop, no stop decision)."""
+    channel, drives = served_drives
+    drives.drives["j3"].position_counts *= 0.5  # the fingers low on the tray: home lifts J3 first
+    drives.inject_fault("emcy", "j3", after_s=0.05)
+    cam = SimCamera(load_calibration(), SimCameraOptions(seed=2))
+    camera = frames_folder(tmp_path / "camera", [cam.render([load_assembly(washer_only).parts[0]])])
+    code, out, err = run_cli("run", washer_only, "--interface", "virtual", "--channel", channel, "--camera", camera,
+                             "--record", tmp_path / "rec", "--json", capsys=capsys)
+    summary = json.loads(out.splitlines()[-1])
+    assert code == 1 and summary["status"] == "stopped" and "EMCY 0x2310" in summary["stopped"], err
+    decisions = [json.loads(line) for line in (tmp_path / "rec" / "decisions.jsonl").read_text().splitlines()]
+    assert [(d["type"], d["source"]) for d in decisions] == [("stop", "j3")] and "EMCY 0x2310" in decisions[0]["reason"]
+
+
 def test_a_camera_of_another_resolution_is_refused_before_anything_moves(tmp_path, washer_only, served_drives,
                                                                          capsys):
     channel, drives = served_drives

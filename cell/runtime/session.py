@@ -23,7 +23,6 @@ from cell.fileio import write_atomic
 from cell.runtime.control import RunControl, Stopped
 from cell.runtime.loop import CellLoop, LoopOptions, StopRun
 from cell.runtime.simworld import SimWorld, WorldFaults
-from cell.runtime.ways import go_to
 from cell.scene import Assembly, Part, load_assembly
 
 EXAMPLES_AT_START = "examples_at_start.jsonl"
@@ -270,11 +269,12 @@ def run_session(cfg: RunConfig) -> dict:
 
         freeze_startup()  # full collections of the start-up objects would stall plans and picks
         try:
-            if cfg.station:
-                loop.home_first = home_joints(cell)  # nothing moves before the operator presses Run
+            # a real cell's arm may stand anywhere: the loop goes home first (up, then across), so that a
+            # fault on the way is stopped and recorded as one during the run is
+            loop.home_first = home_joints(cell)
+            if cfg.station:  # nothing moves before the operator presses Run
                 summary = _with_station(loop, control, cfg, say)
             else:
-                go_to(arm, home_joints(cell))  # a real cell's arm may stand anywhere: up first, then across
                 control.run(by="cell run")
                 summary = loop.run()
         except KeyboardInterrupt:

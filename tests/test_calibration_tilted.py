@@ -201,9 +201,16 @@ def test_segment_maps_outlines_onto_the_tilted_plane(tmp_path, capsys, board_fra
     assert code == 0, err
     code, stdout, err = run_cli("segment", board_frame[0], "--calibration", cal, "--json", capsys=capsys)
     assert code == 0, err
-    parts = json.loads(stdout)["parts"]
+    out = json.loads(stdout)
+    parts = out["parts"]
     assert parts and all(p["z_mm"] is None for p in parts)  # no one height: the plane's
     loaded = load_calibration(cal)
+    assert out["plane"] == json.loads(json.dumps(loaded.plane.describe()))  # each point's z without the file
+    code, stdout, err = run_cli("segment", board_frame[0], "--calibration", cal, "--z", "0", "--json",
+                                capsys=capsys)
+    assert code == (0 if with_intrinsics else 2), err  # --z needs the camera model
+    if with_intrinsics:  # on the horizontal plane z = 0: one height, no plane
+        assert "plane" not in json.loads(stdout) and json.loads(stdout)["parts"][0]["z_mm"] == 0
     for p in parts:
         # outline_px is printed to 2 decimals: 0.005 px, 0.003 mm
         assert np.allclose(p["outline_mm"], loaded.px_to_xyz(p["outline_px"])[:, :2], atol=0.005)

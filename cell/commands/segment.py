@@ -85,6 +85,8 @@ def run(args) -> int:
         # regions cut by the border that lie outside the tray (its surround), left out of `parts`
         outside = len(segs.outside_tray)
         out = {"image": str(path), "width_px": w, "height_px": h, "parts": parts, "outside_tray": outside}
+        if cal is not None and z is None:  # on a tilted plane (no one height): the plane, as `cell map` gives it
+            out["plane"] = cal.plane.describe()
         if args.json:
             print(json.dumps(out))
         else:

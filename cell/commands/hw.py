@@ -262,9 +262,7 @@ def _home(args, cell) -> int:
         confirm_motion(args, f"home the arm from {_joints_text(start)}")
         t0 = arm.clock.now()
         with _stop_on_interrupt(arm):
-            if start.j3_mm < home.j3_mm:  # lift first, then swing
-                arm.move_joints(Joints(start.j1_deg, start.j2_deg, home.j3_mm, start.j4_deg))
-            go_to(arm, home)
+            go_to(arm, home)  # lifts first, then swings
         end = arm.joints()
         _emit(
             args,

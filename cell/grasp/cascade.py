@@ -476,7 +476,7 @@ def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     mid_x, mid_y = 0.5 * (xi + xj), 0.5 * (yi + yj)  # the grasp centre
     if ctx.params.contacts_on_material and ctx.params.pads_at_grasp_centre:  # the pads move with the centre
         ahead_pair = None if ahead is None else np.maximum(ahead[:k], ahead[k:])
-        ok &= _pads_stop_at_contacts(ctx, P, idx, ok, ahead_pair, (xi, yi, xj, yj), mid_x, mid_y)
+        ok &= _pads_stop_at_contacts(ctx, P, idx, m, u, ok, ahead_pair, (xi, yi, xj, yj), mid_x, mid_y)
     if ctx.params.stroke_at_pad_lines:
         fits = _pads_clear_in_stroke(ctx, P, idx, ok, gap, mid_x, mid_y)
         if fits is not None:
@@ -541,8 +541,9 @@ def _pads_on_centre_line(ctx: Context, P: Pairs, rows, cx, cy):
     return bx, by, u, T
 
 
-def _pads_stop_at_contacts(ctx: Context, P: Pairs, idx, ok: np.ndarray, ahead, contacts, cx, cy) -> np.ndarray:
-    """(k,): do the pads, centred on the line through the contacts' midpoint (cx, cy) (k,), stop at the
+def _pads_stop_at_contacts(ctx: Context, P: Pairs, idx, m, u, ok: np.ndarray, ahead, contacts, cx, cy) -> np.ndarray:
+    """(k,): do the pads of the pairs idx (midpoints m, axes u, each (k, 2), as the contacts stage took them),
+    centred on the line through the contacts' midpoint (cx, cy) (k,), stop at the
     contacts (within the pad's compliance)? Contacts moved onto the material (or pressed at a pad's
     side) can move that midpoint across the axis by up to the band's half width, away from the line
     the bands were found on; the pads there can meet other material first (a star's slanted arm 4.9 mm
@@ -554,7 +555,6 @@ def _pads_stop_at_contacts(ctx: Context, P: Pairs, idx, ok: np.ndarray, ahead, c
     pads') behind it; a pair with ahead <= |off| tan(max_normal_angle) passes. The centre moves off its
     line only where contacts move across the axis; almost every pair is not looked at."""
     xi, yi, xj, yj = contacts
-    m, u = P.m.take(idx, 0), P.u.take(idx, 0)
     off = np.abs((cx - m[:, 0]) * -u[:, 1] + (cy - m[:, 1]) * u[:, 0])
     slant = math.tan(math.radians(ctx.params.max_normal_angle_deg))
     look = off > ctx.params.contact_tol_mm - EPS_MM

@@ -155,8 +155,7 @@ class Calibration:
             return _finite_result((t[None, :] + s[:, None] * rays)[:, :2], "px_to_mm")
         if self.homography is not None:
             self._check_plane(z)
-            centre = np.array([[self.width_px / 2.0, self.height_px / 2.0]])
-            return _finite_result(_apply_h(self.homography, uv, centre), "px_to_mm")
+            return _finite_result(self._h_to_plane(uv), "px_to_mm")
         raise BadInput(f"calibration {self.name!r} has intrinsics only: no mapping to the base frame "
                        "(run `cell calibrate plane`)")
 
@@ -183,8 +182,7 @@ class Calibration:
             return _finite_result(self.project(xyz), "mm_to_px")
         if self.homography is not None:
             self._check_plane(z)
-            centre = _apply_h(self.homography, np.array([[self.width_px / 2.0, self.height_px / 2.0]]))
-            return _finite_result(_apply_h(np.linalg.inv(self.homography), xy, centre), "mm_to_px")
+            return _finite_result(self._h_from_plane(xy), "mm_to_px")
         raise BadInput(f"calibration {self.name!r} has intrinsics only: no mapping to the base frame")
 
     def px_to_xyz(self, uv, z_mm: float | None = None) -> np.ndarray:
@@ -205,8 +203,7 @@ class Calibration:
             return _finite_result(t[None, :] + s[:, None] * rays, "px_to_mm")
         if self.homography is None:
             raise BadInput(f"calibration {self.name!r} has intrinsics only: no mapping to the base frame")
-        centre = np.array([[self.width_px / 2.0, self.height_px / 2.0]])
-        return _finite_result(self.plane.from_plane(_apply_h(self.homography, uv, centre)), "px_to_mm")
+        return _finite_result(self.plane.from_plane(self._h_to_plane(uv)), "px_to_mm")
 
     def plane_points_to_px(self, xyz: np.ndarray) -> np.ndarray:
         """Points (n, 3) of the tilted plane -> pixels: projected through the pose, or through the homography
@@ -215,8 +212,18 @@ class Calibration:
             return _finite_result(self.project(xyz), "mm_to_px")
         if self.homography is None:
             raise BadInput(f"calibration {self.name!r} has intrinsics only: no mapping to the base frame")
+        return _finite_result(self._h_from_plane(self.plane.to_plane(xyz)), "mm_to_px")
+
+    def _h_to_plane(self, uv: np.ndarray) -> np.ndarray:
+        """Pixels -> the homography's plane coordinates (base x, y; on a tilted plane its own 2D frame); pixels
+        beyond the plane's horizon (on the other side from the image centre) refused."""
+        centre = np.array([[self.width_px / 2.0, self.height_px / 2.0]])
+        return _apply_h(self.homography, uv, centre)
+
+    def _h_from_plane(self, ab: np.ndarray) -> np.ndarray:
+        """The homography's plane coordinates -> pixels; points beyond the horizon refused (`_h_to_plane`)."""
         centre = _apply_h(self.homography, np.array([[self.width_px / 2.0, self.height_px / 2.0]]))
-        return _finite_result(_apply_h(np.linalg.inv(self.homography), self.plane.to_plane(xyz), centre), "mm_to_px")
+        return _apply_h(np.linalg.inv(self.homography), ab, centre)
 
     def project(self, xyz_mm) -> np.ndarray:
         """Project base-frame points of shape (n, 3) to pixels (n, 2), CONTRACT frame."""

@@ -201,40 +201,34 @@ def fit_plane_mapping(uv_px, xyz_mm, size: tuple[int, int], camera_matrix: np.nd
                            "over the work area, not along a line")
     z = xyz[:, 2]
     z_spread = float(np.ptp(z))
+    k = None if camera_matrix is None else np.asarray(camera_matrix, float)
+    d = np.zeros(5) if dist is None or k is None else np.asarray(dist, float).ravel()
     if z_spread > PLANE_TOLERANCE_MM:
-        return _fit_tilted(uv, xyz, size, camera_matrix, dist, name, names, z_spread)
+        return _fit_tilted(uv, xyz, size, k, d, name, names, z_spread)
     plane_z = float(np.mean(z))
     w, h = size
-    if camera_matrix is not None:
-        k = np.asarray(camera_matrix, float)
-        d = np.zeros(5) if dist is None else np.asarray(dist, float).ravel()
+    if k is not None:
         # IPPE takes coplanar points only; SQPnP any (points a few mm off one plane)
         cam2base = _solve_pose(uv, xyz, k, d, cv2.SOLVEPNP_IPPE if z_spread <= FLAT_Z_MM else cv2.SOLVEPNP_SQPNP)
         cal = Calibration(w, h, k, d, cam2base, None, plane_z, name)
     else:
-        hmat, _ = cv2.findHomography(uv, xyz[:, :2], 0)
-        if hmat is None:
-            raise BadInput("no homography fits these points (are they collinear?)")
-        cal = Calibration(w, h, None, np.zeros(5), None, hmat, plane_z, name)
+        cal = Calibration(w, h, None, d, None, _homography(uv, xyz[:, :2]), plane_z, name)
     return _with_report(cal, uv, xyz, {"plane_z_mm": plane_z, "z_spread_mm": z_spread})
 
 
-def _fit_tilted(uv, xyz, size, camera_matrix, dist, name, names, z_spread: float) -> Calibration:
+def _fit_tilted(uv, xyz, size, k, d, name, names, z_spread: float) -> Calibration:
     """The mapping on the points' least-squares plane, tilted more than the horizontal path takes: the pose
-    from the 3D points, or a homography between the image and the plane's own 2D frame."""
+    from the 3D points (intrinsics k, d), or (k None) a homography between the image and the plane's own 2D
+    frame."""
     plane, off = fit_plane(xyz, names)
     w, h = size
-    if camera_matrix is not None:
-        k = np.asarray(camera_matrix, float)
-        d = np.zeros(5) if dist is None else np.asarray(dist, float).ravel()
+    if k is not None:
         cal = Calibration(w, h, k, d, _solve_pose(uv, xyz, k, d, cv2.SOLVEPNP_SQPNP), None, None, name, plane=plane)
         to_camera = cal.camera_position_mm() - plane.point_mm
         facing = float(plane.normal @ to_camera / np.linalg.norm(to_camera))  # cos of the view's angle
     else:
-        hmat, _ = cv2.findHomography(uv, plane.to_plane(xyz), 0)
-        if hmat is None:
-            raise BadInput("no homography fits these points (are they collinear?)")
-        cal = Calibration(w, h, None, np.zeros(5), None, hmat, None, name, plane=plane)
+        hmat = _homography(uv, plane.to_plane(xyz))
+        cal = Calibration(w, h, None, d, None, hmat, None, name, plane=plane)
         facing = _homography_facing(hmat)
     _check_view(plane, facing, cal.has_pose)
     extra = {"plane_z_mm": None, "z_spread_mm": z_spread, "plane": plane.describe(),
@@ -242,6 +236,15 @@ def _fit_tilted(uv, xyz, size, camera_matrix, dist, name, names, z_spread: float
                  np.clip(abs(facing), 0.0, 1.0)))), 2),
              "off_plane_rms_mm": float(np.sqrt(np.mean(off ** 2))), "off_plane_max_mm": float(np.abs(off).max())}
     return _with_report(cal, uv, xyz, extra)
+
+
+def _homography(uv: np.ndarray, plane_pts: np.ndarray) -> np.ndarray:
+    """The homography from the pixels to their points' 2D coordinates on the plane (all points, no outlier
+    rejection: each pair is a measured one)."""
+    hmat, _ = cv2.findHomography(uv, plane_pts, 0)
+    if hmat is None:
+        raise BadInput("no homography fits these points (are they collinear?)")
+    return hmat
 
 
 def _homography_facing(px_to_plane: np.ndarray) -> float:

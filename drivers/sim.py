@@ -11,9 +11,9 @@ position limits (0x607D) as a second line of defence, and a gripper that stops o
 of a given width or closes fully when there is none.
 
 Fault injection (`SimHandle.inject_fault`) covers: a silent node, an EMCY during a move, a
-following error, dropped SDO answers, error frames on the bus, and a drive leaving OPERATION
-ENABLED without a fault (its own quick stop, STO). Faults latch in the drive until a fault
-reset (controlword bit 7 rising edge), as on a real drive.
+following error, dropped SDO answers, error frames on the bus (of a given class, as SocketCAN
+presents them), and a drive leaving OPERATION ENABLED without a fault (its own quick stop,
+STO). Faults latch in the drive until a fault reset (controlword bit 7 rising edge), as on a real drive.
 """
 
 from __future__ import annotations
@@ -23,12 +23,38 @@ import os
 import can
 import canopen
 
+from drivers import errorframes as ef
 from drivers.clock import Clock, RealClock
 from drivers.eds import AXIS_EDS, GRIPPER_EDS, eds_path
 from drivers.pump import BusPump
 from drivers.simdrive import FAULT_KINDS, TPDO_EVENT_MS, SimDrive, SimGripper
 
 TICK_S = 0.01  # motion and timer resolution of the simulated drives (TPDO1 at most 100 Hz)
+# Error frames as the Linux CAN drivers make them (linux/can/error.h: the class in the id, details in 8 data
+# bytes) and python-can's SocketCAN interface hands them on (CAN_ERR_FLAG stripped, a standard id, dlc 8):
+# class bits, data. The error counters (CAN_ERR_CNT, data[6] tx, data[7] rx) as a controller would hold them.
+_PROT_BIT_IN_DATA = (0, 0, 0x01, 0x0A, 0, 0, 8, 0)  # a single bit error (data[2]) in the data field (data[3])
+ERROR_FRAMES = {
+    "bus_error": (ef.CAN_ERR_PROT | ef.CAN_ERR_BUSERROR | ef.CAN_ERR_CNT, _PROT_BIT_IN_DATA),
+    "error_warning": (ef.CAN_ERR_CRTL | ef.CAN_ERR_CNT, (0, ef.CAN_ERR_CRTL_TX_WARNING, 0, 0, 0, 0, 96, 0)),
+    "error_passive": (ef.CAN_ERR_CRTL | ef.CAN_ERR_CNT, (0, ef.CAN_ERR_CRTL_TX_PASSIVE, 0, 0, 0, 0, 128, 0)),
+    "back_to_error_active": (ef.CAN_ERR_CRTL | ef.CAN_ERR_CNT, (0, ef.CAN_ERR_CRTL_ACTIVE, 0, 0, 0, 0, 90, 0)),
+    "bus_off": (ef.CAN_ERR_BUSOFF | ef.CAN_ERR_CNT, (0, 0, 0, 0, 0, 0, 255, 0)),
+    "restarted": (ef.CAN_ERR_RESTARTED, (0,) * 8),
+    "tx_timeout": (ef.CAN_ERR_TX_TIMEOUT, (0,) * 8),
+    # a missed ACK comes as a bus error of the ACK slot (flexcan, m_can)
+    "no_ack": (ef.CAN_ERR_ACK | ef.CAN_ERR_PROT | ef.CAN_ERR_BUSERROR, (0, 0, 0, ef.CAN_ERR_PROT_LOC_ACK, 0, 0, 0, 0)),
+    "lost_arbitration": (ef.CAN_ERR_LOSTARB, (3, 0, 0, 0, 0, 0, 0, 0)),  # data[0]: the bit it was lost in
+    "unclassified": (0, (0,) * 8),  # as an interface that gives no class would (Kvaser: the flag alone)
+}
+
+
+def error_frame(error_class: str) -> can.Message:
+    """An error frame of one of ERROR_FRAMES, as python-can's SocketCAN interface hands it on."""
+    if error_class not in ERROR_FRAMES:
+        raise ValueError(f"unknown error frame class {error_class!r}; one of {sorted(ERROR_FRAMES)}")
+    cls, data = ERROR_FRAMES[error_class]
+    return can.Message(is_error_frame=True, arbitration_id=cls, is_extended_id=False, data=bytes(data), dlc=8)
 
 
 class SimHandle:
@@ -114,19 +140,13 @@ class SimHandle:
             ON DISABLED, the axis coasts, no fault); both, like 'emcy', at once or `after_s` into
             the next move,
             'drop_sdo' (the next `count` SDO answers are lost; default all, until `heal`),
-            'error_frames' (`count` error frames on the bus, default 3; no node needed).
+            'error_frames' (`count` error frames on the bus, default 3, of `error_class`, default 'bus_error':
+            one of ERROR_FRAMES, as SocketCAN presents them through python-can; no node needed).
         """
         if kind == "error_frames":
+            frame = error_frame(kw.get("error_class", "bus_error"))
             for _ in range(int(kw.get("count", 3))):
-                self.bus.send(
-                    can.Message(
-                        is_error_frame=True,
-                        arbitration_id=0x20000080,
-                        is_extended_id=True,
-                        data=bytes(8),
-                        dlc=8,
-                    )
-                )
+                self.bus.send(frame)
             return
         if kind not in FAULT_KINDS:
             raise ValueError(f"unknown fault kind {kind!r}; one of {FAULT_KINDS}")

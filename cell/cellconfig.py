@@ -33,6 +33,11 @@ HEARTBEAT_DEADLINE_FACTOR = 3.0  # a node is silent after this many of its heart
 GRIPPER_ACCEL_FACTOR = 10.0  # gripper acceleration = this x its speed, per second
 QUICK_STOP_DECEL_FACTOR = 2.0  # quick stop / fault reaction deceleration = this x the max acceleration
 MAX_HEARTBEAT_MS = 0xFFFF  # 0x1017 producer heartbeat time: UNSIGNED16
+# Error frames (drivers.errorframes): a sporadic one is counted; more than ERROR_FRAMES_MAX within
+# ERROR_WINDOW_MS mean a disturbed bus losing frames (bad termination, a loose connector, interference)
+DEFAULT_ERROR_FRAMES_MAX = 10
+DEFAULT_ERROR_WINDOW_MS = 1000
+MAX_ERROR_WINDOW_MS = 60_000  # a window of minutes would add up sporadic frames into a stop
 
 
 def default_cell_path() -> Path:
@@ -116,6 +121,9 @@ class CanConfig:
     heartbeat_ms: int
     host_heartbeat_ms: int
     nodes: dict  # name -> CanNode
+    # more error frames than this within the window latch a bus fault (drivers.errorframes); optional keys
+    error_frames_max: int = DEFAULT_ERROR_FRAMES_MAX
+    error_window_ms: int = DEFAULT_ERROR_WINDOW_MS
 
 
 @dataclass(frozen=True)
@@ -168,7 +176,7 @@ _KEYS = {
     "motion.home_joints": ("j1_deg", "j2_deg", "j3_mm", "j4_deg"),
     "configuration": ("joint_weights",), "configuration.joint_weights": JOINTS,
     "camera": ("width_px", "height_px", "height_mm"),
-    "can": ("bitrate", "heartbeat_ms", "host_heartbeat_ms", "nodes"),
+    "can": ("bitrate", "heartbeat_ms", "host_heartbeat_ms", "nodes", "error_frames_max", "error_window_ms"),
     "can.nodes": (*JOINTS, "gripper"),
     **{f"can.nodes.{n}": ("node_id", "unit", "counts_per_unit") for n in (*JOINTS, "gripper")},
 }
@@ -242,7 +250,7 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
         raise BadInput(f"cell file {source}: can.nodes have duplicate node ids")
     _check_drive_counts(scara, gripper, nodes, source)
     can = CanConfig(r.count(cn, "bitrate", "can"), r.count(cn, "heartbeat_ms", "can"),
-                    r.count(cn, "host_heartbeat_ms", "can"), nodes)
+                    r.count(cn, "host_heartbeat_ms", "can"), nodes, *_error_frame_window(r, cn, source))
     host_top = int(MAX_HEARTBEAT_MS // HEARTBEAT_DEADLINE_FACTOR)  # the host's deadline in 0x1016 is 16 bits too
     for key, top in (("heartbeat_ms", MAX_HEARTBEAT_MS), ("host_heartbeat_ms", host_top)):
         if getattr(can, key) > top:
@@ -256,6 +264,22 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
             raise BadInput(f"cell file {source}: configuration.joint_weights must not all be zero")
     name = raw.get("name", Path(source).stem)
     return Cell(str(name), scara, gripper, tray, ws, motion, camera, can, weights, source=source)
+
+
+def _error_frame_window(r: _Reader, cn: dict, source: str) -> tuple[int, int]:
+    """can.error_frames_max (0: the first error frame stops the arm) and can.error_window_ms, both optional."""
+    most = DEFAULT_ERROR_FRAMES_MAX
+    if "error_frames_max" in cn:
+        most = r.integer(cn, "error_frames_max", "can")
+        if most < 0:
+            raise BadInput(f"cell file {source}: can.error_frames_max must be 0 or more error frames, got {most}")
+    window_ms = DEFAULT_ERROR_WINDOW_MS
+    if "error_window_ms" in cn:
+        window_ms = r.count(cn, "error_window_ms", "can")
+        if window_ms > MAX_ERROR_WINDOW_MS:
+            raise BadInput(f"cell file {source}: can.error_window_ms = {window_ms} is more than {MAX_ERROR_WINDOW_MS}"
+                           " ms (a window that long adds up sporadic error frames into a stop)")
+    return most, window_ms
 
 
 def _check_motion_within_limits(motion: Motion, scara: Scara, source: str) -> None:

@@ -11,7 +11,9 @@ Safety supervision, all in the host:
 - the host sends its own heartbeat and configures each drive (0x1016) to fault when it
   falls silent; it watches every node's heartbeat against a deadline (and the boot-up
   deadline at connect);
-- EMCY frames, FAULT states, heartbeat timeouts, SDO failures and error frames latch a
+- EMCY frames, FAULT states, heartbeat timeouts, SDO failures, an error frame saying the host is off the
+  bus (bus-off, transmit timeout, no ACK, error-passive) and a burst of other error frames (more than
+  `can.error_frames_max` within `can.error_window_ms`; a sporadic one is counted, `drivers.errorframes`) latch a
   fault: the running move is quick-stopped on every axis, the error names the node and
   the reason, and nothing moves again until `reset_faults()`. So does an axis of the move
   that leaves OPERATION ENABLED without a fault (`DriveDisabled`: a quick stop or STO from
@@ -33,6 +35,7 @@ from drivers import codec
 from drivers.axis import Axis
 from drivers.clock import Clock, RealClock
 from drivers.eds import AXIS_EDS, GRIP_FORCE_INDEX, GRIPPER_EDS, eds_path
+from drivers.errorframes import ErrorFramePolicy, classes_readable
 from drivers.errors import (
     BusFault,
     DriveDisabled,
@@ -75,8 +78,10 @@ class Arm:
         Share a `SimClock` with `drivers.sim.serve` for simulated time; default wall time.
     sdo_timeout_s : float
         Wall time an SDO answer may take (canopen retries once).
-    error_frame_limit : int
-        Error frames seen on the bus before the bus counts as faulty.
+    error_frames_max, error_window_ms : int, optional
+        More than this many error frames within this window (on `clock`) latch a bus fault; default the cell
+        file's `can.error_frames_max` / `can.error_window_ms`. Bus-off, transmit timeout, no ACK and
+        error-passive latch at once (`drivers.errorframes`).
     """
 
     def __init__(
@@ -87,7 +92,8 @@ class Arm:
         *,
         sdo_timeout_s: float = 0.3,
         boot_timeout_s: float | None = None,
-        error_frame_limit: int = 1,
+        error_frames_max: int | None = None,
+        error_window_ms: int | None = None,
         poll_s: float = 0.01,
     ):
         if cell is None:
@@ -101,11 +107,14 @@ class Arm:
         hb_s = cell.can.heartbeat_ms / 1000.0
         self.heartbeat_deadline_s = HEARTBEAT_DEADLINE_FACTOR * hb_s
         self.boot_timeout_s = boot_timeout_s if boot_timeout_s is not None else max(1.0, 5 * hb_s)
-        self.error_frame_limit = error_frame_limit
+        self._error_policy = ErrorFramePolicy(
+            cell.can.error_frames_max if error_frames_max is None else error_frames_max,
+            cell.can.error_window_ms if error_window_ms is None else error_window_ms,
+            classes_readable(bus),
+        )
         self.poll_s = poll_s
         self.axes: dict[str, Axis] = {}
         self.gripper = Gripper(self)
-        self.error_frames = 0
         self._faults: dict[str, DriverError] = {}
         self._lock = threading.Lock()
         self._emcy_seen: dict[str, int] = {}
@@ -278,13 +287,30 @@ class Arm:
                 self._latch(BusFault(f"bus: sending the host heartbeat failed: {e}"), key="bus")
 
     def _on_frame(self, msg: can.Message) -> None:
-        if msg.is_error_frame:
-            with self._lock:
-                self.error_frames += 1
-                if self.error_frames >= self.error_frame_limit and "bus" not in self._faults:
-                    self._faults["bus"] = BusFault(
-                        f"bus: {self.error_frames} error frame(s) received (limit {self.error_frame_limit})"
-                    )
+        if not msg.is_error_frame:
+            return
+        with self._lock:
+            reason = self._error_policy.observe(msg, self.clock.now())
+            latched = "bus" in self._faults
+            if reason is not None and not latched:
+                self._faults["bus"] = BusFault(reason)
+            text = reason or f"bus: error frame {self._error_policy.last} (counted)"
+        if not latched:  # after the latch a disturbed bus may flood: the count goes on, the log stops
+            log.warning("%s", text)
+
+    @property
+    def error_frames(self) -> int:
+        """Error frames heard since the arm was made (a reset does not clear them: each stays visible)."""
+        with self._lock:
+            return self._error_policy.total
+
+    def bus_state(self) -> dict:
+        """The bus as the host sees it: error frames in all and per class (can-utils' names), in the window
+        now, the window's limits, the last one's text, and the bus fault latched (or None)."""
+        with self._lock:
+            out = self._error_policy.summary(self.clock.now())
+            fault = self._faults.get("bus")
+        return {**out, "fault": None if fault is None else str(fault)}
 
     def _watch(self) -> None:
         """Periodic check of every node: heartbeat deadline, EMCY, FAULT state; and the host's receiving."""
@@ -449,7 +475,7 @@ class Arm:
                 ax.fault_reset()
             with self._lock:
                 self._faults.clear()
-                self.error_frames = 0
+                self._error_policy.restart_window()
                 for ax in self.axes.values():
                     self._emcy_seen[ax.name] = ax.emcy_seq
             self._enable_all()

@@ -102,23 +102,39 @@ def test_lost_sdo_answers_refuse_the_move_before_anything_moves(arm, sim_drives)
     _assert_recovers(arm, sim_drives)
 
 
-def test_error_frames_latch_a_bus_fault(arm, sim_drives):
-    sim_drives.inject_fault("error_frames", count=2)
+# a burst (one more than the cell file allows within its window) and a frame saying the host is off the bus
+_BUS_FAULTS = [
+    ("bus_error", "burst", r"bus: 11 error frames within 1000 ms \(more than can.error_frames_max = 10"),
+    ("bus_off", 1, r"bus: error frame bus-off.*off the bus"),
+]
+
+
+def _count(arm, how):
+    return arm.cell.can.error_frames_max + 1 if how == "burst" else how
+
+
+@pytest.mark.parametrize(("error_class", "how", "message"), _BUS_FAULTS)
+def test_error_frames_latch_a_bus_fault(arm, sim_drives, error_class, how, message):
+    sim_drives.inject_fault("error_frames", count=_count(arm, how), error_class=error_class)
     arm.clock.sleep(0.02)
     assert "bus" in arm.faults and "error frame" in arm.faults["bus"]
-    with pytest.raises(FaultLatched, match="bus"):
+    assert arm.error_frames == _count(arm, how)
+    with pytest.raises(FaultLatched, match=message):
         arm.move_joints(_long_move(arm))
     _assert_frozen(arm, sim_drives)
     _assert_recovers(arm, sim_drives)
 
 
-def test_error_frames_during_a_move_stop_it(arm, sim_drives):
-    arm.move_joints(_long_move(arm), wait=False)
+@pytest.mark.parametrize(("error_class", "how", "message"), _BUS_FAULTS)
+def test_error_frames_during_a_move_stop_it(arm, sim_drives, error_class, how, message):
+    target = _long_move(arm)
+    arm.move_joints(target, wait=False)
     arm.clock.sleep(0.1)
-    sim_drives.inject_fault("error_frames", count=1)
-    with pytest.raises(BusFault):
+    sim_drives.inject_fault("error_frames", count=_count(arm, how), error_class=error_class)
+    with pytest.raises(BusFault, match=message):
         arm.wait_idle()
     assert sim_drives.drives["j1"].state == "QUICK_STOP_ACTIVE"
+    assert sim_drives.positions()["j1"] > target.j1_deg + 1.0  # stopped mid-way
 
 
 def test_drives_stop_when_the_host_falls_silent(arm, sim_drives):

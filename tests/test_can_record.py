@@ -10,6 +10,7 @@ from drivers_fixtures import needs_sim
 from cell.errors import BadInput
 from cell.kinematics import Joints
 from drivers import Arm, sim
+from drivers.errorframes import classify
 from drivers.pump import BusPump
 from drivers.record import BusRecorder, read_log, replay, same_frame
 
@@ -29,7 +30,7 @@ def test_session_recording_reads_back_identical(tmp_path, open_test_bus, sim_clo
                 arm.move_joints(Joints(s.j1_deg + 2, s.j2_deg, s.j3_mm - 10, s.j4_deg))
                 drives.gripper_object_width_mm = 20.0
                 assert arm.gripper.grip(20.0).holding
-            drives.inject_fault("error_frames", count=1)
+            drives.inject_fault("error_frames", count=1, error_class="bus_off")
             sim_clock.sleep(0.01)
     tap.settle()
     tap.stop()
@@ -38,7 +39,10 @@ def test_session_recording_reads_back_identical(tmp_path, open_test_bus, sim_clo
     assert all(same_frame(a, b) for a, b in zip(frames, heard, strict=True))
     ids = {m.arbitration_id for m in frames}
     assert {0x181, 0x201, 0x301, 0x601, 0x581, 0x701, 0x77F, 0x000} <= ids  # PDOs, SDO, heartbeats, NMT
-    assert any(m.is_error_frame for m in frames)
+    errors = [m for m in frames if m.is_error_frame]
+    assert len(errors) == 1
+    if suffix == ".blf":  # of python-can's formats the one that keeps the error class and its details
+        assert classify(errors[0]).text.startswith("bus-off, error-counter-tx-rx{tx 255, rx 0}: ")
     # simulated time stamps: the session took seconds of simulated time
     assert frames[-1].timestamp - frames[0].timestamp > 1.0
 

@@ -215,3 +215,10 @@ def test_a_bad_window_in_the_cell_file_is_refused(tmp_path, capsys, keys, messag
     code, out, err = run_cli("hw", "status", "--simulated-time", "--cell", str(path), capsys=capsys)
     assert code == 2 and message in err and "Traceback" not in err and out == ""
 
+
+def test_hw_status_shows_the_bus(capsys):
+    code, out, err = run_cli("hw", "status", "--simulated-time", capsys=capsys)
+    assert code == 0, err
+    assert out.splitlines()[-1].startswith("bus      error frames 0; more than 10 within 1000 ms")
+    code, out, err = run_cli("hw", "status", "--simulated-time", "--json", capsys=capsys)
+    assert code == 0 and len(out.splitlines()) == 5 and "bus      error frames 0" in err  # stdout: the nodes only

@@ -176,7 +176,7 @@ def _status(args, cell) -> int:
             stack.enter_context(sim.serve(sim_bus, cell, clock=clock))
             bus = open_bus("virtual", channel)
             stack.callback(bus.shutdown)
-            states, error = _bring_up(Arm(bus, cell, clock=clock))
+            states, bus_state, error = _bring_up(Arm(bus, cell, clock=clock))
     else:
         with contextlib.ExitStack() as stack:
             channel = args.channel or "can0"
@@ -186,7 +186,7 @@ def _status(args, cell) -> int:
                 stack.enter_context(BusRecorder(tap, args.record))
             bus = open_bus(args.interface, channel, cell.can.bitrate)
             stack.callback(bus.shutdown)
-            states, error = _bring_up(Arm(bus, cell))
+            states, bus_state, error = _bring_up(Arm(bus, cell))
     for s in states.values():
         row = {k: s[k] for k in ("node_id", "name", "state", "position", "unit", "nmt", "fault", "emcy")}
         pos = "-" if s["position"] is None else f"{s['position']:.3f} {s['unit']}"
@@ -196,25 +196,37 @@ def _status(args, cell) -> int:
             f"{s['name']:8s} node {s['node_id']:3d}  {s['nmt']:16s} {s['state']:24s} {pos}"
             + (f"  FAULT: {s['fault']}" if s["fault"] else ""),
         )
+    # stdout stays one JSON object per node (CONTRACT); with --json the bus line goes to stderr
+    print(_bus_text(bus_state), file=sys.stderr if args.json else sys.stdout)
     if error is not None:
         print(f"cell: error: {error}", file=sys.stderr)
         code = 1
-    elif any(s["fault"] for s in states.values()):
-        print("cell: error: some nodes are faulted (see 'fault'); reset before moving", file=sys.stderr)
+    elif any(s["fault"] for s in states.values()) or bus_state["fault"]:
+        print("cell: error: some nodes or the bus are faulted (see 'fault'); reset before moving", file=sys.stderr)
         code = 1
     return code
 
 
+def _bus_text(b: dict) -> str:
+    """The bus line of `hw status`: error frames in all (per class) and the policy's window."""
+    classes = ", ".join(f"{k} {n}" for k, n in sorted(b["by_class"].items()))
+    text = (f"bus      error frames {b['error_frames']}{f' ({classes})' if classes else ''}; "
+            f"more than {b['error_frames_max']} within {b['error_window_ms']} ms, or one saying the host is off "
+            "the bus, stop the arm")
+    return text + (f"  FAULT: {b['fault']}" if b["fault"] else "")
+
+
 def _bring_up(arm):
+    """Connect, one more round of heartbeats and TPDOs, disconnect: (node states, bus state, error or None)."""
     from drivers import DriverError
 
     try:
         arm.connect()
     except DriverError as e:
-        return arm.state_at_failure or arm.state(), e
+        return arm.state_at_failure or arm.state(), arm.bus_state(), e
     try:
-        arm.clock.sleep(0.05)  # one more round of heartbeats and TPDOs
-        return arm.state(), None
+        arm.clock.sleep(0.05)
+        return arm.state(), arm.bus_state(), None
     finally:
         arm.disconnect()
 

@@ -354,10 +354,19 @@ def test_elliptic_dilation_row_by_row_equals_opencvs():
     from cell.vision.touching import DIRECT_ELLIPSE_MAX_PX, dilate_ellipse
 
     rng = np.random.default_rng(5)
-    for _ in range(150):  # sparse to dense masks, kernels from OpenCV's own range past the saturation
+    cases = []
+    for _ in range(40):  # sparse to dense masks, kernels from OpenCV's own range past the saturation
         mask = (rng.random(tuple(int(v) for v in rng.integers(1, 300, 2))) < rng.choice([0.0, 5e-4, 0.01, 0.3])
                 ).astype(np.uint8)
-        size = int(rng.integers(DIRECT_ELLIPSE_MAX_PX // 2 - 2, 270)) * 2 + 1
+        cases.append((mask, int(rng.integers(DIRECT_ELLIPSE_MAX_PX // 2 - 2, 270)) * 2 + 1))
+    # the bounds, which 150 random cases (8 s of OpenCV's dilation) did not pin: the first kernel taken row by
+    # row, the last (rows' distances reach 255) and the next; set pixels 255 px and more from a row's other end
+    # (a cap of 254, or no pixel counted as 250 px away, passed them); kernels taller than the mask
+    ends = np.zeros((40, 290), np.uint8)
+    ends[20, 0] = ends[5, 289] = 1
+    for size in (DIRECT_ELLIPSE_MAX_PX + 2, 2 * 254 + 1, 2 * 254 + 3):
+        cases += [(ends, size), (ends[:3], size), (np.ones((2, 300), np.uint8), size)]
+    for mask, size in cases:
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
         assert np.array_equal(dilate_ellipse(mask, size), cv2.dilate(mask, kernel)), (mask.shape, size)
 

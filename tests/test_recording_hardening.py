@@ -354,8 +354,16 @@ def test_a_run_that_fails_mid_way_is_recorded_as_failed_and_replays_as_incomplet
         return plan(self, scene, part_id)
 
     monkeypatch.setattr(CellLoop, "_plan", plan_until_the_disk_fills)
+    # the default assembly's first two parts: the fewer parts to locate in every frame, run and replay, the
+    # sooner (the whole assembly: 16 s)
+    from importlib import resources
+
+    two = json.loads((resources.files("cell") / "data" / "assemblies" / "default.json").read_text())
+    two["parts"] = [p for p in two["parts"] if p["id"] in two["sequence"][:2]]
+    two["sequence"] = two["sequence"][:2]
+    (tmp_path / "two.json").write_text(json.dumps(two))
     d = tmp_path / "rec"
-    code, _, err = run_cli("run", "--record", d, "--json", capsys=capsys)
+    code, _, err = run_cli("run", tmp_path / "two.json", "--record", d, "--json", capsys=capsys)
     assert code == 2 and "No space left on device" in err
     m = json.loads((d / "manifest.json").read_text())
     assert m["status"] == "incomplete" and m["summary"]["status"] == "failed"

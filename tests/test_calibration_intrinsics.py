@@ -40,8 +40,12 @@ def test_chessboard_matches_opencv_published_calibration(chess_ref):
 def test_corner_window_grows_with_the_squares_in_the_image(chess_ref):
     # the same boards seen by a camera with 3 x the resolution: corners are 3 x as far apart and as
     # blurred, so the refinement window must grow with them (a fixed 5 px window: 1.83 px RMS)
-    plain = calibrate_intrinsics(_images(CHESS), (9, 6), 1.0)
-    big = [(n, cv2.resize(g, None, fx=3, fy=3, interpolation=cv2.INTER_CUBIC)) for n, g in _images(CHESS)]
+    # every other view (7 of 13): the sector detector on the 3 x copies is most of the time, and the figures
+    # below come out the same as from all 13 (RMS ratio 3.26 / 3.28, fx 0.007 / 0.034 % apart, 2.70 / 2.75 x
+    # the RMS with the fixed window)
+    views = _images(CHESS)[::2]
+    plain = calibrate_intrinsics(views, (9, 6), 1.0)
+    big = [(n, cv2.resize(g, None, fx=3, fy=3, interpolation=cv2.INTER_CUBIC)) for n, g in views]
     r = calibrate_intrinsics(big, (9, 6), 1.0)
     assert plain.board["subpix_win"] == 5 and r.board["subpix_win"] == 15
     assert r.rms_px < 3.5 * plain.rms_px

@@ -68,6 +68,12 @@ def forward(j: Joints, scara: Scara) -> ToolPose:
     return ToolPose(x, y, j.j3_mm, normalize_axis_deg(j.j1_deg + j.j2_deg + j.j4_deg))
 
 
+def tool_xy(joints: np.ndarray, scara: Scara) -> tuple[np.ndarray, np.ndarray]:
+    """`forward`'s x_mm, y_mm for the rows of an (n, >= 2) array of j1_deg, j2_deg, ...: many at once."""
+    t1, t12 = np.radians(joints[:, 0]), np.radians(joints[:, 0] + joints[:, 1])
+    return scara.l1_mm * np.cos(t1) + scara.l2_mm * np.cos(t12), scara.l1_mm * np.sin(t1) + scara.l2_mm * np.sin(t12)
+
+
 def elbow_points(j: Joints, scara: Scara) -> np.ndarray:
     """Base, elbow and wrist positions in the plane, shape (3, 2): the links for drawing and
     for the link collision check."""

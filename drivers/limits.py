@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import math
 
-from cell.kinematics import Joints, forward, limit_violations
+import numpy as np
+
+from cell.kinematics import Joints, forward, limit_violations, tool_xy
 from drivers import codec
 
 JOINT_FIELDS = (
@@ -68,16 +70,17 @@ def path_violations(cell, start: Joints, target: Joints) -> list[str]:
     workspace all along (unless it starts outside: the way back in is then allowed), and below the safe
     height it goes straight up or down or across at one height (J3 moving while the tool travels or J4
     turns, with either end below the safe height, is refused)."""
-    from drivers.profile import coordinated_path
+    from drivers.profile import coordinated_path_array
 
-    path = [start, *coordinated_path(cell.scara, start, target, PATH_STEP_DEG)]
-    tools = [forward(j, cell.scara) for j in path]
+    # the whole way at once: a plan checks the ways of every candidate grasp, each of hundreds of samples
+    path = np.vstack([[start.j1_deg, start.j2_deg, start.j3_mm, start.j4_deg],
+                      coordinated_path_array(cell.scara, start, target, PATH_STEP_DEG)])
+    x, y = tool_xy(path, cell.scara)
     out = []
     safe = cell.motion.safe_z_mm
     rise = target.j3_mm - start.j3_mm
     if min(start.j3_mm, target.j3_mm) < safe and abs(rise) > STILL_MM:
-        x0, y0 = tools[0].x_mm, tools[0].y_mm
-        travel = max(math.hypot(t.x_mm - x0, t.y_mm - y0) for t in tools)
+        travel = float(np.hypot(x - x[0], y - y[0]).max())
         turn = abs(target.j4_deg - start.j4_deg)
         moving = ([f"the tool travels {travel:.1f} mm"] if travel > STILL_MM else []) + (
             [f"J4 turns {turn:.1f} deg"] if turn > STILL_DEG else [])
@@ -86,13 +89,13 @@ def path_violations(cell, start: Joints, target: Joints) -> list[str]:
                        f"{' and '.join(moving)}: below the safe height {safe:g} mm the arm goes straight up or down, "
                        "or across at one height")
     ws = cell.workspace
-    if ws.contains(tools[0].x_mm, tools[0].y_mm):
-        for j, t in zip(path, tools, strict=True):
-            if not ws.contains(t.x_mm, t.y_mm):
-                out.append(f"the tool would leave the workspace on the way, at x = {t.x_mm:.1f}, y = {t.y_mm:.1f} mm "
-                           f"(J1 {j.j1_deg:.1f} deg, J2 {j.j2_deg:.1f} deg); the workspace is x in "
-                           f"[{ws.x_mm[0]:g}, {ws.x_mm[1]:g}], y in [{ws.y_mm[0]:g}, {ws.y_mm[1]:g}]")
-                break
+    if ws.contains(x[0], y[0]):
+        outside = np.flatnonzero(~((ws.x_mm[0] <= x) & (x <= ws.x_mm[1]) & (ws.y_mm[0] <= y) & (y <= ws.y_mm[1])))
+        if len(outside):
+            i = outside[0]
+            out.append(f"the tool would leave the workspace on the way, at x = {x[i]:.1f}, y = {y[i]:.1f} mm "
+                       f"(J1 {path[i, 0]:.1f} deg, J2 {path[i, 1]:.1f} deg); the workspace is x in "
+                       f"[{ws.x_mm[0]:g}, {ws.x_mm[1]:g}], y in [{ws.y_mm[0]:g}, {ws.y_mm[1]:g}]")
     return out
 
 

@@ -9,6 +9,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 
 @dataclass(frozen=True)
 class Trapezoid:
@@ -40,6 +42,18 @@ class Trapezoid:
             s = 0.5 * self.accel * ta * ta + self.v_peak * tc + self.v_peak * td - 0.5 * self.decel * td * td
         s = min(s, abs(self.distance))
         return sign * s
+
+    def positions_at(self, t_s: np.ndarray) -> np.ndarray:
+        """`position_at` for an array of times, element by element the same arithmetic (the same floats)."""
+        sign = 1.0 if self.distance >= 0 else -1.0
+        t = np.minimum(np.maximum(t_s, 0.0), self.duration_s)
+        ta, tc = self.t_accel_s, self.t_cruise_s
+        td = t - ta - tc
+        s = np.where(t <= ta, 0.5 * self.accel * t * t,
+                     np.where(t <= ta + tc, 0.5 * self.accel * ta * ta + self.v_peak * (t - ta),
+                              0.5 * self.accel * ta * ta + self.v_peak * tc + self.v_peak * td
+                              - 0.5 * self.decel * td * td))
+        return sign * np.minimum(s, abs(self.distance))
 
     def velocity_at(self, t_s: float) -> float:
         sign = 1.0 if self.distance >= 0 else -1.0
@@ -108,21 +122,26 @@ def coordinated_path(scara, start, target, step_deg: float = 2.0) -> list:
     the slowest (as `Arm.move_joints` commands them). Samples close enough that J1 and J2 turn
     at most about step_deg between two (the progress of an axis is at most twice its mean)."""
     from cell.kinematics import Joints
+
+    return [Joints(*row) for row in coordinated_path_array(scara, start, target, step_deg).tolist()]
+
+
+def coordinated_path_array(scara, start, target, step_deg: float = 2.0) -> np.ndarray:
+    """`coordinated_path` as an (n, 4) array of j1_deg, j2_deg, j3_mm, j4_deg (the last row the
+    target itself): the way checks take every sample of a move, for every move a plan considers."""
     from drivers.limits import JOINT_FIELDS
 
     duration = coordinated_move_s(scara, start, target)
     turn = max(abs(target.j1_deg - start.j1_deg), abs(target.j2_deg - start.j2_deg))
     n = max(1, math.ceil(2.0 * turn / step_deg))
-    profiles = {}
-    for j, f, _ in JOINT_FIELDS:
+    t = duration * np.arange(1, n + 1) / n  # as duration * k / n, sample by sample
+    path = np.empty((n, len(JOINT_FIELDS)))
+    for col, (j, f, _) in enumerate(JOINT_FIELDS):
         d = getattr(target, f) - getattr(start, f)
         a = scara.max_acceleration[j]
         v = velocity_for_duration(d, duration, a) if duration > 0 else 0.0
-        profiles[f] = trapezoid(d, v, a) if d != 0.0 and v > 0 else None
-    path = []
-    for k in range(1, n + 1):
-        t = duration * k / n
-        path.append(Joints(*(getattr(start, f) + (profiles[f].position_at(t) if profiles[f] else 0.0)
-                             for _, f, _ in JOINT_FIELDS)))
-    path[-1] = target
+        path[:, col] = getattr(start, f)
+        if d != 0.0 and v > 0:
+            path[:, col] += trapezoid(d, v, a).positions_at(t)
+    path[-1] = [getattr(target, f) for _, f, _ in JOINT_FIELDS]
     return path

@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from drivers.profile import trapezoid, velocity_for_duration
+from cell.cellconfig import default_cell
+from cell.kinematics import Joints, forward, tool_xy
+from drivers.profile import coordinated_path, coordinated_path_array, trapezoid, velocity_for_duration
 
 pos = st.floats(0.5, 5000)
 
@@ -36,6 +39,28 @@ def test_profile_ends_at_the_distance_and_respects_limits(d, v, a, dec):
     xs = [abs(p.position_at(t)) for t in ts]
     assert all(b >= a_ - 1e-9 for a_, b in zip(xs, xs[1:], strict=False))  # monotone: no overshoot
     assert all(abs(p.velocity_at(t)) <= v + 1e-9 for t in ts)
+
+
+@given(d=st.floats(-1000, 1000, allow_nan=False), v=pos, a=pos, dec=pos)
+def test_positions_at_an_array_of_times_are_position_at_bit_for_bit(d, v, a, dec):
+    # the way checks take the array form; the drives and the step-by-step checks the scalar one
+    p = trapezoid(d, v, a, dec)
+    ts = np.array([-1.0, 0.0, p.t_accel_s, p.t_accel_s + p.t_cruise_s, p.duration_s, p.duration_s + 1.0,
+                   *np.linspace(0.0, p.duration_s, 37)])
+    assert p.positions_at(ts).tolist() == [p.position_at(t) for t in ts.tolist()]
+
+
+def test_the_way_checked_is_the_path_the_arm_reports_sample_by_sample():
+    cell = default_cell()
+    a, b = Joints(10.0, 60.0, 150.0, 0.0), Joints(-40.0, 100.0, 120.0, 30.0)
+    rows = coordinated_path_array(cell.scara, a, b, 0.5)
+    path = coordinated_path(cell.scara, a, b, 0.5)
+    assert len(path) == len(rows) == 200 and path[-1] == b  # 2 x 50 deg / 0.5 deg
+    assert [list(j.as_array()) for j in path] == rows.tolist()
+    x, y = tool_xy(rows, cell.scara)
+    tools = [forward(j, cell.scara) for j in path]
+    assert np.allclose(x, [t.x_mm for t in tools], rtol=0, atol=1e-9)
+    assert np.allclose(y, [t.y_mm for t in tools], rtol=0, atol=1e-9)
 
 
 @given(d=st.floats(0.1, 1000), v=pos, a=pos, stretch=st.floats(1.0, 5.0))

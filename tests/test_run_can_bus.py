@@ -1,12 +1,14 @@
 """The CAN bus in a run's summary: the error frames a shift heard, and the one that stopped it
 (`drivers.errorframes` decides which stop; here, that a run reports them)."""
 
+import io
 import json
 from importlib import resources
 from pathlib import Path
 
 import pytest
 
+from cell.commands.run import _print_summary
 from cell.recording import RecordingReader
 from cell.runtime.session import RunConfig, run_session
 
@@ -31,6 +33,9 @@ def test_sporadic_error_frames_are_counted_in_the_summary_and_the_run_completes(
     # (a frame names every class it carries: SocketCAN's bus error comes with its protocol violation and counters)
     assert bus["error_frames"] == 3 and bus["by_class"]["bus-error"] == 3 and bus["fault"] is None
     assert RecordingReader(tmp_path / "r").manifest["summary"]["can_bus"] == bus  # kept with the recording
+    text = io.StringIO()
+    _print_summary(s, text)  # what `cell run` prints without --json
+    assert "CAN bus: 3 error frame(s) (3 bus-error" in text.getvalue()
 
 
 def test_a_bus_off_stops_the_run_and_the_summary_names_it(nut_only):

@@ -164,6 +164,11 @@ def _print_summary(s: dict, out) -> None:
               f"{100 * s['planning_share']:.1f}%", file=out)
         v, a = s["motion_limits"]["max_velocity"], s["motion_limits"]["max_acceleration"]
         print(f"  motion limits: velocity {v}, acceleration {a} (cell file)", file=out)
+    bus = s.get("can_bus") or {}
+    if bus.get("error_frames"):  # a healthy bus shows none: say so when it did not
+        classes = ", ".join(f"{n} {c}" for c, n in sorted(bus["by_class"].items()))
+        print(f"  CAN bus: {bus['error_frames']} error frame(s) ({classes})"
+              + (f"; {bus['fault']}" if bus.get("fault") else ""), file=out)
     for k in ("recording", "rrd", "stopped"):
         if k in s:
             print(f"  {k}: {s[k]}", file=out)

@@ -37,6 +37,7 @@ MAX_HEARTBEAT_MS = 0xFFFF  # 0x1017 producer heartbeat time: UNSIGNED16
 # ERROR_WINDOW_MS mean a disturbed bus losing frames (bad termination, a loose connector, interference)
 DEFAULT_ERROR_FRAMES_MAX = 10
 DEFAULT_ERROR_WINDOW_MS = 1000
+MIN_ERROR_WINDOW_MS = 100  # 10 frames within 1 ms would never trip on one error frame every ms
 MAX_ERROR_WINDOW_MS = 60_000  # a window of minutes would add up sporadic frames into a stop
 
 
@@ -267,7 +268,8 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
 
 
 def _error_frame_window(r: _Reader, cn: dict, source: str) -> tuple[int, int]:
-    """can.error_frames_max (0: the first error frame stops the arm) and can.error_window_ms, both optional."""
+    """can.error_frames_max (0: the first error frame of a counted class stops the arm) and can.error_window_ms,
+    both optional."""
     most = DEFAULT_ERROR_FRAMES_MAX
     if "error_frames_max" in cn:
         most = r.integer(cn, "error_frames_max", "can")
@@ -276,6 +278,9 @@ def _error_frame_window(r: _Reader, cn: dict, source: str) -> tuple[int, int]:
     window_ms = DEFAULT_ERROR_WINDOW_MS
     if "error_window_ms" in cn:
         window_ms = r.count(cn, "error_window_ms", "can")
+        if window_ms < MIN_ERROR_WINDOW_MS:
+            raise BadInput(f"cell file {source}: can.error_window_ms = {window_ms} is less than {MIN_ERROR_WINDOW_MS}"
+                           " ms (a window that short lets a steady stream of error frames through)")
         if window_ms > MAX_ERROR_WINDOW_MS:
             raise BadInput(f"cell file {source}: can.error_window_ms = {window_ms} is more than {MAX_ERROR_WINDOW_MS}"
                            " ms (a window that long adds up sporadic error frames into a stop)")

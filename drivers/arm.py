@@ -294,9 +294,12 @@ class Arm:
             latched = "bus" in self._faults
             if reason is not None and not latched:
                 self._faults["bus"] = BusFault(reason)
-            text = reason or f"bus: error frame {self._error_policy.last} (counted)"
+            error = self._error_policy.last_is_error
+            seen = "counted" if error else "seen, not counted"
+            text = reason or f"bus: error frame {self._error_policy.last} ({seen})"
         if not latched:  # after the latch a disturbed bus may flood: the count goes on, the log stops
-            log.warning("%s", text)
+            # (lost arbitration is how CAN shares the bus: a healthy bus may show it between every two frames)
+            log.log(logging.WARNING if reason or error else logging.DEBUG, "%s", text)
 
     @property
     def error_frames(self) -> int:

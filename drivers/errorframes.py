@@ -89,8 +89,6 @@ PASSIVE_REASON = "the host's CAN controller's error counter passed 127 (its fram
 # simulation, whose error frames are made as SocketCAN presents them (drivers.sim)
 SOCKETCAN_LAYOUT_BUSES = ("SocketcanBus", "VirtualBus")
 
-DEFAULT_ERROR_FRAMES_MAX = 10
-DEFAULT_ERROR_WINDOW_MS = 1000
 
 
 def classes_readable(bus: can.BusABC) -> bool:
@@ -160,8 +158,10 @@ class ErrorFramePolicy:
             raise ValueError(f"error frame window: max_frames >= 0 and window_ms > 0, got {max_frames}, {window_ms}")
         self.max_frames, self.window_ms, self.readable = max_frames, window_ms, readable
         self.total = 0
+        self.errors = 0  # the frames that are errors: counted or stopping (not lost arbitration, not the recovery)
         self.by_class: Counter[str] = Counter()
         self.last: str | None = None
+        self.last_is_error = False
         self._times: deque[float] = deque()
 
     def observe(self, msg: can.Message, now_s: float) -> str | None:
@@ -170,6 +170,8 @@ class ErrorFramePolicy:
         self.total += 1
         self.by_class.update(v.names)
         self.last = v.text
+        self.last_is_error = v.action != "note"
+        self.errors += self.last_is_error
         if v.stops:
             return f"bus: error frame {v.text}"
         if v.action == "note":
@@ -198,6 +200,7 @@ class ErrorFramePolicy:
         """For status: totals since the arm was made, per class, in the window now, the limits, the last one."""
         return {
             "error_frames": self.total,
+            "errors": self.errors,
             "by_class": dict(self.by_class),
             "in_window": self._in_window(now_s),
             "error_frames_max": self.max_frames,

@@ -8,6 +8,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import json
+import logging
 import re
 from pathlib import Path
 
@@ -122,13 +123,22 @@ def test_error_frames_spread_wider_than_the_window_never_stop_the_arm(arm, sim_d
     assert "the last: error frame of no class" in arm.faults["bus"]
 
 
-def test_lost_arbitration_is_no_error(arm, sim_drives):
-    """Arbitration is how CAN shares the bus, back to error-active the recovery: seen, never a stop."""
-    for kind in ("lost_arbitration", "back_to_error_active"):
-        sim_drives.inject_fault("error_frames", count=3 * arm.cell.can.error_frames_max, error_class=kind)
-    arm.clock.sleep(0.02)
+def test_lost_arbitration_is_no_error(arm, sim_drives, caplog):
+    """Arbitration is how CAN shares the bus, back to error-active the recovery: seen, never a stop, and
+    no warning (a controller reporting every lost arbitration would flood the log of a healthy bus)."""
+    with caplog.at_level(logging.DEBUG, logger="drivers.arm"):
+        for kind in ("lost_arbitration", "back_to_error_active"):
+            sim_drives.inject_fault("error_frames", count=3 * arm.cell.can.error_frames_max, error_class=kind)
+        arm.clock.sleep(0.02)
     assert arm.faults == {} and arm.bus_state()["in_window"] == 0
     assert arm.bus_state()["by_class"] == {"lost-arbitration": 30, "controller-problem": 30, "error-counter-tx-rx": 30}
+    assert (arm.bus_state()["error_frames"], arm.bus_state()["errors"]) == (60, 0)
+    seen = [r for r in caplog.records if "error frame" in r.getMessage()]
+    assert len(seen) == 60 and {r.levelno for r in seen} == {logging.DEBUG}
+    assert all(r.getMessage().endswith("(seen, not counted)") for r in seen)
+    sim_drives.inject_fault("error_frames", count=1, error_class="bus_error")
+    arm.clock.sleep(0.02)
+    assert arm.bus_state()["errors"] == 1 and arm.faults == {}
 
 
 @pytest.mark.parametrize(("error_class", "name"), [
@@ -204,6 +214,7 @@ def test_the_window_is_optional_in_the_cell_file():
         ({"error_window_ms": 0}, "can.error_window_ms must be positive, got 0"),
         ({"error_window_ms": 100.5}, "can.error_window_ms must be a whole number, got 100.5"),
         ({"error_window_ms": 120_000}, "can.error_window_ms = 120000 is more than 60000 ms"),
+        ({"error_window_ms": 5}, "can.error_window_ms = 5 is less than 100 ms"),
         ({"error_frame_max": 3}, "unknown key can.error_frame_max"),
     ],
 )

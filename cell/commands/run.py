@@ -165,9 +165,9 @@ def _print_summary(s: dict, out) -> None:
         v, a = s["motion_limits"]["max_velocity"], s["motion_limits"]["max_acceleration"]
         print(f"  motion limits: velocity {v}, acceleration {a} (cell file)", file=out)
     bus = s.get("can_bus") or {}
-    if bus.get("error_frames"):  # a healthy bus shows none: say so when it did not
+    if bus.get("errors"):  # a healthy bus shows none (lost arbitration is no error): say so when it did not
         classes = ", ".join(f"{n} {c}" for c, n in sorted(bus["by_class"].items()))
-        print(f"  CAN bus: {bus['error_frames']} error frame(s) ({classes})"
+        print(f"  CAN bus: {bus['errors']} error frame(s) ({classes})"
               + (f"; {bus['fault']}" if bus.get("fault") else ""), file=out)
     for k in ("recording", "rrd", "stopped"):
         if k in s:

@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
+import numpy as np
+
 from cell.errors import BadInput
 from cell.fileio import is_finite_number, read_json, short_repr
 
@@ -33,8 +35,8 @@ HEARTBEAT_DEADLINE_FACTOR = 3.0  # a node is silent after this many of its heart
 GRIPPER_ACCEL_FACTOR = 10.0  # gripper acceleration = this x its speed, per second
 QUICK_STOP_DECEL_FACTOR = 2.0  # quick stop / fault reaction deceleration = this x the max acceleration
 MAX_HEARTBEAT_MS = 0xFFFF  # 0x1017 producer heartbeat time: UNSIGNED16
-# Error frames (drivers.errorframes): a sporadic one is counted; more than ERROR_FRAMES_MAX within
-# ERROR_WINDOW_MS mean a disturbed bus losing frames (bad termination, a loose connector, interference)
+# Error frames (drivers.errorframes): a sporadic one is counted; more than can.error_frames_max within
+# can.error_window_ms mean a disturbed bus losing frames (bad termination, a loose connector, interference)
 DEFAULT_ERROR_FRAMES_MAX = 10
 DEFAULT_ERROR_WINDOW_MS = 1000
 MIN_ERROR_WINDOW_MS = 100  # 10 frames within 1 ms would never trip on one error frame every ms
@@ -92,6 +94,10 @@ class Box2D:
 
     def contains(self, x: float, y: float) -> bool:
         return self.x_mm[0] <= x <= self.x_mm[1] and self.y_mm[0] <= y <= self.y_mm[1]
+
+    def contains_xy(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """`contains` for arrays of points, the same comparisons."""
+        return (self.x_mm[0] <= x) & (x <= self.x_mm[1]) & (self.y_mm[0] <= y) & (y <= self.y_mm[1])
 
 
 @dataclass(frozen=True)

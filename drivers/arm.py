@@ -294,9 +294,9 @@ class Arm:
             latched = "bus" in self._faults
             if reason is not None and not latched:
                 self._faults["bus"] = BusFault(reason)
-            error = self._error_policy.last_is_error
-            seen = "counted" if error else "seen, not counted"
-            text = reason or f"bus: error frame {self._error_policy.last} ({seen})"
+            last = self._error_policy.last
+            error = last.is_error
+            text = reason or f"bus: error frame {last.text} ({'counted' if error else 'seen, not counted'})"
         if not latched:  # after the latch a disturbed bus may flood: the count goes on, the log stops
             # (lost arbitration is how CAN shares the bus: a healthy bus may show it between every two frames)
             log.log(logging.WARNING if reason or error else logging.DEBUG, "%s", text)

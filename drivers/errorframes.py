@@ -106,6 +106,11 @@ class ErrorFrameVerdict:
     def stops(self) -> bool:
         return self.action == "stop"
 
+    @property
+    def is_error(self) -> bool:
+        """Counted or stopping: not lost arbitration, not the recovery."""
+        return self.action != "note"
+
 
 def classify(msg: can.Message, readable: bool = True) -> ErrorFrameVerdict:
     """What an error frame says and what the host does about it (`readable`: see `classes_readable`)."""
@@ -160,8 +165,7 @@ class ErrorFramePolicy:
         self.total = 0
         self.errors = 0  # the frames that are errors: counted or stopping (not lost arbitration, not the recovery)
         self.by_class: Counter[str] = Counter()
-        self.last: str | None = None
-        self.last_is_error = False
+        self.last: ErrorFrameVerdict | None = None
         self._times: deque[float] = deque()
 
     def observe(self, msg: can.Message, now_s: float) -> str | None:
@@ -169,9 +173,8 @@ class ErrorFramePolicy:
         v = classify(msg, self.readable)
         self.total += 1
         self.by_class.update(v.names)
-        self.last = v.text
-        self.last_is_error = v.action != "note"
-        self.errors += self.last_is_error
+        self.last = v
+        self.errors += v.is_error
         if v.stops:
             return f"bus: error frame {v.text}"
         if v.action == "note":
@@ -205,5 +208,5 @@ class ErrorFramePolicy:
             "in_window": self._in_window(now_s),
             "error_frames_max": self.max_frames,
             "error_window_ms": self.window_ms,
-            "last": self.last,
+            "last": None if self.last is None else self.last.text,
         }

@@ -89,8 +89,9 @@ def path_violations(cell, start: Joints, target: Joints) -> list[str]:
                        f"{' and '.join(moving)}: below the safe height {safe:g} mm the arm goes straight up or down, "
                        "or across at one height")
     ws = cell.workspace
-    if ws.contains(x[0], y[0]):
-        outside = np.flatnonzero(~((ws.x_mm[0] <= x) & (x <= ws.x_mm[1]) & (ws.y_mm[0] <= y) & (y <= ws.y_mm[1])))
+    inside = ws.contains_xy(x, y)
+    if inside[0]:
+        outside = np.flatnonzero(~inside)
         if len(outside):
             i = outside[0]
             out.append(f"the tool would leave the workspace on the way, at x = {x[i]:.1f}, y = {y[i]:.1f} mm "

@@ -295,8 +295,7 @@ def run_session(cfg: RunConfig) -> dict:
         finally:
             summary = summary or loop.summary()
             summary.update(status=status)
-            if hasattr(arm, "bus_state"):  # a shift's error frames, for the cell engineer (drivers.errorframes)
-                summary["can_bus"] = arm.bus_state()
+            summary["can_bus"] = arm.bus_state()  # a shift's error frames, for the cell engineer (drivers.errorframes)
             if world is not None:
                 summary["sim_events"] = list(world.events)
             else:

@@ -131,6 +131,9 @@ class CanConfig:
     # more error frames than this within the window latch a bus fault (drivers.errorframes); optional keys
     error_frames_max: int = DEFAULT_ERROR_FRAMES_MAX
     error_window_ms: int = DEFAULT_ERROR_WINDOW_MS
+    # the axes of a move take their set-points under halt and are released together (drivers.Arm); false:
+    # each starts at its own set-point handshake, for drives that do not hold a set-point under halt
+    coordinated_start: bool = True
 
 
 @dataclass(frozen=True)
@@ -183,7 +186,8 @@ _KEYS = {
     "motion.home_joints": ("j1_deg", "j2_deg", "j3_mm", "j4_deg"),
     "configuration": ("joint_weights",), "configuration.joint_weights": JOINTS,
     "camera": ("width_px", "height_px", "height_mm"),
-    "can": ("bitrate", "heartbeat_ms", "host_heartbeat_ms", "nodes", "error_frames_max", "error_window_ms"),
+    "can": ("bitrate", "heartbeat_ms", "host_heartbeat_ms", "nodes", "error_frames_max", "error_window_ms",
+            "coordinated_start"),
     "can.nodes": (*JOINTS, "gripper"),
     **{f"can.nodes.{n}": ("node_id", "unit", "counts_per_unit") for n in (*JOINTS, "gripper")},
 }
@@ -257,7 +261,8 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
         raise BadInput(f"cell file {source}: can.nodes have duplicate node ids")
     _check_drive_counts(scara, gripper, nodes, source)
     can = CanConfig(r.count(cn, "bitrate", "can"), r.count(cn, "heartbeat_ms", "can"),
-                    r.count(cn, "host_heartbeat_ms", "can"), nodes, *_error_frame_window(r, cn, source))
+                    r.count(cn, "host_heartbeat_ms", "can"), nodes, *_error_frame_window(r, cn, source),
+                    r.flag(cn, "coordinated_start", "can", default=True))
     host_top = int(MAX_HEARTBEAT_MS // HEARTBEAT_DEADLINE_FACTOR)  # the host's deadline in 0x1016 is 16 bits too
     for key, top in (("heartbeat_ms", MAX_HEARTBEAT_MS), ("host_heartbeat_ms", host_top)):
         if getattr(can, key) > top:
@@ -396,6 +401,15 @@ class _Reader:
         v = self.num(d, key, where, cap)
         if v <= 0:
             self._fail(where, key, f"must be positive, got {v}")
+        return v
+
+    def flag(self, d, key, where="", *, default: bool) -> bool:
+        """An optional true or false (not 1, "yes" or null: a typo must not pick a behaviour)."""
+        if key not in d:
+            return default
+        v = d[key]
+        if not isinstance(v, bool):
+            self._fail(where, key, f"must be true or false, got {short_repr(v)}")
         return v
 
     def nonneg(self, d, key, where=""):

@@ -575,8 +575,18 @@ class Arm:
             raise
 
     def _run_moves(self, targets: dict[str, int], *, wait: bool, timeout_s: float) -> None:
-        for name, counts in targets.items():
-            self._guarded(self.axes[name].start_move, counts)
+        if self.cell.can.coordinated_start and len(targets) > 1:
+            # every axis takes its set-point under halt, then all are released back to back: they start
+            # within the release frames' time on the bus, as the way check (drivers.limits) has them. One
+            # after another, each axis would start a handshake's round trips (ms on real drives) after the
+            # one before, off the checked path, and run on alone while a later drive did not acknowledge
+            for name, counts in targets.items():
+                self._guarded(self.axes[name].arm_move, counts)
+            for name in targets:
+                self._guarded(self.axes[name].release)
+        else:
+            for name, counts in targets.items():
+                self._guarded(self.axes[name].start_move, counts)
         self._pending = (targets, self.clock.now() + timeout_s)
         if wait:
             self.wait_idle()

@@ -467,10 +467,25 @@ class Axis:
     def start_move(self, target_counts: int) -> None:
         """Profile-position handshake: target, new set-point (bit 4), acknowledge (bit 12),
         clear bit 4, acknowledge cleared. Motion starts at the set-point."""
+        self._set_point_handshake(target_counts, 0, "set-point acknowledge")
+
+    def arm_move(self, target_counts: int) -> None:
+        """The same handshake under halt (controlword bit 8): the drive takes the set-point and stands
+        until `release`. Arming every axis of a move, then releasing them back to back, starts them
+        together (`Arm.move_joints`)."""
+        self._set_point_handshake(target_counts, codec.CW_HALT, "set-point acknowledge under halt; a drive that takes "
+                                  "no set-point while halted needs can.coordinated_start false")
+
+    def release(self) -> None:
+        """Clear the halt: an armed axis starts its set-point (CiA 402: the positioning continues).
+        Not waited for: the next axis' release follows at once."""
+        self.send_controlword(codec.CW_ENABLE_OPERATION)
+
+    def _set_point_handshake(self, target_counts: int, extra_bits: int, ack: str) -> None:
         self.send_target(target_counts)
-        seq = self.send_controlword(codec.CW_ENABLE_OPERATION | codec.CW_NEW_SET_POINT)
-        self.wait_status(lambda s: s.ack, seq, "set-point acknowledge")
-        seq = self.send_controlword(codec.CW_ENABLE_OPERATION)
+        seq = self.send_controlword(codec.CW_ENABLE_OPERATION | codec.CW_NEW_SET_POINT | extra_bits)
+        self.wait_status(lambda s: s.ack, seq, ack)
+        seq = self.send_controlword(codec.CW_ENABLE_OPERATION | extra_bits)
         self.wait_status(lambda s: not s.ack, seq, "set-point acknowledge cleared")
 
 

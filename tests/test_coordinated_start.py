@@ -1,0 +1,153 @@
+"""The axes of a move start together (cell file `can.coordinated_start`, default true): each takes its
+set-point under halt (controlword bit 8), and once all have acknowledged, the halts are released back to
+back. The way check (drivers.limits) has every axis start at once; started one after another, each axis
+began a handshake's round trips after the one before, and ran on alone while a later drive did not
+acknowledge. Through the real stack: python-can's virtual bus and the simulated drives."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+from drivers_fixtures import *  # noqa: F403 - the bus, drives and arm fixtures
+from drivers_fixtures import needs_sim
+
+from cell.kinematics import Joints
+from drivers import Arm, NodeSilent, codec
+from drivers.simdrive import SimDrive
+
+pytestmark = needs_sim
+
+MOVED = ("j1", "j2", "j4")
+
+
+def _target(start: Joints) -> Joints:
+    return Joints(start.j1_deg + 20.0, start.j2_deg - 15.0, start.j3_mm, start.j4_deg + 30.0)
+
+
+@pytest.fixture
+def starts(monkeypatch):
+    """Each simulated drive's motion start: (drive, the moved axes holding a set-point under halt then)."""
+    seen = []
+    real = SimDrive._start_move
+
+    def start_move(drive, *a):
+        holding = {d.name for d in drive_registry if d.halted is not None and d.name in MOVED}
+        seen.append((drive.name, holding))
+        real(drive, *a)
+
+    drive_registry = []
+    monkeypatch.setattr(SimDrive, "_start_move", start_move)
+    return seen, drive_registry
+
+
+def _host_controlwords(messages, cell):
+    """(node name, controlword) of every RPDO1 the host sent, in order, and the other host frames' places."""
+    by_rpdo1 = {codec.RPDO1_BASE + n.node_id: name for name, n in cell.can.nodes.items()}
+    out = []
+    for m in messages:
+        if m.arbitration_id in by_rpdo1:
+            out.append((by_rpdo1[m.arbitration_id], int.from_bytes(m.data[:2], "little")))
+        elif m.arbitration_id < 0x180 or 0x200 <= m.arbitration_id < 0x580 or 0x600 <= m.arbitration_id < 0x680:
+            out.append((None, m.arbitration_id))  # another frame of the host's (target, SDO, NMT)
+    return out
+
+
+def _drain(bus):
+    messages = []
+    while (m := bus.recv(0)) is not None:
+        messages.append(m)
+    return messages
+
+
+def test_no_axis_starts_before_every_axis_holds_its_set_point(arm, sim_drives, starts):
+    seen, registry = starts
+    registry.extend(sim_drives.drives.values())
+    start = arm.joints()
+    sent = arm.move_joints(_target(start))
+    assert [name for name, _ in seen] == list(MOVED)  # in the order released
+    for name, holding in seen:
+        # when each started, every axis not yet started held its set-point under halt
+        started_before = {n for n, _ in seen[:[s for s, _ in seen].index(name)]}
+        assert holding | started_before | {name} == set(MOVED), (name, holding)
+    assert arm.joints().as_array() == pytest.approx(sent.as_array(), abs=2e-3)
+
+
+def test_the_releases_follow_each_other_after_every_acknowledge(arm, sim_drives, open_test_bus):
+    spy = open_test_bus()
+    start = arm.joints()
+    _drain(spy)
+    arm.move_joints(_target(start))
+    frames = _host_controlwords(_drain(spy), arm.cell)
+    enable, halt, new = codec.CW_ENABLE_OPERATION, codec.CW_HALT, codec.CW_NEW_SET_POINT
+    releases = [i for i, (name, cw) in enumerate(frames) if name in MOVED and cw == enable]
+    # one release per moved axis, back to back (no other host frame between), the last frames of the move
+    assert [frames[i][0] for i in releases] == list(MOVED)
+    assert releases == list(range(releases[0], releases[0] + len(MOVED)))
+    assert releases[-1] == len(frames) - 1
+    # before them each axis took its set-point with the halt bit set, and cleared bit 4 keeping the halt
+    armed = [(name, cw) for name, cw in frames[:releases[0]] if name in MOVED]
+    assert armed == [(n, cw) for n in MOVED for cw in (enable | new | halt, enable | halt)]
+    assert all(name not in ("j3", "gripper") for name, _ in frames if name)  # axes that stay are not touched
+
+
+def test_a_drive_that_never_acknowledges_leaves_every_axis_standing(arm, sim_drives):
+    """Started one after another, j1 ran its whole move while the host waited for j2's acknowledge."""
+    sim_drives.inject_fault("ignore_set_point", "j2")
+    start = sim_drives.positions()
+    joints = arm.joints()
+    with pytest.raises(NodeSilent, match=r"j2 \(node 2\): no answer \(set-point acknowledge under halt; a drive "
+                                         r"that takes no set-point while halted needs can.coordinated_start false\)"):
+        arm.move_joints(Joints(joints.j1_deg - 40.0, joints.j2_deg - 30.0, joints.j3_mm, joints.j4_deg))
+    arm.clock.sleep(1.0)
+    assert sim_drives.positions() == pytest.approx(start, abs=1e-9)  # j1 had its set-point: it never ran it
+    assert sim_drives.drives["j1"].halted is None  # the quick stop dropped it: no later release can start it
+
+
+def test_without_coordinated_start_each_axis_starts_at_its_own_handshake(sim_drives, open_test_bus, sim_clock,
+                                                                         cell_cfg, starts):
+    cell = dataclasses.replace(cell_cfg, can=dataclasses.replace(cell_cfg.can, coordinated_start=False))
+    arm = Arm(open_test_bus(), cell, clock=sim_clock, sdo_timeout_s=0.2)
+    arm.connect()
+    try:
+        seen, registry = starts
+        registry.extend(sim_drives.drives.values())
+        spy = open_test_bus()
+        start = arm.joints()
+        sent = arm.move_joints(_target(start))
+        assert [name for name, _ in seen] == list(MOVED)
+        assert all(not holding for _, holding in seen)  # nothing held under halt: j1 ran before j2 had a set-point
+        assert not any(cw & codec.CW_HALT for name, cw in _host_controlwords(_drain(spy), cell) if name)
+        assert arm.joints().as_array() == pytest.approx(sent.as_array(), abs=2e-3)
+    finally:
+        arm.disconnect()
+
+
+def test_a_move_of_one_axis_is_not_held_under_halt(arm, sim_drives, open_test_bus):
+    spy = open_test_bus()
+    start = arm.joints()
+    _drain(spy)
+    arm.move_joints(Joints(start.j1_deg, start.j2_deg, start.j3_mm - 10.0, start.j4_deg))
+    assert not any(cw & codec.CW_HALT for name, cw in _host_controlwords(_drain(spy), arm.cell) if name)
+    assert arm.joints().j3_mm == pytest.approx(start.j3_mm - 10.0, abs=2e-3)
+
+
+@pytest.mark.parametrize("value", [1, 0, "yes", None, "true"])
+def test_the_cell_file_takes_only_true_or_false(tmp_path, value):
+    import json
+
+    from cell.cellconfig import default_cell_path, load_cell
+    from cell.errors import BadInput
+
+    raw = json.loads(default_cell_path().read_text())
+    raw["can"]["coordinated_start"] = value
+    path = tmp_path / "cell.json"
+    path.write_text(json.dumps(raw))
+    with pytest.raises(BadInput, match=r"can.coordinated_start must be true or false, got"):
+        load_cell(path)
+    raw["can"]["coordinated_start"] = False
+    path.write_text(json.dumps(raw))
+    assert load_cell(path).can.coordinated_start is False
+    del raw["can"]["coordinated_start"]
+    path.write_text(json.dumps(raw))
+    assert load_cell(path).can.coordinated_start is True

@@ -210,3 +210,8 @@ class ErrorFramePolicy:
             "error_window_ms": self.window_ms,
             "last": None if self.last is None else self.last.text,
         }
+
+
+def by_class_text(by_class: dict) -> str:
+    """The per-class counts of a bus state as people read them: "3 bus-error, 1 rx-overflow" (by class name)."""
+    return ", ".join(f"{n} {c}" for c, n in sorted(by_class.items()))

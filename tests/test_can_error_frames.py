@@ -233,3 +233,18 @@ def test_hw_status_shows_the_bus(capsys):
     assert out.splitlines()[-1].startswith("bus      error frames 0; more than 10 within 1000 ms")
     code, out, err = run_cli("hw", "status", "--simulated-time", "--json", capsys=capsys)
     assert code == 0 and len(out.splitlines()) == 5 and "bus      error frames 0" in err  # stdout: the nodes only
+
+
+def test_hw_status_and_the_run_summary_name_the_classes_alike():
+    import io
+
+    from cell.commands.hw import _bus_text
+    from cell.commands.run import _print_summary
+
+    bus = {"error_frames": 5, "errors": 4, "by_class": {"rx-overflow": 1, "bus-error": 3, "lost-arbitration": 1},
+           "error_frames_max": 10, "error_window_ms": 1000, "fault": None}
+    assert "error frames 5 (3 bus-error, 1 lost-arbitration, 1 rx-overflow);" in _bus_text(bus)
+    out = io.StringIO()
+    _print_summary({"assembly": "a", "parts_removed": 0, "parts_total": 1, "status": "stopped", "grasps": 0,
+                    "parts": [], "can_bus": bus}, out)
+    assert "CAN bus: 4 error frame(s) (3 bus-error, 1 lost-arbitration, 1 rx-overflow)" in out.getvalue()

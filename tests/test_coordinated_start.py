@@ -133,8 +133,10 @@ def test_a_move_of_one_axis_is_not_held_under_halt(arm, sim_drives, open_test_bu
 
 
 @pytest.mark.parametrize("value", [1, 0, "yes", None, "true"])
-def test_the_cell_file_takes_only_true_or_false(tmp_path, value):
+def test_the_cell_file_takes_only_true_or_false(tmp_path, capsys, value):
     import json
+
+    from conftest import run_cli
 
     from cell.cellconfig import default_cell_path, load_cell
     from cell.errors import BadInput
@@ -145,6 +147,8 @@ def test_the_cell_file_takes_only_true_or_false(tmp_path, value):
     path.write_text(json.dumps(raw))
     with pytest.raises(BadInput, match=r"can.coordinated_start must be true or false, got"):
         load_cell(path)
+    code, out, err = run_cli("hw", "status", "--simulated-time", "--cell", str(path), capsys=capsys)
+    assert code == 2 and "can.coordinated_start must be true or false" in err and "Traceback" not in err
     raw["can"]["coordinated_start"] = False
     path.write_text(json.dumps(raw))
     assert load_cell(path).can.coordinated_start is False

@@ -209,7 +209,9 @@ def _status(args, cell) -> int:
 
 def _bus_text(b: dict) -> str:
     """The bus line of `hw status`: error frames in all (per class) and the policy's window."""
-    classes = ", ".join(f"{k} {n}" for k, n in sorted(b["by_class"].items()))
+    from drivers.errorframes import by_class_text
+
+    classes = by_class_text(b["by_class"])
     text = (f"bus      error frames {b['error_frames']}{f' ({classes})' if classes else ''}; "
             f"more than {b['error_frames_max']} within {b['error_window_ms']} ms, or one saying the host is off "
             "the bus, stop the arm")

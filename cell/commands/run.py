@@ -166,7 +166,9 @@ def _print_summary(s: dict, out) -> None:
         print(f"  motion limits: velocity {v}, acceleration {a} (cell file)", file=out)
     bus = s.get("can_bus") or {}
     if bus.get("errors"):  # a healthy bus shows none (lost arbitration is no error): say so when it did not
-        classes = ", ".join(f"{n} {c}" for c, n in sorted(bus["by_class"].items()))
+        from drivers.errorframes import by_class_text
+
+        classes = by_class_text(bus["by_class"])
         print(f"  CAN bus: {bus['errors']} error frame(s) ({classes})"
               + (f"; {bus['fault']}" if bus.get("fault") else ""), file=out)
     for k in ("recording", "rrd", "stopped"):

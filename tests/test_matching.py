@@ -205,3 +205,24 @@ def test_with_nothing_missing_a_misfit_is_no_obstacle_but_more_material_is():
                                 stranger_z_mm=40.0, missing=False)
         assert bool(obstacles) == counted, extra_mm2
         assert all(o.z_top_mm == 40.0 for o in obstacles)
+
+
+def test_the_poser_gives_shapely_affinitys_outline_float_for_float():
+    """Registration poses the model with its own arithmetic (matching.Poser): it must be the very outline
+    affinity.rotate and affinity.translate give, holes included, or registration (and every recording's
+    replay) would drift."""
+    from shapely import affinity
+
+    from cell import parts_library as lib
+    from cell.runtime.matching import Poser
+
+    rng = np.random.default_rng(7)
+    models = [lib.place(p, 350, 0, 20).polygon for p in lib.parts()[::5]] + [bracket("b", 300, 0).polygon]
+    assert any(m.interiors for m in models)
+    for model in models:
+        before, c = model.wkb, model.centroid.coords[0]
+        posed = Poser(model, c)
+        for x in [np.zeros(3), np.array([0, 0, 90.0]), np.array([0, 0, 180.0]), *rng.normal(0, [8, 8, 90], (25, 3))]:
+            want = affinity.translate(affinity.rotate(model, x[2], origin=c), x[0], x[1])
+            assert posed(x).wkb == want.wkb, x
+        assert model.wkb == before  # posing leaves the model as it was

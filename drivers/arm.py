@@ -412,12 +412,21 @@ class Arm:
         """Quick-stop every axis still enabled, then wait (on the clock) until all stand still. A faulted node
         gets the quick stop too, without waiting for its answer: one that only answered late (no set-point
         acknowledge within the wall-time bound, a starved host) holds the set-point controlword and would run
-        its move alone once it takes it, after every other axis stopped."""
+        its move alone once it takes it, after every other axis stopped. Every axis gets its quick stop
+        first, back to back, and the confirmations are waited for after: the axes ramp down together (the
+        way check's quick stops, `drivers.limits`), not one a round trip after the other."""
+        sent = {}
         for ax in self.axes.values():
             try:
-                ax.quick_stop(confirm_timeout_s=0.0 if ax.name in self._faults else QUICK_STOP_CONFIRM_S)
+                sent[ax.name] = ax.send_quick_stop()
             except (can.CanError, DriverError):
-                pass  # stopping the others matters more than this one's answer
+                pass  # stopping the others matters more than this one
+        for name, seq in sent.items():
+            if seq is not None and name not in self._faults:
+                try:
+                    self.axes[name].confirm_quick_stop(seq, QUICK_STOP_CONFIRM_S)
+                except (can.CanError, DriverError):
+                    pass  # stopping the others matters more than this one's answer
         self._wait_standstill()
 
     def _wait_standstill(self, timeout_s: float | None = None) -> None:

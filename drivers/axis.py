@@ -439,11 +439,21 @@ class Axis:
 
     def quick_stop(self, confirm_timeout_s: float = 0.2) -> None:
         """Quick stop (402 transition 11) and wait briefly for the drive to confirm it."""
+        seq = self.send_quick_stop()
+        if seq is not None:
+            self.confirm_quick_stop(seq, confirm_timeout_s)
+
+    def send_quick_stop(self) -> int | None:
+        """The quick stop, not waited for (`Arm` stops every axis first, then waits); the status sequence
+        number before it, or None where the drive was not in OPERATION ENABLED (nothing sent)."""
         if self.state != "OPERATION_ENABLED":
-            return
-        seq = self.send_controlword(codec.CW_QUICK_STOP)
+            return None
+        return self.send_controlword(codec.CW_QUICK_STOP)
+
+    def confirm_quick_stop(self, seq: int, timeout_s: float) -> None:
+        """Wait briefly for the drive to leave OPERATION ENABLED after the quick stop sent at `seq`."""
         try:
-            self.wait_status(lambda s: s.state != "OPERATION_ENABLED", seq, "quick stop FAULT", confirm_timeout_s)
+            self.wait_status(lambda s: s.state != "OPERATION_ENABLED", seq, "quick stop FAULT", timeout_s)
         except NodeSilent:
             pass  # a silent drive stops on its own when it misses the host's heartbeat
 

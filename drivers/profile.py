@@ -55,6 +55,15 @@ class Trapezoid:
                               - 0.5 * self.decel * td * td))
         return sign * np.minimum(s, abs(self.distance))
 
+    def velocities_at(self, t_s: np.ndarray) -> np.ndarray:
+        """`velocity_at` for an array of times."""
+        sign = 1.0 if self.distance >= 0 else -1.0
+        t = np.minimum(np.maximum(t_s, 0.0), self.duration_s)
+        ta, tc = self.t_accel_s, self.t_cruise_s
+        v = np.where(t <= ta, self.accel * t,
+                     np.where(t <= ta + tc, self.v_peak, np.maximum(0.0, self.v_peak - self.decel * (t - ta - tc))))
+        return sign * v
+
     def velocity_at(self, t_s: float) -> float:
         sign = 1.0 if self.distance >= 0 else -1.0
         t = min(max(t_s, 0.0), self.duration_s)
@@ -129,19 +138,60 @@ def coordinated_path(scara, start, target, step_deg: float = 2.0) -> list:
 def coordinated_path_array(scara, start, target, step_deg: float = 2.0) -> np.ndarray:
     """`coordinated_path` as an (n, 4) array of j1_deg, j2_deg, j3_mm, j4_deg (the last row the
     target itself): the way checks take every sample of a move, for every move a plan considers."""
+    return coordinated_motion_array(scara, start, target, step_deg)[0]
+
+
+def coordinated_motion_array(scara, start, target, step_deg: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """`coordinated_path_array` and, row for row, the axes' speeds there (n, 4) (per s, signed; 0 at the
+    end)."""
     from drivers.limits import JOINT_FIELDS
 
     duration = coordinated_move_s(scara, start, target)
     turn = max(abs(target.j1_deg - start.j1_deg), abs(target.j2_deg - start.j2_deg))
     n = max(1, math.ceil(2.0 * turn / step_deg))
     t = duration * np.arange(1, n + 1) / n  # as duration * k / n, sample by sample
-    path = np.empty((n, len(JOINT_FIELDS)))
+    path, speed = np.empty((n, len(JOINT_FIELDS))), np.zeros((n, len(JOINT_FIELDS)))
     for col, (j, f, _) in enumerate(JOINT_FIELDS):
         d = getattr(target, f) - getattr(start, f)
         a = scara.max_acceleration[j]
         v = velocity_for_duration(d, duration, a) if duration > 0 else 0.0
         path[:, col] = getattr(start, f)
         if d != 0.0 and v > 0:
-            path[:, col] += trapezoid(d, v, a).positions_at(t)
+            profile = trapezoid(d, v, a)
+            path[:, col] += profile.positions_at(t)
+            speed[:, col] = profile.velocities_at(t)
     path[-1] = [getattr(target, f) for _, f, _ in JOINT_FIELDS]
-    return path
+    speed[-1] = 0.0
+    return path, speed
+
+
+def quick_stop_deg(scara, speed: np.ndarray, decel_factor: float) -> np.ndarray:
+    """(n, 2): how far J1 and J2 turn (deg) when they quick-stop from the speeds (n, >= 2) (deg/s), each at
+    decel_factor x its max acceleration (the drives' 0x6085)."""
+    decel = np.array([decel_factor * scara.max_acceleration[j] for j in ("j1", "j2")])
+    return speed[:, :2] ** 2 / (2 * decel)
+
+
+def quick_stop_reach_mm(scara, speed: np.ndarray, decel_factor: float) -> np.ndarray:
+    """(n,): how far the tool can move at most while the arm quick-stops from the speeds (n, >= 2): J1 and J2
+    turn by at most s1 and s2 (`quick_stop_deg`, radians here), the tool by at most (l1 + l2) s1 + l2 s2
+    (an arc is no shorter than its chord)."""
+    s = np.radians(quick_stop_deg(scara, speed, decel_factor))
+    return (scara.l1_mm + scara.l2_mm) * s[:, 0] + scara.l2_mm * s[:, 1]
+
+
+def quick_stop_poses_array(scara, pose: np.ndarray, speed: np.ndarray, step_deg: float,
+                           decel_factor: float) -> np.ndarray:
+    """(m, 2) j1_deg, j2_deg of the poses the arm passes through when it quick-stops at each of the poses
+    (n, >= 2) moving at speed (n, >= 2): each axis ramps down at decel_factor x its max acceleration, on its
+    own, so the arm leaves the coordinated path (the axes do not stop in proportion). Sampled so that J1
+    and J2 turn at most about step_deg between two poses of one stop."""
+    vel = speed[:, :2]
+    decel = np.array([decel_factor * scara.max_acceleration[j] for j in ("j1", "j2")])
+    stop_s = np.abs(vel) / decel  # (n, 2): how long each axis takes to stand
+    longest = stop_s.max(1)  # (n,)
+    # an axis turns at most |v| x the stop's duration: that many steps of step_deg
+    k = max(1, math.ceil(float((np.abs(vel) * longest[:, None]).max(initial=0.0)) / step_deg))
+    tau = np.minimum(longest[:, None, None] * (np.arange(k + 1) / k)[None, :, None], stop_s[:, None, :])
+    poses = pose[:, None, :2] + vel[:, None, :] * tau - 0.5 * np.sign(vel)[:, None, :] * decel * tau * tau
+    return poses.reshape(-1, 2)

@@ -60,6 +60,9 @@ HOST_NODE_ID = 0x7F  # the host's own heartbeat id (the drives watch it)
 # behind it, so silence is counted from that run on, not from the last heartbeat handled
 WATCH_STARVED_SHARE = 0.5
 POSITION_TOLERANCE_COUNTS = 2
+# wall time an axis gets to show it started at the halt's release (its answer takes ms; meanwhile the axes
+# released before it run)
+START_CONFIRM_S = 0.2
 QUICK_STOP_CONFIRM_S = 0.2  # wall time a drive gets to confirm a quick stop (it stops on its own when the host is gone)
 STANDSTILL_MARGIN_S = 2.0  # waiting for standstill after a stop: this much past the slowest quick stop ramp
 TPDO_EVENT_TIMER_MS = 50  # status at least every 50 ms when nothing changes (the watch sees a stuck drive)
@@ -585,20 +588,45 @@ class Arm:
 
     def _run_moves(self, targets: dict[str, int], *, wait: bool, timeout_s: float) -> None:
         if self.cell.can.coordinated_start and len(targets) > 1:
-            # every axis takes its set-point under halt, then all are released back to back: they start
-            # within the release frames' time on the bus, as the way check (drivers.limits) has them. One
-            # after another, each axis would start a handshake's round trips (ms on real drives) after the
-            # one before, off the checked path, and run on alone while a later drive did not acknowledge
-            for name, counts in targets.items():
-                self._guarded(self.axes[name].arm_move, counts)
-            for name in targets:
-                self._guarded(self.axes[name].release)
+            self._start_together(targets)
         else:
             for name, counts in targets.items():
                 self._guarded(self.axes[name].start_move, counts)
         self._pending = (targets, self.clock.now() + timeout_s)
         if wait:
             self.wait_idle()
+
+    def _start_together(self, targets: dict[str, int]) -> None:
+        """Every axis takes its set-point under halt, then all are released back to back: they start within
+        the release frames' time on the bus, as the way check (drivers.limits) has them. One after another,
+        each axis would start a handshake's round trips (ms on real drives) after the one before, off the
+        checked path, and run on alone while a later drive did not acknowledge."""
+        try:
+            for name, counts in targets.items():
+                self._guarded(self.axes[name].arm_move, counts)
+            # an armed axis stopped from the drive's side meanwhile (its quick stop input, STO, another
+            # master): the release (enable operation) would re-enable it behind that side's back (transition
+            # 16), without its set-point, and the others would run alone
+            self._check_faults(during_move=True)
+            for name in targets:
+                err = self._left_operation(self.axes[name], "while its set-point waited for the other axes")
+                if err is not None:
+                    self._latch(err)
+                    self._stop_all()
+                    raise err
+            seqs = {name: self._guarded(self.axes[name].release) for name in targets}
+            for name, counts in targets.items():  # every axis on its way, or the others are stopped
+                self._guarded(self.axes[name].confirm_started, seqs[name], counts, POSITION_TOLERANCE_COUNTS,
+                              START_CONFIRM_S)
+        except DriverError:
+            raise  # stopped and latched where it was raised
+        except BaseException:
+            # Ctrl-C (or any other surprise) between arming and release: no axis keeps a set-point that a
+            # later release would start
+            self._stop_all()
+            self._latch(DriverError("a move was interrupted while its axes took their set-points: every axis "
+                                    "quick-stopped"), key="stop")
+            raise
 
     def wait_idle(self) -> None:
         """Wait (on the shared clock) until the last move's axes report target reached."""

@@ -482,14 +482,26 @@ class Axis:
     def arm_move(self, target_counts: int) -> None:
         """The same handshake under halt (controlword bit 8): the drive takes the set-point and stands
         until `release`. Arming every axis of a move, then releasing them back to back, starts them
-        together (`Arm.move_joints`)."""
+        together (`Arm.move_joints`). Only at standstill: on a moving axis the halt would stop it off its
+        way (`Arm` waits for the previous move first)."""
         self._set_point_handshake(target_counts, codec.CW_HALT, "set-point acknowledge under halt; a drive that takes "
                                   "no set-point while halted needs can.coordinated_start false")
 
-    def release(self) -> None:
+    def release(self) -> int:
         """Clear the halt: an armed axis starts its set-point (CiA 402: the positioning continues).
-        Not waited for: the next axis' release follows at once."""
-        self.send_controlword(codec.CW_ENABLE_OPERATION)
+        Not waited for: the next axis' release follows at once (`confirm_started` after). Returns the status
+        sequence number before it."""
+        return self.send_controlword(codec.CW_ENABLE_OPERATION)
+
+    def confirm_started(self, seq: int, target_counts: int, tolerance_counts: int, timeout_s: float) -> None:
+        """Wait (wall time) for a status after the release sent at `seq` showing the axis on its way (bit 10
+        cleared) or already there: a drive that took the set-point under halt but does not run it on the
+        release would leave the other axes running alone."""
+        self.wait_status(
+            lambda s: s.state == "OPERATION_ENABLED"
+            and (not s.target_reached or abs(s.position_counts - target_counts) <= tolerance_counts),
+            seq, "start of the set-point at the halt's release; a drive that does not run a set-point taken "
+            "under halt needs can.coordinated_start false", timeout_s)
 
     def _set_point_handshake(self, target_counts: int, extra_bits: int, ack: str) -> None:
         self.send_target(target_counts)

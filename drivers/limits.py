@@ -105,9 +105,12 @@ def path_violations(cell, start: Joints, target: Joints) -> list[str]:
 
 
 def _stop_violations(cell, samples: np.ndarray, speed: np.ndarray, tool: tuple, box: str) -> list[str]:
-    """A quick stop anywhere on the way (a fault, the operator's stop, a lost heartbeat) must leave the tool
-    inside the workspace too: each axis then ramps down on its own and the arm leaves the coordinated path
-    (up to 17 mm past the workspace on 2 % of random moves the path check let through). samples (n, 4) and
+    """A quick stop anywhere on the way (the operator's stop, a fault the host sees: every axis stopped at
+    once, each on the quick stop ramp 0x6085 the host sets at connect) must leave the tool inside the
+    workspace too: each axis then ramps down on its own and the arm leaves the coordinated path (up to 17 mm
+    past the workspace on 2 % of random moves the path check let through). Not covered: one drive stopping
+    first (its own fault reaction; the others follow a watchdog period later), drives on another ramp
+    (option_codes warns at connect). samples (n, 4) and
     speed (n, 4): the way's (`coordinated_motion_array`); tool: its tool x, y (n,). Only the samples whose
     stop may reach the workspace's edge (`quick_stop_reach_mm`) are followed."""
     from drivers.profile import quick_stop_poses_array, quick_stop_reach_mm

@@ -34,6 +34,13 @@ TEXTS = {QUICK_STOP: QUICK_STOP_TEXT, FAULT_REACTION: FAULT_REACTION_TEXT}
 NAMES = {QUICK_STOP: "quick stop option code", FAULT_REACTION: "fault reaction option code"}
 
 
+# the way check (drivers.limits) follows each axis' stop on the quick stop ramp 0x6085 (2 x its max acceleration)
+# (J1 and J2 place the tool: the other axes' stops leave it where it is across the tray)
+OFF_THE_CHECKED_STOP = ("the way check's quick stops (drivers.limits) assume the quick stop ramp 0x6085: this axis "
+                        "may stop further off the way")
+CHECKED_STOP_AXES = ("j1", "j2")
+
+
 def describe(index: int, value: int) -> str:
     """'2 (the quick stop ramp, then SWITCH ON DISABLED)'."""
     return f"{value} ({TEXTS[index].get(value, 'manufacturer specific or reserved')})"
@@ -52,7 +59,8 @@ def review(name: str, node_id: int, index: int, have: int | None, refused: int |
         return f"{what} missing (SDO abort 0x{OBJECT_DOES_NOT_EXIST:08X}, object does not exist): " + (
             "its quick stop is the drive's own (often the quick stop ramp, then SWITCH ON DISABLED); "
             "the host waits for standstill and re-enables from QUICK STOP ACTIVE or SWITCH ON DISABLED"
-            if index == QUICK_STOP else "a fault on this drive stops its axis as the drive is built")
+            if index == QUICK_STOP else "a fault on this drive stops its axis as the drive is built") + (
+            f"; {OFF_THE_CHECKED_STOP}" if name in CHECKED_STOP_AXES else "")
     how = f"refused with SDO abort 0x{refused:08X}" if refused is not None else f"not taken (read back {have})"
     if index == QUICK_STOP and have not in range(1, 9):
         why = "would let the axis coast" if have == 0 else "may not stop the axis under control"
@@ -64,4 +72,6 @@ def review(name: str, node_id: int, index: int, have: int | None, refused: int |
         )
     then = ("after a quick stop the host waits for standstill and re-enables from there" if index == QUICK_STOP
             else "a fault on this drive stops its axis that way")
+    if have not in (2, 6) and name in CHECKED_STOP_AXES:  # not on the quick stop ramp 0x6085
+        then += f"; {OFF_THE_CHECKED_STOP}"
     return f"{what} stays {describe(index, have)}: writing {wanted} was {how}; {then}"

@@ -122,10 +122,15 @@ def test_drives_without_the_objects_are_driven_with_a_warning(drives, connect):
     drives.configure_option_codes(values={0x605A: 2}, missing={0x605A, 0x605E})
     arm, warnings = connect()
     assert len(warnings) == 10
+    assert warnings[0].endswith("; the way check's quick stops (drivers.limits) assume the quick stop ramp 0x6085: "
+                                "this axis may stop further off the way")
+    assert not any("way check" in w for w in warnings if w.startswith(("j3", "j4", "gripper")))
     assert warnings[0].startswith("j1 (node 1): quick stop option code 0x605A missing (SDO abort 0x06020000, "
                                   "object does not exist): its quick stop is the drive's own")
     assert warnings[1] == ("j1 (node 1): fault reaction option code 0x605E missing (SDO abort 0x06020000, "
-                           "object does not exist): a fault on this drive stops its axis as the drive is built")
+                           "object does not exist): a fault on this drive stops its axis as the drive is built; "
+                           "the way check's quick stops (drivers.limits) assume the quick stop ramp 0x6085: this "
+                           "axis may stop further off the way")
     assert arm.axes["gripper"].option_codes == {0x605A: None, 0x605E: None}
     _stop_mid_move(arm, drives)
     assert {d.state for d in drives.drives.values()} == {"SWITCH_ON_DISABLED"}

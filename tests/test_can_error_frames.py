@@ -247,4 +247,4 @@ def test_hw_status_and_the_run_summary_name_the_classes_alike():
     out = io.StringIO()
     _print_summary({"assembly": "a", "parts_removed": 0, "parts_total": 1, "status": "stopped", "grasps": 0,
                     "parts": [], "can_bus": bus}, out)
-    assert "CAN bus: 4 error frame(s) (3 bus-error, 1 lost-arbitration, 1 rx-overflow)" in out.getvalue()
+    assert "CAN bus: 5 error frame(s) (3 bus-error, 1 lost-arbitration, 1 rx-overflow), 4 counted" in out.getvalue()

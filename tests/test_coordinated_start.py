@@ -155,3 +155,73 @@ def test_the_cell_file_takes_only_true_or_false(tmp_path, capsys, value):
     del raw["can"]["coordinated_start"]
     path.write_text(json.dumps(raw))
     assert load_cell(path).can.coordinated_start is True
+
+
+def _arming_hook(monkeypatch, node: str, action):
+    """Run `action` when the arm starts to arm `node` (the axes before it hold their set-points)."""
+    from drivers.axis import Axis
+
+    real = Axis.arm_move
+
+    def arm_move(ax, counts):
+        if ax.name == node:
+            action()
+        return real(ax, counts)
+
+    monkeypatch.setattr(Axis, "arm_move", arm_move)
+
+
+def test_an_armed_axis_stopped_from_its_side_is_not_re_enabled_by_the_release(arm, sim_drives, monkeypatch):
+    """j1 holds its set-point when its quick stop input trips: the release (enable operation) would have taken
+    it out of QUICK STOP ACTIVE without its set-point, and j2 ran its whole move alone."""
+    from drivers import DriveDisabled
+
+    _arming_hook(monkeypatch, "j2", lambda: sim_drives.inject_fault("quick_stop", "j1"))
+    start = sim_drives.positions()
+    joints = arm.joints()
+    with pytest.raises(DriveDisabled, match=r"j1 \(node 1\): left OPERATION ENABLED while its set-point waited"):
+        arm.move_joints(Joints(joints.j1_deg - 30.0, joints.j2_deg - 20.0, joints.j3_mm, joints.j4_deg))
+    arm.clock.sleep(0.5)
+    assert sim_drives.positions() == pytest.approx(start, abs=1e-9)
+    assert sim_drives.drives["j1"].state == "QUICK_STOP_ACTIVE"  # left as its side stopped it
+
+
+def test_a_drive_that_does_not_run_its_set_point_at_the_release_stops_the_others(arm, sim_drives, monkeypatch):
+    """A drive that takes a set-point under halt but forgets it at the release (the behaviour is the drive
+    maker's): the host sees no start and stops every axis, before the others ran their moves alone."""
+    real = SimDrive._resume
+
+    def forgets(drive):
+        if drive.name == "j2":
+            drive.halted = None
+            return None
+        return real(drive)
+
+    monkeypatch.setattr(SimDrive, "_resume", forgets)
+    start = sim_drives.positions()
+    joints = arm.joints()
+    with pytest.raises(NodeSilent, match=r"j2 \(node 2\): no answer \(start of the set-point at the halt's release; "
+                                         r"a drive that does not run a set-point taken under halt needs "
+                                         r"can.coordinated_start false\) within 0.2 s"):
+        arm.move_joints(Joints(joints.j1_deg - 30.0, joints.j2_deg - 20.0, joints.j3_mm, joints.j4_deg))
+    assert set(arm.faults) == {"j2"}
+    arm.clock.sleep(0.5)
+    stood = sim_drives.positions()
+    assert stood["j2"] == pytest.approx(start["j2"], abs=1e-9)
+    assert abs(stood["j1"] - start["j1"]) < 0.5  # j1 started with the release and was stopped at once
+
+
+def test_an_interrupt_while_the_axes_take_their_set_points_leaves_none_armed(arm, sim_drives, monkeypatch):
+    from drivers import FaultLatched
+
+    def interrupt():
+        raise KeyboardInterrupt
+
+    _arming_hook(monkeypatch, "j2", interrupt)
+    joints = arm.joints()
+    with pytest.raises(KeyboardInterrupt):
+        arm.move_joints(Joints(joints.j1_deg - 30.0, joints.j2_deg - 20.0, joints.j3_mm, joints.j4_deg))
+    assert sim_drives.drives["j1"].halted is None  # j1 had its set-point: the quick stop dropped it
+    assert "stop" in arm.faults
+    with pytest.raises(FaultLatched):
+        arm.move_joints(joints)

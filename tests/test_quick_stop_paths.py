@@ -83,7 +83,8 @@ def test_a_stop_ends_where_each_axis_ramps_down_on_its_own():
 @needs_sim
 def test_the_simulated_drives_stop_where_the_check_says(arm, sim_drives, cell_cfg):
     """The operator's stop at 0.2 s into a fast move: every axis ends where its own ramp from the speed it had
-    takes it (the check's model of a stop), all from one moment (the host stops the axes together)."""
+    takes it (the check's model of a stop), all from one moment of the way. (In simulated time the host's
+    stops land at one moment whatever their order: the next test holds the order.)"""
     start = arm.joints()
     target = Joints(start.j1_deg + 30.0, start.j2_deg - 80.0, start.j3_mm, start.j4_deg)
     assert not limits.command_violations(cell_cfg, target, start)

@@ -169,7 +169,7 @@ def _print_summary(s: dict, out) -> None:
         from drivers.errorframes import by_class_text
 
         classes = by_class_text(bus["by_class"])
-        print(f"  CAN bus: {bus['errors']} error frame(s) ({classes})"
+        print(f"  CAN bus: {bus['error_frames']} error frame(s) ({classes}), {bus['errors']} counted"
               + (f"; {bus['fault']}" if bus.get("fault") else ""), file=out)
     for k in ("recording", "rrd", "stopped"):
         if k in s:

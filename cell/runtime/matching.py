@@ -80,6 +80,8 @@ class Poser:
     some hundred times a region; two transforms took a third of its time."""
 
     def __init__(self, model: Polygon, c):
+        if model.has_z:
+            raise ValueError("Poser takes outlines in the plane (affinity would keep z)")
         xy = shapely.get_coordinates(model)
         self._x, self._y = xy[:, 0].copy(), xy[:, 1].copy()
         self._out, self._tmp = np.empty_like(xy), np.empty(len(xy))

@@ -99,6 +99,11 @@ class Box2D:
         """`contains` for arrays of points, the same comparisons."""
         return (self.x_mm[0] <= x) & (x <= self.x_mm[1]) & (self.y_mm[0] <= y) & (y <= self.y_mm[1])
 
+    def depth_xy(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """How far inside the box each point lies (mm to the nearest side); negative: that far outside it."""
+        return np.minimum(np.minimum(x - self.x_mm[0], self.x_mm[1] - x),
+                          np.minimum(y - self.y_mm[0], self.y_mm[1] - y))
+
 
 @dataclass(frozen=True)
 class Motion:

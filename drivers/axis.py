@@ -437,15 +437,9 @@ class Axis:
                 with self._cond:  # wall time: wake at the next status rather than a poll later
                     self._cond.wait(step_s)
 
-    def quick_stop(self, confirm_timeout_s: float = 0.2) -> None:
-        """Quick stop (402 transition 11) and wait briefly for the drive to confirm it."""
-        seq = self.send_quick_stop()
-        if seq is not None:
-            self.confirm_quick_stop(seq, confirm_timeout_s)
-
     def send_quick_stop(self) -> int | None:
-        """The quick stop, not waited for (`Arm` stops every axis first, then waits); the status sequence
-        number before it, or None where the drive was not in OPERATION ENABLED (nothing sent)."""
+        """Quick stop (402 transition 11), not waited for (`Arm` stops every axis first, then waits): the
+        status sequence number before it, or None where the drive was not in OPERATION ENABLED (nothing sent)."""
         if self.state != "OPERATION_ENABLED":
             return None
         return self.send_controlword(codec.CW_QUICK_STOP)

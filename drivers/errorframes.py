@@ -90,7 +90,6 @@ PASSIVE_REASON = "the host's CAN controller's error counter passed 127 (its fram
 SOCKETCAN_LAYOUT_BUSES = ("SocketcanBus", "VirtualBus")
 
 
-
 def classes_readable(bus: can.BusABC) -> bool:
     """Whether `bus` hands on SocketCAN's error class in its error frames (otherwise every one is counted)."""
     return type(bus).__name__ in SOCKETCAN_LAYOUT_BUSES

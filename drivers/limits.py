@@ -110,25 +110,23 @@ def _stop_violations(cell, samples: np.ndarray, speed: np.ndarray, tool: tuple, 
     workspace too: each axis then ramps down on its own and the arm leaves the coordinated path (up to 17 mm
     past the workspace on 2 % of random moves the path check let through). Not covered: one drive stopping
     first (its own fault reaction; the others follow a watchdog period later), drives on another ramp
-    (option_codes warns at connect). samples (n, 4) and
-    speed (n, 4): the way's (`coordinated_motion_array`); tool: its tool x, y (n,). Only the samples whose
-    stop may reach the workspace's edge (`quick_stop_reach_mm`) are followed."""
+    (option_codes warns at connect). samples (n, 4) and speed (n, 4): the way's (`coordinated_motion_array`);
+    tool: its tool x, y (n,). Only the samples whose stop may reach the workspace's edge (`quick_stop_reach_mm`)
+    are followed."""
     from drivers.profile import quick_stop_poses_array, quick_stop_reach_mm
 
     reach, ws = quick_stop_reach_mm(cell.scara, speed, QUICK_STOP_DECEL_FACTOR), cell.workspace
-    x, y = tool
-    margin = np.minimum(np.minimum(x - ws.x_mm[0], ws.x_mm[1] - x), np.minimum(y - ws.y_mm[0], ws.y_mm[1] - y))
-    near = np.flatnonzero(reach >= margin)
+    near = np.flatnonzero(reach >= ws.depth_xy(*tool))
     if not len(near):
         return []
     stops = quick_stop_poses_array(cell.scara, samples.take(near, 0), speed.take(near, 0), PATH_STEP_DEG,
                                    QUICK_STOP_DECEL_FACTOR)
     x, y = tool_xy(stops, cell.scara)
-    past = np.maximum(np.maximum(ws.x_mm[0] - x, x - ws.x_mm[1]), np.maximum(ws.y_mm[0] - y, y - ws.y_mm[1]))
-    i = int(np.argmax(past))
-    if past[i] <= 0:
+    depth = ws.depth_xy(x, y)
+    i = int(np.argmin(depth))
+    if depth[i] >= 0:
         return []
-    return [f"a quick stop on the way would take the tool {past[i]:.3g} mm out of the workspace (to x = "
+    return [f"a quick stop on the way would take the tool {-depth[i]:.3g} mm out of the workspace (to x = "
             f"{x[i]:.1f}, y = {y[i]:.1f} mm, J1 {stops[i, 0]:.1f} deg, J2 {stops[i, 1]:.1f} deg): the axes stop "
             f"each on its own ramp ({QUICK_STOP_DECEL_FACTOR:g} x its max acceleration), off the coordinated path; "
             f"{box}"]

@@ -165,11 +165,15 @@ def coordinated_motion_array(scara, start, target, step_deg: float = 2.0) -> tup
     return path, speed
 
 
+def _stop_decel(scara, decel_factor: float) -> np.ndarray:
+    """(2,): J1's and J2's quick stop deceleration, decel_factor x its max acceleration (the drives' 0x6085)."""
+    return np.array([decel_factor * scara.max_acceleration[j] for j in ("j1", "j2")])
+
+
 def quick_stop_deg(scara, speed: np.ndarray, decel_factor: float) -> np.ndarray:
     """(n, 2): how far J1 and J2 turn (deg) when they quick-stop from the speeds (n, >= 2) (deg/s), each at
     decel_factor x its max acceleration (the drives' 0x6085)."""
-    decel = np.array([decel_factor * scara.max_acceleration[j] for j in ("j1", "j2")])
-    return speed[:, :2] ** 2 / (2 * decel)
+    return speed[:, :2] ** 2 / (2 * _stop_decel(scara, decel_factor))
 
 
 def quick_stop_reach_mm(scara, speed: np.ndarray, decel_factor: float) -> np.ndarray:
@@ -186,8 +190,7 @@ def quick_stop_poses_array(scara, pose: np.ndarray, speed: np.ndarray, step_deg:
     (n, >= 2) moving at speed (n, >= 2): each axis ramps down at decel_factor x its max acceleration, on its
     own, so the arm leaves the coordinated path (the axes do not stop in proportion). Sampled so that J1
     and J2 turn at most about step_deg between two poses of one stop."""
-    vel = speed[:, :2]
-    decel = np.array([decel_factor * scara.max_acceleration[j] for j in ("j1", "j2")])
+    vel, decel = speed[:, :2], _stop_decel(scara, decel_factor)
     stop_s = np.abs(vel) / decel  # (n, 2): how long each axis takes to stand
     longest = stop_s.max(1)  # (n,)
     # an axis turns at most |v| x the stop's duration: that many steps of step_deg

@@ -41,6 +41,13 @@ DEFAULT_ERROR_FRAMES_MAX = 10
 DEFAULT_ERROR_WINDOW_MS = 1000
 MIN_ERROR_WINDOW_MS = 100  # 10 frames within 1 ms would never trip on one error frame every ms
 MAX_ERROR_WINDOW_MS = 60_000  # a window of minutes would add up sporadic frames into a stop
+# How late the host may stop the other axes after one stopped on its own (its fault reaction, its quick stop
+# input): the way check (drivers.limits) follows such stops. The host looks at the drives every
+# HOST_POLL_MS during a move; the frames that tell it and the stop frames add a few ms at 125 kbit/s and up.
+HOST_POLL_MS = 10
+DEFAULT_STOP_LAG_MS = 20
+MIN_STOP_LAG_MS = HOST_POLL_MS + 5
+MAX_STOP_LAG_MS = 1000  # a second: ways near the edge would all be refused long before
 
 
 def default_cell_path() -> Path:
@@ -139,6 +146,8 @@ class CanConfig:
     # the axes of a move take their set-points under halt and are released together (drivers.Arm); false:
     # each starts at its own set-point handshake, for drives that do not hold a set-point under halt
     coordinated_start: bool = True
+    # how late the host may stop the other axes after one stopped on its own (the way check follows that)
+    stop_lag_ms: float = DEFAULT_STOP_LAG_MS
 
 
 @dataclass(frozen=True)
@@ -192,7 +201,7 @@ _KEYS = {
     "configuration": ("joint_weights",), "configuration.joint_weights": JOINTS,
     "camera": ("width_px", "height_px", "height_mm"),
     "can": ("bitrate", "heartbeat_ms", "host_heartbeat_ms", "nodes", "error_frames_max", "error_window_ms",
-            "coordinated_start"),
+            "coordinated_start", "stop_lag_ms"),
     "can.nodes": (*JOINTS, "gripper"),
     **{f"can.nodes.{n}": ("node_id", "unit", "counts_per_unit") for n in (*JOINTS, "gripper")},
 }
@@ -267,7 +276,7 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
     _check_drive_counts(scara, gripper, nodes, source)
     can = CanConfig(r.count(cn, "bitrate", "can"), r.count(cn, "heartbeat_ms", "can"),
                     r.count(cn, "host_heartbeat_ms", "can"), nodes, *_error_frame_window(r, cn, source),
-                    r.flag(cn, "coordinated_start", "can", default=True))
+                    r.flag(cn, "coordinated_start", "can", default=True), _stop_lag_ms(r, cn, source))
     host_top = int(MAX_HEARTBEAT_MS // HEARTBEAT_DEADLINE_FACTOR)  # the host's deadline in 0x1016 is 16 bits too
     for key, top in (("heartbeat_ms", MAX_HEARTBEAT_MS), ("host_heartbeat_ms", host_top)):
         if getattr(can, key) > top:
@@ -281,6 +290,18 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
             raise BadInput(f"cell file {source}: configuration.joint_weights must not all be zero")
     name = raw.get("name", Path(source).stem)
     return Cell(str(name), scara, gripper, tray, ws, motion, camera, can, weights, source=source)
+
+
+def _stop_lag_ms(r: _Reader, cn: dict, source: str) -> float:
+    """can.stop_lag_ms, optional: no less than the host takes to see a stop and answer it, no more than a second."""
+    if "stop_lag_ms" not in cn:
+        return DEFAULT_STOP_LAG_MS
+    lag = r.num(cn, "stop_lag_ms", "can")
+    if not MIN_STOP_LAG_MS <= lag <= MAX_STOP_LAG_MS:
+        raise BadInput(f"cell file {source}: can.stop_lag_ms = {lag:g} must be {MIN_STOP_LAG_MS} to {MAX_STOP_LAG_MS} "
+                       f"ms (the host looks at the drives every {HOST_POLL_MS} ms during a move, and the frames take "
+                       "a few ms more)")
+    return lag
 
 
 def _error_frame_window(r: _Reader, cn: dict, source: str) -> tuple[int, int]:

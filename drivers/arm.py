@@ -29,7 +29,7 @@ import threading
 import can
 import canopen
 
-from cell.cellconfig import HEARTBEAT_DEADLINE_FACTOR, QUICK_STOP_DECEL_FACTOR
+from cell.cellconfig import HEARTBEAT_DEADLINE_FACTOR, HOST_POLL_MS, MIN_STOP_LAG_MS, QUICK_STOP_DECEL_FACTOR
 from cell.kinematics import Joints
 from drivers import codec
 from drivers.axis import Axis
@@ -97,7 +97,7 @@ class Arm:
         boot_timeout_s: float | None = None,
         error_frames_max: int | None = None,
         error_window_ms: int | None = None,
-        poll_s: float = 0.01,
+        poll_s: float = HOST_POLL_MS / 1000.0,
     ):
         if cell is None:
             from cell.cellconfig import default_cell
@@ -115,6 +115,11 @@ class Arm:
             cell.can.error_window_ms if error_window_ms is None else error_window_ms,
             classes_readable(bus),
         )
+        if not 0 < poll_s * 1000.0 <= cell.can.stop_lag_ms - (MIN_STOP_LAG_MS - HOST_POLL_MS):
+            # during a move the host answers one axis stopping on its own within a poll and the frames' time:
+            # the way check (drivers.limits) follows the other axes on their way that long
+            raise ValueError(f"poll_s = {poll_s} s: the host would stop the other axes more than can.stop_lag_ms = "
+                             f"{cell.can.stop_lag_ms:g} ms after one stopped on its own")
         self.poll_s = poll_s
         self.axes: dict[str, Axis] = {}
         self.gripper = Gripper(self)
@@ -546,7 +551,9 @@ class Arm:
         box or the maximum step; refuses (`FaultLatched`) while a fault is latched. Returns
         the command actually sent (the targets rounded to whole counts). With `wait`, returns
         when every axis reports target reached; a fault during the move, or an axis leaving
-        OPERATION ENABLED (`DriveDisabled`), quick-stops all axes and raises the node's error.
+        OPERATION ENABLED (`DriveDisabled`), quick-stops all axes and raises the node's error,
+        within a poll (the way check's can.stop_lag_ms). Without `wait` the host answers such a
+        fault only when it next waits (`wait_idle()`) or commands: meanwhile the other axes run on.
         """
         self._begin_command()
         current = self.joints()
@@ -633,6 +640,9 @@ class Arm:
         targets, deadline = self._pending
         try:
             while targets:
+                # every poll, not only at the watchdog's: an axis that stopped on its own (a fault, its quick
+                # stop input) is answered within a poll, as the way check's can.stop_lag_ms has it
+                self._watch()
                 self._check_faults(during_move=True)
                 if all(self._arrived(self.axes[n], c) for n, c in targets.items()):
                     return

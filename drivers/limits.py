@@ -5,8 +5,9 @@ and the largest step one command may ask for; and, from where the arm is, the wa
 tool inside the workspace all along the coordinated move (two poses inside it can sweep out
 of it between them: an elbow flip, a swing past the stretched arm), and below the safe height
 straight up or down or across at one height, never across while going up or down (the
-fingers would sweep sideways through what stands on the tray); and a quick stop anywhere on the way
-(each axis ramping down on its own, off the coordinated path) leaves the tool inside the workspace. The
+fingers would sweep sideways through what stands on the tray); and a stop anywhere on the way (each axis
+ramping down on its own, off the coordinated path: all at once, or J1 or J2 first and the other up to
+can.stop_lag_ms later) leaves the tool inside the workspace. The
 drives' software limits (0x607D) are a second line of defence; this check comes first and refuses with a
 message that says why.
 """
@@ -72,10 +73,10 @@ def path_violations(cell, start: Joints, target: Joints) -> list[str]:
     workspace all along (unless it starts outside: the way back in is then allowed), and below the safe
     height it goes straight up or down or across at one height (J3 moving while the tool travels or J4
     turns, with either end below the safe height, is refused)."""
-    from drivers.profile import coordinated_motion_array
+    from drivers.profile import coordinated_motion
 
     # the whole way at once: a plan checks the ways of every candidate grasp, each of hundreds of samples
-    samples, speed = coordinated_motion_array(cell.scara, start, target, PATH_STEP_DEG)
+    move, t_s, samples, speed = coordinated_motion(cell.scara, start, target, PATH_STEP_DEG)
     path = np.vstack([[start.j1_deg, start.j2_deg, start.j3_mm, start.j4_deg], samples])
     x, y = tool_xy(path, cell.scara)
     out = []
@@ -100,36 +101,50 @@ def path_violations(cell, start: Joints, target: Joints) -> list[str]:
             out.append(f"the tool would leave the workspace on the way, at x = {x[i]:.1f}, y = {y[i]:.1f} mm "
                        f"(J1 {path[i, 0]:.1f} deg, J2 {path[i, 1]:.1f} deg); {box}")
         else:
-            out += _stop_violations(cell, samples, speed, (x[1:], y[1:]), box)
+            out += _stop_violations(cell, move, t_s, samples, speed, (x[1:], y[1:]), box)
     return out
 
 
-def _stop_violations(cell, samples: np.ndarray, speed: np.ndarray, tool: tuple, box: str) -> list[str]:
-    """A quick stop anywhere on the way (the operator's stop, a fault the host sees: every axis stopped at
-    once, each on the quick stop ramp 0x6085 the host sets at connect) must leave the tool inside the
-    workspace too: each axis then ramps down on its own and the arm leaves the coordinated path (up to 17 mm
-    past the workspace on 2 % of random moves the path check let through). Not covered: one drive stopping
-    first (its own fault reaction; the others follow a watchdog period later), drives on another ramp
-    (option_codes warns at connect). samples (n, 4) and speed (n, 4): the way's (`coordinated_motion_array`);
-    tool: its tool x, y (n,). Only the samples whose stop may reach the workspace's edge (`quick_stop_reach_mm`)
-    are followed."""
-    from drivers.profile import quick_stop_poses_array, quick_stop_reach_mm
+def _stop_violations(cell, move, t_s: np.ndarray, samples: np.ndarray, speed: np.ndarray, tool: tuple,
+                     box: str) -> list[str]:
+    """A stop anywhere on the way must leave the tool inside the workspace too. Each axis ramps down on its
+    own (its quick stop ramp 0x6085, which the host sets at connect, or its fault reaction on the same ramp),
+    so the arm leaves the coordinated path (up to 17 mm past the workspace on 2 % of random moves the path
+    check let through), in two ways:
+    - the host stops every axis at once (the operator's stop, a fault the host sees);
+    - J1 or J2 stops on its own (its fault reaction, its quick stop input) and the host stops the other up to
+      can.stop_lag_ms later (it looks at the drives every poll during a move): that one goes on along the
+      move meanwhile (4 % of random moves leave the workspace, up to 17 mm, with 20 ms).
+    Not covered: drives on another ramp (option_codes warns at connect), a drive that coasts (STO, power
+    lost), a host slower than the lag. J3 or J4 stopping first leaves J1 and J2 on the path until they stop
+    together. move, t_s (n,): the way (`coordinated_motion`), samples (n, 4) and speed (n, 4) at t_s; tool: its
+    tool x, y (n,). Only the samples whose stop may reach the workspace's edge (`quick_stop_reach_mm`) are
+    followed."""
+    from drivers.profile import quick_stop_poses_array, quick_stop_reach_mm, stops_one_first
 
-    reach, ws = quick_stop_reach_mm(cell.scara, speed, QUICK_STOP_DECEL_FACTOR), cell.workspace
+    sc, ws, lag_s = cell.scara, cell.workspace, cell.can.stop_lag_ms / 1000.0
+    reach = quick_stop_reach_mm(sc, speed, QUICK_STOP_DECEL_FACTOR, lag_s, move.top_speed()[:2])
     near = np.flatnonzero(reach >= ws.depth_xy(*tool))
     if not len(near):
         return []
-    stops = quick_stop_poses_array(cell.scara, samples.take(near, 0), speed.take(near, 0), PATH_STEP_DEG,
-                                   QUICK_STOP_DECEL_FACTOR)
-    x, y = tool_xy(stops, cell.scara)
-    depth = ws.depth_xy(x, y)
-    i = int(np.argmin(depth))
-    if depth[i] >= 0:
-        return []
-    return [f"a quick stop on the way would take the tool {-depth[i]:.3g} mm out of the workspace (to x = "
-            f"{x[i]:.1f}, y = {y[i]:.1f} mm, J1 {stops[i, 0]:.1f} deg, J2 {stops[i, 1]:.1f} deg): the axes stop "
-            f"each on its own ramp ({QUICK_STOP_DECEL_FACTOR:g} x its max acceleration), off the coordinated path; "
-            f"{box}"]
+    ramps = f"each on its own ramp ({QUICK_STOP_DECEL_FACTOR:g} x its max acceleration), off the coordinated path"
+    together = quick_stop_poses_array(sc, samples.take(near, 0), speed.take(near, 0), PATH_STEP_DEG,
+                                      QUICK_STOP_DECEL_FACTOR)
+    ways = [("a quick stop on the way", together, f"the axes stop {ramps}")]
+    if lag_s > 0:
+        for first, poses in stops_one_first(sc, move, t_s.take(near), lag_s, PATH_STEP_DEG, QUICK_STOP_DECEL_FACTOR):
+            other = "J2" if first == "j1" else "J1"
+            ways.append((f"{first.upper()} stopping on its own on the way (its fault reaction, its quick stop input) "
+                         f"with {other} stopped {cell.can.stop_lag_ms:g} ms later (can.stop_lag_ms)", poses,
+                         f"{other} goes on along the way until the host stops it; the axes ramp down {ramps}"))
+    for what, stops, why in ways:  # the first way out is told (the host's own stop first)
+        x, y = tool_xy(stops, sc)
+        depth = ws.depth_xy(x, y)
+        i = int(np.argmin(depth))
+        if depth[i] < 0:
+            return [f"{what} would take the tool {-depth[i]:.3g} mm out of the workspace (to x = {x[i]:.1f}, "
+                    f"y = {y[i]:.1f} mm, J1 {stops[i, 0]:.1f} deg, J2 {stops[i, 1]:.1f} deg): {why}; {box}"]
+    return []
 
 
 def as_sent(cell, target: Joints) -> Joints:

@@ -141,28 +141,82 @@ def coordinated_path_array(scara, start, target, step_deg: float = 2.0) -> np.nd
     return coordinated_motion_array(scara, start, target, step_deg)[0]
 
 
-def coordinated_motion_array(scara, start, target, step_deg: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
-    """`coordinated_path_array` and, row for row, the axes' speeds there (n, 4) (per s, signed; 0 at the
-    end)."""
+@dataclass(frozen=True)
+class CoordinatedMove:
+    """A coordinated move as the drives run it: from `start` (4,) to `target` (4,) (j1_deg, j2_deg, j3_mm,
+    j4_deg), each axis on its own trapezoid (None: it stays), all arriving after duration_s."""
+
+    start: np.ndarray
+    target: np.ndarray
+    duration_s: float
+    profiles: tuple
+
+    def sample_times_s(self, step_deg: float) -> np.ndarray:
+        """(n,): times along the move at which J1 and J2 turn at most about step_deg between two (the
+        progress of an axis is at most twice its mean), the last one the end."""
+        turn = float(np.abs(self.target[:2] - self.start[:2]).max())
+        n = max(1, math.ceil(2.0 * turn / step_deg))
+        return self.duration_s * np.arange(1, n + 1) / n  # as duration * k / n, sample by sample
+
+    def axis_at(self, col: int, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Axis col's position and speed (signed, per s) at the times t_s (any shape); still after the end."""
+        profile = self.profiles[col]
+        if profile is None:
+            return np.full(np.shape(t_s), self.start[col]), np.zeros(np.shape(t_s))
+        return self.start[col] + profile.positions_at(t_s), profile.velocities_at(t_s)
+
+    def top_speed(self) -> np.ndarray:
+        """(4,): each axis's peak speed on this move (0: it stays)."""
+        return np.array([0.0 if p is None else p.v_peak for p in self.profiles])
+
+    def positions_at(self, col: int, t_s: np.ndarray) -> np.ndarray:
+        """Axis col's position at the times t_s (any shape), as `axis_at` has it."""
+        profile = self.profiles[col]
+        if profile is None:
+            return np.full(np.shape(t_s), self.start[col])
+        return self.start[col] + profile.positions_at(t_s)
+
+    def motion_at(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(n, 4) positions and (n, 4) speeds at the times t_s (n,); exactly the target, standing, from the end on."""
+        path, speed = np.empty((len(t_s), 4)), np.empty((len(t_s), 4))
+        for col in range(4):
+            path[:, col], speed[:, col] = self.axis_at(col, t_s)
+        done = t_s >= self.duration_s
+        path[done], speed[done] = self.target, 0.0
+        return path, speed
+
+
+def coordinated_move(scara, start, target) -> CoordinatedMove:
+    """The coordinated move from start to target (`Joints`): each axis on the trapezoid with its own ramps
+    and the cruise speed that makes it arrive with the slowest (as `Arm.move_joints` commands them)."""
     from drivers.limits import JOINT_FIELDS
 
     duration = coordinated_move_s(scara, start, target)
-    turn = max(abs(target.j1_deg - start.j1_deg), abs(target.j2_deg - start.j2_deg))
-    n = max(1, math.ceil(2.0 * turn / step_deg))
-    t = duration * np.arange(1, n + 1) / n  # as duration * k / n, sample by sample
-    path, speed = np.empty((n, len(JOINT_FIELDS))), np.zeros((n, len(JOINT_FIELDS)))
-    for col, (j, f, _) in enumerate(JOINT_FIELDS):
+    profiles = []
+    for j, f, _ in JOINT_FIELDS:
         d = getattr(target, f) - getattr(start, f)
         a = scara.max_acceleration[j]
         v = velocity_for_duration(d, duration, a) if duration > 0 else 0.0
-        path[:, col] = getattr(start, f)
-        if d != 0.0 and v > 0:
-            profile = trapezoid(d, v, a)
-            path[:, col] += profile.positions_at(t)
-            speed[:, col] = profile.velocities_at(t)
-    path[-1] = [getattr(target, f) for _, f, _ in JOINT_FIELDS]
-    speed[-1] = 0.0
-    return path, speed
+        profiles.append(trapezoid(d, v, a) if d != 0.0 and v > 0 else None)
+    return CoordinatedMove(np.array([getattr(start, f) for _, f, _ in JOINT_FIELDS], float),
+                           np.array([getattr(target, f) for _, f, _ in JOINT_FIELDS], float), duration,
+                           tuple(profiles))
+
+
+def coordinated_motion_array(scara, start, target, step_deg: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """`coordinated_path_array` and, row for row, the axes' speeds there (n, 4) (per s, signed; 0 at the
+    end)."""
+    return coordinated_motion(scara, start, target, step_deg)[2:]
+
+
+def coordinated_motion(scara, start, target, step_deg: float = 2.0):
+    """The move (`coordinated_move`), its sample times (n,) and, at them, the positions (n, 4) and speeds
+    (n, 4) of `coordinated_motion_array`."""
+    move = coordinated_move(scara, start, target)
+    t = move.sample_times_s(step_deg)
+    path, speed = move.motion_at(t)
+    path[-1], speed[-1] = move.target, 0.0  # (duration * n / n may round below the duration)
+    return move, t, path, speed
 
 
 def _stop_decel(scara, decel_factor: float) -> np.ndarray:
@@ -176,12 +230,24 @@ def quick_stop_deg(scara, speed: np.ndarray, decel_factor: float) -> np.ndarray:
     return speed[:, :2] ** 2 / (2 * _stop_decel(scara, decel_factor))
 
 
-def quick_stop_reach_mm(scara, speed: np.ndarray, decel_factor: float) -> np.ndarray:
+def quick_stop_reach_mm(scara, speed: np.ndarray, decel_factor: float, lag_s: float = 0.0,
+                        top_speed: np.ndarray | None = None) -> np.ndarray:
     """(n,): how far the tool can move at most while the arm quick-stops from the speeds (n, >= 2): J1 and J2
     turn by at most s1 and s2 (`quick_stop_deg`, radians here), the tool by at most (l1 + l2) s1 + l2 s2
-    (an arc is no shorter than its chord)."""
-    s = np.radians(quick_stop_deg(scara, speed, decel_factor))
-    return (scara.l1_mm + scara.l2_mm) * s[:, 0] + scara.l2_mm * s[:, 1]
+    (an arc is no shorter than its chord). With lag_s, J1 or J2 may go on along its move for up to that long
+    before it ramps down (`stops_one_first`; the other ramps at once): meanwhile it speeds up by at most its max
+    acceleration, up to top_speed (2,) (its move's peak; default unbounded), so it turns by at most
+    v lag_s + v^2 / (2 x its deceleration), v its speed plus that."""
+    at_once = np.radians(quick_stop_deg(scara, speed, decel_factor))
+    if not lag_s > 0:
+        return (scara.l1_mm + scara.l2_mm) * at_once[:, 0] + scara.l2_mm * at_once[:, 1]
+    accel = np.array([scara.max_acceleration[j] for j in ("j1", "j2")])
+    v = np.abs(speed[:, :2]) + accel * lag_s
+    if top_speed is not None:
+        v = np.minimum(v, np.maximum(top_speed, np.abs(speed[:, :2])))
+    late = np.radians(v * lag_s + v * v / (2 * _stop_decel(scara, decel_factor)))
+    arm = scara.l1_mm + scara.l2_mm
+    return np.maximum(arm * at_once[:, 0] + scara.l2_mm * late[:, 1], arm * late[:, 0] + scara.l2_mm * at_once[:, 1])
 
 
 def quick_stop_poses_array(scara, pose: np.ndarray, speed: np.ndarray, step_deg: float,
@@ -198,3 +264,42 @@ def quick_stop_poses_array(scara, pose: np.ndarray, speed: np.ndarray, step_deg:
     tau = np.minimum(longest[:, None, None] * (np.arange(k + 1) / k)[None, :, None], stop_s[:, None, :])
     poses = pose[:, None, :2] + vel[:, None, :] * tau - 0.5 * np.sign(vel)[:, None, :] * decel * tau * tau
     return poses.reshape(-1, 2)
+
+
+def stops_one_first(scara, move: CoordinatedMove, t_s: np.ndarray, lag_s: float, step_deg: float,
+                    decel_factor: float) -> list[tuple[str, np.ndarray]]:
+    """[("j1", poses), ("j2", poses)]: (m, 2) j1_deg, j2_deg of the poses the arm passes through when, at
+    each of the times t_s (n,) of the move, that axis stops on its own (its fault reaction, its quick stop
+    input: its ramp at once, decel_factor x its max acceleration) and the host stops the other lag_s later:
+    the other goes on along the move meanwhile, then ramps down. Sampled so that J1 and J2 turn at most
+    about step_deg between two poses of one stop."""
+    decel = _stop_decel(scara, decel_factor)
+    return [(first, _stops(move, t_s, ramp_from_s, decel, step_deg))
+            for first, ramp_from_s in (("j1", (0.0, lag_s)), ("j2", (lag_s, 0.0)))]
+
+
+def _stops(move: CoordinatedMove, t_s: np.ndarray, ramp_from_s: tuple, decel: np.ndarray, step_deg: float):
+    """(n (k + 1), 2): J1 and J2 from each time t_s (n,) of the move: axis j goes on along it for
+    ramp_from_s[j], then ramps down at decel[j] from where it is and the speed it has then."""
+    vel, stop_s, top = [], [], 0.0
+    for j in (0, 1):
+        _, v = move.axis_at(j, t_s + ramp_from_s[j])  # (n,) the speed it ramps down from
+        vel.append(v)
+        stop_s.append(np.abs(v) / decel[j])
+        on_way = ramp_from_s[j] > 0 and move.profiles[j] is not None
+        top = max(top, float(np.abs(v).max(initial=0.0)), move.profiles[j].v_peak if on_way else 0.0)
+    end = np.maximum(ramp_from_s[0] + stop_s[0], ramp_from_s[1] + stop_s[1])  # (n,) both stand
+    # an axis turns at most its top speed x the stop's duration: that many steps of step_deg
+    k = max(1, math.ceil(top * float(end.max(initial=0.0)) / step_deg))
+    tau = end[:, None] * (np.arange(k + 1) / k)[None, :]  # (n, k + 1) from the first axis's stop
+    cols = []
+    for j in (0, 1):
+        # on its way until its ramp starts (then where it ramps from), and the ramp after
+        if ramp_from_s[j] > 0:
+            way = move.positions_at(j, t_s[:, None] + np.minimum(tau, ramp_from_s[j]))
+        else:
+            way = move.positions_at(j, t_s)[:, None]
+        e = np.minimum(np.maximum(tau - ramp_from_s[j], 0.0), stop_s[j][:, None])
+        v = vel[j][:, None]
+        cols.append(way + v * e - 0.5 * np.sign(v) * decel[j] * e * e)
+    return np.stack(cols, axis=-1).reshape(-1, 2)

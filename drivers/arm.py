@@ -206,7 +206,7 @@ class Arm:
                 node_id=ax.node_id,
             )
         ax.setup_pdos(TPDO_EVENT_TIMER_MS)
-        for warning in ax.setup_option_codes():  # quick stop 0x605A = 6, fault reaction 0x605E = 2
+        for warning in ax.setup_option_codes():  # 0x6007 = 1, 0x605A = 6, 0x605E = 2
             log.warning("%s", warning)
         ax.sdo_write(0x1017, 0, c.can.heartbeat_ms)
         deadline_ms = round(HEARTBEAT_DEADLINE_FACTOR * c.can.host_heartbeat_ms)

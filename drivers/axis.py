@@ -70,7 +70,7 @@ class Axis:
         self.last_emcy: codec.Emcy | None = None
         self.emcy_seq = 0
         self.controlword = 0
-        self.option_codes: dict[int, int | None] = {}  # 0x605A, 0x605E as set up at connect (None: missing)
+        self.option_codes: dict[int, int | None] = {}  # 0x6007, 0x605A, 0x605E as set up at connect (None: missing)
         self._subs = [
             (codec.TPDO1_BASE + node_id, self._on_tpdo1),
             (codec.EMCY_BASE + node_id, self._on_emcy),
@@ -202,11 +202,12 @@ class Axis:
             self._ensure(0x1400 + k, 2, codec.PDO_EVENT_DRIVEN)
 
     def setup_option_codes(self) -> list[str]:
-        """The quick stop and fault reaction option codes the host relies on (`drivers.option_codes.WANTED`):
-        written where they differ and read back. Returns a warning per object the drive lacks (SDO abort
-        0x06020000) or keeps at another value (a refused write, say 0x06090030); raises DriveFault where
-        its quick stop would not stop the axis under control. `self.option_codes` keeps what the drive has
-        (None: no such object)."""
+        """The abort connection, quick stop and fault reaction option codes the host relies on
+        (`drivers.option_codes.WANTED`): written where they differ and read back. Returns a warning per object
+        the drive lacks (SDO abort 0x06020000) or keeps at another value (a refused write, say 0x06090030);
+        raises DriveFault where its quick stop would not stop the axis under control, or where it would not
+        stop the axis when the host falls silent. `self.option_codes` keeps what the drive has (None: no such
+        object)."""
         warnings = []
         for index, wanted in option_codes.WANTED.items():
             have, refused = self._option_code(index), None

@@ -115,6 +115,9 @@ def _objects(gripper: bool) -> list[tuple]:
     if gripper:
         objs.append(var(GRIP_FORCE_INDEX, "Grip force limit", U16, "rw", "400"))
     objs += [
+        # what the drive does when the connection is lost (the host's heartbeat missed, 0x1016): an option
+        # code as those below
+        var(0x6007, "Abort connection option code", I16, "rw", "1"),
         var(0x603F, "Error code", U16, "ro", "0", 1),
         var(0x6040, "Controlword", U16, "rw", "0", 1),
         var(0x6041, "Statusword", U16, "ro", "0", 1),

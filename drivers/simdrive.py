@@ -52,7 +52,12 @@ SHUTDOWN_OPTIONS = {0: None, 1: 0x6084}  # 0x605B, transition 8: coast (default)
 DISABLE_OPERATION_OPTIONS = {0: None, 1: 0x6084}  # 0x605C, transition 5: coast / slow-down ramp (default)
 HALT_OPTIONS = {1: 0x6084, 2: 0x6085}  # 0x605D: slow-down ramp (default) / quick stop ramp, stay enabled
 FAULT_REACTION_OPTIONS = {0: None, 1: 0x6084, 2: 0x6085}  # 0x605E: coast / slow-down / quick stop (default)
+# 0x6007: what the drive does when the connection is lost (here: the host's heartbeat missed, 0x1016):
+# nothing, a fault (the fault reaction, this drive's default), disable voltage (the axis coasts) or a quick
+# stop (as 0x605A says)
+ABORT_CONNECTION_OPTIONS = {0: "nothing", 1: "fault", 2: "disable voltage", 3: "quick stop"}
 OPTION_CODES = {
+    0x6007: ABORT_CONNECTION_OPTIONS,
     0x605A: QUICK_STOP_OPTIONS,
     0x605B: SHUTDOWN_OPTIONS,
     0x605C: DISABLE_OPERATION_OPTIONS,
@@ -470,6 +475,23 @@ class SimDrive:
         if self.motion is None and self.after_ramp is not None:
             self._end_ramp()
 
+    def _abort_connection(self) -> None:
+        """The host's heartbeat missed (life guarding, CiA 301): as 0x6007 says; a drive without the object
+        faults. Every way but a fault reports it by EMCY 0x8130 (a fault does on its own)."""
+        action = "fault" if 0x6007 in self._missing else self._option(0x6007)
+        if action == "fault":
+            self._fault(0x8130)
+            return
+        if action == "disable voltage":
+            self._disable("SWITCH_ON_DISABLED")
+        elif action == "quick stop" and self.state == "OPERATION_ENABLED":
+            self._quick_stop()
+        self.emcy_log.append(0x8130)
+        if not self.silent:
+            self.network.send_message(codec.EMCY_BASE + self.node_id,
+                                      codec.pack_emcy(codec.Emcy(0x8130, self.error_register)))
+        self._publish()
+
     def _end_ramp(self) -> None:
         """Standstill after the ramp of a transition: enter its state (FAULT after the fault reaction)."""
         state, self.after_ramp = self.after_ramp, None
@@ -684,7 +706,7 @@ class SimDrive:
                 if now - self._host_seen_s > self._host_deadline_s and "FAULT" not in self.state:
                     driven = self.motion is not None and not self.motion.coasting
                     if self.state in ("OPERATION_ENABLED", "QUICK_STOP_ACTIVE") or driven:
-                        self._fault(0x8130)
+                        self._abort_connection()
                     self._host_seen_s = None  # report once; re-armed by the next heartbeat
             self._advance(now)
             self._publish(now)

@@ -95,9 +95,9 @@ def _assert_ramp(samples, p0: int, v: float, d: float, during: set[str], after: 
 
 def test_the_option_codes_are_in_the_dictionary_with_their_defaults(j1):
     _, node = j1
-    assert [node.sdo[i].raw for i in (0x605A, 0x605B, 0x605C, 0x605D, 0x605E)] == [6, 0, 1, 1, 2]
+    assert [node.sdo[i].raw for i in (0x6007, 0x605A, 0x605B, 0x605C, 0x605D, 0x605E)] == [1, 6, 0, 1, 1, 2]
     int16 = canopen.objectdictionary.INTEGER16
-    assert [node.object_dictionary[i].data_type for i in range(0x605A, 0x605F)] == [int16] * 5
+    assert [node.object_dictionary[i].data_type for i in (0x6007, *range(0x605A, 0x605F))] == [int16] * 6
 
 
 @pytest.mark.parametrize(

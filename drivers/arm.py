@@ -25,6 +25,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
+import time
 
 import can
 import canopen
@@ -118,8 +119,9 @@ class Arm:
         if not 0 < poll_s * 1000.0 <= cell.can.stop_lag_ms - (MIN_STOP_LAG_MS - HOST_POLL_MS):
             # during a move the host answers one axis stopping on its own within a poll and the frames' time:
             # the way check (drivers.limits) follows the other axes on their way that long
-            raise ValueError(f"poll_s = {poll_s} s: the host would stop the other axes more than can.stop_lag_ms = "
-                             f"{cell.can.stop_lag_ms:g} ms after one stopped on its own")
+            raise ValueError(f"poll_s = {poll_s} s: must be more than 0 and, with {MIN_STOP_LAG_MS - HOST_POLL_MS} ms "
+                             f"for the frames, no more than can.stop_lag_ms = {cell.can.stop_lag_ms:g} ms (the host "
+                             "stops the other axes within a poll of one stopping on its own)")
         self.poll_s = poll_s
         self.axes: dict[str, Axis] = {}
         self.gripper = Gripper(self)
@@ -622,9 +624,7 @@ class Arm:
                     self._stop_all()
                     raise err
             seqs = {name: self._guarded(self.axes[name].release) for name in targets}
-            for name, counts in targets.items():  # every axis on its way, or the others are stopped
-                self._guarded(self.axes[name].confirm_started, seqs[name], counts, POSITION_TOLERANCE_COUNTS,
-                              START_CONFIRM_S)
+            self._confirm_started(targets, seqs)
         except DriverError:
             raise  # stopped and latched where it was raised
         except BaseException:
@@ -634,6 +634,40 @@ class Arm:
             self._latch(DriverError("a move was interrupted while its axes took their set-points: every axis "
                                     "quick-stopped"), key="stop")
             raise
+
+    def _confirm_started(self, targets: dict[str, int], seqs: dict[str, int]) -> None:
+        """Every released axis must show within START_CONFIRM_S (wall time) that it started, or all are
+        stopped. Meanwhile the host looks at every drive each poll, as `wait_idle` does: an axis that faults or
+        stops on its own (its quick stop input) as the move starts stops the others within can.stop_lag_ms."""
+        deadline = time.monotonic() + START_CONFIRM_S
+        waiting = dict(targets)
+        while True:
+            waiting = {n: c for n, c in waiting.items()
+                       if not self.axes[n].has_started(seqs[n], c, POSITION_TOLERANCE_COUNTS)}
+            self._watch()
+            self._check_faults(during_move=True)  # (stops every axis and raises)
+            for name in targets:
+                err = self._left_operation(self.axes[name], "as its move started")
+                if err is not None:
+                    self._latch(err)
+                    self._stop_all()
+                    raise err
+            if not waiting:
+                return
+            name, counts = next(iter(waiting.items()))
+            left = deadline - time.monotonic()
+            try:  # a poll's wait, woken by this axis' status
+                self.axes[name].confirm_started(seqs[name], counts, POSITION_TOLERANCE_COUNTS,
+                                                max(0.0, min(self.poll_s, left)), told_s=START_CONFIRM_S)
+            except NodeSilent:
+                if left > self.poll_s:
+                    continue  # not yet: look at every drive again
+                self._guarded(self.axes[name].confirm_started, seqs[name], counts, POSITION_TOLERANCE_COUNTS,
+                              0.0, START_CONFIRM_S)  # (latches the timeout and stops every axis)
+            except DriverError as e:  # it faulted meanwhile
+                self._latch(e)
+                self._stop_all()
+                raise
 
     def wait_idle(self) -> None:
         """Wait (on the shared clock) until the last move's axes report target reached."""

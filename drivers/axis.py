@@ -272,7 +272,8 @@ class Axis:
         return seq
 
     # --- waiting ---------------------------------------------------------------------------
-    def wait_status(self, pred, after_seq: int | None, what: str, timeout_s: float = ANSWER_TIMEOUT_S):
+    def wait_status(self, pred, after_seq: int | None, what: str, timeout_s: float = ANSWER_TIMEOUT_S,
+                    told_s: float | None = None):
         """Wait (wall time) for a TPDO newer than `after_seq` whose status satisfies `pred`."""
         deadline = time.monotonic() + timeout_s
         with self._cond:
@@ -287,7 +288,7 @@ class Axis:
                     got = st.state if st is not None else "no status"
                     raise NodeSilent(
                         f"{self.name} (node {self.node_id}): no answer ({what}) within "
-                        f"{timeout_s:g} s, last status: {got}",
+                        f"{timeout_s if told_s is None else told_s:g} s, last status: {got}",
                         node=self.name,
                         node_id=self.node_id,
                     )
@@ -488,15 +489,20 @@ class Axis:
         sequence number before it."""
         return self.send_controlword(codec.CW_ENABLE_OPERATION)
 
-    def confirm_started(self, seq: int, target_counts: int, tolerance_counts: int, timeout_s: float) -> None:
+    def confirm_started(self, seq: int, target_counts: int, tolerance_counts: int, timeout_s: float,
+                        told_s: float | None = None) -> None:
         """Wait (wall time) for a status after the release sent at `seq` showing the axis on its way (bit 10
         cleared) or already there: a drive that took the set-point under halt but does not run it on the
-        release would leave the other axes running alone."""
-        self.wait_status(
-            lambda s: s.state == "OPERATION_ENABLED"
-            and (not s.target_reached or abs(s.position_counts - target_counts) <= tolerance_counts),
-            seq, "start of the set-point at the halt's release; a drive that does not run a set-point taken "
-            "under halt needs can.coordinated_start false", timeout_s)
+        release would leave the other axes running alone. told_s: the time the timeout's message names (the
+        whole wait, when this is one slice of it)."""
+        self.wait_status(_started(target_counts, tolerance_counts), seq,
+                         "start of the set-point at the halt's release; a drive that does not run a set-point "
+                         "taken under halt needs can.coordinated_start false", timeout_s, told_s)
+
+    def has_started(self, seq: int, target_counts: int, tolerance_counts: int) -> bool:
+        """`confirm_started`'s condition, now, without waiting."""
+        st = self.status
+        return st is not None and self.status_seq > seq and _started(target_counts, tolerance_counts)(st)
 
     def _set_point_handshake(self, target_counts: int, extra_bits: int, ack: str) -> None:
         self.send_target(target_counts)
@@ -504,6 +510,12 @@ class Axis:
         self.wait_status(lambda s: s.ack, seq, ack)
         seq = self.send_controlword(codec.CW_ENABLE_OPERATION | extra_bits)
         self.wait_status(lambda s: not s.ack, seq, "set-point acknowledge cleared")
+
+
+def _started(target_counts: int, tolerance_counts: int):
+    """Is a status that of an axis on its way (bit 10 cleared) or already at target_counts?"""
+    return lambda s: s.state == "OPERATION_ENABLED" and (
+        not s.target_reached or abs(s.position_counts - target_counts) <= tolerance_counts)
 
 
 def _is_compound(node, index: int) -> bool:

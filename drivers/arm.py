@@ -616,13 +616,7 @@ class Arm:
             # an armed axis stopped from the drive's side meanwhile (its quick stop input, STO, another
             # master): the release (enable operation) would re-enable it behind that side's back (transition
             # 16), without its set-point, and the others would run alone
-            self._check_faults(during_move=True)
-            for name in targets:
-                err = self._left_operation(self.axes[name], "while its set-point waited for the other axes")
-                if err is not None:
-                    self._latch(err)
-                    self._stop_all()
-                    raise err
+            self._stop_on_faults(targets, "while its set-point waited for the other axes")
             seqs = {name: self._guarded(self.axes[name].release) for name in targets}
             self._confirm_started(targets, seqs)
         except DriverError:
@@ -635,6 +629,17 @@ class Arm:
                                     "quick-stopped"), key="stop")
             raise
 
+    def _stop_on_faults(self, targets, when: str) -> None:
+        """A latched fault, or an axis of `targets` that left OPERATION ENABLED on its own `when`: stop every
+        axis and raise it."""
+        self._check_faults(during_move=True)
+        for name in targets:
+            err = self._left_operation(self.axes[name], when)
+            if err is not None:
+                self._latch(err)
+                self._stop_all()
+                raise err
+
     def _confirm_started(self, targets: dict[str, int], seqs: dict[str, int]) -> None:
         """Every released axis must show within START_CONFIRM_S (wall time) that it started, or all are
         stopped. Meanwhile the host looks at every drive each poll, as `wait_idle` does: an axis that faults or
@@ -645,13 +650,7 @@ class Arm:
             waiting = {n: c for n, c in waiting.items()
                        if not self.axes[n].has_started(seqs[n], c, POSITION_TOLERANCE_COUNTS)}
             self._watch()
-            self._check_faults(during_move=True)  # (stops every axis and raises)
-            for name in targets:
-                err = self._left_operation(self.axes[name], "as its move started")
-                if err is not None:
-                    self._latch(err)
-                    self._stop_all()
-                    raise err
+            self._stop_on_faults(targets, "as its move started")
             if not waiting:
                 return
             name, counts = next(iter(waiting.items()))

@@ -161,9 +161,8 @@ class CoordinatedMove:
     def axis_at(self, col: int, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Axis col's position and speed (signed, per s) at the times t_s (any shape); still after the end."""
         profile = self.profiles[col]
-        if profile is None:
-            return np.full(np.shape(t_s), self.start[col]), np.zeros(np.shape(t_s))
-        return self.start[col] + profile.positions_at(t_s), profile.velocities_at(t_s)
+        speed = np.zeros(np.shape(t_s)) if profile is None else profile.velocities_at(t_s)
+        return self.positions_at(col, t_s), speed
 
     def top_speed(self) -> np.ndarray:
         """(4,): each axis's peak speed on this move (0: it stays)."""

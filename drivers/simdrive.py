@@ -486,10 +486,14 @@ class SimDrive:
             self._disable("SWITCH_ON_DISABLED")
         elif action == "quick stop" and self.state == "OPERATION_ENABLED":
             self._quick_stop()
-        self.emcy_log.append(0x8130)
+        self._emcy(0x8130)
+
+    def _emcy(self, code: int) -> None:
+        """Report `code` by EMCY (logged, unless silent), then the status it left."""
+        self.emcy_log.append(code)
         if not self.silent:
             self.network.send_message(codec.EMCY_BASE + self.node_id,
-                                      codec.pack_emcy(codec.Emcy(0x8130, self.error_register)))
+                                      codec.pack_emcy(codec.Emcy(code, self.error_register)))
         self._publish()
 
     def _end_ramp(self) -> None:
@@ -618,12 +622,7 @@ class SimDrive:
         self.ack = False
         self.following_error = following_error
         self.error_code = code
-        self.emcy_log.append(code)
-        if not self.silent:
-            self.network.send_message(
-                codec.EMCY_BASE + self.node_id, codec.pack_emcy(codec.Emcy(code, self.error_register))
-            )
-        self._publish()
+        self._emcy(code)
 
     def _fault_reset(self) -> None:
         self.state = "SWITCH_ON_DISABLED"

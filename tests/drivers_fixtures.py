@@ -89,3 +89,12 @@ def arm(sim_drives, open_test_bus, sim_clock, cell_cfg):
     a.connect()
     yield a
     a.disconnect()
+
+
+def random_way(rng, scara):
+    """Two random poses (`Joints`) within J1's and J2's limits at J3 150 mm, J4 0: a way for the way checks'
+    tests (each draws J1, then J2, for the start, then for the target)."""
+    from cell.kinematics import Joints
+
+    a = Joints(rng.uniform(*scara.j1_deg), rng.uniform(*scara.j2_deg), 150.0, 0.0)
+    return a, Joints(rng.uniform(*scara.j1_deg), rng.uniform(*scara.j2_deg), 150.0, 0.0)

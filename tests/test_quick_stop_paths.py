@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from drivers_fixtures import *  # noqa: F403 - the bus, drives and arm fixtures
-from drivers_fixtures import needs_sim
+from drivers_fixtures import needs_sim, random_way
 
 from cell.cellconfig import QUICK_STOP_DECEL_FACTOR, default_cell
 from cell.kinematics import Joints, forward, tool_xy
@@ -49,8 +49,7 @@ def test_the_stops_are_looked_at_where_they_can_reach_the_edge_and_nowhere_is_on
     rng = np.random.default_rng(11)
     checked = refused = 0
     while checked < 400:
-        a = Joints(rng.uniform(*sc.j1_deg), rng.uniform(*sc.j2_deg), 150.0, 0.0)
-        b = Joints(rng.uniform(*sc.j1_deg), rng.uniform(*sc.j2_deg), 150.0, 0.0)
+        a, b = random_way(rng, sc)
         tool = forward(a, sc)
         if not ws.contains(tool.x_mm, tool.y_mm) or limits.command_violations(cell, b, None):
             continue

@@ -13,7 +13,7 @@ import json
 import numpy as np
 import pytest
 from drivers_fixtures import *  # noqa: F403 - the bus, drives and arm fixtures
-from drivers_fixtures import needs_sim
+from drivers_fixtures import needs_sim, random_way
 
 from cell.cellconfig import QUICK_STOP_DECEL_FACTOR, default_cell, default_cell_path, load_cell
 from cell.errors import BadInput
@@ -92,8 +92,7 @@ def test_the_tool_moves_no_further_than_the_bound_the_check_prunes_with():
     rng = np.random.default_rng(8)
     for lag in (0.005, 0.02, 0.1):
         for _ in range(60):
-            a = Joints(rng.uniform(*sc.j1_deg), rng.uniform(*sc.j2_deg), 150.0, 0.0)
-            b = Joints(rng.uniform(*sc.j1_deg), rng.uniform(*sc.j2_deg), 150.0, 0.0)
+            a, b = random_way(rng, sc)
             move, t, path, speed = coordinated_motion(sc, a, b, limits.PATH_STEP_DEG)
             rows = rng.choice(len(t), size=min(5, len(t)), replace=False)
             bound = quick_stop_reach_mm(sc, speed.take(rows, 0), QUICK_STOP_DECEL_FACTOR, lag)
@@ -110,8 +109,7 @@ def test_the_pruned_check_refuses_exactly_what_following_every_sample_refuses():
     rng = np.random.default_rng(12)
     checked = refused = 0
     while checked < 300:
-        a = Joints(rng.uniform(*sc.j1_deg), rng.uniform(*sc.j2_deg), 150.0, 0.0)
-        b = Joints(rng.uniform(*sc.j1_deg), rng.uniform(*sc.j2_deg), 150.0, 0.0)
+        a, b = random_way(rng, sc)
         tool = forward(a, sc)
         if not ws.contains(tool.x_mm, tool.y_mm) or limits.command_violations(_with_lag(cell, 0.0), b, a):
             continue  # refused for the pose, the path or a stop of every axis at once

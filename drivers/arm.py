@@ -134,6 +134,7 @@ class Arm:
         self._velocity_counts: dict[str, int] = {}
         self._connected = False
         self._pending: tuple[dict, float] = ({}, 0.0)
+        self._move_seqs: dict[str, int] = {}  # each axis' status_seq when the last move was commanded
         self.state_at_failure: dict | None = None
         self._watched_s: float | None = None  # when the watchdog last ran
         self._silence_from_s = -math.inf  # silence before this (a held-up watchdog) is not counted
@@ -355,7 +356,7 @@ class Arm:
                     emcy_code=ax.last_emcy.code if ax.last_emcy else None,
                 )
             if err is None and ax.name in self._pending[0]:
-                err = self._left_operation(ax, "during a move")
+                err = self._left_operation(ax, "during a move", self._move_seqs.get(ax.name))
             if (
                 err is None
                 and ax.last_heartbeat_s is not None
@@ -371,23 +372,35 @@ class Arm:
                 self._latch(err)
 
     @staticmethod
-    def _left_operation(ax: Axis, when: str) -> DriveDisabled | None:
+    def _left_operation(ax: Axis, when: str, since_seq: int | None = None) -> DriveDisabled | None:
         """An axis that left OPERATION ENABLED without a fault while the host still commands enable
         operation (a quick stop or STO from the drive's side, another master). During a move it will never
         arrive and the others must not go on alone; before one, the host's enable operation with the
         set-point would re-enable it (transition 16) behind that side's back. The host's own stops send
-        another command."""
+        another command. since_seq (the axis' status_seq when its move was commanded): also an axis that
+        left since then and is enabled again, by the move's release or another master (transition 16
+        drops the set-point: it stands while the others run)."""
         st = ax.status
-        if st is None or st.state == "OPERATION_ENABLED" or "FAULT" in st.state:
+        if st is None or "FAULT" in st.state or codec.command_of(ax.controlword) != "ENABLE_OPERATION":
             return None
-        if codec.command_of(ax.controlword) != "ENABLE_OPERATION":
+        if st.state != "OPERATION_ENABLED":
+            return DriveDisabled(
+                f"{ax.name} (node {ax.node_id}): left OPERATION ENABLED {when} without a fault, now in "
+                f"{st.state} (stopped from the drive's side: its quick stop input, STO or another master)",
+                node=ax.name,
+                node_id=ax.node_id,
+                state=st.state,
+            )
+        left = ax.left_operation
+        if since_seq is None or left is None or left[0] <= since_seq:
             return None
         return DriveDisabled(
-            f"{ax.name} (node {ax.node_id}): left OPERATION ENABLED {when} without a fault, now in "
-            f"{st.state} (stopped from the drive's side: its quick stop input, STO or another master)",
+            f"{ax.name} (node {ax.node_id}): left OPERATION ENABLED {when} (reported {left[1]}) and was enabled "
+            "again without its set-point (transition 16: the move's release or another master): it stands while "
+            "the others would run",
             node=ax.name,
             node_id=ax.node_id,
-            state=st.state,
+            state=left[1],
         )
 
     def _latch(self, err: DriverError, key: str | None = None) -> None:
@@ -596,6 +609,8 @@ class Arm:
             raise
 
     def _run_moves(self, targets: dict[str, int], *, wait: bool, timeout_s: float) -> None:
+        # every status after this that is not OPERATION ENABLED is the drive's side's doing (`_left_operation`)
+        self._move_seqs = {name: self.axes[name].status_seq for name in targets}
         if self.cell.can.coordinated_start and len(targets) > 1:
             self._start_together(targets)
         else:
@@ -634,7 +649,7 @@ class Arm:
         axis and raise it."""
         self._check_faults(during_move=True)
         for name in targets:
-            err = self._left_operation(self.axes[name], when)
+            err = self._left_operation(self.axes[name], when, self._move_seqs.get(name))
             if err is not None:
                 self._latch(err)
                 self._stop_all()

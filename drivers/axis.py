@@ -64,6 +64,9 @@ class Axis:
         self._cond = threading.Condition()
         self.status: codec.DriveStatus | None = None
         self.status_seq = 0
+        # (status_seq, state) of the last status outside OPERATION ENABLED: a drive stopped from its side and
+        # enabled again between two looks of the host (transition 16) shows it only here
+        self.left_operation: tuple[int, str] | None = None
         self.last_heartbeat_s: float | None = None
         self.nmt_state: int | None = None
         self.boot_count = 0
@@ -93,6 +96,8 @@ class Axis:
         with self._cond:
             self.status = status
             self.status_seq += 1
+            if status.state != "OPERATION_ENABLED":
+                self.left_operation = (self.status_seq, status.state)
             self._cond.notify_all()
 
     def _on_emcy(self, can_id, data, timestamp) -> None:

@@ -238,3 +238,39 @@ def test_an_axis_stopped_on_its_own_as_its_move_starts_stops_the_others_at_once(
     assert sim_drives.drives["j2"].state == "QUICK_STOP_ACTIVE"
     assert sim_clock.now() - t0 < 0.6  # the stops' ramps, no waiting for a start confirmation first
     assert abs(arm.joints().j1_deg - start.j1_deg) < 0.5  # J1 barely moved
+
+
+@pytest.mark.parametrize("axis", ["j1", "j2"])
+def test_an_axis_stopped_on_its_own_before_its_release_takes_stops_the_others_at_once(arm, sim_drives, sim_clock,
+                                                                                    monkeypatch, axis):
+    """The axis' quick stop input opens while it stands armed, and the host's release reaches it after: the
+    release's enable operation re-enables it (transition 16, 0x605A = 6) without its set-point, and the host
+    sees it in OPERATION ENABLED, standing. The host remembers the QUICK STOP ACTIVE it reported meanwhile and
+    stops the others at once, instead of waiting out the axis' start confirmation (0.2 s) while they ran."""
+    from drivers import DriveDisabled
+
+    release = Axis.release
+
+    def stopped_then_released(ax):
+        if ax.name == axis:
+            sim_drives.inject_fault("quick_stop", axis)
+            sim_clock.settle()  # the host heard QUICK STOP ACTIVE
+        seq = release(ax)
+        if ax.name == axis:
+            sim_clock.settle()  # the drive took the release: OPERATION ENABLED again, standing
+            assert sim_drives.drives[axis].state == "OPERATION_ENABLED" and ax.state == "OPERATION_ENABLED"
+        return seq
+
+    monkeypatch.setattr(Axis, "release", stopped_then_released)
+    sent = []
+    send = Axis.send_quick_stop
+    monkeypatch.setattr(Axis, "send_quick_stop", lambda ax: sent.append(ax.name) or send(ax))
+    start = arm.joints()
+    node = arm.axes[axis].node_id
+    with pytest.raises(DriveDisabled, match=rf"^{axis} \(node {node}\): left OPERATION ENABLED as its move started "
+                                            r"\(reported QUICK_STOP_ACTIVE\) and was enabled again without its set-point"):
+        arm.move_joints(Joints(start.j1_deg + 40.0, start.j2_deg - 90.0, start.j3_mm, start.j4_deg + 30.0))
+    other = "j2" if axis == "j1" else "j1"
+    assert other in sent and sim_drives.drives[other].state == "QUICK_STOP_ACTIVE"
+    assert abs(getattr(arm.joints(), f"{other}_deg") - getattr(start, f"{other}_deg")) < 0.5  # barely moved
+    assert set(arm.faults) == {axis}

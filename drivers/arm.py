@@ -684,7 +684,9 @@ class Arm:
                 raise
 
     def wait_idle(self) -> None:
-        """Wait (on the shared clock) until the last move's axes report target reached."""
+        """Wait (on the shared clock) until the last move's axes report target reached. Anything else that
+        ends the wait (Ctrl-C, an error in a look at the drives) quick-stops every axis and latches a stop
+        before it goes on up."""
         targets, deadline = self._pending
         try:
             while targets:
@@ -705,6 +707,13 @@ class Arm:
                     self._stop_all()
                     raise err
                 self.clock.sleep(self.poll_s)
+        except DriverError:
+            raise  # stopped and latched where it was raised
+        except BaseException:
+            # Ctrl-C, a bug in a look at the drives: the axes must not run on while the error goes up
+            self._stop_all()
+            self._latch(DriverError("waiting for a move was interrupted: every axis quick-stopped"), key="stop")
+            raise
         finally:
             self._pending = ({}, 0.0)
 

@@ -225,3 +225,32 @@ def test_an_interrupt_while_the_axes_take_their_set_points_leaves_none_armed(arm
     assert "stop" in arm.faults
     with pytest.raises(FaultLatched):
         arm.move_joints(joints)
+
+
+@pytest.mark.parametrize("error", [KeyboardInterrupt, RuntimeError])
+def test_an_interrupt_while_the_host_waits_for_a_move_stops_every_axis(arm, sim_drives, monkeypatch, error):
+    """Ctrl-C during the move, or an error in a look at the drives: the axes do not run on while it goes up
+    (before, they ran to their targets unless the caller stopped them); the stop is latched."""
+    from drivers import Arm, FaultLatched
+
+    watch, looks = Arm._watch, []
+
+    def fails_mid_move(self):
+        looks.append(self.clock.now())
+        if len(looks) == 20:  # 0.2 s into the move (a poll is 10 ms)
+            raise error("interrupted")
+        return watch(self)
+
+    monkeypatch.setattr(Arm, "_watch", fails_mid_move)
+    joints = arm.joints()
+    target = Joints(joints.j1_deg - 60.0, joints.j2_deg - 40.0, joints.j3_mm, joints.j4_deg)
+    with pytest.raises(error):
+        arm.move_joints(target)
+    arm.clock.sleep(1.0)  # a move of this length takes about 0.6 s more
+    stood = arm.joints()
+    assert {n: d.state for n, d in sim_drives.drives.items() if n != "gripper"} == dict.fromkeys(
+        ("j1", "j2", "j3", "j4"), "QUICK_STOP_ACTIVE")
+    assert 5.0 < joints.j1_deg - stood.j1_deg < 55.0  # stopped on the way, short of the target
+    assert "stop" in arm.faults
+    with pytest.raises(FaultLatched):
+        arm.move_joints(joints)

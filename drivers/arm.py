@@ -127,6 +127,7 @@ class Arm:
         self.gripper = Gripper(self)
         self._faults: dict[str, DriverError] = {}
         self._lock = threading.Lock()
+        self._watch_lock = threading.Lock()  # one `_watch` at a time
         self._emcy_seen: dict[str, int] = {}
         self._network: canopen.Network | None = None
         self._pump: BusPump | None = None
@@ -327,7 +328,13 @@ class Arm:
         return {**out, "fault": None if fault is None else str(fault)}
 
     def _watch(self) -> None:
-        """Periodic check of every node: heartbeat deadline, EMCY, FAULT state; and the host's receiving."""
+        """Periodic check of every node: heartbeat deadline, EMCY, FAULT state; and the host's receiving. One
+        look at a time (the watchdog's job and a waiting command both look): a look that finds an EMCY already
+        marked seen by the other, still on its way to latching it, would otherwise pass it for a poll."""
+        with self._watch_lock:
+            self._look()
+
+    def _look(self) -> None:
         now = self.clock.now()
         if self._pump is not None and self._pump.errors:  # the receive thread ended: the host hears nothing
             self._latch(BusFault(f"bus: receiving failed: {self._pump.errors[0]}"), key="bus")

@@ -3,6 +3,7 @@ and reason, stops the move on every axis, and nothing moves again until reset_fa
 
 from __future__ import annotations
 
+import can
 import pytest
 from drivers_fixtures import *  # noqa: F403 - the bus, drives and arm fixtures
 from drivers_fixtures import needs_sim
@@ -331,3 +332,47 @@ def test_every_drive_watches_the_host_as_soon_as_connect_returns(open_test_bus, 
         sim_clock.sleep(3.0 + 0.05)  # its deadline: 3 periods
         assert {n: d.error_code for n, d in drives.drives.items()} == dict.fromkeys(drives.drives, 0x8130)
         arm.disconnect()
+
+
+def test_two_looks_at_the_drives_at_once_do_not_pass_an_emcy_for_a_poll(arm, open_test_bus, sim_clock, monkeypatch):
+    """The watchdog's job and a waiting command both look at the drives. An EMCY (here one the drive sends
+    before its statusword says FAULT) that one look has marked seen but not yet latched must not let the other
+    look report all well: the looks take turns."""
+    import threading
+
+    from drivers import codec
+
+    latch, entered, go = Arm._latch, threading.Event(), threading.Event()
+
+    def slow_latch(self, err, key=None):
+        if getattr(err, "emcy_code", None) == 0x2310:
+            entered.set()
+            go.wait(2.0)  # the first look is between marking the EMCY seen and latching it
+        return latch(self, err, key)
+
+    monkeypatch.setattr(Arm, "_latch", slow_latch)
+    bus = open_test_bus()
+    bus.send(can.Message(arbitration_id=codec.EMCY_BASE + arm.axes["j2"].node_id,
+                         data=codec.pack_emcy(codec.Emcy(0x2310, 0x01)), is_extended_id=False))
+    sim_clock.settle()
+    assert arm.axes["j2"].last_emcy is not None and arm.axes["j2"].state == "OPERATION_ENABLED"
+    first = threading.Thread(target=arm._watch)
+    first.start()
+    assert entered.wait(2.0)
+    second_saw = []
+
+    def second_look():
+        arm._watch()
+        try:
+            arm._check_faults(during_move=False)
+            second_saw.append("all well")
+        except FaultLatched as e:
+            second_saw.append(str(e))
+
+    second = threading.Thread(target=second_look)
+    second.start()
+    second.join(0.2)  # it waits for the first look
+    go.set()
+    first.join(2.0)
+    second.join(2.0)
+    assert len(second_saw) == 1 and "EMCY 0x2310" in second_saw[0]

@@ -266,9 +266,9 @@ def test_an_axis_stopped_on_its_own_before_its_release_takes_stops_the_others_at
     send = Axis.send_quick_stop
     monkeypatch.setattr(Axis, "send_quick_stop", lambda ax: sent.append(ax.name) or send(ax))
     start = arm.joints()
-    node = arm.axes[axis].node_id
-    with pytest.raises(DriveDisabled, match=rf"^{axis} \(node {node}\): left OPERATION ENABLED as its move started "
-                                            r"\(reported QUICK_STOP_ACTIVE\) and was enabled again without its set-point"):
+    said = (rf"^{axis} \(node {arm.axes[axis].node_id}\): left OPERATION ENABLED as its move started \(reported "
+            r"QUICK_STOP_ACTIVE\) and was enabled again without its set-point")
+    with pytest.raises(DriveDisabled, match=said):
         arm.move_joints(Joints(start.j1_deg + 40.0, start.j2_deg - 90.0, start.j3_mm, start.j4_deg + 30.0))
     other = "j2" if axis == "j1" else "j1"
     assert other in sent and sim_drives.drives[other].state == "QUICK_STOP_ACTIVE"

@@ -60,6 +60,7 @@ HOST_NODE_ID = 0x7F  # the host's own heartbeat id (the drives watch it)
 # machine, a long pause of the process): heartbeats that arrived meanwhile may still be queued
 # behind it, so silence is counted from that run on, not from the last heartbeat handled
 WATCH_STARVED_SHARE = 0.5
+FRAMES_MS = MIN_STOP_LAG_MS - HOST_POLL_MS  # of the stop lag, the frames' time (the status in, the quick stops out)
 POSITION_TOLERANCE_COUNTS = 2
 # wall time an axis gets to show it started at the halt's release (its answer takes ms; meanwhile the axes
 # released before it run)
@@ -116,10 +117,10 @@ class Arm:
             cell.can.error_window_ms if error_window_ms is None else error_window_ms,
             classes_readable(bus),
         )
-        if not 0 < poll_s * 1000.0 <= cell.can.stop_lag_ms - (MIN_STOP_LAG_MS - HOST_POLL_MS):
+        if not 0 < poll_s * 1000.0 <= cell.can.stop_lag_ms - FRAMES_MS:
             # during a move the host answers one axis stopping on its own within a poll and the frames' time:
             # the way check (drivers.limits) follows the other axes on their way that long
-            raise ValueError(f"poll_s = {poll_s} s: must be more than 0 and, with {MIN_STOP_LAG_MS - HOST_POLL_MS} ms "
+            raise ValueError(f"poll_s = {poll_s} s: must be more than 0 and, with {FRAMES_MS:g} ms "
                              f"for the frames, no more than can.stop_lag_ms = {cell.can.stop_lag_ms:g} ms (the host "
                              "stops the other axes within a poll of one stopping on its own)")
         self.poll_s = poll_s
@@ -128,6 +129,11 @@ class Arm:
         self._faults: dict[str, DriverError] = {}
         self._lock = threading.Lock()
         self._watch_lock = threading.Lock()  # one `_watch` at a time
+        # the host's looks at the drives during moves (`look_timing`): the way check's stop model assumes
+        # one within can.stop_lag_ms less the frames' time of any drive stopping on its own
+        self._move_no, self._last_look = 0, (-1, 0.0)  # (the move it was in, when)
+        self._starting = False  # a move's axes take their set-points and start (before `_pending` holds it)
+        self._looks = {"looks": 0, "late": 0, "worst_gap_s": 0.0}
         self._emcy_seen: dict[str, int] = {}
         self._network: canopen.Network | None = None
         self._pump: BusPump | None = None
@@ -336,6 +342,7 @@ class Arm:
 
     def _look(self) -> None:
         now = self.clock.now()
+        self._time_look(now)
         if self._pump is not None and self._pump.errors:  # the receive thread ended: the host hears nothing
             self._latch(BusFault(f"bus: receiving failed: {self._pump.errors[0]}"), key="bus")
         with self._lock:
@@ -377,6 +384,31 @@ class Arm:
                 )
             if err is not None:
                 self._latch(err)
+
+    def _time_look(self, now: float) -> None:
+        """Count the looks during a move and how long the host went without one (`look_timing`)."""
+        if not (self._pending[0] or self._starting):
+            return
+        move, last_s = self._last_look
+        if move == self._move_no:
+            gap_s = now - last_s
+            self._looks["looks"] += 1
+            self._looks["late"] += gap_s > self._allowed_look_gap_s()
+            self._looks["worst_gap_s"] = max(self._looks["worst_gap_s"], gap_s)
+        self._last_look = (self._move_no, now)
+
+    def _allowed_look_gap_s(self) -> float:
+        return (self.cell.can.stop_lag_ms - FRAMES_MS) / 1000.0
+
+    def look_timing(self) -> dict:
+        """How promptly the host looked at the drives during moves: looks (after a move's first), late (gaps
+        longer than can.stop_lag_ms less FRAMES_MS: a drive stopping on its own then would have been
+        answered later than the way check's stop model has it, `drivers.limits`), the worst gap and the
+        allowed one (ms). A loaded host (Python keeps no deadline) shows here."""
+        with self._watch_lock:
+            return {"looks": self._looks["looks"], "late": self._looks["late"],
+                    "worst_gap_ms": round(1000.0 * self._looks["worst_gap_s"], 1),
+                    "allowed_gap_ms": round(1000.0 * self._allowed_look_gap_s(), 1)}
 
     @staticmethod
     def _left_operation(ax: Axis, when: str, since_seq: int | None = None) -> DriveDisabled | None:
@@ -618,12 +650,16 @@ class Arm:
     def _run_moves(self, targets: dict[str, int], *, wait: bool, timeout_s: float) -> None:
         # every status after this that is not OPERATION ENABLED is the drive's side's doing (`_left_operation`)
         self._move_seqs = {name: self.axes[name].status_seq for name in targets}
-        if self.cell.can.coordinated_start and len(targets) > 1:
-            self._start_together(targets)
-        else:
-            for name, counts in targets.items():
-                self._guarded(self.axes[name].start_move, counts)
-        self._pending = (targets, self.clock.now() + timeout_s)
+        self._move_no, self._starting = self._move_no + 1, True
+        try:
+            if self.cell.can.coordinated_start and len(targets) > 1:
+                self._start_together(targets)
+            else:
+                for name, counts in targets.items():
+                    self._guarded(self.axes[name].start_move, counts)
+            self._pending = (targets, self.clock.now() + timeout_s)
+        finally:
+            self._starting = False
         if wait:
             self.wait_idle()
 

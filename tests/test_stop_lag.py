@@ -274,3 +274,37 @@ def test_an_axis_stopped_on_its_own_before_its_release_takes_stops_the_others_at
     assert other in sent and sim_drives.drives[other].state == "QUICK_STOP_ACTIVE"
     assert abs(getattr(arm.joints(), f"{other}_deg") - getattr(start, f"{other}_deg")) < 0.5  # barely moved
     assert set(arm.faults) == {axis}
+
+
+@needs_sim
+def test_the_host_reports_looks_at_the_drives_later_than_the_lag_allows(arm, sim_drives, sim_clock):
+    """A host that keeps its poll looks at the drives within the lag all through a move; one that falls behind
+    (here: its watchdog gone and its wait polling every 30 ms, as a loaded machine might) is told in
+    `look_timing` and in `cell run`'s summary: the way check's stop model did not hold then."""
+    import io
+
+    from cell.commands.run import _print_summary
+
+    start = arm.joints()
+    away = Joints(start.j1_deg + 30.0, start.j2_deg - 30.0, start.j3_mm, start.j4_deg)
+    arm.move_joints(away)
+    kept = arm.look_timing()
+    assert kept["looks"] > 20 and kept["late"] == 0 and 0 < kept["worst_gap_ms"] <= 10.0
+    assert kept["allowed_gap_ms"] == 15.0  # can.stop_lag_ms 20 less 5 ms for the frames
+    for job in arm._jobs:
+        if job.name == "arm-watchdog":
+            job.cancel()
+    arm.poll_s = 0.03  # (Arm refuses this poll; a host falling behind keeps no poll at all)
+    arm.move_joints(start)
+    behind = arm.look_timing()
+    assert behind["late"] > 5  # (the start confirmation's own looks come sooner)
+    assert behind["worst_gap_ms"] == pytest.approx(30.0, abs=0.5)
+    summary = {"assembly": "a", "parts_removed": 0, "parts_total": 1, "status": "complete", "grasps": 0,
+               "parts": [], "host_looks": behind}
+    out = io.StringIO()
+    _print_summary(summary, out)
+    assert (f"host: {behind['late']} of {behind['looks']} looks at the drives during moves came later than 15 ms "
+            "after the one before (worst 30 ms)") in out.getvalue()
+    out = io.StringIO()
+    _print_summary({**summary, "host_looks": kept}, out)
+    assert "host:" not in out.getvalue()

@@ -171,6 +171,11 @@ def _print_summary(s: dict, out) -> None:
         classes = by_class_text(bus["by_class"])
         print(f"  CAN bus: {bus['error_frames']} error frame(s) ({classes}), {bus['errors']} counted"
               + (f"; {bus['fault']}" if bus.get("fault") else ""), file=out)
+    looks = s.get("host_looks") or {}
+    if looks.get("late"):  # a loaded host: a drive stopping on its own then was answered late
+        print(f"  host: {looks['late']} of {looks['looks']} looks at the drives during moves came later than "
+              f"{looks['allowed_gap_ms']:g} ms after the one before (worst {looks['worst_gap_ms']:g} ms): the way "
+              "check's stop model (can.stop_lag_ms) did not hold then", file=out)
     for k in ("recording", "rrd", "stopped"):
         if k in s:
             print(f"  {k}: {s[k]}", file=out)

@@ -296,6 +296,7 @@ def run_session(cfg: RunConfig) -> dict:
             summary = summary or loop.summary()
             summary.update(status=status)
             summary["can_bus"] = arm.bus_state()  # a shift's error frames, for the cell engineer (drivers.errorframes)
+            summary["host_looks"] = arm.look_timing()  # did the host keep the way check's stop lag (drivers.arm)
             if world is not None:
                 summary["sim_events"] = list(world.events)
             else:

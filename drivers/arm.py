@@ -141,7 +141,7 @@ class Arm:
         self._velocity_counts: dict[str, int] = {}
         self._connected = False
         self._pending: tuple[dict, float] = ({}, 0.0)
-        self._move_seqs: dict[str, int] = {}  # each axis' status_seq when the last move was commanded
+        self._move_seqs: dict[str, int] = {}  # each axis' status_seq when the last command began
         self.state_at_failure: dict | None = None
         self._watched_s: float | None = None  # when the watchdog last ran
         self._silence_from_s = -math.inf  # silence before this (a held-up watchdog) is not counted
@@ -333,16 +333,19 @@ class Arm:
             fault = self._faults.get("bus")
         return {**out, "fault": None if fault is None else str(fault)}
 
-    def _watch(self) -> None:
+    def _watch(self, stops: bool = False) -> None:
         """Periodic check of every node: heartbeat deadline, EMCY, FAULT state; and the host's receiving. One
         look at a time (the watchdog's job and a waiting command both look): a look that finds an EMCY already
-        marked seen by the other, still on its way to latching it, would otherwise pass it for a poll."""
+        marked seen by the other, still on its way to latching it, would otherwise pass it for a poll. stops: a
+        look after which the host stops the axes on what it found (a waiting command's; the watchdog's only
+        latches), timed for `look_timing`."""
         with self._watch_lock:
+            if stops:
+                self._time_look(self.clock.now())
             self._look()
 
     def _look(self) -> None:
         now = self.clock.now()
-        self._time_look(now)
         if self._pump is not None and self._pump.errors:  # the receive thread ended: the host hears nothing
             self._latch(BusFault(f"bus: receiving failed: {self._pump.errors[0]}"), key="bus")
         with self._lock:
@@ -393,7 +396,7 @@ class Arm:
         if move == self._move_no:
             gap_s = now - last_s
             self._looks["looks"] += 1
-            self._looks["late"] += gap_s > self._allowed_look_gap_s()
+            self._looks["late"] += gap_s > self._allowed_look_gap_s() + 1e-9  # (a poll of exactly the gap is on time)
             self._looks["worst_gap_s"] = max(self._looks["worst_gap_s"], gap_s)
         self._last_look = (self._move_no, now)
 
@@ -401,10 +404,12 @@ class Arm:
         return (self.cell.can.stop_lag_ms - FRAMES_MS) / 1000.0
 
     def look_timing(self) -> dict:
-        """How promptly the host looked at the drives during moves: looks (after a move's first), late (gaps
-        longer than can.stop_lag_ms less FRAMES_MS: a drive stopping on its own then would have been
-        answered later than the way check's stop model has it, `drivers.limits`), the worst gap and the
-        allowed one (ms). A loaded host (Python keeps no deadline) shows here."""
+        """How promptly the host looked at the drives during moves, counting the looks after which it stops the
+        axes on what it found (waiting for a move or for its start; not the watchdog's, which only latch):
+        looks (after a move's first), late (gaps longer than can.stop_lag_ms less FRAMES_MS: a drive stopping
+        on its own then would have been answered later than the way check's stop model has it,
+        `drivers.limits`), the worst gap and the allowed one (ms). A loaded host (Python keeps no deadline)
+        shows here on a real clock; on a simulated one the gaps are the poll by construction."""
         with self._watch_lock:
             return {"looks": self._looks["looks"], "late": self._looks["late"],
                     "worst_gap_ms": round(1000.0 * self._looks["worst_gap_s"], 1),
@@ -461,9 +466,11 @@ class Arm:
         connect; a drive that kept 1 or 2 ends in SWITCH ON DISABLED) and commands are refused until
         `reset_faults()`, which enables them from either."""
         if self._connected:
+            # latched first: a move starting in another thread meanwhile (the station's loop) is refused
+            # instead of releasing axes this stop has stopped
+            self._latch(DriverError("quick stop requested by the operator"), key="stop")
             self._stop_all()
             self._pending = ({}, 0.0)
-            self._latch(DriverError("quick stop requested by the operator"), key="stop")
 
     @staticmethod
     def _moving(ax) -> bool:
@@ -477,12 +484,16 @@ class Arm:
         its move alone once it takes it, after every other axis stopped. Every axis gets its quick stop
         first, back to back, and the confirmations are waited for after: the axes ramp down together (the
         way check's quick stops, `drivers.limits`), not one a round trip after the other."""
-        sent = {}
+        sent, surprise = {}, None
         for ax in self.axes.values():
             try:
                 sent[ax.name] = ax.send_quick_stop()
             except (can.CanError, DriverError):
                 pass  # stopping the others matters more than this one
+            except BaseException as e:  # Ctrl-C between two quick stops: the others get theirs first
+                surprise = surprise or e
+        if surprise is not None:
+            raise surprise
         for name, seq in sent.items():
             if seq is not None and name not in self._faults:
                 try:
@@ -565,6 +576,9 @@ class Arm:
         if self._pending[0]:
             self.wait_idle()
         self._check_faults(during_move=False)
+        # every status after this that is not OPERATION ENABLED is the drive's side's doing (`_left_operation`):
+        # taken before the look below, so that none slips in between it and the move's first frame
+        self._move_seqs = {name: ax.status_seq for name, ax in self.axes.items()}
         for ax in self.axes.values():
             err = self._left_operation(ax, "while idle")
             if err is not None:
@@ -648,44 +662,51 @@ class Arm:
             raise
 
     def _run_moves(self, targets: dict[str, int], *, wait: bool, timeout_s: float) -> None:
-        # every status after this that is not OPERATION ENABLED is the drive's side's doing (`_left_operation`)
-        self._move_seqs = {name: self.axes[name].status_seq for name in targets}
         self._move_no, self._starting = self._move_no + 1, True
         try:
             if self.cell.can.coordinated_start and len(targets) > 1:
                 self._start_together(targets)
             else:
                 for name, counts in targets.items():
+                    # one stopped from its side during an earlier axis' handshake: its own would re-enable it
+                    self._stop_on_faults(targets, "while the axes took their set-points")
                     self._guarded(self.axes[name].start_move, counts)
             self._pending = (targets, self.clock.now() + timeout_s)
+        except DriverError:
+            raise  # stopped and latched where it was raised
+        except BaseException:
+            # Ctrl-C (or any other surprise) while the axes take their set-points and start: none runs on, and
+            # none keeps a set-point that a later release would start
+            self._interrupted("a move was interrupted while its axes took their set-points or started")
+            raise
         finally:
             self._starting = False
         if wait:
             self.wait_idle()
+
+    def _interrupted(self, what: str) -> None:
+        """Something other than the drives' own errors (Ctrl-C, a bug) ended a move: the stop is latched
+        first (a second Ctrl-C during the stop leaves the commands refused all the same), then every axis
+        quick-stopped."""
+        self._latch(DriverError(f"{what}: every axis quick-stopped"), key="stop")
+        self._stop_all()
 
     def _start_together(self, targets: dict[str, int]) -> None:
         """Every axis takes its set-point under halt, then all are released back to back: they start within
         the release frames' time on the bus, as the way check (drivers.limits) has them. One after another,
         each axis would start a handshake's round trips (ms on real drives) after the one before, off the
         checked path, and run on alone while a later drive did not acknowledge."""
-        try:
-            for name, counts in targets.items():
-                self._guarded(self.axes[name].arm_move, counts)
-            # an armed axis stopped from the drive's side meanwhile (its quick stop input, STO, another
-            # master): the release (enable operation) would re-enable it behind that side's back (transition
-            # 16), without its set-point, and the others would run alone
-            self._stop_on_faults(targets, "while its set-point waited for the other axes")
-            seqs = {name: self._guarded(self.axes[name].release) for name in targets}
-            self._confirm_started(targets, seqs)
-        except DriverError:
-            raise  # stopped and latched where it was raised
-        except BaseException:
-            # Ctrl-C (or any other surprise) between arming and release: no axis keeps a set-point that a
-            # later release would start
-            self._stop_all()
-            self._latch(DriverError("a move was interrupted while its axes took their set-points: every axis "
-                                    "quick-stopped"), key="stop")
-            raise
+        for name, counts in targets.items():
+            # one stopped from its side since the command began: its handshake's enable operation would re-enable
+            # it (transition 16) without taking the set-point
+            self._stop_on_faults(targets, "while the axes took their set-points")
+            self._guarded(self.axes[name].arm_move, counts)
+        # an armed axis stopped from the drive's side meanwhile (its quick stop input, STO, another
+        # master): the release (enable operation) would re-enable it behind that side's back (transition
+        # 16), without its set-point, and the others would run alone
+        self._stop_on_faults(targets, "while its set-point waited for the other axes")
+        seqs = {name: self._guarded(self.axes[name].release) for name in targets}
+        self._confirm_started(targets, seqs)
 
     def _stop_on_faults(self, targets, when: str) -> None:
         """A latched fault, or an axis of `targets` that left OPERATION ENABLED on its own `when`: stop every
@@ -707,7 +728,7 @@ class Arm:
         while True:
             waiting = {n: c for n, c in waiting.items()
                        if not self.axes[n].has_started(seqs[n], c, POSITION_TOLERANCE_COUNTS)}
-            self._watch()
+            self._watch(stops=True)
             self._stop_on_faults(targets, "as its move started")
             if not waiting:
                 return
@@ -735,7 +756,7 @@ class Arm:
             while targets:
                 # every poll, not only at the watchdog's: an axis that stopped on its own (a fault, its quick
                 # stop input) is answered within a poll, as the way check's can.stop_lag_ms has it
-                self._watch()
+                self._watch(stops=True)
                 self._check_faults(during_move=True)
                 if all(self._arrived(self.axes[n], c) for n, c in targets.items()):
                     return
@@ -754,8 +775,7 @@ class Arm:
             raise  # stopped and latched where it was raised
         except BaseException:
             # Ctrl-C, a bug in a look at the drives: the axes must not run on while the error goes up
-            self._stop_all()
-            self._latch(DriverError("waiting for a move was interrupted: every axis quick-stopped"), key="stop")
+            self._interrupted("waiting for a move was interrupted")
             raise
         finally:
             self._pending = ({}, 0.0)

@@ -235,11 +235,11 @@ def test_an_interrupt_while_the_host_waits_for_a_move_stops_every_axis(arm, sim_
 
     watch, looks = Arm._watch, []
 
-    def fails_mid_move(self):
+    def fails_mid_move(self, stops=False):
         looks.append(self.clock.now())
         if len(looks) == 20:  # 0.2 s into the move (a poll is 10 ms)
             raise error("interrupted")
-        return watch(self)
+        return watch(self, stops)
 
     monkeypatch.setattr(Arm, "_watch", fails_mid_move)
     joints = arm.joints()
@@ -254,3 +254,105 @@ def test_an_interrupt_while_the_host_waits_for_a_move_stops_every_axis(arm, sim_
     assert "stop" in arm.faults
     with pytest.raises(FaultLatched):
         arm.move_joints(joints)
+
+
+def test_an_interrupt_during_one_by_one_starts_stops_the_axis_already_running(sim_drives, open_test_bus, sim_clock,
+                                                                               cell_cfg, monkeypatch):
+    """Without coordinated start each axis starts at its own handshake: a Ctrl-C at j2's leaves j1 running
+    unless the start is stopped as a whole (before, j1 ran on to its target with no stop latched)."""
+    from drivers import FaultLatched
+    from drivers.axis import Axis
+
+    cell = dataclasses.replace(cell_cfg, can=dataclasses.replace(cell_cfg.can, coordinated_start=False))
+    arm = Arm(open_test_bus(), cell, clock=sim_clock, sdo_timeout_s=0.2)
+    arm.connect()
+    try:
+        real = Axis.start_move
+
+        def start_move(ax, counts):
+            if ax.name == "j2":
+                raise KeyboardInterrupt
+            return real(ax, counts)
+
+        monkeypatch.setattr(Axis, "start_move", start_move)
+        joints = arm.joints()
+        with pytest.raises(KeyboardInterrupt):
+            arm.move_joints(Joints(joints.j1_deg - 60.0, joints.j2_deg - 20.0, joints.j3_mm, joints.j4_deg))
+        arm.clock.sleep(1.0)
+        assert sim_drives.drives["j1"].state == "QUICK_STOP_ACTIVE"
+        assert abs(joints.j1_deg - arm.joints().j1_deg) < 10.0  # stopped near where it started, not at -60
+        assert "stop" in arm.faults
+        with pytest.raises(FaultLatched):
+            arm.move_joints(joints)
+    finally:
+        arm.disconnect()
+
+
+def test_a_second_interrupt_during_the_stop_still_stops_every_axis_and_latches(arm, sim_drives, monkeypatch):
+    """Ctrl-C mid-move, then again between two axes' quick stops: every axis still gets its quick stop and the
+    stop is latched (before, the second one left j2 running and nothing latched: the next move was taken)."""
+    from drivers import Arm, FaultLatched
+    from drivers.axis import Axis
+
+    watch, looks = Arm._watch, []
+
+    def interrupted(self, stops=False):
+        looks.append(stops)
+        if looks.count(True) == 20:
+            raise KeyboardInterrupt
+        return watch(self, stops)
+
+    send, sent = Axis.send_quick_stop, []
+
+    def send_quick_stop(ax):
+        sent.append(ax.name)
+        if len(sent) == 1:
+            raise KeyboardInterrupt  # the second Ctrl-C, as j1's quick stop goes out
+        return send(ax)
+
+    monkeypatch.setattr(Arm, "_watch", interrupted)
+    monkeypatch.setattr(Axis, "send_quick_stop", send_quick_stop)
+    joints = arm.joints()
+    with pytest.raises(KeyboardInterrupt):
+        arm.move_joints(Joints(joints.j1_deg - 60.0, joints.j2_deg - 40.0, joints.j3_mm, joints.j4_deg))
+    assert sent == ["j1", "j2", "j3", "j4", "gripper"]
+    monkeypatch.setattr(Axis, "send_quick_stop", send)
+    arm.clock.sleep(1.0)
+    assert sim_drives.drives["j2"].state == "QUICK_STOP_ACTIVE"
+    assert "stop" in arm.faults
+    with pytest.raises(FaultLatched):
+        arm.move_joints(joints)
+
+
+@pytest.mark.parametrize("coordinated", [True, False])
+def test_an_axis_stopped_from_its_side_as_the_command_begins_is_caught_before_its_handshake(
+        sim_drives, open_test_bus, sim_clock, cell_cfg, monkeypatch, coordinated):
+    """j2's quick stop input opens after the command's look at the idle drives, while it reads the joints and
+    writes the speeds (SDO round trips on a real bus): before j2's handshake the host stops and says so (before,
+    the handshake's enable operation re-enabled j2 without its set-point, and the move failed a second later
+    blaming coordinated start)."""
+    from drivers import DriveDisabled
+
+    cell = dataclasses.replace(cell_cfg, can=dataclasses.replace(cell_cfg.can, coordinated_start=coordinated))
+    arm = Arm(open_test_bus(), cell, clock=sim_clock, sdo_timeout_s=0.2)
+    arm.connect()
+    try:
+        start = arm.joints()
+        joints, fired = Arm.joints, []
+
+        def joints_then_stopped(self):
+            out = joints(self)
+            if not fired:
+                fired.append(True)
+                sim_drives.inject_fault("quick_stop", "j2")
+                sim_clock.settle()
+            return out
+
+        monkeypatch.setattr(Arm, "joints", joints_then_stopped)
+        with pytest.raises(DriveDisabled, match=r"^j2 \(node 2\): left OPERATION ENABLED while the axes took their "
+                                                r"set-points without a fault, now in QUICK_STOP_ACTIVE"):
+            arm.move_joints(Joints(start.j1_deg + 20.0, start.j2_deg - 15.0, start.j3_mm, start.j4_deg + 30.0))
+        assert sim_drives.drives["j2"].state == "QUICK_STOP_ACTIVE"  # not re-enabled
+        assert set(arm.faults) == {"j2"}
+    finally:
+        arm.disconnect()

@@ -308,3 +308,21 @@ def test_the_host_reports_looks_at_the_drives_later_than_the_lag_allows(arm, sim
     out = io.StringIO()
     _print_summary({**summary, "host_looks": kept}, out)
     assert "host:" not in out.getvalue()
+
+
+@needs_sim
+def test_a_poll_of_exactly_the_allowed_gap_is_on_time(sim_drives, open_test_bus, sim_clock, cell_cfg):
+    """At the least lag the cell file allows (15 ms) the allowed gap is the poll (10 ms): looks a poll apart are on
+    time, whatever the float sums of the clock say."""
+    from drivers import Arm
+
+    arm = Arm(open_test_bus(), _with_lag(cell_cfg, 15.0), clock=sim_clock, sdo_timeout_s=0.2)
+    arm.connect()
+    try:
+        start = arm.joints()
+        arm.move_joints(Joints(start.j1_deg + 30.0, start.j2_deg - 30.0, start.j3_mm, start.j4_deg))
+        looks = arm.look_timing()
+        assert looks["looks"] > 20 and looks["allowed_gap_ms"] == 10.0 and looks["worst_gap_ms"] == 10.0
+        assert looks["late"] == 0
+    finally:
+        arm.disconnect()

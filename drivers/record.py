@@ -38,6 +38,10 @@ class BusRecorder:
         if self.path.suffix.lower() not in SUFFIXES:
             raise BadInput(f"CAN log {self.path}: use one of {', '.join(SUFFIXES)} (python-can's formats)")
         check_writable(self.path, "CAN log")  # was "[Errno 17] File exists: 'x'" for x.json/log.asc
+        if self.path.exists() or self.path.is_symlink():
+            # another session's log, a recording's can.log, the command's own cell file: none is written over
+            raise BadInput(f"CAN log {self.path} exists: a CAN log is never written over; give a new name or "
+                           "remove it first")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.clock = clock
         self.frames = 0

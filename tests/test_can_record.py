@@ -79,3 +79,24 @@ def test_golden_session_fixture_is_reproduced_frame_for_frame(tmp_path):
     assert len(got) == len(want) > 200
     for i, (a, b) in enumerate(zip(got, want, strict=True)):
         assert same_frame(a, b) and a.timestamp == pytest.approx(b.timestamp), f"frame {i}: {a} != {b}"
+
+
+@pytest.mark.parametrize("argv", [["status", "--json"], ["jog", "j3", "10"]])
+def test_hw_record_never_writes_over_a_file(tmp_path, capsys, argv):
+    """`cell hw ... --record FILE` onto an existing file (another log, a recording's can.log, the command's own
+    cell file) is refused before anything is sent, and the file is as it was (before, it was replaced, even by a
+    jog refused with exit 2)."""
+    from cell.cli import main
+
+    for name, content in (("old.log", b"precious\n"), ("cell.log", None)):
+        path = tmp_path / name
+        if content is None:  # the cell file itself, under a log's name
+            from cell.cellconfig import default_cell_path
+
+            content = default_cell_path().read_bytes()
+        path.write_bytes(content)
+        extra = ["--cell", str(path)] if name == "cell.log" else []
+        code = main(["hw", *argv, "--simulated-time", "--record", str(path), *extra])
+        err = capsys.readouterr().err
+        assert code == 2 and f"CAN log {path} exists: a CAN log is never written over" in err
+        assert "Traceback" not in err and path.read_bytes() == content

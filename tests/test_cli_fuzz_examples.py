@@ -24,3 +24,17 @@ def test_an_out_path_under_a_file_is_refused_before_the_session(tmp_path, capsys
                                 capsys=capsys)
     assert code == 2 and "is a file, not a folder" in err and "examples:" not in err, err
     assert (tmp_path / "f").read_text() == "x"
+
+
+@pytest.mark.parametrize("flag", ["--overwrite", "--append"])
+def test_generate_refuses_to_write_over_its_own_cell_file(tmp_path, capsys, flag):
+    # --overwrite replaced the cell file with example lines (exit 0); calibrate, render and run refuse it
+    from cell.cellconfig import default_cell_path
+
+    cell = tmp_path / "c.json"
+    cell.write_bytes(default_cell_path().read_bytes())
+    before = cell.read_bytes()
+    code, stdout, err = run_cli("examples", "generate", "--count", "2", "--seed", "1", flag, "--out", cell,
+                                "--cell", cell, capsys=capsys)
+    assert code == 2 and f"--out {cell} is one of the inputs: it would be overwritten" in err
+    assert cell.read_bytes() == before

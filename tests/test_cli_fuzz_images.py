@@ -91,3 +91,19 @@ def test_a_float_tiff_with_alpha_is_scaled_by_its_colours_not_its_alpha(tmp_path
     got = read_image(path, grey=grey)
     plane = got if grey else got[..., 2]
     assert plane[5:10, 5:10].min() == round(0.9 * 255) and plane.sum() == 25 * round(0.9 * 255)
+
+
+def test_an_image_wider_than_opencvs_remap_takes_is_bad_input(tmp_path, capsys):
+    # a 33000 x 600 frame with a part in it was exit 1, "internal error: ... dst.cols < SHRT_MAX in function 'remap'"
+    img = np.full((600, 33000), 200, np.uint8)
+    img[200:400, 1000:1300] = 40
+    path = tmp_path / "wide.png"
+    assert cv2.imwrite(str(path), img)
+    code, out, err = run_cli("segment", path, "--json", "--min-area-px", "100", capsys=capsys)
+    assert code == 2 and out == ""
+    assert f"image {path} is 33000 x 600 px: a side of more than 32766 px is beyond OpenCV's remap" in err
+    assert "internal error" not in err
+    ok = tmp_path / "ok.png"
+    assert cv2.imwrite(str(ok), img[:, :32766])  # the widest it takes
+    code, out, err = run_cli("segment", ok, "--json", "--min-area-px", "100", capsys=capsys)
+    assert code == 0, err

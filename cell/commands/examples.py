@@ -31,7 +31,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from cell.cellconfig import load_cell
-    from cell.commands._vision_args import count
+    from cell.commands._vision_args import count, refuse_out_over_an_input
     from cell.errors import BadInput
     from cell.examples import append_examples
     from cell.fileio import check_writable, replace_lines_atomic
@@ -46,6 +46,7 @@ def run(args) -> int:
     if out.exists() and out.is_dir():
         raise BadInput(f"--out {out} is a folder")
     check_writable(out, "--out")  # before the session, not after it
+    refuse_out_over_an_input(out, [args.cell])  # --overwrite replaced the cell file with examples
     families = [f.strip() for f in args.families.split(",") if f.strip()] if args.families else None
     if families == []:  # "," or " ": was an IndexError, not the whole library
         raise BadInput(f"--families {args.families!r} names no family")

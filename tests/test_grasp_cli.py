@@ -229,7 +229,8 @@ def test_bench_grasp_reports_the_cascade_against_the_brute_force(examples, capsy
     assert done and all(r["exact_checks_cascade"] < r["exact_checks_brute"] for r in done)
 
 
-@pytest.mark.parametrize("opt", [["--step-mm", "0"], ["--step-mm", "nan"], ["--gap-mm", "-1"]])
+@pytest.mark.parametrize("opt", [["--step-mm", "0"], ["--step-mm", "nan"], ["--step-mm", "1e18"], ["--step-mm", "21"],
+                                 ["--gap-mm", "-1"]])
 def test_bad_synthesis_options_are_bad_input(scene, examples, opt, capsys):
     code, out, err = run_cli("grasp", scene, "--json", "--examples", examples, *opt, capsys=capsys)
     assert code == 2 and "synthesis parameter" in err and out == ""

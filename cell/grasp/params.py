@@ -8,6 +8,7 @@ from dataclasses import dataclass, fields, replace
 from cell.errors import BadInput
 
 MIN_STEP_MM = 0.5
+MAX_STEP_MM = 20.0  # coarser, a 20 mm washer has three candidate points: no grasp (exit 3) for an absurd step
 
 
 @dataclass(frozen=True)
@@ -77,6 +78,9 @@ class SynthesisParams:
         if self.step_mm < MIN_STEP_MM:
             raise BadInput(f"synthesis parameter step_mm must be at least {MIN_STEP_MM:g} mm (all pairs of "
                            f"points are formed: a finer step costs memory with the square), got {self.step_mm:g}")
+        if self.step_mm > MAX_STEP_MM:
+            raise BadInput(f"synthesis parameter step_mm must be at most {MAX_STEP_MM:g} mm (a coarser step leaves "
+                           f"small parts a handful of candidate points), got {self.step_mm:g}")
         if not 0 < self.max_contact_skew_deg <= 90:
             raise BadInput(f"synthesis parameter max_contact_skew_deg must be in (0, 90] degrees, got "
                            f"{self.max_contact_skew_deg:g}")

@@ -22,6 +22,7 @@ Safety supervision, all in the host:
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import threading
@@ -664,32 +665,34 @@ class Arm:
     def _run_moves(self, targets: dict[str, int], *, wait: bool, timeout_s: float) -> None:
         self._move_no, self._starting = self._move_no + 1, True
         try:
-            if self.cell.can.coordinated_start and len(targets) > 1:
-                self._start_together(targets)
-            else:
-                for name, counts in targets.items():
-                    # one stopped from its side during an earlier axis' handshake: its own would re-enable it
-                    self._stop_on_faults(targets, "while the axes took their set-points")
-                    self._guarded(self.axes[name].start_move, counts)
-            self._pending = (targets, self.clock.now() + timeout_s)
-        except DriverError:
-            raise  # stopped and latched where it was raised
-        except BaseException:
-            # Ctrl-C (or any other surprise) while the axes take their set-points and start: none runs on, and
-            # none keeps a set-point that a later release would start
-            self._interrupted("a move was interrupted while its axes took their set-points or started")
-            raise
+            # (none runs on, and none keeps a set-point that a later release would start)
+            with self._stopped_if_interrupted("a move was interrupted while its axes took their set-points or started"):
+                if self.cell.can.coordinated_start and len(targets) > 1:
+                    self._start_together(targets)
+                else:
+                    for name, counts in targets.items():
+                        # one stopped from its side during an earlier axis' handshake: its own would re-enable it
+                        self._stop_on_faults(targets, "while the axes took their set-points")
+                        self._guarded(self.axes[name].start_move, counts)
+                self._pending = (targets, self.clock.now() + timeout_s)
         finally:
             self._starting = False
         if wait:
             self.wait_idle()
 
-    def _interrupted(self, what: str) -> None:
-        """Something other than the drives' own errors (Ctrl-C, a bug) ended a move: the stop is latched
-        first (a second Ctrl-C during the stop leaves the commands refused all the same), then every axis
-        quick-stopped."""
-        self._latch(DriverError(f"{what}: every axis quick-stopped"), key="stop")
-        self._stop_all()
+    @contextlib.contextmanager
+    def _stopped_if_interrupted(self, what: str):
+        """Something other than the drives' own errors (which stop and latch where they are raised) ending a move:
+        Ctrl-C, a bug. The stop is latched first (a second Ctrl-C during the stop leaves the commands refused all
+        the same), then every axis quick-stopped, and the error goes on up."""
+        try:
+            yield
+        except DriverError:
+            raise
+        except BaseException:
+            self._latch(DriverError(f"{what}: every axis quick-stopped"), key="stop")
+            self._stop_all()
+            raise
 
     def _start_together(self, targets: dict[str, int]) -> None:
         """Every axis takes its set-point under halt, then all are released back to back: they start within
@@ -753,30 +756,25 @@ class Arm:
         before it goes on up."""
         targets, deadline = self._pending
         try:
-            while targets:
-                # every poll, not only at the watchdog's: an axis that stopped on its own (a fault, its quick
-                # stop input) is answered within a poll, as the way check's can.stop_lag_ms has it
-                self._watch(stops=True)
-                self._check_faults(during_move=True)
-                if all(self._arrived(self.axes[n], c) for n, c in targets.items()):
-                    return
-                if self.clock.now() > deadline:
-                    late = [n for n, c in targets.items() if not self._arrived(self.axes[n], c)]
-                    err = MoveTimeout(
-                        f"{', '.join(late)}: target not reached in time",
-                        node=late[0],
-                        node_id=self.axes[late[0]].node_id,
-                    )
-                    self._latch(err)
-                    self._stop_all()
-                    raise err
-                self.clock.sleep(self.poll_s)
-        except DriverError:
-            raise  # stopped and latched where it was raised
-        except BaseException:
-            # Ctrl-C, a bug in a look at the drives: the axes must not run on while the error goes up
-            self._interrupted("waiting for a move was interrupted")
-            raise
+            with self._stopped_if_interrupted("waiting for a move was interrupted"):
+                while targets:
+                    # every poll, not only at the watchdog's: an axis that stopped on its own (a fault, its quick
+                    # stop input) is answered within a poll, as the way check's can.stop_lag_ms has it
+                    self._watch(stops=True)
+                    self._check_faults(during_move=True)
+                    if all(self._arrived(self.axes[n], c) for n, c in targets.items()):
+                        return
+                    if self.clock.now() > deadline:
+                        late = [n for n, c in targets.items() if not self._arrived(self.axes[n], c)]
+                        err = MoveTimeout(
+                            f"{', '.join(late)}: target not reached in time",
+                            node=late[0],
+                            node_id=self.axes[late[0]].node_id,
+                        )
+                        self._latch(err)
+                        self._stop_all()
+                        raise err
+                    self.clock.sleep(self.poll_s)
         finally:
             self._pending = ({}, 0.0)
 

@@ -35,6 +35,13 @@ START = Joints(98.0, -101.3, 150.0, 0.0)
 TARGET = Joints(-11.7, 48.5, 150.0, 0.0)
 
 
+def _quick_stops_sent(monkeypatch) -> list:
+    """The names of the axes the host sends a quick stop, in order, from now on."""
+    sent, send = [], Axis.send_quick_stop
+    monkeypatch.setattr(Axis, "send_quick_stop", lambda ax: sent.append(ax.name) or send(ax))
+    return sent
+
+
 def _with_lag(cell, lag_ms: float):
     return dataclasses.replace(cell, can=dataclasses.replace(cell.can, stop_lag_ms=lag_ms))
 
@@ -227,9 +234,7 @@ def test_an_axis_stopped_on_its_own_as_its_move_starts_stops_the_others_at_once(
         return seq
 
     monkeypatch.setattr(Axis, "release", release_then_stop)
-    sent = []
-    send = Axis.send_quick_stop
-    monkeypatch.setattr(Axis, "send_quick_stop", lambda ax: sent.append(ax.name) or send(ax))
+    sent = _quick_stops_sent(monkeypatch)
     start = arm.joints()
     t0 = sim_clock.now()
     with pytest.raises(DriveDisabled, match=r"^j2 \(node 2\): left OPERATION ENABLED as its move started"):
@@ -262,9 +267,7 @@ def test_an_axis_stopped_on_its_own_before_its_release_takes_stops_the_others_at
         return seq
 
     monkeypatch.setattr(Axis, "release", stopped_then_released)
-    sent = []
-    send = Axis.send_quick_stop
-    monkeypatch.setattr(Axis, "send_quick_stop", lambda ax: sent.append(ax.name) or send(ax))
+    sent = _quick_stops_sent(monkeypatch)
     start = arm.joints()
     said = (rf"^{axis} \(node {arm.axes[axis].node_id}\): left OPERATION ENABLED as its move started \(reported "
             r"QUICK_STOP_ACTIVE\) and was enabled again without its set-point")

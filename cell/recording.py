@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from cell.errors import BadInput
-from cell.fileio import check_readable, read_json, to_jsonable, write_atomic, write_json_atomic
+from cell.fileio import check_readable, json_loads, read_json, to_jsonable, write_atomic, write_json_atomic
 
 FORMAT = "cell-recording"
 VERSION = 1
@@ -423,7 +423,7 @@ class RecordingReader:
 
     def _parse_line(self, path: Path, lineno: int, line: bytes) -> dict:
         try:
-            rec = json.loads(line.decode("utf-8"), parse_constant=_no_constant)
+            rec = json_loads(line.decode("utf-8"), parse_constant=_no_constant)
         except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
             msg = (e.msg if isinstance(e, json.JSONDecodeError) else "not UTF-8" if isinstance(e, UnicodeDecodeError)
                    else "nested too deeply")  # json's decoder recurses per level: [[[[...]]]] 100000 deep

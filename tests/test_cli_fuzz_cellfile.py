@@ -150,3 +150,22 @@ def test_counts_that_round_to_32_bits_are_taken(tmp_path, capsys, edits):
     assert code == 0, err
     assert [json.loads(line)["state"] for line in out.splitlines()] == ["OPERATION_ENABLED"] * 5
 
+
+
+# ------------------------------------------------------------------ long values quoted short
+LONG = list(range(100_000))
+
+
+@pytest.mark.parametrize("edits, message", [
+    ([(("motion", "dropoff_mm"), LONG)], "motion.dropoff_mm must be a list of 3 numbers, got [0, 1, 2, 3, 4, 5, 6"),
+    ([(("scara", "j4_deg"), LONG)], "scara.j4_deg must be a list of 2 numbers, got [0, 1, 2, 3, 4, 5, 6, 7"),
+    ([(("can", "nodes", "j1", "unit"), "deg" * 100_000)], "can.nodes.j1.unit must be 'deg' (a revolute joint), "
+                                                           "got 'degdegdeg"),
+    ([(("motion", "x" * 100_000), 1)], "unknown key motion.'xxxxxxxx"),
+])
+def test_a_long_value_is_quoted_short(tmp_path, capsys, edits, message):
+    """The reader echoed the whole value: a dropoff_mm of 100000 numbers printed a 689 KB message."""
+    cell = _cell_file(tmp_path, edits)
+    code, out, err = run_cli("hw", "status", "--simulated-time", "--cell", cell, capsys=capsys)
+    assert code == 2 and message in err and out == "", err[:300]
+    assert len(err) < len(f"cell: error: cell file {cell}: ") + 250, err[:300]

@@ -30,6 +30,7 @@ MAX_VALUE = 1e6  # any number in the file (mm, deg, s, ms, bit/s) but counts_per
 # an 80:1 gear is 1.9e6 counts/deg): its bound is what the drives' 32-bit objects hold (_check_drive_counts)
 # the smallest side, the most pixels (100 MP: above any machine-vision camera a cell would use)
 CAMERA_PX = (16, 100_000_000)
+MAX_CAMERA_SIDE_PX = 32767  # OpenCV's remap (segmentation samples the frames with it): sides under SHRT_MAX
 # How the drivers derive the drives' settings from the cell file (here, so the file's checks see them too)
 HEARTBEAT_DEADLINE_FACTOR = 3.0  # a node is silent after this many of its heartbeat periods
 GRIPPER_ACCEL_FACTOR = 10.0  # gripper acceleration = this x its speed, per second
@@ -258,6 +259,10 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
     if min(camera.width_px, camera.height_px) < CAMERA_PX[0] or camera.width_px * camera.height_px > CAMERA_PX[1]:
         raise BadInput(f"cell file {source}: camera {camera.width_px} x {camera.height_px} px: each side at least "
                        f"{CAMERA_PX[0]} px, at most {CAMERA_PX[1] / 1e6:g} MP in all")
+    if max(camera.width_px, camera.height_px) >= MAX_CAMERA_SIDE_PX:
+        raise BadInput(f"cell file {source}: camera {camera.width_px} x {camera.height_px} px: each side must be "
+                       f"less than {MAX_CAMERA_SIDE_PX} px (OpenCV's remap limit; segmentation samples the frames "
+                       "with remap)")
     cn = r.obj(raw, "can")
     nodes_raw = r.obj(cn, "nodes", "can")
     nodes = {}

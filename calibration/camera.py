@@ -218,7 +218,10 @@ class Calibration:
         """Pixels -> the homography's plane coordinates (base x, y; on a tilted plane its own 2D frame); pixels
         beyond the plane's horizon (on the other side from the image centre) refused."""
         centre = np.array([[self.width_px / 2.0, self.height_px / 2.0]])
-        return _apply_h(self.homography, uv, centre)
+        try:
+            return _apply_h(self.homography, uv, centre)
+        except BadInput as e:  # as the pose's refusal: which calibration
+            raise BadInput(f"calibration {self.name!r}: {e}") from None
 
     def _h_from_plane(self, ab: np.ndarray) -> np.ndarray:
         """The homography's plane coordinates -> pixels; points beyond the horizon refused (`_h_to_plane`)."""

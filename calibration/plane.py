@@ -24,7 +24,7 @@ from calibration.camera import HALF_PX, Calibration, pose_matrix
 from calibration.intrinsics import aruco_dictionary
 from calibration.tilted import TiltedPlane, fit_plane
 from cell.errors import BadInput
-from cell.fileio import has_non_number
+from cell.fileio import has_non_number, short_repr
 from cell.scene import MAX_COORD_MM
 
 PLANE_TOLERANCE_MM = 5.0  # the points' z may differ this much and still count as one horizontal plane:
@@ -78,16 +78,23 @@ def parse_markers(raw, source: str) -> tuple[str, dict[int, np.ndarray]]:
         try:
             mid = int(key)
         except ValueError:
-            raise BadInput(f"{source}: marker id {key!r} is not an integer") from None
+            raise BadInput(f"{source}: marker id {short_repr(key)} is not an integer") from None
         if not 0 <= mid < n_ids:  # it could never be detected: it was reported as 'not found'
-            raise BadInput(f"{source}: marker id {key} is not in {dictionary} (ids 0..{n_ids - 1})")
+            shown = key if len(key) <= 40 else short_repr(key)
+            raise BadInput(f"{source}: marker id {shown} is not in {dictionary} (ids 0..{n_ids - 1})")
         try:
             arr = np.array(corners, dtype=float)
-        except (TypeError, ValueError, OverflowError):  # OverflowError: an integer beyond a float
+        except OverflowError:  # an integer beyond a float
+            raise BadInput(f"{source}: marker {key}: corners must be 4 points [x, y, z] in mm of finite numbers "
+                           "(one is too large)") from None
+        except (TypeError, ValueError):
             raise BadInput(f"{source}: marker {key}: corners must be 4 points [x, y, z] in mm") from None
-        if arr.shape != (4, 3) or not np.all(np.isfinite(arr)):
+        if arr.shape != (4, 3):
             raise BadInput(f"{source}: marker {key}: corners must be 4 points [x, y, z] in mm, got shape "
                            f"{arr.shape}")
+        if not np.all(np.isfinite(arr)):  # NaN, Infinity: the file reader takes them
+            bad = float(arr[~np.isfinite(arr)][0])
+            raise BadInput(f"{source}: marker {key}: corners must be finite numbers (mm), got {short_repr(bad)}")
         if np.abs(arr).max() > MAX_COORD_MM:  # as in scene files; 1e300 overflowed the fit
             raise BadInput(f"{source}: marker {key}: corners must be within {MAX_COORD_MM:g} mm of the base")
         x, y = arr[:, 0], arr[:, 1]

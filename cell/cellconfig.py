@@ -30,6 +30,7 @@ MAX_VALUE = 1e6  # any number in the file (mm, deg, s, ms, bit/s) but counts_per
 # an 80:1 gear is 1.9e6 counts/deg): its bound is what the drives' 32-bit objects hold (_check_drive_counts)
 # the smallest side, the most pixels (100 MP: above any machine-vision camera a cell would use)
 CAMERA_PX = (16, 100_000_000)
+MAX_CAMERA_SIDE_PX = 32767  # OpenCV's remap (segmentation samples the frames with it): sides under SHRT_MAX
 # How the drivers derive the drives' settings from the cell file (here, so the file's checks see them too)
 HEARTBEAT_DEADLINE_FACTOR = 3.0  # a node is silent after this many of its heartbeat periods
 GRIPPER_ACCEL_FACTOR = 10.0  # gripper acceleration = this x its speed, per second
@@ -213,7 +214,7 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
     if raw.get("format", FORMAT) != FORMAT:
         raise BadInput(f"cell file {source}: 'format' must be {FORMAT!r}")
     if r.num(raw, "version") != 1:
-        raise BadInput(f"cell file {source}: unsupported version {raw.get('version')!r} (this build reads 1)")
+        raise BadInput(f"cell file {source}: unsupported version {short_repr(raw.get('version'))} (this build reads 1)")
     s = r.obj(raw, "scara")
     scara = Scara(
         l1_mm=r.pos(s, "l1_mm", "scara"),
@@ -258,6 +259,10 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
     if min(camera.width_px, camera.height_px) < CAMERA_PX[0] or camera.width_px * camera.height_px > CAMERA_PX[1]:
         raise BadInput(f"cell file {source}: camera {camera.width_px} x {camera.height_px} px: each side at least "
                        f"{CAMERA_PX[0]} px, at most {CAMERA_PX[1] / 1e6:g} MP in all")
+    if max(camera.width_px, camera.height_px) >= MAX_CAMERA_SIDE_PX:
+        raise BadInput(f"cell file {source}: camera {camera.width_px} x {camera.height_px} px: each side must be "
+                       f"less than {MAX_CAMERA_SIDE_PX} px (OpenCV's remap limit; segmentation samples the frames "
+                       "with remap)")
     cn = r.obj(raw, "can")
     nodes_raw = r.obj(cn, "nodes", "can")
     nodes = {}
@@ -268,8 +273,9 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
             raise BadInput(f"cell file {source}: can.nodes.{name}.node_id must be 1..127, got {node_id}")
         unit = n.get("unit")
         if unit != NODE_UNITS[name]:  # CONTRACT: J1, J2, J4 in degrees, J3 and the gripper in mm
-            raise BadInput(f"cell file {source}: can.nodes.{name}.unit must be {NODE_UNITS[name]!r} "
-                           f"({'a revolute joint' if NODE_UNITS[name] == 'deg' else 'a linear axis'}), got {unit!r}")
+            kind = "a revolute joint" if NODE_UNITS[name] == "deg" else "a linear axis"
+            raise BadInput(f"cell file {source}: can.nodes.{name}.unit must be {NODE_UNITS[name]!r} ({kind}), "
+                           f"got {short_repr(unit)}")
         nodes[name] = CanNode(name, node_id, unit, r.pos(n, "counts_per_unit", f"can.nodes.{name}", cap=math.inf))
     if len({n.node_id for n in nodes.values()}) != len(nodes):
         raise BadInput(f"cell file {source}: can.nodes have duplicate node ids")
@@ -380,7 +386,8 @@ def _check_keys(d, where: str, source: str) -> None:
     unknown = sorted(k for k in set(d) - set(_KEYS[where]) if not _is_note(k))
     if unknown:
         at = f"{where}." if where else ""
-        raise BadInput(f"cell file {source}: unknown key {at}{unknown[0]} (known: {', '.join(_KEYS[where])})")
+        key = unknown[0] if len(unknown[0]) <= 40 and unknown[0].isprintable() else short_repr(unknown[0])
+        raise BadInput(f"cell file {source}: unknown key {at}{key} (known: {', '.join(_KEYS[where])})")
     for k, v in d.items():
         _check_keys(v, f"{where}.{k}" if where else k, source)
 
@@ -414,19 +421,19 @@ class _Reader:
         """A whole number (1280 or 1280.0); 0.5 is not silently cut to 0."""
         v = self.num(d, key, where)
         if not v.is_integer():
-            self._fail(where, key, f"must be a whole number, got {v}")
+            self._fail(where, key, f"must be a whole number, got {short_repr(v)}")
         return int(v)
 
     def count(self, d, key, where=""):
         v = self.integer(d, key, where)
         if v <= 0:
-            self._fail(where, key, f"must be positive, got {v}")
+            self._fail(where, key, f"must be positive, got {short_repr(v)}")
         return v
 
     def pos(self, d, key, where="", cap: float = MAX_VALUE):
         v = self.num(d, key, where, cap)
         if v <= 0:
-            self._fail(where, key, f"must be positive, got {v}")
+            self._fail(where, key, f"must be positive, got {short_repr(v)}")
         return v
 
     def flag(self, d, key, where="", *, default: bool) -> bool:
@@ -441,19 +448,19 @@ class _Reader:
     def nonneg(self, d, key, where=""):
         v = self.num(d, key, where)
         if v < 0:
-            self._fail(where, key, f"must not be negative, got {v}")
+            self._fail(where, key, f"must not be negative, got {short_repr(v)}")
         return v
 
     def vec(self, d, key, n, where=""):
         v = d.get(key)
         if not isinstance(v, list) or len(v) != n:
-            self._fail(where, key, f"must be a list of {n} numbers, got {v!r}")
+            self._fail(where, key, f"must be a list of {n} numbers, got {short_repr(v)}")
         return [self.num({f"{key}[{i}]": x}, f"{key}[{i}]", where) for i, x in enumerate(v)]
 
     def range(self, d, key, where=""):
         lo, hi = self.vec(d, key, 2, where)
         if not lo < hi:
-            self._fail(where, key, f"must be [low, high] with low < high, got {[lo, hi]}")
+            self._fail(where, key, f"must be [low, high] with low < high, got {short_repr([lo, hi])}")
         return (lo, hi)
 
     def per_joint(self, d, key):

@@ -36,6 +36,7 @@ from cell.fileio import (
     append_lines_atomic,
     has_non_number,
     is_finite_number,
+    json_loads,
     read_text,
     refuse_lone_surrogates,
     unique_keys,
@@ -187,7 +188,7 @@ def _parse_examples(text: str, path: Path, allow_empty: bool) -> list[GraspExamp
         if not line.strip():
             continue
         try:
-            raw = json.loads(line, object_pairs_hook=unique_keys)
+            raw = json_loads(line, object_pairs_hook=unique_keys)
         except json.JSONDecodeError as e:
             raise BadInput(f"example file {path} line {lineno}: not valid JSON ({e.msg})") from None
         except DuplicateKey as e:

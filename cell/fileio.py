@@ -127,6 +127,39 @@ def unique_keys(pairs: list) -> dict:
     return out
 
 
+MAX_JSON_INT_DIGITS = 4300  # what int() converts by default (sys.get_int_max_str_digits): no cell value comes close
+
+
+class _NumberTooLarge(ValueError):
+    pass
+
+
+def _parse_json_int(s: str) -> int:
+    if len(s) - s.startswith("-") > MAX_JSON_INT_DIGITS:
+        raise _NumberTooLarge(s)
+    return int(s)
+
+
+def json_loads(text: str, **kw):
+    """json.loads for the user's files: an integer of more than MAX_JSON_INT_DIGITS digits is a
+    JSONDecodeError ("a number too large", at the number's line and column) that the callers report as
+    any other invalid JSON; json.loads itself raises a plain ValueError (int()'s digit limit) there."""
+    try:
+        return json.loads(text, parse_int=_parse_json_int, **kw)
+    except _NumberTooLarge as e:
+        digits = str(e.args[0])
+        pos = 0
+        for m in re.finditer(re.escape(digits), text):  # the number's place (not digits inside a string)
+            before = text[m.start() - 1] if m.start() else " "
+            after = text[m.end()] if m.end() < len(text) else " "
+            if before in "[,: \t\r\n" and after in "]}, \t\r\n":
+                pos = m.start()
+                break
+        n = len(digits) - digits.startswith("-")
+        raise json.JSONDecodeError(f"a number too large: {n} digits, at most {MAX_JSON_INT_DIGITS}",
+                                   text, pos) from None
+
+
 MAX_JSON_BYTES = 256 * 2**20  # a scene of 200 parts drawn every 0.02 mm is 12 MB
 
 
@@ -171,7 +204,7 @@ def read_json(path: str | os.PathLike, what: str):
     path = Path(path)
     text = read_text(path, what)
     try:
-        obj = json.loads(text, object_pairs_hook=unique_keys)
+        obj = json_loads(text, object_pairs_hook=unique_keys)
     except json.JSONDecodeError as e:
         raise BadInput(f"{what} {path} is not valid JSON: {e.msg} at line {e.lineno} column {e.colno}") from None
     except DuplicateKey as e:

@@ -38,7 +38,15 @@ from pathlib import Path
 import numpy as np
 
 from cell.errors import BadInput
-from cell.fileio import check_readable, read_json, to_jsonable, write_atomic, write_json_atomic
+from cell.fileio import (
+    check_readable,
+    json_loads,
+    read_json,
+    short_repr,
+    to_jsonable,
+    write_atomic,
+    write_json_atomic,
+)
 
 FORMAT = "cell-recording"
 VERSION = 1
@@ -349,6 +357,10 @@ class RecordingReader:
         for key in ("decisions", "frames"):  # "14" for 14 gave "holds 14 decisions, the manifest says 14"
             if key in counts and (isinstance(counts[key], bool) or not isinstance(counts[key], int)):
                 raise BadInput(f"{mpath}: 'counts.{key}' must be a whole number, not {counts[key]!r}")
+        at_close = m.get("can_frames_at_close", 0)  # absent in recordings made before replay checked it
+        if isinstance(at_close, bool) or not isinstance(at_close, int) or at_close < 0:  # else the check is skipped
+            raise BadInput(f"{mpath}: 'can_frames_at_close' must be a whole number of CAN frames (0 or more), "
+                           f"not {short_repr(at_close)}")
         if m["status"] != "recording":  # a closed manifest states its counts: they must match
             if counts.get("decisions") != len(self.decisions):
                 raise BadInput(f"recording {self.dir}: {DECISIONS} holds {len(self.decisions)} decisions, "
@@ -423,7 +435,7 @@ class RecordingReader:
 
     def _parse_line(self, path: Path, lineno: int, line: bytes) -> dict:
         try:
-            rec = json.loads(line.decode("utf-8"), parse_constant=_no_constant)
+            rec = json_loads(line.decode("utf-8"), parse_constant=_no_constant)
         except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
             msg = (e.msg if isinstance(e, json.JSONDecodeError) else "not UTF-8" if isinstance(e, UnicodeDecodeError)
                    else "nested too deeply")  # json's decoder recurses per level: [[[[...]]]] 100000 deep

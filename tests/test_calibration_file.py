@@ -226,6 +226,43 @@ def test_homography_refuses_points_beyond_the_horizon():
         cal.mm_to_px([[0, 2000]])  # the point it maps to: its "image" (0, -2000) lies beyond the horizon
 
 
+@pytest.mark.parametrize("px", ["1e300,1e300", "-100000,5", "-641,0", "0,961", "1281,0"])
+def test_map_refuses_pixels_more_than_an_image_size_outside_the_image(tmp_path, capsys, px):
+    """With a homography (no pose to say a pixel looks past the plane) 1e300,1e300 printed a point
+    (-489, -27417) mm, exit 0; -100000,5 too."""
+    path = _homography_file(tmp_path, [[0.5, 0, 100], [0, 0.5, -200], [0, 0, 1.0]])
+    code, out, err = run_cli("map", path, "--px", "320,240", px, "--json", capsys=capsys)
+    assert code == 2 and out == "", err
+    assert err.strip() == (f"cell: error: --px {px}: pixels must be within one image size of the calibration's "
+                           "640 x 480 px images (u -640..1280, v -480..960)")
+
+
+def test_map_takes_pixels_up_to_an_image_size_outside_the_image(tmp_path, capsys):
+    path = _homography_file(tmp_path, np.eye(3).tolist())
+    code, out, err = run_cli("map", path, "--px", "-640,-480", "1280,960", "--json", capsys=capsys)
+    assert code == 0, err
+    assert json.loads(out)["mm"] == [[-640, -480], [1280, 960]]
+
+
+@pytest.mark.parametrize("px, message", [
+    ("10,-400", "--px 10,-400: calibration 'h': some points lie beyond the plane's horizon"),
+    ("10,-333.3333", "--px 10,-333.3333: the pixel maps to a point more than 1e+06 mm from the base (at the "
+                     "plane's horizon)"),
+])
+def test_map_refuses_pixels_at_or_beyond_the_homography_horizon(tmp_path, capsys, px, message):
+    """A tilted view whose horizon is the image line v = -333.3 (w = 0), inside the bound of an image size."""
+    path = _homography_file(tmp_path, [[1.0, 0, 0], [0, 1.0, 0], [0, 0.003, 1.0]])
+    code, out, err = run_cli("map", path, "--px", "320,240", px, "--json", capsys=capsys)
+    assert code == 2 and out == "" and message in err and err.count("\n") == 1, err
+
+
+def test_map_puts_a_plane_the_calibration_cannot_map_on_no_pixel(tmp_path, capsys):
+    """A --z the homography has no mapping for fails at every pixel: the message names no pixel."""
+    path = _homography_file(tmp_path, np.eye(3).tolist())
+    code, out, err = run_cli("map", path, "--px", "320,240", "--z", "5", "--json", capsys=capsys)
+    assert code == 2 and err.startswith("cell: error: calibration 'h' is a homography for the plane z = 0"), err
+
+
 @pytest.mark.parametrize("dist", [[1e10, 0, 0, 0, 0], [0, 0, 0, 0, -1e6]])
 def test_a_distortion_that_no_lens_has_is_refused(tmp_path, dist):
     # dist[0] = 1e10 was read, and mapped every pixel to about one point on the table

@@ -206,9 +206,16 @@ def test_markers_in_a_mirrored_frame_give_no_calibration(tmp_path, capsys):
     ("{not json", "not valid JSON"),
     # an integer no float holds was an internal error (OverflowError); 1e300 mm is no place in the cell
     ('{"dictionary": "DICT_4X4_50", "markers": {"0": [[1%s, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]}}' % ("0" * 400),
-     "corners must be 4 points"),
+     "corners must be 4 points [x, y, z] in mm of finite numbers (one is too large)"),
     ({"dictionary": "DICT_4X4_50", "markers": {"0": [[1e300, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]}},
      "within 1e+06 mm of the base"),
+    # was: "corners must be 4 points [x, y, z] in mm, got shape (4, 3)" (the shape is right)
+    ('{"dictionary": "DICT_4X4_50", "markers": {"0": [[NaN, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]}}',
+     "marker 0: corners must be finite numbers (mm), got nan"),
+    ('{"dictionary": "DICT_4X4_50", "markers": {"0": [[0, 0, 0], [1, 0, 0], [1, 1, -Infinity], [0, 1, 0]]}}',
+     "marker 0: corners must be finite numbers (mm), got -inf"),
+    ({"dictionary": "DICT_4X4_50", "markers": {"x" * 1000: [[0, 0, 0]] * 4}},
+     "marker id '" + "x" * 36 + "... is not an integer"),
 ])
 @needs_photos
 def test_bad_markers_files(tmp_path, capsys, content, match):

@@ -23,6 +23,34 @@ def test_an_example_line_nested_too_deeply_is_bad_input(tmp_path, capsys, line):
     assert err.strip() == f"cell: error: example file {path} line 2: not valid JSON (nested too deeply)"
 
 
+def test_an_example_line_holding_an_integer_of_too_many_digits_is_bad_input(tmp_path, capsys):
+    """Was: internal error (ValueError: Exceeds the limit (4300 digits) for integer string conversion), exit 1."""
+    path = tmp_path / "ex.jsonl"
+    big = json.dumps(_example("b").to_json())
+    big = '{"grasp_z_mm": ' + "9" * 5000 + ", " + big[1:]
+    path.write_text(json.dumps(_example("a").to_json()) + "\n" + big + "\n")
+    code, out, err = run_cli("rules", "--examples", path, capsys=capsys)
+    assert code == 2 and out == "", err
+    assert err.strip() == (f"cell: error: example file {path} line 2: not valid JSON (a number too large: "
+                           "5000 digits, at most 4300)")
+
+
+@pytest.mark.parametrize("command", [["grasp"], ["plan"], ["run"], ["grasp", "SIMPLE", "--cell"],
+                                     ["run", "--cell"]])
+def test_a_json_integer_of_too_many_digits_is_bad_input(tmp_path, capsys, command):
+    """A scene, assembly or cell file with an integer of 5000 digits: was an internal error (json.loads' plain
+    ValueError), exit 1."""
+    simple = tmp_path / "simple.json"
+    simple.write_text(json.dumps({"units": "mm", "parts": [{"id": "box", "outline": [[330, -20], [370, -20],
+                                  [370, 20], [330, 20]], "z_bottom": 0, "z_top": 12}], "target": "box"}))
+    path = tmp_path / "big.json"
+    path.write_text('{"units": "mm", "parts": [{"id": "a", "outline": [[' + "9" * 5000 + ", -20]]}]}")
+    args = [simple if a == "SIMPLE" else a for a in command]
+    code, out, err = run_cli(*args, path, capsys=capsys)
+    assert code == 2 and "internal error" not in err, err
+    assert f"{path} is not valid JSON: a number too large: 5000 digits, at most 4300 at line 1 column 52" in err
+
+
 @pytest.mark.parametrize("char", ["\u2028", "\u2029", "\x85"])
 def test_an_example_line_holding_a_unicode_line_separator_is_one_line(tmp_path, char):
     """JSON strings may hold U+2028, U+2029 and U+0085 unescaped; str.splitlines() cut the line there and

@@ -38,6 +38,9 @@ CPU = ("can", "nodes", "j4", "counts_per_unit")
     ([(("camera", "width_px"), 1e6)], "camera 1000000 x 1024 px"),
     ([(("camera", "height_px"), 100000)], "at most 100 MP in all"),
     ([(("camera", "width_px"), 8)], "each side at least 16 px"),
+    # `cell run` was an internal error in segmentation (cv2.error: dst.cols < SHRT_MAX in function 'remap')
+    ([(("camera", "width_px"), 40000), (("camera", "height_px"), 1000)],
+     "camera 40000 x 1000 px: each side must be less than 32767 px (OpenCV's remap limit"),
     ([(("camera", "height_mm"), 1e308)], "camera.height_mm must be within"),  # was ZeroDivisionError
     # `cell hw status`: internal errors at bring-up (the drives' objects are 16 and 32 bits)
     ([(("can", "heartbeat_ms"), 1e6)], "can.heartbeat_ms = 1000000 is more than 65535 ms"),
@@ -94,6 +97,8 @@ def _refused(edits, message):
 @pytest.mark.parametrize("edits", [
     [(("camera", "width_px"), 10_000), (("camera", "height_px"), 10_000)],  # 100 MP exactly
     [(("camera", "width_px"), 16), (("camera", "height_px"), 16)],  # the smallest side
+    [(("camera", "width_px"), 32766), (("camera", "height_px"), 1000)],  # the longest side OpenCV's remap takes
+    [(("camera", "width_px"), 1000), (("camera", "height_px"), 32766)],
     [(("can", "heartbeat_ms"), 0xFFFF), (("can", "host_heartbeat_ms"), 0xFFFF // 3)],  # 16 bits, 3 x 21845
     [(("gripper", "speed_mm_s"), 0.001)],  # exactly one count/s (1000 counts per mm)
     [(("scara", "j4_deg"), [-1e6, 1e6])],  # the bound of any number
@@ -106,6 +111,8 @@ def test_numbers_on_the_bounds_are_taken(edits):
     ([(("camera", "width_px"), 10_000), (("camera", "height_px"), 10_001)], "at most 100 MP in all"),
     ([(("camera", "width_px"), 1280), (("camera", "height_px"), 15)], "each side at least 16 px"),
     ([(("camera", "width_px"), 15), (("camera", "height_px"), 1024)], "each side at least 16 px"),
+    ([(("camera", "width_px"), 32767), (("camera", "height_px"), 1000)], "each side must be less than 32767 px"),
+    ([(("camera", "width_px"), 1000), (("camera", "height_px"), 32767)], "each side must be less than 32767 px"),
     ([(("can", "heartbeat_ms"), 0x10000)], "can.heartbeat_ms = 65536 is more than 65535 ms"),
     ([(("can", "host_heartbeat_ms"), 21846)], "can.host_heartbeat_ms = 21846 is more than 21845 ms"),
     ([(("scara", "j4_deg"), [-1e9, 360])], "scara.j4_deg[0] must be within +-1e+06"),  # negative too
@@ -150,3 +157,22 @@ def test_counts_that_round_to_32_bits_are_taken(tmp_path, capsys, edits):
     assert code == 0, err
     assert [json.loads(line)["state"] for line in out.splitlines()] == ["OPERATION_ENABLED"] * 5
 
+
+
+# ------------------------------------------------------------------ long values quoted short
+LONG = list(range(100_000))
+
+
+@pytest.mark.parametrize("edits, message", [
+    ([(("motion", "dropoff_mm"), LONG)], "motion.dropoff_mm must be a list of 3 numbers, got [0, 1, 2, 3, 4, 5, 6"),
+    ([(("scara", "j4_deg"), LONG)], "scara.j4_deg must be a list of 2 numbers, got [0, 1, 2, 3, 4, 5, 6, 7"),
+    ([(("can", "nodes", "j1", "unit"), "deg" * 100_000)], "can.nodes.j1.unit must be 'deg' (a revolute joint), "
+                                                           "got 'degdegdeg"),
+    ([(("motion", "x" * 100_000), 1)], "unknown key motion.'xxxxxxxx"),
+])
+def test_a_long_value_is_quoted_short(tmp_path, capsys, edits, message):
+    """The reader echoed the whole value: a dropoff_mm of 100000 numbers printed a 689 KB message."""
+    cell = _cell_file(tmp_path, edits)
+    code, out, err = run_cli("hw", "status", "--simulated-time", "--cell", cell, capsys=capsys)
+    assert code == 2 and message in err and out == "", err[:300]
+    assert len(err) < len(f"cell: error: cell file {cell}: ") + 250, err[:300]

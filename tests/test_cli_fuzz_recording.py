@@ -44,7 +44,23 @@ def _deep_decision_line(d: Path):
     (d / "decisions.jsonl").write_text("\n".join(lines) + "\n")
 
 
+def _big_integer_in_manifest(d: Path):
+    text = (d / "manifest.json").read_text()
+    (d / "manifest.json").write_text(text.replace('"version": 1,', '"version": 1, "zz": ' + "9" * 5000 + ",", 1))
+
+
+def _big_integer_in_a_decision(d: Path):
+    lines = (d / "decisions.jsonl").read_text().splitlines()
+    lines[0] = '{"zz": ' + "9" * 5000 + ", " + lines[0][1:]
+    (d / "decisions.jsonl").write_text("\n".join(lines) + "\n")
+
+
 @pytest.mark.parametrize("damage, message", [
+    # was: internal error (ValueError: Exceeds the limit (4300 digits) for integer string conversion)
+    (_big_integer_in_manifest, "manifest.json is not valid JSON: a number too large: 5000 digits, at most 4300 "
+                               "at line 3 column 23"),
+    (_big_integer_in_a_decision, "decisions.jsonl line 1: not valid JSON (a number too large: 5000 digits, "
+                                 "at most 4300)"),
     # was: internal error (RecursionError)
     (_deep_decision_line, "decisions.jsonl line 4: not valid JSON (nested too deeply)"),
     # was: read as a recording made before the planner was kept, then "divergence" (exit 1)

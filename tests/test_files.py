@@ -307,6 +307,18 @@ def test_json_nested_too_deeply_is_bad_input_not_a_recursion_error(tmp_path):
             load(path)
 
 
+def test_json_integer_of_too_many_digits_is_bad_input_not_a_value_error(tmp_path):
+    """json.loads raised a plain ValueError (int()'s limit of 4300 digits): an internal error, exit 1."""
+    path = tmp_path / "big.json"
+    path.write_text('{"units": "mm",\n "parts": [[' + "9" * 5000 + ", -20]]}")
+    from calibration import load_calibration
+
+    for load in (load_scene, load_assembly, load_cell, load_calibration):  # every file read by read_json
+        with pytest.raises(BadInput, match=r"big.json is not valid JSON: a number too large: 5000 digits, "
+                                           r"at most 4300 at line 2 column 13"):
+            load(path)
+
+
 def test_files_starting_with_a_utf8_bom_are_read(tmp_path):
     # editors on Windows start UTF-8 files with a byte order mark; it is not content
     bom = "\ufeff"

@@ -327,6 +327,36 @@ def test_replay_refuses_a_can_log_cut_off_at_a_line_boundary(tmp_path, capsys):
     assert code == 2 and f"holds {n // 2} CAN frames, the manifest says it held {n}" in err
 
 
+@pytest.mark.parametrize("value, shown", [('"many"', "'many'"), ("1e300", "1e+300"), ("NaN", "nan"), ("-1", "-1"),
+                                          ("3151.5", "3151.5"), ("true", "True"), ("null", "None")])
+@pytest.mark.parametrize("cut", [False, True], ids=["whole-log", "cut-log"])
+def test_replay_refuses_a_manifest_whose_can_frames_at_close_is_not_a_count(tmp_path, capsys, value, shown, cut):
+    """Was: the truncation check skipped; a log cut at a line boundary replayed as a divergence (exit 1), a whole
+    one was accepted without a word."""
+    d = _copy_of_shipped(tmp_path)
+    text = (d / "manifest.json").read_text()
+    assert '"can_frames_at_close": 3152' in text
+    (d / "manifest.json").write_text(text.replace('"can_frames_at_close": 3152', f'"can_frames_at_close": {value}'))
+    if cut:
+        lines = (d / "can.log").read_bytes().split(b"\n")
+        (d / "can.log").write_bytes(b"\n".join(lines[:3000]) + b"\n")
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 2, err
+    assert err.strip() == (f"cell: error: {d / 'manifest.json'}: 'can_frames_at_close' must be a whole number of "
+                           f"CAN frames (0 or more), not {shown}")
+
+
+def test_replay_takes_a_manifest_without_can_frames_at_close_as_made_before_the_key(tmp_path, capsys):
+    """Recordings made before the manifest counted the CAN frames (and sessions that crashed before the close
+    wrote it) have no key: replayed without the truncation check, as before."""
+    d = _copy_of_shipped(tmp_path)
+    m = json.loads((d / "manifest.json").read_text())
+    del m["can_frames_at_close"]
+    (d / "manifest.json").write_text(json.dumps(m))
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 0, err
+
+
 @pytest.mark.parametrize("damage, match", [
     (lambda d: (d / "session.rrd").unlink(), "session.rrd is missing"),
     (lambda d: (d / "session.rrd").write_bytes(b"\x00" * 64), "session.rrd is not a rerun recording"),

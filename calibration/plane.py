@@ -102,6 +102,8 @@ def parse_markers(raw, source: str) -> tuple[str, dict[int, np.ndarray]]:
         if area < MIN_MARKER_AREA_MM2:  # four equal corners fitted to nothing (a copy-paste slip)
             raise BadInput(f"{source}: marker {key}: its corners enclose {area:.3g} mm2 on the plane; a marker's "
                            "4 corners are the corners of its square")
+        if mid in out:  # "0" and "00": one marker written twice, one of the two silently dropped
+            raise BadInput(f"{source}: marker id {short_repr(key)} names marker {mid} a second time")
         out[mid] = arr
     return dictionary, out
 

@@ -216,6 +216,10 @@ def test_markers_in_a_mirrored_frame_give_no_calibration(tmp_path, capsys):
      "marker 0: corners must be finite numbers (mm), got -inf"),
     ({"dictionary": "DICT_4X4_50", "markers": {"x" * 1000: [[0, 0, 0]] * 4}},
      "marker id '" + "x" * 36 + "... is not an integer"),
+    # "0" and "00" are one marker: one of the two was silently dropped
+    ({"dictionary": "DICT_4X4_50", "markers": {"0": [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]],
+                                               "00": [[5, 0, 0], [6, 0, 0], [6, 1, 0], [5, 1, 0]]}},
+     "marker id '00' names marker 0 a second time"),
 ])
 @needs_photos
 def test_bad_markers_files(tmp_path, capsys, content, match):
@@ -381,6 +385,7 @@ def test_map_cli_both_ways_with_negative_coordinates(capsys):
 @pytest.mark.parametrize("args, match", [
     (["--px", "1,2,3"], "two numbers"),
     (["--px", "a,b"], "two numbers"),
+    (["--px", "1" * 100000 + ",x"], "two numbers A,B (got '" + "1" * 36 + "...)"),  # was all 100 kB of it
     (["--mm", "1,nan"], "finite"),
     (["--px", "1,2", "--z", "nan"], "--z must be a finite number"),
     (["--px", "1,2", "--z", "inf"], "--z must be a finite number"),

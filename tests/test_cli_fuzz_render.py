@@ -32,8 +32,8 @@ def _files(tmp_path):
     (["--out", "scene.json"], "OpenCV writes no '.json' images"),
     (["--out", "adir"], "--out adir is a directory, not a file"),  # was: [Errno 21] naming a temp file
     (["--out", "scene.json/frame.png"], "scene.json is a file, not a folder"),  # was: [Errno 17] File exists
-    (["--out", "frame.png", "--truth", "frame.png"], "--truth frame.png is one of the inputs"),  # was: exit 0,
-    # the frame replaced by the truth JSON
+    # was: exit 0, the frame replaced by the truth JSON
+    (["--out", "frame.png", "--truth", "frame.png"], "--truth frame.png is also --out: the image and its outlines"),
     (["--out", "frame.png", "--truth", "scene.json"], "--truth scene.json is one of the inputs"),  # was: the
     # scene replaced by the truth JSON
     (["--out", "frame.png", "--calibration", "cal.json", "--truth", "cal.json"], "--truth cal.json is one of"),

@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 
 from cell.errors import BadInput
+from cell.fileio import short_repr
 
 # let "-120.5,30" or "-1e2,5" be a value, not an option (argparse only knows plain negative numbers)
 _NUM = r"(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
@@ -19,13 +20,13 @@ def pair(text: str, what: str) -> tuple[float, float]:
     """'12.5,-3' -> (12.5, -3.0); anything else is bad input naming `what`."""
     parts = str(text).split(",")
     if len(parts) != 2:
-        raise BadInput(f"{what} must be two numbers A,B (got {text!r})")
+        raise BadInput(f"{what} must be two numbers A,B (got {short_repr(text)})")
     try:
         a, b = float(parts[0]), float(parts[1])
     except ValueError:
-        raise BadInput(f"{what} must be two numbers A,B (got {text!r})") from None
+        raise BadInput(f"{what} must be two numbers A,B (got {short_repr(text)})") from None
     if not all(map(_finite, (a, b))):
-        raise BadInput(f"{what} must be finite numbers (got {text!r})")
+        raise BadInput(f"{what} must be finite numbers (got {short_repr(text)})")
     return a, b
 
 
@@ -34,16 +35,16 @@ def numbers(text: str, n: int, what: str) -> list[float]:
     try:
         vals = [float(x) for x in parts]
     except ValueError:
-        raise BadInput(f"{what} must be {n} comma-separated numbers (got {text!r})") from None
+        raise BadInput(f"{what} must be {n} comma-separated numbers (got {short_repr(text)})") from None
     if len(vals) != n or not all(map(_finite, vals)):
-        raise BadInput(f"{what} must be {n} comma-separated finite numbers (got {text!r})")
+        raise BadInput(f"{what} must be {n} comma-separated finite numbers (got {short_repr(text)})")
     return vals
 
 
 def grid(text: str, what: str) -> tuple[int, int]:
     m = re.fullmatch(r"\s*(\d+)\s*[xX,]\s*(\d+)\s*", str(text))
     if not m or int(m.group(1)) < 2 or int(m.group(2)) < 2:
-        raise BadInput(f"{what} must be COLSxROWS with both at least 2, e.g. 9x6 (got {text!r})")
+        raise BadInput(f"{what} must be COLSxROWS with both at least 2, e.g. 9x6 (got {short_repr(text)})")
     return int(m.group(1)), int(m.group(2))
 
 

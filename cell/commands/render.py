@@ -77,4 +77,6 @@ def _check_outputs(args, inputs) -> None:
     refuse_out_over_an_input(args.out, inputs)
     if args.truth:
         check_writable(args.truth, "--truth")
-        refuse_out_over_an_input(args.truth, [*inputs, args.out], "--truth")
+        refuse_out_over_an_input(args.truth, inputs, "--truth")
+        if Path(args.truth).resolve() == Path(args.out).resolve():  # (the other output, not an input)
+            raise BadInput(f"--truth {args.truth} is also --out: the image and its outlines need two files")

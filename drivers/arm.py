@@ -133,7 +133,6 @@ class Arm:
         # the host's looks at the drives during moves (`look_timing`): the way check's stop model assumes
         # one within can.stop_lag_ms less the frames' time of any drive stopping on its own
         self._move_no, self._last_look = 0, (-1, 0.0)  # (the move it was in, when)
-        self._starting = False  # a move's axes take their set-points and start (before `_pending` holds it)
         self._looks = {"looks": 0, "late": 0, "worst_gap_s": 0.0}
         self._emcy_seen: dict[str, int] = {}
         self._network: canopen.Network | None = None
@@ -341,12 +340,12 @@ class Arm:
         look after which the host stops the axes on what it found (a waiting command's; the watchdog's only
         latches), timed for `look_timing`."""
         with self._watch_lock:
+            now = self.clock.now()
             if stops:
-                self._time_look(self.clock.now())
-            self._look()
+                self._time_look(now)
+            self._look(now)
 
-    def _look(self) -> None:
-        now = self.clock.now()
+    def _look(self, now: float) -> None:
         if self._pump is not None and self._pump.errors:  # the receive thread ended: the host hears nothing
             self._latch(BusFault(f"bus: receiving failed: {self._pump.errors[0]}"), key="bus")
         with self._lock:
@@ -390,9 +389,8 @@ class Arm:
                 self._latch(err)
 
     def _time_look(self, now: float) -> None:
-        """Count the looks during a move and how long the host went without one (`look_timing`)."""
-        if not (self._pending[0] or self._starting):
-            return
+        """Count the looks during a move and how long the host went without one (`look_timing`). Only a move's
+        start and the wait for it look with `stops`: every such look is during one."""
         move, last_s = self._last_look
         if move == self._move_no:
             gap_s = now - last_s
@@ -663,20 +661,17 @@ class Arm:
             raise
 
     def _run_moves(self, targets: dict[str, int], *, wait: bool, timeout_s: float) -> None:
-        self._move_no, self._starting = self._move_no + 1, True
-        try:
-            # (none runs on, and none keeps a set-point that a later release would start)
-            with self._stopped_if_interrupted("a move was interrupted while its axes took their set-points or started"):
-                if self.cell.can.coordinated_start and len(targets) > 1:
-                    self._start_together(targets)
-                else:
-                    for name, counts in targets.items():
-                        # one stopped from its side during an earlier axis' handshake: its own would re-enable it
-                        self._stop_on_faults(targets, "while the axes took their set-points")
-                        self._guarded(self.axes[name].start_move, counts)
-                self._pending = (targets, self.clock.now() + timeout_s)
-        finally:
-            self._starting = False
+        self._move_no += 1
+        # (none runs on, and none keeps a set-point that a later release would start)
+        with self._stopped_if_interrupted("a move was interrupted while its axes took their set-points or started"):
+            if self.cell.can.coordinated_start and len(targets) > 1:
+                self._start_together(targets)
+            else:
+                for name, counts in targets.items():
+                    # one stopped from its side during an earlier axis' handshake: its own would re-enable it
+                    self._stop_on_faults(targets, "while the axes took their set-points")
+                    self._guarded(self.axes[name].start_move, counts)
+            self._pending = (targets, self.clock.now() + timeout_s)
         if wait:
             self.wait_idle()
 

@@ -24,7 +24,7 @@ from calibration.camera import HALF_PX, Calibration, pose_matrix
 from calibration.intrinsics import aruco_dictionary
 from calibration.tilted import TiltedPlane, fit_plane
 from cell.errors import BadInput
-from cell.fileio import has_non_number, short_repr
+from cell.fileio import has_non_number, short_repr, short_text
 from cell.scene import MAX_COORD_MM
 
 PLANE_TOLERANCE_MM = 5.0  # the points' z may differ this much and still count as one horizontal plane:
@@ -80,8 +80,7 @@ def parse_markers(raw, source: str) -> tuple[str, dict[int, np.ndarray]]:
         except ValueError:
             raise BadInput(f"{source}: marker id {short_repr(key)} is not an integer") from None
         if not 0 <= mid < n_ids:  # it could never be detected: it was reported as 'not found'
-            shown = key if len(key) <= 40 else short_repr(key)
-            raise BadInput(f"{source}: marker id {shown} is not in {dictionary} (ids 0..{n_ids - 1})")
+            raise BadInput(f"{source}: marker id {short_text(key)} is not in {dictionary} (ids 0..{n_ids - 1})")
         try:
             arr = np.array(corners, dtype=float)
         except OverflowError:  # an integer beyond a float

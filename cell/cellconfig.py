@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from cell.errors import BadInput
-from cell.fileio import is_finite_number, read_json, short_repr
+from cell.fileio import is_finite_number, read_json, short_repr, short_text
 
 FORMAT = "disassembly-cell/cell"
 # Joints nearer the contacts say more about the kind of grasp (paper section 7): the wrist
@@ -386,8 +386,8 @@ def _check_keys(d, where: str, source: str) -> None:
     unknown = sorted(k for k in set(d) - set(_KEYS[where]) if not _is_note(k))
     if unknown:
         at = f"{where}." if where else ""
-        key = unknown[0] if len(unknown[0]) <= 40 and unknown[0].isprintable() else short_repr(unknown[0])
-        raise BadInput(f"cell file {source}: unknown key {at}{key} (known: {', '.join(_KEYS[where])})")
+        raise BadInput(f"cell file {source}: unknown key {at}{short_text(unknown[0])} (known: "
+                       f"{', '.join(_KEYS[where])})")
     for k, v in d.items():
         _check_keys(v, f"{where}.{k}" if where else k, source)
 

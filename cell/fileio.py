@@ -304,6 +304,12 @@ def short_repr(v) -> str:
     return r if len(r) <= 40 else r[:37] + "..."
 
 
+def short_text(text: str) -> str:
+    """A name or an option's text as an error message shows it: as given when short and printable, else
+    short_repr's 40 characters."""
+    return text if len(text) <= 40 and text.isprintable() else short_repr(text)
+
+
 def has_non_number(v) -> bool:
     """Is there a true/false or a string anywhere in this JSON value's nested lists? (numpy reads True
     as 1 and "100" as 100: a matrix or a point given as [true, 0] or ["100", 0] must be refused, not

@@ -21,16 +21,10 @@ def add_arguments(p) -> None:
     p.add_argument("--json", action="store_true", help="print a JSON object")
 
 
-def _shown(text: str) -> str:
-    """An option's value as a message quotes it: as given, or short_repr's 40 characters when longer."""
-    from cell.fileio import short_repr
-
-    return text if len(text) <= 40 else short_repr(text)
-
-
 def run(args) -> int:
     from calibration import load_calibration
     from cell.errors import BadInput
+    from cell.fileio import short_text
     from cell.scene import MAX_COORD_MM
 
     plane_z(args.z)
@@ -40,7 +34,7 @@ def run(args) -> int:
         w, h = cal.width_px, cal.height_px
         far = [t for t, (u, v) in zip(args.px, pts, strict=True) if not (-w <= u <= 2 * w and -h <= v <= 2 * h)]
         if far:  # 1e300,1e300 was mapped through the homography to a point (-489, -27417) mm, exit 0
-            raise BadInput(f"--px {_shown(far[0])}: pixels must be within one image size of the "
+            raise BadInput(f"--px {short_text(far[0])}: pixels must be within one image size of the "
                            f"calibration's {w} x {h} px images (u {-w}..{2 * w}, v {-h}..{2 * h})")
         try:
             res = cal.px_to_mm(pts, args.z)
@@ -50,11 +44,11 @@ def run(args) -> int:
                 try:
                     cal.px_to_mm([p], args.z)
                 except BadInput:
-                    raise BadInput(f"--px {_shown(t)}: {e}") from None
+                    raise BadInput(f"--px {short_text(t)}: {e}") from None
             raise
         far = [t for t, p in zip(args.px, res, strict=True) if max(map(abs, p)) > MAX_COORD_MM]
         if far:  # a pixel just short of the horizon: a point kilometres away
-            raise BadInput(f"--px {_shown(far[0])}: the pixel maps to a point more than "
+            raise BadInput(f"--px {short_text(far[0])}: the pixel maps to a point more than "
                            f"{MAX_COORD_MM:g} mm from the base (at the plane's horizon)")
         key = "mm"
     else:

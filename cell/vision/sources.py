@@ -15,10 +15,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from cell.cellconfig import MAX_CAMERA_SIDE_PX
 from cell.errors import BadInput
 from cell.fileio import check_readable
-
-MAX_SIDE_PX = 32766  # cv2.remap asserts dst.cols < SHRT_MAX (32767)
 
 
 def read_image(path: str | Path, grey: bool = False) -> np.ndarray:
@@ -50,9 +49,10 @@ def read_image(path: str | Path, grey: bool = False) -> np.ndarray:
         raise BadInput(f"image {path} is corrupt (the decoder says: {damage[0]})")
     if as_is and img.ndim == 3 and img.shape[2] in (2, 4):  # alpha is no brightness: off before scaling
         img = img[..., :img.shape[2] - 1]  # (a float alpha of 255 made colours in [0, 1] nearly black)
-    if max(img.shape[:2]) > MAX_SIDE_PX:  # (a blank one passed only because nothing was found in it)
-        raise BadInput(f"image {path} is {img.shape[1]} x {img.shape[0]} px: a side of more than {MAX_SIDE_PX} px is "
-                       "beyond OpenCV's remap, which the segmentation uses (SHRT_MAX); crop or scale it")
+    if max(img.shape[:2]) >= MAX_CAMERA_SIDE_PX:  # (a blank one passed only because nothing was found in it)
+        raise BadInput(f"image {path} is {img.shape[1]} x {img.shape[0]} px: a side of more than "
+                       f"{MAX_CAMERA_SIDE_PX - 1} px is beyond OpenCV's remap, which the segmentation uses (SHRT_MAX); "
+                       "crop or scale it")
     img = _to_uint8(img, path)
     return _with_channels(img, grey, path) if as_is else img
 

@@ -171,6 +171,7 @@ class Arm:
                 n.unit,
                 sdo_timeout_s=self.sdo_timeout_s,
             )
+            self.axes[name].move_gate = self._unless_latched
         self._pump = BusPump(self.bus, [self._network.listeners[0], self._on_frame], name="arm-rx")
         self.clock.add_settler(self._pump.settle)
         host_period_s = self.cell.can.host_heartbeat_ms / 1000.0
@@ -447,11 +448,23 @@ class Arm:
         )
 
     def _latch(self, err: DriverError, key: str | None = None) -> None:
-        """Remember the first fault per node ('bus' for the bus, 'stop' for an operator's stop)."""
+        """Remember the first fault per node ('bus' for the bus, 'stop' for an operator's stop). One already latched
+        and raised again (a move's frame refused by `_unless_latched`) stays where it is."""
         with self._lock:
             key = key or err.node or "bus"
-            if key not in self._faults:
+            if key not in self._faults and all(v is not err for v in self._faults.values()):
                 self._faults[key] = err
+
+    @contextlib.contextmanager
+    def _unless_latched(self):
+        """Held while a move's frame that enables operation goes out (`Axis.move_gate`): a fault latched meanwhile
+        from another thread (the operator's stop, the watchdog) comes before the frame, which is then not sent (the
+        fault is raised), or after it, and the stop's quick stops follow it on the bus. Before, a release already
+        past the move's last look could re-enable (transition 16) an axis the operator's stop had just stopped."""
+        with self._lock:
+            if self._faults:
+                raise next(iter(self._faults.values()))
+            yield
 
     @property
     def faults(self) -> dict[str, str]:

@@ -10,6 +10,7 @@ coast) and waiting for motion sleep on the shared clock.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 
@@ -41,6 +42,11 @@ class Axis:
     counts_per_unit : float
     unit : str            'deg' or 'mm'
     """
+
+    # Held around every frame of a move that enables operation (a set-point's controlwords, the halt's release);
+    # raises where enabling is no longer allowed. The owner (`Arm`) sets its own: a stop latched from another
+    # thread then lands before such a frame (which is not sent) or after it (its quick stops follow it).
+    move_gate = contextlib.nullcontext
 
     def __init__(
         self,
@@ -492,7 +498,8 @@ class Axis:
         """Clear the halt: an armed axis starts its set-point (CiA 402: the positioning continues).
         Not waited for: the next axis' release follows at once (`confirm_started` after). Returns the status
         sequence number before it."""
-        return self.send_controlword(codec.CW_ENABLE_OPERATION)
+        with self.move_gate():
+            return self.send_controlword(codec.CW_ENABLE_OPERATION)
 
     def confirm_started(self, seq: int, target_counts: int, tolerance_counts: int, timeout_s: float,
                         told_s: float | None = None) -> None:
@@ -511,9 +518,11 @@ class Axis:
 
     def _set_point_handshake(self, target_counts: int, extra_bits: int, ack: str) -> None:
         self.send_target(target_counts)
-        seq = self.send_controlword(codec.CW_ENABLE_OPERATION | codec.CW_NEW_SET_POINT | extra_bits)
+        with self.move_gate():
+            seq = self.send_controlword(codec.CW_ENABLE_OPERATION | codec.CW_NEW_SET_POINT | extra_bits)
         self.wait_status(lambda s: s.ack, seq, ack)
-        seq = self.send_controlword(codec.CW_ENABLE_OPERATION | extra_bits)
+        with self.move_gate():
+            seq = self.send_controlword(codec.CW_ENABLE_OPERATION | extra_bits)
         self.wait_status(lambda s: not s.ack, seq, "set-point acknowledge cleared")
 
 

@@ -1,0 +1,132 @@
+"""The operator's stop comes from another thread (the station's stop button) while the command thread starts a
+move. Every frame of a move that enables operation (a set-point's controlwords, the halt's release) is sent
+under the lock the stop latches under: the stop lands before such a frame, which is then not sent, or after
+it, and its quick stops follow it on the bus. Before, a release already past the move's last look re-enabled
+(CiA 402 transition 16) an axis the stop had just stopped. Through the real stack: python-can's virtual bus
+and the simulated drives."""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+
+import pytest
+from drivers_fixtures import *  # noqa: F403 - the bus, drives and arm fixtures
+from drivers_fixtures import needs_sim
+
+from cell.kinematics import Joints
+from drivers import Arm, DriverError, codec
+from drivers.axis import Axis
+
+pytestmark = needs_sim
+
+STOP = "quick stop requested by the operator"
+
+
+def _target(start: Joints) -> Joints:
+    return Joints(start.j1_deg - 30.0, start.j2_deg - 20.0, start.j3_mm, start.j4_deg + 20.0)
+
+
+def _stopper(arm):
+    """The operator's stop in a thread of its own, as the station's stop button sends it."""
+    t = threading.Thread(target=arm.stop, name="operator-stop", daemon=True)
+    t.start()
+    return t
+
+
+def _controlwords(spy, cell):
+    """(node name, controlword) of every RPDO1 on the bus so far, in order."""
+    by_rpdo1 = {codec.RPDO1_BASE + n.node_id: name for name, n in cell.can.nodes.items()}
+    return [(by_rpdo1[m.arbitration_id], int.from_bytes(m.data[:2], "little"))
+            for m in iter(lambda: spy.recv(0), None) if m.arbitration_id in by_rpdo1]
+
+
+def _nothing_enabled_after_the_first_quick_stop(words) -> None:
+    first = next(i for i, (_, cw) in enumerate(words) if cw == codec.CW_QUICK_STOP)
+    late = [(n, hex(cw)) for n, cw in words[first:] if cw & 0x000F == codec.CW_ENABLE_OPERATION]
+    assert late == [], f"enable operation sent after the operator's quick stops: {late}"
+
+
+def test_a_stop_landing_after_the_last_look_keeps_the_release_from_going_out(arm, sim_drives, open_test_bus,
+                                                                             cell_cfg, monkeypatch):
+    """Every axis holds its set-point and the last look found nothing; the stop then comes before the releases."""
+    real, stopped = Axis.release, []
+
+    def release(ax):
+        if not stopped:
+            stopped.append(_stopper(arm))
+            stopped[0].join(5.0)
+        return real(ax)
+
+    monkeypatch.setattr(Axis, "release", release)
+    spy = open_test_bus()
+    start = sim_drives.positions()
+    with pytest.raises(DriverError, match=STOP):
+        arm.move_joints(_target(arm.joints()))
+    arm.clock.sleep(0.5)
+    words = _controlwords(spy, cell_cfg)
+    assert not any(cw == codec.CW_ENABLE_OPERATION for _, cw in words)  # no release went out
+    _nothing_enabled_after_the_first_quick_stop(words)
+    assert sim_drives.positions() == pytest.approx(start, abs=1e-9)
+    assert {sim_drives.drives[n].state for n in ("j1", "j2", "j4")} == {"QUICK_STOP_ACTIVE"}
+    assert list(arm.faults) == ["stop"]
+
+
+def test_a_stop_pressed_while_a_release_goes_out_sends_its_quick_stops_after_it(arm, sim_drives, open_test_bus,
+                                                                                cell_cfg, monkeypatch):
+    """The stop's latch waits for the release frame on its way: the quick stops follow it, and no release goes
+    out after them (before, the stop's quick stops could go first and the release re-enable the axis they
+    stopped)."""
+    real, seen = Axis.send_controlword, {}
+
+    def send_controlword(ax, cw):
+        if cw == codec.CW_ENABLE_OPERATION and "thread" not in seen:  # the first release, inside the gate
+            seen["thread"] = _stopper(arm)
+            time.sleep(0.1)  # wall time for the stop to reach its latch
+            seen["stop waited"] = seen["thread"].is_alive()
+        return real(ax, cw)
+
+    monkeypatch.setattr(Axis, "send_controlword", send_controlword)
+    spy = open_test_bus()
+    with pytest.raises(DriverError, match=STOP):
+        arm.move_joints(_target(arm.joints()))
+    seen["thread"].join(5.0)
+    arm.clock.sleep(0.5)
+    assert seen["stop waited"]
+    words = _controlwords(spy, cell_cfg)
+    releases = [n for n, cw in words if cw == codec.CW_ENABLE_OPERATION]
+    assert releases[0] == "j1"  # the one on its way when the stop came (the next ones may win the lock too)
+    _nothing_enabled_after_the_first_quick_stop(words)
+    assert {sim_drives.drives[n].state for n in ("j1", "j2", "j4")} == {"QUICK_STOP_ACTIVE"}
+    assert list(arm.faults) == ["stop"]
+
+
+def test_a_stop_between_two_one_by_one_starts_keeps_the_next_axis_standing(sim_drives, open_test_bus, sim_clock,
+                                                                           cell_cfg, monkeypatch):
+    """Without coordinated start: j1 runs when the stop comes, after the look before j2's handshake; j2's
+    set-point frame is not sent (before, it re-enabled j2 from QUICK STOP ACTIVE and j2 started its move)."""
+    cell = dataclasses.replace(cell_cfg, can=dataclasses.replace(cell_cfg.can, coordinated_start=False))
+    arm = Arm(open_test_bus(), cell, clock=sim_clock, sdo_timeout_s=0.2)
+    arm.connect()
+    try:
+        real, stopped = Axis.send_target, []
+
+        def send_target(ax, counts):
+            if ax.name == "j2" and not stopped:
+                stopped.append(_stopper(arm))
+                stopped[0].join(5.0)
+            return real(ax, counts)
+
+        monkeypatch.setattr(Axis, "send_target", send_target)
+        spy = open_test_bus()
+        start = sim_drives.positions()
+        with pytest.raises(DriverError, match=STOP):
+            arm.move_joints(_target(arm.joints()))
+        arm.clock.sleep(0.5)
+        _nothing_enabled_after_the_first_quick_stop(_controlwords(spy, cell))
+        assert sim_drives.positions()["j2"] == pytest.approx(start["j2"], abs=1e-9)
+        assert sim_drives.drives["j2"].state == "QUICK_STOP_ACTIVE"
+        assert list(arm.faults) == ["stop"]
+    finally:
+        arm.disconnect()

@@ -21,12 +21,13 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 from drivers import codec, option_codes
 from drivers.clock import Clock
 from drivers.eds import object_dictionary
-from drivers.errors import BusFault, DriveFault, NodeSilent, SdoError
+from drivers.errors import BusFault, DriveDisabled, DriveFault, NodeSilent, SdoError
 
 ANSWER_TIMEOUT_S = 1.0  # wall time a drive gets to answer a controlword with a TPDO
 # time (on the shared clock) a quick stop ramp may take before enable() gives up; the arm passes
 # its own bound (2 s past the cell's slowest quick stop ramp)
 QUICK_STOP_END_TIMEOUT_S = 10.0
+FAULT_STATES = ("FAULT", "FAULT_REACTION_ACTIVE")  # a wait for anything else ends in the fault's error
 
 
 class Axis:
@@ -292,7 +293,7 @@ class Axis:
                 st = self.status
                 if st is not None and (after_seq is None or self.status_seq > after_seq) and pred(st):
                     return st
-                if st is not None and st.state in ("FAULT", "FAULT_REACTION_ACTIVE") and "FAULT" not in what:
+                if st is not None and st.state in FAULT_STATES and "FAULT" not in what:
                     raise self._faulted_while(what)
                 left = deadline - time.monotonic()
                 if left <= 0:
@@ -434,7 +435,7 @@ class Axis:
                     self.send_target(st.position_counts)
                     self.clock.sleep(0)
                 return
-            if st.state in ("FAULT", "FAULT_REACTION_ACTIVE"):
+            if st.state in FAULT_STATES:
                 raise self._faulted_while("OPERATION_ENABLED")
             if self.clock.now() >= deadline:
                 raise NodeSilent(
@@ -491,8 +492,8 @@ class Axis:
         until `release`. Arming every axis of a move, then releasing them back to back, starts them
         together (`Arm.move_joints`). Only at standstill: on a moving axis the halt would stop it off its
         way (`Arm` waits for the previous move first)."""
-        self._set_point_handshake(target_counts, codec.CW_HALT, "set-point acknowledge under halt; a drive that takes "
-                                  "no set-point while halted needs can.coordinated_start false")
+        self._set_point_handshake(target_counts, codec.CW_HALT, "set-point acknowledge under halt",
+                                  "; a drive that takes no set-point while halted needs can.coordinated_start false")
 
     def release(self) -> int:
         """Clear the halt: an armed axis starts its set-point (CiA 402: the positioning continues).
@@ -516,14 +517,24 @@ class Axis:
         st = self.status
         return st is not None and self.status_seq > seq and _started(target_counts, tolerance_counts)(st)
 
-    def _set_point_handshake(self, target_counts: int, extra_bits: int, ack: str) -> None:
+    def _set_point_handshake(self, target_counts: int, extra_bits: int, ack: str, no_ack_hint: str = "") -> None:
         self.send_target(target_counts)
         with self.move_gate():
             seq = self.send_controlword(codec.CW_ENABLE_OPERATION | codec.CW_NEW_SET_POINT | extra_bits)
-        self.wait_status(lambda s: s.ack, seq, ack)
+        self._wait_in_operation(lambda s: s.ack, seq, ack, no_ack_hint)
         with self.move_gate():
             seq = self.send_controlword(codec.CW_ENABLE_OPERATION | extra_bits)
-        self.wait_status(lambda s: not s.ack, seq, "set-point acknowledge cleared")
+        self._wait_in_operation(lambda s: not s.ack, seq, "set-point acknowledge cleared")
+
+    def _wait_in_operation(self, pred, seq: int, what: str, no_answer_hint: str = "") -> None:
+        """A handshake's wait, ended at once (`DriveDisabled`) by a status outside OPERATION ENABLED: a drive
+        stopped meanwhile (the operator's stop, its quick stop input) takes no set-point, and waiting out the
+        answer's timeout blamed it for not answering (the hint is for that timeout)."""
+        st = self.wait_status(lambda s: pred(s) or s.state not in ("OPERATION_ENABLED", *FAULT_STATES), seq,
+                              what + no_answer_hint)
+        if st.state != "OPERATION_ENABLED":
+            raise DriveDisabled(f"{self.name} (node {self.node_id}): left OPERATION ENABLED (reported {st.state}) "
+                                f"while waiting for {what}", node=self.name, node_id=self.node_id, state=st.state)
 
 
 def _started(target_counts: int, tolerance_counts: int):

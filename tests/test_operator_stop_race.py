@@ -130,3 +130,30 @@ def test_a_stop_between_two_one_by_one_starts_keeps_the_next_axis_standing(sim_d
         assert list(arm.faults) == ["stop"]
     finally:
         arm.disconnect()
+
+
+def test_a_stop_during_a_set_point_handshake_ends_its_wait_at_once(arm, sim_drives, open_test_bus, cell_cfg,
+                                                                   monkeypatch):
+    """The stop lands while j2 waits for its set-point's acknowledge: a quick-stopped drive takes no set-point, so
+    the wait ends on its status, and the next frame of the handshake is not sent (before, the host waited out
+    the answer's second and blamed j2 for not answering, with a hint about coordinated start)."""
+    from drivers import DriveDisabled
+
+    real, stopped = Axis.wait_status, []
+
+    def wait_status(ax, pred, seq, what, *a, **kw):
+        if ax.name == "j2" and what.startswith("set-point acknowledge") and not stopped:
+            stopped.append(_stopper(arm))
+            stopped[0].join(5.0)
+        return real(ax, pred, seq, what, *a, **kw)
+
+    monkeypatch.setattr(Axis, "wait_status", wait_status)
+    spy = open_test_bus()
+    start = sim_drives.positions()
+    with pytest.raises(DriveDisabled, match=r"j2 \(node 2\): left OPERATION ENABLED \(reported QUICK_STOP_ACTIVE\) "
+                                            r"while waiting for set-point acknowledge under halt$"):
+        arm.move_joints(_target(arm.joints()))
+    arm.clock.sleep(0.5)
+    _nothing_enabled_after_the_first_quick_stop(_controlwords(spy, cell_cfg))
+    assert sim_drives.positions() == pytest.approx(start, abs=1e-9)
+    assert set(arm.faults) == {"stop", "j2"}

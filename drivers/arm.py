@@ -128,6 +128,7 @@ class Arm:
         self.axes: dict[str, Axis] = {}
         self.gripper = Gripper(self)
         self._faults: dict[str, DriverError] = {}
+        self._stops = 0  # stops latched so far (`_latch`)
         self._lock = threading.Lock()
         self._watch_lock = threading.Lock()  # one `_watch` at a time
         # the host's looks at the drives during moves (`look_timing`): the way check's stop model assumes
@@ -172,6 +173,7 @@ class Arm:
                 sdo_timeout_s=self.sdo_timeout_s,
             )
             self.axes[name].move_gate = self._unless_latched
+            self.axes[name].enable_gate = self._unless_stopped
         self._pump = BusPump(self.bus, [self._network.listeners[0], self._on_frame], name="arm-rx")
         self.clock.add_settler(self._pump.settle)
         host_period_s = self.cell.can.host_heartbeat_ms / 1000.0
@@ -452,6 +454,7 @@ class Arm:
         and raised again (a move's frame refused by `_unless_latched`) stays where it is."""
         with self._lock:
             key = key or err.node or "bus"
+            self._stops += key == "stop"  # (each one: `reset_faults` clears only those latched before it began)
             if key not in self._faults and all(v is not err for v in self._faults.values()):
                 self._faults[key] = err
 
@@ -464,6 +467,16 @@ class Arm:
         with self._lock:
             if self._faults:
                 raise next(iter(self._faults.values()))
+            yield
+
+    @contextlib.contextmanager
+    def _unless_stopped(self):
+        """Held while `Axis.enable` sends enable operation (`Axis.enable_gate`): not after a stop was latched (the
+        operator's, an interrupt's), which leaves the axes in QUICK STOP ACTIVE until the next `reset_faults`.
+        Other faults let the rest enable: at connect a drive found in FAULT is latched and the others enabled."""
+        with self._lock:
+            if "stop" in self._faults:
+                raise self._faults["stop"]
             yield
 
     @property
@@ -553,8 +566,11 @@ class Arm:
 
     def reset_faults(self) -> None:
         """Clear latched faults: fault-reset every faulted drive and enable all again. Raises
-        (and stays latched) when a node is still silent or faults again."""
+        (and stays latched) when a node is still silent or faults again, or when a stop (`stop()`, from another
+        thread) comes meanwhile: the axes it stopped are not enabled again."""
         self._require_connected()
+        with self._lock:
+            stops_before = self._stops  # a stop latched during the reset is not cleared
         self._pending = ({}, 0.0)  # the move the fault ended is over (a move sent without waiting)
         self._watch()
         self._wait_standstill()  # a drive in its fault reaction finishes its ramp first
@@ -571,7 +587,11 @@ class Arm:
             for ax in self.axes.values():
                 ax.fault_reset()
             with self._lock:
+                stop = self._faults.get("stop")
                 self._faults.clear()
+                if self._stops != stops_before:  # pressed while the drives were reset: it stays, nothing is enabled
+                    self._faults["stop"] = stop
+                    raise stop
                 self._error_policy.restart_window()
                 for ax in self.axes.values():
                     self._emcy_seen[ax.name] = ax.emcy_seq

@@ -48,6 +48,8 @@ class Axis:
     # raises where enabling is no longer allowed. The owner (`Arm`) sets its own: a stop latched from another
     # thread then lands before such a frame (which is not sent) or after it (its quick stops follow it).
     move_gate = contextlib.nullcontext
+    # The same around `enable`'s enable-operation frames (no set-point: the axis holds where it stands).
+    enable_gate = contextlib.nullcontext
 
     def __init__(
         self,
@@ -388,7 +390,8 @@ class Axis:
             if state in ("SWITCHED_ON", "QUICK_STOP_ACTIVE"):
                 # the drive may have drifted while switched on, or ramped down: target = actual, once more
                 self.send_target(self.status.position_counts)
-            seq = self.send_controlword(cw)
+            with self.enable_gate() if cw == codec.CW_ENABLE_OPERATION else contextlib.nullcontext():
+                seq = self.send_controlword(cw)
             if cw == codec.CW_ENABLE_OPERATION:
                 self._wait_enabled(seq, quick_stop_timeout_s, step_s)
             else:
@@ -527,12 +530,15 @@ class Axis:
         self._wait_in_operation(lambda s: not s.ack, seq, "set-point acknowledge cleared")
 
     def _wait_in_operation(self, pred, seq: int, what: str, no_answer_hint: str = "") -> None:
-        """A handshake's wait, ended at once (`DriveDisabled`) by a status outside OPERATION ENABLED: a drive
-        stopped meanwhile (the operator's stop, its quick stop input) takes no set-point, and waiting out the
-        answer's timeout blamed it for not answering (the hint is for that timeout)."""
-        st = self.wait_status(lambda s: pred(s) or s.state not in ("OPERATION_ENABLED", *FAULT_STATES), seq,
-                              what + no_answer_hint)
+        """A handshake's wait, ended at once by a status outside OPERATION ENABLED: a drive stopped meanwhile (the
+        operator's stop, its quick stop input) takes no set-point, and waiting out the answer's timeout blamed
+        it for not answering (the hint is for that timeout). A fault ends it in the fault's error (`wait_status`,
+        with its EMCY); a stop the owner latched (`move_gate`) in that stop's; anything else is `DriveDisabled`."""
+        st = self.wait_status(lambda s: s.state not in FAULT_STATES and (pred(s) or s.state != "OPERATION_ENABLED"),
+                              seq, what + no_answer_hint)
         if st.state != "OPERATION_ENABLED":
+            with self.move_gate():  # (raises the stop the host latched, which this one is)
+                pass
             raise DriveDisabled(f"{self.name} (node {self.node_id}): left OPERATION ENABLED (reported {st.state}) "
                                 f"while waiting for {what}", node=self.name, node_id=self.node_id, state=st.state)
 

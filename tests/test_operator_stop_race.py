@@ -78,23 +78,33 @@ def test_a_stop_pressed_while_a_release_goes_out_sends_its_quick_stops_after_it(
     """The stop's latch waits for the release frame on its way: the quick stops follow it, and no release goes
     out after them (before, the stop's quick stops could go first and the release re-enable the axis they
     stopped)."""
-    real, seen = Axis.send_controlword, {}
+    real, seen, latching = Axis.send_controlword, {}, threading.Event()
+    latch = Arm._latch
+
+    def _latch(self, err, key=None):
+        if key == "stop":
+            latching.set()
+        return latch(self, err, key)
 
     def send_controlword(ax, cw):
         if cw == codec.CW_ENABLE_OPERATION and "thread" not in seen:  # the first release, inside the gate
             seen["thread"] = _stopper(arm)
-            time.sleep(0.1)  # wall time for the stop to reach its latch
-            seen["stop waited"] = seen["thread"].is_alive()
+            assert latching.wait(5.0)
+            time.sleep(0.05)  # wall time for a stop not held at its latch to send its quick stops
+            seen["stop held"] = seen["thread"].is_alive()
+            seen["on the bus"] = _controlwords(spy, cell_cfg)
         return real(ax, cw)
 
+    monkeypatch.setattr(Arm, "_latch", _latch)
     monkeypatch.setattr(Axis, "send_controlword", send_controlword)
     spy = open_test_bus()
     with pytest.raises(DriverError, match=STOP):
         arm.move_joints(_target(arm.joints()))
     seen["thread"].join(5.0)
     arm.clock.sleep(0.5)
-    assert seen["stop waited"]
-    words = _controlwords(spy, cell_cfg)
+    assert seen["stop held"]
+    assert not any(cw == codec.CW_QUICK_STOP for _, cw in seen["on the bus"])
+    words = seen["on the bus"] + _controlwords(spy, cell_cfg)
     releases = [n for n, cw in words if cw == codec.CW_ENABLE_OPERATION]
     assert releases[0] == "j1"  # the one on its way when the stop came (the next ones may win the lock too)
     _nothing_enabled_after_the_first_quick_stop(words)
@@ -132,28 +142,78 @@ def test_a_stop_between_two_one_by_one_starts_keeps_the_next_axis_standing(sim_d
         arm.disconnect()
 
 
+def _hook_wait(monkeypatch, node: str, what: str, action):
+    """Run `action` once as `node` starts a wait whose text starts with `what`."""
+    real, done = Axis.wait_status, []
+
+    def wait_status(ax, pred, seq, text, *a, **kw):
+        if ax.name == node and text.startswith(what) and not done:
+            done.append(action())
+        return real(ax, pred, seq, text, *a, **kw)
+
+    monkeypatch.setattr(Axis, "wait_status", wait_status)
+
+
 def test_a_stop_during_a_set_point_handshake_ends_its_wait_at_once(arm, sim_drives, open_test_bus, cell_cfg,
                                                                    monkeypatch):
     """The stop lands while j2 waits for its set-point's acknowledge: a quick-stopped drive takes no set-point, so
-    the wait ends on its status, and the next frame of the handshake is not sent (before, the host waited out
-    the answer's second and blamed j2 for not answering, with a hint about coordinated start)."""
-    from drivers import DriveDisabled
-
-    real, stopped = Axis.wait_status, []
-
-    def wait_status(ax, pred, seq, what, *a, **kw):
-        if ax.name == "j2" and what.startswith("set-point acknowledge") and not stopped:
-            stopped.append(_stopper(arm))
-            stopped[0].join(5.0)
-        return real(ax, pred, seq, what, *a, **kw)
-
-    monkeypatch.setattr(Axis, "wait_status", wait_status)
+    the wait ends on its status, in the stop's error, and the next frame of the handshake is not sent (before,
+    the host waited out the answer's second and blamed j2 for not answering, with a hint about coordinated
+    start)."""
+    _hook_wait(monkeypatch, "j2", "set-point acknowledge", lambda: _stopper(arm).join(5.0))
     spy = open_test_bus()
     start = sim_drives.positions()
-    with pytest.raises(DriveDisabled, match=r"j2 \(node 2\): left OPERATION ENABLED \(reported QUICK_STOP_ACTIVE\) "
-                                            r"while waiting for set-point acknowledge under halt$"):
+    with pytest.raises(DriverError, match=STOP):
         arm.move_joints(_target(arm.joints()))
     arm.clock.sleep(0.5)
     _nothing_enabled_after_the_first_quick_stop(_controlwords(spy, cell_cfg))
     assert sim_drives.positions() == pytest.approx(start, abs=1e-9)
-    assert set(arm.faults) == {"stop", "j2"}
+    assert list(arm.faults) == ["stop"]  # the host's own stop, not blamed on j2
+
+
+def test_a_fault_during_a_set_point_handshake_is_the_fault_with_its_emcy(arm, sim_drives, monkeypatch):
+    """j2 faults (EMCY over-current) as its acknowledge is cleared: the status in FAULT has the acknowledge bit
+    clear, and still the wait ends in the fault's error with its code, not in a drive that left operation."""
+    from drivers import DriveDisabled, DriveFault
+
+    _hook_wait(monkeypatch, "j2", "set-point acknowledge cleared", lambda: sim_drives.inject_fault("emcy", "j2"))
+    with pytest.raises(DriveFault, match=r"j2 \(node 2\)") as err:
+        arm.move_joints(_target(arm.joints()))
+    assert not isinstance(err.value, DriveDisabled)
+    assert err.value.emcy_code == 0x2310 and "EMCY 0x2310 continuous over-current" in arm.faults["j2"]
+
+
+@pytest.mark.parametrize(("first", "during"), [("emcy", "fault_reset"), ("emcy", "enable"), ("stop", "fault_reset")])
+def test_a_stop_during_a_fault_reset_is_not_cleared_by_it(arm, sim_drives, monkeypatch, first, during):
+    """j3 faulted (or an earlier stop is latched); the operator presses stop while the host resets the drives
+    (j3's fault reset) or enables them again (j2's enable): the reset raises the stop, nothing is enabled after
+    it, and the next move is refused. Before, the reset cleared the stop with the faults it began with and
+    enabled every axis, and the next move ran."""
+    from drivers import FaultLatched
+
+    if first == "emcy":
+        sim_drives.inject_fault("emcy", "j3")
+        arm.clock.sleep(0.1)
+    else:
+        arm.stop()
+    assert ("j3" if first == "emcy" else "stop") in arm.faults
+    node = "j3" if during == "fault_reset" else "j2"
+    real, done = getattr(Axis, during), []
+
+    def hooked(ax, *a, **kw):
+        if ax.name == node and not done:
+            done.append(_stopper(arm).join(5.0))
+        return real(ax, *a, **kw)
+
+    monkeypatch.setattr(Axis, during, hooked)
+    joints = arm.joints()
+    with pytest.raises(DriverError, match=STOP):
+        arm.reset_faults()
+    assert "stop" in arm.faults
+    arm.clock.sleep(0.5)
+    assert not [n for n, d in sim_drives.drives.items() if d.state == "OPERATION_ENABLED"]
+    with pytest.raises(FaultLatched):
+        arm.move_joints(_target(joints))
+    monkeypatch.setattr(Axis, during, real)
+    arm.reset_faults()  # the next reset clears it
+    assert arm.faults == {}

@@ -25,6 +25,7 @@ def write_atomic(path: str | os.PathLike, data: str | bytes) -> None:
     """Replace `path` with `data` so that readers see the old or the new file, never a mix."""
     path = Path(path)
     _refuse_to_replace_a_special_file(path, "cannot write")
+    refuse_read_only(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     raw = data.encode("utf-8") if isinstance(data, str) else data
     try:
@@ -58,19 +59,44 @@ def _refuse_to_replace_a_special_file(path: Path, what: str) -> None:
                        "a new file over it, which would replace it")
 
 
+def _not_writable(path: Path, mode: int = os.W_OK) -> bool:
+    """No write permission for us, or none for anyone: root's access() allows every write, but a user who
+    took the write bits away means "leave it as it is", whoever runs the command."""
+    return not os.stat(path).st_mode & 0o222 or not os.access(path, mode)
+
+
+def refuse_read_only(path: Path, what: str = "") -> None:
+    """The temp file is renamed over `path`, which only the folder's permissions stop: a read-only file was
+    replaced without a word. Refused, as is a read-only folder (which root could write into)."""
+    name = f"{what} {path}" if what else str(path)
+    if path.is_file() and _not_writable(path):
+        raise BadInput(f"{name} is read-only: not replaced")
+    if path.parent.is_dir() and _not_writable(path.parent, os.W_OK | os.X_OK):  # the temp file is made there
+        raise BadInput(f"{name}: the folder {path.parent} is not writable")
+
+
 def check_writable(path: str | os.PathLike, what: str) -> None:
     """Refuse, before any work is done, an output path that cannot become a file: a directory, a FIFO or
-    a device, or a path under a file (`write_atomic` would fail only after the work, naming its temp file)."""
+    a device, a read-only file or folder, or a path under a file (`write_atomic` would fail only after the
+    work, naming its temp file)."""
     path = Path(path)
     if path.is_dir():
         raise BadInput(f"{what} {path} is a directory, not a file")
     _refuse_to_replace_a_special_file(path, what)
-    for parent in path.parents:
+    refuse_read_only(path, what)
+    check_folder_writable(path.parent, f"{what} {path}")
+
+
+def check_folder_writable(folder: Path, what: str) -> None:
+    """The nearest of `folder` and its parents that exists must be a writable folder (the others are made in it).
+    `what` starts the message."""
+    for parent in (folder, *folder.parents):
         if parent.exists():
             if not parent.is_dir():
-                raise BadInput(f"{what} {path}: {parent} is a file, not a folder")
-            if not os.access(parent, os.W_OK | os.X_OK):  # the file is made there (a temp file, renamed)
-                raise BadInput(f"{what} {path}: the folder {parent} is not writable")
+                raise BadInput(f"{what}: {parent} is a file, not a folder")
+            # (a read-only mount would fail only at the write)
+            if _not_writable(parent, os.W_OK | os.X_OK) or os.statvfs(parent).f_flag & os.ST_RDONLY:
+                raise BadInput(f"{what}: the folder {parent} is not writable")
             return
 
 

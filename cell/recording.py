@@ -39,6 +39,7 @@ import numpy as np
 
 from cell.errors import BadInput
 from cell.fileio import (
+    check_folder_writable,
     check_readable,
     json_loads,
     read_json,
@@ -128,6 +129,7 @@ class RecordingWriter:
             # its files would be overwritten or, worse, mixed into the recording (decisions appended
             # to a stale decisions.jsonl, stale frames counted): an unreadable recording
             raise BadInput(f"recording directory {self.dir} is not empty; choose a new name")
+        check_folder_writable(self.dir, f"cannot write the recording into {self.dir}")  # before any file is made
 
         from cell import __version__
         from cell.cellconfig import default_cell_path

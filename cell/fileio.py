@@ -106,11 +106,31 @@ def write_json_atomic(path: str | os.PathLike, obj) -> None:
 
 @contextlib.contextmanager
 def _file_lock(path: Path):
-    """The lock every writer of a line file takes (appenders and replacers alike)."""
+    """The lock every writer of a line file takes (appenders and replacers alike): flock on `.NAME.lock`
+    beside it, a file its holder removes before letting go (it was left next to every output). Removing
+    it is safe because a writer that waited on the removed file sees that the name no longer leads to
+    it and takes the lock again, on the file the name now leads to: else it and a writer that came after
+    the removal (and made a new file) would both hold "the" lock."""
+    refuse_read_only(path)  # before the lock file is made
     path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path.with_name(f".{path.name}.lock"), "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
+    lock = path.with_name(f".{path.name}.lock")
+    while True:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            with contextlib.suppress(FileNotFoundError):
+                if os.path.samestat(os.fstat(fd), os.stat(lock)):
+                    break
+        except BaseException:
+            os.close(fd)
+            raise
+        os.close(fd)  # its holder removed it while we waited
+    try:
         yield
+    finally:
+        with contextlib.suppress(OSError):  # (one left behind, say in a folder made read-only meanwhile, is harmless)
+            os.unlink(lock)  # while still holding it
+        os.close(fd)
 
 
 def replace_lines_atomic(path: str | os.PathLike, lines: list[str]) -> None:

@@ -187,11 +187,13 @@ def _parse_json_int(s: str) -> int:
 
 
 def json_loads(text: str, **kw):
-    """json.loads for the user's files: an integer of more than MAX_JSON_INT_DIGITS digits is a
-    JSONDecodeError ("a number too large", at the number's line and column) that the callers report as
-    any other invalid JSON; json.loads itself raises a plain ValueError (int()'s digit limit) there."""
+    """json.loads for every file the project reads: a key given twice in one object is a DuplicateKey
+    (which the callers report naming the file, and the line of a JSON Lines file); an integer of more than
+    MAX_JSON_INT_DIGITS digits is a JSONDecodeError ("a number too large", at the number's line and column)
+    that the callers report as any other invalid JSON; json.loads itself raises a plain ValueError (int()'s
+    digit limit) there."""
     try:
-        return json.loads(text, parse_int=_parse_json_int, **kw)
+        return json.loads(text, parse_int=_parse_json_int, object_pairs_hook=unique_keys, **kw)
     except _NumberTooLarge as e:
         digits = str(e.args[0])
         pos = 0
@@ -250,7 +252,7 @@ def read_json(path: str | os.PathLike, what: str):
     path = Path(path)
     text = read_text(path, what)
     try:
-        obj = json_loads(text, object_pairs_hook=unique_keys)
+        obj = json_loads(text)
     except json.JSONDecodeError as e:
         raise BadInput(f"{what} {path} is not valid JSON: {e.msg} at line {e.lineno} column {e.colno}") from None
     except DuplicateKey as e:

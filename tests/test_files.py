@@ -356,5 +356,13 @@ def test_a_key_given_twice_in_one_object_is_bad_input(tmp_path, capsys):
     ex.write_text(ex.read_text().replace('"valid":true', '"valid":true,"valid":false', 1))
     with pytest.raises(BadInput, match="line 1: key 'valid' appears twice"):
         load_examples(ex)
+    from calibration import default_calibration_path
+
+    for command, path, text in [("plan", tmp_path / "a.json", '{"units": "mm", "units": "mm", "parts": []}'),
+                                ("map", tmp_path / "cal.json", default_calibration_path().read_text().replace(
+                                    '"version": 1,', '"version": 1, "units": "mm", "units": "mm",', 1))]:
+        path.write_text(text)
+        code, out, err = run_cli(command, path, *(["--px", "1,2"] if command == "map" else []), capsys=capsys)
+        assert code == 2 and err.endswith(f"file {path}: key 'units' appears twice in one object\n"), err
     # the same key in two different objects is fine
     assert load_cell(default_cell_path()).scara.l1_mm == 325

@@ -39,7 +39,6 @@ from cell.fileio import (
     json_loads,
     read_text,
     refuse_lone_surrogates,
-    unique_keys,
 )
 from cell.kinematics import Joints
 from cell.scene import MAX_COORD_MM, Part, parse_part
@@ -188,7 +187,7 @@ def _parse_examples(text: str, path: Path, allow_empty: bool) -> list[GraspExamp
         if not line.strip():
             continue
         try:
-            raw = json_loads(line, object_pairs_hook=unique_keys)
+            raw = json_loads(line)
         except json.JSONDecodeError as e:
             raise BadInput(f"example file {path} line {lineno}: not valid JSON ({e.msg})") from None
         except DuplicateKey as e:

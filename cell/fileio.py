@@ -25,6 +25,7 @@ def write_atomic(path: str | os.PathLike, data: str | bytes) -> None:
     """Replace `path` with `data` so that readers see the old or the new file, never a mix."""
     path = Path(path)
     _refuse_to_replace_a_special_file(path, "cannot write")
+    refuse_read_only(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     raw = data.encode("utf-8") if isinstance(data, str) else data
     try:
@@ -58,19 +59,44 @@ def _refuse_to_replace_a_special_file(path: Path, what: str) -> None:
                        "a new file over it, which would replace it")
 
 
+def _not_writable(path: Path, mode: int = os.W_OK) -> bool:
+    """No write permission for us, or none for anyone: root's access() allows every write, but a user who
+    took the write bits away means "leave it as it is", whoever runs the command."""
+    return not os.stat(path).st_mode & 0o222 or not os.access(path, mode)
+
+
+def refuse_read_only(path: Path, what: str = "") -> None:
+    """The temp file is renamed over `path`, which only the folder's permissions stop: a read-only file was
+    replaced without a word. Refused, as is a read-only folder (which root could write into)."""
+    name = f"{what} {path}" if what else str(path)
+    if path.is_file() and _not_writable(path):
+        raise BadInput(f"{name} is read-only: not replaced")
+    if path.parent.is_dir() and _not_writable(path.parent, os.W_OK | os.X_OK):  # the temp file is made there
+        raise BadInput(f"{name}: the folder {path.parent} is not writable")
+
+
 def check_writable(path: str | os.PathLike, what: str) -> None:
     """Refuse, before any work is done, an output path that cannot become a file: a directory, a FIFO or
-    a device, or a path under a file (`write_atomic` would fail only after the work, naming its temp file)."""
+    a device, a read-only file or folder, or a path under a file (`write_atomic` would fail only after the
+    work, naming its temp file)."""
     path = Path(path)
     if path.is_dir():
         raise BadInput(f"{what} {path} is a directory, not a file")
     _refuse_to_replace_a_special_file(path, what)
-    for parent in path.parents:
+    refuse_read_only(path, what)
+    check_folder_writable(path.parent, f"{what} {path}")
+
+
+def check_folder_writable(folder: Path, what: str) -> None:
+    """The nearest of `folder` and its parents that exists must be a writable folder (the others are made in it).
+    `what` starts the message."""
+    for parent in (folder, *folder.parents):
         if parent.exists():
             if not parent.is_dir():
-                raise BadInput(f"{what} {path}: {parent} is a file, not a folder")
-            if not os.access(parent, os.W_OK | os.X_OK):  # the file is made there (a temp file, renamed)
-                raise BadInput(f"{what} {path}: the folder {parent} is not writable")
+                raise BadInput(f"{what}: {parent} is a file, not a folder")
+            # (a read-only mount would fail only at the write)
+            if _not_writable(parent, os.W_OK | os.X_OK) or os.statvfs(parent).f_flag & os.ST_RDONLY:
+                raise BadInput(f"{what}: the folder {parent} is not writable")
             return
 
 
@@ -80,11 +106,31 @@ def write_json_atomic(path: str | os.PathLike, obj) -> None:
 
 @contextlib.contextmanager
 def _file_lock(path: Path):
-    """The lock every writer of a line file takes (appenders and replacers alike)."""
+    """The lock every writer of a line file takes (appenders and replacers alike): flock on `.NAME.lock`
+    beside it, a file its holder removes before letting go (it was left next to every output). Removing
+    it is safe because a writer that waited on the removed file sees that the name no longer leads to
+    it and takes the lock again, on the file the name now leads to: else it and a writer that came after
+    the removal (and made a new file) would both hold "the" lock."""
+    refuse_read_only(path)  # before the lock file is made
     path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path.with_name(f".{path.name}.lock"), "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
+    lock = path.with_name(f".{path.name}.lock")
+    while True:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            with contextlib.suppress(FileNotFoundError):
+                if os.path.samestat(os.fstat(fd), os.stat(lock)):
+                    break
+        except BaseException:
+            os.close(fd)
+            raise
+        os.close(fd)  # its holder removed it while we waited
+    try:
         yield
+    finally:
+        with contextlib.suppress(OSError):  # (one left behind, say in a folder made read-only meanwhile, is harmless)
+            os.unlink(lock)  # while still holding it
+        os.close(fd)
 
 
 def replace_lines_atomic(path: str | os.PathLike, lines: list[str]) -> None:
@@ -141,11 +187,13 @@ def _parse_json_int(s: str) -> int:
 
 
 def json_loads(text: str, **kw):
-    """json.loads for the user's files: an integer of more than MAX_JSON_INT_DIGITS digits is a
-    JSONDecodeError ("a number too large", at the number's line and column) that the callers report as
-    any other invalid JSON; json.loads itself raises a plain ValueError (int()'s digit limit) there."""
+    """json.loads for every file the project reads: a key given twice in one object is a DuplicateKey
+    (which the callers report naming the file, and the line of a JSON Lines file); an integer of more than
+    MAX_JSON_INT_DIGITS digits is a JSONDecodeError ("a number too large", at the number's line and column)
+    that the callers report as any other invalid JSON; json.loads itself raises a plain ValueError (int()'s
+    digit limit) there."""
     try:
-        return json.loads(text, parse_int=_parse_json_int, **kw)
+        return json.loads(text, parse_int=_parse_json_int, object_pairs_hook=unique_keys, **kw)
     except _NumberTooLarge as e:
         digits = str(e.args[0])
         pos = 0
@@ -204,7 +252,7 @@ def read_json(path: str | os.PathLike, what: str):
     path = Path(path)
     text = read_text(path, what)
     try:
-        obj = json_loads(text, object_pairs_hook=unique_keys)
+        obj = json_loads(text)
     except json.JSONDecodeError as e:
         raise BadInput(f"{what} {path} is not valid JSON: {e.msg} at line {e.lineno} column {e.colno}") from None
     except DuplicateKey as e:

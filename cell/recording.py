@@ -39,6 +39,8 @@ import numpy as np
 
 from cell.errors import BadInput
 from cell.fileio import (
+    DuplicateKey,
+    check_folder_writable,
     check_readable,
     json_loads,
     read_json,
@@ -128,6 +130,7 @@ class RecordingWriter:
             # its files would be overwritten or, worse, mixed into the recording (decisions appended
             # to a stale decisions.jsonl, stale frames counted): an unreadable recording
             raise BadInput(f"recording directory {self.dir} is not empty; choose a new name")
+        check_folder_writable(self.dir, f"cannot write the recording into {self.dir}")  # before any file is made
 
         from cell import __version__
         from cell.cellconfig import default_cell_path
@@ -424,22 +427,26 @@ class RecordingReader:
                 continue
             out.append(self._parse_line(path, lineno, line))
         if torn.strip():
-            try:
-                rec = self._parse_line(path, len(lines), torn)
-            except BadInput:
+            rec = self._parse_line(path, len(lines), torn, last=True)
+            if rec is None:
                 self.problems.append(f"{DECISIONS} line {len(lines)} is torn (cut off by a crash); dropped")
             else:  # a whole object, only its newline is missing
                 out.append(rec)
                 self.problems.append(f"{DECISIONS} line {len(lines)} has no final newline")
         return out
 
-    def _parse_line(self, path: Path, lineno: int, line: bytes) -> dict:
+    def _parse_line(self, path: Path, lineno: int, line: bytes, last: bool = False) -> dict | None:
+        """The decision on `line`; None for a `last` line that is not whole JSON (a crash cut it short)."""
         try:
             rec = json_loads(line.decode("utf-8"), parse_constant=_no_constant)
         except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
+            if last:
+                return None
             msg = (e.msg if isinstance(e, json.JSONDecodeError) else "not UTF-8" if isinstance(e, UnicodeDecodeError)
                    else "nested too deeply")  # json's decoder recurses per level: [[[[...]]]] 100000 deep
             raise BadInput(f"recording {path} line {lineno}: not valid JSON ({msg})") from None
+        except DuplicateKey as e:  # whole, but corrupt: was read with the last value (a divergence, exit 1)
+            raise BadInput(f"recording {path} line {lineno}: {e}") from None
         if not isinstance(rec, dict):
             raise BadInput(f"recording {path} line {lineno}: a decision must be a JSON object")
         return rec

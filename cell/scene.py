@@ -25,6 +25,10 @@ UP = (0.0, 0.0, 1.0)
 # Outline coordinates beyond 1 km from the base are not millimetres of a part on the tray (and a
 # target that large would be resampled into millions of candidate points): bad input.
 MAX_COORD_MM = 1e6
+# A part rests on another when its bottom is within this of the other's top (heights are rounded)
+REST_MM = 0.5
+# Parts of an assembly touch: a shared edge overlaps by float noise and the 4 decimals files are written with
+PART_OVERLAP_MM2 = 1.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -51,7 +55,7 @@ class Part:
         """Does this part rest on `other`: its bottom on the other's top (within 0.5 mm) and its
         outline (nine tenths of it) over the other's in plan? A part on a base plate moves with
         the plate, and does not stand out against the tray on its own."""
-        return (self.id != other.id and abs(self.z_bottom_mm - other.z_top_mm) <= 0.5
+        return (self.id != other.id and abs(self.z_bottom_mm - other.z_top_mm) <= REST_MM
                 and self.polygon.intersection(other.polygon).area > 0.9 * self.polygon.area)
 
     def moved(self, dx_mm: float, dy_mm: float, dtheta_deg: float = 0.0, about=None) -> Part:
@@ -195,7 +199,24 @@ def parse_assembly(raw, source: str = "<assembly>", base_dir: Path | None = None
         raise BadInput(f"{source}: the sequence must name every part exactly once ({why})")
     for p in parts:
         _require_straight_up(p, source)
+    _no_two_parts_in_one_place(parts, source)
     return Assembly(parts, tuple(seq), str(raw.get("name", Path(source).stem)), cell_path, source)
+
+
+def _no_two_parts_in_one_place(parts: tuple[Part, ...], source: str) -> None:
+    """Refuse two parts of an assembly that overlap in plan and in height (one lying on another, on a base
+    plate, or in another's hole is fine): such an assembly was run, and stopped half way (exit 1) when the
+    camera saw one part where the model has two."""
+    polygons = [p.polygon for p in parts]
+    near = shapely.STRtree(polygons).query(polygons, predicate="intersects")
+    for i, j in sorted(zip(*near.tolist(), strict=True)):
+        a, b = parts[i], parts[j]
+        height = min(a.z_top_mm, b.z_top_mm) - max(a.z_bottom_mm, b.z_bottom_mm)
+        if i < j and height > REST_MM:
+            area = polygons[i].intersection(polygons[j]).area
+            if area > PART_OVERLAP_MM2:
+                raise BadInput(f"{source}: parts {a.id!r} and {b.id!r} are in one place: their outlines overlap by "
+                               f"{area:.1f} mm2 and their heights by {height:g} mm")
 
 
 def _parse_common(raw, source, base_dir):

@@ -55,7 +55,28 @@ def _big_integer_in_a_decision(d: Path):
     (d / "decisions.jsonl").write_text("\n".join(lines) + "\n")
 
 
+def _twice_in_a_decision(line: int, pair: str, newline: bool = True):
+    """Decision line `line` (1-based; -1 the last) ends with `pair` ('"key":value'), a key it already has."""
+    def damage(d: Path):
+        lines = (d / "decisions.jsonl").read_text().splitlines()
+        lines[line if line < 0 else line - 1] = lines[line if line < 0 else line - 1][:-1] + f",{pair}}}"
+        (d / "decisions.jsonl").write_text("\n".join(lines) + ("\n" if newline else ""))
+    return damage
+
+
+def _twice_in_the_manifest(d: Path):
+    text = (d / "manifest.json").read_text()
+    (d / "manifest.json").write_text(text.replace('"version": 1,', '"version": 1, "version": 1,', 1))
+
+
 @pytest.mark.parametrize("damage, message", [
+    # a decision naming a key twice: was read with the last value, a divergence (exit 1) ...
+    (_twice_in_a_decision(2, '"part":"pcb"'), "decisions.jsonl line 2: key 'part' appears twice in one object"),
+    # ... or, the last value the recorded one, a match (exit 0)
+    (_twice_in_a_decision(1, '"type":"perception"'), "decisions.jsonl line 1: key 'type' appears twice"),
+    # a whole last line without its newline is no line a crash cut short: corrupt, not dropped as torn
+    (_twice_in_a_decision(-1, '"type":"summary"', newline=False), "decisions.jsonl line 14: key 'type' appears"),
+    (_twice_in_the_manifest, "manifest.json: key 'version' appears twice in one object"),
     # was: internal error (ValueError: Exceeds the limit (4300 digits) for integer string conversion)
     (_big_integer_in_manifest, "manifest.json is not valid JSON: a number too large: 5000 digits, at most 4300 "
                                "at line 3 column 23"),

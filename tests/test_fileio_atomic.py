@@ -25,8 +25,8 @@ NEW = b'{"new": true}\n'
 
 
 def _names(directory: Path) -> list[str]:
-    """What is in the directory, the appenders' lock files aside."""
-    return sorted(p.name for p in directory.iterdir() if not p.name.endswith(".lock"))
+    """What is in the directory (the appenders' lock files included: none is left behind)."""
+    return sorted(p.name for p in directory.iterdir())
 
 
 def _fd_path(fd: int) -> str:
@@ -151,6 +151,52 @@ def test_writers_of_a_line_file_wait_for_each_other(tmp_path, other, expected):
     path.write_text("x\n")
     _Interleave(path).run(lambda: other(path))
     assert path.read_text() == expected and _names(tmp_path) == ["lines.jsonl"]
+
+
+def test_a_writer_that_waited_on_a_removed_lock_file_takes_the_lock_again(tmp_path):
+    """The holder removes the lock file before letting go. B, waiting on that file meanwhile, then holds a
+    lock on a file no name leads to, and C, coming after the removal, makes a new one: both would be in
+    at once (and one's line lost), unless B sees the name no longer leads to its file and locks again."""
+    path = tmp_path / "lines.jsonl"
+    path.write_text("x\n")
+    a_inside, release_a = threading.Event(), threading.Event()
+    inside, overlaps, errors = [], [], []
+
+    def held(old: bytes):  # B's and C's check: a while inside the lock, noting who else is
+        if inside:
+            overlaps.append(list(inside))
+        inside.append(threading.current_thread().name)
+        threading.Event().wait(0.4)
+        inside.pop()
+
+    def writer(line, check):
+        try:
+            append_lines_atomic(path, [line], check=check)
+        except Exception as e:  # pragma: no cover - reported below
+            errors.append(e)
+
+    a = threading.Thread(target=writer, args=("a", lambda old: (a_inside.set(), release_a.wait(5))))
+    b = threading.Thread(target=writer, args=("b", held), name="b")
+    a.start()
+    assert a_inside.wait(5)
+    b.start()
+    threading.Event().wait(0.3)  # b has opened the lock file and waits for it
+    release_a.set()
+    a.join(5)  # a removed the lock file and let go: b takes it ...
+    c = threading.Thread(target=writer, args=("c", held), name="c")
+    c.start()  # ... and c comes while b is inside
+    b.join(10)
+    c.join(10)
+    assert not errors and not overlaps
+    assert sorted(path.read_text().split()) == ["a", "b", "c", "x"] and _names(tmp_path) == ["lines.jsonl"]
+
+
+def test_examples_generate_leaves_no_lock_file_beside_its_output(tmp_path, capsys):
+    code, out, err = run_cli("examples", "generate", "--out", tmp_path / "ex.jsonl", "--count", "1", capsys=capsys)
+    assert code == 0 and _names(tmp_path) == ["ex.jsonl"]  # was also .ex.jsonl.lock
+    code, out, err = run_cli("examples", "generate", "--out", tmp_path / "ex.jsonl", "--count", "1", "--seed", "1",
+                             "--append", capsys=capsys)
+    assert code == 0 and _names(tmp_path) == ["ex.jsonl"]
 
 
 def test_an_append_its_check_refuses_leaves_the_file_byte_for_byte(tmp_path):

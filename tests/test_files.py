@@ -99,8 +99,8 @@ def test_a_scene_refuses_only_its_target_moving_other_than_up():
 
 
 def test_assembly_refuses_other_directions_and_bad_sequences():
-    parts = [{"id": "a", "outline": SQUARE, "z_top": 1}, {"id": "b", "outline": SQUARE, "z_top": 1,
-                                                          "direction": [1, 0, 0]}]
+    parts = [{"id": "a", "outline": SQUARE, "z_top": 1}, {"id": "b", "outline": SQUARE, "z_bottom": 1, "z_top": 2,
+                                                          "direction": [1, 0, 0]}]  # b lies on a
     with pytest.raises(BadInput, match="straight up"):
         parse_assembly({"parts": parts, "sequence": ["a", "b"]})
     parts[1].pop("direction")
@@ -108,6 +108,58 @@ def test_assembly_refuses_other_directions_and_bad_sequences():
         parse_assembly({"parts": parts, "sequence": ["a", "a"]})
     a = parse_assembly({"parts": parts, "sequence": ["b", "a"]})
     assert a.scene_at(1).ids == ["a"] and a.scene_at(1).target == "a"
+
+
+def _moved(ring, dx, dy=0.0):
+    return [[x + dx, y + dy] for x, y in ring]
+
+
+@pytest.mark.parametrize("b, overlap", [
+    ({"outline": SQUARE}, "1600.0 mm2 and their heights by 10 mm"),  # the same place
+    ({"outline": _moved(SQUARE, 5, 3)}, "1295.0 mm2 and their heights by 10 mm"),
+    ({"outline": _moved(SQUARE, 35), "z_bottom": 9, "z_top": 20}, "200.0 mm2 and their heights by 1 mm"),
+], ids=["same-place", "shifted", "sunk-1mm-into-it"])
+def test_an_assembly_with_two_parts_in_one_place_is_refused_naming_them(b, overlap):
+    parts = [{"id": "a", "outline": SQUARE, "z_top": 10}, {"id": "b", "z_top": 10, **b}]
+    with pytest.raises(BadInput, match=rf"^<assembly>: parts 'a' and 'b' are in one place: their outlines overlap "
+                                       rf"by {overlap}$"):
+        parse_assembly({"parts": parts, "sequence": ["a", "b"]})
+
+
+RING = {"outline": [[280, -20], [360, -20], [360, 60], [280, 60]], "holes": [SQUARE]}  # SQUARE is its hole
+
+
+@pytest.mark.parametrize("b", [
+    {"outline": _moved(SQUARE, 40)},  # touching: a shared edge
+    {"outline": _moved(SQUARE, 39.98)},  # overlapping by 0.8 mm2: within the tolerance
+    {"outline": SQUARE, "z_bottom": 10, "z_top": 20},  # lying on it
+    {"outline": _moved(SQUARE, 10), "z_bottom": 9.6, "z_top": 20},  # on it, heights rounded (0.4 mm)
+    {"outline": SQUARE, "z_bottom": 20, "z_top": 30},  # above it
+], ids=["touching", "within-tolerance", "lying-on-it", "resting-0.4mm-low", "above"])
+def test_parts_that_touch_or_lie_on_one_another_are_an_assembly(b):
+    parts = [{"id": "a", "outline": SQUARE, "z_top": 10}, {"id": "b", "z_top": 10, **b}]
+    assert parse_assembly({"parts": parts, "sequence": ["b", "a"]}).sequence == ("b", "a")
+    # a part in another's hole
+    parts = [{"id": "ring", **RING, "z_top": 10}, {"id": "pin", "outline": SQUARE, "z_top": 30}]
+    assert parse_assembly({"parts": parts, "sequence": ["pin", "ring"]}).sequence == ("pin", "ring")
+
+
+def test_run_and_plan_refuse_two_parts_in_one_place_before_anything_moves(tmp_path, capsys):
+    """`cell run` ran such an assembly and stopped half way (exit 1): the camera saw one part, not two."""
+    from conftest import ROOT, run_cli
+
+    asm = json.loads((ROOT / "cell" / "data" / "assemblies" / "default.json").read_text())
+    nut = next(p for p in asm["parts"] if p["id"] == "nut")
+    asm["parts"].append({**nut, "id": "nut2", "outline": _moved(nut["outline"], 5, 3),
+                         "holes": [_moved(h, 5, 3) for h in nut["holes"]]})
+    asm["sequence"].append("nut2")
+    path = tmp_path / "a.json"
+    path.write_text(json.dumps(asm))
+    for command in (["run", path, "--record", tmp_path / "rec"], ["plan", path]):
+        code, out, err = run_cli(*command, capsys=capsys)
+        assert code == 2 and out == "" and err.startswith(f"cell: error: {path}: parts 'nut' and 'nut2' are in one "
+                                                         "place: their outlines overlap by "), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json"]  # no recording begun
 
 
 @pytest.mark.parametrize("direction,ok", [([0, 0, 1], True), ([0, 0, 2.5], True), ([0, 0, 1e-3], True),
@@ -170,7 +222,7 @@ def test_atomic_write_leaves_no_temp_files(tmp_path):
     write_atomic(p, "one")
     append_lines_atomic(p, ["two", "three"])
     assert p.read_text() == "one\ntwo\nthree\n"
-    assert sorted(x.name for x in tmp_path.iterdir() if not x.name.endswith(".lock")) == ["a.txt"]
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["a.txt"]  # nor the appenders' lock file
 
 
 BIG_INT = 10 ** 400  # valid JSON, and Python's json reads it as an int that no float holds
@@ -356,5 +408,13 @@ def test_a_key_given_twice_in_one_object_is_bad_input(tmp_path, capsys):
     ex.write_text(ex.read_text().replace('"valid":true', '"valid":true,"valid":false', 1))
     with pytest.raises(BadInput, match="line 1: key 'valid' appears twice"):
         load_examples(ex)
+    from calibration import default_calibration_path
+
+    for command, path, text in [("plan", tmp_path / "a.json", '{"units": "mm", "units": "mm", "parts": []}'),
+                                ("map", tmp_path / "cal.json", default_calibration_path().read_text().replace(
+                                    '"version": 1,', '"version": 1, "units": "mm", "units": "mm",', 1))]:
+        path.write_text(text)
+        code, out, err = run_cli(command, path, *(["--px", "1,2"] if command == "map" else []), capsys=capsys)
+        assert code == 2 and err.endswith(f"file {path}: key 'units' appears twice in one object\n"), err
     # the same key in two different objects is fine
     assert load_cell(default_cell_path()).scara.l1_mm == 325

@@ -39,6 +39,7 @@ def run(args) -> int:
     from calibration import save_calibration
     from calibration.intrinsics import calibrate_intrinsics
     from cell.errors import BadInput
+    from cell.fileio import check_writable
     from cell.vision.sources import read_image
 
     pattern = grid(args.pattern, "--pattern")
@@ -55,6 +56,7 @@ def run(args) -> int:
     if args.subpix_win is not None and args.subpix_win < 1:
         raise BadInput("--subpix-win must be at least 1")
     refuse_out_over_an_input(args.out, args.images)
+    check_writable(args.out, "--out")  # before the calibration, not after
     images = [(str(path), read_image(path, grey=True)) for path in args.images]
     result = calibrate_intrinsics(images, pattern, args.square, detector=args.detector, charuco=charuco,
                                   reject_outliers=args.reject_outliers, subpix_win=args.subpix_win)

@@ -47,10 +47,11 @@ def run(args) -> int:
         parse_markers,
     )
     from cell.errors import BadInput
-    from cell.fileio import read_json
+    from cell.fileio import check_writable, read_json
     from cell.vision.sources import read_image
 
     refuse_out_over_an_input(args.out, [args.image, args.markers, args.points, args.intrinsics])
+    check_writable(args.out, "--out")  # before the fit, not after
     frame = read_image(args.image)
     h, w = frame.shape[:2]
     k = dist = None

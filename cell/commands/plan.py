@@ -34,6 +34,13 @@ def run(args) -> int:
         except OSError as e:
             raise BadInput(f"--figures {args.figures} cannot be used as a folder: {e.strerror}") from None
     assembly = load_assembly(args.assembly)
+    if args.figures:
+        from pathlib import Path
+
+        from cell.fileio import check_writable
+
+        for step, part_id in enumerate(assembly.sequence):  # a read-only one: refused before the planning
+            check_writable(Path(args.figures) / figure_name(step, part_id), "--figures")
     cell = load_cell(args.cell or assembly.cell_path)
     planner = GraspPlanner(cell, load_planner_inputs(args.examples))
     from cell.heap import freeze_startup

@@ -31,9 +31,10 @@ def run(args) -> int:
 
     from cell.cellconfig import load_cell
     from cell.errors import BadInput
+    from cell.fileio import check_writable
     from cell.study.data import point_dataset, set_dataset, with_label_noise
     from cell.study.experiments import Budget, run_problem
-    from cell.study.report import headline_table, write_report
+    from cell.study.report import OUTPUTS, headline_table, write_report
 
     budget = Budget.named(args.budget)
     if args.examples is not None:
@@ -53,6 +54,8 @@ def run(args) -> int:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise BadInput(f"--out {out} cannot be created: {e.strerror}") from None
+    for name in OUTPUTS:
+        check_writable(out / name, "--out")
     cell = load_cell(args.cell)
     t0 = time.perf_counter()
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from cell.cellconfig import load_cell
 from cell.examples import default_examples_path
-from cell.fileio import write_atomic
+from cell.fileio import check_writable, write_atomic
 from cell.runtime.control import RunControl, Stopped
 from cell.runtime.loop import CellLoop, LoopOptions, StopRun
 from cell.runtime.simworld import SimWorld, WorldFaults
@@ -209,6 +209,8 @@ def run_session(cfg: RunConfig) -> dict:
         folder = Path(cfg.record) if cfg.record else Path.cwd()
         stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
         examples_out = folder / ("examples.jsonl" if cfg.record else f"examples-{stamp}.jsonl")
+    if cfg.station:  # its rejects and teaching are written there: a read-only file stopped the run at the first
+        check_writable(examples_out or examples_path, "the run's example file" if examples_out else "--examples")
 
     if cfg.save_rrd:  # before the recording is made: a run that cannot start leaves no recording behind
         from cell.cellconfig import default_cell_path
@@ -381,6 +383,7 @@ def _check_rrd_path(path: Path, inputs) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise BadInput(f"--save {path}: cannot make its folder: {e.strerror or e}") from None
+    check_writable(path, "--save")  # rerun writes it in place: a read-only one was overwritten
 
 
 def _simulated_sources(cfg: RunConfig, cell, cal, assembly: Assembly, can_log, stack: contextlib.ExitStack):

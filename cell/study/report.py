@@ -13,6 +13,21 @@ from cell.study.methods import METHODS
 
 TITLES = {"points": "contact points, local attributes (paper step 2)",
           "sets": "contact sets, global attributes (paper step 4)"}
+# what write_report writes into its folder: checked before the study (minutes of work), not after
+OUTPUTS = ("report.md", "results.json", "times.png", *(f"{kind}_{name}.png" for name in TITLES
+                                                         for kind in ("cv", "curve")))
+
+
+def _save(fig, path: Path) -> None:
+    """savefig wrote the file in place (half a PNG when stopped part way, a read-only one overwritten)."""
+    import io
+
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    write_atomic(path, buf.getvalue())
 
 
 def _plots(res: ProblemResult, out: Path) -> list[str]:
@@ -37,8 +52,7 @@ def _plots(res: ProblemResult, out: Path) -> list[str]:
     ax.legend(fontsize=7)
     fig.tight_layout()
     f = f"cv_{name}.png"
-    fig.savefig(out / f, dpi=110)
-    plt.close(fig)
+    _save(fig, out / f)
     files.append(f)
     # 2. accuracy against the number of training examples (Fig. 3 / 11)
     fig, ax = plt.subplots(figsize=(7, 4))
@@ -52,8 +66,7 @@ def _plots(res: ProblemResult, out: Path) -> list[str]:
     ax.legend(fontsize=7)
     fig.tight_layout()
     f = f"curve_{name}.png"
-    fig.savefig(out / f, dpi=110)
-    plt.close(fig)
+    _save(fig, out / f)
     files.append(f)
     return files
 
@@ -78,8 +91,7 @@ def _time_plot(results: dict[str, ProblemResult], out: Path) -> str:
         ax.set_xticklabels([m.replace(" (RIPPER)", "\n(RIPPER)").replace(" ", "\n", 1) for m in methods], fontsize=7)
         ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(out / "times.png", dpi=110)
-    plt.close(fig)
+    _save(fig, out / "times.png")
     return "times.png"
 
 

@@ -589,10 +589,10 @@ class Arm:
             with self._lock:
                 stop = self._faults.get("stop")
                 self._faults.clear()
+                self._error_policy.restart_window()
                 if self._stops != stops_before:  # pressed while the drives were reset: it stays, nothing is enabled
                     self._faults["stop"] = stop
                     raise stop
-                self._error_policy.restart_window()
                 for ax in self.axes.values():
                     self._emcy_seen[ax.name] = ax.emcy_seq
             self._enable_all()

@@ -27,6 +27,7 @@ ANSWER_TIMEOUT_S = 1.0  # wall time a drive gets to answer a controlword with a 
 # time (on the shared clock) a quick stop ramp may take before enable() gives up; the arm passes
 # its own bound (2 s past the cell's slowest quick stop ramp)
 QUICK_STOP_END_TIMEOUT_S = 10.0
+ENABLED_FROM = ("SWITCHED_ON", "QUICK_STOP_ACTIVE")  # the states enable operation leaves for OPERATION ENABLED
 FAULT_STATES = ("FAULT", "FAULT_REACTION_ACTIVE")  # a wait for anything else ends in the fault's error
 
 
@@ -456,8 +457,11 @@ class Axis:
 
     def send_quick_stop(self) -> int | None:
         """Quick stop (402 transition 11), not waited for (`Arm` stops every axis first, then waits): the
-        status sequence number before it, or None where the drive was not in OPERATION ENABLED (nothing sent)."""
-        if self.state != "OPERATION_ENABLED":
+        status sequence number before it, or None where the drive was not in OPERATION ENABLED and the host's last
+        controlword did not enable it (nothing sent). One whose enable operation is on its way gets it too: it
+        would otherwise reach OPERATION ENABLED after the stop."""
+        on_its_way = self.state in ENABLED_FROM and codec.command_of(self.controlword) == "ENABLE_OPERATION"
+        if self.state != "OPERATION_ENABLED" and not on_its_way:
             return None
         return self.send_controlword(codec.CW_QUICK_STOP)
 
@@ -533,11 +537,11 @@ class Axis:
         """A handshake's wait, ended at once by a status outside OPERATION ENABLED: a drive stopped meanwhile (the
         operator's stop, its quick stop input) takes no set-point, and waiting out the answer's timeout blamed
         it for not answering (the hint is for that timeout). A fault ends it in the fault's error (`wait_status`,
-        with its EMCY); a stop the owner latched (`move_gate`) in that stop's; anything else is `DriveDisabled`."""
+        with its EMCY); a stop the owner latched (`enable_gate`) in that stop's; anything else is `DriveDisabled`."""
         st = self.wait_status(lambda s: s.state not in FAULT_STATES and (pred(s) or s.state != "OPERATION_ENABLED"),
                               seq, what + no_answer_hint)
         if st.state != "OPERATION_ENABLED":
-            with self.move_gate():  # (raises the stop the host latched, which this one is)
+            with self.enable_gate():  # (raises the stop the host latched, which this one is; no other fault)
                 pass
             raise DriveDisabled(f"{self.name} (node {self.node_id}): left OPERATION ENABLED (reported {st.state}) "
                                 f"while waiting for {what}", node=self.name, node_id=self.node_id, state=st.state)

@@ -621,3 +621,59 @@ def test_a_drop_off_whose_way_hits_a_tall_part_is_reached_with_the_other_elbow(t
         drop = commands[-3].joints  # 'lower': the drop-off configuration
         assert drop in others and drop.elbow != usual.elbow
         loop._check_links("washer", commands, "")  # its whole way is clear
+
+
+def test_a_stop_pressed_as_the_loop_resets_a_fault_moves_nothing_after_it(short_assembly):
+    """The operator's Stop lands after the loop's checkpoint, just before it resets a drive fault: the reset
+    counts that stop among the faults it clears, so the loop stops the arm again and goes no further (before,
+    it enabled the axes and moved the arm up from where the fault left it)."""
+    import threading
+
+    from calibration import load_calibration
+    from cell.cellconfig import default_cell
+    from cell.examples import default_examples_path
+    from cell.runtime.control import RunControl
+    from cell.runtime.loop import CellLoop, LoopOptions
+    from cell.runtime.session import SimCameraSource, home_joints
+    from cell.runtime.simworld import SimWorld
+    from cell.scene import load_assembly
+    from drivers import simulated_cell
+
+    assembly, cell, cal = load_assembly(short_assembly), default_cell(), load_calibration()
+    control, seen = RunControl(), {}
+    with simulated_cell(cell) as (arm, drives):
+        world = SimWorld(list(assembly.parts), cell, drives)
+        loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=SimCameraSource(world, cal, 0), arm=arm,
+                        control=control, examples_path=default_examples_path(), options=LoopOptions(interactive=True))
+        fault_after(arm, drives, "open", 2, "j3")  # on the way up from the drop-off: the reset's retreat moves the arm
+        reset = arm.reset_faults
+
+        def stop_pressed_then_reset():
+            control.stop("stop pressed")  # as the station's Stop: the run's control, then the arm
+            arm.stop()
+            seen["at stop"] = drives.positions()
+            reset()
+
+        arm.reset_faults = stop_pressed_then_reset
+        arm.move_joints(home_joints(cell))
+        control.run(by="test")
+        t = threading.Thread(target=lambda: seen.update(ended=_ends(loop.run)), daemon=True)
+        t.start()
+        assert control.wait_for_state("fault", timeout_s=60) == "fault"
+        control.reset(by="test")
+        control.run(by="test")
+        t.join(60)
+        arm.clock.sleep(0.5)
+        seen["at end"] = drives.positions()
+        world.close()
+    assert seen["ended"] == "Stopped"
+    assert seen["at end"] == pytest.approx(seen["at stop"], abs=1e-6)
+    assert "stop" in arm.faults or not arm.is_connected
+
+
+def _ends(fn) -> str:
+    try:
+        fn()
+        return "returned"
+    except Exception as e:  # noqa: BLE001 - the class is the result
+        return type(e).__name__

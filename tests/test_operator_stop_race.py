@@ -217,3 +217,28 @@ def test_a_stop_during_a_fault_reset_is_not_cleared_by_it(arm, sim_drives, monke
     monkeypatch.setattr(Axis, during, real)
     arm.reset_faults()  # the next reset clears it
     assert arm.faults == {}
+
+
+@pytest.mark.parametrize("first", ["stop", "emcy"])
+def test_a_stop_after_an_enable_frame_left_quick_stops_that_axis_too(arm, sim_drives, monkeypatch, first):
+    """The stop lands after j2's enable operation went out during a reset, before j2 answered: j2 (still
+    reported QUICK STOP ACTIVE or SWITCHED ON) gets its quick stop too. Before, the stop skipped it as not
+    enabled, and j2 then stood in OPERATION ENABLED with the stop latched."""
+    if first == "stop":
+        arm.stop()
+    else:
+        sim_drives.inject_fault("emcy", "j2")
+        arm.clock.sleep(0.1)
+    real, done = Axis._wait_enabled, []
+
+    def answered_after_the_stop(ax, *a, **kw):
+        if ax.name == "j2" and not done:
+            done.append(_stopper(arm).join(5.0))
+        return real(ax, *a, **kw)
+
+    monkeypatch.setattr(Axis, "_wait_enabled", answered_after_the_stop)
+    with pytest.raises(DriverError):
+        arm.reset_faults()
+    arm.clock.sleep(0.5)
+    assert done and "stop" in arm.faults
+    assert not [n for n, d in sim_drives.drives.items() if d.state == "OPERATION_ENABLED"]

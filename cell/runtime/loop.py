@@ -255,6 +255,9 @@ class CellLoop:
         faulted = bool(self.arm.faults)
         if faulted:
             self.arm.reset_faults()
+            if self.control.stop_requested:  # pressed as the reset began: cleared with the faults, so stop again
+                self.arm.stop()
+                return  # the next checkpoint raises Stopped, before anything moves
         if self._pick is not None:  # a pick was cut short (a drive fault, a refused move)
             grasp = self._pick["grasp"]
             if self._recover_pick():

@@ -21,13 +21,12 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 from drivers import codec, option_codes
 from drivers.clock import Clock
 from drivers.eds import object_dictionary
-from drivers.errors import BusFault, DriveDisabled, DriveFault, NodeSilent, SdoError
+from drivers.errors import BusFault, DriveDisabled, DriveFault, DriverError, NodeSilent, SdoError
 
 ANSWER_TIMEOUT_S = 1.0  # wall time a drive gets to answer a controlword with a TPDO
 # time (on the shared clock) a quick stop ramp may take before enable() gives up; the arm passes
 # its own bound (2 s past the cell's slowest quick stop ramp)
 QUICK_STOP_END_TIMEOUT_S = 10.0
-ENABLED_FROM = ("SWITCHED_ON", "QUICK_STOP_ACTIVE")  # the states enable operation leaves for OPERATION ENABLED
 FAULT_STATES = ("FAULT", "FAULT_REACTION_ACTIVE")  # a wait for anything else ends in the fault's error
 
 
@@ -395,6 +394,12 @@ class Axis:
                 seq = self.send_controlword(cw)
             if cw == codec.CW_ENABLE_OPERATION:
                 self._wait_enabled(seq, quick_stop_timeout_s, step_s)
+                try:  # a stop latched while the frame was on its way passed this axis by as not enabled
+                    with self.enable_gate():
+                        pass
+                except DriverError:
+                    self.send_quick_stop()
+                    raise
             else:
                 self.wait_status(lambda s, n=nxt: s.state == n, seq, nxt)
         raise DriveFault(
@@ -457,11 +462,8 @@ class Axis:
 
     def send_quick_stop(self) -> int | None:
         """Quick stop (402 transition 11), not waited for (`Arm` stops every axis first, then waits): the
-        status sequence number before it, or None where the drive was not in OPERATION ENABLED and the host's last
-        controlword did not enable it (nothing sent). One whose enable operation is on its way gets it too: it
-        would otherwise reach OPERATION ENABLED after the stop."""
-        on_its_way = self.state in ENABLED_FROM and codec.command_of(self.controlword) == "ENABLE_OPERATION"
-        if self.state != "OPERATION_ENABLED" and not on_its_way:
+        status sequence number before it, or None where the drive was not in OPERATION ENABLED (nothing sent)."""
+        if self.state != "OPERATION_ENABLED":
             return None
         return self.send_controlword(codec.CW_QUICK_STOP)
 

@@ -35,6 +35,20 @@ def _stopper(arm):
     return t
 
 
+def _stop_when(monkeypatch, arm, method: str, node: str | None = None):
+    """The operator's stop, pressed (and finished) once as `node` (any node: None) enters `Axis.<method>`.
+    Returns the method as it was."""
+    real, done = getattr(Axis, method), []
+
+    def hooked(ax, *a, **kw):
+        if node in (None, ax.name) and not done:
+            done.append(_stopper(arm).join(5.0))
+        return real(ax, *a, **kw)
+
+    monkeypatch.setattr(Axis, method, hooked)
+    return real
+
+
 def _controlwords(spy, cell):
     """(node name, controlword) of every RPDO1 on the bus so far, in order."""
     by_rpdo1 = {codec.RPDO1_BASE + n.node_id: name for name, n in cell.can.nodes.items()}
@@ -51,15 +65,7 @@ def _nothing_enabled_after_the_first_quick_stop(words) -> None:
 def test_a_stop_landing_after_the_last_look_keeps_the_release_from_going_out(arm, sim_drives, open_test_bus,
                                                                              cell_cfg, monkeypatch):
     """Every axis holds its set-point and the last look found nothing; the stop then comes before the releases."""
-    real, stopped = Axis.release, []
-
-    def release(ax):
-        if not stopped:
-            stopped.append(_stopper(arm))
-            stopped[0].join(5.0)
-        return real(ax)
-
-    monkeypatch.setattr(Axis, "release", release)
+    _stop_when(monkeypatch, arm, "release")
     spy = open_test_bus()
     start = sim_drives.positions()
     with pytest.raises(DriverError, match=STOP):
@@ -120,26 +126,23 @@ def test_a_stop_between_two_one_by_one_starts_keeps_the_next_axis_standing(sim_d
     arm = Arm(open_test_bus(), cell, clock=sim_clock, sdo_timeout_s=0.2)
     arm.connect()
     try:
-        real, stopped = Axis.send_target, []
-
-        def send_target(ax, counts):
-            if ax.name == "j2" and not stopped:
-                stopped.append(_stopper(arm))
-                stopped[0].join(5.0)
-            return real(ax, counts)
-
-        monkeypatch.setattr(Axis, "send_target", send_target)
+        _stop_when(monkeypatch, arm, "send_target", "j2")
         spy = open_test_bus()
         start = sim_drives.positions()
-        with pytest.raises(DriverError, match=STOP):
-            arm.move_joints(_target(arm.joints()))
-        arm.clock.sleep(0.5)
-        _nothing_enabled_after_the_first_quick_stop(_controlwords(spy, cell))
+        _moved_into_the_stop(arm, spy, cell)
         assert sim_drives.positions()["j2"] == pytest.approx(start["j2"], abs=1e-9)
         assert sim_drives.drives["j2"].state == "QUICK_STOP_ACTIVE"
         assert list(arm.faults) == ["stop"]
     finally:
         arm.disconnect()
+
+
+def _moved_into_the_stop(arm, spy, cell) -> None:
+    """A move that ends in the operator's stop, with no enable operation on the bus after the stop's quick stops."""
+    with pytest.raises(DriverError, match=STOP):
+        arm.move_joints(_target(arm.joints()))
+    arm.clock.sleep(0.5)
+    _nothing_enabled_after_the_first_quick_stop(_controlwords(spy, cell))
 
 
 def _hook_wait(monkeypatch, node: str, what: str, action):
@@ -163,10 +166,7 @@ def test_a_stop_during_a_set_point_handshake_ends_its_wait_at_once(arm, sim_driv
     _hook_wait(monkeypatch, "j2", "set-point acknowledge", lambda: _stopper(arm).join(5.0))
     spy = open_test_bus()
     start = sim_drives.positions()
-    with pytest.raises(DriverError, match=STOP):
-        arm.move_joints(_target(arm.joints()))
-    arm.clock.sleep(0.5)
-    _nothing_enabled_after_the_first_quick_stop(_controlwords(spy, cell_cfg))
+    _moved_into_the_stop(arm, spy, cell_cfg)
     assert sim_drives.positions() == pytest.approx(start, abs=1e-9)
     assert list(arm.faults) == ["stop"]  # the host's own stop, not blamed on j2
 
@@ -197,15 +197,7 @@ def test_a_stop_during_a_fault_reset_is_not_cleared_by_it(arm, sim_drives, monke
     else:
         arm.stop()
     assert ("j3" if first == "emcy" else "stop") in arm.faults
-    node = "j3" if during == "fault_reset" else "j2"
-    real, done = getattr(Axis, during), []
-
-    def hooked(ax, *a, **kw):
-        if ax.name == node and not done:
-            done.append(_stopper(arm).join(5.0))
-        return real(ax, *a, **kw)
-
-    monkeypatch.setattr(Axis, during, hooked)
+    real = _stop_when(monkeypatch, arm, during, "j3" if during == "fault_reset" else "j2")
     joints = arm.joints()
     with pytest.raises(DriverError, match=STOP):
         arm.reset_faults()
@@ -229,16 +221,9 @@ def test_a_stop_after_an_enable_frame_left_quick_stops_that_axis_too(arm, sim_dr
     else:
         sim_drives.inject_fault("emcy", "j2")
         arm.clock.sleep(0.1)
-    real, done = Axis._wait_enabled, []
-
-    def answered_after_the_stop(ax, *a, **kw):
-        if ax.name == "j2" and not done:
-            done.append(_stopper(arm).join(5.0))
-        return real(ax, *a, **kw)
-
-    monkeypatch.setattr(Axis, "_wait_enabled", answered_after_the_stop)
+    _stop_when(monkeypatch, arm, "_wait_enabled", "j2")  # j2's enable sent, its answer not yet heard
     with pytest.raises(DriverError):
         arm.reset_faults()
     arm.clock.sleep(0.5)
-    assert done and "stop" in arm.faults
+    assert "stop" in arm.faults
     assert not [n for n, d in sim_drives.drives.items() if d.state == "OPERATION_ENABLED"]

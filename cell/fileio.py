@@ -65,14 +65,17 @@ def _not_writable(path: Path, mode: int = os.W_OK) -> bool:
     return not os.stat(path).st_mode & 0o222 or not os.access(path, mode)
 
 
-def refuse_read_only(path: Path, what: str = "") -> None:
-    """The temp file is renamed over `path`, which only the folder's permissions stop: a read-only file was
-    replaced without a word. Refused, as is a read-only folder (which root could write into)."""
-    name = f"{what} {path}" if what else str(path)
+def _refuse_read_only_file(path: Path, name: str) -> None:
     if path.is_file() and _not_writable(path):
         raise BadInput(f"{name} is read-only: not replaced")
+
+
+def refuse_read_only(path: Path) -> None:
+    """The temp file is renamed over `path`, which only the folder's permissions stop: a read-only file was
+    replaced without a word. Refused, as is a read-only folder (which root could write into)."""
+    _refuse_read_only_file(path, str(path))
     if path.parent.is_dir() and _not_writable(path.parent, os.W_OK | os.X_OK):  # the temp file is made there
-        raise BadInput(f"{name}: the folder {path.parent} is not writable")
+        raise BadInput(f"{path}: the folder {path.parent} is not writable")
 
 
 def check_writable(path: str | os.PathLike, what: str) -> None:
@@ -83,8 +86,8 @@ def check_writable(path: str | os.PathLike, what: str) -> None:
     if path.is_dir():
         raise BadInput(f"{what} {path} is a directory, not a file")
     _refuse_to_replace_a_special_file(path, what)
-    refuse_read_only(path, what)
-    check_folder_writable(path.parent, f"{what} {path}")
+    _refuse_read_only_file(path, f"{what} {path}")
+    check_folder_writable(path.parent, f"{what} {path}")  # (the folder: once, here)
 
 
 def check_folder_writable(folder: Path, what: str) -> None:

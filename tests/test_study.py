@@ -14,6 +14,10 @@ def test_study_runs_on_a_tiny_budget_and_writes_the_report(tmp_path, capsys):
     code, stdout, stderr = run_cli("study", "--budget", "tiny", "--out", out, capsys=capsys)
     assert code == 0
     assert "cross-validation" in stderr and "learning curve" in stderr  # progress while it runs
+    from cell.study.report import OUTPUTS
+
+    # OUTPUTS (the files `cell study` checks it can write before its minutes of work) is what it writes
+    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUTS)
     for f in ("report.md", "results.json", "cv_points.png", "cv_sets.png", "curve_points.png",
               "curve_sets.png", "times.png"):
         assert (out / f).stat().st_size > 0, f

@@ -2,6 +2,7 @@
 matched to the assembly, planned, and executed on the simulated CANopen drives over the
 virtual bus; failures handled as the operator wants; recordings replayed."""
 
+import contextlib
 import json
 from importlib import resources
 from pathlib import Path
@@ -354,13 +355,10 @@ def test_a_pick_whose_links_would_hit_a_tall_part_is_refused_before_anything_mov
     assert refused not in sent and sent == [r["part"] for r in s["parts"]]  # nothing of that pick was sent
 
 
-def interactive_run(assembly_path, arrange, *at_faults):
-    """Run the loop as under the station (faults wait for the operator's reset) in a thread.
-    `arrange(loop, arm, drives, world)` sets up the trouble before the run; `at_faults[k](loop,
-    world, fault)` is what the operator does at the k-th fault before pressing reset. Returns
-    (summary, world)."""
-    import threading
-
+@contextlib.contextmanager
+def station_loop(assembly_path):
+    """A loop as under the station (faults wait for the operator's reset) on the simulated cell: yields (loop,
+    arm, drives, world, control, home joints); the world is closed after."""
     from calibration import load_calibration
     from cell.cellconfig import default_cell
     from cell.examples import default_examples_path
@@ -377,8 +375,22 @@ def interactive_run(assembly_path, arrange, *at_faults):
         world = SimWorld(list(assembly.parts), cell, drives)
         loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=SimCameraSource(world, cal, 0), arm=arm,
                         control=control, examples_path=default_examples_path(), options=LoopOptions(interactive=True))
+        try:
+            yield loop, arm, drives, world, control, home_joints(cell)
+        finally:
+            world.close()
+
+
+def interactive_run(assembly_path, arrange, *at_faults):
+    """Run the loop as under the station (faults wait for the operator's reset) in a thread.
+    `arrange(loop, arm, drives, world)` sets up the trouble before the run; `at_faults[k](loop,
+    world, fault)` is what the operator does at the k-th fault before pressing reset. Returns
+    (summary, world)."""
+    import threading
+
+    with station_loop(assembly_path) as (loop, arm, drives, world, control, home):
         arrange(loop, arm, drives, world)
-        arm.move_joints(home_joints(cell))
+        arm.move_joints(home)
         control.run(by="test")
         result = {}
         t = threading.Thread(target=lambda: result.update(summary=loop.run()), daemon=True)
@@ -389,7 +401,6 @@ def interactive_run(assembly_path, arrange, *at_faults):
             control.reset(by="test")
             control.run(by="test")
         t.join(120)
-        world.close()
     return result["summary"], world
 
 
@@ -629,22 +640,8 @@ def test_a_stop_pressed_as_the_loop_resets_a_fault_moves_nothing_after_it(short_
     it enabled the axes and moved the arm up from where the fault left it)."""
     import threading
 
-    from calibration import load_calibration
-    from cell.cellconfig import default_cell
-    from cell.examples import default_examples_path
-    from cell.runtime.control import RunControl
-    from cell.runtime.loop import CellLoop, LoopOptions
-    from cell.runtime.session import SimCameraSource, home_joints
-    from cell.runtime.simworld import SimWorld
-    from cell.scene import load_assembly
-    from drivers import simulated_cell
-
-    assembly, cell, cal = load_assembly(short_assembly), default_cell(), load_calibration()
-    control, seen = RunControl(), {}
-    with simulated_cell(cell) as (arm, drives):
-        world = SimWorld(list(assembly.parts), cell, drives)
-        loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=SimCameraSource(world, cal, 0), arm=arm,
-                        control=control, examples_path=default_examples_path(), options=LoopOptions(interactive=True))
+    seen = {}
+    with station_loop(short_assembly) as (loop, arm, drives, world, control, home):
         fault_after(arm, drives, "open", 2, "j3")  # on the way up from the drop-off: the reset's retreat moves the arm
         reset = arm.reset_faults
 
@@ -655,7 +652,7 @@ def test_a_stop_pressed_as_the_loop_resets_a_fault_moves_nothing_after_it(short_
             reset()
 
         arm.reset_faults = stop_pressed_then_reset
-        arm.move_joints(home_joints(cell))
+        arm.move_joints(home)
         control.run(by="test")
         t = threading.Thread(target=lambda: seen.update(ended=_ends(loop.run)), daemon=True)
         t.start()
@@ -665,7 +662,6 @@ def test_a_stop_pressed_as_the_loop_resets_a_fault_moves_nothing_after_it(short_
         t.join(60)
         arm.clock.sleep(0.5)
         seen["at end"] = drives.positions()
-        world.close()
     assert seen["ended"] == "Stopped"
     assert seen["at end"] == pytest.approx(seen["at stop"], abs=1e-6)
     assert "stop" in arm.faults or not arm.is_connected

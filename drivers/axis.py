@@ -390,9 +390,9 @@ class Axis:
             if state in ("SWITCHED_ON", "QUICK_STOP_ACTIVE"):
                 # the drive may have drifted while switched on, or ramped down: target = actual, once more
                 self.send_target(self.status.position_counts)
-            with self.enable_gate() if cw == codec.CW_ENABLE_OPERATION else contextlib.nullcontext():
-                seq = self.send_controlword(cw)
             if cw == codec.CW_ENABLE_OPERATION:
+                with self.enable_gate():
+                    seq = self.send_controlword(cw)
                 self._wait_enabled(seq, quick_stop_timeout_s, step_s)
                 try:  # a stop latched while the frame was on its way passed this axis by as not enabled
                     with self.enable_gate():
@@ -401,6 +401,7 @@ class Axis:
                     self.send_quick_stop()
                     raise
             else:
+                seq = self.send_controlword(cw)
                 self.wait_status(lambda s, n=nxt: s.state == n, seq, nxt)
         raise DriveFault(
             f"{self.name} (node {self.node_id}): did not reach OPERATION_ENABLED (at {self.state})",

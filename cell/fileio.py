@@ -23,7 +23,7 @@ from cell.errors import BadInput
 
 def write_atomic(path: str | os.PathLike, data: str | bytes) -> None:
     """Replace `path` with `data` so that readers see the old or the new file, never a mix."""
-    path = Path(path)
+    path = _through_link(Path(path))
     _refuse_to_replace_a_special_file(path, "cannot write")
     refuse_read_only(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -45,6 +45,13 @@ def write_atomic(path: str | os.PathLike, data: str | bytes) -> None:
             os.unlink(tmp)
         raise
     _fsync_dir(path.parent)
+
+
+def _through_link(path: Path) -> Path:
+    """The file a symbolic link leads to (dangling: the one it names): the rename would put a plain file in the
+    link's place, and the file it leads to (a calibration kept by date, `current.json` naming the one in use)
+    would keep its old content."""
+    return Path(os.path.realpath(path)) if path.is_symlink() else path
 
 
 def _refuse_to_replace_a_special_file(path: Path, what: str) -> None:
@@ -82,7 +89,7 @@ def check_writable(path: str | os.PathLike, what: str) -> None:
     """Refuse, before any work is done, an output path that cannot become a file: a directory, a FIFO or
     a device, a read-only file or folder, or a path under a file (`write_atomic` would fail only after the
     work, naming its temp file)."""
-    path = Path(path)
+    path = _through_link(Path(path))
     if path.is_dir():
         raise BadInput(f"{what} {path} is a directory, not a file")
     _refuse_to_replace_a_special_file(path, what)
@@ -114,6 +121,7 @@ def _file_lock(path: Path):
     it is safe because a writer that waited on the removed file sees that the name no longer leads to
     it and takes the lock again, on the file the name now leads to: else it and a writer that came after
     the removal (and made a new file) would both hold "the" lock."""
+    path = _through_link(path)  # (the lock beside the file written, not beside the link)
     refuse_read_only(path)  # before the lock file is made
     path.parent.mkdir(parents=True, exist_ok=True)
     lock = path.with_name(f".{path.name}.lock")

@@ -89,3 +89,36 @@ def test_a_read_only_example_file_the_station_would_append_to_is_refused_before_
     p = subprocess.run([sys.executable, "-m", "cell", "run", "--station", "--port", "0", "--examples", str(ex)],
                        capture_output=True, text=True, cwd=ROOT, timeout=120)  # else it serves the station
     assert p.returncode == 2 and p.stderr == f"cell: error: --examples {ex} is read-only: not replaced\n", p.stderr
+
+
+def test_write_atomic_through_a_link_replaces_the_file_it_leads_to_and_keeps_the_link(tmp_path):
+    (tmp_path / "kept").mkdir()
+    real = tmp_path / "kept" / "cal-2026-12-04.json"
+    real.write_bytes(OLD)
+    link = tmp_path / "current.json"
+    link.symlink_to(Path("kept") / real.name)  # relative, as `ln -s` is mostly used
+    write_atomic(link, b"new")
+    assert link.is_symlink() and os.readlink(link) == str(Path("kept") / real.name)
+    assert real.read_bytes() == b"new"
+    assert sorted(os.listdir(tmp_path / "kept")) == [real.name]  # no temp file left beside it
+    real.chmod(0o444)  # a read-only file behind a link is refused as one in place is
+    with pytest.raises(BadInput, match=r"cal-2026-12-04\.json is read-only: not replaced$"):
+        write_atomic(link, b"newer")
+    assert real.read_bytes() == b"new"
+
+
+def test_a_cli_output_given_as_a_link_is_written_where_it_leads(tmp_path, capsys):
+    """Was: the link was replaced by a plain file, and the file it led to kept its old content."""
+    from cell.examples import load_examples
+
+    (tmp_path / "kept").mkdir()
+    real = tmp_path / "kept" / "examples-v2.jsonl"
+    link = tmp_path / "ex.jsonl"
+    link.symlink_to(real)  # dangling until the first write
+    generate = ("examples", "generate", "--count", "1", "--out", link)
+    assert run_cli(*generate, capsys=capsys)[0] == 0
+    assert run_cli(*generate, "--seed", "7", "--append", capsys=capsys)[0] == 0
+    assert link.is_symlink() and link.resolve() == real
+    assert len(load_examples(real)) == 2
+    assert sorted(os.listdir(tmp_path / "kept")) == [real.name]  # the lock went with its holder
+    assert sorted(os.listdir(tmp_path)) == ["ex.jsonl", "kept"]

@@ -44,6 +44,7 @@ from cell.fileio import (
     check_readable,
     json_loads,
     read_json,
+    refuse_lone_surrogates,
     short_repr,
     to_jsonable,
     write_atomic,
@@ -438,7 +439,8 @@ class RecordingReader:
     def _parse_line(self, path: Path, lineno: int, line: bytes, last: bool = False) -> dict | None:
         """The decision on `line`; None for a `last` line that is not whole JSON (a crash cut it short)."""
         try:
-            rec = json_loads(line.decode("utf-8"), parse_constant=_no_constant)
+            text = line.decode("utf-8")
+            rec = json_loads(text, parse_constant=_no_constant)
         except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
             if last:
                 return None
@@ -449,6 +451,7 @@ class RecordingReader:
             raise BadInput(f"recording {path} line {lineno}: {e}") from None
         if not isinstance(rec, dict):
             raise BadInput(f"recording {path} line {lineno}: a decision must be a JSON object")
+        refuse_lone_surrogates(text, rec, f"recording {path} line {lineno}")  # no writer of ours writes one
         return rec
 
     # -- frames

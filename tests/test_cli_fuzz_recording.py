@@ -64,6 +64,12 @@ def _twice_in_a_decision(line: int, pair: str, newline: bool = True):
     return damage
 
 
+def _lone_surrogate_in_a_decision(d: Path):
+    lines = (d / "decisions.jsonl").read_text().splitlines()
+    lines[2] = lines[2][:-1] + ',"note":"\\udc80"}'
+    (d / "decisions.jsonl").write_text("\n".join(lines) + "\n")
+
+
 def _twice_in_the_manifest(d: Path):
     text = (d / "manifest.json").read_text()
     (d / "manifest.json").write_text(text.replace('"version": 1,', '"version": 1, "version": 1,', 1))
@@ -76,6 +82,8 @@ def _twice_in_the_manifest(d: Path):
     (_twice_in_a_decision(1, '"type":"perception"'), "decisions.jsonl line 1: key 'type' appears twice"),
     # a whole last line without its newline is no line a crash cut short: corrupt, not dropped as torn
     (_twice_in_a_decision(-1, '"type":"summary"', newline=False), "decisions.jsonl line 14: key 'type' appears"),
+    # half a UTF-16 pair: no writer of ours writes one (was: a divergence, exit 1)
+    (_lone_surrogate_in_a_decision, "decisions.jsonl line 3: note holds a lone UTF-16 surrogate escape"),
     (_twice_in_the_manifest, "manifest.json: key 'version' appears twice in one object"),
     # was: internal error (ValueError: Exceeds the limit (4300 digits) for integer string conversion)
     (_big_integer_in_manifest, "manifest.json is not valid JSON: a number too large: 5000 digits, at most 4300 "

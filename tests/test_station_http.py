@@ -351,3 +351,28 @@ def test_the_demo_tray_keeps_its_colours_of_before(tmp_path):
     for k, p in enumerate(demo_parts()):
         u, v = np.round(mm_to_px(p.polygon.representative_point().coords[0])).astype(int)
         assert tuple(img[v, u]) == PART_COLORS_BGR[k], p.id
+
+
+@pytest.mark.parametrize("body, match", [
+    # json keeps the last of a key given twice: the rejection was recorded with a note nobody read
+    (b'{"reason": "pad on the hinge", "reason": "ok"}', "key 'reason' appears twice in one object"),
+    # half a UTF-16 pair became the example's note, and the example file was then refused whole when read
+    (b'{"reason": "pad on the \\udc80 hinge"}', "lone UTF-16 surrogate"),
+], ids=["key-twice", "lone-surrogate"])
+def test_a_rejection_json_cannot_say_clearly_is_400_and_the_example_file_stays_readable(station, tmp_path, body,
+                                                                                        match):
+    server, control, _ = station
+    call(server, "POST", "/api/approval", {"required": True})
+    call(server, "POST", "/api/run")
+    wait_proposal(control, "cover")
+    status, r = raw_request(server, post_head(server, "/api/reject", len(body)), body)
+    assert status == 400 and match in r["error"], r
+    assert not (tmp_path / "examples.jsonl").exists()
+    assert control.snapshot(0)["state"] == AWAITING_APPROVAL  # the proposal still waits for its decision
+    status, _ = call(server, "POST", "/api/reject", {"reason": "pad on the hinge"})
+    assert status == 200
+    deadline = time.monotonic() + T  # (the loop writes the example)
+    while time.monotonic() < deadline and not (tmp_path / "examples.jsonl").exists():
+        time.sleep(0.01)
+    ex = load_examples(tmp_path / "examples.jsonl")
+    assert [e.source["note"] for e in ex] == ["pad on the hinge"]

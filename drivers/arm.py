@@ -57,10 +57,14 @@ from drivers.pump import BusPump
 log = logging.getLogger(__name__)
 
 HOST_NODE_ID = 0x7F  # the host's own heartbeat id (the drives watch it)
-# A watchdog run this much of a deadline after the previous one was itself held up (a loaded
-# machine, a long pause of the process): heartbeats that arrived meanwhile may still be queued
-# behind it, so silence is counted from that run on, not from the last heartbeat handled
+# A watchdog run this much of a deadline after the previous one, and this many of its periods, was itself
+# held up (a loaded machine, a long pause of the process): heartbeats that arrived meanwhile may still be
+# queued behind it, so silence is counted from that run on, not from the last heartbeat handled. (The
+# share alone took every run for a held-up one where a poll is half a deadline or more: no node was ever
+# found silent.)
 WATCH_STARVED_SHARE = 0.5
+WATCH_STARVED_PERIODS = 3
+WATCH_MIN_PERIOD_S = 0.005
 FRAMES_MS = MIN_STOP_LAG_MS - HOST_POLL_MS  # of the stop lag, the frames' time (the status in, the quick stops out)
 POSITION_TOLERANCE_COUNTS = 2
 # wall time an axis gets to show it started at the halt's release (its answer takes ms; meanwhile the axes
@@ -125,6 +129,9 @@ class Arm:
                              f"for the frames, no more than can.stop_lag_ms = {cell.can.stop_lag_ms:g} ms (the host "
                              "stops the other axes within a poll of one stopping on its own)")
         self.poll_s = poll_s
+        self._watch_period_s = max(poll_s, WATCH_MIN_PERIOD_S)
+        self._watch_starved_s = max(WATCH_STARVED_SHARE * self.heartbeat_deadline_s,
+                                    WATCH_STARVED_PERIODS * self._watch_period_s)
         self.axes: dict[str, Axis] = {}
         self.gripper = Gripper(self)
         self._faults: dict[str, DriverError] = {}
@@ -195,7 +202,7 @@ class Arm:
             for ax in self.axes.values():
                 ax.wait_status(lambda s: True, None, "first TPDO after NMT start")
                 ax.wait_nmt(self.clock, 0x05, self.boot_timeout_s, self.poll_s)
-            self._jobs.append(self.clock.every(max(self.poll_s, 0.005), self._watch, name="arm-watchdog"))
+            self._jobs.append(self.clock.every(self._watch_period_s, self._watch, name="arm-watchdog"))
             if enable:
                 self._enable_all()
         except BaseException:
@@ -352,7 +359,7 @@ class Arm:
         if self._pump is not None and self._pump.errors:  # the receive thread ended: the host hears nothing
             self._latch(BusFault(f"bus: receiving failed: {self._pump.errors[0]}"), key="bus")
         with self._lock:
-            if self._watched_s is not None and now - self._watched_s > WATCH_STARVED_SHARE * self.heartbeat_deadline_s:
+            if self._watched_s is not None and now - self._watched_s > self._watch_starved_s:
                 self._silence_from_s = now
             self._watched_s = now
             silence_from_s = self._silence_from_s

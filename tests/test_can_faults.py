@@ -376,3 +376,23 @@ def test_two_looks_at_the_drives_at_once_do_not_pass_an_emcy_for_a_poll(arm, ope
     first.join(2.0)
     second.join(2.0)
     assert len(second_saw) == 1 and "EMCY 0x2310" in second_saw[0]
+
+
+@pytest.mark.parametrize("poll_ms", [10, 200, 500])
+def test_a_silent_node_is_found_whatever_the_hosts_poll(poll_ms):
+    """The watchdog takes a run that comes late for a held-up host and counts silence from it (heartbeats may
+    still be queued behind it). Late was half a deadline (150 ms here): a host polling every 200 ms, which a
+    cell file with can.stop_lag_ms 1000 allows, took every run for a late one and never found a node silent."""
+    import dataclasses
+
+    from cell.cellconfig import default_cell
+    from drivers import simulated_cell
+
+    cell = default_cell()
+    cell = dataclasses.replace(cell, can=dataclasses.replace(cell.can, stop_lag_ms=1000))
+    with simulated_cell(cell, poll_s=poll_ms / 1000) as (arm, drives):
+        arm.clock.sleep(1.0)
+        assert arm.faults == {}  # (the others keep beating: no false alarm from the slow poll)
+        drives.inject_fault("silent", "j2")
+        arm.clock.sleep(3.0)
+        assert set(arm.faults) == {"j2"} and "no heartbeat" in arm.faults["j2"]

@@ -797,6 +797,7 @@ class Arm:
                     # stop input) is answered within a poll, as the way check's can.stop_lag_ms has it
                     self._watch(stops=True)
                     self._check_faults(during_move=True)
+                    self._stop_if_stopped_short(targets)
                     if all(self._arrived(self.axes[n], c) for n, c in targets.items()):
                         return
                     if self.clock.now() > deadline:
@@ -814,13 +815,36 @@ class Arm:
             self._pending = ({}, 0.0)
 
     @staticmethod
-    def _arrived(ax: Axis, counts: int) -> bool:
-        """Target reached in OPERATION ENABLED, at the target: bit 10 also reports the end of a quick
-        stop ramp in QUICK STOP ACTIVE (CiA 402), which is no arrival even a count or two short."""
+    def _ended(st) -> bool:
+        """The drive says its move ended: target reached in OPERATION ENABLED, no set-point being taken (bit 10
+        also reports the end of a quick stop ramp in QUICK STOP ACTIVE, CiA 402: no arrival)."""
+        return st is not None and st.state == "OPERATION_ENABLED" and st.target_reached and not st.ack
+
+    @classmethod
+    def _arrived(cls, ax: Axis, counts: int) -> bool:
+        """The move ended at the target (a count or two short of it is no arrival after a quick stop: `_ended`).
+        The gripper's jaws stopped on a part (internal limit active) have arrived where the part is."""
         st = ax.status
-        if st is None or st.state != "OPERATION_ENABLED" or not st.target_reached or st.ack:
-            return False
-        return abs(st.position_counts - counts) <= POSITION_TOLERANCE_COUNTS or st.internal_limit
+        return cls._ended(st) and (abs(st.position_counts - counts) <= POSITION_TOLERANCE_COUNTS
+                                   or (ax.name == "gripper" and st.internal_limit))
+
+    def _stop_if_stopped_short(self, targets: dict[str, int]) -> None:
+        """An arm axis whose drive reports its move ended with internal limit active, away from the target: a
+        limit switch, a torque or current limit, a target clipped to the drive's own limits. It was taken for
+        arrival (the pick record said the axis stood where it was sent): every axis is stopped and the fault
+        latched, naming where the axis stands."""
+        for name, counts in targets.items():
+            ax = self.axes[name]
+            st = ax.status
+            if name == "gripper" or not self._ended(st) or not st.internal_limit or self._arrived(ax, counts):
+                continue
+            err = DriveFault(f"{name} (node {ax.node_id}): stopped at {ax.position:g} {ax.unit}, short of "
+                             f"{ax.from_counts(counts):g} {ax.unit}: the drive reports an internal limit (a limit "
+                             "switch, a torque or current limit, or its own position limits)", node=name,
+                             node_id=ax.node_id)
+            self._latch(err)
+            self._stop_all()
+            raise err
 
     def state(self) -> dict[str, dict]:
         """Per node: name, node_id, state (CiA 402 name), position (deg or mm), unit, nmt,

@@ -137,8 +137,9 @@ class SimHandle:
             leaves the following error window 0x6065),
             'quick_stop' (the drive quick-stops on its own, as by its quick stop input: transition
             11 as 0x605A says, no fault), 'disable' (STO: the drive function off at once, SWITCH
-            ON DISABLED, the axis coasts, no fault); both, like 'emcy', at once or `after_s` into
-            the next move,
+            ON DISABLED, the axis coasts, no fault), 'internal_limit' (the move ends where the axis
+            is, with statusword bits 10 and 11, as on a limit switch or a torque limit, no fault); all,
+            like 'emcy', at once or `after_s` into the next move,
             'drop_sdo' (the next `count` SDO answers are lost; default all, until `heal`),
             'error_frames' (`count` error frames on the bus, default 3, of `error_class`, default 'bus_error':
             one of ERROR_FRAMES, as SocketCAN presents them through python-can; no node needed).

@@ -26,9 +26,9 @@ log = logging.getLogger(__name__)
 
 TPDO_EVENT_MS = 50  # TPDO1 is also sent at least this often (canopen's BaseNode402 waits 0.2 s)
 FAULT_KINDS = ("silent", "emcy", "following_error", "drop_sdo", "error_frames", "quick_stop", "disable",
-               "ignore_set_point")
+               "ignore_set_point", "internal_limit")
 # injected events that act on the drive at once, or `after_s` into its next move
-TIMED_EVENTS = ("emcy", "quick_stop", "disable")
+TIMED_EVENTS = ("emcy", "quick_stop", "disable", "internal_limit")
 NMT_OPERATIONAL, NMT_PREOP, NMT_STOPPED, NMT_INIT = 0x05, 0x7F, 0x04, 0x00
 HOST_WATCH_STARVED_SHARE = 0.5  # a step this much of the host deadline after the last one: we were held up
 QUICK_STOP_DECEL_FACTOR = 2.0  # quick stop / fault reaction ramp = this x the profile acceleration
@@ -843,6 +843,12 @@ class SimDrive:
             self._quick_stop()
         elif kind == "disable" and "FAULT" not in self.state:
             self._disable("SWITCH_ON_DISABLED")
+        elif kind == "internal_limit" and self.state == "OPERATION_ENABLED" and self.motion is not None:
+            # a limit switch or a torque limit: the move ends where the axis is, bits 10 and 11 set, no fault
+            self.motion, self.pending = None, None
+            if not self.controlword & codec.CW_NEW_SET_POINT:
+                self.ack = False  # a buffered set-point is dropped: the buffer is free
+            self.internal_limit = self.target_reached = True
 
     def heal(self) -> None:
         """Stop injected misbehaviour (the node talks again); latched drive faults stay."""

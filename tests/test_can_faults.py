@@ -396,3 +396,20 @@ def test_a_silent_node_is_found_whatever_the_hosts_poll(poll_ms):
         drives.inject_fault("silent", "j2")
         arm.clock.sleep(3.0)
         assert set(arm.faults) == {"j2"} and "no heartbeat" in arm.faults["j2"]
+
+
+def test_an_axis_stopped_short_by_an_internal_limit_is_a_fault_not_an_arrival(arm, sim_drives):
+    """Bit 11 (internal limit active) with bit 10 ends a move short of its target on a limit switch or a torque
+    limit. It was taken for arrival on every axis, as it is for the gripper's jaws on a part: move_joints returned
+    the target and J3 stood 40 mm above it."""
+    start = arm.joints()
+    target = Joints(start.j1_deg, start.j2_deg, start.j3_mm - 60.0, start.j4_deg)  # straight down
+    sim_drives.inject_fault("internal_limit", "j3", after_s=0.1)
+    with pytest.raises(DriveFault, match=r"j3 \(node 3\): stopped at [\d.]+ mm, short of [\d.]+ mm.*internal limit"):
+        arm.move_joints(target)
+    assert sim_drives.positions()["j3"] > target.j3_mm + 5.0
+    assert "j3" in arm.faults
+    _assert_frozen(arm, sim_drives)
+    with pytest.raises(FaultLatched, match="j3"):
+        arm.move_joints(arm.joints())
+    _assert_recovers(arm, sim_drives)

@@ -202,6 +202,7 @@ class Arm:
             for ax in self.axes.values():
                 ax.wait_status(lambda s: True, None, "first TPDO after NMT start")
                 ax.wait_nmt(self.clock, 0x05, self.boot_timeout_s, self.poll_s)
+            self._stop_what_was_left_running()
             self._jobs.append(self.clock.every(self._watch_period_s, self._watch, name="arm-watchdog"))
             if enable:
                 self._enable_all()
@@ -249,6 +250,19 @@ class Arm:
         ax.sdo_write(0x6083, 0, a)
         ax.sdo_write(0x6084, 0, a)
         ax.sdo_write(0x6085, 0, max(1, round(QUICK_STOP_DECEL_FACTOR * accel * ax.counts_per_unit)))
+
+    def _stop_what_was_left_running(self) -> None:
+        """A drive found in OPERATION ENABLED at connect was left so by another host: one that died and came back
+        within the drives' host-heartbeat deadline, or another master. It may still run that host's move, or hold
+        a set-point under halt that the next controlword starts: taken as enabled and idle, the first command was
+        checked from a snapshot mid-move and the axis first ran on to the old target. Such drives are
+        quick-stopped (that discards their set-points) and, once every axis stands, enabled afresh by the
+        usual walk."""
+        left = [ax.name for ax in self.axes.values() if ax.state == "OPERATION_ENABLED"]
+        if left:
+            log.warning("%s found enabled at connect (left so by another host): quick-stopped before anything else",
+                        ", ".join(left))
+            self._stop_all()
 
     def _enable_all(self) -> None:
         """Enable every drive. A drive found in FAULT (say, after a host crash) is not reset
@@ -496,11 +510,13 @@ class Arm:
         """Quick-stop every enabled axis now (Ctrl-C, an operator's stop) and wait until they
         stand still. Latched like a fault: the drives stay in QUICK STOP ACTIVE (0x605A = 6, set at
         connect; a drive that kept 1 or 2 ends in SWITCH ON DISABLED) and commands are refused until
-        `reset_faults()`, which enables them from either."""
+        `reset_faults()`, which enables them from either. A stop before the arm is connected (or while it
+        connects, from another thread) is latched all the same: `connect` then enables no axis; it was lost,
+        and every drive was enabled."""
+        # latched first: a move starting in another thread meanwhile (the station's loop) is refused
+        # instead of releasing axes this stop has stopped
+        self._latch(DriverError("quick stop requested by the operator"), key="stop")
         if self._connected:
-            # latched first: a move starting in another thread meanwhile (the station's loop) is refused
-            # instead of releasing axes this stop has stopped
-            self._latch(DriverError("quick stop requested by the operator"), key="stop")
             self._stop_all()
             self._pending = ({}, 0.0)
 

@@ -439,17 +439,22 @@ class Arm:
                     "allowed_gap_ms": round(1000.0 * self._allowed_look_gap_s(), 1)}
 
     @staticmethod
-    def _left_operation(ax: Axis, when: str, since_seq: int | None = None) -> DriveDisabled | None:
+    def _left_operation(ax: Axis, when: str, since_seq: int | None = None) -> DriverError | None:
         """An axis that left OPERATION ENABLED without a fault while the host still commands enable
         operation (a quick stop or STO from the drive's side, another master). During a move it will never
         arrive and the others must not go on alone; before one, the host's enable operation with the
         set-point would re-enable it (transition 16) behind that side's back. The host's own stops send
         another command. since_seq (the axis' status_seq when its move was commanded): also an axis that
         left since then and is enabled again, by the move's release or another master (transition 16
-        drops the set-point: it stands while the others run)."""
+        drops the set-point: it stands while the others run). Also a drive whose mode of operation another master
+        changed: the set-point bits mean other things there (bit 4 starts homing in mode 6)."""
         st = ax.status
         if st is None or "FAULT" in st.state or codec.command_of(ax.controlword) != "ENABLE_OPERATION":
             return None
+        if st.mode != codec.PP_MODE:
+            return DriveFault(f"{ax.name} (node {ax.node_id}): its mode of operation (0x6061) is {st.mode} {when}, not "
+                              f"profile position ({codec.PP_MODE}): changed by another master; no set-point is sent "
+                              "in another mode", node=ax.name, node_id=ax.node_id)
         if st.state != "OPERATION_ENABLED":
             return DriveDisabled(
                 f"{ax.name} (node {ax.node_id}): left OPERATION ENABLED {when} without a fault, now in "

@@ -413,3 +413,32 @@ def test_an_axis_stopped_short_by_an_internal_limit_is_a_fault_not_an_arrival(ar
     with pytest.raises(FaultLatched, match="j3"):
         arm.move_joints(arm.joints())
     _assert_recovers(arm, sim_drives)
+
+
+def test_a_drive_another_master_took_out_of_profile_position_gets_no_set_point():
+    """A commissioning tool left on the bus writes 0x6060: the host checked the mode only when it enabled the
+    drive, and sent its next set-point (controlword bit 4: homing operation start in mode 6) all the same."""
+    import canopen
+
+    from drivers import open_bus, simulated_cell
+    from drivers.eds import AXIS_EDS, eds_path
+
+    with simulated_cell(channel="another-master") as (arm, drives):
+        tool = open_bus("virtual", "another-master")
+        net = canopen.Network(tool)
+        node = canopen.RemoteNode(2, str(eds_path(AXIS_EDS)))
+        net.add_node(node)
+        listening = can.Notifier(tool, [net.listeners[0]])
+        try:
+            node.sdo.RESPONSE_TIMEOUT = 1.0
+            node.sdo[0x6060].raw = 0  # no mode
+            arm.clock.sleep(0.1)
+            before = drives.positions()
+            with pytest.raises(DriveFault, match=r"j2 \(node 2\): its mode of operation \(0x6061\) is 0 while idle"):
+                arm.move_joints(_long_move(arm))
+            assert drives.positions() == before and "j2" in arm.faults
+            _assert_recovers(arm, drives)
+            assert arm.axes["j2"].status.mode == 1  # the reset put it back in profile position
+        finally:
+            listening.stop()
+            tool.shutdown()

@@ -7,11 +7,12 @@ past it when there is none, and the final width tells a held part from a missed 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from cell.cellconfig import GRIPPER_ACCEL_FACTOR
-from drivers.eds import GRIP_FORCE_INDEX
+from drivers.eds import GRIP_FORCE_INDEX, grip_force_units
 from drivers.errors import LimitError
 from drivers.limits import gripper_violations
 from drivers.profile import trapezoid
@@ -74,11 +75,14 @@ class Gripper:
         arm._begin_command()
         force_n = arm.cell.gripper.grip_force_n if force_n is None else force_n
         problems = gripper_violations(arm.cell, expected_width_mm, force_n)
+        if not (isinstance(tolerance_mm, (int, float)) and 0 <= tolerance_mm < math.inf):
+            problems.append(f"grip tolerance {tolerance_mm} mm must be 0 or more and finite (jaws blocked wide "
+                            "open would count as holding)")
         if problems:
             raise LimitError("grip refused, nothing sent: " + "; ".join(problems))
         ax = arm.axes["gripper"]
         if force_n != self._force_n:
-            arm._guarded(ax.sdo_write, GRIP_FORCE_INDEX, 0, round(force_n * 10))
+            arm._guarded(ax.sdo_write, GRIP_FORCE_INDEX, 0, grip_force_units(force_n))
             self._force_n = force_n
         self._move(arm.cell.gripper.opening_mm[0])
         width = self.width_mm

@@ -21,6 +21,7 @@ import numpy as np
 from cell.cellconfig import QUICK_STOP_DECEL_FACTOR
 from cell.kinematics import Joints, forward, limit_violations, tool_xy
 from drivers import codec
+from drivers.eds import grip_force_units
 
 JOINT_FIELDS = (
     ("j1", "j1_deg", "deg"),
@@ -193,6 +194,8 @@ def gripper_violations(cell, width_mm: float, force_n: float | None = None) -> l
             or not 0 < force_n <= cell.gripper.max_force_n
         ):
             out.append(f"grip force {force_n} N outside (0, {cell.gripper.max_force_n:g}]")
+        elif grip_force_units(force_n) < 1:  # 0 is no limit, or full current, on many grippers
+            out.append(f"grip force {force_n} N is 0 in the drive's 0.1 N steps (object 0x2100)")
     return out
 
 

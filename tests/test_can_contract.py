@@ -5,6 +5,7 @@ DRIVERS_CAN_INTERFACE / DRIVERS_CAN_CHANNEL, see tests/drivers_fixtures.py)."""
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import can
 import pytest
@@ -128,6 +129,19 @@ class ContractSuite:
     def test_grip_force_above_the_maximum_is_refused(self, arm):
         with pytest.raises(LimitError, match="force"):
             arm.gripper.grip(30.0, force_n=arm.cell.gripper.max_force_n + 1)
+
+    def test_a_grip_the_drive_would_not_limit_or_a_tolerance_that_takes_any_stop_is_refused(self, arm, sim_drives):
+        """0.04 N is 0 in 0x2100's 0.1 N steps (no limit, or full current, on many grippers): it was written. A
+        tolerance of inf counted jaws blocked wide open as holding."""
+        force = sim_drives.drives["gripper"].grip_force_n if sim_drives is not None else None
+        with pytest.raises(LimitError, match=r"grip force 0\.04 N is 0 in the drive's 0\.1 N steps"):
+            arm.gripper.grip(30.0, force_n=0.04)
+        for tolerance in (math.inf, math.nan, -1.0):
+            with pytest.raises(LimitError, match="grip tolerance"):
+                arm.gripper.grip(30.0, tolerance_mm=tolerance)
+        if sim_drives is not None:
+            assert sim_drives.drives["gripper"].grip_force_n == force  # nothing was written
+        assert arm.gripper.grip(30.0, force_n=0.1).width_mm is not None  # the least the drive holds: 1 step
 
 
 class TestSimulatedTime(ContractSuite):

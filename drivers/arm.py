@@ -36,7 +36,7 @@ from cell.kinematics import Joints
 from drivers import codec
 from drivers.axis import Axis
 from drivers.clock import Clock, RealClock
-from drivers.eds import AXIS_EDS, GRIP_FORCE_INDEX, GRIPPER_EDS, eds_path
+from drivers.eds import AXIS_EDS, GRIP_FORCE_INDEX, GRIPPER_EDS, eds_path, grip_force_units
 from drivers.errorframes import ErrorFramePolicy, classes_readable
 from drivers.errors import (
     BusFault,
@@ -235,7 +235,7 @@ class Arm:
         if ax.name == "gripper":
             lo, hi = c.gripper.opening_mm
             velocity, accel = c.gripper.speed_mm_s, GRIPPER_ACCEL_FACTOR * c.gripper.speed_mm_s
-            ax.sdo_write(GRIP_FORCE_INDEX, 0, round(c.gripper.grip_force_n * 10))
+            ax.sdo_write(GRIP_FORCE_INDEX, 0, grip_force_units(c.gripper.grip_force_n))
             self.gripper._force_n = c.gripper.grip_force_n
         else:
             lo, hi = c.scara.limits(ax.name)
@@ -288,6 +288,7 @@ class Arm:
         told to shut down mid-move may let its axis coast (0x605B), so it stops on its ramp."""
         if not self._connected:
             return
+        surprise = None
         try:
             if self._pending[0] or any(self._moving(ax) for ax in self.axes.values()):
                 self._stop_all()
@@ -299,6 +300,10 @@ class Arm:
                     ax.sdo_write(0x1016, 1, 0)
                 except (DriverError, can.CanError):
                     pass  # a node that cannot be told is stopped by its host-heartbeat watch
+                except BaseException as e:  # Ctrl-C while one is told: the others are told all the same
+                    surprise = surprise or e
+            if surprise is not None:
+                raise surprise
         finally:
             for job in self._jobs:
                 job.cancel()

@@ -86,3 +86,24 @@ def test_a_stop_before_the_arm_is_connected_keeps_every_drive_from_being_enabled
             assert other.faults == {} and all(d.state == "OPERATION_ENABLED" for d in drives.drives.values())
         finally:
             other.disconnect()
+
+
+def test_ctrl_c_while_disconnect_tells_one_drive_still_disables_the_others():
+    """Was: the interrupt left the loop, and the drives after it stood enabled until their host-heartbeat
+    deadline ran out and they faulted."""
+    from drivers import simulated_cell
+
+    with simulated_cell() as (arm, drives):
+        told = arm.axes["j1"].disable
+
+        def interrupted():
+            told()
+            raise KeyboardInterrupt
+
+        arm.axes["j1"].disable = interrupted
+        with pytest.raises(KeyboardInterrupt):
+            arm.disconnect()
+        assert not arm.is_connected
+        arm.clock.sleep(0.05)
+        shut_down = {n: "READY_TO_SWITCH_ON" for n in drives.drives}
+        assert {n: d.state for n, d in drives.drives.items()} == shut_down

@@ -35,7 +35,6 @@ MAX_CAMERA_SIDE_PX = 32767  # OpenCV's remap (segmentation samples the frames wi
 HEARTBEAT_DEADLINE_FACTOR = 3.0  # a node is silent after this many of its heartbeat periods
 GRIPPER_ACCEL_FACTOR = 10.0  # gripper acceleration = this x its speed, per second
 QUICK_STOP_DECEL_FACTOR = 2.0  # quick stop / fault reaction deceleration = this x the max acceleration
-MAX_HEARTBEAT_MS = 0xFFFF  # 0x1017 producer heartbeat time: UNSIGNED16
 # Error frames (drivers.errorframes): a sporadic one is counted; more than can.error_frames_max within
 # can.error_window_ms mean a disturbed bus losing frames (bad termination, a loose connector, interference)
 DEFAULT_ERROR_FRAMES_MAX = 10
@@ -49,6 +48,15 @@ HOST_POLL_MS = 10
 DEFAULT_STOP_LAG_MS = 20
 MIN_STOP_LAG_MS = HOST_POLL_MS + 5
 MAX_STOP_LAG_MS = 1000  # a second: ways near the edge would all be refused long before
+# The drives' heartbeat period (can.heartbeat_ms, 0x1017; the host finds a node silent HEARTBEAT_DEADLINE_FACTOR
+# periods after its last heartbeat). Under the host's poll (HOST_POLL_MS, its watch of the drives) the watch could
+# not tell a silent drive from its own late run, and the heartbeats alone load the bus (5 drives at 1 ms: 5000
+# frames/s, 33 % of 1 Mbit/s; at 10 ms 3.3 %, 26 % at 125 kbit/s). Over a second a dead drive goes unnoticed for
+# more than 3 s (at 65535, the 16-bit object's top, 197 s), where a move takes a second or two.
+MIN_HEARTBEAT_MS = HOST_POLL_MS
+MAX_HEARTBEAT_MS = 1000  # the host finds a silent drive within 3 s; well within 0x1017's UNSIGNED16
+HEARTBEAT_FRAME_BITS = 65  # a heartbeat frame (1 data byte), worst-case stuffing and interframe space: as
+# drivers.codec.frame_bits(1)
 
 
 def default_cell_path() -> Path:
@@ -283,11 +291,11 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
     can = CanConfig(r.count(cn, "bitrate", "can"), r.count(cn, "heartbeat_ms", "can"),
                     r.count(cn, "host_heartbeat_ms", "can"), nodes, *_error_frame_window(r, cn, source),
                     r.flag(cn, "coordinated_start", "can", default=True), _stop_lag_ms(r, cn, source))
-    host_top = int(MAX_HEARTBEAT_MS // HEARTBEAT_DEADLINE_FACTOR)  # the host's deadline in 0x1016 is 16 bits too
-    for key, top in (("heartbeat_ms", MAX_HEARTBEAT_MS), ("host_heartbeat_ms", host_top)):
-        if getattr(can, key) > top:
-            raise BadInput(f"cell file {source}: can.{key} = {getattr(can, key)} is more than {top} ms "
-                           "(a 16-bit time in the drives' heartbeat objects)")
+    _check_heartbeat_ms(can, source)
+    host_top = int(0xFFFF // HEARTBEAT_DEADLINE_FACTOR)  # the host's deadline in 0x1016 is 16 bits
+    if can.host_heartbeat_ms > host_top:
+        raise BadInput(f"cell file {source}: can.host_heartbeat_ms = {can.host_heartbeat_ms} is more than {host_top} "
+                       "ms (a 16-bit time in the drives' heartbeat objects)")
     weights = dict(DEFAULT_JOINT_WEIGHTS)
     if "configuration" in raw:
         w = r.obj(r.obj(raw, "configuration"), "joint_weights", "configuration")
@@ -296,6 +304,22 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
             raise BadInput(f"cell file {source}: configuration.joint_weights must not all be zero")
     name = raw.get("name", Path(source).stem)
     return Cell(str(name), scara, gripper, tray, ws, motion, camera, can, weights, source=source)
+
+
+def _check_heartbeat_ms(can: CanConfig, source: str) -> None:
+    """can.heartbeat_ms, the drives' heartbeat period: no shorter than the host's poll, no longer than a second."""
+    hb = can.heartbeat_ms
+    if hb < MIN_HEARTBEAT_MS:
+        frames = len(can.nodes) * 1000.0 / hb
+        load = 100.0 * frames * HEARTBEAT_FRAME_BITS / can.bitrate
+        raise BadInput(f"cell file {source}: can.heartbeat_ms = {hb} is less than {MIN_HEARTBEAT_MS} ms: the host "
+                       f"looks at the drives every {HOST_POLL_MS} ms and could not tell a silent drive from its own "
+                       f"late look, and the {len(can.nodes)} drives' heartbeats alone would be {frames:g} frames/s, "
+                       f"{load:.3g} % of can.bitrate {can.bitrate} bit/s")
+    if hb > MAX_HEARTBEAT_MS:
+        raise BadInput(f"cell file {source}: can.heartbeat_ms = {hb} is more than {MAX_HEARTBEAT_MS} ms: the host "
+                       f"would find a silent drive only {HEARTBEAT_DEADLINE_FACTOR:g} periods after its last "
+                       f"heartbeat, {HEARTBEAT_DEADLINE_FACTOR * hb / 1000:g} s, where a move takes a second or two")
 
 
 def _stop_lag_ms(r: _Reader, cn: dict, source: str) -> float:

@@ -1,0 +1,95 @@
+"""Cell file values that switched a safety check off or broke the drivers, refused when the file is read (exit 2,
+one line naming the key and why), and the values on the bounds taken: the drives' and the host's heartbeat
+periods, the error-frame burst limit, the gripper's forces against the drive's 0.1 N force limit 0x2100."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from conftest import run_cli
+from drivers_fixtures import needs_sim
+
+from cell.cellconfig import HEARTBEAT_FRAME_BITS, default_cell_path, parse_cell
+from cell.errors import BadInput
+
+
+def _raw(**edits) -> dict:
+    """The default cell file's JSON with each edit set: `can__heartbeat_ms=5` sets can.heartbeat_ms."""
+    raw = json.loads(default_cell_path().read_text())
+    for dotted, value in edits.items():
+        d = raw
+        *path, key = dotted.split("__")
+        for k in path:
+            d = d[k]
+        d[key] = value
+    return raw
+
+
+def _cell(**edits):
+    return parse_cell(_raw(**edits), "cell.json")
+
+
+def _refused(message: str, **edits) -> str:
+    with pytest.raises(BadInput) as e:
+        _cell(**edits)
+    assert message in str(e.value), str(e.value)
+    return str(e.value)
+
+
+def _refused_by_the_cli(tmp_path, capsys, message: str, **edits) -> None:
+    """`cell hw status --cell FILE`: exit 2, one line on stderr, nothing sent (nothing on stdout)."""
+    path = tmp_path / "cell.json"
+    path.write_text(json.dumps(_raw(**edits)))
+    code, out, err = run_cli("hw", "status", "--simulated-time", "--cell", path, capsys=capsys)
+    assert code == 2 and out == "", err
+    assert err.count("\n") == 1 and err.startswith(f"cell: error: cell file {path}: ") and message in err, err
+
+
+# --- can.heartbeat_ms: the drives' heartbeat (0x1017), watched by the host ------------------------------------
+@pytest.mark.parametrize("hb", [10, 100, 1000])
+def test_drive_heartbeats_from_the_hosts_poll_to_a_second_are_taken(hb):
+    assert _cell(can__heartbeat_ms=hb).can.heartbeat_ms == hb
+
+
+@pytest.mark.parametrize("hb, message", [
+    # at 6 ms and under, every run of the host's watch (every 10 ms) was more than half a deadline after the
+    # previous one: taken for a held-up host, silence was counted afresh each time and no drive was ever silent
+    (9, "can.heartbeat_ms = 9 is less than 10 ms: the host looks at the drives every 10 ms"),
+    (1, "the 5 drives' heartbeats alone would be 5000 frames/s, 32.5 % of can.bitrate 1000000 bit/s"),
+    # at 65535 (the 16-bit object's top, all that was checked) a dead drive went unnoticed for 197 s
+    (1001, "can.heartbeat_ms = 1001 is more than 1000 ms: the host would find a silent drive only 3 periods after "
+           "its last heartbeat, 3.003 s"),
+    (65535, "196.605 s, where a move takes a second or two"),
+])
+def test_drive_heartbeats_outside_them_are_refused(hb, message):
+    _refused(message, can__heartbeat_ms=hb)
+
+
+def test_a_drive_heartbeat_out_of_bounds_is_one_line_and_exit_2(tmp_path, capsys):
+    _refused_by_the_cli(tmp_path, capsys, "can.heartbeat_ms = 5 is less than 10 ms", can__heartbeat_ms=5)
+    _refused_by_the_cli(tmp_path, capsys, "can.heartbeat_ms = 65535 is more than 1000 ms", can__heartbeat_ms=65535)
+
+
+def test_the_heartbeat_load_is_the_drivers_frame_size():
+    from drivers.codec import frame_bits
+
+    assert HEARTBEAT_FRAME_BITS == frame_bits(1)
+
+
+@needs_sim
+@pytest.mark.parametrize("hb", [10, 1000])
+def test_at_either_bound_a_silent_drive_is_found_within_three_periods(hb):
+    """The bounds are periods the host's watch works with: j2 falls silent, and is found silent after its last
+    heartbeat plus the deadline (3 periods) and a poll or two, not before two periods."""
+    from drivers import simulated_cell
+
+    with simulated_cell(_cell(can__heartbeat_ms=hb)) as (arm, drives):
+        period_s = hb / 1000.0
+        drives.inject_fault("silent", "j2")
+        t0 = arm.clock.now()  # j2's last heartbeat came within a period before
+        arm.clock.sleep(2 * period_s - 0.001)
+        assert not arm.faults
+        arm.clock.sleep(period_s + 2 * arm.poll_s)
+        assert arm.faults.get("j2", "").startswith("j2 (node 2): no heartbeat for"), arm.faults
+        assert arm.clock.now() - t0 <= 3 * period_s + 2 * arm.poll_s + 1e-9

@@ -57,6 +57,13 @@ MIN_HEARTBEAT_MS = HOST_POLL_MS
 MAX_HEARTBEAT_MS = 1000  # the host finds a silent drive within 3 s; well within 0x1017's UNSIGNED16
 HEARTBEAT_FRAME_BITS = 65  # a heartbeat frame (1 data byte), worst-case stuffing and interframe space: as
 # drivers.codec.frame_bits(1)
+# The host's heartbeat period (can.host_heartbeat_ms; the drives' consumer deadline 0x1016 is
+# HEARTBEAT_DEADLINE_FACTOR periods, 16 bits). The host sends it from the same thread as its watch of the drives
+# (every HOST_POLL_MS): under that, the drives' deadline is under three of the host's looks and any hiccup of the
+# host faults every drive. Over a second a dead host leaves every drive enabled, a move running on, for more than
+# 3 s (at 21845, the 16-bit deadline's top, 65 s).
+MIN_HOST_HEARTBEAT_MS = HOST_POLL_MS
+MAX_HOST_HEARTBEAT_MS = 1000
 
 
 def default_cell_path() -> Path:
@@ -292,10 +299,7 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
                     r.count(cn, "host_heartbeat_ms", "can"), nodes, *_error_frame_window(r, cn, source),
                     r.flag(cn, "coordinated_start", "can", default=True), _stop_lag_ms(r, cn, source))
     _check_heartbeat_ms(can, source)
-    host_top = int(0xFFFF // HEARTBEAT_DEADLINE_FACTOR)  # the host's deadline in 0x1016 is 16 bits
-    if can.host_heartbeat_ms > host_top:
-        raise BadInput(f"cell file {source}: can.host_heartbeat_ms = {can.host_heartbeat_ms} is more than {host_top} "
-                       "ms (a 16-bit time in the drives' heartbeat objects)")
+    _check_host_heartbeat_ms(can, source)
     weights = dict(DEFAULT_JOINT_WEIGHTS)
     if "configuration" in raw:
         w = r.obj(r.obj(raw, "configuration"), "joint_weights", "configuration")
@@ -320,6 +324,24 @@ def _check_heartbeat_ms(can: CanConfig, source: str) -> None:
         raise BadInput(f"cell file {source}: can.heartbeat_ms = {hb} is more than {MAX_HEARTBEAT_MS} ms: the host "
                        f"would find a silent drive only {HEARTBEAT_DEADLINE_FACTOR:g} periods after its last "
                        f"heartbeat, {HEARTBEAT_DEADLINE_FACTOR * hb / 1000:g} s, where a move takes a second or two")
+
+
+def _check_host_heartbeat_ms(can: CanConfig, source: str) -> None:
+    """can.host_heartbeat_ms, the host's heartbeat period the drives watch: no shorter than the host's poll, no
+    longer than a second."""
+    hb = can.host_heartbeat_ms
+    deadline_ms = HEARTBEAT_DEADLINE_FACTOR * hb
+    if hb < MIN_HOST_HEARTBEAT_MS:
+        raise BadInput(f"cell file {source}: can.host_heartbeat_ms = {hb} is less than {MIN_HOST_HEARTBEAT_MS} ms: "
+                       f"the drives would fault on a host heartbeat {deadline_ms:g} ms late "
+                       f"({HEARTBEAT_DEADLINE_FACTOR:g} periods), under three of the host's looks at the drives "
+                       f"(every {HOST_POLL_MS} ms, from the thread that sends it): any hiccup of the host would stop "
+                       "every drive")
+    if hb > MAX_HOST_HEARTBEAT_MS:
+        raise BadInput(f"cell file {source}: can.host_heartbeat_ms = {hb} is more than {MAX_HOST_HEARTBEAT_MS} ms: "
+                       f"a drive would find a dead host only {HEARTBEAT_DEADLINE_FACTOR:g} periods after its last "
+                       f"heartbeat, {deadline_ms / 1000:g} s, and run on enabled meanwhile, where a move takes a "
+                       "second or two")
 
 
 def _stop_lag_ms(r: _Reader, cn: dict, source: str) -> float:

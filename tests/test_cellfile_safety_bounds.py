@@ -93,3 +93,46 @@ def test_at_either_bound_a_silent_drive_is_found_within_three_periods(hb):
         arm.clock.sleep(period_s + 2 * arm.poll_s)
         assert arm.faults.get("j2", "").startswith("j2 (node 2): no heartbeat for"), arm.faults
         assert arm.clock.now() - t0 <= 3 * period_s + 2 * arm.poll_s + 1e-9
+
+
+# --- can.host_heartbeat_ms: the host's heartbeat, watched by the drives (0x1016, 3 periods) ----------------------
+@pytest.mark.parametrize("hb", [10, 100, 1000])
+def test_host_heartbeats_from_the_hosts_poll_to_a_second_are_taken(hb):
+    assert _cell(can__host_heartbeat_ms=hb).can.host_heartbeat_ms == hb
+
+
+@pytest.mark.parametrize("hb, message", [
+    (9, "can.host_heartbeat_ms = 9 is less than 10 ms: the drives would fault on a host heartbeat 27 ms late (3 "
+        "periods), under three of the host's looks at the drives (every 10 ms"),
+    (1, "3 ms late"),
+    # at 21845 (the 16-bit deadline's top, all that was checked) a dead host left every drive enabled for 65 s
+    (1001, "can.host_heartbeat_ms = 1001 is more than 1000 ms: a drive would find a dead host only 3 periods after "
+           "its last heartbeat, 3.003 s, and run on enabled meanwhile"),
+    (21845, "65.535 s"),
+])
+def test_host_heartbeats_outside_them_are_refused(hb, message):
+    _refused(message, can__host_heartbeat_ms=hb)
+
+
+def test_a_host_heartbeat_out_of_bounds_is_one_line_and_exit_2(tmp_path, capsys):
+    _refused_by_the_cli(tmp_path, capsys, "can.host_heartbeat_ms = 5 is less than 10 ms", can__host_heartbeat_ms=5)
+    _refused_by_the_cli(tmp_path, capsys, "can.host_heartbeat_ms = 21845 is more than 1000 ms",
+                        can__host_heartbeat_ms=21845)
+
+
+@needs_sim
+@pytest.mark.parametrize("hb", [10, 1000])
+def test_at_either_bound_the_drives_find_a_dead_host_within_three_periods(hb):
+    """The bounds are periods the drives' watch works with: alive, no drive faults; the host's heartbeat stops,
+    and every drive faults (EMCY 0x8130) within 3 periods and a tick of the drives, not within two."""
+    from drivers import simulated_cell
+
+    with simulated_cell(_cell(can__host_heartbeat_ms=hb)) as (arm, drives):
+        period_s = hb / 1000.0
+        arm.clock.sleep(2.0)
+        assert not arm.faults and all(d.error_code == 0 for d in drives.drives.values())
+        arm._host_job.cancel()  # the host is gone: its last heartbeat went out within a period before
+        arm.clock.sleep(2 * period_s - 0.001)
+        assert all(d.error_code == 0 for d in drives.drives.values())
+        arm.clock.sleep(period_s + 0.02)
+        assert {n: d.error_code for n, d in drives.drives.items()} == dict.fromkeys(drives.drives, 0x8130)

@@ -41,6 +41,12 @@ DEFAULT_ERROR_FRAMES_MAX = 10
 DEFAULT_ERROR_WINDOW_MS = 1000
 MIN_ERROR_WINDOW_MS = 100  # 10 frames within 1 ms would never trip on one error frame every ms
 MAX_ERROR_WINDOW_MS = 60_000  # a window of minutes would add up sporadic frames into a stop
+# The burst limit is a rate: error_frames_max within error_window_ms. At most this many a second (one every 10 ms of
+# the window; the default is 10 a second): the cell sends about 320 frames a second during a pick (docs/drivers.md,
+# figures), so 100 a second is about a third of them destroyed and sent again. A limit past that lets a bus losing
+# frames run on (CAN's fault confinement need not catch it: a receiver's error counter goes down one for every
+# good frame), and 1000000 in a second, more error frames than a bus can carry, turned the check off.
+MAX_ERROR_FRAMES_PER_S = 100
 # How late the host may stop the other axes after one stopped on its own (its fault reaction, its quick stop
 # input): the way check (drivers.limits) follows such stops. The host looks at the drives every
 # HOST_POLL_MS during a move; the frames that tell it and the stop frames add a few ms at 125 kbit/s and up.
@@ -373,6 +379,12 @@ def _error_frame_window(r: _Reader, cn: dict, source: str) -> tuple[int, int]:
         if window_ms > MAX_ERROR_WINDOW_MS:
             raise BadInput(f"cell file {source}: can.error_window_ms = {window_ms} is more than {MAX_ERROR_WINDOW_MS}"
                            " ms (a window that long adds up sporadic error frames into a stop)")
+    top = window_ms * MAX_ERROR_FRAMES_PER_S // 1000
+    if most > top:
+        raise BadInput(f"cell file {source}: can.error_frames_max = {most} is more than {top} for can.error_window_ms "
+                       f"= {window_ms}: at most {MAX_ERROR_FRAMES_PER_S} error frames a second of the window (about "
+                       "a third of the frames the cell sends during a pick destroyed); a higher limit lets a bus "
+                       "losing frames run on")
     return most, window_ms
 
 

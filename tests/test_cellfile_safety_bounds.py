@@ -136,3 +136,47 @@ def test_at_either_bound_the_drives_find_a_dead_host_within_three_periods(hb):
         assert all(d.error_code == 0 for d in drives.drives.values())
         arm.clock.sleep(period_s + 0.02)
         assert {n: d.error_code for n, d in drives.drives.items()} == dict.fromkeys(drives.drives, 0x8130)
+
+
+# --- can.error_frames_max: the burst limit, a rate within can.error_window_ms -------------------------------------
+@pytest.mark.parametrize("most, window_ms", [(10, 100), (10, 1000), (100, 1000), (6000, 60_000), (0, 100), (10, 109)])
+def test_burst_limits_up_to_100_error_frames_a_second_are_taken(most, window_ms):
+    c = _cell(can__error_frames_max=most, can__error_window_ms=window_ms).can
+    assert (c.error_frames_max, c.error_window_ms) == (most, window_ms)
+
+
+@pytest.mark.parametrize("most, window_ms, message", [
+    # 1000000 was taken: the burst check was off
+    (1_000_000, 1000, "can.error_frames_max = 1000000 is more than 100 for can.error_window_ms = 1000: at most 100 "
+                      "error frames a second of the window"),
+    (101, 1000, "can.error_frames_max = 101 is more than 100 for can.error_window_ms = 1000"),
+    (11, 100, "can.error_frames_max = 11 is more than 10 for can.error_window_ms = 100"),
+    (11, 109, "can.error_frames_max = 11 is more than 10 for can.error_window_ms = 109"),
+    (6001, 60_000, "can.error_frames_max = 6001 is more than 6000 for can.error_window_ms = 60000"),
+])
+def test_burst_limits_past_it_are_refused(most, window_ms, message):
+    _refused(message, can__error_frames_max=most, can__error_window_ms=window_ms)
+
+
+def test_the_default_window_bounds_the_burst_limit_too(tmp_path, capsys):
+    """error_frames_max without error_window_ms: the limit is taken against the default window, 1000 ms."""
+    raw = _raw(can__error_frames_max=101)
+    del raw["can"]["error_window_ms"]
+    with pytest.raises(BadInput, match="can.error_frames_max = 101 is more than 100 for can.error_window_ms = 1000"):
+        parse_cell(raw, "cell.json")
+    _refused_by_the_cli(tmp_path, capsys, "can.error_frames_max = 1000000 is more than 100",
+                        can__error_frames_max=1_000_000)
+
+
+@needs_sim
+def test_at_the_bound_the_burst_check_still_stops_the_arm():
+    """100 error frames within 1000 ms are counted; the 101st latches a bus fault."""
+    from drivers import simulated_cell
+
+    with simulated_cell(_cell(can__error_frames_max=100)) as (arm, drives):
+        drives.inject_fault("error_frames", count=100, error_class="bus_error")
+        arm.clock.sleep(0.1)
+        assert arm.bus_state()["error_frames"] == 100 and arm.bus_state()["fault"] is None
+        drives.inject_fault("error_frames", count=1, error_class="bus_error")
+        arm.clock.sleep(0.1)
+        assert arm.bus_state()["fault"].startswith("bus: 101 error frames within 1000 ms"), arm.bus_state()

@@ -54,6 +54,11 @@ HOST_POLL_MS = 10
 DEFAULT_STOP_LAG_MS = 20
 MIN_STOP_LAG_MS = HOST_POLL_MS + 5
 MAX_STOP_LAG_MS = 1000  # a second: ways near the edge would all be refused long before
+# The gripper's force limit 0x2100 (drivers.eds, drivers.gripper): UNSIGNED16 in 0.1 N, written as
+# round(force_n * GRIP_FORCE_PER_N) at connect (gripper.grip_force_n) and by grip() (any force up to
+# gripper.max_force_n)
+GRIP_FORCE_PER_N = 10
+MAX_GRIP_FORCE_UNITS = 0xFFFF
 # The drives' heartbeat period (can.heartbeat_ms, 0x1017; the host finds a node silent HEARTBEAT_DEADLINE_FACTOR
 # periods after its last heartbeat). Under the host's poll (HOST_POLL_MS, its watch of the drives) the watch could
 # not tell a silent drive from its own late run, and the heartbeats alone load the bus (5 drives at 1 ms: 5000
@@ -262,6 +267,7 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
     )
     if gripper.opening_mm[0] < 0:
         raise BadInput(f"cell file {source}: gripper.opening_mm must not be negative")
+    _check_grip_forces(gripper, source)
     tray = Box2D(r.range(r.obj(raw, "tray"), "x_mm", "tray"), r.range(raw["tray"], "y_mm", "tray"))
     ws = Box2D(r.range(r.obj(raw, "workspace"), "x_mm", "workspace"), r.range(raw["workspace"], "y_mm", "workspace"))
     if not (ws.contains(tray.x_mm[0], tray.y_mm[0]) and ws.contains(tray.x_mm[1], tray.y_mm[1])):
@@ -386,6 +392,24 @@ def _error_frame_window(r: _Reader, cn: dict, source: str) -> tuple[int, int]:
                        "a third of the frames the cell sends during a pick destroyed); a higher limit lets a bus "
                        "losing frames run on")
     return most, window_ms
+
+
+def _check_grip_forces(gripper: Gripper, source: str) -> None:
+    """The forces as the drivers send them to the drive's force limit 0x2100 (UNSIGNED16 in 0.1 N, rounded): the
+    most grip() may send fits 16 bits, the grip force connect writes is within the most and not rounded to 0."""
+    top = round(gripper.max_force_n * GRIP_FORCE_PER_N)
+    if top > MAX_GRIP_FORCE_UNITS:
+        raise BadInput(f"cell file {source}: gripper.max_force_n = {gripper.max_force_n:g} N is {top} in the drive's "
+                       f"force limit 0x2100 (0.1 N, sent rounded): more than its UNSIGNED16 holds (at most "
+                       f"{MAX_GRIP_FORCE_UNITS / GRIP_FORCE_PER_N:g} N)")
+    if gripper.grip_force_n > gripper.max_force_n:
+        raise BadInput(f"cell file {source}: gripper.grip_force_n = {gripper.grip_force_n:g} N is more than "
+                       f"gripper.max_force_n = {gripper.max_force_n:g} N: connect would set the drive's force limit "
+                       "0x2100 past the gripper's most, and every grip at the cell's force be refused")
+    if round(gripper.grip_force_n * GRIP_FORCE_PER_N) < 1:
+        raise BadInput(f"cell file {source}: gripper.grip_force_n = {gripper.grip_force_n:g} N is 0 in the drive's "
+                       f"force limit 0x2100 (0.1 N, sent rounded): the jaws would close with no force; more than "
+                       f"{0.5 / GRIP_FORCE_PER_N:g} N")
 
 
 def _check_motion_within_limits(motion: Motion, scara: Scara, source: str) -> None:

@@ -180,3 +180,57 @@ def test_at_the_bound_the_burst_check_still_stops_the_arm():
         drives.inject_fault("error_frames", count=1, error_class="bus_error")
         arm.clock.sleep(0.1)
         assert arm.bus_state()["fault"].startswith("bus: 101 error frames within 1000 ms"), arm.bus_state()
+
+
+# --- gripper.grip_force_n and max_force_n: the drive's force limit 0x2100, UNSIGNED16 in 0.1 N, sent rounded ------
+@pytest.mark.parametrize("grip, most", [
+    (40.0, 140.0),
+    (140.0, 140.0),  # the grip force may be the most
+    (0.051, 140.0),  # 0.51 -> 1: 0.1 N
+    (6553.5, 6553.5),  # 65535: the top of 16 bits
+    (40.0, 6553.54),  # 65535.4 -> 65535 as the drivers round it
+])
+def test_grip_forces_the_drive_holds_are_taken(grip, most):
+    g = _cell(gripper__grip_force_n=grip, gripper__max_force_n=most).gripper
+    assert (g.grip_force_n, g.max_force_n) == (grip, most)
+
+
+@pytest.mark.parametrize("grip, most, message", [
+    # connect wrote 500 N into 0x2100 of a gripper whose most is 140 N; every grip at the cell's force was refused
+    (500.0, 140.0, "gripper.grip_force_n = 500 N is more than gripper.max_force_n = 140 N: connect would set the "
+                   "drive's force limit 0x2100 past the gripper's most"),
+    (140.01, 140.0, "gripper.grip_force_n = 140.01 N is more than gripper.max_force_n = 140 N"),
+    # 0.5 -> 0 (Python rounds half to even, as the drivers do): a force limit of 0 N
+    (0.05, 140.0, "gripper.grip_force_n = 0.05 N is 0 in the drive's force limit 0x2100 (0.1 N, sent rounded): the "
+                  "jaws would close with no force; more than 0.05 N"),
+    (0.01, 140.0, "gripper.grip_force_n = 0.01 N is 0 in the drive's force limit 0x2100"),
+    (0.01, 0.01, "gripper.grip_force_n = 0.01 N is 0 in the drive's force limit 0x2100"),
+    # grip(force_n=7000) reached canopen's UNSIGNED16 encoder: an internal error, not a refusal
+    (40.0, 10_000.0, "gripper.max_force_n = 10000 N is 100000 in the drive's force limit 0x2100 (0.1 N, sent "
+                     "rounded): more than its UNSIGNED16 holds (at most 6553.5 N)"),
+    (40.0, 6553.55, "gripper.max_force_n = 6553.55 N is 65536 in the drive's force limit 0x2100"),  # 65535.5 -> 65536
+])
+def test_grip_forces_the_drive_does_not_hold_are_refused(grip, most, message):
+    _refused(message, gripper__grip_force_n=grip, gripper__max_force_n=most)
+
+
+def test_a_grip_force_out_of_bounds_is_one_line_and_exit_2(tmp_path, capsys):
+    _refused_by_the_cli(tmp_path, capsys, "gripper.grip_force_n = 500 N is more than gripper.max_force_n = 140 N",
+                        gripper__grip_force_n=500.0)
+    _refused_by_the_cli(tmp_path, capsys, "gripper.max_force_n = 10000 N is 100000", gripper__max_force_n=10_000.0)
+
+
+@needs_sim
+@pytest.mark.parametrize("grip, most, grip_units, most_units", [
+    (0.051, 0.1, 1, 1), (0.051, 6553.5, 1, 65535), (40.0, 6553.54, 400, 65535)])
+def test_forces_on_the_bounds_reach_the_drive_as_checked(grip, most, grip_units, most_units):
+    """The bounds are the drivers' encoding: connect writes the cell's grip force into 0x2100, grip() the most."""
+    from drivers import simulated_cell
+    from drivers.eds import GRIP_FORCE_INDEX
+
+    with simulated_cell(_cell(gripper__grip_force_n=grip, gripper__max_force_n=most)) as (arm, drives):
+        force_limit = drives.drives["gripper"].node.sdo[GRIP_FORCE_INDEX]
+        assert force_limit.raw == grip_units
+        drives.gripper_object_width_mm = 30.0
+        assert arm.gripper.grip(30.0, force_n=most).holding and not arm.faults
+        assert force_limit.raw == most_units

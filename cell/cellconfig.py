@@ -35,13 +35,18 @@ MAX_CAMERA_SIDE_PX = 32767  # OpenCV's remap (segmentation samples the frames wi
 HEARTBEAT_DEADLINE_FACTOR = 3.0  # a node is silent after this many of its heartbeat periods
 GRIPPER_ACCEL_FACTOR = 10.0  # gripper acceleration = this x its speed, per second
 QUICK_STOP_DECEL_FACTOR = 2.0  # quick stop / fault reaction deceleration = this x the max acceleration
-MAX_HEARTBEAT_MS = 0xFFFF  # 0x1017 producer heartbeat time: UNSIGNED16
 # Error frames (drivers.errorframes): a sporadic one is counted; more than can.error_frames_max within
 # can.error_window_ms mean a disturbed bus losing frames (bad termination, a loose connector, interference)
 DEFAULT_ERROR_FRAMES_MAX = 10
 DEFAULT_ERROR_WINDOW_MS = 1000
 MIN_ERROR_WINDOW_MS = 100  # 10 frames within 1 ms would never trip on one error frame every ms
 MAX_ERROR_WINDOW_MS = 60_000  # a window of minutes would add up sporadic frames into a stop
+# The burst limit is a rate: error_frames_max within error_window_ms. At most this many a second (one every 10 ms of
+# the window; the default is 10 a second): the cell sends about 320 frames a second during a pick (docs/drivers.md,
+# figures), so 100 a second is about a third of them destroyed and sent again. A limit past that lets a bus losing
+# frames run on (CAN's fault confinement need not catch it: a receiver's error counter goes down one for every
+# good frame), and 1000000 in a second, more error frames than a bus can carry, turned the check off.
+MAX_ERROR_FRAMES_PER_S = 100
 # How late the host may stop the other axes after one stopped on its own (its fault reaction, its quick stop
 # input): the way check (drivers.limits) follows such stops. The host looks at the drives every
 # HOST_POLL_MS during a move; the frames that tell it and the stop frames add a few ms at 125 kbit/s and up.
@@ -49,6 +54,27 @@ HOST_POLL_MS = 10
 DEFAULT_STOP_LAG_MS = 20
 MIN_STOP_LAG_MS = HOST_POLL_MS + 5
 MAX_STOP_LAG_MS = 1000  # a second: ways near the edge would all be refused long before
+# The gripper's force limit 0x2100 (drivers.eds, drivers.gripper): UNSIGNED16 in 0.1 N, written as
+# round(force_n * GRIP_FORCE_PER_N) at connect (gripper.grip_force_n) and by grip() (any force up to
+# gripper.max_force_n)
+GRIP_FORCE_PER_N = 10
+MAX_GRIP_FORCE_UNITS = 0xFFFF
+# The drives' heartbeat period (can.heartbeat_ms, 0x1017; the host finds a node silent HEARTBEAT_DEADLINE_FACTOR
+# periods after its last heartbeat). Under the host's poll (HOST_POLL_MS, its watch of the drives) the watch could
+# not tell a silent drive from its own late run, and the heartbeats alone load the bus (5 drives at 1 ms: 5000
+# frames/s, 33 % of 1 Mbit/s; at 10 ms 3.3 %, 26 % at 125 kbit/s). Over a second a dead drive goes unnoticed for
+# more than 3 s (at 65535, the 16-bit object's top, 197 s), where a move takes a second or two.
+MIN_HEARTBEAT_MS = HOST_POLL_MS
+MAX_HEARTBEAT_MS = 1000  # the host finds a silent drive within 3 s; well within 0x1017's UNSIGNED16
+HEARTBEAT_FRAME_BITS = 65  # a heartbeat frame (1 data byte), worst-case stuffing and interframe space: as
+# drivers.codec.frame_bits(1)
+# The host's heartbeat period (can.host_heartbeat_ms; the drives' consumer deadline 0x1016 is
+# HEARTBEAT_DEADLINE_FACTOR periods, 16 bits). The host sends it from the same thread as its watch of the drives
+# (every HOST_POLL_MS): under that, the drives' deadline is under three of the host's looks and any hiccup of the
+# host faults every drive. Over a second a dead host leaves every drive enabled, a move running on, for more than
+# 3 s (at 21845, the 16-bit deadline's top, 65 s).
+MIN_HOST_HEARTBEAT_MS = HOST_POLL_MS
+MAX_HOST_HEARTBEAT_MS = 1000
 
 
 def default_cell_path() -> Path:
@@ -241,6 +267,7 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
     )
     if gripper.opening_mm[0] < 0:
         raise BadInput(f"cell file {source}: gripper.opening_mm must not be negative")
+    _check_grip_forces(gripper, source)
     tray = Box2D(r.range(r.obj(raw, "tray"), "x_mm", "tray"), r.range(raw["tray"], "y_mm", "tray"))
     ws = Box2D(r.range(r.obj(raw, "workspace"), "x_mm", "workspace"), r.range(raw["workspace"], "y_mm", "workspace"))
     if not (ws.contains(tray.x_mm[0], tray.y_mm[0]) and ws.contains(tray.x_mm[1], tray.y_mm[1])):
@@ -283,11 +310,8 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
     can = CanConfig(r.count(cn, "bitrate", "can"), r.count(cn, "heartbeat_ms", "can"),
                     r.count(cn, "host_heartbeat_ms", "can"), nodes, *_error_frame_window(r, cn, source),
                     r.flag(cn, "coordinated_start", "can", default=True), _stop_lag_ms(r, cn, source))
-    host_top = int(MAX_HEARTBEAT_MS // HEARTBEAT_DEADLINE_FACTOR)  # the host's deadline in 0x1016 is 16 bits too
-    for key, top in (("heartbeat_ms", MAX_HEARTBEAT_MS), ("host_heartbeat_ms", host_top)):
-        if getattr(can, key) > top:
-            raise BadInput(f"cell file {source}: can.{key} = {getattr(can, key)} is more than {top} ms "
-                           "(a 16-bit time in the drives' heartbeat objects)")
+    _check_heartbeat_ms(can, source)
+    _check_host_heartbeat_ms(can, source)
     weights = dict(DEFAULT_JOINT_WEIGHTS)
     if "configuration" in raw:
         w = r.obj(r.obj(raw, "configuration"), "joint_weights", "configuration")
@@ -296,6 +320,40 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
             raise BadInput(f"cell file {source}: configuration.joint_weights must not all be zero")
     name = raw.get("name", Path(source).stem)
     return Cell(str(name), scara, gripper, tray, ws, motion, camera, can, weights, source=source)
+
+
+def _check_heartbeat_ms(can: CanConfig, source: str) -> None:
+    """can.heartbeat_ms, the drives' heartbeat period: no shorter than the host's poll, no longer than a second."""
+    hb = can.heartbeat_ms
+    if hb < MIN_HEARTBEAT_MS:
+        frames = len(can.nodes) * 1000.0 / hb
+        load = 100.0 * frames * HEARTBEAT_FRAME_BITS / can.bitrate
+        raise BadInput(f"cell file {source}: can.heartbeat_ms = {hb} is less than {MIN_HEARTBEAT_MS} ms: the host "
+                       f"looks at the drives every {HOST_POLL_MS} ms and could not tell a silent drive from its own "
+                       f"late look, and the {len(can.nodes)} drives' heartbeats alone would be {frames:g} frames/s, "
+                       f"{load:.3g} % of can.bitrate {can.bitrate} bit/s")
+    if hb > MAX_HEARTBEAT_MS:
+        raise BadInput(f"cell file {source}: can.heartbeat_ms = {hb} is more than {MAX_HEARTBEAT_MS} ms: the host "
+                       f"would find a silent drive only {HEARTBEAT_DEADLINE_FACTOR:g} periods after its last "
+                       f"heartbeat, {HEARTBEAT_DEADLINE_FACTOR * hb / 1000:g} s, where a move takes a second or two")
+
+
+def _check_host_heartbeat_ms(can: CanConfig, source: str) -> None:
+    """can.host_heartbeat_ms, the host's heartbeat period the drives watch: no shorter than the host's poll, no
+    longer than a second."""
+    hb = can.host_heartbeat_ms
+    deadline_ms = HEARTBEAT_DEADLINE_FACTOR * hb
+    if hb < MIN_HOST_HEARTBEAT_MS:
+        raise BadInput(f"cell file {source}: can.host_heartbeat_ms = {hb} is less than {MIN_HOST_HEARTBEAT_MS} ms: "
+                       f"the drives would fault on a host heartbeat {deadline_ms:g} ms late "
+                       f"({HEARTBEAT_DEADLINE_FACTOR:g} periods), under three of the host's looks at the drives "
+                       f"(every {HOST_POLL_MS} ms, from the thread that sends it): any hiccup of the host would stop "
+                       "every drive")
+    if hb > MAX_HOST_HEARTBEAT_MS:
+        raise BadInput(f"cell file {source}: can.host_heartbeat_ms = {hb} is more than {MAX_HOST_HEARTBEAT_MS} ms: "
+                       f"a drive would find a dead host only {HEARTBEAT_DEADLINE_FACTOR:g} periods after its last "
+                       f"heartbeat, {deadline_ms / 1000:g} s, and run on enabled meanwhile, where a move takes a "
+                       "second or two")
 
 
 def _stop_lag_ms(r: _Reader, cn: dict, source: str) -> float:
@@ -327,7 +385,31 @@ def _error_frame_window(r: _Reader, cn: dict, source: str) -> tuple[int, int]:
         if window_ms > MAX_ERROR_WINDOW_MS:
             raise BadInput(f"cell file {source}: can.error_window_ms = {window_ms} is more than {MAX_ERROR_WINDOW_MS}"
                            " ms (a window that long adds up sporadic error frames into a stop)")
+    top = window_ms * MAX_ERROR_FRAMES_PER_S // 1000
+    if most > top:
+        raise BadInput(f"cell file {source}: can.error_frames_max = {most} is more than {top} for can.error_window_ms "
+                       f"= {window_ms}: at most {MAX_ERROR_FRAMES_PER_S} error frames a second of the window (about "
+                       "a third of the frames the cell sends during a pick destroyed); a higher limit lets a bus "
+                       "losing frames run on")
     return most, window_ms
+
+
+def _check_grip_forces(gripper: Gripper, source: str) -> None:
+    """The forces as the drivers send them to the drive's force limit 0x2100 (UNSIGNED16 in 0.1 N, rounded): the
+    most grip() may send fits 16 bits, the grip force connect writes is within the most and not rounded to 0."""
+    top = round(gripper.max_force_n * GRIP_FORCE_PER_N)
+    if top > MAX_GRIP_FORCE_UNITS:
+        raise BadInput(f"cell file {source}: gripper.max_force_n = {gripper.max_force_n:g} N is {top} in the drive's "
+                       f"force limit 0x2100 (0.1 N, sent rounded): more than its UNSIGNED16 holds (at most "
+                       f"{MAX_GRIP_FORCE_UNITS / GRIP_FORCE_PER_N:g} N)")
+    if gripper.grip_force_n > gripper.max_force_n:
+        raise BadInput(f"cell file {source}: gripper.grip_force_n = {gripper.grip_force_n:g} N is more than "
+                       f"gripper.max_force_n = {gripper.max_force_n:g} N: connect would set the drive's force limit "
+                       "0x2100 past the gripper's most, and every grip at the cell's force be refused")
+    if round(gripper.grip_force_n * GRIP_FORCE_PER_N) < 1:
+        raise BadInput(f"cell file {source}: gripper.grip_force_n = {gripper.grip_force_n:g} N is 0 in the drive's "
+                       f"force limit 0x2100 (0.1 N, sent rounded): the jaws would close with no force; more than "
+                       f"{0.5 / GRIP_FORCE_PER_N:g} N")
 
 
 def _check_motion_within_limits(motion: Motion, scara: Scara, source: str) -> None:

@@ -43,8 +43,8 @@ CPU = ("can", "nodes", "j4", "counts_per_unit")
      "camera 40000 x 1000 px: each side must be less than 32767 px (OpenCV's remap limit"),
     ([(("camera", "height_mm"), 1e308)], "camera.height_mm must be within"),  # was ZeroDivisionError
     # `cell hw status`: internal errors at bring-up (the drives' objects are 16 and 32 bits)
-    ([(("can", "heartbeat_ms"), 1e6)], "can.heartbeat_ms = 1000000 is more than 65535 ms"),
-    ([(("can", "host_heartbeat_ms"), 30000)], "can.host_heartbeat_ms = 30000 is more than 21845 ms"),
+    ([(("can", "heartbeat_ms"), 1e6)], "can.heartbeat_ms = 1000000 is more than 1000 ms"),
+    ([(("can", "host_heartbeat_ms"), 30000)], "can.host_heartbeat_ms = 30000 is more than 1000 ms"),
     ([(("scara", "j4_deg"), [-360, 3000]), (CPU, 1e6)], "scara.j4_deg = 3000 is 3e+09 counts"),
     ([(CPU, 1.2e6)], "the quick stop's deceleration (2 x scara.max_acceleration.j4) = 4800 is 5.76e+09 counts"),
     ([(CPU, 1e7)], "scara.j4_deg = 360 is 3.6e+09 counts (can.nodes.j4.counts_per_unit = 1e+07): more than a "
@@ -99,7 +99,8 @@ def _refused(edits, message):
     [(("camera", "width_px"), 16), (("camera", "height_px"), 16)],  # the smallest side
     [(("camera", "width_px"), 32766), (("camera", "height_px"), 1000)],  # the longest side OpenCV's remap takes
     [(("camera", "width_px"), 1000), (("camera", "height_px"), 32766)],
-    [(("can", "heartbeat_ms"), 0xFFFF), (("can", "host_heartbeat_ms"), 0xFFFF // 3)],  # 16 bits, 3 x 21845
+    [(("can", "heartbeat_ms"), 1000), (("can", "host_heartbeat_ms"), 1000)],  # a second
+    [(("can", "heartbeat_ms"), 10), (("can", "host_heartbeat_ms"), 10)],  # the host's poll
     [(("gripper", "speed_mm_s"), 0.001)],  # exactly one count/s (1000 counts per mm)
     [(("scara", "j4_deg"), [-1e6, 1e6])],  # the bound of any number
 ])
@@ -113,8 +114,10 @@ def test_numbers_on_the_bounds_are_taken(edits):
     ([(("camera", "width_px"), 15), (("camera", "height_px"), 1024)], "each side at least 16 px"),
     ([(("camera", "width_px"), 32767), (("camera", "height_px"), 1000)], "each side must be less than 32767 px"),
     ([(("camera", "width_px"), 1000), (("camera", "height_px"), 32767)], "each side must be less than 32767 px"),
-    ([(("can", "heartbeat_ms"), 0x10000)], "can.heartbeat_ms = 65536 is more than 65535 ms"),
-    ([(("can", "host_heartbeat_ms"), 21846)], "can.host_heartbeat_ms = 21846 is more than 21845 ms"),
+    ([(("can", "heartbeat_ms"), 1001)], "can.heartbeat_ms = 1001 is more than 1000 ms"),
+    ([(("can", "heartbeat_ms"), 9)], "can.heartbeat_ms = 9 is less than 10 ms"),
+    ([(("can", "host_heartbeat_ms"), 1001)], "can.host_heartbeat_ms = 1001 is more than 1000 ms"),
+    ([(("can", "host_heartbeat_ms"), 9)], "can.host_heartbeat_ms = 9 is less than 10 ms"),
     ([(("scara", "j4_deg"), [-1e9, 360])], "scara.j4_deg[0] must be within +-1e+06"),  # negative too
     ([(("scara", "j4_deg"), [-3000, 360]), (CPU, 1e6)], "scara.j4_deg = 3000 is 3e+09 counts"),  # the lower limit
 ])

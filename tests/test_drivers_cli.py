@@ -187,13 +187,15 @@ def _wait_for_file_frames(path, timeout_s=20.0):
     raise AssertionError("the command never started talking on the bus")
 
 
-def test_ctrl_c_quick_stops_every_axis(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_ctrl_c_quick_stops_every_axis(tmp_path, sig):
+    """SIGTERM (`timeout`, systemd, kill) as Ctrl-C: it ended the process mid-move, no quick stop sent."""
     log = tmp_path / "corner.log"
     proc = _cli("hw", "corner", "--dwell", "10", "--record", str(log))  # real time
     try:
         _wait_for_file_frames(log)
         time.sleep(1.5)  # moving to the corner or dwelling there
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(sig)
         out, err = proc.communicate(timeout=20)
     finally:
         proc.kill()

@@ -2,8 +2,8 @@
 
 Each takes `--interface/--channel` (default: the simulated cell on python-can's virtual
 bus, served in this process, so every command runs here as is). On any other interface the
-commands that move ask for confirmation first (or take `--yes`), and Ctrl-C quick-stops
-every axis before exiting.
+commands that move ask for confirmation first (or take `--yes`), and Ctrl-C or SIGTERM quick-stops
+every axis before exiting (130).
 """
 
 from __future__ import annotations
@@ -77,9 +77,14 @@ def run(args) -> int:
     cell = load_cell(args.cell)
     if args._words[1] == "sim":
         return _serve(args, cell)
-    return {"status": _status, "home": _home, "jog": _jog, "gripper": _gripper, "corner": _corner}[args._words[1]](
-        args, cell
-    )
+    from cell.commands.run import _sigterm_as_interrupt
+
+    # SIGTERM (`timeout`, systemd, kill) ends the command as Ctrl-C does: a move is quick-stopped (exit 130); it
+    # ended the process mid-move with no stop at all, and the axes ran on to their targets
+    with _sigterm_as_interrupt():
+        return {"status": _status, "home": _home, "jog": _jog, "gripper": _gripper, "corner": _corner}[
+            args._words[1]
+        ](args, cell)
 
 
 MAX_DWELL_S = 600.0  # a SimClock steps through every heartbeat of the dwell: 1e300 s never ended

@@ -59,6 +59,11 @@ MAX_STOP_LAG_MS = 1000  # a second: ways near the edge would all be refused long
 # gripper.max_force_n)
 GRIP_FORCE_PER_N = 10
 MAX_GRIP_FORCE_UNITS = 0xFFFF
+
+
+def grip_force_units(force_n: float) -> int:
+    """A force as the drive's force limit 0x2100 holds it (rounded, half to even: 0.05 N is 0)."""
+    return round(force_n * GRIP_FORCE_PER_N)
 # The drives' heartbeat period (can.heartbeat_ms, 0x1017; the host finds a node silent HEARTBEAT_DEADLINE_FACTOR
 # periods after its last heartbeat). Under the host's poll (HOST_POLL_MS, its watch of the drives) the watch could
 # not tell a silent drive from its own late run, and the heartbeats alone load the bus (5 drives at 1 ms: 5000
@@ -397,7 +402,7 @@ def _error_frame_window(r: _Reader, cn: dict, source: str) -> tuple[int, int]:
 def _check_grip_forces(gripper: Gripper, source: str) -> None:
     """The forces as the drivers send them to the drive's force limit 0x2100 (UNSIGNED16 in 0.1 N, rounded): the
     most grip() may send fits 16 bits, the grip force connect writes is within the most and not rounded to 0."""
-    top = round(gripper.max_force_n * GRIP_FORCE_PER_N)
+    top = grip_force_units(gripper.max_force_n)
     if top > MAX_GRIP_FORCE_UNITS:
         raise BadInput(f"cell file {source}: gripper.max_force_n = {gripper.max_force_n:g} N is {top} in the drive's "
                        f"force limit 0x2100 (0.1 N, sent rounded): more than its UNSIGNED16 holds (at most "
@@ -406,7 +411,7 @@ def _check_grip_forces(gripper: Gripper, source: str) -> None:
         raise BadInput(f"cell file {source}: gripper.grip_force_n = {gripper.grip_force_n:g} N is more than "
                        f"gripper.max_force_n = {gripper.max_force_n:g} N: connect would set the drive's force limit "
                        "0x2100 past the gripper's most, and every grip at the cell's force be refused")
-    if round(gripper.grip_force_n * GRIP_FORCE_PER_N) < 1:
+    if grip_force_units(gripper.grip_force_n) < 1:
         raise BadInput(f"cell file {source}: gripper.grip_force_n = {gripper.grip_force_n:g} N is 0 in the drive's "
                        f"force limit 0x2100 (0.1 N, sent rounded): the jaws would close with no force; more than "
                        f"{0.5 / GRIP_FORCE_PER_N:g} N")

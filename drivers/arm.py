@@ -31,12 +31,18 @@ import time
 import can
 import canopen
 
-from cell.cellconfig import HEARTBEAT_DEADLINE_FACTOR, HOST_POLL_MS, MIN_STOP_LAG_MS, QUICK_STOP_DECEL_FACTOR
+from cell.cellconfig import (
+    HEARTBEAT_DEADLINE_FACTOR,
+    HOST_POLL_MS,
+    MIN_STOP_LAG_MS,
+    QUICK_STOP_DECEL_FACTOR,
+    grip_force_units,
+)
 from cell.kinematics import Joints
 from drivers import codec
 from drivers.axis import Axis
 from drivers.clock import Clock, RealClock
-from drivers.eds import AXIS_EDS, GRIP_FORCE_INDEX, GRIPPER_EDS, eds_path, grip_force_units
+from drivers.eds import AXIS_EDS, GRIP_FORCE_INDEX, GRIPPER_EDS, eds_path
 from drivers.errorframes import ErrorFramePolicy, classes_readable
 from drivers.errors import (
     BusFault,

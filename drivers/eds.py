@@ -20,12 +20,7 @@ VAR, ARRAY, RECORD = 0x7, 0x8, 0x9
 
 AXIS_EDS = "scara_axis.eds"
 GRIPPER_EDS = "gripper.eds"
-GRIP_FORCE_INDEX = 0x2100  # grip force limit, UNSIGNED16 in 0.1 N
-
-
-def grip_force_units(force_n: float) -> int:
-    """The grip force limit as object 0x2100 holds it (0.1 N steps, UNSIGNED16: the callers check the range)."""
-    return round(force_n * 10)
+GRIP_FORCE_INDEX = 0x2100  # grip force limit, UNSIGNED16 in 0.1 N (cell.cellconfig.grip_force_units)
 
 
 def eds_path(name: str) -> Path:

@@ -11,8 +11,8 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from cell.cellconfig import GRIPPER_ACCEL_FACTOR
-from drivers.eds import GRIP_FORCE_INDEX, grip_force_units
+from cell.cellconfig import GRIPPER_ACCEL_FACTOR, grip_force_units
+from drivers.eds import GRIP_FORCE_INDEX
 from drivers.errors import LimitError
 from drivers.limits import gripper_violations
 from drivers.profile import trapezoid

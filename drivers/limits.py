@@ -18,10 +18,9 @@ import math
 
 import numpy as np
 
-from cell.cellconfig import QUICK_STOP_DECEL_FACTOR
+from cell.cellconfig import QUICK_STOP_DECEL_FACTOR, grip_force_units
 from cell.kinematics import Joints, forward, limit_violations, tool_xy
 from drivers import codec
-from drivers.eds import grip_force_units
 
 JOINT_FIELDS = (
     ("j1", "j1_deg", "deg"),

@@ -312,6 +312,7 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
     if len({n.node_id for n in nodes.values()}) != len(nodes):
         raise BadInput(f"cell file {source}: can.nodes have duplicate node ids")
     _check_drive_counts(scara, gripper, nodes, source)
+    _check_moves_end(scara, gripper, source)
     can = CanConfig(r.count(cn, "bitrate", "can"), r.count(cn, "heartbeat_ms", "can"),
                     r.count(cn, "host_heartbeat_ms", "can"), nodes, *_error_frame_window(r, cn, source),
                     r.flag(cn, "coordinated_start", "can", default=True), _stop_lag_ms(r, cn, source))
@@ -426,6 +427,35 @@ def _check_motion_within_limits(motion: Motion, scara: Scara, source: str) -> No
         lo, hi = scara.limits(limit[:2])
         if not lo <= v <= hi:
             raise BadInput(f"cell file {source}: motion.{key} = {v:g} is outside scara.{limit} [{lo:g}, {hi:g}]")
+
+
+# A move across an axis' whole range at its cell-file speed and acceleration must end within this: 0.01 deg/s took
+# the first move of `cell run` about 4000 s, with no word (a cell that seems to hang; the drives' own figures are
+# degrees or mm per second by the hundred)
+MAX_FULL_RANGE_MOVE_S = 60.0
+
+
+def _full_range_move_s(distance: float, velocity: float, acceleration: float) -> float:
+    """A trapezoid (or triangle) profile's time over `distance` (drivers.profile.trapezoid, the drives' own)."""
+    if distance * acceleration >= velocity * velocity:
+        return distance / velocity + velocity / acceleration
+    return 2.0 * math.sqrt(distance / acceleration)
+
+
+def _check_moves_end(scara: Scara, gripper: Gripper, source: str) -> None:
+    """Every axis crosses its range (a revolute joint at most a turn: a wrist that turns without end is given
+    limits of a million degrees) within MAX_FULL_RANGE_MOVE_S."""
+    axes = [(f"scara.max_velocity.{j} = {scara.max_velocity[j]:g} and max_acceleration.{j} = "
+             f"{scara.max_acceleration[j]:g}", j.upper(), scara.limits(j), scara.max_velocity[j],
+             scara.max_acceleration[j], NODE_UNITS[j]) for j in JOINTS]
+    axes.append((f"gripper.speed_mm_s = {gripper.speed_mm_s:g}", "the gripper", gripper.opening_mm,
+                 gripper.speed_mm_s, GRIPPER_ACCEL_FACTOR * gripper.speed_mm_s, "mm"))
+    for what, name, (lo, hi), v, a, unit in axes:
+        distance = min(hi - lo, 360.0) if unit == "deg" else hi - lo
+        t = _full_range_move_s(distance, v, a)
+        if t > MAX_FULL_RANGE_MOVE_S:
+            raise BadInput(f"cell file {source}: {what}: a move across {name}'s range ({distance:g} {unit}) would "
+                           f"take {t:.3g} s, more than {MAX_FULL_RANGE_MOVE_S:g} s (the cell would seem to hang)")
 
 
 def _check_drive_counts(scara: Scara, gripper: Gripper, nodes: dict, source: str) -> None:

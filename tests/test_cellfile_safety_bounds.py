@@ -234,3 +234,24 @@ def test_forces_on_the_bounds_reach_the_drive_as_checked(grip, most, grip_units,
         drives.gripper_object_width_mm = 30.0
         assert arm.gripper.grip(30.0, force_n=most).holding and not arm.faults
         assert force_limit.raw == most_units
+
+
+# --- speeds: a move across an axis' range ends within a minute --------------------------------------------------
+def test_speeds_under_which_a_move_across_an_axis_takes_more_than_a_minute_are_refused(tmp_path, capsys):
+    """Was: taken, and the first move of `cell run` took about 4000 s with no word (0.01 deg/s)."""
+    _refused_by_the_cli(tmp_path, capsys, "scara.max_velocity.j1 = 0.01 and max_acceleration.j1 = 720: a move "
+                        "across J1's range", scara__max_velocity__j1=0.01)
+    _refused("gripper.speed_mm_s = 0.1: a move across the gripper's range (80 mm) would take 800 s, more than 60 s",
+             gripper__speed_mm_s=0.1)
+    _refused("max_acceleration.j3 = 0.001", scara__max_acceleration__j3=0.001)
+    j3 = _cell().scara.j3_mm
+    span = j3[1] - j3[0]
+    fast = 1e5  # (the ramps take no time: the move is its distance over its speed)
+    assert _cell(scara__max_velocity__j3=span / 59.9, scara__max_acceleration__j3=fast)
+    _refused("would take 60.1 s", scara__max_velocity__j3=span / 60.1, scara__max_acceleration__j3=fast)
+
+
+def test_a_wrist_without_end_is_timed_over_one_turn():
+    """J4 given limits of a million degrees (a wrist that turns without end) at 600 deg/s: a turn takes 0.85 s."""
+    assert _cell(scara__j4_deg=[-1e6, 1e6]).scara.j4_deg == (-1e6, 1e6)
+    _refused("a move across J4's range (360 deg) would take", scara__j4_deg=[-1e6, 1e6], scara__max_velocity__j4=5.0)

@@ -101,7 +101,8 @@ def _refused(edits, message):
     [(("camera", "width_px"), 1000), (("camera", "height_px"), 32766)],
     [(("can", "heartbeat_ms"), 1000), (("can", "host_heartbeat_ms"), 1000)],  # a second
     [(("can", "heartbeat_ms"), 10), (("can", "host_heartbeat_ms"), 10)],  # the host's poll
-    [(("gripper", "speed_mm_s"), 0.001)],  # exactly one count/s (1000 counts per mm)
+    # exactly one count/s (0.5 counts per mm; 0.001 mm/s at 1000 counts per mm would take 22 hours to open)
+    [(("gripper", "speed_mm_s"), 2.0), (("can", "nodes", "gripper", "counts_per_unit"), 0.5)],
     [(("scara", "j4_deg"), [-1e6, 1e6])],  # the bound of any number
 ])
 def test_numbers_on_the_bounds_are_taken(edits):

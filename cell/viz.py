@@ -21,6 +21,7 @@ call is the frame last set with `frame(i, ...)` (timeline "frame"), plus wall-cl
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +38,22 @@ JOINT_NAMES = ("j1", "j2", "j3", "j4")
 FLUSH_TIMEOUT_S = 5.0  # for the viewer's gRPC sink to take what was logged (a file sink is quicker)
 
 
+DISPLAY_VARIABLES = ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET")
+
+
+def check_display() -> None:
+    """On Linux the viewer needs an X or Wayland display: without one it started, failed, and filled the run's
+    stderr with its own errors (winit, then the stream's gRPC) while the run went on. Commands ask before they
+    make anything."""
+    import sys
+
+    from cell.errors import BadInput
+
+    if sys.platform.startswith("linux") and not any(os.environ.get(k) for k in DISPLAY_VARIABLES):
+        raise BadInput("--rerun: no display here (DISPLAY and WAYLAND_DISPLAY are not set), the viewer cannot open "
+                       "its window; --save FILE.rrd writes the recording for a viewer elsewhere")
+
+
 def _spawn_viewer(rr, rec) -> None:
     """Start a rerun viewer for `rec`: the `rerun` next to this Python (its venv's, found without the
     venv on PATH) or on PATH. None found, or one that cannot start, is a clear error."""
@@ -45,6 +62,7 @@ def _spawn_viewer(rr, rec) -> None:
 
     from cell.errors import BadInput
 
+    check_display()
     beside = Path(sys.executable).with_name("rerun")
     exe = str(beside) if beside.exists() else shutil.which("rerun")
     if exe is None:

@@ -126,5 +126,18 @@ def test_no_viewer_to_spawn_is_a_clear_error(tmp_path, monkeypatch):
 
     monkeypatch.setattr(sys, "executable", str(tmp_path / "no-venv" / "python"))
     monkeypatch.setenv("PATH", str(tmp_path))
+    monkeypatch.setenv("DISPLAY", ":99")  # (a display: else that is what is missing first)
     with pytest.raises(BadInput, match="no rerun viewer found"):
         Viz("test-cell", spawn=True)
+
+
+def test_rerun_without_a_display_is_refused_before_the_run_makes_anything(tmp_path, capsys, monkeypatch):
+    """Was: exit 0, the viewer started, failed and filled stderr with its errors (winit, gRPC) while the run
+    went on."""
+    from conftest import run_cli
+
+    for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
+        monkeypatch.delenv(name, raising=False)
+    code, out, err = run_cli("run", "--rerun", "--record", tmp_path / "rec", capsys=capsys)
+    assert code == 2 and err.count("\n") == 1 and "--rerun: no display here" in err and "--save FILE.rrd" in err
+    assert not (tmp_path / "rec").exists() and out == ""

@@ -82,6 +82,10 @@ def run(args) -> int:
             raise BadInput(f"--sim-miss {m!r}: expected PART or PART:N") from None
         if miss[pid] < 1:
             raise BadInput(f"--sim-miss {m!r}: N must be at least 1")
+    if args.rerun:  # before the recording is made
+        from cell.viz import check_display
+
+        check_display()
     real_cell = _real_cell(args, world_options)
     out = sys.stderr if args.json else sys.stdout
     cfg = RunConfig(assembly=args.assembly, cell=args.cell, calibration=args.calibration, examples=args.examples,

@@ -63,9 +63,10 @@ def load_calibration(path: str | Path | None = None, *, size: tuple[int, int] | 
 
 
 def save_calibration(cal: Calibration, path: str | Path) -> None:
-    """Write `cal` atomically (a crash leaves the old file or the new one, never half). A lens model
-    that `load_calibration` would refuse (a fit of too few or too similar views can fold the image)
-    is not written."""
+    """Write `cal` atomically (a crash leaves the old file or the new one, never half). Nothing that
+    `load_calibration` would refuse is written (BadInput, the file left as it was): the reader's own checks
+    run on what is about to be written. A lens model that folds the image (a fit of too few or too similar
+    views) and a camera that does not look down on its plane are named first, with what to do."""
     def refuse(why: str):
         raise BadInput(f"{why}: {path} not written")
 
@@ -77,8 +78,10 @@ def save_calibration(cal: Calibration, path: str | Path) -> None:
         coefficients = np.round(np.ravel(cal.dist), 4).tolist()
         raise BadInput(f"the fitted distortion {coefficients} folds or collapses the image: {path} not written; "
                        "more views, tilted in several directions, give a lens model")
+    raw = calibration_to_json(cal)
+    parse_calibration(raw, fail=refuse)  # and whatever else it would refuse: `cell map` would say so only later
     try:
-        write_json_atomic(path, calibration_to_json(cal))
+        write_json_atomic(path, raw)
     except OSError as e:  # a directory, a read-only place, a full disk: the user's to fix
         raise BadInput(f"cannot write the calibration file {path}: {e.strerror or e}") from None
 
@@ -107,11 +110,14 @@ def calibration_to_json(cal: Calibration) -> dict:
     return d
 
 
-def parse_calibration(raw, source: str = "<calibration>") -> Calibration:
-    """Validate the JSON object of a calibration file; every problem names the key."""
+def parse_calibration(raw, source: str = "<calibration>", fail=None) -> Calibration:
+    """Validate the JSON object of a calibration file; every problem names the key. `fail(why)` raises (by
+    default BadInput naming `source`; the writer passes its own, to refuse what it was about to write)."""
 
-    def fail(why: str):
+    def fail_in_file(why: str):
         raise BadInput(f"calibration file {source}: {why}")
+
+    fail = fail or fail_in_file
 
     if not isinstance(raw, dict):
         fail("top level must be a JSON object")
@@ -144,16 +150,7 @@ def parse_calibration(raw, source: str = "<calibration>") -> Calibration:
         for key in ("fx", "fy", "cx", "cy"):
             vals[key] = _finite(intr.get(key), f"intrinsics.{key}", fail)
         skew = _finite(intr.get("skew", 0.0), "intrinsics.skew", fail)
-        if not (1.0 <= vals["fx"] <= MAX_PX and 1.0 <= vals["fy"] <= MAX_PX):
-            # 1e300 or 1e-300 were refused as a distortion that 'folds the image': name the key instead
-            fail(f"intrinsics.fx and fy must be between 1 and {MAX_PX:g} px (a real lens: hundreds to tens of "
-                 f"thousands), got {vals['fx']:g} and {vals['fy']:g}")
-        for key, size in (("cx", w), ("cy", h)):
-            if abs(vals[key] - size / 2) > 10 * size:
-                fail(f"intrinsics.{key} = {vals[key]:g} px is not near the {size} px image (the principal point "
-                     "lies in or close to the image)")
-        if abs(skew) > vals["fx"]:
-            fail(f"intrinsics.skew = {skew:g} px: at most fx ({vals['fx']:g}); it is about 0 for a real camera")
+        check_camera_matrix(vals["fx"], vals["fy"], vals["cx"], vals["cy"], skew, w, h, fail)
         dist_raw = intr.get("dist", [0.0] * 5)
         if not isinstance(dist_raw, list) or len(dist_raw) not in (4, 5, 8, 12, 14):
             fail("intrinsics.dist must be a list of 4, 5, 8, 12 or 14 numbers (OpenCV's order)")
@@ -207,6 +204,22 @@ def parse_calibration(raw, source: str = "<calibration>") -> Calibration:
         fail("'plane' needs a 'pose' or a 'homography' that maps onto it")
     return Calibration(w, h, k, dist if dist is not None else np.zeros(5), cam2base, hom, plane_z,
                        str(raw.get("name", Path(source).stem)), report, plane)
+
+
+def check_camera_matrix(fx: float, fy: float, cx: float, cy: float, skew: float, w: int, h: int, fail,
+                        where: str = "intrinsics.") -> None:
+    """The camera matrix's numbers as the reader takes them, for `w` x `h` px images: `fail(why)` otherwise
+    (`where` prefixes the names: the file's keys, or "" for a command-line option's)."""
+    if not (1.0 <= fx <= MAX_PX and 1.0 <= fy <= MAX_PX):
+        # 1e300 or 1e-300 were refused as a distortion that 'folds the image': name the key instead
+        fail(f"{where}fx and fy must be between 1 and {MAX_PX:g} px (a real lens: hundreds to tens of "
+             f"thousands), got {fx:g} and {fy:g}")
+    for key, value, size in (("cx", cx, w), ("cy", cy, h)):
+        if abs(value - size / 2) > 10 * size:
+            fail(f"{where}{key} = {value:g} px is not near the {size} px image (the principal point "
+                 "lies in or close to the image)")
+    if abs(skew) > fx:
+        fail(f"{where}skew = {skew:g} px: at most fx ({fx:g}); it is about 0 for a real camera")
 
 
 def _tilted_plane(raw, version: int, fail) -> TiltedPlane | None:

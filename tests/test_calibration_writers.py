@@ -89,3 +89,20 @@ def _re(text: str) -> str:
     import re
 
     return re.escape(text)
+
+
+def test_a_recording_is_not_made_with_a_calibration_its_replay_would_refuse(tmp_path, capsys):
+    """A cell file's camera 900 m above the tray gave the simulated camera a nominal fx of 1.8e6 px: `cell run
+    --record` wrote it as calibration.json (exit 0) and `cell replay` then refused the recording as corrupt."""
+    from cell.cellconfig import default_cell_path
+
+    cell = json.loads(default_cell_path().read_text())
+    cell["camera"]["height_mm"] = 900_000.0
+    (tmp_path / "cell.json").write_text(json.dumps(cell))
+    code, out, err = run_cli("run", "--cell", tmp_path / "cell.json", "--record", tmp_path / "rec", "--json",
+                             capsys=capsys)
+    assert code == 2 and out == "", err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "intrinsics.fx and fy must be between 1 and 1e+06 px" in lines[0], err
+    assert f"the recording {tmp_path / 'rec'} is not written" in lines[0]
+    assert not (tmp_path / "rec").exists()

@@ -195,6 +195,7 @@ def parse_calibration(raw, source: str = "<calibration>", fail=None) -> Calibrat
             plane_z = _finite(homr.get("plane_z_mm", plane_z), "homography.plane_z_mm", fail)
             if abs(plane_z) > MAX_MM:
                 fail(f"homography.plane_z_mm must be within {MAX_MM:g} mm of the base")
+        _check_homography_looks_down(hom, plane_z, w, h, fail, plane)
     if k is None and hom is None:
         fail("the file has neither 'intrinsics' nor 'homography'")
     report = raw.get("report", {})
@@ -304,6 +305,30 @@ def _check_sees_plane(k: np.ndarray, cam2base: np.ndarray, plane_z_mm: float | N
              f"{np.round(ray / np.linalg.norm(ray), 3).tolist()}, does not look down onto the plane z = "
              f"{plane_z_mm:g} mm from above (the pose is the camera's in the base frame, z up; base "
              "coordinates given in a mirrored frame, y down, fit a camera below the plane)")
+
+
+def _check_homography_looks_down(px_to_mm: np.ndarray, plane_z_mm: float | None, w: int, h: int, fail,
+                                 plane: TiltedPlane | None = None) -> None:
+    """A homography must map the image onto its plane as a camera above it sees it: turned, not mirrored. Seen
+    from above (z up, right-handed base frame; a tilted plane's front, with its own right-handed 2D frame), the
+    map from the image (u right, v down) to the plane has a negative Jacobian determinant; from below, or with
+    base coordinates given in a mirrored frame (y down), a positive one. That determinant is
+    det(H) / w(u, v)^3 (w the third row of H times (u, v, 1)): its sign changes only across the plane's horizon,
+    w = 0, and every pixel the calibration maps lies on the image centre's side of it (calibration/camera.py
+    refuses the others), so its sign at the image centre is its sign at every such pixel, markers included."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        w_centre = float(px_to_mm[2] @ [w / 2.0, h / 2.0, 1.0])
+        det = float(np.linalg.det(px_to_mm))
+    if np.sign(det) * np.sign(w_centre) < 0:
+        return
+    if plane is not None:
+        fail(f"homography: it maps the image onto the plane {plane.describe()['equation']} mirrored, as a camera "
+             "behind the plane would see it: it does not look onto the front (upper side) of the plane (base "
+             "coordinates given in a mirrored frame, y down, fit a mirrored mapping)")
+    fail(f"homography: it maps the image onto the plane z = {plane_z_mm:g} mm mirrored, as a camera below the "
+         f"plane would see it: it does not look down onto the plane z = {plane_z_mm:g} mm from above (the "
+         "mapping is to the base frame, z up; base coordinates given in a mirrored frame, y down, fit a "
+         "mirrored mapping)")
 
 
 def _finite(v, where, fail) -> float:

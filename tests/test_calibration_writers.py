@@ -106,3 +106,62 @@ def test_a_recording_is_not_made_with_a_calibration_its_replay_would_refuse(tmp_
     assert len(lines) == 1 and "intrinsics.fx and fy must be between 1 and 1e+06 px" in lines[0], err
     assert f"the recording {tmp_path / 'rec'} is not written" in lines[0]
     assert not (tmp_path / "rec").exists()
+
+
+MIRRORED = "does not look down onto the plane z = 0 mm from above"
+
+
+def test_a_homography_of_markers_in_a_mirrored_frame_is_refused_as_with_intrinsics(frame, capsys):
+    """Without intrinsics the markers given y down were fitted by a mirrored homography and written (exit 0),
+    while with --camera-matrix the same markers were refused: now both are, for the same reason."""
+    code, out, err = _calibrate(frame, capsys, "right.json")
+    assert code == 0 and json.loads(out)["method"] == "homography", err
+    good = (frame / "cal.json").read_bytes()
+    assert np.allclose(load_calibration(frame / "cal.json").px_to_mm([[160, 160]]), [[240, 85]], atol=0.1)
+    for extra in ([], ["--camera-matrix", GOOD_MATRIX]):
+        code, out, err = _calibrate(frame, capsys, "mirrored.json", *extra)
+        lines = err.strip().splitlines()
+        assert code == 2 and out == "" and len(lines) == 1, err
+        assert MIRRORED in lines[0] and "base coordinates given in a mirrored frame, y down" in lines[0], err
+        assert lines[0].endswith(f"{frame / 'cal.json'} not written")
+        assert (frame / "cal.json").read_bytes() == good
+
+
+@pytest.mark.parametrize("h, mirrored", [
+    (np.diag([0.25, -0.25, 1.0]), False),
+    (-np.diag([0.25, -0.25, 1.0]), False),  # the same mapping: det(H) > 0, but so is w at every pixel
+    (np.diag([0.25, 0.25, 1.0]), True),
+    (-np.diag([0.25, 0.25, 1.0]), True),
+    # a tilted view, its horizon above the image (v = -2000): mirrored or not over the whole image
+    (np.array([[0.25, 0.0, 0.0], [0.0, -0.25, 0.0], [0.0, 0.0005, 1.0]]), False),
+    (np.array([[0.25, 0.0, 0.0], [0.0, 0.25, 0.0], [0.0, 0.0005, 1.0]]), True),
+])
+def test_the_reader_refuses_a_mirrored_homography(tmp_path, h, mirrored):
+    path = tmp_path / "h.json"
+    raw = calibration_to_json(Calibration(W, H, homography=np.diag([1.0, -1.0, 1.0]), name="h"))
+    raw["homography"]["px_to_mm"] = h.tolist()
+    path.write_text(json.dumps(raw))
+    if mirrored:
+        with pytest.raises(BadInput, match=f"calibration file {_re(str(path))}: homography: .*{MIRRORED}.*mirrored "
+                                           "frame, y down"):
+            load_calibration(path)
+    else:
+        cal = load_calibration(path)
+        # turned, not mirrored: base x along u, y against v, at every pixel
+        a, b, c = cal.px_to_mm([[100, 100], [200, 100], [100, 200]])
+        assert b[0] > a[0] and c[1] < a[1]
+
+
+def test_the_reader_refuses_a_mirrored_homography_on_a_tilted_plane():
+    from calibration.tilted import TiltedPlane
+
+    t = np.radians(10.0)
+    plane = TiltedPlane(np.array([350.0, 0.0, 20.0]), np.array([1.0, 0.0, 0.0]),
+                        np.array([0.0, np.cos(t), np.sin(t)]))
+    for h, refused in ((np.diag([0.25, -0.25, 1.0]), False), (np.diag([0.25, 0.25, 1.0]), True)):
+        raw = calibration_to_json(Calibration(W, H, homography=h, plane_z_mm=None, name="t", plane=plane))
+        if refused:
+            with pytest.raises(BadInput, match="homography: .* mirrored.*does not look onto the front"):
+                parse_calibration(raw, "t.json")
+        else:
+            parse_calibration(raw, "t.json")

@@ -63,9 +63,10 @@ def load_calibration(path: str | Path | None = None, *, size: tuple[int, int] | 
 
 
 def save_calibration(cal: Calibration, path: str | Path) -> None:
-    """Write `cal` atomically (a crash leaves the old file or the new one, never half). A lens model
-    that `load_calibration` would refuse (a fit of too few or too similar views can fold the image)
-    is not written."""
+    """Write `cal` atomically (a crash leaves the old file or the new one, never half). Nothing that
+    `load_calibration` would refuse is written (BadInput, the file left as it was): the reader's own checks
+    run on what is about to be written. A lens model that folds the image (a fit of too few or too similar
+    views) and a camera that does not look down on its plane are named first, with what to do."""
     def refuse(why: str):
         raise BadInput(f"{why}: {path} not written")
 
@@ -77,8 +78,10 @@ def save_calibration(cal: Calibration, path: str | Path) -> None:
         coefficients = np.round(np.ravel(cal.dist), 4).tolist()
         raise BadInput(f"the fitted distortion {coefficients} folds or collapses the image: {path} not written; "
                        "more views, tilted in several directions, give a lens model")
+    raw = calibration_to_json(cal)
+    parse_calibration(raw, fail=refuse)  # and whatever else it would refuse: `cell map` would say so only later
     try:
-        write_json_atomic(path, calibration_to_json(cal))
+        write_json_atomic(path, raw)
     except OSError as e:  # a directory, a read-only place, a full disk: the user's to fix
         raise BadInput(f"cannot write the calibration file {path}: {e.strerror or e}") from None
 
@@ -107,11 +110,14 @@ def calibration_to_json(cal: Calibration) -> dict:
     return d
 
 
-def parse_calibration(raw, source: str = "<calibration>") -> Calibration:
-    """Validate the JSON object of a calibration file; every problem names the key."""
+def parse_calibration(raw, source: str = "<calibration>", fail=None) -> Calibration:
+    """Validate the JSON object of a calibration file; every problem names the key. `fail(why)` raises (by
+    default BadInput naming `source`; the writer passes its own, to refuse what it was about to write)."""
 
-    def fail(why: str):
+    def fail_in_file(why: str):
         raise BadInput(f"calibration file {source}: {why}")
+
+    fail = fail or fail_in_file
 
     if not isinstance(raw, dict):
         fail("top level must be a JSON object")
@@ -144,16 +150,7 @@ def parse_calibration(raw, source: str = "<calibration>") -> Calibration:
         for key in ("fx", "fy", "cx", "cy"):
             vals[key] = _finite(intr.get(key), f"intrinsics.{key}", fail)
         skew = _finite(intr.get("skew", 0.0), "intrinsics.skew", fail)
-        if not (1.0 <= vals["fx"] <= MAX_PX and 1.0 <= vals["fy"] <= MAX_PX):
-            # 1e300 or 1e-300 were refused as a distortion that 'folds the image': name the key instead
-            fail(f"intrinsics.fx and fy must be between 1 and {MAX_PX:g} px (a real lens: hundreds to tens of "
-                 f"thousands), got {vals['fx']:g} and {vals['fy']:g}")
-        for key, size in (("cx", w), ("cy", h)):
-            if abs(vals[key] - size / 2) > 10 * size:
-                fail(f"intrinsics.{key} = {vals[key]:g} px is not near the {size} px image (the principal point "
-                     "lies in or close to the image)")
-        if abs(skew) > vals["fx"]:
-            fail(f"intrinsics.skew = {skew:g} px: at most fx ({vals['fx']:g}); it is about 0 for a real camera")
+        check_camera_matrix(vals["fx"], vals["fy"], vals["cx"], vals["cy"], skew, w, h, fail)
         dist_raw = intr.get("dist", [0.0] * 5)
         if not isinstance(dist_raw, list) or len(dist_raw) not in (4, 5, 8, 12, 14):
             fail("intrinsics.dist must be a list of 4, 5, 8, 12 or 14 numbers (OpenCV's order)")
@@ -198,6 +195,7 @@ def parse_calibration(raw, source: str = "<calibration>") -> Calibration:
             plane_z = _finite(homr.get("plane_z_mm", plane_z), "homography.plane_z_mm", fail)
             if abs(plane_z) > MAX_MM:
                 fail(f"homography.plane_z_mm must be within {MAX_MM:g} mm of the base")
+        _check_homography_looks_down(hom, plane_z, w, h, fail, plane)
     if k is None and hom is None:
         fail("the file has neither 'intrinsics' nor 'homography'")
     report = raw.get("report", {})
@@ -207,6 +205,22 @@ def parse_calibration(raw, source: str = "<calibration>") -> Calibration:
         fail("'plane' needs a 'pose' or a 'homography' that maps onto it")
     return Calibration(w, h, k, dist if dist is not None else np.zeros(5), cam2base, hom, plane_z,
                        str(raw.get("name", Path(source).stem)), report, plane)
+
+
+def check_camera_matrix(fx: float, fy: float, cx: float, cy: float, skew: float, w: int, h: int, fail,
+                        where: str = "intrinsics.") -> None:
+    """The camera matrix's numbers as the reader takes them, for `w` x `h` px images: `fail(why)` otherwise
+    (`where` prefixes the names: the file's keys, or "" for a command-line option's)."""
+    if not (1.0 <= fx <= MAX_PX and 1.0 <= fy <= MAX_PX):
+        # 1e300 or 1e-300 were refused as a distortion that 'folds the image': name the key instead
+        fail(f"{where}fx and fy must be between 1 and {MAX_PX:g} px (a real lens: hundreds to tens of "
+             f"thousands), got {fx:g} and {fy:g}")
+    for key, value, size in (("cx", cx, w), ("cy", cy, h)):
+        if abs(value - size / 2) > 10 * size:
+            fail(f"{where}{key} = {value:g} px is not near the {size} px image (the principal point "
+                 "lies in or close to the image)")
+    if abs(skew) > fx:
+        fail(f"{where}skew = {skew:g} px: at most fx ({fx:g}); it is about 0 for a real camera")
 
 
 def _tilted_plane(raw, version: int, fail) -> TiltedPlane | None:
@@ -291,6 +305,30 @@ def _check_sees_plane(k: np.ndarray, cam2base: np.ndarray, plane_z_mm: float | N
              f"{np.round(ray / np.linalg.norm(ray), 3).tolist()}, does not look down onto the plane z = "
              f"{plane_z_mm:g} mm from above (the pose is the camera's in the base frame, z up; base "
              "coordinates given in a mirrored frame, y down, fit a camera below the plane)")
+
+
+def _check_homography_looks_down(px_to_mm: np.ndarray, plane_z_mm: float | None, w: int, h: int, fail,
+                                 plane: TiltedPlane | None = None) -> None:
+    """A homography must map the image onto its plane as a camera above it sees it: turned, not mirrored. Seen
+    from above (z up, right-handed base frame; a tilted plane's front, with its own right-handed 2D frame), the
+    map from the image (u right, v down) to the plane has a negative Jacobian determinant; from below, or with
+    base coordinates given in a mirrored frame (y down), a positive one. That determinant is
+    det(H) / w(u, v)^3 (w the third row of H times (u, v, 1)): its sign changes only across the plane's horizon,
+    w = 0, and every pixel the calibration maps lies on the image centre's side of it (calibration/camera.py
+    refuses the others), so its sign at the image centre is its sign at every such pixel, markers included."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        w_centre = float(px_to_mm[2] @ [w / 2.0, h / 2.0, 1.0])
+        det = float(np.linalg.det(px_to_mm))
+    if np.sign(det) * np.sign(w_centre) < 0:
+        return
+    if plane is not None:
+        fail(f"homography: it maps the image onto the plane {plane.describe()['equation']} mirrored, as a camera "
+             "behind the plane would see it: it does not look onto the front (upper side) of the plane (base "
+             "coordinates given in a mirrored frame, y down, fit a mirrored mapping)")
+    fail(f"homography: it maps the image onto the plane z = {plane_z_mm:g} mm mirrored, as a camera below the "
+         f"plane would see it: it does not look down onto the plane z = {plane_z_mm:g} mm from above (the "
+         "mapping is to the base frame, z up; base coordinates given in a mirrored frame, y down, fit a "
+         "mirrored mapping)")
 
 
 def _finite(v, where, fail) -> float:

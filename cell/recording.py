@@ -145,6 +145,17 @@ class RecordingWriter:
         ex = Path(examples_file) if examples_file is not None else None
         if ex is not None and not ex.is_file():
             raise BadInput(f"example file {ex} does not exist")
+        nominal_json = None
+        if nominal_calibration is not None:  # checked as `cell replay` will read it, before any file is made
+            from calibration.calfile import calibration_to_json, parse_calibration
+
+            def refuse(why: str):
+                raise BadInput(f"the simulated camera's calibration ({nominal_calibration.name}, from the cell file's "
+                               f"camera and tray) is one the calibration file's reader refuses: {why}; the recording "
+                               f"{self.dir} is not written (`cell replay` could not read it)")
+
+            nominal_json = calibration_to_json(nominal_calibration)
+            parse_calibration(nominal_json, fail=refuse)
         has_cal = cal is not None or nominal_calibration is not None
         files = {"cell": "cell.json", "calibration": "calibration.json" if has_cal else None, "decisions": DECISIONS,
                  "frames": FRAMES_DIR, "can_log": CAN_LOG, "rrd": RRD}
@@ -154,10 +165,8 @@ class RecordingWriter:
             shutil.copyfile(cell_src, self.dir / "cell.json")
             if cal is not None:
                 shutil.copyfile(cal, self.dir / "calibration.json")
-            elif nominal_calibration is not None:
-                from calibration.calfile import calibration_to_json
-
-                write_json_atomic(self.dir / "calibration.json", calibration_to_json(nominal_calibration))
+            elif nominal_json is not None:
+                write_json_atomic(self.dir / "calibration.json", nominal_json)
             examples = {"path": str(ex.resolve()), "sha256": _sha256(ex)} if ex is not None else None
         except OSError as e:
             raise BadInput(f"cannot write the recording into {self.dir}: {e.strerror or e}") from None

@@ -185,10 +185,10 @@ def _homography_file(tmp_path, h, name="h.json"):
 
 
 def test_homography_is_validated_whatever_its_scale(tmp_path):
-    h = np.array([[0.5, 0, 100], [0, 0.5, -200], [0, 0, 1.0]])
+    h = np.array([[0.5, 0, 100], [0, -0.5, 200], [0, 0, 1.0]])
     # a homography times any factor is the same mapping: 1e-6 x h used to be refused as "singular"
     small = load_calibration(_homography_file(tmp_path, (1e-6 * h).tolist()))
-    assert np.allclose(small.px_to_mm([[10, 20]]), [[105, -190]])
+    assert np.allclose(small.px_to_mm([[10, 20]]), [[105, 190]])
     # entries near the float limit: det() overflowed to a huge number and the file was accepted
     with pytest.raises(BadInput, match="homography.px_to_mm is singular"):
         load_calibration(_homography_file(tmp_path, [[1e308, 1e308, 0], [0, 1, 0], [0, 0, 1]]))
@@ -205,12 +205,12 @@ def test_homography_is_validated_whatever_its_scale(tmp_path):
 
 
 def test_map_never_prints_infinity(tmp_path, capsys):
-    # a valid homography (identity x 1e307) whose products overflow: used to print {"mm": [[Infinity, ...]]}
-    path = _homography_file(tmp_path, (1e307 * np.eye(3)).tolist())
+    # a valid homography (y turned over, x 1e307) whose products overflow: used to print {"mm": [[Infinity, ...]]}
+    path = _homography_file(tmp_path, (1e307 * np.diag([1.0, -1.0, 1.0])).tolist())
     code, out, err = run_cli("map", path, "--px", "100,100", "--json", capsys=capsys)
     assert code == 2 and out == "" and err.count("\n") == 1 and "infinity or NaN" in err
     code, out, _ = run_cli("map", path, "--px", "0.5,0.25", "--json", capsys=capsys)
-    assert code == 0 and json.loads(out, parse_constant=lambda c: pytest.fail(c))["mm"] == [[0.5, 0.25]]
+    assert code == 0 and json.loads(out, parse_constant=lambda c: pytest.fail(c))["mm"] == [[0.5, -0.25]]
 
 
 def test_homography_refuses_points_beyond_the_horizon():
@@ -230,7 +230,7 @@ def test_homography_refuses_points_beyond_the_horizon():
 def test_map_refuses_pixels_more_than_an_image_size_outside_the_image(tmp_path, capsys, px):
     """With a homography (no pose to say a pixel looks past the plane) 1e300,1e300 printed a point
     (-489, -27417) mm, exit 0; -100000,5 too."""
-    path = _homography_file(tmp_path, [[0.5, 0, 100], [0, 0.5, -200], [0, 0, 1.0]])
+    path = _homography_file(tmp_path, [[0.5, 0, 100], [0, -0.5, 200], [0, 0, 1.0]])
     code, out, err = run_cli("map", path, "--px", "320,240", px, "--json", capsys=capsys)
     assert code == 2 and out == "", err
     assert err.strip() == (f"cell: error: --px {px}: pixels must be within one image size of the calibration's "
@@ -238,10 +238,10 @@ def test_map_refuses_pixels_more_than_an_image_size_outside_the_image(tmp_path, 
 
 
 def test_map_takes_pixels_up_to_an_image_size_outside_the_image(tmp_path, capsys):
-    path = _homography_file(tmp_path, np.eye(3).tolist())
+    path = _homography_file(tmp_path, np.diag([1.0, -1.0, 1.0]).tolist())
     code, out, err = run_cli("map", path, "--px", "-640,-480", "1280,960", "--json", capsys=capsys)
     assert code == 0, err
-    assert json.loads(out)["mm"] == [[-640, -480], [1280, 960]]
+    assert json.loads(out)["mm"] == [[-640, 480], [1280, -960]]
 
 
 @pytest.mark.parametrize("px, message", [
@@ -251,14 +251,14 @@ def test_map_takes_pixels_up_to_an_image_size_outside_the_image(tmp_path, capsys
 ])
 def test_map_refuses_pixels_at_or_beyond_the_homography_horizon(tmp_path, capsys, px, message):
     """A tilted view whose horizon is the image line v = -333.3 (w = 0), inside the bound of an image size."""
-    path = _homography_file(tmp_path, [[1.0, 0, 0], [0, 1.0, 0], [0, 0.003, 1.0]])
+    path = _homography_file(tmp_path, [[1.0, 0, 0], [0, -1.0, 0], [0, 0.003, 1.0]])
     code, out, err = run_cli("map", path, "--px", "320,240", px, "--json", capsys=capsys)
     assert code == 2 and out == "" and message in err and err.count("\n") == 1, err
 
 
 def test_map_puts_a_plane_the_calibration_cannot_map_on_no_pixel(tmp_path, capsys):
     """A --z the homography has no mapping for fails at every pixel: the message names no pixel."""
-    path = _homography_file(tmp_path, np.eye(3).tolist())
+    path = _homography_file(tmp_path, np.diag([1.0, -1.0, 1.0]).tolist())
     code, out, err = run_cli("map", path, "--px", "320,240", "--z", "5", "--json", capsys=capsys)
     assert code == 2 and err.startswith("cell: error: calibration 'h' is a homography for the plane z = 0"), err
 

@@ -331,8 +331,9 @@ def test_points_on_a_line_are_bad_input(tmp_path, capsys, px, mm, with_intrinsic
 
 
 def _linear_points(uvs):
-    """Pixel / base pairs of one exact linear mapping (0.1 mm a pixel): any subset fits to nothing."""
-    return {"points": [{"px": [u, v], "mm": [200 + u / 10, -50 + v / 10, 0]} for u, v in uvs]}
+    """Pixel / base pairs of one exact linear mapping (0.1 mm a pixel, as a camera looking down sees the base
+    frame: v against y): any subset fits to nothing."""
+    return {"points": [{"px": [u, v], "mm": [200 + u / 10, 50 - v / 10, 0]} for u, v in uvs]}
 
 
 INSIDE = [(50 + 100 * i, 40 + 80 * j) for i in range(3) for j in range(3)]

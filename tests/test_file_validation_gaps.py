@@ -125,8 +125,8 @@ def test_a_bad_calibration_is_refused_naming_the_problem(tmp_path, capsys, which
     _refused_by_the_cli(("map", path, "--px", "1,2"), capsys, path, message)
 
 
-@pytest.mark.parametrize("h", [[[0.5, 0, 100], [0, 0.5, -200], [0, 0, 1]],
-                               [[1, 0, 0], [0, 1e-11, 0], [0, 0, 1]]],  # condition 1e11: under the 1e12 limit
+@pytest.mark.parametrize("h", [[[0.5, 0, 100], [0, -0.5, 200], [0, 0, 1]],
+                               [[1, 0, 0], [0, -1e-11, 0], [0, 0, 1]]],  # condition 1e11: under the 1e12 limit
                          ids=["plain", "condition-1e11"])
 def test_a_well_conditioned_homography_is_read(tmp_path, capsys, h):
     path = _homography_file(tmp_path, h)

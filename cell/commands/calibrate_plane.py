@@ -37,6 +37,7 @@ def run(args) -> int:
     import numpy as np
 
     from calibration import load_calibration, save_calibration
+    from calibration.calfile import check_camera_matrix
     from calibration.plane import (
         FLAT_Z_MM,
         detect_markers,
@@ -62,6 +63,13 @@ def run(args) -> int:
         if max(fx, fy, abs(cx), abs(cy)) > 1e6:  # 1e300 was 'the plane z = 0.0 mm is not in front of the camera'
             raise BadInput(f"--camera-matrix {args.camera_matrix}: pixels, each within 1e6 (fx, fy of a real lens "
                            "are hundreds to tens of thousands)")
+
+        def refuse_matrix(why: str):
+            raise BadInput(f"--camera-matrix {args.camera_matrix}: {why}")
+
+        # as the calibration file's reader checks them: fx 0.5 or cx 100000 was written (exit 0) into a file
+        # that `cell map` then refused
+        check_camera_matrix(fx, fy, cx, cy, 0.0, w, h, refuse_matrix, where="")
         k, dist = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]]), np.zeros(5)
     elif args.intrinsics:
         intr = load_calibration(args.intrinsics, size=(w, h))

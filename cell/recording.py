@@ -107,6 +107,22 @@ def _flushing_logger(writer):
     return FlushingLogger()
 
 
+def recording_holding(path) -> Path | None:
+    """The recording folder that `path` lies in (its folder, or one above it, whose manifest.json is a cell
+    recording's), or None. A manifest that cannot be read as one is not a recording's."""
+    for folder in Path(os.path.abspath(path)).resolve().parents:
+        manifest = folder / MANIFEST
+        try:
+            if not manifest.is_file() or manifest.stat().st_size > (1 << 24):
+                continue
+            m = json.loads(manifest.read_bytes())
+        except (OSError, ValueError, RecursionError):
+            continue
+        if isinstance(m, dict) and m.get("format") == FORMAT:
+            return folder
+    return None
+
+
 class RecordingWriter:
     """Write one session into `directory` (created; refused if it already holds a recording).
 

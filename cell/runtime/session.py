@@ -441,6 +441,12 @@ def _check_rrd_path(path: Path, inputs) -> None:
             raise BadInput(f"--save {path} is one of the run's input files: it would be overwritten; name another")
     if path.is_dir():
         raise BadInput(f"--save {path} is a directory, not a .rrd file")
+    from cell.recording import recording_holding
+
+    held_by = recording_holding(path)  # (the run's own --record folder is new or empty here: no manifest yet)
+    if held_by is not None:  # it replaced that session's session.rrd (exit 0), or added a file it does not name
+        raise BadInput(f"--save {path} lies in the recording {held_by}: a recording is kept as it was made; "
+                       "save the rerun recording elsewhere")
     if path.suffix.lower() != ".rrd":  # rerun writes whatever name it is given; the viewer opens .rrd files
         raise BadInput(f"--save {path}: a rerun recording is a .rrd file; name it {path.with_suffix('.rrd').name}")
     if path.parent.exists() and not path.parent.is_dir():

@@ -23,6 +23,7 @@ file and line.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import math
@@ -104,6 +105,22 @@ def _flushing_logger(writer):
                 writer.stop()
 
     return FlushingLogger()
+
+
+def recording_holding(path) -> Path | None:
+    """The recording folder that `path` lies in (its folder, or one above it, whose manifest.json is a cell
+    recording's), or None. A manifest that cannot be read as one is not a recording's."""
+    for folder in Path(os.path.abspath(path)).resolve().parents:
+        manifest = folder / MANIFEST
+        try:
+            if not manifest.is_file() or manifest.stat().st_size > (1 << 24):
+                continue
+            m = json.loads(manifest.read_bytes())
+        except (OSError, ValueError, RecursionError):
+            continue
+        if isinstance(m, dict) and m.get("format") == FORMAT:
+            return folder
+    return None
 
 
 class RecordingWriter:
@@ -292,8 +309,7 @@ class RecordingWriter:
                 return
             self._closed = True
             self._decisions.close()
-            self.manifest.update(status=status, closed=_now_iso(),
-                                 counts={"frames": len(self._frame_indices), "decisions": self._n_decisions})
+            self.manifest.update(status=status, closed=_now_iso(), counts=self._counts_at_close())
             if summary is not None:
                 self.manifest["summary"] = to_jsonable(summary)
             if not self.can_log_path.exists():
@@ -305,6 +321,19 @@ class RecordingWriter:
             if not self.rrd_path.exists():
                 self.manifest["files"]["rrd"] = None
         write_json_atomic(self.dir / MANIFEST, self.manifest)
+
+    def _counts_at_close(self) -> dict:
+        """The counts the manifest states: what was written, and what an interrupt kept from being counted.
+        Ctrl-C between a decision's fsync and its count (or a frame's rename and its index) left a file
+        holding one more than the manifest said, which the reader refuses as corrupt. What the files hold
+        now is counted too; never less than was written (a file cut short meanwhile stays a mismatch)."""
+        lines = 0
+        with contextlib.suppress(OSError), open(self.dir / DECISIONS, "rb") as f:
+            lines = sum(1 for line in f if line.strip())  # as the reader counts: whole lines, blank ones skipped
+        frames = set(self._frame_indices)
+        with contextlib.suppress(OSError):
+            frames |= {int(m.group(1)) for p in (self.dir / FRAMES_DIR).iterdir() if (m := _FRAME_RE.match(p.name))}
+        return {"frames": len(frames), "decisions": max(self._n_decisions, lines)}
 
     def __enter__(self) -> RecordingWriter:
         return self

@@ -46,3 +46,32 @@ def test_save_to_a_name_that_is_not_rrd_is_refused_before_the_run(tmp_path, caps
     code, out, err = run_cli("run", "--save", target, capsys=capsys)
     assert code == 2 and "a rerun recording is a .rrd file; name it view.rrd" in err, err
     assert not target.exists() and "parts" not in out
+
+
+@pytest.mark.parametrize("where", ["session.rrd", "new.rrd", "frames/new.rrd"])
+def test_save_into_another_recording_is_refused_and_it_is_kept(tmp_path, capsys, where):
+    """--save rs/session.rrd, rs a copy of a recording, run with rs's own cell and calibration files: it replaced
+    that session's rerun recording (exit 0). Nothing is written into a recording, not even a new file."""
+    from pathlib import Path
+
+    rs = tmp_path / "rs"
+    shutil.copytree(Path(__file__).resolve().parent.parent / "recordings" / "shipped", rs)
+    before = {p: p.read_bytes() for p in rs.rglob("*") if p.is_file()}
+    code, out, err = run_cli("run", "--cell", rs / "cell.json", "--calibration", rs / "calibration.json",
+                             "--save", rs / where, capsys=capsys)
+    assert code == 2 and f"--save {rs / where} lies in the recording {rs}" in err, err
+    assert "Traceback" not in err and "parts" not in out
+    assert {p: p.read_bytes() for p in rs.rglob("*") if p.is_file()} == before
+
+
+def test_save_into_the_runs_own_recording_is_still_allowed(tmp_path, capsys):
+    """The run's --record folder is made by this run: --save there writes the rerun recording beside it."""
+    import json
+
+    one = json.loads(default_assembly_path().read_text())  # one part: the run is what is looked at, not the parts
+    one["parts"], one["sequence"] = [p for p in one["parts"] if p["id"] == one["sequence"][0]], one["sequence"][:1]
+    (tmp_path / "one.json").write_text(json.dumps(one))
+    rec = tmp_path / "rec"
+    code, _, err = run_cli("run", tmp_path / "one.json", "--record", rec, "--save", rec / "session.rrd", capsys=capsys)
+    assert code == 0, err
+    assert (rec / "session.rrd").read_bytes()[:3] == b"RRF"

@@ -417,3 +417,31 @@ def test_replay_names_a_host_can_frame_that_differs_from_the_recording(tmp_path,
     code, _, err = run_cli("replay", d, capsys=capsys)
     assert code == 1 and "divergence: CAN id 0x302: the host's frame #0" in err
     assert recorded.lower() in err and "10270000" in err
+
+
+@pytest.mark.parametrize("damage, match", [
+    (lambda d: (d / "examples_at_start.jsonl").write_bytes(  # cut short: 13 of 13 decisions still matched
+        b"".join((SHIPPED / "examples_at_start.jsonl").read_bytes().splitlines(keepends=True)[:70])),
+     "examples_at_start.jsonl is not the example file the session started with (sha256 "),
+    (lambda d: (d / "examples_at_start.jsonl").unlink(), "the examples the session started with, "
+     "examples_at_start.jsonl, are missing"),
+    (lambda d: shutil.copyfile(Path(__file__).resolve().parent.parent / "cell" / "data" / "default_cell.json",
+                               d / "cell.json"),  # another session's cell file: its camera is 1280 x 1024 px
+     "frame 0 is 640 x 512 px, the camera of its cell file cell.json 1280 x 1024 px: not the cell file"),
+], ids=["examples-cut-short", "examples-missing", "cell-file-swapped"])
+def test_replay_refuses_a_recording_file_that_is_not_what_the_manifest_says(tmp_path, capsys, damage, match):
+    """Replay compared only the decisions: a recording whose examples_at_start.jsonl lost its last lines, or
+    that held another session's cell.json, replayed with exit 0 ("13 of 13 decisions match")."""
+    d = _copy_of_shipped(tmp_path)
+    damage(d)
+    code, out, err = run_cli("replay", d, capsys=capsys)
+    assert code == 2 and match in err and "Traceback" not in err, err
+    assert "decisions match" not in out
+
+
+def test_replay_with_other_examples_does_not_need_the_recorded_ones(tmp_path, capsys):
+    """--examples FILE replays with that file: the copy of the session's examples is not read, nor held to."""
+    d = _copy_of_shipped(tmp_path)
+    (d / "examples_at_start.jsonl").write_text("")
+    code, out, err = run_cli("replay", d, "--examples", SHIPPED / "examples_at_start.jsonl", capsys=capsys)
+    assert code == 0, err

@@ -242,6 +242,8 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     cal = load_calibration(rec.calibration_path)
     strict = examples is None
     examples_src = Path(examples) if examples else rec.dir / EXAMPLES_AT_START
+    if strict:
+        _check_examples_at_start(rec, examples_src, directory)
     load_examples(examples_src)  # a bad file names itself, not the working copy the replay makes of it
     if meta.get("on_no_grasp", "stop") not in ("stop", "skip"):
         raise BadInput(f"recording {directory}: manifest meta.on_no_grasp must be 'stop' or 'skip', "
@@ -254,6 +256,10 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
         raise BadInput(f"recording {directory} holds no frames")
     for i in rec.frame_indices:  # a frame the loop would skip as unreadable would shift all that follow
         frame = rec.read_frame(i)
+        if frame.shape[:2] != (cell.camera.height_px, cell.camera.width_px):  # another session's cell file
+            raise BadInput(f"recording {directory}: frame {i} is {frame.shape[1]} x {frame.shape[0]} px, the camera "
+                           f"of its cell file {rec.cell_path.name} {cell.camera.width_px} x {cell.camera.height_px} "
+                           "px: not the cell file the session ran with")
         if frame.shape[:2] != (cal.height_px, cal.width_px):
             raise BadInput(f"recording {directory}: frame {i} is {frame.shape[1]} x {frame.shape[0]} px, the "
                            f"calibration {cal.width_px} x {cal.height_px} px")
@@ -334,6 +340,28 @@ def _cut_short(rec) -> bool:
     failed = rec.manifest.get("status") == "incomplete" and summary.get("status") == "failed"
     return rec.manifest.get("status") == "recording" or failed or any(
         p.startswith(f"{DECISIONS} line") and "is torn" in p for p in rec.problems)
+
+
+def _check_examples_at_start(rec, path: Path, directory) -> None:
+    """The examples the session started with are the ones its manifest names by sha256 (a recording made
+    without examples names none): a file cut short or swapped for another replayed as if it were them."""
+    from cell.recording import _sha256
+
+    ex = rec.manifest.get("examples")
+    if ex is None:
+        return
+    if not isinstance(ex, dict) or not isinstance(ex.get("sha256"), str):
+        raise BadInput(f"recording {directory}: manifest 'examples' must be an object with a 'sha256'")
+    try:
+        found = _sha256(path)
+    except FileNotFoundError:
+        raise BadInput(f"recording {directory}: the examples the session started with, {path.name}, are "
+                       "missing") from None
+    except OSError as e:
+        raise BadInput(f"recording {directory}: {path.name} cannot be read: {e.strerror or e}") from None
+    if found != ex["sha256"]:
+        raise BadInput(f"recording {directory}: {path.name} is not the example file the session started with "
+                       f"(sha256 {found[:12]}..., the manifest says {ex['sha256'][:12]}...)")
 
 
 def _check_can_log(rec, directory) -> None:

@@ -249,8 +249,8 @@ def run_session(cfg: RunConfig) -> dict:
             raise
 
     control = RunControl(require_approval=cfg.require_approval)
-    status, summary = "complete", None
-    with contextlib.ExitStack() as stack:
+    status, summary = None, None
+    with HeldInterrupts() as interrupts, contextlib.ExitStack() as stack:
         can_log = recorder.can_log_path if recorder else None
         try:
             if cfg.real_cell is not None:
@@ -279,22 +279,35 @@ def run_session(cfg: RunConfig) -> dict:
             else:
                 control.run(by="cell run")
                 summary = loop.run()
+            status = "complete"
         except KeyboardInterrupt:
-            arm.stop()  # quick stop of every axis before the drives are disabled
+            # from here on a Ctrl-C is held (the second one used to end this before the status was set: a
+            # recording closed as "complete" without its stop); a KeyboardInterrupt raised in the stop itself
+            # still gets the stop recorded
+            interrupts.hold()
             status = "stopped"
-            if recorder is not None and (recorder.last_decision or {}).get("type") != "stop":
-                # where the operator stopped it: replay ends there too instead of diverging
-                recorder.write_decision({"type": "stop", "source": "operator", "reason": "interrupted at the terminal"})
+            try:
+                arm.stop()  # quick stop of every axis before the drives are disabled
+            finally:
+                if recorder is not None and (recorder.last_decision or {}).get("type") not in ("stop", "summary"):
+                    # where the operator stopped it: replay ends there too instead of diverging (after the
+                    # summary the session was over: replay ends there by itself)
+                    recorder.write_decision({"type": "stop", "source": "operator",
+                                             "reason": "interrupted at the terminal"})
             raise
         except (StopRun, Stopped) as e:
+            interrupts.hold()
             status = "stopped"
             summary = {**loop.summary(), "stopped": str(e)}
             say(f"stopped: {e}")
         except BaseException as e:  # a fault, a full disk, a bug: the session did not complete
+            interrupts.hold()
             status = "failed"
             summary = {**loop.summary(), "error": f"{type(e).__name__}: {e}"}
             raise
         finally:
+            interrupts.hold()  # the recording is closed whole: a Ctrl-C now comes after it
+            status = status or "failed"
             summary = summary or loop.summary()
             summary.update(status=status)
             summary["can_bus"] = arm.bus_state()  # a shift's error frames, for the cell engineer (drivers.errorframes)
@@ -318,6 +331,59 @@ def run_session(cfg: RunConfig) -> dict:
                     # (a full disk: the manifest keeps "recording", which reads as incomplete too; the
                     # error that ended the run is the one to report)
     return summary
+
+
+class HeldInterrupts:
+    """Ctrl-C (SIGINT, and SIGTERM where `cell run` makes it one) once the run is ending: the first one
+    ends the run (KeyboardInterrupt) as always; those after it, and any while the run is being wound up
+    (`hold()`: the arm's stop, the stop decision, the recording's close, the drives' shutdown), are held,
+    not raised, so that a second Ctrl-C cannot cut the stop short nor leave a recording that is neither
+    closed nor consistent. One held while nothing else ends the run is raised when the `with` ends.
+    Only the main thread receives signals; elsewhere, and for signals nobody made an interrupt
+    (ignored, or the system's default), this changes nothing."""
+
+    SIGNALS = ("SIGINT", "SIGTERM")
+
+    def __init__(self):
+        self.holding = False
+        self.held = 0
+        self._old: dict = {}
+
+    def hold(self) -> None:
+        self.holding = True
+
+    def _on_signal(self, signum, frame) -> None:
+        if self.holding:
+            self.held += 1
+            if self.held == 1:
+                import os
+
+                with contextlib.suppress(OSError):  # (a print could meet the stream mid-write: os.write)
+                    os.write(2, b"cell: stopping the arm and closing the session; please wait\n")
+            return
+        self.holding = True  # this one ends the run; the run's end is not cut short by the next
+        self._old[signum](signum, frame)
+
+    def __enter__(self) -> HeldInterrupts:
+        import signal
+
+        if threading.current_thread() is threading.main_thread():
+            for name in self.SIGNALS:
+                sig = getattr(signal, name)
+                old = signal.getsignal(sig)
+                if callable(old):  # default_int_handler, `cell run`'s SIGTERM; not SIG_IGN or SIG_DFL
+                    self._old[sig] = old
+                    signal.signal(sig, self._on_signal)
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        import signal
+
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+        self._old.clear()
+        if self.held and exc_type is None:
+            raise KeyboardInterrupt
 
 
 def refuse_parts_at_the_camera(parts, cal, source) -> None:
@@ -375,6 +441,12 @@ def _check_rrd_path(path: Path, inputs) -> None:
             raise BadInput(f"--save {path} is one of the run's input files: it would be overwritten; name another")
     if path.is_dir():
         raise BadInput(f"--save {path} is a directory, not a .rrd file")
+    from cell.recording import recording_holding
+
+    held_by = recording_holding(path)  # (the run's own --record folder is new or empty here: no manifest yet)
+    if held_by is not None:  # it replaced that session's session.rrd (exit 0), or added a file it does not name
+        raise BadInput(f"--save {path} lies in the recording {held_by}: a recording is kept as it was made; "
+                       "save the rerun recording elsewhere")
     if path.suffix.lower() != ".rrd":  # rerun writes whatever name it is given; the viewer opens .rrd files
         raise BadInput(f"--save {path}: a rerun recording is a .rrd file; name it {path.with_suffix('.rrd').name}")
     if path.parent.exists() and not path.parent.is_dir():

@@ -1,0 +1,190 @@
+"""More than one Ctrl-C during `cell run --record`: the arm is still stopped, every axis, and the recording
+is still consistent (closed as stopped, its counts those of its files, the stop in it) and replays to the
+stop. The interrupts are sent at chosen points of the run, in the process, so that the test does not
+depend on timing: a real SIGINT (the CLI's handler sees it as Ctrl-C) or a KeyboardInterrupt raised there."""
+
+import json
+import os
+import signal
+import threading
+
+import pytest
+from conftest import run_cli
+
+from cell.recording import RecordingReader
+
+AXES = ["j1", "j2", "j3", "j4", "gripper"]
+
+
+def _two_parts(tmp_path):
+    from importlib import resources
+
+    two = json.loads((resources.files("cell") / "data" / "assemblies" / "default.json").read_text())
+    two["parts"] = [p for p in two["parts"] if p["id"] in two["sequence"][:2]]
+    two["sequence"] = two["sequence"][:2]
+    path = tmp_path / "two.json"
+    path.write_text(json.dumps(two))
+    return path
+
+
+@pytest.fixture
+def ctrl_c():
+    """SIGINT as at a terminal (a worker started with it ignored would not see it); the test's own
+    handler is back afterwards."""
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("signals reach the main thread only")
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, old)
+
+
+def _interrupt(how: str) -> None:
+    if how == "signal":
+        signal.raise_signal(signal.SIGINT)  # the handler runs as this call returns: here
+    else:
+        raise KeyboardInterrupt
+
+
+@pytest.mark.parametrize("how", ["signal", "raise"])
+def test_more_interrupts_while_the_arm_stops_leave_a_stopped_recording_that_replays(tmp_path, capsys, monkeypatch,
+                                                                                     ctrl_c, how):
+    """Ctrl-C as the first pick's outcome is made safe on disk (after its fsync, before it was counted), then
+    again as j1's quick stop goes out, as the stop decision is made safe, and as the manifest is closed. Before,
+    the second one left the stop path before the status was set: a recording closed as "complete" without its
+    stop (replay: "divergence ... the recording has no more decisions"); one between a decision's fsync and its
+    count made a recording whose decisions.jsonl held one more line than its manifest said (replay: corrupt);
+    one in the manifest's write left it saying "recording"."""
+    import cell.recording
+    from cell import recording
+    from drivers.axis import Axis
+
+    fsync, points = os.fsync, []
+
+    def fsync_then_interrupt(fd):
+        fsync(fd)
+        writing = _writing.get("decision")
+        if writing is not None and writing.get("type") in ("executed", "stop"):
+            points.append(writing["type"])
+            _interrupt(how)
+
+    _writing: dict = {}
+    write_decision = recording.RecordingWriter.write_decision
+
+    def spy_write_decision(self, record):
+        _writing["decision"] = record
+        try:
+            write_decision(self, record)
+        finally:
+            _writing["decision"] = None
+
+    send, sent = Axis.send_quick_stop, []
+
+    def send_quick_stop(ax):
+        seq = send(ax)
+        sent.append(ax.name)
+        if len(sent) == 1:
+            points.append("quick stop")
+            _interrupt(how)  # as j1's has gone out
+        return seq
+
+    write_json_atomic, states = recording.write_json_atomic, []
+
+    def close_manifest(path, data):
+        if data.get("status") != "recording":
+            import time
+
+            deadline = time.monotonic() + 2.0  # the drives take their quick stop on a thread of their own
+            enabled = lambda: any(d.state == "OPERATION_ENABLED" for d in drives[0].drives.values())  # noqa: E731
+            while enabled() and time.monotonic() < deadline:
+                time.sleep(0.01)
+            states.append({n: d.state for n, d in drives[0].drives.items()})
+            if how == "signal":  # (a KeyboardInterrupt raised here is the write failing: nothing can hold it)
+                points.append("manifest")
+                _interrupt(how)  # before the manifest is replaced: it says "recording"
+        return write_json_atomic(path, data)
+
+    from cell.runtime import session
+
+    sources, drives = session._simulated_sources, []
+
+    def keep_drives(*a, **kw):
+        arm, camera, world = sources(*a, **kw)
+        drives.append(world.drives)
+        return arm, camera, world
+
+    monkeypatch.setattr(cell.recording.os, "fsync", fsync_then_interrupt)
+    monkeypatch.setattr(recording.RecordingWriter, "write_decision", spy_write_decision)
+    monkeypatch.setattr(Axis, "send_quick_stop", send_quick_stop)
+    monkeypatch.setattr(recording, "write_json_atomic", close_manifest)
+    monkeypatch.setattr(session, "_simulated_sources", keep_drives)
+    d = tmp_path / "rec"
+    code, _, err = run_cli("run", _two_parts(tmp_path), "--record", d, capsys=capsys)
+    monkeypatch.undo()
+    assert code == 130 and "cell: interrupted" in err and "Traceback" not in err, err
+    assert points[:2] == ["executed", "quick stop"], points  # the interrupts came where they were meant to
+    # the later ones were each sent (and, as signals, held: the stop and the close went on)
+    assert points == ["executed", "quick stop", "stop"] + (["manifest"] if how == "signal" else []), points
+    assert sent[:5] == AXES  # every axis got its quick stop, the interrupt in j1's notwithstanding
+    assert states and all(s != "OPERATION_ENABLED" for s in states[0].values()), states
+    r = RecordingReader(d)  # the counts are those of the files (it raises otherwise)
+    m = r.manifest
+    assert m["status"] == "incomplete" and m["summary"]["status"] == "stopped", (m["status"], m.get("summary"))
+    assert r.decisions[-1] == {"type": "stop", "source": "operator", "reason": "interrupted at the terminal"}
+    assert [x["type"] for x in r.decisions].count("executed") == 1
+    code, out, err = run_cli("replay", d, capsys=capsys)
+    assert code == 0, err
+
+
+@pytest.mark.parametrize("where", ["decision", "frame"])
+def test_an_interrupt_between_a_write_and_its_count_still_closes_a_consistent_recording(tmp_path, monkeypatch,
+                                                                                         where):
+    """Ctrl-C after a decision's fsync (or a frame's rename) and before the writer counted it: the manifest
+    said one fewer than the file held, and the reader refused the recording as corrupt."""
+    import numpy as np
+
+    from cell import recording
+
+    w = recording.RecordingWriter(tmp_path / "r")
+    w.write_frame(0, np.zeros((8, 8, 3), np.uint8))
+    w.write_decision({"type": "frame"})
+    if where == "decision":
+        fsync = os.fsync
+
+        def fsync_then_interrupt(fd):
+            fsync(fd)
+            raise KeyboardInterrupt
+
+        monkeypatch.setattr(recording.os, "fsync", fsync_then_interrupt)
+        with pytest.raises(KeyboardInterrupt):
+            w.write_decision({"type": "stop"})
+    else:
+        write_atomic = recording.write_atomic
+
+        def write_then_interrupt(path, data):
+            write_atomic(path, data)
+            raise KeyboardInterrupt
+
+        monkeypatch.setattr(recording, "write_atomic", write_then_interrupt)
+        with pytest.raises(KeyboardInterrupt):
+            w.write_frame(1, np.zeros((8, 8, 3), np.uint8))
+    monkeypatch.undo()
+    w.close("incomplete")
+    r = RecordingReader(tmp_path / "r")  # raised: "decisions.jsonl holds 2 decisions, the manifest says 1"
+    assert len(r.decisions) == (2 if where == "decision" else 1) and r.frame_indices == ([0] if where == "decision"
+                                                                                         else [0, 1])
+    assert r.manifest["counts"] == {"frames": len(r.frame_indices), "decisions": len(r.decisions)}
+
+
+def test_a_decision_file_cut_short_during_the_session_is_still_refused(tmp_path):
+    """The counts at close are never below what was written: a file that lost a line meanwhile is caught."""
+    from cell import recording
+    from cell.errors import BadInput
+
+    w = recording.RecordingWriter(tmp_path / "r")
+    for i in range(3):
+        w.write_decision({"type": "frame", "i": i})
+    path = tmp_path / "r" / recording.DECISIONS
+    path.write_bytes(b"".join(path.read_bytes().splitlines(keepends=True)[:2]))
+    w.close("incomplete")
+    with pytest.raises(BadInput, match="holds 2 decisions, the manifest says 3"):
+        RecordingReader(tmp_path / "r")

@@ -21,7 +21,6 @@ Files are appended atomically (`append_examples`) and validated line by line on 
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 from dataclasses import dataclass, field
@@ -226,5 +225,3 @@ def append_examples(path: str | Path, examples: list[GraspExample]) -> None:
     append_lines_atomic(path, [json.dumps(e.to_json(), separators=(",", ":")) for e in examples], check)
 
 
-def file_sha256(path: str | Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()

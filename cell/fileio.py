@@ -110,6 +110,17 @@ def check_folder_writable(folder: Path, what: str) -> None:
             return
 
 
+def file_sha256(path: str | os.PathLike) -> str:
+    """The file's sha256 (hex), read a MB at a time."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
 def write_json_atomic(path: str | os.PathLike, obj) -> None:
     write_atomic(path, json.dumps(obj, indent=2) + "\n")
 

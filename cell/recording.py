@@ -43,6 +43,7 @@ from cell.fileio import (
     DuplicateKey,
     check_folder_writable,
     check_readable,
+    file_sha256,
     json_loads,
     read_json,
     refuse_lone_surrogates,
@@ -70,16 +71,6 @@ def _now_iso() -> str:
 def _no_constant(name: str):
     """json.loads would read NaN and Infinity, which the writer never writes (allow_nan=False)."""
     raise json.JSONDecodeError(f"{name} is not JSON", name, 0)
-
-
-def _sha256(path: Path) -> str:
-    import hashlib
-
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _flushing_logger(writer):
@@ -184,7 +175,7 @@ class RecordingWriter:
                 shutil.copyfile(cal, self.dir / "calibration.json")
             elif nominal_json is not None:
                 write_json_atomic(self.dir / "calibration.json", nominal_json)
-            examples = {"path": str(ex.resolve()), "sha256": _sha256(ex)} if ex is not None else None
+            examples = {"path": str(ex.resolve()), "sha256": file_sha256(ex)} if ex is not None else None
         except OSError as e:
             raise BadInput(f"cannot write the recording into {self.dir}: {e.strerror or e}") from None
 
@@ -434,7 +425,7 @@ class RecordingReader:
 
     def examples_match(self, path) -> bool:
         """True when the example file at `path` is the one the session used (same sha256)."""
-        return self.examples_sha256 is not None and _sha256(Path(path)) == self.examples_sha256
+        return self.examples_sha256 is not None and file_sha256(path) == self.examples_sha256
 
     @property
     def can_log_path(self) -> Path | None:

@@ -13,7 +13,7 @@ import pytest
 
 from cell.cellconfig import default_cell_path
 from cell.errors import BadInput
-from cell.examples import file_sha256
+from cell.fileio import file_sha256
 from cell.recording import RecordingReader, RecordingWriter
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -345,7 +345,7 @@ def _cut_short(rec) -> bool:
 def _check_examples_at_start(rec, path: Path, directory) -> None:
     """The examples the session started with are the ones its manifest names by sha256 (a recording made
     without examples names none): a file cut short or swapped for another replayed as if it were them."""
-    from cell.recording import _sha256
+    from cell.fileio import file_sha256
 
     ex = rec.manifest.get("examples")
     if ex is None:
@@ -353,7 +353,7 @@ def _check_examples_at_start(rec, path: Path, directory) -> None:
     if not isinstance(ex, dict) or not isinstance(ex.get("sha256"), str):
         raise BadInput(f"recording {directory}: manifest 'examples' must be an object with a 'sha256'")
     try:
-        found = _sha256(path)
+        found = file_sha256(path)
     except FileNotFoundError:
         raise BadInput(f"recording {directory}: the examples the session started with, {path.name}, are "
                        "missing") from None

@@ -139,6 +139,9 @@ class RecordingWriter:
             # its files would be overwritten or, worse, mixed into the recording (decisions appended
             # to a stale decisions.jsonl, stale frames counted): an unreadable recording
             raise BadInput(f"recording directory {self.dir} is not empty; choose a new name")
+        held_by = recording_holding(self.dir)
+        if held_by is not None:  # (as --save: a recording is kept as it was made)
+            raise BadInput(f"recording directory {self.dir} lies in the recording {held_by}; choose a place outside it")
         check_folder_writable(self.dir, f"cannot write the recording into {self.dir}")  # before any file is made
 
         from cell import __version__

@@ -64,6 +64,19 @@ def test_save_into_another_recording_is_refused_and_it_is_kept(tmp_path, capsys,
     assert {p: p.read_bytes() for p in rs.rglob("*") if p.is_file()} == before
 
 
+@pytest.mark.parametrize("where", ["sub", "frames/sub"])
+def test_a_recording_inside_another_recording_is_refused_and_it_is_kept(tmp_path, capsys, where):
+    """--record rs/sub, rs a recording: a new session was written into it (files it does not name)."""
+    from pathlib import Path
+
+    rs = tmp_path / "rs"
+    shutil.copytree(Path(__file__).resolve().parent.parent / "recordings" / "shipped", rs)
+    before = sorted(p.relative_to(rs) for p in rs.rglob("*"))
+    code, out, err = run_cli("run", "--record", rs / where, capsys=capsys)
+    assert code == 2 and f"recording directory {rs / where} lies in the recording {rs}" in err, err
+    assert sorted(p.relative_to(rs) for p in rs.rglob("*")) == before and "parts" not in out
+
+
 def test_save_into_the_runs_own_recording_is_still_allowed(tmp_path, capsys):
     """The run's --record folder is made by this run: --save there writes the rerun recording beside it."""
     import json

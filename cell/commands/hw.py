@@ -77,11 +77,11 @@ def run(args) -> int:
     cell = load_cell(args.cell)
     if args._words[1] == "sim":
         return _serve(args, cell)
-    from cell.commands.run import _sigterm_as_interrupt
+    from cell.commands.run import sigterm_as_interrupt
 
     # SIGTERM (`timeout`, systemd, kill) ends the command as Ctrl-C does: a move is quick-stopped (exit 130); it
     # ended the process mid-move with no stop at all, and the axes ran on to their targets
-    with _sigterm_as_interrupt():
+    with sigterm_as_interrupt():
         return {"status": _status, "home": _home, "jog": _jog, "gripper": _gripper, "corner": _corner}[
             args._words[1]
         ](args, cell)

@@ -94,7 +94,7 @@ def run(args) -> int:
                     station=args.station, station_port=args.port, station_token=args.token,
                     faults=WorldFaults(miss=miss, stuck=set(args.sim_stuck), bad_frames=args.sim_bad_frames),
                     progress=lambda s: print(s, file=out, flush=True), real_cell=real_cell)
-    with _sigterm_as_interrupt():
+    with sigterm_as_interrupt():
         summary = run_session(cfg)
     _print_summary(summary, out)
     if args.json:
@@ -103,7 +103,7 @@ def run(args) -> int:
 
 
 @contextlib.contextmanager
-def _sigterm_as_interrupt():
+def sigterm_as_interrupt():
     """SIGTERM (a service manager, `kill`) ends the run as Ctrl-C does: every axis quick-stopped, the
     recording closed as incomplete; not killed mid-pick with the recording saying "recording"."""
     import signal

@@ -31,7 +31,7 @@ def run(args) -> int:
     import time
 
     from cell.commands._vision_args import seconds
-    from cell.commands.run import _sigterm_as_interrupt
+    from cell.commands.run import sigterm_as_interrupt
     from cell.errors import BadInput
     from cell.fileio import check_writable
     from cell.runtime.control import RunControl
@@ -49,7 +49,7 @@ def run(args) -> int:
     cell = DemoCell(control, args.examples, motion_s=args.motion_s)
     server = StationServer(cell, control, host=args.host, port=args.port, token=args.token,
                            allow_remote=args.allow_remote)
-    with server, _sigterm_as_interrupt():  # SIGTERM (a service manager, kill) ends it as Ctrl-C does
+    with server, sigterm_as_interrupt():  # SIGTERM (a service manager, kill) ends it as Ctrl-C does
         cell.start()
         print(f"operator station (demo cell) at {server.base_url}", flush=True)
         print(f"open: {server.url}", flush=True)

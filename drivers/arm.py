@@ -527,8 +527,8 @@ class Arm:
         stand still. Latched like a fault: the drives stay in QUICK STOP ACTIVE (0x605A = 6, set at
         connect; a drive that kept 1 or 2 ends in SWITCH ON DISABLED) and commands are refused until
         `reset_faults()`, which enables them from either. A stop before the arm is connected (or while it
-        connects, from another thread) is latched all the same: `connect` then enables no axis; it was lost,
-        and every drive was enabled."""
+        connects, from another thread) is latched all the same, and `connect` then enables no axis (before, it
+        was lost and every drive enabled)."""
         # latched first: a move starting in another thread meanwhile (the station's loop) is refused
         # instead of releasing axes this stop has stopped
         self._latch(DriverError("quick stop requested by the operator"), key="stop")

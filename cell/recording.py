@@ -5,7 +5,10 @@ Layout of a recording directory (format "cell-recording", version 1):
     manifest.json      format, version, created/closed times, software version, status
                        ("recording" while open, then "complete" or "incomplete"), files, counts,
                        can_frames_at_close (the CAN frames can.log held at close: a lower bound,
-                       a logger on a bus of its own may still hear the drives shut down)
+                       a logger on a bus of its own may still hear the drives shut down),
+                       sha256: {"cell": ..., "calibration": ...}, the sha256 (64 hex digits) of the
+                       cell.json and calibration.json the recording holds (no "calibration" when it
+                       holds none; recordings made before 2026-12-04 have no "sha256": not checked)
     cell.json          copy of the cell file used (the embedded default when none was given)
     calibration.json   copy of the calibration file used (absent when none was given)
     frames/000000.png  the camera frames, PNG, each written atomically
@@ -62,6 +65,7 @@ CAN_LOG = "can.log"
 RRD = "session.rrd"
 STATUSES = ("recording", "complete", "incomplete")
 _FRAME_RE = re.compile(r"^(\d{6,})\.png$")
+_SHA256_RE = re.compile(r"[0-9a-fA-F]{64}")
 
 
 def _now_iso() -> str:
@@ -179,6 +183,9 @@ class RecordingWriter:
             elif nominal_json is not None:
                 write_json_atomic(self.dir / "calibration.json", nominal_json)
             examples = {"path": str(ex.resolve()), "sha256": file_sha256(ex)} if ex is not None else None
+            held_sha256 = {"cell": file_sha256(self.dir / "cell.json")}  # of the copies: what replay reads
+            if has_cal:
+                held_sha256["calibration"] = file_sha256(self.dir / "calibration.json")
         except OSError as e:
             raise BadInput(f"cannot write the recording into {self.dir}: {e.strerror or e}") from None
 
@@ -196,7 +203,7 @@ class RecordingWriter:
             "cell_source": str(Path(cell_file).resolve()) if cell_file is not None else "embedded default",
             "calibration_source": (str(Path(calibration_file).resolve()) if calibration_file
                                    else nominal_calibration.name if nominal_calibration is not None else None),
-            "examples": examples, "files": files, "counts": {"frames": 0, "decisions": 0},
+            "examples": examples, "files": files, "sha256": held_sha256, "counts": {"frames": 0, "decisions": 0},
             "meta": to_jsonable(meta or {}),
         }
         try:
@@ -372,6 +379,16 @@ class RecordingReader:
             raise BadInput(f"{mpath}: 'files.calibration' must be a file name or null")
         if not isinstance(m.get("counts"), (dict, type(None))):
             raise BadInput(f"{mpath}: 'counts' must be an object")
+        held_sha256 = m.get("sha256", {})  # absent in recordings made before the copies' sha256 was kept
+        if not isinstance(held_sha256, dict):
+            raise BadInput(f"{mpath}: 'sha256' must be an object, not {short_repr(held_sha256)}")
+        for key in ("cell", "calibration"):
+            if key in held_sha256 and not (isinstance(held_sha256[key], str)
+                                           and _SHA256_RE.fullmatch(held_sha256[key])):
+                raise BadInput(f"{mpath}: 'sha256.{key}' must be a sha256 (64 hex digits), not "
+                               f"{short_repr(held_sha256[key])}")
+        if "calibration" in held_sha256 and not files.get("calibration"):
+            raise BadInput(f"{mpath}: 'sha256.calibration' is given, but the recording holds no calibration")
         self.manifest = m
         self.problems: list[str] = []
         if m["status"] == "recording":
@@ -420,6 +437,12 @@ class RecordingReader:
     def examples_sha256(self) -> str | None:
         ex = self.manifest.get("examples")
         return ex.get("sha256") if isinstance(ex, dict) else None
+
+    def held_sha256(self, key: str) -> str | None:
+        """The sha256 the manifest holds of the recording's copy of `key` ("cell" or "calibration"), lower
+        case; None in recordings made before it was kept."""
+        h = self.manifest.get("sha256", {}).get(key)
+        return h.lower() if h is not None else None
 
     @property
     def examples_path(self) -> Path | None:

@@ -445,3 +445,85 @@ def test_replay_with_other_examples_does_not_need_the_recorded_ones(tmp_path, ca
     (d / "examples_at_start.jsonl").write_text("")
     code, out, err = run_cli("replay", d, "--examples", SHIPPED / "examples_at_start.jsonl", capsys=capsys)
     assert code == 0, err
+
+
+@pytest.fixture(scope="module")
+def fresh_recording(tmp_path_factory) -> Path:
+    """A recording made now (its manifest holds the sha256 of its cell.json and calibration.json), of a one-part
+    assembly: the recording is what is looked at, not the parts."""
+    from cell.runtime.session import default_assembly_path
+
+    tmp = tmp_path_factory.mktemp("fresh")
+    one = json.loads(default_assembly_path().read_text())
+    one["parts"], one["sequence"] = [p for p in one["parts"] if p["id"] == one["sequence"][0]], one["sequence"][:1]
+    (tmp / "one.json").write_text(json.dumps(one))
+    assert run_cli("run", tmp / "one.json", "--record", tmp / "rec") == 0
+    return tmp / "rec"
+
+
+def _neutral_edit(name):
+    def damage(d: Path) -> None:  # a key no reader looks at: the file still loads, as the one the session ran with
+        data = json.loads((d / name).read_text())
+        data["comment"] = "edited after the session"
+        (d / name).write_text(json.dumps(data, indent=2))
+    return damage
+
+
+def test_a_new_recording_holds_the_sha256_of_its_cell_and_calibration_files_and_replays(tmp_path, capsys,
+                                                                                          fresh_recording):
+    from cell.fileio import file_sha256
+
+    d = tmp_path / "copy"
+    shutil.copytree(fresh_recording, d)
+    m = json.loads((d / "manifest.json").read_text())
+    assert m["sha256"] == {"cell": file_sha256(d / "cell.json"), "calibration": file_sha256(d / "calibration.json")}
+    code, out, err = run_cli("replay", d, capsys=capsys)
+    assert code == 0 and "decisions match" in out, err
+
+
+@pytest.mark.parametrize("damage, match", [
+    (_neutral_edit("cell.json"), "cell.json is not the cell file the session ran with (sha256 "),
+    (_neutral_edit("calibration.json"), "calibration.json is not the calibration the session ran with (sha256 "),
+], ids=["cell-file-edited", "calibration-edited"])
+def test_replay_refuses_a_cell_or_calibration_file_that_is_not_the_one_the_session_ran_with(
+        tmp_path, capsys, fresh_recording, damage, match):
+    """The manifest held no sha256 of them: an edited cell.json or calibration.json (or another session's, of the
+    same camera size) replayed with exit 0 ("7 of 7 decisions match")."""
+    d = tmp_path / "copy"
+    shutil.copytree(fresh_recording, d)
+    damage(d)
+    code, out, err = run_cli("replay", d, capsys=capsys)
+    assert code == 2 and "Traceback" not in err, err
+    assert len(err.strip().splitlines()) == 1 and match in err and str(d) in err
+    assert "decisions match" not in out
+
+
+@pytest.mark.parametrize("sha256, match", [
+    ("x", "'sha256' must be an object, not 'x'"),
+    ({"cell": "c443dc17"}, "'sha256.cell' must be a sha256 (64 hex digits), not 'c443dc17'"),
+    ({"cell": "z" * 64}, "'sha256.cell' must be a sha256 (64 hex digits), not 'zzzz"),
+    ({"calibration": 5}, "'sha256.calibration' must be a sha256 (64 hex digits), not 5"),
+    ({"calibration": None}, "'sha256.calibration' must be a sha256 (64 hex digits), not None"),
+], ids=["not-an-object", "cell-short", "cell-not-hex", "calibration-a-number", "calibration-null"])
+def test_replay_refuses_a_manifest_whose_sha256_entry_is_not_a_sha256(tmp_path, capsys, sha256, match):
+    d = _copy_of_shipped(tmp_path)
+    _edit_manifest(sha256=sha256)(d)
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 2 and "Traceback" not in err, err
+    assert err.strip().startswith(f"cell: error: {d / 'manifest.json'}: {match}")
+
+
+def test_replay_takes_a_recording_without_sha256_as_made_before_the_key(tmp_path, capsys):
+    """The shipped recording was made before the manifest held the sha256 of its cell and calibration files:
+    replayed as before, by the decisions, the frames' size and the examples' sha256."""
+    assert "sha256" not in json.loads((SHIPPED / "manifest.json").read_text())
+    code, out, err = run_cli("replay", SHIPPED, capsys=capsys)
+    assert code == 0 and "decisions match" in out, err
+
+
+def test_replay_refuses_a_manifest_with_the_sha256_of_a_calibration_the_recording_does_not_hold(tmp_path, capsys):
+    d = _copy_of_shipped(tmp_path)
+    _edit_manifest(**{"files.calibration": None})(d)
+    _edit_manifest(sha256={"calibration": "0" * 64})(d)
+    code, _, err = run_cli("replay", d, capsys=capsys)
+    assert code == 2 and "'sha256.calibration' is given, but the recording holds no calibration" in err, err

@@ -236,6 +236,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     if "assembly" not in meta:
         raise BadInput(f"recording {directory}: the manifest does not hold the assembly (not made by cell run)")
     assembly = parse_assembly(meta["assembly"], f"recording {directory} assembly")
+    _check_held_copies(rec, directory)
     cell = load_cell(rec.cell_path)
     if rec.calibration_path is None:
         raise BadInput(f"recording {directory} holds no calibration")
@@ -362,6 +363,26 @@ def _check_examples_at_start(rec, path: Path, directory) -> None:
     if found != ex["sha256"]:
         raise BadInput(f"recording {directory}: {path.name} is not the example file the session started with "
                        f"(sha256 {found[:12]}..., the manifest says {ex['sha256'][:12]}...)")
+
+
+def _check_held_copies(rec, directory) -> None:
+    """The cell.json and calibration.json the recording holds are the ones its manifest names by sha256
+    (recordings made before it was kept name none): another session's file, or an edited one, of the same
+    camera size replayed as if the session had run with it."""
+    from cell.fileio import file_sha256
+
+    for key, path, what in (("cell", rec.cell_path, "cell file"),
+                            ("calibration", rec.calibration_path, "calibration")):
+        expected = rec.held_sha256(key)
+        if expected is None or path is None:
+            continue
+        try:
+            found = file_sha256(path)
+        except OSError as e:
+            raise BadInput(f"recording {directory}: {path.name} cannot be read: {e.strerror or e}") from None
+        if found != expected:
+            raise BadInput(f"recording {directory}: {path.name} is not the {what} the session ran with "
+                           f"(sha256 {found[:12]}..., the manifest says {expected[:12]}...)")
 
 
 def _check_can_log(rec, directory) -> None:

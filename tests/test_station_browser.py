@@ -236,9 +236,13 @@ def test_when_the_cell_stops_answering_the_page_says_so_and_offers_no_commands(b
     server.close()
     wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "offline")
     assert "does not answer" in d.find_element(By.ID, "message").text
-    for b in ("btn-run", "btn-pause", "btn-step", "btn-stop", "btn-approve", "btn-reject", "btn-reset",
+    for b in ("btn-run", "btn-pause", "btn-step", "btn-approve", "btn-reject", "btn-reset",
               "btn-teach", "approve-each"):
         assert not d.find_element(By.ID, b).is_enabled(), b
+    # Stop always tries (a cell that cannot report its state may still take it); here nobody answers, and the
+    # page says so
+    d.find_element(By.ID, "btn-stop").click()
+    wait.until(lambda _: "the cell does not answer" in d.find_element(By.ID, "toast").text)
 
 
 def test_when_the_cell_cannot_report_its_state_the_page_says_so_and_comes_back(browser, station, monkeypatch):
@@ -261,6 +265,43 @@ def test_when_the_cell_cannot_report_its_state_the_page_says_so_and_comes_back(b
     monkeypatch.undo()
     wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "awaiting approval")
     assert d.find_element(By.ID, "btn-approve").is_enabled()
+
+
+def test_a_cell_that_cannot_report_its_state_still_takes_stop_from_the_page(browser, station, monkeypatch):
+    """The page greyed Stop out while the state failed, though the server would take it; and a Stop it took then
+    got no answer (the state after it failed: a dropped connection, 'the cell does not answer')."""
+    from selenium.webdriver.common.by import By
+
+    server, control, cell, _ = station
+    d = browser
+    wait = run_to_the_first_proposal(d, server)
+
+    def broken():
+        raise RuntimeError("camera buffer gone")
+
+    monkeypatch.setattr(cell, "snapshot", broken)
+    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "offline")
+    d.find_element(By.ID, "btn-stop").click()
+    wait.until(lambda _: "stop: done; the cell cannot report its state" in d.find_element(By.ID, "toast").text)
+    assert control.state == "stopped"
+
+
+@pytest.mark.parametrize("focus, key", [("btn-stop", " "), ("btn-stop", "\ue007"), (None, "s")],
+                         ids=["space-on-stop", "enter-on-stop", "s"])
+def test_space_and_enter_press_the_focused_button_and_s_stops(browser, station, focus, key):
+    """Space on the focused Stop button sent step (the shortcut caught it) and the cell went on; no key stopped."""
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    control.run()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    open_page(d, server, "awaiting approval")
+    if focus:
+        d.execute_script(f"document.getElementById('{focus}').focus()")
+    keys(d, key)
+    WebDriverWait(d, T).until(lambda _: control.state == "stopped")
+    assert posts(d) == ["stop"]
 
 
 @pytest.mark.parametrize("size", [(1366, 768), (1920, 1080)])

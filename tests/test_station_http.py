@@ -376,3 +376,21 @@ def test_a_rejection_json_cannot_say_clearly_is_400_and_the_example_file_stays_r
         time.sleep(0.01)
     ex = load_examples(tmp_path / "examples.jsonl")
     assert [e.source["note"] for e in ex] == ["pad on the hinge"]
+
+
+def test_a_command_is_answered_even_when_the_state_to_show_with_it_fails(station, monkeypatch):
+    """A Stop the cell took got no answer when the state after it could not be made (a dropped connection: the
+    page said the cell does not answer, and the operator could not tell whether it stopped)."""
+    server, control, cell = station
+    call(server, "POST", "/api/approval", {"required": True})
+    call(server, "POST", "/api/run")
+    wait_proposal(control, "cover")
+
+    def broken():
+        raise RuntimeError("camera buffer gone")
+
+    monkeypatch.setattr(cell, "snapshot", broken)
+    status, reply = call(server, "POST", "/api/stop")
+    assert status == 200 and reply["ok"] is True, reply
+    assert "the cell cannot report its state (RuntimeError: camera buffer gone)" in reply["state_error"]
+    assert control.snapshot(0)["state"] == "stopped"

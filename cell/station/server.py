@@ -197,7 +197,13 @@ class _Handler(BaseHTTPRequestHandler):
         except Exception as e:
             log.exception("POST %s failed", path)
             return self._error(500, f"{type(e).__name__}: {e}")
-        return self._json(200, {"ok": True, "result": result, **st.state()})
+        try:
+            state = st.state()
+        except Exception as e:  # the command was done (a Stop applied): say so, not a dropped connection
+            log.exception("the state after POST %s failed", path)
+            return self._json(200, {"ok": True, "result": result,
+                                    "state_error": f"the cell cannot report its state ({type(e).__name__}: {e})"})
+        return self._json(200, {"ok": True, "result": result, **state})
 
     def _drop_body(self) -> None:
         """Read and drop the body of a request that is refused, so the connection stays sane."""

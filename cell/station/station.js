@@ -69,6 +69,10 @@ async function post(cmd, body) {
       return null;
     }
     commands++;
+    if (data.state_error) {  // done, but the state to show with it could not be made
+      toast(cmd + ": done; " + data.state_error, true);
+      return data;
+    }
     render(data);
     return data;
   } catch (e) {
@@ -116,6 +120,9 @@ function offline(why) {
     ? "the run is " + last.control.state + " and the cell closed the station (the summary is in the cell's terminal)"
     : "the cell does not answer (the run may have ended: see the cell's terminal)";
   for (const b of document.querySelectorAll(".panel button:not(#btn-token)")) b.disabled = true;
+  // Stop always tries: a cell that cannot report its state may still take it (it did, while the page
+  // greyed it out), and a second stop is harmless; where nobody answers, the toast says so
+  $("btn-stop").disabled = false;
   $("approve-each").disabled = true;
   $("view").classList.add("stale");
   const fault = $("fault");  // nothing can be reset now: say what the fault was, not what to do
@@ -487,12 +494,12 @@ function askReason(on) {
   field.placeholder = on ? REASON_ASK : REASON_HINT;
 }
 
-// ---- keyboard: space step, p pause, a approve, r reject, t teach, Esc cancels teaching.
+// ---- keyboard: space step, s stop, p pause, a approve, r reject, t teach, Esc cancels teaching.
 // Each key does what its button does, and only when that button is enabled (no command the state
 // cannot take, none while the cell is offline). Never with Ctrl/Alt/Meta (Ctrl+A, Ctrl+R, Ctrl+P are
 // the browser's: select all must not approve a grasp), never while typing in a text field, once per
 // press (a held key does not repeat the command).
-const KEY_BUTTONS = {" ": "btn-step", "p": "btn-pause", "a": "btn-approve", "r": "btn-reject", "t": "btn-teach",
+const KEY_BUTTONS = {" ": "btn-step", "s": "btn-stop", "p": "btn-pause", "a": "btn-approve", "r": "btn-reject", "t": "btn-teach",
                      "z": "btn-zoom"};
 
 function onKey(ev) {
@@ -502,6 +509,8 @@ function onKey(ev) {
   if (t.tagName === "INPUT" && t.type !== "checkbox") return;  // the reason, the token
   if (ev.key === "Escape") { cancelTeach(); return; }
   if (ev.key === " " && t.tagName === "INPUT") return;  // space toggles the focused checkbox, as usual
+  // space and Enter press the focused button, as usual (space on a focused Stop stepped the cell on)
+  if ((ev.key === " " || ev.key === "Enter") && t.tagName === "BUTTON") return;
   const key = ev.key.length === 1 ? ev.key.toLowerCase() : ev.key;
   const id = KEY_BUTTONS[key];
   if (!id) return;

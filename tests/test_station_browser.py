@@ -245,13 +245,12 @@ def test_when_the_cell_stops_answering_the_page_says_so_and_offers_no_commands(b
     wait.until(lambda _: "the cell does not answer" in d.find_element(By.ID, "toast").text)
 
 
-def test_when_the_cell_cannot_report_its_state_the_page_says_so_and_comes_back(browser, station, monkeypatch):
-    """A 500 from /api/state left the page showing the last state (a waiting grasp, Approve live) with
-    no sign that anything was wrong."""
+def _a_proposal_then_no_state(d, station, monkeypatch):
+    """Run to the first proposal, then make the cell's state fail (its snapshot raises) until the page is
+    offline; the page's WebDriverWait."""
     from selenium.webdriver.common.by import By
 
-    server, control, cell, _ = station
-    d = browser
+    server, _, cell, _ = station
     wait = run_to_the_first_proposal(d, server)
 
     def broken():
@@ -259,6 +258,16 @@ def test_when_the_cell_cannot_report_its_state_the_page_says_so_and_comes_back(b
 
     monkeypatch.setattr(cell, "snapshot", broken)
     wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "offline")
+    return wait
+
+
+def test_when_the_cell_cannot_report_its_state_the_page_says_so_and_comes_back(browser, station, monkeypatch):
+    """A 500 from /api/state left the page showing the last state (a waiting grasp, Approve live) with
+    no sign that anything was wrong."""
+    from selenium.webdriver.common.by import By
+
+    d = browser
+    wait = _a_proposal_then_no_state(d, station, monkeypatch)
     message = d.find_element(By.ID, "message").text
     assert "cannot report its state (HTTP 500" in message and "camera buffer gone" in message, message
     assert not d.find_element(By.ID, "btn-approve").is_enabled()
@@ -272,15 +281,8 @@ def test_a_cell_that_cannot_report_its_state_still_takes_stop_from_the_page(brow
     got no answer (the state after it failed: a dropped connection, 'the cell does not answer')."""
     from selenium.webdriver.common.by import By
 
-    server, control, cell, _ = station
-    d = browser
-    wait = run_to_the_first_proposal(d, server)
-
-    def broken():
-        raise RuntimeError("camera buffer gone")
-
-    monkeypatch.setattr(cell, "snapshot", broken)
-    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "offline")
+    d, control = browser, station[1]
+    wait = _a_proposal_then_no_state(d, station, monkeypatch)
     d.find_element(By.ID, "btn-stop").click()
     wait.until(lambda _: "stop: done; the cell cannot report its state" in d.find_element(By.ID, "toast").text)
     assert control.state == "stopped"

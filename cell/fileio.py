@@ -272,16 +272,21 @@ def read_text(path: str | os.PathLike, what: str) -> str:
 def read_json(path: str | os.PathLike, what: str):
     """Parse a JSON file (`read_text`); `what` names the file's role in error messages ("cell file")."""
     path = Path(path)
-    text = read_text(path, what)
+    return parse_json(read_text(path, what), f"{what} {path}")
+
+
+def parse_json(text: str, where: str):
+    """`json_loads` of a text every problem of which is a BadInput starting with `where` (a file, a request
+    body): invalid JSON (with its line and column), a key given twice, nesting too deep, a lone surrogate."""
     try:
         obj = json_loads(text)
     except json.JSONDecodeError as e:
-        raise BadInput(f"{what} {path} is not valid JSON: {e.msg} at line {e.lineno} column {e.colno}") from None
+        raise BadInput(f"{where} is not valid JSON: {e.msg} at line {e.lineno} column {e.colno}") from None
     except DuplicateKey as e:
-        raise BadInput(f"{what} {path}: {e}") from None
+        raise BadInput(f"{where}: {e}") from None
     except RecursionError:  # json's decoder recurses per nesting level: [[[[...]]]] 100000 deep
-        raise BadInput(f"{what} {path} is not valid JSON: nested too deeply") from None
-    refuse_lone_surrogates(text, obj, f"{what} {path}")
+        raise BadInput(f"{where} is not valid JSON: nested too deeply") from None
+    refuse_lone_surrogates(text, obj, where)
     return obj
 
 

@@ -34,7 +34,7 @@ from typing import Protocol
 from urllib.parse import urlsplit
 
 from cell.errors import BadInput
-from cell.fileio import DuplicateKey, json_loads, refuse_lone_surrogates
+from cell.fileio import parse_json
 from cell.runtime.control import InvalidCommand, RunControl
 
 log = logging.getLogger(__name__)
@@ -226,19 +226,13 @@ class _Handler(BaseHTTPRequestHandler):
             return {}
         try:
             text = raw.decode("utf-8")
-            body = json_loads(text)
-        except DuplicateKey as e:  # json keeps the last value: which one did the operator mean?
-            raise BadInput(f"request body: {e}") from None
-        except json.JSONDecodeError as e:
-            raise BadInput(f"request body is not valid JSON: {e.msg}") from None
         except UnicodeDecodeError:
             raise BadInput("request body must be a JSON object (UTF-8)") from None
-        except RecursionError:  # json's decoder recurses per nesting level: [[[[...]]]]
-            raise BadInput("request body is not valid JSON: nested too deeply") from None
+        # as files are read: a key given twice (which did the operator mean?), half a UTF-16 pair (a reason
+        # holding one reached the recording, which then refused to be read) ...
+        body = parse_json(text, "request body")
         if not isinstance(body, dict):
             raise BadInput("request body must be a JSON object")
-        # a reason or a note holding half a UTF-16 pair would reach the recording, which then refuses to be read
-        refuse_lone_surrogates(text, body, "request body")
         return body
 
 

@@ -346,43 +346,38 @@ def _cut_short(rec) -> bool:
 def _check_examples_at_start(rec, path: Path, directory) -> None:
     """The examples the session started with are the ones its manifest names by sha256 (a recording made
     without examples names none): a file cut short or swapped for another replayed as if it were them."""
-    from cell.fileio import file_sha256
-
     ex = rec.manifest.get("examples")
     if ex is None:
         return
     if not isinstance(ex, dict) or not isinstance(ex.get("sha256"), str):
         raise BadInput(f"recording {directory}: manifest 'examples' must be an object with a 'sha256'")
-    try:
-        found = file_sha256(path)
-    except FileNotFoundError:
-        raise BadInput(f"recording {directory}: the examples the session started with, {path.name}, are "
-                       "missing") from None
-    except OSError as e:
-        raise BadInput(f"recording {directory}: {path.name} cannot be read: {e.strerror or e}") from None
-    if found != ex["sha256"]:
-        raise BadInput(f"recording {directory}: {path.name} is not the example file the session started with "
-                       f"(sha256 {found[:12]}..., the manifest says {ex['sha256'][:12]}...)")
+    if not path.exists():
+        raise BadInput(f"recording {directory}: the examples the session started with, {path.name}, are missing")
+    _check_sha256(directory, path, ex["sha256"], "the example file the session started with")
 
 
 def _check_held_copies(rec, directory) -> None:
     """The cell.json and calibration.json the recording holds are the ones its manifest names by sha256
     (recordings made before it was kept name none): another session's file, or an edited one, of the same
     camera size replayed as if the session had run with it."""
-    from cell.fileio import file_sha256
-
     for key, path, what in (("cell", rec.cell_path, "cell file"),
                             ("calibration", rec.calibration_path, "calibration")):
         expected = rec.held_sha256(key)
-        if expected is None or path is None:
-            continue
-        try:
-            found = file_sha256(path)
-        except OSError as e:
-            raise BadInput(f"recording {directory}: {path.name} cannot be read: {e.strerror or e}") from None
-        if found != expected:
-            raise BadInput(f"recording {directory}: {path.name} is not the {what} the session ran with "
-                           f"(sha256 {found[:12]}..., the manifest says {expected[:12]}...)")
+        if expected is not None and path is not None:
+            _check_sha256(directory, path, expected, f"the {what} the session ran with")
+
+
+def _check_sha256(directory, path: Path, expected: str, what: str) -> None:
+    """`path` is `what` ("the cell file the session ran with"), which the manifest names by its sha256."""
+    from cell.fileio import file_sha256
+
+    try:
+        found = file_sha256(path)
+    except OSError as e:
+        raise BadInput(f"recording {directory}: {path.name} cannot be read: {e.strerror or e}") from None
+    if found != expected:
+        raise BadInput(f"recording {directory}: {path.name} is not {what} "
+                       f"(sha256 {found[:12]}..., the manifest says {expected[:12]}...)")
 
 
 def _check_can_log(rec, directory) -> None:

@@ -81,6 +81,22 @@ STANDSTILL_MARGIN_S = 2.0  # waiting for standstill after a stop: this much past
 TPDO_EVENT_TIMER_MS = 50  # status at least every 50 ms when nothing changes (the watch sees a stuck drive)
 
 
+def _to_each(axes, act) -> None:
+    """act(ax) for every axis, whatever happens at one: a bus or drive error there is passed over (the others
+    matter more), and an interrupt (Ctrl-C between two quick stops, or while one drive is told to shut down)
+    goes up once every other axis has had its turn."""
+    surprise = None
+    for ax in axes:
+        try:
+            act(ax)
+        except (can.CanError, DriverError):
+            pass
+        except BaseException as e:
+            surprise = surprise or e
+    if surprise is not None:
+        raise surprise
+
+
 class Arm:
     """The SCARA arm and the gripper on a CAN bus made by the caller (see `drivers.open_bus`).
 
@@ -294,22 +310,15 @@ class Arm:
         told to shut down mid-move may let its axis coast (0x605B), so it stops on its ramp."""
         if not self._connected:
             return
-        surprise = None
+        def shut_down(ax: Axis) -> None:  # (a node that cannot be told is stopped by its host-heartbeat watch)
+            ax.disable()
+            ax.sdo_write(0x1016, 1, 0)
+
         try:
             if self._pending[0] or any(self._moving(ax) for ax in self.axes.values()):
                 self._stop_all()
-            for ax in self.axes.values():
-                if ax.last_heartbeat_s is None or self._faults.get(ax.name) is not None:
-                    continue
-                try:
-                    ax.disable()
-                    ax.sdo_write(0x1016, 1, 0)
-                except (DriverError, can.CanError):
-                    pass  # a node that cannot be told is stopped by its host-heartbeat watch
-                except BaseException as e:  # Ctrl-C while one is told: the others are told all the same
-                    surprise = surprise or e
-            if surprise is not None:
-                raise surprise
+            _to_each([ax for ax in self.axes.values()
+                      if ax.last_heartbeat_s is not None and self._faults.get(ax.name) is None], shut_down)
         finally:
             for job in self._jobs:
                 job.cancel()
@@ -548,16 +557,12 @@ class Arm:
         its move alone once it takes it, after every other axis stopped. Every axis gets its quick stop
         first, back to back, and the confirmations are waited for after: the axes ramp down together (the
         way check's quick stops, `drivers.limits`), not one a round trip after the other."""
-        sent, surprise = {}, None
-        for ax in self.axes.values():
-            try:
-                sent[ax.name] = ax.send_quick_stop()
-            except (can.CanError, DriverError):
-                pass  # stopping the others matters more than this one
-            except BaseException as e:  # Ctrl-C between two quick stops: the others get theirs first
-                surprise = surprise or e
-        if surprise is not None:
-            raise surprise
+        sent = {}
+
+        def quick_stop(ax: Axis) -> None:
+            sent[ax.name] = ax.send_quick_stop()
+
+        _to_each(self.axes.values(), quick_stop)
         for name, seq in sent.items():
             if seq is not None and name not in self._faults:
                 try:

@@ -78,8 +78,7 @@ def save_calibration(cal: Calibration, path: str | Path) -> None:
         coefficients = np.round(np.ravel(cal.dist), 4).tolist()
         raise BadInput(f"the fitted distortion {coefficients} folds or collapses the image: {path} not written; "
                        "more views, tilted in several directions, give a lens model")
-    raw = calibration_to_json(cal)
-    parse_calibration(raw, fail=refuse)  # and whatever else it would refuse: `cell map` would say so only later
+    raw = checked_json(cal, refuse)  # and whatever else the reader would refuse: `cell map` would say so only later
     try:
         write_json_atomic(path, raw)
     except OSError as e:  # a directory, a read-only place, a full disk: the user's to fix
@@ -108,6 +107,14 @@ def calibration_to_json(cal: Calibration) -> dict:
         d["homography"] = {key: np.asarray(cal.homography, float).tolist(), **height}
     d["report"] = to_jsonable(cal.report, nonfinite="null")
     return d
+
+
+def checked_json(cal: Calibration, fail) -> dict:
+    """`cal` as its file holds it, with the file's reader's checks run on it: `fail(why)` where it would be
+    refused (every writer of a calibration file: nothing is written that cannot be read back)."""
+    raw = calibration_to_json(cal)
+    parse_calibration(raw, fail=fail)
+    return raw
 
 
 def parse_calibration(raw, source: str = "<calibration>", fail=None) -> Calibration:

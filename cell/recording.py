@@ -162,15 +162,14 @@ class RecordingWriter:
             raise BadInput(f"example file {ex} does not exist")
         nominal_json = None
         if nominal_calibration is not None:  # checked as `cell replay` will read it, before any file is made
-            from calibration.calfile import calibration_to_json, parse_calibration
+            from calibration.calfile import checked_json
 
             def refuse(why: str):
                 raise BadInput(f"the simulated camera's calibration ({nominal_calibration.name}, from the cell file's "
                                f"camera and tray) is one the calibration file's reader refuses: {why}; the recording "
                                f"{self.dir} is not written (`cell replay` could not read it)")
 
-            nominal_json = calibration_to_json(nominal_calibration)
-            parse_calibration(nominal_json, fail=refuse)
+            nominal_json = checked_json(nominal_calibration, refuse)
         has_cal = cal is not None or nominal_calibration is not None
         files = {"cell": "cell.json", "calibration": "calibration.json" if has_cal else None, "decisions": DECISIONS,
                  "frames": FRAMES_DIR, "can_log": CAN_LOG, "rrd": RRD}

@@ -255,3 +255,14 @@ def test_a_wrist_without_end_is_timed_over_one_turn():
     """J4 given limits of a million degrees (a wrist that turns without end) at 600 deg/s: a turn takes 0.85 s."""
     assert _cell(scara__j4_deg=[-1e6, 1e6]).scara.j4_deg == (-1e6, 1e6)
     _refused("a move across J4's range (360 deg) would take", scara__j4_deg=[-1e6, 1e6], scara__max_velocity__j4=5.0)
+
+
+@pytest.mark.parametrize("distance, v, a", [(264.0, 180.0, 720.0), (1.0, 180.0, 720.0), (200.0, 0.01, 720.0),
+                                            (80.0, 60.0, 600.0), (360.0, 5.0, 1e5)])
+def test_the_move_time_the_cell_file_bounds_is_the_drives_profile(distance, v, a):
+    """cellconfig times a move itself (importing drivers there costs every `cell grasp` 0.2 s): it must stay
+    the drives' own trapezoid."""
+    from cell.cellconfig import _full_range_move_s
+    from drivers.profile import trapezoid
+
+    assert _full_range_move_s(distance, v, a) == pytest.approx(trapezoid(distance, v, a).duration_s, rel=1e-12)

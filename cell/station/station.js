@@ -499,7 +499,8 @@ function askReason(on) {
 // cannot take, none while the cell is offline). Never with Ctrl/Alt/Meta (Ctrl+A, Ctrl+R, Ctrl+P are
 // the browser's: select all must not approve a grasp), never while typing in a text field, once per
 // press (a held key does not repeat the command).
-const KEY_BUTTONS = {" ": "btn-step", "s": "btn-stop", "p": "btn-pause", "a": "btn-approve", "r": "btn-reject", "t": "btn-teach",
+const KEY_BUTTONS = {" ": "btn-step", "s": "btn-stop", "p": "btn-pause", "a": "btn-approve", "r": "btn-reject",
+                     "t": "btn-teach",
                      "z": "btn-zoom"};
 
 function onKey(ev) {

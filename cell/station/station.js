@@ -500,8 +500,7 @@ function askReason(on) {
 // the browser's: select all must not approve a grasp), never while typing in a text field, once per
 // press (a held key does not repeat the command).
 const KEY_BUTTONS = {" ": "btn-step", "s": "btn-stop", "p": "btn-pause", "a": "btn-approve", "r": "btn-reject",
-                     "t": "btn-teach",
-                     "z": "btn-zoom"};
+                     "t": "btn-teach", "z": "btn-zoom"};
 
 function onKey(ev) {
   if (ev.ctrlKey || ev.metaKey || ev.altKey || ev.isComposing) return;

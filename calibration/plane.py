@@ -36,6 +36,13 @@ COLLINEAR_RATIO = 1e-3  # the points' second spread direction against the first:
 WARN_REPROJECTION_PX = 3.0  # the Festo frames fit to 0.9 - 1.1 px; one marker's corners listed one off: 37 px
 MIN_MARKER_AREA_MM2 = 1.0  # a marker's square, at least (printed markers are 20-100 mm a side)
 CORNER_ORDER_GAIN = 3.0  # another corner order must fit this many times better (and 2 mm) to be named
+# A marker's bits are read from the middle of each cell: OpenCV leaves out 0.13 of a cell's side at each
+# edge. Out of focus (the Festo frames blurred by sigma 2.5 - 3 px, 13 px cells) the edges carry as much
+# of the neighbouring cells as of their own and marker 0 went unread in both frames; leaving out 0.3 (the
+# middle 40 % read) reads all four up to sigma 3. A second reading with it adds the ids the first missed:
+# a sharp frame's markers are those it read before, and a wrong id still needs a dictionary word within
+# OpenCV's error correction, as in the first reading
+DEFOCUS_CELL_MARGIN = 0.3
 MAX_VIEW_ANGLE_DEG = 75.0  # a tilted plane seen further from its normal than this is refused as edge-on: a
 # pixel spans 3.9 x more across it than along it
 
@@ -43,16 +50,27 @@ MAX_VIEW_ANGLE_DEG = 75.0  # a tilted plane seen further from its normal than th
 def detect_markers(gray: np.ndarray, dictionary: str, duplicates: list[int] | None = None) -> dict[int, np.ndarray]:
     """ArUco markers in the image: id -> corners (4, 2) in CONTRACT-frame pixels, OpenCV's order.
 
-    An id seen more than once is left out (which copy lies at the known place cannot be told; the last
-    one found used to be taken) and appended to `duplicates` when given."""
-    params = cv2.aruco.DetectorParameters()
-    # corners to sub-pixel: on rendered 60 px markers 0.39 px RMS instead of 0.88 (OpenCV's default: none)
-    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
-    det = cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), params)
-    corners, ids, _ = det.detectMarkers(gray)
-    if ids is None:
+    Markers are read twice: with OpenCV's bit sampling, then, for ids not read so, sampling the middle
+    of each bit cell only (DEFOCUS_CELL_MARGIN). An id seen more than once is left out (which copy lies
+    at the known place cannot be told; the last one found used to be taken) and appended to
+    `duplicates` when given."""
+    corners, flat = [], []
+    for margin in (None, DEFOCUS_CELL_MARGIN):
+        params = cv2.aruco.DetectorParameters()
+        # corners to sub-pixel: on rendered 60 px markers 0.39 px RMS instead of 0.88 (OpenCV's default: none)
+        params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+        if margin is not None:
+            params.perspectiveRemoveIgnoredMarginPerCell = margin
+        c, ids, _ = cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), params).detectMarkers(gray)
+        seen = set(flat)
+        for ci, i in zip(c, [] if ids is None else ids.ravel(), strict=True):
+            # the second reading adds only ids the first did not read: markers both read keep the first's
+            # corners (the corners are found from the outline, the same in both; only the bits differ)
+            if margin is None or int(i) not in seen:
+                corners.append(ci)
+                flat.append(int(i))
+    if not flat:
         return {}
-    flat = [int(i) for i in ids.ravel()]
     twice = sorted({i for i in flat if flat.count(i) > 1})
     if duplicates is not None:
         duplicates.extend(twice)

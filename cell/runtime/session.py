@@ -192,6 +192,10 @@ def run_session(cfg: RunConfig) -> dict:
     cell = load_cell(cell_path)
     _require_dropoff_reachable(cell, cell_path)
     cal_path, cal = _calibration(cfg, cell)
+    if cal_path is None:  # a nominal camera: refused as a recording of it would be, with or without --record
+        from cell.recording import nominal_calibration_json
+
+        nominal_calibration_json(cal, cfg.record)
     if (cal.width_px, cal.height_px) != (cell.camera.width_px, cell.camera.height_px):
         from cell.errors import BadInput
 

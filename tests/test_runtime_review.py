@@ -1,0 +1,22 @@
+"""Findings of the runtime review (cell/runtime, `cell run`, `cell replay`): each test reproduces one through
+the real code paths."""
+
+import json
+
+from conftest import run_cli
+
+
+def test_a_run_without_record_refuses_the_nominal_camera_a_recording_would_refuse(tmp_path, capsys):
+    """A cell file's camera 900 m above the tray gives the simulated camera a nominal fx of 1.8e6 px, which the
+    calibration reader refuses: `cell run --record` refused it (exit 2), plain `cell run` ran the whole
+    disassembly through it (exit 0)."""
+    from cell.cellconfig import default_cell_path
+
+    cell = json.loads(default_cell_path().read_text())
+    cell["camera"]["height_mm"] = 900_000.0
+    (tmp_path / "cell.json").write_text(json.dumps(cell))
+    code, out, err = run_cli("run", "--cell", tmp_path / "cell.json", "--json", capsys=capsys)
+    assert code == 2 and out == "", err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "intrinsics.fx and fy must be between 1 and 1e+06 px" in lines[0], err
+    assert "the calibration file's reader refuses" in lines[0]

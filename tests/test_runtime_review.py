@@ -20,3 +20,21 @@ def test_a_run_without_record_refuses_the_nominal_camera_a_recording_would_refus
     lines = err.strip().splitlines()
     assert len(lines) == 1 and "intrinsics.fx and fy must be between 1 and 1e+06 px" in lines[0], err
     assert "the calibration file's reader refuses" in lines[0]
+
+
+def test_a_part_with_another_still_lying_on_it_is_not_picked(tmp_path, capsys):
+    """An assembly listing the base plate before the PCB lying on it (`cell plan` says: no_feasible_grasp, the
+    lift blocked by 'pcb'): `cell run` planned a grasp on the base all the same, and the jaws came down around
+    the PCB and closed on it, twice. Now the step stops before anything moves towards the base, as a part with
+    no feasible grasp does."""
+    from cell.runtime.session import default_assembly_path
+
+    assembly = json.loads((default_assembly_path().parent / "fig18_product.json").read_text())
+    assembly["sequence"] = ["nut", "washer", "base", "pcb", "shaft", "motor"]
+    (tmp_path / "a.json").write_text(json.dumps(assembly))
+    code, out, err = run_cli("run", tmp_path / "a.json", "--json", capsys=capsys)
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert code == 1, err
+    assert [p["part"] for p in summary["parts"]] == ["nut", "washer"]
+    assert "'base' cannot be lifted straight up: 'pcb' still lies on it" in summary["stopped"]
+    assert not [e for e in summary["sim_events"] if "pcb" in e or "base" in e], summary["sim_events"]

@@ -30,6 +30,7 @@ from shapely.geometry import Polygon
 
 from cell.cellconfig import Cell
 from cell.configuration import path_link_collisions
+from cell.disassembly import lift_blocked_reason, parts_on_top
 from cell.errors import BadInput, CellError, NoFeasibleGrasp
 from cell.examples import GraspExample, append_examples, load_examples, parse_example
 from cell.fileio import write_atomic
@@ -464,6 +465,7 @@ class CellLoop:
     def _plan(self, scene: Scene, part_id: str) -> list[Grasp] | None:
         self._learn_taught()
         try:
+            _require_lift_clear(scene)
             result = self.planner.plan(scene)
         except NoFeasibleGrasp as e:
             self.sink.write_decision({"type": "no_grasp", "part": part_id, "reason": e.reason})
@@ -731,6 +733,15 @@ class CellLoop:
         j = self.arm.joints()
         self.viz.arm(elbow_points(j, self.cell.scara), j)
         self.viz.joints(j)
+
+
+def _require_lift_clear(scene: Scene) -> None:
+    """A part still lying on the target (a sequence out of order, the part on it skipped) has no grasp, as
+    in `cell plan`: the jaws came down around the part on top and closed on it, and lifting the target
+    would carry it along."""
+    blockers = parts_on_top(scene.target_part, scene.obstacles)
+    if blockers:
+        raise NoFeasibleGrasp(lift_blocked_reason(scene, blockers))
 
 
 def _grasp_json(g: Grasp) -> dict:

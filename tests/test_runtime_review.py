@@ -38,3 +38,29 @@ def test_a_part_with_another_still_lying_on_it_is_not_picked(tmp_path, capsys):
     assert [p["part"] for p in summary["parts"]] == ["nut", "washer"]
     assert "'base' cannot be lifted straight up: 'pcb' still lies on it" in summary["stopped"]
     assert not [e for e in summary["sim_events"] if "pcb" in e or "base" in e], summary["sim_events"]
+
+
+def _decisions(recording) -> list[dict]:
+    return [json.loads(line) for line in (recording / "decisions.jsonl").read_text().splitlines()]
+
+
+def test_after_a_missed_grip_the_next_grasp_is_planned_on_a_new_frame(tmp_path, capsys):
+    """The jaws closed through where the nut was thought to lie and missed it: the part was not there, or they
+    pushed it. The retry took the next grasp ranked on the frame from before the miss, whatever had moved since;
+    now it is planned on a new frame (and not on the contacts that missed), and the session still replays."""
+    rec = tmp_path / "rec"
+    code, out, err = run_cli("run", "--sim-miss", "nut", "--record", rec, "--json", capsys=capsys)
+    assert code == 0, err
+    decisions = _decisions(rec)
+    missed = next(i for i, d in enumerate(decisions) if d["type"] == "executed"
+                  and any(r.get("holding") is False for r in d["records"]))
+    retry = next(i for i in range(missed + 1, len(decisions)) if decisions[i]["type"] == "commands")
+    between = [d["type"] for d in decisions[missed + 1:retry]]
+    assert "perception" in between and "grasp" in between, between
+    tried = [d["commands"][2]["joints"] for d in (decisions[missed - 1], decisions[retry])]
+    assert tried[0] != tried[1]
+    nut = next(p for p in json.loads(out.strip().splitlines()[-1])["parts"] if p["part"] == "nut")
+    assert nut["attempts"] == 2 and nut["outcome"] == "removed"
+    code, out, err = run_cli("replay", rec, capsys=capsys)
+    assert code == 0, err + out
+

@@ -64,3 +64,16 @@ def test_after_a_missed_grip_the_next_grasp_is_planned_on_a_new_frame(tmp_path, 
     code, out, err = run_cli("replay", rec, capsys=capsys)
     assert code == 0, err + out
 
+
+def test_a_drop_off_over_the_tray_is_refused_before_anything_moves(tmp_path, capsys):
+    """A cell file's drop-off over the tray: the arm lowered the first part it carried onto the tray, among the
+    others (nothing checks the fingers or the held part there), let go, and the run stopped with 'nut did not
+    leave the tray' (exit 1). A bad cell file, found before anything moves, as an unreachable drop-off is."""
+    from cell.cellconfig import default_cell_path
+
+    cell = json.loads(default_cell_path().read_text())
+    cell["motion"]["dropoff_mm"] = [420.0, -200.0, 60.0]
+    (tmp_path / "cell.json").write_text(json.dumps(cell))
+    code, out, err = run_cli("run", "--cell", tmp_path / "cell.json", "--json", capsys=capsys)
+    assert code == 2 and out == "", err
+    assert "motion.dropoff_mm [420.0, -200.0, 60.0] lies over the tray" in err, err

@@ -77,3 +77,21 @@ def test_a_drop_off_over_the_tray_is_refused_before_anything_moves(tmp_path, cap
     code, out, err = run_cli("run", "--cell", tmp_path / "cell.json", "--json", capsys=capsys)
     assert code == 2 and out == "", err
     assert "motion.dropoff_mm [420.0, -200.0, 60.0] lies over the tray" in err, err
+
+
+def test_a_ctrl_c_while_the_loop_is_being_built_closes_the_recording(tmp_path, monkeypatch):
+    """Ctrl-C in the moment the loop fits its trees (after the drives came up, before anything moved) left the
+    recording saying "recording", as a crashed session's does: now it is closed as not started, and says why."""
+    import pytest
+
+    from cell.runtime import loop
+    from cell.runtime.session import RunConfig, run_session
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(loop, "GraspPlanner", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run_session(RunConfig(record=tmp_path / "rec"))
+    manifest = json.loads((tmp_path / "rec" / "manifest.json").read_text())
+    assert manifest["status"] == "incomplete" and manifest["summary"]["status"] == "not started", manifest

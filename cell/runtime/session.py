@@ -262,15 +262,15 @@ def run_session(cfg: RunConfig) -> dict:
                 arm, camera, world = _real_sources(cfg.real_cell, cell, cal, can_log, stack)
             else:
                 arm, camera, world = _simulated_sources(cfg, cell, cal, assembly, can_log, stack)
-        except BaseException as e:  # no camera, no bus: nothing ran; the recording says why
+            loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=camera, arm=arm, control=control,
+                            examples_path=examples_path, examples_out=examples_out, sink=recorder, viz=viz,
+                            options=LoopOptions(on_no_grasp=cfg.on_no_grasp, interactive=cfg.station))
+        except BaseException as e:  # no camera, bus or loop (a Ctrl-C): nothing ran; the recording says why
             if viz is not None:
                 viz.close()
             if recorder is not None:
                 recorder.close("incomplete", {"status": "not started", "error": str(e)})
             raise
-        loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=camera, arm=arm, control=control,
-                        examples_path=examples_path, examples_out=examples_out, sink=recorder, viz=viz,
-                        options=LoopOptions(on_no_grasp=cfg.on_no_grasp, interactive=cfg.station))
         _progress(control, say)
         from cell.heap import freeze_startup
 

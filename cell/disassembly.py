@@ -56,12 +56,17 @@ def parts_on_top(target: Part, present: tuple[Part, ...]) -> list[str]:
             and o.polygon.intersection(target.polygon).area > AREA_EPS_MM2]
 
 
+def lift_blocked_reason(scene: Scene, blockers: list[str]) -> str:
+    """Why the scene's target has no grasp while `blockers` (`parts_on_top`) still lie on it."""
+    return (f"{scene.target!r} cannot be lifted straight up: {', '.join(map(repr, blockers))} "
+            "still lies on it (is the sequence right?)")
+
+
 def plan_step(planner: GraspPlanner, scene: Scene, step: int) -> StepPlan:
     blockers = parts_on_top(scene.target_part, scene.obstacles)
     if blockers:  # CONTRACT's one error value for a step without a grasp; `lift` says why
-        return StepPlan(step, scene, None, "no_feasible_grasp",
-                        f"{scene.target!r} cannot be lifted straight up: {', '.join(map(repr, blockers))} "
-                        "still lies on it (is the sequence right?)", blocked_by=tuple(blockers))
+        return StepPlan(step, scene, None, "no_feasible_grasp", lift_blocked_reason(scene, blockers),
+                        blocked_by=tuple(blockers))
     try:
         return StepPlan(step, scene, planner.plan(scene))
     except NoFeasibleGrasp as e:

@@ -118,6 +118,21 @@ def recording_holding(path) -> Path | None:
     return None
 
 
+def nominal_calibration_json(cal, recording_dir=None) -> dict:
+    """The simulated camera's nominal calibration (no file of its own) as its file would hold it, refused
+    (BadInput) where the calibration file's reader would refuse it: a recording could not be read back, and a
+    run without one would see through a camera no calibration file can describe."""
+    from calibration.calfile import checked_json
+
+    def refuse(why: str):
+        unwritten = (f"; the recording {recording_dir} is not written (`cell replay` could not read it)"
+                     if recording_dir is not None else "")
+        raise BadInput(f"the simulated camera's calibration ({cal.name}, from the cell file's camera and tray) is "
+                       f"one the calibration file's reader refuses: {why}{unwritten}")
+
+    return checked_json(cal, refuse)
+
+
 class RecordingWriter:
     """Write one session into `directory` (created; refused if it already holds a recording).
 
@@ -162,14 +177,7 @@ class RecordingWriter:
             raise BadInput(f"example file {ex} does not exist")
         nominal_json = None
         if nominal_calibration is not None:  # checked as `cell replay` will read it, before any file is made
-            from calibration.calfile import checked_json
-
-            def refuse(why: str):
-                raise BadInput(f"the simulated camera's calibration ({nominal_calibration.name}, from the cell file's "
-                               f"camera and tray) is one the calibration file's reader refuses: {why}; the recording "
-                               f"{self.dir} is not written (`cell replay` could not read it)")
-
-            nominal_json = checked_json(nominal_calibration, refuse)
+            nominal_json = nominal_calibration_json(nominal_calibration, self.dir)
         has_cal = cal is not None or nominal_calibration is not None
         files = {"cell": "cell.json", "calibration": "calibration.json" if has_cal else None, "decisions": DECISIONS,
                  "frames": FRAMES_DIR, "can_log": CAN_LOG, "rrd": RRD}

@@ -8,8 +8,8 @@ whoever builds those; `cell replay` runs this same code on recorded frames.
 
 Failures, as an operator wants them handled (each is logged with its reason):
 - no feasible grasp: stop and ask, or skip the part (`on_no_grasp="skip"`);
-- a missed grip (jaws closed past the expected width): open, lift, retry once with the next
-  best grasp, then stop and ask;
+- a missed grip (jaws closed past the expected width): open, lift, look again (a new frame), retry
+  once with the best grasp there other than the one that missed, then stop and ask;
 - a part that did not leave the tray (seen again where it was picked): stop and ask;
 - a drive fault: the arm has stopped every axis; stop until the operator resets;
 - a missing or unreadable frame: retry, then stop and ask.
@@ -30,6 +30,7 @@ from shapely.geometry import Polygon
 
 from cell.cellconfig import Cell
 from cell.configuration import path_link_collisions
+from cell.disassembly import lift_blocked_reason, parts_on_top
 from cell.errors import BadInput, CellError, NoFeasibleGrasp
 from cell.examples import GraspExample, append_examples, load_examples, parse_example
 from cell.fileio import write_atomic
@@ -78,7 +79,7 @@ class StopRun(CellError):
 class LoopOptions:
     on_no_grasp: str = "stop"  # "stop" (ask the operator) or "skip" the part
     frame_retries: int = 2
-    grip_retries: int = 1  # retries with the next best grasp after a missed grip
+    grip_retries: int = 1  # retries after a missed grip, each planned on a new frame
     interactive: bool = False  # an operator answers (the station); else a stop ends the run
     min_area_mm2: float = 75.0  # smaller regions are dust
 
@@ -267,21 +268,17 @@ class CellLoop:
             self._retreat()
         frame, index = self._read_frame()
         t0 = time.perf_counter()
-        located = self._perceive(frame, index)
-        if not self._last_pick_left(located):
+        scene = self._scene_in(frame, index, part_id)
+        if scene is None:
             return
-        if part_id not in located:
-            self._stop_and_ask("vision", f"{part_id} is not found in frame {index}")
-            return
-        # everything not removed, skipped parts included: they still lie there
-        scene = Scene(tuple(self._on_tray()), part_id, source=f"frame {index}")
         report = PartReport(part_id, "removed")
         grasps = self._plan(scene, part_id)
         report.planning_s += time.perf_counter() - t0
         if grasps is None:
             return
-        attempt = 0
+        attempt = misses = 0
         rejected_here: list[np.ndarray] = []
+        missed_here: list[np.ndarray] = []
         refused = ""
         while True:
             t1 = time.perf_counter()
@@ -305,7 +302,8 @@ class CellLoop:
                     return
                 # The example teaches the trees; this cycle, the operator also simply expects
                 # not to be asked the same again (sets of a symmetric part look alike to them).
-                grasps = [g for g in grasps if not any(self._same_contacts(g.contacts_mm, r) for r in rejected_here)]
+                grasps = [g for g in grasps
+                          if not any(self._same_contacts(g.contacts_mm, r) for r in [*rejected_here, *missed_here])]
                 if not grasps:
                     self._stop_and_ask("planner", f"{part_id}: every feasible grasp was rejected; teach one")
                     return
@@ -331,11 +329,36 @@ class CellLoop:
             t3 = self.arm.clock.now()
             self._retreat(grasp)
             report.motion_s += self.arm.clock.now() - t3
-            attempt += 1
-            if attempt > self.options.grip_retries:
-                self._stop_and_ask("gripper", f"{part_id}: missed {attempt} times")
+            misses += 1
+            if misses > self.options.grip_retries:
+                self._stop_and_ask("gripper", f"{part_id}: missed {misses} times")
                 return
+            # The jaws closed through where the part was thought to lie: it was not there, or they pushed it.
+            # The next grasp is planned on a new frame, not on the one that misled this one.
+            missed_here.append(grasp.contacts_mm)
+            frame, index = self._read_frame()
+            t4 = time.perf_counter()
+            scene = self._scene_in(frame, index, part_id)
+            grasps = None if scene is None else self._plan(scene, part_id)
+            report.planning_s += time.perf_counter() - t4
+            if grasps is None:
+                return
+            grasps = [g for g in grasps
+                      if not any(self._same_contacts(g.contacts_mm, m) for m in [*rejected_here, *missed_here])]
+            attempt = 0
         self._picked({"part": part_id, "report": report})
+
+    def _scene_in(self, frame, index: int, part_id: str) -> Scene | None:
+        """The scene of `part_id` as `frame` shows it; None when the loop stopped to ask (the part picked
+        last is still there, or `part_id` is not found)."""
+        located = self._perceive(frame, index)
+        if not self._last_pick_left(located):
+            return None
+        if part_id not in located:
+            self._stop_and_ask("vision", f"{part_id} is not found in frame {index}")
+            return None
+        # everything not removed, skipped parts included: they still lie there
+        return Scene(tuple(self._on_tray()), part_id, source=f"frame {index}")
 
     def _final_check(self) -> None:
         """One more frame after the last pick: the last part must be gone too."""
@@ -464,6 +487,7 @@ class CellLoop:
     def _plan(self, scene: Scene, part_id: str) -> list[Grasp] | None:
         self._learn_taught()
         try:
+            _require_lift_clear(scene)
             result = self.planner.plan(scene)
         except NoFeasibleGrasp as e:
             self.sink.write_decision({"type": "no_grasp", "part": part_id, "reason": e.reason})
@@ -731,6 +755,15 @@ class CellLoop:
         j = self.arm.joints()
         self.viz.arm(elbow_points(j, self.cell.scara), j)
         self.viz.joints(j)
+
+
+def _require_lift_clear(scene: Scene) -> None:
+    """A part still lying on the target (a sequence out of order, the part on it skipped) has no grasp, as
+    in `cell plan`: the jaws came down around the part on top and closed on it, and lifting the target
+    would carry it along."""
+    blockers = parts_on_top(scene.target_part, scene.obstacles)
+    if blockers:
+        raise NoFeasibleGrasp(lift_blocked_reason(scene, blockers))
 
 
 def _grasp_json(g: Grasp) -> dict:

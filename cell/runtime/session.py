@@ -191,7 +191,12 @@ def run_session(cfg: RunConfig) -> dict:
     cell_path = cfg.cell or assembly.cell_path
     cell = load_cell(cell_path)
     _require_dropoff_reachable(cell, cell_path)
+    _require_dropoff_off_tray(cell, cell_path)
     cal_path, cal = _calibration(cfg, cell)
+    if cal_path is None:  # a nominal camera: refused as a recording of it would be, with or without --record
+        from cell.recording import nominal_calibration_json
+
+        nominal_calibration_json(cal, cfg.record)
     if (cal.width_px, cal.height_px) != (cell.camera.width_px, cell.camera.height_px):
         from cell.errors import BadInput
 
@@ -257,15 +262,15 @@ def run_session(cfg: RunConfig) -> dict:
                 arm, camera, world = _real_sources(cfg.real_cell, cell, cal, can_log, stack)
             else:
                 arm, camera, world = _simulated_sources(cfg, cell, cal, assembly, can_log, stack)
-        except BaseException as e:  # no camera, no bus: nothing ran; the recording says why
+            loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=camera, arm=arm, control=control,
+                            examples_path=examples_path, examples_out=examples_out, sink=recorder, viz=viz,
+                            options=LoopOptions(on_no_grasp=cfg.on_no_grasp, interactive=cfg.station))
+        except BaseException as e:  # no camera, bus or loop (a Ctrl-C): nothing ran; the recording says why
             if viz is not None:
                 viz.close()
             if recorder is not None:
                 recorder.close("incomplete", {"status": "not started", "error": str(e)})
             raise
-        loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=camera, arm=arm, control=control,
-                        examples_path=examples_path, examples_out=examples_out, sink=recorder, viz=viz,
-                        options=LoopOptions(on_no_grasp=cfg.on_no_grasp, interactive=cfg.station))
         _progress(control, say)
         from cell.heap import freeze_startup
 
@@ -431,6 +436,19 @@ def _require_dropoff_reachable(cell, cell_path) -> None:
         why = (f"is {r:.1f} mm from the base, outside the arm's reach {lo:.1f}-{hi:.1f} mm" if not lo <= r <= hi
                else "is not reachable within the joint limits")
     raise BadInput(f"cell file {cell_path or '(default)'}: motion.dropoff_mm {[x, y, z]} {why}")
+
+
+def _require_dropoff_off_tray(cell, cell_path) -> None:
+    """A drop-off over the tray is a bad cell file: the held part was lowered among the parts still there (no
+    check looks at the fingers or the part there) and let go on the tray, and the run stopped after the first
+    pick with 'did not leave the tray' (exit 1)."""
+    x, y, z = cell.motion.dropoff_mm
+    if cell.tray.contains(x, y):
+        from cell.errors import BadInput
+
+        (x0, x1), (y0, y1) = cell.tray.x_mm, cell.tray.y_mm
+        raise BadInput(f"cell file {cell_path or '(default)'}: motion.dropoff_mm {[x, y, z]} lies over the tray "
+                       f"(x {x0:g}..{x1:g}, y {y0:g}..{y1:g} mm): a part let go there stays among the others")
 
 
 def _check_rrd_path(path: Path, inputs) -> None:

@@ -1,8 +1,8 @@
 """The run-time safety checks at their boundaries (cell/runtime/loop.py, cell/runtime/motion.py and
 the link check they call): the travel height, the links along the drives' path, the drop-off
-options, the pick's commands, the grip tolerance (grip_held, and the gripper driver's check the run
-acts on), the frame checks, a part that did not leave the tray, and the carry-off after a
-cut-short pick and how wide the jaws open at the grasp depth after a missed grip.
+options, the pick's commands, the grip tolerance (the gripper driver's check the run acts on), the
+frame checks, a part that did not leave the tray, and the carry-off after a cut-short pick and how
+wide the jaws open at the grasp depth after a missed grip.
 
 Each test pins one side of a comparison (or one term, or one guard) that decides whether the arm
 may move; they were written in a mutation pass over those checks, for the mutants the other
@@ -29,7 +29,6 @@ from cell.runtime.motion import (
     above,
     carry_off_commands,
     dropoff_options,
-    grip_held,
     pick_commands,
 )
 from cell.scene import parse_part
@@ -378,22 +377,7 @@ def test_a_carry_off_lifts_straight_up_from_where_the_arm_is(cell):
     assert commands[2].label == "lower" and commands[2].joints == dropoff_options(cell, NUT_GRASP)[0]
 
 
-# ---------------------------------------------------------------- grip_held
-@pytest.mark.parametrize("expected_mm,reported_mm,tolerance_mm,held", [
-    (30.0, 30.0, None, True),
-    (30.0, 35.0, None, True),  # stopped wider than expected (the part measured larger): held
-    (30.0, 28.0, None, True),  # exactly the default 2 mm narrower
-    (30.0, 27.99, None, False),  # just past it: closed past the part
-    (30.0, 27.5, None, False),
-    (30.0, 29.0, 1.0, True),
-    (30.0, 28.99, 1.0, False),
-    (30.0, 29.99, 0.0, False),
-])
-def test_grip_held_at_the_tolerance(expected_mm, reported_mm, tolerance_mm, held):
-    kw = {} if tolerance_mm is None else {"tolerance_mm": tolerance_mm}
-    assert grip_held(expected_mm, reported_mm, **kw) is held
-
-
+# ---------------------------------------------------------------- the grip check
 @pytest.fixture(scope="module")
 def gripper_drives(cell):
     from drivers import simulated_cell
@@ -407,9 +391,11 @@ def gripper_drives(cell):
     (28.0, 30.0, True),  # stopped exactly 2 mm short of the expected width: held
     (27.99, 30.0, False),  # 0.01 mm past the tolerance: the jaws slid off
     (27.5, 30.0, False),
+    (32.0, 30.0, True),  # stopped exactly 2 mm wide of it: held (the part measured larger)
+    (32.01, 30.0, False),  # wider: blocked (a neighbour or a jammed finger), not holding
 ])
 def test_the_drives_grip_check_at_the_2_mm_tolerance(gripper_drives, part_mm, expected_mm, held):
-    """What the run acts on: the gripper driver's verdict (grip_held's rule) on the width where the
+    """What the run acts on: the gripper driver's verdict on the width where the
     simulated jaws stop on a part."""
     arm, drives = gripper_drives
     drives.gripper_object_width_mm = part_mm

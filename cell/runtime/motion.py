@@ -113,8 +113,3 @@ def carry_off_commands(from_joints: Joints, grasp_joints: Joints, cell: Cell, sa
         Command("move", "retreat", above(drop, safe_z_mm)),
     ]
 
-
-def grip_held(expected_mm: float, reported_mm: float, tolerance_mm: float = 2.0) -> bool:
-    """Jaws that stopped near the expected width hold the part; jaws that closed past it
-    (by more than the tolerance) missed it."""
-    return reported_mm >= expected_mm - tolerance_mm

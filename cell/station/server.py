@@ -87,6 +87,22 @@ def _point(raw, key: str) -> list[float]:
     return [float(raw[0]), float(raw[1])]
 
 
+def _jsonable(obj):
+    """`obj` with plain JSON values only. The loop's state holds numpy values (np.int64, np.bool_,
+    np.float32, arrays: all have .tolist(), so numpy need not be imported here), which json.dumps
+    refuses; NaN and infinity become null, since the page's JSON parser refuses the whole state
+    for one of them."""
+    if isinstance(obj, dict):
+        return {k: _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if hasattr(obj, "tolist"):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
 class _Handler(BaseHTTPRequestHandler):
     server_version = "cell-station/1"
     station: StationServer  # set on the subclass made per server
@@ -110,7 +126,7 @@ class _Handler(BaseHTTPRequestHandler):
             self.wfile.write(body)
 
     def _json(self, status: int, obj) -> None:
-        self._send(status, json.dumps(obj, separators=(",", ":")).encode("utf-8"), "application/json")
+        self._send(status, json.dumps(_jsonable(obj), separators=(",", ":")).encode("utf-8"), "application/json")
 
     def _error(self, status: int, message: str) -> None:
         self._json(status, {"ok": False, "error": message})

@@ -1158,3 +1158,29 @@ def test_while_the_cell_does_not_answer_the_page_asks_once_a_second(browser, sta
     # (one poll may still have been answered between the two reads above: skip it)
     offline = d.execute_script("return window.__delays.slice(arguments[0])", len(online) + 1)
     assert set(online) == {300} and offline and set(offline) == {1000}, (online, offline)
+
+
+def test_teach_names_the_frame_it_was_clicked_on(browser, station):
+    """The cell applied a teach to whatever frame it held by then; the page now says which frame the
+    clicks were on, and the cell refuses a teach for a frame that is no longer current."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, cell, examples = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.05)
+    open_page(d, server, "idle")
+    board = next(p for p in demo_parts() if p.id == "board")
+    o = board.outline_mm
+    shown = cell.snapshot()["frame"]["index"]
+    d.find_element(By.ID, "btn-teach").click()
+    click_frame_px(d, *mm_to_px(board.polygon.centroid.coords[0]))
+    click_frame_px(d, *mm_to_px((o[0] + o[1]) / 2))
+    wait.until(lambda _: "second contact" in d.find_element(By.ID, "teach-status").text)
+    d.execute_script(HOLD_STATE_POLLS)  # the page stays a frame behind ...
+    wait.until(lambda _: d.execute_script("return window.__held.length") == 1)
+    cell._render()  # ... while the camera's next frame comes in
+    click_frame_px(d, *mm_to_px((o[2] + o[3]) / 2))
+    wait.until(lambda _: "no longer the current one" in d.find_element(By.ID, "toast").text)
+    assert d.execute_script("return window.__bodies")[-1]["frame"] == shown
+    assert not examples.exists()

@@ -394,3 +394,30 @@ def test_a_command_is_answered_even_when_the_state_to_show_with_it_fails(station
     assert status == 200 and reply["ok"] is True, reply
     assert "the cell cannot report its state (RuntimeError: camera buffer gone)" in reply["state_error"]
     assert control.snapshot(0)["state"] == "stopped"
+
+
+def board_contacts_px():
+    """Two points on opposite long edges of the demo's board, in px as the page sends them."""
+    from cell.station.demo import demo_parts
+
+    o = next(p for p in demo_parts() if p.id == "board").outline_mm
+    return mm_to_px((o[0] + o[1]) / 2).tolist(), mm_to_px((o[2] + o[3]) / 2).tolist()
+
+
+def test_a_teach_on_a_frame_that_is_no_longer_current_is_refused(station, tmp_path):
+    """The clicks are points on the picture the operator saw: a teach was applied to whatever frame
+    the cell held by then (the part may have moved or gone). The page sends the frame it showed."""
+    server, control, cell = station
+    p1, p2 = board_contacts_px()
+    shown = cell.snapshot()["frame"]["index"]
+    cell._render()  # the camera's next frame comes in between the clicks and the request
+    status, reply = call(server, "POST", "/api/teach", {"part": "board", "p1_px": p1, "p2_px": p2, "frame": shown})
+    assert status == 409 and f"frame taught on ({shown}) is no longer the current one (now {shown + 1})" \
+        in reply["error"], reply
+    assert not (tmp_path / "examples.jsonl").exists()
+    assert not any(e["event"] == "teach" for e in control.snapshot(200)["events"])
+    for bad in ("1", True, 1.0, None):
+        status, reply = call(server, "POST", "/api/teach", {"part": "board", "p1_px": p1, "p2_px": p2, "frame": bad})
+        assert status == 400 and "'frame'" in reply["error"], (bad, reply)
+    status, reply = call(server, "POST", "/api/teach", {"part": "board", "p1_px": p1, "p2_px": p2, "frame": shown + 1})
+    assert status == 200 and reply["result"]["n_examples"] == 1, reply

@@ -96,3 +96,19 @@ def test_numpy_values_in_the_state_are_served_as_json_numbers_and_lists():
         assert status == 200 and reply["ok"] is True and reply["cell"]["ok"] is True
         note = next(e for e in reply["control"]["events"] if e["event"] == "note")
         assert note["data"] == {"step": 2, "seen": [1, 2]}
+
+
+def test_a_teach_on_an_older_frame_does_not_reach_the_loop():
+    taught = []
+    view = LiveView(lambda *a: taught.append(a) or {"example_id": "ex", "n_examples": 1})
+    outline = np.array([[20, 10], [50, 10], [50, 30], [20, 30]])
+    with StationServer(view, RunControl(), port=0, token=TOKEN) as server:
+        view.show_frame(7, np.zeros((60, 80, 3), np.uint8))
+        view.show_parts([{"id": "cover", "outline_px": outline}])
+        view.show_frame(8, np.zeros((60, 80, 3), np.uint8))  # the loop moved on; the cover is seen again
+        view.show_parts([{"id": "cover", "outline_px": outline + 5}])
+        body = {"part": "cover", "p1_px": [20, 15], "p2_px": [50, 25], "frame": 7}
+        status, reply = _post(server, "/api/teach", body)
+        assert status == 409 and "no longer the current one (now 8)" in reply["error"] and taught == []
+        status, reply = _post(server, "/api/teach", {**body, "frame": 8})
+        assert status == 200 and len(taught) == 1

@@ -9,7 +9,8 @@ Routes (JSON unless said otherwise):
     POST /api/reject           {"reason": "..."}        (the loop turns it into an invalid example)
                                approve and reject may carry {"proposal": the one shown}: 409 if another waits
     POST /api/approval         {"required": true|false}  (approve each grasp)
-    POST /api/teach            {"part": id, "p1_px": [u, v], "p2_px": [u, v]} -> backend.teach(...)
+    POST /api/teach            {"part": id, "p1_px": [u, v], "p2_px": [u, v], "frame": index shown}
+                               -> backend.teach(...); 409 if that frame is no longer the current one
 
 Every POST needs the session token in the `X-Cell-Token` header: a missing or wrong token
 gets 403 and changes nothing. GETs need none (looking is harmless). The server binds to
@@ -347,11 +348,20 @@ class StationServer:
             if not isinstance(part, str) or not part:
                 raise BadInput("'part' must be the id of a part on the current frame")
             p1, p2 = _point(body.get("p1_px"), "p1_px"), _point(body.get("p2_px"), "p2_px")
+            self._refuse_an_older_frame(_shown_frame(body))
             result = self.backend.teach(part, p1, p2)
             rc.log("teach", f"taught a grasp on {part}", part=part,
                    example=result.get("example_id") if isinstance(result, dict) else None)
             return result
         raise KeyError(f"no such command: {cmd}")
+
+    def _refuse_an_older_frame(self, shown: int | None) -> None:
+        """The teach's clicks are points on the frame the operator saw: on a later one the part may lie
+        elsewhere or be gone (the backend checks its clicks against the frame it holds)."""
+        current = self.backend.snapshot()["frame"]["index"]
+        if shown is not None and shown != current:
+            raise InvalidCommand(f"the frame taught on ({shown}) is no longer the current one (now {current}): "
+                                 "nothing was taught; click the part and its contacts again on the new frame")
 
     # -- life cycle
     def start(self) -> StationServer:
@@ -381,4 +391,12 @@ def _shown_proposal(body: dict) -> dict | None:
     shown = body.get("proposal")
     if "proposal" in body and not isinstance(shown, dict):
         raise BadInput("'proposal' must be the proposal object shown (from /api/state)")
+    return shown
+
+
+def _shown_frame(body: dict) -> int | None:
+    """The index of the frame a teach was clicked on (`frame`, optional for scripts)."""
+    shown = body.get("frame")
+    if "frame" in body and (not isinstance(shown, int) or isinstance(shown, bool)):
+        raise BadInput("'frame' must be the index of the frame the contacts were clicked on (from /api/state)")
     return shown

@@ -437,7 +437,8 @@ async function onFrameClick(ev) {
   const t = teach;
   teach = null;
   drawTeach();
-  const r = await post("teach", {part: t.part, p1_px: t.p1, p2_px: p});
+  // the frame the clicks were on: the cell refuses them (409) on a later one, where the part may have moved
+  const r = await post("teach", {part: t.part, p1_px: t.p1, p2_px: p, frame: t.frame});
   if (r) {
     toast("taught " + t.part + ": example " + r.result.example_id
       + " (" + r.result.n_examples + " examples)", true);

@@ -816,20 +816,22 @@ def test_approve_and_reject_send_the_grasp_the_page_shows(browser, station):
     d = browser
     control.run()
     control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
-    shown = control.snapshot(0)["proposal"]
+    shown, shown_no = control.snapshot(0)["proposal"], control.snapshot(0)["proposal_no"]
     open_page(d, server, "awaiting approval")
     d.find_element(By.ID, "reason").send_keys("rim")
     d.find_element(By.ID, "btn-reject").click()
     WebDriverWait(d, T).until(lambda _: d.execute_script("return window.__bodies.length") == 1)
-    assert d.execute_script("return window.__bodies") == [{"reason": "rim", "proposal": shown}]
+    assert d.execute_script("return window.__bodies") == [{"reason": "rim", "proposal": shown,
+                                                           "proposal_no": shown_no}]
     # the page a poll behind: its Approve names the rejected grasp, the cell refuses it
     d.execute_script(HOLD_STATE_POLLS)  # no poll answered from here on
     WebDriverWait(d, T).until(lambda _: d.execute_script("return window.__held.length") == 1)
     WebDriverWait(d, T).until(lambda _: control.snapshot(0)["proposal"] not in (None, shown))
+    # (as a page that did not decide it itself: this one keeps Approve off for the grasp it rejected)
     d.execute_script("last.control.state = 'awaiting_approval'; last.control.proposal = arguments[0];"
-                     "render(last)", shown)
+                     "last.control.proposal_no = arguments[1]; decidedNo = null; render(last)", shown, shown_no)
     d.find_element(By.ID, "btn-approve").click()
-    WebDriverWait(d, T).until(lambda _: "no longer the one waiting" in d.find_element(By.ID, "toast").text)
+    WebDriverWait(d, T).until(lambda _: "that grasp was already rejected" in d.find_element(By.ID, "toast").text)
     assert not any(e["event"] == "approve" for e in control.snapshot(200)["events"])
 
 
@@ -1184,3 +1186,50 @@ def test_teach_names_the_frame_it_was_clicked_on(browser, station):
     wait.until(lambda _: "no longer the current one" in d.find_element(By.ID, "toast").text)
     assert d.execute_script("return window.__bodies")[-1]["frame"] == shown
     assert not examples.exists()
+
+
+HOLD_APPROVE_ANSWERS = """window.__heldPosts = [];
+const orig = window.fetch;
+window.fetch = (u, o) => {
+  if (o && o.method === 'POST' && String(u).endsWith('/api/approve')) {
+    const answer = orig(u, o);   // sent now, its answer handed to the page when the test releases it
+    return new Promise((res, rej) => window.__heldPosts.push(() => answer.then(res, rej)));
+  }
+  return orig(u, o);
+};"""
+
+RECORD_TOASTS_AND_SETTLED_POSTS = """window.__toasts = []; window.__settled = 0;
+const toast0 = toast, post0 = post;
+window.toast = (text, ok) => { window.__toasts.push([text, !!ok]); toast0(text, ok); };
+window.post = async (...a) => { try { return await post0(...a); } finally { window.__settled++; } };"""
+
+
+def test_a_double_click_on_approve_decides_once_and_shows_no_error(browser, station):
+    """The second click of a double click reached the cell after the first had decided: its 409 ('no
+    longer the one waiting') was shown as an error for a tap that did what the operator meant."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.02)
+    control.run()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    open_page(d, server, "awaiting approval")
+    d.execute_script(RECORD_TOASTS_AND_SETTLED_POSTS)
+    d.execute_script(HOLD_STATE_POLLS)  # the page keeps showing the cover's grasp ...
+    wait.until(lambda _: d.execute_script("return window.__held.length") == 1)
+    d.execute_script(HOLD_APPROVE_ANSWERS)  # ... and the first click's answer is slow
+    approve = d.find_element(By.ID, "btn-approve")
+    approve.click()
+    wait.until(lambda _: (control.snapshot(0)["proposal"] or {}).get("target") == "board")  # decided
+    if approve.is_enabled():
+        approve.click()  # the double click's second
+    d.execute_script("window.__heldPosts.forEach((release) => release())")
+    wait.until(lambda _: d.execute_script("return window.__settled") == posts(d).count("approve"))
+    assert [t for t, ok in d.execute_script("return window.__toasts") if not ok] == []
+    assert [e["event"] for e in control.snapshot(200)["events"]].count("approve") == 1
+    assert control.snapshot(0)["proposal"]["target"] == "board"
+    d.execute_script("window.__hold = false; window.__held.forEach((release) => release())")
+    wait.until(lambda _: "board" in d.find_element(By.ID, "proposal-text").text)
+    wait.until(lambda _: approve.is_enabled())  # the next grasp can be decided

@@ -421,3 +421,23 @@ def test_a_teach_on_a_frame_that_is_no_longer_current_is_refused(station, tmp_pa
         assert status == 400 and "'frame'" in reply["error"], (bad, reply)
     status, reply = call(server, "POST", "/api/teach", {"part": "board", "p1_px": p1, "p2_px": p2, "frame": shown + 1})
     assert status == 200 and reply["result"]["n_examples"] == 1, reply
+
+
+def test_a_second_approve_of_the_grasp_already_approved_is_harmless(station):
+    """A double tap on Approve: the second request came after the first had decided, and the page
+    showed its 409 ('no longer the one waiting') as an error for a tap that did what was meant."""
+    server, control, _ = station
+    control.set_require_approval(True)
+    assert call(server, "POST", "/api/run")[0] == 200
+    wait_proposal(control, "cover")
+    shown = call(server, "GET", "/api/state")[1]["control"]
+    body = {"proposal": shown["proposal"], "proposal_no": shown.get("proposal_no")}
+    assert call(server, "POST", "/api/approve", body)[0] == 200
+    board = wait_proposal(control, "board")  # the loop took the decision and proposes the next grasp
+    status, answer = call(server, "POST", "/api/approve", body)
+    assert status == 200 and answer["ok"] is True, answer
+    assert control.state == AWAITING_APPROVAL and control.snapshot(0)["proposal"] == board  # undecided
+    assert [e["event"] for e in control.snapshot(200)["events"]].count("approve") == 1
+    status, answer = call(server, "POST", "/api/reject", body)  # the other decision on it is refused
+    assert status == 409 and "already approved" in answer["error"], answer
+    assert call(server, "POST", "/api/approve", {"proposal_no": "1"})[0] == 400

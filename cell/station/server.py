@@ -7,7 +7,8 @@ Routes (JSON unless said otherwise):
     GET  /api/frame.png        the current camera frame (404 until there is one)
     POST /api/run | pause | step | approve | stop | reset
     POST /api/reject           {"reason": "..."}        (the loop turns it into an invalid example)
-                               approve and reject may carry {"proposal": the one shown}: 409 if another waits
+                               approve and reject may carry {"proposal": the one shown, "proposal_no": its
+                               number}: 409 if another waits; a repeat of the decision on it is answered as done
     POST /api/approval         {"required": true|false}  (approve each grasp)
     POST /api/teach            {"part": id, "p1_px": [u, v], "p2_px": [u, v], "frame": index shown}
                                -> backend.teach(...); 409 if that frame is no longer the current one
@@ -322,13 +323,13 @@ class StationServer:
         if cmd == "step":
             return rc.step(by=by)
         if cmd == "approve":
-            return rc.approve(by=by, shown=_shown_proposal(body))
+            return rc.approve(by=by, shown=_shown_proposal(body), shown_no=_shown_proposal_no(body))
         if cmd == "reject":
             shown = _shown_proposal(body)
             reason = body.get("reason", "")
             if not isinstance(reason, str):
                 raise BadInput("'reason' must be a string")
-            return rc.reject(reason[:500], by=by, shown=shown)
+            return rc.reject(reason[:500], by=by, shown=shown, shown_no=_shown_proposal_no(body))
         if cmd == "stop":
             reason = body.get("reason", "")
             state = rc.stop(reason[:500] if isinstance(reason, str) else "", by=by)
@@ -394,9 +395,19 @@ def _shown_proposal(body: dict) -> dict | None:
     return shown
 
 
+def _shown_proposal_no(body: dict) -> int | None:
+    """The number of the proposal the page showed (`proposal_no` of /api/state, optional): a repeat of
+    the decision on it (a double tap) is answered as done, not refused."""
+    return _index(body, "proposal_no", "the proposal_no of the grasp shown (from /api/state)")
+
+
 def _shown_frame(body: dict) -> int | None:
     """The index of the frame a teach was clicked on (`frame`, optional for scripts)."""
-    shown = body.get("frame")
-    if "frame" in body and (not isinstance(shown, int) or isinstance(shown, bool)):
-        raise BadInput("'frame' must be the index of the frame the contacts were clicked on (from /api/state)")
-    return shown
+    return _index(body, "frame", "the index of the frame the contacts were clicked on (from /api/state)")
+
+
+def _index(body: dict, key: str, what: str) -> int | None:
+    value = body.get(key)
+    if key in body and (not isinstance(value, int) or isinstance(value, bool)):
+        raise BadInput(f"'{key}' must be {what}")
+    return value

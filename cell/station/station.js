@@ -17,6 +17,7 @@ let commands = 0;           // commands answered: a state polled before one of t
 let approvalPending = false; // the approve-each box was toggled and the cell has not answered yet
 let zoom = false;           // show the parts' surroundings magnified rather than the whole frame
 let proposalKey = null;     // the pending proposal the reason field was typed for
+let decidedNo = null;       // the proposal_no this page sent a decision for: no second one for it
 
 // ---- token: from the URL fragment (#token=...), kept for this tab only, removed from the URL
 function loadToken() {
@@ -172,8 +173,9 @@ function render(data) {
   $("btn-pause").disabled = !(s === "running" || (s === "awaiting_approval" && !after));
   $("btn-step").disabled = !live;
   $("btn-stop").disabled = !(live || s === "fault");  // in a fault: abandon the sequence, nothing moves
-  $("btn-approve").disabled = s !== "awaiting_approval";
-  $("btn-reject").disabled = s !== "awaiting_approval";
+  const decidable = s === "awaiting_approval" && c.proposal_no !== decidedNo;  // one decision per grasp
+  $("btn-approve").disabled = !decidable;
+  $("btn-reject").disabled = !decidable;
   $("btn-reset").disabled = !["fault", "stopped", "done"].includes(s);
   $("btn-teach").disabled = !teach && !(cell.parts || []).length;  // nothing on the frame to teach on
   $("view").classList.remove("stale");
@@ -480,13 +482,30 @@ function reject() {
     return Promise.resolve(null);
   }
   askReason(false);
-  return post("reject", {reason, proposal: shownProposal()}).then((r) => { if (r) field.value = ""; });
+  return decide("reject", {reason}).then((r) => { if (r) field.value = ""; });
 }
 
-// The proposal drawn on the page: approve/reject carry it, and the cell refuses them (409) when
-// another grasp waits by now (a double tap, or a page a poll behind, decided the next grasp unseen).
-function shownProposal() {
-  return (last && last.control && last.control.proposal) || undefined;  // undefined: not sent
+// Approve and Reject name the grasp drawn on the page (its proposal_no, and the proposal itself): the
+// cell refuses them (409) when another grasp waits by now (a page a poll behind would decide the next
+// grasp unseen), and answers a repeat of the decision (a double tap) as done. From the first tap on,
+// both buttons are off for that grasp, so the second tap of a double tap sends nothing.
+async function decide(cmd, body) {
+  const c = (last && last.control) || {};
+  decidedNo = c.proposal_no;
+  $("btn-approve").disabled = $("btn-reject").disabled = true;
+  // (undefined: not sent)
+  const r = await post(cmd, {...body, proposal: c.proposal || undefined, proposal_no: c.proposal_no ?? undefined});
+  if (!r) {  // not taken (refused, no answer): the grasp may be decided again
+    decidedNo = null;
+    if (last) render(last);
+  }
+  return r;
+}
+
+// The grasp drawn was decided from this page: a second Approve or Reject for it is nothing, quietly
+function decisionSent(id) {
+  return (id === "btn-approve" || id === "btn-reject") && decidedNo != null && !!last
+    && last.control.proposal_no === decidedNo;
 }
 
 function askReason(on) {
@@ -519,6 +538,7 @@ function onKey(ev) {
   if (ev.repeat) return;
   const b = $(id);
   if (b.disabled) {
+    if (decisionSent(id)) return;
     toast(b.textContent.replace(/^\W+/, "") + " is not available now (" + $("state").textContent + ")");
     return;
   }
@@ -533,7 +553,7 @@ function init() {
     b.addEventListener("click", () => post(b.dataset.cmd));
   }
   $("btn-reject").addEventListener("click", reject);
-  $("btn-approve").addEventListener("click", () => post("approve", {proposal: shownProposal()}));
+  $("btn-approve").addEventListener("click", () => decide("approve", {}));
   $("btn-teach").addEventListener("click", startTeach);
   $("btn-zoom").addEventListener("click", toggleZoom);
   $("overlay").addEventListener("click", onFrameClick);

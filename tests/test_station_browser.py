@@ -1233,3 +1233,55 @@ def test_a_double_click_on_approve_decides_once_and_shows_no_error(browser, stat
     d.execute_script("window.__hold = false; window.__held.forEach((release) => release())")
     wait.until(lambda _: "board" in d.find_element(By.ID, "proposal-text").text)
     wait.until(lambda _: approve.is_enabled())  # the next grasp can be decided
+
+
+def test_a_page_left_open_across_a_restart_says_so_and_a_stale_token_says_what_to_do(browser, station, tmp_path):
+    """After a restart with a new token the page got 403s it did not explain; it now says the station
+    restarted, shows the new session's state, and a command with the old token says to open the new link."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.05)
+    open_page(d, server, "idle")
+    port = server.port
+    server.close()
+    control2 = RunControl()
+    cell2 = DemoCell(control2, tmp_path / "examples2.jsonl", parts=demo_parts()[:2], motion_s=0.0)
+    with StationServer(cell2, control2, port=port) as restarted:  # a new random token
+        wait.until(lambda _: "the station was restarted" in d.find_element(By.ID, "toast").text)
+        wait.until(lambda _: len(d.find_elements(By.CSS_SELECTOR, "#parts polygon")) == 2)
+        d.find_element(By.ID, "btn-run").click()
+        wait.until(lambda _: "from before the station restarted" in d.find_element(By.ID, "toast").text)
+        assert "open the new link" in d.find_element(By.ID, "toast").text
+        assert d.find_element(By.ID, "token-card").is_displayed()
+        assert control2.state == "idle" and restarted.token != server.token
+
+
+def test_a_command_sent_to_a_restarted_station_with_the_same_token_is_refused(browser, tmp_path):
+    """With a fixed --token, a command the page sent before it saw the restart went to the new session
+    as if it were the one shown; the station now refuses it and the page says so and shows the new state."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.05)
+    token = "fixed-token-0123456789"
+    control = RunControl()
+    cell = DemoCell(control, tmp_path / "examples.jsonl", motion_s=0.0)
+    with StationServer(cell, control, port=0, token=token) as server:
+        open_page(d, server, "idle")
+        d.execute_script(HOLD_STATE_POLLS)  # the page does not see the restart before the tap
+        wait.until(lambda _: d.execute_script("return window.__held.length") == 1)
+        port = server.port
+    control2 = RunControl()
+    cell2 = DemoCell(control2, tmp_path / "examples2.jsonl", parts=demo_parts()[:2], motion_s=0.0)
+    with StationServer(cell2, control2, port=port, token=token):
+        d.find_element(By.ID, "btn-run").click()
+        wait.until(lambda _: "the station was restarted" in d.find_element(By.ID, "toast").text)
+        assert control2.state == "idle" and posts(d) == ["run"]
+        d.execute_script("window.__hold = false; window.__held.forEach((release) => release())")
+        wait.until(lambda _: len(d.find_elements(By.CSS_SELECTOR, "#parts polygon")) == 2)
+        d.find_element(By.ID, "btn-run").click()  # pressed again on the new state: taken
+        control2.wait_for_state("running", timeout_s=T)

@@ -441,3 +441,26 @@ def test_a_second_approve_of_the_grasp_already_approved_is_harmless(station):
     status, answer = call(server, "POST", "/api/reject", body)  # the other decision on it is refused
     assert status == 409 and "already approved" in answer["error"], answer
     assert call(server, "POST", "/api/approve", {"proposal_no": "1"})[0] == 400
+
+
+def test_each_start_of_the_station_is_a_session_of_its_own(tmp_path):
+    """A page left open across a restart could not tell: with a fixed --token its commands went to the
+    new session as if it were the old one. The state names the session; a command that names an older
+    one is refused (409) and nothing is done, but Stop (a stop is always meant)."""
+    control = RunControl()
+    cell = DemoCell(control, tmp_path / "examples.jsonl", motion_s=0.0)
+    with StationServer(cell, control, port=0, token=TOKEN) as first:
+        old = call(first, "GET", "/api/state")[1]["session"]
+    with StationServer(cell, control, port=0, token=TOKEN) as second:
+        new = call(second, "GET", "/api/state")[1]["session"]
+        assert isinstance(old, str) and isinstance(new, str) and old and old != new
+        status, reply = call(second, "POST", "/api/run", headers={"X-Cell-Session": old})
+        assert status == 409 and "the station was restarted" in reply["error"] and reply["session"] == new, reply
+        assert control.state == "idle"
+        status, reply = call(second, "POST", "/api/run", headers={"X-Cell-Session": new})
+        assert status == 200 and reply["session"] == new and control.state == "running"
+        status, reply = call(second, "POST", "/api/stop", headers={"X-Cell-Session": old})
+        assert status == 200 and control.state == "stopped"
+        assert call(second, "POST", "/api/reset")[0] == 200  # scripts send no session: as before
+        status, reply = call(second, "POST", "/api/run", token="the-token-of-yesterday")
+        assert status == 403 and reply["session"] == new  # the page can tell the station restarted

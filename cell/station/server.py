@@ -3,7 +3,8 @@
 Routes (JSON unless said otherwise):
 
     GET  /                     the page (index.html, station.js, station.css: no CDN, works offline)
-    GET  /api/state            {"control": RunControl.snapshot(), "cell": backend.snapshot()}
+    GET  /api/state            {"session": this start's id, "control": RunControl.snapshot(),
+                                "cell": backend.snapshot()}
     GET  /api/frame.png        the current camera frame (404 until there is one)
     POST /api/run | pause | step | approve | stop | reset
     POST /api/reject           {"reason": "..."}        (the loop turns it into an invalid example)
@@ -14,7 +15,9 @@ Routes (JSON unless said otherwise):
                                -> backend.teach(...); 409 if that frame is no longer the current one
 
 Every POST needs the session token in the `X-Cell-Token` header: a missing or wrong token
-gets 403 and changes nothing. GETs need none (looking is harmless). The server binds to
+gets 403 and changes nothing. Each start of the station is a session with an id of its own, in
+the state as `session`: a POST whose `X-Cell-Session` header names another one (a page left open
+across a restart) gets 409 and changes nothing, but Stop. GETs need none (looking is harmless). The server binds to
 127.0.0.1 by default and then also refuses requests whose Host header is not a loopback
 name (a web page elsewhere cannot reach the arm through DNS rebinding); the custom header
 makes every POST a CORS-preflighted request, which the server never grants to other origins.
@@ -42,6 +45,7 @@ from cell.runtime.control import InvalidCommand, RunControl
 log = logging.getLogger(__name__)
 
 TOKEN_HEADER = "X-Cell-Token"
+SESSION_HEADER = "X-Cell-Session"  # the session whose state the page showed (optional)
 MAX_BODY_BYTES = 64 * 1024
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
 STATIC = {"/": ("index.html", "text/html; charset=utf-8"),
@@ -130,8 +134,8 @@ class _Handler(BaseHTTPRequestHandler):
     def _json(self, status: int, obj) -> None:
         self._send(status, json.dumps(_jsonable(obj), separators=(",", ":")).encode("utf-8"), "application/json")
 
-    def _error(self, status: int, message: str) -> None:
-        self._json(status, {"ok": False, "error": message})
+    def _error(self, status: int, message: str, **extra) -> None:
+        self._json(status, {"ok": False, "error": message, **extra})
 
     def _not_allowed(self, allow: str) -> None:
         self._send(405, json.dumps({"ok": False, "error": f"{self.command} is not allowed here: use {allow}"}
@@ -194,8 +198,9 @@ class _Handler(BaseHTTPRequestHandler):
         given = self.headers.get(TOKEN_HEADER, "")
         if not given or not hmac.compare_digest(given.encode(), st.token.encode()):
             self._drop_body()
+            # the session tells the page whether the station restarted since it got its token
             return self._error(403, f"a valid token is required in the {TOKEN_HEADER} header "
-                                    "(it is printed when the station starts)")
+                                    "(it is printed when the station starts)", session=st.session_id)
         path = urlsplit(self.path).path
         if path in GET_ONLY:
             self._drop_body()
@@ -203,6 +208,11 @@ class _Handler(BaseHTTPRequestHandler):
         if not path.startswith("/api/"):
             return self._error(404, f"no such command: {path}")
         cmd = path[len("/api/"):]
+        if self._for_an_older_session(cmd):
+            self._drop_body()
+            return self._error(409, "the station was restarted since this page showed its state: nothing was "
+                                    "done; the page shows the new state now, press again if still meant",
+                               session=st.session_id)
         try:
             body = self._read_body()
             result = st.command(cmd, body)
@@ -219,9 +229,15 @@ class _Handler(BaseHTTPRequestHandler):
             state = st.state()
         except Exception as e:  # the command was done (a Stop applied): say so, not a dropped connection
             log.exception("the state after POST %s failed", path)
-            return self._json(200, {"ok": True, "result": result,
+            return self._json(200, {"ok": True, "result": result, "session": st.session_id,
                                     "state_error": f"the cell cannot report its state ({type(e).__name__}: {e})"})
         return self._json(200, {"ok": True, "result": result, **state})
+
+    def _for_an_older_session(self, cmd: str) -> bool:
+        """A command from a page that showed an earlier start of the station (with a fixed --token it
+        would pass): meant for what that page showed, not for this session. Stop is always meant."""
+        shown = self.headers.get(SESSION_HEADER)
+        return cmd != "stop" and shown is not None and shown != self.station.session_id
 
     def _drop_body(self) -> None:
         """Read and drop the body of a request that is refused, so the connection stays sane."""
@@ -276,6 +292,7 @@ class StationServer:
         self.backend = backend
         self.control = control
         self.token = token or new_token()
+        self.session_id = secrets.token_hex(8)  # new at each start: a page tells a restart by it
         self.loopback_only = host in LOOPBACK_HOSTS
         handler = type("StationHandler", (_Handler,), {"station": self})
         try:
@@ -310,7 +327,7 @@ class StationServer:
         return self._static_cache[name]
 
     def state(self) -> dict:
-        return {"control": self.control.snapshot(), "cell": self.backend.snapshot()}
+        return {"session": self.session_id, "control": self.control.snapshot(), "cell": self.backend.snapshot()}
 
     def command(self, cmd: str, body: dict):
         """Apply one operator command (token already checked); returns the command's result."""

@@ -9,6 +9,8 @@ const OFFLINE_POLL_MS = 1000;
 const $ = (id) => document.getElementById(id);
 
 let token = "";
+let tokenSession = null;    // the station's session the token was first used in
+let session = null;         // the station's session (new at each start) whose state is shown
 let last = null;            // last state received
 let frameIndex = null;      // index of the frame shown
 let teach = null;           // null, or {stage: "part" | "p1" | "p2", part, p1, frame (its index), note}
@@ -23,13 +25,45 @@ let decidedNo = null;       // the proposal_no this page sent a decision for: no
 function loadToken() {
   const m = /(?:^#|&)token=([^&]+)/.exec(location.hash);
   if (m) {
-    token = decodeURIComponent(m[1]);
-    sessionStorage.setItem("cell-token", token);
+    setToken(decodeURIComponent(m[1]));
     history.replaceState(null, "", location.pathname + location.search);
   } else {
     token = sessionStorage.getItem("cell-token") || "";
+    tokenSession = sessionStorage.getItem("cell-token-session");
   }
   $("token-card").classList.toggle("hidden", !!token);
+}
+
+// A token given now belongs to the session the page sees next
+function setToken(t) {
+  token = t;
+  tokenSession = null;
+  sessionStorage.setItem("cell-token", token);
+  sessionStorage.removeItem("cell-token-session");
+}
+
+// Each start of the station is a session with an id of its own. A page left open across a restart
+// says so, and forgets what it held of the old session (the frame's number, a teach begun, a decision
+// sent); the old session's token is remembered, to explain a refusal of it.
+function noteSession(id) {
+  if (!id) return;
+  if (token && !tokenSession) {
+    tokenSession = id;
+    sessionStorage.setItem("cell-token-session", id);
+  }
+  if (session !== null && id !== session) {
+    frameIndex = null;
+    teach = null;
+    decidedNo = null;
+    $("log").dataset.newest = "";
+    toast("the station was restarted: this page shows its new state now");
+  }
+  session = id;
+}
+
+function askForToken() {
+  $("token-card").classList.remove("hidden");
+  $("token").focus();
 }
 
 function toast(text, ok) {
@@ -45,24 +79,25 @@ function toast(text, ok) {
 // ---- talking to the cell
 async function post(cmd, body) {
   if (!token) {
-    $("token-card").classList.remove("hidden");
-    $("token").focus();
+    askForToken();
     toast("enter the station token first");
     return null;
   }
   busy = true;
   try {
-    const r = await fetch("/api/" + cmd, {
-      method: "POST",
-      headers: {"Content-Type": "application/json", "X-Cell-Token": token},
-      body: JSON.stringify(body || {}),
-    });
+    const headers = {"Content-Type": "application/json", "X-Cell-Token": token};
+    if (session) headers["X-Cell-Session"] = session;  // a station started since refuses the command (409)
+    const r = await fetch("/api/" + cmd, {method: "POST", headers, body: JSON.stringify(body || {})});
     const data = await r.json().catch(() => ({ok: false, error: "HTTP " + r.status}));
+    const tokenIsOld = !!tokenSession && !!data.session && data.session !== tokenSession;
+    if (!data.ok) noteSession(data.session);
     if (r.status === 403 && /token/.test(data.error || "")) {
-      $("token-card").classList.remove("hidden");
-      $("token").focus();
+      askForToken();
       // the server's words are for scripts (a header's name); the operator needs what to do
-      data.error = "this page has no valid token (was the cell restarted?): open the link the cell printed, "
+      data.error = (tokenIsOld
+        ? "this page's token is from before the station restarted, and no longer valid: open the new link "
+          + "the cell printed, "
+        : "this page has no valid token (was the cell restarted?): open the link the cell printed, ")
         + "or enter the token it printed; nothing was done";
     }
     if (!data.ok) {
@@ -147,6 +182,7 @@ function el(name, attrs, parent) {
 const ptsAttr = (pts) => pts.map((p) => p[0] + "," + p[1]).join(" ");
 
 function render(data) {
+  noteSession(data.session);
   last = data;
   const c = data.control, cell = data.cell || {};
   const badge = $("state");
@@ -568,8 +604,7 @@ function init() {
     if (!r && last) ev.target.checked = !!last.control.require_approval;
   });
   const useToken = () => {
-    token = $("token").value.trim();
-    sessionStorage.setItem("cell-token", token);
+    setToken($("token").value.trim());
     $("token-card").classList.toggle("hidden", !!token);
   };
   $("btn-token").addEventListener("click", useToken);

@@ -1188,10 +1188,10 @@ def test_teach_names_the_frame_it_was_clicked_on(browser, station):
     assert not examples.exists()
 
 
-HOLD_APPROVE_ANSWERS = """window.__heldPosts = [];
-const orig = window.fetch;
+HOLD_ANSWERS_OF = """window.__heldPosts = [];
+const orig = window.fetch, path = arguments[0];
 window.fetch = (u, o) => {
-  if (o && o.method === 'POST' && String(u).endsWith('/api/approve')) {
+  if (o && o.method === 'POST' && String(u).endsWith(path)) {
     const answer = orig(u, o);   // sent now, its answer handed to the page when the test releases it
     return new Promise((res, rej) => window.__heldPosts.push(() => answer.then(res, rej)));
   }
@@ -1219,7 +1219,7 @@ def test_a_double_click_on_approve_decides_once_and_shows_no_error(browser, stat
     d.execute_script(RECORD_TOASTS_AND_SETTLED_POSTS)
     d.execute_script(HOLD_STATE_POLLS)  # the page keeps showing the cover's grasp ...
     wait.until(lambda _: d.execute_script("return window.__held.length") == 1)
-    d.execute_script(HOLD_APPROVE_ANSWERS)  # ... and the first click's answer is slow
+    d.execute_script(HOLD_ANSWERS_OF, "/api/approve")  # ... and the first click's answer is slow
     approve = d.find_element(By.ID, "btn-approve")
     approve.click()
     wait.until(lambda _: (control.snapshot(0)["proposal"] or {}).get("target") == "board")  # decided
@@ -1285,3 +1285,25 @@ def test_a_command_sent_to_a_restarted_station_with_the_same_token_is_refused(br
         wait.until(lambda _: len(d.find_elements(By.CSS_SELECTOR, "#parts polygon")) == 2)
         d.find_element(By.ID, "btn-run").click()  # pressed again on the new state: taken
         control2.wait_for_state("running", timeout_s=T)
+
+
+def test_the_state_shows_during_a_slow_command_and_its_late_answer_does_not_undo_it(browser, station):
+    """While a command was on its way, the page dropped every state it polled: a slow answer froze the
+    page on the state before the command (the grasp the loop proposed meanwhile did not show)."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.02)
+    open_page(d, server, "idle")
+    d.execute_script(RECORD_TOASTS_AND_SETTLED_POSTS)
+    d.execute_script(HOLD_ANSWERS_OF, "/api/run")  # Run is taken, its answer ("running") is slow
+    d.find_element(By.ID, "btn-run").click()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)  # the loop went on and proposes a grasp
+    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "awaiting approval")
+    assert "cover" in d.find_element(By.ID, "proposal-text").text
+    d.execute_script("window.__heldPosts.forEach((release) => release())")  # the older answer arrives
+    wait.until(lambda _: d.execute_script("return window.__settled") == 1)
+    assert d.find_element(By.ID, "state").text.lower() == "awaiting approval"
+    assert d.find_element(By.ID, "btn-approve").is_enabled()

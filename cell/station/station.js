@@ -14,8 +14,6 @@ let session = null;         // the station's session (new at each start) whose s
 let last = null;            // last state received
 let frameIndex = null;      // index of the frame shown
 let teach = null;           // null, or {stage: "part" | "p1" | "p2", part, p1, frame (its index), note}
-let busy = false;
-let commands = 0;           // commands answered: a state polled before one of them is stale
 let approvalPending = false; // the approve-each box was toggled and the cell has not answered yet
 let zoom = false;           // show the parts' surroundings magnified rather than the whole frame
 let proposalKey = null;     // the pending proposal the reason field was typed for
@@ -83,7 +81,6 @@ async function post(cmd, body) {
     toast("enter the station token first");
     return null;
   }
-  busy = true;
   try {
     const headers = {"Content-Type": "application/json", "X-Cell-Token": token};
     if (session) headers["X-Cell-Session"] = session;  // a station started since refuses the command (409)
@@ -104,25 +101,28 @@ async function post(cmd, body) {
       toast(data.error || ("HTTP " + r.status));
       return null;
     }
-    commands++;
     if (data.state_error) {  // done, but the state to show with it could not be made
       toast(cmd + ": done; " + data.state_error, true);
       return data;
     }
-    render(data);
+    if (!olderThanShown(data)) render(data);  // a poll answered after it may be newer
     return data;
   } catch (e) {
     toast("the cell does not answer: " + e);
     return null;
-  } finally {
-    busy = false;
   }
+}
+
+// A state older than the one shown: a poll asked before a command's answer came (it would flip the page
+// back, e.g. to "awaiting approval" with Approve live after Stop), or a slow command's answer overtaken
+// by a poll. The control's seq counts its changes; each start of the station counts anew.
+function olderThanShown(data) {
+  return !!last && data.session === last.session && data.control.seq < last.control.seq;
 }
 
 async function poll() {
   let answered = true;
   try {
-    const before = commands;
     const r = await fetch("/api/state", {cache: "no-store"});
     if (!r.ok) {  // the cell is there but cannot say its state: the last one shown would be a lie
       let why = "HTTP " + r.status;
@@ -131,9 +131,7 @@ async function poll() {
       offline("the cell cannot report its state (" + why + "); commands are off until it can");
     } else {
       const data = await r.json();
-      // asked before a command was answered: older than what the command's answer showed (it flipped
-      // the page back to e.g. "awaiting approval" with Approve live, for one poll)
-      if (data && !busy && before === commands) render(data);
+      if (data && !olderThanShown(data)) render(data);  // also while a command is on its way
     }
   } catch (e) {
     answered = false;

@@ -15,11 +15,11 @@ Routes (JSON unless said otherwise):
                                -> backend.teach(...); 409 if that frame is no longer the current one
 
 Every POST needs the session token in the `X-Cell-Token` header: a missing or wrong token
-gets 403 and changes nothing. Each start of the station is a session with an id of its own, in
-the state as `session`: a POST whose `X-Cell-Session` header names another one (a page left open
-across a restart) gets 409 and changes nothing, but Stop. GETs need none (looking is harmless). The server binds to
-127.0.0.1 by default and then also refuses requests whose Host header is not a loopback
-name (a web page elsewhere cannot reach the arm through DNS rebinding); the custom header
+gets 403 and changes nothing. GETs need none (looking is harmless). Each start of the station is
+a session with an id of its own, in the state as `session`: a POST whose `X-Cell-Session` header
+names another one (a page left open across a restart) gets 409 and changes nothing, but Stop.
+The server binds to 127.0.0.1 by default and then also refuses requests whose Host header is not
+a loopback name (a web page elsewhere cannot reach the arm through DNS rebinding); the custom header
 makes every POST a CORS-preflighted request, which the server never grants to other origins.
 Status codes: 400 bad input, 403 token/host, 404, 405 a method the route does not take (with
 Allow), 409 a command the state does not allow.

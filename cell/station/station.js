@@ -525,7 +525,7 @@ function reject() {
 // both buttons are off for that grasp, so the second tap of a double tap sends nothing.
 async function decide(cmd, body) {
   const c = (last && last.control) || {};
-  decidedNo = c.proposal_no;
+  decidedNo = c.proposal_no ?? null;
   $("btn-approve").disabled = $("btn-reject").disabled = true;
   // (undefined: not sent)
   const r = await post(cmd, {...body, proposal: c.proposal || undefined, proposal_no: c.proposal_no ?? undefined});

@@ -170,6 +170,35 @@ def test_a_decision_for_the_grasp_the_operator_saw_never_lands_on_the_next_one()
     assert [d.approved for d in loop.decisions] == [False, True]
 
 
+def test_a_repeat_of_a_decision_on_the_same_grasp_changes_nothing_and_is_no_error():
+    """A double tap on Approve: the second approve came after the first had decided (refused: 'no grasp
+    is waiting' or 'no longer the one waiting', an error on the page for a tap that did what was meant)
+    or before the loop took the first (a second approve logged). Proposals are numbered; a decision
+    names the one it is for."""
+    rc = RunControl(require_approval=True)
+    loop = Loop(rc, n=2)
+    loop.start()
+    rc.run()
+    rc.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    no = rc.snapshot()["proposal_no"]
+    rc.approve(shown_no=no)
+    assert rc.approve(shown_no=no) in (AWAITING_APPROVAL, RUNNING)  # before the loop took the first, or after
+    wait_until(lambda: rc.snapshot()["proposal_no"] == no + 1)  # the next grasp waits
+    assert rc.approve(shown_no=no) == AWAITING_APPROVAL  # a late second tap: nothing decided
+    with pytest.raises(InvalidCommand, match="already approved"):
+        rc.reject("changed my mind", shown_no=no)
+    with pytest.raises(InvalidCommand, match="no longer the one waiting"):
+        rc.approve(shown_no=no + 7)
+    assert len(loop.decisions) == 1 and rc.snapshot()["proposal"]["target"] == "p1"
+    assert [e["event"] for e in rc.snapshot(200)["events"]].count("approve") == 1
+    rc.reject("rim", shown_no=no + 1)
+    assert rc.reject("rim again", shown_no=no + 1) in (AWAITING_APPROVAL, RUNNING, DONE)
+    rc.wait_for_state(DONE, timeout_s=T)
+    loop.join(T)
+    assert [d.approved for d in loop.decisions] == [True, False] and loop.decisions[1].reason == "rim"
+    assert rc.snapshot()["proposal_no"] is None  # none waits
+
+
 def test_no_approval_required_returns_at_once():
     rc = RunControl(require_approval=False)
     rc.run()

@@ -816,20 +816,22 @@ def test_approve_and_reject_send_the_grasp_the_page_shows(browser, station):
     d = browser
     control.run()
     control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
-    shown = control.snapshot(0)["proposal"]
+    shown, shown_no = control.snapshot(0)["proposal"], control.snapshot(0)["proposal_no"]
     open_page(d, server, "awaiting approval")
     d.find_element(By.ID, "reason").send_keys("rim")
     d.find_element(By.ID, "btn-reject").click()
     WebDriverWait(d, T).until(lambda _: d.execute_script("return window.__bodies.length") == 1)
-    assert d.execute_script("return window.__bodies") == [{"reason": "rim", "proposal": shown}]
+    assert d.execute_script("return window.__bodies") == [{"reason": "rim", "proposal": shown,
+                                                           "proposal_no": shown_no}]
     # the page a poll behind: its Approve names the rejected grasp, the cell refuses it
     d.execute_script(HOLD_STATE_POLLS)  # no poll answered from here on
     WebDriverWait(d, T).until(lambda _: d.execute_script("return window.__held.length") == 1)
     WebDriverWait(d, T).until(lambda _: control.snapshot(0)["proposal"] not in (None, shown))
+    # (as a page that did not decide it itself: this one keeps Approve off for the grasp it rejected)
     d.execute_script("last.control.state = 'awaiting_approval'; last.control.proposal = arguments[0];"
-                     "render(last)", shown)
+                     "last.control.proposal_no = arguments[1]; decidedNo = null; render(last)", shown, shown_no)
     d.find_element(By.ID, "btn-approve").click()
-    WebDriverWait(d, T).until(lambda _: "no longer the one waiting" in d.find_element(By.ID, "toast").text)
+    WebDriverWait(d, T).until(lambda _: "that grasp was already rejected" in d.find_element(By.ID, "toast").text)
     assert not any(e["event"] == "approve" for e in control.snapshot(200)["events"])
 
 
@@ -1158,3 +1160,150 @@ def test_while_the_cell_does_not_answer_the_page_asks_once_a_second(browser, sta
     # (one poll may still have been answered between the two reads above: skip it)
     offline = d.execute_script("return window.__delays.slice(arguments[0])", len(online) + 1)
     assert set(online) == {300} and offline and set(offline) == {1000}, (online, offline)
+
+
+def test_teach_names_the_frame_it_was_clicked_on(browser, station):
+    """The cell applied a teach to whatever frame it held by then; the page now says which frame the
+    clicks were on, and the cell refuses a teach for a frame that is no longer current."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, cell, examples = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.05)
+    open_page(d, server, "idle")
+    board = next(p for p in demo_parts() if p.id == "board")
+    o = board.outline_mm
+    shown = cell.snapshot()["frame"]["index"]
+    d.find_element(By.ID, "btn-teach").click()
+    click_frame_px(d, *mm_to_px(board.polygon.centroid.coords[0]))
+    click_frame_px(d, *mm_to_px((o[0] + o[1]) / 2))
+    wait.until(lambda _: "second contact" in d.find_element(By.ID, "teach-status").text)
+    d.execute_script(HOLD_STATE_POLLS)  # the page stays a frame behind ...
+    wait.until(lambda _: d.execute_script("return window.__held.length") == 1)
+    cell._render()  # ... while the camera's next frame comes in
+    click_frame_px(d, *mm_to_px((o[2] + o[3]) / 2))
+    wait.until(lambda _: "no longer the current one" in d.find_element(By.ID, "toast").text)
+    assert d.execute_script("return window.__bodies")[-1]["frame"] == shown
+    assert not examples.exists()
+
+
+HOLD_ANSWERS_OF = """window.__heldPosts = [];
+const orig = window.fetch, path = arguments[0];
+window.fetch = (u, o) => {
+  if (o && o.method === 'POST' && String(u).endsWith(path)) {
+    const answer = orig(u, o);   // sent now, its answer handed to the page when the test releases it
+    return new Promise((res, rej) => window.__heldPosts.push(() => answer.then(res, rej)));
+  }
+  return orig(u, o);
+};"""
+
+RECORD_TOASTS_AND_SETTLED_POSTS = """window.__toasts = []; window.__settled = 0;
+const toast0 = toast, post0 = post;
+window.toast = (text, ok) => { window.__toasts.push([text, !!ok]); toast0(text, ok); };
+window.post = async (...a) => { try { return await post0(...a); } finally { window.__settled++; } };"""
+
+
+def test_a_double_click_on_approve_decides_once_and_shows_no_error(browser, station):
+    """The second click of a double click reached the cell after the first had decided: its 409 ('no
+    longer the one waiting') was shown as an error for a tap that did what the operator meant."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.02)
+    control.run()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    open_page(d, server, "awaiting approval")
+    d.execute_script(RECORD_TOASTS_AND_SETTLED_POSTS)
+    d.execute_script(HOLD_STATE_POLLS)  # the page keeps showing the cover's grasp ...
+    wait.until(lambda _: d.execute_script("return window.__held.length") == 1)
+    d.execute_script(HOLD_ANSWERS_OF, "/api/approve")  # ... and the first click's answer is slow
+    approve = d.find_element(By.ID, "btn-approve")
+    approve.click()
+    wait.until(lambda _: (control.snapshot(0)["proposal"] or {}).get("target") == "board")  # decided
+    if approve.is_enabled():
+        approve.click()  # the double click's second
+    d.execute_script("window.__heldPosts.forEach((release) => release())")
+    wait.until(lambda _: d.execute_script("return window.__settled") == posts(d).count("approve"))
+    assert [t for t, ok in d.execute_script("return window.__toasts") if not ok] == []
+    assert [e["event"] for e in control.snapshot(200)["events"]].count("approve") == 1
+    assert control.snapshot(0)["proposal"]["target"] == "board"
+    d.execute_script("window.__hold = false; window.__held.forEach((release) => release())")
+    wait.until(lambda _: "board" in d.find_element(By.ID, "proposal-text").text)
+    wait.until(lambda _: approve.is_enabled())  # the next grasp can be decided
+
+
+def test_a_page_left_open_across_a_restart_says_so_and_a_stale_token_says_what_to_do(browser, station, tmp_path):
+    """After a restart with a new token the page got 403s it did not explain; it now says the station
+    restarted, shows the new session's state, and a command with the old token says to open the new link."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.05)
+    open_page(d, server, "idle")
+    port = server.port
+    server.close()
+    control2 = RunControl()
+    cell2 = DemoCell(control2, tmp_path / "examples2.jsonl", parts=demo_parts()[:2], motion_s=0.0)
+    with StationServer(cell2, control2, port=port) as restarted:  # a new random token
+        wait.until(lambda _: "the station was restarted" in d.find_element(By.ID, "toast").text)
+        wait.until(lambda _: len(d.find_elements(By.CSS_SELECTOR, "#parts polygon")) == 2)
+        d.find_element(By.ID, "btn-run").click()
+        wait.until(lambda _: "from before the station restarted" in d.find_element(By.ID, "toast").text)
+        assert "open the new link" in d.find_element(By.ID, "toast").text
+        assert d.find_element(By.ID, "token-card").is_displayed()
+        assert control2.state == "idle" and restarted.token != server.token
+
+
+def test_a_command_sent_to_a_restarted_station_with_the_same_token_is_refused(browser, tmp_path):
+    """With a fixed --token, a command the page sent before it saw the restart went to the new session
+    as if it were the one shown; the station now refuses it and the page says so and shows the new state."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.05)
+    token = "fixed-token-0123456789"
+    control = RunControl()
+    cell = DemoCell(control, tmp_path / "examples.jsonl", motion_s=0.0)
+    with StationServer(cell, control, port=0, token=token) as server:
+        open_page(d, server, "idle")
+        d.execute_script(HOLD_STATE_POLLS)  # the page does not see the restart before the tap
+        wait.until(lambda _: d.execute_script("return window.__held.length") == 1)
+        port = server.port
+    control2 = RunControl()
+    cell2 = DemoCell(control2, tmp_path / "examples2.jsonl", parts=demo_parts()[:2], motion_s=0.0)
+    with StationServer(cell2, control2, port=port, token=token):
+        d.find_element(By.ID, "btn-run").click()
+        wait.until(lambda _: "the station was restarted" in d.find_element(By.ID, "toast").text)
+        assert control2.state == "idle" and posts(d) == ["run"]
+        d.execute_script("window.__hold = false; window.__held.forEach((release) => release())")
+        wait.until(lambda _: len(d.find_elements(By.CSS_SELECTOR, "#parts polygon")) == 2)
+        d.find_element(By.ID, "btn-run").click()  # pressed again on the new state: taken
+        control2.wait_for_state("running", timeout_s=T)
+
+
+def test_the_state_shows_during_a_slow_command_and_its_late_answer_does_not_undo_it(browser, station):
+    """While a command was on its way, the page dropped every state it polled: a slow answer froze the
+    page on the state before the command (the grasp the loop proposed meanwhile did not show)."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, _, _ = station
+    d = browser
+    wait = WebDriverWait(d, T, poll_frequency=0.02)
+    open_page(d, server, "idle")
+    d.execute_script(RECORD_TOASTS_AND_SETTLED_POSTS)
+    d.execute_script(HOLD_ANSWERS_OF, "/api/run")  # Run is taken, its answer ("running") is slow
+    d.find_element(By.ID, "btn-run").click()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)  # the loop went on and proposes a grasp
+    wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "awaiting approval")
+    assert "cover" in d.find_element(By.ID, "proposal-text").text
+    d.execute_script("window.__heldPosts.forEach((release) => release())")  # the older answer arrives
+    wait.until(lambda _: d.execute_script("return window.__settled") == 1)
+    assert d.find_element(By.ID, "state").text.lower() == "awaiting approval"
+    assert d.find_element(By.ID, "btn-approve").is_enabled()

@@ -394,3 +394,73 @@ def test_a_command_is_answered_even_when_the_state_to_show_with_it_fails(station
     assert status == 200 and reply["ok"] is True, reply
     assert "the cell cannot report its state (RuntimeError: camera buffer gone)" in reply["state_error"]
     assert control.snapshot(0)["state"] == "stopped"
+
+
+def board_contacts_px():
+    """Two points on opposite long edges of the demo's board, in px as the page sends them."""
+    from cell.station.demo import demo_parts
+
+    o = next(p for p in demo_parts() if p.id == "board").outline_mm
+    return mm_to_px((o[0] + o[1]) / 2).tolist(), mm_to_px((o[2] + o[3]) / 2).tolist()
+
+
+def test_a_teach_on_a_frame_that_is_no_longer_current_is_refused(station, tmp_path):
+    """The clicks are points on the picture the operator saw: a teach was applied to whatever frame
+    the cell held by then (the part may have moved or gone). The page sends the frame it showed."""
+    server, control, cell = station
+    p1, p2 = board_contacts_px()
+    shown = cell.snapshot()["frame"]["index"]
+    cell._render()  # the camera's next frame comes in between the clicks and the request
+    status, reply = call(server, "POST", "/api/teach", {"part": "board", "p1_px": p1, "p2_px": p2, "frame": shown})
+    assert status == 409 and f"frame taught on ({shown}) is no longer the current one (now {shown + 1})" \
+        in reply["error"], reply
+    assert not (tmp_path / "examples.jsonl").exists()
+    assert not any(e["event"] == "teach" for e in control.snapshot(200)["events"])
+    for bad in ("1", True, 1.0, None):
+        status, reply = call(server, "POST", "/api/teach", {"part": "board", "p1_px": p1, "p2_px": p2, "frame": bad})
+        assert status == 400 and "'frame'" in reply["error"], (bad, reply)
+    status, reply = call(server, "POST", "/api/teach", {"part": "board", "p1_px": p1, "p2_px": p2, "frame": shown + 1})
+    assert status == 200 and reply["result"]["n_examples"] == 1, reply
+
+
+def test_a_second_approve_of_the_grasp_already_approved_is_harmless(station):
+    """A double tap on Approve: the second request came after the first had decided, and the page
+    showed its 409 ('no longer the one waiting') as an error for a tap that did what was meant."""
+    server, control, _ = station
+    control.set_require_approval(True)
+    assert call(server, "POST", "/api/run")[0] == 200
+    wait_proposal(control, "cover")
+    shown = call(server, "GET", "/api/state")[1]["control"]
+    body = {"proposal": shown["proposal"], "proposal_no": shown.get("proposal_no")}
+    assert call(server, "POST", "/api/approve", body)[0] == 200
+    board = wait_proposal(control, "board")  # the loop took the decision and proposes the next grasp
+    status, answer = call(server, "POST", "/api/approve", body)
+    assert status == 200 and answer["ok"] is True, answer
+    assert control.state == AWAITING_APPROVAL and control.snapshot(0)["proposal"] == board  # undecided
+    assert [e["event"] for e in control.snapshot(200)["events"]].count("approve") == 1
+    status, answer = call(server, "POST", "/api/reject", body)  # the other decision on it is refused
+    assert status == 409 and "already approved" in answer["error"], answer
+    assert call(server, "POST", "/api/approve", {"proposal_no": "1"})[0] == 400
+
+
+def test_each_start_of_the_station_is_a_session_of_its_own(tmp_path):
+    """A page left open across a restart could not tell: with a fixed --token its commands went to the
+    new session as if it were the old one. The state names the session; a command that names an older
+    one is refused (409) and nothing is done, but Stop (a stop is always meant)."""
+    control = RunControl()
+    cell = DemoCell(control, tmp_path / "examples.jsonl", motion_s=0.0)
+    with StationServer(cell, control, port=0, token=TOKEN) as first:
+        old = call(first, "GET", "/api/state")[1]["session"]
+    with StationServer(cell, control, port=0, token=TOKEN) as second:
+        new = call(second, "GET", "/api/state")[1]["session"]
+        assert isinstance(old, str) and isinstance(new, str) and old and old != new
+        status, reply = call(second, "POST", "/api/run", headers={"X-Cell-Session": old})
+        assert status == 409 and "the station was restarted" in reply["error"] and reply["session"] == new, reply
+        assert control.state == "idle"
+        status, reply = call(second, "POST", "/api/run", headers={"X-Cell-Session": new})
+        assert status == 200 and reply["session"] == new and control.state == "running"
+        status, reply = call(second, "POST", "/api/stop", headers={"X-Cell-Session": old})
+        assert status == 200 and control.state == "stopped"
+        assert call(second, "POST", "/api/reset")[0] == 200  # scripts send no session: as before
+        status, reply = call(second, "POST", "/api/run", token="the-token-of-yesterday")
+        assert status == 403 and reply["session"] == new  # the page can tell the station restarted

@@ -75,3 +75,40 @@ def test_without_a_teach_function_teaching_is_refused():
         assert status == 409 and "does not take taught grasps" in reply["error"]
     with pytest.raises(ValueError, match="uint8"):
         view.show_frame(0, np.zeros((4, 4), float))
+
+
+def test_numpy_values_in_the_state_are_served_as_json_numbers_and_lists():
+    """The loop's state holds numpy values (a count, a score, a flag, joints as an array): the
+    server's JSON writer raised on them, so the page got a 500 for every poll, and a command the
+    cell took was answered as an error."""
+    view = LiveView(info={"examples": {"path": "x.jsonl", "count": np.int64(3)}, "score": np.float64(0.25),
+                          "ok": np.bool_(True), "joints_deg": np.array([10.0, -20.5]),
+                          "reach_mm": np.float32(1.5), "unknown": float("nan")})
+    control = RunControl()
+    control.log("note", "numpy in the event data", step=np.int64(2), seen=np.array([1, 2]))
+    with StationServer(view, control, port=0, token=TOKEN) as server:
+        status, raw = _get(server, "/api/state")
+        cell = json.loads(raw, parse_constant=lambda c: pytest.fail(f"{c} is not JSON"))["cell"]
+        assert status == 200
+        assert cell["examples"]["count"] == 3 and cell["score"] == 0.25 and cell["ok"] is True
+        assert cell["joints_deg"] == [10.0, -20.5] and cell["reach_mm"] == 1.5 and cell["unknown"] is None
+        status, reply = _post(server, "/api/pause", {})  # a command's answer carries the same state
+        assert status == 200 and reply["ok"] is True and reply["cell"]["ok"] is True
+        note = next(e for e in reply["control"]["events"] if e["event"] == "note")
+        assert note["data"] == {"step": 2, "seen": [1, 2]}
+
+
+def test_a_teach_on_an_older_frame_does_not_reach_the_loop():
+    taught = []
+    view = LiveView(lambda *a: taught.append(a) or {"example_id": "ex", "n_examples": 1})
+    outline = np.array([[20, 10], [50, 10], [50, 30], [20, 30]])
+    with StationServer(view, RunControl(), port=0, token=TOKEN) as server:
+        view.show_frame(7, np.zeros((60, 80, 3), np.uint8))
+        view.show_parts([{"id": "cover", "outline_px": outline}])
+        view.show_frame(8, np.zeros((60, 80, 3), np.uint8))  # the loop moved on; the cover is seen again
+        view.show_parts([{"id": "cover", "outline_px": outline + 5}])
+        body = {"part": "cover", "p1_px": [20, 15], "p2_px": [50, 25], "frame": 7}
+        status, reply = _post(server, "/api/teach", body)
+        assert status == 409 and "no longer the current one (now 8)" in reply["error"] and taught == []
+        status, reply = _post(server, "/api/teach", {**body, "frame": 8})
+        assert status == 200 and len(taught) == 1

@@ -81,6 +81,8 @@ class RunControl:
         self._stop_pending = False  # a stop the loop has not yet seen (consumed by raising Stopped)
         self._pause_after_decision = False
         self._proposal: dict | None = None
+        self._proposal_no = 0  # numbers the proposals: a decision names the one it is for
+        self._decided: tuple[int, bool] | None = None  # (proposal_no, approved) of the last decision
         self._decision: Decision | None = None
         self._withdrawn: Interrupted | None = None
         self._checkpoint: str | None = None
@@ -122,12 +124,29 @@ class RunControl:
     def _refuse(self, command: str, why: str):
         raise InvalidCommand(f"cannot {command} while {self._state}: {why}")
 
-    def _refuse_unseen_locked(self, shown: dict | None) -> None:
+    def _refuse_unseen_locked(self, shown: dict | None, shown_no: int | None) -> None:
         """A decision for the proposal the operator saw must not land on another one that came since
-        (a double tap, a page a poll behind)."""
-        if shown is not None and self._proposal is not None and shown != self._proposal:
+        (a page a poll behind)."""
+        unseen = ((shown is not None and shown != self._proposal)
+                  or (shown_no is not None and shown_no != self._proposal_no))
+        if unseen and self._proposal is not None:
             raise InvalidCommand(f"the grasp on the page is no longer the one waiting (now a grasp on "
                                  f"{self._proposal.get('target')}): look at it, then decide")
+
+    def _repeats_decision_locked(self, approved: bool, shown_no: int | None) -> bool:
+        """True for a repeat of the decision already taken on the proposal named (`shown_no`, else the
+        one waiting): the second tap of a double tap did what the first did and is no error. The
+        other decision on it is refused: the first one stands (the loop may have acted on it)."""
+        no = self._proposal_no if shown_no is None and self._proposal is not None else shown_no
+        if no is None or self._decided is None or self._decided[0] != no:
+            return False
+        if self._decided[1] != approved:
+            raise InvalidCommand(f"that grasp was already {'approved' if self._decided[1] else 'rejected'}")
+        return True
+
+    def _decide_locked(self, decision: Decision) -> None:
+        self._decision = decision
+        self._decided = (self._proposal_no, decision.approved)
 
     def _wait_locked(self, predicate, timeout_s: float | None, what: str) -> None:
         """Sleep on the condition until predicate() is true; TimeoutError after timeout_s."""
@@ -194,25 +213,32 @@ class RunControl:
                 self._set_locked(RUNNING, f"stepping{where}", "step", by=by)
             return self._state
 
-    def approve(self, by: str = "operator", shown: dict | None = None) -> str:
-        """Approve the pending grasp; with `shown` (the proposal the operator saw) only if that one
-        still waits, checked under the same lock as the decision."""
+    def approve(self, by: str = "operator", shown: dict | None = None, shown_no: int | None = None) -> str:
+        """Approve the pending grasp; with `shown` (the proposal the operator saw) or `shown_no` (its
+        `proposal_no`) only if that one still waits, checked under the same lock as the decision.
+        Approving a grasp already approved changes nothing (a double tap)."""
         with self._cond:
+            if self._repeats_decision_locked(True, shown_no):
+                return self._state
             if self._state != AWAITING_APPROVAL:
                 self._refuse("approve", "no grasp is waiting for approval")
-            self._refuse_unseen_locked(shown)
-            self._decision = Decision(True, "approved by the operator", by)
+            self._refuse_unseen_locked(shown, shown_no)
+            self._decide_locked(Decision(True, "approved by the operator", by))
             self._log_locked("approve", "grasp approved", by=by)
             return self._state
 
-    def reject(self, reason: str = "", by: str = "operator", shown: dict | None = None) -> str:
-        """Reject the pending grasp; the reason is kept with the invalid example. `shown` as for approve."""
+    def reject(self, reason: str = "", by: str = "operator", shown: dict | None = None,
+               shown_no: int | None = None) -> str:
+        """Reject the pending grasp; the reason is kept with the invalid example. `shown`, `shown_no`
+        and a repeat as for approve (a repeat keeps the first reason)."""
         reason = (reason or "").strip() or "rejected by the operator"
         with self._cond:
+            if self._repeats_decision_locked(False, shown_no):
+                return self._state
             if self._state != AWAITING_APPROVAL:
                 self._refuse("reject", "no grasp is waiting for approval")
-            self._refuse_unseen_locked(shown)
-            self._decision = Decision(False, reason, by)
+            self._refuse_unseen_locked(shown, shown_no)
+            self._decide_locked(Decision(False, reason, by))
             self._log_locked("reject", f"grasp rejected: {reason}", by=by)
             return self._state
 
@@ -273,6 +299,7 @@ class RunControl:
                 "checkpoint": self._checkpoint,
                 "current": dict(self._current),
                 "proposal": self._proposal,
+                "proposal_no": self._proposal_no if self._proposal is not None else None,
                 "fault": dict(self._fault) if self._fault else None,
                 "summary": self._summary,
                 "events": list(self._events)[-n_events:] if n_events > 0 else [],
@@ -329,6 +356,7 @@ class RunControl:
             # Paused since the last checkpoint: ask anyway, and hold again after the decision.
             self._pause_after_decision = self._state != RUNNING
             self._proposal = proposal
+            self._proposal_no += 1
             self._decision = None
             self._withdrawn = None
             target = proposal.get("target")

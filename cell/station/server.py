@@ -3,18 +3,23 @@
 Routes (JSON unless said otherwise):
 
     GET  /                     the page (index.html, station.js, station.css: no CDN, works offline)
-    GET  /api/state            {"control": RunControl.snapshot(), "cell": backend.snapshot()}
+    GET  /api/state            {"session": this start's id, "control": RunControl.snapshot(),
+                                "cell": backend.snapshot()}
     GET  /api/frame.png        the current camera frame (404 until there is one)
     POST /api/run | pause | step | approve | stop | reset
     POST /api/reject           {"reason": "..."}        (the loop turns it into an invalid example)
-                               approve and reject may carry {"proposal": the one shown}: 409 if another waits
+                               approve and reject may carry {"proposal": the one shown, "proposal_no": its
+                               number}: 409 if another waits; a repeat of the decision on it is answered as done
     POST /api/approval         {"required": true|false}  (approve each grasp)
-    POST /api/teach            {"part": id, "p1_px": [u, v], "p2_px": [u, v]} -> backend.teach(...)
+    POST /api/teach            {"part": id, "p1_px": [u, v], "p2_px": [u, v], "frame": index shown}
+                               -> backend.teach(...); 409 if that frame is no longer the current one
 
 Every POST needs the session token in the `X-Cell-Token` header: a missing or wrong token
-gets 403 and changes nothing. GETs need none (looking is harmless). The server binds to
-127.0.0.1 by default and then also refuses requests whose Host header is not a loopback
-name (a web page elsewhere cannot reach the arm through DNS rebinding); the custom header
+gets 403 and changes nothing. GETs need none (looking is harmless). Each start of the station is
+a session with an id of its own, in the state as `session`: a POST whose `X-Cell-Session` header
+names another one (a page left open across a restart) gets 409 and changes nothing, but Stop.
+The server binds to 127.0.0.1 by default and then also refuses requests whose Host header is not
+a loopback name (a web page elsewhere cannot reach the arm through DNS rebinding); the custom header
 makes every POST a CORS-preflighted request, which the server never grants to other origins.
 Status codes: 400 bad input, 403 token/host, 404, 405 a method the route does not take (with
 Allow), 409 a command the state does not allow.
@@ -40,6 +45,7 @@ from cell.runtime.control import InvalidCommand, RunControl
 log = logging.getLogger(__name__)
 
 TOKEN_HEADER = "X-Cell-Token"
+SESSION_HEADER = "X-Cell-Session"  # the session whose state the page showed (optional)
 MAX_BODY_BYTES = 64 * 1024
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
 STATIC = {"/": ("index.html", "text/html; charset=utf-8"),
@@ -87,6 +93,22 @@ def _point(raw, key: str) -> list[float]:
     return [float(raw[0]), float(raw[1])]
 
 
+def _jsonable(obj):
+    """`obj` with plain JSON values only. The loop's state holds numpy values (np.int64, np.bool_,
+    np.float32, arrays: all have .tolist(), so numpy need not be imported here), which json.dumps
+    refuses; NaN and infinity become null, since the page's JSON parser refuses the whole state
+    for one of them."""
+    if isinstance(obj, dict):
+        return {k: _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if hasattr(obj, "tolist"):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
 class _Handler(BaseHTTPRequestHandler):
     server_version = "cell-station/1"
     station: StationServer  # set on the subclass made per server
@@ -110,10 +132,10 @@ class _Handler(BaseHTTPRequestHandler):
             self.wfile.write(body)
 
     def _json(self, status: int, obj) -> None:
-        self._send(status, json.dumps(obj, separators=(",", ":")).encode("utf-8"), "application/json")
+        self._send(status, json.dumps(_jsonable(obj), separators=(",", ":")).encode("utf-8"), "application/json")
 
-    def _error(self, status: int, message: str) -> None:
-        self._json(status, {"ok": False, "error": message})
+    def _error(self, status: int, message: str, **extra) -> None:
+        self._json(status, {"ok": False, "error": message, **extra})
 
     def _not_allowed(self, allow: str) -> None:
         self._send(405, json.dumps({"ok": False, "error": f"{self.command} is not allowed here: use {allow}"}
@@ -176,8 +198,9 @@ class _Handler(BaseHTTPRequestHandler):
         given = self.headers.get(TOKEN_HEADER, "")
         if not given or not hmac.compare_digest(given.encode(), st.token.encode()):
             self._drop_body()
+            # the session tells the page whether the station restarted since it got its token
             return self._error(403, f"a valid token is required in the {TOKEN_HEADER} header "
-                                    "(it is printed when the station starts)")
+                                    "(it is printed when the station starts)", session=st.session_id)
         path = urlsplit(self.path).path
         if path in GET_ONLY:
             self._drop_body()
@@ -185,6 +208,11 @@ class _Handler(BaseHTTPRequestHandler):
         if not path.startswith("/api/"):
             return self._error(404, f"no such command: {path}")
         cmd = path[len("/api/"):]
+        if self._for_an_older_session(cmd):
+            self._drop_body()
+            return self._error(409, "the station was restarted since this page showed its state: nothing was "
+                                    "done; the page shows the new state now, press again if still meant",
+                               session=st.session_id)
         try:
             body = self._read_body()
             result = st.command(cmd, body)
@@ -201,9 +229,15 @@ class _Handler(BaseHTTPRequestHandler):
             state = st.state()
         except Exception as e:  # the command was done (a Stop applied): say so, not a dropped connection
             log.exception("the state after POST %s failed", path)
-            return self._json(200, {"ok": True, "result": result,
+            return self._json(200, {"ok": True, "result": result, "session": st.session_id,
                                     "state_error": f"the cell cannot report its state ({type(e).__name__}: {e})"})
         return self._json(200, {"ok": True, "result": result, **state})
+
+    def _for_an_older_session(self, cmd: str) -> bool:
+        """A command from a page that showed an earlier start of the station (with a fixed --token it
+        would pass): meant for what that page showed, not for this session. Stop is always meant."""
+        shown = self.headers.get(SESSION_HEADER)
+        return cmd != "stop" and shown is not None and shown != self.station.session_id
 
     def _drop_body(self) -> None:
         """Read and drop the body of a request that is refused, so the connection stays sane."""
@@ -258,6 +292,7 @@ class StationServer:
         self.backend = backend
         self.control = control
         self.token = token or new_token()
+        self.session_id = secrets.token_hex(8)  # new at each start: a page tells a restart by it
         self.loopback_only = host in LOOPBACK_HOSTS
         handler = type("StationHandler", (_Handler,), {"station": self})
         try:
@@ -292,7 +327,7 @@ class StationServer:
         return self._static_cache[name]
 
     def state(self) -> dict:
-        return {"control": self.control.snapshot(), "cell": self.backend.snapshot()}
+        return {"session": self.session_id, "control": self.control.snapshot(), "cell": self.backend.snapshot()}
 
     def command(self, cmd: str, body: dict):
         """Apply one operator command (token already checked); returns the command's result."""
@@ -305,13 +340,13 @@ class StationServer:
         if cmd == "step":
             return rc.step(by=by)
         if cmd == "approve":
-            return rc.approve(by=by, shown=_shown_proposal(body))
+            return rc.approve(by=by, shown=_shown_proposal(body), shown_no=_shown_proposal_no(body))
         if cmd == "reject":
             shown = _shown_proposal(body)
             reason = body.get("reason", "")
             if not isinstance(reason, str):
                 raise BadInput("'reason' must be a string")
-            return rc.reject(reason[:500], by=by, shown=shown)
+            return rc.reject(reason[:500], by=by, shown=shown, shown_no=_shown_proposal_no(body))
         if cmd == "stop":
             reason = body.get("reason", "")
             state = rc.stop(reason[:500] if isinstance(reason, str) else "", by=by)
@@ -331,11 +366,20 @@ class StationServer:
             if not isinstance(part, str) or not part:
                 raise BadInput("'part' must be the id of a part on the current frame")
             p1, p2 = _point(body.get("p1_px"), "p1_px"), _point(body.get("p2_px"), "p2_px")
+            self._refuse_an_older_frame(_shown_frame(body))
             result = self.backend.teach(part, p1, p2)
             rc.log("teach", f"taught a grasp on {part}", part=part,
                    example=result.get("example_id") if isinstance(result, dict) else None)
             return result
         raise KeyError(f"no such command: {cmd}")
+
+    def _refuse_an_older_frame(self, shown: int | None) -> None:
+        """The teach's clicks are points on the frame the operator saw: on a later one the part may lie
+        elsewhere or be gone (the backend checks its clicks against the frame it holds)."""
+        current = self.backend.snapshot()["frame"]["index"]
+        if shown is not None and shown != current:
+            raise InvalidCommand(f"the frame taught on ({shown}) is no longer the current one (now {current}): "
+                                 "nothing was taught; click the part and its contacts again on the new frame")
 
     # -- life cycle
     def start(self) -> StationServer:
@@ -366,3 +410,21 @@ def _shown_proposal(body: dict) -> dict | None:
     if "proposal" in body and not isinstance(shown, dict):
         raise BadInput("'proposal' must be the proposal object shown (from /api/state)")
     return shown
+
+
+def _shown_proposal_no(body: dict) -> int | None:
+    """The number of the proposal the page showed (`proposal_no` of /api/state, optional): a repeat of
+    the decision on it (a double tap) is answered as done, not refused."""
+    return _index(body, "proposal_no", "the proposal_no of the grasp shown (from /api/state)")
+
+
+def _shown_frame(body: dict) -> int | None:
+    """The index of the frame a teach was clicked on (`frame`, optional for scripts)."""
+    return _index(body, "frame", "the index of the frame the contacts were clicked on (from /api/state)")
+
+
+def _index(body: dict, key: str, what: str) -> int | None:
+    value = body.get(key)
+    if key in body and (not isinstance(value, int) or isinstance(value, bool)):
+        raise BadInput(f"'{key}' must be {what}")
+    return value

@@ -9,26 +9,59 @@ const OFFLINE_POLL_MS = 1000;
 const $ = (id) => document.getElementById(id);
 
 let token = "";
+let tokenSession = null;    // the station's session the token was first used in
+let session = null;         // the station's session (new at each start) whose state is shown
 let last = null;            // last state received
 let frameIndex = null;      // index of the frame shown
 let teach = null;           // null, or {stage: "part" | "p1" | "p2", part, p1, frame (its index), note}
-let busy = false;
-let commands = 0;           // commands answered: a state polled before one of them is stale
 let approvalPending = false; // the approve-each box was toggled and the cell has not answered yet
 let zoom = false;           // show the parts' surroundings magnified rather than the whole frame
 let proposalKey = null;     // the pending proposal the reason field was typed for
+let decidedNo = null;       // the proposal_no this page sent a decision for: no second one for it
 
 // ---- token: from the URL fragment (#token=...), kept for this tab only, removed from the URL
 function loadToken() {
   const m = /(?:^#|&)token=([^&]+)/.exec(location.hash);
   if (m) {
-    token = decodeURIComponent(m[1]);
-    sessionStorage.setItem("cell-token", token);
+    setToken(decodeURIComponent(m[1]));
     history.replaceState(null, "", location.pathname + location.search);
   } else {
     token = sessionStorage.getItem("cell-token") || "";
+    tokenSession = sessionStorage.getItem("cell-token-session");
   }
   $("token-card").classList.toggle("hidden", !!token);
+}
+
+// A token given now belongs to the session the page sees next
+function setToken(t) {
+  token = t;
+  tokenSession = null;
+  sessionStorage.setItem("cell-token", token);
+  sessionStorage.removeItem("cell-token-session");
+}
+
+// Each start of the station is a session with an id of its own. A page left open across a restart
+// says so, and forgets what it held of the old session (the frame's number, a teach begun, a decision
+// sent); the old session's token is remembered, to explain a refusal of it.
+function noteSession(id) {
+  if (!id) return;
+  if (token && !tokenSession) {
+    tokenSession = id;
+    sessionStorage.setItem("cell-token-session", id);
+  }
+  if (session !== null && id !== session) {
+    frameIndex = null;
+    teach = null;
+    decidedNo = null;
+    $("log").dataset.newest = "";
+    toast("the station was restarted: this page shows its new state now");
+  }
+  session = id;
+}
+
+function askForToken() {
+  $("token-card").classList.remove("hidden");
+  $("token").focus();
 }
 
 function toast(text, ok) {
@@ -44,49 +77,52 @@ function toast(text, ok) {
 // ---- talking to the cell
 async function post(cmd, body) {
   if (!token) {
-    $("token-card").classList.remove("hidden");
-    $("token").focus();
+    askForToken();
     toast("enter the station token first");
     return null;
   }
-  busy = true;
   try {
-    const r = await fetch("/api/" + cmd, {
-      method: "POST",
-      headers: {"Content-Type": "application/json", "X-Cell-Token": token},
-      body: JSON.stringify(body || {}),
-    });
+    const headers = {"Content-Type": "application/json", "X-Cell-Token": token};
+    if (session) headers["X-Cell-Session"] = session;  // a station started since refuses the command (409)
+    const r = await fetch("/api/" + cmd, {method: "POST", headers, body: JSON.stringify(body || {})});
     const data = await r.json().catch(() => ({ok: false, error: "HTTP " + r.status}));
+    const tokenIsOld = !!tokenSession && !!data.session && data.session !== tokenSession;
+    if (!data.ok) noteSession(data.session);
     if (r.status === 403 && /token/.test(data.error || "")) {
-      $("token-card").classList.remove("hidden");
-      $("token").focus();
+      askForToken();
       // the server's words are for scripts (a header's name); the operator needs what to do
-      data.error = "this page has no valid token (was the cell restarted?): open the link the cell printed, "
+      data.error = (tokenIsOld
+        ? "this page's token is from before the station restarted, and no longer valid: open the new link "
+          + "the cell printed, "
+        : "this page has no valid token (was the cell restarted?): open the link the cell printed, ")
         + "or enter the token it printed; nothing was done";
     }
     if (!data.ok) {
       toast(data.error || ("HTTP " + r.status));
       return null;
     }
-    commands++;
     if (data.state_error) {  // done, but the state to show with it could not be made
       toast(cmd + ": done; " + data.state_error, true);
       return data;
     }
-    render(data);
+    if (!olderThanShown(data)) render(data);  // a poll answered after it may be newer
     return data;
   } catch (e) {
     toast("the cell does not answer: " + e);
     return null;
-  } finally {
-    busy = false;
   }
+}
+
+// A state older than the one shown: a poll asked before a command's answer came (it would flip the page
+// back, e.g. to "awaiting approval" with Approve live after Stop), or a slow command's answer overtaken
+// by a poll. The control's seq counts its changes; each start of the station counts anew.
+function olderThanShown(data) {
+  return !!last && data.session === last.session && data.control.seq < last.control.seq;
 }
 
 async function poll() {
   let answered = true;
   try {
-    const before = commands;
     const r = await fetch("/api/state", {cache: "no-store"});
     if (!r.ok) {  // the cell is there but cannot say its state: the last one shown would be a lie
       let why = "HTTP " + r.status;
@@ -95,9 +131,7 @@ async function poll() {
       offline("the cell cannot report its state (" + why + "); commands are off until it can");
     } else {
       const data = await r.json();
-      // asked before a command was answered: older than what the command's answer showed (it flipped
-      // the page back to e.g. "awaiting approval" with Approve live, for one poll)
-      if (data && !busy && before === commands) render(data);
+      if (data && !olderThanShown(data)) render(data);  // also while a command is on its way
     }
   } catch (e) {
     answered = false;
@@ -146,6 +180,7 @@ function el(name, attrs, parent) {
 const ptsAttr = (pts) => pts.map((p) => p[0] + "," + p[1]).join(" ");
 
 function render(data) {
+  noteSession(data.session);
   last = data;
   const c = data.control, cell = data.cell || {};
   const badge = $("state");
@@ -172,8 +207,9 @@ function render(data) {
   $("btn-pause").disabled = !(s === "running" || (s === "awaiting_approval" && !after));
   $("btn-step").disabled = !live;
   $("btn-stop").disabled = !(live || s === "fault");  // in a fault: abandon the sequence, nothing moves
-  $("btn-approve").disabled = s !== "awaiting_approval";
-  $("btn-reject").disabled = s !== "awaiting_approval";
+  const decidable = s === "awaiting_approval" && c.proposal_no !== decidedNo;  // one decision per grasp
+  $("btn-approve").disabled = !decidable;
+  $("btn-reject").disabled = !decidable;
   $("btn-reset").disabled = !["fault", "stopped", "done"].includes(s);
   $("btn-teach").disabled = !teach && !(cell.parts || []).length;  // nothing on the frame to teach on
   $("view").classList.remove("stale");
@@ -437,7 +473,8 @@ async function onFrameClick(ev) {
   const t = teach;
   teach = null;
   drawTeach();
-  const r = await post("teach", {part: t.part, p1_px: t.p1, p2_px: p});
+  // the frame the clicks were on: the cell refuses them (409) on a later one, where the part may have moved
+  const r = await post("teach", {part: t.part, p1_px: t.p1, p2_px: p, frame: t.frame});
   if (r) {
     toast("taught " + t.part + ": example " + r.result.example_id
       + " (" + r.result.n_examples + " examples)", true);
@@ -479,13 +516,30 @@ function reject() {
     return Promise.resolve(null);
   }
   askReason(false);
-  return post("reject", {reason, proposal: shownProposal()}).then((r) => { if (r) field.value = ""; });
+  return decide("reject", {reason}).then((r) => { if (r) field.value = ""; });
 }
 
-// The proposal drawn on the page: approve/reject carry it, and the cell refuses them (409) when
-// another grasp waits by now (a double tap, or a page a poll behind, decided the next grasp unseen).
-function shownProposal() {
-  return (last && last.control && last.control.proposal) || undefined;  // undefined: not sent
+// Approve and Reject name the grasp drawn on the page (its proposal_no, and the proposal itself): the
+// cell refuses them (409) when another grasp waits by now (a page a poll behind would decide the next
+// grasp unseen), and answers a repeat of the decision (a double tap) as done. From the first tap on,
+// both buttons are off for that grasp, so the second tap of a double tap sends nothing.
+async function decide(cmd, body) {
+  const c = (last && last.control) || {};
+  decidedNo = c.proposal_no ?? null;
+  $("btn-approve").disabled = $("btn-reject").disabled = true;
+  // (undefined: not sent)
+  const r = await post(cmd, {...body, proposal: c.proposal || undefined, proposal_no: c.proposal_no ?? undefined});
+  if (!r) {  // not taken (refused, no answer): the grasp may be decided again
+    decidedNo = null;
+    if (last) render(last);
+  }
+  return r;
+}
+
+// The grasp drawn was decided from this page: a second Approve or Reject for it is nothing, quietly
+function decisionSent(id) {
+  return (id === "btn-approve" || id === "btn-reject") && decidedNo != null && !!last
+    && last.control.proposal_no === decidedNo;
 }
 
 function askReason(on) {
@@ -518,6 +572,7 @@ function onKey(ev) {
   if (ev.repeat) return;
   const b = $(id);
   if (b.disabled) {
+    if (decisionSent(id)) return;
     toast(b.textContent.replace(/^\W+/, "") + " is not available now (" + $("state").textContent + ")");
     return;
   }
@@ -532,7 +587,7 @@ function init() {
     b.addEventListener("click", () => post(b.dataset.cmd));
   }
   $("btn-reject").addEventListener("click", reject);
-  $("btn-approve").addEventListener("click", () => post("approve", {proposal: shownProposal()}));
+  $("btn-approve").addEventListener("click", () => decide("approve", {}));
   $("btn-teach").addEventListener("click", startTeach);
   $("btn-zoom").addEventListener("click", toggleZoom);
   $("overlay").addEventListener("click", onFrameClick);
@@ -547,8 +602,7 @@ function init() {
     if (!r && last) ev.target.checked = !!last.control.require_approval;
   });
   const useToken = () => {
-    token = $("token").value.trim();
-    sessionStorage.setItem("cell-token", token);
+    setToken($("token").value.trim());
     $("token-card").classList.toggle("hidden", !!token);
   };
   $("btn-token").addEventListener("click", useToken);

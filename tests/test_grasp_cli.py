@@ -388,3 +388,21 @@ def test_explain_shows_each_rejected_set_once(tmp_path, examples):
     made["set_valid"][-2:] = True  # only the copies are rejected: one line
     shown = [line for line in rejections(made, planner) if line.startswith("rejected set")]
     assert len(shown) == 1
+
+
+def test_the_shipped_example_scene_is_the_default_assemblys_first_step_and_plans(capsys):
+    """README's first `cell grasp` runs on cell/data/scenes/default_step0.json: the default assembly's
+    first step, as `cell plan` sees it (kept in step with the assembly), planned with the shipped examples."""
+    from importlib import resources
+
+    from cell.scene import load_assembly, load_scene
+
+    data = resources.files("cell") / "data"
+    shipped = load_scene(str(data / "scenes" / "default_step0.json"))
+    step0 = load_assembly(str(data / "assemblies" / "default.json")).scene_at(0)
+    assert shipped.target == step0.target
+    assert {p.id: p.to_json() for p in shipped.parts} == {p.id: p.to_json() for p in step0.parts}
+    code, out, err = run_cli("grasp", data / "scenes" / "default_step0.json", "--json", capsys=capsys)
+    assert code == 0, err
+    out = json.loads(out)
+    assert out["target"] == step0.target and out["counts"]["valid_sets"] > 0

@@ -68,6 +68,18 @@ def test_missed_grips_are_counted_on_the_part_the_run_stopped_on(short_assembly,
     assert "nut          stopped  attempts 2" in err  # the text summary lists it too
 
 
+def test_replay_of_a_stopped_session_matches_and_says_it_was_stopped(stuck, capsys):
+    rec = stuck[0]
+    code, out, err = run_cli("replay", rec, capsys=capsys)
+    assert code == 0, err
+    assert "decisions match the recording" in out
+    assert "the recorded session was stopped (incomplete) after 0 of 3 parts removed" in out, out
+    assert "nut did not leave the tray" in out
+    code, out, _ = run_cli("replay", rec, "--json", capsys=capsys)
+    session = json.loads(out.strip().splitlines()[-1])["session"]
+    assert session["status"] == "stopped" and session["parts_removed"] == 0 and session["parts_total"] == 3
+
+
 def test_a_stopped_session_recorded_without_the_not_removed_record_still_replays(short_assembly, tmp_path,
                                                                                monkeypatch, capsys):
     """Recordings made before the 'not removed' outcome was recorded hold the stop right after the frame

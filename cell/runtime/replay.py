@@ -218,8 +218,8 @@ class RecordedApprovals(RunControl):
 
 
 def replay(directory: str | Path, examples: str | Path | None = None, progress=None) -> dict:
-    """Re-run a recording. Returns {"decisions", "matched", "differences"}; raises Divergence
-    (strict mode) at the first difference, BadInput on a missing or corrupt recording."""
+    """Re-run a recording. Returns {"decisions", "matched", "differences", "session"} (`recorded_end`);
+    raises Divergence (strict mode) at the first difference, BadInput on a missing or corrupt recording."""
     import shutil
     import tempfile
 
@@ -308,8 +308,21 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
                        f"{recorded[sink.position].get('type')}")
     if can_difference and not sink.found:  # the decisions match: do the commands on the bus?
         sink._diverged(can_difference)
-    return {"decisions": len(recorded), "matched": sink.position - len(sink.found), "differences": sink.found}
+    return {"decisions": len(recorded), "matched": sink.position - len(sink.found), "differences": sink.found,
+            "session": recorded_end(rec)}
 
+
+def recorded_end(rec) -> dict:
+    """How the recorded session ended, from its manifest: `status` (the run's: complete, stopped), the parts
+    removed of the total, and for a stopped one why (its last stop decision). A stopped session is recorded
+    up to its stop, so its replay can match; this says that it did not run to the end."""
+    summary = rec.manifest.get("summary") or {}
+    end = {"status": summary.get("status", rec.manifest.get("status")), "recording": rec.manifest.get("status"),
+           "parts_removed": summary.get("parts_removed"), "parts_total": summary.get("parts_total")}
+    stops = [d for d in rec.decisions if d.get("type") == "stop"]
+    if stops and end["status"] != "complete":
+        end["stopped"] = f"{stops[-1].get('source')}: {stops[-1].get('reason')}"
+    return end
 
 
 def _host_frames(messages) -> dict[int, list[bytes]]:

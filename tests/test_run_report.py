@@ -96,3 +96,18 @@ def test_a_stopped_session_recorded_without_the_not_removed_record_still_replays
     code, out, err = run_cli("replay", tmp_path / "old", capsys=capsys)
     assert code == 0 and "decisions match the recording" in out, err
 
+
+def test_a_skipped_part_says_why_the_run_exits_1(tmp_path, capsys):
+    """`--on-no-grasp skip` ran the sequence to its end (JSON status "complete", as before) but did not remove
+    everything, so exit 1 (README, CONTRACT: 0 only when the whole sequence was removed); the text said
+    "(complete)" and left the reader to wonder why."""
+    d = json.loads(DEFAULT.read_text())
+    nut = next(p for p in d["parts"] if p["id"] == "nut")
+    plate = {"id": "plate", "outline": [[300, 60], [400, 60], [400, 160], [300, 160]], "z_top": 3.0}
+    p = tmp_path / "wide.json"
+    p.write_text(json.dumps({"units": "mm", "name": "wide", "parts": [nut, plate], "sequence": ["plate", "nut"]}))
+    code, out, err = run_cli("run", p, "--seed", "1", "--on-no-grasp", "skip", "--json", capsys=capsys)
+    s = json.loads(out.strip().splitlines()[-1])
+    assert code == 1 and s["status"] == "complete" and s["parts_skipped"] == ["plate"]
+    assert "1 of 2 parts removed (sequence complete, 1 skipped: plate)" in err, err
+    assert "(complete)" not in err

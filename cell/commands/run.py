@@ -6,7 +6,7 @@ python-can's virtual bus). With no arguments: the shipped default assembly. With
 `--interface I [--channel C] --camera SPEC` the real cell instead: the drives on that CAN bus,
 frames from that camera (asks before the arm moves, or `--yes`).
 Exit 0 when the whole sequence was removed, 1 when the run stopped or skipped a part (the summary's
-status is then "stopped", or "complete" with `parts_skipped`), 2 on bad input.
+status is then "stopped", or "complete" with `parts_skipped`), 2 on bad input, 130 on Ctrl-C or SIGTERM.
 """
 
 from __future__ import annotations

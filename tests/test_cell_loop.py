@@ -352,7 +352,9 @@ def test_a_pick_whose_links_would_hit_a_tall_part_is_refused_before_anything_mov
     refused = decisions[-1]["reason"].split(":")[0]
     assert decisions[-1]["type"] == "stop"
     sent = [x["part"] for x in decisions if x["type"] == "commands"]
-    assert refused not in sent and sent == [r["part"] for r in s["parts"]]  # nothing of that pick was sent
+    removed = [r["part"] for r in s["parts"] if r["outcome"] == "removed"]
+    assert refused not in sent and sent == removed  # nothing of that pick was sent
+    assert (s["parts"][-1]["part"], s["parts"][-1]["outcome"], s["parts"][-1]["attempts"]) == (refused, "stopped", 0)
 
 
 @contextlib.contextmanager

@@ -266,6 +266,9 @@ def test_sigterm_ends_cell_run_like_ctrl_c_and_the_recording_replays_to_there(tm
     assert r.manifest["status"] == "incomplete" and r.decisions[-1]["type"] == "stop"
     code, out, err = run_cli("replay", rec, capsys=capsys)
     assert code == 0, err
+    # matched to the stop, and said to have ended there (it used to read like a whole session)
+    assert "the recorded session was stopped (incomplete) after " in out, out
+    assert out.rstrip().endswith("operator: interrupted at the terminal"), out
 
 
 def test_examples_generate_overwrite_waits_for_an_append_in_progress(tmp_path, capsys):

@@ -35,7 +35,8 @@ def test_a_part_with_another_still_lying_on_it_is_not_picked(tmp_path, capsys):
     code, out, err = run_cli("run", tmp_path / "a.json", "--json", capsys=capsys)
     summary = json.loads(out.strip().splitlines()[-1])
     assert code == 1, err
-    assert [p["part"] for p in summary["parts"]] == ["nut", "washer"]
+    assert [(p["part"], p["outcome"], p["attempts"]) for p in summary["parts"]] == [
+        ("nut", "removed", 1), ("washer", "removed", 1), ("base", "stopped", 0)]  # the run stopped on the base
     assert "'base' cannot be lifted straight up: 'pcb' still lies on it" in summary["stopped"]
     assert not [e for e in summary["sim_events"] if "pcb" in e or "base" in e], summary["sim_events"]
 

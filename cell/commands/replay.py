@@ -2,7 +2,9 @@
 
 Re-runs perception and planning on a recorded session's frames with the simulated drives and
 checks that every decision and command matches the recording. Exit 0 when all match, 1 at
-the first divergence (named on stderr), 2 on a missing or corrupt recording. With
+the first divergence (named on stderr), 2 on a missing or corrupt recording, or on one whose end
+was never recorded (killed, or failed). A stopped session was recorded up to its stop: it can match
+(exit 0), and the output says that it was stopped, after how many parts and why. With
 `--examples FILE` (other teaching examples) the differences are listed instead (exit 0).
 """
 
@@ -36,4 +38,16 @@ def run(args) -> int:
         print(f"{result['matched']} of {result['decisions']} decisions match the recording")
         for d in result["differences"]:
             print(f"  differs: {d}")
+        _say_how_it_ended(result["session"])
     return 0
+
+
+def _say_how_it_ended(end: dict) -> None:
+    """A session that did not run to the end matches only as far as it went: say so (exit 0 all the same:
+    it was closed whole, unlike a killed or failed one, which is exit 2)."""
+    if end["status"] == "complete":
+        return
+    parts = (f" after {end['parts_removed']} of {end['parts_total']} parts removed"
+             if end["parts_total"] is not None else "")
+    print(f"the recorded session was {end['status']} ({end['recording']}){parts}"
+          + (f": {end['stopped']}" if end.get("stopped") else ""))

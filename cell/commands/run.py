@@ -5,7 +5,8 @@ simulated camera rendering frames through the calibration, simulated CANopen dri
 python-can's virtual bus). With no arguments: the shipped default assembly. With
 `--interface I [--channel C] --camera SPEC` the real cell instead: the drives on that CAN bus,
 frames from that camera (asks before the arm moves, or `--yes`).
-Exit 0 when the whole sequence was removed, 1 when the run stopped, 2 on bad input.
+Exit 0 when the whole sequence was removed, 1 when the run stopped or skipped a part (the summary's
+status is then "stopped", or "complete" with `parts_skipped`), 2 on bad input, 130 on Ctrl-C or SIGTERM.
 """
 
 from __future__ import annotations
@@ -157,9 +158,17 @@ def _real_cell(args, world_options: dict):
     return RealCell(args.interface, args.channel, args.camera)
 
 
+def _how_it_ended(s: dict) -> str:
+    """The status, and with skipped parts why a complete sequence still exits 1: not everything was removed."""
+    skipped = s.get("parts_skipped") or []
+    if s["status"] != "complete" or not skipped:
+        return s["status"]
+    return f"sequence complete, {len(skipped)} skipped: {', '.join(skipped)}"
+
+
 def _print_summary(s: dict, out) -> None:
     print(f"\n{s['assembly']}: {s['parts_removed']} of {s['parts_total']} parts removed "
-          f"({s['status']}), {s['grasps']} grasps", file=out)
+          f"({_how_it_ended(s)}), {s['grasps']} grasps", file=out)
     for r in s["parts"]:
         print(f"  {r['part']:<12} {r['outcome']:<8} attempts {r['attempts']}  cycle {r['cycle_s']:.2f} s "
               f"(motion {r['motion_s']:.2f} s, planning {r['planning_s'] * 1000:.0f} ms) {r['reason']}", file=out)

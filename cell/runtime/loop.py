@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -91,7 +91,7 @@ class LinksWouldHit(CellError):
 @dataclass
 class PartReport:
     part: str
-    outcome: str  # removed | skipped
+    outcome: str  # removed | skipped; in the summary also stopped (the part the run stopped on)
     attempts: int = 0
     motion_s: float = 0.0  # on the arm's clock (simulated seconds in simulation)
     planning_s: float = 0.0  # wall time of perception and planning
@@ -155,6 +155,7 @@ class CellLoop:
         self.unexplained: list[Part] = []  # seen material no located part explains: obstacles too
         self.remaining: list[str] = list(assembly.sequence)
         self.reports: list[PartReport] = []
+        self._unfinished: PartReport | None = None  # the part being worked on, until removed or skipped
         self.state = LoopState()
         self._frame_counter = 0
         self._last_picked: tuple[str, Part] | None = None
@@ -229,6 +230,7 @@ class CellLoop:
                     self._final_check()
             except Stopped as e:
                 self.sink.write_decision({"type": "stop", "source": "operator", "reason": str(e)})
+                self._stopped_on(f"operator: {e}")
                 raise
             except StopRun:
                 raise
@@ -268,10 +270,10 @@ class CellLoop:
             self._retreat()
         frame, index = self._read_frame()
         t0 = time.perf_counter()
+        report = self._unfinished = PartReport(part_id, "removed")
         scene = self._scene_in(frame, index, part_id)
         if scene is None:
             return
-        report = PartReport(part_id, "removed")
         grasps = self._plan(scene, part_id)
         report.planning_s += time.perf_counter() - t0
         if grasps is None:
@@ -373,13 +375,23 @@ class CellLoop:
             return True
         pid = self._last_picked[0]
         self._last_picked = None
+        report = next(r for r in self.reports if r.part == pid)
         if pid in located:  # still on the tray, near where it was picked (perhaps it slipped)
             self.remaining.insert(0, pid)
             self.poses[pid] = located[pid]
-            self.reports = [r for r in self.reports if r.part != pid]
+            self.reports.remove(report)
+            self._unfinished = report
+            self._record_not_removed(report)
             self._stop_and_ask("cell", f"{pid} did not leave the tray")
             return False
+        self.control.log("removed", f"{pid} removed in {report.cycle_s:.2f} s (gone from the next frame)", part=pid)
         return True
+
+    def _record_not_removed(self, report: PartReport) -> None:
+        """The check's verdict after the part's "removed" outcome (written at the drop-off), so that the
+        decisions do not say it was removed. (Replay lets recordings made before it was written do without.)"""
+        self.sink.write_decision({"type": "outcome", **report.to_json(), "outcome": "not removed",
+                                  "reason": "did not leave the tray"})
 
     # ------------------------------------------------------------------ steps
     def _read_frame(self):
@@ -494,6 +506,7 @@ class CellLoop:
             if self.options.on_no_grasp == "skip":
                 self.remaining.remove(part_id)
                 self.reports.append(PartReport(part_id, "skipped", reason=e.reason))
+                self._unfinished = None
                 self.control.log("skip", f"{part_id} skipped: no feasible grasp ({e.reason})", part=part_id)
             else:
                 self._stop_and_ask("planner", f"no feasible grasp for {part_id}: {e.reason}")
@@ -678,9 +691,11 @@ class CellLoop:
         if pid in self.poses:
             self._last_picked = (pid, self.poses.pop(pid))
         self.reports.append(report)
+        self._unfinished = None
+        # (the record keeps its "removed": recordings are replayed record by record; `_last_pick_left` confirms it)
         self.sink.write_decision({"type": "outcome", **report.to_json()})
-        self.control.log("removed", f"{pid} removed in {report.cycle_s:.2f} s" + (f" ({reason})" if reason else ""),
-                         part=pid)
+        self.control.log("carried", f"{pid} carried off in {report.cycle_s:.2f} s" + (f" ({reason})" if reason else "")
+                         + "; the next frame checks that it left the tray", part=pid)
 
     def _retreat_z_mm(self) -> float:
         """How high the empty jaws go up after a miss or a fault: the safe height, or above the tallest part
@@ -710,13 +725,27 @@ class CellLoop:
 
     def _stop_and_ask(self, source: str, why: str) -> None:
         self.sink.write_decision({"type": "stop", "source": source, "reason": why})
+        self._stopped_on(f"{source}: {why}")
         self.control.report_fault(source, why)
         if not self.options.interactive:
             raise StopRun(f"{source}: {why}")
 
+    def _stopped_on(self, reason: str) -> None:
+        """Why the part being worked on stopped (the summary lists it if the run ends there)."""
+        if self._unfinished is not None:
+            self._unfinished.reason = reason
+
     # ------------------------------------------------------------------ reporting
+    def part_reports(self) -> list[PartReport]:
+        """Every part removed or skipped, then the one the run stopped on (if it stopped while on one)."""
+        if self._unfinished is None:
+            return list(self.reports)
+        stopped = replace(self._unfinished, outcome="stopped", reason=self._unfinished.reason or "the run was stopped")
+        return [*self.reports, stopped]
+
     def summary(self) -> dict:
-        removed = [r for r in self.reports if r.outcome == "removed"]
+        reports = self.part_reports()
+        removed = [r for r in reports if r.outcome == "removed"]
         cycles = [r.cycle_s for r in removed]
         mean = float(np.mean(cycles)) if cycles else 0.0
         planning = float(np.mean([r.planning_s for r in removed])) if removed else 0.0
@@ -726,7 +755,7 @@ class CellLoop:
             "parts_total": len(self.assembly.sequence),
             "parts_removed": len(removed),
             "parts_skipped": [r.part for r in self.reports if r.outcome == "skipped"],
-            "grasps": sum(r.attempts for r in removed),
+            "grasps": sum(r.attempts for r in reports),  # every grasp tried, on the part stopped on too
             "cycle_s_mean": round(mean, 3),
             "planning_s_mean": round(planning, 4),
             "planning_share": round(planning / mean, 4) if mean else 0.0,
@@ -734,7 +763,7 @@ class CellLoop:
             "motion_limits": {"max_velocity": s.max_velocity, "max_acceleration": s.max_acceleration,
                               "gripper_speed_mm_s": self.cell.gripper.speed_mm_s,
                               "safe_z_mm": self.cell.motion.safe_z_mm},
-            "parts": [r.to_json() for r in self.reports],
+            "parts": [r.to_json() for r in reports],
         }
 
     # ------------------------------------------------------------------ visualisation

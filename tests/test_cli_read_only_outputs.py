@@ -99,6 +99,17 @@ def test_an_output_to_be_made_in_a_read_only_folder_is_refused_even_for_root(tmp
     assert os.listdir(ro) == []
 
 
+@pytest.mark.parametrize("case", ["examples-overwrite", "render-out", "render-truth", "plan-figures"])
+def test_an_outputs_missing_folders_are_made(tmp_path, capsys, case):
+    """The README says so for every output option (the calibrations, study, run --record and --save make theirs
+    the same way)."""
+    argv, option, value, inside = CASES[case]
+    out = tmp_path / "new" / "deeper" / value
+    code, _, err = run_cli(*argv(tmp_path), option, out, capsys=capsys)
+    assert code == 0, err
+    assert (out / inside).is_file() if inside else out.is_file()
+
+
 def test_a_read_only_example_file_the_station_would_append_to_is_refused_before_the_run(tmp_path):
     """The station's rejects and teaching are appended to --examples: the first one stopped the run."""
     import shutil

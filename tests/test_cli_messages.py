@@ -1,0 +1,45 @@
+"""Bad input that was refused with a message saying less than it could: each now says what is wrong and,
+where there is one, what to give instead (exit 2, one line). And a render that drops a part says so."""
+
+import json
+
+import pytest
+from conftest import ROOT, run_cli
+
+SQUARE = [[300, 0], [340, 0], [340, 40], [300, 40]]
+EXAMPLES = ROOT / "cell" / "data" / "default_examples.jsonl"
+
+
+def _scene(tmp_path, part, **top):
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps({"parts": [{"id": "a", "outline": SQUARE, "z_top": 5, **part}], "target": "a", **top}))
+    return path
+
+
+def _refused(capsys, *argv) -> str:
+    code, out, err = run_cli(*argv, capsys=capsys)
+    assert code == 2 and err.startswith("cell: error: ") and err.count("\n") == 1, err
+    return err
+
+
+def test_a_part_without_z_top_is_said_to_miss_it(tmp_path, capsys):
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps({"parts": [{"id": "a", "outline": SQUARE}], "target": "a"}))
+    err = _refused(capsys, "grasp", path)
+    assert f"{path}: part 'a': 'z_top' is missing" in err  # was "must be a finite number, got None"
+
+
+@pytest.mark.parametrize("outline", [[[300, 0], [350, 0], [400, 0]], [[300, 0], [350, 10], [400, 20], [320, 4]]])
+def test_a_collinear_outline_is_said_to_have_no_area(tmp_path, capsys, outline):
+    err = _refused(capsys, "grasp", _scene(tmp_path, {"outline": outline}))
+    assert "part 'a' outline: its points all lie on one line" in err and "Self-intersection" not in err
+
+
+def test_a_flat_holes_list_shows_the_nested_form(tmp_path, capsys):
+    err = _refused(capsys, "grasp", _scene(tmp_path, {"holes": [[310, 10], [320, 10], [320, 20]]}))
+    assert "'holes' must be a list of rings" in err and "[[[x, y], [x, y], [x, y], ...], ...]" in err
+
+
+def test_a_scene_file_given_to_plan_is_named_as_one(tmp_path, capsys):
+    err = _refused(capsys, "plan", _scene(tmp_path, {}))
+    assert "looks like a scene file" in err and "`cell grasp`" in err  # was "'sequence' must be a list of part ids"

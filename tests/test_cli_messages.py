@@ -43,3 +43,13 @@ def test_a_flat_holes_list_shows_the_nested_form(tmp_path, capsys):
 def test_a_scene_file_given_to_plan_is_named_as_one(tmp_path, capsys):
     err = _refused(capsys, "plan", _scene(tmp_path, {}))
     assert "looks like a scene file" in err and "`cell grasp`" in err  # was "'sequence' must be a list of part ids"
+
+
+@pytest.mark.parametrize("command", ["rules", "grasp"])
+def test_examples_that_are_all_rejected_name_their_file(tmp_path, capsys, command):
+    rejected = tmp_path / "rejected.jsonl"
+    rejected.write_text("".join(line for line in EXAMPLES.read_text().splitlines(keepends=True)
+                                if not json.loads(line)["valid"]))
+    scene = [_scene(tmp_path, {})] if command == "grasp" else []
+    err = _refused(capsys, command, *scene, "--examples", rejected)
+    assert f"example file {rejected} holds no accepted grasp" in err

@@ -53,3 +53,8 @@ def test_examples_that_are_all_rejected_name_their_file(tmp_path, capsys, comman
     scene = [_scene(tmp_path, {})] if command == "grasp" else []
     err = _refused(capsys, command, *scene, "--examples", rejected)
     assert f"example file {rejected} holds no accepted grasp" in err
+
+
+def test_a_station_on_another_host_names_the_flag_that_allows_it(tmp_path, capsys):
+    err = _refused(capsys, "station", "--host", "0.0.0.0", "--examples", tmp_path / "ex.jsonl")
+    assert "--host 0.0.0.0" in err and "--allow-remote" in err and "allow_remote" not in err

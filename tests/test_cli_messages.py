@@ -3,8 +3,12 @@ where there is one, what to give instead (exit 2, one line). And a render that d
 
 import json
 
+import numpy as np
 import pytest
 from conftest import ROOT, run_cli
+
+from calibration import save_calibration
+from calibration.camera import Calibration
 
 SQUARE = [[300, 0], [340, 0], [340, 40], [300, 40]]
 EXAMPLES = ROOT / "cell" / "data" / "default_examples.jsonl"
@@ -58,3 +62,23 @@ def test_examples_that_are_all_rejected_name_their_file(tmp_path, capsys, comman
 def test_a_station_on_another_host_names_the_flag_that_allows_it(tmp_path, capsys):
     err = _refused(capsys, "station", "--host", "0.0.0.0", "--examples", tmp_path / "ex.jsonl")
     assert "--host 0.0.0.0" in err and "--allow-remote" in err and "allow_remote" not in err
+
+
+@pytest.fixture
+def plane_calibration(tmp_path):
+    """A homography for the table only, named as calibrate plane names it (not the file)."""
+    path = tmp_path / "plane.json"
+    h = np.array([[0.3, 0, 200], [0, -0.3, 150], [0, 0, 1.0]])
+    save_calibration(Calibration(1280, 1024, homography=h, name="plane from markers"), path)
+    return path
+
+
+def test_render_with_a_plane_calibration_names_the_file(tmp_path, capsys, plane_calibration):
+    assembly = ROOT / "cell" / "data" / "assemblies" / "default.json"
+    err = _refused(capsys, "render", assembly, "--calibration", plane_calibration, "--out", tmp_path / "o.png")
+    assert f"calibration file {plane_calibration}" in err and "plane from markers" not in err
+
+
+def test_run_with_a_plane_calibration_names_the_file(tmp_path, capsys, plane_calibration):
+    err = _refused(capsys, "run", "--calibration", plane_calibration)
+    assert f"calibration file {plane_calibration}" in err and "plane from markers" not in err

@@ -93,7 +93,7 @@ def test_segment_cli_refuses_other_resolution(tmp_path, frame_file, capsys):
     small = Calibration(640, 480, homography=np.diag([1.0, -1.0, 1.0]), name="small")
     save_calibration(small, tmp_path / "small.json")
     code, _, err = run_cli("segment", frame_file, "--calibration", tmp_path / "small.json", "--json", capsys=capsys)
-    assert code == 2 and "1280 x 1024 px but calibration 'small' is for 640 x 480" in err
+    assert code == 2 and f"1280 x 1024 px but calibration file {tmp_path / 'small.json'} is for 640 x 480" in err
 
 
 def test_segment_cli_refuses_a_frame_of_another_size_before_any_output(tmp_path, frame_file, capsys):

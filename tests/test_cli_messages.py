@@ -82,3 +82,15 @@ def test_render_with_a_plane_calibration_names_the_file(tmp_path, capsys, plane_
 def test_run_with_a_plane_calibration_names_the_file(tmp_path, capsys, plane_calibration):
     err = _refused(capsys, "run", "--calibration", plane_calibration)
     assert f"calibration file {plane_calibration}" in err and "plane from markers" not in err
+
+
+@pytest.mark.parametrize("x, where", [(3000, "outside"), (-300, "partly outside")])
+def test_render_warns_of_a_part_out_of_the_cameras_view(tmp_path, capsys, x, where):
+    path = tmp_path / "far.json"
+    outline = [[x, 0], [x + 600, 0], [x + 600, 40], [x, 40]]
+    path.write_text(json.dumps({"parts": [{"id": "far", "outline": outline, "z_top": 5},
+                                          {"id": "near", "outline": SQUARE, "z_top": 5}]}))
+    code, out, err = run_cli("render", path, "--out", tmp_path / "o.png", capsys=capsys)
+    assert code == 0 and (tmp_path / "o.png").is_file()  # still rendered: a frame of the tray has its uses
+    assert err.startswith(f"cell: warning: {path}: part 'far' ") and f"lies {where} the camera's view" in err, err
+    assert err.count("\n") == 1  # not the part in view

@@ -1,6 +1,7 @@
 """The simulated camera, frame sources and the segment / render commands, with bad input."""
 
 import json
+import re
 from pathlib import Path
 
 import cv2
@@ -80,6 +81,21 @@ def test_segment_cli_with_calibration_gives_mm(frame_file, capsys):
     cover = min(parts, key=lambda p: abs(p["centroid_mm"][0] - 420) + abs(p["centroid_mm"][1] - 100))
     assert np.allclose(cover["centroid_mm"], [420, 100], atol=1.0)
     assert len(cover["holes_mm"]) == 2 and len(cover["outline_mm"]) == len(cover["outline_px"])
+
+
+def test_segment_cli_with_calibration_prints_mm_without_json_too(frame_file, capsys):
+    """Was: pixel figures only, though the calibration was given to have millimetres."""
+    code, out, _ = run_cli("segment", frame_file, "--calibration", default_calibration_path(), "--z", "8",
+                           capsys=capsys)
+    assert code == 0
+    cover = next(line for line in out.splitlines() if "2 hole(s)" in line)
+    px_area, mm2, x, y = (float(v) for v in re.search(
+        r"area (\d+) px = ([\d.]+) mm2, centroid \([\d.]+, [\d.]+\) px = \(([\d.]+), ([\d.]+)\) mm", cover).groups())
+    truth = PARTS[1].polygon.area  # (the silhouette, mapped at the top, takes in a little of the walls: +3 %)
+    assert abs(mm2 - truth) < 0.05 * truth and np.allclose([x, y], [420, 100], atol=1.0)
+    code, out, _ = run_cli("segment", frame_file, "--calibration", default_calibration_path(), "--z", "8", "--json",
+                           capsys=capsys)
+    assert any(p["area_mm2"] == mm2 for p in json.loads(out)["parts"])
 
 
 def test_segment_cli_empty_tray(tmp_path, capsys):

@@ -24,6 +24,7 @@ CONTRACT-frame pixels (see calibration/camera.py). Lengths in mm.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from importlib import resources
 from pathlib import Path
 
@@ -55,7 +56,7 @@ def load_calibration(path: str | Path | None = None, *, size: tuple[int, int] | 
     """
     path = default_calibration_path() if path is None else Path(path)
     raw = read_json(path, "calibration file")
-    cal = parse_calibration(raw, str(path))
+    cal = replace(parse_calibration(raw, str(path)), source=str(path))
     if size is not None and tuple(size) != cal.size:
         raise BadInput(f"calibration file {path} is for {cal.width_px} x {cal.height_px} px images, "
                        f"not {size[0]} x {size[1]} px")

@@ -76,6 +76,12 @@ class Calibration:
     name: str = "calibration"
     report: dict = field(default_factory=dict)
     plane: TiltedPlane | None = None
+    source: str | None = None  # the file it was read from (not written): messages name it, not `name`
+
+    @property
+    def label(self) -> str:
+        """How messages name it: the file the user gave, else its own name."""
+        return f"calibration file {self.source}" if self.source else f"calibration {self.name!r}"
 
     # ---- what the calibration can do -------------------------------------------------
     @property
@@ -114,13 +120,13 @@ class Calibration:
         return Calibration(int(width_px), int(height_px), k, self.dist.copy(),
                            None if self.cam2base is None else self.cam2base.copy(), h, self.plane_z_mm,
                            f"{self.name} resized to {int(width_px)} x {int(height_px)}", dict(self.report),
-                           self.plane)
+                           self.plane, self.source)
 
     def check_frame(self, frame: np.ndarray, what: str = "frame") -> None:
         """Refuse a frame whose size is not the calibration's."""
         h, w = frame.shape[:2]
         if (w, h) != (self.width_px, self.height_px):
-            raise BadInput(f"{what} is {w} x {h} px but calibration {self.name!r} is for "
+            raise BadInput(f"{what} is {w} x {h} px but {self.label} is for "
                            f"{self.width_px} x {self.height_px} px images")
 
     # ---- pixel -> mm --------------------------------------------------------------------
@@ -150,13 +156,13 @@ class Calibration:
             with np.errstate(divide="ignore", invalid="ignore"):
                 s = (z - t[2]) / dz
             if np.any(~np.isfinite(s)) or np.any(s <= 0):
-                raise BadInput(f"calibration {self.name!r}: the plane z = {z:g} mm is not in front of the camera "
+                raise BadInput(f"{self.label}: the plane z = {z:g} mm is not in front of the camera "
                                "for some pixels (beyond its horizon, or a plane above the camera)")
             return _finite_result((t[None, :] + s[:, None] * rays)[:, :2], "px_to_mm")
         if self.homography is not None:
             self._check_plane(z)
             return _finite_result(self._h_to_plane(uv), "px_to_mm")
-        raise BadInput(f"calibration {self.name!r} has intrinsics only: no mapping to the base frame "
+        raise BadInput(f"{self.label} has intrinsics only: no mapping to the base frame "
                        "(run `cell calibrate plane`)")
 
     def mm_to_px(self, xy, z_mm: float | None = None) -> np.ndarray:
@@ -183,7 +189,7 @@ class Calibration:
         if self.homography is not None:
             self._check_plane(z)
             return _finite_result(self._h_from_plane(xy), "mm_to_px")
-        raise BadInput(f"calibration {self.name!r} has intrinsics only: no mapping to the base frame")
+        raise BadInput(f"{self.label} has intrinsics only: no mapping to the base frame")
 
     def px_to_xyz(self, uv, z_mm: float | None = None) -> np.ndarray:
         """Map pixels to base-frame points (n, 3) on the calibration's plane (tilted or not) or, with `z_mm`,
@@ -198,11 +204,11 @@ class Calibration:
             rays = self._rays(uv) @ self.cam2base[:3, :3].T
             s = self.plane.cut(t, rays)
             if np.any(~np.isfinite(s)) or np.any(s <= 0):
-                raise BadInput(f"calibration {self.name!r}: its tilted plane is not in front of the camera for some "
+                raise BadInput(f"{self.label}: its tilted plane is not in front of the camera for some "
                                "pixels (beyond its horizon)")
             return _finite_result(t[None, :] + s[:, None] * rays, "px_to_mm")
         if self.homography is None:
-            raise BadInput(f"calibration {self.name!r} has intrinsics only: no mapping to the base frame")
+            raise BadInput(f"{self.label} has intrinsics only: no mapping to the base frame")
         return _finite_result(self.plane.from_plane(self._h_to_plane(uv)), "px_to_mm")
 
     def plane_points_to_px(self, xyz: np.ndarray) -> np.ndarray:
@@ -211,7 +217,7 @@ class Calibration:
         if self.has_pose:
             return _finite_result(self.project(xyz), "mm_to_px")
         if self.homography is None:
-            raise BadInput(f"calibration {self.name!r} has intrinsics only: no mapping to the base frame")
+            raise BadInput(f"{self.label} has intrinsics only: no mapping to the base frame")
         return _finite_result(self._h_from_plane(self.plane.to_plane(xyz)), "mm_to_px")
 
     def _h_to_plane(self, uv: np.ndarray) -> np.ndarray:
@@ -221,7 +227,7 @@ class Calibration:
         try:
             return _apply_h(self.homography, uv, centre)
         except BadInput as e:  # as the pose's refusal: which calibration
-            raise BadInput(f"calibration {self.name!r}: {e}") from None
+            raise BadInput(f"{self.label}: {e}") from None
 
     def _h_from_plane(self, ab: np.ndarray) -> np.ndarray:
         """The homography's plane coordinates -> pixels; points beyond the horizon refused (`_h_to_plane`)."""
@@ -231,12 +237,12 @@ class Calibration:
     def project(self, xyz_mm) -> np.ndarray:
         """Project base-frame points of shape (n, 3) to pixels (n, 2), CONTRACT frame."""
         if not self.has_pose:
-            raise BadInput(f"calibration {self.name!r} has no camera pose: cannot project 3D points")
+            raise BadInput(f"{self.label} has no camera pose: cannot project 3D points")
         xyz = np.asarray(xyz_mm, dtype=float).reshape(-1, 3)
         base2cam = np.linalg.inv(self.cam2base)
         pc = xyz @ base2cam[:3, :3].T + base2cam[:3, 3]
         if np.any(pc[:, 2] <= 0):
-            raise BadInput(f"calibration {self.name!r}: some points are behind the camera (above it)")
+            raise BadInput(f"{self.label}: some points are behind the camera (above it)")
         img, _ = cv2.projectPoints(pc.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), self.camera_matrix, self.dist)
         return img.reshape(-1, 2) + HALF_PX
 
@@ -264,12 +270,12 @@ class Calibration:
 
     def _check_plane(self, z: float) -> None:
         if self.plane is not None:
-            raise BadInput(f"calibration {self.name!r} is a homography for its tilted plane "
+            raise BadInput(f"{self.label} is a homography for its tilted plane "
                            f"({self.plane.describe()['equation']}) only: without a camera model it cannot map on "
                            f"another plane, such as z = {z:g} mm; calibrate with intrinsics (--camera-matrix or "
                            "--intrinsics) for that")
         if abs(z - self.plane_z_mm) > 1e-6:
-            raise BadInput(f"calibration {self.name!r} is a homography for the plane z = {self.plane_z_mm} mm "
+            raise BadInput(f"{self.label} is a homography for the plane z = {self.plane_z_mm} mm "
                            f"only; mapping at z = {z} mm needs intrinsics and a camera pose")
 
     # ---- derived figures ----------------------------------------------------------------

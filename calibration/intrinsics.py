@@ -404,10 +404,8 @@ def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[in
 
     use = [i for i, v in enumerate(views) if v.found]
     if len(use) < MIN_VIEWS:
-        hint = ("check --pattern, which counts the squares COLSxROWS for ChArUco, and --dictionary"
-                if charuco is not None else "check --pattern, which counts inner corners COLSxROWS")
         raise BadInput(f"the board was found in {len(use)} of {len(images)} images; at least {MIN_VIEWS} "
-                       f"are needed ({hint})")
+                       f"are needed ({pattern_hint(charuco is not None)})")
     k, dist, rms, per_view = _fit(obj_pts, img_pts, use, (w, h))
     _flag_outliers(views, use, per_view)
     if reject_outliers and any(views[i].outlier for i in use):
@@ -426,6 +424,12 @@ def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[in
                               board=board_info)
     result.warnings = _warnings(result)
     return result
+
+
+def pattern_hint(charuco: bool) -> str:
+    """What to check when the board is found in few views (or in some, falsely: a 9x7 in a 9x6 board)."""
+    return ("check --pattern, which counts the squares COLSxROWS for ChArUco, and --dictionary" if charuco
+            else "check --pattern, which counts inner corners COLSxROWS")
 
 
 def _refuse_mixed_sizes(images) -> None:

@@ -185,6 +185,9 @@ def _require_straight_up(p: Part, source: str) -> None:
 def parse_assembly(raw, source: str = "<assembly>", base_dir: Path | None = None) -> Assembly:
     parts, cell_path = _parse_common(raw, source, base_dir)
     seq = raw.get("sequence")
+    if seq is None and "target" in raw:  # `cell plan scene.json`
+        raise BadInput(f"{source}: no 'sequence' (the order the parts are removed in): this looks like a scene "
+                       "file (it names a 'target'); `cell grasp` takes scene files")
     if not isinstance(seq, list) or not all(isinstance(s, str) for s in seq):
         raise BadInput(f"{source}: 'sequence' must be a list of part ids")
     ids = [p.id for p in parts]
@@ -256,10 +259,13 @@ def parse_part(raw, where: str = "part") -> Part:
     where = f"{where.rsplit(':', 1)[0]}: part {pid!r}"
     outline = _ring(raw.get("outline"), f"{where} outline")
     holes_raw = raw.get("holes", [])
-    if not isinstance(holes_raw, list):
-        raise BadInput(f"{where}: 'holes' must be a list of rings")
+    if not isinstance(holes_raw, list) or any(_is_point(h) for h in holes_raw):
+        raise BadInput(f"{where}: 'holes' must be a list of rings, each a list of [x, y] points: "
+                       "[[[x, y], [x, y], [x, y], ...], ...] (one hole too is in a list of its own)")
     holes = [_ring(h, f"{where} hole #{i}") for i, h in enumerate(holes_raw)]
-    zb, zt = _num(raw.get("z_bottom", 0.0), f"{where} z_bottom"), _num(raw.get("z_top"), f"{where} z_top")
+    if "z_top" not in raw:  # (z_bottom defaults to the table)
+        raise BadInput(f"{where}: 'z_top' is missing (the height of the part's top, mm)")
+    zb, zt = _num(raw.get("z_bottom", 0.0), f"{where} z_bottom"), _num(raw["z_top"], f"{where} z_top")
     if max(abs(zb), abs(zt)) > MAX_COORD_MM:  # as for the outline: not mm of a part on the tray
         raise BadInput(f"{where}: z_bottom and z_top must be within {MAX_COORD_MM:g} mm of the table "
                        f"(got {max(abs(zb), abs(zt)):g}; the units are mm)")
@@ -363,7 +369,14 @@ def _ring(raw, where) -> np.ndarray:
                        f"(got {np.abs(arr).max():g}; the units are mm)")
     if np.allclose(arr[0], arr[-1]) and len(arr) > 3:
         arr = arr[:-1]  # tolerate a repeated first point
+    if np.linalg.matrix_rank(arr - arr[0]) < 2:  # shapely calls it a "Self-intersection"
+        raise BadInput(f"{where}: its points all lie on one line (or are one point): it has no area")
     return arr
+
+
+def _is_point(raw) -> bool:
+    """[x, y] where a ring was expected: a flat list of points given for 'holes'."""
+    return isinstance(raw, list) and bool(raw) and all(isinstance(v, (int, float)) for v in raw)
 
 
 def _refuse_non_finite(meta: dict, where: str) -> None:

@@ -155,7 +155,7 @@ def test_out_of_range_files_are_refused_naming_the_key(tmp_path, capsys, mutate,
 
 def test_a_plane_beyond_the_horizon_names_the_calibration():
     cal = load_calibration()
-    with pytest.raises(BadInput, match="calibration 'default cell camera': the plane z = 900 mm is not in front"):
+    with pytest.raises(BadInput, match=r"calibration file \S+default\.json: the plane z = 900 mm is not in front"):
         cal.px_to_mm([[640, 512]], 900.0)  # above the camera, at 800 mm
 
 
@@ -245,7 +245,7 @@ def test_map_takes_pixels_up_to_an_image_size_outside_the_image(tmp_path, capsys
 
 
 @pytest.mark.parametrize("px, message", [
-    ("10,-400", "--px 10,-400: calibration 'h': some points lie beyond the plane's horizon"),
+    ("10,-400", "--px 10,-400: calibration file {path}: some points lie beyond the plane's horizon"),
     ("10,-333.3333", "--px 10,-333.3333: the pixel maps to a point more than 1e+06 mm from the base (at the "
                      "plane's horizon)"),
 ])
@@ -253,14 +253,14 @@ def test_map_refuses_pixels_at_or_beyond_the_homography_horizon(tmp_path, capsys
     """A tilted view whose horizon is the image line v = -333.3 (w = 0), inside the bound of an image size."""
     path = _homography_file(tmp_path, [[1.0, 0, 0], [0, -1.0, 0], [0, 0.003, 1.0]])
     code, out, err = run_cli("map", path, "--px", "320,240", px, "--json", capsys=capsys)
-    assert code == 2 and out == "" and message in err and err.count("\n") == 1, err
+    assert code == 2 and out == "" and message.format(path=path) in err and err.count("\n") == 1, err
 
 
 def test_map_puts_a_plane_the_calibration_cannot_map_on_no_pixel(tmp_path, capsys):
     """A --z the homography has no mapping for fails at every pixel: the message names no pixel."""
     path = _homography_file(tmp_path, np.diag([1.0, -1.0, 1.0]).tolist())
     code, out, err = run_cli("map", path, "--px", "320,240", "--z", "5", "--json", capsys=capsys)
-    assert code == 2 and err.startswith("cell: error: calibration 'h' is a homography for the plane z = 0"), err
+    assert code == 2 and err.startswith(f"cell: error: calibration file {path} is a homography for the plane z = 0")
 
 
 @pytest.mark.parametrize("dist", [[1e10, 0, 0, 0, 0], [0, 0, 0, 0, -1e6]])

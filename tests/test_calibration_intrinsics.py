@@ -286,3 +286,16 @@ def test_the_sector_detector_is_taken_only_where_it_finds_more_boards(chess_ref)
     four = calibrate_intrinsics(plain + blurred, (9, 6), 1.0)
     assert four.board["detector"] == "sb" and len(four.images_used) == 15
     assert "left04.jpg" not in four.images_used and {n for n, _ in blurred} <= set(four.images_used)
+
+
+@needs_photos
+def test_a_wrong_pattern_found_in_a_few_views_is_named(tmp_path, capsys):
+    """OpenCV finds 9x7 inner corners in 5 of the 13 photos of a 9x6 board; the lens fitted to those folds the
+    image. Was: only "more views, tilted in several directions", which would not have helped."""
+    images = sorted(CHESS.glob("left*.jpg"))
+    code, out, err = run_cli("calibrate", "intrinsics", *images, "--pattern", "9x7", "--square", "25",
+                             "--out", tmp_path / "cal.json", capsys=capsys)
+    assert code == 2 and out == "" and err.count("\n") == 1, err
+    assert "folds or collapses the image" in err
+    assert f"the board was found in 5 of {len(images)} images; check --pattern, which counts inner corners" in err
+    assert not (tmp_path / "cal.json").exists()

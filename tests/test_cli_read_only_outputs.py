@@ -77,6 +77,39 @@ def test_an_output_in_a_read_only_folder_is_refused_even_for_root(tmp_path, caps
     assert os.listdir(ro) == []
 
 
+# (argv before the output, the output's option, the output's name in the read-only folder)
+NEW_FOLDER_CASES = {
+    "render-out": (["render", ASSEMBLY], "--out", "new/o.png"),
+    "plan-figures": (["plan", ASSEMBLY], "--figures", "figs"),
+    "study": (["study", "--budget", "tiny"], "--out", "st"),
+    "run-save": (["run"], "--save", "new/v.rrd"),
+}
+
+
+@pytest.mark.parametrize("case", NEW_FOLDER_CASES)
+def test_an_output_to_be_made_in_a_read_only_folder_is_refused_even_for_root(tmp_path, capsys, case):
+    """Was: --figures, study --out and --save made their folder first (root may), then wrote into it."""
+    argv, option, name = NEW_FOLDER_CASES[case]
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    code, out, err = run_cli(*argv, option, ro / name, capsys=capsys)
+    assert code == 2 and err.startswith(f"cell: error: {option} {ro / name}") and \
+        err.endswith(f": the folder {ro} is not writable\n"), err
+    assert os.listdir(ro) == []
+
+
+@pytest.mark.parametrize("case", ["examples-overwrite", "render-out", "render-truth", "plan-figures"])
+def test_an_outputs_missing_folders_are_made(tmp_path, capsys, case):
+    """The README says so for every output option (the calibrations, study, run --record and --save make theirs
+    the same way)."""
+    argv, option, value, inside = CASES[case]
+    out = tmp_path / "new" / "deeper" / value
+    code, _, err = run_cli(*argv(tmp_path), option, out, capsys=capsys)
+    assert code == 0, err
+    assert (out / inside).is_file() if inside else out.is_file()
+
+
 def test_a_read_only_example_file_the_station_would_append_to_is_refused_before_the_run(tmp_path):
     """The station's rejects and teaching are appended to --examples: the first one stopped the run."""
     import shutil

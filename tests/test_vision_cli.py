@@ -1,6 +1,7 @@
 """The simulated camera, frame sources and the segment / render commands, with bad input."""
 
 import json
+import re
 from pathlib import Path
 
 import cv2
@@ -82,6 +83,21 @@ def test_segment_cli_with_calibration_gives_mm(frame_file, capsys):
     assert len(cover["holes_mm"]) == 2 and len(cover["outline_mm"]) == len(cover["outline_px"])
 
 
+def test_segment_cli_with_calibration_prints_mm_without_json_too(frame_file, capsys):
+    """Was: pixel figures only, though the calibration was given to have millimetres."""
+    code, out, _ = run_cli("segment", frame_file, "--calibration", default_calibration_path(), "--z", "8",
+                           capsys=capsys)
+    assert code == 0
+    cover = next(line for line in out.splitlines() if "2 hole(s)" in line)
+    px_area, mm2, x, y = (float(v) for v in re.search(
+        r"area (\d+) px = ([\d.]+) mm2, centroid \([\d.]+, [\d.]+\) px = \(([\d.]+), ([\d.]+)\) mm", cover).groups())
+    truth = PARTS[1].polygon.area  # (the silhouette, mapped at the top, takes in a little of the walls: +3 %)
+    assert abs(mm2 - truth) < 0.05 * truth and np.allclose([x, y], [420, 100], atol=1.0)
+    code, out, _ = run_cli("segment", frame_file, "--calibration", default_calibration_path(), "--z", "8", "--json",
+                           capsys=capsys)
+    assert any(p["area_mm2"] == mm2 for p in json.loads(out)["parts"])
+
+
 def test_segment_cli_empty_tray(tmp_path, capsys):
     p = tmp_path / "empty.png"
     cv2.imwrite(str(p), SimCamera(options=SimCameraOptions(seed=8)).render([]))
@@ -93,7 +109,7 @@ def test_segment_cli_refuses_other_resolution(tmp_path, frame_file, capsys):
     small = Calibration(640, 480, homography=np.diag([1.0, -1.0, 1.0]), name="small")
     save_calibration(small, tmp_path / "small.json")
     code, _, err = run_cli("segment", frame_file, "--calibration", tmp_path / "small.json", "--json", capsys=capsys)
-    assert code == 2 and "1280 x 1024 px but calibration 'small' is for 640 x 480" in err
+    assert code == 2 and f"1280 x 1024 px but calibration file {tmp_path / 'small.json'} is for 640 x 480" in err
 
 
 def test_segment_cli_refuses_a_frame_of_another_size_before_any_output(tmp_path, frame_file, capsys):

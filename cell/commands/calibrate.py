@@ -35,6 +35,15 @@ def add_arguments(p) -> None:
     p.add_argument("--json", action="store_true", help="accepted for symmetry: the result is always JSON")
 
 
+def _views_found(result, n_images: int, charuco: bool) -> str:
+    """In how many views the board was found; in under half, the board given is likely not the one shown."""
+    from calibration.intrinsics import pattern_hint
+
+    found = sum(v.found for v in result.views)
+    few = f"; {pattern_hint(charuco)}" if found < n_images / 2 else ""
+    return f"the board was found in {found} of {n_images} images{few}"
+
+
 def run(args) -> int:
     from calibration import save_calibration
     from calibration.intrinsics import calibrate_intrinsics
@@ -61,7 +70,10 @@ def run(args) -> int:
     result = calibrate_intrinsics(images, pattern, args.square, detector=args.detector, charuco=charuco,
                                   reject_outliers=args.reject_outliers, subpix_win=args.subpix_win)
     cal = result.to_calibration(args.name or "intrinsics")
-    save_calibration(cal, args.out)
+    try:
+        save_calibration(cal, args.out)
+    except BadInput as e:  # a lens model that folds the image: often a board of another size, found by mistake
+        raise BadInput(f"{e} ({_views_found(result, len(images), charuco is not None)})") from None
     out = result.to_json()
     out["out"] = str(args.out)
     print(json.dumps(out))

@@ -79,6 +79,9 @@ def run(args) -> int:
     out: dict = {}
     if args.markers:
         dictionary, known = parse_markers(read_json(args.markers, "markers file"), args.markers)
+        if len(known) < MIN_MARKERS:  # no image could help: was "2 of the markers ... were found"
+            raise BadInput(f"--markers {args.markers} lists only {len(known)} marker{'s' * (len(known) > 1)} "
+                           f"({sorted(known)}); at least {MIN_MARKERS} are needed")
         duplicated: list[int] = []
         detected = detect_markers(cv_grey(frame), dictionary, duplicated)
         uv, xyz, used, missing = markers_correspondences(detected, known)

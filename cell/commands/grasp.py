@@ -32,7 +32,11 @@ def load_planner_inputs(examples_path):
     if examples_path is None and not default_examples_path().exists():
         raise BadInput(f"the shipped default example file {default_examples_path()} is missing; "
                        "pass --examples FILE")
-    return load_examples(examples_path)
+    examples = load_examples(examples_path)
+    if not any(ex.valid for ex in examples):  # (the planner refuses them too, but knows no file to name)
+        raise BadInput(f"example file {examples_path or default_examples_path()} holds no accepted grasp (all "
+                       f"{len(examples)} were rejected): the planner needs at least one to imitate")
+    return examples
 
 
 class PlannerCache:

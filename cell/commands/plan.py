@@ -28,7 +28,9 @@ def run(args) -> int:
         from pathlib import Path
 
         from cell.errors import BadInput
+        from cell.fileio import check_folder_writable
 
+        check_folder_writable(Path(args.figures), f"--figures {args.figures}")  # root could make it in a read-only one
         try:
             Path(args.figures).mkdir(parents=True, exist_ok=True)
         except OSError as e:

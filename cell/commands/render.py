@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 
@@ -50,6 +51,7 @@ def run(args) -> int:
     if args.no_distortion:
         opts = replace(opts, distortion=False)
     cam = SimCamera(cal, opts)
+    _warn_parts_out_of_view(parts, cam, args.scene)
     frame = cam.render(parts)
     write_image(args.out, frame)
     if args.truth:
@@ -60,6 +62,21 @@ def run(args) -> int:
     print(json.dumps({"out": str(args.out), "parts": len(parts), "width_px": frame.shape[1],
                       "height_px": frame.shape[0], "seed": args.seed}))
     return 0
+
+
+def _warn_parts_out_of_view(parts, cam, source) -> None:
+    """The frame is still rendered (a view of the tray alone has its uses), but a part missing from it
+    should not pass unnoticed: an empty frame and exit 0 said nothing."""
+    import shapely
+
+    view = shapely.box(0, 0, cam.cal.width_px, cam.cal.height_px)
+    for p in parts:
+        top = shapely.Polygon(cam.project_points(p.outline_mm, p.z_top_mm))
+        if not view.contains(top):
+            where = "partly outside" if top.intersects(view) else "outside"
+            b = p.polygon.bounds
+            print(f"cell: warning: {source}: part {p.id!r} (x {b[0]:.1f}..{b[2]:.1f}, y {b[1]:.1f}..{b[3]:.1f} mm) "
+                  f"lies {where} the camera's view ({cam.cal.width_px} x {cam.cal.height_px} px)", file=sys.stderr)
 
 
 def _check_outputs(args, inputs) -> None:

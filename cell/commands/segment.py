@@ -79,6 +79,7 @@ def run(args) -> int:
                 d["outline_mm"] = [[round(float(x), 3), round(float(y), 3)] for x, y in outline_mm]
                 d["holes_mm"] = [[[round(float(x), 3), round(float(y), 3)] for x, y in h] for h in holes_mm]
                 d["centroid_mm"] = [round(float(v), 3) for v in cal.px_to_mm(seg.centroid_px, z)[0]]
+                d["area_mm2"] = round(_area_mm2(outline_mm, holes_mm), 1)
                 d["z_mm"] = z
             parts.append(d)
         h, w = frame.shape[:2]
@@ -93,9 +94,22 @@ def run(args) -> int:
             print(f"{path}: {len(parts)} part(s)" + (f"; {outside} region(s) outside the tray left out" if outside
                                                       else ""))
             for i, d in enumerate(parts):
-                flags = ", ".join(f for f in ("merged", "cut_off") if d[f])
-                print(f"  #{i}: area {d['area_px']:.0f} px, centroid ({d['centroid_px'][0]:.1f}, "
-                      f"{d['centroid_px'][1]:.1f}) px, {len(d['holes_px'])} hole(s)" + (f" [{flags}]" if flags
-                                                                                      else ""))
+                print(f"  #{i}: {_part_line(d)}")
     sys.stdout.flush()
     return 0
+
+
+def _area_mm2(outline_mm, holes_mm) -> float:
+    """The part's area seen from above: its outline's less its holes'."""
+    import shapely
+
+    return shapely.Polygon(outline_mm, holes_mm).area
+
+
+def _part_line(d: dict) -> str:
+    """One part in pixels and, with a calibration, in mm on the table: what a user checks the mapping by."""
+    (u, v), flags = d["centroid_px"], ", ".join(f for f in ("merged", "cut_off") if d[f])
+    area = f"area {d['area_px']:.0f} px" + (f" = {d['area_mm2']:.1f} mm2" if "area_mm2" in d else "")
+    centroid = f"centroid ({u:.1f}, {v:.1f}) px" + (
+        " = ({:.1f}, {:.1f}) mm".format(*d["centroid_mm"]) if "centroid_mm" in d else "")
+    return f"{area}, {centroid}, {len(d['holes_px'])} hole(s)" + (f" [{flags}]" if flags else "")

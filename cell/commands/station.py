@@ -36,7 +36,7 @@ def run(args) -> int:
     from cell.fileio import check_writable
     from cell.runtime.control import RunControl
     from cell.station.demo import DemoCell
-    from cell.station.server import StationServer
+    from cell.station.server import LOOPBACK_HOSTS, StationServer
 
     if not (0 <= args.port <= 65535):
         raise BadInput(f"--port must be 0..65535, not {args.port}")
@@ -44,6 +44,9 @@ def run(args) -> int:
     if not 0 <= args.motion_s <= MAX_MOTION_S:
         raise BadInput(f"--motion-s must be 0..{MAX_MOTION_S:g} s, got {args.motion_s:g}")
     seconds(args.for_s, "--for-s")
+    if args.host not in LOOPBACK_HOSTS and not args.allow_remote:  # (the server's own refusal names no flag)
+        raise BadInput(f"--host {args.host} would let anyone on the network reach the arm; give --allow-remote "
+                       "too (the session token then guards it), or keep the default 127.0.0.1")
     check_writable(args.examples, "--examples")  # a path under a file failed only at the first taught grasp
     control = RunControl(require_approval=args.approve_each)
     cell = DemoCell(control, args.examples, motion_s=args.motion_s)

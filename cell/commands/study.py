@@ -31,7 +31,7 @@ def run(args) -> int:
 
     from cell.cellconfig import load_cell
     from cell.errors import BadInput
-    from cell.fileio import check_writable
+    from cell.fileio import check_folder_writable, check_writable
     from cell.study.data import point_dataset, set_dataset, with_label_noise
     from cell.study.experiments import Budget, run_problem
     from cell.study.report import OUTPUTS, headline_table, write_report
@@ -50,6 +50,7 @@ def run(args) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise BadInput(f"--out {out} exists and is not a folder")
+    check_folder_writable(out, f"--out {out}")  # root could make it in a read-only folder
     try:  # before minutes of work, not after
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:

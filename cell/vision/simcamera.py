@@ -77,7 +77,8 @@ class SimCamera:
         if not cal.has_pose:
             from cell.errors import BadInput
 
-            raise BadInput("the simulated camera needs a calibration with intrinsics and a camera pose")
+            raise BadInput(f"the simulated camera needs a calibration with intrinsics and a camera pose: "
+                           f"{cal.label} has none")
         self.cal = cal
         self.options = options or SimCameraOptions()
         self._frame_index = 0

@@ -178,6 +178,17 @@ def load_examples(path: str | Path | None = None, *, allow_empty: bool = False) 
     return _parse_examples(read_text(path, "example file"), path, allow_empty)
 
 
+def load_planner_examples(path: str | Path | None = None) -> list[GraspExample]:
+    """`load_examples` for a planner: refused, naming the file, without an accepted grasp (the planner
+    refuses them too, but knows no file to name)."""
+    path = Path(path) if path is not None else default_examples_path()
+    examples = load_examples(path)
+    if not any(ex.valid for ex in examples):
+        raise BadInput(f"example file {path} holds no accepted grasp (all {len(examples)} were rejected): the "
+                       "planner needs at least one to imitate")
+    return examples
+
+
 def _parse_examples(text: str, path: Path, allow_empty: bool) -> list[GraspExample]:
     out: list[GraspExample] = []
     seen: set[str] = set()

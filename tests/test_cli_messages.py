@@ -49,7 +49,7 @@ def test_a_scene_file_given_to_plan_is_named_as_one(tmp_path, capsys):
     assert "looks like a scene file" in err and "`cell grasp`" in err  # was "'sequence' must be a list of part ids"
 
 
-@pytest.mark.parametrize("command", ["rules", "grasp"])
+@pytest.mark.parametrize("command", ["rules", "grasp", "run"])
 def test_examples_that_are_all_rejected_name_their_file(tmp_path, capsys, command):
     rejected = tmp_path / "rejected.jsonl"
     rejected.write_text("".join(line for line in EXAMPLES.read_text().splitlines(keepends=True)

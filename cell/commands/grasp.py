@@ -27,16 +27,12 @@ def add_arguments(p):
 def load_planner_inputs(examples_path):
     """Examples from FILE, or the shipped default (a clear error when it is missing)."""
     from cell.errors import BadInput
-    from cell.examples import default_examples_path, load_examples
+    from cell.examples import default_examples_path, load_planner_examples
 
     if examples_path is None and not default_examples_path().exists():
         raise BadInput(f"the shipped default example file {default_examples_path()} is missing; "
                        "pass --examples FILE")
-    examples = load_examples(examples_path)
-    if not any(ex.valid for ex in examples):  # (the planner refuses them too, but knows no file to name)
-        raise BadInput(f"example file {examples_path or default_examples_path()} holds no accepted grasp (all "
-                       f"{len(examples)} were rejected): the planner needs at least one to imitate")
-    return examples
+    return load_planner_examples(examples_path)
 
 
 class PlannerCache:

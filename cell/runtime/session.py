@@ -205,9 +205,9 @@ def run_session(cfg: RunConfig) -> dict:
     if cfg.real_cell is None:  # the simulated world lays the parts out as the assembly says
         _require_parts_in_view(assembly, cal, assembly_path)
     examples_path = Path(cfg.examples) if cfg.examples else default_examples_path()
-    from cell.examples import load_examples
+    from cell.examples import load_planner_examples
 
-    load_examples(examples_path)  # bad example files are refused before anything moves
+    load_planner_examples(examples_path)  # bad example files are refused before anything moves
     examples_out = None
     if examples_path.resolve() == default_examples_path().resolve():
         # never the shipped file; a fresh file per session (not one an earlier run left here)

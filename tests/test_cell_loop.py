@@ -499,6 +499,80 @@ def test_a_carry_off_that_is_refused_asks_for_the_part_to_be_taken_out_by_hand(s
     assert not any(e.startswith("released") for e in world.events)
 
 
+def refuse_the_carry_off_after_a_fault(loop, arm, drives, world):
+    """J1 faults with the first part in the jaws, and every way to the drop-off is refused after the reset:
+    the operator is asked to take the part out by hand."""
+    from cell.runtime.loop import LinksWouldHit
+
+    fault_after(arm, drives, "grip", 1, "j1")
+    check = loop._check_links
+
+    def refuse_the_carry_off(part_id, commands, why):  # whichever drop-off configuration
+        if commands[0].label == "lift":
+            raise LinksWouldHit("on the way to 'carry' the arm's links would hit a column (test)")
+        return check(part_id, commands, why)
+
+    loop._check_links = refuse_the_carry_off
+
+
+def count_opens(arm) -> list:
+    """Every arm.gripper.open from now on, appended to the list returned."""
+    opens, open_ = [], arm.gripper.open
+
+    def counted(*a, **k):
+        opens.append(a or k)
+        return open_(*a, **k)
+
+    arm.gripper.open = counted
+    return opens
+
+
+def test_a_reset_with_the_part_still_in_the_jaws_asks_again_and_opens_nothing(short_assembly):
+    """Asked to take the part out of the jaws, the operator resets without taking it: the jaws must not open
+    over the tray (the part would fall where the arm stopped) and the part is not counted removed; the loop asks
+    again. Once taken, the run goes on as usual."""
+    faults, at_ask = [], {}
+
+    def arrange(loop, arm, drives, world):
+        refuse_the_carry_off_after_a_fault(loop, arm, drives, world)
+        at_ask["opens"] = count_opens(arm)
+
+    def reset_without_taking_it(loop, w, fault):
+        faults.append(fault)
+        at_ask.update(opened=len(at_ask["opens"]), events=len(w.events))
+
+    def asked_again(loop, w, fault):
+        faults.append(fault)
+        at_ask.update(opened_since=at_ask["opens"][at_ask["opened"]:], events_since=w.events[at_ask["events"]:],
+                      reports=[r.part for r in loop.reports], remaining=list(loop.remaining), held=w.held)
+        w.take_out_of_jaws()
+
+    s, world = interactive_run(short_assembly, arrange, lambda loop, w, fault: faults.append(fault),
+                               reset_without_taking_it, asked_again)
+    first = s["parts"][0]["part"]
+    assert "take it out by hand" in str(faults[1])
+    assert f"{first} is still between the jaws (they stand at " in str(faults[2])
+    assert "as when they gripped it): take it out by hand, then reset" in str(faults[2])
+    assert at_ask["opened_since"] == [] and at_ask["held"] == first  # no jaw opened: still held, not dropped
+    assert not any(e.startswith("released") for e in at_ask["events_since"])
+    assert first not in at_ask["reports"] and at_ask["remaining"][0] == first  # not counted removed
+    assert (s["parts_total"], s["parts_removed"]) == (3, 3)
+    assert s["parts"][0]["reason"] == "taken out of the jaws by hand after a drive fault"
+    assert not any(e.startswith("released") for e in world.events)
+
+
+def test_a_reset_once_the_part_was_taken_out_of_the_jaws_goes_on_at_once(short_assembly):
+    faults = []
+    s, world = interactive_run(
+        short_assembly, refuse_the_carry_off_after_a_fault, lambda loop, w, fault: faults.append(fault),
+        lambda loop, w, fault: (faults.append(fault), w.take_out_of_jaws()))
+    first = s["parts"][0]["part"]
+    assert len(faults) == 2 and "take it out by hand" in str(faults[1])
+    assert (s["parts_total"], s["parts_removed"]) == (3, 3) and s["parts"][0]["part"] == first
+    assert s["parts"][0]["reason"] == "taken out of the jaws by hand after a drive fault"
+    assert not any(e.startswith("released") for e in world.events)
+
+
 @pytest.mark.parametrize("name", ["default", "drive_unit", "fig18_product"])
 def test_displaced_parts_never_move_into_each_other(name):
     from cell.runtime.session import displaced

@@ -250,17 +250,19 @@ class CellLoop:
         if self.home_first is not None:  # the first motion waits for the operator's Run
             home, self.home_first = self.home_first, None
             go_to(self.arm, home)  # a real cell's arm may stand anywhere: up first, then across
-        if self._taken_by_hand is not None:  # the operator took the part out of the jaws and reset
-            pick, self._taken_by_hand = self._taken_by_hand, None
-            self._retreat(pick["grasp"])
-            self._picked(pick, "taken out of the jaws by hand after a drive fault")
-            return
         faulted = bool(self.arm.faults)
         if faulted:
             self.arm.reset_faults()
             if self.control.stop_requested:  # pressed as the reset began: cleared with the faults, so stop again
                 self.arm.stop()
                 return  # the next checkpoint raises Stopped, before anything moves
+        if self._taken_by_hand is not None:  # the operator was asked to take the part out of the jaws, and reset
+            pick = self._taken_by_hand
+            self._require_taken_out(pick)
+            self._taken_by_hand = None
+            self._retreat(pick["grasp"])
+            self._picked(pick, "taken out of the jaws by hand after a drive fault")
+            return
         if self._pick is not None:  # a pick was cut short (a drive fault, a refused move)
             grasp = self._pick["grasp"]
             if self._recover_pick():
@@ -565,7 +567,7 @@ class CellLoop:
         def on_step(rec):
             if self._pick is not None:
                 if rec["action"] == "grip" and rec.get("holding"):
-                    self._pick["stage"] = "gripped"
+                    self._pick.update(stage="gripped", grip_width_mm=rec["width_mm"])
                 elif rec["action"] == "open" and rec["label"] == "release":
                     self._pick["stage"] = "released"
             if self.viz is not None:
@@ -680,6 +682,19 @@ class CellLoop:
         pick["report"].motion_s += records[-1]["t_end_s"] - records[0]["t_start_s"]
         self._picked(pick, "carried off after the pick was cut short")
         return True
+
+    def _require_taken_out(self, pick: dict) -> None:
+        """Raise (the operator is asked again) unless the part of `pick` is gone from between the jaws: opened,
+        they would drop it where the arm stopped, over the tray. The jaws close again under the force limit:
+        they stop where they gripped it while it is there. (Their width alone does not tell: a drive that
+        kept pushing closes on once the part is pulled out, but the quick stop after a fault ended that push.)"""
+        grip_width_mm = pick["grip_width_mm"]
+        closed = self.arm.gripper.grip(grip_width_mm)
+        if closed.holding or closed.blocked:
+            raise CellError(f"{pick['part']} is still between the jaws (they stand at {closed.width_mm:.1f} mm, as "
+                            "when they gripped it): take it out by hand, then reset")
+        self.control.log("taken", f"{pick['part']} is out of the jaws (they closed to {closed.width_mm:.1f} mm, "
+                         f"{grip_width_mm:.1f} mm when they gripped it)", part=pick["part"])
 
     def _picked(self, pick: dict, reason: str = "") -> None:
         """The part of `pick` has left the tray in the jaws: out of the sequence; the next frame

@@ -85,11 +85,11 @@ class SimWorld:
             return self._between_jaws_locked()
 
     def _between_jaws_locked(self) -> float | None:
+        if self.held is not None:  # closing again on the part they hold, the jaws stop on it (they went
+            return self._held_width  # through it: it was left out as an obstacle to itself)
         tool, opening = self._pose()
         centre = np.array([tool.x_mm, tool.y_mm])
         for part in sorted(self.parts.values(), key=lambda p: -p.z_top_mm):
-            if self.held == part.id:
-                continue
             w = close_jaws(part, centre, tool.axis_deg, opening, tool.z_mm, self.cell)
             if w is None:
                 continue

@@ -296,9 +296,7 @@ def test_space_and_enter_press_the_focused_button_and_s_stops(browser, station, 
 
     server, control, _, _ = station
     d = browser
-    control.run()
-    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
-    open_page(d, server, "awaiting approval")
+    open_page_awaiting_approval(d, server, control)
     if focus:
         d.execute_script(f"document.getElementById('{focus}').focus()")
     keys(d, key)
@@ -371,6 +369,13 @@ def open_page(d, server, state):
     d.execute_script(RECORD_POSTS)
 
 
+def open_page_awaiting_approval(d, server, control):
+    """Run the demo cell until its first grasp waits for approval, and open the page on it."""
+    control.run()
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    open_page(d, server, "awaiting approval")
+
+
 def keys(d, *k):
     from selenium.webdriver.common.action_chains import ActionChains
 
@@ -385,9 +390,7 @@ def test_browser_shortcuts_with_ctrl_do_not_approve_reject_or_pause(browser, sta
 
     server, control, _, _ = station
     d = browser
-    control.run()
-    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
-    open_page(d, server, "awaiting approval")
+    open_page_awaiting_approval(d, server, control)
     for k in "aprt":
         ActionChains(d).key_down(Keys.CONTROL).send_keys(k).key_up(Keys.CONTROL).perform()
         ActionChains(d).key_down(Keys.ALT).send_keys(k).key_up(Keys.ALT).perform()
@@ -402,9 +405,7 @@ def test_r_with_an_empty_reason_focuses_the_field_without_typing_an_r_into_it(br
 
     server, control, _, _ = station
     d = browser
-    control.run()
-    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
-    open_page(d, server, "awaiting approval")
+    open_page_awaiting_approval(d, server, control)
     keys(d, "r")
     reason = d.find_element(By.ID, "reason")
     assert d.switch_to.active_element == reason
@@ -483,9 +484,7 @@ def test_a_reason_typed_for_one_grasp_is_not_kept_for_the_next(browser, station)
 
     server, control, _, _ = station
     d = browser
-    control.run()
-    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
-    open_page(d, server, "awaiting approval")
+    open_page_awaiting_approval(d, server, control)
     d.find_element(By.ID, "reason").send_keys("finger on the spring")
     d.find_element(By.ID, "btn-approve").click()
     WebDriverWait(d, T).until(lambda _: "board" in d.find_element(By.ID, "proposal-text").text)
@@ -525,9 +524,7 @@ def test_on_a_portrait_tablet_the_frame_spans_the_width_above_the_buttons(browse
     server, control, _, _ = station
     d = browser
     d.set_window_size(800, 1280)
-    control.run()
-    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
-    open_page(d, server, "awaiting approval")
+    open_page_awaiting_approval(d, server, control)
     WebDriverWait(d, T).until(lambda _: "cover" in d.find_element(By.ID, "proposal-text").text)
     view, run, approve, inner_h, inner_w, scroll_w = d.execute_script(
         """const r = (id) => document.getElementById(id).getBoundingClientRect().toJSON();
@@ -645,9 +642,7 @@ def test_a_state_polled_before_a_command_does_not_undo_what_the_command_showed(b
     server, control, _, _ = station
     d = browser
     wait = WebDriverWait(d, T, poll_frequency=0.02)
-    control.run()
-    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
-    open_page(d, server, "awaiting approval")
+    open_page_awaiting_approval(d, server, control)
     d.execute_script(HOLD_STATE_POLLS)
     wait.until(lambda _: d.execute_script("return window.__held.length") == 1)  # asked while awaiting
     d.find_element(By.ID, "btn-stop").click()
@@ -710,9 +705,7 @@ def test_the_page_does_not_scroll_and_the_header_keeps_its_badge_on_one_line(bro
     server, control, _, _ = station
     d = browser
     viewport(d, 1280, 800)  # the station PC's screen, the browser full screen
-    control.run()
-    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
-    open_page(d, server, "awaiting approval")
+    open_page_awaiting_approval(d, server, control)
     WebDriverWait(d, T).until(lambda _: "cover" in d.find_element(By.ID, "proposal-text").text)
     for n in range(40):
         control.log("note", f"a long line of the log, number {n}, to fill the card")
@@ -749,9 +742,7 @@ def test_reject_with_an_empty_reason_asks_for_one_first(browser, station):
 
     server, control, _, _ = station
     d = browser
-    control.run()
-    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
-    open_page(d, server, "awaiting approval")
+    open_page_awaiting_approval(d, server, control)
     reason = d.find_element(By.ID, "reason")
     d.find_element(By.ID, "btn-reject").click()
     assert posts(d) == [] and control.state == AWAITING_APPROVAL
@@ -1034,9 +1025,7 @@ def test_a_pause_pressed_while_a_grasp_waits_shows(browser, station):
     server, control, _, _ = station
     d = browser
     wait = WebDriverWait(d, T, poll_frequency=0.05)
-    control.run()
-    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
-    open_page(d, server, "awaiting approval")
+    open_page_awaiting_approval(d, server, control)
     d.find_element(By.ID, "btn-pause").click()
     wait.until(lambda _: "then pause" in d.find_element(By.ID, "message").text)
     assert not d.find_element(By.ID, "btn-pause").is_enabled()
@@ -1112,9 +1101,7 @@ def test_approval_turned_off_while_a_grasp_waits_says_that_one_still_waits(brows
 
     server, control, _, _ = station
     d = browser
-    control.run()
-    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
-    open_page(d, server, "awaiting approval")
+    open_page_awaiting_approval(d, server, control)
     d.find_element(By.ID, "approve-each").click()
     WebDriverWait(d, T).until(lambda _: "still needs Approve or Reject" in d.find_element(By.ID, "toast").text)
     assert not control.require_approval and control.state == AWAITING_APPROVAL
@@ -1213,9 +1200,7 @@ def test_a_double_click_on_approve_decides_once_and_shows_no_error(browser, stat
     server, control, _, _ = station
     d = browser
     wait = WebDriverWait(d, T, poll_frequency=0.02)
-    control.run()
-    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
-    open_page(d, server, "awaiting approval")
+    open_page_awaiting_approval(d, server, control)
     d.execute_script(RECORD_TOASTS_AND_SETTLED_POSTS)
     d.execute_script(HOLD_STATE_POLLS)  # the page keeps showing the cover's grasp ...
     wait.until(lambda _: d.execute_script("return window.__held.length") == 1)

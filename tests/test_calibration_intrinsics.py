@@ -1,6 +1,7 @@
 """Intrinsics on real photographs made by others, against OpenCV's published numbers."""
 
 import json
+import re
 
 import cv2
 import numpy as np
@@ -290,12 +291,15 @@ def test_the_sector_detector_is_taken_only_where_it_finds_more_boards(chess_ref)
 
 @needs_photos
 def test_a_wrong_pattern_found_in_a_few_views_is_named(tmp_path, capsys):
-    """OpenCV finds 9x7 inner corners in 5 of the 13 photos of a 9x6 board; the lens fitted to those folds the
-    image. Was: only "more views, tilted in several directions", which would not have helped."""
+    """OpenCV finds 9x7 inner corners in 4 or 5 of the 13 photos of a 9x6 board (the count varied between two
+    runs on one machine); the lens fitted to those folds the image. Was: only "more views, tilted in several
+    directions", which would not have helped."""
     images = sorted(CHESS.glob("left*.jpg"))
     code, out, err = run_cli("calibrate", "intrinsics", *images, "--pattern", "9x7", "--square", "25",
                              "--out", tmp_path / "cal.json", capsys=capsys)
     assert code == 2 and out == "" and err.count("\n") == 1, err
     assert "folds or collapses the image" in err
-    assert f"the board was found in 5 of {len(images)} images; check --pattern, which counts inner corners" in err
+    found = re.search(rf"the board was found in (\d+) of {len(images)} images; check --pattern, which counts inner "
+                      "corners", err)
+    assert found and 0 < int(found[1]) < len(images) / 2, err
     assert not (tmp_path / "cal.json").exists()

@@ -25,12 +25,14 @@ if TYPE_CHECKING:
 @dataclass(frozen=True)
 class GripResult:
     """Where the jaws stopped. `holding` is False when they closed past the expected width, or stopped on
-    something wider (`blocked`: a neighbour, a finger jammed, another part between the jaws)."""
+    something wider (`blocked`: a neighbour, a finger jammed, another part between the jaws). `stopped`: on
+    something, at any width (the force limit reached before they closed fully)."""
 
     width_mm: float
     holding: bool
     expected_width_mm: float
     blocked: bool = False
+    stopped: bool = False
 
 
 class Gripper:
@@ -90,4 +92,4 @@ class Gripper:
         stopped = bool(st.internal_limit)
         blocked = stopped and width > expected_width_mm + tolerance_mm
         holding = stopped and not blocked and width >= expected_width_mm - tolerance_mm
-        return GripResult(width, holding, expected_width_mm, blocked)
+        return GripResult(width, holding, expected_width_mm, blocked, stopped)

@@ -686,13 +686,14 @@ class CellLoop:
     def _require_taken_out(self, pick: dict) -> None:
         """Raise (the operator is asked again) unless the part of `pick` is gone from between the jaws: opened,
         they would drop it where the arm stopped, over the tray. The jaws close again under the force limit:
-        they stop where they gripped it while it is there. (Their width alone does not tell: a drive that
-        kept pushing closes on once the part is pulled out, but the quick stop after a fault ended that push.)"""
+        they stop on it while it is there, where they gripped it or, slid or half pulled out, elsewhere. (Their
+        width alone does not tell: a drive that kept pushing closes on once the part is pulled out, but the
+        quick stop after a fault ended that push.)"""
         grip_width_mm = pick["grip_width_mm"]
         closed = self.arm.gripper.grip(grip_width_mm)
-        if closed.holding or closed.blocked:
-            raise CellError(f"{pick['part']} is still between the jaws (they stand at {closed.width_mm:.1f} mm, as "
-                            "when they gripped it): take it out by hand, then reset")
+        if closed.stopped:  # on something: not only within the grip's tolerance (holding) or wider (blocked)
+            raise CellError(f"{pick['part']} is still between the jaws (they stand at {closed.width_mm:.1f} mm; "
+                            f"{grip_width_mm:.1f} mm when they gripped it): take it out by hand, then reset")
         self.control.log("taken", f"{pick['part']} is out of the jaws (they closed to {closed.width_mm:.1f} mm, "
                          f"{grip_width_mm:.1f} mm when they gripped it)", part=pick["part"])
 

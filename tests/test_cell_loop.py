@@ -752,3 +752,19 @@ def _ends(fn) -> str:
         return "returned"
     except Exception as e:  # noqa: BLE001 - the class is the result
         return type(e).__name__
+
+
+def test_a_part_no_frame_showed_gone_is_carried_not_removed_in_the_summary(short_assembly):
+    """The camera dies after the first part was let go at the drop-off: no frame showed it gone, so the summary
+    must not count it removed (it did, 1 of 3, with the stop's reason on no part)."""
+    faults = WorldFaults()
+
+    def camera_dies_once_carried(line):
+        if "carried off" in str(line):
+            faults.bad_frames = 3
+
+    s = run_session(RunConfig(assembly=short_assembly, seed=3, faults=faults, progress=camera_dies_once_carried))
+    assert s["status"] == "stopped" and s["stopped"].startswith("camera: no readable frame after 3 tries")
+    assert s["parts_removed"] == 0
+    carried = s["parts"][0]
+    assert carried["outcome"] == "carried" and "camera: no readable frame" in carried["reason"]

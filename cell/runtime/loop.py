@@ -91,7 +91,8 @@ class LinksWouldHit(CellError):
 @dataclass
 class PartReport:
     part: str
-    outcome: str  # removed | skipped; in the summary also stopped (the part the run stopped on)
+    outcome: str  # removed | skipped; in the summary also stopped (the part the run stopped on) and carried (let
+    # go at the drop-off, the run stopped before a frame showed it gone)
     attempts: int = 0
     motion_s: float = 0.0  # on the arm's clock (simulated seconds in simulation)
     planning_s: float = 0.0  # wall time of perception and planning
@@ -156,6 +157,7 @@ class CellLoop:
         self.remaining: list[str] = list(assembly.sequence)
         self.reports: list[PartReport] = []
         self._unfinished: PartReport | None = None  # the part being worked on, until removed or skipped
+        self._stop_reason = ""  # why the loop last stopped and asked (for the summary)
         self.state = LoopState()
         self._frame_counter = 0
         self._last_picked: tuple[str, Part] | None = None
@@ -748,16 +750,24 @@ class CellLoop:
 
     def _stopped_on(self, reason: str) -> None:
         """Why the part being worked on stopped (the summary lists it if the run ends there)."""
+        self._stop_reason = reason
         if self._unfinished is not None:
             self._unfinished.reason = reason
 
     # ------------------------------------------------------------------ reporting
     def part_reports(self) -> list[PartReport]:
-        """Every part removed or skipped, then the one the run stopped on (if it stopped while on one)."""
+        """Every part removed or skipped, then the one the run stopped on (if it stopped while on one). A part let
+        go at the drop-off that no frame has shown gone yet (the run stopped before the next one) is "carried", not
+        removed."""
+        reports = list(self.reports)
+        if self._last_picked is not None:
+            pid = self._last_picked[0]
+            why = f"carried off; the run stopped before a frame showed it gone ({self._stop_reason or 'stopped'})"
+            reports = [replace(r, outcome="carried", reason=why) if r.part == pid else r for r in reports]
         if self._unfinished is None:
-            return list(self.reports)
+            return reports
         stopped = replace(self._unfinished, outcome="stopped", reason=self._unfinished.reason or "the run was stopped")
-        return [*self.reports, stopped]
+        return [*reports, stopped]
 
     def summary(self) -> dict:
         reports = self.part_reports()

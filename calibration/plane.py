@@ -62,11 +62,12 @@ def detect_markers(gray: np.ndarray, dictionary: str, duplicates: list[int] | No
         if margin is not None:
             params.perspectiveRemoveIgnoredMarginPerCell = margin
         c, ids, _ = cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), params).detectMarkers(gray)
-        seen = set(flat)
+        seen, read = set(flat), list(corners)
         for ci, i in zip(c, [] if ids is None else ids.ravel(), strict=True):
-            # the second reading adds only ids the first did not read: markers both read keep the first's
-            # corners (the corners are found from the outline, the same in both; only the bits differ)
-            if margin is None or int(i) not in seen:
+            # the second reading adds only ids the first did not read, on markers it did not read: markers both
+            # read keep the first's corners (the corners are found from the outline, the same in both; only the
+            # bits differ), and a marker the first read as one id is not taken again as another
+            if margin is None or (int(i) not in seen and not _on_a_marker_read(ci, read)):
                 corners.append(ci)
                 flat.append(int(i))
     if not flat:
@@ -75,6 +76,13 @@ def detect_markers(gray: np.ndarray, dictionary: str, duplicates: list[int] | No
     if duplicates is not None:
         duplicates.extend(twice)
     return {i: c.reshape(4, 2).astype(float) + HALF_PX for i, c in zip(flat, corners, strict=True) if i not in twice}
+
+
+def _on_a_marker_read(quad: np.ndarray, read: list[np.ndarray]) -> bool:
+    """Does the centre of `quad` (a marker's corners as OpenCV gives them) lie on one of the markers `read`?"""
+    x, y = quad.reshape(4, 2).mean(axis=0)
+    return any(cv2.pointPolygonTest(q.reshape(4, 2).astype(np.float32), (float(x), float(y)), False) >= 0
+               for q in read)
 
 
 def parse_markers(raw, source: str) -> tuple[str, dict[int, np.ndarray]]:

@@ -457,3 +457,28 @@ def test_markers_of_a_defocused_frame_are_all_found_and_fit_as_sharp(tmp_path, c
         centres = [np.mean(c, axis=0)[:2] for c in json.loads(markers.read_text())["markers"].values()]
         uv = load_calibration(sharp).mm_to_px(np.array(centres))
         assert np.hypot(*(load_calibration(out).px_to_mm(uv) - centres).T).max() < 0.5, sigma
+
+
+def test_the_second_reading_takes_no_marker_the_first_read_under_another_id(monkeypatch):
+    """The middle-of-the-cells reading (for out-of-focus frames) adds ids the first reading missed. A marker
+    the first read as 3 and the second misread as 4 (were 4 listed but not in view) must not come back as
+    marker 4 at marker 3's place: the plane would be fitted through a wrong point."""
+    import cv2
+
+    from calibration import plane
+
+    image = np.full((300, 300), 255, np.uint8)
+    image[90:210, 90:210] = cv2.aruco.generateImageMarker(plane.aruco_dictionary("DICT_4X4_50"), 3, 120)
+    detector = cv2.aruco.ArucoDetector
+
+    class MisreadingInTheMiddle:
+        def __init__(self, dictionary, params):
+            self.det, self.second = detector(dictionary, params), params.perspectiveRemoveIgnoredMarginPerCell > 0.2
+
+        def detectMarkers(self, gray):
+            c, ids, rejected = self.det.detectMarkers(gray)
+            return c, (ids + 1 if self.second and ids is not None else ids), rejected
+
+    monkeypatch.setattr(cv2.aruco, "ArucoDetector", MisreadingInTheMiddle)
+    found = plane.detect_markers(image, "DICT_4X4_50")
+    assert list(found) == [3]

@@ -1257,6 +1257,7 @@ def test_a_command_sent_to_a_restarted_station_with_the_same_token_is_refused(br
     cell = DemoCell(control, tmp_path / "examples.jsonl", motion_s=0.0)
     with StationServer(cell, control, port=0, token=token) as server:
         open_page(d, server, "idle")
+        d.execute_script(RECORD_TOASTS_AND_SETTLED_POSTS)
         d.execute_script(HOLD_STATE_POLLS)  # the page does not see the restart before the tap
         wait.until(lambda _: d.execute_script("return window.__held.length") == 1)
         port = server.port
@@ -1266,6 +1267,11 @@ def test_a_command_sent_to_a_restarted_station_with_the_same_token_is_refused(br
         d.find_element(By.ID, "btn-run").click()
         wait.until(lambda _: "the station was restarted" in d.find_element(By.ID, "toast").text)
         assert control2.state == "idle" and posts(d) == ["run"]
+        # pressed again before the page drew the new state: refused too (the page took on the new session
+        # from the refusal, and the second press went to the new station as if its state had been seen)
+        d.find_element(By.ID, "btn-run").click()
+        wait.until(lambda _: d.execute_script("return window.__settled") == 2)
+        assert control2.state == "idle" and posts(d) == ["run", "run"]
         d.execute_script("window.__hold = false; window.__held.forEach((release) => release())")
         wait.until(lambda _: len(d.find_elements(By.CSS_SELECTOR, "#parts polygon")) == 2)
         d.find_element(By.ID, "btn-run").click()  # pressed again on the new state: taken

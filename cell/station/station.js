@@ -87,7 +87,8 @@ async function post(cmd, body) {
     const r = await fetch("/api/" + cmd, {method: "POST", headers, body: JSON.stringify(body || {})});
     const data = await r.json().catch(() => ({ok: false, error: "HTTP " + r.status}));
     const tokenIsOld = !!tokenSession && !!data.session && data.session !== tokenSession;
-    if (!data.ok) noteSession(data.session);
+    // (a restarted station's session is taken on when its state is drawn, not from a refusal: until then a
+    // second press still names the old session and is refused too, not applied to a grasp not yet shown)
     if (r.status === 403 && /token/.test(data.error || "")) {
       askForToken();
       // the server's words are for scripts (a header's name); the operator needs what to do

@@ -235,3 +235,29 @@ def test_labels_and_contacts_are_readable_on_the_cells_full_size_frame(live, bro
         """const r = (sel) => document.querySelector(sel).getBoundingClientRect();
            return [r('#parts .part-label').height, r('#proposal .contact').width];""")
     assert label_h >= 11 and contact_w >= 7, (label_h, contact_w)
+
+
+def test_the_frame_the_station_shows_changes_with_the_parts_seen_on_it(live):
+    """The station's frame index named the newest frame from the moment it was read, while its parts were still
+    the last frame's for the whole segmentation: a teach naming that frame was checked against the frame but
+    applied to the last frame's parts. Now index, frame and parts change together once the parts are known."""
+    server, control, loop, _, _ = live
+    backend, perceive, at_entry = LoopBackend(loop), loop._perceive, []
+
+    def watched(frame, index):
+        snap = backend.snapshot()
+        at_entry.append((index, snap["frame"]["index"], loop.state.frame is frame))
+        out = perceive(frame, index)
+        assert (loop.state.frame_index, loop.state.frame is frame) == (index, True)
+        return out
+
+    loop._perceive = watched
+    control.run(by="test")
+    control.wait_for_state(AWAITING_APPROVAL, timeout_s=T)
+    control.approve(by="test")
+    deadline = time.monotonic() + T
+    while len(at_entry) < 2 and time.monotonic() < deadline:  # the washer picked, the next frame perceived
+        time.sleep(0.05)
+    assert len(at_entry) >= 2
+    for index, shown, same_frame in at_entry:  # while a frame is segmented the station shows the one before
+        assert shown != index and not same_frame, at_entry

@@ -51,7 +51,7 @@ class LoopBackend:
 
     def teach(self, part_id: str, p1_px, p2_px) -> dict:
         lp = self.loop
-        seen = dict(lp.state.seen)  # one frame's parts: the loop may move on to the next meanwhile
+        index, seen = lp.state.frame_index, dict(lp.state.seen)  # one frame's parts: the loop may move on meanwhile
         part = seen.get(part_id)
         if part is None:
             raise BadInput(f"part {part_id!r} is not in the current frame")
@@ -76,7 +76,7 @@ class LoopBackend:
         now = datetime.now(UTC)
         ex = GraspExample(f"teach-{now.strftime('%Y%m%dT%H%M%S%f')}", part, contacts, True,
                           {"kind": "station-teach", "by": "operator", "at": now.isoformat(),
-                           "note": f"taught on frame {lp.state.frame_index}"},
+                           "note": f"taught on frame {index}"},
                           obstacles=others, grasp_z_mm=z, joints=joints)
         n_examples = lp.teach(ex)
         return {"ok": True, "example_id": ex.id, "n_examples": n_examples,

@@ -416,7 +416,6 @@ class CellLoop:
         index = self._frame_counter
         self._frame_counter += 1
         self.sink.write_frame(index, frame)
-        self.state.frame, self.state.frame_index = frame, index
         if self.viz is not None:
             self.viz.frame(index, frame)
         return frame, index
@@ -456,7 +455,10 @@ class CellLoop:
         for pid, part in seen.items():
             if pid in self.poses:
                 self.poses[pid] = part
-        self.state.seen = seen
+        # the station's frame, its index and the parts seen on it change together, once the parts are known: a
+        # teach names the frame its clicks were on and is checked against the parts of that frame (while this
+        # frame was segmented the index named it and the parts were the last frame's)
+        self.state.frame, self.state.frame_index, self.state.seen = frame, index, seen
         self.unexplained = self._unexplained(regions, seen, found, strangers)
         self.sink.write_decision({
             "type": "perception", "frame": index, "segments": len(segments),

@@ -261,3 +261,13 @@ def test_the_frame_the_station_shows_changes_with_the_parts_seen_on_it(live):
     assert len(at_entry) >= 2
     for index, shown, same_frame in at_entry:  # while a frame is segmented the station shows the one before
         assert shown != index and not same_frame, at_entry
+
+
+def test_the_station_lists_removed_and_skipped_parts_apart(live):
+    """The snapshot's `removed` held every report's part, skipped ones too."""
+    from cell.runtime.loop import PartReport
+
+    _, _, loop, _, _ = live
+    loop.reports.append(PartReport("nut", "skipped", reason="no feasible grasp"))
+    snap = LoopBackend(loop).snapshot()
+    assert (snap["removed"], snap["skipped"], snap["carried"]) == ([], ["nut"], [])

@@ -36,7 +36,8 @@ class LoopBackend:
         return {"frame": {"index": st.frame_index, "width_px": lp.cal.width_px, "height_px": lp.cal.height_px},
                 "parts": parts, "proposal_px": st.proposal,
                 "examples": {"path": str(lp.examples_path), "count": len(lp.examples)},
-                "remaining": list(lp.remaining), "removed": [r.part for r in lp.reports]}
+                "remaining": list(lp.remaining),
+                **_parts_by_outcome(lp.part_reports(), ("removed", "skipped", "carried"))}
 
     def stop(self) -> None:
         """The page's Stop (after RunControl.stop): quick-stop every axis now, mid-pick too."""
@@ -83,3 +84,9 @@ class LoopBackend:
                 "contacts_mm": np.round(contacts, 2).tolist(),
                 "opening_mm": round(opening, 2), "joints": None if joints is None else joints.rounded(3).as_dict(),
                 }
+
+
+def _parts_by_outcome(reports, outcomes) -> dict:
+    """outcome -> the ids of the parts with it: removed (a frame showed them gone), skipped, carried (let go at
+    the drop-off, no frame since); the part being worked on is in none of them."""
+    return {o: [r.part for r in reports if r.outcome == o] for o in outcomes}

@@ -87,12 +87,6 @@ def run(args) -> int:
         from cell.viz import check_display
 
         check_display()
-    if args.save:  # the session makes its folder first, which root could do in a read-only one
-        from pathlib import Path
-
-        from cell.fileio import check_folder_writable
-
-        check_folder_writable(Path(args.save).parent, f"--save {args.save}")
     real_cell = _real_cell(args, world_options)
     out = sys.stderr if args.json else sys.stdout
     cfg = RunConfig(assembly=args.assembly, cell=args.cell, calibration=args.calibration, examples=args.examples,

@@ -467,13 +467,13 @@ def _check_rrd_path(path: Path, inputs) -> None:
                        "save the rerun recording elsewhere")
     if path.suffix.lower() != ".rrd":  # rerun writes whatever name it is given; the viewer opens .rrd files
         raise BadInput(f"--save {path}: a rerun recording is a .rrd file; name it {path.with_suffix('.rrd').name}")
-    if path.parent.exists() and not path.parent.is_dir():
-        raise BadInput(f"--save {path}: {path.parent} is a file, not a folder")
+    # before its folder is made (root could make one in a read-only folder); rerun writes it in place: a
+    # read-only one was overwritten
+    check_writable(path, "--save")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise BadInput(f"--save {path}: cannot make its folder: {e.strerror or e}") from None
-    check_writable(path, "--save")  # rerun writes it in place: a read-only one was overwritten
 
 
 def _simulated_sources(cfg: RunConfig, cell, cal, assembly: Assembly, can_log, stack: contextlib.ExitStack):

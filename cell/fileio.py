@@ -110,6 +110,17 @@ def check_folder_writable(folder: Path, what: str) -> None:
             return
 
 
+def make_folder(folder: Path, what: str) -> None:
+    """Make an output folder and its missing parents before any work: refused (BadInput, `what` first) where
+    it cannot be one, a file or a read-only place (checked before making it: root could make it in a
+    read-only folder)."""
+    check_folder_writable(folder, what)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise BadInput(f"{what}: cannot make the folder {folder}: {e.strerror or e}") from None
+
+
 def file_sha256(path: str | os.PathLike) -> str:
     """The file's sha256 (hex), read a MB at a time."""
     import hashlib

@@ -27,14 +27,9 @@ def run(args) -> int:
     if args.figures:  # before the planning, not after
         from pathlib import Path
 
-        from cell.errors import BadInput
-        from cell.fileio import check_folder_writable
+        from cell.fileio import make_folder
 
-        check_folder_writable(Path(args.figures), f"--figures {args.figures}")  # root could make it in a read-only one
-        try:
-            Path(args.figures).mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise BadInput(f"--figures {args.figures} cannot be used as a folder: {e.strerror}") from None
+        make_folder(Path(args.figures), f"--figures {args.figures}")
     assembly = load_assembly(args.assembly)
     if args.figures:
         from pathlib import Path

@@ -31,7 +31,7 @@ def run(args) -> int:
 
     from cell.cellconfig import load_cell
     from cell.errors import BadInput
-    from cell.fileio import check_folder_writable, check_writable
+    from cell.fileio import check_writable, make_folder
     from cell.study.data import point_dataset, set_dataset, with_label_noise
     from cell.study.experiments import Budget, run_problem
     from cell.study.report import OUTPUTS, headline_table, write_report
@@ -48,13 +48,7 @@ def run(args) -> int:
     if not 0.0 <= args.label_noise < 0.5:
         raise BadInput("--label-noise must be a share in [0, 0.5)")
     out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise BadInput(f"--out {out} exists and is not a folder")
-    check_folder_writable(out, f"--out {out}")  # root could make it in a read-only folder
-    try:  # before minutes of work, not after
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise BadInput(f"--out {out} cannot be created: {e.strerror}") from None
+    make_folder(out, f"--out {out}")  # before minutes of work, not after
     for name in OUTPUTS:
         check_writable(out / name, "--out")
     cell = load_cell(args.cell)

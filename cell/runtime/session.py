@@ -19,7 +19,7 @@ import numpy as np
 
 from cell.cellconfig import load_cell
 from cell.examples import default_examples_path
-from cell.fileio import check_writable, write_atomic
+from cell.fileio import check_writable, make_folder, write_atomic
 from cell.runtime.control import RunControl, Stopped
 from cell.runtime.loop import CellLoop, LoopOptions, StopRun
 from cell.runtime.simworld import SimWorld, WorldFaults
@@ -467,13 +467,8 @@ def _check_rrd_path(path: Path, inputs) -> None:
                        "save the rerun recording elsewhere")
     if path.suffix.lower() != ".rrd":  # rerun writes whatever name it is given; the viewer opens .rrd files
         raise BadInput(f"--save {path}: a rerun recording is a .rrd file; name it {path.with_suffix('.rrd').name}")
-    # before its folder is made (root could make one in a read-only folder); rerun writes it in place: a
-    # read-only one was overwritten
-    check_writable(path, "--save")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise BadInput(f"--save {path}: cannot make its folder: {e.strerror or e}") from None
+    check_writable(path, "--save")  # rerun writes it in place: a read-only one was overwritten
+    make_folder(path.parent, f"--save {path}")
 
 
 def _simulated_sources(cfg: RunConfig, cell, cal, assembly: Assembly, can_log, stack: contextlib.ExitStack):

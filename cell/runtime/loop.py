@@ -283,8 +283,7 @@ class CellLoop:
         if grasps is None:
             return
         attempt = misses = 0
-        rejected_here: list[np.ndarray] = []
-        missed_here: list[np.ndarray] = []
+        left_out: list[np.ndarray] = []  # the contacts rejected or missed this cycle: not proposed again
         refused = ""
         while True:
             t1 = time.perf_counter()
@@ -300,7 +299,7 @@ class CellLoop:
             decision = self._approve(grasp, scene, attempt)
             if not decision.approved:
                 self._rejected(grasp, scene, decision.reason)
-                rejected_here.append(grasp.contacts_mm)
+                left_out.append(grasp.contacts_mm)
                 t2 = time.perf_counter()
                 grasps = self._plan(scene, part_id)
                 report.planning_s += time.perf_counter() - t2
@@ -308,8 +307,7 @@ class CellLoop:
                     return
                 # The example teaches the trees; this cycle, the operator also simply expects
                 # not to be asked the same again (sets of a symmetric part look alike to them).
-                grasps = [g for g in grasps
-                          if not any(self._same_contacts(g.contacts_mm, r) for r in [*rejected_here, *missed_here])]
+                grasps = self._other_than(grasps, left_out)
                 if not grasps:
                     self._stop_and_ask("planner", f"{part_id}: every feasible grasp was rejected; teach one")
                     return
@@ -341,7 +339,7 @@ class CellLoop:
                 return
             # The jaws closed through where the part was thought to lie: it was not there, or they pushed it.
             # The next grasp is planned on a new frame, not on the one that misled this one.
-            missed_here.append(grasp.contacts_mm)
+            left_out.append(grasp.contacts_mm)
             frame, index = self._read_frame()
             t4 = time.perf_counter()
             scene = self._scene_in(frame, index, part_id)
@@ -349,8 +347,7 @@ class CellLoop:
             report.planning_s += time.perf_counter() - t4
             if grasps is None:
                 return
-            grasps = [g for g in grasps
-                      if not any(self._same_contacts(g.contacts_mm, m) for m in [*rejected_here, *missed_here])]
+            grasps = self._other_than(grasps, left_out)
             attempt = 0
         self._picked({"part": part_id, "report": report})
 
@@ -545,6 +542,10 @@ class CellLoop:
         self.sink.write_decision({"type": "decision", "part": grasp.target, "approved": decision.approved,
                                   "reason": decision.reason, "by": decision.by})
         return decision
+
+    def _other_than(self, grasps: list[Grasp], left_out: list[np.ndarray]) -> list[Grasp]:
+        """The grasps whose contacts are none of `left_out` (`_same_contacts`)."""
+        return [g for g in grasps if not any(self._same_contacts(g.contacts_mm, c) for c in left_out)]
 
     def _same_contacts(self, a: np.ndarray, b: np.ndarray) -> bool:
         """Two contact sets the pads would cover alike (either order), within half a pad width."""

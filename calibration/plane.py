@@ -43,6 +43,12 @@ CORNER_ORDER_GAIN = 3.0  # another corner order must fit this many times better 
 # a sharp frame's markers are those it read before, and a wrong id still needs a dictionary word within
 # OpenCV's error correction, as in the first reading
 DEFOCUS_CELL_MARGIN = 0.3
+# OpenCV's marker detection thresholds in absolute grey levels (adaptive threshold constant 7, candidate
+# contrast): a dim, flat frame loses markers. The Festo frames at 0.35 of their exposure and half their contrast
+# (grey 23-54) read 3 and 2 of 4, at 0.25 none; stretched to the full range first, 4 of 4 down to 0.1 of the
+# exposure, corners within 0.5 px of the original frame's. Frames whose 0.5-99.5 percentile span is below
+# this are read a third time, so stretched (the shared frames span 170 levels: not)
+LOW_CONTRAST_SPAN = 128
 MAX_VIEW_ANGLE_DEG = 75.0  # a tilted plane seen further from its normal than this is refused as edge-on: a
 # pixel spans 3.9 x more across it than along it
 
@@ -51,23 +57,28 @@ def detect_markers(gray: np.ndarray, dictionary: str, duplicates: list[int] | No
     """ArUco markers in the image: id -> corners (4, 2) in CONTRACT-frame pixels, OpenCV's order.
 
     Markers are read twice: with OpenCV's bit sampling, then, for ids not read so, sampling the middle
-    of each bit cell only (DEFOCUS_CELL_MARGIN). An id seen more than once is left out (which copy lies
+    of each bit cell only (DEFOCUS_CELL_MARGIN); a dim or flat frame a third time, its grey levels
+    stretched to the full range (LOW_CONTRAST_SPAN). An id seen more than once is left out (which copy lies
     at the known place cannot be told; the last one found used to be taken) and appended to
     `duplicates` when given."""
     corners, flat = [], []
-    for margin in (None, DEFOCUS_CELL_MARGIN):
+    readings = [(gray, None), (gray, DEFOCUS_CELL_MARGIN)]
+    stretched = _stretched_if_flat(gray)
+    if stretched is not None:
+        readings.append((stretched, None))
+    for image, margin in readings:
         params = cv2.aruco.DetectorParameters()
         # corners to sub-pixel: on rendered 60 px markers 0.39 px RMS instead of 0.88 (OpenCV's default: none)
         params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
         if margin is not None:
             params.perspectiveRemoveIgnoredMarginPerCell = margin
-        c, ids, _ = cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), params).detectMarkers(gray)
+        c, ids, _ = cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), params).detectMarkers(image)
         seen, read = set(flat), list(corners)
         for ci, i in zip(c, [] if ids is None else ids.ravel(), strict=True):
-            # the second reading adds only ids the first did not read, on markers it did not read: markers both
-            # read keep the first's corners (the corners are found from the outline, the same in both; only the
-            # bits differ), and a marker the first read as one id is not taken again as another
-            if margin is None or (int(i) not in seen and not _on_a_marker_read(ci, read)):
+            # a later reading adds only ids the ones before did not read, on markers they did not read: markers
+            # both read keep the first's corners (the corners are found from the outline, the same in both; only
+            # the bits differ), and a marker read as one id is not taken again as another
+            if int(i) not in seen and not _on_a_marker_read(ci, read):
                 corners.append(ci)
                 flat.append(int(i))
     if not flat:
@@ -76,6 +87,15 @@ def detect_markers(gray: np.ndarray, dictionary: str, duplicates: list[int] | No
     if duplicates is not None:
         duplicates.extend(twice)
     return {i: c.reshape(4, 2).astype(float) + HALF_PX for i, c in zip(flat, corners, strict=True) if i not in twice}
+
+
+def _stretched_if_flat(gray: np.ndarray) -> np.ndarray | None:
+    """The grey levels between the 0.5th and 99.5th percentiles stretched to 0-255 when they span fewer than
+    LOW_CONTRAST_SPAN levels (None: they span more, or nothing to stretch)."""
+    lo, hi = np.percentile(gray, (0.5, 99.5))
+    if hi - lo >= LOW_CONTRAST_SPAN or hi <= lo:
+        return None
+    return cv2.convertScaleAbs(gray, alpha=255.0 / (hi - lo), beta=-lo * 255.0 / (hi - lo))
 
 
 def _on_a_marker_read(quad: np.ndarray, read: list[np.ndarray]) -> bool:

@@ -459,6 +459,46 @@ def test_markers_of_a_defocused_frame_are_all_found_and_fit_as_sharp(tmp_path, c
         assert np.hypot(*(load_calibration(out).px_to_mm(uv) - centres).T).max() < 0.5, sigma
 
 
+@needs_photos
+@pytest.mark.parametrize("image", ["aruco_img.png", "aruco_img2.png"])
+def test_markers_of_a_dim_flat_frame_are_all_found_and_fit_as_the_original(tmp_path, capsys, image):
+    """The Festo frames at half their contrast and a third of their exposure down to a tenth (a dim
+    cell, a camera set too short: grey 23-54 at most). OpenCV's marker detection thresholds in absolute
+    grey levels: 3 and 2 of the 4 markers were read at a third of the exposure, none below, and the
+    plane was fitted through 3 or refused. Read again with the grey levels stretched, all four fit as the
+    original frame does."""
+    import cv2
+
+    markers, _ = _markers(tmp_path)
+    sharp = tmp_path / "original.json"
+    assert run_cli("calibrate", "plane", FESTO / image, "--markers", markers, "--out", sharp, capsys=capsys)[0] == 0
+    original = cv2.imread(str(FESTO / image)).astype(np.float32)
+    for exposure in (0.35, 0.25, 0.1):
+        dim = tmp_path / f"dim{exposure}.png"
+        cv2.imwrite(str(dim), np.clip(((original - 128) * 0.5 + 128) * exposure, 0, 255).astype(np.uint8))
+        out = tmp_path / f"plane{exposure}.json"
+        code, stdout, _ = run_cli("calibrate", "plane", dim, "--markers", markers, "--out", out, capsys=capsys)
+        assert code == 0, exposure
+        res = json.loads(stdout)
+        assert res["markers_used"] == [0, 1, 2, 3], exposure
+        assert res["residual_mm"] < 1.0
+        centres = [np.mean(c, axis=0)[:2] for c in json.loads(markers.read_text())["markers"].values()]
+        uv = load_calibration(sharp).mm_to_px(np.array(centres))
+        assert np.hypot(*(load_calibration(out).px_to_mm(uv) - centres).T).max() < 0.5, exposure
+
+
+def test_a_frame_with_the_full_range_of_grey_is_not_read_a_third_time():
+    """The stretched reading is for dim or flat frames only: a frame spanning the grey levels is read as before."""
+    from calibration import plane
+
+    ramp = np.tile(np.linspace(0, 255, 400).astype(np.uint8), (300, 1))
+    assert plane._stretched_if_flat(ramp) is None
+    flat = (ramp // 8 + 20).astype(np.uint8)  # grey 20-51
+    stretched = plane._stretched_if_flat(flat)
+    assert stretched.min() <= 2 and stretched.max() >= 253
+    assert plane._stretched_if_flat(np.full((10, 10), 7, np.uint8)) is None  # one grey level: nothing to stretch
+
+
 def test_the_second_reading_takes_no_marker_the_first_read_under_another_id(monkeypatch):
     """The middle-of-the-cells reading (for out-of-focus frames) adds ids the first reading missed. A marker
     the first read as 3 and the second misread as 4 (were 4 listed but not in view) must not come back as

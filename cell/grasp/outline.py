@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from shapely.geometry import Polygon
 
 from cell.scene import Part
 
@@ -69,8 +70,9 @@ def centre_of_gravity(part: Part) -> np.ndarray:
 
 
 def reference_radius_mm(part: Part) -> float:
-    """Equivalent-disc radius sqrt(area / pi): the size unit of the relative attributes."""
-    return float(np.sqrt(part.polygon.area / np.pi))
+    """Equivalent-disc radius sqrt(area / pi) of the area the outer outline encloses, holes included:
+    the size unit of the relative attributes."""
+    return float(np.sqrt(Polygon(part.outline_mm).area / np.pi))
 
 
 def resample(rings: list[Ring], step_mm: float) -> tuple[np.ndarray, np.ndarray]:

@@ -140,6 +140,16 @@ def test_cell_run_save_where_no_rrd_can_be_written_is_bad_input_and_leaves_no_re
     assert not rec.exists()  # not a recording that says "recording" forever, as if the run had crashed
 
 
+DEFAULT_CELL = Path(__file__).resolve().parent.parent / "cell" / "data" / "default_cell.json"
+
+
+def _without_sha256(d: Path) -> None:
+    """The manifest as recordings made before its sha256 key have it."""
+    m = json.loads((d / "manifest.json").read_text())
+    assert m.pop("sha256")
+    (d / "manifest.json").write_text(json.dumps(m))
+
+
 def _edit_manifest(**changes):
     def damage(d: Path) -> None:
         m = json.loads((d / "manifest.json").read_text())
@@ -428,10 +438,12 @@ def test_replay_names_a_host_can_frame_that_differs_from_the_recording(tmp_path,
      "examples_at_start.jsonl is not the example file the session started with (sha256 "),
     (lambda d: (d / "examples_at_start.jsonl").unlink(), "the examples the session started with, "
      "examples_at_start.jsonl, are missing"),
-    (lambda d: shutil.copyfile(Path(__file__).resolve().parent.parent / "cell" / "data" / "default_cell.json",
-                               d / "cell.json"),  # another session's cell file: its camera is 1280 x 1024 px
+    (lambda d: shutil.copyfile(DEFAULT_CELL, d / "cell.json"),  # another session's cell file
+     "cell.json is not the cell file the session ran with (sha256 "),
+    (lambda d: (_without_sha256(d), shutil.copyfile(DEFAULT_CELL, d / "cell.json")),  # made before the sha256 key:
+     # its camera is 1280 x 1024 px, the frames' 640 x 512
      "frame 0 is 640 x 512 px, the camera of its cell file cell.json 1280 x 1024 px: not the cell file"),
-], ids=["examples-cut-short", "examples-missing", "cell-file-swapped"])
+], ids=["examples-cut-short", "examples-missing", "cell-file-swapped", "cell-file-swapped-before-sha256"])
 def test_replay_refuses_a_recording_file_that_is_not_what_the_manifest_says(tmp_path, capsys, damage, match):
     """Replay compared only the decisions: a recording whose examples_at_start.jsonl lost its last lines, or
     that held another session's cell.json, replayed with exit 0 ("13 of 13 decisions match")."""
@@ -517,10 +529,11 @@ def test_replay_refuses_a_manifest_whose_sha256_entry_is_not_a_sha256(tmp_path, 
 
 
 def test_replay_takes_a_recording_without_sha256_as_made_before_the_key(tmp_path, capsys):
-    """The shipped recording was made before the manifest held the sha256 of its cell and calibration files:
-    replayed as before, by the decisions, the frames' size and the examples' sha256."""
-    assert "sha256" not in json.loads((SHIPPED / "manifest.json").read_text())
-    code, out, err = run_cli("replay", SHIPPED, capsys=capsys)
+    """Recordings made before the manifest held the sha256 of their cell and calibration files are replayed
+    as before, by the decisions, the frames' size and the examples' sha256."""
+    d = _copy_of_shipped(tmp_path)
+    _without_sha256(d)
+    code, out, err = run_cli("replay", d, capsys=capsys)
     assert code == 0 and "decisions match" in out, err
 
 

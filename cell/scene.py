@@ -277,22 +277,12 @@ def parse_part(raw, where: str = "part") -> Part:
     if not (isinstance(direction, list) and len(direction) == 3):
         raise BadInput(f"{where}: 'direction' must be [dx, dy, dz]")
     direction = tuple(_num(d, f"{where} direction") for d in direction)
-    if holes:  # a hole around or across the outline is no hole in it
-        shell = Polygon(outline)
-        shell = shell if shell.is_valid else shapely.make_valid(shell)
-        wider = shell.buffer(HOLE_OUTSIDE_TOL_MM)
-        for i, h in enumerate(holes):
-            hole = Polygon(h)
-            if not hole.is_valid:  # a self-crossing hole: the polygon's repair decides
-                continue
-            if not wider.contains(hole):
-                raise BadInput(f"{where} hole #{i}: lies outside the outline (holes must be inside it)")
-            if hole.area >= shell.area - HOLE_OVERLAP_MM2:
-                raise BadInput(f"{where} hole #{i}: covers the whole outline (the part would have no material)")
+    if holes:  # a hole around, across or along the outline is no hole in it
+        _holes_inside(outline, holes, where)
     poly = Polygon(outline, holes)
     if not poly.is_valid:
         _no_overlapping_holes(holes, where)
-        poly = _repaired(poly, where)
+        poly = _repaired(poly, outline, holes, where)
     if poly.area <= 0:
         raise BadInput(f"{where}: the outline has no area")
     poly = shapely.geometry.polygon.orient(poly, 1.0)  # outer CCW, holes CW
@@ -308,6 +298,9 @@ def parse_part(raw, where: str = "part") -> Part:
 # every piece of area it drops (a loop cut off, a pinhole made by a loop turning inward) is
 # smaller than REPAIR_PIECE_MM2 and all of them together less than REPAIR_SHARE of the area. A
 # bow tie, a figure eight or a hole outside the outline changes more than that: still refused.
+# The repaired part is also compared with the material the file describes (each ring's own area:
+# the outline's less the holes'): every piece the repair drops or adds must be within the same
+# bounds. make_valid reads a hole lying along the outline as a line, and gave the bare outline.
 REPAIR_PIECE_MM2 = 1.0
 REPAIR_SHARE = 0.01
 
@@ -316,6 +309,46 @@ HOLE_OVERLAP_MM2 = 1e-6  # holes sharing an edge overlap by float noise (1e-14 m
 # A hole may reach this far out of the outline (a vertex on it, rounded to the 4 decimals files
 # are written with, lies up to 5e-5 mm out); the polygon is then repaired like any other
 HOLE_OUTSIDE_TOL_MM = 1e-3
+# A hole whose edges run this long within HOLE_OUTSIDE_TOL_MM of the outline is a notch drawn as a
+# hole: refused at every turn (the outline's edge over it would be a wall of no width, or gone).
+# A hole touching the outline at a point has a few thousandths of a mm of its edges there.
+HOLE_ALONG_OUTLINE_MM = 0.1
+NOTCH = ("a hole must lie inside the outline: draw a notch or a slot open to the outside as part of the "
+         "outline")
+
+
+def _region(ring: np.ndarray):
+    """The area a ring encloses by itself: its polygon or, for a ring crossing itself, the
+    polygonal pieces shapely's make_valid makes of that ring alone."""
+    p = Polygon(ring)
+    return p if p.is_valid else shapely.union_all(_polygons(shapely.make_valid(p)))
+
+
+def _polygons(geom) -> list[Polygon]:
+    """The polygons in a geometry (lines and points have no area)."""
+    polygonal = [g for g in shapely.get_parts(geom) if g.geom_type in ("Polygon", "MultiPolygon")]
+    return [g for g in shapely.get_parts(polygonal) if g.area > 0]
+
+
+def _holes_inside(outline: np.ndarray, holes: list[np.ndarray], where: str) -> None:
+    """Refuse a hole around, across or along the outline: it is no hole in the part."""
+    shell = _region(outline)
+    wider = shell.buffer(HOLE_OUTSIDE_TOL_MM)
+    edge = shell.boundary.buffer(HOLE_OUTSIDE_TOL_MM)
+    for i, h in enumerate(holes):
+        hole = _region(h)
+        if not wider.contains(hole):
+            if hole.buffer(HOLE_OUTSIDE_TOL_MM).contains(shell):
+                raise BadInput(f"{where} hole #{i}: lies outside the outline (all around it; holes must be inside it)")
+            if shell.intersection(hole).area > HOLE_OVERLAP_MM2:
+                raise BadInput(f"{where} hole #{i}: lies outside the outline in part: it crosses the outline; {NOTCH}")
+            raise BadInput(f"{where} hole #{i}: lies outside the outline (holes must be inside it)")
+        if hole.area >= shell.area - HOLE_OVERLAP_MM2:
+            raise BadInput(f"{where} hole #{i}: covers the whole outline (the part would have no material)")
+        along = hole.boundary.intersection(edge).length
+        if along > HOLE_ALONG_OUTLINE_MM:
+            raise BadInput(f"{where} hole #{i}: touches the outline along an edge ({along:.4g} mm of its edges lie "
+                           f"on the outline); {NOTCH}")
 
 
 def _no_overlapping_holes(holes: list[np.ndarray], where: str) -> None:
@@ -327,15 +360,16 @@ def _no_overlapping_holes(holes: list[np.ndarray], where: str) -> None:
         return
     tree = shapely.STRtree(rings)
     for i, j in zip(*tree.query(rings, predicate="intersects"), strict=True):
-        if i < j and rings[i].intersection(rings[j]).area > HOLE_OVERLAP_MM2:
+        both = rings[i].intersection(rings[j]) if i < j else None
+        # an overlap no wider than HOLE_OUTSIDE_TOL_MM (area over half its perimeter) is a shared edge
+        # written with 4 decimals: 1e-4 mm2 along 10 mm once turned
+        if both is not None and both.area > HOLE_OVERLAP_MM2 and 2 * both.area / both.length > HOLE_OUTSIDE_TOL_MM:
             raise BadInput(f"{where}: holes #{i} and #{j} overlap (holes must be apart; draw one hole for both)")
 
 
-def _repaired(poly: Polygon, where: str) -> Polygon:
+def _repaired(poly: Polygon, outline: np.ndarray, holes: list[np.ndarray], where: str) -> Polygon:
     why = explain_validity(poly)
-    fixed = shapely.make_valid(poly)
-    polygonal = [g for g in shapely.get_parts(fixed) if g.geom_type in ("Polygon", "MultiPolygon")]
-    pieces = [g for g in shapely.get_parts(polygonal) if g.area > 0]  # lines and points have none
+    pieces = _polygons(shapely.make_valid(poly))
     if pieces:
         keep = max(pieces, key=lambda g: g.area)
         pinholes = [r for r in keep.interiors if Polygon(r).area < REPAIR_PIECE_MM2]
@@ -343,8 +377,32 @@ def _repaired(poly: Polygon, where: str) -> Polygon:
         repaired = Polygon(keep.exterior, [r for r in keep.interiors if Polygon(r).area >= REPAIR_PIECE_MM2])
         if (repaired.is_valid and all(a < REPAIR_PIECE_MM2 for a in dropped)
                 and sum(dropped) < REPAIR_SHARE * repaired.area):
+            _same_material(repaired, outline, holes, why, where)
             return repaired
     raise BadInput(f"{where}: the outline is not a valid polygon ({why})")
+
+
+def _same_material(repaired: Polygon, outline: np.ndarray, holes: list[np.ndarray], why: str, where: str) -> None:
+    """Refuse a repair that drops or adds more material than REPAIR_PIECE_MM2 and REPAIR_SHARE allow,
+    measured against the file's own rings: the outline's area less the holes' (their sum and the
+    region they leave), not against what make_valid made of them together."""
+    shell = _region(outline)
+    cuts = [_region(h) for h in holes]
+    area = shell.area - sum(c.area for c in cuts)
+    material = shell.difference(shapely.union_all(cuts)) if cuts else shell
+    changed = [g.area for g in _polygons(repaired.symmetric_difference(material))]
+    total = max(sum(changed), abs(repaired.area - area))
+    if all(a < REPAIR_PIECE_MM2 for a in changed) and total < REPAIR_SHARE * repaired.area:
+        return
+    change = (f"repairing it would change the part's material by {total:.4g} mm2 (it has {repaired.area:.6g} mm2, "
+              f"the file describes {area:.6g} mm2; a repair may drop or add pieces under {REPAIR_PIECE_MM2:g} mm2 "
+              f"each, under {REPAIR_SHARE:.0%} of the area together)")
+    near = [i for i, c in enumerate(cuts) if c.distance(shell.boundary) <= HOLE_OUTSIDE_TOL_MM]
+    if near:
+        which = (f"hole #{near[0]} touches" if len(near) == 1
+                 else f"holes {', '.join(f'#{i}' for i in near[:-1])} and #{near[-1]} touch")
+        raise BadInput(f"{where}: {which} the outline ({why}): {change}; {NOTCH}")
+    raise BadInput(f"{where}: the outline is not a valid polygon ({why}): {change}")
 
 
 def _ring(raw, where) -> np.ndarray:

@@ -122,8 +122,9 @@ def test_a_recording_keeps_the_planner_it_ran_and_replays_with_it(recorded, tmp_
     assert planner_from_meta({"slanted_faces": True}, "here") == SynthesisParams(
         slanted_faces=True, tree_min_samples_leaf=2, obstacle_margin_mm=0.0, contacts_on_material=False,
         label_touched_only=False, max_contact_skew_deg=90.0, stroke_at_pad_lines=False, grasp_z_within_j3=False,
-        pads_at_grasp_centre=False)
+        pads_at_grasp_centre=False, finer_steps=0)
     assert loop_planner_params().pads_at_grasp_centre  # recorded (the first assertion), so replayed on
+    assert loop_planner_params().finer_steps == 2
     bad = tmp_path / "bad"
     shutil.copytree(rec, bad)
     manifest = json.loads((bad / "manifest.json").read_text())
@@ -138,7 +139,10 @@ def test_a_recording_keeps_the_planner_it_ran_and_replays_with_it(recorded, tmp_
                              ("max_contact_skew_deg", "3", "max_contact_skew_deg must be a number of degrees"),
                              ("stroke_at_pad_lines", 0, "stroke_at_pad_lines must be true or false"),
                              ("grasp_z_within_j3", "no", "grasp_z_within_j3 must be true or false"),
-                             ("pads_at_grasp_centre", 1, "pads_at_grasp_centre must be true or false")]:
+                             ("pads_at_grasp_centre", 1, "pads_at_grasp_centre must be true or false"),
+                             ("finer_steps", True, "finer_steps must be a whole number"),
+                             ("finer_steps", -1, "finer_steps must be a whole number"),
+                             ("finer_steps", 1.0, "finer_steps must be a whole number")]:
         broken = json.loads(json.dumps(manifest))
         broken["meta"]["planner"][key] = value
         (bad / "manifest.json").write_text(json.dumps(broken))

@@ -9,6 +9,7 @@ from cell.errors import BadInput
 
 MIN_STEP_MM = 0.5
 MAX_STEP_MM = 20.0  # coarser, a 20 mm washer has three candidate points: no grasp (exit 3) for an absurd step
+MAX_FINER_STEPS = 4  # halvings of the step tried where none gave a grasp (finer_steps); MIN_STEP_MM bounds them too
 
 
 @dataclass(frozen=True)
@@ -52,6 +53,12 @@ class SynthesisParams:
     # axis, and the pads there met a slanted arm 4.9 mm in front of them). Off, as recordings made
     # before it existed have it (cell.runtime.replay).
     pads_at_grasp_centre: bool = True
+    # Where no grasp is found at step_mm, the outline is sampled again at half the step, then a quarter
+    # (not below MIN_STEP_MM), with the same trees: facing points of a strip 1-1.2 mm wide lie up to a
+    # step apart along it (45 degrees off the closing line at 2 mm), and the library's six poses
+    # without a grasp at 2 mm (a gusset, the small gear) have stable ones at 1 mm. 0: the configured
+    # step only, as recordings made before this existed have it (cell.runtime.replay).
+    finer_steps: int = 2
     # Obstacles widened by this much for the fingers and the palm: 0 for outlines given exactly (a
     # scene file); the cell loop plans on measured poses and keeps a margin (cell.runtime.loop).
     obstacle_margin_mm: float = 0.0
@@ -84,8 +91,18 @@ class SynthesisParams:
         if not 0 < self.max_contact_skew_deg <= 90:
             raise BadInput(f"synthesis parameter max_contact_skew_deg must be in (0, 90] degrees, got "
                            f"{self.max_contact_skew_deg:g}")
+        if isinstance(self.finer_steps, bool) or not isinstance(self.finer_steps, int) or \
+                self.finer_steps > MAX_FINER_STEPS:
+            raise BadInput(f"synthesis parameter finer_steps must be a whole number from 0 to {MAX_FINER_STEPS}, "
+                           f"got {self.finer_steps!r}")
         if self.n_contacts != 2:
             raise BadInput(f"this cell's gripper has two jaws: n_contacts must be 2, got {self.n_contacts}")
+
+    def finer(self) -> list[SynthesisParams]:
+        """These parameters at the finer steps tried where the configured one gives no grasp: half the step,
+        then a quarter ..., finer_steps of them at most, none below MIN_STEP_MM."""
+        steps = [self.step_mm / 2 ** k for k in range(1, self.finer_steps + 1)]
+        return [replace(self, step_mm=s) for s in steps if s >= MIN_STEP_MM - 1e-9]
 
     def with_(self, **kw) -> SynthesisParams:
         return replace(self, **{k: v for k, v in kw.items() if v is not None})

@@ -38,6 +38,11 @@ MAX_VALID_POINTS = 2500
 # Outline samples (candidates) at most: 100 m of outline at the 2 mm step. A 1 km square took 9 s
 # and 1.2 GB to be refused for its valid points; it is refused before it is sampled.
 MAX_OUTLINE_SAMPLES = 50_000
+# A finer step is tried (SynthesisParams.finer_steps) only while the candidates and valid points it would give,
+# estimated from the configured step's, stay under these (about 180 000 pairs, tens of ms): a part 300 mm
+# round that has no grasp at 2 mm (wider than the stroke, say) is not sampled at 0.5 mm for nothing
+FINER_MAX_CANDIDATES = 4000
+FINER_MAX_VALID_POINTS = 600
 
 
 @dataclass(eq=False)
@@ -147,6 +152,7 @@ class SynthesisResult:
     free: np.ndarray | None = None  # (n,) which outline samples are free (the candidates)
     valid_sample_index: np.ndarray | None = None  # (z',) each valid point's index among the outline samples
     global_attribute_names: list = field(default_factory=list)
+    step_mm: float | None = None  # the finer step that gave the grasp (None: the configured one)
 
     @property
     def valid_points(self) -> OutlinePoints:
@@ -168,6 +174,8 @@ class SynthesisResult:
         d["counts"] = dict(self.counts)
         d["time_ms"] = round(self.time_ms, 3)
         d["ranked"] = len(self.ranked)
+        if self.step_mm is not None:  # the counts are that step's
+            d["step_mm"] = self.step_mm
         if self.global_attribute_names:
             d["global_attributes"] = {n: round(float(v), 4) for n, v in
                                       zip(self.global_attribute_names, self.grasp.global_attributes, strict=True)}
@@ -186,8 +194,36 @@ class GraspPlanner:
         self.model: LearnedModel = fit_model(examples, self.params, cell.gripper.pad_width_mm / 2)
 
     def plan(self, scene: Scene) -> SynthesisResult:
+        """Steps 1-4 (and step 5's hook) at the configured step; where they give no grasp, at the finer
+        steps (SynthesisParams.finer_steps) with the same trees. The reason and counts of a part with no
+        grasp at any step are the configured step's (what `--explain` shows)."""
         t_start = time.perf_counter()
-        p, cell = self.params, self.cell
+        try:
+            return self._plan(scene, self.params, t_start)
+        except NoFeasibleGrasp as first:
+            tried = []
+            # (a part refused before its outline was sampled, or with no free outline, is so at any step)
+            for p in self.params.finer() if first.counts.get("candidates") else ():
+                ratio = self.params.step_mm / p.step_mm
+                if (first.counts.get("candidates", 0) * ratio > FINER_MAX_CANDIDATES
+                        or first.counts.get("valid_points", 0) * ratio > FINER_MAX_VALID_POINTS):
+                    break
+                try:
+                    result = self._plan(scene, p, t_start)
+                except NoFeasibleGrasp:
+                    tried.append(p.step_mm)
+                    continue
+                result.step_mm = p.step_mm
+                return result
+            if tried:
+                first.reason += f" (and at the finer step{'s' if len(tried) > 1 else ''} " \
+                                f"{' and '.join(f'{s:g}' for s in tried)} mm)"
+                first.args = (first.reason,)
+            first.counts["time_ms"] = round((time.perf_counter() - t_start) * 1e3, 3)
+            raise
+
+    def _plan(self, scene: Scene, p: SynthesisParams, t_start: float) -> SynthesisResult:
+        cell = self.cell
         target = scene.target_part
         obstacles = scene.obstacles
         counts = {k: 0 for k in ("candidates", "valid_points", "pairs", "reachable", "valid_sets")}

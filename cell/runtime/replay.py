@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from cell.errors import BadInput, CellError
-from cell.grasp.params import SynthesisParams
+from cell.grasp.params import MAX_FINER_STEPS, SynthesisParams
 from cell.runtime.control import Decision, RunControl
 
 VOLATILE = {"planning_s", "cycle_s", "motion_s", "t_start_s", "t_end_s", "time_ms"}
@@ -41,7 +41,8 @@ class RecordingEnds(Exception):  # noqa: N818 - not a CellError, like Divergence
 # moved contacts put the grasp centre.
 RECORDED_PLANNER = {"slanted_faces": False, "tree_min_samples_leaf": 2, "obstacle_margin_mm": 0.0,
                     "contacts_on_material": False, "label_touched_only": False, "max_contact_skew_deg": 90.0,
-                    "stroke_at_pad_lines": False, "grasp_z_within_j3": False, "pads_at_grasp_centre": False}
+                    "stroke_at_pad_lines": False, "grasp_z_within_j3": False, "pads_at_grasp_centre": False,
+                    "finer_steps": 0}
 
 
 def planner_meta(params: SynthesisParams) -> dict:
@@ -63,6 +64,10 @@ def planner_from_meta(planner, where: str) -> SynthesisParams:
     margin = values["obstacle_margin_mm"]
     if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 0 <= margin < math.inf:
         raise BadInput(f"{where}: manifest meta.planner.obstacle_margin_mm must be a number of mm >= 0")
+    finer = values["finer_steps"]
+    if isinstance(finer, bool) or not isinstance(finer, int) or not 0 <= finer <= MAX_FINER_STEPS:
+        raise BadInput(f"{where}: manifest meta.planner.finer_steps must be a whole number from 0 to "
+                       f"{MAX_FINER_STEPS}")
     skew = values["max_contact_skew_deg"]
     if isinstance(skew, bool) or not isinstance(skew, (int, float)) or not 0 < skew <= 90:
         raise BadInput(f"{where}: manifest meta.planner.max_contact_skew_deg must be a number of degrees in (0, 90]")

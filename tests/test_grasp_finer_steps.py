@@ -1,0 +1,116 @@
+"""Where the configured step gives no grasp, the outline is sampled again at half and a quarter of it
+(SynthesisParams.finer_steps), with the same trees."""
+
+import json
+
+import numpy as np
+import pytest
+from conftest import run_cli
+
+from cell import parts_library as lib
+from cell.cellconfig import default_cell
+from cell.errors import BadInput, NoFeasibleGrasp
+from cell.examples import load_examples
+from cell.grasp.params import SynthesisParams
+from cell.grasp.synthesis import GraspPlanner
+from cell.physics import check_grasp
+from cell.scene import Part, Scene
+
+CELL = default_cell()
+
+
+@pytest.fixture(scope="module")
+def shipped():
+    return load_examples(None)
+
+
+def strip(width_mm: float, length_mm: float = 40.0, turn_deg: float = 10.0, at=(350.0, 0.0)) -> Part:
+    a, b = width_mm / 2, length_mm / 2
+    c, s = np.cos(np.radians(turn_deg)), np.sin(np.radians(turn_deg))
+    xy = np.array([[-a, -b], [a, -b], [a, b], [-a, b]]) @ np.array([[c, s], [-s, c]]) + at
+    return Part("strip", xy, (), 0.0, 5.0)
+
+
+@pytest.mark.parametrize("width_mm", [0.8, 1.0, 1.2])
+@pytest.mark.parametrize("turn_deg", [0.0, 10.0, 77.0])
+def test_a_strip_about_a_millimetre_wide_is_held_across_at_a_finer_step(shipped, width_mm, turn_deg):
+    """The facing points of a strip 1 mm wide lie up to a step apart along it: 45 degrees off the closing
+    line at 2 mm, and no pair passed the antipodal stage. Sampled at 1 mm, it is held across."""
+    part = strip(width_mm, turn_deg=turn_deg)
+    with pytest.raises(NoFeasibleGrasp, match="antipodal"):
+        GraspPlanner(CELL, shipped, SynthesisParams(finer_steps=0)).plan(Scene((part,), "strip"))
+    result = GraspPlanner(CELL, shipped).plan(Scene((part,), "strip"))
+    g = result.grasp
+    assert result.step_mm == 1.0 and result.to_json()["step_mm"] == 1.0
+    assert g.opening_mm == pytest.approx(width_mm, abs=1e-6)
+    assert check_grasp(part, g.contacts_mm, g.axis_deg, g.grasp_z_mm, cell=CELL).ok
+
+
+def test_a_part_planned_at_the_configured_step_says_no_step(shipped):
+    result = GraspPlanner(CELL, shipped).plan(Scene((strip(10.0),), "strip"))
+    assert result.step_mm is None and "step_mm" not in result.to_json()
+
+
+def test_the_library_parts_without_a_grasp_at_2_mm_are_held_stably_at_1_mm(shipped):
+    """The gusset and the small gear had no grasp at the 2 mm step, whatever their pose."""
+    planner = GraspPlanner(CELL, shipped)
+    coarse = GraspPlanner(CELL, shipped, SynthesisParams(finer_steps=0))
+    for name, th in [("gusset_m", 0.0), ("gusset_m", 75.0), ("spur_gear_s", 20.0)]:
+        part = lib.place(lib.part(name), 360.0, -40.0, th)
+        with pytest.raises(NoFeasibleGrasp):
+            coarse.plan(Scene((part,), part.id))
+        result = planner.plan(Scene((part,), part.id))
+        g = result.grasp
+        assert result.step_mm in (1.0, 0.5)
+        assert check_grasp(part, g.contacts_mm, g.axis_deg, g.grasp_z_mm, cell=CELL).ok, name
+
+
+def test_no_grasp_at_any_step_names_the_steps_tried_and_keeps_the_configured_steps_counts(shipped, tmp_path,
+                                                                                           capsys):
+    # a 1 mm strip between walls taller than the grasp z, 3 mm from its long faces: no finger fits beside it
+    part = strip(1.0, turn_deg=0.0)
+    walls = [Part(f"w{k}", np.array([[3, -30], [6, -30], [6, 30], [3, 30]]) * (s, 1) + (350, 0), (), 0.0, 40.0)
+             for k, s in enumerate((1, -1))]
+    scene = {"units": "mm", "target": "strip", "parts": [
+        {"id": p.id, "outline": np.asarray(p.outline_mm).tolist(), "z_bottom": 0, "z_top": p.z_top_mm}
+        for p in (part, *walls)]}
+    path = tmp_path / "boxed.json"
+    path.write_text(json.dumps(scene))
+    code, out, _ = run_cli("grasp", path, "--json", capsys=capsys)
+    d = json.loads(out)
+    assert code == 3 and d["error"] == "no_feasible_grasp"
+    assert d["reason"].endswith("(and at the finer steps 1 and 0.5 mm)"), d["reason"]
+    with pytest.raises(NoFeasibleGrasp) as e:
+        GraspPlanner(CELL, shipped, SynthesisParams(finer_steps=0)).plan(Scene((part, *walls), "strip"))
+    assert d["reason"].startswith(e.value.reason)
+    assert {k: v for k, v in d["counts"].items() if k != "time_ms"} == \
+        {k: v for k, v in e.value.counts.items() if k != "time_ms"}
+
+
+def test_a_part_with_no_grasp_before_its_outline_is_sampled_is_not_sampled_finer(shipped):
+    """Too thin for the pads' 2 mm under its top, whatever the step."""
+    flat = Part("flat", np.array([[330, -10], [370, -10], [370, 10], [330, 10]], float), (), 0.0, 1.0)
+    with pytest.raises(NoFeasibleGrasp, match="1 mm tall") as e:
+        GraspPlanner(CELL, shipped).plan(Scene((flat,), "flat"))
+    assert "finer step" not in e.value.reason
+
+
+def test_a_large_part_is_not_sampled_finer_than_the_bound_on_its_valid_points(shipped):
+    """A plate 200 mm across is wider than the stroke: 216 valid points at 2 mm, 432 at 1 mm (tried), 864 at
+    0.5 mm (1600 candidates, 370 000 pairs: not tried)."""
+    plate = Part("plate", np.array([[300, -100], [500, -100], [500, 100], [300, 100]], float), (), 0.0, 5.0)
+    with pytest.raises(NoFeasibleGrasp, match="wider than the gripper's stroke") as e:
+        GraspPlanner(CELL, shipped).plan(Scene((plate,), "plate"))
+    assert e.value.reason.endswith("(and at the finer step 1 mm)")
+
+
+@pytest.mark.parametrize("value", [5, 1.0, True, "2"])
+def test_finer_steps_must_be_a_small_whole_number(value):
+    with pytest.raises(BadInput, match="finer_steps must be a whole number from 0 to 4"):
+        SynthesisParams(finer_steps=value)
+
+
+def test_the_finer_steps_stop_at_the_smallest_step():
+    assert [p.step_mm for p in SynthesisParams().finer()] == [1.0, 0.5]
+    assert [p.step_mm for p in SynthesisParams(step_mm=1.0, finer_steps=4).finer()] == [0.5]
+    assert SynthesisParams(finer_steps=0).finer() == []

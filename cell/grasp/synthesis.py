@@ -205,9 +205,6 @@ class GraspPlanner:
         if gz > target.z_top_mm - TIP_BELOW_TOP_MM + 1e-9:  # CONTRACT: z_bottom <= grasp z <= z_top - 2
             fail(f"the part is {target.height_mm:g} mm tall: the pads need a grasp z at least "
                  f"{TIP_BELOW_TOP_MM:g} mm below its top and not below its bottom")
-        heavy = too_heavy(target, cell)  # no grasp holds it: said before any work (cell/grasp/load.py)
-        if heavy:
-            fail(heavy)
 
         samples = target.polygon.length / p.step_mm
         if samples > MAX_OUTLINE_SAMPLES:  # before sampling it: the attributes cost memory with the samples
@@ -245,6 +242,11 @@ class GraspPlanner:
                            f"({MAX_VALID_POINTS} points, {MAX_VALID_POINTS * (MAX_VALID_POINTS - 1) // 2} pairs, "
                            f"about 0.6 GB). The outline is {target.polygon.length / 1000:.1f} m long; "
                            f"{self._workspace_note()}")
+        # no grasp holds it (cell/grasp/load.py): said before the pairs, after what makes the scene bad input
+        # (a 10 m square weighs tons, and its size is the thing to say)
+        heavy = too_heavy(target, cell)
+        if heavy:
+            fail(heavy)
         t0 = time.perf_counter()
         P = Pairs.of(vp.points, vp.normals, cand_index[point_valid])
         counts["pairs"] = len(P)

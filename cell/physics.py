@@ -32,8 +32,9 @@ What `check_grasp` models, and why:
   band). One pad on a corner is tolerated; both are not (the part would pivot).
 * Centre of gravity near the jaw line (friction/torque argument). The part hangs from the
   pads, weight W = m g at the centre of gravity (uniform density; `meta["mass_g"]` when the
-  part carries it, else aluminium), with safety factor `SAFETY` on W. Each pad has one
-  friction budget, mu N, for everything it holds:
+  part carries it, else its `meta["material"]`'s density, else aluminium: `cell.materials`),
+  with safety factor `SAFETY` on W. Each pad has one friction budget, mu N, for everything it
+  holds:
   - vertical force: each pad carries W / 2, plus or minus the couple W e / d that holds a
     centre of gravity e along the axis off the pads' midpoint (d the jaw width), so the pad
     nearer it carries f = W (1/2 + e/d) <= mu N (slip, the tilt across the jaws included);
@@ -62,12 +63,13 @@ from shapely.geometry import LinearRing, Point, box
 
 from cell.cellconfig import Cell, default_cell
 from cell.grasp.height import grasp_z_mm as default_grasp_z_mm
+from cell.materials import DEFAULT_MATERIAL, DENSITY_G_CM3, mass_g
 from cell.scene import Part
 
 MU = 0.3  # pad/part friction: rubber-faced pads on oily metal, conservative
 SAFETY = 2.0  # margin for the arm's accelerations and an uneven grip
 G_M_S2 = 9.81
-DEFAULT_DENSITY_G_CM3 = 2.7  # aluminium, when the part does not carry its mass
+DEFAULT_DENSITY_G_CM3 = DENSITY_G_CM3[DEFAULT_MATERIAL]  # a part carrying neither its mass nor its material
 CONTACT_TOL_MM = 2.0  # a reported contact farther than this from where the pad stops is wrong
 PATCH_DEPTH_MM = 0.5  # material this close to the pad face touches it (pad compliance)
 SHARP_PATCH_MM = 2.0
@@ -116,10 +118,10 @@ class LiftCheck:
 
 
 def part_mass_g(part: Part) -> float:
-    m = part.meta.get("mass_g") if isinstance(part.meta, dict) else None
-    if isinstance(m, (int, float)) and m > 0:
-        return float(m)
-    return part.polygon.area * part.height_mm * DEFAULT_DENSITY_G_CM3 / 1000.0
+    """The part's "mass_g", else its volume times its "material"'s density, else aluminium's
+    (`cell.materials`; a bad value of either key is BadInput)."""
+    meta = part.meta if isinstance(part.meta, dict) else {}
+    return mass_g(meta, part.polygon.area * part.height_mm / 1000.0, f"part {part.id!r}")
 
 
 def check_grasp(part: Part, contacts_mm, axis_deg: float | None = None, grasp_z_mm: float | None = None,

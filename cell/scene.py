@@ -20,6 +20,7 @@ from shapely.validation import explain_validity
 
 from cell.errors import BadInput
 from cell.fileio import is_finite_number, read_json, short_repr
+from cell.materials import check_mass_keys
 
 UP = (0.0, 0.0, 1.0)
 # Outline coordinates beyond 1 km from the base are not millimetres of a part on the tray (and a
@@ -277,6 +278,7 @@ def parse_part(raw, where: str = "part") -> Part:
     if not (isinstance(direction, list) and len(direction) == 3):
         raise BadInput(f"{where}: 'direction' must be [dx, dy, dz]")
     direction = tuple(_num(d, f"{where} direction") for d in direction)
+    check_mass_keys(raw, where)  # "mass_g" and "material", free keys the physical check weighs the part by
     if holes:  # a hole around, across or along the outline is no hole in it
         _holes_inside(outline, holes, where)
     poly = Polygon(outline, holes)

@@ -19,6 +19,7 @@ from shapely.geometry import LineString, Polygon, box
 from shapely.ops import unary_union
 
 from cell.cellconfig import default_cell
+from cell.errors import BadInput
 from cell.physics import check_grasp, close_jaws, gripper_footprint, lift_clear, part_mass_g
 from cell.scene import Part
 
@@ -263,11 +264,19 @@ def test_contact_k_is_the_k_th_contact_given_whichever_way_the_axis_runs(axis_de
 # (tests/test_physics_friction.py checks the shared budget against the pads' conditions themselves)
 
 @pytest.mark.parametrize("meta, mass_g", [
-    ({}, 43.2), ({"mass_g": 0}, 43.2), ({"mass_g": -5.0}, 43.2), ({"mass_g": "heavy"}, 43.2),
-    ({"mass_g": 0.5}, 0.5), ({"mass_g": 120}, 120.0),
+    ({}, 43.2), ({"mass_g": 0.5}, 0.5), ({"mass_g": 120}, 120.0), ({"material": "steel"}, 125.6),
+    ({"material": "steel", "mass_g": 120}, 120.0),
 ])
-def test_part_mass_is_its_own_when_positive_else_aluminium(meta, mass_g):
+def test_part_mass_is_its_own_else_its_materials_else_aluminium(meta, mass_g):
     assert part_mass_g(rect("sq", 300, -20, 340, 20, **meta)) == pytest.approx(mass_g)
+
+
+@pytest.mark.parametrize("meta", [{"mass_g": 0}, {"mass_g": -5.0}, {"mass_g": "heavy"}, {"mass_g": True},
+                                  {"material": "unobtainium"}])
+def test_a_mass_that_is_not_a_positive_number_or_an_unknown_material_is_bad_input(meta):
+    # until 2026-12-04 such a mass was taken as aluminium's without a word (files now refuse it when read)
+    with pytest.raises(BadInput, match="mass_g|material"):
+        part_mass_g(rect("sq", 300, -20, 340, 20, **meta))
 
 
 def h_plate(mass_g):

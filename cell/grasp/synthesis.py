@@ -27,9 +27,11 @@ from cell.grasp.candidates import candidate_points
 from cell.grasp.cascade import STAGES, CascadeResult, Context, Pairs, joints_of, run_cascade
 from cell.grasp.height import TIP_BELOW_TOP_MM, grasp_z_mm
 from cell.grasp.learning import LearnedModel, fit_model, nearest_example
+from cell.grasp.load import slip_demand, too_heavy
 from cell.grasp.outline import part_rings
 from cell.grasp.params import SynthesisParams
 from cell.kinematics import Joints, normalize_axis_deg
+from cell.physics import MU, SAFETY, part_mass_g
 from cell.scene import Scene
 
 # valid contact points at most: all pairs are formed (~200 bytes each), 3.1 M pairs is ~0.6 GB; a part
@@ -276,6 +278,11 @@ class GraspPlanner:
                            f"({MAX_VALID_POINTS} points, {MAX_VALID_POINTS * (MAX_VALID_POINTS - 1) // 2} pairs, "
                            f"about 0.6 GB). The outline is {target.polygon.length / 1000:.1f} m long; "
                            f"{self._workspace_note()}")
+        # no grasp holds it (cell/grasp/load.py): said before the pairs, after what makes the scene bad input
+        # (a 10 m square weighs tons, and its size is the thing to say)
+        heavy = too_heavy(target, cell)
+        if heavy:
+            fail(heavy)
         t0 = time.perf_counter()
         P = Pairs.of(vp.points, vp.normals, cand_index[point_valid])
         counts["pairs"] = len(P)
@@ -306,6 +313,19 @@ class GraspPlanner:
         sel = np.flatnonzero(set_valid)
         dist, ex_idx = nearest_example(self.model, G[sel])
         order = np.argsort(dist, kind="stable")
+        # Sets whose centre of gravity lies so far along the axis from the pads' midpoint that the nearer pad
+        # slips are dropped, not ranked lower: they fail for sure (cell/grasp/load.py: a lower bound of the
+        # judge's demand), and ranking by the load would move the learned choice on light parts too
+        ratio = slip_demand(target, contacts[sel[order]], P.u[k[sel[order]]], cell)
+        holds = ratio <= 1.0
+        if not holds.all():
+            counts["load_refused"] = int((~holds).sum())
+            if not holds.any():
+                fail(f"every one of the {len(sel)} valid contact sets would let the part ({part_mass_g(target):.0f} g) "
+                     f"slip out of the jaws: its centre of gravity lies too far along the closing axis from the pads' "
+                     f"midpoint (demand/capacity {ratio.min():.2f} at the least; grip force "
+                     f"{cell.gripper.grip_force_n:g} N, friction {MU:g}, safety factor {SAFETY:g})")
+            order = order[holds]
         normals = np.stack([P.ni[k], P.nj[k]], axis=1)
         centers = 0.5 * (contacts[:, 0] + contacts[:, 1])
         openings = np.linalg.norm(contacts[:, 0] - contacts[:, 1], axis=1)

@@ -1,0 +1,68 @@
+"""Can the jaws carry the part by friction? The planner's own check of the part's weight.
+
+Two pads press with the grip force N (`gripper.grip_force_n` of the cell file); each holds at most
+mu N along the pad face (the pads' friction coefficient and the safety factor on the weight are
+`cell.physics`'s MU and SAFETY, the mass its `part_mass_g`: the judge and the planner must weigh a
+part alike). Only the constants and the mass are shared: the judgement here is the planner's own,
+from the contacts alone, and `cell.physics.check_grasp` stays the independent judge.
+
+* The part. However it is held, the pad nearer the centre of gravity carries at least half the
+  weight, so SAFETY x W <= 2 mu N is needed by every grasp: `too_heavy` says why a heavier part
+  has none.
+* Each grasp. Its own centre of gravity, e along the axis from the pads' midpoint, puts more on the
+  pad nearer it: f = W (1/2 + e/d) <= mu N, d the pads' distance (the judge's slip, the tilt across
+  the jaws included). `slip_demand` is SAFETY f / mu N from the contacts, which lie up to
+  PAD_COMPLIANCE_MM behind the pads' faces: taken at the least (e 1/4 mm shorter, d 1 mm longer) it
+  never exceeds the judge's, so a grasp above 1 slips for sure. The planner drops those (it does not
+  rank by the demand: on every ordinary part it is far below 1, and the learned choice stands).
+  Rolling about the jaw line (the judge's torsion) is left to the judge: it needs where each pad's
+  patch lies across the pad, which the planner does not know.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cell.cellconfig import Cell
+from cell.grasp.bands import PAD_COMPLIANCE_MM
+from cell.physics import G_M_S2, MU, SAFETY, part_mass_g
+from cell.scene import Part
+
+
+def weight_n(part: Part) -> float:
+    return part_mass_g(part) / 1000.0 * G_M_S2
+
+
+def too_heavy(part: Part, cell: Cell) -> str | None:
+    """Why no grasp can hold `part` (None: a centred grasp can)."""
+    g = cell.gripper
+    w = weight_n(part)
+    carried = 2.0 * MU * g.grip_force_n  # both pads, the centre of gravity between them
+    if SAFETY * w <= carried:
+        return None
+    needed = SAFETY * w / (2.0 * MU)
+    most_g = carried / SAFETY / G_M_S2 * 1000.0
+    more = (f"a grip force of at least {needed:.1f} N (the cell file's gripper.grip_force_n; its max_force_n is "
+            f"{g.max_force_n:g} N)" if needed <= g.max_force_n else
+            f"a grip force of {needed:.1f} N, more than the gripper's max_force_n ({g.max_force_n:g} N)")
+    return (f"the part is too heavy for the gripper: {part_mass_g(part):.0f} g ({w:.1f} N), with the safety factor "
+            f"{SAFETY:g} the jaws must carry {SAFETY * w:.1f} N; two pads gripping with {g.grip_force_n:g} N at "
+            f"friction {MU:g} carry at most {carried:.1f} N (parts up to {most_g:.0f} g, held at their centre "
+            f"of gravity). It needs {more}")
+
+
+def slip_demand(part: Part, contacts_mm: np.ndarray, axes: np.ndarray, cell: Cell) -> np.ndarray:
+    """(k,) SAFETY x the force on the pad nearer the centre of gravity over its friction mu N, for grasps
+    with contacts (k, 2, 2) closing along the unit `axes` (k, 2): a lower bound of the judge's (see the
+    module); > 1: the part slips."""
+    c = np.asarray(contacts_mm, float).reshape(-1, 2, 2)
+    a = np.asarray(axes, float).reshape(-1, 2)
+
+    def along(v):  # measured along the axis, as the judge does (the contacts may lie a few degrees off it)
+        return np.abs(v[:, 0] * a[:, 0] + v[:, 1] * a[:, 1])
+
+    d = along(c[:, 1] - c[:, 0])
+    e = along(np.asarray(part.polygon.centroid.coords[0]) - 0.5 * (c[:, 0] + c[:, 1]))
+    e_least = np.maximum(e - PAD_COMPLIANCE_MM / 2, 0.0)
+    load = SAFETY * weight_n(part) / (MU * cell.gripper.grip_force_n)  # in units of one pad's mu N
+    return load * (0.5 + e_least / (d + 2 * PAD_COMPLIANCE_MM))

@@ -32,3 +32,4 @@ class NoFeasibleGrasp(CellError):
         self.reason = reason
         self.counts = counts or {}
         self.partial = partial or {}  # what the steps made before none was left (for --explain)
+        self.at_any_step = False  # the planner's: no outline sampling, however fine, would give one

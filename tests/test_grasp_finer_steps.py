@@ -95,6 +95,14 @@ def test_a_part_with_no_grasp_before_its_outline_is_sampled_is_not_sampled_finer
     assert "finer step" not in e.value.reason
 
 
+def test_a_part_too_heavy_for_any_grasp_is_not_sampled_finer(shipped):
+    block = Part("block", np.array([[320, -25], [380, -25], [380, 25], [320, 25]], float), (), 0.0, 50.0,
+                 meta={"mass_g": 3000})
+    with pytest.raises(NoFeasibleGrasp, match="too heavy") as e:
+        GraspPlanner(CELL, shipped).plan(Scene((block,), "block"))
+    assert "finer step" not in e.value.reason
+
+
 def test_a_large_part_is_not_sampled_finer_than_the_bound_on_its_valid_points(shipped):
     """A plate 200 mm across is wider than the stroke: 216 valid points at 2 mm, 432 at 1 mm (tried), 864 at
     0.5 mm (1600 candidates, 370 000 pairs: not tried)."""

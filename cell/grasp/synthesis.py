@@ -204,8 +204,10 @@ class GraspPlanner:
             return self._plan(scene, self.params, t_start)
         except NoFeasibleGrasp as first:
             tried = []
-            # (a part refused before its outline was sampled, or with no free outline, is so at any step)
-            for p in self.params.finer() if first.counts.get("candidates") else ():
+            # (a part refused before its outline was sampled, with no free outline, or too heavy for any grasp
+            # is so at any step)
+            finer = self.params.finer() if first.counts.get("candidates") and not first.at_any_step else []
+            for p in finer:
                 ratio = self.params.step_mm / p.step_mm
                 if (first.counts.get("candidates", 0) * ratio > FINER_MAX_CANDIDATES
                         or first.counts.get("valid_points", 0) * ratio > FINER_MAX_VALID_POINTS):
@@ -232,9 +234,11 @@ class GraspPlanner:
         times = {}
         partial: dict = {}  # what the steps made so far: `cell grasp --explain` says why none was left
 
-        def fail(reason):
+        def fail(reason, at_any_step: bool = False):
             counts["time_ms"] = round((time.perf_counter() - t_start) * 1e3, 3)
-            raise NoFeasibleGrasp(reason, counts, partial)
+            e = NoFeasibleGrasp(reason, counts, partial)
+            e.at_any_step = at_any_step  # (no finer step is tried: plan)
+            raise e
 
         j3 = cell.scara.j3_mm if p.grasp_z_within_j3 else None
         gz = grasp_z_mm(target.z_bottom_mm, target.z_top_mm, cell.gripper, j3)
@@ -282,7 +286,7 @@ class GraspPlanner:
         # (a 10 m square weighs tons, and its size is the thing to say)
         heavy = too_heavy(target, cell)
         if heavy:
-            fail(heavy)
+            fail(heavy, at_any_step=True)
         t0 = time.perf_counter()
         P = Pairs.of(vp.points, vp.normals, cand_index[point_valid])
         counts["pairs"] = len(P)

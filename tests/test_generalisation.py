@@ -5,7 +5,14 @@ import pytest
 from cell import parts_library as L
 from cell.cellconfig import default_cell
 from cell.examples import load_examples
-from cell.study.stability import evaluate, make_planner, presentations, random_baseline, simple_shapes
+from cell.study.stability import (
+    evaluate,
+    holed_shapes,
+    make_planner,
+    presentations,
+    random_baseline,
+    simple_shapes,
+)
 
 SEEN = ["cover", "plate", "nut", "washer", "housing", "pcb", "bracket"]
 UNSEEN = [f for f in L.list_families() if f not in SEEN]
@@ -70,6 +77,9 @@ def test_bench_stability_command(capsys):
     assert s["random_points"]["stable_share"] < 0.5
     assert s["clutter"]["presented"] == len(L.parts()) and s["clutter"]["stable_share"] >= 0.95
     assert s["simple_shapes"]["presented"] == len(simple_shapes()) and s["simple_shapes"]["stable_share"] == 1.0
+    # rings and plates with a hole, all planned (96 of 114 before the relative distance took in the holes)
+    assert s["holed_shapes"]["presented"] == len(holed_shapes()) == s["holed_shapes"]["planned"]
+    assert s["holed_shapes"]["stable_share"] == 1.0
     assert set(s["per_family"]) == {"gear", "pcb"}
     assert s["unseen_families"]["presented"] == len(L.parts(["gear", "pcb"]))
     code, _, err = run_cli("bench", "stability", "--poses", "0", capsys=capsys)

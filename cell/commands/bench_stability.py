@@ -36,6 +36,7 @@ def run(args) -> int:
         StabilityTally,
         cluttered,
         evaluate,
+        holed_shapes,
         leave_families_out,
         make_planner,
         presentations,
@@ -65,6 +66,8 @@ def run(args) -> int:
     baseline = random_baseline(shown, args.seed, cell)
     log(f"simple shapes not in the library: {len(simple_shapes())} x {args.poses} poses")
     simple = evaluate(planner, presentations(simple_shapes(), args.poses, args.seed, cell), cell)
+    log(f"rings and plates with a hole: {len(holed_shapes())} x {args.poses} poses")
+    holed = evaluate(planner, presentations(holed_shapes(), args.poses, args.seed, cell), cell)
     per_family = leave_families_out(examples, args.poses, args.seed, cell, families, progress=log, params=params)
     unseen = StabilityTally()
     for t in per_family.values():
@@ -83,6 +86,8 @@ def run(args) -> int:
           f"{clutter.stable} | {pct(clutter.planned_share)} | {pct(clutter.stable_share)} |")
     print(f"| simple shapes not in the library, all examples | {simple.presented} | {simple.planned} | "
           f"{simple.stable} | {pct(simple.planned_share)} | {pct(simple.stable_share)} |")
+    print(f"| rings and plates with a hole, all examples | {holed.presented} | {holed.planned} | {holed.stable} | "
+          f"{pct(holed.planned_share)} | {pct(holed.stable_share)} |")
     print(f"| yardstick: two random outline points within the stroke | {baseline.presented} | - | "
           f"{baseline.stable} | - | {pct(baseline.stable_share)} |")
     print()
@@ -90,7 +95,7 @@ def run(args) -> int:
     print("|---|---:|---:|---:|")
     for fam, t in per_family.items():
         print(f"| {fam} | {t.presented} | {t.planned} | {t.stable} |")
-    for pid, reasons in whole.failures + unseen.failures + clutter.failures + simple.failures:
+    for pid, reasons in whole.failures + unseen.failures + clutter.failures + simple.failures + holed.failures:
         log(f"unstable: {pid}: {'; '.join(reasons)}")
     if args.json:
         print(json.dumps({
@@ -106,6 +111,9 @@ def run(args) -> int:
             "simple_shapes": {"presented": simple.presented, "planned": simple.planned, "stable": simple.stable,
                               "stable_share": round(simple.stable_share, 4),
                               "planned_share": round(simple.planned_share, 4)},
+            "holed_shapes": {"presented": holed.presented, "planned": holed.planned, "stable": holed.stable,
+                             "stable_share": round(holed.stable_share, 4),
+                             "planned_share": round(holed.planned_share, 4)},
             "random_points": {"presented": baseline.presented, "stable": baseline.stable,
                               "stable_share": round(baseline.stable_share, 4)},
             "per_family": {f: {"presented": t.presented, "planned": t.planned, "stable": t.stable}

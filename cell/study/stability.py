@@ -83,6 +83,26 @@ def simple_shapes(height_mm: float = 10.0) -> list[Part]:
     return [Part(name, xy, z_bottom_mm=0.0, z_top_mm=height_mm) for name, xy in shapes.items()]
 
 
+def holed_shapes(height_mm: float = 8.0) -> list[Part]:
+    """Rings (washers, bearing rings) 16-70 mm across with a hole of 0.3-0.8 of that, and square plates
+    20-60 mm with a round hole of 0.3 or 0.6 of their side, centred at the origin."""
+    def circle(r: float, clockwise: bool = False) -> np.ndarray:
+        a = np.arange(64) * (-1 if clockwise else 1) * 2 * np.pi / 64
+        return r * np.column_stack([np.cos(a), np.sin(a)])
+
+    out = []
+    for outer in (8, 12, 16, 20, 25, 30, 35):
+        for k in (0.3, 0.5, 0.65, 0.8):
+            out.append(Part(f"ring_{2 * outer}x{2 * outer * k:g}", circle(outer), (circle(outer * k, True),),
+                            z_bottom_mm=0.0, z_top_mm=height_mm))
+    for side in (20, 30, 40, 50, 60):
+        h = side / 2
+        for k in (0.3, 0.6):
+            out.append(Part(f"plate_{side}_hole{side * k:g}", np.array([[-h, -h], [h, -h], [h, h], [-h, h]], float),
+                            (circle(h * k, True),), z_bottom_mm=0.0, z_top_mm=5.0))
+    return out
+
+
 def presentations(parts: list[Part], poses: int, seed: int, cell: Cell) -> list[Part]:
     """Each part at `poses` random poses inside the tray (deterministic for a seed)."""
     rng = np.random.default_rng(seed)

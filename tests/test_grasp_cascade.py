@@ -13,7 +13,7 @@ from shapely.geometry import Point
 
 from cell.cellconfig import default_cell
 from cell.errors import NoFeasibleGrasp
-from cell.examples import GraspExample
+from cell.examples import GraspExample, load_examples
 from cell.grasp import bands, cascade, pairs, shapes
 from cell.grasp.candidates import candidate_points
 from cell.grasp.cascade import STAGES, Context, Pairs, joints_of, run_brute_force, run_cascade
@@ -91,6 +91,17 @@ def test_an_unreachable_centre_stops_at_the_reach_stage():
     assert cr.kept["stroke"] > 0 and cr.kept["reach"] == 0
     with pytest.raises(NoFeasibleGrasp, match="reach"):
         permissive_planner().plan(Scene((far,), "t"))
+
+
+def test_a_part_mostly_beyond_the_workspace_says_so_when_a_later_stage_empties():
+    """The few pairs the reach stage leaves of a square mostly past the workspace's edge (x 560 mm) do not face
+    each other: the antipodal stage empties, and the reason named only it ("no two valid points face each
+    other"), of a square whose faces do."""
+    part = shapes.rectangle("t", 30, 30, center=(575, 0), angle_deg=30)
+    with pytest.raises(NoFeasibleGrasp) as e:
+        GraspPlanner(CELL, load_examples(None)).plan(Scene((part,), "t"))
+    assert e.value.counts["after_reach"] < e.value.counts["after_stroke"] / 2
+    assert "the reach stage left only" in e.value.reason and "workspace (x -50 to 560" in e.value.reason
 
 
 @pytest.mark.parametrize("center, shortcut", [((350, 0), True), ((590, 0), False), ((60, 0), False),

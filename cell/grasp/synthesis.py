@@ -422,7 +422,18 @@ class GraspPlanner:
                             f"the jaws take {smallest:g}-{widest:g} mm ({clearance})")
                 return (f"the part is wider than the gripper's stroke: facing contact points are at least "
                         f"{closest:.1f} mm apart, the jaws take at most {widest:g} mm ({clearance})")
-        return f"no reachable pair ({first} stage): {why}"
+        return f"no reachable pair ({first} stage): {why}{self._reach_note(cr, first)}"
+
+    def _reach_note(self, cr: CascadeResult, first: str) -> str:
+        """Where the reach stage took most pairs before a later stage took the rest, that is the cause to name
+        (a part mostly beyond the workspace's edge: its few reachable pairs then do not face each other)."""
+        within, reached = cr.kept["stroke"], cr.kept["reach"]
+        if STAGES.index(first) <= STAGES.index("reach") or not 2 * reached < within:
+            return ""
+        ws, (r0, r1) = self.cell.workspace, self.cell.scara.reach_mm
+        return (f"; before it, the reach stage left only {reached} of the {within} pairs within the stroke: the part "
+                f"lies mostly beyond the arm's reach ({r0:g}-{r1:g} mm from the base) or the workspace (x "
+                f"{ws.x_mm[0]:g} to {ws.x_mm[1]:g}, y {ws.y_mm[0]:g} to {ws.y_mm[1]:g} mm)")
 
     def _workspace_note(self) -> str:
         ws = self.cell.workspace

@@ -202,3 +202,28 @@ def test_bad_values_of_the_setting_are_refused(value):
         planner_from_meta({"grasp_z_over_neighbours": value}, "here")
     with pytest.raises(BadInput, match="grasp_z_over_neighbours must be true or false"):
         SynthesisParams(grasp_z_over_neighbours=value)
+
+
+def test_the_run_loop_descends_to_the_raised_z_and_the_simulated_cell_holds_the_nut_there(tmp_path):
+    from cell.runtime.session import RunConfig, run_session
+
+    def part(p: Part) -> dict:
+        return {"id": p.id, "outline": np.asarray(p.outline_mm).tolist(),
+                "holes": [np.asarray(h).tolist() for h in p.holes_mm], "z_bottom": p.z_bottom_mm, "z_top": p.z_top_mm}
+
+    nut = Part("nut", hexagon(24.0), (), 0.0, 13.0)
+    gasket = Part("gasket", rect(325, -25, 375, 25), (circle(15.0),), 0.0, 4.0)  # 50 mm: within the stroke
+    path = tmp_path / "nut_in_gasket.json"
+    path.write_text(json.dumps({"units": "mm", "name": "nut_in_gasket", "parts": [part(nut), part(gasket)],
+                                "sequence": ["nut", "gasket"]}))
+    rec = tmp_path / "rec"
+    s = run_session(RunConfig(assembly=path, record=rec, seed=3))
+    assert s["status"] == "complete" and s["parts_removed"] == 2
+    assert any(e.startswith("gripped nut") and "will not hold" not in e for e in s["sim_events"])
+    decisions = [json.loads(line) for line in (rec / "decisions.jsonl").read_text().splitlines()]
+    grasp = next(d for d in decisions if d["type"] == "grasp" and d["part"] == "nut")
+    assert grasp["grasp_z_mm"] == 5.0 and grasp["joints"]["j3_mm"] == 5.0
+    commands = next(d for d in decisions if d["type"] == "commands" and d["part"] == "nut")["commands"]
+    assert next(c for c in commands if c["label"] == "descend")["joints"]["j3_mm"] == 5.0
+    manifest = json.loads((rec / "manifest.json").read_text())
+    assert manifest["meta"]["planner"]["grasp_z_over_neighbours"] is True

@@ -1,8 +1,11 @@
-"""The fixed grasp height of the 2D normal grasp.
+"""The grasp height of the 2D normal grasp: one fixed z per attempt.
 
 The finger tips go as low as seats most of the pad on the part (pad top 2 mm above the
 part's top, so the pad's rounded edge is not the contact) but stay 1 mm above the part's
-bottom (the tray). CONTRACT.md: z_bottom <= grasp z <= z_top - 2.
+bottom (the tray). CONTRACT.md: z_bottom <= grasp z <= z_top - 2. Where that z gives no grasp,
+the planner tries the z 1 mm above each lower neighbour's top (`raised_grasp_z_mm`): the fingers
+then pass over that neighbour (CONTRACT: only obstacles taller than the grasp z are collision
+regions).
 """
 
 from __future__ import annotations
@@ -11,7 +14,11 @@ from cell.cellconfig import Gripper
 
 TIP_ABOVE_BOTTOM_MM = 1.0
 PAD_ABOVE_TOP_MM = 2.0
+# The tips above a neighbour's top they pass over: the margin they keep above the tray (its top at
+# exactly the grasp z would not collide by CONTRACT's rule, but the tips would rest on it)
+TIP_ABOVE_NEIGHBOUR_MM = TIP_ABOVE_BOTTOM_MM
 TIP_BELOW_TOP_MM = 2.0  # CONTRACT: grasp z <= z_top - 2; a part less tall than this has no grasp z
+Z_EPS_MM = 1e-6  # a neighbour's top above the grasp z by more than this is a collision region (cell.grasp.pairs)
 PRINTED_DECIMALS = 4  # grasp z and J3 as `cell grasp --json` prints them (cell.grasp.synthesis)
 
 
@@ -32,6 +39,21 @@ def grasp_z_mm(z_bottom_mm: float, z_top_mm: float, gripper: Gripper,
         elif z > hi and hi >= z_bottom_mm and hi + gripper.palm_offset_mm >= z_top_mm:
             z = hi  # lower, but the palm stays above the part's top
     return z
+
+
+def raised_grasp_z_mm(z_bottom_mm: float, z_top_mm: float, usual_z_mm: float, neighbour_tops_mm,
+                      j3_mm: tuple[float, float]) -> list[float]:
+    """The grasp z over each neighbour top above the usual grasp z (TIP_ABOVE_NEIGHBOUR_MM above it),
+    lowest first, each once, those within CONTRACT.md's [z_bottom, z_top - 2] and J3's range (the
+    finger-tip z the arm takes): a neighbour too tall for that still blocks. A z that would put the tips
+    on or less than TIP_ABOVE_NEIGHBOUR_MM above another neighbour's top is left out (that neighbour's own
+    z follows): the tips keep the margin over every neighbour they pass over."""
+    top = _printed_at_most(z_top_mm - TIP_BELOW_TOP_MM)
+    lo, hi = _printed_at_least(j3_mm[0]), _printed_at_most(j3_mm[1])
+    tops = [t for t in neighbour_tops_mm if t > usual_z_mm + Z_EPS_MM]
+    zs = sorted({_printed_at_least(t + TIP_ABOVE_NEIGHBOUR_MM) for t in tops})
+    return [z for z in zs if max(z_bottom_mm, lo) <= z <= min(top, hi)
+            and not any(z - TIP_ABOVE_NEIGHBOUR_MM + Z_EPS_MM < t <= z + Z_EPS_MM for t in tops)]
 
 
 def _printed_at_most(limit_mm: float) -> float:

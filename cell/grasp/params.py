@@ -59,6 +59,12 @@ class SynthesisParams:
     # without a grasp at 2 mm (a gusset, the small gear) have stable ones at 1 mm. 0: the configured
     # step only, as recordings made before this existed have it (cell.runtime.replay).
     finer_steps: int = 2
+    # Where no grasp is found at the usual grasp z (cell.grasp.height), the grasp z 1 mm above each lower
+    # neighbour's top within the fingers' reach, lowest first, while it stays within CONTRACT.md's
+    # [z_bottom, z_top - 2] and J3's range: the fingers pass over that neighbour (a nut 13 mm tall in a
+    # 4 mm gasket's hole is held at 5 mm). Off, as recordings made before this existed have it
+    # (cell.runtime.replay).
+    grasp_z_over_neighbours: bool = True
     # Obstacles widened by this much for the fingers and the palm: 0 for outlines given exactly (a
     # scene file); the cell loop plans on measured poses and keeps a margin (cell.runtime.loop).
     obstacle_margin_mm: float = 0.0
@@ -95,6 +101,9 @@ class SynthesisParams:
                 self.finer_steps > MAX_FINER_STEPS:
             raise BadInput(f"synthesis parameter finer_steps must be a whole number from 0 to {MAX_FINER_STEPS}, "
                            f"got {self.finer_steps!r}")
+        if not isinstance(self.grasp_z_over_neighbours, bool):
+            raise BadInput(f"synthesis parameter grasp_z_over_neighbours must be true or false, got "
+                           f"{self.grasp_z_over_neighbours!r}")
         if self.n_contacts != 2:
             raise BadInput(f"this cell's gripper has two jaws: n_contacts must be 2, got {self.n_contacts}")
 

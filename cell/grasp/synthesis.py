@@ -25,7 +25,7 @@ from cell.grasp.attributes import OutlinePoints, global_attributes, global_names
 from cell.grasp.bands import PAD_COMPLIANCE_MM
 from cell.grasp.candidates import candidate_points
 from cell.grasp.cascade import STAGES, CascadeResult, Context, Pairs, joints_of, run_cascade
-from cell.grasp.height import TIP_BELOW_TOP_MM, grasp_z_mm
+from cell.grasp.height import TIP_BELOW_TOP_MM, grasp_z_mm, raised_grasp_z_mm
 from cell.grasp.learning import LearnedModel, fit_model, nearest_example
 from cell.grasp.load import slip_demand, too_heavy
 from cell.grasp.outline import part_rings
@@ -45,6 +45,9 @@ MAX_OUTLINE_SAMPLES = 50_000
 # round that has no grasp at 2 mm (wider than the stroke, say) is not sampled at 0.5 mm for nothing
 FINER_MAX_CANDIDATES = 4000
 FINER_MAX_VALID_POINTS = 600
+# Raised grasp z tried at most (SynthesisParams.grasp_z_over_neighbours), the lowest ones: each is the whole
+# pipeline again, with its finer steps
+MAX_RAISED_GRASP_Z = 4
 
 
 @dataclass(eq=False)
@@ -108,6 +111,15 @@ class RankedGrasps(Sequence):
         """The same ranking without its first grasp (step 5 refused it)."""
         return RankedGrasps(self._target, self._gz, self._P, self._pairs, self._rows, *self._arrays,
                             first=min(self._first + 1, len(self._rows)), built=self._built)
+
+
+def _mm(values: list[float]) -> str:
+    return f"{' and '.join(f'{v:g}' for v in values)} mm"
+
+
+def _steps_note(steps: list[float]) -> str:
+    """' (and at the finer steps 1 and 0.5 mm)': the steps a part with no grasp was tried at besides; '' for none."""
+    return f" (and at the finer step{'s' if len(steps) > 1 else ''} {_mm(steps)})" if steps else ""
 
 
 def _least_width_mm(part) -> float:
@@ -196,37 +208,84 @@ class GraspPlanner:
         self.model: LearnedModel = fit_model(examples, self.params, cell.gripper.pad_width_mm / 2)
 
     def plan(self, scene: Scene) -> SynthesisResult:
-        """Steps 1-4 (and step 5's hook) at the configured step; where they give no grasp, at the finer
-        steps (SynthesisParams.finer_steps) with the same trees. The reason and counts of a part with no
-        grasp at any step are the configured step's (what `--explain` shows)."""
+        """Steps 1-4 (and step 5's hook) at the usual grasp z and the configured step; where they give no
+        grasp, at the finer steps (SynthesisParams.finer_steps) with the same trees, then at the grasp z over
+        each lower neighbour (SynthesisParams.grasp_z_over_neighbours), likewise. The reason and counts of a
+        part with no grasp at any z and step are the usual z's at the configured step (what `--explain`
+        shows), with the steps and z tried appended."""
         t_start = time.perf_counter()
-        try:
-            return self._plan(scene, self.params, t_start)
-        except NoFeasibleGrasp as first:
-            tried = []
-            # (a part refused before its outline was sampled, with no free outline, or too heavy for any grasp
-            # is so at any step)
-            finer = self.params.finer() if first.counts.get("candidates") and not first.at_any_step else []
-            for p in finer:
-                ratio = self.params.step_mm / p.step_mm
-                if (first.counts.get("candidates", 0) * ratio > FINER_MAX_CANDIDATES
-                        or first.counts.get("valid_points", 0) * ratio > FINER_MAX_VALID_POINTS):
+        p0 = self.params
+        target = scene.target_part
+        usual = grasp_z_mm(target.z_bottom_mm, target.z_top_mm, self.cell.gripper,
+                           self.cell.scara.j3_mm if p0.grasp_z_within_j3 else None)
+        # Each attempt is the whole pipeline at one z and one step. The order: z by z, lowest first (the
+        # usual z, then over each lower neighbour), and at each z the configured step, then the finer steps
+        # that z's configured-step counts allow (FINER_*). The lowest z holds most of the part on the pads,
+        # and every grasp found at the usual z is the one found before the raised z existed. At most
+        # (1 + MAX_RAISED_GRASP_Z) x (1 + finer_steps) attempts.
+        def heights():  # the raised ones looked for only once the usual z gave none
+            yield usual
+            if p0.grasp_z_over_neighbours:
+                yield from self._raised_z(scene, usual)
+
+        first = None  # the usual z's failure at the configured step: the reason and counts reported
+        tried: dict[float, list[float]] = {}  # the finer steps tried at each z
+        done = []  # the z tried
+        for z in heights():
+            done.append(z)
+            at_z = None  # this z's failure at the configured step
+            for p in [p0, *p0.finer()]:
+                if at_z is not None and not self._finer_worth(at_z, p):
                     break
                 try:
-                    result = self._plan(scene, p, t_start)
-                except NoFeasibleGrasp:
-                    tried.append(p.step_mm)
+                    result = self._plan(scene, p, t_start, z)
+                except NoFeasibleGrasp as e:
+                    if at_z is None:
+                        at_z = e
+                        first = first or e
+                    else:
+                        tried.setdefault(z, []).append(p.step_mm)
                     continue
-                result.step_mm = p.step_mm
+                if p is not p0:
+                    result.step_mm = p.step_mm
                 return result
-            if tried:
-                first.reason += f" (and at the finer step{'s' if len(tried) > 1 else ''} " \
-                                f"{' and '.join(f'{s:g}' for s in tried)} mm)"
-                first.args = (first.reason,)
-            first.counts["time_ms"] = round((time.perf_counter() - t_start) * 1e3, 3)
-            raise
+            if at_z.at_any_step:  # too heavy for any grasp: so at any z
+                break
+        note = _steps_note(tried.get(usual, []))
+        raised = done[1:]
+        if raised:
+            finer = sorted({s for z in raised for s in tried.get(z, [])}, reverse=True)
+            there = f", there also at the finer step{'s' if len(finer) > 1 else ''} {_mm(finer)}" if finer else ""
+            note += f" (and at the grasp z {_mm(raised)} over lower neighbours{there})"
+        if note:
+            first.reason += note
+            first.args = (first.reason,)
+        first.counts["time_ms"] = round((time.perf_counter() - t_start) * 1e3, 3)
+        raise first
 
-    def _plan(self, scene: Scene, p: SynthesisParams, t_start: float) -> SynthesisResult:
+    def _finer_worth(self, at_z: NoFeasibleGrasp, p: SynthesisParams) -> bool:
+        """Whether step p is tried at a z whose configured step gave no grasp: not for a part refused before its
+        outline was sampled, with no free outline, or too heavy for any grasp (so at any step), nor where the
+        candidates and valid points it would give, estimated from the configured step's, exceed FINER_*."""
+        c = at_z.counts
+        ratio = self.params.step_mm / p.step_mm
+        return bool(c.get("candidates")) and not at_z.at_any_step and \
+            c.get("candidates", 0) * ratio <= FINER_MAX_CANDIDATES and \
+            c.get("valid_points", 0) * ratio <= FINER_MAX_VALID_POINTS
+
+    def _raised_z(self, scene: Scene, usual_z: float) -> list[float]:
+        """The grasp z over the lower neighbours that can be in the gripper's way (cell.grasp.height.
+        raised_grasp_z_mm), lowest first, MAX_RAISED_GRASP_Z at most. In the way: within the fingers' reach of
+        the target's outline (approach clearance, pad thickness and half its width, the pads' compliance and
+        the contact tolerance, the obstacle margin) or the free gap; the palm only rises with the grasp z."""
+        g, p, target = self.cell.gripper, self.params, scene.target_part
+        reach = max(g.approach_clearance_mm + g.pad_thickness_mm + g.pad_width_mm / 2 + PAD_COMPLIANCE_MM
+                    + p.contact_tol_mm, p.free_gap_mm) + p.obstacle_margin_mm
+        tops = [o.z_top_mm for o in scene.obstacles if o.polygon.distance(target.polygon) <= reach]
+        zs = raised_grasp_z_mm(target.z_bottom_mm, target.z_top_mm, usual_z, tops, self.cell.scara.j3_mm)
+        return zs[:MAX_RAISED_GRASP_Z]
+
+    def _plan(self, scene: Scene, p: SynthesisParams, t_start: float, gz: float) -> SynthesisResult:
         cell = self.cell
         target = scene.target_part
         obstacles = scene.obstacles
@@ -240,8 +299,6 @@ class GraspPlanner:
             e.at_any_step = at_any_step  # (no finer step is tried: plan)
             raise e
 
-        j3 = cell.scara.j3_mm if p.grasp_z_within_j3 else None
-        gz = grasp_z_mm(target.z_bottom_mm, target.z_top_mm, cell.gripper, j3)
         if gz > target.z_top_mm - TIP_BELOW_TOP_MM + 1e-9:  # CONTRACT: z_bottom <= grasp z <= z_top - 2
             fail(f"the part is {target.height_mm:g} mm tall: the pads need a grasp z at least "
                  f"{TIP_BELOW_TOP_MM:g} mm below its top and not below its bottom")

@@ -293,6 +293,21 @@ def test_rings_within_the_stroke_are_held_across_their_outside(outer_mm, inner_m
         assert check_grasp(ring, grasp.contacts_mm, grasp.axis_deg, grasp.grasp_z_mm, cell=CELL).ok
 
 
+def test_recordings_made_before_the_outer_disc_replay_with_the_material_disc():
+    """The reference radius of the relative attributes, as a recording's planner settings say (cog_radius_outer_disc
+    off for recordings made before it): a ring 60 / 40 mm's rim at 30 / sqrt(900 - 400) = 1.34 radii, or at 1."""
+    from cell.grasp.outline import reference_radius_mm
+    from cell.runtime.replay import planner_from_meta
+    from cell.scene import Part
+
+    a = np.arange(96) * 2 * np.pi / 96
+    ring = Part("ring", 30 * np.column_stack([np.cos(a), np.sin(a)]),
+                (20 * np.column_stack([np.cos(-a), np.sin(-a)]),), 0.0, 4.0)
+    assert reference_radius_mm(ring) == pytest.approx(30.0, rel=2e-3)
+    assert reference_radius_mm(ring, outer_disc=False) == pytest.approx(np.sqrt(500.0), rel=2e-3)
+    assert not planner_from_meta({}, "old").cog_radius_outer_disc and SynthesisParams().cog_radius_outer_disc
+
+
 @pytest.mark.parametrize("side_mm", [11.0, 15.0, 23.0])
 def test_squares_are_not_held_by_two_opposite_corners(side_mm):
     """A square's first vertex is a sample with the corner's bisector as its normal, antipodal to

@@ -69,10 +69,11 @@ def centre_of_gravity(part: Part) -> np.ndarray:
     return np.asarray(part.polygon.centroid.coords[0], float)
 
 
-def reference_radius_mm(part: Part) -> float:
+def reference_radius_mm(part: Part, outer_disc: bool = True) -> float:
     """Equivalent-disc radius sqrt(area / pi) of the area the outer outline encloses, holes included:
-    the size unit of the relative attributes."""
-    return float(np.sqrt(Polygon(part.outline_mm).area / np.pi))
+    the size unit of the relative attributes (outer_disc=False: of the part's material, holes taken out,
+    as recordings made before 2026-12-04 have it: SynthesisParams.cog_radius_outer_disc)."""
+    return float(np.sqrt((Polygon(part.outline_mm) if outer_disc else part.polygon).area / np.pi))
 
 
 def resample(rings: list[Ring], step_mm: float) -> tuple[np.ndarray, np.ndarray]:

@@ -53,6 +53,11 @@ class SynthesisParams:
     # axis, and the pads there met a slanted arm 4.9 mm in front of them). Off, as recordings made
     # before it existed have it (cell.runtime.replay).
     pads_at_grasp_centre: bool = True
+    # The relative distance to the centre of gravity (and the relative centre offset) in radii of the disc
+    # the outer outline encloses, holes included: a ring's rim lies at 1, as a disc's. Off, the disc of
+    # the part's material (holes taken out: a 60 / 40 mm ring's rim at 1.34, where tree 1 rejects
+    # protrusions), as recordings made before 2026-12-04 have it (cell.runtime.replay).
+    cog_radius_outer_disc: bool = True
     # Where no grasp is found at step_mm, the outline is sampled again at half the step, then a quarter
     # (not below MIN_STEP_MM), with the same trees: facing points of a strip 1-1.2 mm wide lie up to a
     # step apart along it (45 degrees off the closing line at 2 mm), and the library's six poses

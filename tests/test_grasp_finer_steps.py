@@ -104,12 +104,54 @@ def test_a_part_too_heavy_for_any_grasp_is_not_sampled_finer(shipped):
 
 
 def test_a_large_part_is_not_sampled_finer_than_the_bound_on_its_valid_points(shipped):
-    """A plate 200 mm across is wider than the stroke: 216 valid points at 2 mm, 432 at 1 mm (tried), 864 at
-    0.5 mm (1600 candidates, 370 000 pairs: not tried)."""
+    """A bar 60 x 400 mm between walls taller than it, 2 mm off its long sides, has no grasp: 1 mm is tried, not
+    0.5 mm (more than 600 valid points)."""
+    bar = Part("bar", np.array([[150, -30], [550, -30], [550, 30], [150, 30]], float), (), 0.0, 5.0)
+    walls = [Part(f"w{k}", np.array([[140, 0], [560, 0], [560, 10], [140, 10]], float) * (1, s) + (0, s * 32), (),
+                  0.0, 40.0) for k, s in enumerate((1, -1))]
+    with pytest.raises(NoFeasibleGrasp) as e:
+        GraspPlanner(CELL, shipped).plan(Scene((bar, *walls), "bar"))
+    assert e.value.counts["valid_points"] * 2 <= 600 < e.value.counts["valid_points"] * 4
+    assert e.value.reason.endswith("(and at the finer step 1 mm)"), e.value.reason
+
+
+def test_a_long_outline_walled_in_is_not_sampled_finer_than_the_bound_on_its_outline_samples(shipped):
+    """A bar 1500 x 20 mm walled in 1 mm off both long sides but for 100 mm of one: few candidates, but 1520
+    outline samples at 2 mm. The bound looked at the candidates only, and a 10 m outline so walled in reached
+    the planner's limit on outline samples at 0.5 mm: bad input (exit 2) for a part with no grasp."""
+    bar = Part("bar", np.array([[-700, -10], [800, -10], [800, 10], [-700, 10]], float), (), 0.0, 5.0)
+    walls = [Part("w0", np.array([[-710, 11], [810, 11], [810, 20], [-710, 20]], float), (), 0.0, 40.0),
+             Part("w1", np.array([[-710, -20], [300, -20], [300, -11], [-710, -11]], float), (), 0.0, 40.0),
+             Part("w2", np.array([[400, -20], [810, -20], [810, -11], [400, -11]], float), (), 0.0, 40.0)]
+    with pytest.raises(NoFeasibleGrasp) as e:
+        GraspPlanner(CELL, shipped).plan(Scene((bar, *walls), "bar"))
+    assert e.value.counts["outline_points"] * 2 <= 4000 < e.value.counts["outline_points"] * 4
+    assert e.value.reason.endswith("(and at the finer step 1 mm)"), e.value.reason
+
+
+def test_a_part_wider_than_the_stroke_everywhere_is_not_sampled_finer(shipped):
     plate = Part("plate", np.array([[300, -100], [500, -100], [500, 100], [300, 100]], float), (), 0.0, 5.0)
     with pytest.raises(NoFeasibleGrasp, match="wider than the gripper's stroke") as e:
         GraspPlanner(CELL, shipped).plan(Scene((plate,), "plate"))
-    assert e.value.reason.endswith("(and at the finer step 1 mm)")
+    assert "finer step" not in e.value.reason
+
+
+def test_a_heavy_part_whose_few_points_fail_tree_1_at_2_mm_is_told_it_is_too_heavy(shipped):
+    """At 2 mm tree 1 left too few points of a small part; the finer steps got past tree 1 to the weight check,
+    and the reason said only 'tree 1 keeps 1 of 4'."""
+    small = Part("small", np.array([[380.3617, 1.0275], [379.0815, -0.3072], [379.6326, -0.8683], [381.0512, -1.2928],
+                                    [381.0976, -1.2394], [381.311, -1.3162], [381.6824, -0.1973]]), (), 0.0, 6.0)
+    light = GraspPlanner(CELL, shipped).plan(Scene((small,), "small"))
+    assert light.step_mm in (1.0, 0.5)
+    heavy = Part("small", small.outline_mm, (), 0.0, 6.0, meta={"mass_g": 1400})
+    with pytest.raises(NoFeasibleGrasp, match="too heavy") as e:
+        GraspPlanner(CELL, shipped).plan(Scene((heavy,), "small"))
+    assert "tree 1" not in e.value.reason
+
+
+def _circle(r, clockwise=False):
+    a = np.arange(128) * (-1 if clockwise else 1) * 2 * np.pi / 128
+    return r * np.column_stack([np.cos(a), np.sin(a)])
 
 
 @pytest.mark.parametrize("value", [5, 1.0, True, "2"])

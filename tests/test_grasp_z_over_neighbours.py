@@ -135,10 +135,12 @@ def test_a_neighbour_taller_than_the_targets_top_less_2_mm_still_blocks(planner,
 
 
 def test_no_grasp_at_any_z_keeps_the_usual_zs_reason_and_counts_and_names_the_z_tried(planner, usual):
-    # a disc wider than the stroke in a 4 mm gasket: no z helps
-    disc = Part("disc", circle(45.0), (), 0.0, 13.0)
-    ring = Part("ring", rect(290, -60, 410, 60), (circle(47.0),), 0.0, 4.0)
-    scene = Scene((disc, ring), "disc")
+    # a nut ringed by a wall taller than it, 2.6-4.5 mm away, inside a 4 mm gasket: no z helps (a disc wider than
+    # the stroke is not tried at any raised z: test_a_part_wider_than_the_stroke_is_tried_at_the_usual_z_only)
+    nut = Part("nut", hexagon(24.0), (), 0.0, 13.0)
+    wall = Part("wall", circle(24.0)[::-1], (circle(16.5),), 0.0, 40.0)
+    gasket = Part("gasket", rect(290, -60, 410, 60), (circle(30.0),), 0.0, 4.0)
+    scene = Scene((nut, wall, gasket), "nut")
     with pytest.raises(NoFeasibleGrasp) as off:
         usual.plan(scene)
     with pytest.raises(NoFeasibleGrasp) as on:
@@ -148,6 +150,15 @@ def test_no_grasp_at_any_z_keeps_the_usual_zs_reason_and_counts_and_names_the_z_
     assert str(on.value) == on.value.reason
     assert {k: v for k, v in on.value.counts.items() if k != "time_ms"} == \
         {k: v for k, v in off.value.counts.items() if k != "time_ms"}
+
+
+def test_a_part_wider_than_the_stroke_is_tried_at_the_usual_z_only(planner, usual):
+    # a disc 90 mm across in a 4 mm gasket: wider than the jaws take in every direction, at any z and step
+    disc = Part("disc", circle(45.0), (), 0.0, 13.0)
+    ring = Part("ring", rect(290, -60, 410, 60), (circle(47.0),), 0.0, 4.0)
+    with pytest.raises(NoFeasibleGrasp) as e:
+        planner.plan(Scene((disc, ring), "disc"))
+    assert "(and at" not in e.value.reason
 
 
 def test_a_low_part_out_of_the_fingers_reach_is_not_tried(planner, usual):

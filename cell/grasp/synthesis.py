@@ -40,10 +40,10 @@ MAX_VALID_POINTS = 2500
 # Outline samples (candidates) at most: 100 m of outline at the 2 mm step. A 1 km square took 9 s
 # and 1.2 GB to be refused for its valid points; it is refused before it is sampled.
 MAX_OUTLINE_SAMPLES = 50_000
-# A finer step is tried (SynthesisParams.finer_steps) only while the candidates and valid points it would give,
+# A finer step is tried (SynthesisParams.finer_steps) only while the outline samples and valid points it would give,
 # estimated from the configured step's, stay under these (about 180 000 pairs, tens of ms): a part 300 mm
 # round that has no grasp at 2 mm (wider than the stroke, say) is not sampled at 0.5 mm for nothing
-FINER_MAX_CANDIDATES = 4000
+FINER_MAX_OUTLINE_POINTS = 4000
 FINER_MAX_VALID_POINTS = 600
 # Raised grasp z tried at most (SynthesisParams.grasp_z_over_neighbours), the lowest ones: each is the whole
 # pipeline again, with its finer steps
@@ -240,6 +240,10 @@ class GraspPlanner:
                 try:
                     result = self._plan(scene, p, t_start, z)
                 except NoFeasibleGrasp as e:
+                    if e.at_any_step or (first is None and self._too_wide(target)):
+                        # too heavy or too wide for any grasp: so at any z and step, and the reason to give
+                        e.counts["time_ms"] = round((time.perf_counter() - t_start) * 1e3, 3)
+                        raise
                     if at_z is None:
                         at_z = e
                         first = first or e
@@ -249,8 +253,6 @@ class GraspPlanner:
                 if p is not p0:
                     result.step_mm = p.step_mm
                 return result
-            if at_z.at_any_step:  # too heavy for any grasp: so at any z
-                break
         note = _steps_note(tried.get(usual, []))
         raised = done[1:]
         if raised:
@@ -265,13 +267,18 @@ class GraspPlanner:
 
     def _finer_worth(self, at_z: NoFeasibleGrasp, p: SynthesisParams) -> bool:
         """Whether step p is tried at a z whose configured step gave no grasp: not for a part refused before its
-        outline was sampled, with no free outline, or too heavy for any grasp (so at any step), nor where the
-        candidates and valid points it would give, estimated from the configured step's, exceed FINER_*."""
+        outline was sampled or with no free outline (so at any step), nor where the outline samples (free or
+        not: a 40 m outline walled in but for 100 mm) and valid points it would give, estimated from the
+        configured step's, exceed FINER_*."""
         c = at_z.counts
         ratio = self.params.step_mm / p.step_mm
-        return bool(c.get("candidates")) and not at_z.at_any_step and \
-            c.get("candidates", 0) * ratio <= FINER_MAX_CANDIDATES and \
+        return bool(c.get("candidates")) and c.get("outline_points", 0) * ratio <= FINER_MAX_OUTLINE_POINTS and \
             c.get("valid_points", 0) * ratio <= FINER_MAX_VALID_POINTS
+
+    def _too_wide(self, target) -> bool:
+        """Is the part wider than the jaws take (the opening less the approach clearances) in every direction?"""
+        g = self.cell.gripper
+        return _least_width_mm(target) > g.opening_mm[1] - 2 * g.approach_clearance_mm + 1e-6
 
     def _raised_z(self, scene: Scene, usual_z: float) -> list[float]:
         """The grasp z over the lower neighbours that can be in the gripper's way (cell.grasp.height.

@@ -164,3 +164,32 @@ def test_the_finer_steps_stop_at_the_smallest_step():
     assert [p.step_mm for p in SynthesisParams().finer()] == [1.0, 0.5]
     assert [p.step_mm for p in SynthesisParams(step_mm=1.0, finer_steps=4).finer()] == [0.5]
     assert SynthesisParams(finer_steps=0).finer() == []
+
+
+def test_the_run_loop_records_the_finer_step_and_the_text_outputs_name_it(tmp_path, capsys):
+    """The gusset, planned at 1 mm: the run's grasp decision says so (its counts are that step's), the
+    recording replays, and `cell plan` / `cell grasp` say it in words too. (Its outline at full precision,
+    as lib.place gives it: the run located it on that, the replay on the recording's 4 decimals, 0.009 deg
+    apart, and the replay diverged at its first perception; the run now takes the model as recorded.)"""
+    from cell.runtime.session import RunConfig, run_session
+
+    gusset = lib.place(lib.part("gusset_m"), 360.0, -40.0, 0.0)
+    raw = {"id": "gusset", "outline": np.asarray(gusset.outline_mm).tolist(),
+           "holes": [np.asarray(h).tolist() for h in gusset.holes_mm], "z_bottom": gusset.z_bottom_mm,
+           "z_top": gusset.z_top_mm, "mass_g": 20}
+    path = tmp_path / "gusset.json"
+    path.write_text(json.dumps({"units": "mm", "name": "gusset", "parts": [raw], "sequence": ["gusset"]}))
+    rec = tmp_path / "rec"
+    s = run_session(RunConfig(assembly=path, record=rec, seed=3))
+    assert s["status"] == "complete" and s["parts_removed"] == 1
+    decisions = [json.loads(line) for line in (rec / "decisions.jsonl").read_text().splitlines()]
+    grasp = next(d for d in decisions if d["type"] == "grasp")
+    assert grasp["step_mm"] == 1.0
+    code, out, err = run_cli("replay", rec, capsys=capsys)
+    assert code == 0 and "decisions match" in out, err
+    code, out, _ = run_cli("plan", path, capsys=capsys)
+    assert code == 0 and "gusset (at the finer 1 mm outline step)" in out
+    scene = tmp_path / "scene.json"
+    scene.write_text(json.dumps({"units": "mm", "target": "gusset", "parts": [raw]}))
+    code, out, _ = run_cli("grasp", scene, capsys=capsys)
+    assert code == 0 and "grasp 'gusset' (at the finer 1 mm outline step)" in out

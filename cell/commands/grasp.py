@@ -117,7 +117,8 @@ def summary(obj, path) -> str:
                 f"  z={c.get('candidates', 0)} candidates -> z'={c.get('valid_points', 0)} valid points -> "
                 f"s={c.get('pairs', 0)} pairs" + (f"; cascade kept: {stages}" if stages else ""))
     c, j = obj["counts"], obj["joints"]
-    return (f"{Path(path).name}: grasp {obj['target']!r} at ({obj['center'][0]:.1f}, {obj['center'][1]:.1f}) mm, "
+    step = f" (at the finer {obj['step_mm']:g} mm outline step)" if "step_mm" in obj else ""
+    return (f"{Path(path).name}: grasp {obj['target']!r}{step} at ({obj['center'][0]:.1f}, {obj['center'][1]:.1f}) mm, "
             f"axis {obj['angle_deg']:.1f} deg, opening {obj['opening_mm']:.1f} mm, z {obj['grasp_z_mm']:.1f} mm\n"
             f"  contacts {obj['contacts'][0]} and {obj['contacts'][1]}\n"
             f"  joints J1 {j['j1_deg']:.2f} deg, J2 {j['j2_deg']:.2f} deg, J3 {j['j3_mm']:.2f} mm, "

@@ -96,6 +96,7 @@ def _line(s) -> str:
         return f"step {s.step}: {s.scene.target}: NO GRASP ({s.error}): {s.reason}"
     g = s.result.grasp
     q = g.joints
-    return (f"step {s.step}: {g.target}: contacts {g.contacts_mm.round(1).tolist()}, opening {g.opening_mm:.1f} mm, "
-            f"axis {g.axis_deg:.1f} deg, z {g.grasp_z_mm:.1f} mm, elbow {q.elbow if q else '-'}, "
-            f"{s.result.counts['valid_sets']} valid sets, {s.result.time_ms:.1f} ms")
+    step = "" if s.result.step_mm is None else f" (at the finer {s.result.step_mm:g} mm outline step)"
+    return (f"step {s.step}: {g.target}{step}: contacts {g.contacts_mm.round(1).tolist()}, "
+            f"opening {g.opening_mm:.1f} mm, axis {g.axis_deg:.1f} deg, z {g.grasp_z_mm:.1f} mm, "
+            f"elbow {q.elbow if q else '-'}, {s.result.counts['valid_sets']} valid sets, {s.result.time_ms:.1f} ms")

@@ -515,9 +515,10 @@ class CellLoop:
                 self._stop_and_ask("planner", f"no feasible grasp for {part_id}: {e.reason}")
             return None
         g = result.grasp
+        step = {} if result.step_mm is None else {"step_mm": result.step_mm}  # a finer step's counts (synthesis.py)
         self.sink.write_decision({"type": "grasp", "part": part_id, "counts": {
             k: v for k, v in result.counts.items() if k != "time_ms"}, "ranked": len(result.ranked),
-            **_grasp_json(g)})
+            **step, **_grasp_json(g)})
         if self.viz is not None:
             self._show(result)
         return result.ranked

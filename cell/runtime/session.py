@@ -23,7 +23,7 @@ from cell.fileio import check_writable, make_folder, write_atomic
 from cell.runtime.control import RunControl, Stopped
 from cell.runtime.loop import CellLoop, LoopOptions, StopRun
 from cell.runtime.simworld import SimWorld, WorldFaults
-from cell.scene import Assembly, Part, load_assembly
+from cell.scene import Assembly, Part, load_assembly, parse_assembly
 
 EXAMPLES_AT_START = "examples_at_start.jsonl"
 STATION_LINGER_S = 2.0  # the station answers this long after the run ends: the page shows how it ended
@@ -179,7 +179,9 @@ def run_session(cfg: RunConfig) -> dict:
     the summary (with 'status')."""
     say = cfg.progress or (lambda s: None)
     assembly_path = Path(cfg.assembly) if cfg.assembly else default_assembly_path()
-    assembly = load_assembly(assembly_path)
+    # the assembly as the recording keeps it (outlines to 4 decimals, Part.to_json): the run and its replay
+    # match the same model (a gusset's outline at full precision located it 0.009 deg off in the replay)
+    assembly = parse_assembly(load_assembly(assembly_path).to_json(), str(assembly_path), assembly_path.parent)
     ids = {p.id for p in assembly.parts}
     for opt, named in (("--sim-miss", cfg.faults.miss), ("--sim-stuck", cfg.faults.stuck)):
         unknown = sorted(set(named) - ids)

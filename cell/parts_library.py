@@ -29,10 +29,8 @@ from shapely.geometry import LineString, Point, Polygon, box
 from shapely.ops import unary_union
 
 from cell.errors import BadInput
+from cell.materials import DENSITY_G_CM3
 from cell.scene import Part
-
-DENSITY_G_CM3 = {"steel": 7.85, "aluminium": 2.7, "brass": 8.5, "plastic": 1.2, "fr4": 1.9}
-
 
 # --- small shape helpers (shapely geometries, mm) -------------------------------------------
 

@@ -63,13 +63,12 @@ from shapely.geometry import LinearRing, Point, box
 
 from cell.cellconfig import Cell, default_cell
 from cell.grasp.height import grasp_z_mm as default_grasp_z_mm
-from cell.materials import DEFAULT_MATERIAL, DENSITY_G_CM3, mass_g
+from cell.materials import mass_g
 from cell.scene import Part
 
 MU = 0.3  # pad/part friction: rubber-faced pads on oily metal, conservative
 SAFETY = 2.0  # margin for the arm's accelerations and an uneven grip
 G_M_S2 = 9.81
-DEFAULT_DENSITY_G_CM3 = DENSITY_G_CM3[DEFAULT_MATERIAL]  # a part carrying neither its mass nor its material
 CONTACT_TOL_MM = 2.0  # a reported contact farther than this from where the pad stops is wrong
 PATCH_DEPTH_MM = 0.5  # material this close to the pad face touches it (pad compliance)
 SHARP_PATCH_MM = 2.0

@@ -339,6 +339,8 @@ def _holes_inside(outline: np.ndarray, holes: list[np.ndarray], where: str) -> N
     edge = shell.boundary.buffer(HOLE_OUTSIDE_TOL_MM)
     for i, h in enumerate(holes):
         hole = _region(h)
+        if hole.is_empty:  # a ring of no area (a spike): the polygon's repair drops it, as before
+            continue
         if not wider.contains(hole):
             if hole.buffer(HOLE_OUTSIDE_TOL_MM).contains(shell):
                 raise BadInput(f"{where} hole #{i}: lies outside the outline (all around it; holes must be inside it)")

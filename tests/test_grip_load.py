@@ -15,7 +15,6 @@ from cell.errors import NoFeasibleGrasp
 from cell.examples import load_examples
 from cell.grasp.load import slip_demand
 from cell.grasp.synthesis import GraspPlanner
-from cell.materials import DENSITY_G_CM3
 from cell.physics import check_grasp, part_mass_g
 from cell.scene import Scene, load_scene
 
@@ -99,7 +98,6 @@ def test_a_given_mass_wins_over_the_material(tmp_path):
     ({"mass_g": 0}, "'mass_g' must be a positive number of grams, got 0"),
     ({"mass_g": "1400"}, "'mass_g' must be a positive number of grams, got '1400'"),
     ({"mass_g": True}, "'mass_g' must be a positive number of grams, got True"),
-    ({"mass_g": None}, "'mass_g' must be a positive number of grams, got None"),
     ({"mass_g": 10**400}, "'mass_g' must be a positive number of grams"),
     ({"material": "unobtainium"}, "'material' 'unobtainium' has no known density and the part has no 'mass_g'"),
     ({"material": 7}, "'material' 7 has no known density"),
@@ -116,14 +114,24 @@ def test_an_unknown_material_with_its_mass_is_only_a_name(tmp_path, capsys):
     assert code == 0, err
 
 
+def test_files_written_before_the_keys_were_checked_still_load(tmp_path, capsys):
+    """A null mass is no mass (aluminium's, 195 cm3: 527 g); wood and PA6, named in files before the density
+    table existed, are in it; a spike hole (a ring of no area) is repaired away, as before."""
+    assert part_mass_g(load_scene(write(tmp_path, block(65, 50, 60, mass_g=None))).target_part) == \
+        pytest.approx(195.0 * 2.7)
+    for material, rho in (("wood", 0.7), ("PA6", 1.14)):
+        assert part_mass_g(load_scene(write(tmp_path, block(65, 50, 60, material=material))).target_part) == \
+            pytest.approx(195.0 * rho)
+    from cell.scene import parse_part
+
+    square = [[0, 0], [40, 0], [40, 40], [0, 40]]
+    part = parse_part({"id": "p", "outline": square, "holes": [[[10, 10], [20, 10], [20, 20], [20, 10]]], "z_top": 5})
+    assert part.polygon.area == pytest.approx(1600.0) and not part.holes_mm
+
+
 def test_materials_are_read_in_any_case(tmp_path):
     path = write(tmp_path, block(65, 50, 60, material="Steel"))
     assert part_mass_g(load_scene(path).target_part) == pytest.approx(195.0 * 7.85)
-
-
-def test_the_density_table_agrees_with_the_parts_library():
-    for name, rho in parts_library.DENSITY_G_CM3.items():
-        assert DENSITY_G_CM3[name] == rho
 
 
 def test_a_heavy_part_held_only_far_from_its_centre_of_gravity_has_no_grasp(tmp_path, capsys):

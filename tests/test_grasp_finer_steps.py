@@ -87,19 +87,18 @@ def test_no_grasp_at_any_step_names_the_steps_tried_and_keeps_the_configured_ste
         {k: v for k, v in e.value.counts.items() if k != "time_ms"}
 
 
-def test_a_part_with_no_grasp_before_its_outline_is_sampled_is_not_sampled_finer(shipped):
-    """Too thin for the pads' 2 mm under its top, whatever the step."""
-    flat = Part("flat", np.array([[330, -10], [370, -10], [370, 10], [330, 10]], float), (), 0.0, 1.0)
-    with pytest.raises(NoFeasibleGrasp, match="1 mm tall") as e:
-        GraspPlanner(CELL, shipped).plan(Scene((flat,), "flat"))
-    assert "finer step" not in e.value.reason
+def _box(x0, y0, x1, y1, z_top, **meta) -> Part:
+    return Part("box", np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], float), (), 0.0, z_top, meta=meta)
 
 
-def test_a_part_too_heavy_for_any_grasp_is_not_sampled_finer(shipped):
-    block = Part("block", np.array([[320, -25], [380, -25], [380, 25], [320, 25]], float), (), 0.0, 50.0,
-                 meta={"mass_g": 3000})
-    with pytest.raises(NoFeasibleGrasp, match="too heavy") as e:
-        GraspPlanner(CELL, shipped).plan(Scene((block,), "block"))
+@pytest.mark.parametrize("part, says", [
+    (_box(330, -10, 370, 10, 1.0), "1 mm tall"),  # too thin for the pads 2 mm under its top, before sampling
+    (_box(320, -25, 380, 25, 50.0, mass_g=3000), "too heavy"),
+    (_box(300, -100, 500, 100, 5.0), "wider than the gripper's stroke"),  # in every direction
+])
+def test_no_finer_step_is_tried_where_none_can_give_a_grasp(shipped, part, says):
+    with pytest.raises(NoFeasibleGrasp, match=says) as e:
+        GraspPlanner(CELL, shipped).plan(Scene((part,), "box"))
     assert "finer step" not in e.value.reason
 
 
@@ -127,13 +126,6 @@ def test_a_long_outline_walled_in_is_not_sampled_finer_than_the_bound_on_its_out
         GraspPlanner(CELL, shipped).plan(Scene((bar, *walls), "bar"))
     assert e.value.counts["outline_points"] * 2 <= 4000 < e.value.counts["outline_points"] * 4
     assert e.value.reason.endswith("(and at the finer step 1 mm)"), e.value.reason
-
-
-def test_a_part_wider_than_the_stroke_everywhere_is_not_sampled_finer(shipped):
-    plate = Part("plate", np.array([[300, -100], [500, -100], [500, 100], [300, 100]], float), (), 0.0, 5.0)
-    with pytest.raises(NoFeasibleGrasp, match="wider than the gripper's stroke") as e:
-        GraspPlanner(CELL, shipped).plan(Scene((plate,), "plate"))
-    assert "finer step" not in e.value.reason
 
 
 def test_a_heavy_part_whose_few_points_fail_tree_1_at_2_mm_is_told_it_is_too_heavy(shipped):

@@ -185,3 +185,20 @@ def test_the_run_loop_records_the_finer_step_and_the_text_outputs_name_it(tmp_pa
     scene.write_text(json.dumps({"units": "mm", "target": "gusset", "parts": [raw]}))
     code, out, _ = run_cli("grasp", scene, capsys=capsys)
     assert code == 0 and "grasp 'gusset' (at the finer 1 mm outline step)" in out
+
+
+def test_cell_run_takes_an_assembly_naming_its_own_cell_file_by_a_relative_path(tmp_path, monkeypatch):
+    """The run reads the assembly as its recording keeps it (a second read of its JSON): that read joined the
+    assembly's own "cell" path onto its folder again (asm/asm/mycell.json: the run refused a good file)."""
+    from cell.cellconfig import default_cell_path
+    from cell.runtime.session import RunConfig, default_assembly_path, run_session
+
+    (tmp_path / "asm").mkdir()
+    (tmp_path / "asm" / "mycell.json").write_text(default_cell_path().read_text())
+    one = json.loads(default_assembly_path().read_text())
+    one["parts"], one["sequence"] = [p for p in one["parts"] if p["id"] == one["sequence"][0]], one["sequence"][:1]
+    one["cell"] = "mycell.json"
+    (tmp_path / "asm" / "one.json").write_text(json.dumps(one))
+    monkeypatch.chdir(tmp_path)
+    s = run_session(RunConfig(assembly="asm/one.json"))
+    assert s["status"] == "complete" and s["parts_removed"] == 1

@@ -162,13 +162,52 @@ def test_a_part_wider_than_the_stroke_is_tried_at_the_usual_z_only(planner, usua
 
 
 def test_a_low_part_out_of_the_fingers_reach_is_not_tried(planner, usual):
-    disc = Part("disc", circle(45.0), (), 0.0, 13.0)
-    far = Part("plate", rect(420, -20, 460, 20), (), 0.0, 4.0)  # 25 mm from the disc
+    # a nut ringed by a wall taller than it (no grasp at any z), a 4 mm plate 25 mm from it: beyond the fingers'
+    # reach (22.5 mm), so no raised z is tried over it
+    nut = Part("nut", hexagon(24.0), (), 0.0, 13.0)
+    wall = Part("wall", circle(24.0)[::-1], (circle(16.5),), 0.0, 40.0)
+    far = Part("plate", rect(390, -20, 430, 20), (), 0.0, 4.0)  # 25.1-26 mm from the nut's corners and flats
+    scene = Scene((nut, wall, far), "nut")
     with pytest.raises(NoFeasibleGrasp) as off:
-        usual.plan(Scene((disc, far), "disc"))
+        usual.plan(scene)
     with pytest.raises(NoFeasibleGrasp) as on:
-        planner.plan(Scene((disc, far), "disc"))
+        planner.plan(scene)
     assert on.value.reason == off.value.reason
+    near = Part("plate", rect(378, -20, 418, 20), (), 0.0, 4.0)  # 14 mm away: within reach, tried
+    with pytest.raises(NoFeasibleGrasp) as tried:
+        planner.plan(Scene((nut, wall, near), "nut"))
+    assert "(and at the grasp z 5 mm over lower neighbours" in tried.value.reason
+
+
+def test_a_neighbour_top_exactly_3_mm_under_the_parts_top_is_passed_over_at_z_top_minus_2():
+    """1 mm over a top at z_top - 3 is z_top - 2 in the contract; in floats one printed step over it
+    (4.02 - 2 = 2.0199999999999996, and 1.02 + 1 printed 2.02): it was left out, and the neighbour blocked."""
+    for t in np.arange(1.01, 29.99, 0.01):
+        z = raised_grasp_z_mm(0.0, t + 3.0, 1.0, [t], (0.0, 200.0))
+        assert len(z) == 1 and z[0] <= t + 3.0 - TIP_BELOW_TOP_MM and z[0] >= t + TIP_ABOVE_NEIGHBOUR_MM - 1.01e-4, t
+
+
+def test_the_reason_says_why_the_raised_z_gave_none_where_that_differs(planner):
+    """An L bracket among ten low posts, inside a wall taller than the palm's bottom 18 mm away: the fingers meet
+    the posts at the usual z; over them the fingers are clear and the palm meets the wall. The reason named only
+    the posts (a reviewer's scene)."""
+    from cell import parts_library as lib
+
+    t = lib.place(lib.part("l_bracket_s"), 350, 0, 0, "t")
+    ring = t.polygon.buffer(8).exterior
+    posts = []
+    for k in range(10):
+        c = ring.interpolate(ring.length * k / 10)
+        posts.append(Part(f"n{k}", rect(c.x - 2.5, c.y - 2.5, c.x + 2.5, c.y + 2.5), (), 0.0,
+                          round(1.5 + (t.z_top_mm - 3.5) * k / 10, 2)))
+    wall = t.polygon.buffer(28, join_style=2).difference(t.polygon.buffer(18, join_style=2))
+    wall = Part("wall", np.asarray(wall.exterior.coords)[:-1], tuple(np.asarray(i.coords)[:-1] for i in wall.interiors),
+                0.0, 200.0)
+    with pytest.raises(NoFeasibleGrasp) as e:
+        planner.plan(Scene((t, *posts, wall), "t"))
+    reason = e.value.reason
+    first, raised = reason.split(" over lower neighbours", 1)
+    assert "palm" in raised and "palm" not in first, reason
 
 
 def test_a_part_held_at_the_usual_z_is_planned_as_before(planner, usual):

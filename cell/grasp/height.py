@@ -50,10 +50,15 @@ def raised_grasp_z_mm(z_bottom_mm: float, z_top_mm: float, usual_z_mm: float, ne
     z follows): the tips keep the margin over every neighbour they pass over."""
     top = _printed_at_most(z_top_mm - TIP_BELOW_TOP_MM)
     lo, hi = _printed_at_least(j3_mm[0]), _printed_at_most(j3_mm[1])
+    step = 10.0 ** -PRINTED_DECIMALS
     tops = [t for t in neighbour_tops_mm if t > usual_z_mm + Z_EPS_MM]
-    zs = sorted({_printed_at_least(t + TIP_ABOVE_NEIGHBOUR_MM) for t in tops})
+    zs = {_printed_at_least(t + TIP_ABOVE_NEIGHBOUR_MM, slack_mm=Z_EPS_MM) for t in tops}
+    # a z one printed step over the highest z the part allows (a top at exactly z_top - 3: z_top - 2 in floats,
+    # 4.02 - 2 = 2.0199999999999996, prints 2.0199) is taken at that highest z, the tips a tenth of a micrometre
+    # less above the neighbour, rather than left out
+    zs = sorted(min(z, top) if top < z <= top + step + Z_EPS_MM else z for z in zs)
     return [z for z in zs if max(z_bottom_mm, lo) <= z <= min(top, hi)
-            and not any(z - TIP_ABOVE_NEIGHBOUR_MM + Z_EPS_MM < t <= z + Z_EPS_MM for t in tops)]
+            and not any(z - TIP_ABOVE_NEIGHBOUR_MM + step + Z_EPS_MM < t <= z + Z_EPS_MM for t in tops)]
 
 
 def _printed_at_most(limit_mm: float) -> float:
@@ -63,7 +68,9 @@ def _printed_at_most(limit_mm: float) -> float:
     return q if q <= limit_mm else q - 10.0 ** -PRINTED_DECIMALS
 
 
-def _printed_at_least(limit_mm: float) -> float:
-    """The limit itself when it prints exactly, else the printed value just above it."""
+def _printed_at_least(limit_mm: float, slack_mm: float = 0.0) -> float:
+    """The limit itself when it prints exactly, else the printed value just above it; with a slack, the
+    printed value it is float noise above (a neighbour's top of 1.03 mm plus 1 mm is 2.0300000000000002: 2.03,
+    not 2.0301, which lay above the z_top - 2 of a part 4.03 mm tall)."""
     q = round(limit_mm, PRINTED_DECIMALS)
-    return q if q >= limit_mm else q + 10.0 ** -PRINTED_DECIMALS
+    return q if q >= limit_mm - slack_mm else q + 10.0 ** -PRINTED_DECIMALS

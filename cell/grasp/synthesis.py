@@ -231,6 +231,7 @@ class GraspPlanner:
         first = None  # the usual z's failure at the configured step: the reason and counts reported
         tried: dict[float, list[float]] = {}  # the finer steps tried at each z
         done = []  # the z tried
+        raised_reasons = []  # each raised z's reason at the configured step
         for z in heights():
             done.append(z)
             at_z = None  # this z's failure at the configured step
@@ -247,6 +248,8 @@ class GraspPlanner:
                     if at_z is None:
                         at_z = e
                         first = first or e
+                        if e is not first:
+                            raised_reasons.append(e.reason)
                     else:
                         tried.setdefault(z, []).append(p.step_mm)
                     continue
@@ -258,7 +261,10 @@ class GraspPlanner:
         if raised:
             finer = sorted({s for z in raised for s in tried.get(z, [])}, reverse=True)
             there = f", there also at the finer step{'s' if len(finer) > 1 else ''} {_mm(finer)}" if finer else ""
-            note += f" (and at the grasp z {_mm(raised)} over lower neighbours{there})"
+            # why the lowest raised z gave none, where that is another reason (the fingers clear the neighbours
+            # there, and the palm meets a wall): what the operator must change
+            why = raised_reasons[0] if raised_reasons and raised_reasons[0] != first.reason else ""
+            note += f" (and at the grasp z {_mm(raised)} over lower neighbours{there}{': ' + why if why else ''})"
         if note:
             first.reason += note
             first.args = (first.reason,)

@@ -181,7 +181,8 @@ def run_session(cfg: RunConfig) -> dict:
     assembly_path = Path(cfg.assembly) if cfg.assembly else default_assembly_path()
     # the assembly as the recording keeps it (outlines to 4 decimals, Part.to_json): the run and its replay
     # match the same model (a gusset's outline at full precision located it 0.009 deg off in the replay)
-    assembly = parse_assembly(load_assembly(assembly_path).to_json(), str(assembly_path), assembly_path.parent)
+    # (no base folder the second time: the first read joined the assembly's own "cell" path onto it)
+    assembly = parse_assembly(load_assembly(assembly_path).to_json(), str(assembly_path))
     ids = {p.id for p in assembly.parts}
     for opt, named in (("--sim-miss", cfg.faults.miss), ("--sim-stuck", cfg.faults.stuck)):
         unknown = sorted(set(named) - ids)

@@ -15,8 +15,11 @@ from the contacts alone, and `cell.physics.check_grasp` stays the independent ju
   PAD_COMPLIANCE_MM behind the pads' faces: taken at the least (e 1/4 mm shorter, d 1 mm longer) it
   never exceeds the judge's, so a grasp above 1 slips for sure. The planner drops those (it does not
   rank by the demand: on every ordinary part it is far below 1, and the learned choice stands).
-  Rolling about the jaw line (the judge's torsion) is left to the judge: it needs where each pad's
-  patch lies across the pad, which the planner does not know.
+* Rolling about the jaw line (the judge's torsion) depends on where each pad's patch lies across the
+  pad, which the planner does not know: `roll_demand` bounds it from below (each patch the whole pad,
+  none of the friction spent on the vertical load, the centre of gravity's distance from the contacts'
+  line 1 mm shorter), and the sets above 1 are dropped likewise. Between the bound and the judge's
+  demand the judge may still refuse a heavy part's grasp.
 """
 
 from __future__ import annotations
@@ -66,3 +69,25 @@ def slip_demand(part: Part, contacts_mm: np.ndarray, axes: np.ndarray, cell: Cel
     e_least = np.maximum(e - PAD_COMPLIANCE_MM / 2, 0.0)
     load = SAFETY * weight_n(part) / (MU * cell.gripper.grip_force_n)  # in units of one pad's mu N
     return load * (0.5 + e_least / (d + 2 * PAD_COMPLIANCE_MM))
+
+
+# the reported contacts lie up to the pads' compliance off the points where the pads stop, which the judge's jaw
+# line runs through: the centre of gravity's distance from that line is taken this much shorter
+JAW_LINE_SLACK_MM = 2 * PAD_COMPLIANCE_MM
+
+
+def roll_demand(part: Part, contacts_mm: np.ndarray, cell: Cell) -> np.ndarray:
+    """(k,) a lower bound of the judge's demand for rolling about the jaw line, for grasps with contacts
+    (k, 2, 2): SAFETY W d / (mu N x the two pads' torsion radii), d the centre of gravity's distance from the
+    line through the contacts (JAW_LINE_SLACK_MM shorter), each pad's radius at its largest (a patch the
+    whole pad: sqrt(w^2 + h^2) / 4), and none of the friction spent on the vertical load (the judge's
+    soft-finger curve spends some). > 1: the part rolls out of the jaws whatever the patches are."""
+    g = cell.gripper
+    c = np.asarray(contacts_mm, float).reshape(-1, 2, 2)
+    line = c[:, 1] - c[:, 0]
+    length = np.maximum(np.hypot(line[:, 0], line[:, 1]), 1e-9)
+    rel = np.asarray(part.polygon.centroid.coords[0]) - c[:, 0]
+    d = np.abs(rel[:, 0] * line[:, 1] - rel[:, 1] * line[:, 0]) / length
+    rho_max = float(np.hypot(g.pad_width_mm, g.pad_height_mm)) / 4.0
+    load = SAFETY * weight_n(part) / (MU * g.grip_force_n)
+    return load * np.maximum(d - JAW_LINE_SLACK_MM, 0.0) / (2.0 * rho_max)

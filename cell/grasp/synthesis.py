@@ -122,6 +122,20 @@ def _steps_note(steps: list[float]) -> str:
     return f" (and at the finer step{'s' if len(steps) > 1 else ''} {_mm(steps)})" if steps else ""
 
 
+def _tried_note(reason: str, heights: list[float], tried: dict[float, list[float]], raised_reasons: list[str]) -> str:
+    """What a part with no grasp was tried at besides the usual z (heights[0]) at the configured step: the finer
+    steps `tried` at each z, the raised z (heights[1:]) and, where it differs from `reason`, why the lowest raised
+    z gave none (the fingers clear the neighbours there and the palm meets a wall: what the operator must change)."""
+    note = _steps_note(tried.get(heights[0], []))
+    raised = heights[1:]
+    if raised:
+        finer = sorted({s for z in raised for s in tried.get(z, [])}, reverse=True)
+        there = f", there also at the finer step{'s' if len(finer) > 1 else ''} {_mm(finer)}" if finer else ""
+        why = raised_reasons[0] if raised_reasons and raised_reasons[0] != reason else ""
+        note += f" (and at the grasp z {_mm(raised)} over lower neighbours{there}{': ' + why if why else ''})"
+    return note
+
+
 def _least_width_mm(part) -> float:
     """The part's width in its narrowest direction: the least, over its convex hull's edges, of the
     hull's extent across the edge."""
@@ -256,18 +270,8 @@ class GraspPlanner:
                 if p is not p0:
                     result.step_mm = p.step_mm
                 return result
-        note = _steps_note(tried.get(usual, []))
-        raised = done[1:]
-        if raised:
-            finer = sorted({s for z in raised for s in tried.get(z, [])}, reverse=True)
-            there = f", there also at the finer step{'s' if len(finer) > 1 else ''} {_mm(finer)}" if finer else ""
-            # why the lowest raised z gave none, where that is another reason (the fingers clear the neighbours
-            # there, and the palm meets a wall): what the operator must change
-            why = raised_reasons[0] if raised_reasons and raised_reasons[0] != first.reason else ""
-            note += f" (and at the grasp z {_mm(raised)} over lower neighbours{there}{': ' + why if why else ''})"
-        if note:
-            first.reason += note
-            first.args = (first.reason,)
+        first.reason += _tried_note(first.reason, done, tried, raised_reasons)
+        first.args = (first.reason,)
         first.counts["time_ms"] = round((time.perf_counter() - t_start) * 1e3, 3)
         raise first
 

@@ -91,3 +91,19 @@ def roll_demand(part: Part, contacts_mm: np.ndarray, cell: Cell) -> np.ndarray:
     rho_max = float(np.hypot(g.pad_width_mm, g.pad_height_mm)) / 4.0
     load = SAFETY * weight_n(part) / (MU * g.grip_force_n)
     return load * np.maximum(d - JAW_LINE_SLACK_MM, 0.0) / (2.0 * rho_max)
+
+
+def holding(part: Part, contacts_mm: np.ndarray, axes: np.ndarray, cell: Cell) -> tuple[np.ndarray, str | None]:
+    """(k,) which of the sets with contacts (k, 2, 2) closing along `axes` (k, 2) do not surely slip or roll
+    (`slip_demand`, `roll_demand`), and, where none does, why (None: some hold)."""
+    slip = slip_demand(part, contacts_mm, axes, cell)
+    roll = roll_demand(part, contacts_mm, cell)
+    holds = (slip <= 1.0) & (roll <= 1.0)
+    if holds.any() or not len(holds):
+        return holds, None
+    way = ("slip out of the jaws: its centre of gravity lies too far along the closing axis from the pads' midpoint "
+           f"(demand/capacity {slip.min():.2f} at the least" if (slip > 1.0).all() else
+           "roll out of the jaws: its centre of gravity lies too far from the jaw line (demand/capacity "
+           f"{np.maximum(slip, roll).min():.2f} at the least")
+    return holds, (f"every one of the {len(holds)} valid contact sets would let the part ({part_mass_g(part):.0f} g) "
+                   f"{way}; grip force {cell.gripper.grip_force_n:g} N, friction {MU:g}, safety factor {SAFETY:g})")

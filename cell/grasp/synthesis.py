@@ -27,11 +27,10 @@ from cell.grasp.candidates import candidate_points
 from cell.grasp.cascade import STAGES, CascadeResult, Context, Pairs, joints_of, run_cascade
 from cell.grasp.height import TIP_BELOW_TOP_MM, grasp_z_mm, raised_grasp_z_mm
 from cell.grasp.learning import LearnedModel, fit_model, nearest_example
-from cell.grasp.load import roll_demand, slip_demand, too_heavy
+from cell.grasp.load import holding, too_heavy
 from cell.grasp.outline import part_rings
 from cell.grasp.params import SynthesisParams
 from cell.kinematics import Joints, normalize_axis_deg
-from cell.physics import MU, SAFETY, part_mass_g
 from cell.scene import Scene
 
 # valid contact points at most: all pairs are formed (~200 bytes each), 3.1 M pairs is ~0.6 GB; a part
@@ -391,21 +390,13 @@ class GraspPlanner:
         sel = np.flatnonzero(set_valid)
         dist, ex_idx = nearest_example(self.model, G[sel])
         order = np.argsort(dist, kind="stable")
-        # Sets whose centre of gravity lies so far along the axis from the pads' midpoint that the nearer pad
-        # slips are dropped, not ranked lower: they fail for sure (cell/grasp/load.py: a lower bound of the
-        # judge's demand), and ranking by the load would move the learned choice on light parts too
-        ratio = slip_demand(target, contacts[sel[order]], P.u[k[sel[order]]], cell)
-        roll = roll_demand(target, contacts[sel[order]], cell)  # (likewise a lower bound: what rolls for sure)
-        holds = (ratio <= 1.0) & (roll <= 1.0)
+        # Sets that surely slip or roll out of the jaws are dropped, not ranked lower (cell/grasp/load.py: lower
+        # bounds of the judge's demands): ranking by the load would move the learned choice on light parts too
+        holds, why = holding(target, contacts[sel[order]], P.u[k[sel[order]]], cell)
         if not holds.all():
             counts["load_refused"] = int((~holds).sum())
-            if not holds.any():
-                way = ("slip out of the jaws: its centre of gravity lies too far along the closing axis from the "
-                       f"pads' midpoint (demand/capacity {ratio.min():.2f} at the least" if (ratio > 1.0).all() else
-                       "roll out of the jaws: its centre of gravity lies too far from the jaw line (demand/capacity "
-                       f"{np.maximum(ratio, roll).min():.2f} at the least")
-                fail(f"every one of the {len(sel)} valid contact sets would let the part ({part_mass_g(target):.0f} g) "
-                     f"{way}; grip force {cell.gripper.grip_force_n:g} N, friction {MU:g}, safety factor {SAFETY:g})")
+            if why:
+                fail(why)
             order = order[holds]
         normals = np.stack([P.ni[k], P.nj[k]], axis=1)
         centers = 0.5 * (contacts[:, 0] + contacts[:, 1])

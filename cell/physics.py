@@ -116,6 +116,15 @@ class LiftCheck:
     reasons: tuple[str, ...]
 
 
+def part_weight_n(part: Part) -> float:
+    return part_mass_g(part) / 1000.0 * G_M_S2
+
+
+def pad_load(weight_n: float, grip_n: float) -> float:
+    """The weight with its margin (SAFETY), in units of one pad's friction budget mu N."""
+    return SAFETY * weight_n / (MU * grip_n)
+
+
 def part_mass_g(part: Part) -> float:
     """The part's "mass_g", else its volume times its "material"'s density, else aluminium's
     (`cell.materials`; a bad value of either key is BadInput)."""
@@ -248,11 +257,10 @@ def check_grasp(part: Part, contacts_mm, axis_deg: float | None = None, grasp_z_
     cog_offset = abs(rel[0] * u[1] - rel[1] * u[0])
     cog_along_signed = cog[0] - 0.5 * (xl + xr)  # + towards the second pad
     cog_along = abs(cog_along_signed)
-    weight_n = part_mass_g(part) / 1000.0 * G_M_S2
     h = max(h_pad, 0.0)
     rho = [math.hypot(max(w, 1.0), h) / 4.0 for w in widths]
     shares = _pad_shares(cog_along_signed, jaw_width)
-    ratios = _hold_ratios(weight_n, g.grip_force_n, cog_offset, shares, rho)
+    ratios = _hold_ratios(part_weight_n(part), g.grip_force_n, cog_offset, shares, rho)
     worst = max(ratios, key=ratios.get)
     if ratios[worst] > 1.0:
         reasons.append(f"the part would {worst} out of the jaws (demand/capacity {ratios[worst]:.2f}; centre "
@@ -388,7 +396,7 @@ def _hold_ratios(weight_n: float, grip_n: float, cog_offset_mm: float, shares, r
     The torsion splits between the pads as it must, so the grip holds while
     W d_perp <= sum_k mu N rho_k (1 - (f_k / mu N)^2): a quadratic in W, solved below.
     """
-    load = SAFETY * weight_n / (MU * grip_n)  # the weight with its margin, in units of one pad's mu N
+    load = pad_load(weight_n, grip_n)
     rho_sum = max(sum(rho_mm), 1e-9)
     a2 = sum(r * s * s for r, s in zip(rho_mm, shares, strict=True))  # torsion lost per unit load^2
     d = cog_offset_mm

@@ -28,18 +28,14 @@ import numpy as np
 
 from cell.cellconfig import Cell
 from cell.grasp.bands import PAD_COMPLIANCE_MM
-from cell.physics import G_M_S2, MU, SAFETY, part_mass_g
+from cell.physics import G_M_S2, MU, SAFETY, pad_load, part_mass_g, part_weight_n
 from cell.scene import Part
-
-
-def weight_n(part: Part) -> float:
-    return part_mass_g(part) / 1000.0 * G_M_S2
 
 
 def too_heavy(part: Part, cell: Cell) -> str | None:
     """Why no grasp can hold `part` (None: a centred grasp can)."""
     g = cell.gripper
-    w = weight_n(part)
+    w = part_weight_n(part)
     carried = 2.0 * MU * g.grip_force_n  # both pads, the centre of gravity between them
     if SAFETY * w <= carried:
         return None
@@ -67,8 +63,7 @@ def slip_demand(part: Part, contacts_mm: np.ndarray, axes: np.ndarray, cell: Cel
     d = along(c[:, 1] - c[:, 0])
     e = along(np.asarray(part.polygon.centroid.coords[0]) - 0.5 * (c[:, 0] + c[:, 1]))
     e_least = np.maximum(e - PAD_COMPLIANCE_MM / 2, 0.0)
-    load = SAFETY * weight_n(part) / (MU * cell.gripper.grip_force_n)  # in units of one pad's mu N
-    return load * (0.5 + e_least / (d + 2 * PAD_COMPLIANCE_MM))
+    return pad_load(part_weight_n(part), cell.gripper.grip_force_n) * (0.5 + e_least / (d + 2 * PAD_COMPLIANCE_MM))
 
 
 # the reported contacts lie up to the pads' compliance off the points where the pads stop, which the judge's jaw
@@ -89,8 +84,7 @@ def roll_demand(part: Part, contacts_mm: np.ndarray, cell: Cell) -> np.ndarray:
     rel = np.asarray(part.polygon.centroid.coords[0]) - c[:, 0]
     d = np.abs(rel[:, 0] * line[:, 1] - rel[:, 1] * line[:, 0]) / length
     rho_max = float(np.hypot(g.pad_width_mm, g.pad_height_mm)) / 4.0
-    load = SAFETY * weight_n(part) / (MU * g.grip_force_n)
-    return load * np.maximum(d - JAW_LINE_SLACK_MM, 0.0) / (2.0 * rho_max)
+    return pad_load(part_weight_n(part), g.grip_force_n) * np.maximum(d - JAW_LINE_SLACK_MM, 0.0) / (2.0 * rho_max)
 
 
 def holding(part: Part, contacts_mm: np.ndarray, axes: np.ndarray, cell: Cell) -> tuple[np.ndarray, str | None]:

@@ -27,9 +27,10 @@ class NoFeasibleGrasp(CellError):
 
     exit_code = 3
 
-    def __init__(self, reason: str, counts: dict | None = None, partial: dict | None = None):
+    def __init__(self, reason: str, counts: dict | None = None, partial: dict | None = None,
+                 at_any_step: bool = False):
         super().__init__(reason)
         self.reason = reason
         self.counts = counts or {}
         self.partial = partial or {}  # what the steps made before none was left (for --explain)
-        self.at_any_step = False  # the planner's: no outline sampling, however fine, would give one
+        self.at_any_step = at_any_step  # the planner's: no other step or grasp z would give one (too heavy)

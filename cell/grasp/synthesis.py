@@ -311,9 +311,7 @@ class GraspPlanner:
 
         def fail(reason, at_any_step: bool = False):
             counts["time_ms"] = round((time.perf_counter() - t_start) * 1e3, 3)
-            e = NoFeasibleGrasp(reason, counts, partial)
-            e.at_any_step = at_any_step  # (no finer step is tried: plan)
-            raise e
+            raise NoFeasibleGrasp(reason, counts, partial, at_any_step)
 
         if gz > target.z_top_mm - TIP_BELOW_TOP_MM + 1e-9:  # CONTRACT: z_bottom <= grasp z <= z_top - 2
             fail(f"the part is {target.height_mm:g} mm tall: the pads need a grasp z at least "

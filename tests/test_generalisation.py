@@ -1,5 +1,6 @@
 """Train on some part families, plan for families never seen: the grasps must be physically sound."""
 
+import numpy as np
 import pytest
 
 from cell import parts_library as L
@@ -7,6 +8,7 @@ from cell.cellconfig import default_cell
 from cell.examples import load_examples
 from cell.study.stability import (
     evaluate,
+    gear_shapes,
     holed_shapes,
     make_planner,
     presentations,
@@ -80,9 +82,23 @@ def test_bench_stability_command(capsys):
     # rings and plates with a hole, all planned (96 of 114 before the relative distance took in the holes)
     assert s["holed_shapes"]["presented"] == len(holed_shapes()) == s["holed_shapes"]["planned"]
     assert s["holed_shapes"]["stable_share"] == 1.0
+    # gears not in the library: coarse teeth (module 2-3) are held, and every grasp holds; fine teeth mostly
+    # are not (docs/grasp.md, Limits)
+    assert s["gears"]["presented"] == len(gear_shapes()) and 4 <= s["gears"]["planned"] < s["gears"]["presented"]
+    assert s["gears"]["stable_share"] == 1.0
     assert set(s["per_family"]) == {"gear", "pcb"}
     assert s["unseen_families"]["presented"] == len(L.parts(["gear", "pcb"]))
     code, _, err = run_cli("bench", "stability", "--poses", "0", capsys=capsys)
     assert code == 2 and "--poses" in err
     code, _, err = run_cli("bench", "stability", "--families", "gears", capsys=capsys)
     assert code == 2 and "unknown part families" in err
+
+
+def test_gear_shapes_are_other_gears_than_the_library_s_and_fit_the_stroke():
+    gears = gear_shapes()
+    ids = [g.id for g in gears]
+    assert len(set(ids)) == len(ids) == 26 and not set(ids) & {p.id for p in L.parts()}
+    assert {g.meta["family"] for g in gears} == {"gear"} and {g.meta["material"] for g in gears} == {"steel"}
+    widths = [float(np.linalg.norm(g.outline_mm[:, None] - g.outline_mm[None], axis=2).max()) for g in gears]
+    assert max(widths) <= 70.0 + 1e-6 and min(widths) == pytest.approx(0.8 * 16, abs=0.01)  # module 0.8, 14 teeth
+    assert "spur_gear_m0.8z14" in ids and "spur_gear_m3z20" in ids and "spur_gear_m3z30" not in ids  # 96 mm

@@ -36,6 +36,7 @@ def run(args) -> int:
         StabilityTally,
         cluttered,
         evaluate,
+        gear_shapes,
         holed_shapes,
         leave_families_out,
         make_planner,
@@ -68,6 +69,8 @@ def run(args) -> int:
     simple = evaluate(planner, presentations(simple_shapes(), args.poses, args.seed, cell), cell)
     log(f"rings and plates with a hole: {len(holed_shapes())} x {args.poses} poses")
     holed = evaluate(planner, presentations(holed_shapes(), args.poses, args.seed, cell), cell)
+    log(f"spur gears not in the library (modules 0.8-3 mm): {len(gear_shapes())} x {args.poses} poses")
+    gears = evaluate(planner, presentations(gear_shapes(), args.poses, args.seed, cell), cell)
     per_family = leave_families_out(examples, args.poses, args.seed, cell, families, progress=log, params=params)
     unseen = StabilityTally()
     for t in per_family.values():
@@ -76,18 +79,16 @@ def run(args) -> int:
     def pct(x):
         return f"{100 * x:5.1f} %"
 
+    rows = (("whole library, all examples", "whole", whole), ("unseen families (leave-one-family-out)",
+            "unseen_families", unseen), ("with 1-2 neighbours 3..15 mm away, all examples", "clutter", clutter),
+            ("simple shapes not in the library, all examples", "simple_shapes", simple),
+            ("rings and plates with a hole, all examples", "holed_shapes", holed),
+            ("spur gears not in the library, all examples", "gears", gears))
     print("| set | presented | planned | stable | planned share | stable share |")
     print("|---|---:|---:|---:|---:|---:|")
-    print(f"| whole library, all examples | {whole.presented} | {whole.planned} | {whole.stable} | "
-          f"{pct(whole.planned_share)} | {pct(whole.stable_share)} |")
-    print(f"| unseen families (leave-one-family-out) | {unseen.presented} | {unseen.planned} | {unseen.stable} | "
-          f"{pct(unseen.planned_share)} | {pct(unseen.stable_share)} |")
-    print(f"| with 1-2 neighbours 3..15 mm away, all examples | {clutter.presented} | {clutter.planned} | "
-          f"{clutter.stable} | {pct(clutter.planned_share)} | {pct(clutter.stable_share)} |")
-    print(f"| simple shapes not in the library, all examples | {simple.presented} | {simple.planned} | "
-          f"{simple.stable} | {pct(simple.planned_share)} | {pct(simple.stable_share)} |")
-    print(f"| rings and plates with a hole, all examples | {holed.presented} | {holed.planned} | {holed.stable} | "
-          f"{pct(holed.planned_share)} | {pct(holed.stable_share)} |")
+    for label, _, t in rows:
+        print(f"| {label} | {t.presented} | {t.planned} | {t.stable} | {pct(t.planned_share)} | "
+              f"{pct(t.stable_share)} |")
     print(f"| yardstick: two random outline points within the stroke | {baseline.presented} | - | "
           f"{baseline.stable} | - | {pct(baseline.stable_share)} |")
     print()
@@ -95,28 +96,17 @@ def run(args) -> int:
     print("|---|---:|---:|---:|")
     for fam, t in per_family.items():
         print(f"| {fam} | {t.presented} | {t.planned} | {t.stable} |")
-    for pid, reasons in whole.failures + unseen.failures + clutter.failures + simple.failures + holed.failures:
-        log(f"unstable: {pid}: {'; '.join(reasons)}")
+    for _, _, t in rows:
+        for pid, reasons in t.failures:
+            log(f"unstable: {pid}: {'; '.join(reasons)}")
     if args.json:
-        print(json.dumps({
-            "whole": {"presented": whole.presented, "planned": whole.planned, "stable": whole.stable,
-                      "stable_share": round(whole.stable_share, 4), "planned_share": round(whole.planned_share, 4),
-                      "plan_ms_median": round(float(np.median(whole.plan_ms)), 3) if whole.plan_ms else None},
-            "unseen_families": {"presented": unseen.presented, "planned": unseen.planned, "stable": unseen.stable,
-                                "stable_share": round(unseen.stable_share, 4),
-                                "planned_share": round(unseen.planned_share, 4)},
-            "clutter": {"presented": clutter.presented, "planned": clutter.planned, "stable": clutter.stable,
-                        "stable_share": round(clutter.stable_share, 4),
-                        "planned_share": round(clutter.planned_share, 4)},
-            "simple_shapes": {"presented": simple.presented, "planned": simple.planned, "stable": simple.stable,
-                              "stable_share": round(simple.stable_share, 4),
-                              "planned_share": round(simple.planned_share, 4)},
-            "holed_shapes": {"presented": holed.presented, "planned": holed.planned, "stable": holed.stable,
-                             "stable_share": round(holed.stable_share, 4),
-                             "planned_share": round(holed.planned_share, 4)},
-            "random_points": {"presented": baseline.presented, "stable": baseline.stable,
-                              "stable_share": round(baseline.stable_share, 4)},
-            "per_family": {f: {"presented": t.presented, "planned": t.planned, "stable": t.stable}
-                           for f, t in per_family.items()},
-        }))
+        summary = {key: {"presented": t.presented, "planned": t.planned, "stable": t.stable,
+                         "stable_share": round(t.stable_share, 4), "planned_share": round(t.planned_share, 4)}
+                   for _, key, t in rows}
+        summary["whole"]["plan_ms_median"] = round(float(np.median(whole.plan_ms)), 3) if whole.plan_ms else None
+        summary["random_points"] = {"presented": baseline.presented, "stable": baseline.stable,
+                                    "stable_share": round(baseline.stable_share, 4)}
+        summary["per_family"] = {f: {"presented": t.presented, "planned": t.planned, "stable": t.stable}
+                                 for f, t in per_family.items()}
+        print(json.dumps(summary))
     return 0

@@ -103,6 +103,19 @@ def holed_shapes(height_mm: float = 8.0) -> list[Part]:
     return out
 
 
+def gear_shapes() -> list[Part]:
+    """Steel spur gears not in the library: modules 0.8-3 mm with 14-50 teeth, the ones within the
+    stroke (tip diameter at most 70 mm), each with a keyed bore as the library's; ids name module and
+    teeth."""
+    out = []
+    for module in (0.8, 1.0, 1.25, 1.5, 2.0, 2.5, 3.0):
+        for teeth in (14, 20, 30, 40, 50):
+            tip_d = module * (teeth + 2)
+            if tip_d <= 70.0:
+                out.append(L.spur_gear(f"m{module:g}z{teeth}", teeth, tip_d, max(6.0, round(4 * module))))
+    return out
+
+
 def presentations(parts: list[Part], poses: int, seed: int, cell: Cell) -> list[Part]:
     """Each part at `poses` random poses inside the tray (deterministic for a seed)."""
     rng = np.random.default_rng(seed)

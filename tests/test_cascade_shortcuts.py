@@ -171,9 +171,9 @@ def test_one_piece_per_band_gives_what_the_per_band_scatters_give(target, middle
     band = bands.BandEdges.clip(planned, *cascade._pad_bands(planned, u, t, m[:, 0], m[:, 1], 1.0 - 1e-6))
     scattered = dataclasses.replace(band, one_each=False)
     for slanted in (True, False):
-        T, (x, y) = band.first_touch(planned, slanted)
-        T2, (x2, y2) = scattered.first_touch(planned, slanted)
-        assert all(np.array_equal(a, b, equal_nan=True) for a, b in ((T, T2), (x, x2), (y, y2)))
+        T, (x, y, w) = band.first_touch(planned, slanted)
+        T2, (x2, y2, w2) = scattered.first_touch(planned, slanted)
+        assert all(np.array_equal(a, b, equal_nan=True) for a, b in ((T, T2), (x, x2), (y, y2), (w, w2)))
     tl = (x - band.cx) * band.ux + (y - band.cy) * band.uy, (x - band.cx) * band.vx + (y - band.cy) * band.vy
     assert all(np.array_equal(a, b, equal_nan=True)
                for a, b in zip(band.on_material(None, *tl), scattered.on_material(None, *tl), strict=True))

@@ -128,7 +128,8 @@ class BandEdges:
     def first_touch(self, ctx: Context, slanted: bool = False, touch: bool = True):
         """T (b,): the largest distance along u of the target's material in each band (-inf: none), and
         (touch=True) the touching point (x, y), each (b,), on the first-touch line, in the middle
-        (across the axis) of the material within PAD_COMPLIANCE_MM of it (nan: no material)."""
+        (across the axis) of the material within PAD_COMPLIANCE_MM of it (nan: no material), and that
+        material's width across the axis (b,) (nan: none)."""
         if len(self.bi):
             tt = np.maximum(self.tA + self.s0 * self.dt, self.tA + self.s1 * self.dt)  # the piece's end further out
             T = self._per_band(tt, -np.inf, np.maximum.at)
@@ -170,7 +171,7 @@ class BandEdges:
         # axis, at the first-touch line (robust to edges that run along the band's side)
         b = len(self.cx)
         if not len(self.bi):
-            return np.full(b, np.nan), np.full(b, np.nan)
+            return np.full(b, np.nan), np.full(b, np.nan), np.full(b, np.nan)
         pb, p0, p1, pA, pdt = self.bi, self.s0, self.s1, self.tA, self.dt
         limit = (T if self.one_each else T.take(pb)) - PAD_COMPLIANCE_MM
         if slanted:
@@ -192,7 +193,7 @@ class BandEdges:
         mid = 0.5 * (lo_l + hi_l)
         x = np.where(has, self.cx + self.ux * T + self.vx * mid, np.nan)
         y = np.where(has, self.cy + self.uy * T + self.vy * mid, np.nan)
-        return x, y
+        return x, y, np.where(has, hi_l - lo_l, np.nan)
 
     def on_material(self, rows: np.ndarray | None, t: np.ndarray, l: np.ndarray):
         """For the bands `rows` (r,; None: every band) and a point (t, l) on each one's pad line (band

@@ -422,7 +422,7 @@ def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     tt = np.concatenate([t, t])
     slanted = bool(ctx.params.slanted_faces)
     band = BandEdges.clip(ctx, cx, cy, ux, uy, t_min, t_max, half_width)
-    T, (x, y) = band.first_touch(ctx, slanted)
+    T, (x, y, touch_width) = band.first_touch(ctx, slanted)
     vx, vy = band.vx, band.vy
     dx, dy = x - cx, y - cy  # the touches from the bands' centres, and across them (kept for _onto_material)
     l_touch = dx * vx + dy * vy
@@ -464,6 +464,12 @@ def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
         finite = np.isfinite(lateral)
     ok2 = finite & stops & (lateral <= tol + EPS_MM)
     ok = ok2[:k] & ok2[k:]
+    if ctx.params.min_touch_width_mm > 0:  # both pads on a point each (two corners): the part pivots
+        narrow = touch_width < ctx.params.min_touch_width_mm
+        pivots = ok & narrow[:k] & narrow[k:]
+        if pivots.any():
+            P.pivot_refused += int(pivots.sum())  # for the message when no pair is left
+            ok &= ~pivots
     if ctx.params.contacts_on_material:  # report where the pads touch the part, not the pad line in front of it
         x, y = _onto_material(band, ok, x, y, (dx, dy, l_touch), cx, cy, ux, uy, vx, vy)
     xi, yi, xj, yj = x[:k], y[:k], x[k:], y[k:]

@@ -406,6 +406,7 @@ class Pairs:
     joints: dict = field(default_factory=dict)
     ik: tuple | None = None  # (grasp z, scara) once the ik stage ran: joints_of solves from it
     stroke_refused: int = 0  # pairs the contacts stage refused only for the stroke at the pads' lines
+    pivot_refused: int = 0  # pairs the contacts stage refused for both pads touching narrow material
     w: np.ndarray | None = None  # (s, 2) p_i - p_j, the stages reuse it
     points: np.ndarray | None = None  # (z', 2) the valid points the pairs are made of
     normals: np.ndarray | None = None  # (z', 2) their outward normals

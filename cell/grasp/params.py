@@ -58,6 +58,12 @@ class SynthesisParams:
     # the part's material (holes taken out: a 60 / 40 mm ring's rim at 1.34, where tree 1 rejects
     # protrusions), as recordings made before 2026-12-04 have it (cell.runtime.replay).
     cog_radius_outer_disc: bool = True
+    # The contacts stage refuses a pair whose pads both touch material narrower than this across the pad
+    # (within the pad's compliance): two corners, two tips, a corner and a tip. The part would pivot
+    # about the line through them (the physical check's 'both pads sit on sharp corners', its sharp
+    # patch being 2 mm). One narrow pad is allowed, as the check allows it. 0: off, as recordings made
+    # before it existed have it (cell.runtime.replay).
+    min_touch_width_mm: float = 2.0
     # Where no grasp is found at step_mm, the outline is sampled again at half the step, then a quarter
     # (not below MIN_STEP_MM), with the same trees: facing points of a strip 1-1.2 mm wide lie up to a
     # step apart along it (45 degrees off the closing line at 2 mm), and the library's six poses

@@ -467,6 +467,11 @@ class GraspPlanner:
                 return (f"the part is wider than the gripper's stroke: at least {across:.1f} mm across in every "
                         f"direction, the jaws take at most {widest:g} mm ({clearance}); the facing points that fit "
                         f"lie on chords where a finger meets the part further out ({first} stage)")
+        if first == "contacts" and P.pivot_refused and not P.stroke_refused:
+            return (f"no reachable pair (contacts stage): where the pads would stop on the contacts, both rest on "
+                    f"material narrower than {p.min_touch_width_mm:g} mm ({P.pivot_refused} pairs: two corners or "
+                    f"tips), about which the part would pivot; the other facing pairs' pads touch other material "
+                    f"first{self._reach_note(cr, first)}")
         if first == "contacts" and P.stroke_refused:
             # Contacts that fit the stroke on pads stopped wider apart than the stroke allows (a disc
             # just wider than it, grasped on a chord): say so, not "a protrusion"

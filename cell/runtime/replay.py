@@ -42,7 +42,8 @@ class RecordingEnds(Exception):  # noqa: N818 - not a CellError, like Divergence
 RECORDED_PLANNER = {"slanted_faces": False, "tree_min_samples_leaf": 2, "obstacle_margin_mm": 0.0,
                     "contacts_on_material": False, "label_touched_only": False, "max_contact_skew_deg": 90.0,
                     "stroke_at_pad_lines": False, "grasp_z_within_j3": False, "pads_at_grasp_centre": False,
-                    "finer_steps": 0, "grasp_z_over_neighbours": False, "cog_radius_outer_disc": False}
+                    "finer_steps": 0, "grasp_z_over_neighbours": False, "cog_radius_outer_disc": False,
+                    "min_touch_width_mm": 0.0}
 
 
 def planner_meta(params: SynthesisParams) -> dict:
@@ -61,9 +62,10 @@ def planner_from_meta(planner, where: str) -> SynthesisParams:
     leaf = values["tree_min_samples_leaf"]
     if isinstance(leaf, bool) or not isinstance(leaf, int) or leaf < 1:
         raise BadInput(f"{where}: manifest meta.planner.tree_min_samples_leaf must be a whole number >= 1")
-    margin = values["obstacle_margin_mm"]
-    if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 0 <= margin < math.inf:
-        raise BadInput(f"{where}: manifest meta.planner.obstacle_margin_mm must be a number of mm >= 0")
+    for key in ("obstacle_margin_mm", "min_touch_width_mm"):
+        mm = values[key]
+        if isinstance(mm, bool) or not isinstance(mm, (int, float)) or not 0 <= mm < math.inf:
+            raise BadInput(f"{where}: manifest meta.planner.{key} must be a number of mm >= 0")
     finer = values["finer_steps"]
     if isinstance(finer, bool) or not isinstance(finer, int) or not 0 <= finer <= MAX_FINER_STEPS:
         raise BadInput(f"{where}: manifest meta.planner.finer_steps must be a whole number from 0 to "

@@ -1,0 +1,70 @@
+"""Pads resting on tips and on corners: no pair is kept whose pads both rest on a point each (the
+contacts stage's pivot check)."""
+
+import numpy as np
+import pytest
+
+from cell.cellconfig import default_cell
+from cell.errors import NoFeasibleGrasp
+from cell.examples import GraspExample
+from cell.grasp import shapes
+from cell.grasp.candidates import candidate_points
+from cell.grasp.cascade import Context, Pairs, run_cascade
+from cell.grasp.height import grasp_z_mm
+from cell.grasp.params import SynthesisParams
+from cell.grasp.synthesis import GraspPlanner
+from cell.physics import check_grasp
+from cell.scene import Part, Scene
+
+CELL = default_cell()
+
+
+@pytest.fixture(autouse=True)
+def _errstate_as_in_the_cascade():
+    with np.errstate(divide="ignore", invalid="ignore"):
+        yield
+
+
+def _all_points_valid_cascade(target: Part, params: SynthesisParams):
+    op, free = candidate_points(target, [], params)
+    idx = np.flatnonzero(free)
+    vp = op.subset(idx)
+    gz = grasp_z_mm(target.z_bottom_mm, target.z_top_mm, CELL.gripper)
+    ctx = Context.build(target, [], CELL, params, gz, op.points, op.ring)
+    P = Pairs.of(vp.points, vp.normals, idx)
+    return P, run_cascade(ctx, P)
+
+
+@pytest.mark.parametrize("n_sides", [4, 6])  # a square's corners touch 1 mm of material, a hexagon's 1.7
+def test_no_pair_is_kept_whose_pads_both_rest_on_a_corner(n_sides):
+    side = 21.0 if n_sides == 4 else 15.0
+    r = side / 2 / np.sin(np.pi / n_sides)
+    ang = np.arange(n_sides) * 2 * np.pi / n_sides
+    corners = np.column_stack([350 + r * np.cos(ang), r * np.sin(ang)])
+    # the outline starts in the middle of a side: the samples (half a step, then every 1 mm) fall on every corner
+    outline = np.vstack([0.5 * (corners[-1] + corners[0]), corners])
+    target = Part("poly", outline, z_top_mm=10)
+
+    def corner_pairs(params):
+        P, cr = _all_points_valid_cascade(target, params)
+        at = [np.min(np.linalg.norm(c[:, None] - corners[None], axis=2), axis=1) < 0.01 for c in (P.pi, P.pj)]
+        both = at[0] & at[1]
+        return int((cr.rejected_by[both] < 0).sum()), int(both.sum()), P
+
+    kept, facing, P = corner_pairs(SynthesisParams(step_mm=1.0))
+    assert facing >= n_sides // 2 and kept == 0 and P.pivot_refused >= n_sides // 2
+    kept_before, _, _ = corner_pairs(SynthesisParams(step_mm=1.0, min_touch_width_mm=0.0))
+    assert kept_before >= n_sides // 2  # (the check is what takes them)
+
+
+def test_a_star_held_only_tip_to_tip_has_no_grasp_and_is_told_why():
+    a = np.arange(8) * np.pi / 4
+    rad = np.where(np.arange(8) % 2 == 0, 20.0, 4.0)
+    star = Part("star", np.column_stack([350 + rad * np.cos(a), rad * np.sin(a)]), z_top_mm=8)
+    ex = GraspExample("ok", shapes.rectangle("r", 60, 30), np.array([[350, 15], [350, -15]]), True, {"kind": "manual"})
+    with pytest.raises(NoFeasibleGrasp) as e:
+        GraspPlanner(CELL, [ex]).plan(Scene((star,), "star"))
+    assert "both rest on material narrower than 2 mm" in e.value.reason and "pivot" in e.value.reason
+    g = GraspPlanner(CELL, [ex], SynthesisParams(min_touch_width_mm=0.0)).plan(Scene((star,), "star")).grasp
+    v = check_grasp(star, g.contacts_mm, g.axis_deg, g.grasp_z_mm, cell=CELL)
+    assert not v.ok and "both pads sit on sharp corners" in v.reasons  # what the check refuses is not planned

@@ -9,7 +9,9 @@ How the operator judges (the labels of the examples and of the learning study):
     outline's tangent, stays clear of the rest of the part: a pad does not fit into a recess
     narrower than itself, between gear teeth or right beside a lug;
   - the outline does not turn by `SHARP_TURN_DEG` or more within 1 mm each side (a sharp
-    corner; chamfers and fillets are fine);
+    corner; chamfers and fillets are fine), unless the pad lies across tips (`_seat`: fine
+    gear teeth, knurls; the pad's face on the convex hull's gentle line, on material at
+    least the physical check's sharp-patch width wide);
   - it is at most `REACH_MM` from the centre of gravity: farther, no centred grasp within the
     80 mm stroke (70 mm contacts + 2 x 5 clearance) can use it.
 * A grasp (two contacts) is good when both points are good, it is nearly antipodal (the
@@ -36,13 +38,14 @@ from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 
 import numpy as np
+import shapely
 from shapely.geometry import LineString, Point, Polygon
 
 from cell.cellconfig import Cell, default_cell
 from cell.examples import GraspExample
 from cell.grasp.height import grasp_z_mm as default_grasp_z_mm
 from cell.kinematics import Joints, inverse, normalize_axis_deg
-from cell.physics import GraspCheck, check_grasp, outline_normal_and_turn
+from cell.physics import PATCH_DEPTH_MM, SHARP_PATCH_MM, GraspCheck, check_grasp, outline_normal_and_turn
 from cell.scene import Part
 
 HULL_TOL_MM = 0.75
@@ -96,8 +99,8 @@ class Operator:
         pt = Point(*p)
         if view.outer_ring.distance(pt) > 1.0:
             return PointJudgement(False, "not on the outer outline")
-        normal, turn = outline_normal_and_turn([view.outer_ring], p, 1.0)
-        if normal is None or not _pad_fits(view.outer, p, normal, self.cell):
+        seat, normal, turn = _seat(view, p, self.cell)
+        if normal is None or not _pad_fits(view.outer, seat, normal, self.cell):
             return PointJudgement(False, "in a recess: a flat pad does not fit there")
         if turn >= SHARP_TURN_DEG:
             return PointJudgement(False, f"on a sharp corner ({turn:.0f} deg)")
@@ -118,7 +121,7 @@ class Operator:
         d = float(np.linalg.norm(line))
         u = line / d
         for k, q in enumerate(c):
-            normal, _ = outline_normal_and_turn([view.outer_ring], q, 1.0)
+            _, normal, _ = _seat(view, q, self.cell)
             inward = u if k == 0 else -u  # the pad at contact k pushes along this direction
             cos = 0.0 if normal is None else max(-1.0, min(1.0, float(-normal @ inward)))
             ang = math.degrees(math.acos(cos))
@@ -219,6 +222,41 @@ class Operator:
         return min(pool, key=lambda s: abs(s.j4_deg))
 
 
+def _seat(view: _View, p: np.ndarray, cell: Cell) -> tuple[np.ndarray, np.ndarray | None, float]:
+    """Where and how a flat pad seats at p: the point its face rests on, the face's outward normal and
+    how sharply the seat turns (deg, +-1 mm). On a flat or smooth stretch that is the outline's own.
+    Where the outline turns sharply at p or a pad on its tangent meets the part beside p, but p lies on
+    the part's convex hull, the hull runs on gently there and a pad's face on it rests on more than one
+    tip (fine gear teeth, knurls, serrations: the material within the physical check's patch depth
+    spans at least its sharp-patch width), a person seats the pad across those tips: the seat is the
+    hull's."""
+    normal, turn = outline_normal_and_turn([view.outer_ring], p, 1.0)
+    if normal is not None and turn < SHARP_TURN_DEG and _pad_fits(view.outer, p, normal, cell):
+        return p, normal, turn
+    pt = Point(*p)
+    if view.hull_ring.distance(pt) > HULL_TOL_MM:
+        return p, normal, turn
+    on_hull = view.hull_ring.interpolate(view.hull_ring.project(pt))
+    q = np.array([on_hull.x, on_hull.y])
+    h_normal, h_turn = outline_normal_and_turn([view.hull_ring], q, 1.0)
+    if h_normal is None or h_turn >= SHARP_TURN_DEG or _seat_width_mm(view.outer, q, h_normal, cell) < SHARP_PATCH_MM:
+        return p, normal, turn
+    return q, h_normal, h_turn
+
+
+def _seat_width_mm(outer: Polygon, q: np.ndarray, normal: np.ndarray, cell: Cell) -> float:
+    """How wide (across the pad) the material is that a pad face through q, square to `normal`,
+    touches: the material within PATCH_DEPTH_MM of the face, under the pad's width."""
+    t = np.array([-normal[1], normal[0]])
+    hw = cell.gripper.pad_width_mm / 2
+    a, b = q - PATCH_DEPTH_MM * normal, q + 0.01 * normal
+    touched = outer.intersection(Polygon([a - hw * t, b - hw * t, b + hw * t, a + hw * t]))
+    if touched.is_empty:
+        return 0.0
+    along = (shapely.get_coordinates(touched) - q) @ t
+    return float(along.max() - along.min())
+
+
 def _pad_fits(outer: Polygon, p: np.ndarray, normal: np.ndarray, cell: Cell) -> bool:
     """Does a flat pad, centred on p with its face on the outline's tangent, stay clear of the
     rest of the part? (False in recesses narrower than the pad, between teeth, next to a lug.)"""
@@ -271,7 +309,7 @@ def _view(part: Part) -> _View:
 
     outer = orient(Polygon(part.outline_mm), 1.0)
     ring = LinearRing(outer.exterior.coords)
-    hull = outer.convex_hull
+    hull = orient(outer.convex_hull, 1.0)  # counter-clockwise as the outline: the same outward normals
     cog = np.asarray(part.polygon.centroid.coords[0])
     hxy = np.asarray(hull.exterior.coords)[:-1]
     extent = float(max(np.max(np.linalg.norm(hxy[:, None] - hxy[None], axis=2)), 1.0))  # the diameter

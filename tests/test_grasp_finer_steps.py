@@ -52,10 +52,11 @@ def test_a_part_planned_at_the_configured_step_says_no_step(shipped):
 
 
 def test_the_library_parts_without_a_grasp_at_2_mm_are_held_stably_at_1_mm(shipped):
-    """The gusset and the small gear had no grasp at the 2 mm step, whatever their pose."""
+    """The gusset had no grasp at the 2 mm step, whatever its pose (the small gear neither, until the
+    examples of 2026-12-04 taught pads resting on gear tips: test_grasp_gears.py)."""
     planner = GraspPlanner(CELL, shipped)
     coarse = GraspPlanner(CELL, shipped, SynthesisParams(finer_steps=0))
-    for name, th in [("gusset_m", 0.0), ("gusset_m", 75.0), ("spur_gear_s", 20.0)]:
+    for name, th in [("gusset_m", 0.0), ("gusset_m", 75.0)]:
         part = lib.place(lib.part(name), 360.0, -40.0, th)
         with pytest.raises(NoFeasibleGrasp):
             coarse.plan(Scene((part,), part.id))

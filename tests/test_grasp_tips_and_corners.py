@@ -1,20 +1,25 @@
-"""Pads resting on tips and on corners: no pair is kept whose pads both rest on a point each (the
-contacts stage's pivot check)."""
+"""Pads resting on tips and on corners: gears are held across their teeth (the operator seats a pad on
+the tips a part's convex hull runs over), and no pair is kept whose pads both rest on a point each
+(the contacts stage's pivot check)."""
 
 import numpy as np
 import pytest
+from shapely.geometry import Point
 
+from cell import parts_library as L
 from cell.cellconfig import default_cell
 from cell.errors import NoFeasibleGrasp
-from cell.examples import GraspExample
+from cell.examples import GraspExample, load_examples
 from cell.grasp import shapes
 from cell.grasp.candidates import candidate_points
 from cell.grasp.cascade import Context, Pairs, run_cascade
 from cell.grasp.height import grasp_z_mm
 from cell.grasp.params import SynthesisParams
 from cell.grasp.synthesis import GraspPlanner
+from cell.operator import Operator
 from cell.physics import check_grasp
 from cell.scene import Part, Scene
+from cell.study.stability import gear_shapes
 
 CELL = default_cell()
 
@@ -23,6 +28,38 @@ CELL = default_cell()
 def _errstate_as_in_the_cascade():
     with np.errstate(divide="ignore", invalid="ignore"):
         yield
+
+
+def gear(name: str, x: float = 360.0, y: float = -20.0, theta: float = 17.0) -> Part:
+    part = next(g for g in gear_shapes() if g.id == name)
+    return L.place(part, x, y, theta, "gear")
+
+
+@pytest.mark.parametrize("name", ["spur_gear_m0.8z30", "spur_gear_m1z40", "spur_gear_m1.25z20", "spur_gear_m1.5z30",
+                                  "spur_gear_m2z20"])
+def test_gears_not_in_the_library_are_held_across_their_tips(name):
+    """Fine teeth (modules 0.8-2, none in the library): with the examples before 2026-12-04 tree 1 took
+    each tip for a corner and every one of these had no grasp."""
+    part = gear(name)
+    g = GraspPlanner(CELL, load_examples()).plan(Scene((part,), "gear")).grasp
+    v = check_grasp(part, g.contacts_mm, g.axis_deg, g.grasp_z_mm, cell=CELL)
+    assert v.ok, v.reasons
+    hull = part.polygon.convex_hull.exterior
+    assert all(hull.distance(Point(*c)) < 0.3 for c in g.contacts_mm)  # on the tips, not in a root
+    assert min(v.patch_width_mm) >= 2.0  # each pad rests on more than one tip's corner
+
+
+def test_the_operator_seats_a_pad_across_gear_tips_but_not_on_a_corner_or_a_lone_spike():
+    op = Operator()
+    part = gear("spur_gear_m1z40", 0.0, 0.0, 0.0)
+    tip = max(np.asarray(part.outline_mm), key=lambda q: np.hypot(*q))  # a tip's corner: the outline turns 70 deg
+    assert op.judge_point(part, tip).valid
+    square = Part("sq", np.array([[300, -20], [340, -20], [340, 20], [300, 20]], float), z_top_mm=10)
+    assert "sharp corner" in op.judge_point(square, [300, -20]).reason
+    # a spike 1 mm wide on a bar: on the hull, which runs on gently there, but the pad would rest on 1 mm
+    spiked = Part("spk", np.array([[300, 0], [340, 0], [340, 10], [320.5, 10], [320.5, 15], [319.5, 15],
+                                   [319.5, 10], [300, 10]], float), z_top_mm=10)
+    assert not op.judge_point(spiked, [320.0, 15.0]).valid
 
 
 def _all_points_valid_cascade(target: Part, params: SynthesisParams):

@@ -308,6 +308,46 @@ def test_recordings_made_before_the_outer_disc_replay_with_the_material_disc():
     assert not planner_from_meta({}, "old").cog_radius_outer_disc and SynthesisParams().cog_radius_outer_disc
 
 
+def _split_ring(outer_mm: float, width_mm: float, gap_mm: float, x: float = 350.0, y: float = 10.0, turn: float = 0.4):
+    """A ring cut through at one place (a split washer, a slit ring): its bore is part of the outer outline."""
+    from shapely import affinity
+    from shapely.geometry import Point, box
+    from shapely.geometry.polygon import orient
+
+    from cell.scene import Part
+
+    r = outer_mm / 2
+    g = Point(0, 0).buffer(r, 32).difference(Point(0, 0).buffer(r - width_mm, 32)).difference(
+        box(-gap_mm / 2, 0, gap_mm / 2, r + 1))
+    g = orient(affinity.translate(affinity.rotate(g, turn, use_radians=True, origin=(0, 0)), x, y), 1.0)
+    return Part("ring", np.asarray(g.exterior.coords)[:-1], (), 0.0, 4.0, meta={"material": "steel"})
+
+
+def test_a_split_ring_s_bore_counts_as_enclosed_and_the_ring_is_held():
+    """A ring 60 mm across cut by a 1-4 mm slit: its bore is part of the outer outline, so the outline
+    enclosed only the material, the rim lay at 1.7 radii where tree 1 rejects protrusions, and none had a
+    grasp (an outside reviewer: 26 of 36 open rings 60-66 mm across)."""
+    from cell.grasp.outline import reference_radius_mm
+    from cell.physics import check_grasp
+    from cell.runtime.replay import planner_from_meta
+
+    for gap in (1.0, 4.0):
+        ring = _split_ring(60.0, 5.0, gap)
+        assert reference_radius_mm(ring, True, 6.0) == pytest.approx(30.0, rel=0.01)  # the bore counts
+        assert reference_radius_mm(ring) < 18.0  # (the material alone)
+        g = GraspPlanner(CELL, load_examples(None)).plan(Scene((ring,), "ring")).grasp
+        assert check_grasp(ring, g.contacts_mm, g.axis_deg, g.grasp_z_mm, cell=CELL).ok
+        with pytest.raises(NoFeasibleGrasp):
+            GraspPlanner(CELL, load_examples(None), SynthesisParams(closed_slit_mm=0.0)).plan(Scene((ring,), "ring"))
+    # a slit wider than 6 mm is the part's shape; open recesses (gear teeth, an L's corner) enclose nothing
+    assert reference_radius_mm(_split_ring(60.0, 5.0, 12.0), True, 6.0) < 18.0
+    from cell import parts_library as L
+    for name in ("spur_gear_xl", "l_bracket_m", "heatsink_m", "hose_clamp_m"):
+        part = L.part(name)
+        assert reference_radius_mm(part, True, 6.0) == reference_radius_mm(part), name
+    assert planner_from_meta({}, "old").closed_slit_mm == 0.0 and SynthesisParams().closed_slit_mm == 6.0
+
+
 @pytest.mark.parametrize("side_mm", [11.0, 15.0, 23.0])
 def test_squares_are_not_held_by_two_opposite_corners(side_mm):
     """A square's first vertex is a sample with the corner's bisector as its normal, antipodal to

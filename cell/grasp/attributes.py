@@ -90,13 +90,13 @@ def describe_points(rings: list[Ring], ring_idx, arc_mm, scales_mm) -> OutlinePo
     return OutlinePoints(pts, nrm, cn, cx, ring_idx, arc_mm)
 
 
-def local_attributes(op: OutlinePoints, part: Part, outer_disc: bool = True) -> np.ndarray:
+def local_attributes(op: OutlinePoints, part: Part, outer_disc: bool = True, slit_mm: float = 0.0) -> np.ndarray:
     """(z, 2 + S): distance to the centre of gravity (mm, relative to `reference_radius_mm`), convexity per scale."""
     d = np.linalg.norm(op.points - centre_of_gravity(part), axis=1)
-    return np.column_stack([d, d / reference_radius_mm(part, outer_disc), op.convexity])
+    return np.column_stack([d, d / reference_radius_mm(part, outer_disc, slit_mm), op.convexity])
 
 
-def global_attributes(contacts, chord_normals, part: Part, outer_disc: bool = True) -> np.ndarray:
+def global_attributes(contacts, chord_normals, part: Part, outer_disc: bool = True, slit_mm: float = 0.0) -> np.ndarray:
     """Attributes of contact sets.
 
     contacts (k, n, 2) mm, chord_normals (k, n, S, 2). The reference point is the centroid of
@@ -114,4 +114,4 @@ def global_attributes(contacts, chord_normals, part: Part, outer_disc: bool = Tr
     cosang = np.clip((-chord_normals * to_ref[:, :, None, :]).sum(-1), -1.0, 1.0)  # (k, n, S)
     ang = np.degrees(np.arccos(cosang))
     per_scale = np.stack([ang.max(axis=1), ang.mean(axis=1)], -1).reshape(len(contacts), -1)
-    return np.column_stack([off, off / reference_radius_mm(part, outer_disc), per_scale])
+    return np.column_stack([off, off / reference_radius_mm(part, outer_disc, slit_mm), per_scale])

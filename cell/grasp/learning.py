@@ -64,7 +64,7 @@ def point_training(ex: GraspExample, params: SynthesisParams, half_pad_mm: float
             continue
         if op is None:
             op = describe_points(rings, ring_idx, arc, params.scales_mm)
-            X_all = local_attributes(op, ex.part, params.cog_radius_outer_disc)
+            X_all = local_attributes(op, ex.part, params.cog_radius_outer_disc, params.closed_slit_mm)
         if params.label_touched_only:
             sel &= _touched(op.points, c, contacts, half_pad_mm)
             if not sel.any():
@@ -104,7 +104,7 @@ def set_attributes_of_example(ex: GraspExample, params: SynthesisParams, shifts=
     op = describe_points(rings, ring_idx, arc, params.scales_mm)
     n = len(proj)
     return global_attributes(op.points.reshape(-1, n, 2), op.chord_normals.reshape(len(combos), n, -1, 2), ex.part,
-                             params.cog_radius_outer_disc)
+                             params.cog_radius_outer_disc, params.closed_slit_mm)
 
 
 class AttributeTree:

@@ -8,6 +8,7 @@ material) is the walking direction turned right by 90 degrees, for holes as for 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from shapely.geometry import Polygon
@@ -69,11 +70,32 @@ def centre_of_gravity(part: Part) -> np.ndarray:
     return np.asarray(part.polygon.centroid.coords[0], float)
 
 
-def reference_radius_mm(part: Part, outer_disc: bool = True) -> float:
+SLIT_LOOK_FILL = 0.95  # an outline filling this much of its convex hull has no room for a cavity worth counting
+
+
+def reference_radius_mm(part: Part, outer_disc: bool = True, slit_mm: float = 0.0) -> float:
     """Equivalent-disc radius sqrt(area / pi) of the area the outer outline encloses, holes included:
     the size unit of the relative attributes (outer_disc=False: of the part's material, holes taken out,
-    as recordings made before 2026-12-04 have it: SynthesisParams.cog_radius_outer_disc)."""
-    return float(np.sqrt((Polygon(part.outline_mm) if outer_disc else part.polygon).area / np.pi))
+    as recordings made before 2026-12-04 have it: SynthesisParams.cog_radius_outer_disc). With slit_mm,
+    a cavity that only a slit narrower than that joins to the outside counts as enclosed too: a split
+    washer's or a circlip's bore, as a ring's hole (SynthesisParams.closed_slit_mm)."""
+    if not outer_disc:
+        return float(np.sqrt(part.polygon.area / np.pi))
+    outer = Polygon(part.outline_mm)
+    area = outer.area
+    if slit_mm > 0 and area < SLIT_LOOK_FILL * outer.convex_hull.area:
+        area += _behind_slits_mm2(np.ascontiguousarray(part.outline_mm, float).tobytes(), float(slit_mm))
+    return float(np.sqrt(area / np.pi))
+
+
+@lru_cache(maxsize=512)
+def _behind_slits_mm2(outline_bytes: bytes, slit_mm: float) -> float:
+    """The area of the cavities the outline (x, y float64 pairs) encloses once closed across gaps narrower
+    than slit_mm (a morphological closing: the holes it leaves are cavities behind such gaps; gear teeth's
+    gaps and other open recesses are filled from the outside and leave none)."""
+    r = slit_mm / 2
+    closed = Polygon(np.frombuffer(outline_bytes).reshape(-1, 2)).buffer(r, quad_segs=4).buffer(-r, quad_segs=4)
+    return float(sum(Polygon(h).area for g in getattr(closed, "geoms", [closed]) for h in g.interiors))
 
 
 def resample(rings: list[Ring], step_mm: float) -> tuple[np.ndarray, np.ndarray]:

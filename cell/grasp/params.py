@@ -58,6 +58,11 @@ class SynthesisParams:
     # the part's material (holes taken out: a 60 / 40 mm ring's rim at 1.34, where tree 1 rejects
     # protrusions), as recordings made before 2026-12-04 have it (cell.runtime.replay).
     cog_radius_outer_disc: bool = True
+    # With it, a cavity that only a slit narrower than this joins to the outside counts as enclosed: a split
+    # washer's, a circlip's or a slit ring's bore is a hole, as a closed ring's (outline.reference_radius_mm).
+    # Without, a 60 mm split ring's rim lay at 1.7 radii, where tree 1 rejects protrusions, and it had no
+    # grasp. 0: not, as recordings made before it existed have it (cell.runtime.replay).
+    closed_slit_mm: float = 6.0
     # The contacts stage refuses a pair whose pads both touch material narrower than this across the pad
     # (within the pad's compliance): two corners, two tips, a corner and a tip. The part would pivot
     # about the line through them (the physical check's 'both pads sit on sharp corners', its sharp

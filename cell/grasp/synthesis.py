@@ -337,7 +337,7 @@ class GraspPlanner:
                  f"grasp z ({gz:g} mm)")
 
         t0 = time.perf_counter()
-        L = local_attributes(cand, target, p.cog_radius_outer_disc)
+        L = local_attributes(cand, target, p.cog_radius_outer_disc, p.closed_slit_mm)
         point_valid = self.model.point_tree.predict(L)
         vp = cand.subset(point_valid)
         counts["valid_points"] = len(vp)
@@ -376,7 +376,7 @@ class GraspPlanner:
         k = cr.survivors
         contacts = np.stack([P.ci[k], P.cj[k]], axis=1)
         ij = P.ij[k]
-        G = global_attributes(contacts, vp.chord_normals[ij], target, p.cog_radius_outer_disc)
+        G = global_attributes(contacts, vp.chord_normals[ij], target, p.cog_radius_outer_disc, p.closed_slit_mm)
         set_valid = self.model.set_tree.predict(G)
         counts["valid_sets"] = int(set_valid.sum())
         times["valid_sets"] = (time.perf_counter() - t0) * 1e3

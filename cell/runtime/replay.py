@@ -43,7 +43,7 @@ RECORDED_PLANNER = {"slanted_faces": False, "tree_min_samples_leaf": 2, "obstacl
                     "contacts_on_material": False, "label_touched_only": False, "max_contact_skew_deg": 90.0,
                     "stroke_at_pad_lines": False, "grasp_z_within_j3": False, "pads_at_grasp_centre": False,
                     "finer_steps": 0, "grasp_z_over_neighbours": False, "cog_radius_outer_disc": False,
-                    "min_touch_width_mm": 0.0}
+                    "min_touch_width_mm": 0.0, "closed_slit_mm": 0.0}
 
 
 def planner_meta(params: SynthesisParams) -> dict:
@@ -62,7 +62,7 @@ def planner_from_meta(planner, where: str) -> SynthesisParams:
     leaf = values["tree_min_samples_leaf"]
     if isinstance(leaf, bool) or not isinstance(leaf, int) or leaf < 1:
         raise BadInput(f"{where}: manifest meta.planner.tree_min_samples_leaf must be a whole number >= 1")
-    for key in ("obstacle_margin_mm", "min_touch_width_mm"):
+    for key in ("obstacle_margin_mm", "min_touch_width_mm", "closed_slit_mm"):
         mm = values[key]
         if isinstance(mm, bool) or not isinstance(mm, (int, float)) or not 0 <= mm < math.inf:
             raise BadInput(f"{where}: manifest meta.planner.{key} must be a number of mm >= 0")

@@ -75,15 +75,17 @@ def test_convexity_is_positive_at_corners_negative_in_notches_zero_on_flats():
 
 @settings(max_examples=40, deadline=None)
 @given(dx=st.floats(-150, 150), dy=st.floats(-200, 200), angle=st.floats(-180, 180),
-       which=st.sampled_from(["l", "gear", "ring"]))
+       which=st.sampled_from(["l", "gear", "ring", "split ring"]))
 def test_local_and_global_attributes_do_not_change_when_the_part_moves(dx, dy, angle, which):
+    from test_grasp_learning import _split_ring
+
     part = {"l": shapes.l_shape("p", 70, 45, 15), "gear": shapes.gear("p", 28, 9, 3),
-            "ring": shapes.disc("p", 25, hole_r_mm=9)}[which]
+            "ring": shapes.disc("p", 25, hole_r_mm=9), "split ring": _split_ring(60.0, 5.0, 3.0)}[which]
     moved = part.moved(dx, dy, angle)
     a = [part_rings(p) for p in (part, moved)]
     ring_idx, arc = resample(a[0], PARAMS.step_mm)
     ops = [describe_points(r, ring_idx, arc, PARAMS.scales_mm) for r in a]
-    La, Lb = (local_attributes(op, p) for op, p in zip(ops, (part, moved), strict=True))
+    La, Lb = (local_attributes(op, p, True, PARAMS.closed_slit_mm) for op, p in zip(ops, (part, moved), strict=True))
     assert np.allclose(La, Lb, atol=1e-6)
     # the moved points are the original points moved
     t = math.radians(angle)
@@ -91,7 +93,7 @@ def test_local_and_global_attributes_do_not_change_when_the_part_moves(dx, dy, a
     c = centre_of_gravity(part)
     assert np.allclose((ops[0].points - c) @ rot.T + c + (dx, dy), ops[1].points, atol=1e-6)
     pairs = np.array([[0, len(arc) // 2], [3, len(arc) // 3], [5, len(arc) - 7]])
-    Ga, Gb = (global_attributes(op.points[pairs], op.chord_normals[pairs], p)
+    Ga, Gb = (global_attributes(op.points[pairs], op.chord_normals[pairs], p, True, PARAMS.closed_slit_mm)
               for op, p in zip(ops, (part, moved), strict=True))
     assert np.allclose(Ga, Gb, atol=1e-6)
 

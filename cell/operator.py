@@ -10,8 +10,8 @@ How the operator judges (the labels of the examples and of the learning study):
     narrower than itself, between gear teeth or right beside a lug;
   - the outline does not turn by `SHARP_TURN_DEG` or more within 1 mm each side (a sharp
     corner; chamfers and fillets are fine), unless the pad lies across tips (`_seat`: fine
-    gear teeth, knurls; the pad's face on the convex hull's gentle line, on material at
-    least the physical check's sharp-patch width wide);
+    gear teeth, knurls; the pad's face on the convex hull's gentle line, on more than one
+    piece of material, together at least the physical check's sharp-patch width wide);
   - it is at most `REACH_MM` from the centre of gravity: farther, no centred grasp within the
     80 mm stroke (70 mm contacts + 2 x 5 clearance) can use it.
 * A grasp (two contacts) is good when both points are good, it is nearly antipodal (the
@@ -227,9 +227,9 @@ def _seat(view: _View, p: np.ndarray, cell: Cell) -> tuple[np.ndarray, np.ndarra
     how sharply the seat turns (deg, +-1 mm). On a flat or smooth stretch that is the outline's own.
     Where the outline turns sharply at p or a pad on its tangent meets the part beside p, but p lies on
     the part's convex hull, the hull runs on gently there and a pad's face on it rests on more than one
-    tip (fine gear teeth, knurls, serrations: the material within the physical check's patch depth
-    spans at least its sharp-patch width), a person seats the pad across those tips: the seat is the
-    hull's."""
+    tip (fine gear teeth, knurls, serrations: separate pieces of material within the physical check's
+    patch depth, spanning at least its sharp-patch width), a person seats the pad across those tips:
+    the seat is the hull's. One corner under a pad on a slanted hull line is no seat."""
     normal, turn = outline_normal_and_turn([view.outer_ring], p, 1.0)
     if normal is not None and turn < SHARP_TURN_DEG and _pad_fits(view.outer, p, normal, cell):
         return p, normal, turn
@@ -239,22 +239,26 @@ def _seat(view: _View, p: np.ndarray, cell: Cell) -> tuple[np.ndarray, np.ndarra
     on_hull = view.hull_ring.interpolate(view.hull_ring.project(pt))
     q = np.array([on_hull.x, on_hull.y])
     h_normal, h_turn = outline_normal_and_turn([view.hull_ring], q, 1.0)
-    if h_normal is None or h_turn >= SHARP_TURN_DEG or _seat_width_mm(view.outer, q, h_normal, cell) < SHARP_PATCH_MM:
+    if h_normal is None or h_turn >= SHARP_TURN_DEG:
+        return p, normal, turn
+    tips, width = _tips_under_pad(view.outer, q, h_normal, cell)
+    if tips < 2 or width < SHARP_PATCH_MM:
         return p, normal, turn
     return q, h_normal, h_turn
 
 
-def _seat_width_mm(outer: Polygon, q: np.ndarray, normal: np.ndarray, cell: Cell) -> float:
-    """How wide (across the pad) the material is that a pad face through q, square to `normal`,
-    touches: the material within PATCH_DEPTH_MM of the face, under the pad's width."""
+def _tips_under_pad(outer: Polygon, q: np.ndarray, normal: np.ndarray, cell: Cell) -> tuple[int, float]:
+    """The material a pad face through q, square to `normal`, touches (within PATCH_DEPTH_MM of the face,
+    under the pad's width): how many separate pieces, and how wide they span across the pad (mm)."""
     t = np.array([-normal[1], normal[0]])
     hw = cell.gripper.pad_width_mm / 2
     a, b = q - PATCH_DEPTH_MM * normal, q + 0.01 * normal
     touched = outer.intersection(Polygon([a - hw * t, b - hw * t, b + hw * t, a + hw * t]))
-    if touched.is_empty:
-        return 0.0
-    along = (shapely.get_coordinates(touched) - q) @ t
-    return float(along.max() - along.min())
+    pieces = [g for g in getattr(touched, "geoms", [touched]) if not g.is_empty and g.area > 0]
+    if not pieces:
+        return 0, 0.0
+    along = np.concatenate([(shapely.get_coordinates(g) - q) @ t for g in pieces])
+    return len(pieces), float(along.max() - along.min())
 
 
 def _pad_fits(outer: Polygon, p: np.ndarray, normal: np.ndarray, cell: Cell) -> bool:

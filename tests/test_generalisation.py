@@ -14,6 +14,7 @@ from cell.study.stability import (
     presentations,
     random_baseline,
     simple_shapes,
+    star_shapes,
 )
 
 SEEN = ["cover", "plate", "nut", "washer", "housing", "pcb", "bracket"]
@@ -85,6 +86,8 @@ def test_bench_stability_command(capsys):
     # gears not in the library, fine teeth too, all held across their tips (21 of 78 poses before 2026-12-04)
     assert s["gears"]["presented"] == len(gear_shapes()) == s["gears"]["planned"]
     assert s["gears"]["stable_share"] == 1.0
+    assert s["stars"]["presented"] == len(star_shapes()) and s["stars"]["planned"] >= 1
+    assert s["stars"]["stable_share"] == 1.0
     assert set(s["per_family"]) == {"gear", "pcb"}
     assert s["unseen_families"]["presented"] == len(L.parts(["gear", "pcb"]))
     code, _, err = run_cli("bench", "stability", "--poses", "0", capsys=capsys)

@@ -60,6 +60,11 @@ def test_the_operator_seats_a_pad_across_gear_tips_but_not_on_a_corner_or_a_lone
     spiked = Part("spk", np.array([[300, 0], [340, 0], [340, 10], [320.5, 10], [320.5, 15], [319.5, 15],
                                    [319.5, 10], [300, 10]], float), z_top_mm=10)
     assert not op.judge_point(spiked, [320.0, 15.0]).valid
+    # a fork's body, 0.5 mm from its top corner: the hull runs on to a prong's tip, slanted 9.5 degrees, and a
+    # pad on that line would rest on the corner alone (one piece of material 3 mm across: no seat)
+    fork = Part("fork", np.array([[340, -15], [360, -15], [360, 5], [357, 5], [357, 15], [354.5, 15], [354.5, 5],
+                                  [345.5, 5], [345.5, 15], [343, 15], [343, 5], [340, 5]], float), z_top_mm=8)
+    assert not op.judge_point(fork, [359.5, 5.0]).valid
 
 
 def _all_points_valid_cascade(target: Part, params: SynthesisParams):
@@ -105,3 +110,35 @@ def test_a_star_held_only_tip_to_tip_has_no_grasp_and_is_told_why():
     g = GraspPlanner(CELL, [ex], SynthesisParams(min_touch_width_mm=0.0)).plan(Scene((star,), "star")).grasp
     v = check_grasp(star, g.contacts_mm, g.axis_deg, g.grasp_z_mm, cell=CELL)
     assert not v.ok and "both pads sit on sharp corners" in v.reasons  # what the check refuses is not planned
+
+
+def test_sprockets_with_narrow_teeth_are_never_held_by_one_tooth_tip_a_pad():
+    """The pivot check measures the touching material under the pad only: in the contacts stage's band, a
+    pad's width plus contact_tol each side, the next tooth's flank 6.8-7 mm across counted, and 4 of 60
+    random sprockets were held by one tip a pad ('both pads sit on sharp corners')."""
+    from shapely.geometry import Point as P
+    from shapely.geometry.polygon import orient
+
+    from cell.operator import random_pose
+
+    rng = np.random.default_rng(1)
+    planner = GraspPlanner(CELL, load_examples())
+    planned = 0
+    for _ in range(60):
+        teeth, tip_d = int(rng.integers(9, 40)), float(rng.uniform(20, 68))
+        g = L._gear(teeth, tip_d / 2, tip_d / 2 - float(rng.uniform(1.5, 5)), float(rng.uniform(0.05, 0.4)),
+                    float(rng.uniform(0.2, 0.5)))
+        g = orient(g.difference(P(0, 0).buffer(tip_d * 0.15)), 1.0)
+        c = np.array(g.centroid.coords[0])
+        holes = tuple(np.asarray(r.coords)[:-1] - c for r in g.interiors)
+        p0 = Part("s", np.asarray(g.exterior.coords)[:-1] - c, holes, 0, 8, meta={"material": "steel"})
+        p = L.place(p0, *random_pose(p0, CELL, rng))
+        p = Part("s", p.outline_mm, p.holes_mm, 0, 8, meta={"material": "steel"})
+        try:
+            gr = planner.plan(Scene((p,), "s")).grasp
+        except NoFeasibleGrasp:
+            continue
+        planned += 1
+        v = check_grasp(p, gr.contacts_mm, gr.axis_deg, gr.grasp_z_mm, cell=CELL)
+        assert v.ok, (teeth, tip_d, v.reasons)
+    assert planned >= 40

@@ -43,6 +43,7 @@ def run(args) -> int:
         presentations,
         random_baseline,
         simple_shapes,
+        star_shapes,
     )
 
     count(args.poses, "--poses", MAX_POSES)  # 1e14 poses per part would never end
@@ -71,6 +72,8 @@ def run(args) -> int:
     holed = evaluate(planner, presentations(holed_shapes(), args.poses, args.seed, cell), cell)
     log(f"spur gears not in the library (modules 0.8-3 mm): {len(gear_shapes())} x {args.poses} poses")
     gears = evaluate(planner, presentations(gear_shapes(), args.poses, args.seed, cell), cell)
+    log(f"stars (4-8 points): {len(star_shapes())} x {args.poses} poses")
+    stars = evaluate(planner, presentations(star_shapes(), args.poses, args.seed, cell), cell)
     per_family = leave_families_out(examples, args.poses, args.seed, cell, families, progress=log, params=params)
     unseen = StabilityTally()
     for t in per_family.values():
@@ -83,7 +86,8 @@ def run(args) -> int:
             "unseen_families", unseen), ("with 1-2 neighbours 3..15 mm away, all examples", "clutter", clutter),
             ("simple shapes not in the library, all examples", "simple_shapes", simple),
             ("rings and plates with a hole, all examples", "holed_shapes", holed),
-            ("spur gears not in the library, all examples", "gears", gears))
+            ("spur gears not in the library, all examples", "gears", gears),
+            ("stars (4-8 points) not in the library, all examples", "stars", stars))
     print("| set | presented | planned | stable | planned share | stable share |")
     print("|---|---:|---:|---:|---:|---:|")
     for label, _, t in rows:

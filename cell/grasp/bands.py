@@ -125,11 +125,12 @@ class BandEdges:
         at(out, self.bi if bands is None else bands, values)
         return out
 
-    def first_touch(self, ctx: Context, slanted: bool = False, touch: bool = True):
+    def first_touch(self, ctx: Context, slanted: bool = False, touch: bool = True, width_within: float = np.inf):
         """T (b,): the largest distance along u of the target's material in each band (-inf: none), and
         (touch=True) the touching point (x, y), each (b,), on the first-touch line, in the middle
-        (across the axis) of the material within PAD_COMPLIANCE_MM of it (nan: no material), and that
-        material's width across the axis (b,) (nan: none)."""
+        (across the axis) of the material within PAD_COMPLIANCE_MM of it (nan: no material), and the
+        width across the axis (b,) of that material within `width_within` of the band's centre line
+        (the pad's half width in a band widened beside it; nan: none there)."""
         if len(self.bi):
             tt = np.maximum(self.tA + self.s0 * self.dt, self.tA + self.s1 * self.dt)  # the piece's end further out
             T = self._per_band(tt, -np.inf, np.maximum.at)
@@ -140,7 +141,7 @@ class BandEdges:
             T = np.where(far_in, np.maximum(T, self.t_max), T)
         if not touch:
             return T, None
-        return T, self._touch(T, slanted)
+        return T, self._touch(T, slanted, width_within)
 
     def _far_corners_inside(self, ctx: Context) -> np.ndarray | None:
         """(b,): is either far corner of each band inside the target? None: neither is, for any band.
@@ -164,7 +165,7 @@ class BandEdges:
         far_in[r] = inside[:len(r)] | inside[len(r):]
         return far_in
 
-    def _touch(self, T: np.ndarray, slanted: bool):
+    def _touch(self, T: np.ndarray, slanted: bool, width_within: float = np.inf):
         # the touching material: the parts of the clipped edges within PAD_COMPLIANCE_MM of the first
         # touch (on a face slightly slanted to the pad that is a stretch from the band's side
         # inwards, not only the edge's end); the contact is the middle of its extent across the
@@ -187,13 +188,21 @@ class BandEdges:
             nb, lA, dl, lo_s, hi_s = pb.take(k), self.lA.take(k), self.dl.take(k), lo_s.take(k), hi_s.take(k)
         lat_lo = lA + lo_s * dl  # across the axis, at both ends of the stretch
         lat_hi = lA + hi_s * dl
-        lo_l = self._per_band(np.minimum(lat_lo, lat_hi), np.inf, np.minimum.at, nb)
-        hi_l = self._per_band(np.maximum(lat_lo, lat_hi), -np.inf, np.maximum.at, nb)
+        lo_p, hi_p = np.minimum(lat_lo, lat_hi), np.maximum(lat_lo, lat_hi)
+        lo_l = self._per_band(lo_p, np.inf, np.minimum.at, nb)
+        hi_l = self._per_band(hi_p, -np.inf, np.maximum.at, nb)
         has = lo_l < np.inf  # the bands with touching material (the lateral extremes are finite)
         mid = 0.5 * (lo_l + hi_l)
         x = np.where(has, self.cx + self.ux * T + self.vx * mid, np.nan)
         y = np.where(has, self.cy + self.uy * T + self.vy * mid, np.nan)
-        return x, y, np.where(has, hi_l - lo_l, np.nan)
+        if width_within >= float(np.max(self.half_width)):  # the whole band is the pad's
+            return x, y, np.where(has, hi_l - lo_l, np.nan)
+        # each stretch cut to the pad, as material beside it (a next tooth's flank) touches no pad
+        lo_c, hi_c = np.maximum(lo_p, -width_within), np.minimum(hi_p, width_within)
+        under = lo_c <= hi_c
+        lo_w = self._per_band(np.where(under, lo_c, np.inf), np.inf, np.minimum.at, nb)
+        hi_w = self._per_band(np.where(under, hi_c, -np.inf), -np.inf, np.maximum.at, nb)
+        return x, y, np.where(lo_w < np.inf, hi_w - lo_w, np.nan)
 
     def on_material(self, rows: np.ndarray | None, t: np.ndarray, l: np.ndarray):
         """For the bands `rows` (r,; None: every band) and a point (t, l) on each one's pad line (band

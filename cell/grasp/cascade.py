@@ -422,7 +422,7 @@ def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     tt = np.concatenate([t, t])
     slanted = bool(ctx.params.slanted_faces)
     band = BandEdges.clip(ctx, cx, cy, ux, uy, t_min, t_max, half_width)
-    T, (x, y, touch_width) = band.first_touch(ctx, slanted)
+    T, (x, y, touch_width) = band.first_touch(ctx, slanted, width_within=g.pad_width_mm / 2)
     vx, vy = band.vx, band.vy
     dx, dy = x - cx, y - cy  # the touches from the bands' centres, and across them (kept for _onto_material)
     l_touch = dx * vx + dy * vy

@@ -11,7 +11,8 @@ STAGE_WHY = {
     "reach": "pair centre outside the arm's reach or the workspace",
     "antipodal": "normals not facing each other along the closing line",
     "precheck": "a finger path or the palm centre inside material (cheap pre-check)",
-    "contacts": "a jaw pad would first touch other material (hidden contact) or the opening is out of stroke",
+    "contacts": "a jaw pad would first touch other material (hidden contact), the opening is out of stroke, or "
+                "both pads would rest on material under 2 mm wide (a corner or tip each: the part pivots)",
     "ik": "no inverse-kinematics solution within the joint limits",
     "fingers_obstacles": "a finger's swept footprint overlaps an obstacle taller than the grasp z",
     "palm": "the palm overlaps an obstacle taller than its bottom",

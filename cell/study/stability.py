@@ -116,6 +116,20 @@ def gear_shapes() -> list[Part]:
     return out
 
 
+def star_shapes(height_mm: float = 8.0) -> list[Part]:
+    """Stars (knobs, lobed heads, cams) centred at the origin: 4, 5, 6 and 8 points, tips 12, 20 and 30 mm from
+    the centre, notches at 0.4, 0.6 and 0.8 of that."""
+    out = []
+    for n in (4, 5, 6, 8):
+        for r_out in (12.0, 20.0, 30.0):
+            for k in (0.4, 0.6, 0.8):
+                a = np.arange(2 * n) * np.pi / n
+                r = np.where(np.arange(2 * n) % 2 == 0, r_out, k * r_out)
+                out.append(Part(f"star{n}_r{r_out:g}_k{k:g}", np.column_stack([r * np.cos(a), r * np.sin(a)]),
+                                z_bottom_mm=0.0, z_top_mm=height_mm))
+    return out
+
+
 def presentations(parts: list[Part], poses: int, seed: int, cell: Cell) -> list[Part]:
     """Each part at `poses` random poses inside the tray (deterministic for a seed)."""
     rng = np.random.default_rng(seed)

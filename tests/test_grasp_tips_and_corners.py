@@ -142,3 +142,24 @@ def test_sprockets_with_narrow_teeth_are_never_held_by_one_tooth_tip_a_pad():
         v = check_grasp(p, gr.contacts_mm, gr.axis_deg, gr.grasp_z_mm, cell=CELL)
         assert v.ok, (teeth, tip_d, v.reasons)
     assert planned >= 40
+
+
+def test_a_pad_whose_band_first_touches_beside_it_is_judged_on_what_it_rests_on():
+    """A spike 1.2 mm wide between ribs 0.7 mm taller, 6.3-6.8 mm to the side: inside the contacts stage's band
+    (the pad plus contact_tol each side) but beside the 12 mm pad. The band's first touch is a rib's, nothing
+    under the pad lies within the compliance of it, and the pivot check took the width for none: pairs with
+    both pads on the two spikes were kept (the physical check: 'both pads sit on sharp corners')."""
+    top = [(-15, 10), (-0.6, 10), (-0.6, 14), (0.6, 14), (0.6, 10), (6.3, 10), (6.3, 14.7), (6.8, 14.7),
+           (6.8, 10), (15, 10)]
+    outline = np.array(top + [(-x, -y) for x, y in top], float)[::-1] + (350, 0)  # counter-clockwise
+    target = Part("spk", outline, z_top_mm=10)
+
+    def kept_spike_pairs(params):
+        P, cr = _all_points_valid_cascade(target, params)
+        on_spike = [(np.abs(c[:, 0] - 350) <= 0.61) & (np.abs(np.abs(c[:, 1]) - 14) < 0.01) for c in (P.pi, P.pj)]
+        both = np.flatnonzero(on_spike[0] & on_spike[1])
+        return len(both), int((cr.rejected_by[both] < 0).sum())
+
+    facing, kept = kept_spike_pairs(SynthesisParams(step_mm=0.5))
+    assert facing > 0 and kept == 0
+    assert kept_spike_pairs(SynthesisParams(step_mm=0.5, min_touch_width_mm=0.0))[1] > 0

@@ -465,6 +465,13 @@ def _contacts(ctx: Context, P: Pairs, idx) -> np.ndarray:
     ok2 = finite & stops & (lateral <= tol + EPS_MM)
     ok = ok2[:k] & ok2[k:]
     if ctx.params.min_touch_width_mm > 0:  # both pads on a point each (two corners): the part pivots
+        # where the band's first touch lies beside the pad (in the tol strip: nothing under the pad within the
+        # compliance of it) or the pad presses a slanted face, the pad's own first touch says what it rests on
+        again = np.isnan(touch_width) if pressed is None else np.isnan(touch_width) | pressed
+        again = np.flatnonzero(again & np.concatenate([ok, ok]))
+        if len(again):
+            _, (_, _, on_pad) = band.narrowed(again, (g.pad_width_mm / 2,)).first_touch(ctx, slanted)
+            touch_width[again] = on_pad
         narrow = touch_width < ctx.params.min_touch_width_mm
         pivots = ok & narrow[:k] & narrow[k:]
         if pivots.any():

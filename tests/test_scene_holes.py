@@ -5,6 +5,7 @@ line and dropped: the grasp was planned on the bare outline, a contact in mid-ai
 
 import json
 
+import numpy as np
 import pytest
 import shapely
 from conftest import run_cli
@@ -156,3 +157,26 @@ def test_cell_grasp_refuses_the_reviewers_slot_drawn_as_a_hole(tmp_path, capsys)
     assert (f"{path}: part 't' hole #0: touches the outline along an edge (24 mm of its edges lie on the outline); "
             "a hole must lie inside the outline: draw a notch or a slot open to the outside as part of the outline"
             ) in err
+
+
+def test_a_part_built_in_python_is_oriented_as_the_planner_takes_it():
+    """Scene files and the library give the outline counter-clockwise and holes clockwise; a Part built in
+    Python with them the other way round was planned with its normals pointing inwards."""
+    from cell.cellconfig import default_cell
+    from cell.examples import load_examples
+    from cell.grasp.synthesis import GraspPlanner
+    from cell.scene import Part, Scene
+
+    a = np.arange(64) * 2 * np.pi / 64
+    outer, hole = 25 * np.column_stack([np.cos(a), np.sin(a)]), 10 * np.column_stack([np.cos(a), np.sin(a)])
+    ccw = Part("ring", outer + (350, 0), (hole[::-1] + (350, 0),), 0.0, 6.0)
+    cw = Part("ring", outer[::-1] + (350, 0), (hole + (350, 0),), 0.0, 6.0)
+    assert _area(cw.outline_mm) > 0 and _area(cw.holes_mm[0]) < 0
+    planner = GraspPlanner(default_cell(), load_examples())
+    grasps = [planner.plan(Scene((p,), "ring")).grasp for p in (ccw, cw)]
+    assert np.allclose(grasps[0].contacts_mm, grasps[1].contacts_mm, atol=1e-6)
+
+
+def _area(ring) -> float:
+    x, y = np.asarray(ring)[:, 0], np.asarray(ring)[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))

@@ -23,14 +23,6 @@ from cell.fileio import is_finite_number, read_json, short_repr
 from cell.materials import check_mass_keys
 
 UP = (0.0, 0.0, 1.0)
-
-
-def _signed_area_mm2(ring: np.ndarray) -> float:
-    """Shoelace area of a ring (n, 2): positive counter-clockwise."""
-    if ring.ndim != 2 or len(ring) < 3:
-        return 0.0
-    x, y = ring[:, 0], ring[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
 # Outline coordinates beyond 1 km from the base are not millimetres of a part on the tray (and a
 # target that large would be resampled into millions of candidate points): bad input.
 MAX_COORD_MM = 1e6
@@ -56,13 +48,12 @@ class Part:
         # The planner's outward normals and attributes take the outline counter-clockwise and the holes
         # clockwise; scene files and the library are normalised, a Part built in Python may not be (a
         # clockwise square was planned with its normals pointing inwards).
-        outline = np.asarray(self.outline_mm, float)
-        if _signed_area_mm2(outline) < 0:
-            object.__setattr__(self, "outline_mm", outline[::-1].copy())
-        if any(_signed_area_mm2(np.asarray(h, float)) > 0 for h in self.holes_mm):
-            object.__setattr__(self, "holes_mm", tuple(np.asarray(h, float)[::-1].copy()
-                                                       if _signed_area_mm2(np.asarray(h, float)) > 0 else h
-                                                       for h in self.holes_mm))
+        if _turn(self.outline_mm) < 0:
+            object.__setattr__(self, "outline_mm", np.asarray(self.outline_mm, float)[::-1].copy())
+        turned = [_turn(h) > 0 for h in self.holes_mm]
+        if any(turned):
+            object.__setattr__(self, "holes_mm", tuple(np.asarray(h, float)[::-1].copy() if t else h
+                                                       for h, t in zip(self.holes_mm, turned, strict=True)))
 
     @cached_property
     def polygon(self) -> Polygon:
@@ -269,6 +260,12 @@ def own_cell_path(raw: dict, source: str, base_dir: Path | None) -> str | None:
         if base_dir is not None and not Path(cell_path).is_absolute():
             cell_path = str(base_dir / cell_path)
     return cell_path
+
+
+def _turn(ring) -> int:
+    """1 where the ring (n, 2) runs counter-clockwise, -1 clockwise, 0 for fewer than 3 points."""
+    ring = np.asarray(ring, float)
+    return 0 if len(ring) < 3 else 1 if shapely.is_ccw(shapely.linearrings(ring)) else -1
 
 
 def parse_part(raw, where: str = "part") -> Part:

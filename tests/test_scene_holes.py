@@ -171,12 +171,7 @@ def test_a_part_built_in_python_is_oriented_as_the_planner_takes_it():
     outer, hole = 25 * np.column_stack([np.cos(a), np.sin(a)]), 10 * np.column_stack([np.cos(a), np.sin(a)])
     ccw = Part("ring", outer + (350, 0), (hole[::-1] + (350, 0),), 0.0, 6.0)
     cw = Part("ring", outer[::-1] + (350, 0), (hole + (350, 0),), 0.0, 6.0)
-    assert _area(cw.outline_mm) > 0 and _area(cw.holes_mm[0]) < 0
+    assert shapely.LinearRing(cw.outline_mm).is_ccw and not shapely.LinearRing(cw.holes_mm[0]).is_ccw
     planner = GraspPlanner(default_cell(), load_examples())
     grasps = [planner.plan(Scene((p,), "ring")).grasp for p in (ccw, cw)]
     assert np.allclose(grasps[0].contacts_mm, grasps[1].contacts_mm, atol=1e-6)
-
-
-def _area(ring) -> float:
-    x, y = np.asarray(ring)[:, 0], np.asarray(ring)[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))

@@ -28,6 +28,7 @@ import numpy as np
 
 from cell.cellconfig import Cell
 from cell.grasp.bands import PAD_COMPLIANCE_MM
+from cell.grasp.outline import centre_of_gravity
 from cell.physics import G_M_S2, MU, SAFETY, pad_load, part_mass_g, part_weight_n
 from cell.scene import Part
 
@@ -61,7 +62,7 @@ def slip_demand(part: Part, contacts_mm: np.ndarray, axes: np.ndarray, cell: Cel
         return np.abs(v[:, 0] * a[:, 0] + v[:, 1] * a[:, 1])
 
     d = along(c[:, 1] - c[:, 0])
-    e = along(np.asarray(part.polygon.centroid.coords[0]) - 0.5 * (c[:, 0] + c[:, 1]))
+    e = along(centre_of_gravity(part) - 0.5 * (c[:, 0] + c[:, 1]))
     e_least = np.maximum(e - PAD_COMPLIANCE_MM / 2, 0.0)
     return pad_load(part_weight_n(part), cell.gripper.grip_force_n) * (0.5 + e_least / (d + 2 * PAD_COMPLIANCE_MM))
 
@@ -81,7 +82,7 @@ def roll_demand(part: Part, contacts_mm: np.ndarray, cell: Cell) -> np.ndarray:
     c = np.asarray(contacts_mm, float).reshape(-1, 2, 2)
     line = c[:, 1] - c[:, 0]
     length = np.maximum(np.hypot(line[:, 0], line[:, 1]), 1e-9)
-    rel = np.asarray(part.polygon.centroid.coords[0]) - c[:, 0]
+    rel = centre_of_gravity(part) - c[:, 0]
     d = np.abs(rel[:, 0] * line[:, 1] - rel[:, 1] * line[:, 0]) / length
     rho_max = float(np.hypot(g.pad_width_mm, g.pad_height_mm)) / 4.0
     return pad_load(part_weight_n(part), g.grip_force_n) * np.maximum(d - JAW_LINE_SLACK_MM, 0.0) / (2.0 * rho_max)

@@ -44,13 +44,13 @@ def _errstate_as_in_the_cascade():
         yield
 
 
-def cascade_for(target, obstacles=()):
+def cascade_for(target, obstacles=(), params=PARAMS):
     """Every free outline point counts as valid here: the cascade alone decides."""
-    op, free = candidate_points(target, obstacles, PARAMS)
+    op, free = candidate_points(target, obstacles, params)
     idx = np.flatnonzero(free)
     vp = op.subset(idx)
     gz = grasp_z_mm(target.z_bottom_mm, target.z_top_mm, CELL.gripper)
-    ctx = Context.build(target, list(obstacles), CELL, PARAMS, gz, op.points, op.ring)
+    ctx = Context.build(target, list(obstacles), CELL, params, gz, op.points, op.ring)
     P = Pairs.of(vp.points, vp.normals, idx)
     return P, run_cascade(ctx, P), ctx
 

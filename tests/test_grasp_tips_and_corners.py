@@ -5,15 +5,13 @@ the tips a part's convex hull runs over), and no pair is kept whose pads both re
 import numpy as np
 import pytest
 from shapely.geometry import Point
+from test_grasp_cascade import cascade_for
 
 from cell import parts_library as L
 from cell.cellconfig import default_cell
 from cell.errors import NoFeasibleGrasp
 from cell.examples import GraspExample, load_examples
 from cell.grasp import shapes
-from cell.grasp.candidates import candidate_points
-from cell.grasp.cascade import Context, Pairs, run_cascade
-from cell.grasp.height import grasp_z_mm
 from cell.grasp.params import SynthesisParams
 from cell.grasp.synthesis import GraspPlanner
 from cell.operator import Operator
@@ -67,16 +65,6 @@ def test_the_operator_seats_a_pad_across_gear_tips_but_not_on_a_corner_or_a_lone
     assert not op.judge_point(fork, [359.5, 5.0]).valid
 
 
-def _all_points_valid_cascade(target: Part, params: SynthesisParams):
-    op, free = candidate_points(target, [], params)
-    idx = np.flatnonzero(free)
-    vp = op.subset(idx)
-    gz = grasp_z_mm(target.z_bottom_mm, target.z_top_mm, CELL.gripper)
-    ctx = Context.build(target, [], CELL, params, gz, op.points, op.ring)
-    P = Pairs.of(vp.points, vp.normals, idx)
-    return P, run_cascade(ctx, P)
-
-
 @pytest.mark.parametrize("n_sides", [4, 6])  # a square's corners touch 1 mm of material, a hexagon's 1.7
 def test_no_pair_is_kept_whose_pads_both_rest_on_a_corner(n_sides):
     side = 21.0 if n_sides == 4 else 15.0
@@ -88,7 +76,7 @@ def test_no_pair_is_kept_whose_pads_both_rest_on_a_corner(n_sides):
     target = Part("poly", outline, z_top_mm=10)
 
     def corner_pairs(params):
-        P, cr = _all_points_valid_cascade(target, params)
+        P, cr, _ = cascade_for(target, params=params)
         at = [np.min(np.linalg.norm(c[:, None] - corners[None], axis=2), axis=1) < 0.01 for c in (P.pi, P.pj)]
         both = at[0] & at[1]
         return int((cr.rejected_by[both] < 0).sum()), int(both.sum()), P
@@ -155,7 +143,7 @@ def test_a_pad_whose_band_first_touches_beside_it_is_judged_on_what_it_rests_on(
     target = Part("spk", outline, z_top_mm=10)
 
     def kept_spike_pairs(params):
-        P, cr = _all_points_valid_cascade(target, params)
+        P, cr, _ = cascade_for(target, params=params)
         on_spike = [(np.abs(c[:, 0] - 350) <= 0.61) & (np.abs(np.abs(c[:, 1]) - 14) < 0.01) for c in (P.pi, P.pj)]
         both = np.flatnonzero(on_spike[0] & on_spike[1])
         return len(both), int((cr.rejected_by[both] < 0).sum())

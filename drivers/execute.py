@@ -20,7 +20,8 @@ def run_commands(
     `{"label", "action", "t_start_s", "t_end_s", ...}` plus `"joints"` (the command sent) for a
     move, `"width_mm"` for open/grip and `"holding"` for a grip (`"blocked": true` when the jaws stopped wider than
     expected). With `stop_on_miss`, a grip
-    that closes past the expected width ends the list there (the record says holding=False);
+    that closes past the expected width ends the list there (the record says holding=False), the check
+    grip after the lift too (the part slipped out);
     driver errors propagate (the arm has already stopped every axis)."""
     records = []
     for cmd in commands:

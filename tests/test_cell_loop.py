@@ -170,8 +170,65 @@ def test_two_missed_grips_stop_and_ask(short_assembly):
     assert "washer: missed 2 times" in s["stopped"]
 
 
-def test_a_part_that_does_not_leave_the_tray_is_noticed(short_assembly):
-    s = run_session(RunConfig(assembly=short_assembly, seed=3, faults=WorldFaults(stuck={"nut"})))
+def test_every_pick_checks_its_grip_after_the_lift_and_the_recording_says_so(recorded):
+    from cell.recording import RecordingReader
+
+    rec, _ = recorded
+    r = RecordingReader(rec)
+    assert r.manifest["meta"]["lift_check"] is True  # replayed with the check (older recordings without it)
+    for d in (d for d in r.decisions if d["type"] == "executed"):
+        labels = [x["label"] for x in d["records"]]
+        assert labels[labels.index("lift") + 1] == "check" and labels.index("check") < labels.index("carry")
+        grip, check = (next(x for x in d["records"] if x["label"] == k) for k in ("grip", "check"))
+        assert check["holding"] and check["width_mm"] == pytest.approx(grip["width_mm"], abs=0.01)
+
+
+def test_a_part_that_slips_out_on_the_lift_is_caught_before_the_carry_and_replays(short_assembly, tmp_path,
+                                                                                   capsys):
+    """The nut stuck to the tray: the jaws slide off it as they lift. The check grip above the tray closes
+    past it; the arm does not carry empty jaws to the drop-off, looks again, retries once, then asks."""
+    from cell.recording import RecordingReader
+
+    s = run_session(RunConfig(assembly=short_assembly, seed=3, faults=WorldFaults(stuck={"nut"}),
+                              record=tmp_path / "r"))
+    assert s["status"] == "stopped" and s["parts_removed"] == 0
+    assert "nut: missed 2 times; the last time it slipped out of the jaws as they lifted it" in s["stopped"]
+    assert s["sim_events"].count("nut slipped out of the jaws and fell back") == 2
+    assert not [e for e in s["sim_events"] if e.startswith("dropped")]
+    decisions = RecordingReader(tmp_path / "r").decisions
+    picks = [d["records"] for d in decisions if d["type"] == "executed"]
+    assert len(picks) == 2
+    for records in picks:
+        assert [x["label"] for x in records][-2:] == ["lift", "check"]  # nothing sent after the check
+        grip, check = records[-3], records[-1]
+        assert grip["holding"] and not check["holding"] and check["width_mm"] < grip["width_mm"] - 2
+    frames = [d for d in decisions if d["type"] == "perception"]
+    assert len(frames) == 2  # the retry was planned on a new frame
+    code, out, err = run_cli("replay", tmp_path / "r", capsys=capsys)  # decisions and CAN frames alike
+    assert code == 0 and "decisions match the recording" in out, err
+
+
+def test_replay_checks_the_grip_as_the_recording_did(recorded, tmp_path, capsys):
+    """meta.lift_check is what the replay does: taken away, the replay (as of a recording made before the
+    check) sends no check grip and diverges from this session; not a boolean, it is refused."""
+    import shutil
+
+    rec, _ = recorded
+    for value, code_wanted, says in [(None, 1, "items recorded"), ("yes", 2, "meta.lift_check must be true or false")]:
+        bad = tmp_path / f"lift_check_{value}"
+        shutil.copytree(rec, bad)
+        manifest = json.loads((bad / "manifest.json").read_text())
+        if value is None:
+            del manifest["meta"]["lift_check"]
+        else:
+            manifest["meta"]["lift_check"] = value
+        (bad / "manifest.json").write_text(json.dumps(manifest))
+        code, _, err = run_cli("replay", bad, capsys=capsys)
+        assert code == code_wanted and says in err and "Traceback" not in err, err
+
+
+def test_a_part_that_falls_on_the_carry_is_noticed_on_the_next_frame(short_assembly):
+    s = run_session(RunConfig(assembly=short_assembly, seed=3, faults=WorldFaults(dropped={"nut"})))
     assert s["status"] == "stopped" and "nut did not leave the tray" in s["stopped"]
     assert s["parts_removed"] == 0  # the nut is not counted as removed
 

@@ -127,6 +127,7 @@ def test_the_operator_says_no_and_nothing_opens(monkeypatch, washer_only, capsys
     (["--channel", "can0"], "for the real cell"),
     (["--sim", "--interface", "socketcan", "--camera", "0"], "--sim is the simulated cell"),
     (["--interface", "virtual", "--camera", "0", "--sim-miss", "nut"], "not of the real cell"),
+    (["--interface", "virtual", "--camera", "0", "--sim-drop", "nut"], "--sim-drop: options of the simulated world"),
     (["--interface", "virtual", "--camera", "0", "--seed", "3"], "--seed: options of the simulated world"),
     (["--interface", "virtual", "--channel", "nobody-here", "--camera", "no/such/folder"], "cannot be opened"),
     (["--interface", "socketcan", "--channel", "vcan9", "--camera", "0"], "without confirmation"),

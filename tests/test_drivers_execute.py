@@ -24,13 +24,15 @@ def test_pick_commands_run_and_hold(cell_cfg):
             "descend",
             "grip",
             "lift",
+            "check",
             "carry",
             "lower",
             "release",
             "retreat",
         ]
-        grip = records[3]
+        grip, check = records[3], records[5]
         assert grip["holding"] and grip["width_mm"] == pytest.approx(28.0)
+        assert check["holding"] and check["width_mm"] == pytest.approx(28.0)  # still held, above the tray
         assert records[1]["width_mm"] == pytest.approx(28.0 + 2 * cell_cfg.gripper.approach_clearance_mm)
         assert all(b["t_start_s"] >= a["t_end_s"] for a, b in zip(records, records[1:], strict=False))
         cycle_s = records[-1]["t_end_s"] - records[0]["t_start_s"]
@@ -43,3 +45,24 @@ def test_a_missed_grip_ends_the_pick(cell_cfg):
         drives.gripper_object_width_mm = None
         records = run_commands(arm, pick_commands(_grasp(cell_cfg), 28.0, cell_cfg))
         assert records[-1]["label"] == "grip" and records[-1]["holding"] is False
+
+
+def test_a_part_lost_on_the_lift_ends_the_pick_at_the_check(cell_cfg):
+    """The part slips out as the arm lifts: the check grip closes past its width and nothing more is sent
+    (no carry of empty jaws to the drop-off). Without the check (recordings made before it) the pick goes on."""
+    for check_grip in (True, False):
+        with simulated_cell(cell_cfg) as (arm, drives):
+            drives.gripper_object_width_mm = 28.0
+
+            def world(step):
+                if step["label"] == "lift":
+                    drives.gripper_object_width_mm = None
+
+            commands = pick_commands(_grasp(cell_cfg), 28.0, cell_cfg, check_grip=check_grip)
+            records = run_commands(arm, commands, on_step=world)
+            labels = [r["label"] for r in records]
+            if check_grip:
+                assert labels[-2:] == ["lift", "check"] and records[-1]["holding"] is False
+                assert records[-1]["width_mm"] < 28.0 - 2 and drives.positions()["j3"] > _grasp(cell_cfg).j3_mm
+            else:
+                assert "check" not in labels and labels[-1] == "retreat"

@@ -173,6 +173,7 @@ def _middle_frame_lost_in_a_crash(d: Path) -> None:
     (_edit_manifest(**{"files.calibration": 7}), "'files.calibration' must be a file name or null"),
     (_edit_manifest(meta=5), "'meta' must be an object"),
     (_edit_manifest(**{"meta.on_no_grasp": "explode"}), "meta.on_no_grasp must be 'stop' or 'skip'"),
+    (_edit_manifest(**{"meta.lift_check": 1}), "meta.lift_check must be true or false"),
     (_middle_frame_lost_in_a_crash, "frame 1 (frames/000001.png) is missing"),
 ])
 def test_replay_refuses_a_malformed_manifest_or_a_lost_frame(tmp_path, capsys, damage, match):
@@ -185,6 +186,7 @@ def test_replay_refuses_a_malformed_manifest_or_a_lost_frame(tmp_path, capsys, d
 @pytest.mark.parametrize("argv, match", [
     (["--sim-miss", "nutt"], "--sim-miss nutt: no such part"),
     (["--sim-stuck", "washr"], "--sim-stuck washr: no such part"),
+    (["--sim-drop", "pbc"], "--sim-drop pbc: no such part"),
     (["--sim-miss", "nut:0"], "N must be at least 1"),
 ])
 def test_cell_run_refuses_a_simulated_fault_on_a_part_that_is_not_there(tmp_path, capsys, argv, match):

@@ -25,20 +25,21 @@ def short_assembly(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def stuck(short_assembly, tmp_path_factory):
-    """`cell run --sim-stuck nut --record R --json`: the nut is let go at the drop-off, but stays on the tray."""
-    rec = tmp_path_factory.mktemp("stuck") / "r"  # (capsys is per test: captured by hand)
+def dropped(short_assembly, tmp_path_factory):
+    """`cell run --sim-drop nut --record R --json`: the nut falls out of the jaws on the carry, after the grip
+    check: the loop lets go at the drop-off, but the nut lies on the tray."""
+    rec = tmp_path_factory.mktemp("dropped") / "r"  # (capsys is per test: captured by hand)
     import contextlib
     import io
 
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = run_cli("run", short_assembly, "--sim-stuck", "nut", "--seed", "3", "--record", rec, "--json")
+        code = run_cli("run", short_assembly, "--sim-drop", "nut", "--seed", "3", "--record", rec, "--json")
     return rec, code, out.getvalue(), err.getvalue()
 
 
-def test_a_stuck_part_is_not_logged_as_removed(stuck):
-    rec, code, _, err = stuck
+def test_a_part_dropped_on_the_carry_is_not_logged_as_removed(dropped):
+    rec, code, _, err = dropped
     assert code == 1, err
     assert "[removed] nut" not in err and "[carried] nut carried off" in err, err
     assert "nut did not leave the tray" in err
@@ -49,8 +50,8 @@ def test_a_stuck_part_is_not_logged_as_removed(stuck):
     assert kinds == [("outcome", "removed"), ("outcome", "not removed"), ("stop", None)]
 
 
-def test_the_summary_lists_the_part_the_run_stopped_on(stuck):
-    _, _, out, _ = stuck
+def test_the_summary_lists_the_part_the_run_stopped_on(dropped):
+    _, _, out, _ = dropped
     s = json.loads(out.strip().splitlines()[-1])
     assert s["parts_removed"] == 0 and s["grasps"] == 1
     [nut] = s["parts"]
@@ -68,8 +69,8 @@ def test_missed_grips_are_counted_on_the_part_the_run_stopped_on(short_assembly,
     assert "nut          stopped  attempts 2" in err  # the text summary lists it too
 
 
-def test_replay_of_a_stopped_session_matches_and_says_it_was_stopped(stuck, capsys):
-    rec = stuck[0]
+def test_replay_of_a_stopped_session_matches_and_says_it_was_stopped(dropped, capsys):
+    rec = dropped[0]
     code, out, err = run_cli("replay", rec, capsys=capsys)
     assert code == 0, err
     assert "decisions match the recording" in out
@@ -90,7 +91,7 @@ def test_a_stopped_session_recorded_without_the_not_removed_record_still_replays
 
     with monkeypatch.context() as m:
         m.setattr(CellLoop, "_record_not_removed", lambda self, report: None)  # as the older versions
-        run_session(RunConfig(assembly=short_assembly, seed=3, faults=WorldFaults(stuck={"nut"}),
+        run_session(RunConfig(assembly=short_assembly, seed=3, faults=WorldFaults(dropped={"nut"}),
                               record=tmp_path / "old"))
     assert "not removed" not in (tmp_path / "old" / "decisions.jsonl").read_text()
     code, out, err = run_cli("replay", tmp_path / "old", capsys=capsys)

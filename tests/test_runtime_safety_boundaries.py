@@ -294,7 +294,7 @@ def test_when_the_nearest_drop_off_way_hits_the_pick_and_the_carry_off_take_the_
     with pytest.raises(LinksWouldHit, match="on the way to 'carry' the arm's links would hit column_a"):
         low_loop._check_links("nut", pick_commands(grasp.joints, 20.0, low_cell, safe_z, usual), "")
     pick = low_loop._clear_pick("nut", grasp)
-    assert pick[6].label == "lower" and pick[6].joints in others and pick[6].joints.elbow == "right"
+    assert pick[7].label == "lower" and pick[7].joints in others and pick[7].joints.elbow == "right"
     low_loop._check_links("nut", pick, "")  # its whole way is clear
     off = low_loop._clear_carry_off("nut", grasp)  # the same, for a part in the jaws after a fault
     assert off[2].label == "lower" and off[2].joints.elbow == "right"
@@ -335,21 +335,25 @@ def test_the_gripper_commands_of_a_pick_pre_open_grip_at_the_opening_and_release
     # tests/test_arm_limit_boundaries.py)
     commands = pick_commands(NUT_GRASP, 28.0, cell)
     assert [(c.label, c.width_mm, c.force_n) for c in commands if c.action != "move"] == [
-        ("pre-open", 38.0, None), ("grip", 28.0, cell.gripper.grip_force_n), ("release", 80.0, None)]
+        ("pre-open", 38.0, None), ("grip", 28.0, cell.gripper.grip_force_n),
+        ("check", 28.0, cell.gripper.grip_force_n), ("release", 80.0, None)]
+    # the check grips again after the lift, above the tray, before the carry
+    labels = [c.label for c in commands]
+    assert labels.index("lift") + 1 == labels.index("check") == labels.index("carry") - 1
 
 
 def test_a_pick_opens_at_the_travel_height_before_anything_descends_and_lets_go_at_the_given_drop_off(cell):
     usual, *others = dropoff_options(cell, NUT_GRASP)
     drop = next(o for o in others if o.elbow != usual.elbow)
     commands = pick_commands(NUT_GRASP, 20.0, cell, safe_z_mm=160.0, drop=drop)
-    assert [c.label for c in commands] == ["approach", "pre-open", "descend", "grip", "lift", "carry", "lower",
-                                           "release", "retreat"]
+    assert [c.label for c in commands] == ["approach", "pre-open", "descend", "grip", "lift", "check", "carry",
+                                           "lower", "release", "retreat"]
     first_low = next(i for i, c in enumerate(commands) if c.joints is not None and c.joints.j3_mm < 160.0)
     assert commands[first_low].label == "descend" and first_low > [c.label for c in commands].index("pre-open")
     moves = {c.label: c.joints for c in commands if c.joints is not None}
     assert moves == {"approach": above(NUT_GRASP, 160.0), "descend": NUT_GRASP, "lift": above(NUT_GRASP, 160.0),
                      "carry": above(drop, 160.0), "lower": drop, "retreat": above(drop, 160.0)}
-    assert pick_commands(NUT_GRASP, 20.0, cell)[6].joints == usual  # by default: the nearest drop-off
+    assert pick_commands(NUT_GRASP, 20.0, cell)[7].joints == usual  # by default: the nearest drop-off
 
 
 def test_the_drop_off_options_all_reach_it_nearest_to_the_grasp_first(cell):

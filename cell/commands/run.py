@@ -42,7 +42,9 @@ def add_arguments(p):
     p.add_argument("--sim-miss", metavar="PART[:N]", action="append", default=[],
                    help="simulated world: the next N (default 1) grips of PART slide off it")
     p.add_argument("--sim-stuck", metavar="PART", action="append", default=[],
-                   help="simulated world: PART never leaves the tray")
+                   help="simulated world: PART never leaves the tray (the jaws slide off it as they lift)")
+    p.add_argument("--sim-drop", metavar="PART", action="append", default=[],
+                   help="simulated world: PART falls out of the jaws on the carry, back onto the tray")
     p.add_argument("--sim-bad-frames", metavar="N", type=int, default=0,
                    help="simulated camera: the next N reads deliver a corrupt frame")
     real = p.add_argument_group("the real cell (instead of the simulated one)")
@@ -93,7 +95,8 @@ def run(args) -> int:
                     record=args.record, rerun=args.rerun, save_rrd=args.save, seed=args.seed,
                     shift_mm=args.shift_mm, on_no_grasp=args.on_no_grasp, require_approval=args.approve,
                     station=args.station, station_port=args.port, station_token=args.token,
-                    faults=WorldFaults(miss=miss, stuck=set(args.sim_stuck), bad_frames=args.sim_bad_frames),
+                    faults=WorldFaults(miss=miss, stuck=set(args.sim_stuck), dropped=set(args.sim_drop),
+                                       bad_frames=args.sim_bad_frames),
                     progress=lambda s: print(s, file=out, flush=True), real_cell=real_cell)
     with sigterm_as_interrupt():
         summary = run_session(cfg)
@@ -139,7 +142,7 @@ def _real_cell(args, world_options: dict):
         return None
     if args.interface is None or args.camera is None:
         raise BadInput("the real cell needs both --interface (its CAN bus) and --camera")
-    sim = [o for o, v in (("--sim-miss", args.sim_miss), ("--sim-stuck", args.sim_stuck),
+    sim = [o for o, v in (("--sim-miss", args.sim_miss), ("--sim-stuck", args.sim_stuck), ("--sim-drop", args.sim_drop),
                           ("--sim-bad-frames", args.sim_bad_frames), *world_options.items()) if v]
     if sim:
         raise BadInput(f"{', '.join(sim)}: options of the simulated world, not of the real cell")

@@ -8,8 +8,9 @@ whoever builds those; `cell replay` runs this same code on recorded frames.
 
 Failures, as an operator wants them handled (each is logged with its reason):
 - no feasible grasp: stop and ask, or skip the part (`on_no_grasp="skip"`);
-- a missed grip (jaws closed past the expected width): open, lift, look again (a new frame), retry
-  once with the best grasp there other than the one that missed, then stop and ask;
+- a missed grip (jaws closed past the expected width), or a part that slipped out of the jaws as
+  they lifted it (the check grip after the lift closed past it): open, lift, look again (a new frame),
+  retry once with the best grasp there other than the one that missed, then stop and ask;
 - a part that did not leave the tray (seen again where it was picked): stop and ask;
 - a drive fault: the arm has stopped every axis; stop until the operator resets;
 - a missing or unreadable frame: retry, then stop and ask.
@@ -82,6 +83,7 @@ class LoopOptions:
     grip_retries: int = 1  # retries after a missed grip, each planned on a new frame
     interactive: bool = False  # an operator answers (the station); else a stop ends the run
     min_area_mm2: float = 75.0  # smaller regions are dust
+    lift_check: bool = True  # grip again after the lift (motion.pick_commands); off in recordings made before it
 
 
 class LinksWouldHit(CellError):
@@ -327,17 +329,18 @@ class CellLoop:
             report.motion_s += records[-1]["t_end_s"] - records[0]["t_start_s"]
             if records[-1].get("holding") is not False:
                 break
-            how = "stopped at" if records[-1].get("blocked") else "closed to"
-            self.control.log("miss", f"{part_id}: the jaws {how} {records[-1]['width_mm']:.1f} mm, expected "
-                             f"{grasp.opening_mm:.1f} mm: missed", part=part_id)
+            self.control.log("miss", _missed(part_id, grasp, records), part=part_id)
             t3 = self.arm.clock.now()
             self._retreat(grasp)
             report.motion_s += self.arm.clock.now() - t3
             misses += 1
             if misses > self.options.grip_retries:
-                self._stop_and_ask("gripper", f"{part_id}: missed {misses} times")
+                slipped = "; the last time it slipped out of the jaws as they lifted it"
+                self._stop_and_ask("gripper", f"{part_id}: missed {misses} times"
+                                   + (slipped if records[-1]["label"] == "check" else ""))
                 return
-            # The jaws closed through where the part was thought to lie: it was not there, or they pushed it.
+            # The jaws closed through where the part was thought to lie: it was not there, or they pushed it;
+            # or it slipped out on the lift and fell back.
             # The next grasp is planned on a new frame, not on the one that misled this one.
             left_out.append(grasp.contacts_mm)
             frame, index = self._read_frame()
@@ -605,7 +608,8 @@ class CellLoop:
         links clear (`_clear_way`)."""
         safe_z = self._safe_z_mm(part_id, grasp.grasp_z_mm)
         return self._clear_way(part_id, grasp, f"{part_id}: ", lambda drop: pick_commands(
-            grasp.joints, grasp.opening_mm, self.cell, safe_z_mm=safe_z, drop=drop))
+            grasp.joints, grasp.opening_mm, self.cell, safe_z_mm=safe_z, drop=drop,
+            check_grip=self.options.lift_check))
 
     def _clear_carry_off(self, part_id: str, grasp: Grasp) -> list:
         """Carry-off commands from where the arm is, by way of the first drop-off configuration
@@ -814,6 +818,17 @@ class CellLoop:
         j = self.arm.joints()
         self.viz.arm(elbow_points(j, self.cell.scara), j)
         self.viz.joints(j)
+
+
+def _missed(part_id: str, grasp: Grasp, records: list[dict]) -> str:
+    """What the operator reads of a pick that ended on a grip not holding (`records`: the pick's, up to it)."""
+    last = records[-1]
+    if last["label"] == "check":
+        gripped = next(r["width_mm"] for r in records if r["label"] == "grip")
+        return (f"{part_id} slipped out of the jaws as they lifted it: gripped at {gripped:.1f} mm, they closed "
+                f"to {last['width_mm']:.1f} mm when checked above the tray")
+    how = "stopped at" if last.get("blocked") else "closed to"
+    return f"{part_id}: the jaws {how} {last['width_mm']:.1f} mm, expected {grasp.opening_mm:.1f} mm: missed"
 
 
 def _require_lift_clear(scene: Scene) -> None:

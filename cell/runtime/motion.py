@@ -1,5 +1,10 @@
 """The pick as a list of commands (pure): approach above, open, descend, grip, lift along the
-disassembly direction (straight up), carry to the drop-off, release.
+disassembly direction (straight up), check the grip, carry to the drop-off, release.
+
+The check closes the jaws again under the same force limit once the part is off the tray: still
+held, they stop on it at once; slipped out (too heavy for the grip, stuck to the tray, caught on
+a neighbour), they close past its width, and the pick ends there, over the tray where the part fell
+back, not after a carry to the drop-off and a frame that shows it still lying there.
 
 Every joint target keeps the chosen configuration's elbow; the carry to the drop-off takes
 the drop-off solution nearest to the grasp configuration (the least joint motion).
@@ -73,10 +78,11 @@ def dropoff_joints(cell: Cell, near: Joints) -> Joints:
 
 
 def pick_commands(grasp_joints: Joints, opening_mm: float, cell: Cell, safe_z_mm: float | None = None,
-                  drop: Joints | None = None) -> list[Command]:
+                  drop: Joints | None = None, *, check_grip: bool = True) -> list[Command]:
     """Commands of one pick; `grasp_joints` is the configuration at the grasp (J3 = grasp z);
     travel at `safe_z_mm` (default: the cell's safe height), which must be above the grasp; let
-    go at `drop` (default: the drop-off configuration nearest to the grasp's)."""
+    go at `drop` (default: the drop-off configuration nearest to the grasp's). `check_grip`: the
+    grip again after the lift (off: as the loop picked before 2026-12-04; recordings replay so)."""
     g = cell.gripper
     safe = cell.motion.safe_z_mm if safe_z_mm is None else safe_z_mm
     if safe <= grasp_joints.j3_mm:
@@ -87,7 +93,8 @@ def pick_commands(grasp_joints: Joints, opening_mm: float, cell: Cell, safe_z_mm
         Command("open", "pre-open", width_mm=approach_mm),
         Command("move", "descend", grasp_joints),
         Command("grip", "grip", width_mm=opening_mm, force_n=g.grip_force_n),
-        *carry_off_commands(grasp_joints, grasp_joints, cell, safe, drop),
+        *carry_off_commands(grasp_joints, grasp_joints, cell, safe, drop,
+                            check_width_mm=opening_mm if check_grip else None),
     ]
 
 
@@ -100,13 +107,16 @@ def approach_opening_mm(opening_mm: float, cell: Cell) -> float:
 
 
 def carry_off_commands(from_joints: Joints, grasp_joints: Joints, cell: Cell, safe_z_mm: float,
-                       drop: Joints | None = None) -> list[Command]:
+                       drop: Joints | None = None, *, check_width_mm: float | None = None) -> list[Command]:
     """A held part from where the arm is (`from_joints`) to the drop-off: straight up to the travel
-    height, across, down, let go, up; at `drop` (default: the drop-off configuration nearest to
-    `grasp_joints`)."""
+    height, (with `check_width_mm`, the part's expected width: the grip checked there), across, down,
+    let go, up; at `drop` (default: the drop-off configuration nearest to `grasp_joints`)."""
     drop = drop or dropoff_joints(cell, grasp_joints)
+    check = [] if check_width_mm is None else [
+        Command("grip", "check", width_mm=check_width_mm, force_n=cell.gripper.grip_force_n)]
     return [
         Command("move", "lift", above(from_joints, safe_z_mm)),
+        *check,
         Command("move", "carry", above(drop, safe_z_mm)),
         Command("move", "lower", drop),
         Command("open", "release", width_mm=cell.gripper.opening_mm[1]),

@@ -187,18 +187,34 @@ class Comparison:
         """The recording is the world: the jaws stop where they stopped in the session. With other
         examples a pick the recording holds too (`same_pick`: the same commands) closes on the recorded
         width as well; another pick closes on its planned opening."""
-        width = None
+        width, slipped = None, False
         if self.strict or same_pick:
             for rec in self.recorded[self.position:]:
                 if rec.get("type") == "executed":
                     grips = [r for r in rec.get("records", []) if r.get("action") == "grip"]
-                    if grips and grips[-1].get("holding"):
-                        width = grips[-1]["width_mm"]
+                    held = [r for r in grips if r.get("holding")]
+                    if held:
+                        width = held[0]["width_mm"]
+                        # the check after the lift found the part gone: it slipped out as the arm lifted it
+                        slipped = grips[-1].get("label") == "check" and not grips[-1].get("holding")
                     break
         else:
             grips = [c for c in record["commands"] if c["action"] == "grip"]
             width = grips[0]["width_mm"] if grips else None
         self.drives.gripper_object_width_mm = width
+        self.drives.drives["gripper"].object_width_fn = self._lost_on_lift(record, width) if slipped else None
+
+    def _lost_on_lift(self, record: dict, width_mm: float):
+        """What lies between the jaws of a pick whose part slipped out on the lift (as the simulated world
+        has it, `SimWorld`): the part, closing at the grasp; nothing, closing above it."""
+        from cell.runtime.simworld import LIFTED_MM
+
+        grasp_z = next(c["joints"]["j3_mm"] for c in record["commands"] if c["label"] == "descend")
+
+        def between_jaws() -> float | None:
+            return width_mm if self.drives.positions()["j3"] <= grasp_z + LIFTED_MM else None
+
+        return between_jaws
 
 
 def _recorded_since(record: dict) -> bool:
@@ -264,6 +280,9 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     if meta.get("on_no_grasp", "stop") not in ("stop", "skip"):
         raise BadInput(f"recording {directory}: manifest meta.on_no_grasp must be 'stop' or 'skip', "
                        f"not {meta.get('on_no_grasp')!r}")
+    lift_check = meta.get("lift_check", False)  # absent in recordings made before the loop checked the grip
+    if not isinstance(lift_check, bool):
+        raise BadInput(f"recording {directory}: manifest meta.lift_check must be true or false, not {lift_check!r}")
     planner = meta.get("planner")  # absent (or null) in recordings made before it was kept; [] is no planner
     planner_params = planner_from_meta({} if planner is None else planner, f"recording {directory}")
     recorded = [d for d in rec.decisions if d.get("type") != "summary"]
@@ -288,7 +307,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
             control = RecordedApprovals(rec.decisions, f"recording {directory}")
             loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=FileCamera(frames), arm=arm,
                             control=control, examples_path=work_examples, sink=sink,
-                            options=LoopOptions(on_no_grasp=meta.get("on_no_grasp", "stop")),
+                            options=LoopOptions(on_no_grasp=meta.get("on_no_grasp", "stop"), lift_check=lift_check),
                             planner_params=planner_params, taught=sink.examples_taught_here)
             go_to(arm, home_joints(cell))
             control.run(by="replay")

@@ -184,7 +184,8 @@ def run_session(cfg: RunConfig) -> dict:
     # (no base folder the second time: the first read joined the assembly's own "cell" path onto it)
     assembly = parse_assembly(load_assembly(assembly_path).to_json(), str(assembly_path))
     ids = {p.id for p in assembly.parts}
-    for opt, named in (("--sim-miss", cfg.faults.miss), ("--sim-stuck", cfg.faults.stuck)):
+    for opt, named in (("--sim-miss", cfg.faults.miss), ("--sim-stuck", cfg.faults.stuck),
+                       ("--sim-drop", cfg.faults.dropped)):
         unknown = sorted(set(named) - ids)
         if unknown:  # a misspelt fault would be no fault: the run would test nothing it was asked to
             from cell.errors import BadInput
@@ -235,6 +236,7 @@ def run_session(cfg: RunConfig) -> dict:
                                    meta={"assembly": assembly.to_json(), "assembly_path": str(assembly_path),
                                          "seed": cfg.seed, "shift_mm": cfg.shift_mm,
                                          "on_no_grasp": cfg.on_no_grasp,
+                                         "lift_check": LoopOptions.lift_check,
                                          "real_cell": None if cfg.real_cell is None else vars(cfg.real_cell),
                                          "planner": planner_meta(loop_planner_params())})
         # The examples as they were at the start: replay needs them even after this session

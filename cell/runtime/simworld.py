@@ -5,8 +5,9 @@ The world watches the simulated drives, not the cell loop: when the jaws start c
 computes from the joint positions (forward kinematics) what lies between them
 (`cell.physics.close_jaws`) and tells the simulated gripper where to stop; a part held by
 a grasp that the physical check (`cell.physics.check_grasp`) finds unstable slips out as
-the arm lifts and falls back a little shifted; a held part released away from the tray has
-left the world. Nothing in the loop knows about this: it sees frames and the bus.
+the arm lifts and falls back a little shifted (the loop's grip check after the lift then closes past it);
+a held part released away from the tray has left the world. Nothing in the loop knows about
+this: it sees frames and the bus.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from cell.scene import Part
 
 TRACK_PERIOD_S = 0.02
 LIFTED_MM = 10.0  # the part is off the tray once the tips are this far above where it was gripped
+CARRIED_MM = 20.0  # a part that falls on the carry (WorldFaults.dropped) falls this far from where it was gripped
 
 
 @dataclass
@@ -32,7 +34,8 @@ class WorldFaults:
     tray that the assembly does not know."""
 
     miss: dict = field(default_factory=dict)  # part id -> how many grips slide off it
-    stuck: set = field(default_factory=set)  # part ids that never leave the tray
+    stuck: set = field(default_factory=set)  # part ids that never leave the tray (the jaws slide off on the lift)
+    dropped: set = field(default_factory=set)  # part ids that fall out of the jaws on the carry, back onto the tray
     bad_frames: int = 0  # the camera's next reads that deliver no usable frame
     extra: tuple = ()  # parts on the tray that are not in the assembly (a tool left there)
 
@@ -51,6 +54,7 @@ class SimWorld:
         self._held_width = 0.0
         self._closest = 0.0
         self._held_z = 0.0
+        self._held_xy = (0.0, 0.0)
         self._stable = True
         drives.drives["gripper"].object_width_fn = self._between_jaws
         self._job = drives.clock.every(TRACK_PERIOD_S, self._track, name="sim-world")
@@ -102,6 +106,7 @@ class SimWorld:
             verdict = check_grasp(part, [centre - a * w / 2, centre + a * w / 2], tool.axis_deg, tool.z_mm,
                                   others, self.cell)
             self.held, self._held_width, self._held_z = part.id, w, tool.z_mm
+            self._held_xy = (tool.x_mm, tool.y_mm)
             self._closest = opening
             self._stable = verdict.ok and part.id not in self.faults.stuck
             self.events.append(f"gripped {part.id} at {w:.2f} mm" + ("" if self._stable else
@@ -126,7 +131,9 @@ class SimWorld:
                 self.parts.pop(pid)
                 self.removed.append(pid)
                 self.events.append(f"dropped {pid} off the tray")
-        elif not self._stable and tool.z_mm > self._held_z + LIFTED_MM:
+        elif ((not self._stable and tool.z_mm > self._held_z + LIFTED_MM)
+              or (self.held in self.faults.dropped
+                  and math.dist((tool.x_mm, tool.y_mm), self._held_xy) > CARRIED_MM)):
             pid, self.held = self.held, None
             p = self.parts[pid]
             self.parts[pid] = p.moved(*self.rng.normal(0, 1.5, 2), self.rng.normal(0, 3))

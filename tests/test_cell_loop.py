@@ -501,6 +501,24 @@ def test_a_part_in_the_jaws_at_a_drive_fault_is_carried_to_the_drop_off_after_th
     assert not any(e.startswith("released") for e in world.events)  # nothing let go over the tray
 
 
+def test_a_part_that_fell_out_while_the_arm_stood_faulted_is_planned_again_not_carried_off(short_assembly):
+    """J1 faults while carrying the first part and the jolt shakes it out of the jaws onto the tray: the
+    carry-off's check after the lift finds the jaws empty, so nothing is counted as carried off; the part is
+    looked for again, picked again, and the run ends with all three removed."""
+    fell = {}
+    s, world = interactive_run(short_assembly, lambda loop, arm, drives, w: fault_after(arm, drives, "grip", 1, "j1"),
+                               lambda loop, w, fault: fell.update(part=w.slip_out()))
+    first = fell["part"]
+    assert first == s["parts"][0]["part"]
+    assert (s["parts_total"], s["parts_removed"]) == (3, 3)
+    assert s["parts"][0]["reason"] != "carried off after the pick was cut short"
+    events = world.events
+    fell_at = events.index(f"{first} slipped out of the jaws and fell back")
+    assert f"gripped {first}" in events[fell_at + 1]  # gripped again from the tray, after the fall
+    dropped = f"dropped {first} off the tray"
+    assert events.count(dropped) == 1 and events.index(dropped) > fell_at
+
+
 def test_a_fault_after_the_part_was_let_go_counts_it_as_removed(short_assembly):
     # J3 faults on the way up from the drop-off (the release was the pick's second open)
     s, world = interactive_run(short_assembly, lambda loop, arm, drives, w: fault_after(arm, drives, "open", 2, "j3"),

@@ -615,8 +615,9 @@ class CellLoop:
         """Carry-off commands from where the arm is, by way of the first drop-off configuration
         whose moves keep the links clear (`_clear_way`)."""
         safe_z, here = self._safe_z_mm(part_id, grasp.grasp_z_mm), self.arm.joints()
+        check = grasp.opening_mm if self.options.lift_check else None  # (the grip again also pushes again)
         return self._clear_way(part_id, grasp, "", lambda drop: carry_off_commands(
-            here, grasp.joints, self.cell, safe_z, drop))
+            here, grasp.joints, self.cell, safe_z, drop, check_width_mm=check))
 
     def _clear_way(self, part_id: str, grasp: Grasp, why: str, commands_to) -> list:
         """`commands_to(drop)` for the first drop-off configuration (nearest to the grasp's first:
@@ -659,10 +660,12 @@ class CellLoop:
 
     def _recover_pick(self) -> bool:
         """After a pick was cut short (a drive fault, a refused move) and the operator's reset.
-        Jaws that held the part: they stay shut, the arm goes straight up and lets the part go at the drop-off, not
+        Jaws that held the part: they stay shut, the arm goes straight up, grips again (the check: the quick
+        stop ended the jaws' push) and lets the part go at the drop-off, not
         where the arm stopped (over the tray, on other parts). A part already let go at the
         drop-off: the arm goes up. True in both cases; the part then counts as picked and the next
-        frame checks that it left its place. False when nothing was held (open, up, as usual).
+        frame checks that it left its place. False when nothing was held (open, up, as usual), or the
+        check found the jaws empty (the part fell back onto the tray: it is planned again).
         If the way to the drop-off is refused, the operator is asked to take the part out of the
         jaws by hand and reset again."""
         pick = self._pick
@@ -690,6 +693,9 @@ class CellLoop:
         records = self._execute(grasp, pid, pick["attempt"], commands, after_fault=True)
         self._pick = None
         pick["report"].motion_s += records[-1]["t_end_s"] - records[0]["t_start_s"]
+        if records[-1].get("holding") is False:  # the check after the lift: it fell out while the arm stood
+            self.control.log("miss", _missed(pid, grasp, records), part=pid)
+            return False  # back on the tray: open, up, and plan it again on a new frame
         self._picked(pick, "carried off after the pick was cut short")
         return True
 
@@ -824,7 +830,10 @@ def _missed(part_id: str, grasp: Grasp, records: list[dict]) -> str:
     """What the operator reads of a pick that ended on a grip not holding (`records`: the pick's, up to it)."""
     last = records[-1]
     if last["label"] == "check":
-        gripped = next(r["width_mm"] for r in records if r["label"] == "grip")
+        gripped = next((r["width_mm"] for r in records if r["label"] == "grip"), None)
+        if gripped is None:  # the carry-off after a fault: the grip was in the pick before it
+            return (f"{part_id} was no longer in the jaws when the carry-off checked the grip above the tray "
+                    f"(they closed to {last['width_mm']:.1f} mm, {grasp.opening_mm:.1f} mm expected)")
         return (f"{part_id} slipped out of the jaws as they lifted it: gripped at {gripped:.1f} mm, they closed "
                 f"to {last['width_mm']:.1f} mm when checked above the tray")
     how = "stopped at" if last.get("blocked") else "closed to"

@@ -134,7 +134,16 @@ class SimWorld:
         elif ((not self._stable and tool.z_mm > self._held_z + LIFTED_MM)
               or (self.held in self.faults.dropped
                   and math.dist((tool.x_mm, tool.y_mm), self._held_xy) > CARRIED_MM)):
-            pid, self.held = self.held, None
-            p = self.parts[pid]
-            self.parts[pid] = p.moved(*self.rng.normal(0, 1.5, 2), self.rng.normal(0, 3))
-            self.events.append(f"{pid} slipped out of the jaws and fell back")
+            self._fall_back_locked()
+
+    def slip_out(self) -> str | None:
+        """The held part falls out of the jaws now, back onto the tray (a jolt at a quick stop); its id."""
+        with self._lock:
+            return self._fall_back_locked() if self.held is not None else None
+
+    def _fall_back_locked(self) -> str:
+        pid, self.held = self.held, None
+        p = self.parts[pid]
+        self.parts[pid] = p.moved(*self.rng.normal(0, 1.5, 2), self.rng.normal(0, 3))
+        self.events.append(f"{pid} slipped out of the jaws and fell back")
+        return pid

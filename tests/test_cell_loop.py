@@ -187,6 +187,8 @@ def test_a_part_that_slips_out_on_the_lift_is_caught_before_the_carry_and_replay
                                                                                    capsys):
     """The nut stuck to the tray: the jaws slide off it as they lift. The check grip above the tray closes
     past it; the arm does not carry empty jaws to the drop-off, looks again, retries once, then asks."""
+    import shutil
+
     from cell.recording import RecordingReader
 
     s = run_session(RunConfig(assembly=short_assembly, seed=3, faults=WorldFaults(stuck={"nut"}),
@@ -206,6 +208,15 @@ def test_a_part_that_slips_out_on_the_lift_is_caught_before_the_carry_and_replay
     assert len(frames) == 2  # the retry was planned on a new frame
     code, out, err = run_cli("replay", tmp_path / "r", capsys=capsys)  # decisions and CAN frames alike
     assert code == 0 and "decisions match the recording" in out, err
+    # a session stopped so (closed whole, at a stop of the loop's own) is held to its host's CAN frames too
+    shutil.copytree(tmp_path / "r", tmp_path / "edited")
+    log = tmp_path / "edited" / "can.log"
+    lines = log.read_text().splitlines()
+    k = [i for i, x in enumerate(lines) if " 205#" in x][-3]  # a late gripper set-point of the host's
+    lines[k] = lines[k].replace(" 205#", " 205#FF", 1)
+    log.write_text("\n".join(lines) + "\n")
+    code, _, err = run_cli("replay", tmp_path / "edited", capsys=capsys)
+    assert code == 1 and "CAN id 0x205" in err, err
 
 
 def test_replay_checks_the_grip_as_the_recording_did(recorded, tmp_path, capsys):

@@ -112,6 +112,7 @@ class Comparison:
     position: int = 0
     found: list[str] = field(default_factory=list)
     cut_short: bool = False  # the recording was never closed (crash) or lost its last line
+    faulted_again: bool = False  # a recorded drive fault was injected again (the moment within the move may differ)
 
     def write_frame(self, index, frame_bgr):
         return None
@@ -181,6 +182,7 @@ class Comparison:
                 m = re.match(r"(\w+) \(node \d+\): EMCY 0x([0-9A-Fa-f]{4})", rec.get("reason", ""))
                 if m and rec.get("source") == m.group(1):
                     self.drives.inject_fault("emcy", m.group(1), code=int(m.group(2), 16), after_s=0.0)
+                    self.faulted_again = True
                 return
 
     def _set_gripper(self, record: dict, same_pick: bool) -> None:
@@ -324,7 +326,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
         # simulated cell (real drives answer in their own time: the host's polling need not repeat)
         simulated = meta.get("real_cell") is None
         can_difference = (first_host_frame_difference(rec.can_messages(), replay_can)
-                          if simulated and rec.manifest.get("status") == "complete" and rec.can_log_path is not None
+                          if simulated and _host_frames_repeat(rec, recorded, sink) and rec.can_log_path is not None
                           else None)
     if sink.cut_short and not sink.found:
         raise BadInput(f"recording {directory} is incomplete ({'; '.join(rec.problems)}): its {sink.position} "
@@ -336,6 +338,23 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
         sink._diverged(can_difference)
     return {"decisions": len(recorded), "matched": sink.position - len(sink.found), "differences": sink.found,
             "session": recorded_end(rec)}
+
+
+def _host_frames_repeat(rec, recorded: list[dict], sink: Comparison) -> bool:
+    """Must the replay send the host's CAN frames of the recording, frame for frame? For a session closed
+    complete, and for one closed whole at a stop the loop made itself (a "stop and ask" with nobody to
+    answer: missed grips, a part that did not leave the tray): the replay reaches that stop by the same
+    commands. Not where the operator stopped it (when, within a move, was theirs), nor at a drive fault
+    faulted again (the moment within the move may differ), nor for a recording cut short or torn."""
+    if rec.manifest.get("status") == "complete":
+        return True
+    stopped = (rec.manifest.get("summary") or {}).get("status") == "stopped"
+    by_operator = any(d.get("type") == "stop" and d.get("source") == "operator" for d in recorded)
+    from cell.recording import CAN_LOG
+
+    torn = any(p.startswith(CAN_LOG) for p in rec.problems)
+    return (rec.manifest.get("status") == "incomplete" and stopped and not by_operator and not sink.faulted_again
+            and not sink.cut_short and not torn)
 
 
 def recorded_end(rec) -> dict:

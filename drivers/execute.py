@@ -1,7 +1,7 @@
 """Run a pick's command list on the arm: the arrow "commands -> CAN" of the data flow.
 
 Commands are duck-typed like `cell.runtime.motion.Command`: `action` ('move', 'open',
-'grip'), `label`, and `joints` / `width_mm` / `force_n`. Each step returns a record of what
+'grip', 'check'), `label`, and `joints` / `width_mm` / `force_n`. Each step returns a record of what
 was actually sent and when (on the arm's clock: simulated seconds in simulation), so the
 cell can log decisions, compare a replay, and report the cycle time.
 """
@@ -18,10 +18,9 @@ def run_commands(
 ) -> list[dict]:
     """Execute `commands` in order; returns one record per executed step:
     `{"label", "action", "t_start_s", "t_end_s", ...}` plus `"joints"` (the command sent) for a
-    move, `"width_mm"` for open/grip and `"holding"` for a grip (`"blocked": true` when the jaws stopped wider than
-    expected). With `stop_on_miss`, a grip
-    that closes past the expected width ends the list there (the record says holding=False), the check
-    grip after the lift too (the part slipped out);
+    move, `"width_mm"` for open/grip/check and `"holding"` for a grip or check (`"blocked": true` when the
+    jaws stopped wider than expected). With `stop_on_miss`, a grip that closes past the expected width
+    ends the list there (the record says holding=False), a check after the lift too (the part slipped out);
     driver errors propagate (the arm has already stopped every axis)."""
     records = []
     for cmd in commands:
@@ -31,8 +30,12 @@ def run_commands(
             rec["joints"] = {k: round(v, 4) for k, v in arm.move_joints(cmd.joints).as_dict().items()}
         elif cmd.action == "open":
             rec["width_mm"] = round(arm.gripper.open(cmd.width_mm), 4)
-        elif cmd.action == "grip":
-            r = arm.gripper.grip(cmd.width_mm, getattr(cmd, "force_n", None))
+        elif cmd.action in ("grip", "check"):
+            # a check grips again and compares with where the jaws held the part when this list gripped it (a
+            # part pressed a little further is still held); without a grip before it (a carry-off), its own width
+            held = [r["width_mm"] for r in records if r["action"] == "grip" and r.get("holding")]
+            expected = held[-1] if cmd.action == "check" and held else cmd.width_mm
+            r = arm.gripper.grip(expected, getattr(cmd, "force_n", None))
             rec.update(width_mm=round(r.width_mm, 4), holding=r.holding)
             if r.blocked:
                 rec["blocked"] = True

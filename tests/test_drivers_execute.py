@@ -66,3 +66,20 @@ def test_a_part_lost_on_the_lift_ends_the_pick_at_the_check(cell_cfg):
                 assert records[-1]["width_mm"] < 28.0 - 2 and drives.positions()["j3"] > _grasp(cell_cfg).j3_mm
             else:
                 assert "check" not in labels and labels[-1] == "retreat"
+
+
+def test_the_check_compares_with_where_the_jaws_held_the_part_not_with_the_plan(cell_cfg):
+    """Planned 30 mm, held at 28.5 (within the grip's 2 mm); at the check the part, pressed, gives 1.5 mm more:
+    27 is 3 mm under the plan but 1.5 under where it was held, so it is still held. Gone, the jaws close on."""
+    for at_check, held in ((27.0, True), (None, False)):
+        with simulated_cell(cell_cfg) as (arm, drives):
+            drives.gripper_object_width_mm = 28.5
+
+            def world(step, at_check=at_check):
+                if step["label"] == "lift":
+                    drives.gripper_object_width_mm = at_check
+
+            records = run_commands(arm, pick_commands(_grasp(cell_cfg), 30.0, cell_cfg), on_step=world)
+            check = next(r for r in records if r["label"] == "check")
+            assert check["action"] == "check" and check["holding"] is held
+            assert check["width_mm"] == pytest.approx(27.0 if held else 0.0, abs=0.01)

@@ -337,7 +337,7 @@ class CellLoop:
             if misses > self.options.grip_retries:
                 slipped = "; the last time it slipped out of the jaws as they lifted it"
                 self._stop_and_ask("gripper", f"{part_id}: missed {misses} times"
-                                   + (slipped if records[-1]["label"] == "check" else ""))
+                                   + (slipped if records[-1]["action"] == "check" else ""))
                 return
             # The jaws closed through where the part was thought to lie: it was not there, or they pushed it;
             # or it slipped out on the lift and fell back.
@@ -611,11 +611,13 @@ class CellLoop:
             grasp.joints, grasp.opening_mm, self.cell, safe_z_mm=safe_z, drop=drop,
             check_grip=self.options.lift_check))
 
-    def _clear_carry_off(self, part_id: str, grasp: Grasp) -> list:
+    def _clear_carry_off(self, part_id: str, grasp: Grasp, held_mm: float | None = None) -> list:
         """Carry-off commands from where the arm is, by way of the first drop-off configuration
-        whose moves keep the links clear (`_clear_way`)."""
+        whose moves keep the links clear (`_clear_way`); the grip checked after the lift against `held_mm`,
+        where the jaws held the part (default: the grasp's opening)."""
         safe_z, here = self._safe_z_mm(part_id, grasp.grasp_z_mm), self.arm.joints()
-        check = grasp.opening_mm if self.options.lift_check else None  # (the grip again also pushes again)
+        # (the grip again also pushes again: the quick stop ended the jaws' push)
+        check = (grasp.opening_mm if held_mm is None else held_mm) if self.options.lift_check else None
         return self._clear_way(part_id, grasp, "", lambda drop: carry_off_commands(
             here, grasp.joints, self.cell, safe_z, drop, check_width_mm=check))
 
@@ -679,7 +681,7 @@ class CellLoop:
             self._picked(pick, "let go at the drop-off before the pick was cut short")
             return True
         try:
-            commands = self._clear_carry_off(pid, grasp)
+            commands = self._clear_carry_off(pid, grasp, pick.get("grip_width_mm"))
             from drivers.limits import command_violations
 
             problems = [p for c in commands if c.joints is not None
@@ -829,8 +831,8 @@ class CellLoop:
 def _missed(part_id: str, grasp: Grasp, records: list[dict]) -> str:
     """What the operator reads of a pick that ended on a grip not holding (`records`: the pick's, up to it)."""
     last = records[-1]
-    if last["label"] == "check":
-        gripped = next((r["width_mm"] for r in records if r["label"] == "grip"), None)
+    if last["action"] == "check":
+        gripped = next((r["width_mm"] for r in records if r["action"] == "grip"), None)
         if gripped is None:  # the carry-off after a fault: the grip was in the pick before it
             return (f"{part_id} was no longer in the jaws when the carry-off checked the grip above the tray "
                     f"(they closed to {last['width_mm']:.1f} mm, {grasp.opening_mm:.1f} mm expected)")

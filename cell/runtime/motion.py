@@ -26,10 +26,10 @@ from drivers.limits import command_violations
 class Command:
     """One step of a pick: a joint move, or a gripper action."""
 
-    action: str  # "move" | "open" | "grip"
+    action: str  # "move" | "open" | "grip" | "check" (grip again: still where the jaws held the part?)
     label: str  # approach, descend, lift, carry, release ...
     joints: Joints | None = None
-    width_mm: float | None = None  # open: the opening; grip: the expected width (the part's)
+    width_mm: float | None = None  # open: the opening; grip, check: the expected width (the part's)
     force_n: float | None = None
 
     def to_json(self) -> dict:
@@ -109,11 +109,12 @@ def approach_opening_mm(opening_mm: float, cell: Cell) -> float:
 def carry_off_commands(from_joints: Joints, grasp_joints: Joints, cell: Cell, safe_z_mm: float,
                        drop: Joints | None = None, *, check_width_mm: float | None = None) -> list[Command]:
     """A held part from where the arm is (`from_joints`) to the drop-off: straight up to the travel
-    height, (with `check_width_mm`, the part's expected width: the grip checked there), across, down,
+    height, (with `check_width_mm`, the part's expected width: the grip checked there, against the width the
+    jaws held it at when this list gripped it), across, down,
     let go, up; at `drop` (default: the drop-off configuration nearest to `grasp_joints`)."""
     drop = drop or dropoff_joints(cell, grasp_joints)
     check = [] if check_width_mm is None else [
-        Command("grip", "check", width_mm=check_width_mm, force_n=cell.gripper.grip_force_n)]
+        Command("check", "check", width_mm=check_width_mm, force_n=cell.gripper.grip_force_n)]
     return [
         Command("move", "lift", above(from_joints, safe_z_mm)),
         *check,

@@ -193,12 +193,12 @@ class Comparison:
         if self.strict or same_pick:
             for rec in self.recorded[self.position:]:
                 if rec.get("type") == "executed":
-                    grips = [r for r in rec.get("records", []) if r.get("action") == "grip"]
+                    grips = [r for r in rec.get("records", []) if r.get("action") in ("grip", "check")]
                     held = [r for r in grips if r.get("holding")]
                     if held:
                         width = held[0]["width_mm"]
                         # the check after the lift found the part gone: it slipped out as the arm lifted it
-                        slipped = grips[-1].get("label") == "check" and not grips[-1].get("holding")
+                        slipped = grips[-1].get("action") == "check" and not grips[-1].get("holding")
                     break
         else:
             grips = [c for c in record["commands"] if c["action"] == "grip"]

@@ -30,7 +30,6 @@ import numpy as np
 from shapely.geometry import Polygon
 
 from cell.cellconfig import Cell
-from cell.configuration import path_link_collisions
 from cell.disassembly import lift_blocked_reason, parts_on_top
 from cell.errors import BadInput, CellError, NoFeasibleGrasp
 from cell.examples import GraspExample, append_examples, load_examples, parse_example
@@ -44,13 +43,12 @@ from cell.runtime.motion import (
     above,
     approach_opening_mm,
     carry_off_commands,
-    dropoff_options,
     pick_commands,
 )
-from cell.runtime.ways import go_to, routed
+from cell.runtime.pickway import TRAVEL_MARGIN_MM, LinksWouldHit, check_links, clear_way, travel_z_mm
+from cell.runtime.ways import go_to
 from cell.scene import Assembly, Part, Scene
 
-TRAVEL_MARGIN_MM = 20.0  # above the tallest part on the tray, when travelling
 # Fingers and palm keep this clear of the other parts: their poses are measured (~0.3 mm off in
 # the vision bench), and a finger planned flush with a neighbour came down on it
 SEEN_OBSTACLE_MARGIN_MM = 1.0
@@ -84,10 +82,6 @@ class LoopOptions:
     interactive: bool = False  # an operator answers (the station); else a stop ends the run
     min_area_mm2: float = 75.0  # smaller regions are dust
     lift_check: bool = True  # grip again after the lift (motion.pick_commands); off in recordings made before it
-
-
-class LinksWouldHit(CellError):
-    """A grasp whose moves would sweep a link of the arm over a part taller than its underside."""
 
 
 @dataclass
@@ -590,18 +584,8 @@ class CellLoop:
         return records
 
     def _safe_z_mm(self, part_id: str, grasp_z_mm: float) -> float:
-        """Travel height of the finger tips: the cell's safe height, or higher when the parts on
-        the tray are tall: the empty jaws and the held part hanging below them (from the tips
-        down to its bottom) must pass over every part with a margin."""
-        part = self.poses[part_id]
-        others = [p.z_top_mm for p in self._on_tray(but=part_id)]
-        empty = max([part.z_top_mm, *others]) + TRAVEL_MARGIN_MM  # the open jaws, to and from the grasp
-        loaded = max(others, default=0.0) + TRAVEL_MARGIN_MM + (grasp_z_mm - part.z_bottom_mm)
-        safe = max(self.cell.motion.safe_z_mm, empty, loaded)
-        if safe > self.cell.scara.j3_mm[1]:
-            raise CellError(f"{part_id} cannot be carried over the parts on the tray: it needs a travel "
-                            f"height of {safe:.0f} mm, J3 reaches {self.cell.scara.j3_mm[1]:g} mm")
-        return safe
+        """Travel height of the finger tips for a pick of `part_id` (`pickway.travel_z_mm`)."""
+        return travel_z_mm(self.cell, self.poses[part_id], self._on_tray(but=part_id), grasp_z_mm)
 
     def _clear_pick(self, part_id: str, grasp: Grasp) -> list:
         """The pick's commands, by way of the first drop-off configuration whose moves keep the
@@ -622,43 +606,15 @@ class CellLoop:
             here, grasp.joints, self.cell, safe_z, drop, check_width_mm=check))
 
     def _clear_way(self, part_id: str, grasp: Grasp, why: str, commands_to) -> list:
-        """`commands_to(drop)` for the first drop-off configuration (nearest to the grasp's first:
-        the other elbow, the J4 turns) whose moves keep the links clear of the parts on the tray, a way the
-        drivers refuse gone round by other moves (`ways.routed`, the links clear on them too);
-        LinksWouldHit (the first one's reason) when none does."""
-        first = None
-        others = self._on_tray(but=part_id)
-
-        def links_clear(a: Joints, b: Joints) -> list[str]:
-            hit = path_link_collisions(self.arm.path(a, b), self.cell, others)
-            return [f"the arm's links would hit {', '.join(hit)}"] if hit else []
-
-        known: dict = {}  # the ways round, found once for every drop-off (the way to the grasp is the same)
-        for drop in dropoff_options(self.cell, grasp.joints):
-            try:
-                # the ways the drivers refuse (the tool sweeping out of the workspace) go round by other moves
-                commands = routed(commands_to(drop), self.arm.joints(), self.cell, links_clear, known)
-                self._check_links(part_id, commands, why)
-                return commands
-            except LinksWouldHit as e:
-                first = first or e
-            except CellError as e:
-                first = first or LinksWouldHit(f"{why}{e}")
-        raise first
+        """`commands_to(drop)` by the first drop-off whose way keeps the links clear of the parts on the tray
+        (`pickway.clear_way`); LinksWouldHit when none does."""
+        return clear_way(self.arm, self.cell, self._on_tray(but=part_id), grasp.joints, why, commands_to,
+                         lambda commands: self._check_links(part_id, commands, why))
 
     def _check_links(self, part_id: str, commands, why: str) -> None:
         """The links along every move of `commands`, from where the arm is, against the parts on the
-        tray (the part `part_id` is in the jaws, not on the tray); a hit refuses the whole list
-        before anything moves."""
-        others = self._on_tray(but=part_id)
-        at = self.arm.joints()
-        for c in commands:
-            if c.joints is None:
-                continue
-            hit = path_link_collisions(self.arm.path(at, c.joints), self.cell, others)
-            if hit:
-                raise LinksWouldHit(f"{why}on the way to '{c.label}' the arm's links would hit {', '.join(hit)}")
-            at = c.joints
+        tray (the part `part_id` is in the jaws, not on the tray): `pickway.check_links`."""
+        check_links(self.arm, self.cell, self._on_tray(but=part_id), commands, why)
 
     def _recover_pick(self) -> bool:
         """After a pick was cut short (a drive fault, a refused move) and the operator's reset.

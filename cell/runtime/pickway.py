@@ -1,0 +1,76 @@
+"""A pick's commands with a way clear of the parts on the tray: how high to travel, and which drop-off
+configuration (and ways round what the drivers refuse) keeps the arm's links off them. Shared by the cell
+loop and `cell hw pick`; the arm is asked only for the paths its drives take (`Arm.path`)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from cell.cellconfig import Cell
+from cell.configuration import path_link_collisions
+from cell.errors import CellError
+from cell.kinematics import Joints
+from cell.runtime.motion import Command, dropoff_options
+from cell.runtime.ways import routed
+from cell.scene import Part
+
+TRAVEL_MARGIN_MM = 20.0  # above the tallest part on the tray, when travelling
+
+
+class LinksWouldHit(CellError):
+    """A grasp whose moves would sweep a link of the arm over a part taller than its underside."""
+
+
+def travel_z_mm(cell: Cell, part: Part, others: list[Part], grasp_z_mm: float) -> float:
+    """Travel height of the finger tips for a pick of `part` among `others`: the cell's safe height, or higher
+    when the parts on the tray are tall: the empty jaws and the held part hanging below them (from the tips
+    down to its bottom) must pass over every part with a margin."""
+    tops = [p.z_top_mm for p in others]
+    empty = max([part.z_top_mm, *tops]) + TRAVEL_MARGIN_MM  # the open jaws, to and from the grasp
+    loaded = max(tops, default=0.0) + TRAVEL_MARGIN_MM + (grasp_z_mm - part.z_bottom_mm)
+    safe = max(cell.motion.safe_z_mm, empty, loaded)
+    if safe > cell.scara.j3_mm[1]:
+        raise CellError(f"{part.id} cannot be carried over the parts on the tray: it needs a travel "
+                        f"height of {safe:.0f} mm, J3 reaches {cell.scara.j3_mm[1]:g} mm")
+    return safe
+
+
+def check_links(arm, cell: Cell, others: list[Part], commands, why: str) -> None:
+    """The links along every move of `commands`, from where the arm is, against `others` (the parts on the
+    tray, not the one in the jaws); a hit refuses the whole list before anything moves."""
+    at = arm.joints()
+    for c in commands:
+        if c.joints is None:
+            continue
+        hit = path_link_collisions(arm.path(at, c.joints), cell, others)
+        if hit:
+            raise LinksWouldHit(f"{why}on the way to '{c.label}' the arm's links would hit {', '.join(hit)}")
+        at = c.joints
+
+
+def clear_way(arm, cell: Cell, others: list[Part], grasp_joints: Joints, why: str,
+              commands_to: Callable[[Joints], list[Command]],
+              check: Callable[[list[Command]], None] | None = None) -> list[Command]:
+    """`commands_to(drop)` for the first drop-off configuration (nearest to the grasp's first: the other
+    elbow, the J4 turns) whose moves keep the links clear of `others`, a way the drivers refuse gone round
+    by other moves (`ways.routed`, the links clear on them too); LinksWouldHit (the first one's reason)
+    when none does. `check`: how a whole list is checked (default: `check_links` against `others`)."""
+    first = None
+    check = check or (lambda commands: check_links(arm, cell, others, commands, why))
+
+    def links_clear(a: Joints, b: Joints) -> list[str]:
+        hit = path_link_collisions(arm.path(a, b), cell, others)
+        return [f"the arm's links would hit {', '.join(hit)}"] if hit else []
+
+    known: dict = {}  # the ways round, found once for every drop-off (the way to the grasp is the same)
+    for drop in dropoff_options(cell, grasp_joints):
+        try:
+            # the ways the drivers refuse (the tool sweeping out of the workspace) go round by other moves
+            commands = routed(commands_to(drop), arm.joints(), cell, links_clear, known)
+            check(commands)
+            return commands
+        except LinksWouldHit as e:
+            first = first or e
+        except CellError as e:
+            first = first or LinksWouldHit(f"{why}{e}")
+    raise first

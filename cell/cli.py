@@ -40,6 +40,7 @@ COMMANDS: list[tuple[tuple[str, ...], str, str]] = [
     (("hw", "jog"), "cell.commands.hw", "jog one joint by a small step (hardware-in-loop)"),
     (("hw", "gripper"), "cell.commands.hw", "open or close the gripper (hardware-in-loop)"),
     (("hw", "corner"), "cell.commands.hw", "move to a tray corner and back (hardware-in-loop)"),
+    (("hw", "pick"), "cell.commands.hw", "plan a grasp on a scene file and pick the part (hardware-in-loop)"),
     (("bench", "grasp"), "cell.commands.bench_grasp", "benchmark grasp synthesis: cascade vs brute force"),
     (("bench", "vision"), "cell.commands.bench_vision", "benchmark segmentation accuracy and speed"),
     (("bench", "stability"), "cell.commands.bench_stability", "share of stable grasps over the parts library"),

@@ -1,4 +1,4 @@
-"""`cell hw status|sim|home|jog|gripper|corner`: hardware-in-loop commands.
+"""`cell hw status|sim|home|jog|gripper|corner|pick`: hardware-in-loop commands (`pick`: cell/commands/hw_pick.py).
 
 Each takes `--interface/--channel` (default: the simulated cell on python-can's virtual
 bus, served in this process, so every command runs here as is). On any other interface the
@@ -61,6 +61,10 @@ def add_arguments(p) -> None:
             default=None,
             help="simulated cell only: width of a part placed between the jaws, mm",
         )
+    elif words[1] == "pick":
+        from cell.commands.hw_pick import add_arguments as pick_arguments
+
+        pick_arguments(p)
     elif words[1] == "corner":
         p.add_argument("--corner", choices=CORNERS, default="far-right")
         p.add_argument("--dwell", type=float, default=0.5, help="seconds to stay at the corner")
@@ -82,9 +86,8 @@ def run(args) -> int:
     # SIGTERM (`timeout`, systemd, kill) ends the command as Ctrl-C does: a move is quick-stopped (exit 130); it
     # ended the process mid-move with no stop at all, and the axes ran on to their targets
     with sigterm_as_interrupt():
-        return {"status": _status, "home": _home, "jog": _jog, "gripper": _gripper, "corner": _corner}[
-            args._words[1]
-        ](args, cell)
+        return {"status": _status, "home": _home, "jog": _jog, "gripper": _gripper, "corner": _corner,
+                "pick": _pick}[args._words[1]](args, cell)
 
 
 MAX_DWELL_S = 600.0  # a SimClock steps through every heartbeat of the dwell: 1e300 s never ended
@@ -351,6 +354,12 @@ def _gripper(args, cell) -> int:
                     + ("holding" if r.holding else "BLOCKED (wider than expected)" if r.blocked else "MISSED"),
                 )
     return 0
+
+
+def _pick(args, cell) -> int:
+    from cell.commands.hw_pick import run_pick
+
+    return run_pick(args, cell, _session, confirm_motion, _stop_on_interrupt, _emit)
 
 
 def _corner(args, cell) -> int:

@@ -83,18 +83,40 @@ def pick_commands(grasp_joints: Joints, opening_mm: float, cell: Cell, safe_z_mm
     travel at `safe_z_mm` (default: the cell's safe height), which must be above the grasp; let
     go at `drop` (default: the drop-off configuration nearest to the grasp's). `check_grip`: the
     grip again after the lift (off: as the loop picked before 2026-12-04; recordings replay so)."""
-    g = cell.gripper
     safe = cell.motion.safe_z_mm if safe_z_mm is None else safe_z_mm
     if safe <= grasp_joints.j3_mm:
         raise CellError(f"the travel height {safe:g} mm is not above the grasp z {grasp_joints.j3_mm:g} mm")
-    approach_mm = approach_opening_mm(opening_mm, cell)
     return [
-        Command("move", "approach", above(grasp_joints, safe)),
-        Command("open", "pre-open", width_mm=approach_mm),
-        Command("move", "descend", grasp_joints),
-        Command("grip", "grip", width_mm=opening_mm, force_n=g.grip_force_n),
+        *_take(grasp_joints, opening_mm, cell, safe),
         *carry_off_commands(grasp_joints, grasp_joints, cell, safe, drop,
                             check_width_mm=opening_mm if check_grip else None),
+    ]
+
+
+def place_back_commands(grasp_joints: Joints, opening_mm: float, cell: Cell, safe_z_mm: float) -> list[Command]:
+    """A pick that puts the part back where it lay (a hardware-in-loop trial, `cell hw pick --place-back`):
+    approach, pre-open, descend, grip, lift, check, down again to the grasp, open to the approach opening (the
+    width the planner cleared the fingers for there), up."""
+    if safe_z_mm <= grasp_joints.j3_mm:
+        raise CellError(f"the travel height {safe_z_mm:g} mm is not above the grasp z {grasp_joints.j3_mm:g} mm")
+    up = above(grasp_joints, safe_z_mm)
+    return [
+        *_take(grasp_joints, opening_mm, cell, safe_z_mm),
+        Command("move", "lift", up),
+        Command("check", "check", width_mm=opening_mm, force_n=cell.gripper.grip_force_n),
+        Command("move", "put back", grasp_joints),
+        Command("open", "release", width_mm=approach_opening_mm(opening_mm, cell)),
+        Command("move", "retreat", up),
+    ]
+
+
+def _take(grasp_joints: Joints, opening_mm: float, cell: Cell, safe_z_mm: float) -> list[Command]:
+    """Approach above the grasp at the travel height, open to the approach opening, descend, grip."""
+    return [
+        Command("move", "approach", above(grasp_joints, safe_z_mm)),
+        Command("open", "pre-open", width_mm=approach_opening_mm(opening_mm, cell)),
+        Command("move", "descend", grasp_joints),
+        Command("grip", "grip", width_mm=opening_mm, force_n=cell.gripper.grip_force_n),
     ]
 
 

@@ -35,10 +35,10 @@ def travel_z_mm(cell: Cell, part: Part, others: list[Part], grasp_z_mm: float) -
     return safe
 
 
-def check_links(arm, cell: Cell, others: list[Part], commands, why: str) -> None:
-    """The links along every move of `commands`, from where the arm is, against `others` (the parts on the
-    tray, not the one in the jaws); a hit refuses the whole list before anything moves."""
-    at = arm.joints()
+def check_links(arm, cell: Cell, others: list[Part], commands, why: str, start: Joints | None = None) -> None:
+    """The links along every move of `commands`, from where the arm is (or `start`), against `others` (the
+    parts on the tray, not the one in the jaws); a hit refuses the whole list before anything moves."""
+    at = arm.joints() if start is None else start
     for c in commands:
         if c.joints is None:
             continue
@@ -48,25 +48,45 @@ def check_links(arm, cell: Cell, others: list[Part], commands, why: str) -> None
         at = c.joints
 
 
-def clear_way(arm, cell: Cell, others: list[Part], grasp_joints: Joints, why: str,
-              commands_to: Callable[[Joints], list[Command]],
-              check: Callable[[list[Command]], None] | None = None) -> list[Command]:
-    """`commands_to(drop)` for the first drop-off configuration (nearest to the grasp's first: the other
-    elbow, the J4 turns) whose moves keep the links clear of `others`, a way the drivers refuse gone round
-    by other moves (`ways.routed`, the links clear on them too); LinksWouldHit (the first one's reason)
-    when none does. `check`: how a whole list is checked (default: `check_links` against `others`)."""
-    first = None
-    check = check or (lambda commands: check_links(arm, cell, others, commands, why))
-
-    def links_clear(a: Joints, b: Joints) -> list[str]:
+def links_clear(arm, cell: Cell, others: list[Part]) -> Callable[[Joints, Joints], list[str]]:
+    """A move's reasons against it (`ways.LegCheck`): the links on the drives' path hitting `others`."""
+    def reasons(a: Joints, b: Joints) -> list[str]:
         hit = path_link_collisions(arm.path(a, b), cell, others)
         return [f"the arm's links would hit {', '.join(hit)}"] if hit else []
 
+    return reasons
+
+
+def clear_commands(arm, cell: Cell, others: list[Part], commands: list[Command], why: str,
+                   start: Joints | None = None) -> list[Command]:
+    """`commands` from where the arm is (or `start`), ways the drivers refuse gone round (`ways.routed`), the
+    links clear of `others` all along (`check_links`); LinksWouldHit when they are not."""
+    start = arm.joints() if start is None else start
+    try:
+        routed_commands = routed(commands, start, cell, links_clear(arm, cell, others))
+    except CellError as e:
+        raise LinksWouldHit(f"{why}{e}") from None
+    check_links(arm, cell, others, routed_commands, why, start)
+    return routed_commands
+
+
+def clear_way(arm, cell: Cell, others: list[Part], grasp_joints: Joints, why: str,
+              commands_to: Callable[[Joints], list[Command]],
+              check: Callable[[list[Command]], None] | None = None, start: Joints | None = None) -> list[Command]:
+    """`commands_to(drop)` for the first drop-off configuration (nearest to the grasp's first: the other
+    elbow, the J4 turns) whose moves keep the links clear of `others`, a way the drivers refuse gone round
+    by other moves (`ways.routed`, the links clear on them too), from where the arm is (or `start`);
+    LinksWouldHit (the first one's reason) when none does. `check`: how a whole list is checked (default:
+    `check_links` against `others`)."""
+    first = None
+    start = arm.joints() if start is None else start
+    check = check or (lambda commands: check_links(arm, cell, others, commands, why, start))
+    leg_ok = links_clear(arm, cell, others)
     known: dict = {}  # the ways round, found once for every drop-off (the way to the grasp is the same)
     for drop in dropoff_options(cell, grasp_joints):
         try:
             # the ways the drivers refuse (the tool sweeping out of the workspace) go round by other moves
-            commands = routed(commands_to(drop), arm.joints(), cell, links_clear, known)
+            commands = routed(commands_to(drop), start, cell, leg_ok, known)
             check(commands)
             return commands
         except LinksWouldHit as e:

@@ -1,0 +1,158 @@
+"""`cell hw pick SCENE`: a grasp planned on a scene file and carried out on the (simulated) arm over CAN."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from conftest import ROOT, run_cli
+
+from drivers.record import read_log
+
+SCENE = ROOT / "cell" / "data" / "scenes" / "default_step0.json"  # the nut among the default assembly
+
+
+def _pick(capsys, *argv):
+    code, out, err = run_cli("hw", "pick", *argv, "--simulated-time", "--json", capsys=capsys)
+    return code, (json.loads(out.strip().splitlines()[-1]) if out.strip() else None), err
+
+
+def test_the_nut_is_picked_checked_and_carried_to_the_drop_off_over_can(capsys, tmp_path):
+    log = tmp_path / "pick.log"
+    code, out, err = _pick(capsys, SCENE, "--record", log)
+    assert code == 0, err
+    assert out["target"] == "nut" and out["outcome"] == "held" and not out["place_back"]
+    g = out["grasp"]
+    assert 0.0 <= g["grasp_z_mm"] <= 8.0 - 2.0 + 1e-9 and g["opening_mm"] > 0
+    records = {r["label"]: r for r in out["records"]}
+    assert records["grip"]["holding"] and records["check"]["holding"] and records["check"]["action"] == "check"
+    assert records["grip"]["width_mm"] == pytest.approx(g["opening_mm"], abs=0.05)  # the jaws closed on the part
+    labels = [r["label"] for r in out["records"]]
+    assert labels.index("lift") < labels.index("check") < labels.index("carry") < labels.index("release")
+    # the simulated world had the nut between the jaws, and it left the tray at the drop-off
+    assert out["sim_events"][0].startswith("gripped nut at") and "dropped nut off the tray" in out["sim_events"]
+    ids = {m.arbitration_id for m in read_log(log)}
+    assert {0x301, 0x302, 0x303, 0x304, 0x305} <= ids  # the host's target positions to every axis and the gripper
+
+
+def test_place_back_puts_the_part_down_where_it_lay_and_opens_only_to_the_approach_opening(capsys):
+    code, out, err = _pick(capsys, SCENE, "--place-back")
+    assert code == 0, err
+    labels = [r["label"] for r in out["records"]]
+    assert labels[-5:] == ["lift", "check", "put back", "release", "retreat"] and "carry" not in labels
+    by = {r["label"]: r for r in out["records"]}
+    assert by["put back"]["joints"] == by["descend"]["joints"]
+    assert by["release"]["width_mm"] == pytest.approx(out["grasp"]["opening_mm"] + 10.0, abs=0.01)
+    assert out["sim_events"][-1] == "released nut on the tray"
+
+
+def test_a_part_that_slips_out_on_the_lift_opens_the_jaws_and_goes_up(cell_cfg):
+    """The check after the lift finds the jaws empty: the pick ends there, the jaws open to the approach
+    opening (no wider) and the arm stands at the travel height."""
+    from cell.commands.grasp import load_planner_inputs
+    from cell.commands.hw_pick import _carry_out, _first_clear, _outcome
+    from cell.grasp.synthesis import GraspPlanner
+    from cell.kinematics import Joints
+    from cell.runtime.loop import loop_planner_params
+    from cell.scene import load_scene
+    from drivers import simulated_cell
+
+    scene = load_scene(SCENE)
+    home = Joints.from_dict(cell_cfg.motion.home_joints)
+    with simulated_cell(cell_cfg) as (arm, drives):
+        planner = GraspPlanner(cell_cfg, load_planner_inputs(None), loop_planner_params())
+        grasp, commands = _first_clear(arm, cell_cfg, scene, planner.plan(scene).ranked, False, home, planner)
+        grip_z = grasp.joints.j3_mm
+        drives.drives["gripper"].object_width_fn = (
+            lambda: grasp.opening_mm if drives.positions()["j3"] <= grip_z + 1.0 else None)
+        records = _carry_out(arm, cell_cfg, grasp, commands, home)
+        assert _outcome(records) == "slipped" and records[-1]["label"] == "check"
+        travel = next(c.joints.j3_mm for c in commands if c.label == "approach")
+        assert drives.positions()["j3"] == pytest.approx(travel, abs=0.01)
+        assert drives.positions()["gripper"] == pytest.approx(grasp.opening_mm + 10.0, abs=0.01)
+        assert "carry" not in [r["label"] for r in records]
+
+
+def test_no_feasible_grasp_exits_3_and_moves_nothing(capsys, tmp_path):
+    plate = [[300, -60], [420, -60], [420, 60], [300, 60]]  # 120 mm across every way: wider than the stroke
+    scene = tmp_path / "plate.json"
+    scene.write_text(json.dumps({"units": "mm", "target": "plate",
+                                 "parts": [{"id": "plate", "outline": plate, "z_bottom": 0, "z_top": 5}]}))
+    log = tmp_path / "none.log"
+    code, out, err = _pick(capsys, scene, "--record", log)
+    assert code == 3 and out["error"] == "no_feasible_grasp" and out["target"] == "plate", err
+    assert not log.exists()  # the bus was never opened
+
+
+def test_no_grasp_with_a_way_clear_of_the_other_parts_exits_3_and_moves_nothing(capsys, tmp_path):
+    """A forearm whose underside is 120 mm up, and a 140 mm column under it where it stands at home (j2 90 deg:
+    along +y from the elbow at x 325): the grasp itself is clear (the planner's step 5 checks the links there),
+    but the way from home to it sweeps the forearm over the column. Nothing is sent to the axes."""
+    from test_runtime_safety_boundaries import low_arm_cell_file
+
+    cell = low_arm_cell_file(tmp_path)
+    square = lambda x, y, h: [[x - h, y - h], [x + h, y - h], [x + h, y + h], [x - h, y + h]]  # noqa: E731
+    scene = tmp_path / "column.json"
+    scene.write_text(json.dumps({"units": "mm", "target": "nut", "parts": [
+        {"id": "nut", "outline": square(400, -100, 8), "z_bottom": 0, "z_top": 8},
+        {"id": "column", "outline": square(325, 140, 10), "z_bottom": 0, "z_top": 140}]}))
+    for extra in ([], ["--place-back"]):
+        log = tmp_path / f"column{len(extra)}.log"
+        code, out, err = _pick(capsys, scene, "--cell", cell, "--record", log, *extra)
+        assert code == 3 and out["error"] == "no_feasible_grasp", err
+        assert "links would hit column" in out["reason"]
+        assert _targets_sent(log) == {"j1": {0.0}, "j2": {90.0}, "j3": {200.0}, "j4": {0.0}, "gripper": {80.0}}
+
+
+def _targets_sent(log) -> dict[str, set[float]]:
+    """The target positions (RPDO2: int32 counts, 1000 a unit) the host sent each node: the bring-up sends
+    where each axis stands (home, the jaws open), so any other is a move."""
+    names = {0x301: "j1", 0x302: "j2", 0x303: "j3", 0x304: "j4", 0x305: "gripper"}
+    out: dict[str, set[float]] = {}
+    for m in read_log(log):
+        if m.arbitration_id in names:
+            out.setdefault(names[m.arbitration_id], set()).add(int.from_bytes(m.data[:4], "little", signed=True) / 1000)
+    return out
+
+
+@pytest.mark.parametrize("content, says", [
+    ("{not json", "plate.json"),
+    (json.dumps({"units": "mm", "target": "gone", "parts": [
+        {"id": "plate", "outline": [[300, 0], [320, 0], [320, 20], [300, 20]], "z_bottom": 0, "z_top": 5}]}),
+     "gone"),
+])
+def test_a_bad_scene_is_bad_input(capsys, tmp_path, content, says):
+    scene = tmp_path / "plate.json"
+    scene.write_text(content)
+    code, out, err = _pick(capsys, scene)
+    assert code == 2 and says in err and "Traceback" not in err and out is None
+
+
+def test_a_real_bus_asks_before_moving_and_nothing_moves_without_a_yes(cell_cfg, monkeypatch):
+    """On a real interface (here the simulated drives standing in for it, with no world: a real bus has none)
+    the pick is confirmed after it is planned and its way checked; refused (no terminal to ask on), nothing
+    has moved."""
+    import contextlib
+    import os
+    import sys
+    import types
+
+    from cell.commands import hw
+    from cell.commands.hw_pick import run_pick
+    from cell.errors import BadInput
+    from drivers import simulated_cell
+
+    seen = {}
+
+    @contextlib.contextmanager
+    def bus(args, cell):
+        with simulated_cell(cell) as (arm, drives):
+            seen["drives"], seen["start"] = drives, drives.positions()
+            yield arm, None
+
+    args = types.SimpleNamespace(scene=str(SCENE), examples=None, place_back=False, interface="socketcan",
+                                 channel="can0", yes=False, json=True)
+    monkeypatch.setattr(sys, "stdin", open(os.devnull))
+    with pytest.raises(BadInput, match=r"refusing to home the arm, pick 'nut' at .* without confirmation"):
+        run_pick(args, cell_cfg, bus, hw.confirm_motion, hw._stop_on_interrupt, hw._emit)
+    assert seen["drives"].positions() == pytest.approx(seen["start"])

@@ -20,7 +20,8 @@ def run_commands(
     `{"label", "action", "t_start_s", "t_end_s", ...}` plus `"joints"` (the command sent) for a
     move, `"width_mm"` for open/grip/check and `"holding"` for a grip or check (`"blocked": true` when the
     jaws stopped wider than expected). With `stop_on_miss`, a grip that closes past the expected width
-    ends the list there (the record says holding=False), a check after the lift too (the part slipped out);
+    ends the list there (the record says holding=False), a check whose jaws close fully too (the part
+    slipped out);
     driver errors propagate (the arm has already stopped every axis)."""
     records = []
     for cmd in commands:
@@ -30,15 +31,21 @@ def run_commands(
             rec["joints"] = {k: round(v, 4) for k, v in arm.move_joints(cmd.joints).as_dict().items()}
         elif cmd.action == "open":
             rec["width_mm"] = round(arm.gripper.open(cmd.width_mm), 4)
-        elif cmd.action in ("grip", "check"):
-            # a check grips again and compares with where the jaws held the part when this list gripped it (a
-            # part pressed a little further is still held); without a grip before it (a carry-off), its own width
-            held = [r["width_mm"] for r in records if r["action"] == "grip" and r.get("holding")]
-            expected = held[-1] if cmd.action == "check" and held else cmd.width_mm
-            r = arm.gripper.grip(expected, getattr(cmd, "force_n", None))
+        elif cmd.action == "grip":
+            r = arm.gripper.grip(cmd.width_mm, getattr(cmd, "force_n", None))
             rec.update(width_mm=round(r.width_mm, 4), holding=r.holding)
             if r.blocked:
                 rec["blocked"] = True
+        elif cmd.action == "check":
+            # the grip again: jaws that stop on something still hold the part, pressed further or turned between
+            # them (`moved_mm`: how much narrower than where this list gripped it, or than `width_mm`); jaws
+            # that close past it have lost it. (Opening them then would drop a part still held.)
+            held = [x["width_mm"] for x in records if x["action"] == "grip" and x.get("holding")]
+            expected = held[-1] if held else cmd.width_mm
+            r = arm.gripper.grip(expected, getattr(cmd, "force_n", None))
+            rec.update(width_mm=round(r.width_mm, 4), holding=r.stopped)
+            if r.stopped and not r.holding:
+                rec["moved_mm"] = round(expected - r.width_mm, 4)
         else:
             raise BadInput(f"unknown command action {cmd.action!r} (step {cmd.label!r})")
         rec.update(t_start_s=round(t0, 6), t_end_s=round(arm.clock.now(), 6))

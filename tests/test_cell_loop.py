@@ -183,6 +183,25 @@ def test_every_pick_checks_its_grip_after_the_lift_and_the_recording_says_so(rec
         assert check["holding"] and check["width_mm"] == pytest.approx(grip["width_mm"], abs=0.01)
 
 
+def test_replay_gives_the_check_the_width_the_recording_found_there(recorded, tmp_path, capsys):
+    """On a real cell the check stops a little off the grip's width (the part pressed further, turned between
+    the jaws): the replay's jaws stop at each recorded width, the grip's at the grasp and the check's above."""
+    import shutil
+
+    rec, _ = recorded
+    edited = tmp_path / "pressed"
+    shutil.copytree(rec, edited)
+    lines = (edited / "decisions.jsonl").read_text().splitlines()
+    k = next(i for i, x in enumerate(lines) if json.loads(x)["type"] == "executed" and json.loads(x)["part"] == "nut")
+    d = json.loads(lines[k])
+    check = next(r for r in d["records"] if r["action"] == "check")
+    check["width_mm"], check["moved_mm"] = round(check["width_mm"] - 3.5, 4), 3.5  # turned: 3.5 mm narrower
+    lines[k] = json.dumps(d)
+    (edited / "decisions.jsonl").write_text("\n".join(lines) + "\n")
+    code, out, err = run_cli("replay", edited, capsys=capsys)
+    assert code == 0 and "decisions match the recording" in out, err
+
+
 def test_a_part_that_slips_out_on_the_lift_is_caught_before_the_carry_and_replays(short_assembly, tmp_path,
                                                                                    capsys):
     """The nut stuck to the tray: the jaws slide off it as they lift. The check grip above the tray closes
@@ -528,6 +547,19 @@ def test_a_part_that_fell_out_while_the_arm_stood_faulted_is_planned_again_not_c
     assert f"gripped {first}" in events[fell_at + 1]  # gripped again from the tray, after the fall
     dropped = f"dropped {first} off the tray"
     assert events.count(dropped) == 1 and events.index(dropped) > fell_at
+
+
+def test_a_gripper_fault_as_the_jaws_let_go_at_the_drop_off_counts_the_part_as_removed(short_assembly):
+    """The gripper faults while the jaws open at the drop-off (armed after the pick's second grip, the check):
+    after the reset the carry-off's check finds the jaws empty; the next frame shows the part gone, so it
+    counts as removed and the run goes on, with no stop."""
+    s, world = interactive_run(short_assembly,
+                               lambda loop, arm, drives, w: fault_after(arm, drives, "grip", 2, "gripper"),
+                               lambda loop, w, fault: None)
+    first = s["parts"][0]["part"]
+    assert (s["parts_total"], s["parts_removed"]) == (3, 3)
+    assert s["parts"][0]["reason"].startswith("the jaws were found empty after the pick was cut short")
+    assert world.events.count(f"dropped {first} off the tray") == 1
 
 
 def test_a_fault_after_the_part_was_let_go_counts_it_as_removed(short_assembly):

@@ -68,10 +68,11 @@ def test_a_part_lost_on_the_lift_ends_the_pick_at_the_check(cell_cfg):
                 assert "check" not in labels and labels[-1] == "retreat"
 
 
-def test_the_check_compares_with_where_the_jaws_held_the_part_not_with_the_plan(cell_cfg):
-    """Planned 30 mm, held at 28.5 (within the grip's 2 mm); at the check the part, pressed, gives 1.5 mm more:
-    27 is 3 mm under the plan but 1.5 under where it was held, so it is still held. Gone, the jaws close on."""
-    for at_check, held in ((27.0, True), (None, False)):
+def test_the_check_holds_while_the_jaws_stop_on_the_part_wherever_it_turned_or_pressed(cell_cfg):
+    """Planned 30 mm, held at 28.5; at the check the part, pressed, gives 1.5 mm more (27), or it turned between
+    the jaws and they stop 8 mm narrower (20.5): still held (opening the jaws there would drop it), the shift said.
+    Gone, the jaws close on: lost."""
+    for at_check, held, moved in ((27.0, True, None), (20.5, True, 8.0), (None, False, None)):
         with simulated_cell(cell_cfg) as (arm, drives):
             drives.gripper_object_width_mm = 28.5
 
@@ -82,4 +83,6 @@ def test_the_check_compares_with_where_the_jaws_held_the_part_not_with_the_plan(
             records = run_commands(arm, pick_commands(_grasp(cell_cfg), 30.0, cell_cfg), on_step=world)
             check = next(r for r in records if r["label"] == "check")
             assert check["action"] == "check" and check["holding"] is held
-            assert check["width_mm"] == pytest.approx(27.0 if held else 0.0, abs=0.01)
+            assert check["width_mm"] == pytest.approx(at_check or 0.0, abs=0.01)
+            assert check.get("moved_mm") == (None if moved is None else pytest.approx(moved, abs=0.01))
+            assert ("carry" in [r["label"] for r in records]) is held

@@ -160,6 +160,9 @@ class CellLoop:
         # the pick being sent: part, grasp, report, attempt, and its stage (sent, gripped, released)
         self._pick: dict | None = None
         self._taken_by_hand: dict | None = None  # a pick whose part the operator was asked to take out of the jaws
+        # a part whose jaws the carry-off after a fault found empty: let go at the drop-off, or fallen back onto the
+        # tray; the next frame says which (seen again: planned again, no stop)
+        self._found_empty: str | None = None
         self._examples_lock = threading.Lock()
         self._taught: list[GraspExample] = []  # taught on the station, not yet learned by the loop
         # where the loop finds taught examples at each plan: the station's (default), or a replay's
@@ -373,6 +376,7 @@ class CellLoop:
             return True
         pid = self._last_picked[0]
         self._last_picked = None
+        fell, self._found_empty = self._found_empty == pid, None
         report = next(r for r in self.reports if r.part == pid)
         if pid in located:  # still on the tray, near where it was picked (perhaps it slipped)
             self.remaining.insert(0, pid)
@@ -380,7 +384,12 @@ class CellLoop:
             self.reports.remove(report)
             self._unfinished = report
             self._record_not_removed(report)
-            self._stop_and_ask("cell", f"{pid} did not leave the tray")
+            if fell:  # the jaws were found empty after a fault: it fell back, and is picked again from here
+                report.reason = ""
+                self.control.log("again", f"{pid} fell out of the jaws while the arm stood and lies on the tray: "
+                                 "it is picked again", part=pid)
+            else:
+                self._stop_and_ask("cell", f"{pid} did not leave the tray")
             return False
         self.control.log("removed", f"{pid} removed in {report.cycle_s:.2f} s (gone from the next frame)", part=pid)
         return True
@@ -621,9 +630,10 @@ class CellLoop:
         Jaws that held the part: they stay shut, the arm goes straight up, grips again (the check: the quick
         stop ended the jaws' push) and lets the part go at the drop-off, not
         where the arm stopped (over the tray, on other parts). A part already let go at the
-        drop-off: the arm goes up. True in both cases; the part then counts as picked and the next
-        frame checks that it left its place. False when nothing was held (open, up, as usual), or the
-        check found the jaws empty (the part fell back onto the tray: it is planned again).
+        drop-off: the arm goes up. True in both cases, and when the check found the jaws empty (the part let
+        go at the drop-off as the fault hit, or fallen: open, up); the part then counts as picked and the next
+        frame checks that it left its place (seen again after empty jaws, it is picked again without a stop).
+        False when nothing was held (open, up, as usual).
         If the way to the drop-off is refused, the operator is asked to take the part out of the
         jaws by hand and reset again."""
         pick = self._pick
@@ -651,9 +661,12 @@ class CellLoop:
         records = self._execute(grasp, pid, pick["attempt"], commands, after_fault=True)
         self._pick = None
         pick["report"].motion_s += records[-1]["t_end_s"] - records[0]["t_start_s"]
-        if records[-1].get("holding") is False:  # the check after the lift: it fell out while the arm stood
+        if records[-1].get("holding") is False:  # the check after the lift: the jaws are empty
             self.control.log("miss", _missed(pid, grasp, records), part=pid)
-            return False  # back on the tray: open, up, and plan it again on a new frame
+            self._retreat(grasp)
+            self._found_empty = pid
+            self._picked(pick, "the jaws were found empty after the pick was cut short (let go at the drop-off)")
+            return True
         self._picked(pick, "carried off after the pick was cut short")
         return True
 
@@ -790,8 +803,8 @@ def _missed(part_id: str, grasp: Grasp, records: list[dict]) -> str:
     if last["action"] == "check":
         gripped = next((r["width_mm"] for r in records if r["action"] == "grip"), None)
         if gripped is None:  # the carry-off after a fault: the grip was in the pick before it
-            return (f"{part_id} was no longer in the jaws when the carry-off checked the grip above the tray "
-                    f"(they closed to {last['width_mm']:.1f} mm, {grasp.opening_mm:.1f} mm expected)")
+            return (f"{part_id} was not in the jaws when the carry-off checked the grip (they closed to "
+                    f"{last['width_mm']:.1f} mm): let go at the drop-off, or fallen; the next frame shows where")
         return (f"{part_id} slipped out of the jaws as they lifted it: gripped at {gripped:.1f} mm, they closed "
                 f"to {last['width_mm']:.1f} mm when checked above the tray")
     how = "stopped at" if last.get("blocked") else "closed to"

@@ -188,33 +188,37 @@ class Comparison:
     def _set_gripper(self, record: dict, same_pick: bool) -> None:
         """The recording is the world: the jaws stop where they stopped in the session. With other
         examples a pick the recording holds too (`same_pick`: the same commands) closes on the recorded
-        width as well; another pick closes on its planned opening."""
-        width, slipped = None, False
+        width as well; another pick closes on its planned opening. A pick with a grip and a check after the
+        lift: the grip's width at the grasp, the check's above it (nothing where the part slipped out)."""
+        width, fn = None, None
         if self.strict or same_pick:
             for rec in self.recorded[self.position:]:
                 if rec.get("type") == "executed":
-                    grips = [r for r in rec.get("records", []) if r.get("action") in ("grip", "check")]
-                    held = [r for r in grips if r.get("holding")]
-                    if held:
-                        width = held[0]["width_mm"]
-                        # the check after the lift found the part gone: it slipped out as the arm lifted it
-                        slipped = grips[-1].get("action") == "check" and not grips[-1].get("holding")
+                    steps = rec.get("records", [])
+                    grip = next((r for r in steps if r.get("action") == "grip"), None)
+                    check = next((r for r in steps if r.get("action") == "check"), None)
+                    held = [r for r in (grip, check) if r is not None and r.get("holding")]
+                    width = held[0]["width_mm"] if held else None  # (a carry-off after a fault: its check alone)
+                    if grip is not None and grip.get("holding") and check is not None:
+                        fn = self._on_lift(record, grip["width_mm"], check["width_mm"] if check.get("holding")
+                                           else None)
                     break
         else:
             grips = [c for c in record["commands"] if c["action"] == "grip"]
             width = grips[0]["width_mm"] if grips else None
         self.drives.gripper_object_width_mm = width
-        self.drives.drives["gripper"].object_width_fn = self._lost_on_lift(record, width) if slipped else None
+        self.drives.drives["gripper"].object_width_fn = fn
 
-    def _lost_on_lift(self, record: dict, width_mm: float):
-        """What lies between the jaws of a pick whose part slipped out on the lift (as the simulated world
-        has it, `SimWorld`): the part, closing at the grasp; nothing, closing above it."""
+    def _on_lift(self, record: dict, grip_mm: float, check_mm: float | None):
+        """What lies between the jaws as the recorded pick found it (as the simulated world decides it,
+        `SimWorld`, by the height): closing at the grasp, the part at its grip width; closing above it, at its
+        check width (pressed further, turned between the jaws), or nothing (it slipped out on the lift)."""
         from cell.runtime.simworld import LIFTED_MM
 
         grasp_z = next(c["joints"]["j3_mm"] for c in record["commands"] if c["label"] == "descend")
 
         def between_jaws() -> float | None:
-            return width_mm if self.drives.positions()["j3"] <= grasp_z + LIFTED_MM else None
+            return grip_mm if self.drives.positions()["j3"] <= grasp_z + LIFTED_MM else check_mm
 
         return between_jaws
 

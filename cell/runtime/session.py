@@ -226,6 +226,7 @@ def run_session(cfg: RunConfig) -> dict:
 
         _check_rrd_path(Path(cfg.save_rrd), [assembly_path, cell_path or default_cell_path(), cal_path, examples_path])
     recorder = None
+    options = LoopOptions(on_no_grasp=cfg.on_no_grasp, interactive=cfg.station)
     if cfg.record:
         from cell.recording import RecordingWriter
         from cell.runtime.loop import loop_planner_params
@@ -236,7 +237,7 @@ def run_session(cfg: RunConfig) -> dict:
                                    meta={"assembly": assembly.to_json(), "assembly_path": str(assembly_path),
                                          "seed": cfg.seed, "shift_mm": cfg.shift_mm,
                                          "on_no_grasp": cfg.on_no_grasp,
-                                         "lift_check": LoopOptions.lift_check,
+                                         "lift_check": options.lift_check,
                                          "real_cell": None if cfg.real_cell is None else vars(cfg.real_cell),
                                          "planner": planner_meta(loop_planner_params())})
         # The examples as they were at the start: replay needs them even after this session
@@ -269,7 +270,7 @@ def run_session(cfg: RunConfig) -> dict:
                 arm, camera, world = _simulated_sources(cfg, cell, cal, assembly, can_log, stack)
             loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=camera, arm=arm, control=control,
                             examples_path=examples_path, examples_out=examples_out, sink=recorder, viz=viz,
-                            options=LoopOptions(on_no_grasp=cfg.on_no_grasp, interactive=cfg.station))
+                            options=options)
         except BaseException as e:  # no camera, bus or loop (a Ctrl-C): nothing ran; the recording says why
             if viz is not None:
                 viz.close()

@@ -137,9 +137,22 @@ class SimWorld:
             self._fall_back_locked()
 
     def slip_out(self) -> str | None:
-        """The held part falls out of the jaws now, back onto the tray (a jolt at a quick stop); its id."""
+        """The held part falls out of the jaws now (a jolt at a quick stop): onto the tray under the jaws, or,
+        away from the tray, out of the world; its id."""
         with self._lock:
-            return self._fall_back_locked() if self.held is not None else None
+            if self.held is None:
+                return None
+            tool, _ = self._pose()
+            if not self.cell.tray.contains(tool.x_mm, tool.y_mm):
+                pid, self.held = self.held, None
+                self.parts.pop(pid)
+                self.removed.append(pid)
+                self.events.append(f"{pid} fell out of the jaws off the tray")
+                return pid
+            p = self.parts[self.held]
+            cx, cy = p.polygon.centroid.coords[0]
+            self.parts[self.held] = p.moved(tool.x_mm - cx, tool.y_mm - cy)  # under the jaws, then a little shifted
+            return self._fall_back_locked()
 
     def _fall_back_locked(self) -> str:
         pid, self.held = self.held, None

@@ -34,6 +34,20 @@ def test_figures_are_written_per_step(tmp_path, capsys):
     assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 20_000 for p in pngs)
 
 
+@pytest.mark.parametrize("bad", ["missing", "duplicate"])
+def test_a_rejected_assembly_leaves_no_figures_folder_behind(tmp_path, capsys, bad):
+    """Bad input writes nothing: the folder (and its missing parents) is made only once the inputs are read."""
+    path = tmp_path / "missing.json"
+    if bad == "duplicate":
+        d = json.loads((ASSEMBLIES / "default.json").read_text())
+        d["sequence"] = d["sequence"] + d["sequence"][:1]
+        path = tmp_path / "dup.json"
+        path.write_text(json.dumps(d))
+    code, _, err = run_cli("plan", path, "--figures", tmp_path / "figs" / "deep", capsys=capsys)
+    assert code == 2 and "Traceback" not in err
+    assert not (tmp_path / "figs").exists()
+
+
 def _stack(tmp_path, sequence):
     plate = {"id": "plate", "outline": [[300, -30], [370, -30], [370, 30], [300, 30]], "z_top": 5}
     lid = {"id": "lid", "outline": [[325, -10], [345, -10], [345, 10], [325, 10]], "z_bottom": 5, "z_top": 12}

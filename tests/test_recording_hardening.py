@@ -263,17 +263,21 @@ def test_sigterm_ends_cell_run_like_ctrl_c_and_the_recording_replays_to_there(tm
     asm = tmp_path / "short.json"
     asm.write_text(json.dumps(d))
     rec = tmp_path / "session"
-    proc = subprocess.Popen([sys.executable, "-m", "cell", "run", str(asm), "--record", str(rec), "--seed", "3"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([sys.executable, "-m", "cell", "run", str(asm), "--record", str(rec), "--seed", "3",
+                             "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        for line in proc.stdout:
+        for line in proc.stderr:  # (--json: the progress on stderr, the summary alone on stdout)
             if line.startswith("[removed]"):
                 proc.send_signal(signal.SIGTERM)
                 break
-        _, err = proc.communicate(timeout=60)
+        out, err = proc.communicate(timeout=60)
     finally:
         proc.kill()
     assert proc.returncode == 130 and "Traceback" not in err, err
+    # the summary is still the last stdout line: what was removed before the stop, and why it stopped
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["status"] == "stopped" and summary["parts_removed"] >= 1
+    assert summary["stopped"] == "operator: interrupted at the terminal"
     r = RecordingReader(rec)
     assert r.manifest["status"] == "incomplete" and r.decisions[-1]["type"] == "stop"
     code, out, err = run_cli("replay", rec, capsys=capsys)

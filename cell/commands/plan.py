@@ -7,6 +7,7 @@ Exit 0 when every step has a grasp, 3 when some step has none, 2 on bad input.
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 
 def add_arguments(p):
@@ -24,22 +25,20 @@ def run(args) -> int:
     from cell.grasp.synthesis import GraspPlanner
     from cell.scene import load_assembly
 
-    if args.figures:  # before the planning, not after
-        from pathlib import Path
+    if args.figures:  # a place that cannot take them is refused first
+        from cell.fileio import check_folder_writable
 
-        from cell.fileio import make_folder
+        check_folder_writable(Path(args.figures), f"--figures {args.figures}")
+    assembly = load_assembly(args.assembly)
+    cell = load_cell(args.cell or assembly.cell_path)
+    examples = load_planner_inputs(args.examples)
+    if args.figures:  # made once the inputs are read (a bad one leaves nothing behind), before the planning
+        from cell.fileio import check_writable, make_folder
 
         make_folder(Path(args.figures), f"--figures {args.figures}")
-    assembly = load_assembly(args.assembly)
-    if args.figures:
-        from pathlib import Path
-
-        from cell.fileio import check_writable
-
         for step, part_id in enumerate(assembly.sequence):  # a read-only one: refused before the planning
             check_writable(Path(args.figures) / figure_name(step, part_id), "--figures")
-    cell = load_cell(args.cell or assembly.cell_path)
-    planner = GraspPlanner(cell, load_planner_inputs(args.examples))
+    planner = GraspPlanner(cell, examples)
     from cell.heap import freeze_startup
 
     freeze_startup()  # no full collection of the start-up objects inside a step's time_ms
@@ -50,8 +49,6 @@ def run(args) -> int:
         else:
             print(_line(s), flush=True)
     if args.figures:
-        from pathlib import Path
-
         from cell.errors import BadInput
         from cell.figures import step_figure
 

@@ -98,8 +98,15 @@ def run(args) -> int:
                     faults=WorldFaults(miss=miss, stuck=set(args.sim_stuck), dropped=set(args.sim_drop),
                                        bad_frames=args.sim_bad_frames),
                     progress=lambda s: print(s, file=out, flush=True), real_cell=real_cell)
-    with sigterm_as_interrupt():
-        summary = run_session(cfg)
+    try:
+        with sigterm_as_interrupt():
+            summary = run_session(cfg)
+    except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM: every axis stopped; what was done is still reported
+        if getattr(e, "summary", None) is not None:
+            _print_summary(e.summary, out)
+            if args.json:
+                print(json.dumps(e.summary), flush=True)
+        raise
     _print_summary(summary, out)
     if args.json:
         print(json.dumps(summary), flush=True)

@@ -281,6 +281,7 @@ def run_session(cfg: RunConfig) -> dict:
         from cell.heap import freeze_startup
 
         freeze_startup()  # full collections of the start-up objects would stall plans and picks
+        interrupted = None
         try:
             # a real cell's arm may stand anywhere: the loop goes home first (up, then across), so that a
             # fault on the way is stopped and recorded as one during the run is
@@ -291,12 +292,14 @@ def run_session(cfg: RunConfig) -> dict:
                 control.run(by="cell run")
                 summary = loop.run()
             status = "complete"
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as e:
+            interrupted = e  # carries the summary out (`cell run --json` prints it as its last line)
             # from here on a Ctrl-C is held (the second one used to end this before the status was set: a
             # recording closed as "complete" without its stop); a KeyboardInterrupt raised in the stop itself
             # still gets the stop recorded
             interrupts.hold()
             status = "stopped"
+            summary = {**loop.summary(), "stopped": "operator: interrupted at the terminal"}
             try:
                 arm.stop()  # quick stop of every axis before the drives are disabled
             finally:
@@ -333,6 +336,8 @@ def run_session(cfg: RunConfig) -> dict:
             if viz is not None:
                 viz.close()
                 summary["rrd"] = str(rrd)
+            if interrupted is not None:
+                interrupted.summary = summary
             if recorder is not None:
                 try:
                     recorder.close("complete" if status == "complete" else "incomplete", summary)

@@ -267,6 +267,27 @@ def test_touched_points_recover_the_default_camera(tmp_path, capsys):
     assert code == 0 and json.loads(stdout)["residual_mm"] < 0.1
 
 
+def test_a_focal_length_a_digit_short_is_warned_about(tmp_path, capsys):
+    """fx 160 px for a 1280 px image (the default camera's is about 1000): a 152 degree view. The plane fit can
+    follow it with a camera 10 x too close, and nothing else would say so."""
+    import cv2
+
+    truth = load_calibration()
+    xy = np.random.default_rng(3).uniform([210, -240], [490, 240], size=(12, 2))
+    uv = truth.mm_to_px(xy, 15.0)
+    pts = tmp_path / "points.json"
+    pts.write_text(json.dumps({"points": [{"px": list(a), "mm": [b[0], b[1], 15.0]} for a, b in zip(uv, xy)]}))
+    frame = tmp_path / "frame.png"
+    cv2.imwrite(str(frame), np.zeros((1024, 1280, 3), np.uint8))
+    fx = float(truth.camera_matrix[0, 0])
+    for matrix, warned in ((f"{fx / 10:g},{fx / 10:g},640,512", True), (f"{fx:g},{fx:g},640,512", False)):
+        code, out, err = run_cli("calibrate", "plane", frame, "--points", pts, "--camera-matrix", matrix,
+                                 "--out", tmp_path / f"c{warned}.json", "--accept-poor-fit", capsys=capsys)
+        assert code == 0, err
+        says = [w for w in json.loads(out).get("warnings", []) if "field of view" in w]
+        assert bool(says) is warned and ("is a digit missing?" in err) is warned
+
+
 @needs_photos
 @pytest.mark.parametrize("with_intrinsics", [True, False])
 def test_points_a_few_mm_off_one_plane_fit_their_mean_plane_with_a_warning(tmp_path, capsys, with_intrinsics):

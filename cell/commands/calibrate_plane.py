@@ -108,6 +108,11 @@ def run(args) -> int:
                            "per_marker_residual_mm": per_marker, "warnings": warnings,
                            "holdout_residual_mm": held_out,
                            "holdout_residual_max_mm": max(held_out.values()) if held_out else None})
+    if k is not None and (fov := wide_view_deg(k, w, h)) is not None:  # a digit lost from fx, fy
+        warnings.append(f"the camera matrix gives a {fov:.0f} degree field of view across the image (fx "
+                        f"{k[0, 0]:g}, fy {k[1, 1]:g} px for {w} x {h} px), wider than almost any lens: is a digit "
+                        "missing? (the fit can follow a wrong focal length with a wrong camera height)")
+        cal.report["warnings"] = warnings
     if cal.plane is None and cal.report["z_spread_mm"] > FLAT_Z_MM:
         warnings.append(f"the {'markers' if args.markers else 'points'}' z spans {cal.report['z_spread_mm']:.1f} mm: "
                         f"the mapping is for their mean plane, z = {cal.report['plane_z_mm']:.2f} mm")
@@ -129,6 +134,18 @@ def run(args) -> int:
     for w in warnings:
         print(f"cell: warning: {w}", file=sys.stderr)
     return 0
+
+
+WIDE_VIEW_DEG = 120.0  # wider than this across the image: a fisheye, or a focal length 10 x too short
+
+
+def wide_view_deg(k, w: int, h: int) -> float | None:
+    """The widest field of view across the image (deg) that the camera matrix `k` gives, when it is more than
+    WIDE_VIEW_DEG; else None."""
+    import math
+
+    fov = max(2 * math.degrees(math.atan(w / (2 * k[0, 0]))), 2 * math.degrees(math.atan(h / (2 * k[1, 1]))))
+    return fov if fov > WIDE_VIEW_DEG else None
 
 
 def cv_grey(frame):

@@ -122,7 +122,7 @@ def test_a_target_thinner_than_the_pads_need_has_no_grasp(tmp_path, examples, ca
     ((5.0, 200.0), 30.0, 12.0),  # usual z 12 is reachable: unchanged
     ((5.0, 200.0), 6.0, "J3 reaches down to 5 mm"),  # z_top - 2 = 4 is below J3's lowest
     ((0.0, 10.0), 45.0, 10.0),  # usual z 27: down to J3's top, the palm (40 mm up) above the part
-    ((0.0, 10.0), 100.0, "the palm (40 mm above the tips) would be inside the part"),  # a review found it planned
+    ((0.0, 10.0), 100.0, "the palm (40 mm above the tips) would be inside the part, whose top is at z 100 mm"),
 ])
 def test_the_grasp_z_moves_into_j3s_range_where_it_may(tmp_path, examples, capsys, j3_mm, z_top, expected):
     raw = json.loads(default_cell_path().read_text())

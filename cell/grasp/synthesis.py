@@ -518,8 +518,8 @@ class GraspPlanner:
                     f"{ctx.target.z_top_mm:g} mm, is less than {TIP_BELOW_TOP_MM:g} mm above J3's lowest)")
         if ctx.grasp_z_mm > hi + 1e-9:
             palm = self.cell.gripper.palm_offset_mm
-            why = (f": lower, the palm ({palm:g} mm above the tips) would be inside the part, {ctx.target.z_top_mm:g} "
-                   "mm tall" if hi + palm < ctx.target.z_top_mm else "")
+            why = (f": lower, the palm ({palm:g} mm above the tips) would be inside the part, whose top is at z "
+                   f"{ctx.target.z_top_mm:g} mm" if hi + palm < ctx.target.z_top_mm else "")
             return f" (J3 reaches up to {hi:g} mm, the grasp z is {ctx.grasp_z_mm:g} mm{why})"
         return ""
 

@@ -65,7 +65,7 @@ def test_a_part_that_slips_out_on_the_lift_opens_the_jaws_and_goes_up(cell_cfg):
         grip_z = grasp.joints.j3_mm
         drives.drives["gripper"].object_width_fn = (
             lambda: grasp.opening_mm if drives.positions()["j3"] <= grip_z + 1.0 else None)
-        records = _carry_out(arm, cell_cfg, grasp, commands, home)
+        records = _carry_out(arm, cell_cfg, grasp, commands, home, False)
         assert _outcome(records) == "slipped" and records[-1]["label"] == "check"
         travel = next(c.joints.j3_mm for c in commands if c.label == "approach")
         assert drives.positions()["j3"] == pytest.approx(travel, abs=0.01)
@@ -155,4 +155,101 @@ def test_a_real_bus_asks_before_moving_and_nothing_moves_without_a_yes(cell_cfg,
     monkeypatch.setattr(sys, "stdin", open(os.devnull))
     with pytest.raises(BadInput, match=r"refusing to home the arm, pick 'nut' at .* without confirmation"):
         run_pick(args, cell_cfg, bus, hw.confirm_motion, hw._stop_on_interrupt, hw._emit)
+    assert seen["drives"].positions() == pytest.approx(seen["start"])
+
+
+def _planned(cell_cfg, scene_path=SCENE, place_back=False):
+    from cell.commands.grasp import load_planner_inputs
+    from cell.commands.hw_pick import _first_clear
+    from cell.grasp.synthesis import GraspPlanner
+    from cell.kinematics import Joints
+    from cell.runtime.loop import loop_planner_params
+    from cell.scene import load_scene
+
+    scene = load_scene(scene_path)
+    planner = GraspPlanner(cell_cfg, load_planner_inputs(None), loop_planner_params())
+    home = Joints.from_dict(cell_cfg.motion.home_joints)
+    return scene, planner, home, lambda arm: _first_clear(arm, cell_cfg, scene, planner.plan(scene).ranked,
+                                                          place_back, home, planner)
+
+
+@pytest.mark.parametrize("at_grasp, above, place_back, outcome", [
+    (+5.0, None, False, "blocked"),  # the jaws stop 5 mm wider than the part: something else between them
+    (0.0, -8.0, True, "moved"),  # put back: the part turned in the jaws at the check, 8 mm narrower
+    (0.0, -8.0, False, "held"),  # carried off: still held, it goes to the drop-off
+])
+def test_a_blocked_grip_and_a_part_that_moved_in_the_jaws(cell_cfg, at_grasp, above, place_back, outcome):
+    """Blocked: said so (not 'missed'), the jaws open no narrower than they stand, the arm goes up. A part that
+    moved in the jaws is not set down where it lay (it would hang lower, pushed into the tray by J3): it stays
+    held at the travel height."""
+    from cell.commands.hw_pick import _carry_out, _outcome
+    from drivers import simulated_cell
+
+    _, _, home, first_clear = _planned(cell_cfg, place_back=place_back)
+    with simulated_cell(cell_cfg) as (arm, drives):
+        grasp, commands = first_clear(arm)
+        w, grip_z = grasp.opening_mm, grasp.joints.j3_mm
+        drives.drives["gripper"].object_width_fn = (
+            lambda: w + at_grasp if drives.positions()["j3"] <= grip_z + 1.0 else (w + above if above else w))
+        records = _carry_out(arm, cell_cfg, grasp, commands, home, place_back)
+        assert _outcome(records, place_back) == outcome
+        labels = [r["label"] for r in records]
+        travel = next(c.joints.j3_mm for c in commands if c.label == "approach")
+        if outcome == "blocked":
+            assert labels[-1] == "grip" and records[-1]["blocked"]
+            assert drives.positions()["j3"] == pytest.approx(travel, abs=0.01)
+            assert drives.positions()["gripper"] == pytest.approx(w + 10.0, abs=0.01)  # approach opening > w + 5
+        elif outcome == "moved":
+            assert labels[-1] == "check" and records[-1]["moved_mm"] == pytest.approx(8.0, abs=0.01)
+            assert "put back" not in labels and drives.positions()["j3"] == pytest.approx(travel, abs=0.01)
+            assert drives.positions()["gripper"] == pytest.approx(w - 8.0, abs=0.01)  # still closed on it
+        else:
+            assert labels[-1] == "retreat" and "carry" in labels
+
+
+def test_no_travel_height_over_a_tall_neighbour_exits_3(capsys, tmp_path):
+    square = lambda x, y, h: [[x - h, y - h], [x + h, y - h], [x + h, y + h], [x - h, y + h]]  # noqa: E731
+    scene = tmp_path / "tall.json"
+    scene.write_text(json.dumps({"units": "mm", "target": "nut", "parts": [
+        {"id": "nut", "outline": square(400, -100, 8), "z_bottom": 0, "z_top": 8},
+        {"id": "column", "outline": square(300, 150, 10), "z_bottom": 0, "z_top": 185}]}))
+    code, out, err = _pick(capsys, scene)
+    assert code == 3 and out["error"] == "no_feasible_grasp" and "travel height" in out["reason"], err
+
+
+def test_a_target_off_the_tray_is_bad_input_and_nothing_connects(capsys, tmp_path):
+    square = [[-40, 290], [-20, 290], [-20, 310], [-40, 310]]
+    scene = tmp_path / "off.json"
+    scene.write_text(json.dumps({"units": "mm", "target": "nut", "parts": [
+        {"id": "nut", "outline": square, "z_bottom": 0, "z_top": 8}]}))
+    log = tmp_path / "off.log"
+    code, out, err = _pick(capsys, scene, "--record", log)
+    assert code == 2 and "outside the cell's tray" in err and out is None and not log.exists()
+
+
+def test_jaws_that_are_not_open_at_the_start_are_refused_before_anything_moves(cell_cfg):
+    """A pick cut short by Ctrl-C can leave a part between the jaws; the pre-open at the travel height would
+    drop it."""
+    import contextlib
+    import types
+
+    from cell.commands import hw
+    from cell.commands.hw_pick import run_pick
+    from cell.errors import CellError
+    from drivers import simulated_cell
+
+    seen = {}
+
+    @contextlib.contextmanager
+    def closed_jaws(args, cell):
+        with simulated_cell(cell) as (arm, drives):
+            drives.gripper_object_width_mm = 20.0
+            arm.gripper.grip(20.0)  # something held
+            seen["drives"], seen["start"] = drives, drives.positions()
+            yield arm, drives
+
+    args = types.SimpleNamespace(scene=str(SCENE), examples=None, place_back=False, interface="virtual",
+                                 channel=None, yes=False, json=True)
+    with pytest.raises(CellError, match="the jaws stand at 20.0 mm, not open"):
+        run_pick(args, cell_cfg, closed_jaws, hw.confirm_motion, hw._stop_on_interrupt, hw._emit)
     assert seen["drives"].positions() == pytest.approx(seen["start"])

@@ -5,8 +5,12 @@ grasp as `cell grasp` plans it (with the loop's 1 mm margin round the other part
 measured by hand), the arm home first (it may stand anywhere), then the loop's pick with its grip check
 after the lift, by a way whose links clear the parts on the tray, to the drop-off or, with `--place-back`,
 back down where the part lay. On the simulated cell (the default) the scene's parts lie on the simulated
-tray, so the jaws close on the part. Exit 0 when the part was held through the check, 1 when the grip
-missed or the part slipped out (the jaws open and go up), 3 when no grasp is feasible, 2 on bad input.
+tray, so the jaws close on the part. Exit 0 when the part was held through the check (and carried off or
+put back), 1 when the grip missed or was blocked or the part slipped out (the jaws open and go up), or,
+put back, the check found it moved in the jaws (it stays held, up), and on a drive fault or a "no" at the
+confirmation; 3 when no grasp is feasible or none can be carried out (no way whose links clear the other
+parts, no travel height over them); 2 on bad input (a target off the tray among it). The jaws must stand
+open at the start: a part left between them would be dropped by the pre-open.
 """
 
 from __future__ import annotations
@@ -26,11 +30,10 @@ def run_pick(args, cell, session, confirm_motion, stop_on_interrupt, emit) -> in
     text)`: the `cell hw` command's own (cell/commands/hw.py)."""
     from cell.commands.grasp import load_planner_inputs
     from cell.disassembly import lift_blocked_reason, parts_on_top
-    from cell.errors import NoFeasibleGrasp
+    from cell.errors import CellError, NoFeasibleGrasp
     from cell.grasp.synthesis import GraspPlanner
     from cell.kinematics import Joints
     from cell.runtime.loop import loop_planner_params
-    from cell.runtime.pickway import LinksWouldHit
     from cell.scene import load_scene
 
     scene = load_scene(args.scene)
@@ -38,6 +41,7 @@ def run_pick(args, cell, session, confirm_motion, stop_on_interrupt, emit) -> in
         from cell.cellconfig import load_cell
 
         cell = load_cell(scene.cell_path)
+    _require_on_tray(scene, cell)
     planner = GraspPlanner(cell, load_planner_inputs(args.examples), loop_planner_params())
     try:
         blockers = parts_on_top(scene.target_part, scene.obstacles)
@@ -52,17 +56,18 @@ def run_pick(args, cell, session, confirm_motion, stop_on_interrupt, emit) -> in
     with _world(args, cell, session, scene) as (arm, world):
         try:
             grasp, commands = _first_clear(arm, cell, scene, ranked, args.place_back, home, planner)
-        except LinksWouldHit as e:
+        except CellError as e:  # no way whose links clear the parts, or no travel height over them
             emit(args, {"target": scene.target, "error": "no_feasible_grasp", "reason": str(e)},
-                 f"no grasp of {scene.target!r} has a way clear of the other parts: {e}; nothing moved")
+                 f"no grasp of {scene.target!r} can be carried out: {e}; nothing moved")
             return 3
+        _require_open_jaws(arm, cell)
         where = "put it back" if args.place_back else "carry it to the drop-off"
         confirm_motion(args, f"home the arm, pick {scene.target!r} at ({grasp.center_mm[0]:.1f}, "
                              f"{grasp.center_mm[1]:.1f}) mm, z {grasp.grasp_z_mm:.1f} mm, and {where}")
         t0 = arm.clock.now()
         with stop_on_interrupt(arm):
-            records = _carry_out(arm, cell, grasp, commands, home)
-        outcome = _outcome(records)
+            records = _carry_out(arm, cell, grasp, commands, home, args.place_back)
+        outcome = _outcome(records, args.place_back)
         obj = {"target": scene.target, "grasp": grasp.to_json(), "outcome": outcome,
                "place_back": bool(args.place_back), "records": records,
                "time_s": round(arm.clock.now() - t0, 4)}
@@ -70,6 +75,32 @@ def run_pick(args, cell, session, confirm_motion, stop_on_interrupt, emit) -> in
             obj["sim_events"] = list(world.events)
         emit(args, obj, _text(scene.target, grasp, outcome, records, obj["time_s"]))
     return 0 if outcome == "held" else 1
+
+
+def _require_on_tray(scene, cell) -> None:
+    """The target lies on the cell's tray (a scene for another place, or a typo in one, would send a real arm
+    there): bad input otherwise."""
+    from cell.errors import BadInput
+
+    x, y = scene.target_part.polygon.centroid.coords[0]
+    t = cell.tray
+    if not t.contains(x, y):
+        raise BadInput(f"{scene.target!r} lies at ({x:.1f}, {y:.1f}) mm, outside the cell's tray (x {t.x_mm[0]:g} to "
+                       f"{t.x_mm[1]:g}, y {t.y_mm[0]:g} to {t.y_mm[1]:g} mm): nothing moved")
+
+
+def _require_open_jaws(arm, cell) -> None:
+    """Jaws not fully open may hold something (a pick cut short by Ctrl-C): the pre-open at the travel height
+    would drop it. Refused before anything moves."""
+    from cell.errors import CellError
+
+    width, top = arm.gripper.width_mm, cell.gripper.opening_mm[1]
+    if width is not None and width < top - OPEN_TOL_MM:
+        raise CellError(f"the jaws stand at {width:.1f} mm, not open ({top:g} mm): something may be between them; "
+                        "take it out and open them (`cell hw gripper open`) first; nothing moved")
+
+
+OPEN_TOL_MM = 1.0
 
 
 @contextlib.contextmanager
@@ -89,9 +120,10 @@ def _world(args, cell, session, scene):
 
 
 def _first_clear(arm, cell, scene, ranked, place_back: bool, home, planner):
-    """The first of the ranked grasps with a configuration (step 5, `planner.choose_for`: the best one has it
-    already) whose pick, from home, keeps the links clear of the other parts (the loop tries them in the same
-    order); LinksWouldHit (the first one's reason) when none does."""
+    """The first of the best ranked grasps (`MAX_GRASPS_TRIED`, in the loop's order) with a configuration (step
+    5, `planner.choose_for`: the best one has it already) whose pick, from home, keeps the links clear of the
+    other parts; LinksWouldHit (the first one's reason) when none does, CellError when no travel height
+    passes over the other parts."""
     from cell.runtime.motion import pick_commands, place_back_commands
     from cell.runtime.pickway import LinksWouldHit, clear_commands, clear_way, travel_z_mm
 
@@ -109,22 +141,27 @@ def _first_clear(arm, cell, scene, ranked, place_back: bool, home, planner):
                 g.joints, g.opening_mm, cell, safe_z_mm=z, drop=drop), start=home)
         except LinksWouldHit as e:
             first = first or e
-    raise first or LinksWouldHit(f"none of the first {MAX_GRASPS_TRIED} grasps has a configuration whose links "
-                                 "clear the parts")
+    raise first or LinksWouldHit(f"none of the best {min(len(ranked), MAX_GRASPS_TRIED)} grasps has a "
+                                 "configuration whose links clear the parts")
 
 
 MAX_GRASPS_TRIED = 10  # of the ranked grasps, for a way whose links clear the tray (each try takes milliseconds)
 
 
-def _carry_out(arm, cell, grasp, commands, home) -> list[dict]:
+def _carry_out(arm, cell, grasp, commands, home, place_back: bool) -> list[dict]:
     """Home, then the pick; a grip that missed or a part that slipped out: the jaws open to the approach
-    opening (no wider: the planner cleared them up to it) and go up to the travel height."""
+    opening (no wider: the planner cleared them up to it) and go up to the travel height. Put back: a part
+    that moved in the jaws at the check (`moved_mm`: turned, pressed) hangs lower than where it lay, so it is
+    not set down there: the arm stays up holding it."""
     from cell.runtime.motion import above, approach_opening_mm
     from cell.runtime.ways import go_to
     from drivers.execute import run_commands
 
     go_to(arm, home)
-    records = run_commands(arm, commands, stop_on_miss=True)
+    k = next(i for i, c in enumerate(commands) if c.action == "check") + 1
+    records = run_commands(arm, commands[:k], stop_on_miss=True)
+    if records[-1]["action"] == "check" and records[-1].get("holding") and not (place_back and _moved(records)):
+        records += run_commands(arm, commands[k:], stop_on_miss=True)
     if records and records[-1].get("holding") is False:
         arm.gripper.open(max(approach_opening_mm(grasp.opening_mm, cell), arm.gripper.width_mm or 0.0))
         travel = next(c.joints.j3_mm for c in commands if c.label == "approach")
@@ -134,10 +171,21 @@ def _carry_out(arm, cell, grasp, commands, home) -> list[dict]:
     return records
 
 
-def _outcome(records: list[dict]) -> str:
+def _moved(records: list[dict]) -> float | None:
+    """How much narrower than its grip the check found the part (mm), when more than the grip's tolerance."""
+    return next((r["moved_mm"] for r in records if r["action"] == "check" and "moved_mm" in r), None)
+
+
+def _outcome(records: list[dict], place_back: bool = False) -> str:
+    """held, missed (closed past the part), blocked (stopped wider than it), slipped (lost on the lift), or
+    moved (put back: still held at the travel height, not set down)."""
     last = records[-1] if records else {}
     if last.get("holding") is False:
-        return "slipped" if last.get("action") == "check" else "missed"
+        if last.get("action") == "check":
+            return "slipped"
+        return "blocked" if last.get("blocked") else "missed"
+    if place_back and last.get("action") == "check":
+        return "moved"
     return "held"
 
 
@@ -151,8 +199,16 @@ def _text(target, grasp, outcome, records, time_s) -> str:
         if "width_mm" in r:
             extra = f" {r['width_mm']:.2f} mm" + ("" if "holding" not in r else " holding" if r["holding"] else
                                                    " NOT holding")
+        if "moved_mm" in r:
+            extra += f", {r['moved_mm']:.1f} mm narrower than gripped"
         lines.append(f"  {r['label']:<12} {r['action']:<6}{extra}")
-    verdict = {"held": "held through the check", "missed": "MISSED: the jaws closed past it",
-               "slipped": "SLIPPED out of the jaws on the lift"}[outcome]
+    if outcome == "moved":
+        verdict = (f"MOVED {_moved(records):.1f} mm in the jaws at the check: not put back down (it would hang "
+                   "lower than where it lay); still held at the travel height: take it out by hand, or open the "
+                   "jaws over a safe place (`cell hw gripper open`)")
+    else:
+        verdict = {"held": "held through the check", "missed": "MISSED: the jaws closed past it",
+                   "blocked": "BLOCKED: the jaws stopped wider than the part",
+                   "slipped": "SLIPPED out of the jaws on the lift"}[outcome]
     lines.append(f"{target}: {verdict} ({time_s:.2f} s)")
     return "\n".join(lines)

@@ -299,7 +299,6 @@ def run_session(cfg: RunConfig) -> dict:
             # still gets the stop recorded
             interrupts.hold()
             status = "stopped"
-            summary = {**loop.summary(), "stopped": "operator: interrupted at the terminal"}
             try:
                 arm.stop()  # quick stop of every axis before the drives are disabled
             finally:
@@ -308,6 +307,7 @@ def run_session(cfg: RunConfig) -> dict:
                     # summary the session was over: replay ends there by itself)
                     recorder.write_decision({"type": "stop", "source": "operator",
                                              "reason": "interrupted at the terminal"})
+            summary = {**loop.summary(), "stopped": "operator: interrupted at the terminal"}  # (the arm stopped first)
             raise
         except (StopRun, Stopped) as e:
             interrupts.hold()

@@ -47,6 +47,16 @@ class Gripper:
         ax = self._arm.axes.get("gripper")
         return ax.position if ax is not None else None
 
+    def require_open(self, tolerance_mm: float = 1.0) -> None:
+        """Refuse (CellError) jaws that do not stand open: something may be between them (a pick cut short
+        by Ctrl-C, a part left in them), and the first pre-open, high over the tray, would drop it."""
+        width, top = self.width_mm, self._arm.cell.gripper.opening_mm[1]
+        if width is not None and width < top - tolerance_mm:
+            from cell.errors import CellError
+
+            raise CellError(f"the jaws stand at {width:.1f} mm, not open ({top:g} mm): something may be between "
+                            "them; take it out and open them (`cell hw gripper open`) first; nothing moved")
+
     def move_time_s(self, from_mm: float, to_mm: float) -> float:
         g = self._arm.cell.gripper
         return trapezoid(to_mm - from_mm, g.speed_mm_s, GRIPPER_ACCEL_FACTOR * g.speed_mm_s).duration_s

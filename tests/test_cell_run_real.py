@@ -93,6 +93,21 @@ def test_a_fault_on_the_way_home_is_a_recorded_stop(tmp_path, washer_only, serve
     assert [(d["type"], d["source"]) for d in decisions] == [("stop", "j3")] and "EMCY 0x2310" in decisions[0]["reason"]
 
 
+def test_jaws_that_are_not_open_at_the_start_refuse_the_run_before_anything_moves(tmp_path, washer_only,
+                                                                                 served_drives, capsys):
+    """A real gripper may still hold a part (a run cut short): the first pre-open, high over the tray, would
+    drop it. The run does not start."""
+    channel, drives = served_drives
+    drives.drives["gripper"].position_counts = 20.0 * 1000  # the jaws at 20 mm
+    before = {n: d.position_counts for n, d in drives.drives.items()}
+    cam = SimCamera(load_calibration(), SimCameraOptions(seed=2))
+    camera = frames_folder(tmp_path / "camera", [cam.render([load_assembly(washer_only).parts[0]])])
+    code, out, err = run_cli("run", washer_only, "--interface", "virtual", "--channel", channel, "--camera", camera,
+                             "--yes", capsys=capsys)
+    assert code != 0 and "the jaws stand at 20.0 mm, not open (80 mm)" in err and "Traceback" not in err
+    assert {n: d.position_counts for n, d in drives.drives.items()} == pytest.approx(before)
+
+
 def test_a_camera_of_another_resolution_is_refused_before_anything_moves(tmp_path, washer_only, served_drives,
                                                                          capsys):
     channel, drives = served_drives

@@ -60,7 +60,7 @@ def run_pick(args, cell, session, confirm_motion, stop_on_interrupt, emit) -> in
             emit(args, {"target": scene.target, "error": "no_feasible_grasp", "reason": str(e)},
                  f"no grasp of {scene.target!r} can be carried out: {e}; nothing moved")
             return 3
-        _require_open_jaws(arm, cell)
+        arm.gripper.require_open()  # a part left between them would be dropped by the pre-open
         where = "put it back" if args.place_back else "carry it to the drop-off"
         confirm_motion(args, f"home the arm, pick {scene.target!r} at ({grasp.center_mm[0]:.1f}, "
                              f"{grasp.center_mm[1]:.1f}) mm, z {grasp.grasp_z_mm:.1f} mm, and {where}")
@@ -87,20 +87,6 @@ def _require_on_tray(scene, cell) -> None:
     if not t.contains(x, y):
         raise BadInput(f"{scene.target!r} lies at ({x:.1f}, {y:.1f}) mm, outside the cell's tray (x {t.x_mm[0]:g} to "
                        f"{t.x_mm[1]:g}, y {t.y_mm[0]:g} to {t.y_mm[1]:g} mm): nothing moved")
-
-
-def _require_open_jaws(arm, cell) -> None:
-    """Jaws not fully open may hold something (a pick cut short by Ctrl-C): the pre-open at the travel height
-    would drop it. Refused before anything moves."""
-    from cell.errors import CellError
-
-    width, top = arm.gripper.width_mm, cell.gripper.opening_mm[1]
-    if width is not None and width < top - OPEN_TOL_MM:
-        raise CellError(f"the jaws stand at {width:.1f} mm, not open ({top:g} mm): something may be between them; "
-                        "take it out and open them (`cell hw gripper open`) first; nothing moved")
-
-
-OPEN_TOL_MM = 1.0
 
 
 @contextlib.contextmanager

@@ -504,6 +504,7 @@ def _real_sources(real: RealCell, cell, cal, can_log, stack: contextlib.ExitStac
     camera = stack.enter_context(open_camera(real.camera, (cal.width_px, cal.height_px)))
     cal.check_frame(camera.peek(), f"the first frame of camera {real.camera!r}")
     arm = stack.enter_context(real_cell(real.interface, real.channel, cell, record=can_log))
+    arm.gripper.require_open()  # a part left between the jaws would be dropped by the first pre-open
     return arm, camera, None
 
 

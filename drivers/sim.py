@@ -19,6 +19,7 @@ STO). Faults latch in the drive until a fault reset (controlword bit 7 rising ed
 from __future__ import annotations
 
 import os
+import weakref
 
 import can
 import canopen
@@ -209,6 +210,8 @@ def serve(
     stays the caller's: leaving the handle stops the drives but does not shut the bus down.
     `cell` may also be the path of a cell file (read and validated as `--cell FILE` is).
     """
+    from cell.cellconfig import Cell
+
     if cell is None:
         from cell.cellconfig import default_cell
 
@@ -217,4 +220,14 @@ def serve(
         from cell.cellconfig import load_cell
 
         cell = load_cell(cell)
-    return SimHandle(bus, cell, clock, tick_s, tpdo_event_ms)
+    elif not isinstance(cell, Cell):
+        raise TypeError(f"serve(bus, cell): cell must be None (the shipped cell), a cell file's path or a "
+                        f"cell.cellconfig.Cell, not {type(cell).__name__}")
+    if any(h.bus is bus and not h._closed for h in _SERVING):  # two sets of nodes with the same ids on one bus
+        raise RuntimeError("the simulated drives are already served on this bus: leave that handle first")
+    handle = SimHandle(bus, cell, clock, tick_s, tpdo_event_ms)
+    _SERVING.add(handle)
+    return handle
+
+
+_SERVING: weakref.WeakSet = weakref.WeakSet()  # the handles serve() started (dropped once unreferenced)

@@ -45,6 +45,17 @@ def _j1_in_profile_position(open_test_bus):
             network.disconnect()  # also shuts the master bus down
 
 
+def test_serve_refuses_a_cell_it_cannot_use_and_a_second_set_of_nodes_on_one_bus(open_test_bus):
+    bus = open_test_bus()
+    with pytest.raises(TypeError, match="cell must be None .* not int"):
+        sim.serve(bus, 42)
+    with sim.serve(bus):
+        with pytest.raises(RuntimeError, match="already served on this bus"):
+            sim.serve(bus)  # five more nodes with ids 1-5 would answer every request twice
+    with sim.serve(bus) as again:  # once left, the bus can be served again
+        assert [n["name"] for n in again.nodes][-1] == "gripper"
+
+
 def test_serve_handle_lists_the_nodes_and_their_eds(open_test_bus):
     with sim.serve(open_test_bus()) as drives:
         assert [(n["node_id"], n["name"]) for n in drives.nodes] == [

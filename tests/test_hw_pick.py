@@ -49,19 +49,12 @@ def test_place_back_puts_the_part_down_where_it_lay_and_opens_only_to_the_approa
 def test_a_part_that_slips_out_on_the_lift_opens_the_jaws_and_goes_up(cell_cfg):
     """The check after the lift finds the jaws empty: the pick ends there, the jaws open to the approach
     opening (no wider) and the arm stands at the travel height."""
-    from cell.commands.grasp import load_planner_inputs
-    from cell.commands.hw_pick import _carry_out, _first_clear, _outcome
-    from cell.grasp.synthesis import GraspPlanner
-    from cell.kinematics import Joints
-    from cell.runtime.loop import loop_planner_params
-    from cell.scene import load_scene
+    from cell.commands.hw_pick import _carry_out, _outcome
     from drivers import simulated_cell
 
-    scene = load_scene(SCENE)
-    home = Joints.from_dict(cell_cfg.motion.home_joints)
+    _, _, home, first_clear = _planned(cell_cfg)
     with simulated_cell(cell_cfg) as (arm, drives):
-        planner = GraspPlanner(cell_cfg, load_planner_inputs(None), loop_planner_params())
-        grasp, commands = _first_clear(arm, cell_cfg, scene, planner.plan(scene).ranked, False, home, planner)
+        grasp, commands = first_clear(arm)
         grip_z = grasp.joints.j3_mm
         drives.drives["gripper"].object_width_fn = (
             lambda: grasp.opening_mm if drives.positions()["j3"] <= grip_z + 1.0 else None)
@@ -91,17 +84,21 @@ def test_no_grasp_with_a_way_clear_of_the_other_parts_exits_3_and_moves_nothing(
     from test_runtime_safety_boundaries import low_arm_cell_file
 
     cell = low_arm_cell_file(tmp_path)
-    square = lambda x, y, h: [[x - h, y - h], [x + h, y - h], [x + h, y + h], [x - h, y + h]]  # noqa: E731
     scene = tmp_path / "column.json"
     scene.write_text(json.dumps({"units": "mm", "target": "nut", "parts": [
-        {"id": "nut", "outline": square(400, -100, 8), "z_bottom": 0, "z_top": 8},
-        {"id": "column", "outline": square(325, 140, 10), "z_bottom": 0, "z_top": 140}]}))
+        {"id": "nut", "outline": _square(400, -100, 8), "z_bottom": 0, "z_top": 8},
+        {"id": "column", "outline": _square(325, 140, 10), "z_bottom": 0, "z_top": 140}]}))
     for extra in ([], ["--place-back"]):
         log = tmp_path / f"column{len(extra)}.log"
         code, out, err = _pick(capsys, scene, "--cell", cell, "--record", log, *extra)
         assert code == 3 and out["error"] == "no_feasible_grasp", err
         assert "links would hit column" in out["reason"]
         assert _targets_sent(log) == {"j1": {0.0}, "j2": {90.0}, "j3": {200.0}, "j4": {0.0}, "gripper": {80.0}}
+
+
+def _square(x: float, y: float, h: float) -> list[list[float]]:
+    """A square of half-side h (mm) centred at (x, y)."""
+    return [[x - h, y - h], [x + h, y - h], [x + h, y + h], [x - h, y + h]]
 
 
 def _targets_sent(log) -> dict[str, set[float]]:
@@ -208,11 +205,10 @@ def test_a_blocked_grip_and_a_part_that_moved_in_the_jaws(cell_cfg, at_grasp, ab
 
 
 def test_no_travel_height_over_a_tall_neighbour_exits_3(capsys, tmp_path):
-    square = lambda x, y, h: [[x - h, y - h], [x + h, y - h], [x + h, y + h], [x - h, y + h]]  # noqa: E731
     scene = tmp_path / "tall.json"
     scene.write_text(json.dumps({"units": "mm", "target": "nut", "parts": [
-        {"id": "nut", "outline": square(400, -100, 8), "z_bottom": 0, "z_top": 8},
-        {"id": "column", "outline": square(300, 150, 10), "z_bottom": 0, "z_top": 185}]}))
+        {"id": "nut", "outline": _square(400, -100, 8), "z_bottom": 0, "z_top": 8},
+        {"id": "column", "outline": _square(300, 150, 10), "z_bottom": 0, "z_top": 185}]}))
     code, out, err = _pick(capsys, scene)
     assert code == 3 and out["error"] == "no_feasible_grasp" and "travel height" in out["reason"], err
 

@@ -114,12 +114,12 @@ def _first_clear(arm, cell, scene, ranked, place_back: bool, home, planner):
     from cell.runtime.pickway import LinksWouldHit, clear_commands, clear_way, travel_z_mm
 
     others = list(scene.obstacles)
+    safe_z = travel_z_mm(cell, scene.target_part, others, ranked[0].grasp_z_mm)  # (one plan: one grasp z)
     first = None
     for grasp in ranked[:MAX_GRASPS_TRIED]:
         if grasp.joints is None and planner.choose_for(grasp, scene) is None:
             continue  # no configuration whose links clear the parts at the grasp
         try:
-            safe_z = travel_z_mm(cell, scene.target_part, others, grasp.grasp_z_mm)
             if place_back:  # (checked from home, where the pick starts)
                 return grasp, clear_commands(arm, cell, others, place_back_commands(
                     grasp.joints, grasp.opening_mm, cell, safe_z), "", start=home)
@@ -139,7 +139,7 @@ def _carry_out(arm, cell, grasp, commands, home, place_back: bool) -> list[dict]
     opening (no wider: the planner cleared them up to it) and go up to the travel height. Put back: a part
     that moved in the jaws at the check (`moved_mm`: turned, pressed) hangs lower than where it lay, so it is
     not set down there: the arm stays up holding it."""
-    from cell.runtime.motion import above, approach_opening_mm
+    from cell.runtime.motion import above, retreat_opening_mm
     from cell.runtime.ways import go_to
     from drivers.execute import run_commands
 
@@ -149,7 +149,7 @@ def _carry_out(arm, cell, grasp, commands, home, place_back: bool) -> list[dict]
     if records[-1]["action"] == "check" and records[-1].get("holding") and not (place_back and _moved(records)):
         records += run_commands(arm, commands[k:], stop_on_miss=True)
     if records and records[-1].get("holding") is False:
-        arm.gripper.open(max(approach_opening_mm(grasp.opening_mm, cell), arm.gripper.width_mm or 0.0))
+        arm.gripper.open(retreat_opening_mm(grasp.opening_mm, arm.gripper.width_mm, cell))
         travel = next(c.joints.j3_mm for c in commands if c.label == "approach")
         at = arm.joints()
         if at.j3_mm < travel:

@@ -103,13 +103,9 @@ def run(args) -> int:
             summary = run_session(cfg)
     except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM: every axis stopped; what was done is still reported
         if getattr(e, "summary", None) is not None:
-            _print_summary(e.summary, out)
-            if args.json:
-                print(json.dumps(e.summary), flush=True)
+            _report(e.summary, args.json, out)
         raise
-    _print_summary(summary, out)
-    if args.json:
-        print(json.dumps(summary), flush=True)
+    _report(summary, args.json, out)
     return 0 if summary["status"] == "complete" and summary["parts_removed"] == summary["parts_total"] else 1
 
 
@@ -174,6 +170,13 @@ def _how_it_ended(s: dict) -> str:
     if s["status"] != "complete" or not skipped:
         return s["status"]
     return f"sequence complete, {len(skipped)} skipped: {', '.join(skipped)}"
+
+
+def _report(summary: dict, as_json: bool, out) -> None:
+    """The summary as text on `out`, and with --json as the last stdout line."""
+    _print_summary(summary, out)
+    if as_json:
+        print(json.dumps(summary), flush=True)
 
 
 def _print_summary(s: dict, out) -> None:

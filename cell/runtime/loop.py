@@ -41,9 +41,9 @@ from cell.runtime.control import Faulted, RunControl, Stopped
 from cell.runtime.matching import Region, locate, unexplained
 from cell.runtime.motion import (
     above,
-    approach_opening_mm,
     carry_off_commands,
     pick_commands,
+    retreat_opening_mm,
 )
 from cell.runtime.pickway import TRAVEL_MARGIN_MM, LinksWouldHit, check_links, clear_way, travel_z_mm
 from cell.runtime.ways import go_to
@@ -720,9 +720,8 @@ class CellLoop:
         safe_z = self._retreat_z_mm()
         at = self.arm.joints()
         if at.j3_mm < safe_z:
-            if grasp is not None:  # never narrower than the jaws stand: they stopped wider on something
-                width = max(approach_opening_mm(grasp.opening_mm, self.cell), self.arm.gripper.width_mm or 0.0)
-                self.arm.gripper.open(min(width, self.cell.gripper.opening_mm[1]))
+            if grasp is not None:
+                self.arm.gripper.open(retreat_opening_mm(grasp.opening_mm, self.arm.gripper.width_mm, self.cell))
             self.arm.move_joints(above(at, safe_z))
         self.arm.gripper.open()
 

@@ -84,8 +84,6 @@ def pick_commands(grasp_joints: Joints, opening_mm: float, cell: Cell, safe_z_mm
     go at `drop` (default: the drop-off configuration nearest to the grasp's). `check_grip`: the
     grip again after the lift (off: as the loop picked before 2026-12-04; recordings replay so)."""
     safe = cell.motion.safe_z_mm if safe_z_mm is None else safe_z_mm
-    if safe <= grasp_joints.j3_mm:
-        raise CellError(f"the travel height {safe:g} mm is not above the grasp z {grasp_joints.j3_mm:g} mm")
     return [
         *_take(grasp_joints, opening_mm, cell, safe),
         *carry_off_commands(grasp_joints, grasp_joints, cell, safe, drop,
@@ -97,11 +95,10 @@ def place_back_commands(grasp_joints: Joints, opening_mm: float, cell: Cell, saf
     """A pick that puts the part back where it lay (a hardware-in-loop trial, `cell hw pick --place-back`):
     approach, pre-open, descend, grip, lift, check, down again to the grasp, open to the approach opening (the
     width the planner cleared the fingers for there), up."""
-    if safe_z_mm <= grasp_joints.j3_mm:
-        raise CellError(f"the travel height {safe_z_mm:g} mm is not above the grasp z {grasp_joints.j3_mm:g} mm")
+    take = _take(grasp_joints, opening_mm, cell, safe_z_mm)
     up = above(grasp_joints, safe_z_mm)
     return [
-        *_take(grasp_joints, opening_mm, cell, safe_z_mm),
+        *take,
         Command("move", "lift", up),
         Command("check", "check", width_mm=opening_mm, force_n=cell.gripper.grip_force_n),
         Command("move", "put back", grasp_joints),
@@ -111,7 +108,10 @@ def place_back_commands(grasp_joints: Joints, opening_mm: float, cell: Cell, saf
 
 
 def _take(grasp_joints: Joints, opening_mm: float, cell: Cell, safe_z_mm: float) -> list[Command]:
-    """Approach above the grasp at the travel height, open to the approach opening, descend, grip."""
+    """Approach above the grasp at the travel height (which must be above it), open to the approach opening,
+    descend, grip."""
+    if safe_z_mm <= grasp_joints.j3_mm:
+        raise CellError(f"the travel height {safe_z_mm:g} mm is not above the grasp z {grasp_joints.j3_mm:g} mm")
     return [
         Command("move", "approach", above(grasp_joints, safe_z_mm)),
         Command("open", "pre-open", width_mm=approach_opening_mm(opening_mm, cell)),
@@ -126,6 +126,13 @@ def approach_opening_mm(opening_mm: float, cell: Cell) -> float:
     the grasp's depth, and no further."""
     g = cell.gripper
     return min(opening_mm + 2 * g.approach_clearance_mm, g.opening_mm[1])
+
+
+def retreat_opening_mm(opening_mm: float, standing_mm: float | None, cell: Cell) -> float:
+    """How far the jaws open before going up from a grasp of `opening_mm` they did not hold: its approach
+    opening (the width the planner cleared the fingers for there), never narrower than they stand
+    (`standing_mm`: they stopped wider on something), within the stroke."""
+    return min(max(approach_opening_mm(opening_mm, cell), standing_mm or 0.0), cell.gripper.opening_mm[1])
 
 
 def carry_off_commands(from_joints: Joints, grasp_joints: Joints, cell: Cell, safe_z_mm: float,

@@ -58,15 +58,20 @@ def links_clear(arm, cell: Cell, others: list[Part]) -> Callable[[Joints, Joints
 
 
 def clear_commands(arm, cell: Cell, others: list[Part], commands: list[Command], why: str,
-                   start: Joints | None = None) -> list[Command]:
-    """`commands` from where the arm is (or `start`), ways the drivers refuse gone round (`ways.routed`), the
-    links clear of `others` all along (`check_links`); LinksWouldHit when they are not."""
+                   start: Joints | None = None, *, check: Callable[[list[Command]], None] | None = None,
+                   known: dict | None = None) -> list[Command]:
+    """`commands` from where the arm is (or `start`), ways the drivers refuse gone round (`ways.routed`, the
+    ways found kept in `known`), the links clear of `others` all along (`check`: how the whole list is
+    checked, by default `check_links`); LinksWouldHit when they are not."""
     start = arm.joints() if start is None else start
+    check = check or (lambda listed: check_links(arm, cell, others, listed, why, start))
     try:
-        routed_commands = routed(commands, start, cell, links_clear(arm, cell, others))
+        routed_commands = routed(commands, start, cell, links_clear(arm, cell, others), known)
+        check(routed_commands)
+    except LinksWouldHit:
+        raise
     except CellError as e:
         raise LinksWouldHit(f"{why}{e}") from None
-    check_links(arm, cell, others, routed_commands, why, start)
     return routed_commands
 
 
@@ -74,23 +79,16 @@ def clear_way(arm, cell: Cell, others: list[Part], grasp_joints: Joints, why: st
               commands_to: Callable[[Joints], list[Command]],
               check: Callable[[list[Command]], None] | None = None, start: Joints | None = None) -> list[Command]:
     """`commands_to(drop)` for the first drop-off configuration (nearest to the grasp's first: the other
-    elbow, the J4 turns) whose moves keep the links clear of `others`, a way the drivers refuse gone round
-    by other moves (`ways.routed`, the links clear on them too), from where the arm is (or `start`);
-    LinksWouldHit (the first one's reason) when none does. `check`: how a whole list is checked (default:
-    `check_links` against `others`)."""
+    elbow, the J4 turns) whose moves keep the links clear of `others` (`clear_commands`), from where the arm
+    is (or `start`); LinksWouldHit (the first one's reason) when none does."""
     first = None
-    start = arm.joints() if start is None else start
-    check = check or (lambda commands: check_links(arm, cell, others, commands, why, start))
-    leg_ok = links_clear(arm, cell, others)
+    start = arm.joints() if start is None else start  # (read once: every drop-off's way starts there)
     known: dict = {}  # the ways round, found once for every drop-off (the way to the grasp is the same)
     for drop in dropoff_options(cell, grasp_joints):
         try:
-            # the ways the drivers refuse (the tool sweeping out of the workspace) go round by other moves
-            commands = routed(commands_to(drop), start, cell, leg_ok, known)
-            check(commands)
-            return commands
+            return clear_commands(arm, cell, others, commands_to(drop), why, start, check=check, known=known)
         except LinksWouldHit as e:
             first = first or e
-        except CellError as e:
+        except CellError as e:  # commands_to's own (a travel height not above the grasp)
             first = first or LinksWouldHit(f"{why}{e}")
     raise first

@@ -622,6 +622,7 @@ def test_a_carry_off_that_is_refused_asks_for_the_part_to_be_taken_out_by_hand(s
         lambda loop, w, fault: (faults.append(fault), held.append(w.take_out_of_jaws())))  # asked: by hand
     first = s["parts"][0]["part"]
     assert "take it out by hand" in str(faults[1]) and first in str(faults[1]) and held == [first]
+    assert (faults[0]["asking"], faults[1]["asking"]) == (False, True)  # a drive failed; then the loop asked
     assert (s["parts_total"], s["parts_removed"]) == (3, 3)
     assert s["parts"][0]["reason"] == "taken out of the jaws by hand after a drive fault"
     assert not any(e.startswith("released") for e in world.events)

@@ -316,3 +316,19 @@ def test_event_log_is_bounded_and_wait_change_wakes_on_change():
     threading.Timer(0.05, rc.run).start()
     assert rc.wait_change(seq, timeout_s=T) != seq
     assert rc.state == RUNNING
+
+
+def test_a_stop_to_ask_is_not_called_a_fault():
+    """The loop stopping because it cannot decide (no grasp) held in the fault state but was told as
+    "fault in planner": the operator looked for a broken drive."""
+    rc = RunControl()
+    rc.report_fault("planner", "no feasible grasp for nut", asking=True)
+    snap = rc.snapshot()
+    assert snap["state"] == FAULT and snap["fault"]["asking"] is True
+    assert snap["message"] == "planner needs the operator: no feasible grasp for nut"
+    assert snap["events"][-1]["event"] == "ask"
+    rc.reset()
+    rc.report_fault("j2", "following error")
+    snap = rc.snapshot()
+    assert snap["fault"]["asking"] is False and snap["message"] == "fault in j2: following error"
+    assert snap["events"][-1]["event"] == "fault"

@@ -471,6 +471,7 @@ def test_a_part_still_on_the_tray_after_its_pick_goes_back_first_at_its_new_plac
         assert loop.remaining == ["nut", "washer"] and loop.poses["nut"] is slipped
         assert [r.part for r in loop.reports] == ["pcb"]
         assert loop.control.snapshot()["fault"]["why"] == "nut did not leave the tray"
+        assert loop.control.snapshot()["fault"]["asking"]  # nothing failed: the page says it stopped to ask
 
 
 # ---------------------------------------------------------------- after a pick was cut short

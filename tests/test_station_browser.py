@@ -903,14 +903,16 @@ def test_the_fault_banner_asks_for_reset_only_while_the_cell_can_take_one(browse
     d = browser
     wait = WebDriverWait(d, T, poll_frequency=0.05)
     banner = lambda: d.find_element(By.ID, "fault").text  # noqa: E731
-    control.report_fault("cell", "nut did not leave the tray")
+    control.report_fault("cell", "nut did not leave the tray", asking=True)
     open_page(d, server, "fault")
     wait.until(lambda _: "fix it, then Reset" in banner())
+    assert banner().startswith("STOPPED TO ASK — cell needs you: nut did not leave the tray"), banner()
     d.find_element(By.ID, "btn-stop").click()
     wait.until(lambda _: "the sequence is stopped" in banner())
     server.close()
     wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "offline")
-    assert "nut did not leave the tray" in banner() and "Reset" not in banner()
+    assert banner().startswith("The last stop, cell needed you: nut did not leave the tray"), banner()
+    assert "Reset" not in banner()
     assert not d.find_element(By.ID, "btn-reset").is_enabled()
 
 

@@ -384,16 +384,19 @@ class RunControl:
                                  approved=decision.approved)
             return decision
 
-    def report_fault(self, source: str, why: str) -> None:
-        """Something failed (a drive in FAULT, a lost heartbeat, an exception in the loop).
-        The loop holds at its next checkpoint until the operator resets and runs again."""
+    def report_fault(self, source: str, why: str, *, asking: bool = False) -> None:
+        """Something failed (a drive in FAULT, a lost heartbeat, an exception in the loop), or, with
+        `asking`, the loop cannot go on without the operator (no grasp, a part that stays on the tray):
+        nothing failed, and the page and the log say so. Either way the loop holds at its next
+        checkpoint until the operator resets and runs again."""
         with self._cond:
-            self._fault = {"source": str(source), "why": str(why), "t": _now_iso()}
+            self._fault = {"source": str(source), "why": str(why), "t": _now_iso(), "asking": asking}
+            message = f"{source} needs the operator: {why}" if asking else f"fault in {source}: {why}"
             if self._state == AWAITING_APPROVAL:
-                self._withdrawn = Faulted(f"fault in {source}: {why}")
+                self._withdrawn = Faulted(message)
             self._step_mode = False
             self._step_budget = 0
-            self._set_locked(FAULT, f"fault in {source}: {why}", "fault", source=str(source), why=str(why))
+            self._set_locked(FAULT, message, "ask" if asking else "fault", source=str(source), why=str(why))
 
     def log(self, event: str, message: str = "", **data) -> None:
         """Add an event to the log the page shows (data must be JSON-able)."""

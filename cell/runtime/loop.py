@@ -74,6 +74,11 @@ class StopRun(CellError):
     """The loop stopped and nobody is there to answer (no station): the reason is the message."""
 
 
+class HandWork(CellError):
+    """The operator must do something by hand before the loop can go on (take a part out of the jaws):
+    nothing failed, the loop asks."""
+
+
 @dataclass
 class LoopOptions:
     on_no_grasp: str = "stop"  # "stop" (ask the operator) or "skip" the part
@@ -240,7 +245,7 @@ class CellLoop:
             except CellError as e:  # drive faults and anything else the cell reports
                 if self.control.stop_requested:  # the operator's stop quick-stopped the arm: no fault,
                     continue  # the next checkpoint raises Stopped
-                self._stop_and_ask(getattr(e, "node", None) or "cell", str(e))
+                self._stop_and_ask(getattr(e, "node", None) or "cell", str(e), fault=not isinstance(e, HandWork))
         summary = self.summary()
         self.sink.write_decision({"type": "summary", **summary})
         self.control.done(summary)
@@ -414,7 +419,8 @@ class CellLoop:
                 last = e
                 self.control.log("frame", f"frame missing or unreadable: {e}")
         else:
-            self._stop_and_ask("camera", f"no readable frame after {self.options.frame_retries + 1} tries: {last}")
+            self._stop_and_ask("camera", f"no readable frame after {self.options.frame_retries + 1} tries: {last}",
+                               fault=True)
             raise Faulted(str(last))
         index = self._frame_counter
         self._frame_counter += 1
@@ -656,7 +662,7 @@ class CellLoop:
                 raise CellError("; ".join(problems))
         except CellError as e:
             self._pick, self._taken_by_hand = None, pick
-            raise CellError(f"{pid} is still in the jaws and cannot be carried off ({e}): take it out by hand, "
+            raise HandWork(f"{pid} is still in the jaws and cannot be carried off ({e}): take it out by hand, "
                             "then reset") from None
         records = self._execute(grasp, pid, pick["attempt"], commands, after_fault=True)
         self._pick = None
@@ -679,7 +685,7 @@ class CellLoop:
         grip_width_mm = pick["grip_width_mm"]
         closed = self.arm.gripper.grip(grip_width_mm)
         if closed.stopped:  # on something: not only within the grip's tolerance (holding) or wider (blocked)
-            raise CellError(f"{pick['part']} is still between the jaws (they stand at {closed.width_mm:.1f} mm; "
+            raise HandWork(f"{pick['part']} is still between the jaws (they stand at {closed.width_mm:.1f} mm; "
                             f"{grip_width_mm:.1f} mm when they gripped it): take it out by hand, then reset")
         self.control.log("taken", f"{pick['part']} is out of the jaws (they closed to {closed.width_mm:.1f} mm, "
                          f"{grip_width_mm:.1f} mm when they gripped it)", part=pick["part"])
@@ -725,10 +731,12 @@ class CellLoop:
             self.arm.move_joints(above(at, safe_z))
         self.arm.gripper.open()
 
-    def _stop_and_ask(self, source: str, why: str) -> None:
+    def _stop_and_ask(self, source: str, why: str, fault: bool = False) -> None:
+        """Hold for the operator (or end the run, when nobody is there to answer). `fault`: something
+        failed (a drive, the camera); otherwise the loop only cannot decide on its own (no grasp)."""
         self.sink.write_decision({"type": "stop", "source": source, "reason": why})
         self._stopped_on(f"{source}: {why}")
-        self.control.report_fault(source, why)
+        self.control.report_fault(source, why, asking=not fault)
         if not self.options.interactive:
             raise StopRun(f"{source}: {why}")
 

@@ -514,7 +514,7 @@ def home_joints(cell):
     return Joints.from_dict(cell.motion.home_joints)
 
 
-PROGRESS_EVENTS = ("start", "carried", "removed", "skip", "miss", "fault", "example", "vision", "frame")
+PROGRESS_EVENTS = ("start", "carried", "removed", "skip", "miss", "fault", "ask", "example", "vision", "frame")
 
 
 def _progress(control: RunControl, say) -> None:

@@ -162,7 +162,9 @@ function offline(why) {
   $("view").classList.add("stale");
   const fault = $("fault");  // nothing can be reset now: say what the fault was, not what to do
   if (last && last.control && last.control.fault) {
-    fault.textContent = "The last fault, in " + last.control.fault.source + ": " + last.control.fault.why;
+    const f = last.control.fault;
+    fault.textContent = (f.asking ? "The last stop, " + f.source + " needed you: " : "The last fault, in " + f.source + ": ")
+      + f.why;
     fault.classList.add("past");
   }
   frameIndex = null;  // a station started again may have a frame of the same number: load it anew
@@ -197,7 +199,8 @@ function render(data) {
   fault.classList.toggle("hidden", !c.fault);
   fault.classList.remove("past");
   if (c.fault) {
-    fault.textContent = "FAULT in " + c.fault.source + ": " + c.fault.why
+    fault.textContent = (c.fault.asking ? "STOPPED TO ASK — " + c.fault.source + " needs you: "
+      : "FAULT in " + c.fault.source + ": ") + c.fault.why
       + (c.state === "fault" ? " — fix it, then Reset" : " — the sequence is " + c.state.replace("_", " "));
   }
 

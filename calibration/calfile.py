@@ -130,10 +130,10 @@ def parse_calibration(raw, source: str = "<calibration>", fail=None) -> Calibrat
     if not isinstance(raw, dict):
         fail("top level must be a JSON object")
     if raw.get("format") != FORMAT:
-        fail(f"'format' must be {FORMAT!r}, got {raw.get('format')!r} (not a calibration file?)")
+        fail(f"'format' must be {FORMAT!r}, got {short_repr(raw.get('format'))} (not a calibration file?)")
     version = raw.get("version")
     if not isinstance(version, int) or isinstance(version, bool):
-        fail(f"'version' must be an integer, got {version!r}")
+        fail(f"'version' must be an integer, got {short_repr(version)}")
     if version > PLANE_VERSION or version < 1:
         fail(f"version {version} is not supported (this program reads version {VERSION}, and {PLANE_VERSION} for a "
              "tilted plane)")
@@ -143,7 +143,7 @@ def parse_calibration(raw, source: str = "<calibration>", fail=None) -> Calibrat
     w, h = img.get("width_px"), img.get("height_px")
     for key, v in (("width_px", w), ("height_px", h)):
         if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
-            fail(f"image.{key} must be a positive integer, got {v!r}")
+            fail(f"image.{key} must be a positive integer, got {short_repr(v)}")
     if min(w, h) < CAMERA_PX[0] or w * h > CAMERA_PX[1]:  # checked before the lens model, which samples the image
         fail(f"image {w} x {h} px: each side at least {CAMERA_PX[0]} px, at most {CAMERA_PX[1] / 1e6:g} MP in all")
 

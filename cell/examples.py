@@ -38,6 +38,7 @@ from cell.fileio import (
     json_loads,
     read_text,
     refuse_lone_surrogates,
+    short_repr,
 )
 from cell.kinematics import Joints
 from cell.scene import MAX_COORD_MM, Part, parse_part
@@ -94,8 +95,8 @@ def parse_example(raw, where: str = "example") -> GraspExample:
         raise BadInput(f"{where}: must be a JSON object")
     version = raw.get("version", VERSION)
     if raw.get("format", FORMAT) != FORMAT or isinstance(version, bool) or version != VERSION:
-        raise BadInput(f"{where}: not a {FORMAT} v{VERSION} line (format={raw.get('format')!r}, "
-                       f"version={raw.get('version')!r})")
+        raise BadInput(f"{where}: not a {FORMAT} v{VERSION} line (format={short_repr(raw.get('format'))}, "
+                       f"version={short_repr(raw.get('version'))})")
     eid = raw.get("id")
     if not isinstance(eid, str) or not eid:
         raise BadInput(f"{where}: 'id' must be a non-empty string")

@@ -385,8 +385,14 @@ def is_finite_number(v) -> bool:
 
 
 def short_repr(v) -> str:
-    """A value as an error message quotes it: at most 40 characters."""
+    """A value as an error message quotes it: at most 40 characters. Values read from JSON are spelt as the
+    file spells them (null, true, [1, "a"]), not as Python does (None, True); a string alone keeps its quotes."""
     r = repr(v)
+    if not isinstance(v, str):
+        try:
+            r = json.dumps(v)
+        except (TypeError, ValueError):  # not a JSON value (a numpy array, a path): as Python shows it
+            pass
     return r if len(r) <= 40 else r[:37] + "..."
 
 

@@ -374,11 +374,11 @@ class RecordingReader:
         m = read_json(mpath, "recording manifest")
         if not isinstance(m, dict) or m.get("format") != FORMAT:
             fmt = m.get("format") if isinstance(m, dict) else None
-            raise BadInput(f"{mpath}: not a {FORMAT} manifest (format={fmt!r})")
+            raise BadInput(f"{mpath}: not a {FORMAT} manifest (format={short_repr(fmt)})")
         if m.get("version") != VERSION:
-            raise BadInput(f"{mpath}: version {m.get('version')!r} is not supported (reader: {VERSION})")
+            raise BadInput(f"{mpath}: version {short_repr(m.get('version'))} is not supported (reader: {VERSION})")
         if m.get("status") not in STATUSES:
-            raise BadInput(f"{mpath}: status must be one of {', '.join(STATUSES)}, not {m.get('status')!r}")
+            raise BadInput(f"{mpath}: status must be one of {', '.join(STATUSES)}, not {short_repr(m.get('status'))}")
         files = m.get("files")
         if not isinstance(files, dict) or not isinstance(files.get("cell"), str):
             raise BadInput(f"{mpath}: 'files' must name at least the cell file")
@@ -416,7 +416,7 @@ class RecordingReader:
         counts = m.get("counts") or {}
         for key in ("decisions", "frames"):  # "14" for 14 gave "holds 14 decisions, the manifest says 14"
             if key in counts and (isinstance(counts[key], bool) or not isinstance(counts[key], int)):
-                raise BadInput(f"{mpath}: 'counts.{key}' must be a whole number, not {counts[key]!r}")
+                raise BadInput(f"{mpath}: 'counts.{key}' must be a whole number, not {short_repr(counts[key])}")
         at_close = m.get("can_frames_at_close", 0)  # absent in recordings made before replay checked it
         if isinstance(at_close, bool) or not isinstance(at_close, int) or at_close < 0:  # else the check is skipped
             raise BadInput(f"{mpath}: 'can_frames_at_close' must be a whole number of CAN frames (0 or more), "

@@ -176,7 +176,7 @@ def parse_scene(raw, source: str = "<scene>", base_dir: Path | None = None) -> S
     if target is None:
         raise BadInput(f"{source}: the scene has no 'target' (the id of the part to grasp)")
     if not isinstance(target, str):
-        raise BadInput(f"{source}: 'target' must be a part id string, got {target!r}")
+        raise BadInput(f"{source}: 'target' must be a part id string, got {short_repr(target)}")
     scene = Scene(parts, target, cell_path, source)
     _require_straight_up(scene.part(target), source)  # a target that is not in the scene is bad input too
     return scene
@@ -239,7 +239,7 @@ def _parse_common(raw, source, base_dir):
         raise BadInput(f"{source}: top level must be a JSON object")
     units = raw.get("units", "mm")
     if units != "mm":
-        raise BadInput(f"{source}: 'units' must be 'mm', got {units!r}")
+        raise BadInput(f"{source}: 'units' must be 'mm', got {short_repr(units)}")
     raw_parts = raw.get("parts")
     if not isinstance(raw_parts, list) or not raw_parts:
         raise BadInput(f"{source}: 'parts' must be a non-empty list")
@@ -256,7 +256,7 @@ def own_cell_path(raw: dict, source: str, base_dir: Path | None) -> str | None:
     cell_path = raw.get("cell")
     if cell_path is not None:
         if not isinstance(cell_path, str) or not cell_path.strip():  # "" named the scene's own folder
-            raise BadInput(f"{source}: 'cell' must be a path string, got {cell_path!r}")
+            raise BadInput(f"{source}: 'cell' must be a path string, got {short_repr(cell_path)}")
         if base_dir is not None and not Path(cell_path).is_absolute():
             cell_path = str(base_dir / cell_path)
     return cell_path

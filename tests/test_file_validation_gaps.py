@@ -73,10 +73,10 @@ NOT_A_ROTATION = "pose.cam2base rotation part is not a rotation matrix"
 POSE_CASES = [
     ("version-0", _set("version", 0),
      "version 0 is not supported (this program reads version 1, and 2 for a tilted plane)"),
-    ("version-true", _set("version", True), "'version' must be an integer, got True"),  # true == 1 in Python
+    ("version-true", _set("version", True), "'version' must be an integer, got true"),  # true == 1 in Python
     ("version-1.0", _set("version", 1.0), "'version' must be an integer, got 1.0"),
     ("version-string", _set("version", "1"), "'version' must be an integer, got '1'"),
-    ("version-missing", _set("version", DROP), "'version' must be an integer, got None"),
+    ("version-missing", _set("version", DROP), "'version' must be an integer, got null"),
     # orthonormal, det -1: a mirror image, not a camera pose
     ("cam2base-reflection", _rotation(lambda r: r * [-1, 1, 1]), NOT_A_ROTATION),
     ("cam2base-minus-rotation", _rotation(lambda r: -r), NOT_A_ROTATION),
@@ -88,10 +88,10 @@ POSE_CASES = [
      "pose.cam2base must be a 4 x 4 list of finite numbers"),
     ("cam2base-ragged", lambda d: d["pose"]["cam2base"][2].pop(), "pose.cam2base must be a 4 x 4 list of numbers"),
     ("cam2base-missing", _set("pose", "cam2base", DROP), "pose.cam2base must be a 4 x 4 list of finite numbers"),
-    ("plane-z-nan", _set("pose", "plane_z_mm", NAN), "pose.plane_z_mm must be a finite number, got nan"),
-    ("fx-nan", _set("intrinsics", "fx", NAN), "intrinsics.fx must be a finite number, got nan"),
-    ("cy-infinity", _set("intrinsics", "cy", INF), "intrinsics.cy must be a finite number, got inf"),
-    ("dist-nan", _set("intrinsics", "dist", 0, NAN), "intrinsics.dist must be a finite number, got nan"),
+    ("plane-z-nan", _set("pose", "plane_z_mm", NAN), "pose.plane_z_mm must be a finite number, got NaN"),
+    ("fx-nan", _set("intrinsics", "fx", NAN), "intrinsics.fx must be a finite number, got NaN"),
+    ("cy-infinity", _set("intrinsics", "cy", INF), "intrinsics.cy must be a finite number, got Infinity"),
+    ("dist-nan", _set("intrinsics", "dist", 0, NAN), "intrinsics.dist must be a finite number, got NaN"),
 ]
 
 SINGULAR = "homography.px_to_mm is singular (or too badly conditioned to invert)"
@@ -182,11 +182,11 @@ EXAMPLE_CASES = [
     ("contact_valid-strings", _edit(contact_valid=["yes", "no"]), f" (b): {PER_CONTACT}"),
     ("format-unknown", _edit(format="grasp-example-v2"),
      ": not a grasp-example v1 line (format='grasp-example-v2', version=1)"),
-    ("format-null", _edit(format=None), ": not a grasp-example v1 line (format=None, version=1)"),
+    ("format-null", _edit(format=None), ": not a grasp-example v1 line (format=null, version=1)"),
     ("version-2", _edit(version=2), ": not a grasp-example v1 line (format='grasp-example', version=2)"),
     ("version-0", _edit(version=0), ": not a grasp-example v1 line (format='grasp-example', version=0)"),
     # a bool is not a version, though True == 1 (calibration and cell files refuse it too)
-    ("version-true", _edit(version=True), ": not a grasp-example v1 line (format='grasp-example', version=True)"),
+    ("version-true", _edit(version=True), ": not a grasp-example v1 line (format='grasp-example', version=true)"),
     # integer literals no float holds, and numbers no arm has: were internal errors (OverflowError) or, for
     # 1e308 deg, overflow warnings in step 5's joint distances
     ("contact-huge-integer", _edit(contacts=[[10**400, 20], [340, 20]]), f" (b): {TWO_POINTS} (one is too large)"),

@@ -346,8 +346,8 @@ def test_replay_refuses_a_can_log_cut_off_at_a_line_boundary(tmp_path, capsys):
     assert code == 2 and f"holds {n // 2} CAN frames, the manifest says it held {n}" in err
 
 
-@pytest.mark.parametrize("value, shown", [('"many"', "'many'"), ("1e300", "1e+300"), ("NaN", "nan"), ("-1", "-1"),
-                                          ("3151.5", "3151.5"), ("true", "True"), ("null", "None")])
+@pytest.mark.parametrize("value, shown", [('"many"', "'many'"), ("1e300", "1e+300"), ("NaN", "NaN"), ("-1", "-1"),
+                                          ("3151.5", "3151.5"), ("true", "true"), ("null", "null")])
 @pytest.mark.parametrize("cut", [False, True], ids=["whole-log", "cut-log"])
 def test_replay_refuses_a_manifest_whose_can_frames_at_close_is_not_a_count(tmp_path, capsys, value, shown, cut):
     """Was: the truncation check skipped; a log cut at a line boundary replayed as a divergence (exit 1), a whole
@@ -525,7 +525,7 @@ def test_replay_refuses_a_cell_or_calibration_file_that_is_not_the_one_the_sessi
     ({"cell": "c443dc17"}, "'sha256.cell' must be a sha256 (64 hex digits), not 'c443dc17'"),
     ({"cell": "z" * 64}, "'sha256.cell' must be a sha256 (64 hex digits), not 'zzzz"),
     ({"calibration": 5}, "'sha256.calibration' must be a sha256 (64 hex digits), not 5"),
-    ({"calibration": None}, "'sha256.calibration' must be a sha256 (64 hex digits), not None"),
+    ({"calibration": None}, "'sha256.calibration' must be a sha256 (64 hex digits), not null"),
 ], ids=["not-an-object", "cell-short", "cell-not-hex", "calibration-a-number", "calibration-null"])
 def test_replay_refuses_a_manifest_whose_sha256_entry_is_not_a_sha256(tmp_path, capsys, sha256, match):
     d = _copy_of_shipped(tmp_path)

@@ -12,12 +12,14 @@ grips, so the sequence goes on.
 
 from __future__ import annotations
 
+import json
 import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from cell.errors import BadInput, CellError
+from cell.fileio import short_repr
 from cell.grasp.params import MAX_FINER_STEPS, SynthesisParams
 from cell.runtime.control import Decision, RunControl
 
@@ -99,7 +101,12 @@ def differences(recorded, replayed, path: str = "") -> list[str]:
             return []
     elif recorded == replayed:
         return []
-    return [f"{path.rstrip('.')}: recorded {recorded!r}, replayed {replayed!r}"]
+    return [f"{path.rstrip('.')}: recorded {_as_json(recorded)}, replayed {_as_json(replayed)}"]
+
+
+def _as_json(v) -> str:
+    """A recorded or replayed value in full, spelt as the decisions file spells it (null, true)."""
+    return repr(v) if isinstance(v, str) else json.dumps(v, default=repr)
 
 
 @dataclass
@@ -285,10 +292,11 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     load_examples(examples_src)  # a bad file names itself, not the working copy the replay makes of it
     if meta.get("on_no_grasp", "stop") not in ("stop", "skip"):
         raise BadInput(f"recording {directory}: manifest meta.on_no_grasp must be 'stop' or 'skip', "
-                       f"not {meta.get('on_no_grasp')!r}")
+                       f"not {short_repr(meta.get('on_no_grasp'))}")
     lift_check = meta.get("lift_check", False)  # absent in recordings made before the loop checked the grip
     if not isinstance(lift_check, bool):
-        raise BadInput(f"recording {directory}: manifest meta.lift_check must be true or false, not {lift_check!r}")
+        raise BadInput(f"recording {directory}: manifest meta.lift_check must be true or false, "
+                       f"not {short_repr(lift_check)}")
     planner = meta.get("planner")  # absent (or null) in recordings made before it was kept; [] is no planner
     planner_params = planner_from_meta({} if planner is None else planner, f"recording {directory}")
     recorded = [d for d in rec.decisions if d.get("type") != "summary"]

@@ -176,6 +176,7 @@ def test_every_pick_checks_its_grip_after_the_lift_and_the_recording_says_so(rec
     rec, _ = recorded
     r = RecordingReader(rec)
     assert r.manifest["meta"]["lift_check"] is True  # replayed with the check (older recordings without it)
+    assert r.manifest["meta"]["whole_part_report"] is True  # a part picked again keeps its tries (not before)
     for d in (d for d in r.decisions if d["type"] == "executed"):
         labels = [x["label"] for x in d["records"]]
         assert labels[labels.index("lift") + 1] == "check" and labels.index("check") < labels.index("carry")
@@ -542,6 +543,7 @@ def test_a_part_that_fell_out_while_the_arm_stood_faulted_is_planned_again_not_c
     assert first == s["parts"][0]["part"]
     assert (s["parts_total"], s["parts_removed"]) == (3, 3)
     assert s["parts"][0]["reason"] != "carried off after the pick was cut short"
+    assert s["parts"][0]["attempts"] == 2 and s["grasps"] == 4  # its first grasp is not forgotten
     events = world.events
     fell_at = events.index(f"{first} slipped out of the jaws and fell back")
     assert f"gripped {first}" in events[fell_at + 1]  # gripped again from the tray, after the fall

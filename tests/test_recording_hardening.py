@@ -174,6 +174,7 @@ def _middle_frame_lost_in_a_crash(d: Path) -> None:
     (_edit_manifest(meta=5), "'meta' must be an object"),
     (_edit_manifest(**{"meta.on_no_grasp": "explode"}), "meta.on_no_grasp must be 'stop' or 'skip'"),
     (_edit_manifest(**{"meta.lift_check": 1}), "meta.lift_check must be true or false"),
+    (_edit_manifest(**{"meta.whole_part_report": "yes"}), 'meta.whole_part_report must be true or false, not \'yes\''),
     (_middle_frame_lost_in_a_crash, "frame 1 (frames/000001.png) is missing"),
 ])
 def test_replay_refuses_a_malformed_manifest_or_a_lost_frame(tmp_path, capsys, damage, match):

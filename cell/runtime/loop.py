@@ -87,6 +87,9 @@ class LoopOptions:
     interactive: bool = False  # an operator answers (the station); else a stop ends the run
     min_area_mm2: float = 75.0  # smaller regions are dust
     lift_check: bool = True  # grip again after the lift (motion.pick_commands); off in recordings made before it
+    # A part picked again (it stayed on the tray, the run stopped on it) goes on in its report: its attempts
+    # and times add up. Off in recordings made before: their reports started anew.
+    whole_part_report: bool = True
 
 
 @dataclass
@@ -278,7 +281,7 @@ class CellLoop:
             self._retreat()
         frame, index = self._read_frame()
         t0 = time.perf_counter()
-        report = self._unfinished = PartReport(part_id, "removed")
+        report = self._unfinished = self._report_for(part_id)
         scene = self._scene_in(frame, index, part_id)
         if scene is None:
             return
@@ -730,6 +733,13 @@ class CellLoop:
                 self.arm.gripper.open(retreat_opening_mm(grasp.opening_mm, self.arm.gripper.width_mm, self.cell))
             self.arm.move_joints(above(at, safe_z))
         self.arm.gripper.open()
+
+    def _report_for(self, part_id: str) -> PartReport:
+        """The report of this cycle's part: the one of its earlier tries when it is picked again."""
+        earlier = self._unfinished
+        if self.options.whole_part_report and earlier is not None and earlier.part == part_id:
+            return replace(earlier, outcome="removed", reason="")
+        return PartReport(part_id, "removed")
 
     def _stop_and_ask(self, source: str, why: str, fault: bool = False) -> None:
         """Hold for the operator (or end the run, when nobody is there to answer). `fault`: something

@@ -293,10 +293,9 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     if meta.get("on_no_grasp", "stop") not in ("stop", "skip"):
         raise BadInput(f"recording {directory}: manifest meta.on_no_grasp must be 'stop' or 'skip', "
                        f"not {short_repr(meta.get('on_no_grasp'))}")
-    lift_check = meta.get("lift_check", False)  # absent in recordings made before the loop checked the grip
-    if not isinstance(lift_check, bool):
-        raise BadInput(f"recording {directory}: manifest meta.lift_check must be true or false, "
-                       f"not {short_repr(lift_check)}")
+    # Loop settings absent in recordings made before the loop had them: off, as it ran then.
+    lift_check = _meta_flag(meta, "lift_check", directory)
+    whole_part_report = _meta_flag(meta, "whole_part_report", directory)
     planner = meta.get("planner")  # absent (or null) in recordings made before it was kept; [] is no planner
     planner_params = planner_from_meta({} if planner is None else planner, f"recording {directory}")
     recorded = [d for d in rec.decisions if d.get("type") != "summary"]
@@ -321,7 +320,8 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
             control = RecordedApprovals(rec.decisions, f"recording {directory}")
             loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=FileCamera(frames), arm=arm,
                             control=control, examples_path=work_examples, sink=sink,
-                            options=LoopOptions(on_no_grasp=meta.get("on_no_grasp", "stop"), lift_check=lift_check),
+                            options=LoopOptions(on_no_grasp=meta.get("on_no_grasp", "stop"), lift_check=lift_check,
+                                                whole_part_report=whole_part_report),
                             planner_params=planner_params, taught=sink.examples_taught_here)
             go_to(arm, home_joints(cell))
             control.run(by="replay")
@@ -408,6 +408,14 @@ def first_host_frame_difference(recorded_messages, replayed_log) -> str | None:
         if len(a) != len(b):
             return f"CAN id 0x{i:03X}: the host sent {len(b)} frames in the replay, {len(a)} in the recording"
     return None
+
+
+def _meta_flag(meta: dict, key: str, directory) -> bool:
+    """A true/false loop setting of the manifest's meta; absent: false (recordings made before it)."""
+    value = meta.get(key, False)
+    if not isinstance(value, bool):
+        raise BadInput(f"recording {directory}: manifest meta.{key} must be true or false, not {short_repr(value)}")
+    return value
 
 
 def _cut_short(rec) -> bool:

@@ -238,6 +238,7 @@ def run_session(cfg: RunConfig) -> dict:
                                          "seed": cfg.seed, "shift_mm": cfg.shift_mm,
                                          "on_no_grasp": cfg.on_no_grasp,
                                          "lift_check": options.lift_check,
+                                         "whole_part_report": options.whole_part_report,
                                          "real_cell": None if cfg.real_cell is None else vars(cfg.real_cell),
                                          "planner": planner_meta(loop_planner_params())})
         # The examples as they were at the start: replay needs them even after this session

@@ -246,11 +246,30 @@ class RecordedApprovals(RunControl):
             if not isinstance(d.get("approved"), bool):
                 raise BadInput(f"{where}: a recorded operator decision has no true/false 'approved'")
 
+        self.sink: Comparison | None = None  # where the replay is in the recording
+
     def request_approval(self, proposal: dict, *, timeout_s=None) -> Decision:
         if not self._answers:
             return super().request_approval(proposal, timeout_s=timeout_s)
         d = self._answers.pop(0)
         return Decision(bool(d["approved"]), d.get("reason", ""), d.get("by", "operator"))
+
+    def report_fault(self, source: str, why: str, *, asking: bool = False) -> None:
+        """The loop stopped to ask (or a drive faulted): answer as the operator did at the station. The
+        session went on (the next recorded decision is the loop's): reset and run. The operator stopped
+        it: stop, with their reason. Nothing more is recorded: the session ended here."""
+        from cell.runtime.loop import StopRun
+
+        super().report_fault(source, why, asking=asking)
+        at = None if self.sink is None else self.sink.position
+        following = self.sink.recorded[at] if at is not None and at < len(self.sink.recorded) else None
+        if following is None:
+            raise StopRun(f"{source}: {why}")
+        if following.get("type") == "stop" and following.get("source") == "operator":
+            self.stop(str(following.get("reason") or ""), by="replay")
+        else:
+            self.reset(by="replay")
+            self.run(by="replay")
 
 
 def replay(directory: str | Path, examples: str | Path | None = None, progress=None) -> dict:
@@ -318,10 +337,12 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
         with simulated_cell(cell, record=str(replay_can)) as (arm, drives):
             sink = Comparison(recorded, drives, strict, cut_short=_cut_short(rec))
             control = RecordedApprovals(rec.decisions, f"recording {directory}")
+            control.sink = sink
+            # interactive: a stop to ask waits for the (recorded) operator's answer, as at the station
             loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=FileCamera(frames), arm=arm,
                             control=control, examples_path=work_examples, sink=sink,
                             options=LoopOptions(on_no_grasp=meta.get("on_no_grasp", "stop"), lift_check=lift_check,
-                                                whole_part_report=whole_part_report),
+                                                whole_part_report=whole_part_report, interactive=True),
                             planner_params=planner_params, taught=sink.examples_taught_here)
             go_to(arm, home_joints(cell))
             control.run(by="replay")

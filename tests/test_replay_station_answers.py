@@ -1,0 +1,101 @@
+"""A station session in which the loop stopped to ask and the operator answered replays to its end.
+Replay used to run without an operator: it ended at the loop's first stop ("the replay ended after 17 of
+48 recorded decisions"), whether the operator then reset and ran on, or stopped the sequence."""
+
+import json
+import re
+import threading
+import time
+import urllib.request
+from importlib import resources
+from pathlib import Path
+
+import pytest
+from conftest import run_cli
+
+from cell.recording import RecordingReader
+from cell.runtime.session import RunConfig, run_session
+from cell.runtime.simworld import WorldFaults
+
+DEFAULT = Path(str(resources.files("cell") / "data" / "assemblies" / "default.json"))
+T = 60.0
+TOKEN = "answers-test-token"
+
+
+def _post(url, path, body=None):
+    req = urllib.request.Request(url + path, data=json.dumps(body or {}).encode(), method="POST")
+    req.add_header("Content-Type", "application/json")
+    req.add_header("X-Cell-Token", TOKEN)
+    with urllib.request.urlopen(req, timeout=T) as r:
+        return json.loads(r.read())
+
+
+def _control(url):
+    with urllib.request.urlopen(url + "/api/state", timeout=T) as r:
+        return json.loads(r.read())["control"]
+
+
+def _wait(url, pred, what):
+    deadline = time.monotonic() + T
+    while time.monotonic() < deadline:
+        c = _control(url)
+        if pred(c):
+            return c
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}: {c['state']}")
+
+
+def _station_run(tmp_path, faults):
+    d = json.loads(DEFAULT.read_text())
+    d["parts"] = [p for p in d["parts"] if p["id"] in ("nut", "washer")]
+    d["sequence"] = ["washer", "nut"]
+    d.pop("cell", None)
+    assembly = tmp_path / "two.json"
+    assembly.write_text(json.dumps(d))
+    lines, ended = [], []
+    rec = tmp_path / "session"
+    cfg = RunConfig(assembly=assembly, record=rec, seed=1, station=True, station_port=0, station_token=TOKEN,
+                    faults=faults, progress=lines.append)
+
+    def work():
+        try:
+            ended.append(run_session(cfg))
+        except BaseException as e:  # noqa: BLE001 - the test asserts on it
+            ended.append(e)
+
+    t = threading.Thread(target=work, daemon=True)
+    t.start()
+    deadline = time.monotonic() + T
+    while not any("operator station:" in s for s in lines):
+        assert time.monotonic() < deadline and t.is_alive(), (lines, ended)
+        time.sleep(0.05)
+    url = re.search(r"(http://127\.0\.0\.1:\d+)", next(s for s in lines if "operator station:" in s)).group(1)
+    return t, url, ended, rec
+
+
+@pytest.mark.parametrize("answer", ["reset", "stop"])
+def test_a_station_session_replays_past_the_operators_answer_to_a_stop(tmp_path, capsys, answer):
+    # the washer's first two grips miss: the loop retries once, then stops to ask
+    t, url, ended, rec = _station_run(tmp_path, WorldFaults(miss={"washer": 2}))
+    _post(url, "/api/run")
+    c = _wait(url, lambda c: c["state"] == "fault", "the stop to ask")
+    assert c["fault"]["asking"] and "washer: missed 2 times" in c["fault"]["why"], c
+    if answer == "reset":
+        _post(url, "/api/reset")
+        _post(url, "/api/run")
+    else:
+        _post(url, "/api/stop", {"reason": "the washer is bent"})
+    t.join(T)
+    summary = ended[0]
+    assert isinstance(summary, dict), summary
+    if answer == "reset":
+        assert (summary["status"], summary["parts_removed"]) == ("complete", 2)
+        washer = next(p for p in summary["parts"] if p["part"] == "washer")
+        assert washer["attempts"] == 3  # two misses before the stop, the grip after the reset
+    else:
+        assert summary["status"] == "stopped" and "the washer is bent" in summary["stopped"]
+    recorded = [d for d in RecordingReader(rec).decisions if d["type"] != "summary"]
+    code, out, err = run_cli("replay", rec, "--json", capsys=capsys)
+    assert code == 0, err
+    result = json.loads(out.strip().splitlines()[-1])
+    assert result["matched"] == result["decisions"] == len(recorded), result

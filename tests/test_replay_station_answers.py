@@ -99,3 +99,25 @@ def test_a_station_session_replays_past_the_operators_answer_to_a_stop(tmp_path,
     assert code == 0, err
     result = json.loads(out.strip().splitlines()[-1])
     assert result["matched"] == result["decisions"] == len(recorded), result
+
+
+def test_ctrl_c_while_the_station_shows_the_end_leaves_a_complete_run_complete(tmp_path, capsys, monkeypatch):
+    """The station answers 2 s more after the run ends; an operator's Ctrl-C then turned a complete run into
+    a stopped one (exit 130), closed the recording incomplete and quick-stopped the arm after its end."""
+    from cell.runtime import session
+
+    sleep = time.sleep
+
+    def interrupted_linger(s):
+        if s == session.STATION_LINGER_S:
+            raise KeyboardInterrupt
+        sleep(s)
+
+    monkeypatch.setattr(session.time, "sleep", interrupted_linger)
+    t, url, ended, rec = _station_run(tmp_path, WorldFaults())
+    _post(url, "/api/run")
+    t.join(T)
+    assert isinstance(ended[0], dict) and ended[0]["status"] == "complete", ended
+    assert RecordingReader(rec).manifest["status"] == "complete"
+    code, _, err = run_cli("replay", rec, capsys=capsys)
+    assert code == 0, err

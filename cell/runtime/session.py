@@ -544,13 +544,16 @@ def _with_station(loop: CellLoop, control: RunControl, cfg: RunConfig, say) -> d
         try:
             while t.is_alive():
                 t.join(0.2)
-            # done, stopped or failed: the page polls a few more times and shows how it ended
-            time.sleep(STATION_LINGER_S)
         except KeyboardInterrupt:
             control.stop("interrupted at the terminal")
             loop.arm.stop()  # a pick in progress ends now, not when it is done
             t.join()
             raise
+        # done, stopped or failed: the page polls a few more times and shows how it ended. Ctrl-C here
+        # only ends the wait: the run has ended as it did (it made a complete run "stopped", and the
+        # quick stop's frames came after the recording's end)
+        with contextlib.suppress(KeyboardInterrupt):
+            time.sleep(STATION_LINGER_S)
     if "error" in result:
         raise result["error"]
     return result["summary"]

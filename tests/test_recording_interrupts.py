@@ -188,3 +188,19 @@ def test_a_decision_file_cut_short_during_the_session_is_still_refused(tmp_path)
     w.close("incomplete")
     with pytest.raises(BadInput, match="holds 2 decisions, the manifest says 3"):
         RecordingReader(tmp_path / "r")
+
+
+def test_a_session_stopped_before_its_first_frame_replays(tmp_path, capsys):
+    """The camera gave no readable frame (or the operator stopped before Run): the recording is whole, with
+    one stop and no frames. Replay refused it as "holds no frames" (exit 2)."""
+    from cell.runtime.session import RunConfig, run_session
+    from cell.runtime.simworld import WorldFaults
+
+    rec = tmp_path / "no-frames"
+    s = run_session(RunConfig(assembly=_two_parts(tmp_path), record=rec, seed=1, faults=WorldFaults(bad_frames=5)))
+    assert s["status"] == "stopped" and "no readable frame" in s["stopped"]
+    assert RecordingReader(rec).frame_indices == []
+    code, out, err = run_cli("replay", rec, "--json", capsys=capsys)
+    assert code == 0, err
+    result = json.loads(out.strip().splitlines()[-1])
+    assert result["matched"] == result["decisions"] == 1 and "no readable frame" in result["session"]["stopped"]

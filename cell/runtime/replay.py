@@ -320,6 +320,11 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     recorded = [d for d in rec.decisions if d.get("type") != "summary"]
     frames = [rec.frame_path(i) for i in rec.frame_indices]
     if not frames:
+        if recorded and all(d.get("type") == "stop" for d in recorded) and not _cut_short(rec):
+            # stopped before the camera gave a frame (the operator, or no readable frame): nothing to re-run
+            say("the session stopped before its first frame")
+            return {"decisions": len(recorded), "matched": len(recorded), "differences": [],
+                    "session": recorded_end(rec)}
         raise BadInput(f"recording {directory} holds no frames")
     for i in rec.frame_indices:  # a frame the loop would skip as unreadable would shift all that follow
         frame = rec.read_frame(i)

@@ -332,3 +332,17 @@ def test_a_stop_to_ask_is_not_called_a_fault():
     snap = rc.snapshot()
     assert snap["fault"]["asking"] is False and snap["message"] == "fault in j2: following error"
     assert snap["events"][-1]["event"] == "fault"
+
+
+def test_after_the_loop_has_ended_run_step_and_reset_are_refused():
+    """`cell run --station` answers 2 s more after the run ends: Reset there went to idle and Run to
+    "running" with no loop behind it, and the page then lost the cell without saying why."""
+    rc = RunControl()
+    rc.run()
+    rc.stop("enough")
+    rc.end()
+    for command in (rc.reset, rc.run, rc.step):
+        with pytest.raises(InvalidCommand, match="the run has ended: start cell run again"):
+            command()
+    assert rc.state == STOPPED and rc.snapshot()["ended"] == "the run has ended: start cell run again"
+    assert rc.stop() == STOPPED  # a second stop stays harmless

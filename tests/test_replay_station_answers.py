@@ -121,3 +121,18 @@ def test_ctrl_c_while_the_station_shows_the_end_leaves_a_complete_run_complete(t
     assert RecordingReader(rec).manifest["status"] == "complete"
     code, _, err = run_cli("replay", rec, capsys=capsys)
     assert code == 0, err
+
+
+def test_the_station_refuses_reset_and_run_once_the_run_has_ended(tmp_path):
+    import urllib.error
+
+    t, url, ended, rec = _station_run(tmp_path, WorldFaults())
+    _post(url, "/api/run")
+    c = _wait(url, lambda c: c.get("ended"), "the end of the run")
+    assert c["state"] == "done"
+    for path in ("/api/reset", "/api/run"):
+        with pytest.raises(urllib.error.HTTPError) as e:
+            _post(url, path)
+        assert e.value.code == 409 and "the run has ended" in e.value.read().decode()
+    assert _control(url)["state"] == "done"
+    t.join(T)

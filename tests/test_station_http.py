@@ -138,7 +138,7 @@ def test_commands_the_state_does_not_allow_get_409(station):
     status, reply = call(server, "POST", "/api/run")
     assert status == 409 and "Reset" in reply["error"]
     status, state = call(server, "GET", "/api/state")
-    assert state["control"]["fault"] == {"source": "j2", "why": "following error",
+    assert state["control"]["fault"] == {"source": "j2", "why": "following error", "asking": False,
                                          "t": state["control"]["fault"]["t"]}
     assert call(server, "POST", "/api/reset")[1]["control"]["state"] == "idle"
 

@@ -89,12 +89,14 @@ class RunControl:
         self._current: dict = {"step": None, "part": None}
         self._fault: dict | None = None
         self._summary: dict | None = None
+        self._ended: str | None = None  # the loop is gone (its process ends): nothing can be run or reset
         self._seq = 0  # bumped on every change; the page can tell when to redraw
         self._events: deque[dict] = deque(maxlen=event_log_size)
         self._event_no = 0
         self._listeners: list = []
         with self._cond:
-            self._log_locked("init", f"run control ready (approve each grasp: {self._require_approval})")
+            each = "on" if self._require_approval else "off"
+            self._log_locked("init", f"run control ready (approve each grasp: {each})")
 
     # ------------------------------------------------------------------ helpers (lock held)
     def _log_locked(self, event: str, message: str = "", **data) -> None:
@@ -123,6 +125,17 @@ class RunControl:
 
     def _refuse(self, command: str, why: str):
         raise InvalidCommand(f"cannot {command} while {self._state}: {why}")
+
+    def _refuse_if_ended_locked(self, command: str) -> None:
+        if self._ended is not None:
+            raise InvalidCommand(f"cannot {command}: {self._ended}")
+
+    def end(self, why: str = "the run has ended: start cell run again") -> None:
+        """The loop has returned for good (the station still answers a moment to show how it ended):
+        Run, Step and Reset are refused from now on, not taken by a control with no loop behind it."""
+        with self._cond:
+            self._ended = why
+            self._log_locked("ended", why)
 
     def _refuse_unseen_locked(self, shown: dict | None, shown_no: int | None) -> None:
         """A decision for the proposal the operator saw must not land on another one that came since
@@ -173,6 +186,7 @@ class RunControl:
     def run(self, by: str = "operator") -> str:
         """Run continuously (from idle or paused; ends step mode)."""
         with self._cond:
+            self._refuse_if_ended_locked("run")
             if self._state in (STOPPED, FAULT, DONE):
                 self._refuse("run", "press Reset first")
             self._step_mode = False
@@ -201,6 +215,7 @@ class RunControl:
     def step(self, by: str = "operator") -> str:
         """Let the loop pass one checkpoint, then pause at the next one."""
         with self._cond:
+            self._refuse_if_ended_locked("step")
             if self._state in (STOPPED, FAULT, DONE):
                 self._refuse("step", "press Reset first")
             self._step_mode = True
@@ -257,6 +272,7 @@ class RunControl:
     def reset(self, by: str = "operator") -> str:
         """Clear a fault (or a stop, or the end of a sequence) and go back to idle."""
         with self._cond:
+            self._refuse_if_ended_locked("reset")
             if self._state == IDLE:
                 return self._state
             if self._state not in (FAULT, STOPPED, DONE):
@@ -292,6 +308,7 @@ class RunControl:
             return {
                 "state": self._state,
                 "message": self._message,
+                "ended": self._ended,
                 "seq": self._seq,
                 "require_approval": self._require_approval,
                 "step_mode": self._step_mode,

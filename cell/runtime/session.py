@@ -549,6 +549,7 @@ def _with_station(loop: CellLoop, control: RunControl, cfg: RunConfig, say) -> d
             loop.arm.stop()  # a pick in progress ends now, not when it is done
             t.join()
             raise
+        control.end()
         # done, stopped or failed: the page polls a few more times and shows how it ended. Ctrl-C here
         # only ends the wait: the run has ended as it did (it made a complete run "stopped", and the
         # quick stop's frames came after the recording's end)

@@ -191,7 +191,7 @@ function render(data) {
   badge.className = "badge state-" + c.state;
   document.title = c.state.replace("_", " ") + " · Cell station";  // a tab in the background shows it too
   const after = c.state === "awaiting_approval" ? afterDecision(c.events || []) : "";
-  $("message").textContent = c.message + (after ? " — then " + after : "");
+  $("message").textContent = c.message + (after ? " — then " + after : "") + (c.ended ? " — " + c.ended : "");
   const cur = c.current || {};
   $("current").textContent = (cur.part ? "part " + cur.part : "") + (cur.step != null ? " · step " + cur.step : "")
     + (c.checkpoint ? " · at " + c.checkpoint : "");
@@ -201,7 +201,7 @@ function render(data) {
   if (c.fault) {
     fault.textContent = (c.fault.asking ? "STOPPED TO ASK — " + c.fault.source + " needs you: "
       : "FAULT in " + c.fault.source + ": ") + c.fault.why
-      + (c.state === "fault" ? " — fix it, then Reset" : " — the sequence is " + c.state.replace("_", " "));
+      + (c.state === "fault" && !c.ended ? " — fix it, then Reset" : " — the sequence is " + c.state.replace("_", " "));
   }
 
   // buttons: enabled only where the state allows the command
@@ -214,7 +214,7 @@ function render(data) {
   const decidable = s === "awaiting_approval" && c.proposal_no !== decidedNo;  // one decision per grasp
   $("btn-approve").disabled = !decidable;
   $("btn-reject").disabled = !decidable;
-  $("btn-reset").disabled = !["fault", "stopped", "done"].includes(s);
+  $("btn-reset").disabled = !["fault", "stopped", "done"].includes(s) || !!c.ended;  // no loop left to reset
   $("btn-teach").disabled = !teach && !(cell.parts || []).length;  // nothing on the frame to teach on
   $("view").classList.remove("stale");
   const ae = $("approve-each");

@@ -776,7 +776,7 @@ def test_a_tool_left_on_the_tray_is_an_obstacle_as_tall_as_the_tallest_part(tmp_
     s = run_session(RunConfig(assembly=DEFAULT, seed=0, faults=WorldFaults(extra=(tool,)), record=tmp_path / "r"))
     assert not any("would hit" in e for e in s["sim_events"]), s["sim_events"]
     assert s["parts_removed"] == 1 and s["parts"][0]["part"] == "nut" and s["parts"][0]["outcome"] == "removed"
-    assert s["stopped"] == "the test has its part"
+    assert s["stopped"] == "operator: the test has its part"  # as the part's reason and the recording say
     first = next(json.loads(line) for line in (tmp_path / "r" / "decisions.jsonl").read_text().splitlines()
                  if json.loads(line).get("type") == "perception")
     tall = [u for u in first["unexplained"] if u["z_top_mm"] == 40.0]

@@ -279,6 +279,8 @@ def test_sigterm_ends_cell_run_like_ctrl_c_and_the_recording_replays_to_there(tm
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["status"] == "stopped" and summary["parts_removed"] >= 1
     assert summary["stopped"] == "operator: interrupted at the terminal"
+    stopped = [p for p in summary["parts"] if p["outcome"] == "stopped"]  # the part worked on says why too
+    assert all(p["reason"] == "operator: interrupted at the terminal" for p in stopped), stopped
     r = RecordingReader(rec)
     assert r.manifest["status"] == "incomplete" and r.decisions[-1]["type"] == "stop"
     code, out, err = run_cli("replay", rec, capsys=capsys)

@@ -93,7 +93,9 @@ def test_a_station_session_replays_past_the_operators_answer_to_a_stop(tmp_path,
         washer = next(p for p in summary["parts"] if p["part"] == "washer")
         assert washer["attempts"] == 3  # two misses before the stop, the grip after the reset
     else:
-        assert summary["status"] == "stopped" and "the washer is bent" in summary["stopped"]
+        assert summary["status"] == "stopped" and summary["stopped"] == "operator: the washer is bent"
+        washer = next(p for p in summary["parts"] if p["part"] == "washer")
+        assert washer["reason"] == summary["stopped"]
     recorded = [d for d in RecordingReader(rec).decisions if d["type"] != "summary"]
     code, out, err = run_cli("replay", rec, "--json", capsys=capsys)
     assert code == 0, err

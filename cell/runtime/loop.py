@@ -239,7 +239,7 @@ class CellLoop:
                     self._final_check()
             except Stopped as e:
                 self.sink.write_decision({"type": "stop", "source": "operator", "reason": str(e)})
-                self._stopped_on(f"operator: {e}")
+                self.stopped_on(f"operator: {e}")
                 raise
             except StopRun:
                 raise
@@ -745,12 +745,12 @@ class CellLoop:
         """Hold for the operator (or end the run, when nobody is there to answer). `fault`: something
         failed (a drive, the camera); otherwise the loop only cannot decide on its own (no grasp)."""
         self.sink.write_decision({"type": "stop", "source": source, "reason": why})
-        self._stopped_on(f"{source}: {why}")
+        self.stopped_on(f"{source}: {why}")
         self.control.report_fault(source, why, asking=not fault)
         if not self.options.interactive:
             raise StopRun(f"{source}: {why}")
 
-    def _stopped_on(self, reason: str) -> None:
+    def stopped_on(self, reason: str) -> None:
         """Why the part being worked on stopped (the summary lists it if the run ends there)."""
         self._stop_reason = reason
         if self._unfinished is not None:

@@ -308,13 +308,15 @@ def run_session(cfg: RunConfig) -> dict:
                     # summary the session was over: replay ends there by itself)
                     recorder.write_decision({"type": "stop", "source": "operator",
                                              "reason": "interrupted at the terminal"})
+            loop.stopped_on("operator: interrupted at the terminal")  # the part worked on says so too
             summary = {**loop.summary(), "stopped": "operator: interrupted at the terminal"}  # (the arm stopped first)
             raise
         except (StopRun, Stopped) as e:
             interrupts.hold()
             status = "stopped"
-            summary = {**loop.summary(), "stopped": str(e)}
-            say(f"stopped: {e}")
+            why = f"operator: {e}" if isinstance(e, Stopped) else str(e)  # a StopRun names its source
+            summary = {**loop.summary(), "stopped": why}
+            say(f"stopped: {why}")
         except BaseException as e:  # a fault, a full disk, a bug: the session did not complete
             interrupts.hold()
             status = "failed"

@@ -167,7 +167,10 @@ def test_teach_appends_a_valid_example_and_the_next_proposal_uses_it(station, tm
     for body, match in (({"part": "ghost", "p1_px": p1, "p2_px": p2}, "no part 'ghost'"),
                         ({"part": "board", "p1_px": [1], "p2_px": p2}, "p1_px"),
                         ({"part": "board", "p1_px": p1, "p2_px": p1}, "apart"),
-                        ({"part": "board", "p1_px": [5, 5], "p2_px": p2}, "from the outline")):
+                        ({"part": "board", "p1_px": [5, 5], "p2_px": p2}, "from the outline"),
+                        # two taps on one edge: a pad there would push along it (was taught as valid)
+                        ({"part": "board", "p1_px": mm_to_px(o[0] + (o[1] - o[0]) * 0.2).tolist(),
+                          "p2_px": mm_to_px(o[0] + (o[1] - o[0]) * 0.8).tolist()}, "faces 90 deg off the jaws' line")):
         status, reply = call(server, "POST", "/api/teach", body)
         assert status == 400 and match in reply["error"], reply
     assert len(load_examples(tmp_path / "examples.jsonl")) == 1

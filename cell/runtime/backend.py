@@ -57,17 +57,9 @@ class LoopBackend:
         if part is None:
             raise BadInput(f"part {part_id!r} is not in the current frame")
         px = np.array([p1_px, p2_px], float)
-        clicked = lp.cal.px_to_mm(px, part.z_top_mm)
-        boundary = part.polygon.boundary
-        contacts = np.array([boundary.interpolate(boundary.project(Point(c))).coords[0] for c in clicked])
-        off = [float(np.linalg.norm(a - b)) for a, b in zip(contacts, clicked, strict=True)]
-        if max(off) > 5.0:
-            raise BadInput(f"the clicked points are {max(off):.1f} mm from {part_id}'s outline: click on its edge")
+        contacts = taught_contacts(part, lp.cal.px_to_mm(px, part.z_top_mm), lp.cell.gripper.opening_mm)
         d = contacts[1] - contacts[0]
         opening = float(np.hypot(*d))
-        lo, hi = lp.cell.gripper.opening_mm
-        if not lo < opening <= hi:
-            raise BadInput(f"the two contacts are {opening:.1f} mm apart; the jaws open {lo:g} to {hi:g} mm")
         z = grasp_z_mm(part.z_bottom_mm, part.z_top_mm, lp.cell.gripper, lp.cell.scara.j3_mm)
         centre = contacts.mean(axis=0)
         axis = float(np.degrees(np.arctan2(d[1], d[0])))
@@ -84,6 +76,42 @@ class LoopBackend:
                 "contacts_mm": np.round(contacts, 2).tolist(),
                 "opening_mm": round(opening, 2), "joints": None if joints is None else joints.rounded(3).as_dict(),
                 }
+
+
+TAUGHT_FACING_MAX_DEG = 45.0  # a taught contact's outline may face this far off the jaws' line (a careless tap)
+
+
+def taught_contacts(part, clicked_mm: np.ndarray, opening_mm: tuple[float, float], off_max_mm: float = 5.0):
+    """The operator's two taps on a part (mm, on its top) -> the contacts of a valid example: the nearest points
+    of its outline, within `off_max_mm` of the taps, as far apart as the jaws open, facing away from each other."""
+    boundary = part.polygon.boundary
+    contacts = np.array([boundary.interpolate(boundary.project(Point(c))).coords[0] for c in clicked_mm])
+    off = [float(np.linalg.norm(a - b)) for a, b in zip(contacts, clicked_mm, strict=True)]
+    if max(off) > off_max_mm:
+        raise BadInput(f"a clicked point is {max(off):.1f} mm from the outline of {part.id}: click on its edge")
+    opening = float(np.linalg.norm(contacts[1] - contacts[0]))
+    lo, hi = opening_mm
+    if not lo < opening <= hi:
+        raise BadInput(f"the two contacts are {opening:.1f} mm apart; the jaws open {lo:g} to {hi:g} mm")
+    _require_facing(part, contacts)
+    return contacts
+
+
+def _require_facing(part, contacts: np.ndarray) -> None:
+    """A taught grasp is a valid example: the jaws close along the line through the contacts, so each contact's
+    outline must face away from the other one (within TAUGHT_FACING_MAX_DEG). Two taps on one edge, or on
+    faces turned along the line, would teach a grasp no pad can hold."""
+    from cell.physics import outline_normal_and_turn
+
+    rings = [part.polygon.exterior, *part.polygon.interiors]
+    for i, (c, other) in enumerate(((contacts[0], contacts[1]), (contacts[1], contacts[0])), start=1):
+        normal, _ = outline_normal_and_turn(rings, c)
+        away = (c - other) / np.linalg.norm(c - other)
+        off_deg = 180.0 if normal is None else float(np.degrees(np.arccos(np.clip(normal @ away, -1.0, 1.0))))
+        if off_deg > TAUGHT_FACING_MAX_DEG:
+            raise BadInput(f"at contact {i} the outline faces {off_deg:.0f} deg off the jaws' line (at most "
+                           f"{TAUGHT_FACING_MAX_DEG:g}): a pad there would push along the edge, not against it; "
+                           "tap two faces that face away from each other")
 
 
 def _parts_by_outcome(reports, outcomes) -> dict:

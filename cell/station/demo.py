@@ -145,21 +145,11 @@ class DemoCell:
                 raise BadInput(f"no part {part_id!r} on the current frame "
                                f"(parts: {', '.join(p.id for p in self._parts) or 'none'})")
             others = tuple(p for p in self._parts if p.id != part_id)
-        from shapely.geometry import Point
-        from shapely.ops import nearest_points
+        from cell.runtime.backend import taught_contacts
 
-        clicked = px_to_mm(np.array([p1_px, p2_px], float))
-        boundary = part.polygon.boundary
-        snapped = np.array([nearest_points(boundary, Point(c))[0].coords[0] for c in clicked])
-        far = [float(boundary.distance(Point(c))) for c in clicked]
-        if max(far) > 15.0:
-            raise BadInput(f"a contact was clicked {max(far):.0f} mm from the outline of {part_id}; "
-                           "click on the part's edge")
+        snapped = taught_contacts(part, px_to_mm(np.array([p1_px, p2_px], float)), self.cell.gripper.opening_mm,
+                                  off_max_mm=15.0)
         opening = float(np.linalg.norm(snapped[1] - snapped[0]))
-        lo, hi = self.cell.gripper.opening_mm
-        if not (lo < opening <= hi):
-            raise BadInput(f"the two contacts are {opening:.1f} mm apart; the gripper holds "
-                           f"{lo:g} to {hi:g} mm")
         z = grasp_z_mm(part.z_bottom_mm, part.z_top_mm, self.cell.gripper, self.cell.scara.j3_mm)
         d = snapped[1] - snapped[0]
         axis = normalize_axis_deg(math.degrees(math.atan2(d[1], d[0])))

@@ -181,43 +181,63 @@ class RecordingWriter:
         has_cal = cal is not None or nominal_calibration is not None
         files = {"cell": "cell.json", "calibration": "calibration.json" if has_cal else None, "decisions": DECISIONS,
                  "frames": FRAMES_DIR, "can_log": CAN_LOG, "rrd": RRD}
+        made = [d for d in (self.dir, *self.dir.parents) if not d.exists()]  # taken away again on failure
         try:
-            self.dir.mkdir(parents=True, exist_ok=True)
-            (self.dir / FRAMES_DIR).mkdir(exist_ok=True)
-            shutil.copyfile(cell_src, self.dir / "cell.json")
-            if cal is not None:
-                shutil.copyfile(cal, self.dir / "calibration.json")
-            elif nominal_json is not None:
-                write_json_atomic(self.dir / "calibration.json", nominal_json)
-            examples = {"path": str(ex.resolve()), "sha256": file_sha256(ex)} if ex is not None else None
-            held_sha256 = {"cell": file_sha256(self.dir / "cell.json")}  # of the copies: what replay reads
-            if has_cal:
-                held_sha256["calibration"] = file_sha256(self.dir / "calibration.json")
-        except OSError as e:
-            raise BadInput(f"cannot write the recording into {self.dir}: {e.strerror or e}") from None
+            try:
+                self.dir.mkdir(parents=True, exist_ok=True)
+                (self.dir / FRAMES_DIR).mkdir(exist_ok=True)
+                shutil.copyfile(cell_src, self.dir / "cell.json")
+                if cal is not None:
+                    shutil.copyfile(cal, self.dir / "calibration.json")
+                elif nominal_json is not None:
+                    write_json_atomic(self.dir / "calibration.json", nominal_json)
+                examples = {"path": str(ex.resolve()), "sha256": file_sha256(ex)} if ex is not None else None
+                held_sha256 = {"cell": file_sha256(self.dir / "cell.json")}  # of the copies: what replay reads
+                if has_cal:
+                    held_sha256["calibration"] = file_sha256(self.dir / "calibration.json")
+            except OSError as e:
+                raise BadInput(f"cannot write the recording into {self.dir}: {e.strerror or e}") from None
 
-        self._lock = threading.Lock()
-        self._frame_indices: set[int] = set()
-        self._n_decisions = 0
-        self.last_decision: dict | None = None
-        self._closed = False
-        self._can_stops: list[Callable[[], None]] = []
-        self.manifest = {
-            "format": FORMAT, "version": VERSION, "status": "recording",
-            "created": _now_iso(), "closed": None,
-            "software": {"name": "disassembly-cell", "version": __version__,
-                         "python": platform.python_version()},
-            "cell_source": str(Path(cell_file).resolve()) if cell_file is not None else "embedded default",
-            "calibration_source": (str(Path(calibration_file).resolve()) if calibration_file
-                                   else nominal_calibration.name if nominal_calibration is not None else None),
-            "examples": examples, "files": files, "sha256": held_sha256, "counts": {"frames": 0, "decisions": 0},
-            "meta": to_jsonable(meta or {}),
-        }
-        try:
-            write_json_atomic(self.dir / MANIFEST, self.manifest)
-            self._decisions = open(self.dir / DECISIONS, "x", encoding="utf-8")  # noqa: SIM115 - held open
-        except OSError as e:
-            raise BadInput(f"cannot write the recording into {self.dir}: {e.strerror or e}") from None
+            self._lock = threading.Lock()
+            self._frame_indices: set[int] = set()
+            self._n_decisions = 0
+            self.last_decision: dict | None = None
+            self._closed = False
+            self._can_stops: list[Callable[[], None]] = []
+            self.manifest = {
+                "format": FORMAT, "version": VERSION, "status": "recording",
+                "created": _now_iso(), "closed": None,
+                "software": {"name": "disassembly-cell", "version": __version__,
+                             "python": platform.python_version()},
+                "cell_source": str(Path(cell_file).resolve()) if cell_file is not None else "embedded default",
+                "calibration_source": (str(Path(calibration_file).resolve()) if calibration_file
+                                       else nominal_calibration.name if nominal_calibration is not None else None),
+                "examples": examples, "files": files, "sha256": held_sha256, "counts": {"frames": 0, "decisions": 0},
+                "meta": to_jsonable(meta or {}),
+            }
+            try:
+                write_json_atomic(self.dir / MANIFEST, self.manifest)
+                self._decisions = open(self.dir / DECISIONS, "x", encoding="utf-8")  # noqa: SIM115 - held open
+            except OSError as e:
+                raise BadInput(f"cannot write the recording into {self.dir}: {e.strerror or e}") from None
+        except BaseException:  # a full disk, Ctrl-C, SIGTERM: no half-made folder that blocks the name
+            self._take_away(made)
+            raise
+
+    def _take_away(self, made: list[Path]) -> None:
+        """Remove what a set-up cut short made: the files it writes in the folder (it was empty or new), then
+        the folders it made."""
+        with contextlib.suppress(OSError):
+            if (d := getattr(self, "_decisions", None)) is not None:
+                d.close()
+            for name in (MANIFEST, DECISIONS, "cell.json", "calibration.json"):
+                (self.dir / name).unlink(missing_ok=True)
+            for tmp in self.dir.glob(".*.tmp*"):
+                tmp.unlink()
+            (self.dir / FRAMES_DIR).rmdir()
+        for d in made:  # deepest first
+            with contextlib.suppress(OSError):
+                d.rmdir()
 
     # -- paths the lead's loop attaches other writers to
     @property

@@ -204,3 +204,47 @@ def test_a_session_stopped_before_its_first_frame_replays(tmp_path, capsys):
     assert code == 0, err
     result = json.loads(out.strip().splitlines()[-1])
     assert result["matched"] == result["decisions"] == 1 and "no readable frame" in result["session"]["stopped"]
+
+
+@pytest.mark.parametrize("existing", [False, True], ids=["new-folder", "empty-folder"])
+def test_a_recording_set_up_cut_short_leaves_no_half_made_folder(tmp_path, monkeypatch, existing):
+    """SIGTERM between the folder's making and its manifest left frames/ alone: replay said "has no
+    manifest.json", and the next `cell run --record` with the name refused it as "not empty"."""
+    from cell import recording
+    from cell.recording import RecordingWriter
+
+    where = tmp_path / "shift" / "session"
+    if existing:
+        where.mkdir(parents=True)
+    copy = recording.shutil.copyfile
+
+    def interrupted(src, dst, *a, **k):
+        copy(src, dst, *a, **k)
+        raise KeyboardInterrupt("SIGTERM")
+
+    monkeypatch.setattr(recording.shutil, "copyfile", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        RecordingWriter(where)
+    assert (where.is_dir() and not any(where.iterdir())) if existing else not (tmp_path / "shift").exists()
+    monkeypatch.setattr(recording.shutil, "copyfile", copy)
+    RecordingWriter(where).close("complete")  # the name can be used again
+    assert RecordingReader(where).manifest["status"] == "complete"
+
+
+def test_sigterm_during_cell_runs_set_up_is_an_interrupt_not_a_kill(monkeypatch, capsys):
+    """The imports and the set-up take seconds before the session starts; SIGTERM there killed the process
+    (exit 143, no word) where the README promises 130 and "cell: interrupted"."""
+    import time
+
+    from cell.commands import run as run_command
+
+    def set_up(args):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)  # the handler raises in here
+        return 0
+
+    monkeypatch.setattr(run_command, "_run", set_up)
+    before = signal.getsignal(signal.SIGTERM)
+    code, _, err = run_cli("run", capsys=capsys)
+    assert code == 130 and "cell: interrupted" in err
+    assert signal.getsignal(signal.SIGTERM) is before  # handed back

@@ -57,6 +57,11 @@ def add_arguments(p):
 
 
 def run(args) -> int:
+    with sigterm_as_interrupt():  # from the start: the imports and the set-up take seconds (was killed, 143)
+        return _run(args)
+
+
+def _run(args) -> int:
     from cell.errors import BadInput
     from cell.runtime.session import RunConfig, run_session
     from cell.runtime.simworld import WorldFaults
@@ -99,8 +104,7 @@ def run(args) -> int:
                                        bad_frames=args.sim_bad_frames),
                     progress=lambda s: print(s, file=out, flush=True), real_cell=real_cell)
     try:
-        with sigterm_as_interrupt():
-            summary = run_session(cfg)
+        summary = run_session(cfg)
     except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM: every axis stopped; what was done is still reported
         if getattr(e, "summary", None) is not None:
             _report(e.summary, args.json, out)

@@ -254,8 +254,11 @@ def test_replay_checks_the_grip_as_the_recording_did(recorded, tmp_path, capsys)
         else:
             manifest["meta"]["lift_check"] = value
         (bad / "manifest.json").write_text(json.dumps(manifest))
-        code, _, err = run_cli("replay", bad, capsys=capsys)
+        code, out, err = run_cli("replay", bad, "--json", capsys=capsys)
         assert code == code_wanted and says in err and "Traceback" not in err, err
+        if code == 1:  # --json says how the recorded session ended, as on a match
+            result = json.loads(out.strip().splitlines()[-1])
+            assert result["match"] is False and result["session"]["status"] == "complete", result
 
 
 def test_a_part_that_falls_on_the_carry_is_noticed_on_the_next_frame(short_assembly):

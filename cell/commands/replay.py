@@ -27,8 +27,12 @@ def run(args) -> int:
         result = replay(args.recording, args.examples,
                         progress=lambda s: print(s, file=sys.stderr if args.json else sys.stdout, flush=True))
     except Divergence as e:
-        if args.json:
-            print(json.dumps({"match": False, "divergence": str(e)}))
+        if args.json:  # how the recorded session ended, as a match reports it
+            from cell.recording import RecordingReader
+            from cell.runtime.replay import recorded_end
+
+            print(json.dumps({"match": False, "divergence": str(e),
+                              "session": recorded_end(RecordingReader(args.recording))}))
         print(f"cell replay: divergence: {e}", file=sys.stderr)
         return 1
     result["match"] = not result["differences"]

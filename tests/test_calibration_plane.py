@@ -211,9 +211,9 @@ def test_markers_in_a_mirrored_frame_give_no_calibration(tmp_path, capsys):
      "within 1e+06 mm of the base"),
     # was: "corners must be 4 points [x, y, z] in mm, got shape (4, 3)" (the shape is right)
     ('{"dictionary": "DICT_4X4_50", "markers": {"0": [[NaN, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]}}',
-     "marker 0: corners must be finite numbers (mm), got nan"),
+     "marker 0: corners must be finite numbers (mm), got NaN"),
     ('{"dictionary": "DICT_4X4_50", "markers": {"0": [[0, 0, 0], [1, 0, 0], [1, 1, -Infinity], [0, 1, 0]]}}',
-     "marker 0: corners must be finite numbers (mm), got -inf"),
+     "marker 0: corners must be finite numbers (mm), got -Infinity"),
     ({"dictionary": "DICT_4X4_50", "markers": {"x" * 1000: [[0, 0, 0]] * 4}},
      "marker id '" + "x" * 36 + "... is not an integer"),
     # "0" and "00" are one marker: one of the two was silently dropped

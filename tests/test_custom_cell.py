@@ -95,7 +95,7 @@ def test_a_nan_inside_a_range_names_its_place(tmp_path, scene, capsys):
     cell = tmp_path / "cell.json"
     cell.write_text(default_cell_path().read_text().replace('"opening_mm": [0.0, 80.0]', '"opening_mm": [0.0, NaN]'))
     code, out, err = run_cli("grasp", scene, "--json", "--cell", cell, capsys=capsys)
-    assert code == 2 and "gripper.opening_mm[1] must be a finite number, got nan" in err
+    assert code == 2 and "gripper.opening_mm[1] must be a finite number, got NaN" in err
 
 
 @pytest.mark.parametrize("l1_l2,dropoff,says", [

@@ -98,7 +98,7 @@ def test_a_given_mass_wins_over_the_material(tmp_path):
     ({"mass_g": -5}, "'mass_g' must be a positive number of grams, got -5"),
     ({"mass_g": 0}, "'mass_g' must be a positive number of grams, got 0"),
     ({"mass_g": "1400"}, "'mass_g' must be a positive number of grams, got '1400'"),
-    ({"mass_g": True}, "'mass_g' must be a positive number of grams, got True"),
+    ({"mass_g": True}, "'mass_g' must be a positive number of grams, got true"),
     ({"mass_g": 10**400}, "'mass_g' must be a positive number of grams"),
     ({"material": "unobtainium"}, "'material' 'unobtainium' has no known density and the part has no 'mass_g'"),
     ({"material": 7}, "'material' 7 has no known density"),

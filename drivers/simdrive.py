@@ -413,7 +413,9 @@ class SimDrive:
             if s == "SWITCHED_ON" or (s == "QUICK_STOP_ACTIVE" and self.after_ramp is None):
                 self._enable()
             elif s == "READY_TO_SWITCH_ON":
-                self._disable("SWITCHED_ON")  # taken as switch on (3)
+                # switch on + enable operation: transitions 3 and 4 (the controlword is a level)
+                self._disable("SWITCHED_ON")
+                self._enable()
         if s == self.state == "OPERATION_ENABLED" and self.after_ramp is None and self.mode == codec.PP_MODE:
             # only a drive that was already enabled takes a set-point: the controlword that
             # enables it never starts a move, even with bit 4 set (enabling never jumps)

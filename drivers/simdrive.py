@@ -171,7 +171,8 @@ class SimDrive:
         self._stepped_s: float | None = None  # when step() last ran
         # timers
         self._last_hb_s = -1e9
-        self._last_tpdo_s = -1e9
+        self._last_tpdo_s = -1e9  # the event timer's phase
+        self._tpdo_sent_s = -1e9  # when TPDO1 last went out (its inhibit time counts from there)
         self._last_tpdo: bytes | None = None
         # injected faults
         self.silent = False
@@ -662,7 +663,7 @@ class SimDrive:
         for comm in self._rpdo_handlers:
             self._subscribe_rpdo(comm, int(self._get(comm, 1)))
         self._set_host_watch(int(self._get(0x1016, 1)))
-        self._last_tpdo, self._sync_count = None, 0
+        self._last_tpdo, self._sync_count, self._tpdo_sent_s = None, 0, -1e9
 
     # --- host heartbeat watch --------------------------------------------------------------
     def _set_host_watch(self, entry: int) -> None:
@@ -780,22 +781,28 @@ class SimDrive:
 
     def _publish(self, now: float | None = None) -> None:
         """Event-driven TPDO1 (transmission type 254/255): when the status changed, or when the
-        event timer is due. Synchronous types are sent on SYNC instead (`_on_sync`)."""
+        event timer is due, but never sooner than the inhibit time (0x1800 sub 3, 100 us units)
+        after the last one: a change meanwhile goes out, as it then stands, once the inhibit time
+        has passed (on the tick after it). Synchronous types are sent on SYNC instead (`_on_sync`)."""
         if self.silent or self.nmt != NMT_OPERATIONAL:
             return
         cob = int(self._get(0x1800, 1))
         if cob & 0x80000000 or int(self._get(0x1800, 2)) <= 240:
             return
         now = self.clock.now() if now is None else now
+        if now - self._tpdo_sent_s < int(self._get(0x1800, 3)) * 1e-4 - 1e-9:
+            return  # inhibited
         data = self._tpdo1_data()
         event_ms = int(self._get(0x1800, 5))
         due = event_ms > 0 and now - self._last_tpdo_s >= event_ms / 1000.0 - 1e-9
         if data != self._last_tpdo:  # an event: the event timer restarts
             self._last_tpdo, self._last_tpdo_s = data, now
-            self.network.send_message(cob & 0x7FF, data)
         elif due:
             self._last_tpdo_s = _next_phase(self._last_tpdo_s, event_ms / 1000.0, now)
-            self.network.send_message(cob & 0x7FF, data)
+        else:
+            return
+        self._tpdo_sent_s = now
+        self.network.send_message(cob & 0x7FF, data)
 
     def _on_sync(self, can_id, data, timestamp) -> None:
         """Synchronous TPDO1: type 0 on SYNC when changed, types 1-240 on every n-th SYNC."""
@@ -809,6 +816,7 @@ class SimDrive:
             data = self._tpdo1_data()
             if (kind == 0 and data != self._last_tpdo) or (kind > 0 and self._sync_count % kind == 0):
                 self._last_tpdo, self._last_tpdo_s = data, self.clock.now()
+                self._tpdo_sent_s = self._last_tpdo_s
                 self.network.send_message(cob & 0x7FF, data)
 
     # --- fault injection -------------------------------------------------------------------

@@ -46,3 +46,54 @@ def test_switch_on_and_enable_operation_from_ready_to_switch_on_reaches_operatio
             sim_clock.sleep(0.05)
             assert codec.state_name(node.sdo[0x6041].raw) == want, f"after 0x{cw:04X}"
         assert j1.position_counts == start  # 0x1F enabled the drive, took no set-point
+
+
+def _tap(open_test_bus, clock):
+    """A listener on the test's channel: `take()` drains what it heard, each frame stamped with the
+    simulated time it was drained at (call it after every step of the clock)."""
+    bus = open_test_bus()
+    heard = []
+
+    def take():
+        while (m := bus.recv(timeout=0)) is not None:
+            heard.append((clock.now(), m))
+        return heard
+
+    return take
+
+
+def _enable_pp(node, clock):
+    """OPERATION ENABLED in profile position, by SDO, target = actual position."""
+    node.nmt.state = "OPERATIONAL"
+    node.sdo[0x6060].raw = codec.PP_MODE
+    node.sdo[0x607A].raw = node.sdo[0x6064].raw
+    for cw in (0x06, 0x07, 0x0F):
+        node.sdo[0x6040].raw = cw
+    clock.sleep(0.02)
+    assert codec.state_name(node.sdo[0x6041].raw) == "OPERATION_ENABLED"
+
+
+def test_tpdo_inhibit_time_is_the_least_gap_between_two_of_its_frames(open_test_bus, sim_clock):
+    """CiA 301: 0x1800 sub 3 (in 100 us) is the least time between two transmissions of the TPDO. The drive
+    took it and sent TPDO1 on every 10 ms tick of a move all the same. The changes held back meanwhile go
+    out once it has passed: the last status (target reached) is sent."""
+    with sim.serve(open_test_bus(), clock=sim_clock) as drives, _master(open_test_bus, drives, "j3") as (_, node):
+        take = _tap(open_test_bus, sim_clock)
+        cob = node.sdo[0x1800][1].raw
+        node.sdo[0x1800][1].raw = cob | 0x80000000  # CiA 301: the PDO invalid while its parameters change
+        node.sdo[0x1800][3].raw = 1000  # 100 ms
+        node.sdo[0x1800][1].raw = cob
+        _enable_pp(node, sim_clock)
+        node.sdo[0x607A].raw = node.sdo[0x6064].raw - 40_000  # 40 mm
+        node.sdo[0x6040].raw = 0x1F
+        node.sdo[0x6040].raw = 0x0F
+        before = len(take())  # stamped when drained: each tick's frames from here on
+        for _ in range(150):
+            sim_clock.sleep(0.01)
+            take()
+        tpdo = [(t, m) for t, m in take()[before:] if m.arbitration_id == 0x183]
+        times = [t for t, _ in tpdo]
+        assert len(times) >= 5
+        assert min(b - a for a, b in zip(times, times[1:])) >= 0.1 - 1e-9
+        last = codec.unpack_tpdo1(tpdo[-1][1].data)
+        assert last.target_reached and last.position_counts == round(drives.drives["j3"].position_counts)

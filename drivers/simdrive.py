@@ -36,6 +36,8 @@ QUICK_STOP_DECEL_FACTOR = 2.0  # quick stop / fault reaction ramp = this x the p
 # is no longer driven: it runs out on friction alone, at this x its max acceleration (a figure of
 # the simulated mechanics, not an object of the drive; no gravity, no holding brake)
 COAST_DECEL_FACTOR = 0.5
+TPDO_COMM_FIRST, TPDO_COMM_LAST = 0x1800, 0x1803  # the TPDO communication parameters
+PDO_NO_RTR = 1 << 30  # COB-ID bit 30 of a TPDO: no RTR allowed (these drives answer none)
 
 # CiA 402 option codes (CiA 402-2 / IEC 61800-7-201): how the drive stops when it leaves OPERATION
 # ENABLED. Per value: the deceleration object of the ramp, or None for "disable drive function"
@@ -114,6 +116,8 @@ class SimDrive:
         network.unsubscribe(0, self.node.nmt.on_command)
         network.subscribe(0, self._on_nmt)
         self.node._find_object = self._find_object  # canopen's LocalNode lets any sub-index through
+        self._set_data = self.node.set_data
+        self.node.set_data = self._set_data_no_rtr
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
         self._sdo_send = self.node.sdo.send_response
@@ -208,6 +212,13 @@ class SimDrive:
         if subindex not in obj.subindices:
             raise SdoAbortedError(0x06090011)
         return obj.subindices[subindex]
+
+    def _set_data_no_rtr(self, index: int, subindex: int, data: bytes, check_writable: bool = False) -> None:
+        """A TPDO's COB-ID keeps bit 30 set whatever is written there: these drives answer no RTR (CiA 301:
+        bit 30 = 1, no RTR allowed on this PDO), so a master that reads it back (canopen's PdoMap) knows it."""
+        if TPDO_COMM_FIRST <= index <= TPDO_COMM_LAST and subindex == 1 and len(data) == 4:
+            data = (int.from_bytes(data, "little") | PDO_NO_RTR).to_bytes(4, "little")
+        self._set_data(index, subindex, data, check_writable)
 
     def _on_read(self, index, subindex, od):
         with self._lock:

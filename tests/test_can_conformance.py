@@ -97,3 +97,22 @@ def test_tpdo_inhibit_time_is_the_least_gap_between_two_of_its_frames(open_test_
         assert min(b - a for a, b in zip(times, times[1:])) >= 0.1 - 1e-9
         last = codec.unpack_tpdo1(tpdo[-1][1].data)
         assert last.target_reached and last.position_counts == round(drives.drives["j3"].position_counts)
+
+
+def test_tpdos_say_they_answer_no_rtr(open_test_bus, sim_clock):
+    """The drives answer no RTR, so every TPDO's COB-ID has bit 30 set (CiA 301: no RTR allowed), in the EDS
+    and in the drive, also after a master wrote it without (the host restores TPDO1 as 0x180 + id); it said
+    RTR allowed (bit 30 clear) and a master's RTR went unanswered."""
+    with sim.serve(open_test_bus(), clock=sim_clock) as drives, _master(open_test_bus, drives, "j3") as (_, node):
+        for k in range(4):
+            assert node.object_dictionary[0x1800 + k][1].default & 0x40000000, f"EDS 0x{0x1800 + k:04X}"
+            assert node.sdo[0x1800 + k][1].raw & 0x40000000, f"drive 0x{0x1800 + k:04X}"
+        node.tpdo.read()
+        assert not node.tpdo[1].rtr_allowed
+        node.sdo[0x1800][1].raw = 0x80000183
+        node.sdo[0x1800][1].raw = 0x183  # valid again, bit 30 written clear: held set
+        assert node.sdo[0x1800][1].raw == 0x40000183
+        take = _tap(open_test_bus, sim_clock)
+        node.nmt.state = "OPERATIONAL"
+        sim_clock.sleep(0.1)
+        assert any(m.arbitration_id == 0x183 and not m.is_remote_frame for _, m in take())  # still sent

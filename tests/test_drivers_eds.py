@@ -18,7 +18,7 @@ def test_shipped_eds_is_what_the_generator_writes(name, gripper):
 @pytest.mark.parametrize("name", [AXIS_EDS, GRIPPER_EDS])
 def test_pdo_mapping_matches_the_codecs(name):
     od = canopen.import_od(str(eds_path(name)), 7)
-    assert od[0x1800][1].default == codec.TPDO1_BASE + 7
+    assert od[0x1800][1].default == codec.TPDO1_BASE + 7 | 0x40000000  # bit 30: no RTR
     assert od[0x1400][1].default == codec.RPDO1_BASE + 7
     assert od[0x1401][1].default == codec.RPDO2_BASE + 7
     assert od[0x1402][1].default == codec.RPDO3_BASE + 7

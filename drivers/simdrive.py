@@ -68,6 +68,28 @@ OPTION_CODES = {
 }
 
 
+def power_on_values(*, counts_per_unit: float, limits: tuple[float, float], velocity: float, acceleration: float,
+                    heartbeat_ms: int, tpdo_event_ms: int = TPDO_EVENT_MS,
+                    grip_force_n: float | None = None) -> dict[tuple[int, int], int]:
+    """(index, sub-index) -> value of the objects the cell file sets in a drive, as commissioning stored
+    them: what the drive holds at power-on and after the NMT resets, and its EDS's DefaultValues."""
+    c = counts_per_unit
+    values = {
+        (0x1017, 0): heartbeat_ms,
+        (0x1800, 5): tpdo_event_ms,
+        (0x607D, 1): codec.to_counts(limits[0], c),
+        (0x607D, 2): codec.to_counts(limits[1], c),
+        # rounded down, as the host sends them (a limit a quarter count under 2^32 rounded up past UNSIGNED32)
+        (0x6081, 0): max(1, codec.rate_counts_within(velocity, c)),
+        (0x6083, 0): max(1, codec.rate_counts_within(acceleration, c)),
+        (0x6084, 0): max(1, codec.rate_counts_within(acceleration, c)),
+        (0x6085, 0): max(1, round(QUICK_STOP_DECEL_FACTOR * acceleration * c)),
+    }
+    if grip_force_n is not None:
+        values[(GRIP_FORCE_INDEX, 0)] = round(grip_force_n * 10)
+    return values
+
+
 @dataclass
 class _Motion:
     t0_s: float
@@ -129,17 +151,13 @@ class SimDrive:
             self._subscribe_rpdo(comm, int(self._get(comm, 1)))
         network.subscribe(codec.SYNC_COB, self._on_sync)
         self._sync_count = 0
-        # object dictionary values the cell file sets (as a commissioning tool would)
+        # object dictionary values the cell file sets (as a commissioning tool would; the node's EDS,
+        # `drivers.sim.node_eds_paths`, has them as its DefaultValues)
         c = counts_per_unit
-        self._store(0x607D, 1, codec.to_counts(limits[0], c))
-        self._store(0x607D, 2, codec.to_counts(limits[1], c))
-        # rounded down, as the host sends them (a limit a quarter count under 2^32 rounded up past UNSIGNED32)
-        self._store(0x6081, 0, max(1, codec.rate_counts_within(velocity, c)))
-        self._store(0x6083, 0, max(1, codec.rate_counts_within(acceleration, c)))
-        self._store(0x6084, 0, max(1, codec.rate_counts_within(acceleration, c)))
-        self._store(0x6085, 0, max(1, round(QUICK_STOP_DECEL_FACTOR * acceleration * c)))
-        self._store(0x1017, 0, heartbeat_ms)
-        self._store(0x1800, 5, tpdo_event_ms)
+        for (index, sub), value in power_on_values(counts_per_unit=c, limits=limits, velocity=velocity,
+                                                   acceleration=acceleration, heartbeat_ms=heartbeat_ms,
+                                                   tpdo_event_ms=tpdo_event_ms).items():
+            self._store(index, sub, value)
         # the power-on values (CiA 301: what the NMT resets restore), as stored by commissioning
         self._power_on = {i: dict(subs) for i, subs in self.node.data_store.items()}
         # the option code values this drive takes by SDO, and the objects it lacks (`configure_option_codes`)
@@ -896,6 +914,7 @@ class SimGripper(SimDrive):
         self.object_width_fn = None
         self._fn_motion, self._fn_width = None, None
         self._store(GRIP_FORCE_INDEX, 0, round(grip_force_n * 10))
+        self._power_on[GRIP_FORCE_INDEX] = dict(self.node.data_store[GRIP_FORCE_INDEX])  # a reset keeps it
 
     def _blocked(self, m: _Motion) -> bool:
         w = self.object_width_mm

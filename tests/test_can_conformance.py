@@ -7,7 +7,6 @@ from __future__ import annotations
 from contextlib import contextmanager
 
 import canopen
-import pytest
 from drivers_fixtures import *  # noqa: F403 - bus fixtures
 from drivers_fixtures import needs_sim
 
@@ -116,3 +115,68 @@ def test_tpdos_say_they_answer_no_rtr(open_test_bus, sim_clock):
         node.nmt.state = "OPERATIONAL"
         sim_clock.sleep(0.1)
         assert any(m.arbitration_id == 0x183 and not m.is_remote_frame for _, m in take())  # still sent
+
+
+# process values: what the drive measures or is told while it runs (0x607A is the actual position at
+# power-on and after Reset Node: enabling never jumps), not parameters an EDS gives a default for
+PROCESS_VALUES = {0x1001, 0x603F, 0x6040, 0x6041, 0x6061, 0x6064, 0x607A}
+
+
+def _parameters(od):
+    for obj in od.values():
+        if obj.index in PROCESS_VALUES:
+            continue
+        for var in [obj] if isinstance(obj, canopen.objectdictionary.ODVariable) else obj.values():
+            if var.readable:
+                yield var
+
+
+def _differing(node):
+    got = {}
+    for var in _parameters(node.object_dictionary):
+        value = node.sdo.upload(var.index, var.subindex)
+        if var.decode_raw(value) != var.default:
+            got[f"0x{var.index:04X}:{var.subindex}"] = (var.decode_raw(value), var.default)
+    return got
+
+
+def test_every_node_holds_its_eds_default_values_at_power_on_and_after_the_nmt_resets(open_test_bus, sim_clock):
+    """A master that reads a node's EDS learns what the node holds: at power-on, after Reset Node and after
+    Reset Communication, every parameter is its EDS DefaultValue (the TPDO1 event timer was 50 against 0,
+    the limits and rates were the cell file's against generic ones, one EDS for all four axes)."""
+    with sim.serve(open_test_bus(), clock=sim_clock) as drives:
+        assert len({n["eds"] for n in drives.nodes}) == 5  # an EDS per node
+        for info in drives.nodes:
+            with _master(open_test_bus, drives, info["name"]) as (_, node):
+                assert _differing(node) == {}, f"{info['name']} at power-on"
+                for reset in ("RESET", "RESET COMMUNICATION"):
+                    node.sdo[0x1800][5].raw = 20
+                    node.sdo[0x1017].raw = 50
+                    node.sdo[0x607D][2].raw = 1000
+                    node.sdo[0x6081].raw = 7
+                    node.sdo[0x6085].raw = 9
+                    node.nmt.state = reset
+                    sim_clock.sleep(0.01)
+                    left = _differing(node)
+                    if reset == "RESET COMMUNICATION":  # the profile area (0x2000-) keeps what was written
+                        assert left == {"0x607D:2": (1000, node.object_dictionary[0x607D][2].default),
+                                        "0x6081:0": (7, node.object_dictionary[0x6081].default),
+                                        "0x6085:0": (9, node.object_dictionary[0x6085].default)}
+                    else:
+                        assert left == {}, f"{info['name']} after {reset}"
+
+
+def test_a_node_of_another_cell_gets_an_eds_of_its_own(open_test_bus, sim_clock, cell_cfg):
+    """Served for another cell file (another heartbeat, here), the nodes hold that cell's values, and the
+    EDS each names says so: a file of its own, not the shipped one."""
+    from dataclasses import replace
+
+    from drivers.eds import eds_path, node_eds_file
+
+    cell = replace(cell_cfg, can=replace(cell_cfg.can, heartbeat_ms=40))
+    with sim.serve(open_test_bus(), cell, clock=sim_clock) as drives:
+        for info in drives.nodes:
+            assert info["eds"] != str(eds_path(node_eds_file(info["name"])))
+            assert canopen.import_od(info["eds"], info["node_id"])[0x1017].default == 40
+        with _master(open_test_bus, drives, "j2") as (_, node):
+            assert _differing(node) == {}

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from drivers import codec, open_bus
 from drivers.clock import SimClock
-from drivers.eds import AXIS_EDS, eds_path
+from drivers.eds import eds_path
 from drivers.simdrive import NMT_OPERATIONAL, SimDrive
 
 # the transitions CiA 402 allows (canopen's table, in the contract's spelling) ...
@@ -34,7 +34,7 @@ def _drive(bus, clock):
     d = SimDrive(
         "j1",
         1,
-        str(eds_path(AXIS_EDS)),
+        str(eds_path("j1.eds")),
         network,
         clock,
         counts_per_unit=1000.0,

@@ -257,6 +257,8 @@ class SimDrive:
     def _on_write(self, index, subindex, od, data):
         with self._lock:
             value = od.decode_raw(data)
+            if (0x1400 <= index <= 0x1403 or TPDO_COMM_FIRST <= index <= TPDO_COMM_LAST) and subindex in (1, 3):
+                self._check_pdo_comm_write(index, subindex, value)
             if index == 0x6040:
                 self._on_controlword(value)
             elif index == 0x6060:
@@ -273,6 +275,20 @@ class SimDrive:
                 self._subscribe_rpdo(index, value)
             elif index in OPTION_CODES and value not in self._accepted[index]:
                 raise SdoAbortedError(0x06090030)  # value range of parameter exceeded
+
+    def _check_pdo_comm_write(self, index: int, subindex: int, value: int) -> None:
+        """CiA 301: while a PDO is valid (COB-ID bit 31 clear) its COB-ID (bits 0-29) and its inhibit time
+        stay as they are: make it invalid first. A 29-bit COB-ID (bit 29) is refused: these drives send and
+        take standard frames only. Both with abort 0x06090030 (value range of parameter exceeded)."""
+        cob = int(self._get(index, 1))
+        valid = not cob & 0x80000000
+        if subindex == 1:
+            if value & 0x20000000 or value & 0x1FFFF800:
+                raise SdoAbortedError(0x06090030)
+            if valid and not value & 0x80000000 and (value ^ cob) & 0x3FFFFFFF & ~PDO_NO_RTR:
+                raise SdoAbortedError(0x06090030)
+        elif valid and value != int(self._get(index, 3)):
+            raise SdoAbortedError(0x06090030)
 
     def _subscribe_rpdo(self, comm_index: int, cob_entry: int) -> None:
         handler = self._rpdo_handlers[comm_index]

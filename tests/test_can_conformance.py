@@ -7,6 +7,7 @@ from __future__ import annotations
 from contextlib import contextmanager
 
 import canopen
+import pytest
 from drivers_fixtures import *  # noqa: F403 - bus fixtures
 from drivers_fixtures import needs_sim
 
@@ -180,3 +181,36 @@ def test_a_node_of_another_cell_gets_an_eds_of_its_own(open_test_bus, sim_clock,
             assert canopen.import_od(info["eds"], info["node_id"])[0x1017].default == 40
         with _master(open_test_bus, drives, "j2") as (_, node):
             assert _differing(node) == {}
+
+
+def _abort(fn):
+    """The SDO abort code `fn` ends with (None: it went through)."""
+    try:
+        fn()
+    except canopen.SdoAbortedError as e:
+        return e.code
+    return None
+
+
+@pytest.mark.parametrize(("comm", "cob"), [(0x1800, 0x40000183), (0x1400, 0x203)], ids=["TPDO1", "RPDO1"])
+def test_a_valid_pdo_keeps_its_cob_id_and_inhibit_time_and_29_bit_ids_are_refused(open_test_bus, sim_clock, comm,
+                                                                                   cob):
+    """CiA 301: the COB-ID (bits 0-29) and the inhibit time of a valid PDO (bit 31 clear) cannot change (abort
+    0x06090030): a master makes it invalid first. These drives have no 29-bit frames: bit 29 is refused too.
+    The drive took every such write."""
+    with sim.serve(open_test_bus(), clock=sim_clock) as drives, _master(open_test_bus, drives, "j3") as (_, node):
+        rec = node.sdo[comm]
+        assert rec[1].raw == cob
+        for write in (lambda: setattr(rec[1], "raw", cob + 0x100),  # another id, still valid
+                      lambda: setattr(rec[3], "raw", 100),  # inhibit time
+                      lambda: setattr(rec[1], "raw", cob | 0x20000000),  # 29-bit id
+                      lambda: setattr(rec[1], "raw", cob | 0x00000800)):  # past 11 bits
+            assert _abort(write) == 0x06090030
+        assert rec[1].raw == cob and rec[3].raw == 0
+        assert _abort(lambda: setattr(rec[1], "raw", cob | 0x80000000)) is None  # invalid, same id
+        assert _abort(lambda: setattr(rec[1], "raw", cob | 0xA0000000)) == 0x06090030  # 29-bit, invalid
+        assert _abort(lambda: setattr(rec[3], "raw", 100)) is None
+        assert _abort(lambda: setattr(rec[1], "raw", (cob + 0x100) | 0x80000000)) is None
+        assert _abort(lambda: setattr(rec[1], "raw", cob)) is None  # valid again, on its id
+        assert rec[1].raw == cob and rec[3].raw == 100
+        assert _abort(lambda: setattr(rec[1], "raw", cob)) is None  # the same value again is no change

@@ -36,6 +36,7 @@ QUICK_STOP_DECEL_FACTOR = 2.0  # quick stop / fault reaction ramp = this x the p
 # is no longer driven: it runs out on friction alone, at this x its max acceleration (a figure of
 # the simulated mechanics, not an object of the drive; no gravity, no holding brake)
 COAST_DECEL_FACTOR = 0.5
+EMCY_PDO_LENGTH = 0x8210  # an RPDO shorter than its mapping: not processed (CiA 301)
 TPDO_COMM_FIRST, TPDO_COMM_LAST = 0x1800, 0x1803  # the TPDO communication parameters
 PDO_NO_RTR = 1 << 30  # COB-ID bit 30 of a TPDO: no RTR allowed (these drives answer none)
 
@@ -331,32 +332,35 @@ class SimDrive:
                 return
             self._publish()
 
+    def _rpdo(self, data, size: int):
+        """The bytes of an RPDO that maps `size` bytes, or None when it is not to be processed (CiA 301):
+        a longer one is taken by its first `size` bytes; a shorter one is not processed and reported by
+        EMCY 0x8210 (PDO not processed due to length error). Only in OPERATIONAL."""
+        if self.silent or self.nmt != NMT_OPERATIONAL:
+            return None
+        if len(data) < size:
+            log.warning("%s: RPDO of %d bytes, %d mapped: not processed", self.name, len(data), size)
+            self._report(EMCY_PDO_LENGTH)
+            return None
+        return bytes(data[:size])
+
     def _on_rpdo1(self, can_id, data, timestamp) -> None:
         with self._lock:
-            if self.silent or self.nmt != NMT_OPERATIONAL:
-                return
-            try:
+            if (data := self._rpdo(data, 2)) is not None:
                 self._on_controlword(codec.unpack_controlword(data))
-            except ValueError:
-                log.warning("%s: malformed RPDO1 %s", self.name, bytes(data).hex())
 
     def _on_rpdo2(self, can_id, data, timestamp) -> None:
         with self._lock:
-            if self.silent or self.nmt != NMT_OPERATIONAL:
-                return
-            try:
+            if (data := self._rpdo(data, 4)) is not None:
                 self._store(0x607A, 0, codec.unpack_target(data))
-            except ValueError:
-                log.warning("%s: malformed RPDO2 %s", self.name, bytes(data).hex())
 
     def _on_rpdo3(self, can_id, data, timestamp) -> None:
         with self._lock:
-            if self.silent or self.nmt != NMT_OPERATIONAL:
-                return
-            try:
-                self._set_mode(codec.unpack_mode(data))
-            except (ValueError, SdoAbortedError):
-                log.warning("%s: bad RPDO3 %s", self.name, bytes(data).hex())
+            if (data := self._rpdo(data, 1)) is not None:
+                try:
+                    self._set_mode(codec.unpack_mode(data))
+                except SdoAbortedError:
+                    log.warning("%s: bad RPDO3 %s", self.name, data.hex())
 
     def on_host_heartbeat(self, can_id, data, timestamp) -> None:
         with self._lock:
@@ -538,11 +542,15 @@ class SimDrive:
 
     def _emcy(self, code: int) -> None:
         """Report `code` by EMCY (logged, unless silent), then the status it left."""
+        self._report(code)
+        self._publish()
+
+    def _report(self, code: int) -> None:
+        """An EMCY of `code` with the error register as it stands (logged; not sent while silent)."""
         self.emcy_log.append(code)
         if not self.silent:
             self.network.send_message(codec.EMCY_BASE + self.node_id,
                                       codec.pack_emcy(codec.Emcy(code, self.error_register)))
-        self._publish()
 
     def _end_ramp(self) -> None:
         """Standstill after the ramp of a transition: enter its state (FAULT after the fault reaction)."""

@@ -214,3 +214,26 @@ def test_a_valid_pdo_keeps_its_cob_id_and_inhibit_time_and_29_bit_ids_are_refuse
         assert _abort(lambda: setattr(rec[1], "raw", cob)) is None  # valid again, on its id
         assert rec[1].raw == cob and rec[3].raw == 100
         assert _abort(lambda: setattr(rec[1], "raw", cob)) is None  # the same value again is no change
+
+
+def test_an_rpdo_longer_than_mapped_is_taken_by_its_first_bytes_a_shorter_one_not_at_all(open_test_bus, sim_clock):
+    """CiA 301: an RPDO with more bytes than mapped is processed with the first ones (a master that pads every
+    frame to 8 bytes); one with fewer is not processed and the drive sends EMCY 0x8210. Both were dropped, in
+    silence."""
+    with sim.serve(open_test_bus(), clock=sim_clock) as drives, _master(open_test_bus, drives, "j1") as (net, node):
+        j1 = drives.drives["j1"]
+        take = _tap(open_test_bus, sim_clock)
+        node.nmt.state = "OPERATIONAL"
+        sim_clock.sleep(0.02)
+        net.send_message(0x201, b"\x06\x00" + bytes(6))  # shutdown, padded to 8 bytes
+        net.send_message(0x301, (12345).to_bytes(4, "little", signed=True) + bytes(4))
+        net.send_message(0x401, b"\x01\x00\x00")
+        sim_clock.sleep(0.02)
+        assert j1.state == "READY_TO_SWITCH_ON" and j1._get(0x607A) == 12345 and j1.mode == codec.PP_MODE
+        assert not [m for _, m in take() if m.arbitration_id == 0x81]  # no EMCY
+        net.send_message(0x201, b"\x07")  # switch on, one byte short
+        net.send_message(0x301, b"\x10\x27\x00")
+        sim_clock.sleep(0.02)
+        assert j1.state == "READY_TO_SWITCH_ON" and j1._get(0x607A) == 12345  # neither processed
+        emcy = [codec.unpack_emcy(m.data) for _, m in take() if m.arbitration_id == 0x81]
+        assert [e.code for e in emcy] == [0x8210, 0x8210]

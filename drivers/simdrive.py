@@ -546,9 +546,10 @@ class SimDrive:
         self._publish()
 
     def _report(self, code: int) -> None:
-        """An EMCY of `code` with the error register as it stands (logged; not sent while silent)."""
+        """An EMCY of `code` with the error register as it stands (logged; not sent while silent, nor in NMT
+        STOPPED, where CiA 301 leaves a node NMT and error control (heartbeat) only)."""
         self.emcy_log.append(code)
-        if not self.silent:
+        if not self.silent and self.nmt != NMT_STOPPED:
             self.network.send_message(codec.EMCY_BASE + self.node_id,
                                       codec.pack_emcy(codec.Emcy(code, self.error_register)))
 
@@ -686,7 +687,7 @@ class SimDrive:
         self.error_code = 0
         self.following_error = False
         self._armed = [f for f in self._armed if f["kind"] not in ("emcy", "following_error")]
-        if not self.silent:
+        if not self.silent and self.nmt != NMT_STOPPED:
             self.network.send_message(codec.EMCY_BASE + self.node_id, codec.pack_emcy(codec.Emcy(0, 0)))
 
     def _restore_power_on(self, lo: int, hi: int) -> None:

@@ -237,3 +237,20 @@ def test_an_rpdo_longer_than_mapped_is_taken_by_its_first_bytes_a_shorter_one_no
         assert j1.state == "READY_TO_SWITCH_ON" and j1._get(0x607A) == 12345  # neither processed
         emcy = [codec.unpack_emcy(m.data) for _, m in take() if m.arbitration_id == 0x81]
         assert [e.code for e in emcy] == [0x8210, 0x8210]
+
+
+def test_a_stopped_node_sends_no_emcy(open_test_bus, sim_clock):
+    """CiA 301: in NMT STOPPED a node takes part in NMT and error control (its heartbeat) only. A drive that
+    lost its host there faults as before (0x8130) but sends no EMCY (it did); heartbeats go on."""
+    with sim.serve(open_test_bus(), clock=sim_clock) as drives, _master(open_test_bus, drives, "j2") as (net, node):
+        _enable_pp(node, sim_clock)
+        node.sdo[0x1016][1].raw = codec.consumer_heartbeat_entry(0x7F, 100)
+        net.send_message(0x77F, b"\x05")  # the host's heartbeat: the watch starts
+        sim_clock.sleep(0.02)
+        take = _tap(open_test_bus, sim_clock)
+        node.nmt.state = "STOPPED"
+        for _ in range(50):
+            sim_clock.sleep(0.01)
+        assert drives.drives["j2"].state == "FAULT" and drives.drives["j2"].error_code == 0x8130
+        ids = {m.arbitration_id for _, m in take() if m.arbitration_id & 0x7F == 2}
+        assert ids == {0x702}, [hex(i) for i in ids]  # no EMCY 0x82, no TPDO 0x182

@@ -73,6 +73,8 @@ def _objects(gripper: bool) -> list[tuple]:
     objs = [
         var(0x1000, "Device type", U32, "ro", device_type),
         var(0x1001, "Error register", U8, "ro", "0", 1),
+        # the drives consume SYNC (synchronous TPDO1 types 0-240), produce none
+        var(0x1005, "COB-ID SYNC", U32, "rw", f"0x{codec.SYNC_COB:08X}"),
         var(
             0x1008,
             "Manufacturer device name",

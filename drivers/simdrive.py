@@ -150,7 +150,8 @@ class SimDrive:
         self._rpdo_cobs: dict[int, int] = {}
         for comm in self._rpdo_handlers:
             self._subscribe_rpdo(comm, int(self._get(comm, 1)))
-        network.subscribe(codec.SYNC_COB, self._on_sync)
+        self._sync_cob: int | None = None
+        self._subscribe_sync(int(self._get(0x1005)))
         self._sync_count = 0
         # object dictionary values the cell file sets (as a commissioning tool would; the node's EDS,
         # `drivers.sim.node_eds_paths`, has them as its DefaultValues)
@@ -272,10 +273,21 @@ class SimDrive:
                 raise SdoAbortedError(0x06090030)  # RPDOs act on reception here (no SYNC-applied RPDOs)
             elif 0x1800 <= index <= 0x1803 and subindex == 2 and 240 < value < 254:
                 raise SdoAbortedError(0x06090030)
+            elif index == 0x1005:
+                if value & 0xFFFFF800:  # bit 30: produce SYNC (these drives do not); bit 29: a 29-bit id
+                    raise SdoAbortedError(0x06090030)
+                self._subscribe_sync(value)
             elif index in self._rpdo_handlers and subindex == 1:
                 self._subscribe_rpdo(index, value)
             elif index in OPTION_CODES and value not in self._accepted[index]:
                 raise SdoAbortedError(0x06090030)  # value range of parameter exceeded
+
+    def _subscribe_sync(self, cob_entry: int) -> None:
+        """Consume SYNC on the COB-ID of 0x1005."""
+        if self._sync_cob is not None:
+            self.network.unsubscribe(self._sync_cob, self._on_sync)
+        self._sync_cob = cob_entry & 0x7FF
+        self.network.subscribe(self._sync_cob, self._on_sync)
 
     def _check_pdo_comm_write(self, index: int, subindex: int, value: int) -> None:
         """CiA 301: while a PDO is valid (COB-ID bit 31 clear) its COB-ID (bits 0-29) and its inhibit time
@@ -714,6 +726,7 @@ class SimDrive:
         """NMT Reset Communication: the communication area (0x1000-0x1FFF) to power-on values,
         with what depends on it: RPDO COB-IDs, the host heartbeat watch, TPDO timing."""
         self._restore_power_on(0x1000, 0x1FFF)
+        self._subscribe_sync(int(self._get(0x1005)))
         for comm in self._rpdo_handlers:
             self._subscribe_rpdo(comm, int(self._get(comm, 1)))
         self._set_host_watch(int(self._get(0x1016, 1)))

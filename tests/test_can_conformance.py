@@ -254,3 +254,31 @@ def test_a_stopped_node_sends_no_emcy(open_test_bus, sim_clock):
         assert drives.drives["j2"].state == "FAULT" and drives.drives["j2"].error_code == 0x8130
         ids = {m.arbitration_id for _, m in take() if m.arbitration_id & 0x7F == 2}
         assert ids == {0x702}, [hex(i) for i in ids]  # no EMCY 0x82, no TPDO 0x182
+
+
+def test_the_sync_the_drives_consume_is_in_their_object_dictionary(open_test_bus, sim_clock):
+    """Synchronous TPDO1 types work, so 0x1005 (COB-ID SYNC, 0x80) is in the EDS and the drive (it was
+    missing); it can move, and the drive consumes SYNC there. Producing SYNC (bit 30) or a 29-bit id is
+    refused."""
+    with sim.serve(open_test_bus(), clock=sim_clock) as drives, _master(open_test_bus, drives, "j3") as (net, node):
+        assert node.object_dictionary[0x1005].default == 0x80 and node.sdo[0x1005].raw == 0x80
+        assert _abort(lambda: setattr(node.sdo[0x1005], "raw", 0x40000080)) == 0x06090030
+        assert _abort(lambda: setattr(node.sdo[0x1005], "raw", 0x20000080)) == 0x06090030
+        node.sdo[0x1800][1].raw = 0xC0000183
+        node.sdo[0x1800][2].raw = 1  # on every SYNC
+        node.sdo[0x1800][1].raw = 0x40000183
+        node.nmt.state = "OPERATIONAL"
+        take = _tap(open_test_bus, sim_clock)
+
+        def tpdos_on(cob_id):
+            before = len(take())
+            net.send_message(cob_id, b"")
+            sim_clock.sleep(0.01)
+            return sum(m.arbitration_id == 0x183 for _, m in take()[before:])
+
+        assert tpdos_on(0x80) == 1
+        node.sdo[0x1005].raw = 0xFF
+        assert tpdos_on(0x80) == 0 and tpdos_on(0xFF) == 1
+        node.nmt.state = "RESET COMMUNICATION"  # back to 0x80
+        sim_clock.sleep(0.01)
+        assert node.sdo[0x1005].raw == 0x80

@@ -19,6 +19,7 @@ STO). Faults latch in the drive until a fault reset (controlword bit 7 rising ed
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import tempfile
 import threading
@@ -119,7 +120,7 @@ class SimHandle:
         eds = node_eds_paths(cell, tpdo_event_ms)
         for name, n in cell.can.nodes.items():
             cls = SimGripper if name == "gripper" else SimDrive
-            settings = node_settings(cell, name, tpdo_event_ms)
+            settings = node_settings(cell, name, tpdo_event_ms) | {"tick_ms": math.ceil(tick_s * 1000 - 1e-9)}
             d = cls(name, n.node_id, str(eds[name]), self.network, self.clock, **settings)
             self.drives[name] = d
         self.nodes = [{"node_id": d.node_id, "name": name, "eds": d.eds} for name, d in self.drives.items()]

@@ -24,6 +24,7 @@ from drivers.profile import Trapezoid, trapezoid
 
 log = logging.getLogger(__name__)
 
+TICK_MS = 10  # the drives' tick (drivers.sim.TICK_S): no heartbeat or event timer shorter than that
 TPDO_EVENT_MS = 50  # TPDO1 is also sent at least this often (canopen's BaseNode402 waits 0.2 s)
 FAULT_KINDS = ("silent", "emcy", "following_error", "drop_sdo", "error_frames", "quick_stop", "disable",
                "ignore_set_point", "internal_limit")
@@ -126,8 +127,10 @@ class SimDrive:
         position: float,
         heartbeat_ms: int,
         tpdo_event_ms: int = TPDO_EVENT_MS,
+        tick_ms: int = TICK_MS,
     ):
         self.name, self.node_id, self.eds, self.clock = name, node_id, eds, clock
+        self.tick_ms = tick_ms  # how often step() runs: the shortest period the drive keeps
         self.counts_per_unit = counts_per_unit
         self.coast_decel_counts = COAST_DECEL_FACTOR * acceleration * counts_per_unit
         self._lock = threading.RLock()
@@ -267,8 +270,10 @@ class SimDrive:
                 self._set_mode(value)
             elif index == 0x1016 and subindex == 1:
                 self._set_host_watch(value)
-            elif index == 0x1017 and value < 0:
-                raise SdoAbortedError(0x06090030)
+            elif (index == 0x1017 or (TPDO_COMM_FIRST <= index <= TPDO_COMM_LAST and subindex == 5)) and (
+                    0 < value < self.tick_ms):
+                # a heartbeat or an event timer shorter than the drive's tick it could not keep (0: off)
+                raise SdoAbortedError(0x06090032)  # value of parameter written too low
             elif 0x1400 <= index <= 0x1403 and subindex == 2 and value not in (254, 255):
                 raise SdoAbortedError(0x06090030)  # RPDOs act on reception here (no SYNC-applied RPDOs)
             elif 0x1800 <= index <= 0x1803 and subindex == 2 and 240 < value < 254:

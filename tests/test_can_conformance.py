@@ -282,3 +282,23 @@ def test_the_sync_the_drives_consume_is_in_their_object_dictionary(open_test_bus
         node.nmt.state = "RESET COMMUNICATION"  # back to 0x80
         sim_clock.sleep(0.01)
         assert node.sdo[0x1005].raw == 0x80
+
+
+def test_periods_shorter_than_the_drives_tick_are_refused(open_test_bus, sim_clock):
+    """The drives tick every 10 ms: a heartbeat (0x1017) or TPDO event timer (0x1800 sub 5) of 1-9 ms would
+    not be kept (a 1 ms heartbeat came every 10 ms), so it is refused with abort 0x06090032 (value too low);
+    0 (off) and 10 ms are taken, and a heartbeat of 10 ms is kept."""
+    with sim.serve(open_test_bus(), clock=sim_clock) as drives, _master(open_test_bus, drives, "j4") as (_, node):
+        for var in (node.sdo[0x1017], node.sdo[0x1800][5]):
+            for value in (1, 5, 9):
+                assert _abort(lambda v=var, x=value: setattr(v, "raw", x)) == 0x06090032
+            for value in (0, 10, 15):
+                assert _abort(lambda v=var, x=value: setattr(v, "raw", x)) is None and var.raw == value
+        node.sdo[0x1017].raw = 10
+        take = _tap(open_test_bus, sim_clock)
+        before = len(take())
+        for _ in range(20):
+            sim_clock.sleep(0.01)
+            take()
+        beats = [t for t, m in take()[before:] if m.arbitration_id == 0x704]
+        assert len(beats) == 20 and all(b - a == pytest.approx(0.01) for a, b in zip(beats, beats[1:]))

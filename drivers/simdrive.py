@@ -718,9 +718,11 @@ class SimDrive:
 
     def _reset_application(self) -> None:
         """NMT Reset Node: the application and profile area (0x2000-0xFFFF) to power-on values;
-        the actual position stays (absolute encoders) and becomes the target."""
+        the actual position stays (absolute encoders) and becomes the target. The drive function is
+        off: an axis still moving is no longer driven and coasts, as a disabled axis does."""
         self.state = "NOT_READY_TO_SWITCH_ON"
-        self._stop_motion()
+        self._coast()
+        self.pending = self.halted = self.after_ramp = None
         self.enable_held = False
         self.ack, self.error_code, self.following_error, self.mode = False, 0, False, 0
         self.controlword, self.internal_limit, self.target_reached = 0, False, True

@@ -302,3 +302,30 @@ def test_periods_shorter_than_the_drives_tick_are_refused(open_test_bus, sim_clo
             take()
         beats = [t for t, m in take()[before:] if m.arbitration_id == 0x704]
         assert len(beats) == 20 and all(b - a == pytest.approx(0.01) for a, b in zip(beats, beats[1:]))
+
+
+def _cruise_j1(node, clock, distance=100_000, for_s=0.35):
+    """j1 (180000 counts/s at most, 720000 counts/s^2) sent `distance` counts on by SDO, `for_s` into its
+    move: cruising at full speed from 0.25 s on."""
+    _enable_pp(node, clock)
+    node.sdo[0x607A].raw = node.sdo[0x6064].raw + distance
+    node.sdo[0x6040].raw = 0x1F
+    node.sdo[0x6040].raw = 0x0F
+    clock.sleep(for_s)
+
+
+def test_reset_node_during_a_move_lets_the_axis_coast(open_test_bus, sim_clock, cell_cfg):
+    """NMT Reset Node turns the drive function off: a moving axis is no longer driven and runs out on
+    friction (COAST_DECEL_FACTOR x its max acceleration), as a disabled axis does in the simulation; it used
+    to stand still at once, 180 deg/s to 0 in no time."""
+    from drivers.simdrive import COAST_DECEL_FACTOR
+
+    with sim.serve(open_test_bus(), clock=sim_clock) as drives, _master(open_test_bus, drives, "j1") as (_, node):
+        j1 = drives.drives["j1"]
+        _cruise_j1(node, sim_clock)
+        node.nmt.state = "RESET"
+        at_reset = j1.position_counts
+        sim_clock.sleep(1.0)
+        decel = COAST_DECEL_FACTOR * cell_cfg.scara.max_acceleration["j1"] * 1000
+        assert j1.position_counts - at_reset == pytest.approx(180_000**2 / (2 * decel), abs=1)  # 45000
+        assert j1.state == "SWITCH_ON_DISABLED" and j1.motion is None

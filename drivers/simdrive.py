@@ -20,7 +20,7 @@ from canopen.sdo import SdoAbortedError
 from drivers import codec
 from drivers.clock import Clock
 from drivers.eds import GRIP_FORCE_INDEX, object_dictionary
-from drivers.profile import Trapezoid, trapezoid
+from drivers.profile import Trapezoid, from_speed, trapezoid
 
 log = logging.getLogger(__name__)
 
@@ -628,9 +628,15 @@ class SimDrive:
             return
         self.internal_limit = False
         self.target_reached = False
-        self.motion = _Motion(
-            self.clock.now(), self.position_counts, target, trapezoid(target - self.position_counts, v, a, d)
-        )
+        now, m = self.clock.now(), self.motion
+        v0 = m.profile.velocity_at(now - m.t0_s) if m is not None and not m.coasting else 0.0
+        if v0:
+            # a set-point taken at once during a move (change immediately): on from where the axis is and
+            # the speed it has, not from rest
+            here = m.start_counts + m.profile.position_at(now - m.t0_s)
+            self.motion = _Motion(now, here, target, from_speed(target - here, v0, v, a, d))
+        else:
+            self.motion = _Motion(now, self.position_counts, target, trapezoid(target - self.position_counts, v, a, d))
 
     def _stop_motion(self) -> None:
         self.motion = None

@@ -329,3 +329,31 @@ def test_reset_node_during_a_move_lets_the_axis_coast(open_test_bus, sim_clock, 
         decel = COAST_DECEL_FACTOR * cell_cfg.scara.max_acceleration["j1"] * 1000
         assert j1.position_counts - at_reset == pytest.approx(180_000**2 / (2 * decel), abs=1)  # 45000
         assert j1.state == "SWITCH_ON_DISABLED" and j1.motion is None
+
+
+@pytest.mark.parametrize("new_target", [120_000, 40_000, 25_000, -20_000],
+                         ids=["further", "nearer", "overshot", "behind"])
+def test_change_immediately_goes_on_from_the_speed_the_axis_has(open_test_bus, sim_clock, new_target):
+    """A set-point with bit 5 (change immediately) during a move starts the new profile from the axis' speed
+    and where it is: no step in speed, every change of speed on the ramps (0x6083 / 0x6084), the new target
+    reached at rest. It restarted from rest: 180000 counts/s to 0 within a tick. A target it cannot stop for
+    any more (overshot) or one behind it is reached after a stop on the deceleration ramp."""
+    with sim.serve(open_test_bus(), clock=sim_clock) as drives, _master(open_test_bus, drives, "j1") as (_, node):
+        j1 = drives.drives["j1"]
+        start = round(j1.position_counts)
+        _cruise_j1(node, sim_clock, 60_000, 0.19)
+        a, d = node.sdo[0x6083].raw, node.sdo[0x6084].raw
+        node.sdo[0x607A].raw = start + new_target
+        positions = [j1.position_counts]
+        sim_clock.sleep(0.01)  # at 0.2 s still speeding up: 144000 counts/s
+        positions.append(j1.position_counts)
+        sim_clock.sleep(0.005)  # between two ticks, as a set-point may come
+        node.sdo[0x6040].raw = 0x3F
+        node.sdo[0x6040].raw = 0x2F
+        for _ in range(300):
+            sim_clock.sleep(0.01)
+            positions.append(j1.position_counts)
+        v = [(q - p) / 0.01 for p, q in zip(positions, positions[1:])]
+        dv = [(w - u) / 0.01 for u, w in zip(v, v[1:])]
+        assert max(abs(x) for x in dv) <= max(a, d) * 1.001
+        assert j1.position_counts == start + new_target and j1.target_reached and j1.motion is None

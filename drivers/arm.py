@@ -42,7 +42,7 @@ from cell.kinematics import Joints
 from drivers import codec
 from drivers.axis import Axis
 from drivers.clock import Clock, RealClock
-from drivers.eds import AXIS_EDS, GRIP_FORCE_INDEX, GRIPPER_EDS, eds_path
+from drivers.eds import GRIP_FORCE_INDEX, eds_path, node_eds_file
 from drivers.errorframes import ErrorFramePolicy, classes_readable
 from drivers.errors import (
     BusFault,
@@ -190,7 +190,7 @@ class Arm:
             return
         self._network = canopen.Network(self.bus)
         for name, n in self.cell.can.nodes.items():
-            eds = eds_path(GRIPPER_EDS if name == "gripper" else AXIS_EDS)
+            eds = eds_path(node_eds_file(name))  # the object types; values are read from the drive
             self.axes[name] = Axis(
                 name,
                 n.node_id,

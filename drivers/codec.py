@@ -269,6 +269,8 @@ EMCY_TEXT = {
     0x8120: "CAN in error passive mode",
     0x8130: "life guard or heartbeat error (host silent)",
     0x8140: "recovered from bus off",
+    0x8210: "PDO not processed due to length error",
+    0x8220: "PDO length exceeded",
     0x8611: "following error",
     0x8612: "reference limit (target outside the software position limits)",
     0xFF00: "device specific",

@@ -1,8 +1,11 @@
-"""The EDS files of the cell's drives (shipped in drivers/eds/), and the generator that wrote them.
+"""The EDS files of the cell's drives (shipped in drivers/eds/, one per node), and the generator that wrote them.
 
-Both drives are CiA 402 devices with the same communication objects and the static PDO
-mapping described in `drivers.codec`; the gripper adds a grip-force limit (0x2100).
-`python -m drivers.eds` rewrites the files; a test checks the shipped files match.
+Every drive is a CiA 402 device with the same communication objects and the static PDO
+mapping described in `drivers.codec`; the gripper adds a grip-force limit (0x2100). Each
+node's EDS has as DefaultValues what that node holds at power-on and after the NMT resets:
+the values the cell file sets (`drivers.simdrive.power_on_values`; the shipped files are
+the shipped cell's, `drivers.sim.node_eds_paths` writes others for another cell).
+`python -m drivers.eds` rewrites the shipped files; a test checks they match.
 """
 
 from __future__ import annotations
@@ -18,13 +21,18 @@ from drivers import codec
 U8, U16, U32, I8, I16, I32, VSTR = 0x0005, 0x0006, 0x0007, 0x0002, 0x0003, 0x0004, 0x0009
 VAR, ARRAY, RECORD = 0x7, 0x8, 0x9
 
-AXIS_EDS = "scara_axis.eds"
+NODE_NAMES = ("j1", "j2", "j3", "j4", "gripper")
 GRIPPER_EDS = "gripper.eds"
 GRIP_FORCE_INDEX = 0x2100  # grip force limit, UNSIGNED16 in 0.1 N (cell.cellconfig.grip_force_units)
 
 
 def eds_path(name: str) -> Path:
     return Path(str(resources.files("drivers") / "eds" / name))
+
+
+def node_eds_file(name: str) -> str:
+    """The shipped EDS file of node `name` (j1-j4, gripper)."""
+    return f"{name}.eds"
 
 
 @functools.lru_cache(maxsize=64)
@@ -65,6 +73,8 @@ def _objects(gripper: bool) -> list[tuple]:
     objs = [
         var(0x1000, "Device type", U32, "ro", device_type),
         var(0x1001, "Error register", U8, "ro", "0", 1),
+        # the drives consume SYNC (synchronous TPDO1 types 0-240), produce none
+        var(0x1005, "COB-ID SYNC", U32, "rw", f"0x{codec.SYNC_COB:08X}"),
         var(
             0x1008,
             "Manufacturer device name",
@@ -103,10 +113,11 @@ def _objects(gripper: bool) -> list[tuple]:
         pdo_map(0x1601, "RPDO2 mapping parameter", list(codec.RPDO_MAPPINGS[1])),
         pdo_map(0x1602, "RPDO3 mapping parameter", list(codec.RPDO_MAPPINGS[2])),
         pdo_map(0x1603, "RPDO4 mapping parameter", []),
-        pdo_comm(0x1800, "TPDO1 communication parameter", "$NODEID+0x180"),
-        pdo_comm(0x1801, "TPDO2 communication parameter", "$NODEID+0x80000280"),
-        pdo_comm(0x1802, "TPDO3 communication parameter", "$NODEID+0x80000380"),
-        pdo_comm(0x1803, "TPDO4 communication parameter", "$NODEID+0x80000480"),
+        # TPDOs: bit 30 set, no RTR allowed (the drives answer none)
+        pdo_comm(0x1800, "TPDO1 communication parameter", "$NODEID+0x40000180"),
+        pdo_comm(0x1801, "TPDO2 communication parameter", "$NODEID+0xC0000280"),
+        pdo_comm(0x1802, "TPDO3 communication parameter", "$NODEID+0xC0000380"),
+        pdo_comm(0x1803, "TPDO4 communication parameter", "$NODEID+0xC0000480"),
         pdo_map(0x1A00, "TPDO1 mapping parameter", list(codec.TPDO1_MAPPING)),
         pdo_map(0x1A01, "TPDO2 mapping parameter", []),
         pdo_map(0x1A02, "TPDO3 mapping parameter", []),
@@ -152,8 +163,17 @@ def _objects(gripper: bool) -> list[tuple]:
     return objs
 
 
-def render_eds(gripper: bool) -> str:
+def render_eds(gripper: bool, values: dict[tuple[int, int], int] | None = None, name: str | None = None) -> str:
+    """The EDS text; `values` ((index, sub-index) -> value) are DefaultValues in place of the generic
+    ones, `name` the node it describes."""
     objs = _objects(gripper)
+    values = dict(values or {})
+    for k, (index, oname, kind, subs) in enumerate(objs):
+        subs = [(sub, *rest[:3], str(values.pop((index, sub))) if (index, sub) in values else rest[3], rest[4])
+                for sub, *rest in subs]
+        objs[k] = (index, oname, kind, subs)
+    if values:
+        raise ValueError(f"no such objects in the EDS: {sorted(values)}")
     groups = {"MandatoryObjects": [], "OptionalObjects": [], "ManufacturerObjects": []}
     for o in objs:
         index = o[0]
@@ -165,10 +185,11 @@ def render_eds(gripper: bool) -> str:
             else "OptionalObjects"
         )
         groups[key].append(index)
-    name = "gripper" if gripper else "SCARA axis"
+    node = name
+    name = "gripper" if gripper else "SCARA axis" if node is None else f"SCARA axis {node}"
     lines = [
         "[FileInfo]",
-        f"FileName={GRIPPER_EDS if gripper else AXIS_EDS}",
+        f"FileName={node_eds_file(node or ('gripper' if gripper else 'axis'))}",
         "FileVersion=1",
         "FileRevision=0",
         "EDSVersion=4.0",
@@ -249,9 +270,13 @@ def render_eds(gripper: bool) -> str:
 
 
 def main() -> None:
-    for name, gripper in ((AXIS_EDS, False), (GRIPPER_EDS, True)):
-        path = Path(__file__).resolve().parent / "eds" / name
-        path.write_text(render_eds(gripper), encoding="utf-8")
+    from cell.cellconfig import default_cell
+    from drivers.sim import node_eds_text
+
+    cell = default_cell()
+    for name in NODE_NAMES:
+        path = Path(__file__).resolve().parent / "eds" / node_eds_file(name)
+        path.write_text(node_eds_text(cell, name), encoding="utf-8")
         print(path)
 
 

@@ -98,6 +98,77 @@ def trapezoid(distance: float, v_max: float, accel: float, decel: float | None =
     return Trapezoid(distance, v_peak, accel, decel, v_peak / accel, 0.0, v_peak / decel)
 
 
+@dataclass(frozen=True)
+class Phases:
+    """A move from velocity `v0` (signed) by phases of constant acceleration: (duration s, acceleration
+    signed), ending at rest `distance` (signed) from where it started. The same interface as `Trapezoid`
+    for the simulated drives (`position_at`, `velocity_at`, `duration_s`, `decel`)."""
+
+    v0: float
+    phases: tuple[tuple[float, float], ...]
+    decel: float  # the deceleration of its last ramp
+
+    @property
+    def duration_s(self) -> float:
+        return sum(t for t, _ in self.phases)
+
+    @property
+    def distance(self) -> float:
+        return self.position_at(self.duration_s)
+
+    def _state_at(self, t_s: float) -> tuple[float, float]:
+        """(position, velocity) after `t_s` seconds, clamped to [0, duration]."""
+        t, s, v = max(t_s, 0.0), 0.0, self.v0
+        for dt, a in self.phases:
+            step = min(t, dt)
+            s += v * step + 0.5 * a * step * step
+            v += a * step
+            t -= step
+            if t <= 0.0:
+                break
+        return s, v
+
+    def position_at(self, t_s: float) -> float:
+        return self._state_at(t_s)[0]
+
+    def velocity_at(self, t_s: float) -> float:
+        if t_s >= self.duration_s:
+            return 0.0
+        return self._state_at(t_s)[1]
+
+
+def from_speed(distance: float, v0: float, v_max: float, accel: float, decel: float | None = None) -> Phases:
+    """The profile of a set-point taken at once (CiA 402 "change immediately") while the axis runs at `v0`
+    (signed): from that speed, on the ramps (`accel` to speed up, `decel` to slow down), to rest `distance`
+    (signed) away: one speed-up or slow-down to the cruise speed, cruise, one ramp down, where the target
+    lies ahead far enough to stop; else first to rest on the deceleration ramp, then a rest-to-rest move
+    back to it (an overshoot, or an axis running away from the new target)."""
+    decel = accel if decel is None else decel
+    for name, v in (("v_max", v_max), ("accel", accel), ("decel", decel)):
+        if not (math.isfinite(v) and v > 0):
+            raise ValueError(f"{name} must be positive and finite, got {v}")
+    if not (math.isfinite(distance) and math.isfinite(v0)):
+        raise ValueError(f"distance and v0 must be finite, got {distance}, {v0}")
+    sign = 1.0 if distance > 0 or (distance == 0 and v0 < 0) else -1.0
+    u0, d = v0 * sign, abs(distance)  # towards the target: positive
+    stop = u0 * u0 / (2 * decel)
+    if u0 < 0 or stop > d:  # to rest first, then back (or on) to the target from there
+        t_stop = abs(u0) / decel
+        travelled = u0 * t_stop - 0.5 * decel * t_stop * t_stop * (1 if u0 >= 0 else -1)
+        rest = trapezoid(sign * (d - travelled), v_max, accel, decel)
+        back = 1.0 if rest.distance >= 0 else -1.0
+        phases = [(t_stop, -sign * decel * (1 if u0 >= 0 else -1)), (rest.t_accel_s, back * accel),
+                  (rest.t_cruise_s, 0.0), (rest.t_decel_s, -back * decel)]
+    elif u0 <= v_max:
+        v_peak = min(v_max, math.sqrt((2 * accel * decel * d + decel * u0 * u0) / (accel + decel)))
+        ramps = (v_peak * v_peak - u0 * u0) / (2 * accel) + v_peak * v_peak / (2 * decel)
+        phases = [((v_peak - u0) / accel, sign * accel), (max(0.0, d - ramps) / v_peak if v_peak else 0.0, 0.0),
+                  (v_peak / decel, -sign * decel)]
+    else:  # faster than the profile velocity now allows: down to it, cruise, down to rest
+        phases = [((u0 - v_max) / decel, -sign * decel), ((d - stop) / v_max, 0.0), (v_max / decel, -sign * decel)]
+    return Phases(v0, tuple((t, a) for t, a in phases if t > 0.0), decel)
+
+
 def velocity_for_duration(distance: float, duration_s: float, accel: float, decel: float | None = None) -> float:
     """The cruise speed that makes a move of `distance` last `duration_s` with the given ramps
     (for coordinated moves: every axis arrives with the slowest). Requires `duration_s` at least

@@ -18,17 +18,22 @@ STO). Faults latch in the drive until a fault reset (controlword bit 7 rising ed
 
 from __future__ import annotations
 
+import hashlib
+import math
 import os
+import tempfile
+import threading
 import weakref
+from pathlib import Path
 
 import can
 import canopen
 
 from drivers import errorframes as ef
 from drivers.clock import Clock, RealClock
-from drivers.eds import AXIS_EDS, GRIPPER_EDS, eds_path
+from drivers.eds import eds_path, node_eds_file, render_eds
 from drivers.pump import BusPump
-from drivers.simdrive import FAULT_KINDS, TPDO_EVENT_MS, SimDrive, SimGripper
+from drivers.simdrive import FAULT_KINDS, TPDO_EVENT_MS, SimDrive, SimGripper, power_on_values
 
 TICK_S = 0.01  # motion and timer resolution of the simulated drives (TPDO1 at most 100 Hz)
 # Error frames as the Linux CAN drivers make them (linux/can/error.h: the class in the id, details in 8 data
@@ -58,6 +63,50 @@ def error_frame(error_class: str) -> can.Message:
     return can.Message(is_error_frame=True, arbitration_id=cls, is_extended_id=False, data=bytes(data), dlc=8)
 
 
+def node_settings(cell, name: str, tpdo_event_ms: int = TPDO_EVENT_MS) -> dict:
+    """The keyword arguments of node `name`'s `SimDrive` (`SimGripper`) for `cell`: its counts, the
+    cell file's limits and rates, where it stands at power-on."""
+    n = cell.can.nodes[name]
+    common = dict(counts_per_unit=n.counts_per_unit, heartbeat_ms=cell.can.heartbeat_ms, tpdo_event_ms=tpdo_event_ms)
+    if name == "gripper":
+        g = cell.gripper
+        return dict(limits=g.opening_mm, velocity=g.speed_mm_s, acceleration=10 * g.speed_mm_s,
+                    position=g.opening_mm[1], grip_force_n=g.grip_force_n, **common)
+    s, home = cell.scara, cell.motion.home_joints
+    start = {"j1": home["j1_deg"], "j2": home["j2_deg"], "j3": home["j3_mm"], "j4": home["j4_deg"]}
+    return dict(limits=s.limits(name), velocity=s.max_velocity[name], acceleration=s.max_acceleration[name],
+                position=start[name], **common)
+
+
+def node_eds_text(cell, name: str, tpdo_event_ms: int = TPDO_EVENT_MS) -> str:
+    """The EDS of node `name` in `cell`: its DefaultValues are what the node holds at power-on and after
+    the NMT resets."""
+    settings = node_settings(cell, name, tpdo_event_ms)
+    settings.pop("position")
+    return render_eds(name == "gripper", power_on_values(**settings), name)
+
+
+def node_eds_paths(cell, tpdo_event_ms: int = TPDO_EVENT_MS) -> dict[str, Path]:
+    """Node name -> the path of its EDS: the shipped files for the shipped cell; for another cell (other
+    limits, rates, heartbeat) files of its own, written once into a folder under the temporary directory
+    named by their content."""
+    texts = {name: node_eds_text(cell, name, tpdo_event_ms) for name in cell.can.nodes}
+    shipped = {name: eds_path(node_eds_file(name)) for name in texts}
+    if all(shipped[name].read_text(encoding="utf-8") == text for name, text in texts.items()):
+        return shipped
+    digest = hashlib.sha256("\n".join(f"{n}\n{t}" for n, t in sorted(texts.items())).encode()).hexdigest()[:16]
+    folder = Path(tempfile.gettempdir()) / f"drivers-eds-{os.getuid()}" / digest
+    paths = {name: folder / node_eds_file(name) for name in texts}
+    for name, text in texts.items():
+        path = paths[name]
+        if not path.is_file() or path.read_text(encoding="utf-8") != text:
+            folder.mkdir(parents=True, exist_ok=True)
+            tmp = folder / f".{path.name}.{os.getpid()}.{threading.get_ident()}"
+            tmp.write_text(text, encoding="utf-8")
+            os.replace(tmp, path)  # atomic: another process serving the same cell reads a whole file
+    return paths
+
+
 class SimHandle:
     """The running simulated cell drives; a context manager (leaving it stops them)."""
 
@@ -68,43 +117,11 @@ class SimHandle:
         self.clock = clock or RealClock()
         self.network = canopen.Network(bus)
         self.drives: dict[str, SimDrive] = {}
-        home = cell.motion.home_joints
-        start = {"j1": home["j1_deg"], "j2": home["j2_deg"], "j3": home["j3_mm"], "j4": home["j4_deg"]}
+        eds = node_eds_paths(cell, tpdo_event_ms)
         for name, n in cell.can.nodes.items():
-            common = dict(
-                counts_per_unit=n.counts_per_unit,
-                heartbeat_ms=cell.can.heartbeat_ms,
-                tpdo_event_ms=tpdo_event_ms,
-            )
-            if name == "gripper":
-                g = cell.gripper
-                d = SimGripper(
-                    name,
-                    n.node_id,
-                    str(eds_path(GRIPPER_EDS)),
-                    self.network,
-                    self.clock,
-                    limits=g.opening_mm,
-                    velocity=g.speed_mm_s,
-                    acceleration=10 * g.speed_mm_s,
-                    position=g.opening_mm[1],
-                    grip_force_n=g.grip_force_n,
-                    **common,
-                )
-            else:
-                s = cell.scara
-                d = SimDrive(
-                    name,
-                    n.node_id,
-                    str(eds_path(AXIS_EDS)),
-                    self.network,
-                    self.clock,
-                    limits=s.limits(name),
-                    velocity=s.max_velocity[name],
-                    acceleration=s.max_acceleration[name],
-                    position=start[name],
-                    **common,
-                )
+            cls = SimGripper if name == "gripper" else SimDrive
+            settings = node_settings(cell, name, tpdo_event_ms) | {"tick_ms": math.ceil(tick_s * 1000 - 1e-9)}
+            d = cls(name, n.node_id, str(eds[name]), self.network, self.clock, **settings)
             self.drives[name] = d
         self.nodes = [{"node_id": d.node_id, "name": name, "eds": d.eds} for name, d in self.drives.items()]
         self.pump = BusPump(bus, [self.network.listeners[0]], name="sim-drives-rx")

@@ -20,10 +20,11 @@ from canopen.sdo import SdoAbortedError
 from drivers import codec
 from drivers.clock import Clock
 from drivers.eds import GRIP_FORCE_INDEX, object_dictionary
-from drivers.profile import Trapezoid, trapezoid
+from drivers.profile import Trapezoid, from_speed, trapezoid
 
 log = logging.getLogger(__name__)
 
+TICK_MS = 10  # the drives' tick (drivers.sim.TICK_S): no heartbeat or event timer shorter than that
 TPDO_EVENT_MS = 50  # TPDO1 is also sent at least this often (canopen's BaseNode402 waits 0.2 s)
 FAULT_KINDS = ("silent", "emcy", "following_error", "drop_sdo", "error_frames", "quick_stop", "disable",
                "ignore_set_point", "internal_limit")
@@ -36,6 +37,9 @@ QUICK_STOP_DECEL_FACTOR = 2.0  # quick stop / fault reaction ramp = this x the p
 # is no longer driven: it runs out on friction alone, at this x its max acceleration (a figure of
 # the simulated mechanics, not an object of the drive; no gravity, no holding brake)
 COAST_DECEL_FACTOR = 0.5
+EMCY_PDO_LENGTH = 0x8210  # an RPDO shorter than its mapping: not processed (CiA 301)
+TPDO_COMM_FIRST, TPDO_COMM_LAST = 0x1800, 0x1803  # the TPDO communication parameters
+PDO_NO_RTR = 1 << 30  # COB-ID bit 30 of a TPDO: no RTR allowed (these drives answer none)
 
 # CiA 402 option codes (CiA 402-2 / IEC 61800-7-201): how the drive stops when it leaves OPERATION
 # ENABLED. Per value: the deceleration object of the ramp, or None for "disable drive function"
@@ -64,6 +68,28 @@ OPTION_CODES = {
     0x605D: HALT_OPTIONS,
     0x605E: FAULT_REACTION_OPTIONS,
 }
+
+
+def power_on_values(*, counts_per_unit: float, limits: tuple[float, float], velocity: float, acceleration: float,
+                    heartbeat_ms: int, tpdo_event_ms: int = TPDO_EVENT_MS,
+                    grip_force_n: float | None = None) -> dict[tuple[int, int], int]:
+    """(index, sub-index) -> value of the objects the cell file sets in a drive, as commissioning stored
+    them: what the drive holds at power-on and after the NMT resets, and its EDS's DefaultValues."""
+    c = counts_per_unit
+    values = {
+        (0x1017, 0): heartbeat_ms,
+        (0x1800, 5): tpdo_event_ms,
+        (0x607D, 1): codec.to_counts(limits[0], c),
+        (0x607D, 2): codec.to_counts(limits[1], c),
+        # rounded down, as the host sends them (a limit a quarter count under 2^32 rounded up past UNSIGNED32)
+        (0x6081, 0): max(1, codec.rate_counts_within(velocity, c)),
+        (0x6083, 0): max(1, codec.rate_counts_within(acceleration, c)),
+        (0x6084, 0): max(1, codec.rate_counts_within(acceleration, c)),
+        (0x6085, 0): max(1, round(QUICK_STOP_DECEL_FACTOR * acceleration * c)),
+    }
+    if grip_force_n is not None:
+        values[(GRIP_FORCE_INDEX, 0)] = round(grip_force_n * 10)
+    return values
 
 
 @dataclass
@@ -101,8 +127,10 @@ class SimDrive:
         position: float,
         heartbeat_ms: int,
         tpdo_event_ms: int = TPDO_EVENT_MS,
+        tick_ms: int = TICK_MS,
     ):
         self.name, self.node_id, self.eds, self.clock = name, node_id, eds, clock
+        self.tick_ms = tick_ms  # how often step() runs: the shortest period the drive keeps
         self.counts_per_unit = counts_per_unit
         self.coast_decel_counts = COAST_DECEL_FACTOR * acceleration * counts_per_unit
         self._lock = threading.RLock()
@@ -114,6 +142,8 @@ class SimDrive:
         network.unsubscribe(0, self.node.nmt.on_command)
         network.subscribe(0, self._on_nmt)
         self.node._find_object = self._find_object  # canopen's LocalNode lets any sub-index through
+        self._set_data = self.node.set_data
+        self.node.set_data = self._set_data_no_rtr
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
         self._sdo_send = self.node.sdo.send_response
@@ -123,19 +153,16 @@ class SimDrive:
         self._rpdo_cobs: dict[int, int] = {}
         for comm in self._rpdo_handlers:
             self._subscribe_rpdo(comm, int(self._get(comm, 1)))
-        network.subscribe(codec.SYNC_COB, self._on_sync)
+        self._sync_cob: int | None = None
+        self._subscribe_sync(int(self._get(0x1005)))
         self._sync_count = 0
-        # object dictionary values the cell file sets (as a commissioning tool would)
+        # object dictionary values the cell file sets (as a commissioning tool would; the node's EDS,
+        # `drivers.sim.node_eds_paths`, has them as its DefaultValues)
         c = counts_per_unit
-        self._store(0x607D, 1, codec.to_counts(limits[0], c))
-        self._store(0x607D, 2, codec.to_counts(limits[1], c))
-        # rounded down, as the host sends them (a limit a quarter count under 2^32 rounded up past UNSIGNED32)
-        self._store(0x6081, 0, max(1, codec.rate_counts_within(velocity, c)))
-        self._store(0x6083, 0, max(1, codec.rate_counts_within(acceleration, c)))
-        self._store(0x6084, 0, max(1, codec.rate_counts_within(acceleration, c)))
-        self._store(0x6085, 0, max(1, round(QUICK_STOP_DECEL_FACTOR * acceleration * c)))
-        self._store(0x1017, 0, heartbeat_ms)
-        self._store(0x1800, 5, tpdo_event_ms)
+        for (index, sub), value in power_on_values(counts_per_unit=c, limits=limits, velocity=velocity,
+                                                   acceleration=acceleration, heartbeat_ms=heartbeat_ms,
+                                                   tpdo_event_ms=tpdo_event_ms).items():
+            self._store(index, sub, value)
         # the power-on values (CiA 301: what the NMT resets restore), as stored by commissioning
         self._power_on = {i: dict(subs) for i, subs in self.node.data_store.items()}
         # the option code values this drive takes by SDO, and the objects it lacks (`configure_option_codes`)
@@ -171,7 +198,8 @@ class SimDrive:
         self._stepped_s: float | None = None  # when step() last ran
         # timers
         self._last_hb_s = -1e9
-        self._last_tpdo_s = -1e9
+        self._last_tpdo_s = -1e9  # the event timer's phase
+        self._tpdo_sent_s = -1e9  # when TPDO1 last went out (its inhibit time counts from there)
         self._last_tpdo: bytes | None = None
         # injected faults
         self.silent = False
@@ -208,6 +236,13 @@ class SimDrive:
             raise SdoAbortedError(0x06090011)
         return obj.subindices[subindex]
 
+    def _set_data_no_rtr(self, index: int, subindex: int, data: bytes, check_writable: bool = False) -> None:
+        """A TPDO's COB-ID keeps bit 30 set whatever is written there: these drives answer no RTR (CiA 301:
+        bit 30 = 1, no RTR allowed on this PDO), so a master that reads it back (canopen's PdoMap) knows it."""
+        if TPDO_COMM_FIRST <= index <= TPDO_COMM_LAST and subindex == 1 and len(data) == 4:
+            data = (int.from_bytes(data, "little") | PDO_NO_RTR).to_bytes(4, "little")
+        self._set_data(index, subindex, data, check_writable)
+
     def _on_read(self, index, subindex, od):
         with self._lock:
             if index == 0x6041:
@@ -227,22 +262,51 @@ class SimDrive:
     def _on_write(self, index, subindex, od, data):
         with self._lock:
             value = od.decode_raw(data)
+            if (0x1400 <= index <= 0x1403 or TPDO_COMM_FIRST <= index <= TPDO_COMM_LAST) and subindex in (1, 3):
+                self._check_pdo_comm_write(index, subindex, value)
             if index == 0x6040:
                 self._on_controlword(value)
             elif index == 0x6060:
                 self._set_mode(value)
             elif index == 0x1016 and subindex == 1:
                 self._set_host_watch(value)
-            elif index == 0x1017 and value < 0:
-                raise SdoAbortedError(0x06090030)
+            elif (index == 0x1017 or (TPDO_COMM_FIRST <= index <= TPDO_COMM_LAST and subindex == 5)) and (
+                    0 < value < self.tick_ms):
+                # a heartbeat or an event timer shorter than the drive's tick it could not keep (0: off)
+                raise SdoAbortedError(0x06090032)  # value of parameter written too low
             elif 0x1400 <= index <= 0x1403 and subindex == 2 and value not in (254, 255):
                 raise SdoAbortedError(0x06090030)  # RPDOs act on reception here (no SYNC-applied RPDOs)
             elif 0x1800 <= index <= 0x1803 and subindex == 2 and 240 < value < 254:
                 raise SdoAbortedError(0x06090030)
+            elif index == 0x1005:
+                if value & 0xFFFFF800:  # bit 30: produce SYNC (these drives do not); bit 29: a 29-bit id
+                    raise SdoAbortedError(0x06090030)
+                self._subscribe_sync(value)
             elif index in self._rpdo_handlers and subindex == 1:
                 self._subscribe_rpdo(index, value)
             elif index in OPTION_CODES and value not in self._accepted[index]:
                 raise SdoAbortedError(0x06090030)  # value range of parameter exceeded
+
+    def _subscribe_sync(self, cob_entry: int) -> None:
+        """Consume SYNC on the COB-ID of 0x1005."""
+        if self._sync_cob is not None:
+            self.network.unsubscribe(self._sync_cob, self._on_sync)
+        self._sync_cob = cob_entry & 0x7FF
+        self.network.subscribe(self._sync_cob, self._on_sync)
+
+    def _check_pdo_comm_write(self, index: int, subindex: int, value: int) -> None:
+        """CiA 301: while a PDO is valid (COB-ID bit 31 clear) its COB-ID (bits 0-29) and its inhibit time
+        stay as they are: make it invalid first. A 29-bit COB-ID (bit 29) is refused: these drives send and
+        take standard frames only. Both with abort 0x06090030 (value range of parameter exceeded)."""
+        cob = int(self._get(index, 1))
+        valid = not cob & 0x80000000
+        if subindex == 1:
+            if value & 0x20000000 or value & 0x1FFFF800:
+                raise SdoAbortedError(0x06090030)
+            if valid and not value & 0x80000000 and (value ^ cob) & 0x3FFFFFFF & ~PDO_NO_RTR:
+                raise SdoAbortedError(0x06090030)
+        elif valid and value != int(self._get(index, 3)):
+            raise SdoAbortedError(0x06090030)
 
     def _subscribe_rpdo(self, comm_index: int, cob_entry: int) -> None:
         handler = self._rpdo_handlers[comm_index]
@@ -285,32 +349,35 @@ class SimDrive:
                 return
             self._publish()
 
+    def _rpdo(self, data, size: int):
+        """The bytes of an RPDO that maps `size` bytes, or None when it is not to be processed (CiA 301):
+        a longer one is taken by its first `size` bytes; a shorter one is not processed and reported by
+        EMCY 0x8210 (PDO not processed due to length error). Only in OPERATIONAL."""
+        if self.silent or self.nmt != NMT_OPERATIONAL:
+            return None
+        if len(data) < size:
+            log.warning("%s: RPDO of %d bytes, %d mapped: not processed", self.name, len(data), size)
+            self._report(EMCY_PDO_LENGTH)
+            return None
+        return bytes(data[:size])
+
     def _on_rpdo1(self, can_id, data, timestamp) -> None:
         with self._lock:
-            if self.silent or self.nmt != NMT_OPERATIONAL:
-                return
-            try:
+            if (data := self._rpdo(data, 2)) is not None:
                 self._on_controlword(codec.unpack_controlword(data))
-            except ValueError:
-                log.warning("%s: malformed RPDO1 %s", self.name, bytes(data).hex())
 
     def _on_rpdo2(self, can_id, data, timestamp) -> None:
         with self._lock:
-            if self.silent or self.nmt != NMT_OPERATIONAL:
-                return
-            try:
+            if (data := self._rpdo(data, 4)) is not None:
                 self._store(0x607A, 0, codec.unpack_target(data))
-            except ValueError:
-                log.warning("%s: malformed RPDO2 %s", self.name, bytes(data).hex())
 
     def _on_rpdo3(self, can_id, data, timestamp) -> None:
         with self._lock:
-            if self.silent or self.nmt != NMT_OPERATIONAL:
-                return
-            try:
-                self._set_mode(codec.unpack_mode(data))
-            except (ValueError, SdoAbortedError):
-                log.warning("%s: bad RPDO3 %s", self.name, bytes(data).hex())
+            if (data := self._rpdo(data, 1)) is not None:
+                try:
+                    self._set_mode(codec.unpack_mode(data))
+                except SdoAbortedError:
+                    log.warning("%s: bad RPDO3 %s", self.name, data.hex())
 
     def on_host_heartbeat(self, can_id, data, timestamp) -> None:
         with self._lock:
@@ -413,7 +480,9 @@ class SimDrive:
             if s == "SWITCHED_ON" or (s == "QUICK_STOP_ACTIVE" and self.after_ramp is None):
                 self._enable()
             elif s == "READY_TO_SWITCH_ON":
-                self._disable("SWITCHED_ON")  # taken as switch on (3)
+                # switch on + enable operation: transitions 3 and 4 (the controlword is a level)
+                self._disable("SWITCHED_ON")
+                self._enable()
         if s == self.state == "OPERATION_ENABLED" and self.after_ramp is None and self.mode == codec.PP_MODE:
             # only a drive that was already enabled takes a set-point: the controlword that
             # enables it never starts a move, even with bit 4 set (enabling never jumps)
@@ -490,11 +559,16 @@ class SimDrive:
 
     def _emcy(self, code: int) -> None:
         """Report `code` by EMCY (logged, unless silent), then the status it left."""
+        self._report(code)
+        self._publish()
+
+    def _report(self, code: int) -> None:
+        """An EMCY of `code` with the error register as it stands (logged; not sent while silent, nor in NMT
+        STOPPED, where CiA 301 leaves a node NMT and error control (heartbeat) only)."""
         self.emcy_log.append(code)
-        if not self.silent:
+        if not self.silent and self.nmt != NMT_STOPPED:
             self.network.send_message(codec.EMCY_BASE + self.node_id,
                                       codec.pack_emcy(codec.Emcy(code, self.error_register)))
-        self._publish()
 
     def _end_ramp(self) -> None:
         """Standstill after the ramp of a transition: enter its state (FAULT after the fault reaction)."""
@@ -554,9 +628,15 @@ class SimDrive:
             return
         self.internal_limit = False
         self.target_reached = False
-        self.motion = _Motion(
-            self.clock.now(), self.position_counts, target, trapezoid(target - self.position_counts, v, a, d)
-        )
+        now, m = self.clock.now(), self.motion
+        v0 = m.profile.velocity_at(now - m.t0_s) if m is not None and not m.coasting else 0.0
+        if v0:
+            # a set-point taken at once during a move (change immediately): on from where the axis is and
+            # the speed it has, not from rest
+            here = m.start_counts + m.profile.position_at(now - m.t0_s)
+            self.motion = _Motion(now, here, target, from_speed(target - here, v0, v, a, d))
+        else:
+            self.motion = _Motion(now, self.position_counts, target, trapezoid(target - self.position_counts, v, a, d))
 
     def _stop_motion(self) -> None:
         self.motion = None
@@ -630,7 +710,7 @@ class SimDrive:
         self.error_code = 0
         self.following_error = False
         self._armed = [f for f in self._armed if f["kind"] not in ("emcy", "following_error")]
-        if not self.silent:
+        if not self.silent and self.nmt != NMT_STOPPED:
             self.network.send_message(codec.EMCY_BASE + self.node_id, codec.pack_emcy(codec.Emcy(0, 0)))
 
     def _restore_power_on(self, lo: int, hi: int) -> None:
@@ -644,9 +724,11 @@ class SimDrive:
 
     def _reset_application(self) -> None:
         """NMT Reset Node: the application and profile area (0x2000-0xFFFF) to power-on values;
-        the actual position stays (absolute encoders) and becomes the target."""
+        the actual position stays (absolute encoders) and becomes the target. The drive function is
+        off: an axis still moving is no longer driven and coasts, as a disabled axis does."""
         self.state = "NOT_READY_TO_SWITCH_ON"
-        self._stop_motion()
+        self._coast()
+        self.pending = self.halted = self.after_ramp = None
         self.enable_held = False
         self.ack, self.error_code, self.following_error, self.mode = False, 0, False, 0
         self.controlword, self.internal_limit, self.target_reached = 0, False, True
@@ -657,10 +739,11 @@ class SimDrive:
         """NMT Reset Communication: the communication area (0x1000-0x1FFF) to power-on values,
         with what depends on it: RPDO COB-IDs, the host heartbeat watch, TPDO timing."""
         self._restore_power_on(0x1000, 0x1FFF)
+        self._subscribe_sync(int(self._get(0x1005)))
         for comm in self._rpdo_handlers:
             self._subscribe_rpdo(comm, int(self._get(comm, 1)))
         self._set_host_watch(int(self._get(0x1016, 1)))
-        self._last_tpdo, self._sync_count = None, 0
+        self._last_tpdo, self._sync_count, self._tpdo_sent_s = None, 0, -1e9
 
     # --- host heartbeat watch --------------------------------------------------------------
     def _set_host_watch(self, entry: int) -> None:
@@ -778,22 +861,28 @@ class SimDrive:
 
     def _publish(self, now: float | None = None) -> None:
         """Event-driven TPDO1 (transmission type 254/255): when the status changed, or when the
-        event timer is due. Synchronous types are sent on SYNC instead (`_on_sync`)."""
+        event timer is due, but never sooner than the inhibit time (0x1800 sub 3, 100 us units)
+        after the last one: a change meanwhile goes out, as it then stands, once the inhibit time
+        has passed (on the tick after it). Synchronous types are sent on SYNC instead (`_on_sync`)."""
         if self.silent or self.nmt != NMT_OPERATIONAL:
             return
         cob = int(self._get(0x1800, 1))
         if cob & 0x80000000 or int(self._get(0x1800, 2)) <= 240:
             return
         now = self.clock.now() if now is None else now
+        if now - self._tpdo_sent_s < int(self._get(0x1800, 3)) * 1e-4 - 1e-9:
+            return  # inhibited
         data = self._tpdo1_data()
         event_ms = int(self._get(0x1800, 5))
         due = event_ms > 0 and now - self._last_tpdo_s >= event_ms / 1000.0 - 1e-9
         if data != self._last_tpdo:  # an event: the event timer restarts
             self._last_tpdo, self._last_tpdo_s = data, now
-            self.network.send_message(cob & 0x7FF, data)
         elif due:
             self._last_tpdo_s = _next_phase(self._last_tpdo_s, event_ms / 1000.0, now)
-            self.network.send_message(cob & 0x7FF, data)
+        else:
+            return
+        self._tpdo_sent_s = now
+        self.network.send_message(cob & 0x7FF, data)
 
     def _on_sync(self, can_id, data, timestamp) -> None:
         """Synchronous TPDO1: type 0 on SYNC when changed, types 1-240 on every n-th SYNC."""
@@ -807,6 +896,7 @@ class SimDrive:
             data = self._tpdo1_data()
             if (kind == 0 and data != self._last_tpdo) or (kind > 0 and self._sync_count % kind == 0):
                 self._last_tpdo, self._last_tpdo_s = data, self.clock.now()
+                self._tpdo_sent_s = self._last_tpdo_s
                 self.network.send_message(cob & 0x7FF, data)
 
     # --- fault injection -------------------------------------------------------------------
@@ -875,6 +965,7 @@ class SimGripper(SimDrive):
         self.object_width_fn = None
         self._fn_motion, self._fn_width = None, None
         self._store(GRIP_FORCE_INDEX, 0, round(grip_force_n * 10))
+        self._power_on[GRIP_FORCE_INDEX] = dict(self.node.data_store[GRIP_FORCE_INDEX])  # a reset keeps it
 
     def _blocked(self, m: _Motion) -> bool:
         w = self.object_width_mm

@@ -200,7 +200,7 @@ def test_the_host_restores_the_pdo_communication_it_needs(open_test_bus, sim_clo
         j3._store(0x1800, 1, 0x80000183)  # someone left TPDO1 disabled ...
         j3._store(0x1800, 2, 1)  # ... and synchronous
         with Arm(open_test_bus(), cell_cfg, clock=sim_clock) as arm:
-            assert j3._get(0x1800, 1) == 0x183 and j3._get(0x1800, 2) == 255
+            assert j3._get(0x1800, 1) == 0x40000183 and j3._get(0x1800, 2) == 255  # valid (bit 30: no RTR)
             s = arm.joints()
             arm.move_joints(Joints(s.j1_deg, s.j2_deg, s.j3_mm - 30.0, s.j4_deg))
             assert drives.positions()["j3"] == pytest.approx(s.j3_mm - 30.0)

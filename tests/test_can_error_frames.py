@@ -210,7 +210,7 @@ def test_the_window_is_optional_in_the_cell_file():
         ({"error_frames_max": -1}, "can.error_frames_max must be 0 or more error frames, got -1"),
         ({"error_frames_max": 2.5}, "can.error_frames_max must be a whole number, got 2.5"),
         ({"error_frames_max": "10"}, "can.error_frames_max must be a finite number, got '10'"),
-        ({"error_frames_max": None}, "can.error_frames_max must be a finite number, got None"),
+        ({"error_frames_max": None}, "can.error_frames_max must be a finite number, got null"),
         ({"error_window_ms": 0}, "can.error_window_ms must be positive, got 0"),
         ({"error_window_ms": 100.5}, "can.error_window_ms must be a whole number, got 100.5"),
         ({"error_window_ms": 120_000}, "can.error_window_ms = 120000 is more than 60000 ms"),

@@ -421,12 +421,12 @@ def test_a_drive_another_master_took_out_of_profile_position_gets_no_set_point()
     import canopen
 
     from drivers import open_bus, simulated_cell
-    from drivers.eds import AXIS_EDS, eds_path
+    from drivers.eds import eds_path
 
     with simulated_cell(channel="another-master") as (arm, drives):
         tool = open_bus("virtual", "another-master")
         net = canopen.Network(tool)
-        node = canopen.RemoteNode(2, str(eds_path(AXIS_EDS)))
+        node = canopen.RemoteNode(2, str(eds_path("j2.eds")))
         net.add_node(node)
         listening = can.Notifier(tool, [net.listeners[0]])
         try:

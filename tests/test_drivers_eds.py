@@ -1,5 +1,5 @@
-"""The shipped EDS files: written by drivers/eds.py, readable by canopen, static PDO mapping
-matching the codecs."""
+"""The shipped EDS files: written by drivers/eds.py, one per node of the shipped cell, readable by canopen,
+static PDO mapping matching the codecs."""
 
 from __future__ import annotations
 
@@ -7,18 +7,21 @@ import canopen
 import pytest
 
 from drivers import codec
-from drivers.eds import AXIS_EDS, GRIPPER_EDS, eds_path, render_eds
+from drivers.eds import NODE_NAMES, eds_path, node_eds_file
 
 
-@pytest.mark.parametrize(("name", "gripper"), [(AXIS_EDS, False), (GRIPPER_EDS, True)])
-def test_shipped_eds_is_what_the_generator_writes(name, gripper):
-    assert eds_path(name).read_text(encoding="utf-8") == render_eds(gripper)
+@pytest.mark.parametrize("name", NODE_NAMES)
+def test_shipped_eds_is_what_the_generator_writes(name):
+    from cell.cellconfig import default_cell
+    from drivers.sim import node_eds_text
+
+    assert eds_path(node_eds_file(name)).read_text(encoding="utf-8") == node_eds_text(default_cell(), name)
 
 
-@pytest.mark.parametrize("name", [AXIS_EDS, GRIPPER_EDS])
+@pytest.mark.parametrize("name", NODE_NAMES)
 def test_pdo_mapping_matches_the_codecs(name):
-    od = canopen.import_od(str(eds_path(name)), 7)
-    assert od[0x1800][1].default == codec.TPDO1_BASE + 7
+    od = canopen.import_od(str(eds_path(node_eds_file(name))), 7)
+    assert od[0x1800][1].default == codec.TPDO1_BASE + 7 | 0x40000000  # bit 30: no RTR
     assert od[0x1400][1].default == codec.RPDO1_BASE + 7
     assert od[0x1401][1].default == codec.RPDO2_BASE + 7
     assert od[0x1402][1].default == codec.RPDO3_BASE + 7

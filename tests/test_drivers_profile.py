@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from cell.cellconfig import default_cell
 from cell.kinematics import Joints, forward, tool_xy
-from drivers.profile import coordinated_path, coordinated_path_array, trapezoid, velocity_for_duration
+from drivers.profile import coordinated_path, coordinated_path_array, from_speed, trapezoid, velocity_for_duration
 
 pos = st.floats(0.5, 5000)
 
@@ -117,3 +117,17 @@ def test_real_clock_can_be_reused_after_close():
     clock.every(0.01, ticks.set)
     assert ticks.wait(1.0)
     clock.close()
+
+
+@given(distance=st.floats(-5000, 5000), v0=st.floats(-300, 300), v_max=pos, accel=pos, decel=pos)
+def test_a_profile_from_speed_starts_at_it_and_ends_at_rest_on_the_target_within_the_ramps(distance, v0, v_max,
+                                                                                            accel, decel):
+    """`from_speed` (change immediately): from `v0`, never faster than it or `v_max`, every phase on a ramp,
+    at rest `distance` away at the end."""
+    p = from_speed(distance, v0, v_max, accel, decel)
+    assert p.velocity_at(0.0) == v0
+    assert p.distance == pytest.approx(distance, abs=1e-6 * max(1.0, abs(distance)))
+    assert p._state_at(p.duration_s)[1] == pytest.approx(0.0, abs=1e-6 * max(1.0, abs(v0), v_max))
+    assert all(a in (0.0, accel, -accel, decel, -decel) for _, a in p.phases)
+    top = max(abs(v0), v_max) * (1 + 1e-9) + 1e-9
+    assert all(abs(p.velocity_at(t)) <= top for t in np.linspace(0.0, p.duration_s, 40))

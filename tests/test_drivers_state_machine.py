@@ -12,13 +12,13 @@ from hypothesis import strategies as st
 
 from drivers import codec, open_bus
 from drivers.clock import SimClock
-from drivers.eds import AXIS_EDS, eds_path
+from drivers.eds import eds_path
 from drivers.simdrive import NMT_OPERATIONAL, SimDrive
 
 # the transitions CiA 402 allows (canopen's table, in the contract's spelling) ...
 ALLOWED = {(a.replace(" ", "_"), b.replace(" ", "_")) for a, b in State402.TRANSITIONTABLE}
-# ... plus enable-operation from READY TO SWITCH ON, which this drive takes as switch-on (3)
-ALLOWED |= {("READY_TO_SWITCH_ON", "SWITCHED_ON")}
+# ... plus enable operation from READY TO SWITCH ON: transitions 3 and 4 at once (the controlword is a level)
+ALLOWED |= {("READY_TO_SWITCH_ON", "OPERATION_ENABLED")}
 CONTROLWORDS = [0x00, 0x02, 0x06, 0x07, 0x0F, 0x1F, 0x5F, 0x3F, 0x10F, 0x80, 0x86]
 
 
@@ -34,7 +34,7 @@ def _drive(bus, clock):
     d = SimDrive(
         "j1",
         1,
-        str(eds_path(AXIS_EDS)),
+        str(eds_path("j1.eds")),
         network,
         clock,
         counts_per_unit=1000.0,

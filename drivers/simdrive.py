@@ -148,6 +148,8 @@ class SimDrive:
         self.node.add_write_callback(self._on_write)
         self._sdo_send = self.node.sdo.send_response
         self.node.sdo.send_response = self._send_sdo_response
+        network.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
+        network.subscribe(self.node.sdo.rx_cobid, self._on_sdo_request)
         # RPDOs by their communication object (the COB-IDs are writable, as on real drives)
         self._rpdo_handlers = {0x1400: self._on_rpdo1, 0x1401: self._on_rpdo2, 0x1402: self._on_rpdo3}
         self._rpdo_cobs: dict[int, int] = {}
@@ -316,6 +318,14 @@ class SimDrive:
         if not cob_entry & 0x80000000:  # bit 31 set: PDO not valid
             self._rpdo_cobs[comm_index] = cob_entry & 0x7FF
             self.network.subscribe(cob_entry & 0x7FF, handler)
+
+    def _on_sdo_request(self, can_id, data, timestamp) -> None:
+        """An SDO request is not even carried out in NMT STOPPED (CiA 301: NMT and heartbeat only there); a
+        write used to take effect with its answer held back."""
+        with self._lock:
+            if self.silent or self.nmt == NMT_STOPPED:
+                return
+        self.node.sdo.on_request(can_id, data, timestamp)
 
     def _send_sdo_response(self, response) -> None:
         with self._lock:

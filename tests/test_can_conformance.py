@@ -357,3 +357,18 @@ def test_change_immediately_goes_on_from_the_speed_the_axis_has(open_test_bus, s
         dv = [(w - u) / 0.01 for u, w in zip(v, v[1:])]
         assert max(abs(x) for x in dv) <= max(a, d) * 1.001
         assert j1.position_counts == start + new_target and j1.target_reached and j1.motion is None
+
+
+def test_a_stopped_node_carries_out_no_sdo_request(open_test_bus, sim_clock):
+    """CiA 301: no SDO in NMT STOPPED. A write there took effect with only its answer held back: a master
+    that timed out on it believed nothing had changed."""
+    with sim.serve(open_test_bus(), clock=sim_clock) as drives, _master(open_test_bus, drives, "j4") as (net, node):
+        before = node.sdo[0x6081].raw
+        node.nmt.state = "STOPPED"
+        sim_clock.sleep(0.02)
+        net.send_message(0x604, bytes([0x23, 0x81, 0x60, 0x00]) + (before // 2).to_bytes(4, "little"))
+        sim_clock.sleep(0.05)
+        node.nmt.state = "PRE-OPERATIONAL"
+        sim_clock.sleep(0.02)
+        assert node.sdo[0x6081].raw == before
+        assert drives.drives["j4"].nmt == 0x7F

@@ -38,6 +38,8 @@ from cell.vision.touching import pick
 
 SMALL_FRAME_PX = 960
 WALL_FACING_COS = 0.3
+EDGE_BAND_PX = 1  # a shadow-like region meets the tray across up to this many sharp pixels beyond the 5 x 5
+# neighbourhood of its border (a blurred step's band of sharp pixels, docs/vision.md step 3)
 DEFAULT_FRAME_PX = (WIDTH_PX, HEIGHT_PX)  # the default cell's camera: the pixel defaults below are for it
 DEFAULT_MM_PER_PX = CAMERA_MM[2] / FOCAL_PX  # ... on the table (z = 0) it sees 0.5 mm per px (calibration/default.py)
 SAME_CAMERA_SPREAD = 0.05  # a calibration within this of the default's px per mm reads as the default camera
@@ -650,8 +652,16 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, sharp_
     if n <= 1:
         return np.zeros_like(cand)
     # judge each region by its free border, where it meets the tray (not the part it hangs on):
-    # a wall ends there in a sharp edge, a shadow fades out
+    # a wall ends there in a sharp edge, a shadow fades out. Where it meets the tray is looked for
+    # across the edge's own band: a flat grey part's blurred edge is a band of sharp pixels 2 - 3 px
+    # wide, so its region's border pixels lie 3 px from the tray, beyond the 5 x 5 neighbourhood
+    # (a grey patch at 0.65 of the tray, blurred by 0.8 px: no border pixel near the tray, sharp
+    # share 0, thrown away as shadow). The tray grown by EDGE_BAND_PX through sharp pixels only
+    # reaches those; a shadow's fading border meets the tray itself, as before
     tray = (~(strong | darker | sharp)).view(np.uint8)
+    k3 = np.ones((3, 3), np.uint8)
+    for _ in range(EDGE_BAND_PX):
+        tray |= cv2.dilate(tray, k3) & sharp.view(np.uint8)
     near_tray = cv2.dilate(tray, np.ones((5, 5), np.uint8)) > 0
     near_part = cv2.dilate(strong.view(np.uint8), np.ones((3, 3), np.uint8)) > 0
     # (a region's border pixels: those with a neighbour outside it)

@@ -289,9 +289,19 @@ def _segments_of(frame: np.ndarray, p: SegmentParams, d: _Detection, reference_b
             seg_other = _segment(frame, p, d, *_field_tray(other, d))
             # and it must leave less in the holes of a large region cut by the border (the parts seen
             # as holes of the tray taken for a part): the Festo frames' table as the tray makes the
-            # paper with the parts on it such a region, 8 - 11 % holes against 1 - 5 % the first time
-            if (_whole_parts(seg_other) > _whole_parts(best)
-                    and _border_hole_share(seg_other, frame.shape) < first_hole_share):
+            # paper with the parts on it such a region, 8 - 11 % holes against 1 - 5 % the first time.
+            # More whole parts; or no region holding others as holes over TRAY_TAKEN_SHARE of the
+            # frame at all (a reading that has none explains the frame as parts on a tray) and more
+            # regions besides such regions. Whole parts alone were fooled where the view cuts most
+            # parts (pca_test1.jpg cut at u = 520: ragged pieces of the panel's glow counted as 2
+            # whole parts, the panel's 1 whole bar and 5 cut off as 1; 4 regions besides the panel
+            # against 7). A dark tray beside a lighter table, the table taken for the tray, still has
+            # such a region (the tray, its parts as holes) and stays refused; a reading that finds
+            # little (no holes, but fewer regions: the Festo frames inverted) too
+            if (_border_hole_share(seg_other, frame.shape) < first_hole_share
+                    and (_whole_parts(seg_other) > _whole_parts(best)
+                         or (not _holds_parts(seg_other, frame.shape)
+                             and _regions_besides(seg_other, frame.shape) > _regions_besides(best, frame.shape)))):
                 best = seg_other
         return best
     return segs
@@ -307,6 +317,20 @@ def _tray_taken_for_a_part(segs: list[Segment], shape) -> bool:
     """True when a region touching the border covers TRAY_TAKEN_SHARE of the frame and holds holes."""
     frame_px = shape[0] * shape[1]
     return any(s.cut_off and s.holes_px and s.area_px > TRAY_TAKEN_SHARE * frame_px for s in segs)
+
+
+def _holds_parts(segs: list[Segment], shape) -> bool:
+    """True when a region, cut by the border or not, covers TRAY_TAKEN_SHARE of the frame and holds holes:
+    in a reading of the frame, the tray (or a panel) taken for a part with the parts as its holes."""
+    frame_px = shape[0] * shape[1]
+    return any(s.holes_px and s.area_px > TRAY_TAKEN_SHARE * frame_px for s in segs)
+
+
+def _regions_besides(segs: list[Segment], shape) -> int:
+    """How many regions are not of the kind `_holds_parts` looks for (over TRAY_TAKEN_SHARE of the frame,
+    with holes)."""
+    frame_px = shape[0] * shape[1]
+    return sum(not (s.holes_px and s.area_px > TRAY_TAKEN_SHARE * frame_px) for s in segs)
 
 
 def _border_hole_share(segs: list[Segment], shape) -> float:

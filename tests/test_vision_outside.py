@@ -7,7 +7,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 import pytest
-from conftest import EXTERNAL, run_cli
+from conftest import EXTERNAL, needs_photos, run_cli
 
 from calibration import load_calibration
 from cell.scene import Part
@@ -171,3 +171,44 @@ def test_a_row_of_parts_cut_by_the_border_a_few_pixels_apart_is_kept(gap_px):
     segs = segment_frame(np.clip(np.round(img), 0, 255).astype(np.uint8))
     assert segs.outside_tray == [] and len(segs) == n + 1
     assert sum(s.cut_off for s in segs) == n
+
+
+@needs_photos
+@pytest.mark.parametrize("u_max", [520, 600])
+def test_pca_test1_cut_through_its_parts_gives_the_bars_not_the_panel(u_max):
+    """pca_test1.jpg cut at u = 520 (or 600), through five of its six bars. The first reading takes the
+    dark surround for the tray and the lit panel for a part cut by the border, over half the view, the
+    bars its holes; the bright side as the tray gives the bars, one whole and five cut off. That reading
+    was refused: it did not show more whole parts than the first, where two ragged pieces of the panel's
+    glow counted as whole parts (5 regions, the panel 136,846 - 151,829 px with a bar as a hole). A
+    reading with no region holding others as holes over a quarter of the view now wins, as --backlit and
+    the whole photograph give."""
+    img = read_image(EXTERNAL / "opencv-objects" / "pca_test1.jpg")[:, :u_max]
+    backlit = segment_frame(img, SegmentParams(tray="bright"))
+    segs = segment_frame(img)
+    assert [(round(s.area_px), s.cut_off) for s in segs] == [(round(s.area_px), s.cut_off) for s in backlit]
+    assert len(segs) == 6 and not any(s.holes_px for s in segs)
+    assert all(s.area_px < 17000 for s in segs)  # bars, no panel
+    assert sum(not s.cut_off for s in segs) == (1 if u_max == 520 else 2)
+
+
+def test_a_dark_tray_beside_a_lighter_table_stays_the_tray():
+    """The other reading of such a frame takes the table for the tray: the tray is then one region with
+    its parts as holes, over a quarter of the view. It must stay refused (the table, cut by the border
+    all round, holds the tray as its hole in the first reading, which makes the second pass run)."""
+    rng = np.random.default_rng(5)
+    img = np.empty((800, 1000, 3), np.float32)
+    img[:] = (200, 205, 210)  # the table
+    img[120:680, 150:850] = (95, 80, 60)  # the tray, 49 % of the view
+    centres = [(300, 250), (650, 250), (300, 550), (650, 550)]
+    for u, v in centres:
+        cv2.circle(img, (u, v), 45, (215, 220, 225), -1)
+    img = cv2.GaussianBlur(img, (0, 0), 1.2) + rng.normal(0, 2.0, img.shape)
+    segs = segment_frame(np.clip(np.round(img), 0, 255).astype(np.uint8))
+    for u, v in centres:  # the four discs, whole; the tray is no region holding them as holes
+        s = at([s for s in segs if not s.cut_off], u, v)
+        assert s is not None and not s.holes_px and abs(s.area_px - np.pi * 45 ** 2) < 200
+    assert not any(not s.cut_off and s.holes_px for s in segs)
+    # (the table, cut by the border all round with the tray as its hole, is listed too, cut off: step 6
+    # takes the tray's extent from outside every region's outline, and here the table's outline is the
+    # frame's border; as before)

@@ -99,3 +99,63 @@ def test_wshed_pill_outlines_do_not_take_in_their_shadows():
     assert len(lone) >= 3  # the three lone pills
     # the heap of touching pills is one region and flagged (it was not before)
     assert max(segs, key=lambda s: s.area_px).merged
+
+
+def grey_plate(seed: int, k: float, sigma: float = 0.8) -> np.ndarray:
+    """A flat grey plate (k x the tray's colour, crisp edges blurred by `sigma` px) on a quiet tray."""
+    img = cloth(seed, grain=0.01)
+    m = np.zeros(img.shape[:2], np.float32)
+    m[80:150, 120:200] = 1.0
+    m = cv2.GaussianBlur(m, (0, 0), sigma)[:, :, None]
+    return np.clip(img * (1.0 - m) + img * k * m, 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("k", [0.62, 0.65, 0.68])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_flat_grey_plate_with_a_blurred_crisp_edge_is_material(seed, k):
+    # the plate's edge, blurred by the optics and the detection's own blur, is a band of sharp pixels
+    # 2 - 3 px wide: the plate's border pixels lay 3 px from the tray, outside the 5 x 5 neighbourhood
+    # where the free border was looked for, so none counted, its sharp share was 0 and the plate was
+    # thrown away as a shadow (no region at all for k 0.6 - 0.65; found from 0.7 on, where the band
+    # is narrower). Now the tray is looked for across the edge's band
+    segs = segment_frame(grey_plate(seed, k), SegmentParams(min_area_px=60))
+    assert len(segs) == 1
+    assert abs(segs[0].area_px - 80 * 70) < 0.03 * 80 * 70
+    assert np.allclose(segs[0].centroid_px, (160.0, 115.0), atol=1.0)
+
+
+# flat rectangles pasted on stuff.jpg's empty table (x, y, w, h), away from the objects and their shadows
+PATCHES = [(520, 100, 60, 40), (120, 250, 60, 40), (470, 330, 60, 40), (80, 400, 60, 40), (560, 400, 60, 40)]
+
+
+def patched(img: np.ndarray, k: float, sigma: float = 0.8) -> np.ndarray:
+    """stuff.jpg with PATCHES pasted, each k x the table's local colour (its median there), edges blurred."""
+    out = img.astype(np.float32)
+    for x, y, w, h in PATCHES:
+        colour = np.median(img[y:y + h, x:x + w].reshape(-1, 3), axis=0) * k
+        m = np.zeros(img.shape[:2], np.float32)
+        m[y:y + h, x:x + w] = 1.0
+        m = cv2.GaussianBlur(m, (0, 0), sigma)[:, :, None]
+        out = out * (1.0 - m) + colour * m
+    return np.clip(np.round(out), 0, 255).astype(np.uint8)
+
+
+@needs_photos
+@pytest.mark.parametrize("k", [0.65, 0.75])
+def test_stuff_flat_grey_patches_are_found(k):
+    # before: 2 of the 5 at 0.65 and at 0.75 (the others thrown away as shadows: their free border's
+    # sharp share came out 0 - 0.3, the border pixels being beyond the 5 x 5 reach of the tray). The
+    # fifth, (80, 400), lies where the table is darker than its fitted field: part of it reads darker
+    # than any shadow (r < 0.55), the rest hangs on that as on a part, on the side turned from the
+    # vertical: still lost (docs/vision.md, Limits)
+    img = read_image(OBJECTS / "stuff.jpg")
+    segs = segment_frame(patched(img, k))
+    found = [any(abs(s.centroid_px[0] - (x + w / 2)) < 2 and abs(s.centroid_px[1] - (y + h / 2)) < 2
+                 and abs(s.area_px - w * h) < 0.05 * w * h for s in segs) for x, y, w, h in PATCHES]
+    assert sum(found) >= 4, found
+    # the five objects are still there, with nothing taken from their shadows
+    # (the patches move the tray's fitted field a little: the lighter's small grey head is 454 px, 580 plain)
+    for o in [o for o in segment_frame(img) if o.area_px > 900]:
+        assert any(np.hypot(*(s.centroid_px - o.centroid_px)) < 3 and abs(s.area_px - o.area_px) < 0.05 * o.area_px
+                   for s in segs), o.area_px
+    assert len(segs) == 6 + sum(found)

@@ -38,6 +38,8 @@ from cell.vision.touching import pick
 
 SMALL_FRAME_PX = 960
 WALL_FACING_COS = 0.3
+EDGE_BAND_PX = 1  # a shadow-like region meets the tray across up to this many sharp pixels beyond the 5 x 5
+# neighbourhood of its border (a blurred step's band of sharp pixels, docs/vision.md step 3)
 DEFAULT_FRAME_PX = (WIDTH_PX, HEIGHT_PX)  # the default cell's camera: the pixel defaults below are for it
 DEFAULT_MM_PER_PX = CAMERA_MM[2] / FOCAL_PX  # ... on the table (z = 0) it sees 0.5 mm per px (calibration/default.py)
 SAME_CAMERA_SPREAD = 0.05  # a calibration within this of the default's px per mm reads as the default camera
@@ -287,9 +289,19 @@ def _segments_of(frame: np.ndarray, p: SegmentParams, d: _Detection, reference_b
             seg_other = _segment(frame, p, d, *_field_tray(other, d))
             # and it must leave less in the holes of a large region cut by the border (the parts seen
             # as holes of the tray taken for a part): the Festo frames' table as the tray makes the
-            # paper with the parts on it such a region, 8 - 11 % holes against 1 - 5 % the first time
-            if (_whole_parts(seg_other) > _whole_parts(best)
-                    and _border_hole_share(seg_other, frame.shape) < first_hole_share):
+            # paper with the parts on it such a region, 8 - 11 % holes against 1 - 5 % the first time.
+            # More whole parts; or no region holding others as holes over TRAY_TAKEN_SHARE of the
+            # frame at all (a reading that has none explains the frame as parts on a tray) and more
+            # regions besides such regions. Whole parts alone were fooled where the view cuts most
+            # parts (pca_test1.jpg cut at u = 520: ragged pieces of the panel's glow counted as 2
+            # whole parts, the panel's 1 whole bar and 5 cut off as 1; 4 regions besides the panel
+            # against 7). A dark tray beside a lighter table, the table taken for the tray, still has
+            # such a region (the tray, its parts as holes) and stays refused; a reading that finds
+            # little (no holes, but fewer regions: the Festo frames inverted) too
+            if (_border_hole_share(seg_other, frame.shape) < first_hole_share
+                    and (_whole_parts(seg_other) > _whole_parts(best)
+                         or (not _holds_parts(seg_other, frame.shape)
+                             and _regions_besides(seg_other, frame.shape) > _regions_besides(best, frame.shape)))):
                 best = seg_other
         return best
     return segs
@@ -305,6 +317,20 @@ def _tray_taken_for_a_part(segs: list[Segment], shape) -> bool:
     """True when a region touching the border covers TRAY_TAKEN_SHARE of the frame and holds holes."""
     frame_px = shape[0] * shape[1]
     return any(s.cut_off and s.holes_px and s.area_px > TRAY_TAKEN_SHARE * frame_px for s in segs)
+
+
+def _holds_parts(segs: list[Segment], shape) -> bool:
+    """True when a region, cut by the border or not, covers TRAY_TAKEN_SHARE of the frame and holds holes:
+    in a reading of the frame, the tray (or a panel) taken for a part with the parts as its holes."""
+    frame_px = shape[0] * shape[1]
+    return any(s.holes_px and s.area_px > TRAY_TAKEN_SHARE * frame_px for s in segs)
+
+
+def _regions_besides(segs: list[Segment], shape) -> int:
+    """How many regions are not of the kind `_holds_parts` looks for (over TRAY_TAKEN_SHARE of the frame,
+    with holes)."""
+    frame_px = shape[0] * shape[1]
+    return sum(not (s.holes_px and s.area_px > TRAY_TAKEN_SHARE * frame_px) for s in segs)
 
 
 def _border_hole_share(segs: list[Segment], shape) -> float:
@@ -650,8 +676,16 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, sharp_
     if n <= 1:
         return np.zeros_like(cand)
     # judge each region by its free border, where it meets the tray (not the part it hangs on):
-    # a wall ends there in a sharp edge, a shadow fades out
+    # a wall ends there in a sharp edge, a shadow fades out. Where it meets the tray is looked for
+    # across the edge's own band: a flat grey part's blurred edge is a band of sharp pixels 2 - 3 px
+    # wide, so its region's border pixels lie 3 px from the tray, beyond the 5 x 5 neighbourhood
+    # (a grey patch at 0.65 of the tray, blurred by 0.8 px: no border pixel near the tray, sharp
+    # share 0, thrown away as shadow). The tray grown by EDGE_BAND_PX through sharp pixels only
+    # reaches those; a shadow's fading border meets the tray itself, as before
     tray = (~(strong | darker | sharp)).view(np.uint8)
+    k3 = np.ones((3, 3), np.uint8)
+    for _ in range(EDGE_BAND_PX):
+        tray |= cv2.dilate(tray, k3) & sharp.view(np.uint8)
     near_tray = cv2.dilate(tray, np.ones((5, 5), np.uint8)) > 0
     near_part = cv2.dilate(strong.view(np.uint8), np.ones((3, 3), np.uint8)) > 0
     # (a region's border pixels: those with a neighbour outside it)

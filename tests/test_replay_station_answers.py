@@ -138,3 +138,43 @@ def test_the_station_refuses_reset_and_run_once_the_run_has_ended(tmp_path):
         assert e.value.code == 409 and "the run has ended" in e.value.read().decode()
     assert _control(url)["state"] == "done"
     t.join(T)
+
+
+@pytest.mark.parametrize("signals", [("SIGINT",), ("SIGINT", "SIGINT"), ("SIGTERM", "SIGINT")])
+def test_signals_while_the_station_shows_the_end_only_end_the_wait(tmp_path, signals):
+    """`cell run --station` as a process: Ctrl-C or SIGTERM after its loop has ended, once or twice, ends the
+    station's 2 s wait and nothing else: exit 0, the summary on stdout, the recording complete. (A second
+    one was held and raised at the end: exit 130, no summary, "stopping the arm" where nothing moved.)"""
+    import signal
+    import subprocess
+    import sys
+
+    d = json.loads(DEFAULT.read_text())
+    d["parts"] = [p for p in d["parts"] if p["id"] in ("nut", "washer")]
+    d["sequence"] = ["washer", "nut"]
+    d.pop("cell", None)
+    assembly = tmp_path / "two.json"
+    assembly.write_text(json.dumps(d))
+    rec = tmp_path / "session"
+    cell = Path(sys.executable).with_name("cell")
+    proc = subprocess.Popen([str(cell), "run", str(assembly), "--station", "--port", "0", "--token", TOKEN,
+                             "--record", str(rec), "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        url = None
+        while url is None:
+            line = proc.stderr.readline()
+            assert line, "cell run ended before its station was up"
+            m = re.search(r"(http://127\.0\.0\.1:\d+)", line)
+            url = m.group(1) if m else None
+        _post(url, "/api/run")
+        _wait(url, lambda c: c.get("ended"), "the end of the run")
+        for name in signals:
+            proc.send_signal(getattr(signal, name))
+            time.sleep(0.1)
+        out, err = proc.communicate(timeout=T)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    assert json.loads(out.strip().splitlines()[-1])["status"] == "complete"
+    assert "stopping the arm" not in err and "interrupted" not in err, err
+    assert RecordingReader(rec).manifest["status"] == "complete"

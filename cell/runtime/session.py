@@ -288,7 +288,7 @@ def run_session(cfg: RunConfig) -> dict:
             # fault on the way is stopped and recorded as one during the run is
             loop.home_first = home_joints(cell)
             if cfg.station:  # nothing moves before the operator presses Run
-                summary = _with_station(loop, control, cfg, say)
+                summary = _with_station(loop, control, cfg, say, interrupts)
             else:
                 control.run(by="cell run")
                 summary = loop.run()
@@ -352,6 +352,10 @@ def run_session(cfg: RunConfig) -> dict:
     return summary
 
 
+class _WaitEnded(Exception):  # noqa: N818 - not an error: a signal ended HeldInterrupts.linger's wait
+    pass
+
+
 class HeldInterrupts:
     """Ctrl-C (SIGINT, and SIGTERM where `cell run` makes it one) once the run is ending: the first one
     ends the run (KeyboardInterrupt) as always; those after it, and any while the run is being wound up
@@ -367,11 +371,29 @@ class HeldInterrupts:
         self.holding = False
         self.held = 0
         self._old: dict = {}
+        self._over = False  # the run has ended as it did: a signal only ends the wait after it
+        self._lingering = False
 
     def hold(self) -> None:
         self.holding = True
 
+    def linger(self, seconds: float) -> None:
+        """Wait after the run has ended (the station shows how it ended): from now on a Ctrl-C or SIGTERM
+        only ends this wait; it is neither raised nor held (the run is over, nothing is to be stopped)."""
+        self._over = self._lingering = True
+        try:
+            time.sleep(seconds)
+        except (_WaitEnded, KeyboardInterrupt):  # (the latter where no handler of ours is in place)
+            pass
+        finally:
+            self._lingering = False
+
     def _on_signal(self, signum, frame) -> None:
+        if self._over:
+            if self._lingering:
+                self._lingering = False
+                raise _WaitEnded
+            return
         if self.holding:
             self.held += 1
             if self.held == 1:
@@ -526,7 +548,7 @@ def _progress(control: RunControl, say) -> None:
                          if e.get("message") and e["event"] in PROGRESS_EVENTS else None)
 
 
-def _with_station(loop: CellLoop, control: RunControl, cfg: RunConfig, say) -> dict:
+def _with_station(loop: CellLoop, control: RunControl, cfg: RunConfig, say, interrupts: HeldInterrupts) -> dict:
     from cell.runtime.backend import LoopBackend
     from cell.station.server import StationServer
 
@@ -552,11 +574,10 @@ def _with_station(loop: CellLoop, control: RunControl, cfg: RunConfig, say) -> d
             t.join()
             raise
         control.end()
-        # done, stopped or failed: the page polls a few more times and shows how it ended. Ctrl-C here
-        # only ends the wait: the run has ended as it did (it made a complete run "stopped", and the
-        # quick stop's frames came after the recording's end)
-        with contextlib.suppress(KeyboardInterrupt):
-            time.sleep(STATION_LINGER_S)
+        # done, stopped or failed: the page polls a few more times and shows how it ended. The run has
+        # ended as it did: Ctrl-C here only ends the wait (it made a complete run "stopped", and the quick
+        # stop's frames came after the recording's end; a second one lost the summary)
+        interrupts.linger(STATION_LINGER_S)
     if "error" in result:
         raise result["error"]
     return result["summary"]

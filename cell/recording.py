@@ -148,7 +148,9 @@ class RecordingWriter:
     """
 
     def __init__(self, directory, *, cell_file=None, calibration_file=None, examples_file=None,
-                 meta: dict | None = None, nominal_calibration=None):
+                 meta: dict | None = None, nominal_calibration=None, examples_copy: str | None = None):
+        """`examples_copy`: the name the recording holds a copy of `examples_file` under (as it was at the start),
+        made with the rest of the set-up, and taken away with it when that is cut short."""
         self.dir = Path(directory)
         if (self.dir / MANIFEST).exists():
             raise BadInput(f"recording directory {self.dir} already holds a recording; choose a new name")
@@ -192,6 +194,8 @@ class RecordingWriter:
                 elif nominal_json is not None:
                     write_json_atomic(self.dir / "calibration.json", nominal_json)
                 examples = {"path": str(ex.resolve()), "sha256": file_sha256(ex)} if ex is not None else None
+                if ex is not None and examples_copy is not None:
+                    write_atomic(self.dir / examples_copy, ex.read_bytes())
                 held_sha256 = {"cell": file_sha256(self.dir / "cell.json")}  # of the copies: what replay reads
                 if has_cal:
                     held_sha256["calibration"] = file_sha256(self.dir / "calibration.json")
@@ -221,16 +225,16 @@ class RecordingWriter:
             except OSError as e:
                 raise BadInput(f"cannot write the recording into {self.dir}: {e.strerror or e}") from None
         except BaseException:  # a full disk, Ctrl-C, SIGTERM: no half-made folder that blocks the name
-            self._take_away(made)
+            self._take_away(made, examples_copy)
             raise
 
-    def _take_away(self, made: list[Path]) -> None:
+    def _take_away(self, made: list[Path], examples_copy: str | None) -> None:
         """Remove what a set-up cut short made: the files it writes in the folder (it was empty or new), then
         the folders it made."""
         with contextlib.suppress(OSError):
             if (d := getattr(self, "_decisions", None)) is not None:
                 d.close()
-            for name in (MANIFEST, DECISIONS, "cell.json", "calibration.json"):
+            for name in (MANIFEST, DECISIONS, "cell.json", "calibration.json", *filter(None, [examples_copy])):
                 (self.dir / name).unlink(missing_ok=True)
             for tmp in self.dir.glob(".*.tmp*"):
                 tmp.unlink()

@@ -286,6 +286,28 @@ def test_no_feasible_grasp_stops_or_skips(tmp_path):
     assert all("plate" in d["located"] for d in seen)
 
 
+def test_a_part_skipped_after_a_missed_grip_keeps_its_try(short_assembly, monkeypatch):
+    """The nut's grip misses; planned again on the new frame, it has no grasp and is skipped: its report
+    said 0 attempts (and the summary's grasps left the miss out)."""
+    from cell.errors import NoFeasibleGrasp
+    from cell.grasp.synthesis import GraspPlanner
+
+    plan, nut_plans = GraspPlanner.plan, []
+
+    def nothing_the_second_time(self, scene, *a, **k):
+        if scene.target == "nut":
+            nut_plans.append(1)
+            if len(nut_plans) == 2:
+                raise NoFeasibleGrasp("nothing left (test)")
+        return plan(self, scene, *a, **k)
+
+    monkeypatch.setattr(GraspPlanner, "plan", nothing_the_second_time)
+    s = run_session(RunConfig(assembly=short_assembly, seed=3, on_no_grasp="skip", faults=WorldFaults(miss={"nut": 1})))
+    nut = next(p for p in s["parts"] if p["part"] == "nut")
+    assert (nut["outcome"], nut["attempts"], nut["reason"]) == ("skipped", 1, "nothing left (test)")
+    assert s["grasps"] == 3
+
+
 def test_cell_run_cli_prints_the_contract_summary(short_assembly, tmp_path, capsys):
     code, out, err = run_cli("run", short_assembly, "--json", "--record", tmp_path / "r", capsys=capsys)
     assert code == 0, err

@@ -248,3 +248,27 @@ def test_sigterm_during_cell_runs_set_up_is_an_interrupt_not_a_kill(monkeypatch,
     code, _, err = run_cli("run", capsys=capsys)
     assert code == 130 and "cell: interrupted" in err
     assert signal.getsignal(signal.SIGTERM) is before  # handed back
+
+
+def test_a_full_disk_while_holding_the_examples_leaves_no_half_made_recording(tmp_path, monkeypatch):
+    """The copy of the examples the session starts with was written after the recording's set-up, outside
+    its clean-up: a full disk there left a manifest saying "recording" and no CAN log (replay: exit 2; the
+    name refused as holding a recording). The copy is now part of the set-up."""
+    import errno
+
+    from cell import recording
+    from cell.errors import BadInput
+    from cell.examples import default_examples_path
+    from cell.recording import RecordingWriter
+
+    def full(path, data, *a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(recording, "write_atomic", full)
+    where = tmp_path / "session"
+    with pytest.raises(BadInput, match="No space left on device"):
+        RecordingWriter(where, examples_file=default_examples_path(), examples_copy="examples_at_start.jsonl")
+    assert not where.exists()
+    monkeypatch.undo()
+    RecordingWriter(where, examples_file=default_examples_path(), examples_copy="examples_at_start.jsonl").close()
+    assert (where / "examples_at_start.jsonl").read_bytes() == default_examples_path().read_bytes()

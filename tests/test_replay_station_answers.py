@@ -132,9 +132,10 @@ def test_the_station_refuses_reset_and_run_once_the_run_has_ended(tmp_path):
     _post(url, "/api/run")
     c = _wait(url, lambda c: c.get("ended"), "the end of the run")
     assert c["state"] == "done"
-    for path in ("/api/reset", "/api/run"):
+    for path, body in (("/api/reset", None), ("/api/run", None),
+                       ("/api/teach", {"part": "nut", "p1_px": [600, 500], "p2_px": [640, 500]})):
         with pytest.raises(urllib.error.HTTPError) as e:
-            _post(url, path)
+            _post(url, path, body)
         assert e.value.code == 409 and "the run has ended" in e.value.read().decode()
     assert _control(url)["state"] == "done"
     t.join(T)
@@ -178,3 +179,30 @@ def test_signals_while_the_station_shows_the_end_only_end_the_wait(tmp_path, sig
     assert json.loads(out.strip().splitlines()[-1])["status"] == "complete"
     assert "stopping the arm" not in err and "interrupted" not in err, err
     assert RecordingReader(rec).manifest["status"] == "complete"
+
+
+def test_replay_says_it_cannot_follow_a_session_past_a_drive_fault_the_operator_reset():
+    """After a drive fault and the operator's Reset the session went on from where the arm stood when it
+    faulted; the replay's arm faults elsewhere. It reset and ran on, and diverged later with a message that
+    read like a planning change ("commands: 10 items recorded, 11 replayed")."""
+    from cell.runtime.loop import StopRun
+    from cell.runtime.replay import Comparison, Divergence, RecordedApprovals
+
+    recorded = [{"type": "perception"}, {"type": "stop", "source": "j2", "reason": "EMCY 0x2310"},
+                {"type": "perception"}, {"type": "grasp"}]
+    sink = Comparison(recorded, drives=None, position=2)
+    control = RecordedApprovals(recorded)
+    control.sink = sink
+    with pytest.raises(Divergence, match=r"went on after a fault the operator reset \(j2: EMCY 0x2310\).*"
+                                         r"compared up to the fault only \(2 of 4 decisions\)"):
+        control.report_fault("j2", "EMCY 0x2310")
+    lenient = Comparison(recorded, drives=None, strict=False, position=2)
+    control = RecordedApprovals(recorded)
+    control.sink = lenient
+    with pytest.raises(StopRun):
+        control.report_fault("j2", "EMCY 0x2310")
+    assert len(lenient.found) == 1 and lenient.position == 4
+    control = RecordedApprovals(recorded)  # a stop to ask instead: the operator's reset, and on
+    control.sink = Comparison(recorded, drives=None, position=2)
+    control.report_fault("planner", "no feasible grasp", asking=True)
+    assert control.state == "running"

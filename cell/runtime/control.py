@@ -130,6 +130,11 @@ class RunControl:
         if self._ended is not None:
             raise InvalidCommand(f"cannot {command}: {self._ended}")
 
+    def require_a_loop(self, command: str) -> None:
+        """Refuse `command` (InvalidCommand) once the loop has ended: e.g. a teach no plan would learn."""
+        with self._cond:
+            self._refuse_if_ended_locked(command)
+
     def end(self, why: str = "the run has ended: start cell run again") -> None:
         """The loop has returned for good (the station still answers a moment to show how it ended):
         Run, Step and Reset are refused from now on, not taken by a control with no loop behind it."""

@@ -523,7 +523,9 @@ class CellLoop:
             self.sink.write_decision({"type": "no_grasp", "part": part_id, "reason": e.reason})
             if self.options.on_no_grasp == "skip":
                 self.remaining.remove(part_id)
-                self.reports.append(PartReport(part_id, "skipped", reason=e.reason))
+                tried = self._unfinished if self._unfinished is not None and self._unfinished.part == part_id \
+                    else PartReport(part_id, "skipped")  # (grips missed before this plan found nothing: kept)
+                self.reports.append(replace(tried, outcome="skipped", reason=e.reason))
                 self._unfinished = None
                 self.control.log("skip", f"{part_id} skipped: no feasible grasp ({e.reason})", part=part_id)
             else:

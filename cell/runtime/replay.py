@@ -255,9 +255,10 @@ class RecordedApprovals(RunControl):
         return Decision(bool(d["approved"]), d.get("reason", ""), d.get("by", "operator"))
 
     def report_fault(self, source: str, why: str, *, asking: bool = False) -> None:
-        """The loop stopped to ask (or a drive faulted): answer as the operator did at the station. The
-        session went on (the next recorded decision is the loop's): reset and run. The operator stopped
-        it: stop, with their reason. Nothing more is recorded: the session ended here."""
+        """The loop stopped to ask: answer as the operator did at the station. The session went on (the next
+        recorded decision is the loop's): reset and run. The operator stopped it: stop, with their reason.
+        Nothing more is recorded: the session ended here. A drive fault the operator reset is as far as a
+        replay can follow: where the arm stood when it faulted again is not where it stood in the session."""
         from cell.runtime.loop import StopRun
 
         super().report_fault(source, why, asking=asking)
@@ -267,6 +268,12 @@ class RecordedApprovals(RunControl):
             raise StopRun(f"{source}: {why}")
         if following.get("type") == "stop" and following.get("source") == "operator":
             self.stop(str(following.get("reason") or ""), by="replay")
+        elif not asking:
+            self.sink._diverged(f"decision #{at}: the session went on after a fault the operator reset ({source}: "
+                                f"{why}); a replay cannot repeat where the arm stood when it faulted, so it is "
+                                f"compared up to the fault only ({at} of {len(self.sink.recorded)} decisions)")
+            self.sink.position = len(self.sink.recorded)  # said once, not again as "the replay ended after"
+            raise StopRun(f"{source}: {why}")
         else:
             self.reset(by="replay")
             self.run(by="replay")

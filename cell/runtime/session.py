@@ -19,7 +19,7 @@ import numpy as np
 
 from cell.cellconfig import load_cell
 from cell.examples import default_examples_path
-from cell.fileio import check_writable, make_folder, write_atomic
+from cell.fileio import check_writable, make_folder
 from cell.runtime.control import RunControl, Stopped
 from cell.runtime.loop import CellLoop, LoopOptions, StopRun
 from cell.runtime.simworld import SimWorld, WorldFaults
@@ -240,10 +240,10 @@ def run_session(cfg: RunConfig) -> dict:
                                          "lift_check": options.lift_check,
                                          "whole_part_report": options.whole_part_report,
                                          "real_cell": None if cfg.real_cell is None else vars(cfg.real_cell),
-                                         "planner": planner_meta(loop_planner_params())})
-        # The examples as they were at the start: replay needs them even after this session
-        # (or anyone) appended to the file.
-        write_atomic(recorder.dir / EXAMPLES_AT_START, examples_path.read_bytes())
+                                         "planner": planner_meta(loop_planner_params())},
+                                   # the examples as they were at the start: replay needs them even after this
+                                   # session (or anyone) appended to the file
+                                   examples_copy=EXAMPLES_AT_START)
     viz = None
     rrd = cfg.save_rrd or (recorder.rrd_path if recorder else None)
     if rrd or cfg.rerun:

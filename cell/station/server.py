@@ -366,6 +366,7 @@ class StationServer:
             if not isinstance(part, str) or not part:
                 raise BadInput("'part' must be the id of a part on the current frame")
             p1, p2 = _point(body.get("p1_px"), "p1_px"), _point(body.get("p2_px"), "p2_px")
+            rc.require_a_loop("teach")  # no next plan would learn it
             self._refuse_an_older_frame(_shown_frame(body))
             result = self.backend.teach(part, p1, p2)
             rc.log("teach", f"taught a grasp on {part}", part=part,

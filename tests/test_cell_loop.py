@@ -314,6 +314,8 @@ def test_cell_run_cli_prints_the_contract_summary(short_assembly, tmp_path, caps
     summary = json.loads(out.strip().splitlines()[-1])
     assert {"parts_total", "parts_removed", "picks_per_hour", "cycle_s_mean"} <= set(summary)
     assert "[removed] nut removed" in err  # progress goes to stderr with --json
+    # the human summary (on stderr with --json) names units, not a Python dict
+    assert "motion limits (cell file): velocity j1 180 deg/s, j2 240 deg/s, j3 400 mm/s, j4 600 deg/s;" in err
     code, _, err = run_cli("run", short_assembly, "--record", tmp_path / "r", capsys=capsys)
     assert code == 2 and "already holds a recording" in err
 

@@ -183,6 +183,11 @@ def _report(summary: dict, as_json: bool, out) -> None:
         print(json.dumps(summary), flush=True)
 
 
+def _per_joint(values: dict, per: str) -> str:
+    """{"j1": 180.0, "j3": 400.0} -> "j1 180 deg/s, j3 400 mm/s" (J3 moves in mm, the others turn)."""
+    return ", ".join(f"{j} {x:g} {'mm' if j == 'j3' else 'deg'}{per}" for j, x in values.items())
+
+
 def _print_summary(s: dict, out) -> None:
     print(f"\n{s['assembly']}: {s['parts_removed']} of {s['parts_total']} parts removed "
           f"({_how_it_ended(s)}), {s['grasps']} grasps", file=out)
@@ -193,7 +198,8 @@ def _print_summary(s: dict, out) -> None:
         print(f"  mean cycle {s['cycle_s_mean']:.2f} s, {s['picks_per_hour']:.0f} picks/hour, planning share "
               f"{100 * s['planning_share']:.1f}%", file=out)
         v, a = s["motion_limits"]["max_velocity"], s["motion_limits"]["max_acceleration"]
-        print(f"  motion limits: velocity {v}, acceleration {a} (cell file)", file=out)
+        print(f"  motion limits (cell file): velocity {_per_joint(v, '/s')}; acceleration {_per_joint(a, '/s2')}",
+              file=out)
     bus = s.get("can_bus") or {}
     if bus.get("errors"):  # a healthy bus shows none (lost arbitration is no error): say so when it did not
         from drivers.errorframes import by_class_text

@@ -4,87 +4,43 @@ Replay used to run without an operator: it ended at the loop's first stop ("the 
 
 import json
 import re
-import threading
 import time
-import urllib.request
-from importlib import resources
 from pathlib import Path
 
 import pytest
 from conftest import run_cli
+from station_runs import TOKEN, T, default_parts, post, state, station_run, wait
 
 from cell.recording import RecordingReader
-from cell.runtime.session import RunConfig, run_session
 from cell.runtime.simworld import WorldFaults
 
-DEFAULT = Path(str(resources.files("cell") / "data" / "assemblies" / "default.json"))
-T = 60.0
-TOKEN = "answers-test-token"
-
-
-def _post(url, path, body=None):
-    req = urllib.request.Request(url + path, data=json.dumps(body or {}).encode(), method="POST")
-    req.add_header("Content-Type", "application/json")
-    req.add_header("X-Cell-Token", TOKEN)
-    with urllib.request.urlopen(req, timeout=T) as r:
-        return json.loads(r.read())
 
 
 def _control(url):
-    with urllib.request.urlopen(url + "/api/state", timeout=T) as r:
-        return json.loads(r.read())["control"]
+    return state(url)["control"]
 
 
 def _wait(url, pred, what):
-    deadline = time.monotonic() + T
-    while time.monotonic() < deadline:
-        c = _control(url)
-        if pred(c):
-            return c
-        time.sleep(0.05)
-    raise AssertionError(f"timed out waiting for {what}: {c['state']}")
+    return wait(url, lambda s: pred(s["control"]), what)["control"]
 
 
 def _station_run(tmp_path, faults):
-    d = json.loads(DEFAULT.read_text())
-    d["parts"] = [p for p in d["parts"] if p["id"] in ("nut", "washer")]
-    d["sequence"] = ["washer", "nut"]
-    d.pop("cell", None)
-    assembly = tmp_path / "two.json"
-    assembly.write_text(json.dumps(d))
-    lines, ended = [], []
     rec = tmp_path / "session"
-    cfg = RunConfig(assembly=assembly, record=rec, seed=1, station=True, station_port=0, station_token=TOKEN,
-                    faults=faults, progress=lines.append)
-
-    def work():
-        try:
-            ended.append(run_session(cfg))
-        except BaseException as e:  # noqa: BLE001 - the test asserts on it
-            ended.append(e)
-
-    t = threading.Thread(target=work, daemon=True)
-    t.start()
-    deadline = time.monotonic() + T
-    while not any("operator station:" in s for s in lines):
-        assert time.monotonic() < deadline and t.is_alive(), (lines, ended)
-        time.sleep(0.05)
-    url = re.search(r"(http://127\.0\.0\.1:\d+)", next(s for s in lines if "operator station:" in s)).group(1)
-    return t, url, ended, rec
+    return (*station_run(default_parts(tmp_path, ["washer", "nut"]), record=rec, faults=faults), rec)
 
 
 @pytest.mark.parametrize("answer", ["reset", "stop"])
 def test_a_station_session_replays_past_the_operators_answer_to_a_stop(tmp_path, capsys, answer):
     # the washer's first two grips miss: the loop retries once, then stops to ask
     t, url, ended, rec = _station_run(tmp_path, WorldFaults(miss={"washer": 2}))
-    _post(url, "/api/run")
+    post(url, "/api/run")
     c = _wait(url, lambda c: c["state"] == "fault", "the stop to ask")
     assert c["fault"]["asking"] and "washer: missed 2 times" in c["fault"]["why"], c
     if answer == "reset":
-        _post(url, "/api/reset")
-        _post(url, "/api/run")
+        post(url, "/api/reset")
+        post(url, "/api/run")
     else:
-        _post(url, "/api/stop", {"reason": "the washer is bent"})
+        post(url, "/api/stop", {"reason": "the washer is bent"})
     t.join(T)
     summary = ended[0]
     assert isinstance(summary, dict), summary
@@ -117,7 +73,7 @@ def test_ctrl_c_while_the_station_shows_the_end_leaves_a_complete_run_complete(t
 
     monkeypatch.setattr(session.time, "sleep", interrupted_linger)
     t, url, ended, rec = _station_run(tmp_path, WorldFaults())
-    _post(url, "/api/run")
+    post(url, "/api/run")
     t.join(T)
     assert isinstance(ended[0], dict) and ended[0]["status"] == "complete", ended
     assert RecordingReader(rec).manifest["status"] == "complete"
@@ -129,13 +85,13 @@ def test_the_station_refuses_reset_and_run_once_the_run_has_ended(tmp_path):
     import urllib.error
 
     t, url, ended, rec = _station_run(tmp_path, WorldFaults())
-    _post(url, "/api/run")
+    post(url, "/api/run")
     c = _wait(url, lambda c: c.get("ended"), "the end of the run")
     assert c["state"] == "done"
     for path, body in (("/api/reset", None), ("/api/run", None),
                        ("/api/teach", {"part": "nut", "p1_px": [600, 500], "p2_px": [640, 500]})):
         with pytest.raises(urllib.error.HTTPError) as e:
-            _post(url, path, body)
+            post(url, path, body)
         assert e.value.code == 409 and "the run has ended" in e.value.read().decode()
     assert _control(url)["state"] == "done"
     t.join(T)
@@ -150,12 +106,7 @@ def test_signals_while_the_station_shows_the_end_only_end_the_wait(tmp_path, sig
     import subprocess
     import sys
 
-    d = json.loads(DEFAULT.read_text())
-    d["parts"] = [p for p in d["parts"] if p["id"] in ("nut", "washer")]
-    d["sequence"] = ["washer", "nut"]
-    d.pop("cell", None)
-    assembly = tmp_path / "two.json"
-    assembly.write_text(json.dumps(d))
+    assembly = default_parts(tmp_path, ["washer", "nut"])
     rec = tmp_path / "session"
     cell = Path(sys.executable).with_name("cell")
     proc = subprocess.Popen([str(cell), "run", str(assembly), "--station", "--port", "0", "--token", TOKEN,
@@ -167,7 +118,7 @@ def test_signals_while_the_station_shows_the_end_only_end_the_wait(tmp_path, sig
             assert line, "cell run ended before its station was up"
             m = re.search(r"(http://127\.0\.0\.1:\d+)", line)
             url = m.group(1) if m else None
-        _post(url, "/api/run")
+        post(url, "/api/run")
         _wait(url, lambda c: c.get("ended"), "the end of the run")
         for name in signals:
             proc.send_signal(getattr(signal, name))

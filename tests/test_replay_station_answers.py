@@ -15,7 +15,6 @@ from cell.recording import RecordingReader
 from cell.runtime.simworld import WorldFaults
 
 
-
 def _control(url):
     return state(url)["control"]
 

@@ -212,3 +212,21 @@ def test_a_dark_tray_beside_a_lighter_table_stays_the_tray():
     # (the table, cut by the border all round with the tray as its hole, is listed too, cut off: step 6
     # takes the tray's extent from outside every region's outline, and here the table's outline is the
     # frame's border; as before)
+
+
+@needs_photos
+@pytest.mark.parametrize("u_min", [280, 300])
+def test_pca_test1_cut_so_that_the_panel_holds_no_holes_gives_the_bars_not_the_panel(u_min):
+    """pca_test1.jpg with its left part cut away at u = 280 (or 300): the border cuts every bar, so the
+    lit panel, taken for a part cut by the border (115,356 px, 37 % of the view), holds none of them as a
+    hole and the second reading (which compares hole areas) never ran. The panel brighter than the tray,
+    over a quarter of the view and cut on two sides now makes the bright side be tried as the tray; it
+    is taken as it leaves the dark side out as the surround and keeps no region that large: the bars,
+    cut off, as --backlit gives."""
+    img = np.ascontiguousarray(read_image(EXTERNAL / "opencv-objects" / "pca_test1.jpg")[:, u_min:])
+    backlit = segment_frame(img, SegmentParams(tray="bright"))
+    segs = segment_frame(img)
+    assert [(round(s.area_px), s.cut_off) for s in segs] == [(round(s.area_px), s.cut_off) for s in backlit]
+    assert all(s.area_px < 17000 for s in segs)  # bars (and slivers), no panel
+    assert sum(s.area_px > 10000 for s in segs) == 5 and all(s.cut_off for s in segs)  # 5 bars, 2 slivers
+    assert len(segs.outside_tray) == 1 and segs.outside_tray[0].area_px > 0.25 * img.shape[0] * img.shape[1]

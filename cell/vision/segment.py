@@ -264,6 +264,17 @@ def _segments_of(frame: np.ndarray, p: SegmentParams, d: _Detection, reference_b
         return _segment(frame, p, d, *_reference_tray(reference_bgr, frame, d))
     tray_field = _fitted_field(d, p.tray)
     segs = _segment(frame, p, d, *_field_tray(tray_field, d))
+    if p.tray == "auto" and _panel_taken_for_a_part(segs, frame.shape, tray_field, p):
+        # the lit panel cut by the border so that it holds no part as a hole (each part it holds is
+        # cut by the border too, a notch in its outline): no hole areas to compare (pca_test1.jpg with
+        # its left 280 px cut away: the panel as a 115,356 px part). The bright side as the tray is
+        # taken when no region holds others as holes, step 6 leaves out the dark side (the first
+        # reading's tray, a quarter of the view at least) as the surround and keeps no region over
+        # TRAY_TAKEN_SHARE: it explains the frame as parts on a panel in a dark surround
+        seg_other = _segment(frame, p, d, *_field_tray(_fitted_field(d, "bright"), d))
+        if not _holds_parts(seg_other, frame.shape) and _panel_in_surround(seg_other, frame.shape, p, d):
+            return seg_other
+        return segs
     if p.tray == "auto" and _tray_taken_for_a_part(segs, frame.shape):
         # a back-lit panel in a dark surround: the dark side outnumbered the panel, so the panel came
         # out as one part cut by the border with the parts as its holes; the panel as the tray
@@ -317,6 +328,37 @@ def _tray_taken_for_a_part(segs: list[Segment], shape) -> bool:
     """True when a region touching the border covers TRAY_TAKEN_SHARE of the frame and holds holes."""
     frame_px = shape[0] * shape[1]
     return any(s.cut_off and s.holes_px and s.area_px > TRAY_TAKEN_SHARE * frame_px for s in segs)
+
+
+def _panel_taken_for_a_part(segs: list[Segment], shape, tray_field: np.ndarray, p: SegmentParams) -> bool:
+    """True when no region is of the kind `_tray_taken_for_a_part` looks for but one cut by the border on
+    at least two sides of the frame, over TRAY_TAKEN_SHARE of it and without holes, is brighter than the
+    tray by `brighter_min` (its mean brightness against the tray field's mean): a back-lit panel whose
+    dark surround was taken for the tray, cut by the border through every part it holds."""
+    if _tray_taken_for_a_part(segs, shape):
+        return False
+    frame_px = shape[0] * shape[1]
+    tray_sum = float(tray_field.reshape(-1, 3).mean(axis=0).sum())
+    return any(s.cut_off and not s.holes_px and s.area_px > TRAY_TAKEN_SHARE * frame_px
+               and _border_sides(s.outline_px, shape) >= 2
+               and sum(s.mean_bgr) > (1.0 + p.brighter_min) * tray_sum for s in segs)
+
+
+def _border_sides(ring: np.ndarray, shape, margin_px: float = 2.0) -> int:
+    """On how many sides of the frame `ring` (CONTRACT px) comes within `margin_px` of the border."""
+    h, w = shape[:2]
+    u, v = ring[:, 0], ring[:, 1]
+    return int(u.min() < margin_px) + int(u.max() > w - margin_px) + int(v.min() < margin_px) + int(
+        v.max() > h - margin_px)
+
+
+def _panel_in_surround(segs: list[Segment], shape, p: SegmentParams, d: _Detection) -> bool:
+    """True when step 6 (outside.py) leaves out regions over TRAY_TAKEN_SHARE of the frame in all (the
+    dark side, the first reading's tray, as the panel's surround) and keeps none that large on the tray."""
+    on_tray, out = split_outside(segs, d.det.shape[:2], d.scale, p.min_area_px, max(p.refine_range_px, 2.0 * p.scale))
+    frame_px = shape[0] * shape[1]
+    return (sum(s.area_px for s in out) > TRAY_TAKEN_SHARE * frame_px
+            and not any(s.area_px > TRAY_TAKEN_SHARE * frame_px for s in on_tray))
 
 
 def _holds_parts(segs: list[Segment], shape) -> bool:

@@ -78,6 +78,9 @@ def _region_pieces(sub, bgr, p, r_min: float, min_area_det: float) -> list[tuple
     return found
 
 
+KMEANS_SEED = 0x5EED
+
+
 def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_delta_e: float):
     """Split a region into parts of clearly different colour that each own part of its outline.
 
@@ -100,6 +103,9 @@ def split_by_colour(sub: np.ndarray, lab_img: np.ndarray, min_area: float, min_d
     # the two colours from an even sample of the pixels (k-means' time grows with their number),
     # then every pixel to the nearer of them
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5)
+    # k-means++ draws its first centres from OpenCV's process-wide generator: seeded here, a region splits
+    # the same whatever was segmented before it (the same frame gave other outlines on a second call)
+    cv2.setRNGSeed(KMEANS_SEED)
     _, _, centres = cv2.kmeans(px[::max(1, len(px) // KMEANS_SAMPLES)], 2, None, crit, 1, cv2.KMEANS_PP_CENTERS)
     c0, c1 = centres.astype(np.float64)
     if np.linalg.norm(c0 - c1) < min_delta_e:

@@ -98,9 +98,11 @@ def test_the_station_refuses_reset_and_run_once_the_run_has_ended(tmp_path):
 
 @pytest.mark.parametrize("signals", [("SIGINT",), ("SIGINT", "SIGINT"), ("SIGTERM", "SIGINT")])
 def test_signals_while_the_station_shows_the_end_only_end_the_wait(tmp_path, signals):
-    """`cell run --station` as a process: Ctrl-C or SIGTERM after its loop has ended, once or twice, ends the
-    station's 2 s wait and nothing else: exit 0, the summary on stdout, the recording complete. (A second
-    one was held and raised at the end: exit 130, no summary, "stopping the arm" where nothing moved.)"""
+    """`cell run --station` as a process: Ctrl-C or SIGTERM after its loop has ended ends the station's 2 s
+    wait and nothing else: the summary on stdout, the recording complete, exit 0. (A second one was held and
+    raised at the end: exit 130, no summary, "stopping the arm" where nothing moved.) A second signal may
+    come after the first has ended the wait, while the process exits: it may then end as interrupted, but
+    only after the summary and the recording are out."""
     import signal
     import subprocess
     import sys
@@ -125,10 +127,13 @@ def test_signals_while_the_station_shows_the_end_only_end_the_wait(tmp_path, sig
         out, err = proc.communicate(timeout=T)
     finally:
         proc.kill()
-    assert proc.returncode == 0, err
-    assert json.loads(out.strip().splitlines()[-1])["status"] == "complete"
-    assert "stopping the arm" not in err and "interrupted" not in err, err
+    assert json.loads(out.strip().splitlines()[-1])["status"] == "complete", err
+    assert "stopping the arm" not in err, err
     assert RecordingReader(rec).manifest["status"] == "complete"
+    if len(signals) == 1:
+        assert proc.returncode == 0 and "interrupted" not in err, err
+    else:
+        assert proc.returncode in (0, 130, -signal.SIGINT), err
 
 
 def test_replay_says_it_cannot_follow_a_session_past_a_drive_fault_the_operator_reset():

@@ -271,6 +271,8 @@ class SimDrive:
             elif index == 0x6060:
                 self._set_mode(value)
             elif index == 0x1016 and subindex == 1:
+                if value >> 16 & 0xFF > 127 or value >> 24:  # a node id 1-127 (0: the entry unused), bits 24-31 0
+                    raise SdoAbortedError(0x06090030)
                 self._set_host_watch(value)
             elif (index == 0x1017 or (TPDO_COMM_FIRST <= index <= TPDO_COMM_LAST and subindex == 5)) and (
                     0 < value < self.tick_ms):

@@ -372,3 +372,16 @@ def test_a_stopped_node_carries_out_no_sdo_request(open_test_bus, sim_clock):
         sim_clock.sleep(0.02)
         assert node.sdo[0x6081].raw == before
         assert drives.drives["j4"].nmt == 0x7F
+
+
+def test_the_host_heartbeat_watch_takes_node_ids_1_to_127_only(open_test_bus, sim_clock):
+    """0x1016 sub 1 is (node id << 16) | time in ms, bits 24-31 reserved (CiA 301): node 200 or a reserved bit
+    was taken, and the drive watched a heartbeat no node can send. Node 0 leaves the entry unused."""
+    with sim.serve(open_test_bus(), clock=sim_clock) as drives, _master(open_test_bus, drives, "j1") as (_, node):
+        before = node.sdo[0x1016][1].raw
+        assert _abort(lambda: setattr(node.sdo[0x1016][1], "raw", (200 << 16) | 100)) == 0x06090030
+        assert _abort(lambda: setattr(node.sdo[0x1016][1], "raw", (1 << 24) | (0x7F << 16) | 100)) == 0x06090030
+        assert node.sdo[0x1016][1].raw == before
+        for entry in (codec.consumer_heartbeat_entry(0x7F, 100), 100):  # node 0: unused
+            assert _abort(lambda e=entry: setattr(node.sdo[0x1016][1], "raw", e)) is None
+            assert node.sdo[0x1016][1].raw == entry

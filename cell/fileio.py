@@ -384,15 +384,20 @@ def is_finite_number(v) -> bool:
         return False
 
 
+def as_written(v) -> str:
+    """A value as a message quotes it in full: values read from JSON spelt as the file spells them (null,
+    true, [1, "a"]), not as Python does (None, True); a string alone keeps its quotes."""
+    if isinstance(v, str):
+        return repr(v)
+    try:
+        return json.dumps(v)
+    except (TypeError, ValueError):  # not a JSON value (a numpy array, a path): as Python shows it
+        return repr(v)
+
+
 def short_repr(v) -> str:
-    """A value as an error message quotes it: at most 40 characters. Values read from JSON are spelt as the
-    file spells them (null, true, [1, "a"]), not as Python does (None, True); a string alone keeps its quotes."""
-    r = repr(v)
-    if not isinstance(v, str):
-        try:
-            r = json.dumps(v)
-        except (TypeError, ValueError):  # not a JSON value (a numpy array, a path): as Python shows it
-            pass
+    """A value as an error message quotes it (`as_written`): at most 40 characters."""
+    r = as_written(v)
     return r if len(r) <= 40 else r[:37] + "..."
 
 

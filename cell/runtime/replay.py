@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from cell.errors import BadInput, CellError
-from cell.fileio import short_repr
+from cell.fileio import as_written, short_repr
 from cell.grasp.params import MAX_FINER_STEPS, SynthesisParams
 from cell.runtime.control import Decision, RunControl
 
@@ -101,12 +101,7 @@ def differences(recorded, replayed, path: str = "") -> list[str]:
             return []
     elif recorded == replayed:
         return []
-    return [f"{path.rstrip('.')}: recorded {_as_json(recorded)}, replayed {_as_json(replayed)}"]
-
-
-def _as_json(v) -> str:
-    """A recorded or replayed value in full, spelt as the decisions file spells it (null, true)."""
-    return repr(v) if isinstance(v, str) else json.dumps(v, default=repr)
+    return [f"{path.rstrip('.')}: recorded {as_written(recorded)}, replayed {as_written(replayed)}"]
 
 
 @dataclass
@@ -125,8 +120,6 @@ class Comparison:
         return None
 
     def write_decision(self, record: dict) -> None:
-        import json
-
         record = json.loads(json.dumps(record))  # the recording holds JSON: compare like with like
         if record.get("type") == "summary":
             return  # timings only: another run's are others

@@ -128,6 +128,7 @@ class SimDrive:
         heartbeat_ms: int,
         tpdo_event_ms: int = TPDO_EVENT_MS,
         tick_ms: int = TICK_MS,
+        grip_force_n: float | None = None,  # a gripper's (`SimGripper`)
     ):
         self.name, self.node_id, self.eds, self.clock = name, node_id, eds, clock
         self.tick_ms = tick_ms  # how often step() runs: the shortest period the drive keeps
@@ -163,7 +164,7 @@ class SimDrive:
         c = counts_per_unit
         for (index, sub), value in power_on_values(counts_per_unit=c, limits=limits, velocity=velocity,
                                                    acceleration=acceleration, heartbeat_ms=heartbeat_ms,
-                                                   tpdo_event_ms=tpdo_event_ms).items():
+                                                   tpdo_event_ms=tpdo_event_ms, grip_force_n=grip_force_n).items():
             self._store(index, sub, value)
         # the power-on values (CiA 301: what the NMT resets restore), as stored by commissioning
         self._power_on = {i: dict(subs) for i, subs in self.node.data_store.items()}
@@ -970,14 +971,12 @@ class SimGripper(SimDrive):
     width `object_width_mm` stops there with the force limit reached (statusword bit 11)."""
 
     def __init__(self, *args, grip_force_n: float, **kw):
-        super().__init__(*args, **kw)
+        super().__init__(*args, grip_force_n=grip_force_n, **kw)  # a power-on value: a reset keeps it
         self.object_width_mm: float | None = None
         # A simulated world may say instead what lies between the jaws when they start closing:
         # called once per closing move, returns the part's width or None.
         self.object_width_fn = None
         self._fn_motion, self._fn_width = None, None
-        self._store(GRIP_FORCE_INDEX, 0, round(grip_force_n * 10))
-        self._power_on[GRIP_FORCE_INDEX] = dict(self.node.data_store[GRIP_FORCE_INDEX])  # a reset keeps it
 
     def _blocked(self, m: _Motion) -> bool:
         w = self.object_width_mm

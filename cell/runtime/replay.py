@@ -160,6 +160,17 @@ class Comparison:
             i += 1
         return out
 
+    def next_recorded(self) -> dict | None:
+        """The recorded decision the replay is to write next (None past the recording's end)."""
+        return self.recorded[self.position] if self.position < len(self.recorded) else None
+
+    def compared_up_to_here(self, why: str) -> None:
+        """The replay cannot follow the recording beyond this point: a divergence saying so, once (not again
+        as "the replay ended after")."""
+        at, self.position = self.position, len(self.recorded)
+        self._diverged(f"decision #{at}: {why}, so it is compared up to the fault only ({at} of "
+                       f"{len(self.recorded)} decisions)")
+
     def _diverged(self, what: str) -> None:
         if self.strict:
             raise Divergence(what)
@@ -255,17 +266,14 @@ class RecordedApprovals(RunControl):
         from cell.runtime.loop import StopRun
 
         super().report_fault(source, why, asking=asking)
-        at = None if self.sink is None else self.sink.position
-        following = self.sink.recorded[at] if at is not None and at < len(self.sink.recorded) else None
+        following = None if self.sink is None else self.sink.next_recorded()
         if following is None:
             raise StopRun(f"{source}: {why}")
         if following.get("type") == "stop" and following.get("source") == "operator":
             self.stop(str(following.get("reason") or ""), by="replay")
         elif not asking:
-            self.sink._diverged(f"decision #{at}: the session went on after a fault the operator reset ({source}: "
-                                f"{why}); a replay cannot repeat where the arm stood when it faulted, so it is "
-                                f"compared up to the fault only ({at} of {len(self.sink.recorded)} decisions)")
-            self.sink.position = len(self.sink.recorded)  # said once, not again as "the replay ended after"
+            self.sink.compared_up_to_here(f"the session went on after a fault the operator reset ({source}: "
+                                          f"{why}); a replay cannot repeat where the arm stood when it faulted")
             raise StopRun(f"{source}: {why}")
         else:
             self.reset(by="replay")

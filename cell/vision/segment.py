@@ -326,8 +326,13 @@ PARTS_AS_HOLES_SHARE = 0.15
 
 def _tray_taken_for_a_part(segs: list[Segment], shape) -> bool:
     """True when a region touching the border covers TRAY_TAKEN_SHARE of the frame and holds holes."""
-    frame_px = shape[0] * shape[1]
-    return any(s.cut_off and s.holes_px and s.area_px > TRAY_TAKEN_SHARE * frame_px for s in segs)
+    return any(s.cut_off and _large_with_holes(s, shape) for s in segs)
+
+
+def _large_with_holes(s: Segment, shape) -> bool:
+    """A region over TRAY_TAKEN_SHARE of the frame that holds holes: the tray (or a panel) taken for a part,
+    with the parts as its holes."""
+    return bool(s.holes_px) and s.area_px > TRAY_TAKEN_SHARE * shape[0] * shape[1]
 
 
 def _panel_taken_for_a_part(segs: list[Segment], shape, tray_field: np.ndarray, p: SegmentParams) -> bool:
@@ -362,17 +367,13 @@ def _panel_in_surround(segs: list[Segment], shape, p: SegmentParams, d: _Detecti
 
 
 def _holds_parts(segs: list[Segment], shape) -> bool:
-    """True when a region, cut by the border or not, covers TRAY_TAKEN_SHARE of the frame and holds holes:
-    in a reading of the frame, the tray (or a panel) taken for a part with the parts as its holes."""
-    frame_px = shape[0] * shape[1]
-    return any(s.holes_px and s.area_px > TRAY_TAKEN_SHARE * frame_px for s in segs)
+    """True when a region, cut by the border or not, is `_large_with_holes`."""
+    return any(_large_with_holes(s, shape) for s in segs)
 
 
 def _regions_besides(segs: list[Segment], shape) -> int:
-    """How many regions are not of the kind `_holds_parts` looks for (over TRAY_TAKEN_SHARE of the frame,
-    with holes)."""
-    frame_px = shape[0] * shape[1]
-    return sum(not (s.holes_px and s.area_px > TRAY_TAKEN_SHARE * frame_px) for s in segs)
+    """How many regions are not `_large_with_holes`."""
+    return sum(not _large_with_holes(s, shape) for s in segs)
 
 
 def _border_hole_share(segs: list[Segment], shape) -> float:

@@ -22,7 +22,6 @@ U8, U16, U32, I8, I16, I32, VSTR = 0x0005, 0x0006, 0x0007, 0x0002, 0x0003, 0x000
 VAR, ARRAY, RECORD = 0x7, 0x8, 0x9
 
 NODE_NAMES = ("j1", "j2", "j3", "j4", "gripper")
-GRIPPER_EDS = "gripper.eds"
 GRIP_FORCE_INDEX = 0x2100  # grip force limit, UNSIGNED16 in 0.1 N (cell.cellconfig.grip_force_units)
 
 
@@ -185,20 +184,19 @@ def render_eds(gripper: bool, values: dict[tuple[int, int], int] | None = None, 
             else "OptionalObjects"
         )
         groups[key].append(index)
-    node = name
-    name = "gripper" if gripper else "SCARA axis" if node is None else f"SCARA axis {node}"
+    product = "gripper" if gripper else "SCARA axis" if name is None else f"SCARA axis {name}"
     lines = [
         "[FileInfo]",
-        f"FileName={node_eds_file(node or ('gripper' if gripper else 'axis'))}",
+        f"FileName={node_eds_file(name or ('gripper' if gripper else 'axis'))}",
         "FileVersion=1",
         "FileRevision=0",
         "EDSVersion=4.0",
-        f"Description=disassembly-cell {name}, CiA 402 profile position (simulated and real)",
+        f"Description=disassembly-cell {product}, CiA 402 profile position (simulated and real)",
         "CreatedBy=drivers/eds.py",
         "",
         "[DeviceInfo]",
         "VendorName=disassembly-cell",
-        f"ProductName={name}",
+        f"ProductName={product}",
         "ProductNumber=0",
         "RevisionNumber=0x00010000",
         "OrderCode=",

@@ -11,7 +11,7 @@ from calibration import load_calibration
 from cell.scene import Part
 from cell.vision import SegmentParams, SimCamera, SimCameraOptions, segment_frame, segment_to_mm
 from cell.vision.bench import _ring_errors
-from cell.vision.sample_parts import make_part
+from cell.vision.sample_parts import circle, make_part
 
 CAL = load_calibration()
 PARAMS = SegmentParams.for_calibration(CAL)
@@ -150,6 +150,21 @@ def test_touching_parts_are_split_or_flagged(materials):
             assert match(segs, part) is not None
         ratio = min(s.area_px for s in segs) / max(s.area_px for s in segs)
         assert ratio > 0.8 or any(s.merged for s in segs)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_touching_discs_of_one_metal_and_two_sizes_are_split_where_they_meet(seed):
+    # the distance transform's cut between a 15 and a 10 mm disc runs beside the line where they touch,
+    # where the image shows no seam: the region was flagged merged. The cut along the image's own edges
+    # from the same two lobes finds the seam
+    a = Part("a", circle(15.0, 120, c=(330.0, -60.0)), (), 0.0, 6.0, meta={"material": "steel", "kind": "disc"})
+    b = Part("b", circle(10.0, 120, c=(330.0, -35.0)), (), 0.0, 6.0, meta={"material": "steel", "kind": "disc"})
+    frame = render([a, b], seed=seed)
+    segs = segment_frame(frame, PARAMS)
+    assert len(segs) == 2 and not any(s.merged for s in segs)
+    for part in (a, b):
+        rms, _, _ = outline_rms_mm(match(segs, part), part, frame)
+        assert rms < 0.5, (part.id, rms)
 
 
 def test_touching_parts_of_different_colour_are_separated_accurately():

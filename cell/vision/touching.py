@@ -202,20 +202,38 @@ def _analyse(sub: np.ndarray, p, r_min: float, min_area: float, bgr: np.ndarray 
             markers[cores == c] = k
         markers[sub == 0] = len(big) + 1
         ws = cv2.watershed(cv2.cvtColor((255 - np.clip(dt * 8, 0, 255)).astype(np.uint8), cv2.COLOR_GRAY2BGR),
-                           markers)
-        parts = np.where((ws >= 1) & (ws <= len(big)) & (sub > 0), ws, 0)
-        # the watershed lines (-1) inside the region go to the neighbouring lobe
-        parts = _fill_lines(parts, sub)
-        parts[with_holes == 0] = 0  # the parts keep their holes (a washer split off its neighbour)
-        if min(int((parts == k).sum()) for k in range(1, len(big) + 1)) < min_area:
+                           markers.copy())
+        parts = _lobes(ws, len(big), sub, with_holes, min_area, _fill_lines)
+        if parts is None:
             return "merged", None
         grey = None if bgr is None else cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)  # (only needed here)
-        if not _seam_visible(parts, ws, grey, p.seam_contrast_dn):
-            # a neck but no seam in the image: one part with a waist, or two parts that touch so
-            # closely that nothing shows. Flag it: a false alarm costs a look, a wrong outline a part.
-            return "merged", None
-        return "split", parts
+        if _seam_visible(parts, ws, grey, p.seam_contrast_dn):
+            return "split", parts
+        # the neck's middle need not be where the parts meet (discs of other sizes, a gap a few pixels
+        # beside it): cut again from the same lobes along the image's own edges. Parts that touch at
+        # a neck meet along a line no longer than it is wide; a longer cut found some other edge.
+        ws = cv2.watershed(np.ascontiguousarray(bgr), markers)
+        inner = cv2.erode(sub, np.ones((5, 5), np.uint8)) > 0  # (as `_seam_visible`: the cut's ends left out)
+        if np.count_nonzero((ws == -1) & inner) <= 2 * level * (len(big) - 1):
+            parts = _lobes(ws, len(big), sub, with_holes, min_area, _nearest_label)
+            if parts is not None and _seam_visible(parts, ws, grey, p.seam_contrast_dn):
+                return "split", parts
+        # a neck but no seam in the image: one part with a waist, or two parts that touch so
+        # closely that nothing shows. Flag it: a false alarm costs a look, a wrong outline a part.
+        return "merged", None
     return "one", None
+
+
+def _lobes(ws: np.ndarray, n: int, sub: np.ndarray, with_holes: np.ndarray, min_area: float, fill
+           ) -> np.ndarray | None:
+    """The watershed's lobes 1..n over the region, or None if one is a speck. `fill` gives the region's
+    unlabelled pixels to a lobe: the watershed lines (-1) on the distance transform (`_fill_lines`); on the
+    image also what the flood from outside reached along a dark gap or a blurred rim (`_nearest_label`)."""
+    parts = fill(np.where((ws >= 1) & (ws <= n) & (sub > 0), ws, 0), sub)
+    parts[with_holes == 0] = 0  # the parts keep their holes (a washer split off its neighbour)
+    if min(int((parts == k).sum()) for k in range(1, n + 1)) < min_area:
+        return None
+    return parts
 
 
 DIRECT_ELLIPSE_MAX_PX = 51  # larger elliptic kernels: dilated row by row (OpenCV's time grows with the kernel's area)

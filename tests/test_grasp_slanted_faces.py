@@ -138,7 +138,8 @@ STAR = [[362.4138, 0.7098], [366.4774, 1.7445], [367.2337, 4.6443], [364.9594, 7
 def test_contacts_offset_across_the_axis_are_refused_so_the_grasp_passes_the_physical_check():
     """Pads on slanted tips touch at their edges: the contacts' line ran 11.8 deg off the closing axis
     and the physical check refused the grasp the planner chose. Within max_contact_skew_deg (3, the
-    check's own limit) the planner picks one it accepts."""
+    check's own limit) the planner picks one it accepts. (The pads held to stop within their compliance of
+    the contacts refuse that grasp too: left off here, to see the skew limit alone.)"""
     from dataclasses import replace
 
     from cell.examples import load_examples
@@ -149,13 +150,43 @@ def test_contacts_offset_across_the_axis_are_refused_so_the_grasp_passes_the_phy
     examples = load_examples(None)
     verdicts = {}
     for skew in (90.0, SynthesisParams().max_contact_skew_deg):
-        g = GraspPlanner(CELL, examples, SynthesisParams(max_contact_skew_deg=skew)).plan(Scene((part,), "t")).grasp
+        params = SynthesisParams(max_contact_skew_deg=skew, touch_within_compliance=False)
+        g = GraspPlanner(CELL, examples, params).plan(Scene((part,), "t")).grasp
         verdicts[skew] = check_grasp(part, g.contacts_mm, g.axis_deg, g.grasp_z_mm)
         line = np.degrees(np.arctan2(*(g.contacts_mm[1] - g.contacts_mm[0])[::-1]))
         skew_deg = abs((line - g.axis_deg + 90.0) % 180.0 - 90.0)
         assert (skew_deg <= skew + 1e-6) if skew < 90 else skew_deg > 10
     assert not verdicts[90.0].ok and "off the line through the contacts" in verdicts[90.0].reasons[0]
     assert verdicts[3.0].ok, verdicts[3.0].reasons
+
+
+# a random hexagon 3 mm tall beside a 15 mm block (a checker's scene): the grasp chosen with the pads allowed to
+# stop further out on a slanted face had a contact 0.53 mm behind where the pads stop (the README says 0.5)
+HEXAGON = [[524.3474, -102.4449], [497.9625, -135.5311], [467.1663, -127.9228], [461.4529, -95.9068],
+           [469.0332, -73.7729], [494.807, -75.0469]]
+BLOCK = [[509.0425, -147.6064], [509.1748, -134.5944], [488.4511, -140.1529], [493.0951, -147.9547],
+         [495.535, -158.0021]]
+
+
+def test_the_pads_at_the_grasp_centre_stop_within_their_compliance_of_the_contacts():
+    from cell.examples import load_examples
+    from cell.grasp.bands import PAD_COMPLIANCE_MM
+    from cell.grasp.synthesis import GraspPlanner
+    from cell.runtime.replay import planner_from_meta
+    from cell.scene import Scene
+
+    target = parse_part({"id": "t", "z_top": 3.0, "outline": HEXAGON})
+    block = parse_part({"id": "n0", "z_top": 15.0, "outline": BLOCK})
+    behind = {}
+    for strict in (False, True):
+        g = GraspPlanner(CELL, load_examples(None), SynthesisParams(touch_within_compliance=strict)).plan(
+            Scene((target, block), "t")).grasp
+        chk = check_grasp(target, g.contacts_mm, g.axis_deg, g.grasp_z_mm, (block,), CELL)
+        assert chk.ok, chk.reasons
+        behind[strict] = chk.contact_error_mm  # along the axis, from where rigid pads stop
+    assert behind[False] > PAD_COMPLIANCE_MM + 0.02
+    assert behind[True] <= PAD_COMPLIANCE_MM + 1e-6
+    assert SynthesisParams().touch_within_compliance and not planner_from_meta({}, "old").touch_within_compliance
 
 
 def test_the_contact_skew_limit_must_be_an_angle_in_0_to_90():

@@ -565,11 +565,12 @@ def _pads_stop_at_contacts(ctx: Context, P: Pairs, idx, m, u, ok: np.ndarray, ah
     widened by contact_tol each side), so it first touches no further out than that band did, and each
     contact lies at most the compliance behind the line its touch was put on (BandEdges.on_material),
     which is that band's first touch or, pressed on a slanted face, `ahead` (k,: the larger of the two
-    pads') behind it; a pair with ahead <= |off| tan(max_normal_angle) passes. The centre moves off its
-    line only where contacts move across the axis; almost every pair is not looked at."""
+    pads') behind it; so a pair with ahead 0 passes (with `touch_within_compliance` off, the pads may stop
+    up to |off| tan(max_normal_angle) further out: a pair with ahead <= that passes). The centre moves off
+    its line only where contacts move across the axis; almost every pair is not looked at."""
     xi, yi, xj, yj = contacts
     off = np.abs((cx - m[:, 0]) * -u[:, 1] + (cy - m[:, 1]) * u[:, 0])
-    slant = math.tan(math.radians(ctx.params.max_normal_angle_deg))
+    slant = 0.0 if ctx.params.touch_within_compliance else math.tan(math.radians(ctx.params.max_normal_angle_deg))
     look = off > ctx.params.contact_tol_mm - EPS_MM
     if ahead is not None:
         look |= (off > CENTRE_SHIFT_MM) & (ahead > off * slant)

@@ -41,6 +41,21 @@ PRINCIPAL_OFF_CENTRE_WARN = 0.15  # fraction of the image size
 MIN_VIEWS = 3
 MIN_CHARUCO_CORNERS = 6
 MIN_SQUARE_PX = 4  # a board square smaller than this cannot be detected
+MIN_CHESS_CORNERS_A_SIDE = 3  # OpenCV's chessboard detectors assert on fewer (2x9 was an 'internal error')
+MIN_CHARUCO_SQUARES_A_SIDE = 2  # OpenCV takes 2 squares a side; a view still needs MIN_CHARUCO_CORNERS
+
+
+def check_pattern(pattern: tuple[int, int], charuco: bool) -> None:
+    """Refuse a board OpenCV cannot detect, or whose views could never be used, saying the real minimum."""
+    cols, rows = pattern
+    if not charuco and min(cols, rows) < MIN_CHESS_CORNERS_A_SIDE:
+        raise BadInput(f"--pattern {cols}x{rows}: a chessboard needs at least {MIN_CHESS_CORNERS_A_SIDE} inner "
+                       "corners a side (COLSxROWS counts the inner corners, where 4 squares meet: 9x6 for a board "
+                       "of 10 x 7 squares)")
+    if charuco and (min(cols, rows) < MIN_CHARUCO_SQUARES_A_SIDE or (cols - 1) * (rows - 1) < MIN_CHARUCO_CORNERS):
+        raise BadInput(f"--pattern {cols}x{rows}: a ChArUco board of {cols} x {rows} squares has "
+                       f"{max(cols - 1, 0) * max(rows - 1, 0)} inner corners and a view needs at least "
+                       f"{MIN_CHARUCO_CORNERS} (COLSxROWS counts the squares, e.g. 5x7)")
 
 
 @dataclass
@@ -329,6 +344,7 @@ def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[in
         raise BadInput("no images given")
     if not (np.isfinite(square_mm) and square_mm > 0):
         raise BadInput(f"the square side must be a finite positive length, got {square_mm!r}")
+    check_pattern(pattern, charuco is not None)
     _refuse_mixed_sizes(images)
     h, w = images[0][1].shape[:2]
     squares = pattern if charuco is not None else (pattern[0] + 1, pattern[1] + 1)

@@ -43,8 +43,10 @@ def run(args) -> int:
         detect_markers,
         fit_plane_mapping,
         holdout_residuals,
+        marker_not_fitting,
         marker_residuals,
         markers_correspondences,
+        odd_marker_warning,
         parse_markers,
     )
     from cell.errors import BadInput
@@ -103,8 +105,17 @@ def run(args) -> int:
         if duplicated:
             warnings.insert(0, f"markers seen more than once in the image, left out: {duplicated}")
         held_out = holdout_residuals(detected, known, used, (w, h), k, dist, cal.plane)
+        # named, not left out: the file is the calibration asked for (the markers as listed), and the
+        # refusal over REFUSE_REPROJECTION_PX still holds; the user removes the marker, or corrects it
+        odd = marker_not_fitting(detected, known, used, (w, h), cal.report["reprojection_rms_px"], k, dist,
+                                 cal.plane)
+        # after "the markers fit badly", which it explains; a marker already named for its corner order has
+        # the better hint
+        if odd is not None and not any(w.startswith(f"marker {odd['id']}:") for w in warnings):
+            at = next((n + 1 for n, w in enumerate(warnings) if w.startswith("the markers fit badly")), 0)
+            warnings.insert(at, odd_marker_warning(odd, len(used)))
         cal.report.update({"markers_used": out["markers_used"], "markers_missing": out["markers_missing"],
-                           "markers_duplicated": duplicated,
+                           "markers_duplicated": duplicated, "marker_not_fitting": odd,
                            "per_marker_residual_mm": per_marker, "warnings": warnings,
                            "holdout_residual_mm": held_out,
                            "holdout_residual_max_mm": max(held_out.values()) if held_out else None})

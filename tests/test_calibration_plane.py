@@ -450,6 +450,20 @@ def test_map_cli_missing_calibration(tmp_path, capsys):
     assert code == 2 and "does not exist" in err
 
 
+@pytest.mark.parametrize("way", ["--px", "--mm"])
+def test_map_cli_refuses_a_plane_at_or_above_the_camera(capsys, way):
+    """The default camera is 800 mm up: --z 799.9999 (its height as a calibration prints it, rounded) mapped every
+    pixel to the camera's own x, y (350, 0), exit 0; --mm gave pixels thousands of px off. A plane within 10 mm
+    of the camera's optical centre (inside its lens) or above it is refused, saying how high the camera is."""
+    point = "640,512" if way == "--px" else "350,0"
+    for z in ("799.9999", "800", "795", "5000"):
+        code, out, err = run_cli("map", default_calibration_path(), way, point, "--z", z, "--json", capsys=capsys)
+        assert code == 2 and out == "" and err.count("\n") == 1, (z, err)
+        assert "the camera's optical centre is at z = 800 mm" in err and "Traceback" not in err
+    code, out, err = run_cli("map", default_calibration_path(), way, point, "--z", "700", "--json", capsys=capsys)
+    assert code == 0, err
+
+
 @needs_photos
 def test_no_holdout_with_three_markers(tmp_path, capsys):
     markers, ref = _markers(tmp_path)

@@ -28,6 +28,10 @@ from cell.errors import BadInput
 
 HALF_PX = 0.5  # CONTRACT frame = OpenCV pixel-centre frame + 0.5
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
+# A horizontal plane to map on lies at least this far below the camera's optical centre (inside that is the
+# lens): at 799.9999 mm under the default camera (800 mm, as a calibration prints it rounded) every pixel
+# mapped to the camera's own x, y, exit 0; above it the rays miss the plane (below, for a camera looking up)
+MIN_PLANE_BELOW_CAMERA_MM = 10.0
 
 
 def check_points(pts, name: str) -> np.ndarray:
@@ -149,6 +153,7 @@ class Calibration:
             return self.px_to_xyz(uv)[:, :2]
         z = self._plane(z_mm)
         if self.has_pose:
+            self._check_below_camera(z)
             rays_cam = self._rays(uv)
             r, t = self.cam2base[:3, :3], self.cam2base[:3, 3]
             rays = rays_cam @ r.T
@@ -184,6 +189,7 @@ class Calibration:
             return self.plane_points_to_px(self.plane.lift(xy))
         z = self._plane(z_mm)
         if self.has_pose:
+            self._check_below_camera(z)
             xyz = np.column_stack([xy, np.full(len(xy), z)])
             return _finite_result(self.project(xyz), "mm_to_px")
         if self.homography is not None:
@@ -267,6 +273,18 @@ class Calibration:
         if not np.isfinite(z):
             raise BadInput(f"the plane height z must be a finite number of mm, got {z_mm!r}")
         return z
+
+    def _check_below_camera(self, z: float) -> None:
+        """Refuse a horizontal plane at z within MIN_PLANE_BELOW_CAMERA_MM of the camera's optical centre, or on
+        the side it does not look to (above a camera looking down). A camera looking up (markers given in a
+        mirrored frame) is named by the calibration file's own check, with what to do."""
+        cam_z, look_z = float(self.cam2base[2, 3]), float(self.cam2base[2, 2])  # the optical axis' z: < 0 down
+        down = look_z <= 0
+        if abs(z - cam_z) < MIN_PLANE_BELOW_CAMERA_MM or (z - cam_z) * look_z < 0:
+            raise BadInput(f"{self.label}: the plane z = {z:g} mm is not {'below' if down else 'above'} the camera: "
+                           f"the camera's optical centre is at z = {cam_z:.6g} mm, looking {'down' if down else 'up'}, "
+                           f"and a plane to map on lies at least {MIN_PLANE_BELOW_CAMERA_MM:g} mm "
+                           f"{'lower' if down else 'higher'}")
 
     def _check_plane(self, z: float) -> None:
         if self.plane is not None:

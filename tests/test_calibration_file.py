@@ -155,7 +155,8 @@ def test_out_of_range_files_are_refused_naming_the_key(tmp_path, capsys, mutate,
 
 def test_a_plane_beyond_the_horizon_names_the_calibration():
     cal = load_calibration()
-    with pytest.raises(BadInput, match=r"calibration file \S+default\.json: the plane z = 900 mm is not in front"):
+    with pytest.raises(BadInput, match=r"calibration file \S+default\.json: the plane z = 900 mm is not below the "
+                                       r"camera: the camera's optical centre is at z = 800 mm, looking down"):
         cal.px_to_mm([[640, 512]], 900.0)  # above the camera, at 800 mm
 
 

@@ -303,3 +303,35 @@ def test_a_wrong_pattern_found_in_a_few_views_is_named(tmp_path, capsys):
                       "corners", err)
     assert found and 0 < int(found[1]) < len(images) / 2, err
     assert not (tmp_path / "cal.json").exists()
+
+
+@pytest.mark.parametrize("pattern", ["2x2", "2x9", "9x2", "3x2", "1x6"])
+def test_a_chessboard_under_3_inner_corners_a_side_is_refused_saying_so(tmp_path, capsys, pattern):
+    """OpenCV's chessboard detectors assert on fewer than 3 inner corners a side: 2x9 was exit 1, 'internal
+    error' with OpenCV's message (and the help said 'at least 2')."""
+    images = []
+    for i in range(3):
+        images.append(tmp_path / f"b{i}.png")
+        cv2.imwrite(str(images[-1]), np.full((480, 640), 128, np.uint8))
+    code, out, err = run_cli("calibrate", "intrinsics", *images, "--pattern", pattern, "--square", "25",
+                             "--out", tmp_path / "x.json", capsys=capsys)
+    assert code == 2 and out == "" and err.count("\n") == 1, err
+    assert "at least 3 inner corners a side" in err and "cv2" not in err and "OpenCV(" not in err
+    assert not (tmp_path / "x.json").exists()
+
+
+@pytest.mark.parametrize("pattern, ok", [("2x2", False), ("3x3", False), ("2x9", True), ("3x4", True)])
+def test_a_charuco_board_with_too_few_corners_for_a_view_is_refused(tmp_path, capsys, pattern, ok):
+    """A ChArUco view needs 6 corners: a board of (COLS - 1) x (ROWS - 1) < 6 inner corners gives none (it was
+    'found in 0 of 3 images'). Boards of 2 squares a side with enough corners are taken, as OpenCV takes them."""
+    images = []
+    for i in range(3):
+        images.append(tmp_path / f"b{i}.png")
+        cv2.imwrite(str(images[-1]), np.full((480, 640), 128, np.uint8))
+    code, out, err = run_cli("calibrate", "intrinsics", *images, "--pattern", pattern, "--square", "25",
+                             "--marker", "18", "--charuco", "--out", tmp_path / "x.json", capsys=capsys)
+    assert code == 2 and out == "" and err.count("\n") == 1, err
+    if ok:  # blank images: refused for finding no board, not for the pattern
+        assert "found in 0 of 3" in err
+    else:
+        assert "inner corners" in err and "at least 6" in err and "found in" not in err

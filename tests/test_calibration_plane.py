@@ -288,6 +288,34 @@ def test_a_focal_length_a_digit_short_is_warned_about(tmp_path, capsys):
         assert bool(says) is warned and ("is a digit missing?" in err) is warned
 
 
+def test_a_focal_length_a_digit_too_long_is_warned_about_by_the_camera_distance(tmp_path, capsys):
+    """fx 16000 px for a 1280 px image: the fit follows it with the camera 10 x too far, 8 m over the tray, and
+    only a focal length too short (a view over 120 degrees) was warned about. A camera more than 3 m from the
+    points is named; the default camera, 0.8 m over them, is not."""
+    import cv2
+
+    truth = load_calibration()
+    xy = np.random.default_rng(3).uniform([210, -240], [490, 240], size=(12, 2))
+    uv = truth.mm_to_px(xy, 15.0)
+    pts = tmp_path / "points.json"
+    pts.write_text(json.dumps({"points": [{"px": list(a), "mm": [b[0], b[1], 15.0]} for a, b in zip(uv, xy)]}))
+    frame = tmp_path / "frame.png"
+    cv2.imwrite(str(frame), np.zeros((1024, 1280, 3), np.uint8))
+    fx = float(truth.camera_matrix[0, 0])
+    for scale, warned in ((10, True), (1, False)):
+        matrix = f"{fx * scale:g},{fx * scale:g},640,512"
+        code, out, err = run_cli("calibrate", "plane", frame, "--points", pts, "--camera-matrix", matrix,
+                                 "--out", tmp_path / f"c{warned}.json", capsys=capsys)
+        assert code == 0, err
+        res = json.loads(out)
+        says = [w for w in res.get("warnings", []) if "from the points" in w]
+        assert bool(says) is warned and ("a digit too long?" in err) is warned, err
+        distance = np.linalg.norm(np.subtract(res["camera_position_mm"], [*xy.mean(axis=0), 15.0]))
+        assert res["camera_distance_mm"] == pytest.approx(distance, abs=0.01)
+        if warned:
+            assert distance > 7000 and f"{distance:.0f} mm" in says[0] and "more than 3000 mm" in says[0]
+
+
 @needs_photos
 @pytest.mark.parametrize("with_intrinsics", [True, False])
 def test_points_a_few_mm_off_one_plane_fit_their_mean_plane_with_a_warning(tmp_path, capsys, with_intrinsics):
@@ -420,6 +448,20 @@ def test_map_cli_bad_points(capsys, args, match):
 def test_map_cli_missing_calibration(tmp_path, capsys):
     code, _, err = run_cli("map", tmp_path / "none.json", "--px", "1,2", capsys=capsys)
     assert code == 2 and "does not exist" in err
+
+
+@pytest.mark.parametrize("way", ["--px", "--mm"])
+def test_map_cli_refuses_a_plane_at_or_above_the_camera(capsys, way):
+    """The default camera is 800 mm up: --z 799.9999 (its height as a calibration prints it, rounded) mapped every
+    pixel to the camera's own x, y (350, 0), exit 0; --mm gave pixels thousands of px off. A plane within 10 mm
+    of the camera's optical centre (inside its lens) or above it is refused, saying how high the camera is."""
+    point = "640,512" if way == "--px" else "350,0"
+    for z in ("799.9999", "800", "795", "5000"):
+        code, out, err = run_cli("map", default_calibration_path(), way, point, "--z", z, "--json", capsys=capsys)
+        assert code == 2 and out == "" and err.count("\n") == 1, (z, err)
+        assert "the camera's optical centre is at z = 800 mm" in err and "Traceback" not in err
+    code, out, err = run_cli("map", default_calibration_path(), way, point, "--z", "700", "--json", capsys=capsys)
+    assert code == 0, err
 
 
 @needs_photos

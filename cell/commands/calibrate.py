@@ -15,7 +15,8 @@ SQUARE_RANGE = (1e-4, 1e5)
 def add_arguments(p) -> None:
     p.add_argument("images", nargs="+", metavar="IMAGE", help="photographs of the board")
     p.add_argument("--pattern", required=True, metavar="COLSxROWS",
-                   help="chessboard: inner corners (e.g. 9x6); ChArUco: squares (e.g. 5x7)")
+                   help="chessboard: inner corners, at least 3 a side (e.g. 9x6); ChArUco: squares, with at "
+                        "least 6 inner corners (e.g. 5x7)")
     p.add_argument("--square", required=True, type=float, metavar="MM", help="side of one square")
     p.add_argument("--out", required=True, metavar="FILE", help="calibration file to write")
     p.add_argument("--detector", choices=("auto", "classic", "sb"), default="auto",
@@ -46,12 +47,19 @@ def _views_found(result, n_images: int, charuco: bool) -> str:
 
 def run(args) -> int:
     from calibration import save_calibration
-    from calibration.intrinsics import calibrate_intrinsics
+    from calibration.intrinsics import MIN_CHESS_CORNERS_A_SIDE, calibrate_intrinsics, check_pattern
     from cell.errors import BadInput
-    from cell.fileio import check_writable
+    from cell.fileio import check_writable, short_repr
     from cell.vision.sources import read_image
 
-    pattern = grid(args.pattern, "--pattern")
+    try:
+        pattern = grid(args.pattern, "--pattern")
+    except BadInput as e:  # its 'both at least 2' holds for ChArUco squares; a chessboard needs 3 corners
+        if args.charuco:
+            raise
+        raise BadInput(f"--pattern must be COLSxROWS with at least {MIN_CHESS_CORNERS_A_SIDE} inner corners a side, "
+                       f"e.g. 9x6 (got {short_repr(args.pattern)})") from e
+    check_pattern(pattern, args.charuco)
     if not (SQUARE_RANGE[0] <= args.square <= SQUARE_RANGE[1]):  # NaN fails too
         raise BadInput(f"--square must be a finite positive length from {SQUARE_RANGE[0]:g} to {SQUARE_RANGE[1]:g} "
                        f"(the unit of the result's translations), got {args.square:g}")

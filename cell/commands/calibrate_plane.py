@@ -43,8 +43,10 @@ def run(args) -> int:
         detect_markers,
         fit_plane_mapping,
         holdout_residuals,
+        marker_not_fitting,
         marker_residuals,
         markers_correspondences,
+        odd_marker_warning,
         parse_markers,
     )
     from cell.errors import BadInput
@@ -103,8 +105,17 @@ def run(args) -> int:
         if duplicated:
             warnings.insert(0, f"markers seen more than once in the image, left out: {duplicated}")
         held_out = holdout_residuals(detected, known, used, (w, h), k, dist, cal.plane)
+        # named, not left out: the file is the calibration asked for (the markers as listed), and the
+        # refusal over REFUSE_REPROJECTION_PX still holds; the user removes the marker, or corrects it
+        odd = marker_not_fitting(detected, known, used, (w, h), cal.report["reprojection_rms_px"], k, dist,
+                                 cal.plane)
+        # after "the markers fit badly", which it explains; a marker already named for its corner order has
+        # the better hint
+        if odd is not None and not any(w.startswith(f"marker {odd['id']}:") for w in warnings):
+            at = next((n + 1 for n, w in enumerate(warnings) if w.startswith("the markers fit badly")), 0)
+            warnings.insert(at, odd_marker_warning(odd, len(used)))
         cal.report.update({"markers_used": out["markers_used"], "markers_missing": out["markers_missing"],
-                           "markers_duplicated": duplicated,
+                           "markers_duplicated": duplicated, "marker_not_fitting": odd,
                            "per_marker_residual_mm": per_marker, "warnings": warnings,
                            "holdout_residual_mm": held_out,
                            "holdout_residual_max_mm": max(held_out.values()) if held_out else None})
@@ -113,6 +124,17 @@ def run(args) -> int:
                         f"{k[0, 0]:g}, fy {k[1, 1]:g} px for {w} x {h} px), wider than almost any lens: is a digit "
                         "missing? (the fit can follow a wrong focal length with a wrong camera height)")
         cal.report["warnings"] = warnings
+    if cal.has_pose:
+        distance_mm = float(np.linalg.norm(cal.camera_position_mm() - xyz.mean(axis=0)))
+        cal.report["camera_distance_mm"] = round(distance_mm, 3)
+        if distance_mm > FAR_CAMERA_MM:  # a digit too many in fx, fy
+            fov = 2 * np.degrees(np.arctan(w / (2 * k[0, 0])))
+            warnings.append(f"the fit puts the camera {distance_mm:.0f} mm from the points, more than "
+                            f"{FAR_CAMERA_MM:g} mm (a cell's camera hangs within a few metres of its table): with "
+                            f"fx {k[0, 0]:g}, fy {k[1, 1]:g} px the view is {fov:.1f} degrees across {w} px; is the "
+                            "focal length a digit too long? (the fit follows a wrong focal length with a wrong "
+                            "camera distance)")
+            cal.report["warnings"] = warnings
     if cal.plane is None and cal.report["z_spread_mm"] > FLAT_Z_MM:
         warnings.append(f"the {'markers' if args.markers else 'points'}' z spans {cal.report['z_spread_mm']:.1f} mm: "
                         f"the mapping is for their mean plane, z = {cal.report['plane_z_mm']:.2f} mm")
@@ -137,6 +159,10 @@ def run(args) -> int:
 
 
 WIDE_VIEW_DEG = 120.0  # wider than this across the image: a fisheye, or a focal length 10 x too short
+# A camera the fit puts farther than this from the points' centroid: no cell hangs its camera so high (the
+# default cell's is 0.8 m over the tray), but a focal length 10 x too long puts it there (fx 16000 for a
+# 1280 px frame: 8 m), and a narrow view alone does not tell (telephoto lenses of 5 - 10 degrees exist)
+FAR_CAMERA_MM = 3000.0
 
 
 def wide_view_deg(k, w: int, h: int) -> float | None:

@@ -25,6 +25,7 @@ from cell.grasp.attributes import OutlinePoints, global_attributes, global_names
 from cell.grasp.bands import PAD_COMPLIANCE_MM
 from cell.grasp.candidates import candidate_points
 from cell.grasp.cascade import STAGES, CascadeResult, Context, Pairs, joints_of, run_cascade
+from cell.grasp.closing_line import onto_closing_line
 from cell.grasp.height import TIP_BELOW_TOP_MM, grasp_z_mm, raised_grasp_z_mm
 from cell.grasp.learning import LearnedModel, fit_model, nearest_example
 from cell.grasp.load import holding, too_heavy
@@ -82,10 +83,12 @@ class RankedGrasps(Sequence):
     arrays). Each Grasp is built when first read, then kept: a plan reads one or two of hundreds."""
 
     def __init__(self, target: str, grasp_z_mm: float, P: Pairs, pairs: np.ndarray, rows: np.ndarray,
-                 contacts, normals, centers, openings, G, distances, example_ids: list, first: int = 0, built=None):
+                 contacts, normals, centers, openings, G, distances, example_ids: list, first: int = 0, built=None,
+                 boundary=None):
         self._target, self._gz, self._P, self._pairs, self._rows = target, grasp_z_mm, P, pairs, rows
         self._arrays = (contacts, normals, centers, openings, G, distances, example_ids)
         self._first, self._built = first, {} if built is None else built
+        self._boundary = boundary  # the target's outline: contacts onto the closing line (None: as found)
 
     def __len__(self) -> int:
         return len(self._rows) - self._first
@@ -101,15 +104,18 @@ class RankedGrasps(Sequence):
             q = int(self._rows[r])
             contacts, normals, centers, openings, G, distances, ids = self._arrays
             pk, (a, b) = int(self._pairs[q]), self._P.ij[self._pairs[q]].tolist()
-            self._built[r] = Grasp(self._target, contacts[q], normals[q], centers[q], self._P.axis_deg(pk),
-                                   float(openings[q]), self._gz, joints_of(self._P, pk), None, float(distances[r]),
-                                   G[q], ids[r], (a, b))
+            axis_deg, c, opening = self._P.axis_deg(pk), contacts[q], float(openings[q])
+            if self._boundary is not None:
+                c = onto_closing_line(self._boundary, c, centers[q], axis_deg)
+                opening = float(np.linalg.norm(c[0] - c[1]))
+            self._built[r] = Grasp(self._target, c, normals[q], centers[q], axis_deg, opening, self._gz,
+                                   joints_of(self._P, pk), None, float(distances[r]), G[q], ids[r], (a, b))
         return self._built[r]
 
     def after_first(self) -> RankedGrasps:
         """The same ranking without its first grasp (step 5 refused it)."""
         return RankedGrasps(self._target, self._gz, self._P, self._pairs, self._rows, *self._arrays,
-                            first=min(self._first + 1, len(self._rows)), built=self._built)
+                            first=min(self._first + 1, len(self._rows)), built=self._built, boundary=self._boundary)
 
 
 def _mm(values: list[float]) -> str:
@@ -400,7 +406,8 @@ class GraspPlanner:
         centers = 0.5 * (contacts[:, 0] + contacts[:, 1])
         openings = np.linalg.norm(contacts[:, 0] - contacts[:, 1], axis=1)
         ranked = RankedGrasps(target.id, gz, P, k, sel[order], contacts, normals, centers, openings,
-                              G, dist[order], [self.model.example_ids[e] for e in ex_idx[order].tolist()])
+                              G, dist[order], [self.model.example_ids[e] for e in ex_idx[order].tolist()],
+                              boundary=target.polygon.boundary if p.contacts_on_closing_line else None)
         # Step 5's hook may refuse a grasp (None: no configuration clears the parts): take the
         # next best, as the paper's "retry with the next grasp".
         refused = 0

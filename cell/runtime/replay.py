@@ -41,12 +41,14 @@ class RecordingEnds(Exception):  # noqa: N818 - not a CellError, like Divergence
 # every outline point under a pad labelled by its contact (not only those the pad touches), any
 # angle between the contacts' line and the closing axis, the pads not looked at again where the
 # moved contacts put the grasp centre (and, once they were, allowed to stop further out on a slanted
-# face), the configured step only and the usual grasp z only.
+# face), contacts on parallel faces where the samples lay, the configured step only and the usual
+# grasp z only.
 RECORDED_PLANNER = {"slanted_faces": False, "tree_min_samples_leaf": 2, "obstacle_margin_mm": 0.0,
                     "contacts_on_material": False, "label_touched_only": False, "max_contact_skew_deg": 90.0,
                     "stroke_at_pad_lines": False, "grasp_z_within_j3": False, "pads_at_grasp_centre": False,
                     "finer_steps": 0, "grasp_z_over_neighbours": False, "cog_radius_outer_disc": False,
-                    "min_touch_width_mm": 0.0, "closed_slit_mm": 0.0, "touch_within_compliance": False}
+                    "min_touch_width_mm": 0.0, "closed_slit_mm": 0.0, "touch_within_compliance": False,
+                    "contacts_on_closing_line": False}
 
 
 def planner_meta(params: SynthesisParams) -> dict:
@@ -60,7 +62,7 @@ def planner_from_meta(planner, where: str) -> SynthesisParams:
     values = {k: planner.get(k, old) for k, old in RECORDED_PLANNER.items()}
     for flag in ("slanted_faces", "contacts_on_material", "label_touched_only", "stroke_at_pad_lines",
                  "grasp_z_within_j3", "pads_at_grasp_centre", "grasp_z_over_neighbours", "cog_radius_outer_disc",
-                 "touch_within_compliance"):
+                 "touch_within_compliance", "contacts_on_closing_line"):
         if not isinstance(values[flag], bool):
             raise BadInput(f"{where}: manifest meta.planner.{flag} must be true or false")
     leaf = values["tree_min_samples_leaf"]

@@ -131,13 +131,18 @@ def test_operator_runs_rejects_teaches_and_approves_over_http(live):
     second = np.array(control.snapshot()["proposal"]["contacts"])
     assert min(np.abs(second - first).max(), np.abs(second[::-1] - first).max()) > 6.0
 
-    # approve both picks: the world is empty at the end
-    assert call(server, "/api/approve", {})[0] == 200
+    # approve both picks: the world is empty at the end. The loop takes a decision when it next runs, so the
+    # state stays awaiting until then: each approval names its proposal, and the next one is awaited by number
+    # (approving again at once was a no-op repeat of the same decision, and a loaded machine ran out of tries)
     for _ in range(10):
-        st = control.wait_for_state(AWAITING_APPROVAL, DONE, timeout_s=T)
-        if st == DONE:
+        shown = control.snapshot()["proposal_no"]
+        assert call(server, "/api/approve", {"proposal_no": shown})[0] == 200
+        seq, deadline = control.snapshot()["seq"], time.monotonic() + T
+        while not (control.state == DONE or control.snapshot()["proposal_no"] not in (shown, None)):
+            assert time.monotonic() < deadline, control.snapshot()["state"]
+            seq = control.wait_change(seq, timeout_s=T)
+        if control.state == DONE:
             break
-        call(server, "/api/approve", {})
     assert control.state == DONE
     assert world.removed == ["washer", "nut"]
     assert call(server, "/api/state")[1]["cell"]["removed"] == ["washer", "nut"]

@@ -167,6 +167,15 @@ def test_touching_discs_of_one_metal_and_two_sizes_are_split_where_they_meet(see
         assert rms < 0.5, (part.id, rms)
 
 
+def test_one_metal_part_with_a_waist_between_equal_lobes_is_not_cut_along_a_highlight():
+    # twin steel discs joined at a waist, one part: a cut along the image's edges from the two lobes ran along
+    # the highlight's edge on one of them and split the part into two unflagged regions
+    twin = Polygon(circle(15.0, 120, c=(330.0, -60.0))).union(Polygon(circle(15.0, 120, c=(330.0, -34.0))))
+    part = Part("w", np.asarray(twin.exterior.coords)[:-1], (), 0.0, 6.0, meta={"material": "steel", "kind": "disc"})
+    segs = segment_frame(render([part], seed=1), PARAMS)
+    assert len(segs) == 1 and segs[0].merged
+
+
 def test_touching_parts_of_different_colour_are_separated_accurately():
     a = make_part("disc", "a", 330, -60, material="blue_plastic")
     b = make_part("disc", "b", 330, -20, material="red_plastic")

@@ -54,10 +54,22 @@ def test_a_contact_is_slid_only_along_a_straight_stretch_square_to_the_axis():
     centre = np.array([20.0, 5.0])
     on_faces = np.array([[19.5, 10.0], [20.5, 0.0]])  # 0.5 mm either side of the vertical closing line
     assert np.allclose(onto_closing_line(boundary, on_faces, centre, 90.0), [[20, 10], [20, 0]])
-    # a notch 0.2 mm wide between a contact and the line: the pad bridges it, the contacts stay
+    # a notch between a contact and the line (0.2 mm wide; 0.23 mm between where four probes looked): the
+    # outline does not run straight there, the contacts stay
     notched = shapely.Polygon([[0, 0], [40, 0], [40, 10], [19.9, 10], [19.9, 9], [19.7, 9], [19.7, 10],
                                [0, 10]]).boundary
     assert np.array_equal(onto_closing_line(notched, on_faces, centre, 90.0), on_faces)
+    notched = shapely.Polygon([[0, 0], [40, 0], [40, 10], [19.49, 10], [19.49, 8], [19.26, 8], [19.26, 10],
+                               [0, 10]]).boundary
+    far = np.array([[19.0, 10.0], [21.0, 0.0]])
+    assert np.array_equal(onto_closing_line(notched, far, centre, 90.0), far)
+    # faces drawn with coordinates rounded to 0.01 mm (0.03 deg off square): slid, under a micrometre off the outline
+    rounded = shapely.Polygon([[0, 0], [40, 0], [40, 10.01], [0, 9.99]]).boundary
+    c = np.array([[19.5, 10.0 - 0.02 * 0.5 / 40], [20.5, 0.0]])
+    moved = onto_closing_line(rounded, c, 0.5 * (c[0] + c[1]), 90.0)
+    assert np.allclose(moved[:, 0], 20.0) and rounded.distance(shapely.Point(moved[0])) < 1e-3
+    # NaN in, nothing slid
+    assert np.isnan(onto_closing_line(boundary, np.full((2, 2), np.nan), centre, 90.0)).all()
     # a face slanted to the pads (the contact 0.5 mm across, the face 0.01 mm lower at the line): they stay
     slanted = shapely.Polygon([[0, 0], [40, 0], [40, 9.6], [0, 10.4]]).boundary
     c = np.array([[19.5, 10.01], [20.5, 0.0]])

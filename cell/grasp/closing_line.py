@@ -7,7 +7,8 @@ Slid along their pad lines (across the axis, by the same amount in opposite dire
 contacts keep the grasp centre and the gap along the axis, and their line becomes the closing axis
 (`angle_deg` is then the direction from one contact to the other). A contact is slid only along a
 straight stretch of the outline square to the axis; on a slanted or curved face both stay where
-the contacts stage put them (their line within `max_contact_skew_deg` of the axis).
+the contacts stage put them (their line within `max_contact_skew_deg` of the axis). Square to the axis
+means within SQUARE_TOL_DEG: a slid contact then lies within micrometres of the outline.
 """
 
 from __future__ import annotations
@@ -17,8 +18,9 @@ import math
 import numpy as np
 import shapely
 
-ON_OUTLINE_MM = 1e-6  # a probe this near the outline is on it (the contacts stage's points: ~1e-12)
-PROBES = (0.25, 0.5, 0.75, 1.0)  # of the way from a contact to the closing line: the stretch must be outline
+ON_OUTLINE_MM = 1e-6  # a probe this near the outline is on it (the contacts stage's points: ~1e-12) ...
+SQUARE_TOL_DEG = 0.1  # ... or within the slide times tan(this): a face drawn with coordinates rounded to 0.01 mm
+PROBE_STEP_MM = 0.05  # the stretch from a contact to the line is looked at this often (a notch narrower: bridged)
 
 
 def onto_closing_line(boundary, contacts_mm: np.ndarray, centre_mm: np.ndarray, axis_deg: float) -> np.ndarray:
@@ -29,10 +31,12 @@ def onto_closing_line(boundary, contacts_mm: np.ndarray, centre_mm: np.ndarray, 
     a = math.radians(axis_deg)
     v = np.array([-math.sin(a), math.cos(a)])
     off = (c - centre_mm) @ v  # (opposite, as the centre is their midpoint)
-    if np.abs(off).max() <= ON_OUTLINE_MM:
+    if not np.abs(off).max() > ON_OUTLINE_MM:  # (on the line already, or NaN: not slid)
         return c
     moved = c - off[:, None] * v
-    probes = np.concatenate([c + t * (moved - c) for t in PROBES])
-    if shapely.distance(boundary, shapely.points(probes)).max() > ON_OUTLINE_MM:
+    t = np.linspace(0.0, 1.0, int(np.ceil(np.abs(off).max() / PROBE_STEP_MM)) + 1)[1:]
+    probes = np.concatenate([ck + np.outer(t, m - ck) for ck, m in zip(c, moved, strict=True)])
+    tol = ON_OUTLINE_MM + np.abs(off).max() * math.tan(math.radians(SQUARE_TOL_DEG))
+    if shapely.distance(boundary, shapely.points(probes)).max() > tol:
         return c
     return moved

@@ -40,9 +40,9 @@ OUTLIER_MIN_PX = 0.3
 PRINCIPAL_OFF_CENTRE_WARN = 0.15  # fraction of the image size
 # The share of the image inside the used views' board outlines (`board_coverage_share`) below which the lens
 # distortion is warned about: it is fitted where the corners are and extrapolated elsewhere. Boards in 5 % of a
-# 1920 x 1080 frame: k2 -0.35, k3 10.8 for a lens of 0.05, 0, the model 353 px off in the image's corners; 13 %
-# and 18 %: 21 and 49 px. Sets that fit within 0.6-6 px everywhere cover 27-48 %, OpenCV's 13 views 45 %, the
-# desk webcam's 40 %
+# 1920 x 1080 frame: k2 -0.35, k3 10.8 for a lens of 0.05, 0, the model 353 px off in the image's corners; 12 %
+# and 17 %: 21 and 49 px. Sets that fit within 0.6-6 px everywhere cover 27-48 %, OpenCV's 13 views 45 %, the
+# desk webcam's 38 %
 MIN_BOARD_COVERAGE_SHARE = 0.2
 COVERAGE_MASK_PX = 512  # the outlines are drawn on a mask of at most this many px a side (a 0.2 % grain)
 MIN_VIEWS = 3

@@ -111,8 +111,8 @@ def run(args) -> int:
                                  cal.plane)
         # after "the markers fit badly", which it explains; a marker already named for its corner order has
         # the better hint
-        if odd is not None and not any(w.startswith(f"marker {odd['id']}:") for w in warnings):
-            at = next((n + 1 for n, w in enumerate(warnings) if w.startswith("the markers fit badly")), 0)
+        if odd is not None and not any(say.startswith(f"marker {odd['id']}:") for say in warnings):
+            at = next((n + 1 for n, say in enumerate(warnings) if say.startswith("the markers fit badly")), 0)
             warnings.insert(at, odd_marker_warning(odd, len(used)))
         cal.report.update({"markers_used": out["markers_used"], "markers_missing": out["markers_missing"],
                            "markers_duplicated": duplicated, "marker_not_fitting": odd,

@@ -38,3 +38,20 @@ def test_station_serves_for_longer_than_a_sleep_can_be(tmp_path, monkeypatch, ca
     code, out, err = run_cli("station", "--port", "0", "--for-s", "1e300", capsys=capsys)
     assert code == 0 and "station closed" in out, err
     assert 1e9 < slept[0] < 1e300
+
+
+def test_run_with_the_station_refuses_a_short_token_and_a_busy_port_before_the_recording(tmp_path, capsys):
+    """Both were refused (exit 2) only once the recording was made: DIR stayed behind as a recording of
+    nothing, which the next run refused as taken and replay as holding no frames."""
+    import socket
+
+    rec = tmp_path / "rec"
+    code, out, err = run_cli("run", "--station", "--port", "0", "--token", "abc", "--record", rec, capsys=capsys)
+    assert code == 2 and "at least 8 characters" in err and not rec.exists(), err
+    with socket.socket() as busy:
+        busy.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        code, out, err = run_cli("run", "--station", "--port", port, "--record", rec, capsys=capsys)
+    assert code == 2 and f"cannot serve the station on 127.0.0.1:{port}" in err and not rec.exists(), err

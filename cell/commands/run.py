@@ -34,7 +34,7 @@ def add_arguments(p):
     p.add_argument("--approve", action="store_true", help="ask the operator to approve each grasp (station)")
     p.add_argument("--station", action="store_true", help="serve the operator station on 127.0.0.1")
     p.add_argument("--port", type=int, default=8765, help="station port (default 8765)")
-    p.add_argument("--token", help="station token (default: a random one, printed)")
+    p.add_argument("--token", help="station token, at least 8 characters (default: a random one, printed)")
     p.add_argument("--seed", type=int, default=None,
                    help="simulated world: seed of part displacement and noise (default 0)")
     p.add_argument("--shift-mm", type=float, default=None,
@@ -77,6 +77,11 @@ def _run(args) -> int:
         raise BadInput("--seed must not be negative")
     if not 0 <= args.port <= 65535:
         raise BadInput(f"--port must be 0..65535, not {args.port}")
+    if args.station:  # before the recording is made: refused later, they left it a recording of nothing
+        from cell.station.server import check_port_free, check_token
+
+        check_token(args.token)
+        check_port_free(args.port)
     if args.sim_bad_frames < 0:
         raise BadInput("--sim-bad-frames must not be negative")
     if not 0.0 <= args.shift_mm <= 20.0:

@@ -15,7 +15,7 @@ MAX_MOTION_S = 600.0
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--host", default="127.0.0.1", help="interface to bind (default 127.0.0.1: this PC only)")
     p.add_argument("--port", type=int, default=8765, help="TCP port (default 8765; 0 = any free port)")
-    p.add_argument("--token", help="session token for commands (default: a random one, printed)")
+    p.add_argument("--token", help="session token for commands, at least 8 characters (default: a random one, printed)")
     p.add_argument("--allow-remote", action="store_true",
                    help="allow binding to a non-loopback address (the token then guards the arm)")
     p.add_argument("--examples", default="station_examples.jsonl",

@@ -32,6 +32,7 @@ import json
 import logging
 import math
 import secrets
+import socket
 import threading
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
@@ -79,6 +80,33 @@ class StationBackend(Protocol):
     def frame_png(self) -> bytes | None: ...
 
     def teach(self, part_id: str, p1_px: list[float], p2_px: list[float]) -> dict: ...
+
+
+MIN_TOKEN_CHARS = 8
+
+
+def check_token(token: str | None) -> None:
+    """Refuse a station token too short to guess at (None: a random one is made)."""
+    if token is not None and len(token) < MIN_TOKEN_CHARS:
+        raise BadInput(f"the station token must be at least {MIN_TOKEN_CHARS} characters")
+
+
+def check_port_free(port: int, host: str = "127.0.0.1") -> None:
+    """Refuse a port the station could not be served on, before anything that a refusal later would leave
+    half made (`cell run --station --record DIR` left DIR as a recording of nothing). Bound and released as
+    the station binds it (SO_REUSEADDR); 0 (any free port) always is."""
+    if port == 0:
+        return
+    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((host, port))
+        except OSError as e:
+            raise _cannot_serve(host, port, e) from None
+
+
+def _cannot_serve(host: str, port: int, e: OSError) -> BadInput:
+    return BadInput(f"cannot serve the station on {host}:{port}: {e.strerror or e}")
 
 
 def new_token() -> str:
@@ -287,8 +315,7 @@ class StationServer:
         if host not in LOOPBACK_HOSTS and not allow_remote:
             raise BadInput(f"binding the station to {host} exposes the arm to the network; "
                            "use 127.0.0.1 (default) or pass allow_remote / --allow-remote")
-        if token is not None and len(token) < 8:
-            raise BadInput("the station token must be at least 8 characters")
+        check_token(token)
         self.backend = backend
         self.control = control
         self.token = token or new_token()
@@ -298,7 +325,7 @@ class StationServer:
         try:
             self.httpd = ThreadingHTTPServer((host, port), handler)
         except OSError as e:
-            raise BadInput(f"cannot serve the station on {host}:{port}: {e.strerror or e}") from None
+            raise _cannot_serve(host, port, e) from None
         self.httpd.daemon_threads = True
         self._thread: threading.Thread | None = None
         self._static_cache: dict[str, bytes] = {}

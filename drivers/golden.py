@@ -28,7 +28,19 @@ def record_golden_session(path: str | Path) -> None:
         arm.gripper.grip(70.0)
 
 
+def remake_fixture(out: Path) -> None:
+    """Record the session beside `out` and put it in its place: a CAN log is never written over
+    (`python -m drivers.golden` ended in a traceback), and a failed recording leaves the old one."""
+    fresh = out.with_name(f"{out.stem}.new{out.suffix}")  # (a CAN log keeps its suffix: python-can reads by it)
+    fresh.unlink(missing_ok=True)
+    try:
+        record_golden_session(fresh)
+        fresh.replace(out)
+    finally:
+        fresh.unlink(missing_ok=True)
+
+
 if __name__ == "__main__":
     out = Path(__file__).resolve().parent / "fixtures" / FIXTURE
-    record_golden_session(out)
+    remake_fixture(out)
     print(out)

@@ -81,6 +81,16 @@ def test_golden_session_fixture_is_reproduced_frame_for_frame(tmp_path):
         assert same_frame(a, b) and a.timestamp == pytest.approx(b.timestamp), f"frame {i}: {a} != {b}"
 
 
+def test_the_golden_fixture_is_remade_in_place(tmp_path):
+    """`python -m drivers.golden` (docs/drivers.md) ended in a traceback: a CAN log is never written over."""
+    from drivers.golden import fixture_path, remake_fixture
+
+    out = tmp_path / "enable_move_grip.log"
+    out.write_text("an older session\n")
+    remake_fixture(out)
+    assert out.read_bytes() == fixture_path().read_bytes() and [p.name for p in tmp_path.iterdir()] == [out.name]
+
+
 @pytest.mark.parametrize("argv", [["status", "--json"], ["jog", "j3", "10"]])
 def test_hw_record_never_writes_over_a_file(tmp_path, capsys, argv):
     """`cell hw ... --record FILE` onto an existing file (another log, a recording's can.log, the command's own

@@ -206,6 +206,26 @@ def test_a_session_stopped_before_its_first_frame_replays(tmp_path, capsys):
     assert result["matched"] == result["decisions"] == 1 and "no readable frame" in result["session"]["stopped"]
 
 
+def test_a_session_interrupted_before_it_started_replays_as_nothing_to_re_run(tmp_path, monkeypatch, capsys):
+    """SIGTERM while the drives and the camera were set up: the recording is closed as 'not started', with no
+    decision and no frame. Replay read it as corrupt ("holds no frames", exit 2)."""
+    from cell.runtime import session
+    from cell.runtime.session import RunConfig, run_session
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt("SIGTERM")
+
+    monkeypatch.setattr(session, "_simulated_sources", interrupted)
+    rec = tmp_path / "not-started"
+    with pytest.raises(KeyboardInterrupt):
+        run_session(RunConfig(assembly=_two_parts(tmp_path), record=rec, seed=1))
+    assert RecordingReader(rec).manifest["summary"]["status"] == "not started"
+    code, out, err = run_cli("replay", rec, "--json", capsys=capsys)
+    assert code == 0 and "did not start (SIGTERM)" in err + out, err
+    result = json.loads(out.strip().splitlines()[-1])
+    assert result["decisions"] == result["matched"] == 0 and result["session"]["status"] == "not started"
+
+
 @pytest.mark.parametrize("existing", [False, True], ids=["new-folder", "empty-folder"])
 def test_a_recording_set_up_cut_short_leaves_no_half_made_folder(tmp_path, monkeypatch, existing):
     """SIGTERM between the folder's making and its manifest left frames/ alone: replay said "has no

@@ -337,6 +337,13 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
             say("the session stopped before its first frame")
             return {"decisions": len(recorded), "matched": len(recorded), "differences": [],
                     "session": recorded_end(rec)}
+        summary = rec.manifest.get("summary") or {}
+        if not recorded and rec.manifest.get("status") == "incomplete" and summary.get("status") == "not started":
+            # its set-up was cut short (SIGTERM during the start, no bus or camera): closed saying so, it holds
+            # no decision and no frame, and there is nothing to re-run ("holds no frames", exit 2, read as corrupt)
+            why = summary.get("error")
+            say(f"the session did not start{f' ({why})' if why else ''}: nothing to re-run")
+            return {"decisions": 0, "matched": 0, "differences": [], "session": recorded_end(rec)}
         raise BadInput(f"recording {directory} holds no frames")
     for i in rec.frame_indices:  # a frame the loop would skip as unreadable would shift all that follow
         frame = rec.read_frame(i)

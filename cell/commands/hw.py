@@ -353,6 +353,7 @@ def _gripper(args, cell) -> int:
                     f"gripper closed at {r.width_mm:.2f} mm: "
                     + ("holding" if r.holding else "BLOCKED (wider than expected)" if r.blocked else "MISSED"),
                 )
+                return 0 if r.holding else 1  # as `hw pick` ends a miss: a script tells the two apart
     return 0
 
 

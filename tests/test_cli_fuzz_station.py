@@ -55,3 +55,12 @@ def test_run_with_the_station_refuses_a_short_token_and_a_busy_port_before_the_r
         port = busy.getsockname()[1]
         code, out, err = run_cli("run", "--station", "--port", port, "--record", rec, capsys=capsys)
     assert code == 2 and f"cannot serve the station on 127.0.0.1:{port}" in err and not rec.exists(), err
+
+
+def test_the_approve_option_has_one_name_on_both_commands(capsys):
+    """`cell run --station` took --approve and `cell station` --approve-each (docs/station.md): the other name
+    was 'unrecognized arguments'. Each now takes both."""
+    code, out, err = run_cli("run", "--approve-each", capsys=capsys)
+    assert code == 2 and "--approve needs --station" in err, err
+    code, out, err = run_cli("station", "--approve", "--port", "0", "--for-s", "0", capsys=capsys)
+    assert code == 0 and "station closed" in out, err

@@ -31,7 +31,8 @@ def add_arguments(p):
                    "the simulated cell of a cell file with another camera or tray: a nominal camera of its own)")
     p.add_argument("--on-no-grasp", choices=("stop", "skip"), default="stop",
                    help="when a part has no feasible grasp: stop and ask (default) or skip it")
-    p.add_argument("--approve", action="store_true", help="ask the operator to approve each grasp (station)")
+    p.add_argument("--approve", "--approve-each", dest="approve", action="store_true",
+                   help="ask the operator to approve each grasp (station)")
     p.add_argument("--station", action="store_true", help="serve the operator station on 127.0.0.1")
     p.add_argument("--port", type=int, default=8765, help="station port (default 8765)")
     p.add_argument("--token", help="station token, at least 8 characters (default: a random one, printed)")

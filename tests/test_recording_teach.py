@@ -8,7 +8,7 @@ import numpy as np
 from conftest import run_cli
 from station_runs import T, default_parts, post, state, station_run, wait
 
-from cell.examples import load_examples
+from cell.examples import default_examples_path, load_examples
 from cell.recording import RecordingReader
 
 
@@ -19,6 +19,9 @@ def test_a_grasp_taught_mid_run_is_recorded_and_replays(tmp_path, capsys):
     s = wait(url, lambda s: s["control"]["state"] == "awaiting_approval", "the first proposal")
     proposal = s["control"]["proposal"]
     assert proposal["target"] == "washer"
+    # the page names the shipped examples and, until the first new one starts it, the file new ones go to
+    shown = s["cell"]["examples"]
+    assert shown["path"] == str(default_examples_path()) and shown["new_to"] == str(rec / "examples.jsonl")
     # teach the washer across another diameter than proposed, then reject the proposal: the loop
     # plans again, learning the taught grasp first (the nearest example: its own grasp is chosen)
     washer = next(p for p in s["cell"]["parts"] if p["id"] == "washer")
@@ -29,6 +32,8 @@ def test_a_grasp_taught_mid_run_is_recorded_and_replays(tmp_path, capsys):
     p2 = ring[int(np.argmin(np.linalg.norm(ring - (2 * c - p1), axis=1)))]
     taught = post(url, "/api/teach", {"part": "washer", "p1_px": p1.tolist(), "p2_px": p2.tolist()})["result"]
     seq = state(url)["control"]["seq"]
+    # (learned at the next plan: the count follows then)
+    assert state(url)["cell"]["examples"] == {"path": str(rec / "examples.jsonl"), "count": shown["count"]}
     post(url, "/api/reject", {"reason": "not there"})
     states = set()
     while t.is_alive():  # approve every proposal from here on (the station closes with the run)

@@ -35,7 +35,7 @@ class LoopBackend:
                           "holes_px": [to_px(h, p.z_top_mm).round(2).tolist() for h in p.holes_mm]})
         return {"frame": {"index": st.frame_index, "width_px": lp.cal.width_px, "height_px": lp.cal.height_px},
                 "parts": parts, "proposal_px": st.proposal,
-                "examples": {"path": str(lp.examples_path), "count": len(lp.examples)},
+                "examples": _examples_info(lp),
                 "remaining": list(lp.remaining),
                 **_parts_by_outcome(lp.part_reports(), ("removed", "skipped", "carried"))}
 
@@ -118,3 +118,13 @@ def _parts_by_outcome(reports, outcomes) -> dict:
     """outcome -> the ids of the parts with it: removed (a frame showed them gone), skipped, carried (let go at
     the drop-off, no frame since); the part being worked on is in none of them."""
     return {o: [r.part for r in reports if r.outcome == o] for o in outcomes}
+
+
+def _examples_info(lp) -> dict:
+    """The page's line on the examples: how many, the file they are in, and where a taught or rejected grasp goes
+    when that is another file (the first one starts it as a copy): the shipped file was named until then, though
+    the README says it is never written."""
+    info = {"path": str(lp.examples_path), "count": len(lp.examples)}
+    if lp.examples_out != lp.examples_path:
+        info["new_to"] = str(lp.examples_out)
+    return info

@@ -65,7 +65,7 @@ class StationBackend(Protocol):
          "parts": [{"id": str, "outline_px": [[u, v], ...], "holes_px": [[[u, v], ...]]}],
          "proposal_px": None | {"target": id, "contacts_px": [[u, v], [u, v]],
                                 "fingers_px": [[[u, v], ...], ...], "palm_px": [[u, v], ...]},
-         "examples": {"path": str, "count": int}, ...free keys shown as they are}
+         "examples": {"path": str, "count": int[, "new_to": str]}, ...free keys shown as they are}
     frame_png() -> bytes | None: the current frame as PNG.
     teach(part_id, p1_px, p2_px) -> dict: make a valid example from two contact points in px
         (map to mm, snap to the outline, current configuration), append it atomically; the

@@ -229,7 +229,8 @@ function render(data) {
   $("proposal-card").classList.toggle("awaiting", s === "awaiting_approval");
   $("proposal-text").textContent = p ? proposalText(p) : "none";
   const ex = cell.examples;
-  $("examples").textContent = ex ? ex.count + (ex.count === 1 ? " example in " : " examples in ") + ex.path : "";
+  $("examples").textContent = ex ? ex.count + (ex.count === 1 ? " example in " : " examples in ") + ex.path
+    + (ex.new_to ? "; new ones go to " + ex.new_to : "") : "";
 
   drawFrame(cell.frame || {});
   drawParts(cell.parts || [], p ? p.target : null);

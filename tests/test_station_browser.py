@@ -136,7 +136,7 @@ def test_operator_runs_approves_teaches_and_rejects_in_a_real_browser(browser, s
     assert len(ex) == 1 and ex[0].valid and ex[0].part.id == "board"
     assert ex[0].source["kind"] == "station-teach"
     assert abs(ex[0].contacts_mm - [c1, c2]).max() < 3.0  # two clicks in a scaled view, snapped to the edge
-    wait.until(lambda _: d.find_element(By.ID, "examples").text.startswith("1 examples"))
+    wait.until(lambda _: d.find_element(By.ID, "examples").text.startswith("1 example in"))
 
     # Run on: the board's proposal is the taught grasp; approve it with the keyboard
     d.find_element(By.ID, "btn-run").click()

@@ -267,9 +267,9 @@ def test_touched_points_recover_the_default_camera(tmp_path, capsys):
     assert code == 0 and json.loads(stdout)["residual_mm"] < 0.1
 
 
-def test_a_focal_length_a_digit_short_is_warned_about(tmp_path, capsys):
-    """fx 160 px for a 1280 px image (the default camera's is about 1000): a 152 degree view. The plane fit can
-    follow it with a camera 10 x too close, and nothing else would say so."""
+def _points_15mm_up(tmp_path):
+    """A blank frame, 12 points 15 mm over the tray as the default camera sees them, their xy (mm) and its focal
+    length (px)."""
     import cv2
 
     truth = load_calibration()
@@ -279,7 +279,13 @@ def test_a_focal_length_a_digit_short_is_warned_about(tmp_path, capsys):
     pts.write_text(json.dumps({"points": [{"px": list(a), "mm": [b[0], b[1], 15.0]} for a, b in zip(uv, xy)]}))
     frame = tmp_path / "frame.png"
     cv2.imwrite(str(frame), np.zeros((1024, 1280, 3), np.uint8))
-    fx = float(truth.camera_matrix[0, 0])
+    return frame, pts, xy, float(truth.camera_matrix[0, 0])
+
+
+def test_a_focal_length_a_digit_short_is_warned_about(tmp_path, capsys):
+    """fx 160 px for a 1280 px image (the default camera's is about 1000): a 152 degree view. The plane fit can
+    follow it with a camera 10 x too close, and nothing else would say so."""
+    frame, pts, xy, fx = _points_15mm_up(tmp_path)
     for matrix, warned in ((f"{fx / 10:g},{fx / 10:g},640,512", True), (f"{fx:g},{fx:g},640,512", False)):
         code, out, err = run_cli("calibrate", "plane", frame, "--points", pts, "--camera-matrix", matrix,
                                  "--out", tmp_path / f"c{warned}.json", "--accept-poor-fit", capsys=capsys)
@@ -292,16 +298,7 @@ def test_a_focal_length_a_digit_too_long_is_warned_about_by_the_camera_distance(
     """fx 16000 px for a 1280 px image: the fit follows it with the camera 10 x too far, 8 m over the tray, and
     only a focal length too short (a view over 120 degrees) was warned about. A camera more than 3 m from the
     points is named; the default camera, 0.8 m over them, is not."""
-    import cv2
-
-    truth = load_calibration()
-    xy = np.random.default_rng(3).uniform([210, -240], [490, 240], size=(12, 2))
-    uv = truth.mm_to_px(xy, 15.0)
-    pts = tmp_path / "points.json"
-    pts.write_text(json.dumps({"points": [{"px": list(a), "mm": [b[0], b[1], 15.0]} for a, b in zip(uv, xy)]}))
-    frame = tmp_path / "frame.png"
-    cv2.imwrite(str(frame), np.zeros((1024, 1280, 3), np.uint8))
-    fx = float(truth.camera_matrix[0, 0])
+    frame, pts, xy, fx = _points_15mm_up(tmp_path)
     for scale, warned in ((10, True), (1, False)):
         matrix = f"{fx * scale:g},{fx * scale:g},640,512"
         code, out, err = run_cli("calibrate", "plane", frame, "--points", pts, "--camera-matrix", matrix,

@@ -53,16 +53,16 @@ class SynthesisParams:
     # axis, and the pads there met a slanted arm 4.9 mm in front of them). Off, as recordings made
     # before it existed have it (cell.runtime.replay).
     pads_at_grasp_centre: bool = True
-    # Contacts on a face square to the closing axis all along the pad are reported on the closing line through
-    # the grasp centre (cell.grasp.closing_line): sampled a step apart, a pair on parallel faces lay up to half
-    # a step either side of it, and the contacts' line up to 3 degrees off the reported axis. Off, as recordings
-    # made before it existed have it (cell.runtime.replay).
-    contacts_on_closing_line: bool = True
     # ... and stop within their compliance of each contact, as the contacts are reported (README). Off, the
     # pads there may stop up to |off| tan(max_normal_angle) further out on a face slanted to them (a star's
     # contact then lay 0.76 mm behind where the pads stop and 2 mm across from what they touch), as
     # recordings made before it existed have it (cell.runtime.replay).
     touch_within_compliance: bool = True
+    # Contacts on a face square to the closing axis all along the pad are reported on the closing line through
+    # the grasp centre (cell.grasp.closing_line): sampled a step apart, a pair on parallel faces lay up to half
+    # a step either side of it, and the contacts' line up to 3 degrees off the reported axis. Off, as recordings
+    # made before it existed have it (cell.runtime.replay).
+    contacts_on_closing_line: bool = True
     # The relative distance to the centre of gravity (and the relative centre offset) in radii of the disc
     # the outer outline encloses, holes included: a ring's rim lies at 1, as a disc's. Off, the disc of
     # the part's material (holes taken out: a 60 / 40 mm ring's rim at 1.34, where tree 1 rejects

@@ -86,7 +86,7 @@ MIN_TOKEN_CHARS = 8
 
 
 def check_token(token: str | None) -> None:
-    """Refuse a station token too short to guess at (None: a random one is made)."""
+    """Refuse a station token short enough to guess (None: a random one is made)."""
     if token is not None and len(token) < MIN_TOKEN_CHARS:
         raise BadInput(f"the station token must be at least {MIN_TOKEN_CHARS} characters")
 

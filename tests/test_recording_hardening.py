@@ -278,16 +278,16 @@ def test_sigterm_ends_cell_run_like_ctrl_c_and_the_recording_replays_to_there(tm
     # the summary is still the last stdout line: what was removed before the stop, and why it stopped
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["status"] == "stopped" and summary["parts_removed"] >= 1
-    assert summary["stopped"] == "operator: interrupted at the terminal"
+    assert summary["stopped"] == "operator: interrupted by SIGTERM"  # (it said "at the terminal")
     stopped = [p for p in summary["parts"] if p["outcome"] == "stopped"]  # the part worked on says why too
-    assert all(p["reason"] == "operator: interrupted at the terminal" for p in stopped), stopped
+    assert all(p["reason"] == "operator: interrupted by SIGTERM" for p in stopped), stopped
     r = RecordingReader(rec)
     assert r.manifest["status"] == "incomplete" and r.decisions[-1]["type"] == "stop"
     code, out, err = run_cli("replay", rec, capsys=capsys)
     assert code == 0, err
     # matched to the stop, and said to have ended there (it used to read like a whole session)
     assert "the recorded session was stopped (incomplete) after " in out, out
-    assert out.rstrip().endswith("operator: interrupted at the terminal"), out
+    assert out.rstrip().endswith("operator: interrupted by SIGTERM"), out
 
 
 def test_examples_generate_overwrite_waits_for_an_append_in_progress(tmp_path, capsys):

@@ -306,10 +306,9 @@ def run_session(cfg: RunConfig) -> dict:
                 if recorder is not None and (recorder.last_decision or {}).get("type") not in ("stop", "summary"):
                     # where the operator stopped it: replay ends there too instead of diverging (after the
                     # summary the session was over: replay ends there by itself)
-                    recorder.write_decision({"type": "stop", "source": "operator",
-                                             "reason": "interrupted at the terminal"})
-            loop.stopped_on("operator: interrupted at the terminal")  # the part worked on says so too
-            summary = {**loop.summary(), "stopped": "operator: interrupted at the terminal"}  # (the arm stopped first)
+                    recorder.write_decision({"type": "stop", "source": "operator", "reason": interrupt_reason(e)})
+            loop.stopped_on(f"operator: {interrupt_reason(e)}")  # the part worked on says so too
+            summary = {**loop.summary(), "stopped": f"operator: {interrupt_reason(e)}"}  # (the arm stopped first)
             raise
         except (StopRun, Stopped) as e:
             interrupts.hold()
@@ -539,6 +538,12 @@ def home_joints(cell):
     return Joints.from_dict(cell.motion.home_joints)
 
 
+def interrupt_reason(e: KeyboardInterrupt) -> str:
+    """Why the run stopped: Ctrl-C at the terminal, or SIGTERM (`cell run` raises it as KeyboardInterrupt("SIGTERM"):
+    a service manager or `kill`, which was reported as the terminal's)."""
+    return "interrupted by SIGTERM" if e.args == ("SIGTERM",) else "interrupted at the terminal"
+
+
 PROGRESS_EVENTS = ("start", "carried", "removed", "skip", "miss", "fault", "ask", "example", "vision", "frame")
 
 
@@ -568,8 +573,8 @@ def _with_station(loop: CellLoop, control: RunControl, cfg: RunConfig, say, inte
         try:
             while t.is_alive():
                 t.join(0.2)
-        except KeyboardInterrupt:
-            control.stop("interrupted at the terminal")
+        except KeyboardInterrupt as e:
+            control.stop(interrupt_reason(e))
             loop.arm.stop()  # a pick in progress ends now, not when it is done
             t.join()
             raise

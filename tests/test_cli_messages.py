@@ -94,3 +94,15 @@ def test_render_warns_of_a_part_out_of_the_cameras_view(tmp_path, capsys, x, whe
     assert code == 0 and (tmp_path / "o.png").is_file()  # still rendered: a frame of the tray has its uses
     assert err.startswith(f"cell: warning: {path}: part 'far' ") and f"lies {where} the camera's view" in err, err
     assert err.count("\n") == 1  # not the part in view
+
+
+def test_a_station_on_every_interface_prints_an_address_that_opens():
+    """`cell station --allow-remote --host 0.0.0.0` printed http://0.0.0.0:8765/, which opens nothing. (Not
+    served here: the tests bind 127.0.0.1 only; the address is worked out from the bound host.)"""
+    from types import SimpleNamespace
+
+    from cell.station.server import StationServer
+
+    for bound, shown in (("0.0.0.0", "http://127.0.0.1:8765/"), ("::", "http://[::1]:8765/"),
+                         ("127.0.0.1", "http://127.0.0.1:8765/"), ("192.168.1.5", "http://192.168.1.5:8765/")):
+        assert StationServer.base_url.fget(SimpleNamespace(host=bound, port=8765)) == shown

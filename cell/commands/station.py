@@ -57,6 +57,9 @@ def run(args) -> int:
         cell.start()
         print(f"operator station (demo cell) at {server.base_url}", flush=True)
         print(f"open: {server.url}", flush=True)
+        if server.on_every_interface:
+            print(f"served on every interface: from another machine, this machine's address, port {server.port}, "
+                  "with the token", flush=True)
         print(f"token: {server.token}", flush=True)
         print(f"examples: {args.examples}", flush=True)
         try:

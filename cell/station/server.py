@@ -49,6 +49,7 @@ TOKEN_HEADER = "X-Cell-Token"
 SESSION_HEADER = "X-Cell-Session"  # the session whose state the page showed (optional)
 MAX_BODY_BYTES = 64 * 1024
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
+WILDCARD_HOSTS = {"0.0.0.0": "127.0.0.1", "::": "::1"}  # bound to every interface -> its loopback address
 STATIC = {"/": ("index.html", "text/html; charset=utf-8"),
           "/index.html": ("index.html", "text/html; charset=utf-8"),
           "/station.js": ("station.js", "text/javascript; charset=utf-8"),
@@ -340,8 +341,15 @@ class StationServer:
 
     @property
     def base_url(self) -> str:
-        host = self.host if ":" not in self.host else f"[{self.host}]"
+        """The page's address on this machine (bound to every interface, 0.0.0.0 or ::, the loopback one: an
+        address of 0.0.0.0 opens nothing; from another machine, this machine's own address)."""
+        host = WILDCARD_HOSTS.get(self.host, self.host)
+        host = host if ":" not in host else f"[{host}]"
         return f"http://{host}:{self.port}/"
+
+    @property
+    def on_every_interface(self) -> bool:
+        return self.host in WILDCARD_HOSTS
 
     @property
     def url(self) -> str:

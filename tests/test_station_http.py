@@ -287,6 +287,37 @@ def test_cli_ends_cleanly_on_sigterm(tmp_path):
     assert "closed" in out
 
 
+def test_a_stop_during_the_demo_pick_leaves_the_part_on_the_tray(tmp_path):
+    """The demo's pick slept its whole motion and then took the part off: the log said "cover removed" a
+    second after "stopped by the operator", and the tray lost the part."""
+    import time
+
+    control = RunControl(require_approval=True)
+    cell = DemoCell(control, tmp_path / "examples.jsonl", motion_s=30.0)
+    cell.start()
+    try:
+        control.run()
+        wait_proposal(control, "cover")
+        control.approve()
+        deadline = time.monotonic() + 10
+        while control.snapshot()["checkpoint"] != "move":
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        t0 = time.monotonic()
+        control.stop("hand in the cell")
+        control.wait_for_state("stopped", timeout_s=5)
+        deadline = time.monotonic() + 5
+        while "sequence abandoned" not in str(control.snapshot()["events"]):
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        assert time.monotonic() - t0 < 2.0  # not the 30 s motion
+        shown = cell.snapshot()
+        assert "cover" in {p["id"] for p in shown["parts"]} and shown["removed"] == []
+        assert not any(e["event"] == "removed" for e in control.snapshot()["events"])
+    finally:
+        cell.close()
+
+
 def test_the_demo_parts_keep_their_colour_when_another_leaves_the_tray(tmp_path):
     """Coloured by their place in the list, the cap turned from purple to blue and the bracket from
     blue to green when the cover was taken off."""

@@ -32,6 +32,7 @@ from cell.scene import Part
 FRAME_W_PX, FRAME_H_PX = 640, 512
 PX_PER_MM = 1.0
 CENTER_MM = (350.0, 0.0)  # the tray point at the image centre
+MOVE_POLL_S = 0.05  # a stop during a pick's motion is seen this soon
 PART_COLORS_BGR = [(60, 140, 230), (80, 190, 90), (200, 120, 60), (170, 80, 190), (60, 200, 200)]
 
 
@@ -205,6 +206,16 @@ class DemoCell:
                 self._rejected = {}
             self._render()
 
+    def _move(self, part: Part, step: int) -> None:
+        """The pick's motion (motion_s). A stop meanwhile ends it there, the part left on the tray (it was logged
+        as removed a second after the stop)."""
+        rc = self.control
+        deadline = time.monotonic() + self.motion_s
+        while (left := deadline - time.monotonic()) > 0:
+            if rc.stop_requested:
+                rc.checkpoint("move", step=step, part=part.id)  # (raises Stopped)
+            time.sleep(min(MOVE_POLL_S, left))
+
     def _sequence(self) -> None:
         rc = self.control
         step = 0
@@ -234,8 +245,7 @@ class DemoCell:
                     self._proposal_px = None
                 continue
             rc.checkpoint("move", step=step, part=part.id)
-            if self.motion_s > 0:
-                time.sleep(self.motion_s)
+            self._move(part, step)
             j = proposal.get("joints")
             if j:
                 self.joints = Joints.from_dict(j)

@@ -66,8 +66,9 @@ def add_arguments(p) -> None:
 
         pick_arguments(p)
     elif words[1] == "corner":
-        p.add_argument("--corner", choices=CORNERS, default="far-right")
-        p.add_argument("--dwell", type=float, default=0.5, help="seconds to stay at the corner")
+        p.add_argument("--corner", choices=CORNERS, default="far-right",
+                       help="the tray corner to go to (default far-right)")
+        p.add_argument("--dwell", type=float, default=0.5, help="seconds to stay at the corner (default 0.5)")
 
 
 def run(args) -> int:

@@ -23,7 +23,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(default ./station_examples.jsonl)")
     p.add_argument("--approve-each", "--approve", dest="approve_each", action="store_true",
                    help="start with 'approve each grasp' on")
-    p.add_argument("--motion-s", type=float, default=1.0, help="simulated duration of one pick (s)")
+    p.add_argument("--motion-s", type=float, default=1.0, help="simulated duration of one pick, 0..600 s (default 1)")
     p.add_argument("--for-s", type=float, default=None, help="serve this long, then exit (default: until ^C)")
 
 

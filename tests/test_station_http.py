@@ -1,5 +1,6 @@
 """The station over real HTTP (urllib against 127.0.0.1, port 0): tokens, state changes, teach."""
 
+import contextlib
 import json
 import time
 import urllib.error
@@ -287,17 +288,26 @@ def test_cli_ends_cleanly_on_sigterm(tmp_path):
     assert "closed" in out
 
 
+@contextlib.contextmanager
+def demo_at_the_cover(tmp_path, motion_s: float = 0.0):
+    """The demo cell running with approval on, its first proposal (the cover) waiting."""
+    control = RunControl(require_approval=True)
+    cell = DemoCell(control, tmp_path / "examples.jsonl", motion_s=motion_s)
+    cell.start()
+    try:
+        control.run()
+        wait_proposal(control, "cover")
+        yield control, cell
+    finally:
+        cell.close()
+
+
 def test_a_stop_during_the_demo_pick_leaves_the_part_on_the_tray(tmp_path):
     """The demo's pick slept its whole motion and then took the part off: the log said "cover removed" a
     second after "stopped by the operator", and the tray lost the part."""
     import time
 
-    control = RunControl(require_approval=True)
-    cell = DemoCell(control, tmp_path / "examples.jsonl", motion_s=30.0)
-    cell.start()
-    try:
-        control.run()
-        wait_proposal(control, "cover")
+    with demo_at_the_cover(tmp_path, motion_s=30.0) as (control, cell):
         control.approve()
         deadline = time.monotonic() + 10
         while control.snapshot()["checkpoint"] != "move":
@@ -314,8 +324,6 @@ def test_a_stop_during_the_demo_pick_leaves_the_part_on_the_tray(tmp_path):
         shown = cell.snapshot()
         assert "cover" in {p["id"] for p in shown["parts"]} and shown["removed"] == []
         assert not any(e["event"] == "removed" for e in control.snapshot()["events"])
-    finally:
-        cell.close()
 
 
 def test_the_demo_parts_keep_their_colour_when_another_leaves_the_tray(tmp_path):
@@ -326,13 +334,7 @@ def test_the_demo_parts_keep_their_colour_when_another_leaves_the_tray(tmp_path)
 
     from cell.station.demo import demo_parts
 
-    control = RunControl(require_approval=True)
-    cell = DemoCell(control, tmp_path / "examples.jsonl", motion_s=0.0)
-    cell.start()
-    try:
-        control.run()
-        wait_proposal(control, "cover")
-
+    with demo_at_the_cover(tmp_path) as (control, cell):
         def colours():
             img = cv2.imdecode(np.frombuffer(cell.frame_png(), np.uint8), cv2.IMREAD_COLOR)
             return {p.id: img[tuple(np.round(mm_to_px(p.polygon.representative_point().coords[0]))[::-1]
@@ -345,8 +347,6 @@ def test_the_demo_parts_keep_their_colour_when_another_leaves_the_tray(tmp_path)
         assert after["cover"] != before["cover"]  # the tray shows where it was
         for pid in ("board", "bracket", "cap"):
             assert after[pid] == before[pid], pid
-    finally:
-        cell.close()
 
 
 def test_approve_and_reject_decide_only_the_grasp_the_page_showed(station):

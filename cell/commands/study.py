@@ -20,7 +20,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--label-noise", type=float, default=0.0,
                         help="share of labels flipped at random, to imitate a less consistent person "
                              "(default 0: the simulated operator's own judgement)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the examples, their label noise and the cross-validation (default 0)")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="seed of the examples, their label noise and the cross-validation (default 0)")
     parser.add_argument("--cell", default=None, help="cell file (default: the shipped default cell)")
 
 

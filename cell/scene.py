@@ -174,7 +174,9 @@ def parse_scene(raw, source: str = "<scene>", base_dir: Path | None = None) -> S
     parts, cell_path = _parse_common(raw, source, base_dir)
     target = raw.get("target")
     if target is None:
-        raise BadInput(f"{source}: the scene has no 'target' (the id of the part to grasp)")
+        also = ("; this looks like an assembly file (it has a 'sequence'): `cell plan` takes assembly files"
+                if "sequence" in raw else "")
+        raise BadInput(f"{source}: the scene has no 'target' (the id of the part to grasp){also}")
     if not isinstance(target, str):
         raise BadInput(f"{source}: 'target' must be a part id string, got {short_repr(target)}")
     scene = Scene(parts, target, cell_path, source)

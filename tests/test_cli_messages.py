@@ -39,6 +39,11 @@ def test_a_collinear_outline_is_said_to_have_no_area(tmp_path, capsys, outline):
     assert "part 'a' outline: its points all lie on one line" in err and "Self-intersection" not in err
 
 
+def test_an_assembly_file_given_to_grasp_is_named_as_one(capsys):
+    err = _refused(capsys, "grasp", ROOT / "cell" / "data" / "assemblies" / "default.json")
+    assert "no 'target'" in err and "looks like an assembly file" in err and "`cell plan`" in err
+
+
 def test_a_flat_holes_list_shows_the_nested_form(tmp_path, capsys):
     err = _refused(capsys, "grasp", _scene(tmp_path, {"holes": [[310, 10], [320, 10], [320, 20]]}))
     assert "'holes' must be a list of rings" in err and "[[[x, y], [x, y], [x, y], ...], ...]" in err

@@ -125,4 +125,4 @@ def summary(obj, path) -> str:
             f"J4 {j['j4_deg']:.2f} deg ({len(obj['joint_options'])} options)\n"
             f"  z={c['candidates']} candidates -> z'={c['valid_points']} valid points -> s={c['pairs']} pairs -> "
             f"s'={c['reachable']} reachable -> s''={c['valid_sets']} valid sets; nearest example "
-            f"{obj['nearest_example']} at {obj['distance_to_example']:.2f}; {obj['time_ms']:.1f} ms")
+            f"{obj['nearest_example']} at {obj['distance_to_example']:.3f}; {obj['time_ms']:.1f} ms")

@@ -164,28 +164,37 @@ def markers_correspondences(detected: dict[int, np.ndarray], known: dict[int, np
     return uv, xyz, used, missing
 
 
-def holdout_residuals(detected: dict[int, np.ndarray], known: dict[int, np.ndarray], used: list[int],
-                      size: tuple[int, int], camera_matrix=None, dist=None,
-                      plane: TiltedPlane | None = None) -> dict[str, float]:
-    """Each marker's RMS error (mm) under the mapping fitted to the other markers: what a point the fit
-    did not see is off by. The fit's own residual is 2-6 x smaller on the Festo frames (0.4-0.6 mm
-    against 1-3.4 mm held out). Needs 4 markers (3 left to fit); a marker whose others cannot be
-    fitted is left out. `plane`: the tilted plane all the markers fit; a pose fitted to the others maps
-    the marker onto it (the others alone may span under PLANE_TOLERANCE_MM of z: a horizontal fit at
-    their mean height, which the marker is not at). A homography fitted so maps the plane's points to
-    their base (x, y) all the same."""
-    out = {}
+def leave_one_out_fits(detected: dict[int, np.ndarray], known: dict[int, np.ndarray], used: list[int],
+                       size: tuple[int, int], camera_matrix=None, dist=None,
+                       plane: TiltedPlane | None = None) -> dict[int, Calibration]:
+    """Marker -> the mapping fitted to the other markers (`holdout_residuals` and `marker_not_fitting` read the
+    same fits). Needs 4 markers (3 left to fit); a marker whose others cannot be fitted has none. `plane`: the
+    tilted plane all the markers fit; a pose fitted to the others maps onto it (the others alone may span under
+    PLANE_TOLERANCE_MM of z: a horizontal fit at their mean height, which the left-out marker is not at). A
+    homography fitted so maps the plane's points to their base (x, y) all the same."""
+    fits = {}
     if len(used) < 4:
-        return out
+        return fits
     for i in used:
-        rest = {j: known[j] for j in used if j != i}
-        uv, xyz, _, _ = markers_correspondences(detected, rest)
+        uv, xyz, _, _ = markers_correspondences(detected, {j: known[j] for j in used if j != i})
         try:
             cal = fit_plane_mapping(uv, xyz, size, camera_matrix, dist)
         except BadInput:
             continue
-        if plane is not None and cal.has_pose:
-            cal = replace(cal, plane=plane, plane_z_mm=None)
+        fits[i] = replace(cal, plane=plane, plane_z_mm=None) if plane is not None and cal.has_pose else cal
+    return fits
+
+
+def holdout_residuals(detected: dict[int, np.ndarray], known: dict[int, np.ndarray], used: list[int],
+                      size: tuple[int, int], camera_matrix=None, dist=None,
+                      plane: TiltedPlane | None = None, fits: dict[int, Calibration] | None = None) -> dict[str, float]:
+    """Each marker's RMS error (mm) under the mapping fitted to the other markers (`leave_one_out_fits`, or
+    `fits` made so): what a point the fit did not see is off by. The fit's own residual is 2-6 x smaller on the
+    Festo frames (0.4-0.6 mm against 1-3.4 mm held out)."""
+    if fits is None:
+        fits = leave_one_out_fits(detected, known, used, size, camera_matrix, dist, plane)
+    out = {}
+    for i, cal in fits.items():
         got, want = mapped_and_known(cal, detected[i], known[i])
         err = np.linalg.norm(got - want, axis=1)
         out[str(i)] = round(float(np.sqrt(np.mean(err ** 2))), 3)
@@ -200,22 +209,18 @@ ODD_MARKER_GAIN = 3.0  # leaving one marker out must fit this many times better 
 
 def marker_not_fitting(detected: dict[int, np.ndarray], known: dict[int, np.ndarray], used: list[int],
                        size: tuple[int, int], full_rms_px: float, camera_matrix=None, dist=None,
-                       plane: TiltedPlane | None = None) -> dict | None:
+                       plane: TiltedPlane | None = None, fits: dict[int, Calibration] | None = None) -> dict | None:
     """The one marker whose coordinates are wrong, when the fit is bad (over WARN_REPROJECTION_PX) and the
-    others fit well without it, clearly better than without any other: {"id", "others_reprojection_rms_px",
-    "others_residual_mm", "off_mm" (RMS of its corners from where the others' fit puts them), "listed_off_mm"
-    (their mean offset, listed minus seen: a marker listed shifted)}; else None. One wrong marker spreads its
-    error over the whole fit: the per-marker residuals (5 markers, one listed 14 mm off) read 1.0-6.4 mm and
-    did not single it out. Needs 4 markers; two wrong ones name none (leaving out one leaves the fit bad)."""
+    others fit well without it (`leave_one_out_fits`, or `fits` made so), clearly better than without any other:
+    {"id", "others_reprojection_rms_px", "others_residual_mm", "off_mm" (RMS of its corners from where the others'
+    fit puts them), "listed_off_mm" (their mean offset, listed minus seen: a marker listed shifted)}; else None.
+    One wrong marker spreads its error over the whole fit: the per-marker residuals (5 markers, one listed 14 mm
+    off) read 1.0-6.4 mm and did not single it out. Needs 4 markers; two wrong ones name none (leaving out one
+    leaves the fit bad)."""
     if full_rms_px <= WARN_REPROJECTION_PX or len(used) < 4:
         return None
-    fits = {}  # marker left out -> the fit of the others
-    for i in used:
-        uv, xyz, _, _ = markers_correspondences(detected, {j: known[j] for j in used if j != i})
-        try:
-            fits[i] = fit_plane_mapping(uv, xyz, size, camera_matrix, dist)
-        except BadInput:
-            continue
+    if fits is None:
+        fits = leave_one_out_fits(detected, known, used, size, camera_matrix, dist, plane)
     ranked = sorted(fits, key=lambda i: fits[i].report["reprojection_rms_px"])
     if not ranked:
         return None
@@ -224,8 +229,6 @@ def marker_not_fitting(detected: dict[int, np.ndarray], known: dict[int, np.ndar
     runner_up = fits[ranked[1]].report["reprojection_rms_px"] if len(ranked) > 1 else np.inf
     if not (rms <= WARN_REPROJECTION_PX and rms * ODD_MARKER_GAIN <= min(full_rms_px, runner_up)):
         return None
-    if plane is not None and cal.has_pose:  # as in holdout_residuals: onto the plane all the markers fit
-        cal = replace(cal, plane=plane, plane_z_mm=None)
     got, want = mapped_and_known(cal, detected[best], known[best])
     off = want - got
     return {"id": best, "others_reprojection_rms_px": round(float(rms), 3),

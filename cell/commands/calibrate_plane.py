@@ -43,6 +43,7 @@ def run(args) -> int:
         detect_markers,
         fit_plane_mapping,
         holdout_residuals,
+        leave_one_out_fits,
         marker_not_fitting,
         marker_residuals,
         markers_correspondences,
@@ -104,11 +105,11 @@ def run(args) -> int:
         per_marker, warnings = marker_residuals(cal, detected, known, used)
         if duplicated:
             warnings.insert(0, f"markers seen more than once in the image, left out: {duplicated}")
-        held_out = holdout_residuals(detected, known, used, (w, h), k, dist, cal.plane)
+        fits = leave_one_out_fits(detected, known, used, (w, h), k, dist, cal.plane)  # (read by both below)
+        held_out = holdout_residuals(detected, known, used, (w, h), fits=fits)
         # named, not left out: the file is the calibration asked for (the markers as listed), and the
         # refusal over REFUSE_REPROJECTION_PX still holds; the user removes the marker, or corrects it
-        odd = marker_not_fitting(detected, known, used, (w, h), cal.report["reprojection_rms_px"], k, dist,
-                                 cal.plane)
+        odd = marker_not_fitting(detected, known, used, (w, h), cal.report["reprojection_rms_px"], fits=fits)
         # after "the markers fit badly", which it explains; a marker already named for its corner order has
         # the better hint
         if odd is not None and not any(say.startswith(f"marker {odd['id']}:") for say in warnings):

@@ -185,22 +185,19 @@ class RecordingWriter:
                  "frames": FRAMES_DIR, "can_log": CAN_LOG, "rrd": RRD}
         made = [d for d in (self.dir, *self.dir.parents) if not d.exists()]  # taken away again on failure
         try:
-            try:
-                self.dir.mkdir(parents=True, exist_ok=True)
-                (self.dir / FRAMES_DIR).mkdir(exist_ok=True)
-                shutil.copyfile(cell_src, self.dir / "cell.json")
-                if cal is not None:
-                    shutil.copyfile(cal, self.dir / "calibration.json")
-                elif nominal_json is not None:
-                    write_json_atomic(self.dir / "calibration.json", nominal_json)
-                examples = {"path": str(ex.resolve()), "sha256": file_sha256(ex)} if ex is not None else None
-                if ex is not None and examples_copy is not None:
-                    write_atomic(self.dir / examples_copy, ex.read_bytes())
-                held_sha256 = {"cell": file_sha256(self.dir / "cell.json")}  # of the copies: what replay reads
-                if has_cal:
-                    held_sha256["calibration"] = file_sha256(self.dir / "calibration.json")
-            except OSError as e:
-                raise BadInput(f"cannot write the recording into {self.dir}: {e.strerror or e}") from None
+            self.dir.mkdir(parents=True, exist_ok=True)
+            (self.dir / FRAMES_DIR).mkdir(exist_ok=True)
+            shutil.copyfile(cell_src, self.dir / "cell.json")
+            if cal is not None:
+                shutil.copyfile(cal, self.dir / "calibration.json")
+            elif nominal_json is not None:
+                write_json_atomic(self.dir / "calibration.json", nominal_json)
+            examples = {"path": str(ex.resolve()), "sha256": file_sha256(ex)} if ex is not None else None
+            if ex is not None and examples_copy is not None:
+                write_atomic(self.dir / examples_copy, ex.read_bytes())
+            held_sha256 = {"cell": file_sha256(self.dir / "cell.json")}  # of the copies: what replay reads
+            if has_cal:
+                held_sha256["calibration"] = file_sha256(self.dir / "calibration.json")
 
             self._lock = threading.Lock()
             self._frame_indices: set[int] = set()
@@ -219,13 +216,12 @@ class RecordingWriter:
                 "examples": examples, "files": files, "sha256": held_sha256, "counts": {"frames": 0, "decisions": 0},
                 "meta": to_jsonable(meta or {}),
             }
-            try:
-                write_json_atomic(self.dir / MANIFEST, self.manifest)
-                self._decisions = open(self.dir / DECISIONS, "x", encoding="utf-8")  # noqa: SIM115 - held open
-            except OSError as e:
-                raise BadInput(f"cannot write the recording into {self.dir}: {e.strerror or e}") from None
-        except BaseException:  # a full disk, Ctrl-C, SIGTERM: no half-made folder that blocks the name
+            write_json_atomic(self.dir / MANIFEST, self.manifest)
+            self._decisions = open(self.dir / DECISIONS, "x", encoding="utf-8")  # noqa: SIM115 - held open
+        except BaseException as e:  # a full disk, Ctrl-C, SIGTERM: no half-made folder that blocks the name
             self._take_away(made, examples_copy)
+            if isinstance(e, OSError):
+                raise BadInput(f"cannot write the recording into {self.dir}: {e.strerror or e}") from None
             raise
 
     def _take_away(self, made: list[Path], examples_copy: str | None) -> None:

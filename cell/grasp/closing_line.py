@@ -31,12 +31,13 @@ def onto_closing_line(boundary, contacts_mm: np.ndarray, centre_mm: np.ndarray, 
     a = math.radians(axis_deg)
     v = np.array([-math.sin(a), math.cos(a)])
     off = (c - centre_mm) @ v  # (opposite, as the centre is their midpoint)
-    if not np.abs(off).max() > ON_OUTLINE_MM:  # (on the line already, or NaN: not slid)
+    slide = float(np.abs(off).max())
+    if not slide > ON_OUTLINE_MM:  # (on the line already, or NaN: not slid)
         return c
     moved = c - off[:, None] * v
-    t = np.linspace(0.0, 1.0, int(np.ceil(np.abs(off).max() / PROBE_STEP_MM)) + 1)[1:]
+    t = np.linspace(0.0, 1.0, int(np.ceil(slide / PROBE_STEP_MM)) + 1)[1:]
     probes = np.concatenate([ck + np.outer(t, m - ck) for ck, m in zip(c, moved, strict=True)])
-    tol = ON_OUTLINE_MM + np.abs(off).max() * math.tan(math.radians(SQUARE_TOL_DEG))
+    tol = ON_OUTLINE_MM + slide * math.tan(math.radians(SQUARE_TOL_DEG))
     if shapely.distance(boundary, shapely.points(probes)).max() > tol:
         return c
     return moved

@@ -295,6 +295,7 @@ def run_session(cfg: RunConfig) -> dict:
             status = "complete"
         except KeyboardInterrupt as e:
             interrupted = e  # carries the summary out (`cell run --json` prints it as its last line)
+            why = interrupt_reason(e)
             # from here on a Ctrl-C is held (the second one used to end this before the status was set: a
             # recording closed as "complete" without its stop); a KeyboardInterrupt raised in the stop itself
             # still gets the stop recorded
@@ -306,9 +307,9 @@ def run_session(cfg: RunConfig) -> dict:
                 if recorder is not None and (recorder.last_decision or {}).get("type") not in ("stop", "summary"):
                     # where the operator stopped it: replay ends there too instead of diverging (after the
                     # summary the session was over: replay ends there by itself)
-                    recorder.write_decision({"type": "stop", "source": "operator", "reason": interrupt_reason(e)})
-            loop.stopped_on(f"operator: {interrupt_reason(e)}")  # the part worked on says so too
-            summary = {**loop.summary(), "stopped": f"operator: {interrupt_reason(e)}"}  # (the arm stopped first)
+                    recorder.write_decision({"type": "stop", "source": "operator", "reason": why})
+            loop.stopped_on(f"operator: {why}")  # the part worked on says so too
+            summary = {**loop.summary(), "stopped": f"operator: {why}"}  # (the arm stopped first)
             raise
         except (StopRun, Stopped) as e:
             interrupts.hold()

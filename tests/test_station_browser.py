@@ -162,6 +162,8 @@ def test_operator_runs_approves_teaches_and_rejects_in_a_real_browser(browser, s
     wait.until(lambda _: badge() == "done")
     assert cell.snapshot()["removed"] == ["cover", "board", "bracket", "cap"]
     wait.until(lambda _: len(d.find_elements(By.CSS_SELECTOR, "#parts polygon")) == 0)
+    # the header says what the run removed, not the last part's move
+    assert d.find_element(By.ID, "current").text == "removed 4 parts"
     shot = os.environ.get("STATION_SCREENSHOT")
     if shot:
         d.save_screenshot(str(Path(shot)))

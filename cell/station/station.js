@@ -192,9 +192,13 @@ function render(data) {
   document.title = c.state.replace("_", " ") + " · Cell station";  // a tab in the background shows it too
   const after = c.state === "awaiting_approval" ? afterDecision(c.events || []) : "";
   $("message").textContent = c.message + (after ? " — then " + after : "") + (c.ended ? " — " + c.ended : "");
-  const cur = c.current || {};
-  $("current").textContent = (cur.part ? "part " + cur.part : "") + (cur.step != null ? " · step " + cur.step : "")
-    + (c.checkpoint ? " · at " + c.checkpoint : "");
+  const cur = c.current || {}, sum = c.summary || {};
+  // when done, the last part's move is over: say what the run removed instead
+  $("current").textContent = c.state === "done"
+    ? (sum.parts_removed != null ? "removed " + sum.parts_removed + (sum.parts_total != null ? " of " + sum.parts_total : "")
+       + ((sum.parts_total ?? sum.parts_removed) === 1 ? " part" : " parts") : "")
+    : (cur.part ? "part " + cur.part : "") + (cur.step != null ? " · step " + cur.step : "")
+      + (c.checkpoint ? " · at " + c.checkpoint : "");
   const fault = $("fault");
   fault.classList.toggle("hidden", !c.fault);
   fault.classList.remove("past");

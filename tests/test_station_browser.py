@@ -470,6 +470,9 @@ def test_a_slow_tap_on_a_part_while_teaching_selects_it(browser, station):
     ActionChains(d).release().perform()
     status = d.find_element(By.ID, "teach-status")
     WebDriverWait(d, T).until(lambda _: "Teach cap: click the first contact" in status.text)
+    # the prompt is under the frame too, where the clicks go, in place of the keys
+    assert d.find_element(By.ID, "teach-hint").text == status.text + " · Esc cancels"
+    assert not d.find_element(By.ID, "keys").is_displayed()
     assert d.find_element(By.CSS_SELECTOR, "#parts polygon.selected").get_attribute("data-part") == "cap"
     # a tap beside every part says so, and teaching waits for the part
     d.find_element(By.ID, "btn-teach").click()  # off

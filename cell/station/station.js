@@ -415,12 +415,14 @@ function drawTeach() {
   g.replaceChildren();
   $("view").classList.toggle("teaching", !!teach);
   $("btn-teach").classList.toggle("active", !!teach);
-  const st = $("teach-status");
-  if (!teach) { st.textContent = ""; return; }
+  const st = $("teach-status"), hint = $("teach-hint");
+  $("keys").classList.toggle("hidden", !!teach);  // the prompt goes under the frame, where the clicks go
+  if (!teach) { st.textContent = hint.textContent = ""; return; }
   if (teach.p1) el("circle", {cx: teach.p1[0], cy: teach.p1[1], r: 6 * pxPerScreenPx(), class: "teachmark"}, g);
   st.textContent = teach.stage === "part" ? (teach.note || "Teach: click the part to grasp")
     : teach.stage === "p1" ? "Teach " + teach.part + ": click the first contact on its edge"
     : "Teach " + teach.part + ": click the second contact";
+  hint.textContent = st.textContent + " · Esc cancels";
 }
 
 function framePoint(ev) {

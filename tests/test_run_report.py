@@ -112,3 +112,7 @@ def test_a_skipped_part_says_why_the_run_exits_1(tmp_path, capsys):
     assert code == 1 and s["status"] == "complete" and s["parts_skipped"] == ["plate"]
     assert "1 of 2 parts removed (sequence complete, 1 skipped: plate)" in err, err
     assert "(complete)" not in err
+    # the plate was planned (and found without a grasp): its report keeps that time (it read 0 ms)
+    plate_report = next(r for r in s["parts"] if r["part"] == "plate")
+    assert plate_report["planning_s"] > 0 and plate_report["attempts"] == 0
+    assert "not planned" not in err

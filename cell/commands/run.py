@@ -198,8 +198,9 @@ def _print_summary(s: dict, out) -> None:
     print(f"\n{s['assembly']}: {s['parts_removed']} of {s['parts_total']} parts removed "
           f"({_how_it_ended(s)}), {s['grasps']} grasps", file=out)
     for r in s["parts"]:
+        planning = f"planning {r['planning_s'] * 1000:.0f} ms" if r["planning_s"] > 0 else "not planned"
         print(f"  {r['part']:<12} {r['outcome']:<8} attempts {r['attempts']}  cycle {r['cycle_s']:.2f} s "
-              f"(motion {r['motion_s']:.2f} s, planning {r['planning_s'] * 1000:.0f} ms) {r['reason']}", file=out)
+              f"(motion {r['motion_s']:.2f} s, {planning}) {r['reason']}", file=out)
     if s["parts_removed"]:
         print(f"  mean cycle {s['cycle_s_mean']:.2f} s, {s['picks_per_hour']:.0f} picks/hour, planning share "
               f"{100 * s['planning_share']:.1f}%", file=out)

@@ -525,7 +525,8 @@ class CellLoop:
                 self.remaining.remove(part_id)
                 tried = self._unfinished if self._unfinished is not None and self._unfinished.part == part_id \
                     else PartReport(part_id, "skipped")  # (grips missed before this plan found nothing: kept)
-                self.reports.append(replace(tried, outcome="skipped", reason=e.reason))
+                tried.outcome, tried.reason = "skipped", e.reason  # the same report: the caller adds this plan's time
+                self.reports.append(tried)
                 self._unfinished = None
                 self.control.log("skip", f"{part_id} skipped: no feasible grasp ({e.reason})", part=part_id)
             else:

@@ -22,7 +22,8 @@ def add_arguments(p) -> None:
                    help=f"with a calibration: regions smaller than this are specks (default {MIN_AREA_MM2:g})")
     p.add_argument("--min-area-px", type=float, default=None,
                    help="regions smaller than this many pixels are specks (default: from --min-area-mm2 with "
-                        "a calibration, else 300 on a frame up to 1280 px long, x (long side / 1280)^2 above)")
+                        "a calibration, else 300 on a frame up to 1280 px long, x (long side / 1280)^2 above); "
+                        "counted on the region's pixels, so a kept part's area_px (its outline's area) may be smaller")
     p.add_argument("--backlit", action="store_true",
                    help="the tray is the bright side of the frame (a back-lit panel in a dark surround)")
     p.add_argument("--no-shadow-aware", action="store_true",

@@ -16,10 +16,13 @@ from the contacts alone, and `cell.physics.check_grasp` stays the independent ju
   never exceeds the judge's, so a grasp above 1 slips for sure. The planner drops those (it does not
   rank by the demand: on every ordinary part it is far below 1, and the learned choice stands).
 * Rolling about the jaw line (the judge's torsion) depends on where each pad's patch lies across the
-  pad, which the planner does not know: `roll_demand` bounds it from below (each patch the whole pad,
-  none of the friction spent on the vertical load, the centre of gravity's distance from the contacts'
+  pad, which the planner does not know: `roll_demand` bounds it from below (each patch the pad's whole
+  width by as much of its height as the part spans at the grasp z, the vertical load shared equally,
+  which spends the least of the friction on it, the centre of gravity's distance from the contacts'
   line 1 mm shorter), and the sets above 1 are dropped likewise. Between the bound and the judge's
-  demand the judge may still refuse a heavy part's grasp.
+  demand the judge may still refuse a heavy part's grasp (a patch narrower than the pad; pads carrying
+  the load unequally). Recordings made before the bound took the pad's height and shares into account
+  (`roll_bound_pad_overlap` off) took each patch the whole pad and no friction spent on the load.
 """
 
 from __future__ import annotations
@@ -72,27 +75,35 @@ def slip_demand(part: Part, contacts_mm: np.ndarray, axes: np.ndarray, cell: Cel
 JAW_LINE_SLACK_MM = 2 * PAD_COMPLIANCE_MM
 
 
-def roll_demand(part: Part, contacts_mm: np.ndarray, cell: Cell) -> np.ndarray:
+def roll_demand(part: Part, contacts_mm: np.ndarray, cell: Cell, grasp_z_mm: float | None = None) -> np.ndarray:
     """(k,) a lower bound of the judge's demand for rolling about the jaw line, for grasps with contacts
-    (k, 2, 2): SAFETY W d / (mu N x the two pads' torsion radii), d the centre of gravity's distance from the
-    line through the contacts (JAW_LINE_SLACK_MM shorter), each pad's radius at its largest (a patch the
-    whole pad: sqrt(w^2 + h^2) / 4), and none of the friction spent on the vertical load (the judge's
-    soft-finger curve spends some). > 1: the part rolls out of the jaws whatever the patches are."""
+    (k, 2, 2): d the centre of gravity's distance from the line through the contacts (JAW_LINE_SLACK_MM
+    shorter), each pad's torsion radius rho at its largest (a patch the pad's width by its overlap with the
+    part's height at `grasp_z_mm`: sqrt(w^2 + h^2) / 4) and the vertical load shared equally (the judge's
+    soft-finger curve, m <= mu N rho (1 - (f / mu N)^2), leaves the two pads the most torsion then). > 1:
+    the part rolls out of the jaws whatever the patches are. Without `grasp_z_mm` as recordings made before
+    it have it: the whole pad's height, no friction spent on the load, SAFETY W d / (mu N 2 rho)."""
     g = cell.gripper
     c = np.asarray(contacts_mm, float).reshape(-1, 2, 2)
     line = c[:, 1] - c[:, 0]
     length = np.maximum(np.hypot(line[:, 0], line[:, 1]), 1e-9)
     rel = centre_of_gravity(part) - c[:, 0]
-    d = np.abs(rel[:, 0] * line[:, 1] - rel[:, 1] * line[:, 0]) / length
-    rho_max = float(np.hypot(g.pad_width_mm, g.pad_height_mm)) / 4.0
-    return pad_load(part_weight_n(part), g.grip_force_n) * np.maximum(d - JAW_LINE_SLACK_MM, 0.0) / (2.0 * rho_max)
+    d = np.maximum(np.abs(rel[:, 0] * line[:, 1] - rel[:, 1] * line[:, 0]) / length - JAW_LINE_SLACK_MM, 0.0)
+    load = pad_load(part_weight_n(part), g.grip_force_n)
+    if grasp_z_mm is None:
+        return load * d / (2.0 * float(np.hypot(g.pad_width_mm, g.pad_height_mm)) / 4.0)
+    h = max(min(grasp_z_mm + g.pad_height_mm, part.z_top_mm) - max(grasp_z_mm, part.z_bottom_mm), 0.0)
+    rho = float(np.hypot(max(g.pad_width_mm, 1.0), h)) / 4.0  # as the judge's, its patch width at most the pad's
+    # the judge's quadratic (cell.physics._hold_ratios) with shares 1/2 and rho for both pads
+    return load * (d + np.sqrt(d * d + 4.0 * rho * rho)) / (4.0 * rho)
 
 
-def holding(part: Part, contacts_mm: np.ndarray, axes: np.ndarray, cell: Cell) -> tuple[np.ndarray, str | None]:
+def holding(part: Part, contacts_mm: np.ndarray, axes: np.ndarray, cell: Cell,
+            grasp_z_mm: float | None = None) -> tuple[np.ndarray, str | None]:
     """(k,) which of the sets with contacts (k, 2, 2) closing along `axes` (k, 2) do not surely slip or roll
-    (`slip_demand`, `roll_demand`), and, where none does, why (None: some hold)."""
+    (`slip_demand`, `roll_demand` at `grasp_z_mm`), and, where none does, why (None: some hold)."""
     slip = slip_demand(part, contacts_mm, axes, cell)
-    roll = roll_demand(part, contacts_mm, cell)
+    roll = roll_demand(part, contacts_mm, cell, grasp_z_mm)
     holds = (slip <= 1.0) & (roll <= 1.0)
     if holds.any() or not len(holds):
         return holds, None

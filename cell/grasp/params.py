@@ -58,6 +58,11 @@ class SynthesisParams:
     # contact then lay 0.76 mm behind where the pads stop and 2 mm across from what they touch), as
     # recordings made before it existed have it (cell.runtime.replay).
     touch_within_compliance: bool = True
+    # The weight check's lower bound of rolling about the jaw line (cell.grasp.load.roll_demand) takes each pad's
+    # patch as high as the part at the grasp z and the load shared equally; off, the whole pad's height and no
+    # friction spent on the load (a 176 g bar 8 mm tall was held 41 mm off its centre of gravity, which the
+    # physical check says rolls out), as recordings made before it existed have it (cell.runtime.replay).
+    roll_bound_pad_overlap: bool = True
     # Contacts on a face square to the closing axis all along the pad are reported on the closing line through
     # the grasp centre (cell.grasp.closing_line): sampled a step apart, a pair on parallel faces lay up to half
     # a step either side of it, and the contacts' line up to 3 degrees off the reported axis. Off, as recordings

@@ -396,7 +396,8 @@ class GraspPlanner:
         order = np.argsort(dist, kind="stable")
         # Sets that surely slip or roll out of the jaws are dropped, not ranked lower (cell/grasp/load.py: lower
         # bounds of the judge's demands): ranking by the load would move the learned choice on light parts too
-        holds, why = holding(target, contacts[sel[order]], P.u[k[sel[order]]], cell)
+        holds, why = holding(target, contacts[sel[order]], P.u[k[sel[order]]], cell,
+                             gz if p.roll_bound_pad_overlap else None)
         if not holds.all():
             counts["load_refused"] = int((~holds).sum())
             if why:

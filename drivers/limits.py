@@ -37,6 +37,7 @@ PATH_STEP_DEG = 0.5
 # lift from a grasp starts a few counts beside it
 STILL_MM = 0.5
 STILL_DEG = 0.5
+OUTSIDE_TOL_MM = 0.05  # a way back into the workspace may not take the tool further out than it starts
 
 
 def command_violations(cell, target: Joints, current: Joints | None) -> list[str]:
@@ -93,20 +94,33 @@ def path_violations(cell, start: Joints, target: Joints) -> list[str]:
                        "or across at one height")
     ws = cell.workspace
     inside = ws.contains_xy(x, y)
-    if inside[0]:
-        outside = np.flatnonzero(~inside)
-        box = f"the workspace is x in [{ws.x_mm[0]:g}, {ws.x_mm[1]:g}], y in [{ws.y_mm[0]:g}, {ws.y_mm[1]:g}]"
-        if len(outside):
-            i = outside[0]
-            out.append(f"the tool would leave the workspace on the way, at x = {x[i]:.1f}, y = {y[i]:.1f} mm "
-                       f"(J1 {path[i, 0]:.1f} deg, J2 {path[i, 1]:.1f} deg); {box}")
-        else:
-            out += _stop_violations(cell, move, t_s, samples, speed, (x[1:], y[1:]), box)
+    box = f"the workspace is x in [{ws.x_mm[0]:g}, {ws.x_mm[1]:g}], y in [{ws.y_mm[0]:g}, {ws.y_mm[1]:g}]"
+    # A real arm may stand outside (switched on there, coasted out): the way back in is allowed, never further
+    # out than it starts; once in, it stays in like any other way (a start 0.8 mm out let the way home sweep
+    # 119 mm out of the workspace)
+    back_in = int(np.argmax(inside)) if inside.any() else len(inside)
+    depth = ws.depth_xy(x[:back_in], y[:back_in])
+    deeper = np.flatnonzero(depth < depth[0] - OUTSIDE_TOL_MM) if back_in else []
+    outside = np.flatnonzero(~inside[back_in:]) + back_in
+    if len(deeper):
+        i = int(deeper[np.argmin(depth[deeper])])
+        out.append(f"the tool starts {-depth[0]:.1f} mm outside the workspace and would go {-depth[i]:.1f} mm out on "
+                   f"the way back in, at x = {x[i]:.1f}, y = {y[i]:.1f} mm (J1 {path[i, 0]:.1f} deg, J2 "
+                   f"{path[i, 1]:.1f} deg); {box}: jog it inside first (cell hw jog)")
+    elif back_in == len(inside):
+        out.append(f"the tool starts outside the workspace and would not come back in (it ends at x = {x[-1]:.1f}, "
+                   f"y = {y[-1]:.1f} mm); {box}")
+    elif len(outside):
+        i = outside[0]
+        out.append(f"the tool would leave the workspace on the way, at x = {x[i]:.1f}, y = {y[i]:.1f} mm "
+                   f"(J1 {path[i, 0]:.1f} deg, J2 {path[i, 1]:.1f} deg); {box}")
+    else:  # a stop on the way, from where the tool is inside
+        out += _stop_violations(cell, move, t_s, samples, speed, (x[1:], y[1:]), box, max(back_in - 1, 0))
     return out
 
 
 def _stop_violations(cell, move, t_s: np.ndarray, samples: np.ndarray, speed: np.ndarray, tool: tuple,
-                     box: str) -> list[str]:
+                     box: str, first: int = 0) -> list[str]:
     """A stop anywhere on the way must leave the tool inside the workspace too. Each axis ramps down on its
     own (its quick stop ramp 0x6085, which the host sets at connect, or its fault reaction on the same ramp),
     so the arm leaves the coordinated path (up to 17 mm past the workspace on 2 % of random moves the path
@@ -119,12 +133,13 @@ def _stop_violations(cell, move, t_s: np.ndarray, samples: np.ndarray, speed: np
     lost), a host slower than the lag. J3 or J4 stopping first leaves J1 and J2 on the path until they stop
     together. move, t_s (n,): the way (`coordinated_motion`), samples (n, 4) and speed (n, 4) at t_s; tool: its
     tool x, y (n,). Only the samples whose stop may reach the workspace's edge (`quick_stop_reach_mm`) are
-    followed."""
+    followed, from sample `first` on (before it the tool is still on its way back into the workspace)."""
     from drivers.profile import quick_stop_poses_array, quick_stop_reach_mm, stops_one_first
 
     sc, ws, lag_s = cell.scara, cell.workspace, cell.can.stop_lag_ms / 1000.0
     reach = quick_stop_reach_mm(sc, speed, QUICK_STOP_DECEL_FACTOR, lag_s, move.top_speed()[:2])
     near = np.flatnonzero(reach >= ws.depth_xy(*tool))
+    near = near[near >= first]
     if not len(near):
         return []
     ramps = f"each on its own ramp ({QUICK_STOP_DECEL_FACTOR:g} x its max acceleration), off the coordinated path"

@@ -169,3 +169,60 @@ def test_cell_run_keeps_the_tool_inside_the_workspace_all_the_way_as_its_drives_
     assert "approach (via)" in labels  # the nut's elbow flip went round
     code, out, err = run_cli("replay", tmp_path / "rec", capsys=capsys)
     assert code == 0, err + out
+
+
+# the hunt's pose: a real arm switched on 0.8 mm outside the workspace (tool at x -28.8, y 450.8)
+JUST_OUTSIDE = Joints(130.8, -82.675, 200.0, 0.0)
+
+
+def test_from_a_start_outside_the_workspace_the_way_back_may_not_go_further_out(cell_cfg):
+    """A start outside switched the way's check off: going home from 0.8 mm out swept the tool 119 mm out of the
+    workspace on the drives. The way back in may not go further out than it starts; once in, it stays in."""
+    import numpy as np
+
+    from drivers.limits import path_violations
+
+    t = forward(JUST_OUTSIDE, cell_cfg.scara)
+    assert -0.9 < cell_cfg.workspace.depth_xy(np.array(t.x_mm), np.array(t.y_mm)) < -0.7
+    home = Joints.from_dict(cell_cfg.motion.home_joints)
+    (why,) = path_violations(cell_cfg, JUST_OUTSIDE, home)
+    assert why.startswith("the tool starts 0.8 mm outside the workspace and would go ") and "jog it inside" in why
+    # straight back in along J2 (the tool moves inwards) is allowed, and from there home is an ordinary way
+    back = Joints(130.8, -84.0, 200.0, 0.0)
+    assert _inside(cell_cfg, back) and path_violations(cell_cfg, JUST_OUTSIDE, back) == []
+    # further out is refused, also when the way ends inside
+    assert "would go" in path_violations(cell_cfg, JUST_OUTSIDE, Joints(131.5, -60.0, 200.0, 0.0))[0]
+
+
+def test_an_arm_standing_outside_the_workspace_goes_home_without_going_further_out(open_test_bus, sim_clock, cell_cfg):
+    """Through the stack: drives that stand 0.8 mm outside (their own cell file's home), the host's default cell,
+    `go_to(home)` (cell hw home, cell run's first move): the way it takes never has the tool further out than at
+    the start, as the drives' own positions show (it swept 119 mm out)."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from cell.runtime.ways import go_to
+    from drivers import Arm, sim
+
+    drives_cell = replace(cell_cfg, motion=replace(cell_cfg.motion, home_joints=JUST_OUTSIDE.as_dict()))
+    ws = cell_cfg.workspace
+    with sim.serve(open_test_bus(), drives_cell, clock=sim_clock) as drives:
+        arm = Arm(open_test_bus(), cell_cfg, clock=sim_clock, sdo_timeout_s=0.2)
+        arm.connect()
+        depths = []
+
+        def probe():
+            j = Joints(*(drives.drives[n].position_counts / cell_cfg.can.nodes[n].counts_per_unit
+                         for n in ("j1", "j2", "j3", "j4")))
+            t = forward(j, cell_cfg.scara)
+            depths.append(float(ws.depth_xy(np.array(t.x_mm), np.array(t.y_mm))))
+
+        try:
+            sim_clock.every(0.002, probe, name="probe")
+            home = Joints.from_dict(cell_cfg.motion.home_joints)
+            go_to(arm, home)
+            assert arm.joints().rounded(2) == home.rounded(2)
+        finally:
+            arm.disconnect()
+    assert -0.9 < depths[0] < -0.7 and min(depths) >= depths[0] - 0.05 and depths[-1] > 0, (depths[0], min(depths))

@@ -6,6 +6,7 @@ from __future__ import annotations
 import statistics
 import time
 
+from cell.errors import BadInput
 from drivers import codec
 from drivers.clock import SimClock
 from drivers.pump import BusPump
@@ -38,8 +39,9 @@ def round_trips(cell=None, n: int = 200) -> dict:
             ax.sdo_read(0x6041)
             sdo.append(time.perf_counter() - t0)
         base = ax.status.position_counts
+        step = _step_within_limits(arm.cell, ax, base, 10)
         for i in range(n):
-            target = base + (i % 2) * 10  # 10 counts there and back: the move itself is instant
+            target = base + (i % 2) * step  # 10 counts there and back: the move itself is instant
             ax.send_target(target)
             t0 = time.perf_counter()
             seq = ax.send_controlword(codec.CW_ENABLE_OPERATION | codec.CW_NEW_SET_POINT)
@@ -50,7 +52,7 @@ def round_trips(cell=None, n: int = 200) -> dict:
             arm.clock.sleep(0.01)
         for i in range(n):
             t0 = time.perf_counter()
-            ax.start_move(base + ((i + 1) % 2) * 10)
+            ax.start_move(base + ((i + 1) % 2) * step)
             hand.append(time.perf_counter() - t0)
             arm.clock.sleep(0.01)
     return {
@@ -58,6 +60,16 @@ def round_trips(cell=None, n: int = 200) -> dict:
         "set_point_ack": _summary_ms(ack),
         "move_handshake": _summary_ms(hand),
     }
+
+
+def _step_within_limits(cell, ax, base_counts: int, counts: int) -> int:
+    """+counts, or -counts where that would pass J1's upper limit: these targets go straight to the drive (not
+    through `Arm.move_joints`' checks), and a home at the limit had the bench send 132.01 deg."""
+    lo, hi = (v * ax.counts_per_unit for v in cell.scara.j1_deg)
+    for step in (counts, -counts):
+        if lo <= base_counts + step <= hi:
+            return step
+    raise BadInput(f"J1's limits {cell.scara.j1_deg} leave no room for a {counts}-count step from its home")
 
 
 def pick_cycle(cell=None, part_xy_mm=(380.0, -60.0), grasp_z_mm: float = 10.0, width_mm: float = 30.0) -> dict:

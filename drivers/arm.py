@@ -301,7 +301,26 @@ class Arm:
                     )
                 )
                 continue
+            outside = self._outside_limits(ax)
+            if outside:  # enabling sends the axis' position as its target: not one outside its limits
+                self._latch(DriveFault(f"{ax.name} (node {ax.node_id}): {outside}; not enabled: move it back inside "
+                                       "by hand (brake released), then reset", node=ax.name, node_id=ax.node_id))
+                continue
             ax.enable(STANDSTILL_MARGIN_S + self._slowest_quick_stop_s(), self.poll_s)
+
+    def _outside_limits(self, ax: Axis) -> str | None:
+        """Where a joint's drive stands outside the joint's limits (by more than a count), else None. A drive may
+        coast past them: safe torque off, a jam, a power loss mid-move (J1 stopped at 146 deg of 132)."""
+        field = next((f for j, f, _ in JOINT_FIELDS if j == ax.name), None)
+        if field is None:
+            return None
+        if ax.status is None:
+            ax.wait_status(lambda s: True, None, "first TPDO")
+        (lo, hi), value = getattr(self.cell.scara, field), ax.status.position_counts / ax.counts_per_unit
+        count = 1.0 / ax.counts_per_unit
+        if lo - count <= value <= hi + count:
+            return None
+        return f"stands at {value:.3f} {'mm' if field.endswith('mm') else 'deg'}, outside its limits [{lo:g}, {hi:g}]"
 
     def disconnect(self) -> None:
         """Disable the drives cleanly (they hold no torque and stop watching the host), stop
@@ -640,6 +659,10 @@ class Arm:
                 for ax in self.axes.values():
                     self._emcy_seen[ax.name] = ax.emcy_seq
             self._enable_all()
+            with self._lock:
+                refused = next(iter(self._faults.values()), None)
+            if refused is not None:  # a drive not enabled (outside its limits, in FAULT again): latched, told
+                raise refused
         except DriverError as e:
             self._latch(e)
             raise

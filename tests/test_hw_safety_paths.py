@@ -16,6 +16,7 @@ from drivers_fixtures import needs_sim
 
 from cell.kinematics import Joints, forward
 from drivers import LimitError, codec
+from drivers.errors import DriveFault
 from drivers.record import read_log
 
 pytestmark = needs_sim
@@ -226,3 +227,38 @@ def test_an_arm_standing_outside_the_workspace_goes_home_without_going_further_o
         finally:
             arm.disconnect()
     assert -0.9 < depths[0] < -0.7 and min(depths) >= depths[0] - 0.05 and depths[-1] > 0, (depths[0], min(depths))
+
+
+def test_a_drive_standing_outside_its_joints_limits_is_not_enabled_and_no_target_goes_out(open_test_bus, sim_clock,
+                                                                                         cell_cfg):
+    """Enabling sends the axis' position as its target (so that it never jumps): after a coast past J1's limit
+    (safe torque off mid-move: 146.3 deg of 132) a reset sent 0x607A = 146.3 deg and enabled J1 without a word.
+    Now the drive is left disabled and a fault names where it stands; nothing is sent to it as a target."""
+    from dataclasses import replace
+
+    import can
+
+    from drivers import Arm, sim
+    from drivers.errors import FaultLatched
+
+    wide = replace(cell_cfg.scara, j1_deg=(-150.0, 150.0))  # the drives' own limits let them stand there
+    drives_cell = replace(cell_cfg, scara=wide, motion=replace(
+        cell_cfg.motion, home_joints={**cell_cfg.motion.home_joints, "j1_deg": 140.0}))
+    with sim.serve(open_test_bus(), drives_cell, clock=sim_clock):
+        tap = open_test_bus()
+        targets = []
+        notifier = can.Notifier(tap, [lambda m: targets.append(m) if m.arbitration_id == codec.RPDO2_BASE + 1
+                                      else None])
+        arm = Arm(open_test_bus(), cell_cfg, clock=sim_clock, sdo_timeout_s=0.2)
+        try:
+            arm.connect()
+            assert "stands at 140.000 deg, outside its limits [-132, 132]; not enabled" in str(arm.faults["j1"])
+            assert arm.axes["j1"].state != "OPERATION_ENABLED"
+            with pytest.raises(FaultLatched):
+                arm.move_joints(HOME)
+            with pytest.raises(DriveFault, match="stands at 140.000 deg"):
+                arm.reset_faults()
+        finally:
+            arm.disconnect()
+            notifier.stop()
+    assert [codec.unpack_target(m.data) for m in targets] == []

@@ -74,7 +74,7 @@ def save_calibration(cal: Calibration, path: str | Path) -> None:
     if cal.camera_matrix is not None and cal.cam2base is not None:  # what load_calibration would refuse
         _check_sees_plane(cal.camera_matrix, np.asarray(cal.cam2base, float), cal.plane_z_mm,
                           int(cal.width_px), int(cal.height_px), refuse, cal.plane)
-    if cal.camera_matrix is not None and not _is_lens_model(cal.camera_matrix, np.ravel(cal.dist),
+    if cal.camera_matrix is not None and not is_lens_model(cal.camera_matrix, np.ravel(cal.dist),
                                                                int(cal.width_px), int(cal.height_px)):
         coefficients = np.round(np.ravel(cal.dist), 4).tolist()
         raise BadInput(f"the fitted distortion {coefficients} folds or collapses the image: {path} not written; "
@@ -164,7 +164,7 @@ def parse_calibration(raw, source: str = "<calibration>", fail=None) -> Calibrat
             fail("intrinsics.dist must be a list of 4, 5, 8, 12 or 14 numbers (OpenCV's order)")
         dist = np.array([_finite(x, "intrinsics.dist", fail) for x in dist_raw])
         k = np.array([[vals["fx"], skew, vals["cx"]], [0.0, vals["fy"], vals["cy"]], [0.0, 0.0, 1.0]])
-        if not _is_lens_model(k, dist, w, h):
+        if not is_lens_model(k, dist, w, h):
             fail("intrinsics.dist folds or collapses the image: points along its rows or columns come out of "
                  "order, or far closer or further apart than a pinhole camera's, when undistorted; that is no lens "
                  "(check the coefficients' order: k1, k2, p1, p2, k3, ...)")
@@ -262,7 +262,7 @@ LENS_SPREAD_RANGE = (0.1, 10.0)  # undistorted image extent / pinhole extent tha
 LENS_ROUND_TRIP_PX = 0.5
 
 
-def _is_lens_model(k: np.ndarray, dist: np.ndarray, w: int, h: int, n: int = 9) -> bool:
+def is_lens_model(k: np.ndarray, dist: np.ndarray, w: int, h: int, n: int = 9) -> bool:
     """Do points along the image's borders and middle lines stay in order, finite and about as far apart
     as a pinhole camera's, when undistorted?
     A real lens maps the image one to one; dist = [1e10, 0, ...] sent every pixel to about one point

@@ -15,7 +15,8 @@ Recipe (chosen to reproduce OpenCV's own published numbers, see docs/vision.md):
   are large (over 80 px on OpenCV's board), the corners are refined again with a window grown with
   them (`refine_charuco`): OpenCV's own stops at 10 px (3.13 px RMS on its views upscaled to
   4000 x 3000 px, 1.31 px with the grown window, against 6.25 x 0.188 = 1.17).
-- `calibrateCamera` with flags 0 (k1, k2, p1, p2, k3).
+- `calibrateCamera` with flags 0 (k1, k2, p1, p2, k3); where that model folds the image (a wild k3 from boards
+  near the middle: undistorted points out of order), again with k3 = 0, then k2 = k3 = 0, and a warning.
 
 Images where the board is not found are listed and left out. After the fit, a view whose
 reprojection RMS is more than `OUTLIER_FACTOR` times the median view RMS (and more than
@@ -37,6 +38,7 @@ SUBPIX_WIN_PER_SQUARE = 0.13  # half-window / square side px: 5 on OpenCV's boar
 SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.1)
 OUTLIER_FACTOR = 3.0
 OUTLIER_MIN_PX = 0.3
+LARGE_RMS_PX = 1.0  # a reprojection RMS above this is warned of (expect < 0.5 px)
 PRINCIPAL_OFF_CENTRE_WARN = 0.15  # fraction of the image size
 # The share of the image inside the used views' board outlines (`board_coverage_share`) below which the lens
 # distortion is warned about: it is fitted where the corners are and extrapolated elsewhere. Boards in 5 % of a
@@ -431,12 +433,12 @@ def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[in
     if len(use) < MIN_VIEWS:
         raise BadInput(f"the board was found in {len(use)} of {len(images)} images; at least {MIN_VIEWS} "
                        f"are needed ({pattern_hint(charuco is not None)})")
-    k, dist, rms, per_view = _fit(obj_pts, img_pts, use, (w, h))
+    k, dist, rms, per_view, simpler = _fit(obj_pts, img_pts, use, (w, h))
     _flag_outliers(views, use, per_view)
     if reject_outliers and any(views[i].outlier for i in use):
         kept = [i for i in use if not views[i].outlier]
         if len(kept) >= MIN_VIEWS:
-            k, dist, rms, per_view = _fit(obj_pts, img_pts, kept, (w, h))
+            k, dist, rms, per_view, simpler = _fit(obj_pts, img_pts, kept, (w, h))
             for i, e in zip(kept, per_view, strict=True):
                 views[i].rms_px = e
             for i in use:
@@ -448,7 +450,7 @@ def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], pattern: tuple[in
     result = IntrinsicsResult(k, dist.ravel()[:5] if dist.size >= 5 else dist.ravel(), float(rms), w, h, views,
                               board=board_info, coverage_share=board_coverage_share([img_pts[i] for i in use],
                                                                                     (w, h)))
-    result.warnings = _warnings(result)
+    result.warnings = _warnings(result) + ([simpler] if simpler else [])
     return result
 
 
@@ -508,10 +510,34 @@ def _refine_views(images, found, refine, pattern, subpix_win, size):
             for c, t, (_, g) in zip(found, todo, images, strict=True)], subpix_win
 
 
+# Where the full model folds the image (a wild k3 fitted from boards near the middle), the fit is made again
+# with fewer radial terms, as OpenCV advises for lenses that are not fisheye: k3 = 0, then k2 = k3 = 0; taken
+# only where the corners fit it well (a wrong --pattern found in a few views folds the image too, at 1.9 px).
+SIMPLER_MODELS = ((cv2.CALIB_FIX_K3, "k3 = 0"), (cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3, "k2 = k3 = 0"))
+
+
 def _fit(obj_pts, img_pts, use, size):
+    """k, dist, rms, per-view RMS and, where a simpler model was needed, a warning saying so."""
+    from calibration.calfile import is_lens_model
+
+    fit = _fit_model(obj_pts, img_pts, use, size, 0)
+    if is_lens_model(fit[0], fit[1].ravel(), *size):
+        return (*fit, None)
+    folded = ", ".join(f"{x:.3g}" for x in fit[1].ravel())
+    for flags, what in SIMPLER_MODELS:
+        simpler = _fit_model(obj_pts, img_pts, use, size, flags)
+        if simpler[2] <= LARGE_RMS_PX and is_lens_model(simpler[0], simpler[1].ravel(), *size):
+            return (*simpler, f"the full distortion model (k1, k2, p1, p2, k3 = {folded}) folds the image where "
+                              f"no board was; fitted with {what} instead (RMS {simpler[2]:.3f} px against "
+                              f"{fit[2]:.3f}): views with the board near the image's edges and corners fit the "
+                              "whole model")
+    return (*fit, None)  # the calibration file's check refuses it and says what to do
+
+
+def _fit_model(obj_pts, img_pts, use, size, flags: int):
     ops = [obj_pts[i] for i in use]
     ips = [img_pts[i] for i in use]
-    rms, k, dist, rvecs, tvecs = cv2.calibrateCamera(ops, ips, size, None, None)
+    rms, k, dist, rvecs, tvecs = cv2.calibrateCamera(ops, ips, size, None, None, flags=flags)
     per_view = []
     for op, ip, rv, tv in zip(ops, ips, rvecs, tvecs, strict=True):
         proj, _ = cv2.projectPoints(op, rv, tv, k, dist)
@@ -540,7 +566,7 @@ def _warnings(r: IntrinsicsResult) -> list[str]:
     n = len(r.images_used)
     if n < 8:
         out.append(f"only {n} views used; 10-20 views at varied tilts give a stable calibration")
-    if r.rms_px > 1.0:
+    if r.rms_px > LARGE_RMS_PX:
         out.append(f"RMS reprojection error {r.rms_px:.2f} px is large (expect < 0.5 px)")
     if r.coverage_share is not None and r.coverage_share < MIN_BOARD_COVERAGE_SHARE:
         out.append(f"the boards cover only {100 * r.coverage_share:.0f} % of the image (the used views' board "

@@ -335,3 +335,47 @@ def test_a_charuco_board_with_too_few_corners_for_a_view_is_refused(tmp_path, ca
         assert "found in 0 of 3" in err
     else:
         assert "inner corners" in err and "at least 6" in err and "found in" not in err
+
+
+def _rendered_chessboards(folder, seed, views=10, k=((1100.0, 0, 652.4), (0, 1100.0, 498.2), (0, 0, 1))):
+    """A 9x6 board of 25 mm squares seen by a distortion-free 1280 x 1024 camera `k` from 550-800 mm, roughly
+    centred and tilted up to about 30 deg (an outside checker's set)."""
+    k, sq, ppm = np.array(k), 25.0, 8
+    bw, bh = 12 * sq, 9 * sq  # 10 x 7 squares and a square's white margin
+    board = np.full((int(bh * ppm), int(bw * ppm)), 255, np.uint8)
+    for i in range(7):
+        for j in range(10):
+            if (i + j) % 2 == 0:
+                board[int((i + 1) * sq * ppm):int((i + 2) * sq * ppm), int((j + 1) * sq * ppm):int((j + 2) * sq * ppm)] = 0
+    rng = np.random.default_rng(seed)
+    src = np.float32([[-.5, -.5], [board.shape[1] - .5, -.5], [board.shape[1] - .5, board.shape[0] - .5],
+                      [-.5, board.shape[0] - .5]])
+    paths = []
+    while len(paths) < views:
+        rv = np.array([rng.uniform(-.5, .5), rng.uniform(-.5, .5), rng.uniform(-.3, .3)])
+        tv = np.array([rng.uniform(-80, 80) - bw / 2, rng.uniform(-60, 60) - bh / 2, rng.uniform(550, 800)])
+        dst, _ = cv2.projectPoints(np.array([[0, 0, 0], [bw, 0, 0], [bw, bh, 0], [0, bh, 0]], float), rv, tv, k, None)
+        dst = dst.reshape(-1, 2).astype(np.float32)
+        if (dst < 0).any() or (dst[:, 0] > 1280).any() or (dst[:, 1] > 1024).any():
+            continue
+        img = cv2.warpPerspective(board, cv2.getPerspectiveTransform(src, dst), (1280, 1024), flags=cv2.INTER_AREA,
+                                  borderValue=128)
+        paths.append(folder / f"cb{len(paths):02d}.png")
+        cv2.imwrite(str(paths[-1]), img)
+    return paths
+
+
+def test_cli_intrinsics_from_centred_boards_falls_back_to_a_simpler_lens_model(tmp_path, capsys):
+    """Ten views of a board near the image's middle: the full model's k3 (-0.54) folded the image where no board
+    was, and the calibration was refused (exit 2, nothing written) although fx and the principal point were
+    right. It is fitted again with k3 = 0, written, and a warning says so."""
+    paths = _rendered_chessboards(tmp_path, seed=12)
+    out = tmp_path / "intr.json"
+    code, stdout, err = run_cli("calibrate", "intrinsics", *paths, "--pattern", "9x6", "--square", "25", "--out", out,
+                                capsys=capsys)
+    assert code == 0, err
+    r = json.loads(stdout)
+    assert "fitted with k3 = 0 instead" in err and r["dist"][4] == 0.0
+    assert abs(r["fx"] - 1100) < 11 and abs(r["fy"] - 1100) < 11, r
+    assert abs(r["cx"] - 652.4) < 6 and abs(r["cy"] - 498.2) < 6, r
+    assert load_calibration(out).camera_matrix[0, 0] == pytest.approx(r["fx"])

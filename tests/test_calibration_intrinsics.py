@@ -346,7 +346,8 @@ def _rendered_chessboards(folder, seed, views=10, k=((1100.0, 0, 652.4), (0, 110
     for i in range(7):
         for j in range(10):
             if (i + j) % 2 == 0:
-                board[int((i + 1) * sq * ppm):int((i + 2) * sq * ppm), int((j + 1) * sq * ppm):int((j + 2) * sq * ppm)] = 0
+                r, c = int((i + 1) * sq * ppm), int((j + 1) * sq * ppm)
+                board[r:r + int(sq * ppm), c:c + int(sq * ppm)] = 0
     rng = np.random.default_rng(seed)
     src = np.float32([[-.5, -.5], [board.shape[1] - .5, -.5], [board.shape[1] - .5, board.shape[0] - .5],
                       [-.5, board.shape[0] - .5]])

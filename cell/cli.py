@@ -64,15 +64,33 @@ class _Parser(argparse.ArgumentParser):
     _parsing_intermixed = False
 
     def parse_known_args(self, args=None, namespace=None):
-        # With "--" the plain parse, as before: Python 3.11's intermixed parse takes the "--" away in its first
-        # pass, and `grasp --json -- -a.json` then read -a.json as an unknown option
-        if not self.intermixed or self._parsing_intermixed or (args is not None and "--" in args):
+        if not self.intermixed or self._parsing_intermixed:
             return super().parse_known_args(args, namespace)
+        if args is not None and "--" in args:
+            return self._parse_files_after_dashes(list(args), namespace)
         self._parsing_intermixed = True  # parse_known_intermixed_args calls parse_known_args twice
         try:
             return self.parse_known_intermixed_args(args, namespace)
         finally:
             self._parsing_intermixed = False
+
+    def _parse_files_after_dashes(self, args, namespace):
+        """Everything after "--" is a file, added to those among the options before it. (Python 3.11's intermixed
+        parse takes the "--" away in its first pass, and `grasp --json -- -a.json` then read -a.json as an
+        unknown option; the plain parse refused `grasp a.json --json -- b.json`: the files were already taken.)"""
+        i = args.index("--")
+        files = next(a for a in self._actions if not a.option_strings and a.nargs in ("+", "*"))
+        required = files.nargs == "+"
+        files.nargs = "*"  # the files before "--" may be none
+        try:
+            ns, extras = self.parse_known_args(args[:i], namespace)
+        finally:
+            files.nargs = "+" if required else "*"
+        after = [files.type(a) if files.type else a for a in args[i + 1:]]
+        setattr(ns, files.dest, list(getattr(ns, files.dest) or []) + after)
+        if required and not getattr(ns, files.dest):
+            self.error(f"the following arguments are required: {files.metavar or files.dest}")
+        return ns, extras
 
     def error(self, message):  # argparse's own usage errors are bad input too: exit 2
         self.print_usage(sys.stderr)

@@ -126,6 +126,11 @@ def test_scenes_after_an_option_are_scenes_too(tmp_path, monkeypatch, capsys):
     # "--" still ends the options: a file named like one comes after it
     code, out, err = run_cli("grasp", "--json", "--", "-d.json", capsys=capsys)
     assert code == 0 and json.loads(out)["target"] == "box", err
+    # ... also after files and options (it was "unrecognized arguments: -- -d.json")
+    code, out, err = run_cli("grasp", "a.json", "--json", "--", "-d.json", "b.json", capsys=capsys)
+    assert code == 0 and [json.loads(x)["scene"] for x in out.splitlines()] == ["a.json", "-d.json", "b.json"], err
+    code, out, err = run_cli("grasp", "--json", "--", capsys=capsys)
+    assert code == 2 and "the following arguments are required: SCENE" in err
 
 
 def test_images_after_an_option_are_images_too(tmp_path, monkeypatch, capsys):

@@ -89,6 +89,17 @@ def test_replay_matches_and_names_the_first_divergence(recorded, tmp_path, capsy
     code, out, err = run_cli("replay", bad, capsys=capsys)
     assert code == 1
     assert f"decision #{i} (commands, washer)" in err and "j3_mm" in err
+    # the summary's outcome is a decision too (it was not compared); its times are another run's
+    shutil.copyfile(rec / "decisions.jsonl", bad / "decisions.jsonl")
+    lines = (bad / "decisions.jsonl").read_text().splitlines()
+    summary = json.loads(lines[-1])
+    assert summary["type"] == "summary"
+    for key, value, says in [("picks_per_hour", 1.0, None), ("parts_removed", 7, "parts_removed: recorded 7"),
+                             ("parts", [{**summary["parts"][0], "attempts": 9}, *summary["parts"][1:]],
+                              "parts.0.attempts: recorded 9")]:
+        (bad / "decisions.jsonl").write_text("\n".join([*lines[:-1], json.dumps({**summary, key: value})]) + "\n")
+        code, out, err = run_cli("replay", bad, capsys=capsys)
+        assert (code, says is None or f"the summary: {says}" in err) == (0 if says is None else 1, True), err
 
 
 def test_replay_refuses_a_missing_or_corrupt_recording(recorded, tmp_path, capsys):

@@ -23,6 +23,7 @@ from cell.fileio import as_written, short_repr
 from cell.grasp.params import MAX_FINER_STEPS, SynthesisParams
 from cell.runtime.control import Decision, RunControl
 
+SUMMARY_TIMES = {"cycle_s_mean", "planning_s_mean", "planning_share", "picks_per_hour"}
 VOLATILE = {"planning_s", "cycle_s", "motion_s", "t_start_s", "t_end_s", "time_ms"}
 TOLERANCE = 1e-3
 
@@ -119,6 +120,7 @@ class Comparison:
     found: list[str] = field(default_factory=list)
     cut_short: bool = False  # the recording was never closed (crash) or lost its last line
     faulted_again: bool = False  # a recorded drive fault was injected again (the moment within the move may differ)
+    recorded_summary: dict | None = None  # the session's last line, when it ran to its end
 
     def write_frame(self, index, frame_bgr):
         return None
@@ -126,7 +128,8 @@ class Comparison:
     def write_decision(self, record: dict) -> None:
         record = json.loads(json.dumps(record))  # the recording holds JSON: compare like with like
         if record.get("type") == "summary":
-            return  # timings only: another run's are others
+            self._compare_summary(record)
+            return
         expected = self.recorded[self.position] if self.position < len(self.recorded) else None
         if _recorded_since(record) and (expected or {}).get("type") != record["type"]:
             return  # a recording made before such records were written: it goes on without it
@@ -174,6 +177,17 @@ class Comparison:
         at, self.position = self.position, len(self.recorded)
         self._diverged(f"decision #{at}: {why}, so it is compared up to the fault only ({at} of "
                        f"{len(self.recorded)} decisions)")
+
+    def _compare_summary(self, record: dict) -> None:
+        """The run's outcome as recorded (parts removed, skipped, grasps tried, each part's report) but not its
+        times (another run's are others); keys a summary of the time did not have are not asked about."""
+        expected = self.recorded_summary
+        if expected is None:
+            return
+        keys = sorted((set(expected) & set(record)) - SUMMARY_TIMES - {"type"})
+        diff = differences({k: expected[k] for k in keys}, {k: record[k] for k in keys})
+        if diff:
+            self._diverged(f"the summary: {'; '.join(diff[:3])}")
 
     def _diverged(self, what: str) -> None:
         if self.strict:
@@ -359,7 +373,8 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
         shutil.copyfile(examples_src, work_examples)  # rejects are appended again, not to the original
         replay_can = Path(tmp) / "replay_can.log"
         with simulated_cell(cell, record=str(replay_can)) as (arm, drives):
-            sink = Comparison(recorded, drives, strict, cut_short=_cut_short(rec))
+            sink = Comparison(recorded, drives, strict, cut_short=_cut_short(rec),
+                              recorded_summary=next((d for d in rec.decisions if d.get("type") == "summary"), None))
             control = RecordedApprovals(rec.decisions, f"recording {directory}")
             control.sink = sink
             # interactive: a stop to ask waits for the (recorded) operator's answer, as at the station

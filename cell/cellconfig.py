@@ -138,6 +138,13 @@ class Box2D:
         """`contains` for arrays of points, the same comparisons."""
         return (self.x_mm[0] <= x) & (x <= self.x_mm[1]) & (self.y_mm[0] <= y) & (y <= self.y_mm[1])
 
+    def outside_text(self, x: float, y: float) -> str | None:
+        """'outside ... (x a to b, y c to d mm)' where (x, y) lies outside the box, else None."""
+        if self.contains(x, y):
+            return None
+        return (f"lies at ({x:.1f}, {y:.1f}) mm, outside the cell's tray (x {self.x_mm[0]:g} to {self.x_mm[1]:g}, "
+                f"y {self.y_mm[0]:g} to {self.y_mm[1]:g} mm)")
+
     def depth_xy(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """How far inside the box each point lies (mm to the nearest side); negative: that far outside it."""
         return np.minimum(np.minimum(x - self.x_mm[0], self.x_mm[1] - x),

@@ -341,6 +341,21 @@ def test_cell_run_bad_inputs_exit_2(tmp_path, capsys):
         assert code == 2 and "Traceback" not in err, argv
 
 
+def test_cell_run_refuses_an_assembly_with_a_part_off_the_tray(tmp_path, capsys):
+    """The default assembly moved 120 mm to -x: the cover lies at x 156-196, the tray starts at 200. `cell run`
+    picked it (inside the workspace, off the work area) where `cell hw pick` refuses such a target."""
+    d = json.loads(DEFAULT.read_text())
+    for part in d["parts"]:
+        part["outline"] = [[x - 120.0, y] for x, y in part["outline"]]
+        for hole in part.get("holes", []):
+            hole[:] = [[x - 120.0, y] for x, y in hole]
+    p = tmp_path / "moved.json"
+    p.write_text(json.dumps(d))
+    code, _, err = run_cli("run", p, "--record", tmp_path / "r", capsys=capsys)
+    assert code == 2 and "part 'cover' lies at (176.0, 60.0) mm, outside the cell's tray (x 200 to 500" in err, err
+    assert "nothing moved" in err and not (tmp_path / "r").exists()
+
+
 SHIPPED = Path(__file__).resolve().parent.parent / "recordings" / "shipped"
 
 

@@ -82,11 +82,9 @@ def _require_on_tray(scene, cell) -> None:
     there): bad input otherwise."""
     from cell.errors import BadInput
 
-    x, y = scene.target_part.polygon.centroid.coords[0]
-    t = cell.tray
-    if not t.contains(x, y):
-        raise BadInput(f"{scene.target!r} lies at ({x:.1f}, {y:.1f}) mm, outside the cell's tray (x {t.x_mm[0]:g} to "
-                       f"{t.x_mm[1]:g}, y {t.y_mm[0]:g} to {t.y_mm[1]:g} mm): nothing moved")
+    outside = cell.tray.outside_text(*scene.target_part.polygon.centroid.coords[0])
+    if outside:
+        raise BadInput(f"{scene.target!r} {outside}: nothing moved")
 
 
 @contextlib.contextmanager

@@ -206,6 +206,7 @@ def run_session(cfg: RunConfig) -> dict:
 
         raise BadInput(f"calibration {cal_path} is for {cal.width_px} x {cal.height_px} px, the cell's camera "
                        f"has {cell.camera.width_px} x {cell.camera.height_px} px")
+    _require_parts_on_tray(assembly, cell, assembly_path)
     if cfg.real_cell is None:  # the simulated world lays the parts out as the assembly says
         _require_parts_in_view(assembly, cal, assembly_path)
     examples_path = Path(cfg.examples) if cfg.examples else default_examples_path()
@@ -437,6 +438,17 @@ def refuse_parts_at_the_camera(parts, cal, source) -> None:
 
             raise BadInput(f"{source}: part {p.id!r} reaches z = {p.z_top_mm:g} mm, at or above the camera "
                            f"(z = {camera[2]:.0f} mm): the camera cannot see it")
+
+
+def _require_parts_on_tray(assembly: Assembly, cell, assembly_path) -> None:
+    """Every part's centre lies on the cell's tray, the work area (`cell hw pick` refuses a target off it: an
+    assembly for another place, or a typo in one, would send the arm there; `cell run` picked such a part)."""
+    for p in assembly.parts:
+        outside = cell.tray.outside_text(*p.polygon.centroid.coords[0])
+        if outside:
+            from cell.errors import BadInput
+
+            raise BadInput(f"{assembly_path}: part {p.id!r} {outside}: nothing moved")
 
 
 def _require_parts_in_view(assembly: Assembly, cal, assembly_path) -> None:

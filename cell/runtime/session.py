@@ -206,9 +206,9 @@ def run_session(cfg: RunConfig) -> dict:
 
         raise BadInput(f"calibration {cal_path} is for {cal.width_px} x {cal.height_px} px, the cell's camera "
                        f"has {cell.camera.width_px} x {cell.camera.height_px} px")
-    _require_parts_on_tray(assembly, cell, assembly_path)
     if cfg.real_cell is None:  # the simulated world lays the parts out as the assembly says
         _require_parts_in_view(assembly, cal, assembly_path)
+    _require_parts_on_tray(assembly, cell, assembly_path)
     examples_path = Path(cfg.examples) if cfg.examples else default_examples_path()
     from cell.examples import load_planner_examples
 

@@ -292,3 +292,73 @@ def test_a_full_disk_while_holding_the_examples_leaves_no_half_made_recording(tm
     monkeypatch.undo()
     RecordingWriter(where, examples_file=default_examples_path(), examples_copy="examples_at_start.jsonl").close()
     assert (where / "examples_at_start.jsonl").read_bytes() == default_examples_path().read_bytes()
+
+
+def test_ctrl_c_during_a_station_run_waits_for_the_loop_before_the_recording_closes(tmp_path, capsys, ctrl_c,
+                                                                                    monkeypatch):
+    """`cell run --station --record`, Ctrl-C while the loop's thread is busy (here: reading its second frame, made
+    slow) and the main thread waits for it. Python 3.11's Thread.join, interrupted by the signal, marked the loop's
+    thread stopped although it ran on: the stop was recorded and the recording closed while the loop went on (4
+    of 14 such sessions: replay "ended after 18 of 22 recorded decisions", or frames/ holding one more frame than
+    the manifest said), or the process ended under it (SIGABRT). Now the recording closes after the loop has
+    ended, the stop its last decision, and it replays."""
+    import sys
+    import time
+    import urllib.request
+
+    from cell.recording import RecordingWriter
+    from cell.runtime.loop import CellLoop
+
+    rec, port, reads, busy = tmp_path / "rec", _free_port(), [], threading.Event()
+    read_frame = CellLoop._read_frame
+
+    def slow_second_read(self):
+        reads.append(1)
+        if len(reads) == 2:
+            busy.set()
+            time.sleep(1.0)  # the signal comes meanwhile
+        return read_frame(self)
+
+    monkeypatch.setattr(CellLoop, "_read_frame", slow_second_read)
+    loop_alive_at_close = []
+    close = RecordingWriter.close
+
+    def spy_close(self, *a, **kw):
+        running = sys._current_frames()  # a thread that still runs has a frame, whatever is_alive() says
+        loop_alive_at_close.append(any(t.name == "cell-loop" and t.ident in running for t in threading.enumerate()))
+        return close(self, *a, **kw)
+
+    monkeypatch.setattr(RecordingWriter, "close", spy_close)
+
+    def operator():
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:  # the station answers once the set-up is done
+            try:
+                req = urllib.request.Request(f"http://127.0.0.1:{port}/api/run", data=b"{}", method="POST",
+                                             headers={"X-Cell-Token": "tokentoken", "Content-Type": "application/json"})
+                urllib.request.urlopen(req, timeout=5).read()
+                break
+            except OSError:
+                time.sleep(0.1)
+        if busy.wait(60):
+            time.sleep(0.2)
+            os.kill(os.getpid(), signal.SIGINT)
+
+    t = threading.Thread(target=operator, daemon=True)
+    t.start()
+    code, _, err = run_cli("run", _two_parts(tmp_path), "--station", "--port", port, "--token", "tokentoken",
+                           "--record", rec, capsys=capsys)
+    t.join(5)
+    assert code == 130, err
+    assert loop_alive_at_close == [False]
+    assert RecordingReader(rec).decisions[-1]["type"] == "stop"
+    code, out, err = run_cli("replay", rec, capsys=capsys)
+    assert code == 0, err
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]

@@ -572,24 +572,30 @@ def _with_station(loop: CellLoop, control: RunControl, cfg: RunConfig, say, inte
 
     server = StationServer(LoopBackend(loop), control, port=cfg.station_port, token=cfg.station_token)
     result: dict = {}
+    # The loop's end, waited for on an event, not by Thread.join: Python 3.11's join interrupted by a signal can
+    # mark a thread that still runs as stopped (it releases the thread's own lock), and the next join returns at
+    # once. The loop then wrote on after the stop and the recording's close (4 of 14 sessions stopped by a signal
+    # could not be replayed), or the process ended under it (SIGABRT).
+    finished = threading.Event()
 
     def work():
         try:
             result["summary"] = loop.run()
         except BaseException as e:  # noqa: BLE001 - reported to the operator and the caller
             result["error"] = e
+        finally:
+            finished.set()
 
     with server:
         say(f"operator station: {server.url}  (token {server.token}); press Run on the page")
-        t = threading.Thread(target=work, name="cell-loop", daemon=True)
-        t.start()
+        threading.Thread(target=work, name="cell-loop", daemon=True).start()
         try:
-            while t.is_alive():
-                t.join(0.2)
+            while not finished.wait(0.2):
+                pass
         except KeyboardInterrupt as e:
             control.stop(interrupt_reason(e))
             loop.arm.stop()  # a pick in progress ends now, not when it is done
-            t.join()
+            finished.wait()
             raise
         control.end()
         # done, stopped or failed: the page polls a few more times and shows how it ended. The run has

@@ -341,6 +341,18 @@ def _fsync_dir(directory: Path) -> None:
             os.close(fd)
 
 
+def json_text(text: str) -> str:
+    """`text` as a JSON file may hold it: a name with bytes that are not UTF-8 (Python keeps each as a lone
+    surrogate, which our readers refuse) with those bytes written as \\xNN (`cell run --record $'r\\xff'` made a
+    recording that its replay refused)."""
+    if text.isascii() or not any("\ud800" <= ch <= "\udfff" for ch in text):
+        return text
+    try:
+        return os.fsencode(text).decode("utf-8", "backslashreplace")  # the name's own bytes, \xNN where not UTF-8
+    except UnicodeEncodeError:  # a surrogate that came from no name
+        return text.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
 def to_jsonable(obj, *, nonfinite: str = "error"):
     """numpy arrays and scalars, tuples, Paths and objects with `as_dict`/`to_json` -> plain JSON.
 
@@ -363,8 +375,8 @@ def to_jsonable(obj, *, nonfinite: str = "error"):
                 return None
             raise ValueError(f"a non-finite number ({f}): JSON cannot store it")
         return f
-    if isinstance(obj, Path):
-        return str(obj)
+    if isinstance(obj, (str, Path)):
+        return json_text(str(obj))
     for method in ("to_json", "as_dict"):
         if hasattr(obj, method):
             return to_jsonable(getattr(obj, method)(), nonfinite=nonfinite)

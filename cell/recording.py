@@ -48,6 +48,7 @@ from cell.fileio import (
     check_readable,
     file_sha256,
     json_loads,
+    json_text,
     read_json,
     refuse_lone_surrogates,
     short_repr,
@@ -192,7 +193,7 @@ class RecordingWriter:
                 shutil.copyfile(cal, self.dir / "calibration.json")
             elif nominal_json is not None:
                 write_json_atomic(self.dir / "calibration.json", nominal_json)
-            examples = {"path": str(ex.resolve()), "sha256": file_sha256(ex)} if ex is not None else None
+            examples = {"path": json_text(str(ex.resolve())), "sha256": file_sha256(ex)} if ex is not None else None
             if ex is not None and examples_copy is not None:
                 write_atomic(self.dir / examples_copy, ex.read_bytes())
             held_sha256 = {"cell": file_sha256(self.dir / "cell.json")}  # of the copies: what replay reads
@@ -210,8 +211,9 @@ class RecordingWriter:
                 "created": _now_iso(), "closed": None,
                 "software": {"name": "disassembly-cell", "version": __version__,
                              "python": platform.python_version()},
-                "cell_source": str(Path(cell_file).resolve()) if cell_file is not None else "embedded default",
-                "calibration_source": (str(Path(calibration_file).resolve()) if calibration_file
+                "cell_source": (json_text(str(Path(cell_file).resolve())) if cell_file is not None
+                                else "embedded default"),
+                "calibration_source": (json_text(str(Path(calibration_file).resolve())) if calibration_file
                                        else nominal_calibration.name if nominal_calibration is not None else None),
                 "examples": examples, "files": files, "sha256": held_sha256, "counts": {"frames": 0, "decisions": 0},
                 "meta": to_jsonable(meta or {}),
@@ -566,12 +568,12 @@ class RecordingReader:
 
         p = self.frame_path(index)
         check_readable(p, "recording frame")
-        try:  # imread says only None: an unreadable file was reported as 'cannot be decoded as PNG'
-            open(p, "rb").close()
+        try:  # read here, decoded by OpenCV: its imread says only None, and crashed on a name that is not UTF-8
+            data = p.read_bytes()
         except OSError as e:
             raise BadInput(f"recording frame {p} cannot be read: {e.strerror or e}") from None
         try:
-            img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+            img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
         except cv2.error as e:  # e.g. a header claiming more pixels than OpenCV decodes
             raise BadInput(f"recording frame {p} cannot be decoded as PNG (OpenCV: {getattr(e, 'err', e)})") from None
         if img is None:

@@ -553,3 +553,20 @@ def test_replay_refuses_a_manifest_with_the_sha256_of_a_calibration_the_recordin
     _edit_manifest(sha256={"calibration": "0" * 64})(d)
     code, _, err = run_cli("replay", d, capsys=capsys)
     assert code == 2 and "'sha256.calibration' is given, but the recording holds no calibration" in err, err
+
+
+def test_a_recording_under_a_name_that_is_not_utf8_replays(tmp_path, capsys):
+    """`cell run --record $'r\\xff'` wrote the name into the manifest as a lone surrogate, which the reader
+    refuses (replay exit 2), and OpenCV's imread crashed on the frames' names (SIGSEGV). The name's bytes are
+    kept as \\xff in the manifest, and frames are read by Python and decoded by OpenCV."""
+    import os
+
+    rec = tmp_path / os.fsdecode(b"r\xff")
+    examples = tmp_path / os.fsdecode(b"e\xfe.jsonl")
+    shutil.copyfile(Path(__file__).resolve().parents[1] / "cell" / "data" / "default_examples.jsonl", examples)
+    code, _, err = run_cli("run", "--record", rec, "--examples", examples, capsys=capsys)
+    assert code == 0, err
+    manifest = json.loads((rec / "manifest.json").read_bytes())  # valid JSON, valid UTF-8
+    assert manifest["summary"]["recording"].endswith("r\\xff") and manifest["examples"]["path"].endswith("e\\xfe.jsonl")
+    code, out, err = run_cli("replay", rec, capsys=capsys)
+    assert code == 0 and "match the recording" in out, err

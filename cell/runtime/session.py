@@ -19,7 +19,7 @@ import numpy as np
 
 from cell.cellconfig import load_cell
 from cell.examples import default_examples_path
-from cell.fileio import check_writable, make_folder
+from cell.fileio import check_writable, json_text, make_folder
 from cell.runtime.control import RunControl, Stopped
 from cell.runtime.loop import CellLoop, LoopOptions, StopRun
 from cell.runtime.simworld import SimWorld, WorldFaults
@@ -336,10 +336,10 @@ def run_session(cfg: RunConfig) -> dict:
                 summary["real_cell"] = {"interface": cfg.real_cell.interface, "channel": cfg.real_cell.channel,
                                         "camera": cfg.real_cell.camera}
             if recorder is not None:
-                summary["recording"] = str(recorder.dir)
+                summary["recording"] = json_text(str(recorder.dir))  # (printed, stored: bytes not UTF-8 as \xNN)
             if viz is not None:
                 viz.close()
-                summary["rrd"] = str(rrd)
+                summary["rrd"] = json_text(str(rrd))
             if interrupted is not None:
                 interrupted.summary = summary
             if recorder is not None:

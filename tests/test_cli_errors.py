@@ -32,7 +32,11 @@ def test_cell_traceback_lets_the_exception_through(monkeypatch):
 def test_an_os_error_is_bad_input(monkeypatch, capsys):
     monkeypatch.setattr(rules_command, "run", _fails_with(PermissionError(13, "Permission denied", "/x/examples")))
     code, out, err = run_cli("rules", capsys=capsys)
-    assert code == 2 and err.strip() == "cell: error: [Errno 13] Permission denied: '/x/examples'"
+    assert code == 2 and err.strip() == "cell: error: /x/examples: Permission denied"
+    # a full disk's write names the file too (write_atomic adds it; it said "[Errno 28] No space left on device")
+    monkeypatch.setattr(rules_command, "run", _fails_with(OSError(28, "No space left on device")))
+    code, out, err = run_cli("rules", capsys=capsys)
+    assert code == 2 and err.strip() == "cell: error: [Errno 28] No space left on device"
 
 
 

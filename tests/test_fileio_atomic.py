@@ -77,9 +77,11 @@ def test_a_failure_while_writing_leaves_the_old_file_and_no_temp_file(tmp_path, 
         raise error
 
     monkeypatch.setattr(os, step, fail)
-    with pytest.raises(type(error)):
+    with pytest.raises(type(error)) as raised:
         write_atomic(target, NEW)
     monkeypatch.undo()
+    if isinstance(error, OSError):  # the file asked for is named (a full disk said only "No space left on device")
+        assert raised.value.filename == str(target) and raised.value.errno == errno.ENOSPC
     assert _names(tmp_path) == (["a.json"] if existed else [])
     if existed:
         assert target.read_bytes() == OLD

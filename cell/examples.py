@@ -216,17 +216,22 @@ def _parse_examples(text: str, path: Path, allow_empty: bool) -> list[GraspExamp
     return out
 
 
+def examples_appended_to(old: bytes, path: Path) -> list[GraspExample]:
+    """The examples of a file to append to (it may be empty); BadInput where it is not a valid example file."""
+    try:
+        text = old.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise BadInput(f"example file {path} cannot be read: {e}") from None
+    return _parse_examples(text, path, allow_empty=True)
+
+
 def append_examples(path: str | Path, examples: list[GraspExample]) -> None:
     """Append examples atomically (ids must be new in the file)."""
     path = Path(path)
     for e in examples:  # refuse a line that load_examples would refuse: it would lock the whole file
         parse_example(e.to_json(), f"new example {e.id}")
     def check(old: bytes) -> None:  # under the file's lock: a concurrent appender's ids are in `old`
-        try:
-            text = old.decode("utf-8-sig")
-        except UnicodeDecodeError as e:
-            raise BadInput(f"example file {path} cannot be read: {e}") from None
-        existing = {e.id for e in _parse_examples(text, path, allow_empty=True)}
+        existing = {e.id for e in examples_appended_to(old, path)}
         for e in examples:
             if e.id in existing:
                 raise BadInput(f"example id {e.id!r} is already in {path}")

@@ -26,6 +26,18 @@ def test_an_out_path_under_a_file_is_refused_before_the_session(tmp_path, capsys
     assert (tmp_path / "f").read_text() == "x"
 
 
+def test_append_to_a_broken_example_file_is_refused_before_the_session(tmp_path, capsys):
+    """A truncated last line was refused only after the whole teaching session had run (minutes lost)."""
+    from pathlib import Path
+
+    out = tmp_path / "e.jsonl"
+    text = (Path(__file__).resolve().parents[1] / "cell" / "data" / "default_examples.jsonl").read_bytes()
+    out.write_bytes(text[:-40])
+    code, stdout, err = run_cli("examples", "generate", "--out", out, "--append", "--count", "1", capsys=capsys)
+    assert code == 2 and "line 75: not valid JSON" in err and "examples:" not in err, err  # (no progress line)
+    assert out.read_bytes() == text[:-40]
+
+
 @pytest.mark.parametrize("flag", ["--overwrite", "--append"])
 def test_generate_refuses_to_write_over_its_own_cell_file(tmp_path, capsys, flag):
     # --overwrite replaced the cell file with example lines (exit 0); calibrate, render and run refuse it

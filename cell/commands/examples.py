@@ -33,7 +33,7 @@ def run(args) -> int:
     from cell.cellconfig import load_cell
     from cell.commands._vision_args import count, refuse_out_over_an_input
     from cell.errors import BadInput
-    from cell.examples import append_examples
+    from cell.examples import append_examples, examples_appended_to
     from cell.fileio import check_writable, replace_lines_atomic
     from cell.operator import generate_examples
 
@@ -46,6 +46,8 @@ def run(args) -> int:
     if out.exists() and out.is_dir():
         raise BadInput(f"--out {out} is a folder")
     check_writable(out, "--out")  # before the session, not after it
+    if args.append and out.exists():  # a broken file too (a truncated last line was refused after the session)
+        examples_appended_to(out.read_bytes(), out)
     refuse_out_over_an_input(out, [args.cell])  # --overwrite replaced the cell file with examples
     families = [f.strip() for f in args.families.split(",") if f.strip()] if args.families else None
     if families == []:  # "," or " ": was an IndexError, not the whole library

@@ -46,9 +46,9 @@ def run(args) -> int:
     if out.exists() and out.is_dir():
         raise BadInput(f"--out {out} is a folder")
     check_writable(out, "--out")  # before the session, not after it
+    refuse_out_over_an_input(out, [args.cell])  # --overwrite replaced the cell file with examples
     if args.append and out.exists():  # a broken file too (a truncated last line was refused after the session)
         examples_appended_to(out.read_bytes(), out)
-    refuse_out_over_an_input(out, [args.cell])  # --overwrite replaced the cell file with examples
     families = [f.strip() for f in args.families.split(",") if f.strip()] if args.families else None
     if families == []:  # "," or " ": was an IndexError, not the whole library
         raise BadInput(f"--families {args.families!r} names no family")

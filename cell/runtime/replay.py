@@ -23,6 +23,7 @@ from cell.fileio import as_written, short_repr
 from cell.grasp.params import MAX_FINER_STEPS, SynthesisParams
 from cell.runtime.control import Decision, RunControl
 
+REPLAY_SDO_TIMEOUT_S = 2.0
 SUMMARY_TIMES = {"cycle_s_mean", "planning_s_mean", "planning_share", "picks_per_hour"}
 VOLATILE = {"planning_s", "cycle_s", "motion_s", "t_start_s", "t_end_s", "time_ms"}
 TOLERANCE = 1e-3
@@ -372,7 +373,9 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
         work_examples = Path(tmp) / "examples.jsonl"
         shutil.copyfile(examples_src, work_examples)  # rejects are appended again, not to the original
         replay_can = Path(tmp) / "replay_can.log"
-        with simulated_cell(cell, record=str(replay_can)) as (arm, drives):
+        # the drives answer in this process: an SDO answer later than the usual 0.3 s is the host's load, not the
+        # drives' (a replay beside other jobs timed one out, retried, and diverged on the host's frames)
+        with simulated_cell(cell, record=str(replay_can), sdo_timeout_s=REPLAY_SDO_TIMEOUT_S) as (arm, drives):
             sink = Comparison(recorded, drives, strict, cut_short=_cut_short(rec),
                               recorded_summary=next((d for d in rec.decisions if d.get("type") == "summary"), None))
             control = RecordedApprovals(rec.decisions, f"recording {directory}")

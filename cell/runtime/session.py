@@ -9,6 +9,7 @@ recording (cell.runtime.replay).
 from __future__ import annotations
 
 import contextlib
+import os
 import threading
 import time
 from dataclasses import dataclass, field
@@ -215,10 +216,11 @@ def run_session(cfg: RunConfig) -> dict:
     load_planner_examples(examples_path)  # bad example files are refused before anything moves
     examples_out = None
     if examples_path.resolve() == default_examples_path().resolve():
-        # never the shipped file; a fresh file per session (not one an earlier run left here)
+        # never the shipped file; a fresh file per session (not one an earlier run left here, nor one of a run
+        # started in the same second: the process id tells them apart)
         folder = Path(cfg.record) if cfg.record else Path.cwd()
         stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
-        examples_out = folder / ("examples.jsonl" if cfg.record else f"examples-{stamp}.jsonl")
+        examples_out = folder / ("examples.jsonl" if cfg.record else f"examples-{stamp}-{os.getpid()}.jsonl")
     if cfg.station:  # its rejects and teaching are written there: a read-only file stopped the run at the first
         check_writable(examples_out or examples_path, "the run's example file" if examples_out else "--examples")
 

@@ -32,13 +32,13 @@ def test_a_drive_left_moving_by_a_dead_host_is_stopped_before_the_next_host_move
     buses = [open_bus("virtual", channel) for _ in range(3)]
     try:
         with sim.serve(buses[0], cell, clock=clock) as drives:
-            first = Arm(buses[1], cell, clock=clock, sdo_timeout_s=0.2)
+            first = Arm(buses[1], cell, clock=clock, sdo_timeout_s=1.0)
             first.connect()
             first.move_joints(Joints(0, 90, 200, 0))
             first.move_joints(Joints(-100, 90, 200, 0), wait=False)  # a long swing of J1
             clock.sleep(0.05)
             _die(first)
-            second = Arm(buses[2], cell, clock=clock, sdo_timeout_s=0.2)
+            second = Arm(buses[2], cell, clock=clock, sdo_timeout_s=1.0)
             with caplog.at_level(logging.WARNING, logger="drivers.arm"):
                 second.connect()
             assert "found enabled at connect" in caplog.text and "j1" in caplog.text
@@ -73,7 +73,7 @@ def test_a_stop_before_the_arm_is_connected_keeps_every_drive_from_being_enabled
 
     with simulated_cell(enable=False) as (arm, drives):
         bus, cell, clock = arm.bus, arm.cell, arm.clock
-        other = Arm(bus, cell, clock=clock, sdo_timeout_s=0.2)  # a second host object on the same bus
+        other = Arm(bus, cell, clock=clock, sdo_timeout_s=1.0)  # a second host object on the same bus
         arm.disconnect()
         other.stop()
         with pytest.raises(DriverError, match="quick stop requested by the operator"):

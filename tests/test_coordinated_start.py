@@ -107,7 +107,7 @@ def test_a_drive_that_never_acknowledges_leaves_every_axis_standing(arm, sim_dri
 def test_without_coordinated_start_each_axis_starts_at_its_own_handshake(sim_drives, open_test_bus, sim_clock,
                                                                          cell_cfg, starts):
     cell = dataclasses.replace(cell_cfg, can=dataclasses.replace(cell_cfg.can, coordinated_start=False))
-    arm = Arm(open_test_bus(), cell, clock=sim_clock, sdo_timeout_s=0.2)
+    arm = Arm(open_test_bus(), cell, clock=sim_clock, sdo_timeout_s=1.0)
     arm.connect()
     try:
         seen, registry = starts
@@ -264,7 +264,7 @@ def test_an_interrupt_during_one_by_one_starts_stops_the_axis_already_running(si
     from drivers.axis import Axis
 
     cell = dataclasses.replace(cell_cfg, can=dataclasses.replace(cell_cfg.can, coordinated_start=False))
-    arm = Arm(open_test_bus(), cell, clock=sim_clock, sdo_timeout_s=0.2)
+    arm = Arm(open_test_bus(), cell, clock=sim_clock, sdo_timeout_s=1.0)
     arm.connect()
     try:
         real = Axis.start_move
@@ -334,7 +334,7 @@ def test_an_axis_stopped_from_its_side_as_the_command_begins_is_caught_before_it
     from drivers import DriveDisabled
 
     cell = dataclasses.replace(cell_cfg, can=dataclasses.replace(cell_cfg.can, coordinated_start=coordinated))
-    arm = Arm(open_test_bus(), cell, clock=sim_clock, sdo_timeout_s=0.2)
+    arm = Arm(open_test_bus(), cell, clock=sim_clock, sdo_timeout_s=1.0)
     arm.connect()
     try:
         start = arm.joints()

@@ -209,7 +209,7 @@ def test_an_arm_standing_outside_the_workspace_goes_home_without_going_further_o
     drives_cell = replace(cell_cfg, motion=replace(cell_cfg.motion, home_joints=JUST_OUTSIDE.as_dict()))
     ws = cell_cfg.workspace
     with sim.serve(open_test_bus(), drives_cell, clock=sim_clock) as drives:
-        arm = Arm(open_test_bus(), cell_cfg, clock=sim_clock, sdo_timeout_s=0.2)
+        arm = Arm(open_test_bus(), cell_cfg, clock=sim_clock, sdo_timeout_s=1.0)
         arm.connect()
         depths = []
 
@@ -249,7 +249,7 @@ def test_a_drive_standing_outside_its_joints_limits_is_not_enabled_and_no_target
         targets = []
         notifier = can.Notifier(tap, [lambda m: targets.append(m) if m.arbitration_id == codec.RPDO2_BASE + 1
                                       else None])
-        arm = Arm(open_test_bus(), cell_cfg, clock=sim_clock, sdo_timeout_s=0.2)
+        arm = Arm(open_test_bus(), cell_cfg, clock=sim_clock, sdo_timeout_s=1.0)
         try:
             arm.connect()
             assert "stands at 140.000 deg, outside its limits [-132, 132]; not enabled" in str(arm.faults["j1"])

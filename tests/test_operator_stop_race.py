@@ -123,7 +123,7 @@ def test_a_stop_between_two_one_by_one_starts_keeps_the_next_axis_standing(sim_d
     """Without coordinated start: j1 runs when the stop comes, after the look before j2's handshake; j2's
     set-point frame is not sent (before, it re-enabled j2 from QUICK STOP ACTIVE and j2 started its move)."""
     cell = dataclasses.replace(cell_cfg, can=dataclasses.replace(cell_cfg.can, coordinated_start=False))
-    arm = Arm(open_test_bus(), cell, clock=sim_clock, sdo_timeout_s=0.2)
+    arm = Arm(open_test_bus(), cell, clock=sim_clock, sdo_timeout_s=1.0)
     arm.connect()
     try:
         _stop_when(monkeypatch, arm, "send_target", "j2")

@@ -97,6 +97,11 @@ def _to_each(axes, act) -> None:
         raise surprise
 
 
+# mm or deg: a drive at rest this far past a joint limit (a home at the limit, settled a few counts past it) is
+# enabled holding the limit; further out it is not enabled
+SETTLED_PAST_LIMIT = 0.5
+
+
 class Arm:
     """The SCARA arm and the gripper on a CAN bus made by the caller (see `drivers.open_bus`).
 
@@ -301,26 +306,30 @@ class Arm:
                     )
                 )
                 continue
-            outside = self._outside_limits(ax)
+            hold, outside = self._enable_hold(ax)
             if outside:  # enabling sends the axis' position as its target: not one outside its limits
                 self._latch(DriveFault(f"{ax.name} (node {ax.node_id}): {outside}; not enabled: move it back inside "
                                        "by hand (brake released), then reset", node=ax.name, node_id=ax.node_id))
                 continue
-            ax.enable(STANDSTILL_MARGIN_S + self._slowest_quick_stop_s(), self.poll_s)
+            ax.enable(STANDSTILL_MARGIN_S + self._slowest_quick_stop_s(), self.poll_s, hold)
 
-    def _outside_limits(self, ax: Axis) -> str | None:
-        """Where a joint's drive stands outside the joint's limits (by more than a count), else None. A drive may
-        coast past them: safe torque off, a jam, a power loss mid-move (J1 stopped at 146 deg of 132)."""
+    def _enable_hold(self, ax: Axis):
+        """(the target a joint's drive is enabled with, for its position in counts; why it is not enabled). Its
+        position, within the joint's limits; a drive at rest up to SETTLED_PAST_LIMIT past one (a few counts past a
+        home at the limit) is enabled holding the limit. Further out it coasted there (safe torque off, a jam, power
+        lost mid-move: J1 stopped at 146 deg of 132) and is not enabled: its position would be sent as its target."""
         field = next((f for j, f, _ in JOINT_FIELDS if j == ax.name), None)
         if field is None:
-            return None
+            return None, None
         if ax.status is None:
             ax.wait_status(lambda s: True, None, "first TPDO")
-        (lo, hi), value = getattr(self.cell.scara, field), ax.status.position_counts / ax.counts_per_unit
-        count = 1.0 / ax.counts_per_unit
-        if lo - count <= value <= hi + count:
-            return None
-        return f"stands at {value:.3f} {'mm' if field.endswith('mm') else 'deg'}, outside its limits [{lo:g}, {hi:g}]"
+        (lo, hi), cpu = getattr(self.cell.scara, field), ax.counts_per_unit
+        value = ax.status.position_counts / cpu
+        if lo - SETTLED_PAST_LIMIT <= value <= hi + SETTLED_PAST_LIMIT:
+            lo_c, hi_c = math.ceil(lo * cpu), math.floor(hi * cpu)
+            return (lambda counts: min(max(counts, lo_c), hi_c)), None
+        return None, (f"stands at {value:.3f} {'mm' if field.endswith('mm') else 'deg'}, outside its limits "
+                      f"[{lo:g}, {hi:g}]")
 
     def disconnect(self) -> None:
         """Disable the drives cleanly (they hold no torque and stop watching the host), stop

@@ -344,9 +344,11 @@ class Axis:
             clock.sleep(step_s)
 
     # --- CiA 402 state machine -------------------------------------------------------------
-    def enable(self, quick_stop_timeout_s: float = QUICK_STOP_END_TIMEOUT_S, step_s: float = 0.01) -> None:
+    def enable(self, quick_stop_timeout_s: float = QUICK_STOP_END_TIMEOUT_S, step_s: float = 0.01,
+               hold=None) -> None:
         """Walk the 402 state machine to OPERATION ENABLED in profile position mode, with the
-        target set to the actual position first so that enabling never jumps. From QUICK STOP
+        target set to the actual position first so that enabling never jumps (`hold`: the target for an actual
+        position in counts, where that is not the position itself: a joint limit). From QUICK STOP
         ACTIVE it first waits (on the clock, up to `quick_stop_timeout_s`) for the end of the quick
         stop ramp: statusword bit 10 where the drive stays there (0x605A 5-8; then transition 16),
         or SWITCH ON DISABLED where it does not (1, 2; then the walk from there)."""
@@ -362,7 +364,8 @@ class Axis:
         if self.status.mode != codec.PP_MODE:
             seq = self.send_mode(codec.PP_MODE)
             self.wait_status(lambda s: s.mode == codec.PP_MODE, seq, "profile position mode")
-        self.send_target(self.status.position_counts)
+        hold = hold or (lambda counts: counts)
+        self.send_target(hold(self.status.position_counts))
         steps = {
             "QUICK_STOP_ACTIVE": (codec.CW_ENABLE_OPERATION, "OPERATION_ENABLED"),
             "SWITCH_ON_DISABLED": (codec.CW_SHUTDOWN, "READY_TO_SWITCH_ON"),
@@ -389,7 +392,7 @@ class Axis:
                 continue
             if state in ("SWITCHED_ON", "QUICK_STOP_ACTIVE"):
                 # the drive may have drifted while switched on, or ramped down: target = actual, once more
-                self.send_target(self.status.position_counts)
+                self.send_target(hold(self.status.position_counts))
             if cw == codec.CW_ENABLE_OPERATION:
                 with self.enable_gate():
                     seq = self.send_controlword(cw)

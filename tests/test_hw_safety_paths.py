@@ -262,3 +262,35 @@ def test_a_drive_standing_outside_its_joints_limits_is_not_enabled_and_no_target
             arm.disconnect()
             notifier.stop()
     assert [codec.unpack_target(m.data) for m in targets] == []
+
+
+def test_a_drive_settled_a_few_counts_past_a_home_at_the_limit_is_enabled_holding_the_limit(open_test_bus, sim_clock,
+                                                                                           cell_cfg):
+    """The shipped home has J3 at its upper limit, 200 mm: a real drive may come to rest a few counts past it. It is
+    enabled (it was refused, and the operator told to move the vertical axis by hand) with the limit as its target,
+    not its position, and moves as usual."""
+    from dataclasses import replace
+
+    import can
+
+    from drivers import Arm, sim
+
+    wide = replace(cell_cfg.scara, j3_mm=(0.0, 205.0))
+    drives_cell = replace(cell_cfg, scara=wide, motion=replace(
+        cell_cfg.motion, home_joints={**cell_cfg.motion.home_joints, "j3_mm": 200.002}))
+    with sim.serve(open_test_bus(), drives_cell, clock=sim_clock):
+        tap = open_test_bus()
+        targets = []
+        notifier = can.Notifier(tap, [lambda m: targets.append(codec.unpack_target(m.data))
+                                      if m.arbitration_id == codec.RPDO2_BASE + 3 else None])
+        arm = Arm(open_test_bus(), cell_cfg, clock=sim_clock, sdo_timeout_s=1.0)
+        try:
+            arm.connect()
+            assert arm.faults == {} and arm.axes["j3"].state == "OPERATION_ENABLED"
+            arm.move_joints(replace(arm.joints(), j3_mm=190.0))
+            assert arm.joints().j3_mm == pytest.approx(190.0, abs=1e-3)
+        finally:
+            arm.disconnect()
+            notifier.stop()
+    per_mm = cell_cfg.can.nodes["j3"].counts_per_unit
+    assert targets and max(targets) <= 200.0 * per_mm, targets  # nothing past the limit was sent

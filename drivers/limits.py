@@ -131,10 +131,11 @@ def _stop_violations(cell, move, t_s: np.ndarray, samples: np.ndarray, speed: np
       move meanwhile (4 % of random moves leave the workspace, up to 17 mm, with 20 ms).
     Not covered: drives on another ramp (option_codes warns at connect), a drive that coasts (STO, power
     lost), an axis that stops dead (a jam: the other runs on until the jammed drive's following-error window
-    trips; docs/drivers.md), a host slower than the lag. J3 or J4 stopping first leaves J1 and J2 on the path until they stop
-    together. move, t_s (n,): the way (`coordinated_motion`), samples (n, 4) and speed (n, 4) at t_s; tool: its
-    tool x, y (n,). Only the samples whose stop may reach the workspace's edge (`quick_stop_reach_mm`) are
-    followed, from sample `first` on (before it the tool is still on its way back into the workspace)."""
+    trips; docs/drivers.md), a host slower than the lag. J3 or J4 stopping first leaves J1 and J2 on the path
+    until they stop together. move, t_s (n,): the way (`coordinated_motion`), samples (n, 4) and speed (n, 4)
+    at t_s; tool: its tool x, y (n,). Only the samples whose stop may reach the workspace's edge
+    (`quick_stop_reach_mm`) are followed, from sample `first` on (before it the tool is still on its way back
+    into the workspace)."""
     from drivers.profile import quick_stop_poses_array, quick_stop_reach_mm, stops_one_first
 
     sc, ws, lag_s = cell.scara, cell.workspace, cell.can.stop_lag_ms / 1000.0

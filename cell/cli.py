@@ -178,7 +178,8 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:
         return 0
     except OSError as e:  # a path or device the user named cannot be used (permissions, a full disk, ...)
-        named = f"{e.filename}: {e.strerror}" if e.filename is not None and e.strerror else str(e)
+        named = (f"{e.filename}{'' if e.filename2 is None else f' -> {e.filename2}'}: {e.strerror}"
+                 if e.filename is not None and e.strerror else str(e))
         print(f"cell: error: {named}", file=sys.stderr)  # "/x/out.png: No space left on device", not "[Errno 28] ..."
         return 2
     except Exception as e:  # a bug: one line, not a traceback; CELL_TRACEBACK=1 shows where it happened

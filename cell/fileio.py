@@ -43,8 +43,8 @@ def write_atomic(path: str | os.PathLike, data: str | bytes) -> None:
     except BaseException as e:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
-        if isinstance(e, OSError) and e.filename is None:  # a full disk: name the file (it said only the error)
-            raise OSError(e.errno, e.strerror, str(path)) from None
+        if isinstance(e, OSError) and e.filename in (None, tmp):  # a full disk said only the error; a failed
+            raise OSError(e.errno, e.strerror, str(path)) from None  # rename named the temp file, gone by now
         raise
     _fsync_dir(path.parent)
 

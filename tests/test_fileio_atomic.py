@@ -92,9 +92,10 @@ def test_a_rename_refused_by_the_file_system_leaves_no_temp_file(tmp_path):
     target = tmp_path / "a.json"
     target.mkdir()
     (target / "inside").write_bytes(OLD)
-    with pytest.raises(OSError):
+    with pytest.raises(OSError) as raised:
         write_atomic(target, NEW)
     assert _names(tmp_path) == ["a.json"] and (target / "inside").read_bytes() == OLD
+    assert raised.value.filename == str(target)  # not the temp file, taken away by then
 
 
 @pytest.mark.parametrize("old_mode, umask, expected", [

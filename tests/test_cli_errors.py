@@ -37,7 +37,7 @@ def test_an_os_error_is_bad_input(monkeypatch, capsys):
     monkeypatch.setattr(rules_command, "run", _fails_with(OSError(28, "No space left on device")))
     code, out, err = run_cli("rules", capsys=capsys)
     assert code == 2 and err.strip() == "cell: error: [Errno 28] No space left on device"
-    monkeypatch.setattr(rules_command, "run", _fails_with(OSError(18, "Invalid cross-device link", "/a", "/b")))
+    monkeypatch.setattr(rules_command, "run", _fails_with(OSError(18, "Invalid cross-device link", "/a", None, "/b")))
     code, out, err = run_cli("rules", capsys=capsys)
     assert code == 2 and err.strip() == "cell: error: /a -> /b: Invalid cross-device link"
 

@@ -209,7 +209,7 @@ def run_session(cfg: RunConfig) -> dict:
                        f"has {cell.camera.width_px} x {cell.camera.height_px} px")
     if cfg.real_cell is None:  # the simulated world lays the parts out as the assembly says
         _require_parts_in_view(assembly, cal, assembly_path)
-    _require_parts_on_tray(assembly, cell, assembly_path)
+        _require_parts_on_tray(assembly, cell, assembly_path)
     examples_path = Path(cfg.examples) if cfg.examples else default_examples_path()
     from cell.examples import load_planner_examples
 
@@ -444,7 +444,8 @@ def refuse_parts_at_the_camera(parts, cal, source) -> None:
 
 def _require_parts_on_tray(assembly: Assembly, cell, assembly_path) -> None:
     """Every part's centre lies on the cell's tray, the work area (`cell hw pick` refuses a target off it: an
-    assembly for another place, or a typo in one, would send the arm there; `cell run` picked such a part)."""
+    assembly for another place, or a typo in one, would send the arm there; `cell run` picked such a part). For the
+    simulated world, which lays the parts out so; on a real cell the assembly's poses are only where to look."""
     for p in assembly.parts:
         outside = cell.tray.outside_text(*p.polygon.centroid.coords[0])
         if outside:

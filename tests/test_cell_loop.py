@@ -89,14 +89,16 @@ def test_replay_matches_and_names_the_first_divergence(recorded, tmp_path, capsy
     code, out, err = run_cli("replay", bad, capsys=capsys)
     assert code == 1
     assert f"decision #{i} (commands, washer)" in err and "j3_mm" in err
-    # the summary's outcome is a decision too (it was not compared); its times are another run's
+    # the summary's outcome is a decision too (it was not compared); its times are another run's, and what older
+    # summaries counted otherwise (grasps, attempts) is not asked about
     shutil.copyfile(rec / "decisions.jsonl", bad / "decisions.jsonl")
     lines = (bad / "decisions.jsonl").read_text().splitlines()
     summary = json.loads(lines[-1])
     assert summary["type"] == "summary"
     for key, value, says in [("picks_per_hour", 1.0, None), ("parts_removed", 7, "parts_removed: recorded 7"),
-                             ("parts", [{**summary["parts"][0], "attempts": 9}, *summary["parts"][1:]],
-                              "parts.0.attempts: recorded 9")]:
+                             ("grasps", 9, None),
+                             ("parts", [{**summary["parts"][0], "outcome": "skipped"}, *summary["parts"][1:]],
+                              "parts.0.outcome: recorded 'skipped'")]:
         (bad / "decisions.jsonl").write_text("\n".join([*lines[:-1], json.dumps({**summary, key: value})]) + "\n")
         code, out, err = run_cli("replay", bad, capsys=capsys)
         assert (code, says is None or f"the summary: {says}" in err) == (0 if says is None else 1, True), err

@@ -57,6 +57,7 @@ from cell.fileio import (
     write_json_atomic,
 )
 
+PNG_SIGNATURE, PNG_END = b"\x89PNG\r\n\x1a\n", b"IEND\xaeB`\x82"  # a PNG's first 8 bytes, its IEND chunk's last 8
 FORMAT = "cell-recording"
 VERSION = 1
 MANIFEST = "manifest.json"
@@ -572,6 +573,8 @@ class RecordingReader:
             data = p.read_bytes()
         except OSError as e:
             raise BadInput(f"recording frame {p} cannot be read: {e.strerror or e}") from None
+        if data.startswith(PNG_SIGNATURE) and not data.endswith(PNG_END):  # libpng would print its own line first
+            raise BadInput(f"recording frame {p} is cut short: its PNG has no end ({len(data)} bytes)")
         try:
             img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
         except cv2.error as e:  # e.g. a header claiming more pixels than OpenCV decodes

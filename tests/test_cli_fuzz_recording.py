@@ -22,6 +22,11 @@ def _png_header_only(width: int, height: int) -> bytes:
             + chunk(b"IEND", b""))
 
 
+def _cut_short_frame(d):
+    f = d / "frames" / "000001.png"
+    f.write_bytes(f.read_bytes()[:5000])
+
+
 def _damage_frame(d: Path):
     (d / "frames" / "000001.png").write_bytes(_png_header_only(60000, 60000))
 
@@ -96,15 +101,17 @@ def _twice_in_the_manifest(d: Path):
     (_planner_a_list, "manifest meta.planner must be an object"),
     # was: internal error (cv2.error: pixels <= CV_IO_MAX_IMAGE_PIXELS)
     (_damage_frame, "000001.png cannot be decoded as PNG (OpenCV: pixels <= CV_IO_MAX_IMAGE_PIXELS)"),
+    # was: libpng's own "libpng error: Read Error" line on the process' stderr first
+    (_cut_short_frame, "000001.png is cut short: its PNG has no end (5000 bytes)"),
     # was: "decisions.jsonl holds 14 decisions, the manifest says 14"
     (_counts_as_strings, "'counts.decisions' must be a whole number, not '14'"),
 ])
-def test_replay_refuses_the_damage_in_one_clear_line(tmp_path, capsys, damage, message):
+def test_replay_refuses_the_damage_in_one_clear_line(tmp_path, capfd, damage, message):
     d = tmp_path / "rec"
     shutil.copytree(SHIPPED, d)
     damage(d)
     before = {p: p.read_bytes() for p in d.rglob("*") if p.is_file()}
-    code, out, err = run_cli("replay", d, capsys=capsys)
+    code, out, err = run_cli("replay", d, capsys=capfd)  # (the process' own stderr: a library's lines too)
     assert code == 2 and message in err and "internal error" not in err, err
     assert len(err.strip().splitlines()) == 1
     assert {p: p.read_bytes() for p in d.rglob("*") if p.is_file()} == before  # reading never changes it

@@ -318,18 +318,17 @@ class Arm:
         position, within the joint's limits; a drive at rest up to SETTLED_PAST_LIMIT past one (a few counts past a
         home at the limit) is enabled holding the limit. Further out it coasted there (safe torque off, a jam, power
         lost mid-move: J1 stopped at 146 deg of 132) and is not enabled: its position would be sent as its target."""
-        field = next((f for j, f, _ in JOINT_FIELDS if j == ax.name), None)
-        if field is None:
+        unit = next((u for j, _, u in JOINT_FIELDS if j == ax.name), None)
+        if unit is None:  # the gripper: its opening is checked on every command
             return None, None
         if ax.status is None:
             ax.wait_status(lambda s: True, None, "first TPDO")
-        (lo, hi), cpu = getattr(self.cell.scara, field), ax.counts_per_unit
+        (lo, hi), cpu = self.cell.scara.limits(ax.name), ax.counts_per_unit
         value = ax.status.position_counts / cpu
         if lo - SETTLED_PAST_LIMIT <= value <= hi + SETTLED_PAST_LIMIT:
             lo_c, hi_c = math.ceil(lo * cpu), math.floor(hi * cpu)
             return (lambda counts: min(max(counts, lo_c), hi_c)), None
-        return None, (f"stands at {value:.3f} {'mm' if field.endswith('mm') else 'deg'}, outside its limits "
-                      f"[{lo:g}, {hi:g}]")
+        return None, f"stands at {value:.3f} {unit}, outside its limits [{lo:g}, {hi:g}]"
 
     def disconnect(self) -> None:
         """Disable the drives cleanly (they hold no torque and stop watching the host), stop

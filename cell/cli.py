@@ -80,15 +80,14 @@ class _Parser(argparse.ArgumentParser):
         unknown option; the plain parse refused `grasp a.json --json -- b.json`: the files were already taken.)"""
         i = args.index("--")
         files = next(a for a in self._actions if not a.option_strings and a.nargs in ("+", "*"))
-        required = files.nargs == "+"
-        files.nargs = "*"  # the files before "--" may be none
+        nargs, files.nargs = files.nargs, "*"  # the files before "--" may be none
         try:
             ns, extras = self.parse_known_args(args[:i], namespace)
         finally:
-            files.nargs = "+" if required else "*"
+            files.nargs = nargs
         after = [files.type(a) if files.type else a for a in args[i + 1:]]
         setattr(ns, files.dest, list(getattr(ns, files.dest) or []) + after)
-        if required and not getattr(ns, files.dest):
+        if nargs == "+" and not getattr(ns, files.dest):
             self.error(f"the following arguments are required: {files.metavar or files.dest}")
         return ns, extras
 

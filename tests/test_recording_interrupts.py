@@ -304,7 +304,8 @@ def test_ctrl_c_during_a_station_run_waits_for_the_loop_before_the_recording_clo
     ended, the stop its last decision, and it replays."""
     import sys
     import time
-    import urllib.request
+
+    from station_runs import TOKEN, post
 
     from cell.recording import RecordingWriter
     from cell.runtime.loop import CellLoop
@@ -334,9 +335,7 @@ def test_ctrl_c_during_a_station_run_waits_for_the_loop_before_the_recording_clo
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:  # the station answers once the set-up is done
             try:
-                req = urllib.request.Request(f"http://127.0.0.1:{port}/api/run", data=b"{}", method="POST",
-                                             headers={"X-Cell-Token": "tokentoken", "Content-Type": "application/json"})
-                urllib.request.urlopen(req, timeout=5).read()
+                post(f"http://127.0.0.1:{port}", "/api/run")
                 break
             except OSError:
                 time.sleep(0.1)
@@ -346,7 +345,7 @@ def test_ctrl_c_during_a_station_run_waits_for_the_loop_before_the_recording_clo
 
     t = threading.Thread(target=operator, daemon=True)
     t.start()
-    code, _, err = run_cli("run", _two_parts(tmp_path), "--station", "--port", port, "--token", "tokentoken",
+    code, _, err = run_cli("run", _two_parts(tmp_path), "--station", "--port", port, "--token", TOKEN,
                            "--record", rec, capsys=capsys)
     t.join(5)
     assert code == 130, err

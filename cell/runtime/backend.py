@@ -9,7 +9,9 @@ atomically; the model is rebuilt at once, so the next plan uses it.
 
 from __future__ import annotations
 
+import math
 from datetime import UTC, datetime
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -19,7 +21,7 @@ from cell.configuration import choose_configuration
 from cell.errors import BadInput
 from cell.examples import GraspExample
 from cell.grasp.height import grasp_z_mm
-from cell.kinematics import inverse
+from cell.kinematics import Joints, inverse, normalize_axis_deg
 
 
 class LoopBackend:
@@ -58,19 +60,15 @@ class LoopBackend:
             raise BadInput(f"part {part_id!r} is not in the current frame")
         px = np.array([p1_px, p2_px], float)
         contacts = taught_contacts(part, lp.cal.px_to_mm(px, part.z_top_mm), lp.cell.gripper.opening_mm)
-        d = contacts[1] - contacts[0]
-        opening = float(np.hypot(*d))
-        z = grasp_z_mm(part.z_bottom_mm, part.z_top_mm, lp.cell.gripper, lp.cell.scara.j3_mm)
-        centre = contacts.mean(axis=0)
-        axis = float(np.degrees(np.arctan2(d[1], d[0])))
+        opening = float(np.linalg.norm(contacts[1] - contacts[0]))
+        pose = jaw_pose(part, contacts, lp.cell)
         others = tuple(p for p in seen.values() if p.id != part_id)
-        joints = choose_configuration(inverse(centre[0], centre[1], z, axis, lp.cell.scara), lp.examples, lp.cell,
-                                      (part, *others))
+        joints = choose_configuration(pose.solutions, lp.examples, lp.cell, (part, *others))
         now = datetime.now(UTC)
         ex = GraspExample(f"teach-{now.strftime('%Y%m%dT%H%M%S%f')}", part, contacts, True,
                           {"kind": "station-teach", "by": "operator", "at": now.isoformat(),
                            "note": f"taught on frame {index}"},
-                          obstacles=others, grasp_z_mm=z, joints=joints)
+                          obstacles=others, grasp_z_mm=pose.z_mm, joints=joints)
         n_examples = lp.teach(ex)
         return {"ok": True, "example_id": ex.id, "n_examples": n_examples,
                 "contacts_mm": np.round(contacts, 2).tolist(),
@@ -95,6 +93,23 @@ def taught_contacts(part, clicked_mm: np.ndarray, opening_mm: tuple[float, float
         raise BadInput(f"the two contacts are {opening:.1f} mm apart; the jaws open {lo:g} to {hi:g} mm")
     _require_facing(part, contacts)
     return contacts
+
+
+class JawPose(NamedTuple):
+    z_mm: float
+    centre_mm: np.ndarray
+    axis_deg: float
+    solutions: list[Joints]
+
+
+def jaw_pose(part, contacts: np.ndarray, cell) -> JawPose:
+    """Two contacts on `part` -> where the jaws go: the grasp z, the tips' centre between the contacts, the
+    closing axis along their line (folded into (-90, 90]) and every IK solution (step 5 chooses among them)."""
+    z = grasp_z_mm(part.z_bottom_mm, part.z_top_mm, cell.gripper, cell.scara.j3_mm)
+    centre = contacts.mean(axis=0)
+    d = contacts[1] - contacts[0]
+    axis_deg = normalize_axis_deg(math.degrees(math.atan2(d[1], d[0])))
+    return JawPose(z, centre, axis_deg, inverse(float(centre[0]), float(centre[1]), z, axis_deg, cell.scara))
 
 
 def _require_facing(part, contacts: np.ndarray) -> None:

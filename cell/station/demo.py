@@ -24,8 +24,8 @@ import numpy as np
 from cell.cellconfig import Cell, default_cell
 from cell.errors import BadInput
 from cell.examples import GraspExample, append_examples, load_examples
-from cell.grasp.height import grasp_z_mm
-from cell.kinematics import Joints, inverse, normalize_axis_deg
+from cell.kinematics import Joints
+from cell.runtime.backend import jaw_pose, taught_contacts
 from cell.runtime.control import Faulted, RunControl, Stopped
 from cell.scene import Part
 
@@ -146,16 +146,10 @@ class DemoCell:
                 raise BadInput(f"no part {part_id!r} on the current frame "
                                f"(parts: {', '.join(p.id for p in self._parts) or 'none'})")
             others = tuple(p for p in self._parts if p.id != part_id)
-        from cell.runtime.backend import taught_contacts
-
         snapped = taught_contacts(part, px_to_mm(np.array([p1_px, p2_px], float)), self.cell.gripper.opening_mm,
                                   off_max_mm=15.0)
         opening = float(np.linalg.norm(snapped[1] - snapped[0]))
-        z = grasp_z_mm(part.z_bottom_mm, part.z_top_mm, self.cell.gripper, self.cell.scara.j3_mm)
-        d = snapped[1] - snapped[0]
-        axis = normalize_axis_deg(math.degrees(math.atan2(d[1], d[0])))
-        centre = snapped.mean(axis=0)
-        sols = inverse(float(centre[0]), float(centre[1]), z, axis, self.cell.scara)
+        z, _, _, sols = jaw_pose(part, snapped, self.cell)
         with self._lock:
             self._counter += 1
             eid = f"station-teach-{datetime.now(UTC).strftime('%Y%m%dT%H%M%S%f')}-{self._counter}"
@@ -282,11 +276,7 @@ class DemoCell:
             contacts = np.array([nearest_points(boundary, Point(q))[0].coords[0] for q in (a, b)])
             how = "across the minimum rectangle"
         opening = float(np.linalg.norm(contacts[1] - contacts[0]))
-        z = grasp_z_mm(part.z_bottom_mm, part.z_top_mm, self.cell.gripper, self.cell.scara.j3_mm)
-        d = contacts[1] - contacts[0]
-        axis = normalize_axis_deg(math.degrees(math.atan2(d[1], d[0])))
-        centre = contacts.mean(axis=0)
-        sols = inverse(float(centre[0]), float(centre[1]), z, axis, self.cell.scara)
+        z, centre, axis, sols = jaw_pose(part, contacts, self.cell)
         fingers, palm = _footprints(contacts, self.cell)
         px = {"target": part.id, "contacts_px": np.round(mm_to_px(contacts), 1).tolist(),
               "fingers_px": [np.round(mm_to_px(f), 1).tolist() for f in fingers],

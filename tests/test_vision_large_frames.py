@@ -253,7 +253,7 @@ def test_a_calibrated_12_mp_frame_is_detected_coarsely_and_gives_the_default_fra
     within 1.2 % and centroids within 0.35 mm on these layouts (2 % and 0.5 mm asked). Layout 3's
     plate_3 is the exception on the default frame's side: there a sliver of shadow inside it is
     taken for a small hole (its 2 true holes at 12 MP; 3 slivers before refined rings that cross
-    themselves were untangled, segment.py `_tidy_rings`); it is held to the truth instead."""
+    themselves were untangled, cell/vision/rings.py `tidy_rings`); it is held to the truth instead."""
     parts, frame, big = rendered_pair
     params = SegmentParams.for_calibration(BIG_CAL)
     assert params.scale == 6 and params.for_frame(big.shape) == params  # the coarser detection is the one run

@@ -396,7 +396,7 @@ def test_elliptic_dilation_row_by_row_equals_opencvs():
 
 
 def test_nearest_crossing_by_its_order_equals_the_least_distance():
-    from cell.vision.segment import _profile_steps
+    from cell.vision.subpixel import _profile_steps
 
     ts, basis, nearest_first = _profile_steps(4.0)
     assert basis.shape == (3, 3 * len(ts)) and not ts.flags.writeable

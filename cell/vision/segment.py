@@ -13,7 +13,7 @@ Pipeline (one frame, see docs/vision.md for the parameters and why):
    narrow necks (watershed on the distance transform) or flagged `merged`; parts touching
    the image border are flagged `cut_off`.
 5. Every boundary point is moved along its normal to where the full-resolution colour
-   profile crosses half-way between the part and what lies outside it (sub-pixel).
+   profile crosses half-way between the part and what lies outside it (sub-pixel, subpixel.py).
 
 Pixel coordinates are CONTRACT-frame (origin at the top-left pixel's top-left corner).
 """
@@ -34,6 +34,8 @@ from calibration.default import CAMERA_MM, FOCAL_PX, HEIGHT_PX, WIDTH_PX
 from cell.errors import BadInput
 from cell.vision.background import field_at, fit_copy_of_whole_dn, fit_tray_field, reference_background
 from cell.vision.outside import split_outside
+from cell.vision.rings import ahead, ring_area_centroid, signed_area, tidy_rings
+from cell.vision.subpixel import MIN_EDGE_SHARE, edge_share, refine_rings
 from cell.vision.touching import pick
 
 SMALL_FRAME_PX = 960
@@ -383,7 +385,7 @@ def _border_hole_share(segs: list[Segment], shape) -> float:
     share = 0.0
     for s in segs:
         if s.cut_off and s.area_px > TRAY_TAKEN_SHARE * frame_px:
-            holes = sum(abs(_signed_area(h)) for h in s.holes_px)
+            holes = sum(abs(signed_area(h)) for h in s.holes_px)
             share = max(share, holes / (s.area_px + holes))
     return share
 
@@ -924,9 +926,9 @@ def _regions_to_segments(pieces, frame: np.ndarray, det: np.ndarray, bg: np.ndar
         rings = [r for o, hs, *_ in found for r in [o, *hs]]
         is_hole = [h for o, hs, *_ in found for h in [False] + [True] * len(hs)]
         edges: list = []
-        refined = iter(_tidy_rings(refine_rings(frame, rings, is_hole, p, edges), frame.shape))
+        refined = iter(tidy_rings(refine_rings(frame, rings, is_hole, p, edges), frame.shape))
         at = np.cumsum([0] + [1 + len(hs) for _, hs, *_ in found])[:-1]
-        shares = [_edge_share(rings[i], edges[i], frame.shape) for i in at]
+        shares = [edge_share(rings[i], edges[i], frame.shape) for i in at]
         found = [(next(refined), [next(refined) for _ in hs], *rest) for _, hs, *rest in found]
         # a region with an edge along almost none of its outline is a lighting gradient the tray's
         # field does not follow (a vignetted corner, a bright patch at the border), not a part
@@ -934,17 +936,17 @@ def _regions_to_segments(pieces, frame: np.ndarray, det: np.ndarray, bg: np.ndar
     segs = []
     for outline, hole_rings, merged, cut, mean in found:
         # each ring's area and centroid once: they give its orientation, the hole's size and the region's
-        outer, cen = _ring_area_centroid(outline)
+        outer, cen = ring_area_centroid(outline)
         outline = outline if outer > 0 else outline[::-1].copy()  # counter-clockwise
         area, mom = abs(outer), abs(outer) * cen
         holes = []
         for hh in hole_rings:
-            ha, hc = _ring_area_centroid(hh)
+            ha, hc = ring_area_centroid(hh)
             if not _hole_holds(hh, outline, p, ha):
                 hh = _hole_grazed(hh, outline, p, ha)
                 if hh is None:
                     continue
-                ha, hc = _ring_area_centroid(hh)
+                ha, hc = ring_area_centroid(hh)
             holes.append(hh if ha < 0 else hh[::-1].copy())  # clockwise
             area, mom = area - abs(ha), mom - abs(ha) * hc
         area, cen = (area, mom / area) if area > 0 else (abs(outer), cen)  # (holes filling it: the outline's)
@@ -954,157 +956,15 @@ def _regions_to_segments(pieces, frame: np.ndarray, det: np.ndarray, bg: np.ndar
     return segs
 
 
-MIN_EDGE_SHARE = 0.25  # the share of a region's outline (off the image border) where refinement must find an edge
-
-
-def _edge_share(ring: np.ndarray, found: np.ndarray | None, shape) -> float:
-    """The share of the ring's points off the image border (a region cut there has no edge there)
-    where an edge was found; 1 when too few points to tell."""
-    if found is None:
-        return 1.0
-    h, w = shape[:2]
-    off = (ring[:, 0] > 1.0) & (ring[:, 0] < w - 1.0) & (ring[:, 1] > 1.0) & (ring[:, 1] < h - 1.0)
-    n = int(off.sum())
-    if n < 5:
-        return 1.0
-    return float(np.count_nonzero(found & off)) / n
-
-
-def _tidy_rings(rings: list[np.ndarray], shape) -> list[np.ndarray]:
-    """Refined rings kept within the frame ([0, w] x [0, h]: a point the refinement moved past the
-    border is off the picture) and simple: where moving the points along their normals made a ring
-    cross itself (tiny loops where the edge profile is noisy, or a point pushed across a narrow
-    neck), the ring becomes the outline of the largest piece of area it encloses (Festo frame 2
-    with noise added: 6 of 23 outlines and 3 of 67 holes crossed themselves; shapely and the scene
-    files' reader need simple rings). Rings that are simple and inside are returned as they are."""
-    import shapely
-
-    h, w = shape[:2]
-    out = list(rings)
-    big = [i for i, r in enumerate(out) if len(r) >= 4]
-    if not big:
-        return out
-    pts = np.concatenate([out[i] for i in big])
-    if pts.min() < 0.0 or pts[:, 0].max() > w or pts[:, 1].max() > h:  # (one test for all rings)
-        out = [np.column_stack([np.clip(r[:, 0], 0.0, w), np.clip(r[:, 1], 0.0, h)])
-               if r.size and (r.min() < 0.0 or r[:, 0].max() > w or r[:, 1].max() > h) else r for r in out]
-        pts = np.concatenate([out[i] for i in big])
-    lr = shapely.linearrings(pts, indices=np.repeat(np.arange(len(big)), [len(out[i]) for i in big]))
-    for i in np.asarray(big)[~shapely.is_simple(lr)]:
-        out[i] = _untangled(out[i])
-    return out
-
-
-def _untangled(ring: np.ndarray) -> np.ndarray:
-    """The exterior of the largest piece of area a self-crossing ring encloses, in the ring's own
-    orientation (the ring unchanged when it encloses none). Each loop is cut off at its crossing
-    first (`_loops_cut`; shapely's make_valid takes 10 - 30 ms on a region of 5000 points); whatever
-    still crosses goes through make_valid."""
-    import shapely
-
-    cut = _loops_cut(ring)
-    if len(cut) >= 4 and shapely.LinearRing(cut).is_simple:
-        return cut
-    if len(np.unique(cut, axis=0)) < len(cut):
-        # a vertex visited twice: the contour of two blobs that touch at a pixel (OpenCV's contours
-        # of 8-connected masks); the pinch is kept as the contour has it, both blobs in the region
-        return cut
-    cut = _loops_cut(cut, everywhere=True)
-    if len(cut) >= 4 and shapely.LinearRing(cut).is_simple:
-        return cut
-    fixed = shapely.make_valid(shapely.Polygon(ring))
-    pieces = [g for g in shapely.get_parts(shapely.get_parts(fixed)) if g.geom_type == "Polygon" and g.area > 0]
-    if not pieces:
-        return ring
-    ext = np.asarray(max(pieces, key=lambda g: g.area).exterior.coords, float)[:-1]
-    return ext if (_signed_area(ext) > 0) == (_signed_area(ring) > 0) else ext[::-1].copy()
-
-
-LOOP_SPAN = 24  # loops up to this many points long are looked for segment by segment (numpy), longer ones
-# through shapely's STRtree
-
-
-def _crossing_params(p: np.ndarray, e: np.ndarray, q: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Where segments p + t e and q + u f (rows) meet: (t, u); both in (0, 1) where they cross, NaN or
-    infinite where they are parallel."""
-    den = e[:, 0] * f[:, 1] - e[:, 1] * f[:, 0]
-    pq = q - p
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return (pq[:, 0] * f[:, 1] - pq[:, 1] * f[:, 0]) / den, (pq[:, 0] * e[:, 1] - pq[:, 1] * e[:, 0]) / den
-
-
-def _crossings_near(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pairs (i, i + d), 2 <= d <= LOOP_SPAN, of a ring's segments a -> b that cross."""
-    n = len(a)
-    e = b - a
-    ii, jj = [], []
-    for d in range(2, min(LOOP_SPAN, n // 2 - 1) + 1):
-        t, u = _crossing_params(a, e, np.roll(a, -d, axis=0), np.roll(e, -d, axis=0))
-        hit = np.flatnonzero((t > 0) & (t < 1) & (u > 0) & (u < 1))
-        ii.append(hit)
-        jj.append((hit + d) % n)
-    return (np.concatenate(ii), np.concatenate(jj)) if ii else (np.zeros(0, int), np.zeros(0, int))
-
-
-def _crossings_all(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """All pairs (i, j) of a ring's segments a -> b that cross (candidates by their boxes, shapely's STRtree)."""
-    import shapely
-
-    boxes = shapely.box(np.minimum(a[:, 0], b[:, 0]), np.minimum(a[:, 1], b[:, 1]),
-                        np.maximum(a[:, 0], b[:, 0]), np.maximum(a[:, 1], b[:, 1]))
-    i, j = shapely.STRtree(boxes).query(boxes)  # boxes that meet (no predicate: GEOS's takes 5 x as long)
-    keep = np.abs(i - j) > 1
-    i, j = i[keep], j[keep]
-    t, u = _crossing_params(a[i], b[i] - a[i], a[j], b[j] - a[j])
-    hit = (t > 0) & (t < 1) & (u > 0) & (u < 1)
-    return i[hit], j[hit]
-
-
-def _loops_cut(ring: np.ndarray, everywhere: bool = False) -> np.ndarray:
-    """The ring with its loops cut off: where segment i crosses segment j, the points on the side with
-    fewer of them (a loop the refinement made) are replaced by the crossing point; the longest such
-    loop first (it holds shorter ones), a loop overlapping one cut already is left. Loops up to
-    LOOP_SPAN points, or (`everywhere`) of any length."""
-    n = len(ring)
-    if n < 8:
-        return ring
-    a, b = ring, np.roll(ring, -1, axis=0)
-    i, j = (_crossings_all if everywhere else _crossings_near)(a, b)
-    i, j = np.minimum(i, j), np.maximum(i, j)
-    keep = j > i
-    i, j = i[keep], j[keep]
-    if not len(i):
-        return ring
-    e = b[i] - a[i]
-    t, _ = _crossing_params(a[i], e, a[j], b[j] - a[j])
-    cross = a[i] + t[:, None] * e
-    inner = j - i  # points i + 1 .. j lie on one side, j + 1 .. i (round the end) on the other
-    start = np.where(inner <= n - inner, i + 1, j + 1)
-    span = np.minimum(inner, n - inner)
-    drop = np.zeros(n, bool)
-    insert = {}
-    for k in np.argsort(-span, kind="stable"):
-        idx = (start[k] + np.arange(span[k])) % n
-        if not np.isfinite(cross[k]).all() or span[k] >= n - 3 or drop[idx].any():
-            continue
-        drop[idx] = True
-        insert[int(idx[0])] = cross[k]
-    if not insert:
-        return ring
-    pos = np.array(sorted(insert))
-    out = np.insert(ring, pos, np.array([insert[q] for q in pos]), axis=0)
-    return out[~np.insert(drop, pos, False)]
-
-
 def _hole_holds(hole: np.ndarray, outline: np.ndarray, p: SegmentParams, area: float | None = None) -> bool:
     """A refined hole keeps its minimum area and lies inside its outline (a sliver along the
     edge that refinement squeezed or pushed onto the outline is no hole). `area`: the hole's
     signed area if known."""
-    if abs(_signed_area(hole) if area is None else area) < 0.5 * p.min_hole_area_px:
+    if abs(signed_area(hole) if area is None else area) < 0.5 * p.min_hole_area_px:
         return False
     ring = outline.astype(np.float32)
     (u0, v0), (u1, v1) = hole.min(axis=0) - 1.0, hole.max(axis=0) + 1.0
-    a, b = outline, _ahead(outline, 1)
+    a, b = outline, ahead(outline, 1)
     near = ((np.minimum(a[:, 0], b[:, 0]) <= u1) & (np.maximum(a[:, 0], b[:, 0]) >= u0)
             & (np.minimum(a[:, 1], b[:, 1]) <= v1) & (np.maximum(a[:, 1], b[:, 1]) >= v0))
     if not near.any():  # no edge of the outline comes near: the hole lies wholly inside or outside
@@ -1246,124 +1106,6 @@ def _to_full(c: np.ndarray, scale: int) -> np.ndarray:
     return (c.astype(float) + 0.5) * scale
 
 
-def refine_ring(frame: np.ndarray, ring: np.ndarray, p: SegmentParams, hole: bool) -> np.ndarray:
-    """Move each ring point along its normal to the half-way crossing of the colour profile
-    (one ring; see `refine_rings`)."""
-    return refine_rings(frame, [ring], [hole], p)[0]
-
-
-def refine_rings(frame: np.ndarray, rings: list[np.ndarray], is_hole: list[bool], p: SegmentParams,
-                 edges: list | None = None) -> list[np.ndarray]:
-    """Move each ring point along its normal to the half-way crossing of the colour profile.
-
-    The profile across the edge is projected on the colour difference between the part side
-    and the other side, so it runs from 1 (part) to 0 (tray, shadow or hole) whatever the
-    colours; 0.5 is the edge of an optically blurred step. All rings are sampled in one pass.
-    `edges`, a list: filled with each ring's bool array, per point, of whether an edge was found
-    there (a crossing with the sides `min_edge_contrast_dn` apart; None for rings too short).
-    """
-    todo = [i for i, r in enumerate(rings) if len(r) >= 5]
-    if edges is not None:
-        edges[:] = [None] * len(rings)
-    if not todo:
-        return list(rings)
-    p = p.for_frame(frame.shape)
-    # all rings' points in one array; each point's neighbours k steps along its own ring
-    lens = np.array([len(rings[i]) for i in todo])
-    starts = np.concatenate(([0], np.cumsum(lens)[:-1]))
-    pts0 = np.concatenate([rings[i] for i in todo])
-    n = len(pts0)
-    ring_of = np.repeat(np.arange(len(todo)), lens)
-    first, size = starts[ring_of], lens[ring_of]
-    local = np.arange(n) - first
-    tang = pts0[first + (local + 2) % size] - pts0[first + (local - 2) % size]
-    tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
-    nxt = pts0[first + (local + 1) % size]
-    area2 = np.add.reduceat(pts0[:, 0] * nxt[:, 1] - nxt[:, 0] * pts0[:, 1], starts)  # twice each ring's signed area
-    sign = np.where(area2 > 0, 1.0, -1.0) * np.where(np.array([is_hole[i] for i in todo]), -1.0, 1.0)
-    normal = sign[ring_of, None] * np.column_stack([tang[:, 1], -tang[:, 0]])  # out of the material
-    rng_px = max(p.refine_range_px, 2.0 * p.scale)  # the coarse outline is up to a detection pixel off
-    ts, basis, nearest_first = _profile_steps(rng_px)
-    nt = len(ts)
-    # sample positions p + t normal + k tangent for every (t, k), per axis (n, nt * 3), as one
-    # product of (n, 3) coefficients and the (3, nt * 3) basis, in float32 (pixel centres at integers)
-    mapx = np.column_stack([pts0[:, 0] - 0.5, normal[:, 0], tang[:, 0]]).astype(np.float32) @ basis
-    mapy = np.column_stack([pts0[:, 1] - 0.5, normal[:, 1], tang[:, 1]]).astype(np.float32) @ basis
-    samp = cv2.remap(frame, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)  # (n, nt * 3, 3) uint8
-    # the three samples of each step are neighbours in a row: an area resize averages them
-    prof = cv2.resize(samp.astype(np.float32), (nt, n), interpolation=cv2.INTER_AREA).reshape(n, nt, 3)
-    q = 3  # samples at each end that stand for "inside" and "outside"
-    inside = _median3(prof[:, :q])
-    outside = _median3(prof[:, -q:])
-    d = inside - outside
-    dd = np.einsum("nc,nc->n", d, d)
-    ok = dd > p.min_edge_contrast_dn ** 2
-    f = (np.matmul(prof, d[:, :, None])[:, :, 0] - np.einsum("nc,nc->n", outside, d)[:, None]) / np.maximum(
-        dd, 1e-9)[:, None]
-    cross = (f[:, :-1] >= 0.5) & (f[:, 1:] < 0.5)
-    # the crossing nearest the coarse point (of two as near, the one further in): the first one in
-    # the steps ordered by distance (argmax finds the first True)
-    j = nearest_first[np.argmax(cross[:, nearest_first], axis=1)]
-    rows = np.arange(n)
-    found = cross[rows, j] & ok
-    f0, f1 = f[rows, j], f[rows, j + 1]
-    frac = np.clip((f0 - 0.5) / np.maximum(f0 - f1, 1e-9), 0.0, 1.0)
-    t = np.where(found, ts[j] + frac * (ts[1] - ts[0]), 0.0)
-    moved = pts0 + t[:, None] * normal
-    out = list(rings)
-    start = 0
-    for i in todo:
-        out[i] = moved[start:start + len(rings[i])]
-        if edges is not None:
-            edges[i] = found[start:start + len(rings[i])]
-        start += len(rings[i])
-    return out
-
-
-@lru_cache(maxsize=4)
-def _profile_steps(rng_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Steps t (px) along the normal, the (3, nt * 3) float32 basis of the sample positions
-    (1, t, k) for the three samples k = -1, 0, 1 across the profile at each step, and the
-    intervals between steps ordered by the distance of their middle from 0 (ties: the lower
-    first). Read-only: shared by every call."""
-    ts = np.arange(-rng_px, rng_px + 1e-9, 0.5)
-    nt = len(ts)
-    ks = np.array([-1.0, 0.0, 1.0])  # three samples across the profile, averaged (noise)
-    basis = np.stack([np.ones(nt * 3), np.repeat(ts, 3), np.tile(ks, nt)]).astype(np.float32)
-    nearest_first = np.argsort(np.abs(0.5 * (ts[:-1] + ts[1:])), kind="stable")
-    for a in (ts, basis, nearest_first):
-        a.flags.writeable = False
-    return ts, basis, nearest_first
-
-
-def _median3(a: np.ndarray) -> np.ndarray:
-    """Median over axis 1 of length 3 (np.median is slow for this)."""
-    x, y, z = a[:, 0], a[:, 1], a[:, 2]
-    return np.maximum(np.minimum(x, y), np.minimum(np.maximum(x, y), z))
-
-
-def _signed_area(ring: np.ndarray) -> float:
-    x, y = ring[:, 0], ring[:, 1]
-    return 0.5 * float(np.dot(x, _ahead(y, 1)) - np.dot(_ahead(x, 1), y))
-
-
-def _ahead(a: np.ndarray, k: int) -> np.ndarray:
-    """The ring's points k steps ahead (np.roll(a, -k, axis=0), a few times faster for short rings)."""
-    k %= len(a)
-    return np.concatenate((a[k:], a[:k]))
-
-
-def _ring_area_centroid(ring: np.ndarray) -> tuple[float, np.ndarray]:
-    """Signed area (positive counter-clockwise in (u, v) axes) and centroid (2,) of a ring (n, 2)."""
-    x, y = ring[:, 0], ring[:, 1]
-    x1, y1 = _ahead(x, 1), _ahead(y, 1)
-    cr = x * y1 - x1 * y
-    a = 0.5 * float(cr.sum())
-    if abs(a) < 1e-12:
-        return 0.0, ring.mean(axis=0)
-    return a, np.array([((x + x1) * cr).sum(), ((y + y1) * cr).sum()]) / (6 * a)
-
-
 def _as_bgr(img: np.ndarray) -> np.ndarray:
     if not isinstance(img, np.ndarray) or img.size == 0:
         raise BadInput("the frame is empty or not an image")
@@ -1415,7 +1157,7 @@ def segment_to_mm(seg: Segment, cal, z_mm: float, z_bottom_mm: float | None = No
         if len(r) < 5:
             return top
         tang = np.roll(r, -2, axis=0) - np.roll(r, 2, axis=0)
-        normal = np.column_stack([tang[:, 1], -tang[:, 0]]) * (1.0 if _signed_area(r) > 0 else -1.0)
+        normal = np.column_stack([tang[:, 1], -tang[:, 0]]) * (1.0 if signed_area(r) > 0 else -1.0)
         if hole:
             normal = -normal
         wall_side = (normal * (r - vp)).sum(axis=1) < 0

@@ -23,7 +23,9 @@ import cv2
 import numpy as np
 
 # (segment.py imports this module lazily)
-from cell.vision.segment import _signed_area, calibration_size_factor, refine_rings
+from cell.vision.rings import signed_area
+from cell.vision.segment import calibration_size_factor
+from cell.vision.subpixel import refine_rings
 
 MIN_WALL_PX = 1.0  # narrower walls: the two planes map the silhouette within half a pixel
 WALL_SHADE = 0.81  # a wall pixel is darker than this x the top's level (walls: about 0.6 - 0.7)
@@ -108,7 +110,7 @@ def top_face_px(seg, frame: np.ndarray, cal, z_top_mm: float, z_bottom_mm: float
             outers.append(ring)
         elif len(ring) >= 5 and cv2.contourArea(cc) >= params.min_hole_area_px:
             holes.append(ring)
-    outer = max(outers, key=lambda r: abs(_signed_area(r)))
+    outer = max(outers, key=lambda r: abs(signed_area(r)))
     # refine like every outline, over a short range (a fin's top is a few pixels wide between two
     # walls). The contours run through the centres of the face's boundary pixels, half a pixel
     # inside its edge on average: a point where no edge is found is moved out by that much
@@ -128,7 +130,7 @@ def _moved_out(ring: np.ndarray, by_px: float, hole: bool) -> np.ndarray:
     """The ring moved by_px along its normal out of the face (into the hole for a hole)."""
     tang = np.roll(ring, -1, axis=0) - np.roll(ring, 1, axis=0)
     tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
-    sign = (1.0 if _signed_area(ring) > 0 else -1.0) * (-1.0 if hole else 1.0)
+    sign = (1.0 if signed_area(ring) > 0 else -1.0) * (-1.0 if hole else 1.0)
     return ring + by_px * sign * np.column_stack([tang[:, 1], -tang[:, 0]])
 
 

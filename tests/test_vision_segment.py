@@ -313,7 +313,7 @@ def test_quartile_and_median_by_partial_sort_equal_numpy():
 def test_hole_check_far_from_the_outline_equals_the_check_of_every_vertex():
     import cv2
 
-    from cell.vision.segment import _hole_holds
+    from cell.vision.holes import hole_holds
 
     def square(cx, cy, r, n=40):
         t = np.linspace(0, 2 * np.pi, n, endpoint=False)
@@ -328,8 +328,8 @@ def test_hole_check_far_from_the_outline_equals_the_check_of_every_vertex():
                                                                                     hole[:, 1])))
                 >= 0.5 * PARAMS.min_hole_area_px
                 and all(cv2.pointPolygonTest(ring, (float(u), float(v)), True) > 0.5 for u, v in hole))
-        assert _hole_holds(hole, outline, PARAMS) == slow
-    assert _hole_holds(cases[0], outline, PARAMS) and not _hole_holds(cases[3], outline, PARAMS)
+        assert hole_holds(hole, outline, PARAMS) == slow
+    assert hole_holds(cases[0], outline, PARAMS) and not hole_holds(cases[3], outline, PARAMS)
 
 
 def test_float32_threshold_of_the_neck_search_is_exact():
@@ -456,7 +456,7 @@ def test_pick_equals_boolean_indexing():
 
 
 def test_chroma_of_mean_colours_equals_the_numpy_computation():
-    from cell.vision.segment import _chroma_of
+    from cell.vision.holes import _chroma_of
 
     rng = np.random.default_rng(9)
     for _ in range(20_000):
@@ -517,7 +517,7 @@ def test_a_forked_process_segments_after_its_parent_did(layout_frame):
 
 
 def test_comparison_with_the_tray_colour_equals_the_numpy_computation():
-    from cell.vision.segment import _ratio_chroma, _towards_part
+    from cell.vision.holes import _ratio_chroma, _towards_part
 
     rng = np.random.default_rng(12)
     img = rng.integers(0, 256, (30, 40, 3)).astype(np.float32)

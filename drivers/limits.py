@@ -38,6 +38,7 @@ PATH_STEP_DEG = 0.5
 STILL_MM = 0.5
 STILL_DEG = 0.5
 OUTSIDE_TOL_MM = 0.05  # a way back into the workspace may not take the tool further out than it starts
+STOP_OUTSIDE_TOL_MM = 0.5  # ... nor a stop on it more than this (an axis stopping as the move starts: 0.07 mm)
 
 
 def command_violations(cell, target: Joints, current: Joints | None) -> list[str]:
@@ -114,13 +115,17 @@ def path_violations(cell, start: Joints, target: Joints) -> list[str]:
         i = outside[0]
         out.append(f"the tool would leave the workspace on the way, at x = {x[i]:.1f}, y = {y[i]:.1f} mm "
                    f"(J1 {path[i, 0]:.1f} deg, J2 {path[i, 1]:.1f} deg); {box}")
-    else:  # a stop on the way, from where the tool is inside
-        out += _stop_violations(cell, move, t_s, samples, speed, (x[1:], y[1:]), box, max(back_in - 1, 0))
+    else:  # a stop on the way: from where the tool is inside, inside; on the way back in, no further out
+        tool = (x[1:], y[1:])
+        out += _stop_violations(cell, move, t_s, samples, speed, tool, box, (max(back_in - 1, 0), len(t_s)))
+        if back_in > 1 and not out:
+            out += _stop_violations(cell, move, t_s, samples, speed, tool, box, (0, back_in - 1),
+                                    float(depth[0]) - STOP_OUTSIDE_TOL_MM)
     return out
 
 
 def _stop_violations(cell, move, t_s: np.ndarray, samples: np.ndarray, speed: np.ndarray, tool: tuple,
-                     box: str, first: int = 0) -> list[str]:
+                     box: str, span: tuple[int, int], floor_mm: float = 0.0) -> list[str]:
     """A stop anywhere on the way must leave the tool inside the workspace too. Each axis ramps down on its
     own (its quick stop ramp 0x6085, which the host sets at connect, or its fault reaction on the same ramp),
     so the arm leaves the coordinated path (up to 17 mm past the workspace on 2 % of random moves the path
@@ -133,15 +138,16 @@ def _stop_violations(cell, move, t_s: np.ndarray, samples: np.ndarray, speed: np
     lost), an axis that stops dead (a jam: the other runs on until the jammed drive's following-error window
     trips; docs/drivers.md), a host slower than the lag. J3 or J4 stopping first leaves J1 and J2 on the path
     until they stop together. move, t_s (n,): the way (`coordinated_motion`), samples (n, 4) and speed (n, 4)
-    at t_s; tool: its tool x, y (n,). Only the samples whose stop may reach the workspace's edge
-    (`quick_stop_reach_mm`) are followed, from sample `first` on (before it the tool is still on its way back
-    into the workspace)."""
+    at t_s; tool: its tool x, y (n,). Only the samples in `span` (first, end) whose stop may reach `floor_mm`
+    of the workspace's depth (`quick_stop_reach_mm`) are followed: the workspace's edge (0) once the tool is
+    in; on the way back in from outside, a little further out than it starts (a stop may not take it out
+    further)."""
     from drivers.profile import quick_stop_poses_array, quick_stop_reach_mm, stops_one_first
 
     sc, ws, lag_s = cell.scara, cell.workspace, cell.can.stop_lag_ms / 1000.0
     reach = quick_stop_reach_mm(sc, speed, QUICK_STOP_DECEL_FACTOR, lag_s, move.top_speed()[:2])
-    near = np.flatnonzero(reach >= ws.depth_xy(*tool))
-    near = near[near >= first]
+    near = np.flatnonzero(reach >= ws.depth_xy(*tool) - floor_mm)
+    near = near[(near >= span[0]) & (near < span[1])]
     if not len(near):
         return []
     ramps = f"each on its own ramp ({QUICK_STOP_DECEL_FACTOR:g} x its max acceleration), off the coordinated path"
@@ -158,9 +164,11 @@ def _stop_violations(cell, move, t_s: np.ndarray, samples: np.ndarray, speed: np
         x, y = tool_xy(stops, sc)
         depth = ws.depth_xy(x, y)
         i = int(np.argmin(depth))
-        if depth[i] < 0:
-            return [f"{what} would take the tool {-depth[i]:.3g} mm out of the workspace (to x = {x[i]:.1f}, "
-                    f"y = {y[i]:.1f} mm, J1 {stops[i, 0]:.1f} deg, J2 {stops[i, 1]:.1f} deg): {why}; {box}"]
+        if depth[i] < floor_mm:
+            further, jog = ((f", further than the {-floor_mm:.3g} mm it may be on its way back in",
+                             ": jog it inside first, one joint at a time (cell hw jog)") if floor_mm < 0 else ("", ""))
+            return [f"{what} would take the tool {-depth[i]:.3g} mm out of the workspace{further} (to x = {x[i]:.1f}, "
+                    f"y = {y[i]:.1f} mm, J1 {stops[i, 0]:.1f} deg, J2 {stops[i, 1]:.1f} deg): {why}; {box}{jog}"]
     return []
 
 

@@ -195,6 +195,41 @@ def test_from_a_start_outside_the_workspace_the_way_back_may_not_go_further_out(
     assert "would go" in path_violations(cell_cfg, JUST_OUTSIDE, Joints(131.5, -60.0, 200.0, 0.0))[0]
 
 
+# 2.5 mm past x = 560 mm; the way to TO_INSIDE comes back in, but J2 stopping on its own (its fault reaction) as it
+# starts, with J1 stopped 20 ms later, leaves the tool 3.16 mm out
+FURTHER_OUTSIDE = Joints(-1.7, 31.9, 200.0, 0.0)
+TO_INSIDE = Joints(-11.2, 87.7, 200.0, -256.5)
+
+
+def test_a_stop_on_the_way_back_in_may_not_take_the_tool_further_out(cell_cfg):
+    """Stops on the way back in were not followed: once the tool was in, a stop had to leave it inside, but
+    before, one axis stopping on its own could leave it further out than it started (up to 9.7 mm further over
+    random ways from up to 5 mm out). Now such a stop may leave it at most STOP_OUTSIDE_TOL_MM further out; a
+    way moving one joint (cell hw jog) keeps its stops on its own arc, so it is always allowed."""
+    import dataclasses
+
+    import numpy as np
+
+    from drivers.limits import STOP_OUTSIDE_TOL_MM, path_violations
+
+    t = forward(FURTHER_OUTSIDE, cell_cfg.scara)
+    start_depth = float(cell_cfg.workspace.depth_xy(np.array(t.x_mm), np.array(t.y_mm)))
+    assert -2.6 < start_depth < -2.4
+    (why,) = path_violations(cell_cfg, FURTHER_OUTSIDE, TO_INSIDE)
+    assert why.startswith("J2 stopping on its own on the way (its fault reaction, its quick stop input) with J1 "
+                          "stopped 20 ms later (can.stop_lag_ms) would take the tool 3.16 mm out of the workspace, "
+                          f"further than the {-start_depth + STOP_OUTSIDE_TOL_MM:.3g} mm it may be on its way back in")
+    assert why.endswith("jog it inside first, one joint at a time (cell hw jog)")
+    # the way itself comes straight back in: with no lag (every axis stopped at once) it is allowed
+    no_lag = dataclasses.replace(cell_cfg, can=dataclasses.replace(cell_cfg.can, stop_lag_ms=0.0))
+    assert path_violations(no_lag, FURTHER_OUTSIDE, TO_INSIDE) == []
+    # one joint at a time, inwards, is allowed: J1, then J2, then on to the target from inside
+    j1_in = Joints(FURTHER_OUTSIDE.j1_deg + 10.0, FURTHER_OUTSIDE.j2_deg, 200.0, 0.0)
+    assert _inside(cell_cfg, j1_in) and path_violations(cell_cfg, FURTHER_OUTSIDE, j1_in) == []
+    j2_in = Joints(FURTHER_OUTSIDE.j1_deg, FURTHER_OUTSIDE.j2_deg + 10.0, 200.0, 0.0)
+    assert _inside(cell_cfg, j2_in) and path_violations(cell_cfg, FURTHER_OUTSIDE, j2_in) == []
+
+
 def test_an_arm_standing_outside_the_workspace_goes_home_without_going_further_out(open_test_bus, sim_clock, cell_cfg):
     """Through the stack: drives that stand 0.8 mm outside (their own cell file's home), the host's default cell,
     `go_to(home)` (cell hw home, cell run's first move): the way it takes never has the tool further out than at

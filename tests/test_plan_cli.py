@@ -34,6 +34,26 @@ def test_figures_are_written_per_step(tmp_path, capsys):
     assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 20_000 for p in pngs)
 
 
+def test_figures_of_an_earlier_plan_are_replaced_as_a_set(tmp_path, capsys):
+    """A second plan into the same folder left the first plan's figures of other parts and steps beside its own:
+    the folder showed a mix. Its own step_NN_*.png go; other files stay."""
+    figs = tmp_path / "figs"
+    figs.mkdir()
+    (figs / "step_07_old_part.png").write_bytes(b"\x89PNG old")
+    (figs / "step_00_other.png").write_bytes(b"\x89PNG old")
+    (figs / "notes.txt").write_text("mine")
+    (figs / "step_x.png").write_bytes(b"not a figure name")
+    path = ASSEMBLIES / "default.json"
+    code, out, _ = run_cli("plan", path, "--figures", figs, capsys=capsys)
+    assert code == 0
+    assert "(2 of an earlier plan removed)" in out
+    names = {p.name for p in figs.iterdir()}
+    sequence = json.loads(path.read_text())["sequence"]
+    assert {n for n in names if n.startswith("step_") and n != "step_x.png"} == {
+        f"step_{i:02d}_{pid}.png" for i, pid in enumerate(sequence)}
+    assert {"notes.txt", "step_x.png"} <= names
+
+
 @pytest.mark.parametrize("bad", ["missing", "duplicate"])
 def test_a_rejected_assembly_leaves_no_figures_folder_behind(tmp_path, capsys, bad):
     """Bad input writes nothing: the folder (and its missing parents) is made only once the inputs are read."""

@@ -13,7 +13,8 @@ from pathlib import Path
 def add_arguments(p):
     p.add_argument("assembly", metavar="ASSEMBLY", help="assembly JSON file (CONTRACT.md)")
     p.add_argument("--json", action="store_true", help="print one JSON object per step")
-    p.add_argument("--figures", metavar="DIR", help="write one PNG per step (paper Figs. 20-23)")
+    p.add_argument("--figures", metavar="DIR", help="write one PNG per step (paper Figs. 20-23), step_NN_<part>.png; "
+                   "an earlier plan's step_NN_*.png there that this plan does not write are removed")
     p.add_argument("--examples", metavar="FILE", help="teaching-example file (default: the shipped one)")
     p.add_argument("--cell", metavar="FILE", help="cell file (overrides the assembly's own 'cell' key)")
 
@@ -52,14 +53,17 @@ def run(args) -> int:
         from cell.errors import BadInput
         from cell.figures import step_figure
 
+        written = set()
         for s in steps:
             path = Path(args.figures) / figure_name(s.step, s.scene.target)
             try:
                 _write_figure_atomically(s, cell, path, step_figure)
             except OSError as e:
                 raise BadInput(f"--figures {args.figures}: cannot write {path.name}: {e.strerror}") from None
+            written.add(path.name)
+        stale = _remove_stale_figures(Path(args.figures), written)
         if not args.json:
-            print(f"figures: {args.figures}")
+            print(f"figures: {args.figures}" + (f" ({stale} of an earlier plan removed)" if stale else ""))
     failed = [s for s in steps if not s.ok]
     if not args.json:
         print(f"{len(steps) - len(failed)} of {len(steps)} steps have a grasp")
@@ -77,6 +81,25 @@ def _write_figure_atomically(step_plan, cell, path, draw) -> None:
     with tempfile.TemporaryDirectory(prefix="cell-figure-") as tmp:
         drawn = draw(step_plan, cell, Path(tmp) / path.name)
         write_atomic(path, Path(drawn).read_bytes())
+
+
+def _remove_stale_figures(folder: Path, written: set[str]) -> int:
+    """Remove the step figures of an earlier plan that this one did not write (another assembly, fewer steps):
+    the folder then shows one plan, not a mix. Only names figure_name makes are touched."""
+    import re
+
+    ours = re.compile(r"step_\d{2,}_.+\.png")
+    stale = [f for f in folder.glob("step_*.png") if f.name not in written and ours.fullmatch(f.name)]
+    for f in stale:
+        try:
+            f.unlink()
+        except FileNotFoundError:
+            pass
+        except OSError as e:
+            from cell.errors import BadInput
+
+            raise BadInput(f"--figures {folder}: cannot remove an earlier plan's {f.name}: {e.strerror}") from None
+    return len(stale)
 
 
 def figure_name(step: int, part_id: str) -> str:

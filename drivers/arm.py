@@ -314,21 +314,23 @@ class Arm:
             ax.enable(STANDSTILL_MARGIN_S + self._slowest_quick_stop_s(), self.poll_s, hold)
 
     def _enable_hold(self, ax: Axis):
-        """(the target a joint's drive is enabled with, for its position in counts; why it is not enabled). Its
-        position, within the joint's limits; a drive at rest up to SETTLED_PAST_LIMIT past one (a few counts past a
-        home at the limit) is enabled holding the limit. Further out it coasted there (safe torque off, a jam, power
-        lost mid-move: J1 stopped at 146 deg of 132) and is not enabled: its position would be sent as its target."""
-        unit = next((u for j, _, u in JOINT_FIELDS if j == ax.name), None)
-        if unit is None:  # the gripper: its opening is checked on every command
-            return None, None
+        """(the target a drive is enabled with, for its position in counts; why it is not enabled). Its position,
+        within the joint's limits (the gripper: its opening's range); a drive at rest up to SETTLED_PAST_LIMIT past
+        one (a few counts past a home at the limit) is enabled holding the limit. Further out it coasted there (safe
+        torque off, a jam, power lost mid-move: J1 stopped at 146 deg of 132) and is not enabled: its position would
+        be sent as its target."""
+        if ax.name == "gripper":  # its opening's range, like a joint's limits (jaws found at 85 mm of 80 held 85)
+            lo, hi = self.cell.gripper.opening_mm
+        else:
+            lo, hi = self.cell.scara.limits(ax.name)
         if ax.status is None:
             ax.wait_status(lambda s: True, None, "first TPDO")
-        (lo, hi), cpu = self.cell.scara.limits(ax.name), ax.counts_per_unit
+        cpu = ax.counts_per_unit
         value = ax.status.position_counts / cpu
         if lo - SETTLED_PAST_LIMIT <= value <= hi + SETTLED_PAST_LIMIT:
             lo_c, hi_c = math.ceil(lo * cpu), math.floor(hi * cpu)
             return (lambda counts: min(max(counts, lo_c), hi_c)), None
-        return None, f"stands at {value:.3f} {unit}, outside its limits [{lo:g}, {hi:g}]"
+        return None, f"stands at {value:.3f} {ax.unit}, outside its limits [{lo:g}, {hi:g}]"
 
     def disconnect(self) -> None:
         """Disable the drives cleanly (they hold no torque and stop watching the host), stop

@@ -396,7 +396,7 @@ class Axis:
             if cw == codec.CW_ENABLE_OPERATION:
                 with self.enable_gate():
                     seq = self.send_controlword(cw)
-                self._wait_enabled(seq, quick_stop_timeout_s, step_s)
+                self._wait_enabled(seq, quick_stop_timeout_s, step_s, hold)
                 try:  # a stop latched while the frame was on its way passed this axis by as not enabled
                     with self.enable_gate():
                         pass
@@ -433,10 +433,11 @@ class Axis:
                 )
             self.clock.sleep(step_s)
 
-    def _wait_enabled(self, after_seq: int, timeout_s: float, step_s: float) -> None:
+    def _wait_enabled(self, after_seq: int, timeout_s: float, step_s: float, hold) -> None:
         """Wait on the clock, not wall time, for OPERATION ENABLED after enable operation: a drive whose
         axis still coasts or ramps down holds the command until the axis stands (CiA 402), which takes
-        time, simulated or not. A drive that does not answer at all gives up after `timeout_s` too."""
+        time, simulated or not. A drive that does not answer at all gives up after `timeout_s` too.
+        `hold`: the target for where it stands (`enable`)."""
         deadline = self.clock.now() + timeout_s
         self.clock.sleep(0)  # a SimClock settles: the answers already sent are handled
         waited = False
@@ -445,7 +446,7 @@ class Axis:
                 st, fresh = self.status, self.status_seq > after_seq
             if fresh and st.state == "OPERATION_ENABLED":
                 if waited:  # the axis may have run on past the target set before: set it where it stands
-                    self.send_target(st.position_counts)
+                    self.send_target(hold(st.position_counts))
                     self.clock.sleep(0)
                 return
             if st.state in FAULT_STATES:

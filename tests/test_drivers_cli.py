@@ -16,7 +16,7 @@ import pytest
 from conftest import ROOT, run_cli
 
 from cell.cellconfig import default_cell
-from cell.errors import BadInput
+from cell.errors import BadInput, CellError
 from cell.kinematics import Joints, forward
 from drivers.limits import split_move
 from drivers.record import read_log
@@ -141,6 +141,17 @@ def test_moving_real_hardware_needs_confirmation(monkeypatch):
     args = types.SimpleNamespace(interface="socketcan", channel="can0", yes=False)
     monkeypatch.setattr(sys, "stdin", open(os.devnull))
     with pytest.raises(BadInput, match="without confirmation"):
+        hw.confirm_motion(args, "jog j1")
+    monkeypatch.setattr(sys, "stdin", None)  # started with stdin closed (<&-): was an AttributeError
+    with pytest.raises(BadInput, match="without confirmation"):
+        hw.confirm_motion(args, "jog j1")
+    monkeypatch.setattr(sys, "stdin", types.SimpleNamespace(closed=False, isatty=lambda: True))
+
+    def ctrl_d(*_):
+        raise EOFError
+
+    monkeypatch.setattr("builtins.input", ctrl_d)  # Ctrl-D at the question: was an EOFError, "internal error"
+    with pytest.raises(CellError, match="aborted by the operator; nothing moved"):
         hw.confirm_motion(args, "jog j1")
     args.yes = True
     hw.confirm_motion(args, "jog j1")  # --yes: no question

@@ -329,3 +329,81 @@ def test_a_drive_settled_a_few_counts_past_a_home_at_the_limit_is_enabled_holdin
             notifier.stop()
     per_mm = cell_cfg.can.nodes["j3"].counts_per_unit
     assert targets and max(targets) <= 200.0 * per_mm, targets  # nothing past the limit was sent
+
+
+@pytest.mark.parametrize("node, field, limits, stands, limit", [
+    ("j1", "j1_deg", (-150.0, 150.0), 132.4, 132.0),  # the hunter's: J1 0.4 deg past its limit
+    ("j3", "j3_mm", (0.0, 205.0), 200.3, 200.0),
+])
+@pytest.mark.parametrize("wall_time", [False, True])
+def test_no_target_past_a_limit_goes_out_while_the_drive_is_enabled(request, open_test_bus, sim_clock, cell_cfg, node,
+                                                                    field, limits, stands, limit, wall_time):
+    """A drive standing up to 0.5 past a joint's limit is enabled holding the limit; but when the drive took a
+    while to answer the enable (in wall time: its next tick), the target was set again where it stood, unclamped
+    (0x607A = 132.4 deg of 132, past the drive's own software limit 0x607D)."""
+    from dataclasses import replace
+
+    import can
+
+    from drivers import Arm, RealClock, sim
+
+    if wall_time:
+        sim_clock = RealClock()
+        request.addfinalizer(sim_clock.close)
+
+    drives_cell = replace(cell_cfg, scara=replace(cell_cfg.scara, **{field: limits}), motion=replace(
+        cell_cfg.motion, home_joints={**cell_cfg.motion.home_joints, field: stands}))
+    node_id = cell_cfg.can.nodes[node].node_id
+    with sim.serve(open_test_bus(), drives_cell, clock=sim_clock):
+        tap = open_test_bus()
+        targets = []
+        notifier = can.Notifier(tap, [lambda m: targets.append(codec.unpack_target(m.data))
+                                      if m.arbitration_id == codec.RPDO2_BASE + node_id else None])
+        arm = Arm(open_test_bus(), cell_cfg, clock=sim_clock, sdo_timeout_s=1.0)
+        try:
+            arm.connect()
+            assert arm.faults == {} and arm.axes[node].state == "OPERATION_ENABLED"
+            sim_clock.sleep(1.0)
+        finally:
+            arm.disconnect()
+            notifier.stop()
+    per_unit = cell_cfg.can.nodes[node].counts_per_unit
+    assert targets and max(targets) <= round(limit * per_unit), [t / per_unit for t in targets]
+
+
+@pytest.mark.parametrize("stands_mm, enabled", [(80.3, True), (85.0, False), (-2.0, False)])
+def test_jaws_found_outside_their_range_are_held_at_it_or_not_enabled(open_test_bus, sim_clock, cell_cfg, stands_mm,
+                                                                      enabled):
+    """The gripper was enabled with its opening as its target whatever it was: jaws found at 85 mm (range 0 - 80)
+    were sent 85. Like a joint: up to 0.5 mm out it holds the end of its range, further out it is not enabled."""
+    from dataclasses import replace
+
+    import can
+
+    from drivers import Arm, sim
+
+    lo, hi = cell_cfg.gripper.opening_mm
+    drives_cell = replace(cell_cfg, gripper=replace(cell_cfg.gripper, opening_mm=(-5.0, 90.0)))
+    node_id = cell_cfg.can.nodes["gripper"].node_id
+    with sim.serve(open_test_bus(), drives_cell, clock=sim_clock) as drives:
+        drives.drives["gripper"].position_counts = round(stands_mm * cell_cfg.can.nodes["gripper"].counts_per_unit)
+        tap = open_test_bus()
+        targets = []
+        notifier = can.Notifier(tap, [lambda m: targets.append(codec.unpack_target(m.data))
+                                      if m.arbitration_id == codec.RPDO2_BASE + node_id else None])
+        arm = Arm(open_test_bus(), cell_cfg, clock=sim_clock, sdo_timeout_s=1.0)
+        try:
+            arm.connect()
+            if enabled:
+                assert arm.faults == {} and arm.axes["gripper"].state == "OPERATION_ENABLED"
+            else:
+                assert f"stands at {stands_mm:.3f} mm, outside its limits [{lo:g}, {hi:g}]; not enabled" in str(
+                    arm.faults["gripper"])
+                assert arm.axes["gripper"].state != "OPERATION_ENABLED"
+        finally:
+            arm.disconnect()
+            notifier.stop()
+    per_mm = cell_cfg.can.nodes["gripper"].counts_per_unit
+    sent = [t / per_mm for t in targets]
+    assert all(lo <= t <= hi for t in sent), sent
+    assert bool(sent) == enabled

@@ -134,12 +134,15 @@ def confirm_motion(args, what: str) -> None:
 
     if _simulated(args) or args.yes:
         return
-    if not sys.stdin.isatty():
+    if sys.stdin is None or sys.stdin.closed or not sys.stdin.isatty():  # (None: started with stdin closed)
         raise BadInput(f"refusing to {what} on {args.interface}:{args.channel} without confirmation: pass --yes")
     # the question on stderr: stdout may be JSON for a script reading it
     print(f"About to {what} on the REAL cell ({args.interface}:{args.channel}). Keep clear. Type 'yes' to continue: ",
           end="", file=sys.stderr, flush=True)
-    answer = input()
+    try:
+        answer = input()
+    except EOFError:  # Ctrl-D: no answer is no
+        answer = ""
     if answer.strip().lower() != "yes":
         raise CellError("aborted by the operator; nothing moved")
 

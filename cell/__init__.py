@@ -7,4 +7,8 @@ frame -> contours (vision) -> candidate points (grasp.candidates) -> valid point
 commands (drivers) -> CAN frames.
 """
 
+from cell.numerics import pin_blas
+
+pin_blas()  # before anything loads numpy: the same kernels on every x86-64 machine (cell/numerics.py)
+
 __version__ = "0.1.0"

@@ -2,7 +2,8 @@
 
 Layout of a recording directory (format "cell-recording", version 1):
 
-    manifest.json      format, version, created/closed times, software version, status
+    manifest.json      format, version, created/closed times, software version (and the numeric libraries
+                       and BLAS kernels: cell/numerics.py), status
                        ("recording" while open, then "complete" or "incomplete"), files, counts,
                        can_frames_at_close (the CAN frames can.log held at close: a lower bound,
                        a logger on a bus of its own may still hear the drives shut down),
@@ -169,6 +170,7 @@ class RecordingWriter:
 
         from cell import __version__
         from cell.cellconfig import default_cell_path
+        from cell.numerics import numeric_platform
 
         cell_src = Path(cell_file) if cell_file is not None else default_cell_path()
         if not cell_src.is_file():
@@ -211,7 +213,7 @@ class RecordingWriter:
                 "format": FORMAT, "version": VERSION, "status": "recording",
                 "created": _now_iso(), "closed": None,
                 "software": {"name": "disassembly-cell", "version": __version__,
-                             "python": platform.python_version()},
+                             "python": platform.python_version(), "numeric": numeric_platform()},
                 "cell_source": (json_text(str(Path(cell_file).resolve())) if cell_file is not None
                                 else "embedded default"),
                 "calibration_source": (json_text(str(Path(calibration_file).resolve())) if calibration_file

@@ -1,3 +1,4 @@
+import cell  # noqa: F401, I001 - first, before anything loads numpy: the BLAS kernels the CLI pins (cell/numerics.py)
 import sys
 import time
 from pathlib import Path

@@ -253,7 +253,9 @@ def test_a_calibrated_12_mp_frame_is_detected_coarsely_and_gives_the_default_fra
     within 1.2 % and centroids within 0.35 mm on these layouts (2 % and 0.5 mm asked). Layout 3's
     plate_3 is the exception on the default frame's side: there a sliver of shadow inside it is
     taken for a small hole (its 2 true holes at 12 MP; 3 slivers before refined rings that cross
-    themselves were untangled, cell/vision/rings.py `tidy_rings`); it is held to the truth instead."""
+    themselves were untangled, cell/vision/rings.py `tidy_rings`; with the BLAS kernels the cell pins,
+    cell/numerics.py, 2 slivers, with the SkylakeX ones 1: the sliver's pixels sit at the threshold);
+    it is held to the truth instead."""
     parts, frame, big = rendered_pair
     params = SegmentParams.for_calibration(BIG_CAL)
     assert params.scale == 6 and params.for_frame(big.shape) == params  # the coarser detection is the one run
@@ -264,7 +266,7 @@ def test_a_calibrated_12_mp_frame_is_detected_coarsely_and_gives_the_default_fra
         (a0, c0, h0), (a1, c1, h1) = small[part.id], large[part.id]
         assert h1 == len(part.holes_mm), part.id
         if h0 != len(part.holes_mm):
-            assert (part.id, h0) == ("plate_3", 3)  # the one known miss of the 1280 frame
+            assert part.id == "plate_3" and h0 > len(part.holes_mm)  # the one known miss of the 1280 frame
             assert a1 == pytest.approx(part.polygon.area, rel=0.02)
             assert np.hypot(*(c1 - part.polygon.centroid.coords[0])) < 0.5
             continue

@@ -27,13 +27,22 @@ def run(args) -> int:
         result = replay(args.recording, args.examples,
                         progress=lambda s: print(s, file=sys.stderr if args.json else sys.stdout, flush=True))
     except Divergence as e:
+        from cell.numerics import numeric_platform, platform_difference
+        from cell.recording import RecordingReader
+
+        rec = RecordingReader(args.recording)
+        # numbers computed by other libraries or kernels may differ in their last digits: say so beside it
+        software = rec.manifest.get("software")
+        platform = platform_difference(software.get("numeric") if isinstance(software, dict) else None,
+                                       numeric_platform())
         if args.json:  # how the recorded session ended, as a match reports it
-            from cell.recording import RecordingReader
             from cell.runtime.replay import recorded_end
 
-            print(json.dumps({"match": False, "divergence": str(e),
-                              "session": recorded_end(RecordingReader(args.recording))}))
+            print(json.dumps({"match": False, "divergence": str(e), "session": recorded_end(rec),
+                              "platform_difference": platform}))
         print(f"cell replay: divergence: {e}", file=sys.stderr)
+        if platform:
+            print(f"cell replay: recorded with other numeric libraries or kernels: {platform}", file=sys.stderr)
         return 1
     result["match"] = not result["differences"]
     if args.json:

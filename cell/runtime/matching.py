@@ -224,16 +224,21 @@ def _in_pieces(part: Part, free: Sequence[Region]) -> tuple[Located | None, list
 
 
 def _axis_deg(poly: Polygon) -> float:
-    """Direction of the principal axis of the outline's vertices (good enough as a start)."""
+    """Direction of the principal axis of the outline's hull vertices, in (-90, 90] (good enough as a start).
+    In closed form from exactly rounded sums: the same on every machine (LAPACK's eigenvector took either sign
+    as the CPU's BLAS kernel had it, and a replay on another CPU started the search half a turn round)."""
     hull = poly.convex_hull  # any region geometry (a squeezed outline may map to several pieces)
     if hull.geom_type != "Polygon":
         return 0.0
     xy = np.asarray(hull.exterior.coords)[:-1]
-    xy = xy - xy.mean(axis=0)
-    cov = xy.T @ xy
-    w, v = np.linalg.eigh(cov)
-    major = v[:, int(np.argmax(w))]
-    return math.degrees(math.atan2(major[1], major[0]))
+    x, y = xy[:, 0].tolist(), xy[:, 1].tolist()
+    mx, my = math.fsum(x) / len(x), math.fsum(y) / len(y)
+    dx, dy = [v - mx for v in x], [v - my for v in y]
+    sxx = math.fsum(v * v for v in dx)
+    syy = math.fsum(v * v for v in dy)
+    sxy = math.fsum(a * b for a, b in zip(dx, dy, strict=True))
+    angle = 0.5 * math.degrees(math.atan2(2.0 * sxy, sxx - syy))  # the major axis, in [-90, 90]
+    return 90.0 if angle == -90.0 else angle
 
 
 EXPLAINED_MARGIN_MM = 2.0  # material this close to a located part's outline is that part (outline noise)

@@ -941,16 +941,21 @@ def _ends(fn) -> str:
         return type(e).__name__
 
 
-def test_a_part_no_frame_showed_gone_is_carried_not_removed_in_the_summary(short_assembly):
+def test_a_part_no_frame_showed_gone_is_carried_not_removed_in_the_summary(short_assembly, monkeypatch):
     """The camera dies after the first part was let go at the drop-off: no frame showed it gone, so the summary
     must not count it removed (it did, 1 of 3, with the stop's reason on no part)."""
+    from cell.runtime.control import RunControl
+
     faults = WorldFaults()
+    log = RunControl.log
 
-    def camera_dies_once_carried(line):
-        if "carried off" in str(line):
+    def camera_dies_once_carried(control, event, message="", **data):  # in the loop's thread, as it happens
+        if event == "carried":
             faults.bad_frames = 3
+        return log(control, event, message, **data)
 
-    s = run_session(RunConfig(assembly=short_assembly, seed=3, faults=faults, progress=camera_dies_once_carried))
+    monkeypatch.setattr(RunControl, "log", camera_dies_once_carried)
+    s = run_session(RunConfig(assembly=short_assembly, seed=3, faults=faults))
     assert s["status"] == "stopped" and s["stopped"].startswith("camera: no readable frame after 3 tries")
     assert s["parts_removed"] == 0
     carried = s["parts"][0]

@@ -177,8 +177,45 @@ def camera_calibration(cell, path=None):
 
 def run_session(cfg: RunConfig) -> dict:
     """Run the disassembly in the simulated cell, or on the real one (`cfg.real_cell`); returns
-    the summary (with 'status')."""
-    say = cfg.progress or (lambda s: None)
+    the summary (with 'status'). Progress lines go to `cfg.progress`, printed by a thread of their own
+    (`ProgressPrinter`), all of them before this returns."""
+    say = ProgressPrinter(cfg.progress or (lambda s: None))
+    try:
+        return _run_session(cfg, say)
+    finally:
+        say.close()
+
+
+class ProgressPrinter:
+    """The run's progress lines, printed in order by a thread of their own: a terminal that stops reading
+    (Ctrl-S, a pipe nobody reads) holds up this thread only. Printed from the run control's listener, a
+    line held its lock: the page's state went unanswered and its Stop waited, sending no quick stop, until
+    the terminal read again. A terminal that is gone (a broken pipe) ends the printing, not the run."""
+
+    def __init__(self, say):
+        import queue
+
+        self._say, self._lines = say, queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._print, name="progress", daemon=True)
+        self._thread.start()
+
+    def __call__(self, line: str) -> None:
+        self._lines.put(line)
+
+    def _print(self) -> None:
+        while (line := self._lines.get()) is not None:
+            try:
+                self._say(line)
+            except OSError:
+                return
+
+    def close(self) -> None:
+        """Every line put so far printed (as long as the terminal takes them), then the thread ends."""
+        self._lines.put(None)
+        self._thread.join()
+
+
+def _run_session(cfg: RunConfig, say) -> dict:
     assembly_path = Path(cfg.assembly) if cfg.assembly else default_assembly_path()
     # the assembly as the recording keeps it (outlines to 4 decimals, Part.to_json): the run and its replay
     # match the same model (a gusset's outline at full precision located it 0.009 deg off in the replay)

@@ -77,6 +77,33 @@ def test_the_real_cell_removes_a_part_seen_by_its_camera(tmp_path, washer_only, 
     assert manifest["status"] == "complete" and manifest["meta"]["real_cell"]["channel"] == channel
 
 
+def test_a_part_the_camera_finds_off_the_tray_is_not_picked(tmp_path, washer_only, served_drives, capsys):
+    """On the real cell the assembly only says where to look: a washer the camera found 20 mm past the tray's
+    edge (x 500) was gripped and carried off, "1 of 1 removed", where `cell hw pick` refuses such a target. The
+    loop now stops and asks before anything goes near it; the recording replays to that stop."""
+    channel, drives = served_drives
+    d = json.loads(washer_only.read_text())
+    washer = load_assembly(washer_only).parts[0]
+    cx, cy = washer.polygon.centroid.coords[0]
+    at_edge = washer.moved(480.0 - cx, 0.0, 0.0)  # where the assembly says: on the tray, near its edge
+    d["parts"][0] = {**d["parts"][0], **at_edge.to_json()}
+    washer_only.write_text(json.dumps(d))
+    seen = at_edge.moved(40.0, 0.0, 0.0)  # where the camera finds it: centre at x 520
+    cam = SimCamera(load_calibration(), SimCameraOptions(seed=2))
+    camera = frames_folder(tmp_path / "camera", [cam.render([seen])] * 3)
+    code, out, err = run_cli("run", washer_only, "--interface", "virtual", "--channel", channel, "--camera", camera,
+                             "--record", tmp_path / "rec", "--json", capsys=capsys)
+    summary = json.loads(out.splitlines()[-1])
+    assert code == 1 and summary["status"] == "stopped" and summary["parts_removed"] == 0, err
+    assert "washer lies at (519.9, -7.9) mm" in summary["stopped"] and "outside the cell's tray (x 200 to 500" in summary["stopped"]
+    assert "put it back on the tray" in summary["stopped"]
+    assert drives.drives["gripper"].object_width_mm is None  # nothing was gripped
+    decisions = [json.loads(line) for line in (tmp_path / "rec" / "decisions.jsonl").read_text().splitlines()]
+    assert [d["type"] for d in decisions if d["type"] in ("grasp", "commands", "stop")] == ["stop"]
+    code, _, err = run_cli("replay", tmp_path / "rec", capsys=capsys)
+    assert code == 0, err
+
+
 def test_a_fault_on_the_way_home_is_a_recorded_stop(tmp_path, washer_only, served_drives, capsys):
     """A real arm may stand anywhere; the first move takes it home. A drive fault on that way stops the run
     as one during it does, with the stop in the recording (it was an error past the loop, no stop decision)."""

@@ -90,6 +90,9 @@ class LoopOptions:
     # A part picked again (it stayed on the tray, the run stopped on it) goes on in its report: its attempts
     # and times add up. Off in recordings made before: their reports started anew.
     whole_part_report: bool = True
+    # A part the camera finds with its centre off the tray is not picked (the arm picks on the tray, as `cell hw
+    # pick` does): the loop stops and asks. Off in recordings made before: it was picked.
+    tray_check: bool = True
 
 
 @dataclass
@@ -367,6 +370,11 @@ class CellLoop:
             return None
         if part_id not in located:
             self._stop_and_ask("vision", f"{part_id} is not found in frame {index}")
+            return None
+        outside = self.cell.tray.outside_text(*located[part_id].polygon.centroid.coords[0])
+        if outside and self.options.tray_check:
+            self._stop_and_ask("vision", f"{part_id} {outside} in frame {index}: the arm picks on the tray only; "
+                                         "put it back on the tray")
             return None
         # everything not removed, skipped parts included: they still lie there
         return Scene(tuple(self._on_tray()), part_id, source=f"frame {index}")

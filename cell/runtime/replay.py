@@ -339,6 +339,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     # Loop settings absent in recordings made before the loop had them: off, as it ran then.
     lift_check = _meta_flag(meta, "lift_check", directory)
     whole_part_report = _meta_flag(meta, "whole_part_report", directory)
+    tray_check = _meta_flag(meta, "tray_check", directory)
     planner = meta.get("planner")  # absent (or null) in recordings made before it was kept; [] is no planner
     planner_params = planner_from_meta({} if planner is None else planner, f"recording {directory}")
     recorded = [d for d in rec.decisions if d.get("type") != "summary"]
@@ -381,7 +382,8 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
             loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=FileCamera(frames), arm=arm,
                             control=control, examples_path=work_examples, sink=sink,
                             options=LoopOptions(on_no_grasp=meta.get("on_no_grasp", "stop"), lift_check=lift_check,
-                                                whole_part_report=whole_part_report, interactive=True),
+                                                whole_part_report=whole_part_report, tray_check=tray_check,
+                                                interactive=True),
                             planner_params=planner_params, taught=sink.examples_taught_here)
             go_to(arm, home_joints(cell))
             control.run(by="replay")

@@ -95,7 +95,8 @@ def test_a_part_the_camera_finds_off_the_tray_is_not_picked(tmp_path, washer_onl
                              "--record", tmp_path / "rec", "--json", capsys=capsys)
     summary = json.loads(out.splitlines()[-1])
     assert code == 1 and summary["status"] == "stopped" and summary["parts_removed"] == 0, err
-    assert "washer lies at (519.9, -7.9) mm" in summary["stopped"] and "outside the cell's tray (x 200 to 500" in summary["stopped"]
+    stopped = summary["stopped"]
+    assert "washer lies at (519.9, -7.9) mm" in stopped and "outside the cell's tray (x 200 to 500" in stopped
     assert "put it back on the tray" in summary["stopped"]
     assert drives.drives["gripper"].object_width_mm is None  # nothing was gripped
     decisions = [json.loads(line) for line in (tmp_path / "rec" / "decisions.jsonl").read_text().splitlines()]

@@ -54,6 +54,10 @@ class BusRecorder:
     def _on_message(self, msg: can.Message) -> None:
         if self.clock is not None:
             msg.timestamp = self.clock.now()
+        if isinstance(msg.channel, str) and any(c.isspace() for c in msg.channel):
+            # a candump line is split at spaces: a channel named with one ("--channel 'test bus'") made the
+            # recording's can.log unreadable (this bus is the recorder's own: nobody else sees the change)
+            msg.channel = "_".join(msg.channel.split())
         self._writer.on_message_received(msg)
         self.frames += 1
 

@@ -63,6 +63,29 @@ def test_replay_sends_the_recorded_frames(tmp_path, open_test_bus):
     assert all(same_frame(a, b) for a, b in zip(got, sent, strict=True))
 
 
+@pytest.mark.parametrize("suffix", [".log", ".asc"])
+def test_a_channel_named_with_spaces_is_recorded_readably(tmp_path, suffix):
+    """A candump line is split at spaces: a bus on a channel named with one (a test's, `--channel 'test bus'`)
+    left a recording whose can.log did not read back ("too many values to unpack")."""
+    import can
+
+    from drivers import open_bus
+
+    path = tmp_path / f"spaces{suffix}"
+    sender, rec_bus = open_bus("virtual", "a bus [with spaces]: x"), open_bus("virtual", "a bus [with spaces]: x")
+    try:
+        sent = [can.Message(arbitration_id=0x181, data=bytes([i]), is_extended_id=False) for i in range(3)]
+        with BusRecorder(rec_bus, path) as rec:
+            for m in sent:
+                sender.send(m)
+        assert rec.frames == 3
+        got = read_log(path)
+        assert len(got) == 3 and all(same_frame(a, b) for a, b in zip(got, sent, strict=True))
+    finally:
+        sender.shutdown()
+        rec_bus.shutdown()
+
+
 def test_unknown_log_format_and_missing_log_are_bad_input(tmp_path, open_test_bus):
     with pytest.raises(BadInput, match="python-can"):
         BusRecorder(open_test_bus(), tmp_path / "x.json")

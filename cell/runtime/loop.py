@@ -38,7 +38,7 @@ from cell.grasp.params import SynthesisParams
 from cell.grasp.synthesis import Grasp, GraspPlanner
 from cell.kinematics import Joints
 from cell.runtime.control import Faulted, RunControl, Stopped
-from cell.runtime.matching import Region, locate, unexplained
+from cell.runtime.matching import Region, locate, locate_anywhere, unexplained
 from cell.runtime.motion import (
     above,
     carry_off_commands,
@@ -48,6 +48,7 @@ from cell.runtime.motion import (
 from cell.runtime.pickway import TRAVEL_MARGIN_MM, LinksWouldHit, check_links, clear_way, travel_z_mm
 from cell.runtime.ways import go_to
 from cell.scene import Assembly, Part, Scene
+from cell.vision.sources import blank_frame_reason
 
 # Fingers and palm keep this clear of the other parts: their poses are measured (~0.3 mm off in
 # the vision bench), and a finger planned flush with a neighbour came down on it
@@ -93,6 +94,10 @@ class LoopOptions:
     # A part the camera finds with its centre off the tray is not picked (the arm picks on the tray, as `cell hw
     # pick` does): the loop stops and asks. Off in recordings made before: it was picked.
     tray_check: bool = True
+    # A frame that cannot show the tray (dark, overexposed, one flat colour) is unreadable, retried, then a stop;
+    # and the part picked last, not found where it was, is looked for anywhere on the tray (it fell back 80 mm
+    # away). Before (off in older recordings), both read as "gone": the part counted as removed.
+    removal_checks: bool = True
 
 
 @dataclass
@@ -425,6 +430,9 @@ class CellLoop:
                 if frame is None:
                     raise BadInput("the camera returned no frame")
                 self.cal.check_frame(frame)  # another camera mode or the wrong camera: not this calibration
+                blank = blank_frame_reason(frame) if self.options.removal_checks else None
+                if blank:
+                    raise BadInput(blank)
                 break
             except (BadInput, OSError) as e:
                 last = e
@@ -459,6 +467,13 @@ class CellLoop:
         if self._last_picked is not None:  # look for it too: it should be gone
             expected.append(self._last_picked[1])
         found, strangers = locate(expected, regions)
+        if self._last_picked is not None and self._last_picked[0] not in found and self.options.removal_checks:
+            # not where it was picked: perhaps it fell back further off than a part is looked for
+            pid, part = self._last_picked
+            fell = locate_anywhere(part, [r for r in regions if r.index in strangers])
+            if fell is not None:
+                found[pid] = fell
+                strangers = [i for i in strangers if i != fell.region]
         seen = {}
         for pid, loc in found.items():
             part = self.poses.get(pid) or self._last_picked[1]

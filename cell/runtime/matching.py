@@ -201,6 +201,23 @@ def locate(parts: Sequence[Part], regions: Sequence[Region]) -> tuple[dict[str, 
     return located, [r.index for r in regions if r.index not in claimed]
 
 
+def locate_anywhere(part: Part, regions: Sequence[Region]) -> Located | None:
+    """`part` in whichever of `regions` (of about its size) it fits best, however far from where it was: the
+    part picked last, not found near where it lay (`locate` looks MAX_SHIFT_MM about), may have fallen back
+    onto the tray further off. None when no region fits it (MIN_OVERLAP)."""
+    best = None
+    for r in regions:
+        if r.merged:
+            continue
+        poly = r.polygon_at(part.z_top_mm, part.z_bottom_mm)
+        if poly.is_empty or not 0.6 < poly.area / part.polygon.area < 1.6:
+            continue
+        x, s = register(part.polygon, poly)
+        if s >= MIN_OVERLAP and (best is None or s > best.overlap):
+            best = Located(part.id, r.index, float(x[0]), float(x[1]), float(x[2]), float(s), False)
+    return best
+
+
 def _in_pieces(part: Part, free: Sequence[Region]) -> tuple[Located | None, list[int]]:
     """A part the segmentation cut into pieces (a washer's highlight split off by colour): the
     unclaimed regions near it, smaller than MIN_UNFLAGGED_RATIO x the part, registered together

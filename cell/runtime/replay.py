@@ -109,6 +109,26 @@ def differences(recorded, replayed, path: str = "") -> list[str]:
     return [f"{path.rstrip('.')}: recorded {as_written(recorded)}, replayed {as_written(replayed)}"]
 
 
+class RecordedCamera:
+    """The recorded frames in order. Frames the camera could not deliver (unreadable, or blank: dark, overexposed)
+    were not recorded, only the stop they led to: where the recording's next decision is such a stop, a read past
+    the recorded frames fails as the session's reads did, so the loop stops with the same reason."""
+
+    def __init__(self, frames, sink: Comparison):
+        from cell.vision import FileCamera
+
+        self._files, self._sink = FileCamera(frames), sink
+
+    def read(self):
+        try:
+            return self._files.read()
+        except BadInput:
+            expected = self._sink.next_recorded() or {}
+            if expected.get("type") == "stop" and expected.get("source") == "camera":
+                raise BadInput(str(expected.get("reason", "")).partition(" tries: ")[2] or "no frame") from None
+            raise
+
+
 @dataclass
 class Comparison:
     """The decision sink of a replay."""
@@ -310,7 +330,6 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     from cell.runtime.session import EXAMPLES_AT_START, home_joints
     from cell.runtime.ways import go_to
     from cell.scene import parse_assembly
-    from cell.vision import FileCamera
     from drivers import simulated_cell
 
     say = progress or (lambda s: None)
@@ -340,6 +359,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     lift_check = _meta_flag(meta, "lift_check", directory)
     whole_part_report = _meta_flag(meta, "whole_part_report", directory)
     tray_check = _meta_flag(meta, "tray_check", directory)
+    removal_checks = _meta_flag(meta, "removal_checks", directory)
     planner = meta.get("planner")  # absent (or null) in recordings made before it was kept; [] is no planner
     planner_params = planner_from_meta({} if planner is None else planner, f"recording {directory}")
     recorded = [d for d in rec.decisions if d.get("type") != "summary"]
@@ -379,11 +399,11 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
             control = RecordedApprovals(rec.decisions, f"recording {directory}")
             control.sink = sink
             # interactive: a stop to ask waits for the (recorded) operator's answer, as at the station
-            loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=FileCamera(frames), arm=arm,
+            loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=RecordedCamera(frames, sink), arm=arm,
                             control=control, examples_path=work_examples, sink=sink,
                             options=LoopOptions(on_no_grasp=meta.get("on_no_grasp", "stop"), lift_check=lift_check,
                                                 whole_part_report=whole_part_report, tray_check=tray_check,
-                                                interactive=True),
+                                                removal_checks=removal_checks, interactive=True),
                             planner_params=planner_params, taught=sink.examples_taught_here)
             go_to(arm, home_joints(cell))
             control.run(by="replay")

@@ -134,6 +134,29 @@ def _to_uint8(img: np.ndarray, path: Path) -> np.ndarray:
     raise BadInput(f"image {path} has {img.dtype} pixels; 8- or 16-bit integer or float images are read")
 
 
+DARK_MEAN_DN = 10.0  # a frame darker than this on average shows nothing (lights off, the lens covered)
+SATURATED_SHARE = 0.95  # ... this share of it at 250 DN or more: overexposed (a lamp into the lens, no iris)
+FLAT_SD_DN = 0.5  # ... and a frame this even (at 1/8 size) is one colour: no picture (a test card, no signal)
+# (the shared photographs: mean 79 - 147 DN, sd 35 - 95; the simulated camera's empty tray: 106, sd 6.3)
+
+
+def blank_frame_reason(frame: np.ndarray) -> str | None:
+    """Why a camera frame cannot show the tray (too dark, overexposed, one flat colour), else None. After a
+    pick a frame like that showed "no part" and the part counted as removed (a black frame: 1 of 1 removed)."""
+    grey = frame if frame.ndim == 2 else cv2.cvtColor(frame[..., :3], cv2.COLOR_BGR2GRAY)
+    h, w = grey.shape[:2]
+    small = cv2.resize(grey, (max(1, w // 8), max(1, h // 8)), interpolation=cv2.INTER_AREA).astype(np.float64)
+    mean, sd = float(small.mean()), float(small.std())
+    if mean < DARK_MEAN_DN:
+        return f"the frame is dark (mean {mean:.1f} of 255): lights off, or the lens covered?"
+    saturated = float((grey >= 250).mean())
+    if saturated >= SATURATED_SHARE:
+        return f"the frame is overexposed ({saturated:.0%} of it at 250 or more)"
+    if sd < FLAT_SD_DN:
+        return f"the frame is one flat colour (mean {mean:.0f}, sd {sd:.2f}): no picture"
+    return None
+
+
 def write_image(path: str | Path, frame: np.ndarray) -> None:
     """Encode and write atomically (the extension chooses the format, e.g. .png)."""
     from cell.fileio import write_atomic

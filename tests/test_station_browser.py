@@ -680,11 +680,16 @@ def test_after_the_station_restarts_the_page_shows_the_new_frame(browser, statio
     control2 = RunControl()
     cell2 = DemoCell(control2, tmp_path / "examples2.jsonl", parts=demo_parts()[:2], motion_s=0.0)
     assert cell2.snapshot()["frame"]["index"] == cell.snapshot()["frame"]["index"] == 0
+    served, frame_png = [], cell2.frame_png
+    cell2.frame_png = lambda: served.append(1) or frame_png()
     with StationServer(cell2, control2, port=port):
         wait.until(lambda _: d.find_element(By.ID, "state").text.lower() == "idle")
         wait.until(lambda _: len(d.find_elements(By.CSS_SELECTOR, "#parts polygon")) == 2)
         wait.until(lambda _: d.execute_script("return window.__loads") >= 1)
         assert "stale" not in d.find_element(By.ID, "view").get_attribute("class")
+        # the picture is the new station's: asked of it (the same address "?i=0" was answered from the
+        # browser's memory with the old tray's picture)
+        assert served
 
 
 def test_teach_is_not_offered_when_no_part_is_on_the_frame(browser, tmp_path):

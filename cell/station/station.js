@@ -51,6 +51,7 @@ function noteSession(id) {
   }
   if (session !== null && id !== session) {
     frameIndex = null;
+    $("frame").removeAttribute("src");  // the old session's picture is not this cell's tray
     teach = null;
     decidedNo = null;
     $("log").dataset.newest = "";
@@ -283,13 +284,19 @@ function drawFrame(f) {
   fitView();
   $("frameno").textContent = f.index == null ? "–" : f.index;
   $("noframe").classList.toggle("hidden", f.index != null);
+  if (f.index == null && frameIndex != null) {  // no frame (yet): no picture, not the last one under the notice
+    frameIndex = null;
+    $("frame").removeAttribute("src");
+  }
   if (f.index != null && f.index !== frameIndex) {
     // a part chosen or a contact clicked on the last frame is not where it is on this one
     if (frameIndex != null && teach && teach.stage !== "part") {
       teach = {stage: "part", note: "Teach: a new frame came in; click the part again"};
     }
     frameIndex = f.index;
-    $("frame").src = "/api/frame.png?i=" + f.index;
+    // the session in the address too: a restarted station's frame 0 is not the old one's (the browser kept
+    // showing the old picture under the new outlines, the same address)
+    $("frame").src = "/api/frame.png?s=" + encodeURIComponent(session || "") + "&i=" + f.index;
   }
 }
 

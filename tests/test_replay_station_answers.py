@@ -96,6 +96,20 @@ def test_the_station_refuses_reset_and_run_once_the_run_has_ended(tmp_path):
     t.join(T)
 
 
+def test_a_stop_once_the_run_is_done_sends_nothing_and_the_recording_replays(tmp_path, capsys):
+    """A Stop a poll late (a second tab) while the station still answers after a complete run: it answered
+    "done" but quick-stopped the drives after the summary, onto the recording's bus log, and replay diverged
+    ("CAN id 0x201 ... 0600 in the replay, 0200 in the recording")."""
+    t, url, ended, rec = _station_run(tmp_path, WorldFaults())
+    post(url, "/api/run")
+    _wait(url, lambda c: c.get("ended"), "the end of the run")
+    assert post(url, "/api/stop", {"reason": "a second tab"})["result"] == "done"
+    t.join(T)
+    assert ended[0]["status"] == "complete" and RecordingReader(rec).manifest["status"] == "complete"
+    code, _, err = run_cli("replay", rec, capsys=capsys)
+    assert code == 0, err
+
+
 @pytest.mark.parametrize("signals", [("SIGINT",), ("SIGINT", "SIGINT"), ("SIGTERM", "SIGINT")])
 def test_signals_while_the_station_shows_the_end_only_end_the_wait(tmp_path, signals):
     """`cell run --station` as a process: Ctrl-C or SIGTERM after its loop has ended ends the station's 2 s

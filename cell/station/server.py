@@ -41,7 +41,7 @@ from urllib.parse import urlsplit
 
 from cell.errors import BadInput
 from cell.fileio import parse_json
-from cell.runtime.control import InvalidCommand, RunControl
+from cell.runtime.control import DONE, STOPPED, InvalidCommand, RunControl
 
 log = logging.getLogger(__name__)
 
@@ -384,9 +384,13 @@ class StationServer:
             return rc.reject(reason[:500], by=by, shown=shown, shown_no=_shown_proposal_no(body))
         if cmd == "stop":
             reason = body.get("reason", "")
+            before = rc.state
             state = rc.stop(reason[:500] if isinstance(reason, str) else "", by=by)
             halt = getattr(self.backend, "stop", None)
-            if callable(halt):  # quick-stop the arm now: a pick under way ends here, not at its end
+            if callable(halt) and before not in (STOPPED, DONE):
+                # quick-stop the arm now: a pick under way ends here, not at its end. Not once the run is over or
+                # stopped already: a Stop a poll late (a second tab) sent a quick stop after a complete run's
+                # summary, onto its recording's bus log, and its replay diverged
                 halt()
             return state
         if cmd == "reset":

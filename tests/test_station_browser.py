@@ -247,6 +247,45 @@ def test_when_the_cell_stops_answering_the_page_says_so_and_offers_no_commands(b
     wait.until(lambda _: "the cell does not answer" in d.find_element(By.ID, "toast").text)
 
 
+def test_a_cell_that_hangs_with_the_connection_open_is_shown_offline_and_stop_says_no_answer(browser, station):
+    """A station process stopped (SIGSTOP) or hung keeps its connections open: the page's requests waited for
+    ever, and it went on showing a green "running", its Stop saying nothing. Now a state not answered within
+    5 s is "offline", and a command not answered within 10 s says so."""
+    import threading
+
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server, control, cell, _ = station
+    d = browser
+    open_page(d, server, "idle")
+    control.run()
+    WebDriverWait(d, T, poll_frequency=0.05).until(
+        lambda _: d.find_element(By.ID, "state").text.lower() != "idle")
+    hung = threading.Event()
+    state, command = server.state, server.command
+
+    def hangs(fn):
+        def wrapper(*a, **k):
+            hung.wait(60)
+            return fn(*a, **k)
+        return wrapper
+
+    server.state, server.command = hangs(state), hangs(command)
+    try:
+        WebDriverWait(d, 15, poll_frequency=0.1).until(
+            lambda _: d.find_element(By.ID, "state").text.lower() == "offline")
+        assert "does not answer (no answer within 5 s)" in d.find_element(By.ID, "message").text
+        d.find_element(By.ID, "btn-stop").click()
+        WebDriverWait(d, 20, poll_frequency=0.1).until(
+            lambda _: "no answer within 10 s" in d.find_element(By.ID, "toast").text)
+        assert "stop may not have been done" in d.find_element(By.ID, "toast").text
+    finally:
+        hung.set()
+    WebDriverWait(d, T, poll_frequency=0.1).until(
+        lambda _: d.find_element(By.ID, "state").text.lower() not in ("offline", ""))
+
+
 def _a_proposal_then_no_state(d, station, monkeypatch):
     """Run to the first proposal, then make the cell's state fail (its snapshot raises) until the page is
     offline; the page's WebDriverWait."""

@@ -6,6 +6,21 @@
 const SVGNS = "http://www.w3.org/2000/svg";
 const POLL_MS = 300;
 const OFFLINE_POLL_MS = 1000;
+// A cell that does not answer within this is taken for one that does not answer (stopped, hung, its terminal
+// paused): a request alone waits as long as the connection stays open, and the page went on showing a green
+// "running" a minute after the station's process was stopped
+const STATE_TIMEOUT_MS = 5000;
+const COMMAND_TIMEOUT_MS = 10000;
+
+function fetchWithin(url, options, ms) {
+  const ctl = new AbortController();
+  const timer = setTimeout(() => ctl.abort(), ms);
+  return fetch(url, {...options, signal: ctl.signal}).finally(() => clearTimeout(timer));
+}
+
+function noAnswer(e, ms) {
+  return e && e.name === "AbortError" ? "no answer within " + (ms / 1000) + " s" : String(e);
+}
 const $ = (id) => document.getElementById(id);
 
 let token = "";
@@ -85,7 +100,8 @@ async function post(cmd, body) {
   try {
     const headers = {"Content-Type": "application/json", "X-Cell-Token": token};
     if (session) headers["X-Cell-Session"] = session;  // a station started since refuses the command (409)
-    const r = await fetch("/api/" + cmd, {method: "POST", headers, body: JSON.stringify(body || {})});
+    const r = await fetchWithin("/api/" + cmd, {method: "POST", headers, body: JSON.stringify(body || {})},
+                                COMMAND_TIMEOUT_MS);
     const data = await r.json().catch(() => ({ok: false, error: "HTTP " + r.status}));
     const tokenIsOld = !!tokenSession && !!data.session && data.session !== tokenSession;
     // (a restarted station's session is taken on when its state is drawn, not from a refusal: until then a
@@ -110,7 +126,7 @@ async function post(cmd, body) {
     if (!olderThanShown(data)) render(data);  // a poll answered after it may be newer
     return data;
   } catch (e) {
-    toast("the cell does not answer: " + e);
+    toast("the cell does not answer: " + noAnswer(e, COMMAND_TIMEOUT_MS) + " (" + cmd + " may not have been done)");
     return null;
   }
 }
@@ -125,7 +141,7 @@ function olderThanShown(data) {
 async function poll() {
   let answered = true;
   try {
-    const r = await fetch("/api/state", {cache: "no-store"});
+    const r = await fetchWithin("/api/state", {cache: "no-store"}, STATE_TIMEOUT_MS);
     if (!r.ok) {  // the cell is there but cannot say its state: the last one shown would be a lie
       let why = "HTTP " + r.status;
       try { why += ": " + (await r.json()).error; } catch (_) { /* not JSON: the status says enough */ }
@@ -137,7 +153,9 @@ async function poll() {
     }
   } catch (e) {
     answered = false;
-    offline();
+    offline(e && e.name === "AbortError"
+      ? "the cell does not answer (" + noAnswer(e, STATE_TIMEOUT_MS) + "): it may be stopped or hung; see its terminal"
+      : undefined);
   }
   // while the cell does not answer, once a second: each refused connection is an error line in the
   // browser's console (three a second filled it), and a second is soon enough to see it back

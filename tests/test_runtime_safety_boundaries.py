@@ -428,7 +428,9 @@ class Frames:
     pytest.param(None, None, "the camera returned no frame", id="no_frame"),
 ])
 def test_a_frame_of_another_size_or_none_is_retried_then_stops_and_asks(loop, width_px, height_px, refused):
-    camera = Frames(None if width_px is None else np.zeros((height_px, width_px, 3), np.uint8))
+    # (a picture, not a black frame: that is refused for showing nothing, test_cell_run_real.py)
+    camera = Frames(None if width_px is None else np.random.default_rng(0).integers(40, 220, (height_px, width_px, 3),
+                                                                                     dtype=np.uint8))
     loop.camera = camera
     try:
         if refused is None:

@@ -97,8 +97,8 @@ def path_violations(cell, start: Joints, target: Joints) -> list[str]:
     inside = ws.contains_xy(x, y)
     box = f"the workspace is x in [{ws.x_mm[0]:g}, {ws.x_mm[1]:g}], y in [{ws.y_mm[0]:g}, {ws.y_mm[1]:g}]"
     # A real arm may stand outside (switched on there, coasted out): the way back in is allowed, never further
-    # out than it starts; once in, it stays in like any other way (a start 0.8 mm out let the way home sweep
-    # 119 mm out of the workspace)
+    # out than it starts, also where it ends still outside (a jog on the way in); once in, it stays in like any
+    # other way (a start 0.8 mm out let the way home sweep 119 mm out of the workspace)
     back_in = int(np.argmax(inside)) if inside.any() else len(inside)
     depth = ws.depth_xy(x[:back_in], y[:back_in])
     deeper = np.flatnonzero(depth < depth[0] - OUTSIDE_TOL_MM) if back_in else []
@@ -108,18 +108,17 @@ def path_violations(cell, start: Joints, target: Joints) -> list[str]:
         out.append(f"the tool starts {-depth[0]:.1f} mm outside the workspace and would go {-depth[i]:.1f} mm out on "
                    f"the way back in, at x = {x[i]:.1f}, y = {y[i]:.1f} mm (J1 {path[i, 0]:.1f} deg, J2 "
                    f"{path[i, 1]:.1f} deg); {box}: jog it inside first (cell hw jog)")
-    elif back_in == len(inside):
-        out.append(f"the tool starts outside the workspace and would not come back in (it ends at x = {x[-1]:.1f}, "
-                   f"y = {y[-1]:.1f} mm); {box}")
     elif len(outside):
         i = outside[0]
         out.append(f"the tool would leave the workspace on the way, at x = {x[i]:.1f}, y = {y[i]:.1f} mm "
                    f"(J1 {path[i, 0]:.1f} deg, J2 {path[i, 1]:.1f} deg); {box}")
     else:  # a stop on the way: from where the tool is inside, inside; on the way back in, no further out
         tool = (x[1:], y[1:])
-        out += _stop_violations(cell, move, t_s, samples, speed, tool, box, (max(back_in - 1, 0), len(t_s)))
-        if back_in > 1 and not out:
-            out += _stop_violations(cell, move, t_s, samples, speed, tool, box, (0, back_in - 1),
+        coming_in = max(back_in - 1, 0)  # the samples (after the start) before the tool is in: all, if it stays out
+        if coming_in < len(t_s):
+            out += _stop_violations(cell, move, t_s, samples, speed, tool, box, (coming_in, len(t_s)))
+        if coming_in and not out:
+            out += _stop_violations(cell, move, t_s, samples, speed, tool, box, (0, coming_in),
                                     float(depth[0]) - STOP_OUTSIDE_TOL_MM)
     return out
 
@@ -184,7 +183,7 @@ def _pose_violations(cell, target: Joints, current: Joints | None, suffix: str) 
     out = [v + suffix for v in limit_violations(target, cell.scara)]
     tool = forward(target, cell.scara)
     ws = cell.workspace
-    if not ws.contains(tool.x_mm, tool.y_mm):
+    if not ws.contains(tool.x_mm, tool.y_mm) and not _closer_in(cell, tool, current):
         out.append(
             f"tool at x = {_mm(tool.x_mm, ws.x_mm)}, y = {_mm(tool.y_mm, ws.y_mm)} mm outside the workspace "
             f"x in [{ws.x_mm[0]:g}, {ws.x_mm[1]:g}], y in [{ws.y_mm[0]:g}, {ws.y_mm[1]:g}]{suffix}"
@@ -196,6 +195,20 @@ def _pose_violations(cell, target: Joints, current: Joints | None, suffix: str) 
                 out.append(f"{joint.upper()} step {step:.3f} {unit} larger than max_step "
                            f"{cell.scara.max_step[joint]:g} {unit}{suffix}")
     return out
+
+
+def _closer_in(cell, tool, current: Joints | None) -> bool:
+    """A tool standing outside the workspace (switched on there, coasted out) may be sent to a pose outside it
+    too, where that is no further out (OUTSIDE_TOL_MM): a lift, a jog on the way back in (the ways are checked
+    the same way: `path_violations`). Else nothing brought an arm 40 mm out back in but hands: every jog was
+    refused, its target still outside."""
+    if current is None:
+        return False
+    here = forward(current, cell.scara)
+    ws = cell.workspace
+    depth_here = float(ws.depth_xy(np.array(here.x_mm), np.array(here.y_mm)))
+    depth_there = float(ws.depth_xy(np.array(tool.x_mm), np.array(tool.y_mm)))
+    return depth_here < 0 and depth_there >= depth_here - OUTSIDE_TOL_MM
 
 
 def _mm(value: float, bounds: tuple[float, float]) -> str:

@@ -230,6 +230,36 @@ def test_a_stop_on_the_way_back_in_may_not_take_the_tool_further_out(cell_cfg):
     assert _inside(cell_cfg, j2_in) and path_violations(cell_cfg, FURTHER_OUTSIDE, j2_in) == []
 
 
+def test_an_arm_40_mm_outside_the_workspace_is_jogged_back_in_one_step_at_a_time(cell_cfg):
+    """J1 = J2 = 0 puts the tool at x = 600 mm, 40 mm past the workspace: every command was refused there, a lift
+    and every jog too (their targets still outside), so nothing but hands brought it back. A target outside is
+    now allowed where it is no further out than the tool stands; so is the way there."""
+    import numpy as np
+
+    from drivers.limits import command_violations
+
+    ws = cell_cfg.workspace
+
+    def depth(j):
+        t = forward(j, cell_cfg.scara)
+        return float(ws.depth_xy(np.array(t.x_mm), np.array(t.y_mm)))
+
+    here = Joints(0.0, 0.0, 3.0, 0.0)
+    assert depth(here) == pytest.approx(-40.0, abs=0.01)
+    assert command_violations(cell_cfg, Joints(0.0, 0.0, 8.0, 0.0), here) == []  # a lift
+    steps = 0
+    while depth(here) < 0:  # J2 10 deg at a time (cell hw jog's largest step)
+        back = Joints(here.j1_deg, here.j2_deg + 10.0, here.j3_mm, here.j4_deg)
+        nearer = Joints(here.j1_deg, here.j2_deg - 10.0, here.j3_mm, here.j4_deg)
+        if here.j2_deg < 0:
+            assert depth(back) < depth(here) and "outside the workspace" in command_violations(cell_cfg, back, here)[0]
+        assert command_violations(cell_cfg, nearer, here) == [], (here, command_violations(cell_cfg, nearer, here))
+        here, steps = nearer, steps + 1
+    assert steps == 4 and _inside(cell_cfg, here)
+    # with no pose to compare with (a first command), a target outside is refused as before
+    assert "outside the workspace" in command_violations(cell_cfg, Joints(0.0, -10.0, 3.0, 0.0), None)[0]
+
+
 def test_an_arm_standing_outside_the_workspace_goes_home_without_going_further_out(open_test_bus, sim_clock, cell_cfg):
     """Through the stack: drives that stand 0.8 mm outside (their own cell file's home), the host's default cell,
     `go_to(home)` (cell hw home, cell run's first move): the way it takes never has the tool further out than at

@@ -36,6 +36,7 @@ COMMANDS: list[tuple[tuple[str, ...], str, str]] = [
     (("station",), "cell.commands.station", "serve the operator station (local web page)"),
     (("hw", "status"), "cell.commands.hw", "bring the nodes up and print their state"),
     (("hw", "sim"), "cell.commands.hw", "serve the simulated drives on a CAN bus until stopped"),
+    (("hw", "reset"), "cell.commands.hw", "clear the drives' faults and enable them where they stand"),
     (("hw", "home"), "cell.commands.hw", "home the arm (hardware-in-loop)"),
     (("hw", "jog"), "cell.commands.hw", "jog one joint by a small step (hardware-in-loop)"),
     (("hw", "gripper"), "cell.commands.hw", "open or close the gripper (hardware-in-loop)"),

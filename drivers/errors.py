@@ -90,7 +90,8 @@ class FaultLatched(DriverError):
 
     def __init__(self, faults: dict[str, str]):
         text = "; ".join(f"{k}: {v}" for k, v in faults.items())
-        super().__init__(f"fault latched, call reset_faults() first ({text})", node=next(iter(faults), None))
+        super().__init__(f"fault latched, reset first: cell hw reset, the station's Reset, or Arm.reset_faults() "
+                         f"({text})", node=next(iter(faults), None))
         self.faults = dict(faults)
 
 

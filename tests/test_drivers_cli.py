@@ -274,3 +274,32 @@ def test_hw_refuses_negative_or_nan_times(capsys, argv):
     code, out, err = run_cli("hw", *argv, capsys=capsys)
     assert code == 2 and argv[1] in err and "Traceback" not in err
     assert len(err.strip().splitlines()) == 1 and out == ""
+
+
+def test_hw_reset_clears_a_drive_fault_and_enables_the_drives_where_they_stand(capsys):
+    """A drive in FAULT at the start (a host that crashed mid-move): every command said "call reset_faults()
+    first", and nothing on the command line did that. `cell hw reset` does, holding where the axes stand."""
+    import contextlib
+
+    from cell.cellconfig import default_cell
+    from cell.commands import hw
+    from drivers import simulated_cell
+
+    seen = {}
+
+    @contextlib.contextmanager
+    def faulted_drives(args, cell, enable=True):
+        with simulated_cell(cell, enable=enable) as (arm, drives):
+            drives.inject_fault("emcy", "j2", code=0x2310)
+            arm.clock.sleep(0.1)
+            seen["before"] = {n: s["state"] for n, s in arm.state().items()}
+            yield arm, drives
+            seen["after"] = {n: s["state"] for n, s in arm.state().items()}
+            seen["positions"] = drives.positions()
+
+    args = types.SimpleNamespace(interface="virtual", channel=None, yes=False, json=True)
+    assert hw._reset(args, default_cell(), session=faulted_drives) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert seen["before"]["j2"] == "FAULT" and out["reset"] == ["j2"]
+    assert set(seen["after"].values()) == {"OPERATION_ENABLED"}
+    assert out["joints"] == pytest.approx({"j1_deg": 0.0, "j2_deg": 90.0, "j3_mm": 200.0, "j4_deg": 0.0}, abs=1e-3)

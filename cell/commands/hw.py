@@ -1,4 +1,5 @@
-"""`cell hw status|sim|home|jog|gripper|corner|pick`: hardware-in-loop commands (`pick`: cell/commands/hw_pick.py).
+"""`cell hw status|sim|reset|home|jog|gripper|corner|pick`: hardware-in-loop commands (`pick`:
+cell/commands/hw_pick.py).
 
 Each takes `--interface/--channel` (default: the simulated cell on python-can's virtual
 bus, served in this process, so every command runs here as is). On any other interface the
@@ -87,8 +88,8 @@ def run(args) -> int:
     # SIGTERM (`timeout`, systemd, kill) ends the command as Ctrl-C does: a move is quick-stopped (exit 130); it
     # ended the process mid-move with no stop at all, and the axes ran on to their targets
     with sigterm_as_interrupt():
-        return {"status": _status, "home": _home, "jog": _jog, "gripper": _gripper, "corner": _corner,
-                "pick": _pick}[args._words[1]](args, cell)
+        return {"status": _status, "reset": _reset, "home": _home, "jog": _jog, "gripper": _gripper,
+                "corner": _corner, "pick": _pick}[args._words[1]](args, cell)
 
 
 MAX_DWELL_S = 600.0  # a SimClock steps through every heartbeat of the dwell: 1e300 s never ended
@@ -275,6 +276,26 @@ def _serve(args, cell) -> int:
         for s, h in old.items():
             signal.signal(s, h)
     print("cell hw sim: stopped", file=sys.stderr)
+    return 0
+
+
+def _reset(args, cell, session=None) -> int:
+    """Clear the drives' faults and enable them, holding where they stand: the station's Reset, for a cell run
+    without one (every command said "call reset_faults() first", and nothing on the command line did). A drive
+    standing past its joint's limits is not enabled: it says where it stands (move it back by hand first)."""
+    from drivers import DriverError
+
+    with (session or _session)(args, cell, enable=False) as (arm, _):
+        faulted = {name: s["fault"] for name, s in arm.state().items() if s["fault"]}
+        what = ", ".join(faulted) if faulted else "no drive in fault"
+        confirm_motion(args, f"reset the drives ({what}) and enable them, holding where they stand")
+        try:
+            arm.reset_faults()
+        except DriverError as e:
+            print(f"cell: error: {e}", file=sys.stderr)
+            return 1
+        _emit(args, {"reset": sorted(faulted), "joints": arm.joints().as_dict()},
+              f"reset {', '.join(faulted) or 'nothing to reset'}; enabled at {_joints_text(arm.joints())}")
     return 0
 
 

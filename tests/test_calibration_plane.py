@@ -294,6 +294,23 @@ def test_a_focal_length_a_digit_short_is_warned_about(tmp_path, capsys):
         assert bool(says) is warned and ("is a digit missing?" in err) is warned
 
 
+def test_intrinsics_for_another_resolution_are_warned_about(tmp_path, capsys):
+    """The full frame's camera matrix given for a half-size image puts its principal point at the image's corner:
+    taken without a word, it put the camera twice as high and `cell map` 3 mm off. A principal point outside the
+    image, or far off its centre (as `calibrate intrinsics` warns), is named; the image's own is not."""
+    frame, pts, xy, fx = _points_15mm_up(tmp_path)
+    for centre, warned in (("1300,1023.5", "outside the image"), ("900,512", "20% / 0% of the image's size off"),
+                           ("640,512", None)):
+        code, out, err = run_cli("calibrate", "plane", frame, "--points", pts, "--camera-matrix", f"{fx:g},{fx:g},"
+                                 f"{centre}", "--out", tmp_path / f"c{centre}.json", "--accept-poor-fit", capsys=capsys)
+        assert code == 0, err
+        says = [w for w in json.loads(out).get("warnings", []) if "principal point" in w]
+        if warned is None:
+            assert says == []
+        else:
+            assert len(says) == 1 and warned in says[0] and "intrinsics for another resolution?" in err
+
+
 def test_a_focal_length_a_digit_too_long_is_warned_about_by_the_camera_distance(tmp_path, capsys):
     """fx 16000 px for a 1280 px image: the fit follows it with the camera 10 x too far, 8 m over the tray, and
     only a focal length too short (a view over 120 degrees) was warned about. A camera more than 3 m from the

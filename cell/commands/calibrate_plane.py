@@ -33,6 +33,20 @@ def add_arguments(p) -> None:
     p.add_argument("--json", action="store_true", help="accepted for symmetry: the result is always JSON")
 
 
+def principal_point_off_centre(k, w: int, h: int) -> str | None:
+    """Where a camera matrix's principal point lies, when far from the image's centre (more than
+    PRINCIPAL_OFF_CENTRE_WARN of its size, as `cell calibrate intrinsics` warns) or outside it; else None."""
+    from calibration.intrinsics import PRINCIPAL_OFF_CENTRE_WARN
+
+    cx, cy = float(k[0, 2]), float(k[1, 2])
+    if not (0 <= cx <= w and 0 <= cy <= h):
+        return "outside the image"
+    dx, dy = abs(cx - (w - 1) / 2) / w, abs(cy - (h - 1) / 2) / h
+    if max(dx, dy) > PRINCIPAL_OFF_CENTRE_WARN:
+        return f"{100 * dx:.0f}% / {100 * dy:.0f}% of the image's size off its centre"
+    return None
+
+
 def run(args) -> int:
     import numpy as np
 
@@ -124,6 +138,12 @@ def run(args) -> int:
         warnings.append(f"the camera matrix gives a {fov:.0f} degree field of view across the image (fx "
                         f"{k[0, 0]:g}, fy {k[1, 1]:g} px for {w} x {h} px), wider than almost any lens: is a digit "
                         "missing? (the fit can follow a wrong focal length with a wrong camera height)")
+        cal.report["warnings"] = warnings
+    if k is not None and (off := principal_point_off_centre(k, w, h)) is not None:
+        # intrinsics made for another resolution (the full frame's matrix on a half-size image: its principal
+        # point at the corner) were taken without a word: the camera 1553 mm up instead of 779, maps 3 mm off
+        warnings.append(f"the camera matrix's principal point ({k[0, 2]:.1f}, {k[1, 2]:.1f}) lies {off} ({w} x {h} "
+                        "px): are the intrinsics for another resolution? (scale fx, fy, cx and cy with the image)")
         cal.report["warnings"] = warnings
     if cal.has_pose:
         distance_mm = float(np.linalg.norm(cal.camera_position_mm() - xyz.mean(axis=0)))

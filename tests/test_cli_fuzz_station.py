@@ -64,3 +64,13 @@ def test_the_approve_option_has_one_name_on_both_commands(capsys):
     assert code == 2 and "--approve needs --station" in err, err
     code, out, err = run_cli("station", "--approve", "--port", "0", "--for-s", "0", capsys=capsys)
     assert code == 0 and "station closed" in out, err
+
+
+@pytest.mark.parametrize("token", ["abc&defgh", "abc%zzdefg", "\u20acuro-token-1", "with space1", "a+b=c/d=e"])
+def test_a_token_the_page_cannot_carry_is_refused(tmp_path, capsys, token):
+    """The token goes in the printed link's query and in an HTTP header: 'abc&defgh' gave the page "abc" (403,
+    "was the cell restarted?"), '%zz' stopped the page's script, a non-ASCII one could not be sent at all."""
+    code, out, err = run_cli("station", "--port", "0", "--token", token, "--examples", tmp_path / "ex.jsonl",
+                             capsys=capsys)
+    assert code == 2 and "letters, digits and - . _ ~ only" in err, err
+    assert not (tmp_path / "ex.jsonl").exists()

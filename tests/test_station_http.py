@@ -169,6 +169,10 @@ def test_teach_appends_a_valid_example_and_the_next_proposal_uses_it(station, tm
                         ({"part": "board", "p1_px": [1], "p2_px": p2}, "p1_px"),
                         ({"part": "board", "p1_px": p1, "p2_px": p1}, "apart"),
                         ({"part": "board", "p1_px": [5, 5], "p2_px": p2}, "from the outline"),
+                        # far off the frame: was refused as if the calibration were wrong
+                        ({"part": "board", "p1_px": [1e15, 3], "p2_px": p2},
+                         "clicked point 1 (1e+15, 3) px is not on the 640 x 512 px frame"),
+                        ({"part": "board", "p1_px": p1, "p2_px": [-1, 3]}, "clicked point 2 (-1, 3) px is not on"),
                         # two taps on one edge: a pad there would push along it (was taught as valid)
                         ({"part": "board", "p1_px": mm_to_px(o[0] + (o[1] - o[0]) * 0.2).tolist(),
                           "p2_px": mm_to_px(o[0] + (o[1] - o[0]) * 0.8).tolist()}, "faces 90 deg off the jaws' line")):
@@ -249,6 +253,19 @@ def test_a_bad_content_length_gets_an_answer_with_or_without_the_token(station, 
     assert status == 400 and ("Content-Length" in r["error"] or "too large" in r["error"]), r
     assert control.state == "idle"
     assert "Traceback" not in capfd.readouterr().err
+
+
+def test_a_chunked_body_is_refused_not_dropped(station, tmp_path):
+    """http.server does not read a chunked body: a chunked Reject with a reason was done with the default
+    reason, and the invalid example lost the operator's words. Now 411, and nothing done."""
+    server, control, _ = station
+    body = b'{"reason": "the pads would crush the clip"}'
+    head = (f"POST /api/reject HTTP/1.1\r\nHost: 127.0.0.1:{server.port}\r\nContent-Type: application/json\r\n"
+            f"X-Cell-Token: {TOKEN}\r\nTransfer-Encoding: chunked\r\n\r\n").encode()
+    chunked = f"{len(body):x}\r\n".encode() + body + b"\r\n0\r\n\r\n"
+    status, r = raw_request(server, head, chunked)
+    assert status == 411 and r["ok"] is False and "Content-Length" in r["error"], r
+    assert control.state == "idle" and not (tmp_path / "examples.jsonl").exists()
 
 
 @pytest.mark.parametrize("method,path,allow", [

@@ -58,7 +58,7 @@ class LoopBackend:
         part = seen.get(part_id)
         if part is None:
             raise BadInput(f"part {part_id!r} is not in the current frame")
-        px = np.array([p1_px, p2_px], float)
+        px = clicked_on_frame(p1_px, p2_px, lp.cal.width_px, lp.cal.height_px)
         contacts = taught_contacts(part, lp.cal.px_to_mm(px, part.z_top_mm), lp.cell.gripper.opening_mm)
         opening = float(np.linalg.norm(contacts[1] - contacts[0]))
         pose = jaw_pose(part, contacts, lp.cell)
@@ -74,6 +74,16 @@ class LoopBackend:
                 "contacts_mm": np.round(contacts, 2).tolist(),
                 "opening_mm": round(opening, 2), "joints": None if joints is None else joints.rounded(3).as_dict(),
                 }
+
+
+def clicked_on_frame(p1_px, p2_px, width_px: int, height_px: int) -> np.ndarray:
+    """The two clicked points (px), which must lie on the frame: one far off it was mapped through the
+    calibration and refused for the calibration's sake ("the plane z = 4 mm is not in front of the camera")."""
+    px = np.array([p1_px, p2_px], float)
+    for i, (u, v) in enumerate(px, start=1):
+        if not (0.0 <= u <= width_px and 0.0 <= v <= height_px):
+            raise BadInput(f"clicked point {i} ({u:g}, {v:g}) px is not on the {width_px} x {height_px} px frame")
+    return px
 
 
 TAUGHT_FACING_MAX_DEG = 45.0  # a taught contact's outline may face this far off the jaws' line (a careless tap)

@@ -25,7 +25,7 @@ from cell.cellconfig import Cell, default_cell
 from cell.errors import BadInput
 from cell.examples import GraspExample, append_examples, load_examples
 from cell.kinematics import Joints
-from cell.runtime.backend import jaw_pose, taught_contacts
+from cell.runtime.backend import clicked_on_frame, jaw_pose, taught_contacts
 from cell.runtime.control import Faulted, RunControl, Stopped
 from cell.scene import Part
 
@@ -146,8 +146,8 @@ class DemoCell:
                 raise BadInput(f"no part {part_id!r} on the current frame "
                                f"(parts: {', '.join(p.id for p in self._parts) or 'none'})")
             others = tuple(p for p in self._parts if p.id != part_id)
-        snapped = taught_contacts(part, px_to_mm(np.array([p1_px, p2_px], float)), self.cell.gripper.opening_mm,
-                                  off_max_mm=15.0)
+        snapped = taught_contacts(part, px_to_mm(clicked_on_frame(p1_px, p2_px, FRAME_W_PX, FRAME_H_PX)),
+                                  self.cell.gripper.opening_mm, off_max_mm=15.0)
         opening = float(np.linalg.norm(snapped[1] - snapped[0]))
         z, _, _, sols = jaw_pose(part, snapped, self.cell)
         with self._lock:

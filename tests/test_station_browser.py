@@ -518,6 +518,12 @@ def test_a_slow_tap_on_a_part_while_teaching_selects_it(browser, station):
     d.find_element(By.ID, "btn-teach").click()  # on again
     ActionChains(d).move_to_element_with_offset(svg, *frame_offset(d, 5, 5)[1:]).click().perform()
     WebDriverWait(d, T).until(lambda _: "no part there" in d.find_element(By.ID, "teach-status").text)
+    # Esc cancels wherever the focus is, as the hint says: typed into the reason field it did nothing
+    from selenium.webdriver.common.keys import Keys
+
+    d.find_element(By.ID, "reason").send_keys(Keys.ESCAPE)
+    WebDriverWait(d, T).until(lambda _: not d.find_element(By.ID, "teach-hint").is_displayed())
+    assert d.find_element(By.ID, "keys").is_displayed()
 
 
 def test_a_reason_typed_for_one_grasp_is_not_kept_for_the_next(browser, station):

@@ -595,6 +595,8 @@ const KEY_BUTTONS = {" ": "btn-step", "s": "btn-stop", "p": "btn-pause", "a": "b
 function onKey(ev) {
   if (ev.ctrlKey || ev.metaKey || ev.altKey || ev.isComposing) return;
   const t = ev.target;
+  // Esc cancels a teach wherever the focus is (the hint says so; typed into the reason, it did nothing)
+  if (ev.key === "Escape" && teach) { cancelTeach(); return; }
   if (t.isContentEditable || t.tagName === "TEXTAREA" || t.tagName === "SELECT") return;
   if (t.tagName === "INPUT" && t.type !== "checkbox") return;  // the reason, the token
   if (ev.key === "Escape") { cancelTeach(); return; }

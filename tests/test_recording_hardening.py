@@ -570,3 +570,14 @@ def test_a_recording_under_a_name_that_is_not_utf8_replays(tmp_path, capsys):
     assert manifest["summary"]["recording"].endswith("r\\xff") and manifest["examples"]["path"].endswith("e\\xfe.jsonl")
     code, out, err = run_cli("replay", rec, capsys=capsys)
     assert code == 0 and "match the recording" in out, err
+
+
+def test_replay_tells_true_from_one():
+    """A recorded `"holding": true` edited to 1 matched: a yes/no is compared as one, numbers within the
+    tolerance as before."""
+    from cell.runtime.replay import differences
+
+    assert differences({"holding": True}, {"holding": 1}) == ["holding: recorded true, replayed 1"]
+    assert differences({"holding": 1}, {"holding": True}) == ["holding: recorded 1, replayed true"]
+    assert differences({"holding": False}, {"holding": 0.0}) != []
+    assert differences({"holding": True, "x": 2}, {"holding": True, "x": 2.0 + 1e-6}) == []

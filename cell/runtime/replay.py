@@ -101,7 +101,10 @@ def differences(recorded, replayed, path: str = "") -> list[str]:
         for i, (a, b) in enumerate(zip(recorded, replayed, strict=True)):
             out += differences(a, b, f"{path}{i}.")
         return out
-    if isinstance(recorded, (int, float)) and isinstance(replayed, (int, float)) and not isinstance(recorded, bool):
+    if isinstance(recorded, bool) or isinstance(replayed, bool):  # true is no 1 ("holding": 1 matched true)
+        if type(recorded) is type(replayed) and recorded == replayed:
+            return []
+    elif isinstance(recorded, (int, float)) and isinstance(replayed, (int, float)):
         if math.isclose(recorded, replayed, abs_tol=TOLERANCE, rel_tol=1e-9):
             return []
     elif recorded == replayed:

@@ -71,10 +71,12 @@ def test_hw_jog_moves_one_joint(capsys, tmp_path):
     assert j2_targets == {round(r["from"]["j2_deg"] * 1000)}
 
 
-@pytest.mark.parametrize("argv", [["j1", "11"], ["j3", "-20"], ["j2", "nan"]])
-def test_hw_jog_refuses_large_steps(capsys, argv):
+@pytest.mark.parametrize("argv, says", [(["j1", "11"], "too large"), (["j3", "-20"], "too large"),
+                                        (["j2", "nan"], "jog step nan: a number of deg, at most 10 either way"),
+                                        (["j3", "inf"], "jog step inf: a number of mm")])
+def test_hw_jog_refuses_large_steps(capsys, argv, says):
     code, out, err = run_cli("hw", "jog", *argv, "--simulated-time", capsys=capsys)
-    assert code == 2 and "too large" in err and "Traceback" not in err
+    assert code == 2 and says in err and "Traceback" not in err
 
 
 def test_hw_jog_past_a_joint_limit_is_refused(capsys, tmp_path):

@@ -324,7 +324,9 @@ def _jog(args, cell) -> int:
     from cell.kinematics import Joints
 
     unit = cell.can.nodes[args.joint].unit
-    if not math.isfinite(args.step) or abs(args.step) > JOG_MAX[unit]:
+    if not math.isfinite(args.step):
+        raise BadInput(f"jog step {args.step}: a number of {unit}, at most {JOG_MAX[unit]:g} either way")
+    if abs(args.step) > JOG_MAX[unit]:
         raise BadInput(f"jog step {args.step} {unit} too large: at most {JOG_MAX[unit]:g} {unit}")
     with _session(args, cell) as (arm, _):
         start = arm.joints()

@@ -5,6 +5,7 @@ drives on python-can's virtual bus, what they did read back from their positions
 
 from __future__ import annotations
 
+import contextlib
 import json
 from importlib import resources
 from pathlib import Path
@@ -18,6 +19,21 @@ from cell.kinematics import Joints, forward
 from drivers import LimitError, codec
 from drivers.errors import DriveFault
 from drivers.record import read_log
+
+
+@contextlib.contextmanager
+def targets_sent(bus, node_id: int):
+    """The 0x607A targets (counts) sent to node `node_id` while the block runs, heard on `bus` (a tap)."""
+    import can
+
+    targets: list[int] = []
+    notifier = can.Notifier(bus, [lambda m: targets.append(codec.unpack_target(m.data))
+                                  if m.arbitration_id == codec.RPDO2_BASE + node_id else None])
+    try:
+        yield targets
+    finally:
+        notifier.stop()
+
 
 pytestmark = needs_sim
 
@@ -301,19 +317,13 @@ def test_a_drive_standing_outside_its_joints_limits_is_not_enabled_and_no_target
     Now the drive is left disabled and a fault names where it stands; nothing is sent to it as a target."""
     from dataclasses import replace
 
-    import can
-
     from drivers import Arm, sim
     from drivers.errors import FaultLatched
 
     wide = replace(cell_cfg.scara, j1_deg=(-150.0, 150.0))  # the drives' own limits let them stand there
     drives_cell = replace(cell_cfg, scara=wide, motion=replace(
         cell_cfg.motion, home_joints={**cell_cfg.motion.home_joints, "j1_deg": 140.0}))
-    with sim.serve(open_test_bus(), drives_cell, clock=sim_clock):
-        tap = open_test_bus()
-        targets = []
-        notifier = can.Notifier(tap, [lambda m: targets.append(m) if m.arbitration_id == codec.RPDO2_BASE + 1
-                                      else None])
+    with sim.serve(open_test_bus(), drives_cell, clock=sim_clock), targets_sent(open_test_bus(), 1) as targets:
         arm = Arm(open_test_bus(), cell_cfg, clock=sim_clock, sdo_timeout_s=1.0)
         try:
             arm.connect()
@@ -325,8 +335,7 @@ def test_a_drive_standing_outside_its_joints_limits_is_not_enabled_and_no_target
                 arm.reset_faults()
         finally:
             arm.disconnect()
-            notifier.stop()
-    assert [codec.unpack_target(m.data) for m in targets] == []
+    assert targets == []
 
 
 def test_a_drive_settled_a_few_counts_past_a_home_at_the_limit_is_enabled_holding_the_limit(open_test_bus, sim_clock,
@@ -336,18 +345,12 @@ def test_a_drive_settled_a_few_counts_past_a_home_at_the_limit_is_enabled_holdin
     not its position, and moves as usual."""
     from dataclasses import replace
 
-    import can
-
     from drivers import Arm, sim
 
     wide = replace(cell_cfg.scara, j3_mm=(0.0, 205.0))
     drives_cell = replace(cell_cfg, scara=wide, motion=replace(
         cell_cfg.motion, home_joints={**cell_cfg.motion.home_joints, "j3_mm": 200.002}))
-    with sim.serve(open_test_bus(), drives_cell, clock=sim_clock):
-        tap = open_test_bus()
-        targets = []
-        notifier = can.Notifier(tap, [lambda m: targets.append(codec.unpack_target(m.data))
-                                      if m.arbitration_id == codec.RPDO2_BASE + 3 else None])
+    with sim.serve(open_test_bus(), drives_cell, clock=sim_clock), targets_sent(open_test_bus(), 3) as targets:
         arm = Arm(open_test_bus(), cell_cfg, clock=sim_clock, sdo_timeout_s=1.0)
         try:
             arm.connect()
@@ -356,7 +359,6 @@ def test_a_drive_settled_a_few_counts_past_a_home_at_the_limit_is_enabled_holdin
             assert arm.joints().j3_mm == pytest.approx(190.0, abs=1e-3)
         finally:
             arm.disconnect()
-            notifier.stop()
     per_mm = cell_cfg.can.nodes["j3"].counts_per_unit
     assert targets and max(targets) <= 200.0 * per_mm, targets  # nothing past the limit was sent
 
@@ -373,8 +375,6 @@ def test_no_target_past_a_limit_goes_out_while_the_drive_is_enabled(request, ope
     (0x607A = 132.4 deg of 132, past the drive's own software limit 0x607D)."""
     from dataclasses import replace
 
-    import can
-
     from drivers import Arm, RealClock, sim
 
     if wall_time:
@@ -384,11 +384,7 @@ def test_no_target_past_a_limit_goes_out_while_the_drive_is_enabled(request, ope
     drives_cell = replace(cell_cfg, scara=replace(cell_cfg.scara, **{field: limits}), motion=replace(
         cell_cfg.motion, home_joints={**cell_cfg.motion.home_joints, field: stands}))
     node_id = cell_cfg.can.nodes[node].node_id
-    with sim.serve(open_test_bus(), drives_cell, clock=sim_clock):
-        tap = open_test_bus()
-        targets = []
-        notifier = can.Notifier(tap, [lambda m: targets.append(codec.unpack_target(m.data))
-                                      if m.arbitration_id == codec.RPDO2_BASE + node_id else None])
+    with sim.serve(open_test_bus(), drives_cell, clock=sim_clock), targets_sent(open_test_bus(), node_id) as targets:
         arm = Arm(open_test_bus(), cell_cfg, clock=sim_clock, sdo_timeout_s=1.0)
         try:
             arm.connect()
@@ -396,7 +392,6 @@ def test_no_target_past_a_limit_goes_out_while_the_drive_is_enabled(request, ope
             sim_clock.sleep(1.0)
         finally:
             arm.disconnect()
-            notifier.stop()
     per_unit = cell_cfg.can.nodes[node].counts_per_unit
     assert targets and max(targets) <= round(limit * per_unit), [t / per_unit for t in targets]
 
@@ -408,19 +403,14 @@ def test_jaws_found_outside_their_range_are_held_at_it_or_not_enabled(open_test_
     were sent 85. Like a joint: up to 0.5 mm out it holds the end of its range, further out it is not enabled."""
     from dataclasses import replace
 
-    import can
-
     from drivers import Arm, sim
 
     lo, hi = cell_cfg.gripper.opening_mm
     drives_cell = replace(cell_cfg, gripper=replace(cell_cfg.gripper, opening_mm=(-5.0, 90.0)))
     node_id = cell_cfg.can.nodes["gripper"].node_id
-    with sim.serve(open_test_bus(), drives_cell, clock=sim_clock) as drives:
+    with sim.serve(open_test_bus(), drives_cell, clock=sim_clock) as drives, \
+            targets_sent(open_test_bus(), node_id) as targets:
         drives.drives["gripper"].position_counts = round(stands_mm * cell_cfg.can.nodes["gripper"].counts_per_unit)
-        tap = open_test_bus()
-        targets = []
-        notifier = can.Notifier(tap, [lambda m: targets.append(codec.unpack_target(m.data))
-                                      if m.arbitration_id == codec.RPDO2_BASE + node_id else None])
         arm = Arm(open_test_bus(), cell_cfg, clock=sim_clock, sdo_timeout_s=1.0)
         try:
             arm.connect()
@@ -432,7 +422,6 @@ def test_jaws_found_outside_their_range_are_held_at_it_or_not_enabled(open_test_
                 assert arm.axes["gripper"].state != "OPERATION_ENABLED"
         finally:
             arm.disconnect()
-            notifier.stop()
     per_mm = cell_cfg.can.nodes["gripper"].counts_per_unit
     sent = [t / per_mm for t in targets]
     assert all(lo <= t <= hi for t in sent), sent

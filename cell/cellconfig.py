@@ -145,6 +145,12 @@ class Box2D:
         return (f"lies at ({x:.1f}, {y:.1f}) mm, outside the cell's tray (x {self.x_mm[0]:g} to {self.x_mm[1]:g}, "
                 f"y {self.y_mm[0]:g} to {self.y_mm[1]:g} mm)")
 
+    def overshoot_xy(self, x, y) -> np.ndarray:
+        """(..., 4) how far each point lies past each side (x low, x high, y low, y high; 0 where inside it)."""
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        return np.stack([np.maximum(self.x_mm[0] - x, 0.0), np.maximum(x - self.x_mm[1], 0.0),
+                         np.maximum(self.y_mm[0] - y, 0.0), np.maximum(y - self.y_mm[1], 0.0)], axis=-1)
+
     def depth_xy(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """How far inside the box each point lies (mm to the nearest side); negative: that far outside it."""
         return np.minimum(np.minimum(x - self.x_mm[0], self.x_mm[1] - x),

@@ -101,7 +101,8 @@ def path_violations(cell, start: Joints, target: Joints) -> list[str]:
     # other way (a start 0.8 mm out let the way home sweep 119 mm out of the workspace)
     back_in = int(np.argmax(inside)) if inside.any() else len(inside)
     depth = ws.depth_xy(x[:back_in], y[:back_in])
-    deeper = np.flatnonzero(depth < depth[0] - OUTSIDE_TOL_MM) if back_in else []
+    past = ws.overshoot_xy(x[:back_in], y[:back_in])  # further past any side than at the start: further out
+    deeper = np.flatnonzero((past > past[0] + OUTSIDE_TOL_MM).any(axis=1)) if back_in else []
     outside = np.flatnonzero(~inside[back_in:]) + back_in
     if len(deeper):
         i = int(deeper[np.argmin(depth[deeper])])
@@ -206,9 +207,10 @@ def _closer_in(cell, tool, current: Joints | None) -> bool:
         return False
     here = forward(current, cell.scara)
     ws = cell.workspace
-    depth_here = float(ws.depth_xy(np.array(here.x_mm), np.array(here.y_mm)))
-    depth_there = float(ws.depth_xy(np.array(tool.x_mm), np.array(tool.y_mm)))
-    return depth_here < 0 and depth_there >= depth_here - OUTSIDE_TOL_MM
+    past_here, past_there = ws.overshoot_xy(here.x_mm, here.y_mm), ws.overshoot_xy(tool.x_mm, tool.y_mm)
+    # past no side further than now, with no tolerance (one would add up over many small jogs), and none newly
+    # (the nearest side alone let a jog from 40 mm past y end 33 mm past x as well)
+    return bool(past_here.any() and (past_there <= past_here).all())
 
 
 def _mm(value: float, bounds: tuple[float, float]) -> str:

@@ -272,6 +272,17 @@ def test_an_arm_40_mm_outside_the_workspace_is_jogged_back_in_one_step_at_a_time
         assert command_violations(cell_cfg, nearer, here) == [], (here, command_violations(cell_cfg, nearer, here))
         here, steps = nearer, steps + 1
     assert steps == 4 and _inside(cell_cfg, here)
+    # past another side is further out too (the nearest side alone let a jog from 40 mm past y = -450 end 33 mm
+    # past it and 32 mm past x = -50), and tiny jogs add up to nothing (0.05 mm each took it 4 mm further)
+    from cell.kinematics import inverse
+
+    corner = inverse(-10.0, -490.0, 100.0, 0.0, cell_cfg.scara)[0]
+    sideways = Joints(corner.j1_deg - 8.5, corner.j2_deg, corner.j3_mm, corner.j4_deg)
+    assert "outside the workspace" in command_violations(cell_cfg, sideways, corner)[0]
+    nudge = Joints(corner.j1_deg, corner.j2_deg + 0.005, corner.j3_mm, corner.j4_deg)
+    t0, t1 = forward(corner, cell_cfg.scara), forward(nudge, cell_cfg.scara)
+    if (ws.overshoot_xy(t1.x_mm, t1.y_mm) > ws.overshoot_xy(t0.x_mm, t0.y_mm)).any():
+        assert command_violations(cell_cfg, nudge, corner)
     # with no pose to compare with (a first command), a target outside is refused as before
     assert "outside the workspace" in command_violations(cell_cfg, Joints(0.0, -10.0, 3.0, 0.0), None)[0]
 

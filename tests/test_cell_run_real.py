@@ -231,6 +231,10 @@ def test_only_frames_that_cannot_show_the_tray_are_blank():
     assert "dark" in blank_frame_reason((empty * 0.05).astype(np.uint8))
     assert "overexposed" in blank_frame_reason(np.full_like(empty, 255))
     assert "one flat colour" in blank_frame_reason(np.full_like(empty, 128))
+    # a back-lit tray is white, empty or not: where the run's first frame was so too, no frame is overexposed
+    white = np.full_like(empty, 255)
+    assert blank_frame_reason(white, first_saturated=0.97) is None
+    assert "dark" in blank_frame_reason(np.zeros_like(empty), first_saturated=0.97)
     photos = sorted(p for p in EXTERNAL.glob("*/*") if p.suffix.lower() in (".png", ".jpg", ".jpeg"))
     assert all(blank_frame_reason(read_image(p)) is None for p in photos), [
         p.name for p in photos if blank_frame_reason(read_image(p))]

@@ -48,7 +48,7 @@ from cell.runtime.motion import (
 from cell.runtime.pickway import TRAVEL_MARGIN_MM, LinksWouldHit, check_links, clear_way, travel_z_mm
 from cell.runtime.ways import go_to
 from cell.scene import Assembly, Part, Scene
-from cell.vision.sources import blank_frame_reason
+from cell.vision.sources import blank_frame_reason, saturated_share
 
 # Fingers and palm keep this clear of the other parts: their poses are measured (~0.3 mm off in
 # the vision bench), and a finger planned flush with a neighbour came down on it
@@ -172,6 +172,7 @@ class CellLoop:
         self._stop_reason = ""  # why the loop last stopped and asked (for the summary)
         self.state = LoopState()
         self._frame_counter = 0
+        self._first_saturated: float | None = None  # the share of the first frame at 250 or more (back-lit: white)
         self._last_picked: tuple[str, Part] | None = None
         # the pick being sent: part, grasp, report, attempt, and its stage (sent, gripped, released)
         self._pick: dict | None = None
@@ -430,9 +431,11 @@ class CellLoop:
                 if frame is None:
                     raise BadInput("the camera returned no frame")
                 self.cal.check_frame(frame)  # another camera mode or the wrong camera: not this calibration
-                blank = blank_frame_reason(frame) if self.options.removal_checks else None
+                blank = blank_frame_reason(frame, self._first_saturated or 0.0) if self.options.removal_checks else None
                 if blank:
                     raise BadInput(blank)
+                if self._first_saturated is None:  # a back-lit tray's frames are white: the first one says so
+                    self._first_saturated = saturated_share(frame)
                 break
             except (BadInput, OSError) as e:
                 last = e

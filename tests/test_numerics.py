@@ -95,6 +95,22 @@ def test_a_divergence_names_the_numeric_platform_the_recording_was_made_on(tmp_p
     assert code == 1 and "numpy 1.26.4" in json.loads(out)["platform_difference"]
 
 
+def test_a_divergence_of_a_recording_made_before_the_pin_says_how_to_replay_it_as_made(tmp_path, capsys):
+    d = tmp_path / "rec"
+    shutil.copytree(SHIPPED, d)
+    m = json.loads((d / "manifest.json").read_text())
+    m["software"].pop("numeric", None)
+    (d / "manifest.json").write_text(json.dumps(m))
+    lines = (d / "decisions.jsonl").read_text().splitlines()
+    g = json.loads(lines[1])
+    g["opening_mm"] += 3.0
+    lines[1] = json.dumps(g)
+    (d / "decisions.jsonl").write_text("\n".join(lines) + "\n")
+    code, out, err = run_cli("replay", d, capsys=capsys)
+    assert code == 1 and "made before the cell pinned its BLAS kernels" in err
+    assert "OPENBLAS_CORETYPE= OPENBLAS_NUM_THREADS= cell replay" in err
+
+
 def test_a_recording_made_before_the_platform_was_kept_names_no_difference():
     assert platform_difference(None, numeric_platform()) is None
     assert platform_difference(numeric_platform(), numeric_platform()) is None

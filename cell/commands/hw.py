@@ -280,7 +280,8 @@ def _serve(args, cell) -> int:
 
 
 def _reset(args, cell, session=None) -> int:
-    """Clear the drives' faults and enable them, holding where they stand: the station's Reset, for a cell run
+    """Clear the drives' faults and enable them once, holding where they stand, to see them stay clear (the
+    session's end disables them again; the next command enables them): the station's Reset, for a cell run
     without one (every command said "call reset_faults() first", and nothing on the command line did). A drive
     standing past its joint's limits is not enabled: it says where it stands (move it back by hand first)."""
     from drivers import DriverError
@@ -294,8 +295,10 @@ def _reset(args, cell, session=None) -> int:
         except DriverError as e:
             print(f"cell: error: {e}", file=sys.stderr)
             return 1
+        # (the session's end disables them again, as every hw command does: the next command enables them)
         _emit(args, {"reset": sorted(faulted), "joints": arm.joints().as_dict()},
-              f"reset {', '.join(faulted) or 'nothing to reset'}; enabled at {_joints_text(arm.joints())}")
+              (f"faults cleared: {', '.join(faulted)}" if faulted else "no drive was in fault")
+              + f"; every drive enabled and clear at {_joints_text(arm.joints())}")
     return 0
 
 

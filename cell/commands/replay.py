@@ -33,8 +33,11 @@ def run(args) -> int:
         rec = RecordingReader(args.recording)
         # numbers computed by other libraries or kernels may differ in their last digits: say so beside it
         software = rec.manifest.get("software")
-        platform = platform_difference(software.get("numeric") if isinstance(software, dict) else None,
-                                       numeric_platform())
+        numeric = software.get("numeric") if isinstance(software, dict) else None
+        platform = platform_difference(numeric, numeric_platform())
+        if numeric is None:  # made before the kernels were pinned: with this CPU's own, as it was then
+            platform = ("made before the cell pinned its BLAS kernels (cell/numerics.py): try again with this "
+                        f"CPU's own, OPENBLAS_CORETYPE= OPENBLAS_NUM_THREADS= cell replay {args.recording}")
         if args.json:  # how the recorded session ended, as a match reports it
             from cell.runtime.replay import recorded_end
 
@@ -42,7 +45,8 @@ def run(args) -> int:
                               "platform_difference": platform}))
         print(f"cell replay: divergence: {e}", file=sys.stderr)
         if platform:
-            print(f"cell replay: recorded with other numeric libraries or kernels: {platform}", file=sys.stderr)
+            print(f"cell replay: recorded with other numeric libraries or kernels: {platform}"
+                  if numeric is not None else f"cell replay: the recording was {platform}", file=sys.stderr)
         return 1
     result["match"] = not result["differences"]
     if args.json:

@@ -203,16 +203,22 @@ class ProgressPrinter:
         self._lines.put(line)
 
     def _print(self) -> None:
+        gone = False
         while (line := self._lines.get()) is not None:
+            if gone:
+                continue
             try:
                 self._say(line)
             except OSError:
-                return
+                gone = True  # a broken pipe: the rest are dropped, the queue still drained
+            except Exception:  # noqa: BLE001 - one line that cannot be printed loses that line, not the rest
+                pass
 
-    def close(self) -> None:
-        """Every line put so far printed (as long as the terminal takes them), then the thread ends."""
+    def close(self, timeout_s: float = 10.0) -> None:
+        """Every line put so far printed, then the thread ends; a terminal that takes none for `timeout_s` is
+        left (its lines with it): the run's report must still come back."""
         self._lines.put(None)
-        self._thread.join()
+        self._thread.join(timeout_s)
 
 
 def _run_session(cfg: RunConfig, say) -> dict:

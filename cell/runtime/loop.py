@@ -38,7 +38,7 @@ from cell.grasp.params import SynthesisParams
 from cell.grasp.synthesis import Grasp, GraspPlanner
 from cell.kinematics import Joints
 from cell.runtime.control import Faulted, RunControl, Stopped
-from cell.runtime.matching import Region, locate, locate_anywhere, unexplained
+from cell.runtime.matching import Region, axis_deg_eigh, locate, locate_anywhere, unexplained
 from cell.runtime.motion import (
     above,
     carry_off_commands,
@@ -98,6 +98,9 @@ class LoopOptions:
     # and the part picked last, not found where it was, is looked for anywhere on the tray (it fell back 80 mm
     # away). Before (off in older recordings), both read as "gone": the part counted as removed.
     removal_checks: bool = True
+    # The registration's start along a region's axis in closed form (the same on every machine); off in recordings
+    # made before: LAPACK's eigenvector, whose sign started the search half a turn round on 3 of 4 outlines.
+    axis_closed_form: bool = True
 
 
 @dataclass
@@ -469,11 +472,12 @@ class CellLoop:
         expected = list(self.poses.values())
         if self._last_picked is not None:  # look for it too: it should be gone
             expected.append(self._last_picked[1])
-        found, strangers = locate(expected, regions)
+        axis = None if self.options.axis_closed_form else axis_deg_eigh
+        found, strangers = locate(expected, regions, axis)
         if self._last_picked is not None and self._last_picked[0] not in found and self.options.removal_checks:
             # not where it was picked: perhaps it fell back further off than a part is looked for
             pid, part = self._last_picked
-            fell = locate_anywhere(part, [r for r in regions if r.index in strangers])
+            fell = locate_anywhere(part, [r for r in regions if r.index in strangers], axis)
             if fell is not None:
                 found[pid] = fell
                 strangers = [i for i in strangers if i != fell.region]

@@ -110,7 +110,7 @@ class Poser:
         return self._geom[0]
 
 
-def register(model: Polygon, region: Polygon, merged: bool = False) -> tuple[np.ndarray, float]:
+def register(model: Polygon, region: Polygon, merged: bool = False, axis=None) -> tuple[np.ndarray, float]:
     """Best (dx, dy, dtheta_deg) placing `model` onto `region`, and the overlap there."""
     c = model.centroid.coords[0]
     # Fine detail (gear teeth, 1 mm steps of a resampled outline) only slows the search down.
@@ -119,7 +119,8 @@ def register(model: Polygon, region: Polygon, merged: bool = False) -> tuple[np.
     if not merged:
         d = np.subtract(region.centroid.coords[0], c)
         starts.append(np.array([d[0], d[1], 0.0]))
-        turn = _axis_deg(region) - _axis_deg(model)
+        axis = axis or _axis_deg  # (axis_deg_eigh: how recordings made before 2026-12-05 started)
+        turn = axis(region) - axis(model)
         starts += [np.array([d[0], d[1], turn]), np.array([d[0], d[1], turn + 180.0])]
     posed = Poser(model, c)
     best_x, best_s = None, -1.0
@@ -135,7 +136,7 @@ def register(model: Polygon, region: Polygon, merged: bool = False) -> tuple[np.
     return best_x, best_s
 
 
-def locate(parts: Sequence[Part], regions: Sequence[Region]) -> tuple[dict[str, Located], list[int]]:
+def locate(parts: Sequence[Part], regions: Sequence[Region], axis=None) -> tuple[dict[str, Located], list[int]]:
     """Match model parts to regions. Returns the located parts by id and the indices of
     regions no part claimed (something unexpected on the tray).
 
@@ -160,7 +161,7 @@ def locate(parts: Sequence[Part], regions: Sequence[Region]) -> tuple[dict[str, 
                 continue
             if not 0.6 < poly.area / part.polygon.area < 1.6:
                 continue  # another part: registration could only make it overlap worse
-            x, s = register(part.polygon, poly)
+            x, s = register(part.polygon, poly, axis=axis)
             if s >= MIN_OVERLAP and math.hypot(x[0], x[1]) <= MAX_SHIFT_MM:
                 candidates.append(Located(part.id, r.index, float(x[0]), float(x[1]), float(x[2]), float(s), False))
     for c in sorted(candidates, key=_preference):
@@ -186,12 +187,12 @@ def locate(parts: Sequence[Part], regions: Sequence[Region]) -> tuple[dict[str, 
                 poly = poly.difference(other)
             if poly.is_empty or poly.distance(part.polygon) > MAX_MERGED_SHIFT_MM:
                 continue
-            x, s = register(part.polygon, poly, merged=True)
+            x, s = register(part.polygon, poly, merged=True, axis=axis)
             near = math.hypot(x[0], x[1]) <= MAX_MERGED_SHIFT_MM
             if s >= MIN_OVERLAP and near and (best is None or s > best.overlap):
                 best = Located(part.id, r.index, float(x[0]), float(x[1]), float(x[2]), float(s), True)
         if best is None:
-            best, pieces = _in_pieces(part, [r for r in regions if not r.merged and r.index not in claimed])
+            best, pieces = _in_pieces(part, [r for r in regions if not r.merged and r.index not in claimed], axis)
             claimed.update(pieces)
             own.update(pieces)  # every piece is this part's: no later part is looked for in one
         if best is not None:
@@ -201,7 +202,7 @@ def locate(parts: Sequence[Part], regions: Sequence[Region]) -> tuple[dict[str, 
     return located, [r.index for r in regions if r.index not in claimed]
 
 
-def locate_anywhere(part: Part, regions: Sequence[Region]) -> Located | None:
+def locate_anywhere(part: Part, regions: Sequence[Region], axis=None) -> Located | None:
     """`part` in whichever of `regions` (of about its size) it fits best, however far from where it was: the
     part picked last, not found near where it lay (`locate` looks MAX_SHIFT_MM about), may have fallen back
     onto the tray further off. None when no region fits it (MIN_OVERLAP)."""
@@ -212,13 +213,13 @@ def locate_anywhere(part: Part, regions: Sequence[Region]) -> Located | None:
         poly = r.polygon_at(part.z_top_mm, part.z_bottom_mm)
         if poly.is_empty or not 0.6 < poly.area / part.polygon.area < 1.6:
             continue
-        x, s = register(part.polygon, poly)
+        x, s = register(part.polygon, poly, axis=axis)
         if s >= MIN_OVERLAP and (best is None or s > best.overlap):
             best = Located(part.id, r.index, float(x[0]), float(x[1]), float(x[2]), float(s), False)
     return best
 
 
-def _in_pieces(part: Part, free: Sequence[Region]) -> tuple[Located | None, list[int]]:
+def _in_pieces(part: Part, free: Sequence[Region], axis=None) -> tuple[Located | None, list[int]]:
     """A part the segmentation cut into pieces (a washer's highlight split off by colour): the
     unclaimed regions near it, smaller than MIN_UNFLAGGED_RATIO x the part, registered together
     (intersection over union of their union). The match (region: the largest piece) and the pieces'
@@ -233,11 +234,24 @@ def _in_pieces(part: Part, free: Sequence[Region]) -> tuple[Located | None, list
             near.append((poly.area, r.index, poly))
     if len(near) < 2:
         return None, []
-    x, s = register(part.polygon, union_all([poly for *_, poly in near]).buffer(0))
+    x, s = register(part.polygon, union_all([poly for *_, poly in near]).buffer(0), axis=axis)
     if s < MIN_OVERLAP or math.hypot(x[0], x[1]) > MAX_MERGED_SHIFT_MM:
         return None, []
     largest = max(near, key=lambda t: t[0])[1]
     return Located(part.id, largest, float(x[0]), float(x[1]), float(x[2]), float(s), True), [i for _, i, _ in near]
+
+
+def axis_deg_eigh(poly: Polygon) -> float:
+    """The principal axis as recordings made before 2026-12-05 took it: LAPACK's eigenvector, of either sign as
+    the CPU's kernels have it (replay of those recordings only: `LoopOptions.axis_closed_form` off)."""
+    hull = poly.convex_hull
+    if hull.geom_type != "Polygon":
+        return 0.0
+    xy = np.asarray(hull.exterior.coords)[:-1]
+    xy = xy - xy.mean(axis=0)
+    w, v = np.linalg.eigh(xy.T @ xy)
+    major = v[:, int(np.argmax(w))]
+    return math.degrees(math.atan2(major[1], major[0]))
 
 
 def _axis_deg(poly: Polygon) -> float:

@@ -434,11 +434,14 @@ class CellLoop:
                 if frame is None:
                     raise BadInput("the camera returned no frame")
                 self.cal.check_frame(frame)  # another camera mode or the wrong camera: not this calibration
-                blank = blank_frame_reason(frame, self._first_saturated or 0.0) if self.options.removal_checks else None
+                if self._first_saturated is None:  # a back-lit tray's frames are white: the first one says so
+                    first = saturated_share(frame)
+                else:
+                    first = self._first_saturated
+                blank = blank_frame_reason(frame, first) if self.options.removal_checks else None
                 if blank:
                     raise BadInput(blank)
-                if self._first_saturated is None:  # a back-lit tray's frames are white: the first one says so
-                    self._first_saturated = saturated_share(frame)
+                self._first_saturated = first
                 break
             except (BadInput, OSError) as e:
                 last = e

@@ -262,8 +262,8 @@ class CellLoop:
                     continue  # the next checkpoint raises Stopped
                 self._stop_and_ask(getattr(e, "node", None) or "cell", str(e), fault=not isinstance(e, HandWork))
         summary = self.summary()
+        self.control.done(summary)  # first: a Stop from now on is one after the end (nothing is sent)
         self.sink.write_decision({"type": "summary", **summary})
-        self.control.done(summary)
         return summary
 
     def _one_part(self, part_id: str) -> None:

@@ -72,7 +72,8 @@ class StationBackend(Protocol):
         (map to mm, snap to the outline, current configuration), append it atomically; the
         planner learns it (the cell loop: at its next plan); raise BadInput (400) or
         InvalidCommand (409) to refuse.
-    stop() (optional): quick-stop the arm; called after RunControl.stop() on the page's Stop,
+    stop() (optional): quick-stop the arm; called after RunControl.stop() on the page's Stop where that stopped
+        a run (not one done or stopped already),
         so a motion under way ends at once rather than at the loop's next checkpoint.
     """
 
@@ -411,7 +412,7 @@ class StationServer:
             before = rc.state
             state = rc.stop(reason[:500] if isinstance(reason, str) else "", by=by)
             halt = getattr(self.backend, "stop", None)
-            if callable(halt) and before not in (STOPPED, DONE):
+            if callable(halt) and before not in (STOPPED, DONE) and state == STOPPED:
                 # quick-stop the arm now: a pick under way ends here, not at its end. Not once the run is over or
                 # stopped already: a Stop a poll late (a second tab) sent a quick stop after a complete run's
                 # summary, onto its recording's bus log, and its replay diverged

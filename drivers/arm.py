@@ -319,15 +319,15 @@ class Arm:
         one (a few counts past a home at the limit) is enabled holding the limit. Further out it coasted there (safe
         torque off, a jam, power lost mid-move: J1 stopped at 146 deg of 132) and is not enabled: its position would
         be sent as its target."""
-        if ax.name == "gripper":  # its opening's range, like a joint's limits (jaws found at 85 mm of 80 held 85)
-            lo, hi = self.cell.gripper.opening_mm
-        else:
-            lo, hi = self.cell.scara.limits(ax.name)
+        gripper = ax.name == "gripper"
+        # the gripper: its opening's range (jaws found at 85 mm of 80 were held at 85), and held at the end of it
+        # however far out: the jaws moving by a few mm is no danger, and jaws pressed past 0 kept the arm off
+        lo, hi = self.cell.gripper.opening_mm if gripper else self.cell.scara.limits(ax.name)
         if ax.status is None:
             ax.wait_status(lambda s: True, None, "first TPDO")
         cpu = ax.counts_per_unit
         value = ax.status.position_counts / cpu
-        if lo - SETTLED_PAST_LIMIT <= value <= hi + SETTLED_PAST_LIMIT:
+        if gripper or lo - SETTLED_PAST_LIMIT <= value <= hi + SETTLED_PAST_LIMIT:
             lo_c, hi_c = math.ceil(lo * cpu), math.floor(hi * cpu)
             return (lambda counts: min(max(counts, lo_c), hi_c)), None
         return None, f"stands at {value:.3f} {ax.unit}, outside its limits [{lo:g}, {hi:g}]"

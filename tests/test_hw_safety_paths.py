@@ -35,6 +35,15 @@ def targets_sent(bus, node_id: int):
         notifier.stop()
 
 
+def drives_standing_at(cell_cfg, field: str, limits: tuple[float, float], value: float):
+    """The drives' own cell file: `field`'s limits widened to `limits` (so that they may stand there) and their
+    home at `value`; the host keeps `cell_cfg`."""
+    from dataclasses import replace
+
+    return replace(cell_cfg, scara=replace(cell_cfg.scara, **{field: limits}), motion=replace(
+        cell_cfg.motion, home_joints={**cell_cfg.motion.home_joints, field: value}))
+
+
 pytestmark = needs_sim
 
 HOME = Joints(0.0, 90.0, 200.0, 0.0)
@@ -326,14 +335,11 @@ def test_a_drive_standing_outside_its_joints_limits_is_not_enabled_and_no_target
     """Enabling sends the axis' position as its target (so that it never jumps): after a coast past J1's limit
     (safe torque off mid-move: 146.3 deg of 132) a reset sent 0x607A = 146.3 deg and enabled J1 without a word.
     Now the drive is left disabled and a fault names where it stands; nothing is sent to it as a target."""
-    from dataclasses import replace
 
     from drivers import Arm, sim
     from drivers.errors import FaultLatched
 
-    wide = replace(cell_cfg.scara, j1_deg=(-150.0, 150.0))  # the drives' own limits let them stand there
-    drives_cell = replace(cell_cfg, scara=wide, motion=replace(
-        cell_cfg.motion, home_joints={**cell_cfg.motion.home_joints, "j1_deg": 140.0}))
+    drives_cell = drives_standing_at(cell_cfg, "j1_deg", (-150.0, 150.0), 140.0)
     with sim.serve(open_test_bus(), drives_cell, clock=sim_clock), targets_sent(open_test_bus(), 1) as targets:
         arm = Arm(open_test_bus(), cell_cfg, clock=sim_clock, sdo_timeout_s=1.0)
         try:
@@ -358,9 +364,7 @@ def test_a_drive_settled_a_few_counts_past_a_home_at_the_limit_is_enabled_holdin
 
     from drivers import Arm, sim
 
-    wide = replace(cell_cfg.scara, j3_mm=(0.0, 205.0))
-    drives_cell = replace(cell_cfg, scara=wide, motion=replace(
-        cell_cfg.motion, home_joints={**cell_cfg.motion.home_joints, "j3_mm": 200.002}))
+    drives_cell = drives_standing_at(cell_cfg, "j3_mm", (0.0, 205.0), 200.002)
     with sim.serve(open_test_bus(), drives_cell, clock=sim_clock), targets_sent(open_test_bus(), 3) as targets:
         arm = Arm(open_test_bus(), cell_cfg, clock=sim_clock, sdo_timeout_s=1.0)
         try:
@@ -384,7 +388,6 @@ def test_no_target_past_a_limit_goes_out_while_the_drive_is_enabled(request, ope
     """A drive standing up to 0.5 past a joint's limit is enabled holding the limit; but when the drive took a
     while to answer the enable (in wall time: its next tick), the target was set again where it stood, unclamped
     (0x607A = 132.4 deg of 132, past the drive's own software limit 0x607D)."""
-    from dataclasses import replace
 
     from drivers import Arm, RealClock, sim
 
@@ -392,8 +395,7 @@ def test_no_target_past_a_limit_goes_out_while_the_drive_is_enabled(request, ope
         sim_clock = RealClock()
         request.addfinalizer(sim_clock.close)
 
-    drives_cell = replace(cell_cfg, scara=replace(cell_cfg.scara, **{field: limits}), motion=replace(
-        cell_cfg.motion, home_joints={**cell_cfg.motion.home_joints, field: stands}))
+    drives_cell = drives_standing_at(cell_cfg, field, limits, stands)
     node_id = cell_cfg.can.nodes[node].node_id
     with sim.serve(open_test_bus(), drives_cell, clock=sim_clock), targets_sent(open_test_bus(), node_id) as targets:
         arm = Arm(open_test_bus(), cell_cfg, clock=sim_clock, sdo_timeout_s=1.0)

@@ -554,10 +554,16 @@ def _flag_outliers(views: list[View], use: list[int], per_view: list[float]) -> 
             views[i].note = f"outlier: view RMS {e:.3f} px vs median {med:.3f} px"
 
 
+def principal_point_offset(k, w: int, h: int) -> tuple[float, float]:
+    """How far a camera matrix's principal point lies from the centre of a `w` x `h` px image, as shares of its
+    width and height (PRINCIPAL_OFF_CENTRE_WARN is where a warning starts)."""
+    return abs(float(k[0, 2]) - (w - 1) / 2) / w, abs(float(k[1, 2]) - (h - 1) / 2) / h
+
+
 def _warnings(r: IntrinsicsResult) -> list[str]:
     out = []
     cx, cy = r.camera_matrix[0, 2], r.camera_matrix[1, 2]
-    dx, dy = abs(cx - (r.width_px - 1) / 2) / r.width_px, abs(cy - (r.height_px - 1) / 2) / r.height_px
+    dx, dy = principal_point_offset(r.camera_matrix, r.width_px, r.height_px)
     if max(dx, dy) > PRINCIPAL_OFF_CENTRE_WARN:
         out.append(f"principal point ({cx:.1f}, {cy:.1f}) is far from the image centre "
                    f"({(r.width_px - 1) / 2:.1f}, {(r.height_px - 1) / 2:.1f}): {100 * dx:.0f}% / "

@@ -36,12 +36,12 @@ def add_arguments(p) -> None:
 def principal_point_off_centre(k, w: int, h: int) -> str | None:
     """Where a camera matrix's principal point lies, when far from the image's centre (more than
     PRINCIPAL_OFF_CENTRE_WARN of its size, as `cell calibrate intrinsics` warns) or outside it; else None."""
-    from calibration.intrinsics import PRINCIPAL_OFF_CENTRE_WARN
+    from calibration.intrinsics import PRINCIPAL_OFF_CENTRE_WARN, principal_point_offset
 
     cx, cy = float(k[0, 2]), float(k[1, 2])
     if not (0 <= cx <= w and 0 <= cy <= h):
         return "outside the image"
-    dx, dy = abs(cx - (w - 1) / 2) / w, abs(cy - (h - 1) / 2) / h
+    dx, dy = principal_point_offset(k, w, h)
     if max(dx, dy) > PRINCIPAL_OFF_CENTRE_WARN:
         return f"{100 * dx:.0f}% / {100 * dy:.0f}% of the image's size off its centre"
     return None

@@ -291,6 +291,17 @@ class Arm:
                         ", ".join(left))
             self._stop_all()
 
+    def enable(self) -> None:
+        """Enable every drive, holding where it stands: the `connect(enable=False)` session's second half, for a
+        host that asks the operator before the motors hold torque. A drive in FAULT or standing outside its
+        limits is not enabled; its fault is latched and raised here."""
+        self._require_connected()
+        self._enable_all()
+        with self._lock:
+            refused = next(iter(self._faults.values()), None)
+        if refused is not None:
+            raise refused
+
     def _enable_all(self) -> None:
         """Enable every drive. A drive found in FAULT (say, after a host crash) is not reset
         here: its fault is latched with its error code, and only `reset_faults()` clears it."""
@@ -668,11 +679,7 @@ class Arm:
                     raise stop
                 for ax in self.axes.values():
                     self._emcy_seen[ax.name] = ax.emcy_seq
-            self._enable_all()
-            with self._lock:
-                refused = next(iter(self._faults.values()), None)
-            if refused is not None:  # a drive not enabled (outside its limits, in FAULT again): latched, told
-                raise refused
+            self.enable()  # a drive not enabled (outside its limits, in FAULT again): latched, told
         except DriverError as e:
             self._latch(e)
             raise

@@ -3,8 +3,8 @@ cell/commands/hw_pick.py).
 
 Each takes `--interface/--channel` (default: the simulated cell on python-can's virtual
 bus, served in this process, so every command runs here as is). On any other interface the
-commands that move ask for confirmation first (or take `--yes`), and Ctrl-C or SIGTERM quick-stops
-every axis before exiting (130).
+commands that move ask for confirmation first (or take `--yes`), and only then enable the drives; Ctrl-C or
+SIGTERM quick-stops every axis before exiting (130).
 """
 
 from __future__ import annotations
@@ -112,8 +112,10 @@ def _simulated(args) -> bool:
 
 
 @contextlib.contextmanager
-def _session(args, cell, *, enable: bool = True):
-    """A connected arm: the in-process simulated cell on 'virtual', else the real bus."""
+def _session(args, cell, *, enable: bool = False):
+    """A connected arm: the in-process simulated cell on 'virtual', else the real bus. Not enabled: a command
+    enables the drives (`arm.enable()`) once the operator has said yes (`confirm_motion`); the motors held
+    torque while the question was asked, and a "no" had energised them for nothing."""
     from drivers import RealClock, SimClock, real_cell, simulated_cell
 
     if _simulated(args):
@@ -286,7 +288,7 @@ def _reset(args, cell, session=None) -> int:
     standing past its joint's limits is not enabled: it says where it stands (move it back by hand first)."""
     from drivers import DriverError
 
-    with (session or _session)(args, cell, enable=False) as (arm, _):
+    with (session or _session)(args, cell) as (arm, _):
         faulted = {name: s["fault"] for name, s in arm.state().items() if s["fault"]}
         what = ", ".join(faulted) if faulted else "no drive in fault"
         confirm_motion(args, f"reset the drives ({what}) and enable them, holding where they stand")
@@ -310,6 +312,7 @@ def _home(args, cell) -> int:
     with _session(args, cell) as (arm, _):
         start = arm.joints()
         confirm_motion(args, f"home the arm from {_joints_text(start)}")
+        arm.enable()
         t0 = arm.clock.now()
         with _stop_on_interrupt(arm):
             go_to(arm, home)  # lifts first, then swings
@@ -337,6 +340,7 @@ def _jog(args, cell) -> int:
         field = {"j1": "j1_deg", "j2": "j2_deg", "j3": "j3_mm", "j4": "j4_deg"}[args.joint]
         d[field] += args.step
         confirm_motion(args, f"jog {args.joint} by {args.step:+g} {unit}")
+        arm.enable()
         with _stop_on_interrupt(arm):
             sent = arm.move_joints(Joints.from_dict(d))
         end = arm.joints()
@@ -365,6 +369,7 @@ def _gripper(args, cell) -> int:
         if drives is not None:
             drives.gripper_object_width_mm = args.part
         confirm_motion(args, f"{args.action} the gripper")
+        arm.enable()
         with _stop_on_interrupt(arm):
             if args.action == "open":
                 width = arm.gripper.open()
@@ -412,6 +417,7 @@ def _corner(args, cell) -> int:
         w = start.as_array()
         corner = min(solutions, key=lambda q: float(abs(q.as_array() - w).max()))
         confirm_motion(args, f"move to the {args.corner} tray corner ({x:g}, {y:g}) at z {z:g} and back")
+        arm.enable()
         t0 = arm.clock.now()
         with _stop_on_interrupt(arm):
             go_to(arm, corner)

@@ -36,19 +36,23 @@ def test_the_nut_is_picked_checked_and_carried_to_the_drop_off_over_can(capsys, 
 
 
 def test_place_back_puts_the_part_down_where_it_lay_and_opens_only_to_the_approach_opening(capsys):
+    """... there; fully only once up at the travel height, so that the next trial starts with the jaws open (it
+    refused jaws standing at the approach opening: "something may be between them")."""
     code, out, err = _pick(capsys, SCENE, "--place-back")
     assert code == 0, err
     labels = [r["label"] for r in out["records"]]
-    assert labels[-5:] == ["lift", "check", "put back", "release", "retreat"] and "carry" not in labels
+    assert labels[-6:] == ["lift", "check", "put back", "release", "retreat", "open"] and "carry" not in labels
     by = {r["label"]: r for r in out["records"]}
     assert by["put back"]["joints"] == by["descend"]["joints"]
     assert by["release"]["width_mm"] == pytest.approx(out["grasp"]["opening_mm"] + 10.0, abs=0.01)
+    assert by["retreat"]["joints"]["j3_mm"] == by["approach"]["joints"]["j3_mm"]
+    assert by["open"]["width_mm"] == pytest.approx(80.0, abs=0.01)
     assert out["sim_events"][-1] == "released nut on the tray"
 
 
 def test_a_part_that_slips_out_on_the_lift_opens_the_jaws_and_goes_up(cell_cfg):
     """The check after the lift finds the jaws empty: the pick ends there, the jaws open to the approach
-    opening (no wider) and the arm stands at the travel height."""
+    opening (no wider) where they stand, and fully once the arm stands at the travel height."""
     from cell.commands.hw_pick import _carry_out, _outcome
     from drivers import simulated_cell
 
@@ -58,12 +62,31 @@ def test_a_part_that_slips_out_on_the_lift_opens_the_jaws_and_goes_up(cell_cfg):
         grip_z = grasp.joints.j3_mm
         drives.drives["gripper"].object_width_fn = (
             lambda: grasp.opening_mm if drives.positions()["j3"] <= grip_z + 1.0 else None)
+        opened = _watch_opening(arm)
         records = _carry_out(arm, cell_cfg, grasp, commands, home, False)
         assert _outcome(records) == "slipped" and records[-1]["label"] == "check"
         travel = next(c.joints.j3_mm for c in commands if c.label == "approach")
         assert drives.positions()["j3"] == pytest.approx(travel, abs=0.01)
-        assert drives.positions()["gripper"] == pytest.approx(grasp.opening_mm + 10.0, abs=0.01)
+        # checked up at the travel height: the approach opening there, then fully
+        assert opened[-2:] == [(pytest.approx(grasp.opening_mm + 10.0, abs=0.01), pytest.approx(travel, abs=0.01)),
+                               (80.0, pytest.approx(travel, abs=0.01))]
+        assert drives.positions()["gripper"] == pytest.approx(80.0, abs=0.01)
+        arm.gripper.require_open()  # what the next `hw pick` asks first: it refused jaws at the approach opening
         assert "carry" not in [r["label"] for r in records]
+
+
+def _watch_opening(arm) -> list[tuple[float, float]]:
+    """Every width the jaws are opened to after this (fully: the stroke's top), with the height (J3 mm) they
+    stand at then."""
+    opened, own_open = [], arm.gripper.open
+
+    def open_and_note(width_mm=None):
+        width = own_open(width_mm)
+        opened.append((width_mm if width_mm is not None else arm.cell.gripper.opening_mm[1], arm.joints().j3_mm))
+        return width
+
+    arm.gripper.open = open_and_note
+    return opened
 
 
 def test_no_feasible_grasp_exits_3_and_moves_nothing(capsys, tmp_path):
@@ -188,6 +211,7 @@ def test_a_blocked_grip_and_a_part_that_moved_in_the_jaws(cell_cfg, at_grasp, ab
         w, grip_z = grasp.opening_mm, grasp.joints.j3_mm
         drives.drives["gripper"].object_width_fn = (
             lambda: w + at_grasp if drives.positions()["j3"] <= grip_z + 1.0 else (w + above if above else w))
+        opened = _watch_opening(arm)
         records = _carry_out(arm, cell_cfg, grasp, commands, home, place_back)
         assert _outcome(records, place_back) == outcome
         labels = [r["label"] for r in records]
@@ -195,7 +219,10 @@ def test_a_blocked_grip_and_a_part_that_moved_in_the_jaws(cell_cfg, at_grasp, ab
         if outcome == "blocked":
             assert labels[-1] == "grip" and records[-1]["blocked"]
             assert drives.positions()["j3"] == pytest.approx(travel, abs=0.01)
-            assert drives.positions()["gripper"] == pytest.approx(w + 10.0, abs=0.01)  # approach opening > w + 5
+            # the approach opening (> w + 5) at the grasp, fully open at the travel height
+            assert opened[-2:] == [(pytest.approx(w + 10.0, abs=0.01), pytest.approx(grip_z, abs=0.01)),
+                              (80.0, pytest.approx(travel, abs=0.01))]
+            assert drives.positions()["gripper"] == pytest.approx(80.0, abs=0.01)
         elif outcome == "moved":
             assert labels[-1] == "check" and records[-1]["moved_mm"] == pytest.approx(8.0, abs=0.01)
             assert "put back" not in labels and drives.positions()["j3"] == pytest.approx(travel, abs=0.01)

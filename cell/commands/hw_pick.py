@@ -6,7 +6,7 @@ measured by hand), the arm home first (it may stand anywhere), then the loop's p
 after the lift, by a way whose links clear the parts on the tray, to the drop-off or, with `--place-back`,
 back down where the part lay. On the simulated cell (the default) the scene's parts lie on the simulated
 tray, so the jaws close on the part. Exit 0 when the part was held through the check (and carried off or
-put back), 1 when the grip missed or was blocked or the part slipped out (the jaws open and go up), or,
+put back), 1 when the grip missed or was blocked or the part slipped out (the jaws open, go up and open fully), or,
 put back, the check found it moved in the jaws (it stays held, up), and on a drive fault or a "no" at the
 confirmation; 3 when no grasp is feasible or none can be carried out (no way whose links clear the other
 parts, no travel height over them); 2 on bad input (a target off the tray among it). The jaws must stand
@@ -135,7 +135,8 @@ MAX_GRASPS_TRIED = 10  # of the ranked grasps, for a way whose links clear the t
 
 def _carry_out(arm, cell, grasp, commands, home, place_back: bool) -> list[dict]:
     """Home, then the pick; a grip that missed or a part that slipped out: the jaws open to the approach
-    opening (no wider: the planner cleared them up to it) and go up to the travel height. Put back: a part
+    opening (no wider: the planner cleared them up to it), go up to the travel height and open fully there (the
+    next `hw pick` refuses jaws that do not stand open). Put back: a part
     that moved in the jaws at the check (`moved_mm`: turned, pressed) hangs lower than where it lay, so it is
     not set down there: the arm stays up holding it."""
     from cell.runtime.motion import above, retreat_opening_mm
@@ -153,6 +154,7 @@ def _carry_out(arm, cell, grasp, commands, home, place_back: bool) -> list[dict]
         at = arm.joints()
         if at.j3_mm < travel:
             arm.move_joints(above(at, travel))
+        arm.gripper.open()
     return records
 
 

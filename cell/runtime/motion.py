@@ -94,7 +94,8 @@ def pick_commands(grasp_joints: Joints, opening_mm: float, cell: Cell, safe_z_mm
 def place_back_commands(grasp_joints: Joints, opening_mm: float, cell: Cell, safe_z_mm: float) -> list[Command]:
     """A pick that puts the part back where it lay (a hardware-in-loop trial, `cell hw pick --place-back`):
     approach, pre-open, descend, grip, lift, check, down again to the grasp, open to the approach opening (the
-    width the planner cleared the fingers for there), up."""
+    width the planner cleared the fingers for there), up, and open fully there (the next trial starts with the
+    jaws open: it refuses jaws that are not, as they may hold something)."""
     take = _take(grasp_joints, opening_mm, cell, safe_z_mm)
     up = above(grasp_joints, safe_z_mm)
     return [
@@ -104,6 +105,7 @@ def place_back_commands(grasp_joints: Joints, opening_mm: float, cell: Cell, saf
         Command("move", "put back", grasp_joints),
         Command("open", "release", width_mm=approach_opening_mm(opening_mm, cell)),
         Command("move", "retreat", up),
+        Command("open", "open", width_mm=cell.gripper.opening_mm[1]),
     ]
 
 

@@ -54,6 +54,7 @@ from drivers.errors import (
     MoveTimeout,
     NodeSilent,
     NotConnected,
+    SdoError,
 )
 from drivers.gripper import GRIPPER_ACCEL_FACTOR, Gripper
 from drivers.limits import JOINT_FIELDS, command_violations
@@ -775,7 +776,22 @@ class Arm:
         except DriverError as e:
             self._latch(e)
             self._stop_all()
+            also = self._silent_besides(e.node) if isinstance(e, SdoError) else ""
+            if also:
+                raise SdoError(f"{e}; {also}", node=e.node, node_id=e.node_id) from e
             raise
+
+    def _silent_besides(self, node: str | None) -> str:
+        """After a node gave no SDO answer: the other nodes silent too, a heartbeat deadline on (a dead bus or
+        power named only the first node asked, j1, and sent the operator to its wiring)."""
+        self.clock.sleep(self.heartbeat_deadline_s)
+        self._watch()
+        with self._lock:
+            silent = [name for name, err in self._faults.items() if name != node and isinstance(err, NodeSilent)]
+        if not silent:
+            return ""
+        return (f"{', '.join(silent)} silent too (no heartbeat within {self.heartbeat_deadline_s:g} s): look at the "
+                f"bus (cable, termination, the drives' power), not {node} alone")
 
     def _run_moves(self, targets: dict[str, int], *, wait: bool, timeout_s: float) -> None:
         self._move_no += 1

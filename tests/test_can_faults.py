@@ -83,6 +83,24 @@ def test_silent_node_is_detected_by_its_heartbeat_deadline(arm, sim_drives):
     _assert_recovers(arm, sim_drives)
 
 
+@pytest.mark.parametrize("dead", [("j1", "j2", "j3", "j4", "gripper"), ("j1",)])
+def test_a_node_without_an_sdo_answer_names_the_others_silent_with_it(arm, sim_drives, dead):
+    """The bus (or the drives' power) gone: the first node asked, j1, gave no SDO answer, and it alone was named,
+    which sent the operator to its wiring. The others silent too are named with it; a node silent alone is not
+    told about the others."""
+    for node in dead:
+        sim_drives.inject_fault("silent", node)
+    with pytest.raises(SdoError) as raised:
+        arm.move_joints(_long_move(arm))
+    said = str(raised.value)
+    assert said.startswith("j1 (node 1): no SDO answer")
+    if len(dead) > 1:
+        assert "j2, j3, j4, gripper silent too" in said and "not j1 alone" in said
+        assert set(arm.faults) == set(dead)
+    else:
+        assert "silent too" not in said and set(arm.faults) == {"j1"}
+
+
 def test_one_dropped_sdo_answer_is_retried(arm, sim_drives):
     sim_drives.inject_fault("drop_sdo", "j1", count=1)
     target = _long_move(arm)

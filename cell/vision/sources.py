@@ -231,16 +231,29 @@ class VideoCamera:
     """
 
     MAX_GRABS = 30
+    # a stream URL that does not answer: OpenCV's FFmpeg backend waited its own 30 s, without a word, to open
+    # it, and as long for each frame
+    STREAM_TIMEOUT_S = 5.0
 
     def __init__(self, source: int | str, size_px: tuple[int, int] | None = None):
         self.source, self.size_px = source, size_px
         self._cap = None
 
+    def _is_stream(self) -> bool:
+        return isinstance(self.source, str) and "://" in self.source
+
     def connect(self) -> VideoCamera:
-        cap = cv2.VideoCapture(self.source)
+        if self._is_stream():  # (only there: a backend left with a parameter it does not take refuses to open)
+            ms = round(1000 * self.STREAM_TIMEOUT_S)
+            cap = cv2.VideoCapture(self.source, cv2.CAP_ANY,
+                                   [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, ms, cv2.CAP_PROP_READ_TIMEOUT_MSEC, ms])
+        else:
+            cap = cv2.VideoCapture(self.source)
         if not cap.isOpened():
             cap.release()
-            raise BadInput(f"camera {self.source!r} cannot be opened (no such device, or OpenCV has no backend for it)")
+            why = (f"no stream OpenCV reads answered within {self.STREAM_TIMEOUT_S:g} s" if self._is_stream()
+                   else "no such device, or OpenCV has no backend for it")
+            raise BadInput(f"camera {self.source!r} cannot be opened ({why})")
         if self.size_px is not None:
             cap.set(cv2.CAP_PROP_FRAME_WIDTH, self.size_px[0])
             cap.set(cv2.CAP_PROP_FRAME_HEIGHT, self.size_px[1])
@@ -269,7 +282,8 @@ class VideoCamera:
         for _ in range(self.MAX_GRABS):
             t0 = time.monotonic()
             if not self._cap.grab():
-                raise BadInput(f"camera {self.source!r} delivered no frame")
+                within = f" within {self.STREAM_TIMEOUT_S:g} s" if self._is_stream() else ""
+                raise BadInput(f"camera {self.source!r} delivered no frame{within}")
             if time.monotonic() - t0 >= 0.5 * self._period_s:  # waited for it: a fresh frame
                 break
         ok, frame = self._cap.retrieve()

@@ -7,6 +7,7 @@
     default.py     the default cell's nominal camera (data/default.json)
 """
 
+import cell  # noqa: F401  (first: it pins numpy's BLAS kernels before numpy loads, cell/numerics.py)
 from calibration.calfile import default_calibration_path, load_calibration, save_calibration
 from calibration.camera import Calibration
 

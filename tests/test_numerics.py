@@ -29,9 +29,9 @@ SHIPPED = Path(__file__).resolve().parent.parent / "recordings" / "shipped"
 X86 = platform.machine().lower() in ("x86_64", "amd64")
 
 
-def _blas_in_a_fresh_process(**env) -> list:
+def _blas_in_a_fresh_process(first: str = "cell", **env) -> list:
     clean = {k: v for k, v in os.environ.items() if not k.startswith("OPENBLAS")}
-    out = subprocess.run([sys.executable, "-c", "import cell, threadpoolctl, numpy; print(__import__('json').dumps("
+    out = subprocess.run([sys.executable, "-c", f"import {first}, threadpoolctl, numpy; print(__import__('json').dumps("
                           "[(i['architecture'], i['num_threads']) for i in threadpoolctl.threadpool_info() "
                           "if i['user_api'] == 'blas']))"], env={**clean, **env}, capture_output=True, text=True,
                          check=True, timeout=120)
@@ -42,6 +42,15 @@ def _blas_in_a_fresh_process(**env) -> list:
 def test_importing_the_cell_pins_one_blas_kernel_set_and_one_thread_unless_the_user_set_them():
     assert _blas_in_a_fresh_process() == [[BLAS_CORETYPE_X86, 1]]
     assert _blas_in_a_fresh_process(OPENBLAS_CORETYPE="Sandybridge", OPENBLAS_NUM_THREADS="2") == [["Sandybridge", 2]]
+
+
+@pytest.mark.skipif(not X86, reason="the kernel set is pinned on x86-64 only")
+@pytest.mark.parametrize("first", ["calibration", "drivers", "calibration.intrinsics"])
+def test_importing_any_top_level_package_first_pins_them_too(first):
+    """`python -m calibration.default`, or a script importing the calibration first, loaded numpy with the CPU's
+    own kernels (Zen here) and as many threads as cores."""
+    blas = _blas_in_a_fresh_process(first)  # (scipy's own OpenBLAS too, where the package loads scipy)
+    assert blas and all(b == [BLAS_CORETYPE_X86, 1] for b in blas), blas
 
 
 @given(st.floats(-179.0, 179.0), st.floats(2.0, 10.0), st.floats(-50, 50), st.floats(-50, 50))

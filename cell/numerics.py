@@ -5,7 +5,8 @@ replayed with the Haswell kernels where it was made with the SkylakeX ones, dive
 a part's outline moved a registration's search to the other of two equally good poses). `pin_blas` makes
 every x86-64 machine use one kernel set all of them run (Nehalem: SSE4.2), on one thread (a sum split over
 threads adds in another order). It must run before numpy loads OpenBLAS: `cell/__init__.py` calls it
-(`calibration` imports `cell` first; `drivers` does before numpy). A value the user set stays. Measured: `cell bench grasp` and `cell segment` take the same time with it.
+(`calibration` imports `cell` first; `drivers` does before numpy). A value the user set stays. Measured:
+`cell bench grasp` and `cell segment` take the same time with it.
 
 `numeric_platform()` says what computed a recording's numbers (the manifest keeps it; replay names a
 difference).

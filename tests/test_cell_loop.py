@@ -401,6 +401,13 @@ def test_a_drive_fault_stops_everything_names_the_node_and_replays(short_assembl
     s = run_session(RunConfig(assembly=short_assembly, seed=3, drive_fault=(node, kind, {"after_s": 0.3}), record=rec))
     assert s["status"] == "stopped" and s["parts_removed"] == 0
     assert s["stopped"].startswith(f"{node}: {node} (node") and "EMCY" in s["stopped"]
+    # what the arm did before the fault is kept, and its time counted (they were lost: "motion 0.00 s")
+    cut = [json.loads(line) for line in (rec / "decisions.jsonl").read_text().splitlines()
+           if json.loads(line)["type"] == "cut_short"]
+    assert len(cut) == 1 and cut[0]["part"] == "nut" and cut[0]["by"] == s["stopped"].split(": ", 1)[1]
+    done = cut[0]["records"]  # (none where the first move faulted)
+    assert all(r["action"] == "move" for r in done) and all(r["label"].startswith("approach") for r in done[:1])
+    assert s["parts"][0]["motion_s"] > (done[-1]["t_end_s"] - done[0]["t_start_s"] if done else 0.0)
     code, out, err = run_cli("replay", rec, capsys=capsys)  # the same drive faults again in the replay
     assert code == 0, err
 

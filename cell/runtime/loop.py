@@ -620,8 +620,10 @@ class CellLoop:
         self.sink.write_decision({"type": "commands", "part": part_id, "attempt": attempt, **record,
                                   "commands": [c.to_json() for c in commands]})
         self.control.checkpoint("pick", part=part_id)
+        done, t0 = [], self.arm.clock.now()
 
         def on_step(rec):
+            done.append(rec)
             if self._pick is not None:
                 if rec["action"] == "grip" and rec.get("holding"):
                     self._pick.update(stage="gripped", grip_width_mm=rec["width_mm"])
@@ -632,7 +634,14 @@ class CellLoop:
                 if "width_mm" in rec:
                     self.viz.gripper_width(rec["width_mm"])
 
-        records = run_commands(self.arm, commands, stop_on_miss=True, on_step=on_step)
+        try:
+            records = run_commands(self.arm, commands, stop_on_miss=True, on_step=on_step)
+        except BaseException as e:  # a fault, a stop, Ctrl-C: what the arm did up to it is kept, and its time
+            if self._pick is not None:
+                self._pick["report"].motion_s += self.arm.clock.now() - t0
+            self.sink.write_decision({"type": "cut_short", "part": part_id, "attempt": attempt, **record,
+                                      "records": done, "by": str(e) or type(e).__name__})
+            raise
         self.sink.write_decision({"type": "executed", "part": part_id, "attempt": attempt, **record,
                                   "records": records})
         return records

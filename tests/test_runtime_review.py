@@ -3,6 +3,7 @@ the real code paths."""
 
 import json
 
+import pytest
 from conftest import run_cli
 
 
@@ -96,3 +97,38 @@ def test_a_ctrl_c_while_the_loop_is_being_built_closes_the_recording(tmp_path, m
         run_session(RunConfig(record=tmp_path / "rec"))
     manifest = json.loads((tmp_path / "rec" / "manifest.json").read_text())
     assert manifest["status"] == "incomplete" and manifest["summary"]["status"] == "not started", manifest
+
+
+def _cover_sunk_into_base(tmp_path, sunk_mm: float):
+    """A cover resting on a base 10 mm tall with its bottom `sunk_mm` under the base's top (the assembly files
+    allow 0.5 mm for parts resting on each other), listed after the base: the base cannot come off first."""
+    assembly = {"units": "mm", "name": "sunk", "sequence": ["base", "cover"], "parts": [
+        {"id": "base", "outline": [[300, -30], [360, -30], [360, 30], [300, 30]], "z_bottom": 0, "z_top": 10},
+        {"id": "cover", "outline": [[310, -20], [350, -20], [350, 20], [310, 20]], "z_bottom": 10 - sunk_mm,
+         "z_top": 15}]}
+    (tmp_path / "sunk.json").write_text(json.dumps(assembly))
+    return tmp_path / "sunk.json"
+
+
+@pytest.mark.parametrize("sunk_mm", [0.0, 0.3, 0.5])
+def test_a_part_resting_within_the_files_height_overlap_blocks_the_lift(tmp_path, capsys, sunk_mm):
+    """`cell plan` said "lift clear" (exit 0) for the base with the cover at 9.7 mm on it; at 10 mm it said no."""
+    code, out, err = run_cli("plan", _cover_sunk_into_base(tmp_path, sunk_mm), "--json", capsys=capsys)
+    assert code == 3, out
+    step = json.loads(out.splitlines()[0])
+    assert step["target"] == "base" and step["error"] == "no_feasible_grasp"
+    assert step["lift"] == {"clear": False, "blocked_by": ["cover"]} and "'cover' still lies on it" in step["reason"]
+
+
+def test_the_loop_stops_on_it_and_older_recordings_replay_as_they_ran(tmp_path):
+    from cell.disassembly import parts_on_top
+    from cell.errors import NoFeasibleGrasp
+    from cell.runtime.loop import _require_lift_clear
+    from cell.scene import REST_MM, Scene, load_assembly
+
+    assembly = load_assembly(_cover_sunk_into_base(tmp_path, 0.3))
+    scene = Scene(assembly.parts, "base")
+    assert parts_on_top(scene.target_part, scene.obstacles) == ["cover"]
+    with pytest.raises(NoFeasibleGrasp, match="'cover' still lies on it"):
+        _require_lift_clear(scene, REST_MM)
+    _require_lift_clear(scene, 1e-9)  # `meta.lift_rest_overlap` absent: as the loop ran then

@@ -47,7 +47,7 @@ from cell.runtime.motion import (
 )
 from cell.runtime.pickway import TRAVEL_MARGIN_MM, LinksWouldHit, check_links, clear_way, travel_z_mm
 from cell.runtime.ways import go_to
-from cell.scene import Assembly, Part, Scene
+from cell.scene import REST_MM, Assembly, Part, Scene
 from cell.vision.sources import blank_frame_reason, saturated_share
 
 # Fingers and palm keep this clear of the other parts: their poses are measured (~0.3 mm off in
@@ -101,6 +101,9 @@ class LoopOptions:
     # The registration's start along a region's axis in closed form (the same on every machine); off in recordings
     # made before: LAPACK's eigenvector, whose sign started the search half a turn round on 3 of 4 outlines.
     axis_closed_form: bool = True
+    # A part resting on the target with its bottom up to 0.5 mm under the target's top (the height overlap the
+    # assembly files allow) blocks its lift; off in recordings made before: only a part wholly above it did.
+    lift_rest_overlap: bool = True
 
 
 @dataclass
@@ -550,7 +553,7 @@ class CellLoop:
     def _plan(self, scene: Scene, part_id: str) -> list[Grasp] | None:
         self._learn_taught()
         try:
-            _require_lift_clear(scene)
+            _require_lift_clear(scene, REST_MM if self.options.lift_rest_overlap else 1e-9)
             result = self.planner.plan(scene)
         except NoFeasibleGrasp as e:
             self.sink.write_decision({"type": "no_grasp", "part": part_id, "reason": e.reason})
@@ -873,11 +876,11 @@ def _missed(part_id: str, grasp: Grasp, records: list[dict]) -> str:
     return f"{part_id}: the jaws {how} {last['width_mm']:.1f} mm, expected {grasp.opening_mm:.1f} mm: missed"
 
 
-def _require_lift_clear(scene: Scene) -> None:
+def _require_lift_clear(scene: Scene, rest_mm: float) -> None:
     """A part still lying on the target (a sequence out of order, the part on it skipped) has no grasp, as
     in `cell plan`: the jaws came down around the part on top and closed on it, and lifting the target
     would carry it along."""
-    blockers = parts_on_top(scene.target_part, scene.obstacles)
+    blockers = parts_on_top(scene.target_part, scene.obstacles, rest_mm)
     if blockers:
         raise NoFeasibleGrasp(lift_blocked_reason(scene, blockers))
 

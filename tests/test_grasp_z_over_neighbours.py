@@ -4,6 +4,7 @@ taller than the grasp z are collision regions)."""
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -120,18 +121,30 @@ def test_a_box_beside_low_parts_is_held_over_all_of_them(planner, usual):
 
 
 def test_a_neighbour_taller_than_the_targets_top_less_2_mm_still_blocks(planner, usual):
-    # 10.5 mm: the z over it, 11.5 mm, is above the nut's z_top - 2 (11 mm); no z is tried, nothing changes
-    scene = nut_in_gasket(gasket_top_mm=10.5)
-    with pytest.raises(NoFeasibleGrasp) as off:
-        usual.plan(scene)
-    with pytest.raises(NoFeasibleGrasp) as on:
-        planner.plan(scene)
-    assert on.value.reason == off.value.reason and "neighbours" not in on.value.reason
+    # 11.5 mm: above the nut's z_top - 2 (11 mm), at every z the nut allows; no z is tried, nothing changes
+    for gasket_top_mm in (11.5, 11.0):  # (11: the tips would rest on it at the highest z)
+        scene = nut_in_gasket(gasket_top_mm=gasket_top_mm)
+        with pytest.raises(NoFeasibleGrasp) as off:
+            usual.plan(scene)
+        with pytest.raises(NoFeasibleGrasp) as on:
+            planner.plan(scene)
+        assert on.value.reason == off.value.reason and "neighbours" not in on.value.reason
     # 9.9 mm: 10.9 mm is within it, and the nut is held there
     scene = nut_in_gasket(gasket_top_mm=9.9)
     result = planner.plan(scene)
     assert result.grasp.grasp_z_mm == pytest.approx(10.9)
     held_over_neighbours(result, scene)
+
+
+def test_a_neighbour_less_than_the_margin_under_the_highest_z_is_passed_over_there(planner):
+    """10.5 mm: the z 1 mm over it, 11.5 mm, is above the nut's z_top - 2 (11 mm); at 11 mm the tips pass 0.5 mm
+    over it, and CONTRACT.md makes only obstacles taller than the grasp z collision regions: it had no grasp."""
+    scene = nut_in_gasket(gasket_top_mm=10.5)
+    result = planner.plan(scene)
+    assert result.grasp.grasp_z_mm == pytest.approx(11.0)
+    held_over_neighbours(result, scene)
+    with pytest.raises(NoFeasibleGrasp):  # a recording made before it: none
+        GraspPlanner(CELL, load_examples(None), replace(planner.params, grasp_z_top_fallback=False)).plan(scene)
 
 
 def test_no_grasp_at_any_z_keeps_the_usual_zs_reason_and_counts_and_names_the_z_tried(planner, usual):
@@ -222,7 +235,10 @@ def test_a_part_held_at_the_usual_z_is_planned_as_before(planner, usual):
 
 @pytest.mark.parametrize("tops, j3, expected", [
     ([4.0], (0.0, 200.0), [5.0]),
-    ([4.0, 10.5], (0.0, 200.0), [5.0]),  # 11.5 is above z_top - 2 = 11
+    ([4.0, 10.5], (0.0, 200.0), [5.0, 11.0]),  # 11.5 is above z_top - 2 = 11: 11 itself, last
+    ([10.5], (0.0, 10.9), []),  # ... within J3's range
+    ([4.0, 11.0], (0.0, 200.0), [5.0]),  # at 11 the tips would rest on the 11 mm one
+    ([4.0, 11.5], (0.0, 200.0), [5.0]),  # taller than any z the part allows
     ([10.0], (0.0, 200.0), [11.0]),  # z_top - 2 itself
     ([0.5, 1.0], (0.0, 200.0), []),  # not above the usual z (1 mm): they are passed over already
     ([4.0, 4.0, 7.0], (0.0, 200.0), [5.0, 8.0]),  # each top once, lowest first
@@ -233,6 +249,11 @@ def test_a_part_held_at_the_usual_z_is_planned_as_before(planner, usual):
 ])
 def test_the_raised_z_lies_within_the_targets_z_bottom_to_z_top_less_2_and_j3(tops, j3, expected):
     assert raised_grasp_z_mm(0.0, 13.0, 1.0, tops, j3) == pytest.approx(expected)
+
+
+def test_without_the_fallback_a_neighbour_under_the_margin_blocks_as_before():
+    assert raised_grasp_z_mm(0.0, 13.0, 1.0, [4.0, 10.5], (0.0, 200.0), top_fallback=False) == [5.0]
+    assert planner_from_meta({}, "here").grasp_z_top_fallback is False
 
 
 def test_the_raised_z_of_a_part_on_a_plate_stays_above_its_bottom():

@@ -42,12 +42,15 @@ def grasp_z_mm(z_bottom_mm: float, z_top_mm: float, gripper: Gripper,
 
 
 def raised_grasp_z_mm(z_bottom_mm: float, z_top_mm: float, usual_z_mm: float, neighbour_tops_mm,
-                      j3_mm: tuple[float, float]) -> list[float]:
+                      j3_mm: tuple[float, float], top_fallback: bool = True) -> list[float]:
     """The grasp z over each neighbour top above the usual grasp z (TIP_ABOVE_NEIGHBOUR_MM above it),
     lowest first, each once, those within CONTRACT.md's [z_bottom, z_top - 2] and J3's range (the
     finger-tip z the arm takes): a neighbour too tall for that still blocks. A z that would put the tips
     on or less than TIP_ABOVE_NEIGHBOUR_MM above another neighbour's top is left out (that neighbour's own
-    z follows): the tips keep the margin over every neighbour they pass over."""
+    z follows): the tips keep the margin over every neighbour they pass over.
+    top_fallback: a neighbour whose top lies less than the margin under the highest z the part allows
+    (z_top - 2) has that z last, the tips less than the margin above it: CONTRACT.md makes only obstacles
+    taller than the grasp z collision regions (a box 20 mm tall in a ring 17.5 mm tall had no grasp)."""
     top = _printed_at_most(z_top_mm - TIP_BELOW_TOP_MM)
     lo, hi = _printed_at_least(j3_mm[0]), _printed_at_most(j3_mm[1])
     step = 10.0 ** -PRINTED_DECIMALS
@@ -57,8 +60,13 @@ def raised_grasp_z_mm(z_bottom_mm: float, z_top_mm: float, usual_z_mm: float, ne
     # 4.02 - 2 = 2.0199999999999996, prints 2.0199) is taken at that highest z, the tips a tenth of a micrometre
     # less above the neighbour, rather than left out
     zs = sorted(min(z, top) if top < z <= top + step + Z_EPS_MM else z for z in zs)
-    return [z for z in zs if max(z_bottom_mm, lo) <= z <= min(top, hi)
-            and not any(z - TIP_ABOVE_NEIGHBOUR_MM + step + Z_EPS_MM < t <= z + Z_EPS_MM for t in tops)]
+    out = [z for z in zs if max(z_bottom_mm, lo) <= z <= min(top, hi)
+           and not any(z - TIP_ABOVE_NEIGHBOUR_MM + step + Z_EPS_MM < t <= z + Z_EPS_MM for t in tops)]
+    if (top_fallback and top not in out and max(z_bottom_mm, lo) <= top <= hi
+            and any(t < top - Z_EPS_MM and t + TIP_ABOVE_NEIGHBOUR_MM > top for t in tops)
+            and not any(top - Z_EPS_MM <= t <= top + Z_EPS_MM for t in tops)):
+        out.append(top)
+    return out
 
 
 def _printed_at_most(limit_mm: float) -> float:

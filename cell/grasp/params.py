@@ -96,6 +96,10 @@ class SynthesisParams:
     # 4 mm gasket's hole is held at 5 mm). Off, as recordings made before this existed have it
     # (cell.runtime.replay).
     grasp_z_over_neighbours: bool = True
+    # ... and where a neighbour's top lies less than those 1 mm under the highest z the part allows (z_top - 2),
+    # that z, last (CONTRACT.md: only obstacles taller than the grasp z are collision regions). Off, as
+    # recordings made before it have it (cell.runtime.replay).
+    grasp_z_top_fallback: bool = True
     # Obstacles widened by this much for the fingers and the palm: 0 for outlines given exactly (a
     # scene file); the cell loop plans on measured poses and keeps a margin (cell.runtime.loop).
     obstacle_margin_mm: float = 0.0
@@ -132,9 +136,9 @@ class SynthesisParams:
                 self.finer_steps > MAX_FINER_STEPS:
             raise BadInput(f"synthesis parameter finer_steps must be a whole number from 0 to {MAX_FINER_STEPS}, "
                            f"got {self.finer_steps!r}")
-        if not isinstance(self.grasp_z_over_neighbours, bool):
-            raise BadInput(f"synthesis parameter grasp_z_over_neighbours must be true or false, got "
-                           f"{self.grasp_z_over_neighbours!r}")
+        for flag in ("grasp_z_over_neighbours", "grasp_z_top_fallback"):
+            if not isinstance(getattr(self, flag), bool):
+                raise BadInput(f"synthesis parameter {flag} must be true or false, got {getattr(self, flag)!r}")
         if self.n_contacts != 2:
             raise BadInput(f"this cell's gripper has two jaws: n_contacts must be 2, got {self.n_contacts}")
 

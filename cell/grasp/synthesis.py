@@ -304,7 +304,8 @@ class GraspPlanner:
         reach = max(g.approach_clearance_mm + g.pad_thickness_mm + g.pad_width_mm / 2 + PAD_COMPLIANCE_MM
                     + p.contact_tol_mm, p.free_gap_mm) + p.obstacle_margin_mm
         tops = [o.z_top_mm for o in scene.obstacles if o.polygon.distance(target.polygon) <= reach]
-        zs = raised_grasp_z_mm(target.z_bottom_mm, target.z_top_mm, usual_z, tops, self.cell.scara.j3_mm)
+        zs = raised_grasp_z_mm(target.z_bottom_mm, target.z_top_mm, usual_z, tops, self.cell.scara.j3_mm,
+                               p.grasp_z_top_fallback)
         return zs[:MAX_RAISED_GRASP_Z]
 
     def _plan(self, scene: Scene, p: SynthesisParams, t_start: float, gz: float) -> SynthesisResult:

@@ -28,6 +28,7 @@ UP = (0.0, 0.0, 1.0)
 MAX_COORD_MM = 1e6
 # A part rests on another when its bottom is within this of the other's top (heights are rounded)
 REST_MM = 0.5
+TABLE_TOL_MM = 1e-6  # a z_bottom this little under the table (float noise: -1e-9 was refused) is on it
 # Parts of an assembly touch: a shared edge overlaps by float noise and the 4 decimals files are written with
 PART_OVERLAP_MM2 = 1.0
 
@@ -259,7 +260,10 @@ def own_cell_path(raw: dict, source: str, base_dir: Path | None) -> str | None:
     if cell_path is not None:
         if not isinstance(cell_path, str) or not cell_path.strip():  # "" named the scene's own folder
             raise BadInput(f"{source}: 'cell' must be a path string, got {short_repr(cell_path)}")
-        if base_dir is not None and not Path(cell_path).is_absolute():
+        # relative to the file's folder; a path that names nothing there but does from the working directory
+        # (a script that wrote the scene elsewhere with the path it used itself) is taken from there
+        if base_dir is not None and not Path(cell_path).is_absolute() and \
+                ((base_dir / cell_path).exists() or not Path(cell_path).exists()):
             cell_path = str(base_dir / cell_path)
     return cell_path
 
@@ -278,7 +282,8 @@ def parse_part(raw, where: str = "part") -> Part:
         raise BadInput(f"{where}: 'id' must be a non-empty string")
     where = f"{where.rsplit(':', 1)[0]}: part {pid!r}"
     outline = _ring(raw.get("outline"), f"{where} outline")
-    holes_raw = raw.get("holes", [])
+    holes_raw = raw.get("holes")
+    holes_raw = [] if holes_raw is None else holes_raw  # (null: none, as an absent key)
     if not isinstance(holes_raw, list) or any(_is_point(h) for h in holes_raw):
         raise BadInput(f"{where}: 'holes' must be a list of rings, each a list of [x, y] points: "
                        "[[[x, y], [x, y], [x, y], ...], ...] (one hole too is in a list of its own)")
@@ -291,6 +296,8 @@ def parse_part(raw, where: str = "part") -> Part:
                        f"(got {max(abs(zb), abs(zt)):g}; the units are mm)")
     if zt <= zb:
         raise BadInput(f"{where}: z_top ({zt}) must be above z_bottom ({zb})")
+    if -TABLE_TOL_MM <= zb < 0:  # float noise of a measured or converted height: on the table
+        zb = 0.0
     if zb < 0:  # CONTRACT: the table surface is z = 0; nothing lies below it
         raise BadInput(f"{where}: z_bottom ({zb}) is below the table (z = 0 mm in the base frame)")
     direction = raw.get("direction", list(UP))

@@ -264,8 +264,12 @@ def _serve(args, cell) -> int:
     try:
         with sim.serve(bus, cell) as drives:
             names = ", ".join(f"{n['name']}={n['node_id']}" for n in drives.nodes)
+            # python-can's virtual bus lives in this process: no other command reaches drives served on it
+            reach = ((" (python-can's virtual bus is in-process only: no other process reaches these drives; "
+                      "for another process serve them with --interface socketcan --channel vcan0, docs/drivers.md)")
+                     if _simulated(args) else "")
             print(
-                f"cell hw sim: simulated drives ({names}) on {args.interface}:{bus.channel_info}; "
+                f"cell hw sim: simulated drives ({names}) on {args.interface}:{bus.channel_info}{reach}; "
                 "Ctrl-C or SIGTERM stops",
                 file=sys.stderr,
                 flush=True,

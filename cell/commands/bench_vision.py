@@ -10,7 +10,7 @@ MAX_COUNT = 1000  # frames per condition, timing repeats (defaults 12, 30)
 def add_arguments(p) -> None:
     p.add_argument("--frames", type=int, default=12, help="rendered frames per condition (default 12)")
     p.add_argument("--parts", type=int, default=6, help="parts per frame (default 6)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of the rendered frames and their parts (default 0)")
     p.add_argument("--conditions", nargs="+", default=None, metavar="NAME",
                    help="conditions to run (default all): " + ", ".join(repr(c) for c in _conditions()))
     p.add_argument("--repeats", type=int, default=30, help="timing repeats (default 30)")

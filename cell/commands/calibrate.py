@@ -21,7 +21,7 @@ def add_arguments(p) -> None:
     p.add_argument("--out", required=True, metavar="FILE", help="calibration file to write")
     p.add_argument("--detector", choices=("auto", "classic", "sb"), default="auto",
                    help="chessboard detector: classic + cornerSubPix, the sector-based SB one, or auto "
-                        "(classic when it finds every board, else SB for all)")
+                        "(classic when it finds every board, else SB for all; default auto)")
     p.add_argument("--subpix-win", type=int, default=None, metavar="N",
                    help="cornerSubPix half window of the classic detector, and of ChArUco corners refined "
                         "again (default: 0.13 x the squares' size in px, 5 on OpenCV's 640 x 480 boards; "

@@ -15,7 +15,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--count", type=int, default=60,
                         help="accepted grasps to give (default 60, as in the paper)")
     parser.add_argument("--seed", type=int, default=0,
-                        help="random seed (the file is deterministic for a seed)")
+                        help="random seed (default 0; the file is deterministic for a seed)")
     parser.add_argument("--families", default=None,
                         help="comma-separated part families to draw from (default: the whole library)")
     parser.add_argument("--rejections", type=float, default=1 / 3,

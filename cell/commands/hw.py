@@ -28,7 +28,9 @@ def add_arguments(p) -> None:
         default="virtual",
         help="python-can interface (default: virtual, with the simulated drives in this process)",
     )
-    p.add_argument("--channel", default=None, help="CAN channel (default: a private virtual channel; can0 ...)")
+    p.add_argument("--channel", default=None,
+                   help="CAN channel (default: cell-sim on virtual, vcan0 on any other interface)" if words[1] == "sim"
+                   else "CAN channel (default: a private virtual channel on virtual, can0 on any other interface)")
     p.add_argument("--cell", default=None, help="cell file (default: the shipped cell)")
     if words[1] == "sim":
         p.add_argument(
@@ -48,12 +50,12 @@ def add_arguments(p) -> None:
     if words[1] != "status":
         p.add_argument("--yes", action="store_true", help="do not ask before moving real hardware")
     if words[1] == "jog":
-        p.add_argument("joint", choices=("j1", "j2", "j3", "j4"))
+        p.add_argument("joint", choices=("j1", "j2", "j3", "j4"), help="the joint to jog")
         p.add_argument(
             "step", type=float, help=f"signed step in deg (j1, j2, j4) or mm (j3), at most {JOG_MAX['deg']:g}"
         )
     elif words[1] == "gripper":
-        p.add_argument("action", choices=("open", "grip"))
+        p.add_argument("action", choices=("open", "grip"), help="open the jaws, or grip a part (--width)")
         p.add_argument("--width", type=float, default=None, help="grip: the expected part width, mm")
         p.add_argument("--force", type=float, default=None, help="grip: force limit, N (default: the cell's)")
         p.add_argument(

@@ -13,11 +13,13 @@ def add_arguments(p) -> None:
     p.add_argument("--calibration", metavar="FILE", help="camera calibration (default: the cell's camera)")
     p.add_argument("--cell", metavar="FILE", help="cell file (default: the scene's own, else the default cell): "
                    "without --calibration its camera's size and tray set the view (as `cell run` does)")
-    p.add_argument("--seed", type=int, default=0, help="noise and texture seed (same seed, same frame)")
-    p.add_argument("--no-shadows", action="store_true")
-    p.add_argument("--no-highlights", action="store_true")
-    p.add_argument("--no-noise", action="store_true")
-    p.add_argument("--no-distortion", action="store_true", help="render as if the lens had no distortion")
+    p.add_argument("--seed", type=int, default=0, help="noise and texture seed (default 0; same seed, same frame)")
+    p.add_argument("--no-shadows", action="store_true", help="render without shadows (default: with)")
+    p.add_argument("--no-highlights", action="store_true",
+                   help="render without specular highlights (default: with)")
+    p.add_argument("--no-noise", action="store_true", help="render without sensor noise (default: with)")
+    p.add_argument("--no-distortion", action="store_true",
+                   help="render as if the lens had no distortion (default: the calibration's)")
     p.add_argument("--truth", metavar="FILE", help="also write the parts' projected top outlines (px) as JSON")
 
 

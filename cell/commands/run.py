@@ -47,9 +47,10 @@ def add_arguments(p):
     p.add_argument("--sim-drop", metavar="PART", action="append", default=[],
                    help="simulated world: PART falls out of the jaws on the carry, back onto the tray")
     p.add_argument("--sim-bad-frames", metavar="N", type=int, default=0,
-                   help="simulated camera: the next N reads deliver a corrupt frame")
+                   help="simulated camera: the next N reads deliver a corrupt frame (default 0)")
     real = p.add_argument_group("the real cell (instead of the simulated one)")
-    real.add_argument("--interface", help="python-can interface of the cell's CAN bus (e.g. socketcan)")
+    real.add_argument("--interface", help="python-can interface of the cell's CAN bus (e.g. socketcan; default: "
+                      "none, the simulated cell)")
     real.add_argument("--channel", help="CAN channel (default can0)")
     real.add_argument("--camera", metavar="SPEC",
                       help="the camera: a device index (0, /dev/video0) or a stream URL; on the virtual bus also "

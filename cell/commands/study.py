@@ -14,7 +14,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--out", default="study", help="output folder (default ./study)")
     parser.add_argument("--budget", choices=("full", "tiny"), default="full",
                         help="full: 400 examples, 10 folds, 20..380 training examples x 5 draws (about "
-                             "two minutes); tiny: a smoke run")
+                             "two minutes); tiny: a smoke run (default full)")
     parser.add_argument("--examples", type=int, default=None, help="examples per problem (default: the budget's)")
     parser.add_argument("--folds", type=int, default=None, help="cross-validation folds (default: the budget's)")
     parser.add_argument("--label-noise", type=float, default=0.0,

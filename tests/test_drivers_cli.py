@@ -147,6 +147,8 @@ def test_moving_real_hardware_needs_confirmation(monkeypatch):
     monkeypatch.setattr(sys, "stdin", None)  # started with stdin closed (<&-): was an AttributeError
     with pytest.raises(BadInput, match="without confirmation"):
         hw.confirm_motion(args, "jog j1")
+    with pytest.raises(BadInput, match="on socketcan:can0 without"):  # no --channel: the one used (was "None")
+        hw.confirm_motion(types.SimpleNamespace(interface="socketcan", channel=None, yes=False), "jog j1")
     monkeypatch.setattr(sys, "stdin", types.SimpleNamespace(closed=False, isatty=lambda: True))
 
     def ctrl_d(*_):

@@ -113,6 +113,11 @@ def _simulated(args) -> bool:
     return args.interface == "virtual"
 
 
+def _real_channel(args) -> str:
+    """The channel of a real interface: --channel, else can0 (the confirmation said "socketcan:None")."""
+    return args.channel or "can0"
+
+
 @contextlib.contextmanager
 def _session(args, cell, *, enable: bool = False):
     """A connected arm: the in-process simulated cell on 'virtual', else the real bus. Not enabled: a command
@@ -129,7 +134,7 @@ def _session(args, cell, *, enable: bool = False):
         finally:
             clock.close()
     else:
-        with real_cell(args.interface, args.channel or "can0", cell, record=args.record, enable=enable) as arm:
+        with real_cell(args.interface, _real_channel(args), cell, record=args.record, enable=enable) as arm:
             yield arm, None
 
 
@@ -140,9 +145,10 @@ def confirm_motion(args, what: str) -> None:
     if _simulated(args) or args.yes:
         return
     if sys.stdin is None or sys.stdin.closed or not sys.stdin.isatty():  # (None: started with stdin closed)
-        raise BadInput(f"refusing to {what} on {args.interface}:{args.channel} without confirmation: pass --yes")
+        raise BadInput(f"refusing to {what} on {args.interface}:{_real_channel(args)} without confirmation: pass --yes")
     # the question on stderr: stdout may be JSON for a script reading it
-    print(f"About to {what} on the REAL cell ({args.interface}:{args.channel}). Keep clear. Type 'yes' to continue: ",
+    print(f"About to {what} on the REAL cell ({args.interface}:{_real_channel(args)}). Keep clear. Type 'yes' to "
+          "continue: ",
           end="", file=sys.stderr, flush=True)
     try:
         answer = input()
@@ -196,7 +202,7 @@ def _status(args, cell) -> int:
             states, bus_state, error = _bring_up(Arm(bus, cell, clock=clock))
     else:
         with contextlib.ExitStack() as stack:
-            channel = args.channel or "can0"
+            channel = _real_channel(args)
             if args.record is not None:
                 tap = open_bus(args.interface, channel, cell.can.bitrate)
                 stack.callback(tap.shutdown)

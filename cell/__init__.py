@@ -7,8 +7,9 @@ frame -> contours (vision) -> candidate points (grasp.candidates) -> valid point
 commands (drivers) -> CAN frames.
 """
 
-from cell.numerics import pin_blas
+from cell.numerics import limit_image_pixels, pin_blas
 
 pin_blas()  # before anything loads numpy: the same kernels on every x86-64 machine (cell/numerics.py)
+limit_image_pixels()  # before anything loads cv2: an image too large for the memory is refused, not decoded
 
 __version__ = "0.1.0"

@@ -26,6 +26,16 @@ def pin_blas() -> None:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
+# Pixels OpenCV decodes at most (OPENCV_IO_MAX_IMAGE_PIXELS, read when cv2 loads; its own default is 2^30): a
+# 30000 x 30000 PNG of 0.9 MB took 5.3 GB to segment and would have the process killed on a smaller machine.
+# 2^27 = 134 MP, twice the largest industrial cameras' frames; a user's own value stays.
+MAX_IMAGE_PIXELS = 2**27
+
+
+def limit_image_pixels() -> None:
+    os.environ.setdefault("OPENCV_IO_MAX_IMAGE_PIXELS", str(MAX_IMAGE_PIXELS))
+
+
 def numeric_platform() -> dict:
     """The libraries and kernels the numbers come from: {"machine", "numpy", "scipy", "scikit-learn", "opencv",
     "shapely", "geos", "blas": [{"library", "version", "architecture", "threads"}, ...]}."""

@@ -18,6 +18,7 @@ import numpy as np
 from cell.cellconfig import MAX_CAMERA_SIDE_PX
 from cell.errors import BadInput
 from cell.fileio import check_readable
+from cell.numerics import MAX_IMAGE_PIXELS
 
 
 def read_image(path: str | Path, grey: bool = False) -> np.ndarray:
@@ -41,6 +42,10 @@ def read_image(path: str | Path, grey: bool = False) -> np.ndarray:
             img, noise = _decode_quietly(data, cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYDEPTH)
             as_is = True
     except cv2.error as e:  # e.g. a header claiming more pixels than OpenCV decodes (60000 x 60000)
+        if "CV_IO_MAX_IMAGE_PIXELS" in str(e):
+            limit = int(os.environ.get("OPENCV_IO_MAX_IMAGE_PIXELS", MAX_IMAGE_PIXELS))
+            raise BadInput(f"image {path} has more than {limit / 1e6:.0f} megapixels, more than a frame to segment "
+                           "(OPENCV_IO_MAX_IMAGE_PIXELS sets the limit): scale or crop it") from None
         raise BadInput(f"image {path} cannot be decoded (OpenCV: {getattr(e, 'err', e)})") from None
     if img is None or img.size == 0:
         raise BadInput(f"image {path} is not a readable image (corrupt, truncated or not an image format)")

@@ -248,12 +248,19 @@ class VideoCamera:
         return isinstance(self.source, str) and "://" in self.source
 
     def connect(self) -> VideoCamera:
-        if self._is_stream():  # (only there: a backend left with a parameter it does not take refuses to open)
-            ms = round(1000 * self.STREAM_TIMEOUT_S)
-            cap = cv2.VideoCapture(self.source, cv2.CAP_ANY,
-                                   [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, ms, cv2.CAP_PROP_READ_TIMEOUT_MSEC, ms])
-        else:
-            cap = cv2.VideoCapture(self.source)
+        quiet = cv2.utils.logging.getLogLevel()
+        # each backend tried logs why it could not open the source ("[ WARN:0@2.1] global cap_v4l.cpp:915 ..."),
+        # ahead of the one-line message below that says it
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+        try:
+            if self._is_stream():  # (only there: a backend left with a parameter it does not take refuses to open)
+                ms = round(1000 * self.STREAM_TIMEOUT_S)
+                cap = cv2.VideoCapture(self.source, cv2.CAP_ANY,
+                                       [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, ms, cv2.CAP_PROP_READ_TIMEOUT_MSEC, ms])
+            else:
+                cap = cv2.VideoCapture(self.source)
+        finally:
+            cv2.utils.logging.setLogLevel(quiet)
         if not cap.isOpened():
             cap.release()
             why = (f"no stream OpenCV reads answered within {self.STREAM_TIMEOUT_S:g} s" if self._is_stream()

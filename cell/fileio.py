@@ -33,8 +33,9 @@ def write_atomic(path: str | os.PathLike, data: str | bytes) -> None:
     except OSError as e:  # name the file asked for, not the temp file that could not be made
         raise OSError(e.errno, e.strerror, str(path)) from None
     try:
-        # mkstemp makes 0600 files; keep an existing file's mode, else the usual 0644
-        os.fchmod(fd, path.stat().st_mode & 0o777 if path.exists() else 0o644)
+        # mkstemp makes 0600 files; keep an existing file's mode, else what open() would make (0666 less the
+        # umask: 0644 usually; a user's 077 keeps them private, a group's 002 shares them)
+        os.fchmod(fd, path.stat().st_mode & 0o777 if path.exists() else 0o666 & ~_umask())
         with os.fdopen(fd, "wb") as f:
             f.write(raw)
             f.flush()
@@ -47,6 +48,21 @@ def write_atomic(path: str | os.PathLike, data: str | bytes) -> None:
             raise OSError(e.errno, e.strerror, str(path)) from None  # rename named the temp file, gone by now
         raise
     _fsync_dir(path.parent)
+
+
+def _umask() -> int:
+    """The process's umask, read without setting it (os.umask sets it: another thread's file made meanwhile
+    would get the wrong mode); where /proc does not say, set and put back."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def _through_link(path: Path) -> Path:

@@ -99,13 +99,14 @@ def test_a_rename_refused_by_the_file_system_leaves_no_temp_file(tmp_path):
 
 
 @pytest.mark.parametrize("old_mode, umask, expected", [
-    (None, 0o022, 0o644),   # a new file: the usual 0644, not mkstemp's 0600 ...
-    (None, 0o077, 0o644),   # ... whatever the umask
+    (None, 0o022, 0o644),   # a new file: what open() makes, the usual 0644, not mkstemp's 0600 ...
+    (None, 0o077, 0o600),   # ... under the umask (it was 0644 whatever the umask: a private user's files shared)
+    (None, 0o002, 0o664),
     (0o600, 0o022, 0o600),  # an existing file keeps its mode: a private file stays private
     (0o640, 0o022, 0o640),
     (0o755, 0o077, 0o755),
-], ids=["new", "new-umask-077", "keeps-0600", "keeps-0640", "keeps-0755"])
-def test_the_written_file_has_the_old_files_mode_or_0644(tmp_path, old_mode, umask, expected):
+], ids=["new", "new-umask-077", "new-umask-002", "keeps-0600", "keeps-0640", "keeps-0755"])
+def test_the_written_file_has_the_old_files_mode_or_open_s(tmp_path, old_mode, umask, expected):
     target = tmp_path / "a.json"
     if old_mode is not None:
         target.write_bytes(OLD)

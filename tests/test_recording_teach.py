@@ -71,3 +71,44 @@ def test_the_station_answers_after_a_run_that_ends_stopped(tmp_path):
     assert state(url)["control"]["state"] == "stopped"
     t.join(T)
     assert ended and ended[0]["status"] == "stopped", ended
+
+
+def test_after_ctrl_c_at_the_terminal_the_page_is_shown_stopped_and_why(tmp_path):
+    """Ctrl-C of `cell run --station` closed the station at once: the page, last told "running", said only that
+    the cell did not answer. The station now answers a moment more, the run stopped and why."""
+    import _thread
+    import re
+    import threading
+
+    import pytest
+    from station_runs import TOKEN
+
+    from cell.runtime.session import RunConfig, run_session
+
+    lines, seen = [], []
+    cfg = RunConfig(assembly=default_parts(tmp_path, ["washer"]), seed=1, station=True, station_port=0,
+                    station_token=TOKEN, require_approval=True, progress=lines.append)
+
+    def operator_then_ctrl_c():
+        deadline = time.monotonic() + T
+        while not any("operator station:" in s for s in lines) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        url = re.search(r"(http://127\.0\.0\.1:\d+)", next(s for s in lines if "operator station:" in s)).group(1)
+        post(url, "/api/run", {})
+        wait(url, lambda s: s["control"]["state"] == "awaiting_approval", "the proposal")
+        _thread.interrupt_main()  # Ctrl-C at the terminal
+        while time.monotonic() < deadline:
+            try:
+                seen.append(state(url)["control"])
+            except OSError:  # closed
+                return
+            time.sleep(0.1)
+
+    watcher = threading.Thread(target=operator_then_ctrl_c, daemon=True)
+    watcher.start()
+    with pytest.raises(KeyboardInterrupt):
+        run_session(cfg)
+    watcher.join(T)
+    stopped = [c for c in seen if c["state"] == "stopped"]
+    assert stopped, [c["state"] for c in seen]
+    assert "interrupted" in str(stopped[-1]), stopped[-1]

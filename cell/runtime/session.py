@@ -28,6 +28,7 @@ from cell.scene import Assembly, Part, load_assembly, parse_assembly
 
 EXAMPLES_AT_START = "examples_at_start.jsonl"
 STATION_LINGER_S = 2.0  # the station answers this long after the run ends: the page shows how it ended
+STATION_LINGER_INTERRUPTED_S = 1.0  # ... after Ctrl-C at the terminal: three of the page's polls
 OVERLAP_SLACK_MM2 = 0.5  # displaced parts may overlap this much more than designed (rasterising, rounding)
 
 
@@ -646,6 +647,10 @@ def _with_station(loop: CellLoop, control: RunControl, cfg: RunConfig, say, inte
             control.stop(interrupt_reason(e))
             loop.arm.stop()  # a pick in progress ends now, not when it is done
             finished.wait()
+            control.end()
+            # the page shows "stopped" and why, not a cell that stopped answering mid-run (another Ctrl-C
+            # ends the wait)
+            interrupts.linger(STATION_LINGER_INTERRUPTED_S)
             raise
         control.end()
         # done, stopped or failed: the page polls a few more times and shows how it ended. The run has

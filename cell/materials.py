@@ -4,9 +4,10 @@ Scene and assembly files carry both as free keys of a part (the parts library wr
 given, is the mass and wins; it must be a positive finite number (`check_mass_keys` refuses the rest when a
 file is read, `cell.scene.parse_part`). "material" is read for the mass only when there is no "mass_g", and
 only for the part being weighed (the target). It is a free description (CONTRACT.md does not name it): a name
-of `DENSITY_G_CM3` in any case and spelling ("Stainless Steel 304", "FR-4", "steel, galvanised"), else
-aluminium, with a warning that says so and asks for "mass_g" (a scene with "material": "PLA" was refused
-whole, exit 2). Neither key: aluminium.
+of `DENSITY_G_CM3` in any case and spelling ("FR-4", "Stainless Steel"), else the longest such name among its
+words ("Aluminium 6061-T6", "steel, galvanised"), with a warning naming the name taken, else steel's density
+(the densest common metal: the load check errs on the heavy side), with a warning asking for "mass_g" (a scene
+with "material": "PLA" was refused whole, exit 2). Neither key: aluminium.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ DENSITY_G_CM3 = {
     "bronze": 8.8, "ferrite": 4.8, "pla": 1.24, "petg": 1.27, "hips": 1.05,
 }
 DEFAULT_MATERIAL = "aluminium"  # a part that carries neither its mass nor its material
+UNKNOWN_MATERIAL = "steel"  # a material none of these names: weighed heavy, so that the load check errs safe
 
 
 def check_mass_keys(raw: dict, where: str) -> None:
@@ -45,32 +47,35 @@ def check_mass_keys(raw: dict, where: str) -> None:
             raise BadInput(f"{where}: 'mass_g' must be a positive number of grams, got {short_repr(m)}")
 
 
-def known_density_g_cm3(material) -> float | None:
-    """The density of a material description: a name of DENSITY_G_CM3 in any case, with any punctuation or
-    spaces ("Stainless Steel" -> stainless_steel, "FR-4" -> fr4), else the longest name found among its words
-    ("Stainless Steel 304" -> stainless_steel, "steel, galvanised" -> steel); None when there is none."""
+def material_name(material) -> tuple[str | None, bool]:
+    """(the DENSITY_G_CM3 name a material description gives, whether that is the whole description): the whole
+    of it in any case, with any punctuation or spaces ("Stainless Steel" -> stainless_steel, "FR-4" -> fr4),
+    else the longest name among its words, the first in the alphabet of equally long ones ("Stainless Steel
+    304" -> stainless_steel, "non-steel" -> steel: a guess, told); (None, False) when there is none."""
     if not isinstance(material, str):
-        return None
+        return None, False
     words = [w for w in re.split(r"[^a-z0-9]+", material.lower()) if w]
     for name in ("_".join(words), "".join(words)):
         if name in DENSITY_G_CM3:
-            return DENSITY_G_CM3[name]
+            return name, True
     runs = {"_".join(words[i:j]) for i in range(len(words)) for j in range(i + 1, len(words) + 1)}
-    found = sorted((n for n in runs if n in DENSITY_G_CM3), key=len, reverse=True)
-    return DENSITY_G_CM3[found[0]] if found else None
+    found = sorted((n for n in runs if n in DENSITY_G_CM3), key=lambda n: (-len(n), n))
+    return (found[0], False) if found else (None, False)
 
 
 def density_g_cm3(material, where: str = "part") -> float:
-    """The density of `material` (`known_density_g_cm3`); else aluminium's, with a warning."""
-    d = known_density_g_cm3(material)
-    if d is None:
-        d = DENSITY_G_CM3[DEFAULT_MATERIAL]
-        if (where, repr(material)) in _WARNED:  # (a part is weighed at every plan: told once)
-            return d
+    """The density of `material` (`material_name`); a partial match or none is told once (a part is weighed at
+    every plan), and none is weighed as steel."""
+    name, whole = material_name(material)
+    if whole:
+        return DENSITY_G_CM3[name]
+    taken = name or UNKNOWN_MATERIAL
+    if (where, repr(material)) not in _WARNED:
         _WARNED.add((where, repr(material)))
-        log.warning("%s: 'material' %s has no known density: weighed as %s (%g g/cm3); give its 'mass_g' in "
-                    "grams to weigh it right", where, short_repr(material), DEFAULT_MATERIAL, d)
-    return d
+        why = f"taken as {taken!r} from its words" if name else "has no known density: weighed as steel, to be safe"
+        log.warning("%s: 'material' %s %s (%g g/cm3); give its 'mass_g' in grams to weigh it right",
+                    where, short_repr(material), why, DENSITY_G_CM3[taken])
+    return DENSITY_G_CM3[taken]
 
 
 def mass_g(meta: dict, volume_cm3: float, where: str = "part") -> float:

@@ -260,10 +260,9 @@ def own_cell_path(raw: dict, source: str, base_dir: Path | None) -> str | None:
     if cell_path is not None:
         if not isinstance(cell_path, str) or not cell_path.strip():  # "" named the scene's own folder
             raise BadInput(f"{source}: 'cell' must be a path string, got {short_repr(cell_path)}")
-        # relative to the file's folder; a path that names nothing there but does from the working directory
-        # (a script that wrote the scene elsewhere with the path it used itself) is taken from there
-        if base_dir is not None and not Path(cell_path).is_absolute() and \
-                ((base_dir / cell_path).exists() or not Path(cell_path).exists()):
+        # relative to the file's folder only: a fallback to the working directory (tried) took an unrelated cell
+        # file, limits and tray, without a word where the one beside the scene was misspelt
+        if base_dir is not None and not Path(cell_path).is_absolute():
             cell_path = str(base_dir / cell_path)
     return cell_path
 
@@ -294,10 +293,10 @@ def parse_part(raw, where: str = "part") -> Part:
     if max(abs(zb), abs(zt)) > MAX_COORD_MM:  # as for the outline: not mm of a part on the tray
         raise BadInput(f"{where}: z_bottom and z_top must be within {MAX_COORD_MM:g} mm of the table "
                        f"(got {max(abs(zb), abs(zt)):g}; the units are mm)")
+    if -TABLE_TOL_MM <= zb < 0:  # float noise of a measured or converted height: on the table (first: a top
+        zb = 0.0  # just under the table must not pass the check below against a bottom still under it)
     if zt <= zb:
         raise BadInput(f"{where}: z_top ({zt}) must be above z_bottom ({zb})")
-    if -TABLE_TOL_MM <= zb < 0:  # float noise of a measured or converted height: on the table
-        zb = 0.0
     if zb < 0:  # CONTRACT: the table surface is z = 0; nothing lies below it
         raise BadInput(f"{where}: z_bottom ({zb}) is below the table (z = 0 mm in the base frame)")
     direction = raw.get("direction", list(UP))

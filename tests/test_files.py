@@ -96,19 +96,19 @@ def test_float_noise_under_the_table_and_null_holes_are_read_as_meant():
     assert part.z_bottom_mm == 0.0 and part.holes_mm == ()
     with pytest.raises(BadInput, match="below the table"):  # a micrometre and more under it is still refused
         parse_scene({"parts": [{"id": "a", "outline": SQUARE, "z_bottom": -1e-3, "z_top": 5}], "target": "a"})
+    with pytest.raises(BadInput, match="must be above z_bottom"):  # a top within the noise: no height at all
+        parse_scene({"parts": [{"id": "a", "outline": SQUARE, "z_bottom": -5e-7, "z_top": -1e-7}], "target": "a"})
 
 
-def test_a_scenes_cell_path_is_its_folders_else_the_working_directorys(tmp_path, monkeypatch):
-    cell_text = default_cell_path().read_text()
+def test_a_scenes_cell_path_is_its_folders_only(tmp_path, monkeypatch):
+    """Not the working directory's where the path names nothing beside the scene (tried: a misspelt cell file took
+    an unrelated one's limits and tray without a word)."""
     (tmp_path / "sub").mkdir()
-    (tmp_path / "mycell.json").write_text(cell_text)
-    scene = {"parts": [{"id": "a", "outline": SQUARE, "z_top": 5}], "target": "a", "cell": "sub/../mycell.json"}
+    (tmp_path / "mycell.json").write_text(default_cell_path().read_text())
+    scene = {"parts": [{"id": "a", "outline": SQUARE, "z_top": 5}], "target": "a", "cell": "mycell.json"}
     (tmp_path / "sub" / "scene.json").write_text(json.dumps(scene))
-    monkeypatch.chdir(tmp_path)  # the path names nothing beside the scene (sub/sub/..), but does from here
-    assert load_scene(tmp_path / "sub" / "scene.json").cell_path == "sub/../mycell.json"
-    (tmp_path / "sub" / "sub").mkdir()
-    (tmp_path / "sub" / "mycell.json").write_text(cell_text)  # beside the scene it names one: that one wins
-    assert load_scene(tmp_path / "sub" / "scene.json").cell_path == str(tmp_path / "sub" / "sub/../mycell.json")
+    monkeypatch.chdir(tmp_path)
+    assert load_scene(tmp_path / "sub" / "scene.json").cell_path == str(tmp_path / "sub" / "mycell.json")
 
 
 def test_a_scene_refuses_only_its_target_moving_other_than_up():

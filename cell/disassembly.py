@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 from cell.errors import NoFeasibleGrasp
 from cell.grasp.synthesis import GraspPlanner, SynthesisResult
-from cell.scene import REST_MM, Assembly, Part, Scene
+from cell.scene import PART_OVERLAP_MM2, REST_MM, Assembly, Part, Scene
 
 AREA_EPS_MM2 = 1e-3
 
@@ -52,10 +52,15 @@ class StepPlan:
 def parts_on_top(target: Part, present: tuple[Part, ...], rest_mm: float = REST_MM) -> list[str]:
     """Ids of the parts that lie on the target: over it in plan, not wholly below it, their bottom at most
     `rest_mm` under its top (the height overlap the assembly files allow a part resting on another: a cover
-    at 9.7 mm on a base 10 mm tall was lifted with it, "lift clear"; 1e-9 for the loop's older recordings)."""
+    at 9.7 mm on a base 10 mm tall was lifted with it, "lift clear"; 1e-9 for the loop's older recordings).
+    One whose bottom is under the target's top overlaps it in plan by more than the files' touch
+    (PART_OVERLAP_MM2): a clip beside the base, touching its edge by 0.4 mm2, blocked it."""
+    def on_it(o: Part) -> bool:
+        area = o.polygon.intersection(target.polygon).area
+        return area > (AREA_EPS_MM2 if o.z_bottom_mm >= target.z_top_mm - 1e-9 else PART_OVERLAP_MM2)
+
     return [o.id for o in present if o.id != target.id and o.z_top_mm > target.z_bottom_mm + 1e-9
-            and o.z_bottom_mm >= target.z_top_mm - rest_mm
-            and o.polygon.intersection(target.polygon).area > AREA_EPS_MM2]
+            and o.z_bottom_mm >= target.z_top_mm - rest_mm and on_it(o)]
 
 
 def lift_blocked_reason(scene: Scene, blockers: list[str]) -> str:

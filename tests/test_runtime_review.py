@@ -3,6 +3,7 @@ the real code paths."""
 
 import json
 
+import numpy as np
 import pytest
 from conftest import run_cli
 
@@ -120,6 +121,20 @@ def test_a_part_resting_within_the_files_height_overlap_blocks_the_lift(tmp_path
     assert step["lift"] == {"clear": False, "blocked_by": ["cover"]} and "'cover' still lies on it" in step["reason"]
 
 
+def test_a_part_beside_the_target_touching_its_edge_does_not_block_it(tmp_path):
+    """Within the files' touch (1 mm2 of plan overlap), a clip on a plate beside the base, 0.3 mm under the base's
+    top, is beside it, not on it (the 0.5 mm rest allowance took it for lying on the base)."""
+    from cell.disassembly import parts_on_top
+    from cell.scene import Part
+
+    base = Part("base", np.array([[300, -30], [360, -30], [360, 30], [300, 30]], float), z_top_mm=10.0)
+    clip = Part("clip", np.array([[359.99, 0], [380, 0], [380, 40], [359.99, 40]], float), z_bottom_mm=9.7,
+                z_top_mm=14.0)  # 0.01 x 30 mm over the base: 0.3 mm2
+    assert parts_on_top(base, (clip,)) == []
+    on = Part("cover", np.array([[310, -20], [350, -20], [350, 20], [310, 20]], float), z_bottom_mm=9.7, z_top_mm=15)
+    assert parts_on_top(base, (clip, on)) == ["cover"]
+
+
 def test_the_loop_stops_on_it_and_older_recordings_replay_as_they_ran(tmp_path):
     from cell.disassembly import parts_on_top
     from cell.errors import NoFeasibleGrasp
@@ -132,3 +147,29 @@ def test_the_loop_stops_on_it_and_older_recordings_replay_as_they_ran(tmp_path):
     with pytest.raises(NoFeasibleGrasp, match="'cover' still lies on it"):
         _require_lift_clear(scene, REST_MM)
     _require_lift_clear(scene, 1e-9)  # `meta.lift_rest_overlap` absent: as the loop ran then
+
+
+def test_the_loop_records_the_setting_and_replays_a_recording_without_it_as_it_ran(tmp_path, capsys):
+    """meta.lift_rest_overlap is what the replay does: the session stops on the base (the cover on it), and the
+    same recording without the key (a session made before it) replays with the base planned, so it diverges."""
+    import shutil
+
+    from cell.runtime.session import RunConfig, run_session
+
+    assembly = {"units": "mm", "name": "sunk", "sequence": ["base", "cover"], "parts": [
+        {"id": "base", "outline": [[300, -30], [380, -30], [380, 30], [300, 30]], "z_bottom": 0, "z_top": 10},
+        {"id": "cover", "outline": [[305, -10], [325, -10], [325, 10], [305, 10]], "z_bottom": 9.7, "z_top": 15}]}
+    (tmp_path / "sunk.json").write_text(json.dumps(assembly))
+    rec = tmp_path / "rec"
+    s = run_session(RunConfig(assembly=tmp_path / "sunk.json", record=rec, seed=1))
+    assert s["status"] == "stopped" and "'cover' still lies on it" in s["stopped"], s
+    manifest = json.loads((rec / "manifest.json").read_text())
+    assert manifest["meta"]["lift_rest_overlap"] is True
+    code, out, err = run_cli("replay", rec, capsys=capsys)
+    assert code == 0, err
+    old = tmp_path / "old"
+    shutil.copytree(rec, old)
+    del manifest["meta"]["lift_rest_overlap"]
+    (old / "manifest.json").write_text(json.dumps(manifest))
+    code, out, err = run_cli("replay", old, capsys=capsys)
+    assert code == 1 and "no_grasp" in out + err, out + err

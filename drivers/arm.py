@@ -303,27 +303,37 @@ class Arm:
         if refused is not None:
             raise refused
 
+    def require_enableable(self) -> None:
+        """Raise FaultLatched (nothing sent) naming every drive `enable()` would not enable: one in FAULT, one
+        standing past its limits. A host that asks the operator first says so before the question, not after
+        the yes with the other drives holding torque."""
+        self._require_connected()
+        refused = {ax.name: str(err) for ax in self.axes.values() if (err := self._enable_refusal(ax)) is not None}
+        if refused:
+            raise FaultLatched(refused)
+
     def _enable_all(self) -> None:
         """Enable every drive. A drive found in FAULT (say, after a host crash) is not reset
         here: its fault is latched with its error code, and only `reset_faults()` clears it."""
         for ax in self.axes.values():
-            if ax.state == "FAULT":
-                code = ax.sdo_read(0x603F)
-                self._latch(
-                    DriveFault(
-                        f"{ax.name} (node {ax.node_id}): in FAULT, error code 0x{code:04X} {codec.emcy_text(code)}",
-                        node=ax.name,
-                        node_id=ax.node_id,
-                        emcy_code=code,
-                    )
-                )
+            err = self._enable_refusal(ax)
+            if err is not None:
+                self._latch(err)
                 continue
-            hold, outside = self._enable_hold(ax)
-            if outside:  # enabling sends the axis' position as its target: not one outside its limits
-                self._latch(DriveFault(f"{ax.name} (node {ax.node_id}): {outside}; not enabled: move it back inside "
-                                       "by hand (brake released), then reset", node=ax.name, node_id=ax.node_id))
-                continue
-            ax.enable(STANDSTILL_MARGIN_S + self._slowest_quick_stop_s(), self.poll_s, hold)
+            ax.enable(STANDSTILL_MARGIN_S + self._slowest_quick_stop_s(), self.poll_s, self._enable_hold(ax)[0])
+
+    def _enable_refusal(self, ax: Axis) -> DriveFault | None:
+        """Why `ax` is not to be enabled (None: it may be): in FAULT, with its error code; or standing outside its
+        limits (`_enable_hold`)."""
+        if ax.state == "FAULT":
+            code = ax.sdo_read(0x603F)
+            return DriveFault(f"{ax.name} (node {ax.node_id}): in FAULT, error code 0x{code:04X} "
+                              f"{codec.emcy_text(code)}", node=ax.name, node_id=ax.node_id, emcy_code=code)
+        _, outside = self._enable_hold(ax)
+        if outside:  # enabling sends the axis' position as its target: not one outside its limits
+            return DriveFault(f"{ax.name} (node {ax.node_id}): {outside}; not enabled: move it back inside by hand "
+                              "(brake released), then reset", node=ax.name, node_id=ax.node_id)
+        return None
 
     def _enable_hold(self, ax: Axis):
         """(the target a drive is enabled with, for its position in counts; why it is not enabled). Its position,

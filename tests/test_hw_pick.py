@@ -174,7 +174,7 @@ def test_a_real_bus_asks_before_moving_and_nothing_moves_without_a_yes(cell_cfg,
                                  channel="can0", yes=False, json=True)
     monkeypatch.setattr(sys, "stdin", open(os.devnull))
     with pytest.raises(BadInput, match=r"refusing to home the arm, pick 'nut' at .* without confirmation"):
-        run_pick(args, cell_cfg, bus, hw.confirm_motion, hw._stop_on_interrupt, hw._emit)
+        run_pick(args, cell_cfg, bus, hw.confirm_and_enable, hw._stop_on_interrupt, hw._emit)
     assert seen["drives"].positions() == pytest.approx(seen["start"])
 
 
@@ -274,5 +274,5 @@ def test_jaws_that_are_not_open_at_the_start_are_refused_before_anything_moves(c
     args = types.SimpleNamespace(scene=str(SCENE), examples=None, place_back=False, interface="virtual",
                                  channel=None, yes=False, json=True)
     with pytest.raises(CellError, match="the jaws stand at 20.0 mm, not open"):
-        run_pick(args, cell_cfg, closed_jaws, hw.confirm_motion, hw._stop_on_interrupt, hw._emit)
+        run_pick(args, cell_cfg, closed_jaws, hw.confirm_and_enable, hw._stop_on_interrupt, hw._emit)
     assert seen["drives"].positions() == pytest.approx(seen["start"])

@@ -121,7 +121,7 @@ def _real_channel(args) -> str:
 @contextlib.contextmanager
 def _session(args, cell, *, enable: bool = False):
     """A connected arm: the in-process simulated cell on 'virtual', else the real bus. Not enabled: a command
-    enables the drives (`arm.enable()`) once the operator has said yes (`confirm_motion`); the motors held
+    enables the drives once the operator has said yes (`confirm_and_enable`); the motors held
     torque while the question was asked, and a "no" had energised them for nothing."""
     from drivers import RealClock, SimClock, real_cell, simulated_cell
 
@@ -156,6 +156,14 @@ def confirm_motion(args, what: str) -> None:
         answer = ""
     if answer.strip().lower() != "yes":
         raise CellError("aborted by the operator; nothing moved")
+
+
+def confirm_and_enable(args, arm, what: str) -> None:
+    """Before a command moves the arm: drives that cannot be enabled (in FAULT, past their limits) refused
+    first, then the operator asked (`confirm_motion`), then every drive enabled where it stands."""
+    arm.require_enableable()
+    confirm_motion(args, what)
+    arm.enable()
 
 
 @contextlib.contextmanager
@@ -300,7 +308,7 @@ def _reset(args, cell, session=None) -> int:
     standing past its joint's limits is not enabled: it says where it stands (move it back by hand first)."""
     from drivers import DriverError
 
-    with (session or _session)(args, cell) as (arm, _):
+    with (session or _session)(args, cell, enable=False) as (arm, _):
         faulted = {name: s["fault"] for name, s in arm.state().items() if s["fault"]}
         what = ", ".join(faulted) if faulted else "no drive in fault"
         confirm_motion(args, f"reset the drives ({what}) and enable them, holding where they stand")
@@ -322,9 +330,8 @@ def _home(args, cell) -> int:
 
     home = Joints.from_dict(cell.motion.home_joints)
     with _session(args, cell) as (arm, _):
-        start = arm.joints()
-        confirm_motion(args, f"home the arm from {_joints_text(start)}")
-        arm.enable()
+        confirm_and_enable(args, arm, f"home the arm from {_joints_text(arm.joints())}")
+        start = arm.joints()  # (where it stands now: the motors held no torque while the operator was asked)
         t0 = arm.clock.now()
         with _stop_on_interrupt(arm):
             go_to(arm, home)  # lifts first, then swings
@@ -347,12 +354,13 @@ def _jog(args, cell) -> int:
     if abs(args.step) > JOG_MAX[unit]:
         raise BadInput(f"jog step {args.step} {unit} too large: at most {JOG_MAX[unit]:g} {unit}")
     with _session(args, cell) as (arm, _):
+        confirm_and_enable(args, arm, f"jog {args.joint} by {args.step:+g} {unit}")
+        # the step from where the joint stands now: the motors held no torque while the operator was asked, and a
+        # target taken before moved J1 by -3 deg after a confirmed +5 (pushed 8 deg by hand meanwhile)
         start = arm.joints()
         d = start.as_dict()
         field = {"j1": "j1_deg", "j2": "j2_deg", "j3": "j3_mm", "j4": "j4_deg"}[args.joint]
         d[field] += args.step
-        confirm_motion(args, f"jog {args.joint} by {args.step:+g} {unit}")
-        arm.enable()
         with _stop_on_interrupt(arm):
             sent = arm.move_joints(Joints.from_dict(d))
         end = arm.joints()
@@ -380,8 +388,7 @@ def _gripper(args, cell) -> int:
     with _session(args, cell) as (arm, drives):
         if drives is not None:
             drives.gripper_object_width_mm = args.part
-        confirm_motion(args, f"{args.action} the gripper")
-        arm.enable()
+        confirm_and_enable(args, arm, f"{args.action} the gripper")
         with _stop_on_interrupt(arm):
             if args.action == "open":
                 width = arm.gripper.open()
@@ -407,7 +414,7 @@ def _gripper(args, cell) -> int:
 def _pick(args, cell) -> int:
     from cell.commands.hw_pick import run_pick
 
-    return run_pick(args, cell, _session, confirm_motion, _stop_on_interrupt, _emit)
+    return run_pick(args, cell, _session, confirm_and_enable, _stop_on_interrupt, _emit)
 
 
 def _corner(args, cell) -> int:
@@ -419,17 +426,19 @@ def _corner(args, cell) -> int:
     y = cell.tray.y_mm[1] if args.corner.endswith("left") else cell.tray.y_mm[0]
     z = cell.motion.safe_z_mm
     with _session(args, cell) as (arm, _):
-        start = arm.joints()
-        # every elbow and J4 turn within the limits; the one nearest to where the arm stands (J4 turned the
-        # least: the jaws' direction does not matter here). Wrapping J4 to the nearest turn went past its limit
-        # from a J4 near it, and the corner was refused
-        solutions = inverse(x, y, z, start.j1_deg + start.j2_deg + start.j4_deg, cell.scara)
-        if not solutions:
-            raise CellError(f"tray corner ({x:g}, {y:g}) is out of reach")
-        w = start.as_array()
-        corner = min(solutions, key=lambda q: float(abs(q.as_array() - w).max()))
-        confirm_motion(args, f"move to the {args.corner} tray corner ({x:g}, {y:g}) at z {z:g} and back")
-        arm.enable()
+        def nearest_solution():
+            # every elbow and J4 turn within the limits; the one nearest to where the arm stands (J4 turned the
+            # least: the jaws' direction does not matter here). Wrapping J4 to the nearest turn went past its
+            # limit from a J4 near it, and the corner was refused
+            here = arm.joints()
+            solutions = inverse(x, y, z, here.j1_deg + here.j2_deg + here.j4_deg, cell.scara)
+            if not solutions:
+                raise CellError(f"tray corner ({x:g}, {y:g}) is out of reach")
+            return here, min(solutions, key=lambda q: float(abs(q.as_array() - here.as_array()).max()))
+
+        nearest_solution()  # (out of reach: said before the question)
+        confirm_and_enable(args, arm, f"move to the {args.corner} tray corner ({x:g}, {y:g}) at z {z:g} and back")
+        start, corner = nearest_solution()  # from where it stands now (no torque while the operator was asked)
         t0 = arm.clock.now()
         with _stop_on_interrupt(arm):
             go_to(arm, corner)

@@ -25,9 +25,9 @@ def add_arguments(p) -> None:
                    help="put the part back where it lay instead of carrying it to the drop-off")
 
 
-def run_pick(args, cell, session, confirm_motion, stop_on_interrupt, emit) -> int:
-    """`session(args, cell)` (connected, not enabled), `confirm_motion(args, what)`, `stop_on_interrupt(arm)` and
-    `emit(args, obj, text)`: the `cell hw` command's own (cell/commands/hw.py)."""
+def run_pick(args, cell, session, confirm_and_enable, stop_on_interrupt, emit) -> int:
+    """`session(args, cell)` (connected, not enabled), `confirm_and_enable(args, arm, what)`,
+    `stop_on_interrupt(arm)` and `emit(args, obj, text)`: the `cell hw` command's own (cell/commands/hw.py)."""
     from cell.commands.grasp import load_planner_inputs
     from cell.disassembly import lift_blocked_reason, parts_on_top
     from cell.errors import CellError, NoFeasibleGrasp
@@ -62,9 +62,8 @@ def run_pick(args, cell, session, confirm_motion, stop_on_interrupt, emit) -> in
             return 3
         arm.gripper.require_open()  # a part left between them would be dropped by the pre-open
         where = "put it back" if args.place_back else "carry it to the drop-off"
-        confirm_motion(args, f"home the arm, pick {scene.target!r} at ({grasp.center_mm[0]:.1f}, "
-                             f"{grasp.center_mm[1]:.1f}) mm, z {grasp.grasp_z_mm:.1f} mm, and {where}")
-        arm.enable()
+        confirm_and_enable(args, arm, f"home the arm, pick {scene.target!r} at ({grasp.center_mm[0]:.1f}, "
+                                      f"{grasp.center_mm[1]:.1f}) mm, z {grasp.grasp_z_mm:.1f} mm, and {where}")
         t0 = arm.clock.now()
         with stop_on_interrupt(arm):
             records = _carry_out(arm, cell, grasp, commands, home, args.place_back)

@@ -28,8 +28,9 @@ def pin_blas() -> None:
 
 # Pixels OpenCV decodes at most (OPENCV_IO_MAX_IMAGE_PIXELS, read when cv2 loads; its own default is 2^30): a
 # 30000 x 30000 PNG of 0.9 MB took 5.3 GB to segment and would have the process killed on a smaller machine.
-# 2^27 = 134 MP, twice the largest industrial cameras' frames; a user's own value stays.
-MAX_IMAGE_PIXELS = 2**27
+# 2^28 = 268 MP: a 200 MP phone's calibration photos pass (a cell file's camera is 100 MP at most); a user's
+# own value stays.
+MAX_IMAGE_PIXELS = 2**28
 
 
 def limit_image_pixels() -> None:

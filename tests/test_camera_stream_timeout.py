@@ -42,6 +42,14 @@ def test_a_stream_that_never_answers_is_refused_within_its_timeout(silent_server
     assert time.monotonic() - t0 < 15.0  # 30 s before: OpenCV's own wait (a loose bound, not a timing target)
 
 
+def test_a_refused_address_is_not_blamed_on_a_timeout():
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with pytest.raises(BadInput, match=r"cannot be opened \(no stream OpenCV reads there: the address refused"):
+        open_camera(f"http://127.0.0.1:{port}/video.mjpg").connect()
+
+
 def test_a_device_that_does_not_exist_is_not_blamed_on_a_timeout(capfd):
     with pytest.raises(BadInput, match=r"cannot be opened \(no such device"):
         open_camera("/dev/video99").connect()

@@ -42,10 +42,11 @@ def read_image(path: str | Path, grey: bool = False) -> np.ndarray:
             img, noise = _decode_quietly(data, cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYDEPTH)
             as_is = True
     except cv2.error as e:  # e.g. a header claiming more pixels than OpenCV decodes (60000 x 60000)
-        if "CV_IO_MAX_IMAGE_PIXELS" in str(e):
-            limit = int(os.environ.get("OPENCV_IO_MAX_IMAGE_PIXELS", MAX_IMAGE_PIXELS))
-            raise BadInput(f"image {path} has more than {limit / 1e6:.0f} megapixels, more than a frame to segment "
-                           "(OPENCV_IO_MAX_IMAGE_PIXELS sets the limit): scale or crop it") from None
+        if "CV_IO_MAX_IMAGE_PIXELS" in str(e):  # (the limit OpenCV loaded with: ours, unless cv2 came first)
+            limit = os.environ.get("OPENCV_IO_MAX_IMAGE_PIXELS", str(MAX_IMAGE_PIXELS))
+            raise BadInput(f"image {path} has more pixels than OpenCV is set to decode (OPENCV_IO_MAX_IMAGE_PIXELS "
+                           f"= {limit}; the cell's limit is {MAX_IMAGE_PIXELS / 1e6:.0f} megapixels): scale or crop "
+                           "it") from None
         raise BadInput(f"image {path} cannot be decoded (OpenCV: {getattr(e, 'err', e)})") from None
     if img is None or img.size == 0:
         raise BadInput(f"image {path} is not a readable image (corrupt, truncated or not an image format)")
@@ -248,7 +249,9 @@ class VideoCamera:
         return isinstance(self.source, str) and "://" in self.source
 
     def connect(self) -> VideoCamera:
-        quiet = cv2.utils.logging.getLogLevel()
+        import time
+
+        t0, quiet = time.monotonic(), cv2.utils.logging.getLogLevel()
         # each backend tried logs why it could not open the source ("[ WARN:0@2.1] global cap_v4l.cpp:915 ..."),
         # ahead of the one-line message below that says it
         cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
@@ -263,8 +266,10 @@ class VideoCamera:
             cv2.utils.logging.setLogLevel(quiet)
         if not cap.isOpened():
             cap.release()
-            why = (f"no stream OpenCV reads answered within {self.STREAM_TIMEOUT_S:g} s" if self._is_stream()
-                   else "no such device, or OpenCV has no backend for it")
+            waited = time.monotonic() - t0 >= 0.9 * self.STREAM_TIMEOUT_S
+            why = ("no such device, or OpenCV has no backend for it" if not self._is_stream() else
+                   f"no stream OpenCV reads answered within {self.STREAM_TIMEOUT_S:g} s" if waited else
+                   "no stream OpenCV reads there: the address refused, unknown, or not a video")
             raise BadInput(f"camera {self.source!r} cannot be opened ({why})")
         if self.size_px is not None:
             cap.set(cv2.CAP_PROP_FRAME_WIDTH, self.size_px[0])

@@ -642,7 +642,7 @@ class CellLoop:
         except BaseException as e:  # a fault, a stop, Ctrl-C: what the arm did up to it is kept, and its time
             if self._pick is not None:
                 self._pick["report"].motion_s += self.arm.clock.now() - t0
-            self.sink.write_decision({"type": "cut_short", "part": part_id, "attempt": attempt, **record,
+            self.sink.write_decision({"type": "interrupted", "part": part_id, "attempt": attempt, **record,
                                       "records": done, "by": str(e) or type(e).__name__})
             raise
         self.sink.write_decision({"type": "executed", "part": part_id, "attempt": attempt, **record,

@@ -24,9 +24,9 @@ from cell.grasp.params import MAX_FINER_STEPS, SynthesisParams
 from cell.runtime.control import Decision, RunControl
 
 REPLAY_SDO_TIMEOUT_S = 2.0
-# what a pick cut short had done: where a fault or a stop hits within it differs from run to run (the replay
+# what an interrupted pick had done: where a fault or a stop hits within it differs from run to run (the replay
 # injects a recorded drive fault at the next move), and recordings before 2026-12-05 do not have it
-NOT_COMPARED = {"cut_short"}
+NOT_COMPARED = {"interrupted"}
 VOLATILE = {"planning_s", "cycle_s", "motion_s", "t_start_s", "t_end_s", "time_ms"}
 TOLERANCE = 1e-3
 

@@ -786,7 +786,7 @@ class Arm:
         except DriverError as e:
             self._latch(e)
             self._stop_all()
-            also = self._silent_besides(e.node) if isinstance(e, SdoError) else ""
+            also = self._silent_besides(e.node) if getattr(e, "unanswered", False) else ""
             if also:
                 raise SdoError(f"{e}; {also}", node=e.node, node_id=e.node_id) from e
             raise

@@ -164,7 +164,9 @@ class Axis:
             text = f"no SDO answer {what} ({e})"
         else:
             text = f"SDO {what} aborted: {e}"
-        return SdoError(f"{self.name} (node {self.node_id}): {text}", node=self.name, node_id=self.node_id)
+        err = SdoError(f"{self.name} (node {self.node_id}): {text}", node=self.name, node_id=self.node_id)
+        err.unanswered = isinstance(e, SdoCommunicationError)  # (an abort is an answer: the node is there)
+        return err
 
     def sdo_read(self, index: int, subindex: int = 0):
         try:

@@ -15,6 +15,7 @@ from cell.grasp.params import SynthesisParams
 from cell.grasp.synthesis import GraspPlanner
 from cell.physics import check_grasp
 from cell.scene import Part, Scene
+from cell.study.stability import simple_shapes
 
 CELL = default_cell()
 
@@ -51,19 +52,24 @@ def test_a_part_planned_at_the_configured_step_says_no_step(shipped):
     assert result.step_mm is None and "step_mm" not in result.to_json()
 
 
-def test_the_library_parts_without_a_grasp_at_2_mm_are_held_stably_at_1_mm(shipped):
-    """The gusset had no grasp at the 2 mm step, whatever its pose (the small gear neither, until the
-    examples of 2026-12-04 taught pads resting on gear tips: test_grasp_gears.py)."""
+def pentagon(r_mm: float) -> Part:
+    return next(p for p in simple_shapes() if p.id == f"5-gon_r{r_mm:g}")
+
+
+def test_parts_without_a_grasp_at_2_mm_are_held_stably_at_a_finer_step(shipped):
+    """Regular pentagons 10 and 26 mm round have no grasp at the 2 mm step, whatever their pose (the gusset had
+    none either, until each ring was sampled from its own first vertex, `vertex_order_free`; the small gear
+    until the examples of 2026-12-04 taught pads resting on gear tips: test_grasp_gears.py)."""
     planner = GraspPlanner(CELL, shipped)
     coarse = GraspPlanner(CELL, shipped, SynthesisParams(finer_steps=0))
-    for name, th in [("gusset_m", 0.0), ("gusset_m", 75.0)]:
-        part = lib.place(lib.part(name), 360.0, -40.0, th)
+    for shape, th in [(pentagon(13), 0.0), (pentagon(13), 75.0), (pentagon(5), 30.0)]:
+        part = lib.place(shape, 360.0, -40.0, th)
         with pytest.raises(NoFeasibleGrasp):
             coarse.plan(Scene((part,), part.id))
         result = planner.plan(Scene((part,), part.id))
         g = result.grasp
         assert result.step_mm in (1.0, 0.5)
-        assert check_grasp(part, g.contacts_mm, g.axis_deg, g.grasp_z_mm, cell=CELL).ok, name
+        assert check_grasp(part, g.contacts_mm, g.axis_deg, g.grasp_z_mm, cell=CELL).ok, shape.id
 
 
 def test_no_grasp_at_any_step_names_the_steps_tried_and_keeps_the_configured_steps_counts(shipped, tmp_path,
@@ -160,18 +166,18 @@ def test_the_finer_steps_stop_at_the_smallest_step():
 
 
 def test_the_run_loop_records_the_finer_step_and_the_text_outputs_name_it(tmp_path, capsys):
-    """The gusset, planned at 1 mm: the run's grasp decision says so (its counts are that step's), the
-    recording replays, and `cell plan` / `cell grasp` say it in words too. (Its outline at full precision,
+    """A pentagon 26 mm round, planned at 1 mm: the run's grasp decision says so (its counts are that step's),
+    the recording replays, and `cell plan` / `cell grasp` say it in words too. (Its outline at full precision,
     as lib.place gives it: the run located it on that, the replay on the recording's 4 decimals, 0.009 deg
     apart, and the replay diverged at its first perception; the run now takes the model as recorded.)"""
     from cell.runtime.session import RunConfig, run_session
 
-    gusset = lib.place(lib.part("gusset_m"), 360.0, -40.0, 0.0)
-    raw = {"id": "gusset", "outline": np.asarray(gusset.outline_mm).tolist(),
-           "holes": [np.asarray(h).tolist() for h in gusset.holes_mm], "z_bottom": gusset.z_bottom_mm,
-           "z_top": gusset.z_top_mm, "mass_g": 20}
-    path = tmp_path / "gusset.json"
-    path.write_text(json.dumps({"units": "mm", "name": "gusset", "parts": [raw], "sequence": ["gusset"]}))
+    pentagon_part = lib.place(pentagon(13), 360.0, -40.0, 0.0)
+    raw = {"id": "pentagon", "outline": np.asarray(pentagon_part.outline_mm).tolist(),
+           "holes": [np.asarray(h).tolist() for h in pentagon_part.holes_mm], "z_bottom": pentagon_part.z_bottom_mm,
+           "z_top": pentagon_part.z_top_mm, "mass_g": 20}
+    path = tmp_path / "pentagon_part.json"
+    path.write_text(json.dumps({"units": "mm", "name": "pentagon", "parts": [raw], "sequence": ["pentagon"]}))
     rec = tmp_path / "rec"
     s = run_session(RunConfig(assembly=path, record=rec, seed=3))
     assert s["status"] == "complete" and s["parts_removed"] == 1
@@ -181,11 +187,11 @@ def test_the_run_loop_records_the_finer_step_and_the_text_outputs_name_it(tmp_pa
     code, out, err = run_cli("replay", rec, capsys=capsys)
     assert code == 0 and "decisions match" in out, err
     code, out, _ = run_cli("plan", path, capsys=capsys)
-    assert code == 0 and "gusset (at the finer 1 mm outline step)" in out
+    assert code == 0 and "pentagon (at the finer 1 mm outline step)" in out
     scene = tmp_path / "scene.json"
-    scene.write_text(json.dumps({"units": "mm", "target": "gusset", "parts": [raw]}))
+    scene.write_text(json.dumps({"units": "mm", "target": "pentagon", "parts": [raw]}))
     code, out, _ = run_cli("grasp", scene, capsys=capsys)
-    assert code == 0 and "grasp 'gusset' (at the finer 1 mm outline step)" in out
+    assert code == 0 and "grasp 'pentagon' (at the finer 1 mm outline step)" in out
 
 
 def test_cell_run_takes_an_assembly_naming_its_own_cell_file_by_a_relative_path(tmp_path, monkeypatch):

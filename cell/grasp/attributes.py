@@ -96,7 +96,8 @@ def local_attributes(op: OutlinePoints, part: Part, outer_disc: bool = True, sli
     return np.column_stack([d, d / reference_radius_mm(part, outer_disc, slit_mm), op.convexity])
 
 
-def global_attributes(contacts, chord_normals, part: Part, outer_disc: bool = True, slit_mm: float = 0.0) -> np.ndarray:
+def global_attributes(contacts, chord_normals, part: Part, outer_disc: bool = True, slit_mm: float = 0.0,
+                      stable_angles: bool = True) -> np.ndarray:
     """Attributes of contact sets.
 
     contacts (k, n, 2) mm, chord_normals (k, n, S, 2). The reference point is the centroid of
@@ -105,13 +106,20 @@ def global_attributes(contacts, chord_normals, part: Part, outer_disc: bool = Tr
     scale the largest and the mean angle (deg) between a contact's inward normal and the line
     from the contact to the reference point (0 = pushing straight at it, force-closure-like).
     The per-contact angles are reduced by max and mean, so the contacts' order does not matter.
+    stable_angles: from atan2 of the cross and dot products (off: arccos of the dot, as recordings made before
+    2026-12-05 have it; near 0 it turned float noise of 1e-13 into 1e-6 deg).
     """
     contacts = np.asarray(contacts, float)
     ref = contacts.mean(axis=1)  # (k, 2)
     off = np.linalg.norm(ref - centre_of_gravity(part), axis=1)
     to_ref = ref[:, None, :] - contacts  # (k, n, 2)
     to_ref /= np.maximum(np.linalg.norm(to_ref, axis=-1, keepdims=True), 1e-12)
-    cosang = np.clip((-chord_normals * to_ref[:, :, None, :]).sum(-1), -1.0, 1.0)  # (k, n, S)
-    ang = np.degrees(np.arccos(cosang))
+    inward, line = -chord_normals, to_ref[:, :, None, :]
+    dot = (inward * line).sum(-1)  # (k, n, S)
+    if stable_angles:
+        cross = inward[..., 0] * line[..., 1] - inward[..., 1] * line[..., 0]
+        ang = np.degrees(np.arctan2(np.abs(cross), dot))
+    else:
+        ang = np.degrees(np.arccos(np.clip(dot, -1.0, 1.0)))
     per_scale = np.stack([ang.max(axis=1), ang.mean(axis=1)], -1).reshape(len(contacts), -1)
     return np.column_stack([off, off / reference_radius_mm(part, outer_disc, slit_mm), per_scale])

@@ -42,7 +42,7 @@ def free_mask(points: np.ndarray, neighbours: list[Part], gap_mm: float) -> np.n
 def candidate_points(target: Part, others, params: SynthesisParams, rings: list[Ring] | None = None,
                      grasp_z_mm: float | None = None) -> tuple[OutlinePoints, np.ndarray]:
     """All resampled outline points of the target and the mask (z_all,) of the free ones at the grasp z."""
-    rings = rings or part_rings(target)
+    rings = rings or part_rings(target, params.vertex_order_free)
     ring_idx, arc = resample(rings, params.step_mm)
     op = describe_points(rings, ring_idx, arc, params.scales_mm)
     return op, free_mask(op.points, side_neighbours(target, others, grasp_z_mm), params.free_gap_mm)

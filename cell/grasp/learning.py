@@ -104,7 +104,7 @@ def set_attributes_of_example(ex: GraspExample, params: SynthesisParams, shifts=
     op = describe_points(rings, ring_idx, arc, params.scales_mm)
     n = len(proj)
     return global_attributes(op.points.reshape(-1, n, 2), op.chord_normals.reshape(len(combos), n, -1, 2), ex.part,
-                             params.cog_radius_outer_disc, params.closed_slit_mm)
+                             params.cog_radius_outer_disc, params.closed_slit_mm, params.vertex_order_free)
 
 
 class AttributeTree:

@@ -60,9 +60,31 @@ class Ring:
         return float(self.cum_mm[k] + t[k] * np.sqrt(L2[k])), float(dist[k])
 
 
-def part_rings(part: Part) -> list[Ring]:
-    """The outer ring first, then the holes: all of them are outline."""
-    return [Ring.of(part.outline_mm), *(Ring.of(h) for h in part.holes_mm)]
+def part_rings(part: Part, own_start: bool = False) -> list[Ring]:
+    """The outer ring first, then the holes: all of them are outline. own_start: each ring listed from its own
+    first vertex (`own_first_vertex`), not the one the file gave first: the samples start half a step past a
+    ring's first vertex, and the same outline listed from another vertex, or reversed, was planned otherwise
+    (a hexagon listed reversed had a grasp one way and none the other; SynthesisParams.vertex_order_free)."""
+    rings = [part.outline_mm, *part.holes_mm]
+    if own_start:
+        rings = [np.roll(r, -own_first_vertex(r), axis=0) for r in rings]
+    return [Ring.of(r) for r in rings]
+
+
+def own_first_vertex(vertices) -> int:
+    """The index of the ring's vertex farthest from its area centroid: the same vertex whichever vertex a list
+    starts at, or its direction, and it moves with the part. Of vertices within 1e-9 of the farthest (a
+    symmetric outline's, alike up to its symmetry), the first listed: a part moved or turned (its list in the
+    same order) keeps it, where any choice by direction in the base frame would move it to another of them."""
+    v = np.asarray(vertices, float)
+    v = v - v.mean(axis=0)  # (centred first: the shoelace sums stay small)
+    w = np.roll(v, -1, axis=0)
+    cross = v[:, 0] * w[:, 1] - w[:, 0] * v[:, 1]
+    if abs(cross.sum()) < 1e-12:  # (a degenerate ring: the scene reader refuses those)
+        return 0
+    centroid = ((v + w) * cross[:, None]).sum(axis=0) / (3.0 * cross.sum())
+    d = np.linalg.norm(v - centroid, axis=1)
+    return int(np.flatnonzero(d >= d.max() - 1e-9 * max(1.0, float(d.max())))[0])
 
 
 def centre_of_gravity(part: Part) -> np.ndarray:

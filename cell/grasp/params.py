@@ -17,6 +17,12 @@ class SynthesisParams:
     # Step 1: candidate points.
     step_mm: float = 2.0  # arc-length step of the resampled outline: a sixth of the 12 mm pad
     free_gap_mm: float = 1.5  # outline closer than this to another part is contact, not free area
+    # The plan does not depend on which vertex a file lists first, or on the ring's direction: each ring is
+    # sampled from its own first vertex (cell.grasp.outline.own_first_vertex), the global attributes' angles
+    # are worked out stably (arccos near 0 turned 1e-13 of noise into 1e-6 deg), and example distances tie
+    # within 1e-9 (a symmetric part's alike sets: the first in outline order). The same hexagon listed
+    # reversed had a grasp one way and none the other. Off in recordings made before it (cell.runtime.replay).
+    vertex_order_free: bool = True
     # Step 2: local attributes. Convexity scales in mm (absolute: the pad has a fixed size, so
     # "flat at the pad's scale" is a physical property, not a relative one).
     scales_mm: tuple[float, ...] = (3.0, 6.0, 12.0, 24.0)

@@ -76,7 +76,7 @@ def point_dataset(n: int = 400, seed: int = 0, cell: Cell | None = None,
         if _enough(labels, n) and n_parts >= 8:
             break
         n_parts += 1
-        rings = part_rings(part)
+        rings = part_rings(part, params.vertex_order_free)
         ring_idx, arc = resample(rings[:1], params.step_mm)  # the outer outline: what a pad can touch
         pick = rng.choice(len(arc), min(points_per_part, len(arc)), replace=False)
         desc = describe_points(rings[:1], ring_idx[pick], arc[pick], params.scales_mm)
@@ -99,7 +99,7 @@ def set_dataset(n: int = 400, seed: int = 0, cell: Cell | None = None,
         if _enough(labels, n) and n_parts >= 8:
             break
         n_parts += 1
-        rings = part_rings(part)
+        rings = part_rings(part, params.vertex_order_free)
         ring_idx, arc = resample(rings[:1], params.step_mm)
         desc = describe_points(rings[:1], ring_idx, arc, params.scales_mm)
         P, N = desc.points, desc.normals
@@ -118,7 +118,8 @@ def set_dataset(n: int = 400, seed: int = 0, cell: Cell | None = None,
         ii, jj = ii[pick], jj[pick]
         contacts = np.stack([P[ii], P[jj]], axis=1)
         cn = np.stack([desc.chord_normals[ii], desc.chord_normals[jj]], axis=1)
-        rows.append(global_attributes(contacts, cn, part, params.cog_radius_outer_disc, params.closed_slit_mm))
+        rows.append(global_attributes(contacts, cn, part, params.cog_radius_outer_disc, params.closed_slit_mm,
+                                      params.vertex_order_free))
         labels += [op.judge_grasp(part, c).valid for c in contacts]
     X, y = np.vstack(rows), np.array(labels, bool)
     Xb, yb = _balanced(X, y, n, rng)

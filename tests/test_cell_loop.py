@@ -193,6 +193,7 @@ def test_every_pick_checks_its_grip_after_the_lift_and_the_recording_says_so(rec
     r = RecordingReader(rec)
     assert r.manifest["meta"]["lift_check"] is True  # replayed with the check (older recordings without it)
     assert r.manifest["meta"]["whole_part_report"] is True  # a part picked again keeps its tries (not before)
+    assert r.manifest["meta"]["walls_beyond"] is True  # walls only where the vertical lies beyond (not before)
     for d in (d for d in r.decisions if d["type"] == "executed"):
         labels = [x["label"] for x in d["records"]]
         assert labels[labels.index("lift") + 1] == "check" and labels.index("check") < labels.index("carry")

@@ -104,6 +104,10 @@ class LoopOptions:
     # A part resting on the target with its bottom up to 0.5 mm under the target's top (the height overlap the
     # assembly files allow) blocks its lift; off in recordings made before: only a part wholly above it did.
     lift_rest_overlap: bool = True
+    # A shadow-like strip beside a part is its wall only where the image of the vertical lies beyond it
+    # (`SegmentParams.walls_beyond`); off in recordings made before: a part holding the image of the vertical
+    # kept its own shadow as a wall on the side the vertical leans to.
+    walls_beyond: bool = True
 
 
 @dataclass
@@ -169,7 +173,8 @@ class CellLoop:
         self.viz = viz
         self.options = options or LoopOptions()
         self.planner_params = planner_params if planner_params is not None else loop_planner_params()
-        self.segment_params = SegmentParams.for_calibration(calibration, self.options.min_area_mm2)
+        self.segment_params = SegmentParams.for_calibration(calibration, self.options.min_area_mm2,
+                                                            walls_beyond=self.options.walls_beyond)
         self.poses: dict[str, Part] = {p.id: p for p in assembly.parts}
         self.unexplained: list[Part] = []  # seen material no located part explains: obstacles too
         self.remaining: list[str] = list(assembly.sequence)

@@ -372,6 +372,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     removal_checks = _meta_flag(meta, "removal_checks", directory)
     axis_closed_form = _meta_flag(meta, "axis_closed_form", directory)
     lift_rest_overlap = _meta_flag(meta, "lift_rest_overlap", directory)
+    walls_beyond = _meta_flag(meta, "walls_beyond", directory)
     planner = meta.get("planner")  # absent (or null) in recordings made before it was kept; [] is no planner
     planner_params = planner_from_meta({} if planner is None else planner, f"recording {directory}")
     recorded = [d for d in rec.decisions if d.get("type") != "summary" and d.get("type") not in NOT_COMPARED]
@@ -416,7 +417,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
                             options=LoopOptions(on_no_grasp=meta.get("on_no_grasp", "stop"), lift_check=lift_check,
                                                 whole_part_report=whole_part_report, tray_check=tray_check,
                                                 removal_checks=removal_checks, axis_closed_form=axis_closed_form,
-                                                lift_rest_overlap=lift_rest_overlap,
+                                                lift_rest_overlap=lift_rest_overlap, walls_beyond=walls_beyond,
                                                 interactive=True),
                             planner_params=planner_params, taught=sink.examples_taught_here)
             go_to(arm, home_joints(cell))

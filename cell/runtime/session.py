@@ -290,6 +290,7 @@ def _run_session(cfg: RunConfig, say) -> dict:
                                          "removal_checks": options.removal_checks,
                                          "axis_closed_form": options.axis_closed_form,
                                          "lift_rest_overlap": options.lift_rest_overlap,
+                                         "walls_beyond": options.walls_beyond,
                                          "real_cell": None if cfg.real_cell is None else vars(cfg.real_cell),
                                          "planner": planner_meta(loop_planner_params())},
                                    # the examples as they were at the start: replay needs them even after this

@@ -101,6 +101,8 @@ class SegmentParams:
     sharp_edge: float | None = None  # ratio change per full-res px that counts as a sharp (material) edge
     sharp_fraction: float = 0.6  # share of a shadow-like region's border that must be sharp
     vertical_px: tuple[float, float] | None = None  # image of the vertical (walls face it); None: centre
+    walls_beyond: bool = True  # a wall is seen only where the image of the vertical lies beyond it (False: as
+    # before 2026-12-05, anywhere within 72 degrees of its direction from the part's centre)
     refine: bool = True
     full_res_holes: bool = True  # look for holes again at 1 / (scale / 2) (full resolution on the default
     # camera; small holes blur away at detection resolution)
@@ -773,6 +775,10 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, sharp_
         bx, by = vp[0] - pc[:, 0], vp[1] - pc[:, 1]
         cos = (ax * bx + ay * by) / np.maximum(np.hypot(ax, ay) * np.hypot(bx, by), 1e-9)
         facing = cos > WALL_FACING_COS  # walls on sides turned away from the vertical are thin anyway
+        if p.walls_beyond:
+            # ... and the vertical must lie beyond the region, seen from the part: a part that holds the image
+            # of the vertical (near the image centre) shows no wall at all, whatever side its strip lies on
+            facing &= ax * (vp[0] - cx) + ay * (vp[1] - cy) > 0
         keep &= (owner == 0) | facing
     out = np.take(keep, lab).view(np.uint8)
     # the sharp edge pixels around kept regions (a wall's outer edge) belong to the part

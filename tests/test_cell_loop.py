@@ -194,6 +194,7 @@ def test_every_pick_checks_its_grip_after_the_lift_and_the_recording_says_so(rec
     assert r.manifest["meta"]["lift_check"] is True  # replayed with the check (older recordings without it)
     assert r.manifest["meta"]["whole_part_report"] is True  # a part picked again keeps its tries (not before)
     assert r.manifest["meta"]["walls_beyond"] is True  # walls only where the vertical lies beyond (not before)
+    assert r.manifest["meta"]["crisp_edges"] is True  # grey parts by a crisp edge at any frame size (not before)
     for d in (d for d in r.decisions if d["type"] == "executed"):
         labels = [x["label"] for x in d["records"]]
         assert labels[labels.index("lift") + 1] == "check" and labels.index("check") < labels.index("carry")
@@ -276,6 +277,28 @@ def test_replay_checks_the_grip_as_the_recording_did(recorded, tmp_path, capsys)
         if code == 1:  # --json says how the recorded session ended, as on a match
             result = json.loads(out.strip().splitlines()[-1])
             assert result["match"] is False and result["session"]["status"] == "complete", result
+
+
+def test_a_recording_without_the_vision_flags_replays_with_the_segmentation_it_ran(recorded, tmp_path, capsys,
+                                                                                  monkeypatch):
+    """meta.walls_beyond and meta.crisp_edges absent (a recording made before them): the replay segments as the
+    session did then; this session's frames hold no region the two rules read otherwise, so it still matches."""
+    import shutil
+
+    import cell.vision
+
+    rec, _ = recorded
+    old = tmp_path / "old"
+    shutil.copytree(rec, old)
+    manifest = json.loads((old / "manifest.json").read_text())
+    del manifest["meta"]["walls_beyond"], manifest["meta"]["crisp_edges"]
+    (old / "manifest.json").write_text(json.dumps(manifest))
+    seen = []
+    segment = cell.vision.segment_frame
+    monkeypatch.setattr(cell.vision, "segment_frame", lambda frame, p: seen.append(p) or segment(frame, p))
+    code, out, err = run_cli("replay", old, capsys=capsys)
+    assert code == 0, err
+    assert seen and all(not p.walls_beyond and p.crisp_edge is None for p in seen)
 
 
 def test_a_part_that_falls_on_the_carry_is_noticed_on_the_next_frame(short_assembly):

@@ -108,6 +108,10 @@ class LoopOptions:
     # (`SegmentParams.walls_beyond`); off in recordings made before: a part holding the image of the vertical
     # kept its own shadow as a wall on the side the vertical leans to.
     walls_beyond: bool = True
+    # A shadow-like region no part is near is material when its edge is crisp at the detection's own resolution
+    # (`SegmentParams.crisp_edge`); off in recordings made before: frames detected at 1 / 2 (960 px wide and more)
+    # asked it for the sharp edge per full-resolution px, and grey parts lighter than 0.65 of the tray were lost.
+    crisp_edges: bool = True
 
 
 @dataclass
@@ -173,8 +177,9 @@ class CellLoop:
         self.viz = viz
         self.options = options or LoopOptions()
         self.planner_params = planner_params if planner_params is not None else loop_planner_params()
-        self.segment_params = SegmentParams.for_calibration(calibration, self.options.min_area_mm2,
-                                                            walls_beyond=self.options.walls_beyond)
+        self.segment_params = SegmentParams.for_calibration(
+            calibration, self.options.min_area_mm2, walls_beyond=self.options.walls_beyond,
+            **({} if self.options.crisp_edges else {"crisp_edge": None}))
         self.poses: dict[str, Part] = {p.id: p for p in assembly.parts}
         self.unexplained: list[Part] = []  # seen material no located part explains: obstacles too
         self.remaining: list[str] = list(assembly.sequence)

@@ -373,6 +373,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     axis_closed_form = _meta_flag(meta, "axis_closed_form", directory)
     lift_rest_overlap = _meta_flag(meta, "lift_rest_overlap", directory)
     walls_beyond = _meta_flag(meta, "walls_beyond", directory)
+    crisp_edges = _meta_flag(meta, "crisp_edges", directory)
     planner = meta.get("planner")  # absent (or null) in recordings made before it was kept; [] is no planner
     planner_params = planner_from_meta({} if planner is None else planner, f"recording {directory}")
     recorded = [d for d in rec.decisions if d.get("type") != "summary" and d.get("type") not in NOT_COMPARED]
@@ -418,6 +419,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
                                                 whole_part_report=whole_part_report, tray_check=tray_check,
                                                 removal_checks=removal_checks, axis_closed_form=axis_closed_form,
                                                 lift_rest_overlap=lift_rest_overlap, walls_beyond=walls_beyond,
+                                                crisp_edges=crisp_edges,
                                                 interactive=True),
                             planner_params=planner_params, taught=sink.examples_taught_here)
             go_to(arm, home_joints(cell))

@@ -291,6 +291,7 @@ def _run_session(cfg: RunConfig, say) -> dict:
                                          "axis_closed_form": options.axis_closed_form,
                                          "lift_rest_overlap": options.lift_rest_overlap,
                                          "walls_beyond": options.walls_beyond,
+                                         "crisp_edges": options.crisp_edges,
                                          "real_cell": None if cfg.real_cell is None else vars(cfg.real_cell),
                                          "planner": planner_meta(loop_planner_params())},
                                    # the examples as they were at the start: replay needs them even after this

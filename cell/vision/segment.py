@@ -43,6 +43,8 @@ SMALL_FRAME_PX = 960
 WALL_FACING_COS = 0.3
 EDGE_BAND_PX = 1  # a shadow-like region meets the tray across up to this many sharp pixels beyond the 5 x 5
 # neighbourhood of its border (a blurred step's band of sharp pixels, docs/vision.md step 3)
+PART_REACH_PX = 3  # a part's own shadow lies within this of the part (detection px): beside it, or past the
+# shadow's half of the part's edge band (up to 2 px wide at the crisp edge's bound, for the darkest parts)
 DEFAULT_FRAME_PX = (WIDTH_PX, HEIGHT_PX)  # the default cell's camera: the pixel defaults below are for it
 DEFAULT_MM_PER_PX = CAMERA_MM[2] / FOCAL_PX  # ... on the table (z = 0) it sees 0.5 mm per px (calibration/default.py)
 SAME_CAMERA_SPREAD = 0.05  # a calibration within this of the default's px per mm reads as the default camera
@@ -99,6 +101,9 @@ class SegmentParams:
     hysteresis: float = 0.6  # pixels this fraction of the way to a threshold join a part they touch
     shadow_aware: bool = True  # False: any darkening beyond `brighter_min` is a part
     sharp_edge: float | None = None  # ratio change per full-res px that counts as a sharp (material) edge
+    crisp_edge: float | None = 0.06  # ... per detection px around a shadow-like region no part is near (a grey
+    # part), at any detection scale; None: `sharp_edge` there too (as before 2026-12-05: at 1 / 2 grey parts
+    # had to be darker than 0.65 of the tray)
     sharp_fraction: float = 0.6  # share of a shadow-like region's border that must be sharp
     vertical_px: tuple[float, float] | None = None  # image of the vertical (walls face it); None: centre
     walls_beyond: bool = True  # a wall is seen only where the image of the vertical lies beyond it (False: as
@@ -555,10 +560,7 @@ def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int, smo
     # quarter of the view: the 25th percentile of |N(0, s)| is 0.32 s
     _, _, chroma_dn, bright_dn = _colour_change(sparse, np.ascontiguousarray(bg[::4, ::4]))
     noise_c, noise_b = _noise_spreads(chroma_dn, bright_dn)
-    sharp_sq = _sharp_bound_sq(p.sharp_edge, scale)
-    texture = _texture_gradient(sm, bg)
-    if p.noise_k * texture > np.sqrt(sharp_sq):  # a textured tray (cloth): its own grain makes sharp edges
-        sharp_sq = np.float32((p.noise_k * texture) ** 2)
+    bounds_sq = _edge_bounds_sq(p, scale, _texture_gradient(sm, bg))
     h, w = det.shape[:2]
     mask = np.zeros((h, w), np.uint8)
     if bg_coarse is None:
@@ -566,8 +568,34 @@ def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int, smo
     boxes = _work_boxes(coarse, bg_coarse, p, (h, w))
     for x0, y0, x1, y1 in boxes:
         mask[y0:y1, x0:x1] = _mask_in_box(sm[y0:y1, x0:x1], bg[y0:y1, x0:x1], p, scale, noise_c, noise_b,
-                                          sharp_sq, (x0, y0), (h, w))
+                                          bounds_sq, (x0, y0), (h, w))
     return mask, boxes
+
+
+def _edge_bounds_sq(p: SegmentParams, scale: int, texture: float) -> tuple[np.float32, np.float32]:
+    """The squared gradients of r (per detection px, float32) above which an edge is sharp: around any
+    shadow-like region (`sharp_edge` per full-resolution px) and around one no part is near (`crisp_edge` per
+    detection px, not above the first), each raised to `noise_k` x the tray's grain where that is higher (a
+    cloth's own grain makes sharp edges).
+
+    Why two: at 1 / scale the detection's own blur spreads every crisp edge over about a detection pixel,
+    whatever the scale, so a crisp step of contrast c reads 0.31 - 0.36 c per detection px at 1 / 1 to 1 / 4;
+    per full-resolution px that is c / scale of it. The sharp edge asks for 0.12 per detection px at 1 / 2 (a
+    crisp step of 0.35) and 0.06 at 1 / 1 (0.19): flat grey parts at 0.65 - 0.75 of the tray were found at 640 px
+    and had no sharp pixel at 1280 px. But at 1 / 2 a part's own short shadow (a penumbra of 1.5 - 3.5 px on
+    the default camera) is hardly softer than a crisp edge (0.29 c against 0.35 c per detection px for a 5 mm
+    plate's): only the step's height tells them apart, and the sharp edge's bound, which keeps the rendered
+    shadows of 0.3 out, stays for the regions a part is near. A region no part is near is no part's own
+    shadow, and the shadow of anything higher (an arm, a hand) has a penumbra many pixels wide."""
+    grain = p.noise_k * texture
+
+    def raised(sq: np.float32) -> np.float32:
+        return np.float32(grain ** 2) if grain > np.sqrt(sq) else sq
+
+    sharp_sq = raised(_sharp_bound_sq(p.sharp_edge, scale))
+    if p.crisp_edge is None:
+        return sharp_sq, sharp_sq
+    return sharp_sq, min(sharp_sq, raised(_sharp_bound_sq(p.crisp_edge, 1)))
 
 
 RAYLEIGH_Q1 = 0.7585  # the 25th percentile of the length of a 2-D N(0, s) vector, in s: sqrt(-2 ln 0.75)
@@ -675,10 +703,10 @@ def _work_boxes(coarse, bg_coarse, p: SegmentParams, det_hw: tuple[int, int]) ->
     return [tuple(b) for b in boxes]
 
 
-def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: float, sharp_sq: np.float32,
-                 origin=(0, 0), det_hw=None):
-    """Part mask (uint8 0/1) in one box (steps 2 and 3). `sharp_sq`: the squared gradient of r above
-    which an edge is sharp (`part_mask`: the sharp edge's, raised above a textured tray's grain)."""
+def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: float, bounds_sq, origin=(0, 0),
+                 det_hw=None):
+    """Part mask (uint8 0/1) in one box (steps 2 and 3). `bounds_sq`: the squared gradients of r above
+    which an edge is sharp, around any shadow-like region and around one no part is near (`_edge_bounds_sq`)."""
     r, chroma, chroma_dn, bright_dn = _colour_change(sm, bg)
     strong = _evidence(r, chroma, chroma_dn, bright_dn, p, 1.0, noise_c, noise_b)
     if p.hysteresis < 1.0:  # weaker evidence counts where it is connected to strong evidence,
@@ -700,25 +728,42 @@ def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: 
         from cell.vision.touching import fill_holes
 
         enclosed = fill_holes(strong.view(np.uint8)).view(bool) & ~strong
-        mask |= _material_shadowlike(r, strong, darker & ~enclosed, p, scale, sharp_sq, origin, det_hw)
+        shadowlike = darker & ~enclosed
+        grad_sq = _gradient_sq(r)
+        sharp_sq, crisp_sq = bounds_sq
+        mask |= _material_shadowlike(grad_sq, strong, shadowlike, p, scale, sharp_sq, origin, det_hw)
+        if crisp_sq < sharp_sq:  # (detected at 1 / 2 or coarser) grey parts no part is near, by a crisp edge
+            mask |= _material_shadowlike(grad_sq, strong, shadowlike, p, scale, crisp_sq, origin, det_hw, lone=True)
     k = np.ones((3, 3), np.uint8)
     return cv2.morphologyEx(mask, cv2.MORPH_OPEN, k)
 
 
-def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, sharp_sq: np.float32, origin=(0, 0),
-                         det_hw=None) -> np.ndarray:
-    """Shadow-like regions bounded by sharp edges are material (walls, grey parts), not shadow.
-    `sharp_sq`: the squared gradient of r above which an edge is sharp (`part_mask`)."""
+def _gradient_sq(r: np.ndarray) -> np.ndarray:
+    """The squared gradient of r per detection px (Sobel x 1/8), float32."""
     gx = cv2.Sobel(r, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
     gy = cv2.Sobel(r, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
+    return gx * gx + gy * gy
+
+
+def _material_shadowlike(grad_sq, strong, darker, p: SegmentParams, scale: int, sharp_sq: np.float32,
+                         origin=(0, 0), det_hw=None, lone: bool = False) -> np.ndarray:
+    """Shadow-like regions bounded by sharp edges are material (walls, grey parts), not shadow.
+    `grad_sq`: `_gradient_sq(r)`; `sharp_sq`: the squared gradient above which an edge is sharp (`part_mask`);
+    `lone`: only the regions no part is near (within PART_REACH_PX)."""
     # |grad| / scale > sharp_edge (per full-resolution pixel), compared on the squared gradient
     # against the exact float32 bound: no square root and division over the box
-    sharp = gx * gx + gy * gy > sharp_sq
+    sharp = grad_sq > sharp_sq
     # cut shadow-like regions at sharp edges, so a grey part and its own shadow come apart
     cand = (darker & ~sharp).view(np.uint8)  # (bool arrays viewed as 0/1 bytes for OpenCV: no copies)
     n, lab = cv2.connectedComponents(cand, connectivity=4)
     if n <= 1:
         return np.zeros_like(cand)
+    apart = np.ones(n, bool)
+    if lone:  # (a part's own shadow lies beside it, or past the shadow's half of the part's edge band)
+        reach = cv2.dilate(strong.view(np.uint8), np.ones((2 * PART_REACH_PX + 1,) * 2, np.uint8))
+        apart = np.bincount(pick(lab, reach.view(bool)), minlength=n) == 0
+        if not apart[1:].any():
+            return np.zeros_like(cand)
     # judge each region by its free border, where it meets the tray (not the part it hangs on):
     # a wall ends there in a sharp edge, a shadow fades out. Where it meets the tray is looked for
     # across the edge's own band: a flat grey part's blurred edge is a band of sharp pixels 2 - 3 px
@@ -739,9 +784,9 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, sharp_
     total = np.bincount(pick(lab, border), minlength=n).astype(float)
     sharp_count = np.bincount(pick(lab, border & near_sharp), minlength=n).astype(float)
     frac = np.divide(sharp_count, total, out=np.zeros(n), where=total > 0)
-    keep = frac > p.sharp_fraction
+    keep = (frac > p.sharp_fraction) & apart
     keep[0] = False
-    if keep.any() and strong.any():
+    if keep.any() and strong.any() and not lone:
         ns, parts_lab = cv2.connectedComponents(strong.view(np.uint8), connectivity=8)
         inside = np.take(keep, lab)  # only the regions still in question (take: twice as fast as keep[lab])
         bx0, by0, bw, bh = cv2.boundingRect(inside.view(np.uint8))  # (they are small: look only there)
@@ -763,7 +808,7 @@ def _material_shadowlike(r, strong, darker, p: SegmentParams, scale: int, sharp_
         cnt = np.maximum(np.bincount(li, minlength=n), 1)
         cx, cy = np.bincount(li, xs, n) / cnt, np.bincount(li, ys, n) / cnt
         owner = hi_c.astype(int)
-        h_det, w_det = det_hw or r.shape
+        h_det, w_det = det_hw or grad_sq.shape
         vp = ((np.array(p.vertical_px) / scale) if p.vertical_px is not None
               else np.array([w_det, h_det]) / 2.0) - np.asarray(origin)  # in the box's pixels
         centres = np.zeros((ns, 2))  # of the parts that own a region still kept

@@ -121,8 +121,8 @@ def _real_channel(args) -> str:
 @contextlib.contextmanager
 def _session(args, cell, *, enable: bool = False):
     """A connected arm: the in-process simulated cell on 'virtual', else the real bus. Not enabled: a command
-    enables the drives once the operator has said yes (`confirm_and_enable`); the motors held
-    torque while the question was asked, and a "no" had energised them for nothing."""
+    enables the drives once the operator has said yes (`confirm_and_enable`; enabled at connect, the motors
+    held torque while the question was asked, and a "no" had energised them for nothing)."""
     from drivers import RealClock, SimClock, real_cell, simulated_cell
 
     if _simulated(args):
@@ -147,9 +147,8 @@ def confirm_motion(args, what: str) -> None:
     if sys.stdin is None or sys.stdin.closed or not sys.stdin.isatty():  # (None: started with stdin closed)
         raise BadInput(f"refusing to {what} on {args.interface}:{_real_channel(args)} without confirmation: pass --yes")
     # the question on stderr: stdout may be JSON for a script reading it
-    print(f"About to {what} on the REAL cell ({args.interface}:{_real_channel(args)}). Keep clear. Type 'yes' to "
-          "continue: ",
-          end="", file=sys.stderr, flush=True)
+    print(f"About to {what} on the REAL cell ({args.interface}:{_real_channel(args)}). Keep clear. "
+          "Type 'yes' to continue: ", end="", file=sys.stderr, flush=True)
     try:
         answer = input()
     except EOFError:  # Ctrl-D: no answer is no

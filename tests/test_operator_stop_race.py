@@ -7,6 +7,7 @@ and the simulated drives."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import threading
 import time
@@ -101,6 +102,20 @@ def test_a_stop_pressed_while_a_release_goes_out_sends_its_quick_stops_after_it(
             seen["on the bus"] = _controlwords(spy, cell_cfg)
         return real(ax, cw)
 
+    def gate_then_the_stop():
+        """The move's gate; once the stop is on its way, the command thread goes on only after it has latched: in
+        simulated time a stop thread starved of the CPU (a loaded machine) lost the race to the whole move, which
+        then ended without the stop (once, with 4 test processes on 2 cores)."""
+        with gate():
+            yield
+        if "thread" in seen:
+            deadline = time.monotonic() + 5.0
+            while "stop" not in arm.faults and time.monotonic() < deadline:
+                time.sleep(0.001)
+
+    gate = arm._unless_latched
+    for ax in arm.axes.values():
+        monkeypatch.setattr(ax, "move_gate", contextlib.contextmanager(gate_then_the_stop))
     monkeypatch.setattr(Arm, "_latch", _latch)
     monkeypatch.setattr(Axis, "send_controlword", send_controlword)
     spy = open_test_bus()

@@ -62,6 +62,9 @@ def test_a_block_too_heavy_for_the_grip_has_no_grasp_and_the_reason_says_why(tmp
     r = d["reason"]
     assert "too heavy" in r and f"{mass_g} g" in r and "40 N" in r and "1223 g" in r, r
     assert f"at least {needed_n:.1f} N" in r, r
+    # s, the sets of two valid points, as z' makes them (formed or not; it read 0 beside z' = 76)
+    c = d["counts"]
+    assert c["valid_points"] >= 2 and c["pairs"] == c["valid_points"] * (c["valid_points"] - 1) // 2, c
 
 
 def test_the_same_block_lighter_is_planned_and_holds(tmp_path, capsys):

@@ -12,6 +12,7 @@ them in `GraspPlanner.__init__`.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -363,7 +364,8 @@ class GraspPlanner:
         # no grasp holds it (cell/grasp/load.py): said before the pairs, after what makes the scene bad input
         # (a 10 m square weighs tons, and its size is the thing to say)
         heavy = too_heavy(target, cell)
-        if heavy:
+        if heavy:  # (s, the sets of n valid points, is what z' makes, formed or not: it read 0 beside z' = 76)
+            counts["pairs"] = math.comb(len(vp), p.n_contacts)
             fail(heavy, at_any_step=True)
         t0 = time.perf_counter()
         P = Pairs.of(vp.points, vp.normals, cand_index[point_valid])

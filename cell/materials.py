@@ -72,7 +72,7 @@ def density_g_cm3(material, where: str = "part") -> float:
     taken = name or UNKNOWN_MATERIAL
     if (where, repr(material)) not in _WARNED:
         _WARNED.add((where, repr(material)))
-        why = f"taken as {taken!r} from its words" if name else "has no known density: weighed as steel, to be safe"
+        why = f"taken as {taken!r} from its words" if name else f"has no known density: weighed as {taken}, to be safe"
         log.warning("%s: 'material' %s %s (%g g/cm3); give its 'mass_g' in grams to weigh it right",
                     where, short_repr(material), why, DENSITY_G_CM3[taken])
     return DENSITY_G_CM3[taken]

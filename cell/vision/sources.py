@@ -141,14 +141,19 @@ def _to_uint8(img: np.ndarray, path: Path) -> np.ndarray:
 
 
 DARK_MEAN_DN = 10.0  # a frame darker than this on average shows nothing (lights off, the lens covered)
+SATURATED_DN = 250  # a pixel at this or more is saturated
 SATURATED_SHARE = 0.95  # ... this share of it at 250 DN or more: overexposed (a lamp into the lens, no iris)
 FLAT_SD_DN = 0.5  # ... and a frame this even (at 1/8 size) is one colour: no picture (a test card, no signal)
 # (the shared photographs: mean 79 - 147 DN, sd 35 - 95; the simulated camera's empty tray: 106, sd 6.3)
 
 
+def _grey(frame: np.ndarray) -> np.ndarray:
+    return frame if frame.ndim == 2 else cv2.cvtColor(frame[..., :3], cv2.COLOR_BGR2GRAY)
+
+
 def saturated_share(frame: np.ndarray) -> float:
-    grey = frame if frame.ndim == 2 else cv2.cvtColor(frame[..., :3], cv2.COLOR_BGR2GRAY)
-    return float((grey >= 250).mean())
+    """The share of the frame at SATURATED_DN or more."""
+    return float((_grey(frame) >= SATURATED_DN).mean())
 
 
 def blank_frame_reason(frame: np.ndarray, first_saturated: float = 0.0) -> str | None:
@@ -156,16 +161,16 @@ def blank_frame_reason(frame: np.ndarray, first_saturated: float = 0.0) -> str |
     pick a frame like that showed "no part" and the part counted as removed (a black frame: 1 of 1 removed).
     `first_saturated`: the share of the run's first frame at 250 or more: a back-lit tray is white, empty or
     not, and is no overexposed frame where the first was so too."""
-    grey = frame if frame.ndim == 2 else cv2.cvtColor(frame[..., :3], cv2.COLOR_BGR2GRAY)
+    grey = _grey(frame)
     h, w = grey.shape[:2]
     small = cv2.resize(grey, (max(1, w // 8), max(1, h // 8)), interpolation=cv2.INTER_AREA).astype(np.float64)
     mean, sd = float(small.mean()), float(small.std())
     if mean < DARK_MEAN_DN:
         return f"the frame is dark (mean {mean:.1f} of 255): lights off, or the lens covered?"
-    saturated = float((grey >= 250).mean())
+    saturated = saturated_share(grey)
     back_lit = first_saturated >= 0.5
     if saturated >= SATURATED_SHARE and not back_lit:
-        return f"the frame is overexposed ({saturated:.0%} of it at 250 or more)"
+        return f"the frame is overexposed ({saturated:.0%} of it at {SATURATED_DN} or more)"
     if sd < FLAT_SD_DN and not (back_lit and saturated >= SATURATED_SHARE):
         return f"the frame is one flat colour (mean {mean:.0f}, sd {sd:.2f}): no picture"
     return None

@@ -77,13 +77,10 @@ def own_first_vertex(vertices) -> int:
     symmetric outline's, alike up to its symmetry), the first listed: a part moved or turned (its list in the
     same order) keeps it, where any choice by direction in the base frame would move it to another of them."""
     v = np.asarray(vertices, float)
-    v = v - v.mean(axis=0)  # (centred first: the shoelace sums stay small)
-    w = np.roll(v, -1, axis=0)
-    cross = v[:, 0] * w[:, 1] - w[:, 0] * v[:, 1]
-    if abs(cross.sum()) < 1e-12:  # (a degenerate ring: the scene reader refuses those)
+    ring = Polygon(v)
+    if ring.area < 1e-12:  # (a degenerate ring: the scene reader refuses those)
         return 0
-    centroid = ((v + w) * cross[:, None]).sum(axis=0) / (3.0 * cross.sum())
-    d = np.linalg.norm(v - centroid, axis=1)
+    d = np.linalg.norm(v - np.asarray(ring.centroid.coords[0]), axis=1)
     return int(np.flatnonzero(d >= d.max() - 1e-9 * max(1.0, float(d.max())))[0])
 
 

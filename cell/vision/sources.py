@@ -6,6 +6,7 @@ not an image, truncated, empty) is a `BadInput` naming the file.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import tempfile
@@ -89,18 +90,27 @@ _DECODER_NOISE = ("Corrupt JPEG data", "Premature end of JPEG", "libpng ", "Inva
 _DECODE_LOCK = threading.Lock()
 
 
+@contextlib.contextmanager
+def _opencv_log_level(level: int):
+    """OpenCV's own log at `level` for the `with` (its lines, ahead of the one-line message that says the same),
+    as it was after."""
+    was = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(level)
+    try:
+        yield
+    finally:
+        cv2.utils.logging.setLogLevel(was)
+
+
 def _decode_quietly(data: np.ndarray, flags: int):
     """cv2.imdecode with the image libraries' messages captured: (image or None, their lines). Anything
     else written to stderr meanwhile (another thread) is passed on."""
-    quiet = cv2.utils.logging.getLogLevel()
-    with _DECODE_LOCK, tempfile.TemporaryFile() as capture:
-        # silent: a file OpenCV cannot read is reported by the caller, its own log line was noise on stderr
-        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    # silent: a file OpenCV cannot read is reported by the caller, its own log line was noise on stderr
+    with _DECODE_LOCK, tempfile.TemporaryFile() as capture, _opencv_log_level(cv2.utils.logging.LOG_LEVEL_SILENT):
         sys.stderr.flush()
         try:
             saved = os.dup(2)
         except OSError:  # no stderr to guard (a detached process): decode as is
-            cv2.utils.logging.setLogLevel(quiet)
             return cv2.imdecode(data, flags), []
         try:
             os.dup2(capture.fileno(), 2)
@@ -110,7 +120,6 @@ def _decode_quietly(data: np.ndarray, flags: int):
                 os.dup2(saved, 2)
         finally:
             os.close(saved)
-            cv2.utils.logging.setLogLevel(quiet)
         capture.seek(0)
         lines = capture.read().decode("utf-8", "replace").splitlines()
     noise = [line.strip() for line in lines if line.strip().startswith(_DECODER_NOISE)]
@@ -256,19 +265,16 @@ class VideoCamera:
     def connect(self) -> VideoCamera:
         import time
 
-        t0, quiet = time.monotonic(), cv2.utils.logging.getLogLevel()
+        t0 = time.monotonic()
         # each backend tried logs why it could not open the source ("[ WARN:0@2.1] global cap_v4l.cpp:915 ..."),
         # ahead of the one-line message below that says it
-        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
-        try:
+        with _opencv_log_level(cv2.utils.logging.LOG_LEVEL_ERROR):
             if self._is_stream():  # (only there: a backend left with a parameter it does not take refuses to open)
                 ms = round(1000 * self.STREAM_TIMEOUT_S)
                 cap = cv2.VideoCapture(self.source, cv2.CAP_ANY,
                                        [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, ms, cv2.CAP_PROP_READ_TIMEOUT_MSEC, ms])
             else:
                 cap = cv2.VideoCapture(self.source)
-        finally:
-            cv2.utils.logging.setLogLevel(quiet)
         if not cap.isOpened():
             cap.release()
             waited = time.monotonic() - t0 >= 0.9 * self.STREAM_TIMEOUT_S

@@ -3,7 +3,7 @@
 Every drive is a CiA 402 device with the same communication objects and the static PDO
 mapping described in `drivers.codec`; the gripper adds a grip-force limit (0x2100). Each
 node's EDS has as DefaultValues what that node holds at power-on and after the NMT resets:
-the values the cell file sets (`drivers.simdrive.power_on_values`; the shipped files are
+the values the cell file sets (`drivers.sim_objects.power_on_values`; the shipped files are
 the shipped cell's, `drivers.sim.node_eds_paths` writes others for another cell).
 `python -m drivers.eds` rewrites the shipped files; a test checks they match.
 """
@@ -132,7 +132,7 @@ def _objects(gripper: bool) -> list[tuple]:
         var(0x6040, "Controlword", U16, "rw", "0", 1),
         var(0x6041, "Statusword", U16, "ro", "0", 1),
         # how the drive stops on leaving OPERATION ENABLED (CiA 402; the values the simulated
-        # drives honour are in drivers.simdrive.OPTION_CODES, any other is refused)
+        # drives honour are in drivers.sim_state_machine.OPTION_CODES, any other is refused)
         var(0x605A, "Quick stop option code", I16, "rw", "6"),
         var(0x605B, "Shutdown option code", I16, "rw", "0"),
         var(0x605C, "Disable operation option code", I16, "rw", "1"),

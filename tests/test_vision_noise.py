@@ -14,7 +14,8 @@ from scipy.optimize import brentq
 from scipy.stats import norm
 
 from cell.vision import read_image, segment_frame
-from cell.vision.segment import RAYLEIGH_Q1, _colour_change, _noise_spreads, _texture_gradient, smoothed_copies
+from cell.vision.detection import smoothed_copies
+from cell.vision.segment import RAYLEIGH_Q1, _colour_change, _noise_spreads, _texture_gradient
 
 GREY = (1 / 3, 1 / 3, 1 / 3)
 CELL_TRAY = (140 / 345, 115 / 345, 90 / 345)  # the simulated camera's blue tray (BGR 140, 115, 90)

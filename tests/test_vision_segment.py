@@ -494,7 +494,7 @@ def test_fit_copy_of_whole_numbers_equals_the_area_resize_of_the_float_image():
 
 
 def test_blur_in_the_helper_thread_gives_the_same_segments(layout_frame, monkeypatch):
-    from cell.vision import segment as seg_mod
+    from cell.vision import detection
 
     threaded = segment_frame(layout_frame, PARAMS)
 
@@ -503,7 +503,7 @@ def test_blur_in_the_helper_thread_gives_the_same_segments(layout_frame, monkeyp
             result = fn(*args)
             return type("Done", (), {"result": lambda self: result})()
 
-    monkeypatch.setattr(seg_mod, "_helper", Inline)
+    monkeypatch.setattr(detection, "_helper", Inline)
     inline = segment_frame(layout_frame, PARAMS)
     assert len(threaded) == len(inline) == len(LAYOUT)
     for a, b in zip(threaded, inline, strict=True):

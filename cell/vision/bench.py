@@ -17,8 +17,9 @@ import shapely
 from shapely.geometry import Polygon
 
 from calibration import Calibration, load_calibration
+from cell.vision.detection import detection_scale
 from cell.vision.sample_parts import random_layout, random_layout_of
-from cell.vision.segment import SegmentParams, detection_scale, segment_frame, segment_to_mm
+from cell.vision.segment import SegmentParams, segment_frame, segment_to_mm
 from cell.vision.simcamera import SimCamera, SimCameraOptions, densify
 
 MATCH_SHARE = 0.6  # of a segment's area on a part's silhouette (2 px margin) for the two to match

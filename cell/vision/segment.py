@@ -21,25 +21,29 @@ Pixel coordinates are CONTRACT-frame (origin at the top-left pixel's top-left co
 from __future__ import annotations
 
 import math
-import os
-from concurrent.futures import Future
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
-from typing import NamedTuple
 
 import cv2
 import numpy as np
 
 from calibration.default import CAMERA_MM, FOCAL_PX, HEIGHT_PX, WIDTH_PX
-from cell.errors import BadInput
-from cell.vision.background import field_at, fit_copy_of_whole_dn, fit_tray_field, reference_background
+from cell.vision.background import fit_copy_of_whole_dn
+from cell.vision.detection import (
+    Detection,
+    as_bgr,
+    detection_copies,
+    field_tray,
+    fitted_field,
+    reference_tray,
+    smoothed_copies,
+)
 from cell.vision.holes import SUM_PLUS_1, hole_grazed, hole_holds, holes_fine, tray_dips
 from cell.vision.outside import split_outside
 from cell.vision.rings import ring_area_centroid, signed_area, tidy_rings
 from cell.vision.subpixel import MIN_EDGE_SHARE, edge_share, refine_rings
 from cell.vision.touching import pick
 
-SMALL_FRAME_PX = 960
 WALL_FACING_COS = 0.3
 EDGE_BAND_PX = 1  # a shadow-like region meets the tray across up to this many sharp pixels beyond the 5 x 5
 # neighbourhood of its border (a blurred step's band of sharp pixels, docs/vision.md step 3)
@@ -218,13 +222,13 @@ def segment_frame(frame_bgr: np.ndarray, params: SegmentParams | None = None, *,
     reference_bgr : ndarray of shape (h, w, 3), optional
         The empty tray under the same lighting; without it the tray is estimated.
     """
-    frame = _as_bgr(frame_bgr)
+    frame = as_bgr(frame_bgr)
     gain = exposure_gain(frame)
     if gain == 1.0:
         return _segment_frame(frame, params, reference_bgr)
     # an underexposed frame (low light): its DN-sized steps (the tray colour's histogram bins and
     # ball, the edges' contrast) are brought to a normal exposure's; ratios and chroma are unchanged
-    ref = None if reference_bgr is None else _gained(_as_bgr(reference_bgr), gain)
+    ref = None if reference_bgr is None else _gained(as_bgr(reference_bgr), gain)
     segs = _segment_frame(_gained(frame, gain), params, ref)
     for s in [*segs, *segs.outside_tray]:
         s.mean_bgr = tuple(float(v) / gain for v in s.mean_bgr)  # the frame's own colours
@@ -255,7 +259,7 @@ def _gained(img: np.ndarray, gain: float) -> np.ndarray:
 def _segment_frame(frame: np.ndarray, params: SegmentParams | None, reference_bgr: np.ndarray | None
                    ) -> SegmentList:
     p = (params or SegmentParams()).for_frame(frame.shape)
-    d = _detection_copies(frame, p)
+    d = detection_copies(frame, p)
     segs = _segments_of(frame, p, d, reference_bgr)
     if not p.drop_outside_tray:
         return SegmentList(segs)
@@ -266,14 +270,14 @@ def _segment_frame(frame: np.ndarray, params: SegmentParams | None, reference_bg
     return SegmentList(on_tray, outside)
 
 
-def _segments_of(frame: np.ndarray, p: SegmentParams, d: _Detection, reference_bgr: np.ndarray | None
+def _segments_of(frame: np.ndarray, p: SegmentParams, d: Detection, reference_bgr: np.ndarray | None
                  ) -> list[Segment]:
     """Every region of the frame, the surround of the tray included: the tray's colour from the
     reference image or fitted, and for a frame whose tray looks taken for a part the other readings."""
     if reference_bgr is not None:
-        return _segment(frame, p, d, *_reference_tray(reference_bgr, frame, d))
-    tray_field = _fitted_field(d, p.tray)
-    segs = _segment(frame, p, d, *_field_tray(tray_field, d))
+        return _segment(frame, p, d, *reference_tray(reference_bgr, frame, d))
+    tray_field = fitted_field(d, p.tray)
+    segs = _segment(frame, p, d, *field_tray(tray_field, d))
     if p.tray == "auto" and _panel_taken_for_a_part(segs, frame.shape, tray_field, p):
         # the lit panel cut by the border so that it holds no part as a hole (each part it holds is
         # cut by the border too, a notch in its outline): no hole areas to compare (pca_test1.jpg with
@@ -281,7 +285,7 @@ def _segments_of(frame: np.ndarray, p: SegmentParams, d: _Detection, reference_b
         # taken when no region holds others as holes, step 6 leaves out the dark side (the first
         # reading's tray, a quarter of the view at least) as the surround and keeps no region over
         # TRAY_TAKEN_SHARE: it explains the frame as parts on a panel in a dark surround
-        seg_other = _segment(frame, p, d, *_field_tray(_fitted_field(d, "bright"), d))
+        seg_other = _segment(frame, p, d, *field_tray(fitted_field(d, "bright"), d))
         if not _holds_parts(seg_other, frame.shape) and _panel_in_surround(seg_other, frame.shape, p, d):
             return seg_other
         return segs
@@ -294,10 +298,10 @@ def _segments_of(frame: np.ndarray, p: SegmentParams, d: _Detection, reference_b
         # photograph's contrast inverted): the bright side is the surround, the tray taken already;
         # the panel's own colour, looked for in the region taken for a part, is the other reading
         seed = _region_seed(segs, frame.shape, d)
-        fields = [_fitted_field(d, "bright")]
+        fields = [fitted_field(d, "bright")]
         first_hole_share = _border_hole_share(segs, frame.shape)
         if first_hole_share >= PARTS_AS_HOLES_SHARE:
-            fields.append(_fitted_field(d, "auto", seed))
+            fields.append(fitted_field(d, "auto", seed))
         best, tried = segs, [tray_field]
         for other in fields:
             # the tray model only chooses the field: where a field is one fitted already (the Festo
@@ -307,7 +311,7 @@ def _segments_of(frame: np.ndarray, p: SegmentParams, d: _Detection, reference_b
             if any(np.array_equal(other, f) or _same_on(other, f, seed) for f in tried):
                 continue
             tried.append(other)
-            seg_other = _segment(frame, p, d, *_field_tray(other, d))
+            seg_other = _segment(frame, p, d, *field_tray(other, d))
             # and it must leave less in the holes of a large region cut by the border (the parts seen
             # as holes of the tray taken for a part): the Festo frames' table as the tray makes the
             # paper with the parts on it such a region, 8 - 11 % holes against 1 - 5 % the first time.
@@ -367,7 +371,7 @@ def _border_sides(ring: np.ndarray, shape, margin_px: float = 2.0) -> int:
         v.max() > h - margin_px)
 
 
-def _panel_in_surround(segs: list[Segment], shape, p: SegmentParams, d: _Detection) -> bool:
+def _panel_in_surround(segs: list[Segment], shape, p: SegmentParams, d: Detection) -> bool:
     """True when step 6 (outside.py) leaves out regions over TRAY_TAKEN_SHARE of the frame in all (the
     dark side, the first reading's tray, as the panel's surround) and keeps none that large on the tray."""
     on_tray, out = split_outside(segs, d.det.shape[:2], d.scale, p.min_area_px, max(p.refine_range_px, 2.0 * p.scale))
@@ -398,7 +402,7 @@ def _border_hole_share(segs: list[Segment], shape) -> float:
     return share
 
 
-def _region_seed(segs: list[Segment], shape, d: _Detection) -> np.ndarray:
+def _region_seed(segs: list[Segment], shape, d: Detection) -> np.ndarray:
     """The regions `_tray_taken_for_a_part` names (cut by the border, holes, TRAY_TAKEN_SHARE of the
     frame), their holes left out, drawn on the tray fit's small copy of the frame (sh, sw) uint8."""
     frame_px = shape[0] * shape[1]
@@ -435,61 +439,7 @@ def _whole_parts(segs: list[Segment]) -> int:
     return sum(not s.cut_off for s in segs)
 
 
-class _Detection(NamedTuple):
-    """A frame's detection copies: the same whatever the tray is taken to be."""
-
-    scale: int  # the detection runs at 1 / scale
-    det_u8: np.ndarray  # (h // scale, w // scale, 3) uint8
-    det: np.ndarray  # ... float32
-    smoothed: Future  # of `smoothed_copies(det)`
-
-
-def detection_scale(frame_shape, p: SegmentParams) -> int:
-    """1 / the resolution a frame of `frame_shape` is detected at with `p` (its sizes set: `for_frame`)."""
-    s = max(1, int(p.scale)) if frame_shape[1] >= SMALL_FRAME_PX else 1  # small frames: at full resolution
-    # a strip of a frame (3 x 5000 px) keeps a few detection pixels across (it was reduced to none)
-    return max(1, min(s, min(frame_shape[:2]) // MIN_DETECTION_PX))
-
-
-MIN_DETECTION_PX = 4  # the fewest detection pixels across a frame
-
-
-def _detection_copies(frame: np.ndarray, p: SegmentParams) -> _Detection:
-    h, w = frame.shape[:2]
-    s = detection_scale(frame.shape, p)
-    dw, dh = w // s, h // s
-    # the last w % s columns and h % s rows are left out, so that each detection pixel is s x s
-    # frame pixels exactly (`_to_full`; 4000 px / 6 would stretch by 6.006, 4 px at the far border)
-    det_u8 = cv2.resize(frame[:dh * s, :dw * s], (dw, dh), interpolation=cv2.INTER_AREA) if s > 1 else frame
-    det = det_u8.astype(np.float32)
-    # the blurred copies do not depend on the tray: made in a helper thread while the tray is fitted
-    # (OpenCV releases the GIL; the fit is mostly Python and small numpy calls)
-    return _Detection(s, det_u8, det, _helper().submit(smoothed_copies, det))
-
-
-def _fitted_field(d: _Detection, tray: str, seed: np.ndarray | None = None) -> np.ndarray:
-    """The tray's colour field fitted to the detection copy (`fit_tray_field`), on its small copy."""
-    return fit_tray_field(d.det, tray, fit_copy_of_whole_dn(d.det_u8), seed)[0]
-
-
-def _field_tray(field: np.ndarray, d: _Detection) -> tuple[np.ndarray, np.ndarray]:
-    """The fitted field at detection size and at 1 / COARSE of it."""
-    dh, dw = d.det.shape[:2]
-    # the coarse copy straight from the fitted field, not by averaging the other (the same smooth field)
-    return field_at(field, (dw, dh)), field_at(field, (max(1, dw // COARSE), max(1, dh // COARSE)))
-
-
-def _reference_tray(reference_bgr: np.ndarray, frame: np.ndarray, d: _Detection) -> tuple[np.ndarray, None]:
-    """The empty tray's image at detection size (the coarse copy: averaged from it later)."""
-    ref = _as_bgr(reference_bgr)
-    if ref.shape != frame.shape:
-        raise BadInput(f"the reference image is {ref.shape[1]} x {ref.shape[0]} px, "
-                       f"the frame {frame.shape[1]} x {frame.shape[0]} px")
-    dh, dw = d.det.shape[:2]
-    return reference_background(ref[:dh * d.scale, :dw * d.scale], (dw, dh)), None
-
-
-def _segment(frame: np.ndarray, p: SegmentParams, d: _Detection, bg: np.ndarray, bg_coarse: np.ndarray | None
+def _segment(frame: np.ndarray, p: SegmentParams, d: Detection, bg: np.ndarray, bg_coarse: np.ndarray | None
              ) -> list[Segment]:
     """`segment_frame` with the tray's colour `bg` at detection size (and `bg_coarse` at 1 / COARSE
     of it, or None)."""
@@ -519,34 +469,9 @@ def _colour_change(sm: np.ndarray, bg: np.ndarray):
     return r, chroma, chroma * si, (si - sb) / 3.0
 
 
-BLUR_TAPS = 5  # of the detection blur (sigma 0.8 detection px)
-COARSE = 4  # the search for where anything differs from the tray runs at 1 / COARSE of detection
 BOX_MARGIN_PX = 12  # detection px around what differs: room for weak edges, shadows' tails, walls
 COARSE_EVIDENCE = 0.8  # x the weak-evidence thresholds
 BOX_FULL_FRAME = 0.6  # when the boxes cover more of the frame than this, one box for all
-
-
-_HELPER: list = []
-os.register_at_fork(after_in_child=_HELPER.clear)  # a forked child makes its own (threads do not survive a fork)
-
-
-def _helper():
-    """One helper thread for work that overlaps the main thread's (made on first use)."""
-    if not _HELPER:
-        from concurrent.futures import ThreadPoolExecutor
-
-        _HELPER.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="segment"))
-    return _HELPER[0]
-
-
-def smoothed_copies(det: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The detection image blurred (noise), its every 4th pixel (to measure the noise on) and
-    its coarse copy (to find where anything differs from the tray), float32."""
-    # 5 taps: for float32 OpenCV would take 7, whose outer two weigh 0.04 % each (twice the time)
-    sm = cv2.GaussianBlur(det, (BLUR_TAPS, BLUR_TAPS), 0.8)
-    h, w = sm.shape[:2]
-    coarse = cv2.resize(sm, (max(1, w // COARSE), max(1, h // COARSE)), interpolation=cv2.INTER_AREA)
-    return sm, np.ascontiguousarray(sm[::4, ::4]), coarse
 
 
 def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int, smoothed=None,
@@ -1009,20 +934,6 @@ def _to_full(c: np.ndarray, scale: int) -> np.ndarray:
     return (c.astype(float) + 0.5) * scale
 
 
-def _as_bgr(img: np.ndarray) -> np.ndarray:
-    if not isinstance(img, np.ndarray) or img.size == 0:
-        raise BadInput("the frame is empty or not an image")
-    if img.dtype != np.uint8:
-        raise BadInput(f"the frame must be 8-bit, got {img.dtype}")
-    if img.ndim == 2:
-        return cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
-    if img.ndim == 3 and img.shape[2] == 4:
-        return cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
-    if img.ndim == 3 and img.shape[2] == 3:
-        return img
-    raise BadInput(f"the frame must be (h, w, 3) BGR, got shape {img.shape}")
-
-
 def segment_to_mm(seg: Segment, cal, z_mm: float, z_bottom_mm: float | None = None,
                   frame: np.ndarray | None = None, params: SegmentParams | None = None):
     """Map a segment to the base frame on the plane of the part's top.
@@ -1045,7 +956,7 @@ def segment_to_mm(seg: Segment, cal, z_mm: float, z_bottom_mm: float | None = No
     """
     if z_bottom_mm is None or abs(z_bottom_mm - z_mm) < 1e-9:
         return cal.px_to_mm(seg.outline_px, z_mm), [cal.px_to_mm(hh, z_mm) for hh in seg.holes_px]
-    img = None if frame is None else _as_bgr(frame)
+    img = None if frame is None else as_bgr(frame)
     if img is not None and not seg.cut_off and cal.has_pose:
         from cell.vision.topface import top_face_px
 

@@ -22,7 +22,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
-# (segment.py imports this module lazily)
+# (walls.py imports this module lazily)
 from cell.vision.rings import signed_area
 from cell.vision.segment import calibration_size_factor
 from cell.vision.subpixel import refine_rings

@@ -176,6 +176,7 @@ def test_a_second_pass_with_the_field_of_the_first_is_not_run_and_would_give_the
 
     from cell.vision import segment as seg_mod
     from cell.vision.detection import detection_copies, field_tray, fitted_field
+    from cell.vision.tray_checks import tray_taken_for_a_part
 
     frame = read_image(FESTO / "aruco_img.png")
     p = SegmentParams().for_frame(frame.shape)
@@ -183,7 +184,7 @@ def test_a_second_pass_with_the_field_of_the_first_is_not_run_and_would_give_the
     first, lit = fitted_field(d, "auto"), fitted_field(d, "bright")
     assert np.array_equal(first, lit)
     segs = seg_mod._segment(frame, p, d, *field_tray(first, d))
-    assert seg_mod._tray_taken_for_a_part(segs, frame.shape)  # the second pass is asked for
+    assert tray_taken_for_a_part(segs, frame.shape)  # the second pass is asked for
     again = seg_mod._segment(frame, replace(p, tray="bright"), d, *field_tray(lit, d))
     # (the pass's regions, before those outside the tray are left out: a sliver of the robot's base at
     # the top border, outside the paper)

@@ -28,7 +28,6 @@ import cv2
 import numpy as np
 
 from calibration.default import CAMERA_MM, FOCAL_PX, HEIGHT_PX, WIDTH_PX
-from cell.vision.background import fit_copy_of_whole_dn
 from cell.vision.detection import (
     Detection,
     as_bgr,
@@ -40,9 +39,21 @@ from cell.vision.detection import (
 )
 from cell.vision.holes import SUM_PLUS_1, hole_grazed, hole_holds, holes_fine, tray_dips
 from cell.vision.outside import split_outside
-from cell.vision.rings import ring_area_centroid, signed_area, tidy_rings
+from cell.vision.rings import ring_area_centroid, tidy_rings
 from cell.vision.subpixel import MIN_EDGE_SHARE, edge_share, refine_rings
 from cell.vision.touching import pick
+from cell.vision.tray_checks import (
+    PARTS_AS_HOLES_SHARE,
+    border_hole_share,
+    holds_parts,
+    panel_in_surround,
+    panel_taken_for_a_part,
+    region_seed,
+    regions_besides,
+    same_on,
+    tray_taken_for_a_part,
+    whole_parts,
+)
 from cell.vision.walls import segment_to_mm as segment_to_mm  # (the entry point's: cell.vision imports it from here)
 
 WALL_FACING_COS = 0.3
@@ -279,7 +290,7 @@ def _segments_of(frame: np.ndarray, p: SegmentParams, d: Detection, reference_bg
         return _segment(frame, p, d, *reference_tray(reference_bgr, frame, d))
     tray_field = fitted_field(d, p.tray)
     segs = _segment(frame, p, d, *field_tray(tray_field, d))
-    if p.tray == "auto" and _panel_taken_for_a_part(segs, frame.shape, tray_field, p):
+    if p.tray == "auto" and panel_taken_for_a_part(segs, frame.shape, tray_field, p):
         # the lit panel cut by the border so that it holds no part as a hole (each part it holds is
         # cut by the border too, a notch in its outline): no hole areas to compare (pca_test1.jpg with
         # its left 280 px cut away: the panel as a 115,356 px part). The bright side as the tray is
@@ -287,10 +298,10 @@ def _segments_of(frame: np.ndarray, p: SegmentParams, d: Detection, reference_bg
         # reading's tray, a quarter of the view at least) as the surround and keeps no region over
         # TRAY_TAKEN_SHARE: it explains the frame as parts on a panel in a dark surround
         seg_other = _segment(frame, p, d, *field_tray(fitted_field(d, "bright"), d))
-        if not _holds_parts(seg_other, frame.shape) and _panel_in_surround(seg_other, frame.shape, p, d):
+        if not holds_parts(seg_other, frame.shape) and panel_in_surround(seg_other, frame.shape, p, d):
             return seg_other
         return segs
-    if p.tray == "auto" and _tray_taken_for_a_part(segs, frame.shape):
+    if p.tray == "auto" and tray_taken_for_a_part(segs, frame.shape):
         # a back-lit panel in a dark surround: the dark side outnumbered the panel, so the panel came
         # out as one part cut by the border with the parts as its holes; the panel as the tray
         # shows more whole parts (and costs a second pass only on such frames). Counted, not
@@ -298,9 +309,9 @@ def _segments_of(frame: np.ndarray, p: SegmentParams, d: Detection, reference_bg
         # The same with the panel dark and the surround light (light parts on a dark panel, or the
         # photograph's contrast inverted): the bright side is the surround, the tray taken already;
         # the panel's own colour, looked for in the region taken for a part, is the other reading
-        seed = _region_seed(segs, frame.shape, d)
+        seed = region_seed(segs, frame.shape, d)
         fields = [fitted_field(d, "bright")]
-        first_hole_share = _border_hole_share(segs, frame.shape)
+        first_hole_share = border_hole_share(segs, frame.shape)
         if first_hole_share >= PARTS_AS_HOLES_SHARE:
             fields.append(fitted_field(d, "auto", seed))
         best, tried = segs, [tray_field]
@@ -309,7 +320,7 @@ def _segments_of(frame: np.ndarray, p: SegmentParams, d: Detection, reference_bg
             # frames: their tray is the bright side), so are the segments; a field that agrees with
             # one tried on the region in question (the lit panel of pca_test1.jpg, fitted from the
             # bright side and from the region) reads the frame alike: not run again
-            if any(np.array_equal(other, f) or _same_on(other, f, seed) for f in tried):
+            if any(np.array_equal(other, f) or same_on(other, f, seed) for f in tried):
                 continue
             tried.append(other)
             seg_other = _segment(frame, p, d, *field_tray(other, d))
@@ -324,120 +335,13 @@ def _segments_of(frame: np.ndarray, p: SegmentParams, d: Detection, reference_bg
             # against 7). A dark tray beside a lighter table, the table taken for the tray, still has
             # such a region (the tray, its parts as holes) and stays refused; a reading that finds
             # little (no holes, but fewer regions: the Festo frames inverted) too
-            if (_border_hole_share(seg_other, frame.shape) < first_hole_share
-                    and (_whole_parts(seg_other) > _whole_parts(best)
-                         or (not _holds_parts(seg_other, frame.shape)
-                             and _regions_besides(seg_other, frame.shape) > _regions_besides(best, frame.shape)))):
+            if (border_hole_share(seg_other, frame.shape) < first_hole_share
+                    and (whole_parts(seg_other) > whole_parts(best)
+                         or (not holds_parts(seg_other, frame.shape)
+                             and regions_besides(seg_other, frame.shape) > regions_besides(best, frame.shape)))):
                 best = seg_other
         return best
     return segs
-
-
-TRAY_TAKEN_SHARE = 0.25  # a region cut by the border and this large a share of the frame may be the tray
-# ... and the parts its holes when they are this share of it: then the region's own colour is tried as
-# the tray's (pca_test1.jpg's panel, bright or dark: 0.46; the Festo frames' table: 0.01 - 0.05)
-PARTS_AS_HOLES_SHARE = 0.15
-
-
-def _tray_taken_for_a_part(segs: list[Segment], shape) -> bool:
-    """True when a region touching the border covers TRAY_TAKEN_SHARE of the frame and holds holes."""
-    return any(s.cut_off and _large_with_holes(s, shape) for s in segs)
-
-
-def _large_with_holes(s: Segment, shape) -> bool:
-    """A region over TRAY_TAKEN_SHARE of the frame that holds holes: the tray (or a panel) taken for a part,
-    with the parts as its holes."""
-    return bool(s.holes_px) and s.area_px > TRAY_TAKEN_SHARE * shape[0] * shape[1]
-
-
-def _panel_taken_for_a_part(segs: list[Segment], shape, tray_field: np.ndarray, p: SegmentParams) -> bool:
-    """True when no region is of the kind `_tray_taken_for_a_part` looks for but one cut by the border on
-    at least two sides of the frame, over TRAY_TAKEN_SHARE of it and without holes, is brighter than the
-    tray by `brighter_min` (its mean brightness against the tray field's mean): a back-lit panel whose
-    dark surround was taken for the tray, cut by the border through every part it holds."""
-    if _tray_taken_for_a_part(segs, shape):
-        return False
-    frame_px = shape[0] * shape[1]
-    tray_sum = float(tray_field.reshape(-1, 3).mean(axis=0).sum())
-    return any(s.cut_off and not s.holes_px and s.area_px > TRAY_TAKEN_SHARE * frame_px
-               and _border_sides(s.outline_px, shape) >= 2
-               and sum(s.mean_bgr) > (1.0 + p.brighter_min) * tray_sum for s in segs)
-
-
-def _border_sides(ring: np.ndarray, shape, margin_px: float = 2.0) -> int:
-    """On how many sides of the frame `ring` (CONTRACT px) comes within `margin_px` of the border."""
-    h, w = shape[:2]
-    u, v = ring[:, 0], ring[:, 1]
-    return int(u.min() < margin_px) + int(u.max() > w - margin_px) + int(v.min() < margin_px) + int(
-        v.max() > h - margin_px)
-
-
-def _panel_in_surround(segs: list[Segment], shape, p: SegmentParams, d: Detection) -> bool:
-    """True when step 6 (outside.py) leaves out regions over TRAY_TAKEN_SHARE of the frame in all (the
-    dark side, the first reading's tray, as the panel's surround) and keeps none that large on the tray."""
-    on_tray, out = split_outside(segs, d.det.shape[:2], d.scale, p.min_area_px, max(p.refine_range_px, 2.0 * p.scale))
-    frame_px = shape[0] * shape[1]
-    return (sum(s.area_px for s in out) > TRAY_TAKEN_SHARE * frame_px
-            and not any(s.area_px > TRAY_TAKEN_SHARE * frame_px for s in on_tray))
-
-
-def _holds_parts(segs: list[Segment], shape) -> bool:
-    """True when a region, cut by the border or not, is `_large_with_holes`."""
-    return any(_large_with_holes(s, shape) for s in segs)
-
-
-def _regions_besides(segs: list[Segment], shape) -> int:
-    """How many regions are not `_large_with_holes`."""
-    return sum(not _large_with_holes(s, shape) for s in segs)
-
-
-def _border_hole_share(segs: list[Segment], shape) -> float:
-    """The largest share of holes (their area over the area inside the outline) among the regions cut
-    by the border that cover TRAY_TAKEN_SHARE of the frame; 0 without such a region."""
-    frame_px = shape[0] * shape[1]
-    share = 0.0
-    for s in segs:
-        if s.cut_off and s.area_px > TRAY_TAKEN_SHARE * frame_px:
-            holes = sum(abs(signed_area(h)) for h in s.holes_px)
-            share = max(share, holes / (s.area_px + holes))
-    return share
-
-
-def _region_seed(segs: list[Segment], shape, d: Detection) -> np.ndarray:
-    """The regions `_tray_taken_for_a_part` names (cut by the border, holes, TRAY_TAKEN_SHARE of the
-    frame), their holes left out, drawn on the tray fit's small copy of the frame (sh, sw) uint8."""
-    frame_px = shape[0] * shape[1]
-    sh, sw = fit_copy_of_whole_dn(d.det_u8).shape[:2]  # (the copy's size; the copy itself is small)
-    fy, fx = sh / shape[0], sw / shape[1]
-    seed = np.zeros((sh, sw), np.uint8)
-    def ring(r: np.ndarray) -> np.ndarray:
-        return np.round(r * (fx, fy) - 0.5).astype(np.int32)
-
-    for s in segs:
-        if s.cut_off and s.holes_px and s.area_px > TRAY_TAKEN_SHARE * frame_px:
-            cv2.fillPoly(seed, [ring(s.outline_px)], 1)
-            cv2.fillPoly(seed, [ring(h) for h in s.holes_px], 0)
-    inner = cv2.erode(seed, np.ones((3, 3), np.uint8))  # away from its edges, where samples mix colours
-    return inner if cv2.countNonZero(inner) else seed
-
-
-SAME_FIELD_DN = 6.0  # two tray fields closer than this (colour distance) on SAME_FIELD_SHARE of a region ...
-SAME_FIELD_SHARE = 0.95  # ... read it alike
-
-
-def _same_on(a: np.ndarray, b: np.ndarray, where: np.ndarray) -> bool:
-    """Whether two fields on the small copy (sh, sw, 3) agree within SAME_FIELD_DN on
-    SAME_FIELD_SHARE of `where` (sh, sw)."""
-    inside = where.astype(bool)
-    if not inside.any():
-        return False
-    dist = np.sqrt(((a[inside] - b[inside]) ** 2).sum(axis=1))
-    return float((dist < SAME_FIELD_DN).mean()) >= SAME_FIELD_SHARE
-
-
-def _whole_parts(segs: list[Segment]) -> int:
-    """How many regions the border does not cut: what a right choice of tray shows more of."""
-    return sum(not s.cut_off for s in segs)
 
 
 def _segment(frame: np.ndarray, p: SegmentParams, d: Detection, bg: np.ndarray, bg_coarse: np.ndarray | None

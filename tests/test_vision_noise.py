@@ -14,8 +14,9 @@ from scipy.optimize import brentq
 from scipy.stats import norm
 
 from cell.vision import read_image, segment_frame
+from cell.vision.colour_change import colour_change, noise_spreads
 from cell.vision.detection import smoothed_copies
-from cell.vision.segment import RAYLEIGH_Q1, _colour_change, _noise_spreads, _texture_gradient
+from cell.vision.segment import RAYLEIGH_Q1, _texture_gradient
 
 GREY = (1 / 3, 1 / 3, 1 / 3)
 CELL_TRAY = (140 / 345, 115 / 345, 90 / 345)  # the simulated camera's blue tray (BGR 140, 115, 90)
@@ -82,7 +83,7 @@ def test_the_spreads_measured_on_a_flat_frame_against_the_known_sd_of_its_noise(
     det, tray = noisy_flat(tray_bgr, sd, int(sd))
     _, sparse, _ = smoothed_copies(det)  # what the spreads are measured on (every 4th blurred pixel)
     bg = np.ascontiguousarray(tray[::4, ::4])
-    noise_c, noise_b = _noise_spreads(*_colour_change(sparse, bg)[2:])
+    noise_c, noise_b = noise_spreads(*colour_change(sparse, bg)[2:])
     blurred_sd = float((sparse - bg).std())  # the noise as detection sees it (the blur lowers it)
     assert noise_b == pytest.approx(blurred_sd / np.sqrt(3), rel=0.05)
     assert noise_c == pytest.approx(READ_AS * blurred_sd, rel=0.05)

@@ -311,12 +311,12 @@ def test_regions_labelled_per_group_of_boxes_equal_the_whole_frame_labelling():
 
 def test_quartile_and_median_by_partial_sort_equal_numpy():
     from cell.vision.background import _box3, _median
-    from cell.vision.segment import _quartile1
+    from cell.vision.colour_change import quartile1
 
     rng = np.random.default_rng(0)
     for size in (1, 2, 7, 20480, 20481):
         a = rng.normal(size=size).astype(np.float32)
-        assert _quartile1(a) == pytest.approx(float(np.percentile(a, 25)), rel=1e-6, abs=1e-7)
+        assert quartile1(a) == pytest.approx(float(np.percentile(a, 25)), rel=1e-6, abs=1e-7)
         b = rng.normal(size=size)
         assert _median(b) == float(np.median(b))
     from scipy import ndimage

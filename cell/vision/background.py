@@ -167,7 +167,7 @@ def fit_tray_field(image_bgr: np.ndarray, tray: str = "auto", small_bgr: np.ndar
             limit = max(3.0 * min(sigma, sigma2), 6.0)
             rough = sigma > max(ROUGH_TRAY * sigma2, ROUGH_MIN_DN)
             # a field explaining under a quarter of the view is no tray whether rough or smooth: the
-            # noise is measured on the view's quietest quarter, taken for the tray (segment.py), and
+            # noise is measured on the view's quietest quarter, taken for the tray (colour_change.py), and
             # the frame comes out empty (the black squares of a ChArUco board on paper, 11 %)
             if (rough or share < TRAY_QUARTER) and (res2 < limit).sum() > (res < limit).sum():
                 coef, sigma = coef2, sigma2

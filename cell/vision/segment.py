@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from calibration.default import CAMERA_MM, FOCAL_PX, HEIGHT_PX, WIDTH_PX
+from cell.vision.colour_change import colour_change, evidence, noise_spreads, quartile1
 from cell.vision.detection import (
     Detection,
     as_bgr,
@@ -37,7 +38,7 @@ from cell.vision.detection import (
     reference_tray,
     smoothed_copies,
 )
-from cell.vision.holes import SUM_PLUS_1, hole_grazed, hole_holds, holes_fine, tray_dips
+from cell.vision.holes import hole_grazed, hole_holds, holes_fine, tray_dips
 from cell.vision.outside import split_outside
 from cell.vision.rings import ring_area_centroid, tidy_rings
 from cell.vision.subpixel import MIN_EDGE_SHARE, edge_share, refine_rings
@@ -357,23 +358,6 @@ def _segment(frame: np.ndarray, p: SegmentParams, d: Detection, bg: np.ndarray, 
     return segs
 
 
-def _colour_change(sm: np.ndarray, bg: np.ndarray):
-    """Per pixel: brightness ratio r, chroma change (L1 of normalised colour), both in DN too."""
-    si = cv2.transform(sm, SUM_PLUS_1)
-    sb = cv2.transform(bg, SUM_PLUS_1)
-    r = si / sb
-    db = sm[:, :, 0] / si  # (channel views: no copies; then in place: fewer passes and allocations)
-    db -= bg[:, :, 0] / sb
-    dg = sm[:, :, 1] / si
-    dg -= bg[:, :, 1] / sb
-    dr = np.abs(db + dg)  # |b + g| = |r| of the normalised colour change (it sums to 0)
-    chroma = np.abs(db)  # the L1 over b, g, r, summed in the order |b| + |g| + |r|
-    chroma += np.abs(dg)
-    chroma += dr
-    # the same changes in DN, to be compared with the frame's noise (dark trays have noisy chroma)
-    return r, chroma, chroma * si, (si - sb) / 3.0
-
-
 BOX_MARGIN_PX = 12  # detection px around what differs: room for weak edges, shadows' tails, walls
 COARSE_EVIDENCE = 0.8  # x the weak-evidence thresholds
 BOX_FULL_FRAME = 0.6  # when the boxes cover more of the frame than this, one box for all
@@ -388,8 +372,8 @@ def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int, smo
     sm, sparse, coarse = smoothed or smoothed_copies(det)
     # spread from the quietest quarter of the frame (the tray), valid while the tray covers a
     # quarter of the view: the 25th percentile of |N(0, s)| is 0.32 s
-    _, _, chroma_dn, bright_dn = _colour_change(sparse, np.ascontiguousarray(bg[::4, ::4]))
-    noise_c, noise_b = _noise_spreads(chroma_dn, bright_dn)
+    _, _, chroma_dn, bright_dn = colour_change(sparse, np.ascontiguousarray(bg[::4, ::4]))
+    noise_c, noise_b = noise_spreads(chroma_dn, bright_dn)
     bounds_sq = _edge_bounds_sq(p, scale, _texture_gradient(sm, bg))
     h, w = det.shape[:2]
     mask = np.zeros((h, w), np.uint8)
@@ -452,45 +436,7 @@ def _texture_gradient(sm: np.ndarray, bg: np.ndarray) -> float:
     gy = (rsum(sm, 2, 1) - rsum(sm, 0, 1)) / sb
     g2 = gx * gx
     g2 += gy * gy
-    return float(np.sqrt(_quartile1(g2))) / RAYLEIGH_Q1
-
-
-def _noise_spreads(chroma_dn: np.ndarray, bright_dn: np.ndarray) -> tuple[float, float]:
-    """Noise spreads (DN) of chroma and brightness from their 25th percentiles: the quietest
-    quarter is the tray, and the 25th percentile of |N(0, s)| is 0.32 s.
-
-    Right for the brightness (a channel mean: its spread is the channels' sd / sqrt(3)). The chroma
-    change is an L1 over three channels, whose 25th percentile is 1.18 x the channels' sd, so this
-    reads 3.7 x that sd (tests/test_vision_noise.py). Kept: read right (and the bound matched to the
-    brightness's tail, 8.5 sd), the rendered frames keep all their parts under noise, but on the
-    photographs shadows' colour casts, JPEG chroma bled round dark objects and surround touching
-    parts pass as parts (docs/vision.md, Limits)."""
-    return _quartile1(chroma_dn) / 0.32 + 1e-3, _quartile1(np.abs(bright_dn)) / 0.32 + 1e-3
-
-
-def _quartile1(a: np.ndarray) -> float:
-    """np.percentile(a, 25) (linear interpolation) by one partial sort, without its overhead."""
-    flat = a.ravel()
-    idx = 0.25 * (flat.size - 1)
-    lo = int(idx)
-    part = np.partition(flat, lo)  # (one kth: numpy's multi-kth partition is ten times slower)
-    nxt = part[lo + 1:].min() if lo + 1 < flat.size else part[lo]
-    return float(part[lo] + (nxt - part[lo]) * (idx - lo))
-
-
-def _evidence(r, chroma, chroma_dn, bright_dn, p: SegmentParams, f: float, noise_c: float, noise_b: float):
-    """Pixels that changed their chroma, or are brighter, or darker than any shadow makes the
-    tray, by f x the thresholds, each change standing f x noise_k noise spreads above the tray's."""
-    k = f * p.noise_k
-    out = chroma > f * p.chroma_min  # (in place: fewer passes over the box)
-    out &= chroma_dn > k * noise_c
-    brighter = r > 1.0 + f * p.brighter_min
-    brighter &= bright_dn > k * noise_b
-    out |= brighter
-    dark = r < 1.0 - p.darker_min
-    dark &= bright_dn < -(k * noise_b)
-    out |= dark
-    return out
+    return float(np.sqrt(quartile1(g2))) / RAYLEIGH_Q1
 
 
 def _work_boxes(coarse, bg_coarse, p: SegmentParams, det_hw: tuple[int, int]) -> list[tuple[int, int, int, int]]:
@@ -501,10 +447,10 @@ def _work_boxes(coarse, bg_coarse, p: SegmentParams, det_hw: tuple[int, int]) ->
     1 / COARSE size; `det_hw` the detection image's size."""
     h, w = det_hw
     ch, cw = coarse.shape[:2]
-    r, chroma, chroma_dn, bright_dn = _colour_change(coarse, bg_coarse)
+    r, chroma, chroma_dn, bright_dn = colour_change(coarse, bg_coarse)
     # the coarse copy's own noise (averaging lowers it), measured like the frame's
-    noise_c, noise_b = _noise_spreads(chroma_dn, bright_dn)
-    changed = (_evidence(r, chroma, chroma_dn, bright_dn, p, COARSE_EVIDENCE * p.hysteresis, noise_c, noise_b)
+    noise_c, noise_b = noise_spreads(chroma_dn, bright_dn)
+    changed = (evidence(r, chroma, chroma_dn, bright_dn, p, COARSE_EVIDENCE * p.hysteresis, noise_c, noise_b)
                | (r < 1.0 - COARSE_EVIDENCE * p.brighter_min))
     n, lab = cv2.connectedComponents(changed.view(np.uint8), connectivity=8)
     if n <= 1:
@@ -537,11 +483,11 @@ def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: 
                  det_hw=None):
     """Part mask (uint8 0/1) in one box (steps 2 and 3). `bounds_sq`: the squared gradients of r above
     which an edge is sharp, around any shadow-like region and around one no part is near (`_edge_bounds_sq`)."""
-    r, chroma, chroma_dn, bright_dn = _colour_change(sm, bg)
-    strong = _evidence(r, chroma, chroma_dn, bright_dn, p, 1.0, noise_c, noise_b)
+    r, chroma, chroma_dn, bright_dn = colour_change(sm, bg)
+    strong = evidence(r, chroma, chroma_dn, bright_dn, p, 1.0, noise_c, noise_b)
     if p.hysteresis < 1.0:  # weaker evidence counts where it is connected to strong evidence,
         # but not in shadow (a shadow next to a part mixes with the part's colour at its edge)
-        weak = (_evidence(r, chroma, chroma_dn, bright_dn, p, p.hysteresis, noise_c, noise_b)
+        weak = (evidence(r, chroma, chroma_dn, bright_dn, p, p.hysteresis, noise_c, noise_b)
                 & ~(r < 1.0 - p.brighter_min)) | strong
         n, lab = cv2.connectedComponents(weak.view(np.uint8), connectivity=8)
         seeded = np.zeros(n, bool)

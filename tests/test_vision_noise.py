@@ -16,7 +16,7 @@ from scipy.stats import norm
 from cell.vision import read_image, segment_frame
 from cell.vision.colour_change import colour_change, noise_spreads
 from cell.vision.detection import smoothed_copies
-from cell.vision.segment import RAYLEIGH_Q1, _texture_gradient
+from cell.vision.sharp_edges import RAYLEIGH_Q1, texture_gradient
 
 GREY = (1 / 3, 1 / 3, 1 / 3)
 CELL_TRAY = (140 / 345, 115 / 345, 90 / 345)  # the simulated camera's blue tray (BGR 140, 115, 90)
@@ -99,7 +99,7 @@ def test_the_tray_grain_measured_on_a_flat_frame_is_the_sd_of_its_gradient(sd):
     gx = (s[1:-1, 2:] - s[1:-1, :-2]) / 2
     gy = (s[2:, 1:-1] - s[:-2, 1:-1]) / 2
     assert RAYLEIGH_Q1 == pytest.approx(np.sqrt(-2 * np.log(0.75)), abs=1e-4)
-    assert _texture_gradient(sm, tray) == pytest.approx(float(np.hypot(gx.std(), gy.std()) / np.sqrt(2)), rel=0.06)
+    assert texture_gradient(sm, tray) == pytest.approx(float(np.hypot(gx.std(), gy.std()) / np.sqrt(2)), rel=0.06)
 
 
 STUFF = EXTERNAL / "opencv-objects" / "stuff.jpg"

@@ -426,7 +426,7 @@ def test_nearest_crossing_by_its_order_equals_the_least_distance():
 
 
 def test_sharp_edges_by_the_squared_gradient_equal_the_gradient_test():
-    from cell.vision.segment import _sharp_bound_sq
+    from cell.vision.sharp_edges import _sharp_bound_sq
 
     rng = np.random.default_rng(6)
     for edge, scale in ((0.06, 2), (0.06, 1), (0.06, 3), (0.1, 5)):

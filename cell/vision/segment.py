@@ -22,13 +22,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from functools import lru_cache
 
 import cv2
 import numpy as np
 
 from calibration.default import CAMERA_MM, FOCAL_PX, HEIGHT_PX, WIDTH_PX
-from cell.vision.colour_change import colour_change, evidence, noise_spreads, quartile1
+from cell.vision.colour_change import colour_change, evidence, noise_spreads
 from cell.vision.detection import (
     Detection,
     as_bgr,
@@ -41,6 +40,7 @@ from cell.vision.detection import (
 from cell.vision.holes import hole_grazed, hole_holds, holes_fine, tray_dips
 from cell.vision.outside import split_outside
 from cell.vision.rings import ring_area_centroid, tidy_rings
+from cell.vision.sharp_edges import edge_bounds_sq, gradient_sq, texture_gradient
 from cell.vision.subpixel import MIN_EDGE_SHARE, edge_share, refine_rings
 from cell.vision.touching import pick
 from cell.vision.tray_checks import (
@@ -374,7 +374,7 @@ def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int, smo
     # quarter of the view: the 25th percentile of |N(0, s)| is 0.32 s
     _, _, chroma_dn, bright_dn = colour_change(sparse, np.ascontiguousarray(bg[::4, ::4]))
     noise_c, noise_b = noise_spreads(chroma_dn, bright_dn)
-    bounds_sq = _edge_bounds_sq(p, scale, _texture_gradient(sm, bg))
+    bounds_sq = edge_bounds_sq(p, scale, texture_gradient(sm, bg))
     h, w = det.shape[:2]
     mask = np.zeros((h, w), np.uint8)
     if bg_coarse is None:
@@ -384,59 +384,6 @@ def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int, smo
         mask[y0:y1, x0:x1] = _mask_in_box(sm[y0:y1, x0:x1], bg[y0:y1, x0:x1], p, scale, noise_c, noise_b,
                                           bounds_sq, (x0, y0), (h, w))
     return mask, boxes
-
-
-def _edge_bounds_sq(p: SegmentParams, scale: int, texture: float) -> tuple[np.float32, np.float32]:
-    """The squared gradients of r (per detection px, float32) above which an edge is sharp: around any
-    shadow-like region (`sharp_edge` per full-resolution px) and around one no part is near (`crisp_edge` per
-    detection px, not above the first), each raised to `noise_k` x the tray's grain where that is higher (a
-    cloth's own grain makes sharp edges).
-
-    Why two: at 1 / scale the detection's own blur spreads every crisp edge over about a detection pixel,
-    whatever the scale, so a crisp step of contrast c reads 0.31 - 0.36 c per detection px at 1 / 1 to 1 / 4;
-    per full-resolution px that is c / scale of it. The sharp edge asks for 0.12 per detection px at 1 / 2 (a
-    crisp step of 0.35) and 0.06 at 1 / 1 (0.19): flat grey parts at 0.65 - 0.75 of the tray were found at 640 px
-    and had no sharp pixel at 1280 px. But at 1 / 2 a part's own short shadow (a penumbra of 1.5 - 3.5 px on
-    the default camera) is hardly softer than a crisp edge (0.29 c against 0.35 c per detection px for a 5 mm
-    plate's): only the step's height tells them apart, and the sharp edge's bound, which keeps the rendered
-    shadows of 0.3 out, stays for the regions a part is near. A region no part is near is no part's own
-    shadow, and the shadow of anything higher (an arm, a hand) has a penumbra many pixels wide."""
-    grain = p.noise_k * texture
-
-    def raised(sq: np.float32) -> np.float32:
-        return np.float32(grain ** 2) if grain > np.sqrt(sq) else sq
-
-    sharp_sq = raised(_sharp_bound_sq(p.sharp_edge, scale))
-    if p.crisp_edge is None:
-        return sharp_sq, sharp_sq
-    return sharp_sq, min(sharp_sq, raised(_sharp_bound_sq(p.crisp_edge, 1)))
-
-
-RAYLEIGH_Q1 = 0.7585  # the 25th percentile of the length of a 2-D N(0, s) vector, in s: sqrt(-2 ln 0.75)
-TEXTURE_STEP = 8  # the tray's grain is measured on every this many-th detection pixel
-
-
-def _texture_gradient(sm: np.ndarray, bg: np.ndarray) -> float:
-    """The spread (per detection px, of the brightness ratio r) of the tray's own gradient: its grain
-    and noise, from the quietest quarter (the tray) like the noise spreads, on every 8th pixel (a
-    tenth of a millisecond on the cell's frames; every 4th gives the same within 3 %), by central
-    differences (the derivative `_material_shadowlike`'s Sobel x 1/8 measures)."""
-    h, w = sm.shape[:2]
-    st = TEXTURE_STEP
-    if h < 3 or w < 3:
-        return 0.0
-    ny, nx = (h - 3) // st + 1, (w - 3) // st + 1  # centres at 1, 1 + st, ... with both neighbours inside
-
-    def rsum(a, y, x):  # b + g + r on the strided view (no copies)
-        v = a[y:y + st * (ny - 1) + 1:st, x:x + st * (nx - 1) + 1:st]
-        return v[:, :, 0] + v[:, :, 1] + v[:, :, 2]
-
-    sb = 2.0 * (rsum(bg, 1, 1) + 1.0)
-    gx = (rsum(sm, 1, 2) - rsum(sm, 1, 0)) / sb
-    gy = (rsum(sm, 2, 1) - rsum(sm, 0, 1)) / sb
-    g2 = gx * gx
-    g2 += gy * gy
-    return float(np.sqrt(quartile1(g2))) / RAYLEIGH_Q1
 
 
 def _work_boxes(coarse, bg_coarse, p: SegmentParams, det_hw: tuple[int, int]) -> list[tuple[int, int, int, int]]:
@@ -482,7 +429,7 @@ def _work_boxes(coarse, bg_coarse, p: SegmentParams, det_hw: tuple[int, int]) ->
 def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: float, bounds_sq, origin=(0, 0),
                  det_hw=None):
     """Part mask (uint8 0/1) in one box (steps 2 and 3). `bounds_sq`: the squared gradients of r above
-    which an edge is sharp, around any shadow-like region and around one no part is near (`_edge_bounds_sq`)."""
+    which an edge is sharp, around any shadow-like region and around one no part is near (`edge_bounds_sq`)."""
     r, chroma, chroma_dn, bright_dn = colour_change(sm, bg)
     strong = evidence(r, chroma, chroma_dn, bright_dn, p, 1.0, noise_c, noise_b)
     if p.hysteresis < 1.0:  # weaker evidence counts where it is connected to strong evidence,
@@ -505,7 +452,7 @@ def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: 
 
         enclosed = fill_holes(strong.view(np.uint8)).view(bool) & ~strong
         shadowlike = darker & ~enclosed
-        grad_sq = _gradient_sq(r)
+        grad_sq = gradient_sq(r)
         sharp_sq, crisp_sq = bounds_sq
         mask |= _material_shadowlike(grad_sq, strong, shadowlike, p, scale, sharp_sq, origin, det_hw)
         if crisp_sq < sharp_sq:  # (detected at 1 / 2 or coarser) grey parts no part is near, by a crisp edge
@@ -514,17 +461,10 @@ def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: 
     return cv2.morphologyEx(mask, cv2.MORPH_OPEN, k)
 
 
-def _gradient_sq(r: np.ndarray) -> np.ndarray:
-    """The squared gradient of r per detection px (Sobel x 1/8), float32."""
-    gx = cv2.Sobel(r, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
-    gy = cv2.Sobel(r, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
-    return gx * gx + gy * gy
-
-
 def _material_shadowlike(grad_sq, strong, darker, p: SegmentParams, scale: int, sharp_sq: np.float32,
                          origin=(0, 0), det_hw=None, lone: bool = False) -> np.ndarray:
     """Shadow-like regions bounded by sharp edges are material (walls, grey parts), not shadow.
-    `grad_sq`: `_gradient_sq(r)`; `sharp_sq`: the squared gradient above which an edge is sharp (`part_mask`);
+    `grad_sq`: `gradient_sq(r)`; `sharp_sq`: the squared gradient above which an edge is sharp (`part_mask`);
     `lone`: only the regions no part is near (within PART_REACH_PX)."""
     # |grad| / scale > sharp_edge (per full-resolution pixel), compared on the squared gradient
     # against the exact float32 bound: no square root and division over the box
@@ -621,22 +561,6 @@ def _labels_around(parts_lab: np.ndarray, ys: np.ndarray, xs: np.ndarray, box) -
     lo = cv2.erode(cv2.add(pl, cv2.threshold(pl, 0.5, 1e9, cv2.THRESH_BINARY_INV)[1]), k3)  # (pl + 1e9 where 0)
     yc, xc = ys - cy0, xs - cx0
     return hi[yc, xc], lo[yc, xc]
-
-
-@lru_cache(maxsize=8)
-def _sharp_bound_sq(edge: float, scale: int) -> np.float32:
-    """The largest float32 g2 whose np.sqrt(g2) / scale is not above `edge` (in float32, as on
-    the arrays): for float32 g2 >= 0, sqrt(g2) / scale > edge exactly when g2 > it (both roundings
-    are monotonic, so the comparison flips once)."""
-    def above(g2) -> bool:
-        return bool((np.sqrt(np.array([g2], np.float32)) / scale > edge)[0])
-
-    b = np.float32((edge * scale) ** 2)
-    while above(b):
-        b = np.nextafter(b, np.float32(0))
-    while not above(np.nextafter(b, np.float32(np.inf))):
-        b = np.nextafter(b, np.float32(np.inf))
-    return b
 
 
 def _split_regions(mask: np.ndarray, boxes, p: SegmentParams, scale: int, det_u8: np.ndarray | None = None

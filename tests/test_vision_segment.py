@@ -439,7 +439,7 @@ def test_sharp_edges_by_the_squared_gradient_equal_the_gradient_test():
 def test_labels_around_pixels_of_a_box_equal_those_of_the_whole_image():
     import cv2
 
-    from cell.vision.segment import _labels_around
+    from cell.vision.shadowlike import _labels_around
 
     rng = np.random.default_rng(7)
     for _ in range(30):

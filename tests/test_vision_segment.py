@@ -215,10 +215,10 @@ def test_bad_frames_are_refused():
 
 
 def test_looking_only_in_boxes_around_changes_gives_the_full_frame_result(layout_frame, monkeypatch):
-    from cell.vision import segment as seg_mod
+    from cell.vision import work_boxes
 
     boxed = segment_frame(layout_frame, PARAMS)
-    monkeypatch.setattr(seg_mod, "BOX_FULL_FRAME", -1.0)  # every frame looked at as one box
+    monkeypatch.setattr(work_boxes, "BOX_FULL_FRAME", -1.0)  # every frame looked at as one box
     whole = segment_frame(layout_frame, PARAMS)
     assert len(boxed) == len(whole) == len(LAYOUT)
     for a, b in zip(boxed, whole, strict=True):

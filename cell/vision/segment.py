@@ -57,6 +57,7 @@ from cell.vision.tray_checks import (
     whole_parts,
 )
 from cell.vision.walls import segment_to_mm as segment_to_mm  # (the entry point's: cell.vision imports it from here)
+from cell.vision.work_boxes import work_boxes
 
 DEFAULT_FRAME_PX = (WIDTH_PX, HEIGHT_PX)  # the default cell's camera: the pixel defaults below are for it
 DEFAULT_MM_PER_PX = CAMERA_MM[2] / FOCAL_PX  # ... on the table (z = 0) it sees 0.5 mm per px (calibration/default.py)
@@ -354,11 +355,6 @@ def _segment(frame: np.ndarray, p: SegmentParams, d: Detection, bg: np.ndarray, 
     return segs
 
 
-BOX_MARGIN_PX = 12  # detection px around what differs: room for weak edges, shadows' tails, walls
-COARSE_EVIDENCE = 0.8  # x the weak-evidence thresholds
-BOX_FULL_FRAME = 0.6  # when the boxes cover more of the frame than this, one box for all
-
-
 def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int, smoothed=None,
               bg_coarse: np.ndarray | None = None) -> tuple[np.ndarray, list[tuple[int, int, int, int]]]:
     """uint8 mask (0/1) of part pixels at detection resolution (steps 2 and 3), and the boxes
@@ -375,51 +371,11 @@ def part_mask(det: np.ndarray, bg: np.ndarray, p: SegmentParams, scale: int, smo
     mask = np.zeros((h, w), np.uint8)
     if bg_coarse is None:
         bg_coarse = cv2.resize(bg, coarse.shape[1::-1], interpolation=cv2.INTER_AREA)
-    boxes = _work_boxes(coarse, bg_coarse, p, (h, w))
+    boxes = work_boxes(coarse, bg_coarse, p, (h, w))
     for x0, y0, x1, y1 in boxes:
         mask[y0:y1, x0:x1] = _mask_in_box(sm[y0:y1, x0:x1], bg[y0:y1, x0:x1], p, scale, noise_c, noise_b,
                                           bounds_sq, (x0, y0), (h, w))
     return mask, boxes
-
-
-def _work_boxes(coarse, bg_coarse, p: SegmentParams, det_hw: tuple[int, int]) -> list[tuple[int, int, int, int]]:
-    """Disjoint boxes (detection px) that hold everything that differs from the tray, with a
-    margin: found on a coarse copy with the weak-evidence thresholds lowered (averaging keeps a
-    part's change and lowers the noise; thin parts lose contrast). Each box holds whole clusters
-    of changed pixels. `coarse`, `bg_coarse`: the blurred detection image and the tray at
-    1 / COARSE size; `det_hw` the detection image's size."""
-    h, w = det_hw
-    ch, cw = coarse.shape[:2]
-    r, chroma, chroma_dn, bright_dn = colour_change(coarse, bg_coarse)
-    # the coarse copy's own noise (averaging lowers it), measured like the frame's
-    noise_c, noise_b = noise_spreads(chroma_dn, bright_dn)
-    changed = (evidence(r, chroma, chroma_dn, bright_dn, p, COARSE_EVIDENCE * p.hysteresis, noise_c, noise_b)
-               | (r < 1.0 - COARSE_EVIDENCE * p.brighter_min))
-    n, lab = cv2.connectedComponents(changed.view(np.uint8), connectivity=8)
-    if n <= 1:
-        return []
-    from scipy import ndimage
-
-    m = BOX_MARGIN_PX
-    boxes = [[max(sl[1].start * w // cw - m, 0), max(sl[0].start * h // ch - m, 0),
-              min(sl[1].stop * w // cw + m, w), min(sl[0].stop * h // ch + m, h)]
-             for sl in ndimage.find_objects(lab) if sl is not None]
-    merged = True
-    while merged:  # overlapping boxes become one, so that no box cuts through a cluster
-        merged = False
-        out: list[list[int]] = []
-        for bx in boxes:
-            for o in out:
-                if bx[0] < o[2] and o[0] < bx[2] and bx[1] < o[3] and o[1] < bx[3]:
-                    o[:] = [min(o[0], bx[0]), min(o[1], bx[1]), max(o[2], bx[2]), max(o[3], bx[3])]
-                    merged = True
-                    break
-            else:
-                out.append(bx)
-        boxes = out
-    if sum((b[2] - b[0]) * (b[3] - b[1]) for b in boxes) > BOX_FULL_FRAME * w * h:
-        return [(0, 0, w, h)]
-    return [tuple(b) for b in boxes]
 
 
 def _mask_in_box(sm, bg, p: SegmentParams, scale: int, noise_c: float, noise_b: float, bounds_sq, origin=(0, 0),

@@ -288,7 +288,7 @@ def test_a_plate_holding_the_image_of_the_vertical_keeps_its_own_shadow_out():
 def test_regions_labelled_per_group_of_boxes_equal_the_whole_frame_labelling():
     import cv2
 
-    from cell.vision.segment import label_regions
+    from cell.vision.regions import label_regions
 
     rng = np.random.default_rng(3)
     mask = np.zeros((120, 160), np.uint8)

@@ -51,7 +51,7 @@ def detection_copies(frame: np.ndarray, p: SegmentParams) -> Detection:
     s = detection_scale(frame.shape, p)
     dw, dh = w // s, h // s
     # the last w % s columns and h % s rows are left out, so that each detection pixel is s x s
-    # frame pixels exactly (segment.py's `_to_full`; 4000 px / 6 would stretch by 6.006, 4 px at the far border)
+    # frame pixels exactly (outlines.py's `_to_full`; 4000 px / 6 would stretch by 6.006, 4 px at the far border)
     det_u8 = cv2.resize(frame[:dh * s, :dw * s], (dw, dh), interpolation=cv2.INTER_AREA) if s > 1 else frame
     det = det_u8.astype(np.float32)
     # the blurred copies do not depend on the tray: made in a helper thread while the tray is fitted

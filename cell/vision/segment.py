@@ -2,18 +2,24 @@
 
 Pipeline (one frame, see docs/vision.md for the parameters and why):
 1. The tray's colour field B: a reference image of the empty tray when given, else a
-   robust smooth fit to the frame itself (background.py).
+   robust smooth fit to the frame itself (background.py), at the size of the frame's detection
+   copies (detection.py). A frame whose tray looks taken for a part is read again with the other
+   side as the tray (tray_checks.py).
 2. At 1 / scale resolution (half on the default camera; larger frames: `SegmentParams.for_frame`),
    per pixel: brightness ratio r = sum(I) / sum(B) and chroma change c = |I / sum(I) - B / sum(B)|_1.
    A pixel is part if its chroma changed, or it is brighter than the tray, or darker than any
-   shadow can make the tray.
+   shadow can make the tray (part_mask.py: colour_change.py, only in work_boxes.py's boxes).
 3. Shadow-like pixels (darker, same chroma) are part only where the region they form is
-   bounded by sharp edges (walls of parts, grey parts); soft-edged regions are shadows.
+   bounded by sharp edges (walls of parts, grey parts); soft-edged regions are shadows
+   (shadowlike.py, sharp_edges.py).
 4. Specks below a minimum area are dropped; parts touching each other are separated at
    narrow necks (watershed on the distance transform) or flagged `merged`; parts touching
-   the image border are flagged `cut_off`.
+   the image border are flagged `cut_off` (regions.py, touching.py).
 5. Every boundary point is moved along its normal to where the full-resolution colour
-   profile crosses half-way between the part and what lies outside it (sub-pixel, subpixel.py).
+   profile crosses half-way between the part and what lies outside it (sub-pixel, subpixel.py;
+   outlines and holes: outlines.py).
+6. Regions cut by the border that lie outside the tray are left out (outside.py).
+Then `segment_to_mm` maps a segment to mm on the part's top plane, its walls taken into account (walls.py).
 
 Pixel coordinates are CONTRACT-frame (origin at the top-left pixel's top-left corner).
 """
@@ -340,5 +346,3 @@ def _segment(frame: np.ndarray, p: SegmentParams, d: Detection, bg: np.ndarray, 
     segs = regions_to_segments(pieces, frame, d.det, bg, p, d.scale)
     segs.sort(key=lambda g: -g.area_px)
     return segs
-
-

@@ -52,6 +52,7 @@ from drivers.errors import (
     FaultLatched,
     LimitError,
     MoveTimeout,
+    NodeRebooted,
     NodeSilent,
     NotConnected,
     SdoError,
@@ -225,11 +226,7 @@ class Arm:
             # CiA 301: a drive watches the host from the first heartbeat it hears after 0x1016 is set: start
             # every watch now, not a period later (a host gone meanwhile would never be noticed)
             self._send_host_heartbeat()
-            for ax in self.axes.values():
-                ax.nmt(codec.NMT_START)
-            for ax in self.axes.values():
-                ax.wait_status(lambda s: True, None, "first TPDO after NMT start")
-                ax.wait_nmt(self.clock, 0x05, self.boot_timeout_s, self.poll_s)
+            self._start(list(self.axes.values()))
             self._stop_what_was_left_running()
             self._jobs.append(self.clock.every(self._watch_period_s, self._watch, name="arm-watchdog"))
             if enable:
@@ -239,8 +236,21 @@ class Arm:
             self.disconnect()
             raise
 
+    def _start(self, axes: list[Axis]) -> None:
+        """NMT start, then wait for each node's first status and a heartbeat saying OPERATIONAL: from then on a
+        heartbeat saying anything else is a fault (`Axis.lost_setup`)."""
+        for ax in axes:
+            ax.nmt(codec.NMT_START)
+        for ax in axes:
+            ax.wait_status(lambda s: True, None, "first TPDO after NMT start")
+            ax.wait_nmt(self.clock, codec.NMT_OPERATIONAL, self.boot_timeout_s, self.poll_s)
+            ax.started = True
+
     def _configure(self, ax: Axis) -> None:
+        """Everything the host sets up in a node (SDO), and the host's record of what it wrote there."""
         c = self.cell
+        # a boot-up message from here on is a reboot: what follows would be lost (`Axis.lost_setup`)
+        ax.boots_at_setup, ax.started = ax.boot_count, False
         device_type = ax.sdo_read(0x1000)
         if device_type & 0xFFFF != 402:
             raise DriveFault(
@@ -324,7 +334,11 @@ class Arm:
 
     def _enable_refusal(self, ax: Axis) -> DriveFault | None:
         """Why `ax` is not to be enabled (None: it may be): in FAULT, with its error code; or standing outside its
-        limits (`_enable_hold`)."""
+        limits (`_enable_hold`); or without the setup the host gave it (rebooted: `reset_faults` sets it up again).
+        """
+        lost = self._lost_setup_fault(ax)
+        if lost is not None:
+            return lost
         if ax.state == "FAULT":
             code = ax.sdo_read(0x603F)
             return DriveFault(f"{ax.name} (node {ax.node_id}): in FAULT, error code 0x{code:04X} "
@@ -395,7 +409,8 @@ class Arm:
     def _send_host_heartbeat(self) -> None:
         if self._network is not None:
             try:
-                self._network.send_message(codec.HEARTBEAT_BASE + HOST_NODE_ID, codec.pack_heartbeat(0x05))
+                self._network.send_message(codec.HEARTBEAT_BASE + HOST_NODE_ID,
+                                           codec.pack_heartbeat(codec.NMT_OPERATIONAL))
             except can.CanError as e:  # latched (the next check stops the arm), not raised in the clock's job
                 self._latch(BusFault(f"bus: sending the host heartbeat failed: {e}"), key="bus")
 
@@ -449,11 +464,12 @@ class Arm:
             self._watched_s = now
             silence_from_s = self._silence_from_s
         for ax in list(self.axes.values()):
-            err: DriverError | None = None
+            # first: a rebooted node's stale status and its EMCY are not the cause
+            err: DriverError | None = self._lost_setup_fault(ax)
             if ax.emcy_seq != self._emcy_seen.get(ax.name, 0):
                 self._emcy_seen[ax.name] = ax.emcy_seq
                 e = ax.last_emcy
-                if e is not None and e.code != 0:
+                if err is None and e is not None and e.code != 0:
                     err = DriveFault(
                         f"{ax.name} (node {ax.node_id}): EMCY 0x{e.code:04X} {e.text}",
                         node=ax.name,
@@ -509,8 +525,7 @@ class Arm:
                     "worst_gap_ms": round(1000.0 * self._looks["worst_gap_s"], 1),
                     "allowed_gap_ms": round(1000.0 * self._allowed_look_gap_s(), 1)}
 
-    @staticmethod
-    def _left_operation(ax: Axis, when: str, since_seq: int | None = None) -> DriverError | None:
+    def _left_operation(self, ax: Axis, when: str, since_seq: int | None = None) -> DriverError | None:
         """An axis that left OPERATION ENABLED without a fault while the host still commands enable
         operation (a quick stop or STO from the drive's side, another master). During a move it will never
         arrive and the others must not go on alone; before one, the host's enable operation with the
@@ -518,7 +533,11 @@ class Arm:
         another command. since_seq (the axis' status_seq when its move was commanded): also an axis that
         left since then and is enabled again, by the move's release or another master (transition 16
         drops the set-point: it stands while the others run). Also a drive whose mode of operation another master
-        changed: the set-point bits mean other things there (bit 4 starts homing in mode 6)."""
+        changed: the set-point bits mean other things there (bit 4 starts homing in mode 6). First of all, a node
+        that lost its setup (rebooted: its status is stale, or says SWITCH ON DISABLED in mode 0)."""
+        lost = self._lost_setup_fault(ax)
+        if lost is not None:
+            return lost
         st = ax.status
         if st is None or "FAULT" in st.state or codec.command_of(ax.controlword) != "ENABLE_OPERATION":
             return None
@@ -545,6 +564,24 @@ class Arm:
             node_id=ax.node_id,
             state=left[1],
         )
+
+    def _lost_setup_fault(self, ax: Axis) -> NodeRebooted | None:
+        """The fault of a node that lost its setup (`Axis.lost_setup`), or None. Like a silent node it stops every
+        axis; the reset sets it up again (`_set_up_again`). Before, only the heartbeats' timing was watched: a
+        rebooted J2 coasted while J1 and J4 ran their whole moves, the host said "target not reached" a second
+        later, and the reset enabled it without its host-heartbeat watch."""
+        why = ax.lost_setup()
+        if why is None:
+            return None
+        if ax.boot_count != ax.boots_at_setup:
+            force = ", the grip force 0x2100" if ax.name == "gripper" else ""
+            what = (f"its setup is lost, back at its power-on values (the host-heartbeat watch 0x1016, the software "
+                    f"limits 0x607D, the option codes, the profile values{force}), and it no longer drives its axis")
+        else:
+            what = ("it takes no set-point and sends no status (another master's NMT command, or a reboot whose "
+                    "boot-up message was lost)")
+        return NodeRebooted(f"{why}: {what}; reset sets it up again as connect did",
+                            node=ax.name, node_id=ax.node_id)
 
     def _latch(self, err: DriverError, key: str | None = None) -> None:
         """Remember the first fault per node ('bus' for the bus, 'stop' for an operator's stop). One already latched
@@ -680,6 +717,9 @@ class Arm:
                     raise
         try:
             for ax in self.axes.values():
+                if ax.lost_setup() is not None:
+                    self._set_up_again(ax)
+            for ax in self.axes.values():
                 ax.fault_reset()
             with self._lock:
                 stop = self._faults.get("stop")
@@ -694,6 +734,16 @@ class Arm:
         except DriverError as e:
             self._latch(e)
             raise
+
+    def _set_up_again(self, ax: Axis) -> None:
+        """A node that lost its setup (`Axis.lost_setup`): all of it again, as connect does, then NMT start. Its
+        power-on values need not be the cell's (its host-heartbeat watch was 0: J2 ran its move on when the host
+        died); the host's record of what it wrote (profile velocity, grip force) is rewritten with it."""
+        log.warning("%s: set up again (%s)", ax.name, ax.lost_setup())
+        ax.forget_status()  # from before the reboot: the first after NMT start is the one to go by
+        self._configure(ax)
+        self._send_host_heartbeat()  # its host watch starts at the first heartbeat it hears (CiA 301)
+        self._start([ax])
 
     # --- commands --------------------------------------------------------------------------
     def _begin_command(self) -> None:

@@ -78,7 +78,11 @@ class Axis:
         self.left_operation: tuple[int, str] | None = None
         self.last_heartbeat_s: float | None = None
         self.nmt_state: int | None = None
-        self.boot_count = 0
+        self.boot_count = 0  # boot-up messages heard
+        # what `lost_setup` compares with: the boot-ups heard when the host set the node up (`Arm._configure`), and
+        # whether the host then set it OPERATIONAL (`Arm._start`)
+        self.boots_at_setup = 0
+        self.started = False
         self.last_emcy: codec.Emcy | None = None
         self.emcy_seq = 0
         self.controlword = 0
@@ -125,7 +129,7 @@ class Axis:
         except ValueError:
             return
         with self._cond:
-            if state == 0:
+            if state == codec.NMT_BOOT_UP:
                 self.boot_count += 1
             self.nmt_state = state
             self.last_heartbeat_s = self.clock.now()
@@ -134,7 +138,36 @@ class Axis:
     # --- views -----------------------------------------------------------------------------
     @property
     def state(self) -> str:
-        return self.status.state if self.status is not None else "UNKNOWN"
+        """The CiA 402 state of the last status; UNKNOWN without one, or while the heartbeat says the node is
+        out of OPERATIONAL: it sends no status then, and the last one is stale (a rebooted J2 was shown
+        OPERATION_ENABLED beside PRE-OPERATIONAL)."""
+        if self.status is None or self.nmt_state not in (None, codec.NMT_OPERATIONAL):
+            return "UNKNOWN"
+        return self.status.state
+
+    def lost_setup(self) -> str | None:
+        """Why the node no longer holds what the host set up (None: it does), as the start of a message: a boot-up
+        message heard since (a power glitch, its watchdog: back at its power-on values, its axis no longer
+        driven, even where it then starts itself), or, once set OPERATIONAL, a heartbeat in another NMT state (it
+        takes no set-point and sends no status)."""
+        if self.boot_count != self.boots_at_setup:
+            return f"{self.name} (node {self.node_id}) rebooted (boot-up message)"
+        if self.started and self.nmt_state != codec.NMT_OPERATIONAL:
+            return (f"{self.name} (node {self.node_id}): its heartbeat reports "
+                    f"{codec.NMT_STATE_NAMES.get(self.nmt_state, self.nmt_state)}, not OPERATIONAL")
+        return None
+
+    def forget_status(self) -> None:
+        """The last status is stale (the node rebooted since): none until the next one arrives."""
+        with self._cond:
+            self.status = None
+
+    def _nmt_note(self) -> str:
+        """For a wait that got no answer: the node's heartbeat says it is not OPERATIONAL (no PDO in or out), or ''."""
+        if self.nmt_state in (None, codec.NMT_OPERATIONAL):
+            return ""
+        return (f"; its heartbeat reports {codec.NMT_STATE_NAMES.get(self.nmt_state, self.nmt_state)}: a node not "
+                "OPERATIONAL takes no set-point and sends no status")
 
     @property
     def position(self) -> float | None:
@@ -289,8 +322,9 @@ class Axis:
 
     # --- waiting ---------------------------------------------------------------------------
     def wait_status(self, pred, after_seq: int | None, what: str, timeout_s: float = ANSWER_TIMEOUT_S,
-                    told_s: float | None = None):
-        """Wait (wall time) for a TPDO newer than `after_seq` whose status satisfies `pred`."""
+                    told_s: float | None = None, hint: str = ""):
+        """Wait (wall time) for a TPDO newer than `after_seq` whose status satisfies `pred`. `hint`: added to the
+        timeout's message where the node is OPERATIONAL (where it is not, that is said instead)."""
         deadline = time.monotonic() + timeout_s
         with self._cond:
             while True:
@@ -303,7 +337,7 @@ class Axis:
                 if left <= 0:
                     got = st.state if st is not None else "no status"
                     raise NodeSilent(
-                        f"{self.name} (node {self.node_id}): no answer ({what}) within "
+                        f"{self.name} (node {self.node_id}): no answer ({what}{self._nmt_note() or hint}) within "
                         f"{timeout_s if told_s is None else told_s:g} s, last status: {got}",
                         node=self.name,
                         node_id=self.node_id,
@@ -524,9 +558,9 @@ class Axis:
         cleared) or already there: a drive that took the set-point under halt but does not run it on the
         release would leave the other axes running alone. told_s: the time the timeout's message names (the
         whole wait, when this is one slice of it)."""
-        self.wait_status(_started(target_counts, tolerance_counts), seq,
-                         "start of the set-point at the halt's release; a drive that does not run a set-point "
-                         "taken under halt needs can.coordinated_start false", timeout_s, told_s)
+        self.wait_status(_started(target_counts, tolerance_counts), seq, "start of the set-point at the halt's release",
+                         timeout_s, told_s, "; a drive that does not run a set-point taken under halt needs "
+                         "can.coordinated_start false")
 
     def has_started(self, seq: int, target_counts: int, tolerance_counts: int) -> bool:
         """`confirm_started`'s condition, now, without waiting."""
@@ -548,7 +582,7 @@ class Axis:
         it for not answering (the hint is for that timeout). A fault ends it in the fault's error (`wait_status`,
         with its EMCY); a stop the owner latched (`enable_gate`) in that stop's; anything else is `DriveDisabled`."""
         st = self.wait_status(lambda s: s.state not in FAULT_STATES and (pred(s) or s.state != "OPERATION_ENABLED"),
-                              seq, what + no_answer_hint)
+                              seq, what, hint=no_answer_hint)
         if st.state != "OPERATION_ENABLED":
             with self.enable_gate():  # (raises the stop the host latched, which this one is; no other fault)
                 pass

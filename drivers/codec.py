@@ -39,6 +39,7 @@ PDO_EVENT_DRIVEN = 255  # transmission type: on change (device profile specific)
 # NMT states as sent in heartbeats, and NMT command specifiers
 NMT_STATE_NAMES = {0x00: "INITIALISING", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
 NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82
+NMT_BOOT_UP, NMT_OPERATIONAL = 0x00, 0x05  # a heartbeat frame's state: the boot-up message, OPERATIONAL
 
 PP_MODE = 1  # profile position, 0x6060 value
 SUPPORTED_MODES_PP = 0x00000001  # 0x6502 bit 0: profile position

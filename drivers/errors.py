@@ -7,6 +7,7 @@
         +-- NotConnected             a command before connect() or after disconnect()
         +-- DriveFault               a node reported a fault (EMCY, fault state, following error)
         |   +-- DriveDisabled        a moving axis left OPERATION ENABLED without a fault
+        |   +-- NodeRebooted         a node rebooted (boot-up message) or left OPERATIONAL: its setup is lost
         +-- NodeSilent               a node's heartbeat (or boot-up) missed its deadline
         +-- SdoError                 an SDO transfer failed (no answer, or aborted)
         +-- BusFault                 error frames or a broken bus
@@ -64,6 +65,13 @@ class DriveDisabled(DriveFault):
     def __init__(self, message: str, *, node: str | None = None, node_id: int | None = None, state: str = ""):
         super().__init__(message, node=node, node_id=node_id)
         self.state = state
+
+
+class NodeRebooted(DriveFault):
+    """A node the host set up sent a boot-up message (a power glitch, a watchdog reset: it is back at its
+    power-on values, its axis no longer driven), or, set OPERATIONAL, its heartbeat reports another NMT state
+    (it takes no set-point and sends no status). Latched and handled like a fault; `reset_faults()` sets the
+    node up again as `connect()` did."""
 
 
 class NodeSilent(DriverError):

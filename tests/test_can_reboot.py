@@ -1,0 +1,141 @@
+"""A drive that reboots (a power glitch on its supply: boot-up message, then PRE-OPERATIONAL with heartbeats, its
+setup back to power-on values, its axis no longer driven) is a fault like a silent one: every axis is stopped at
+once, the error says the node rebooted, and reset_faults() sets the node up again as connect did before it enables
+it. Before, the host only watched that heartbeats came: J1 and J4 ran their whole moves with J2 coasting (one way
+the way check accepted took the tool 284 mm out of the workspace), the error was a MoveTimeout a second later, and
+the reset enabled J2 with its host-heartbeat watch (0x1016) gone: on a host crash it ran its move to the end.
+
+The reboot is brought about on the bus as the host sees a power glitch: an NMT Reset Node from another master (the
+drive then does what it does at power-on), and, for drives that start themselves after boot, an NMT Start."""
+
+from __future__ import annotations
+
+import contextlib
+
+import can
+import pytest
+from drivers_fixtures import *  # noqa: F403 - the bus, drives and arm fixtures
+from drivers_fixtures import needs_sim
+
+from cell.kinematics import Joints
+from drivers import DriveFault, FaultLatched, NodeRebooted, NodeSilent, codec
+
+pytestmark = needs_sim
+
+
+def _reboot(open_test_bus, node_id: int, *, auto_start: bool = False) -> None:
+    """The node resets (application and communication), sends its boot-up message and goes PRE-OPERATIONAL;
+    with `auto_start` it then starts itself (NMT OPERATIONAL, still SWITCH ON DISABLED), as many drives do."""
+    other_master = open_test_bus()
+    commands = [codec.NMT_RESET_NODE] + ([codec.NMT_START] if auto_start else [])
+    for command in commands:
+        other_master.send(can.Message(arbitration_id=codec.NMT_COB, data=codec.pack_nmt(command, node_id),
+                                      is_extended_id=False))
+
+
+def _long_move(arm):
+    s = arm.joints()
+    return Joints(s.j1_deg - 40.0, s.j2_deg - 30.0, s.j3_mm, s.j4_deg + 30.0)
+
+
+@pytest.mark.parametrize("auto_start", [False, True])
+def test_a_drive_rebooting_mid_move_stops_every_axis_at_once_and_says_it_rebooted(arm, sim_drives, open_test_bus,
+                                                                                 auto_start):
+    target = _long_move(arm)
+    j1_states = []  # (time, state) of J1's drive, every 10 ms
+    job = arm.clock.every(0.01, lambda: j1_states.append((arm.clock.now(), sim_drives.drives["j1"].state)))
+    arm.move_joints(target, wait=False)
+    arm.clock.sleep(0.25)
+    rebooted_s = arm.clock.now()
+    _reboot(open_test_bus, 2, auto_start=auto_start)
+    with pytest.raises(NodeRebooted, match=r"^j2 \(node 2\) rebooted \(boot-up message\): its setup is lost") as e:
+        arm.wait_idle()
+    job.cancel()
+    assert isinstance(e.value, DriveFault) and e.value.node == "j2"
+    # J1 quick-stopped within the stop lag the way check allows (20 ms) and a poll, not run on to its target
+    stopped_s = next(t for t, state in j1_states if state == "QUICK_STOP_ACTIVE")
+    assert stopped_s - rebooted_s <= 0.03 + 1e-9
+    assert sim_drives.positions()["j1"] > target.j1_deg + 5.0
+    with pytest.raises(FaultLatched, match="j2 rebooted|j2.*rebooted"):
+        arm.move_joints(arm.joints())
+
+
+def test_a_reboot_while_the_arm_stands_is_latched_and_the_status_no_longer_shown_as_enabled(arm, sim_drives,
+                                                                                           open_test_bus):
+    _reboot(open_test_bus, 2)
+    arm.clock.sleep(0.15)  # a heartbeat (100 ms) after the boot-up message
+    assert "rebooted" in arm.faults.get("j2", "")
+    row = arm.state()["j2"]
+    # PRE-OPERATIONAL: no TPDO, the last status is stale (it said OPERATION_ENABLED beside nmt PRE-OPERATIONAL)
+    assert (row["nmt"], row["state"]) == ("PRE-OPERATIONAL", "UNKNOWN")
+    with pytest.raises(FaultLatched, match="rebooted"):
+        arm.move_joints(Joints(-10.0, 80.0, 200.0, 0.0))
+
+
+@pytest.mark.parametrize("auto_start", [False, True])
+def test_reset_after_a_reboot_sets_the_node_up_again_before_enabling_it(arm, sim_drives, open_test_bus, auto_start):
+    """After the reset the drive watches the host again (0x1016) and stops on a host crash, and its profile
+    velocity is what the host believes (the host's cache of what it wrote skipped writing a velocity the
+    drive no longer held: J2 ran the next coordinated move at its power-on speed, off the checked path)."""
+    start, there = arm.joints(), Joints(-60.0, 80.0, 200.0, 0.0)  # J1 sets the time: J2 goes slower than its max
+    arm.move_joints(there)
+    j2 = arm.axes["j2"]
+    velocity_counts = j2.sdo_read(0x6081)
+    _reboot(open_test_bus, 2, auto_start=auto_start)
+    arm.clock.sleep(0.05)
+    arm.reset_faults()
+    assert arm.faults == {}
+    assert sim_drives.drives["j2"].nmt == 0x05 and sim_drives.drives["j2"].state == "OPERATION_ENABLED"
+    assert j2.sdo_read(0x1016, 1) == arm.axes["j1"].sdo_read(0x1016, 1) != 0
+    arm.move_joints(start)  # the same way back: the same coordinated speed for J2
+    assert j2.sdo_read(0x6081) == velocity_counts
+    # the host crashes mid-move: J2 stops on its own like the others
+    arm.move_joints(there, wait=False)
+    arm.clock.sleep(0.05)
+    arm._host_job.cancel()
+    for _ in range(100):
+        sim_drives.clock.sleep(0.01)
+    assert sim_drives.drives["j2"].state == "FAULT" and sim_drives.drives["j2"].error_code == 0x8130
+
+
+def test_the_grippers_force_is_written_again_after_it_rebooted(arm, sim_drives, open_test_bus):
+    sim_drives.gripper_object_width_mm = 30.0
+    force_n = arm.cell.gripper.grip_force_n / 2
+    arm.gripper.grip(30.0, force_n)
+    arm.gripper.open()
+    _reboot(open_test_bus, 5)  # back to its power-on force
+    arm.clock.sleep(0.05)
+    arm.reset_faults()
+    arm.gripper.grip(30.0, force_n)
+    assert sim_drives.drives["gripper"].grip_force_n == pytest.approx(force_n, abs=0.1)
+
+
+def test_a_node_left_pre_operational_by_another_master_is_a_fault_and_reset_starts_it(arm, sim_drives,
+                                                                                     open_test_bus):
+    """No boot-up message heard (lost, or another master's NMT): a heartbeat saying PRE-OPERATIONAL from a node
+    the host set OPERATIONAL is a fault too: such a node takes no set-point and sends no status."""
+    open_test_bus().send(can.Message(arbitration_id=codec.NMT_COB, data=codec.pack_nmt(codec.NMT_PREOP, 3),
+                                     is_extended_id=False))
+    arm.clock.sleep(0.3)  # a heartbeat period and more
+    assert "PRE-OPERATIONAL" in arm.faults.get("j3", "")
+    with pytest.raises(FaultLatched, match="j3"):
+        arm.move_joints(Joints(-10.0, 80.0, 200.0, 0.0))
+    arm.reset_faults()
+    assert sim_drives.drives["j3"].nmt == 0x05
+    arm.move_joints(Joints(-10.0, 80.0, 190.0, 0.0))
+    assert sim_drives.positions()["j3"] == pytest.approx(190.0, abs=1e-3)
+
+
+def test_a_handshake_with_a_node_not_operational_names_its_nmt_state_not_the_coordinated_start(arm, sim_drives,
+                                                                                             open_test_bus,
+                                                                                             monkeypatch):
+    """The axis alone (without the arm's gate, which refuses it once the reboot is latched): the handshake's
+    timeout said to set can.coordinated_start false, where the node took no PDO at all."""
+    _reboot(open_test_bus, 2)
+    arm.clock.sleep(0.15)
+    j2 = arm.axes["j2"]
+    monkeypatch.setattr(j2, "move_gate", contextlib.nullcontext)
+    with pytest.raises(NodeSilent, match="PRE-OPERATIONAL") as e:
+        j2.arm_move(j2.to_counts(70.0))
+    assert "coordinated_start" not in str(e.value)
+

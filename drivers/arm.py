@@ -38,7 +38,7 @@ from cell.cellconfig import (
     QUICK_STOP_DECEL_FACTOR,
     grip_force_units,
 )
-from cell.kinematics import Joints
+from cell.kinematics import Joints, forward
 from drivers import codec
 from drivers.axis import Axis
 from drivers.clock import Clock, RealClock
@@ -492,7 +492,7 @@ class Arm:
             ):
                 err = NodeSilent(
                     f"{ax.name} (node {ax.node_id}): no heartbeat for {now - ax.last_heartbeat_s:.3f} s "
-                    f"(deadline {self.heartbeat_deadline_s:g} s)",
+                    f"(deadline {self.heartbeat_deadline_s:g} s){self._held_part_note()}",
                     node=ax.name,
                     node_id=ax.node_id,
                 )
@@ -580,8 +580,21 @@ class Arm:
         else:
             what = ("it takes no set-point and sends no status (another master's NMT command, or a reboot whose "
                     "boot-up message was lost)")
-        return NodeRebooted(f"{why}: {what}; reset sets it up again as connect did",
+        return NodeRebooted(f"{why}: {what}; reset sets it up again as connect did{self._held_part_note()}",
                             node=ax.name, node_id=ax.node_id)
+
+    def _held_part_note(self) -> str:
+        """For a node lost while the jaws may hold a part: say so, and where the arm stood (as last heard), or ''."""
+        width_mm = self.gripper.closed_on_mm
+        if width_mm is None:
+            return ""
+        at = {joint: self.axes[joint].position for joint, _, _ in JOINT_FIELDS if joint in self.axes}
+        if None in at.values() or len(at) != len(JOINT_FIELDS):
+            return f"; a part may still be in the jaws (they closed on something at {width_mm:.1f} mm)"
+        tool = forward(Joints(*at.values()), self.cell.scara)
+        joints = ", ".join(f"{joint} {value:.1f} {self.axes[joint].unit}" for joint, value in at.items())
+        return (f"; a part may still be in the jaws (they closed on something at {width_mm:.1f} mm); the arm stood "
+                f"at {joints} (tool x {tool.x_mm:.1f}, y {tool.y_mm:.1f}, z {tool.z_mm:.1f} mm, as last heard)")
 
     def _latch(self, err: DriverError, key: str | None = None) -> None:
         """Remember the first fault per node ('bus' for the bus, 'stop' for an operator's stop). One already latched

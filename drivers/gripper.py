@@ -41,6 +41,8 @@ class Gripper:
     def __init__(self, arm: Arm):
         self._arm = arm
         self._force_n: float | None = None
+        # the width the jaws last closed on something at, until they open again: a part may be in them
+        self.closed_on_mm: float | None = None
 
     @property
     def width_mm(self) -> float | None:
@@ -76,6 +78,7 @@ class Gripper:
         if problems:
             raise LimitError("gripper command refused, nothing sent: " + "; ".join(problems))
         self._move(width_mm)
+        self.closed_on_mm = None
         return self.width_mm
 
     def grip(self, expected_width_mm: float, force_n: float | None = None, *, tolerance_mm: float = 2.0) -> GripResult:
@@ -102,4 +105,5 @@ class Gripper:
         stopped = bool(st.internal_limit)
         blocked = stopped and width > expected_width_mm + tolerance_mm
         holding = stopped and not blocked and width >= expected_width_mm - tolerance_mm
+        self.closed_on_mm = width if stopped else None
         return GripResult(width, holding, expected_width_mm, blocked, stopped)

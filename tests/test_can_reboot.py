@@ -139,3 +139,17 @@ def test_a_handshake_with_a_node_not_operational_names_its_nmt_state_not_the_coo
         j2.arm_move(j2.to_counts(70.0))
     assert "coordinated_start" not in str(e.value)
 
+
+def test_a_node_lost_while_the_jaws_hold_a_part_says_so_and_where_the_arm_stood(arm, sim_drives, open_test_bus):
+    sim_drives.gripper_object_width_mm = 30.0
+    assert arm.gripper.grip(30.0).holding
+    _reboot(open_test_bus, 2)
+    arm.clock.sleep(0.05)
+    assert arm.faults["j2"].endswith("; a part may still be in the jaws (they closed on something at 30.0 mm); "
+                                     "the arm stood at j1 0.0 deg, j2 90.0 deg, j3 200.0 mm, j4 0.0 deg "
+                                     "(tool x 325.0, y 275.0, z 200.0 mm, as last heard)")
+    arm.reset_faults()
+    arm.gripper.open()  # empty jaws: nothing more to say
+    sim_drives.inject_fault("silent", "j4")
+    arm.clock.sleep(0.5)
+    assert arm.faults["j4"].endswith("(deadline 0.3 s)")

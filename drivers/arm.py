@@ -775,6 +775,12 @@ class Arm:
                 self._latch(err)
                 raise err  # nothing sent: the axes still enabled stand
 
+    def _stop_on(self, err: DriverError) -> None:
+        """A fault the host found itself (not at a look at the drives): latched, every axis stopped, raised."""
+        self._latch(err)
+        self._stop_all()
+        raise err
+
     def _require_connected(self) -> None:
         if not self._connected:
             raise NotConnected("the arm is not connected: call connect() first")

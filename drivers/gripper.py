@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 from cell.cellconfig import GRIPPER_ACCEL_FACTOR, grip_force_units
 from drivers.eds import GRIP_FORCE_INDEX
-from drivers.errors import LimitError
+from drivers.errors import DriveFault, LimitError
 from drivers.limits import gripper_violations
 from drivers.profile import trapezoid
 
@@ -70,7 +70,9 @@ class Gripper:
         arm._run_moves({"gripper": ax.to_counts(width_mm)}, wait=wait, timeout_s=1.5 * duration + 1.0)
 
     def open(self, width_mm: float | None = None) -> float:
-        """Open the jaws (fully by default); returns the width reached."""
+        """Open the jaws (fully by default) or close them to `width_mm` (the pre-open above a part); returns the
+        width reached. Jaws that end the move farther from `width_mm` than the gripper's arrival tolerance
+        stopped on something: a latched `DriveFault` naming both widths, every axis stopped (`_require_reached`)."""
         arm = self._arm
         arm._begin_command()
         width_mm = arm.cell.gripper.opening_mm[1] if width_mm is None else width_mm
@@ -78,8 +80,24 @@ class Gripper:
         if problems:
             raise LimitError("gripper command refused, nothing sent: " + "; ".join(problems))
         self._move(width_mm)
+        self._require_reached(width_mm)
         self.closed_on_mm = None
         return self.width_mm
+
+    def _require_reached(self, width_mm: float) -> None:
+        """The drive ends a move stopped on something with its internal limit (bit 11), which the host takes for
+        arrival (a grip closes on the part that way). An opening is to reach its width: jaws of the pre-open
+        stopped at 60 mm of 50 went down 10 mm wider than the planner cleared. More than the arrival tolerance
+        (`POSITION_TOLERANCE_COUNTS`, 0.002 mm on the shipped cell) off is a fault."""
+        from drivers.arm import POSITION_TOLERANCE_COUNTS  # (drivers.arm imports this module)
+
+        ax = self._arm.axes["gripper"]
+        if abs(ax.status.position_counts - ax.to_counts(width_mm)) <= POSITION_TOLERANCE_COUNTS:  # as `Arm._arrived`
+            return
+        self._arm._stop_on(DriveFault(
+            f"gripper (node {ax.node_id}): the jaws stopped at {ax.position:.1f} mm opening to {width_mm:.1f} mm: "
+            "something between them? Every axis stopped: take it out, then reset", node="gripper",
+            node_id=ax.node_id))
 
     def grip(self, expected_width_mm: float, force_n: float | None = None, *, tolerance_mm: float = 2.0) -> GripResult:
         """Close with the force limit (default: the cell file's grip force) and report where the

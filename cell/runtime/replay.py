@@ -243,10 +243,11 @@ class Comparison:
                 return
 
     def _set_gripper(self, record: dict, same_pick: bool) -> None:
-        """The recording is the world: the jaws stop where they stopped in the session. With other
-        examples a pick the recording holds too (`same_pick`: the same commands) closes on the recorded
-        width as well; another pick closes on its planned opening. A pick with a grip and a check after the
-        lift: the grip's width at the grasp, the check's above it (nothing where the part slipped out)."""
+        """The recording is the world: the jaws stop where they stopped in the session, on the part or blocked
+        wider than expected. With other examples a pick the recording holds too (`same_pick`: the same
+        commands) closes on the recorded width as well; another pick closes on its planned opening. A pick with
+        a grip and a check after the lift: the grip's width at the grasp, the check's above it (nothing where the
+        part slipped out)."""
         width, fn = None, None
         if self.strict or same_pick:
             for rec in self.recorded[self.position:]:
@@ -254,8 +255,10 @@ class Comparison:
                     steps = rec.get("records", [])
                     grip = next((r for r in steps if r.get("action") == "grip"), None)
                     check = next((r for r in steps if r.get("action") == "check"), None)
-                    held = [r for r in (grip, check) if r is not None and r.get("holding")]
-                    width = held[0]["width_mm"] if held else None  # (a carry-off after a fault: its check alone)
+                    # where the jaws stopped on something: the part, or blocked wider (a neighbour, a chip on a pad);
+                    # a check's "holding" is just that (a carry-off after a fault: its check alone)
+                    stopped = [r for r in (grip, check) if r is not None and (r.get("holding") or r.get("blocked"))]
+                    width = stopped[0]["width_mm"] if stopped else None
                     if grip is not None and grip.get("holding") and check is not None:
                         fn = self._on_lift(record, grip["width_mm"], check["width_mm"] if check.get("holding")
                                            else None)

@@ -4,7 +4,8 @@ Re-runs perception and planning on a recorded session's frames with the simulate
 checks that every decision and command matches the recording. Exit 0 when all match, 1 at
 the first divergence (named on stderr), 2 on a missing or corrupt recording, or on one whose end
 was never recorded (killed, or failed). A stopped session was recorded up to its stop: it can match
-(exit 0), and the output says that it was stopped, after how many parts and why. With
+(exit 0), and the output says that it was stopped, after how many parts and why; a stop on a drive or bus fault
+is re-created, or taken from the recording where it cannot be, and a note says which. With
 `--examples FILE` (other teaching examples) the differences are listed instead (exit 0).
 """
 
@@ -55,6 +56,8 @@ def run(args) -> int:
         print(f"{result['matched']} of {result['decisions']} decisions match the recording")
         for d in result["differences"]:
             print(f"  differs: {d}")
+        for note in result["notes"]:
+            print(f"  note: {note}")
         _say_how_it_ended(result["session"])
     return 0
 

@@ -3,11 +3,13 @@ decision with the recording.
 
 The loop runs as it ran: frames come from the recording (a file camera), the drives are the
 simulated CANopen nodes on a fresh virtual bus, the operator's approvals are the recorded
-ones, and the gripper closes to the recorded width (the recording is the world). Each
-decision the loop makes is compared with the recorded one as it is made; the first
-divergence stops the replay and is named. With other examples (`--examples`), the replay
-does not stop at differences but lists them: the gripper then holds whatever the new plan
-grips, so the sequence goes on.
+ones, and the gripper closes to the recorded width (the recording is the world). A drive or
+bus fault the session stopped on mid-pick comes again (`RecordedFault`), in the step it cut
+short or when the CAN log shows it; one that cannot be re-created is taken from the recording,
+and the replay says so (`notes`). Each decision the loop makes is compared with the recorded
+one as it is made; the first divergence stops the replay and is named. With other examples
+(`--examples`), the replay does not stop at differences but lists them: the gripper then holds
+whatever the new plan grips, so the sequence goes on.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from __future__ import annotations
 import json
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from cell.errors import BadInput, CellError
@@ -24,8 +26,12 @@ from cell.grasp.params import MAX_FINER_STEPS, SynthesisParams
 from cell.runtime.control import Decision, RunControl
 
 REPLAY_SDO_TIMEOUT_S = 2.0
+# A step's set-points and SDO requests go out at its first instant: a recorded fault is injected again this far
+# into the step it cut short, a lost answer (SDO, set-point acknowledge) this far before it
+INJECT_AT_STEP_S = 1e-3
 # what an interrupted pick had done: where a fault or a stop hits within it differs from run to run (the replay
-# injects a recorded drive fault at the next move), and recordings before 2026-12-05 do not have it
+# injects a recorded drive fault at the start of the step it cut short), and recordings before 2026-12-05 do not
+# have it (an EMCY then comes at the pick's next move, another fault at the pick's start)
 NOT_COMPARED = {"interrupted"}
 VOLATILE = {"planning_s", "cycle_s", "motion_s", "t_start_s", "t_end_s", "time_ms"}
 TOLERANCE = 1e-3
@@ -147,8 +153,14 @@ class Comparison:
     position: int = 0
     found: list[str] = field(default_factory=list)
     cut_short: bool = False  # the recording was never closed (crash) or lost its last line
-    faulted_again: bool = False  # a recorded drive fault was injected again (the moment within the move may differ)
+    faulted_again: bool = False  # a pick the recording shows ending on a drive or bus fault: injected again or
+    # taken from the recording (the moment within the move may differ: the host's frames are not compared)
     recorded_summary: dict | None = None  # the session's last line, when it ran to its end
+    interrupted: dict[int, dict] = field(default_factory=dict)  # `_interrupted_before`
+    can_log: object = None  # () -> the recorded CAN frames, where they are on the decisions' clock (simulated)
+    notes: list[str] = field(default_factory=list)  # what the output says beside the match (a fault re-created)
+    fault_stop_at: int | None = None  # the recorded stop a drive or bus fault ended the pick being replayed on
+    fault: RecordedFault | None = None  # that fault, as injected again (None: not re-creatable)
 
     def write_frame(self, index, frame_bgr):
         return None
@@ -174,6 +186,9 @@ class Comparison:
                 raise RecordingEnds()
             self._diverged(f"decision #{self.position} ({record.get('type')}): the recording has no more decisions")
             return
+        if self.position == self.fault_stop_at:
+            self._hardware_stop(record, diff)  # StopRun where the replay did not stop so
+            diff = None
         self.position += 1
         if expected.get("type") == "stop" and expected.get("source") == "operator":
             from cell.runtime.loop import StopRun
@@ -230,39 +245,104 @@ class Comparison:
                 return
 
     def _replay_drive_fault(self) -> None:
-        """A pick the recording shows ending in a drive fault: the same drive faults again (its
-        EMCY code), so the replay takes the same path (the moment within the pick may differ)."""
-        for rec in self.recorded[self.position:]:
+        """A pick the recording shows ending on a drive or bus fault: the same fault again at the same point of
+        the same step (the step the recorded `interrupted` decision was in; its first instant where the
+        recording has none), or at the moment the CAN log shows (a boot-up, an error frame), so the replay
+        takes the same path. A fault that cannot be re-created is taken from the recording (`_hardware_stop`)."""
+        at = self._fault_stop_of_this_pick()
+        if at is None:
+            return
+        self.fault_stop_at = at
+        cut = self.interrupted.get(at)
+        steps = (cut or {}).get("records") or []
+        now = self.drives.clock.now()
+        pick_start_s = steps[0]["t_start_s"] if steps else now  # on the recording's clock
+        frames = [] if self.can_log is None else [m for m in self.can_log() if m.timestamp >= pick_start_s - 1e-9]
+        fault = recorded_fault(self.recorded[at], {n: d.node_id for n, d in self.drives.drives.items()}, frames)
+        if fault is not None and cut is None and fault.kind == "emcy":  # recorded before `interrupted`: next move
+            self.drives.inject_fault("emcy", fault.node, code=fault.code, after_s=0.0)
+        elif fault is not None:
+            if not fault.times_s:
+                fault = self._in_the_step_cut_short(fault, steps, pick_start_s, cut is not None)
+            for t_s in fault.times_s:
+                at_clock(self.drives.clock, now + t_s - pick_start_s, lambda: inject_again(self.drives, fault))
+        self.fault, self.faulted_again = fault, fault is not None
+
+    def _in_the_step_cut_short(self, fault: RecordedFault, steps: list[dict], pick_start_s: float,
+                               known: bool) -> RecordedFault:
+        """`fault` just before or just into the step the recorded pick was cut short in (after its `steps` done),
+        on the recording's clock; at the pick's start where the recording does not say (not `known`)."""
+        step_start_s = steps[-1]["t_end_s"] if steps else pick_start_s
+        commands = self.recorded[self.position].get("commands") or []
+        step = commands[len(steps)].get("label") if known and len(steps) < len(commands) else None
+        where = f"step '{step}'" if step else "the pick"
+        nudge_s = -INJECT_AT_STEP_S if fault.before_step else INJECT_AT_STEP_S
+        return replace(fault, times_s=(step_start_s + nudge_s,),
+                       what=f"{fault.what}, {'just before' if fault.before_step else 'at the start of'} {where}")
+
+    def _fault_stop_of_this_pick(self) -> int | None:
+        """The recorded stop a drive (its source) or the bus made in the pick whose commands the replay just sent,
+        before any `executed`: where the recording shows it cut short."""
+        for i in range(self.position + 1, len(self.recorded)):
+            rec = self.recorded[i]
             if rec.get("type") == "executed":
-                return
+                return None
             if rec.get("type") == "stop":
-                m = re.match(r"(\w+) \(node \d+\): EMCY 0x([0-9A-Fa-f]{4})", rec.get("reason", ""))
-                if m and rec.get("source") == m.group(1):
-                    self.drives.inject_fault("emcy", m.group(1), code=int(m.group(2), 16), after_s=0.0)
-                    self.faulted_again = True
-                return
+                hardware = rec.get("source") in self.drives.drives or str(rec.get("reason", "")).startswith("bus: ")
+                return i if hardware else None
+        return None
+
+    def _hardware_stop(self, record: dict, diff: list[str] | None) -> None:
+        """The replay is at a stop a drive or bus fault made: re-created (the replay stopped the same way), or
+        taken from the recording: said, and the replay ends there (the arm of the replay stands elsewhere)."""
+        from cell.runtime.loop import StopRun
+
+        at, stop = self.position, self.recorded[self.position]
+        self.fault_stop_at = None
+        said = f"decision #{at} (stop, {stop.get('source')}: {stop.get('reason')})"
+        if not diff:  # (a stop the replay comes to on its own, a move refused, is no fault injected)
+            if self.fault is not None:
+                self.notes.append(f"{said}: a hardware fault, re-created: {self.fault.what}")
+            return
+        self.faulted_again = True  # the replay's pick went on otherwise: its frames on the bus are others
+        if self.fault is None:
+            why = "the replay cannot re-create it from what the recording holds"
+        elif record.get("type") == "stop":
+            why = f"{self.fault.what}, the replay stopped on {record.get('source')}: {record.get('reason')}"
+        else:
+            why = f"{self.fault.what}, the replay did not stop there (its next decision: {record.get('type')})"
+        self.notes.append(f"{said}: a hardware fault, taken from the recording, not re-run ({why})")
+        self.position += 1
+        if self.position < len(self.recorded):
+            self.compared_up_to_here("the session went on after a hardware fault the replay took from the recording")
+        raise StopRun(f"{stop.get('source')}: {stop.get('reason')} (taken from the recording)")
+
+    def _recorded_pick(self) -> dict | None:
+        """What the recording shows the pick whose commands the replay is sending did: its `executed` or
+        `interrupted` decision (None past the recording's end)."""
+        for i in range(self.position, len(self.recorded)):
+            if i > self.position and i in self.interrupted:
+                return self.interrupted[i]
+            if self.recorded[i].get("type") == "executed":
+                return self.recorded[i]
+        return None
 
     def _set_gripper(self, record: dict, same_pick: bool) -> None:
         """The recording is the world: the jaws stop where they stopped in the session, on the part or blocked
-        wider than expected. With other examples a pick the recording holds too (`same_pick`: the same
-        commands) closes on the recorded width as well; another pick closes on its planned opening. A pick with
-        a grip and a check after the lift: the grip's width at the grasp, the check's above it (nothing where the
-        part slipped out)."""
+        wider (a neighbour, a chip on a pad), in a pick that ran to its end or one a fault cut short. With
+        other examples a pick the recording holds too (`same_pick`: the same commands) closes on the recorded
+        width as well; another pick closes on its planned opening. A pick with a grip and a check after the
+        lift: the grip's width at the grasp, the check's above it (nothing where the part slipped out)."""
         width, fn = None, None
         if self.strict or same_pick:
-            for rec in self.recorded[self.position:]:
-                if rec.get("type") == "executed":
-                    steps = rec.get("records", [])
-                    grip = next((r for r in steps if r.get("action") == "grip"), None)
-                    check = next((r for r in steps if r.get("action") == "check"), None)
-                    # where the jaws stopped on something: the part, or blocked wider (a neighbour, a chip on a pad);
-                    # a check's "holding" is just that (a carry-off after a fault: its check alone)
-                    stopped = [r for r in (grip, check) if r is not None and (r.get("holding") or r.get("blocked"))]
-                    width = stopped[0]["width_mm"] if stopped else None
-                    if grip is not None and grip.get("holding") and check is not None:
-                        fn = self._on_lift(record, grip["width_mm"], check["width_mm"] if check.get("holding")
-                                           else None)
-                    break
+            steps = (self._recorded_pick() or {}).get("records", [])
+            grip = next((r for r in steps if r.get("action") == "grip"), None)
+            check = next((r for r in steps if r.get("action") == "check"), None)
+            # jaws that stopped on something (a check's "holding" is just that); a carry-off after a fault: its check
+            stopped = [r for r in (grip, check) if r is not None and (r.get("holding") or r.get("blocked"))]
+            width = stopped[0]["width_mm"] if stopped else None
+            if grip is not None and grip.get("holding") and check is not None:
+                fn = self._on_lift(record, grip["width_mm"], check["width_mm"] if check.get("holding") else None)
         else:
             grips = [c for c in record["commands"] if c["action"] == "grip"]
             width = grips[0]["width_mm"] if grips else None
@@ -287,6 +367,129 @@ def _recorded_since(record: dict) -> bool:
     """A record the loop writes since 2026-12-04 (a part let go at the drop-off but seen again on the tray:
     "not removed"), after the outcome "removed" that older recordings leave standing."""
     return record.get("type") == "outcome" and record.get("outcome") == "not removed"
+
+
+def _interrupted_before(decisions: list[dict]) -> dict[int, dict]:
+    """The recorded `interrupted` decisions (a pick a fault or a stop cut short: its steps done), each by the
+    index, among the compared decisions, of the one that followed it (the stop)."""
+    out, compared, cut = {}, 0, None
+    for d in decisions:
+        if d.get("type") == "interrupted":
+            cut = d
+        elif d.get("type") not in NOT_COMPARED and d.get("type") != "summary":
+            if cut is not None:
+                out[compared], cut = cut, None
+            compared += 1
+    return out
+
+
+@dataclass(frozen=True)
+class RecordedFault:
+    """A drive or bus fault a recorded pick stopped on, as the replay brings it again: `kind` one of
+    `SimHandle.inject_fault`'s, or "reboot" (the node resets and boots: an NMT Reset Node sent to it). When:
+    `times_s` on the recording's clock (what the CAN log shows), else the step it cut short, just before it
+    (`before_step`: a lost answer, for the step's first request) or just into it."""
+
+    kind: str
+    node: str | None
+    what: str  # for people: what is injected, and when
+    code: int = 0  # an EMCY's
+    error_class: str = ""  # an error frame's (drivers.sim.ERROR_FRAMES)
+    count: int = 1  # error frames sent each time
+    times_s: tuple[float, ...] = ()
+    before_step: bool = False
+
+
+def recorded_fault(stop: dict, node_ids: dict[str, int], frames: list) -> RecordedFault | None:
+    """The fault behind a recorded stop, by what its reason says (not its exact text: the node and the kind), and
+    the recorded CAN `frames` from the pick's start on (empty where the log is not on the decisions' clock);
+    None when it cannot be re-created (a move timeout without a reboot to explain it, another kind)."""
+    from drivers import codec
+
+    reason, node = str(stop.get("reason", "")), stop.get("source")
+    if reason.startswith("bus: "):
+        return _bus_fault(reason, frames)
+    if node not in node_ids:
+        return None
+    boot_ups = [m.timestamp for m in frames if m.arbitration_id == codec.HEARTBEAT_BASE + node_ids[node]
+                and bytes(m.data) == b"\x00"]  # the boot-up message (CiA 301)
+    if boot_ups and re.search(r"reboot|target not reached in time|no answer \(", reason):
+        return RecordedFault("reboot", node, f"{node} rebooted at {boot_ups[0]:.3f} s (its boot-up frame)",
+                             times_s=(boot_ups[0],))
+    emcy = re.search(r"EMCY 0x([0-9A-Fa-f]{4})", reason)
+    if emcy:
+        return RecordedFault("emcy", node, f"{node} sent EMCY 0x{emcy.group(1)} again", code=int(emcy.group(1), 16))
+    for pattern, kind, what, before in FAULT_KINDS_BY_REASON:
+        if re.search(pattern, reason):
+            return RecordedFault(kind, node, f"{node} {what} again", before_step=before)
+    return None
+
+
+# what a stop's reason says -> the fault injected again, said so, and whether just before the step it cut short
+FAULT_KINDS_BY_REASON = (
+    (r"no heartbeat for", "silent", "fell silent (no heartbeat)", False),
+    (r"no SDO answer", "drop_sdo", "lost its SDO answers", True),
+    (r"left OPERATION ENABLED .*now in QUICK_STOP_ACTIVE", "quick_stop", "quick-stopped on its own input", False),
+    (r"left OPERATION ENABLED .*without a fault", "disable", "switched its drive function off (STO)", False),
+    (r"no answer \(set-point acknowledge\)", "ignore_set_point", "ignored its set-points", True),
+    (r"reboot", "reboot", "rebooted", False),
+)
+
+
+def _bus_fault(reason: str, frames: list) -> RecordedFault | None:
+    """Error frames of the class the reason names, at the times the CAN log shows them (their class is not in
+    the log python-can reads back), or as many as it counted at the start of the step."""
+    from drivers.errorframes import classify
+    from drivers.sim import ERROR_FRAMES, error_frame
+
+    texts = {name: classify(error_frame(name)).text for name in ERROR_FRAMES}
+    named = [name for name, text in texts.items() if f"error frame {text}" in reason or f"the last: {text}" in reason]
+    if not named:
+        return None  # (the host's heartbeat could not be sent: nothing on the bus to re-create)
+    error_class = max(named, key=lambda name: len(texts[name]))  # the fullest text that matches
+    times = tuple(m.timestamp for m in frames if m.is_error_frame)
+    counted = re.match(r"bus: (\d+) error frames", reason)
+    count = 1 if times or not counted else int(counted.group(1))
+    when = f"at {', '.join(f'{t:.3f}' for t in times)} s" if times else "in the step it cut short"
+    return RecordedFault("error_frames", None, f"{len(times) or count} {error_class} error frame(s) sent again {when}",
+                         error_class=error_class, times_s=times, count=count)
+
+
+def inject_again(drives, fault: RecordedFault) -> None:
+    """Bring `fault` on the replay's simulated drives."""
+    if fault.kind == "reboot":
+        _reboot(drives, fault.node)
+    elif fault.kind == "error_frames":
+        drives.inject_fault("error_frames", error_class=fault.error_class, count=fault.count)
+    elif fault.kind == "emcy":
+        drives.inject_fault("emcy", fault.node, code=fault.code)
+    else:
+        drives.inject_fault(fault.kind, fault.node)
+
+
+def _reboot(drives, node: str) -> None:
+    """The node resets and boots, as on a power glitch: an NMT Reset Node from a device of its own on the bus
+    (the drive's own reset: power-on values, the boot-up message, PRE-OPERATIONAL)."""
+    import can
+
+    from drivers import codec
+
+    with can.Bus(interface="virtual", channel=drives.bus.channel_id) as bus:
+        bus.send(can.Message(arbitration_id=codec.NMT_COB, is_extended_id=False,
+                             data=codec.pack_nmt(codec.NMT_RESET_NODE, drives.drives[node].node_id)))
+
+
+def at_clock(clock, t_s: float, fn) -> None:
+    """fn() once on the drives' clock at t_s (at once when that has passed), as the hardware brings a fault."""
+    if t_s <= clock.now():
+        fn()
+        return
+
+    def once():
+        job.cancel()
+        fn()
+
+    job = clock.every(t_s - clock.now(), once, name="replay-fault")
 
 
 class RecordedApprovals(RunControl):
@@ -330,7 +533,8 @@ class RecordedApprovals(RunControl):
 
 
 def replay(directory: str | Path, examples: str | Path | None = None, progress=None) -> dict:
-    """Re-run a recording. Returns {"decisions", "matched", "differences", "session"} (`recorded_end`);
+    """Re-run a recording. Returns {"decisions", "matched", "differences", "notes" (a hardware fault re-created
+    or taken from the recording), "session"} (`recorded_end`);
     raises Divergence (strict mode) at the first difference, BadInput on a missing or corrupt recording."""
     import shutil
     import tempfile
@@ -385,7 +589,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
         if recorded and all(d.get("type") == "stop" for d in recorded) and not _cut_short(rec):
             # stopped before the camera gave a frame (the operator, or no readable frame): nothing to re-run
             say("the session stopped before its first frame")
-            return {"decisions": len(recorded), "matched": len(recorded), "differences": [],
+            return {"decisions": len(recorded), "matched": len(recorded), "differences": [], "notes": [],
                     "session": recorded_end(rec)}
         summary = rec.manifest.get("summary") or {}
         if not recorded and rec.manifest.get("status") == "incomplete" and summary.get("status") == "not started":
@@ -393,7 +597,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
             # no decision and no frame, and there is nothing to re-run ("holds no frames", exit 2, read as corrupt)
             why = summary.get("error")
             say(f"the session did not start{f' ({why})' if why else ''}: nothing to re-run")
-            return {"decisions": 0, "matched": 0, "differences": [], "session": recorded_end(rec)}
+            return {"decisions": 0, "matched": 0, "differences": [], "notes": [], "session": recorded_end(rec)}
         raise BadInput(f"recording {directory} holds no frames")
     for i in rec.frame_indices:  # a frame the loop would skip as unreadable would shift all that follow
         frame = rec.read_frame(i)
@@ -412,7 +616,10 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
         # drives' (a replay beside other jobs timed one out, retried, and diverged on the host's frames)
         with simulated_cell(cell, record=str(replay_can), sdo_timeout_s=REPLAY_SDO_TIMEOUT_S) as (arm, drives):
             sink = Comparison(recorded, drives, strict, cut_short=_cut_short(rec),
-                              recorded_summary=next((d for d in rec.decisions if d.get("type") == "summary"), None))
+                              recorded_summary=next((d for d in rec.decisions if d.get("type") == "summary"), None),
+                              interrupted=_interrupted_before(rec.decisions),
+                              # a real cell's CAN log keeps wall time, not the clock of its decisions
+                              can_log=rec.can_messages if meta.get("real_cell") is None else None)
             control = RecordedApprovals(rec.decisions, f"recording {directory}")
             control.sink = sink
             # interactive: a stop to ask waits for the (recorded) operator's answer, as at the station
@@ -451,7 +658,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     if can_difference and not sink.found:  # the decisions match: do the commands on the bus?
         sink._diverged(can_difference)
     return {"decisions": len(recorded), "matched": sink.position - len(sink.found), "differences": sink.found,
-            "session": recorded_end(rec)}
+            "notes": sink.notes, "session": recorded_end(rec)}
 
 
 def _summary_outcome(summary: dict) -> dict:

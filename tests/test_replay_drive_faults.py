@@ -76,8 +76,8 @@ FAULTS = {  # what the hardware did mid-carry, and what the stop says of it
     "bus-off": (lambda d: d.inject_fault("error_frames", error_class="bus_off", count=1), "cell", "bus-off"),
     "STO": (lambda d: d.inject_fault("disable", "j2"), "j2", "now in SWITCH_ON_DISABLED"),
     "quick stop input": (lambda d: d.inject_fault("quick_stop", "j2"), "j2", "left OPERATION ENABLED"),
-    "reboot mid-move": (lambda d: reboot(d, "j2"), "j2", "target not reached in time"),
-    "gripper reboot": (lambda d: reboot(d, "gripper"), "gripper", "no answer (set-point acknowledge)"),
+    "reboot mid-move": (lambda d: reboot(d, "j2"), "j2", "j2 (node 2) rebooted (boot-up message)"),
+    "gripper reboot": (lambda d: reboot(d, "gripper"), "gripper", "gripper (node 5) rebooted (boot-up message)"),
     "EMCY": (lambda d: d.inject_fault("emcy", "j4", code=0x4310), "j4", "EMCY 0x4310"),
 }
 
@@ -112,12 +112,16 @@ def test_an_sdo_answer_lost_replays_to_its_stop(tmp_path, monkeypatch, capsys, s
 
 def test_a_stop_the_replay_cannot_re_create_is_taken_from_the_recording_and_said(tmp_path, monkeypatch, capsys,
                                                                                  short_assembly):  # noqa: F811
-    """A move timeout with nothing in the CAN log to say why (the node's reboot, its boot-up frame, cut out of
-    the log as a real bus may lose it): the replay compares up to the stop and says the stop itself was a
-    hardware fault taken from the recording, not re-run; no planning divergence."""
+    """A move timeout with nothing in the CAN log to say why (a recording made before the host named a reboot,
+    whose stop said "target not reached in time", and the node's boot-up frame cut out of the log as a real
+    bus may lose it): the replay compares up to the stop and says the stop itself was a hardware fault taken
+    from the recording, not re-run; no planning divergence."""
     rec, _ = record(tmp_path, monkeypatch, short_assembly, lambda d: reboot(d, "j2"))
-    stop = decisions(rec)[-1]
-    assert stop["reason"] == "j2: target not reached in time", stop
+    lines = (rec / "decisions.jsonl").read_text().splitlines()
+    stop = json.loads(lines[-1])
+    assert stop["type"] == "stop" and "j2 (node 2) rebooted" in stop["reason"], stop
+    lines[-1] = json.dumps({**stop, "reason": "j2: target not reached in time"})
+    (rec / "decisions.jsonl").write_text("".join(line + "\n" for line in lines))
     log = (rec / "can.log").read_text().splitlines()
     boot_ups = [i for i, line in enumerate(log) if line.endswith(" 702#00 R")]
     del log[boot_ups[-1]]  # the boot-up mid-carry (the first is the power-on's)

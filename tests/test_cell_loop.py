@@ -195,9 +195,11 @@ def test_every_pick_checks_its_grip_after_the_lift_and_the_recording_says_so(rec
     assert r.manifest["meta"]["whole_part_report"] is True  # a part picked again keeps its tries (not before)
     assert r.manifest["meta"]["walls_beyond"] is True  # walls only where the vertical lies beyond (not before)
     assert r.manifest["meta"]["crisp_edges"] is True  # grey parts by a crisp edge at any frame size (not before)
+    assert r.manifest["meta"]["transit_check"] is True  # the grip checked above the drop-off too (not before)
     for d in (d for d in r.decisions if d["type"] == "executed"):
         labels = [x["label"] for x in d["records"]]
         assert labels[labels.index("lift") + 1] == "check" and labels.index("check") < labels.index("carry")
+        assert labels[labels.index("carry") + 1] == "check at drop-off"  # held still before it is lowered and let go
         grip, check = (next(x for x in d["records"] if x["label"] == k) for k in ("grip", "check"))
         assert check["holding"] and check["width_mm"] == pytest.approx(grip["width_mm"], abs=0.01)
 
@@ -213,8 +215,8 @@ def test_replay_gives_the_check_the_width_the_recording_found_there(recorded, tm
     lines = (edited / "decisions.jsonl").read_text().splitlines()
     k = next(i for i, x in enumerate(lines) if json.loads(x)["type"] == "executed" and json.loads(x)["part"] == "nut")
     d = json.loads(lines[k])
-    check = next(r for r in d["records"] if r["action"] == "check")
-    check["width_mm"], check["moved_mm"] = round(check["width_mm"] - 3.5, 4), 3.5  # turned: 3.5 mm narrower
+    for check in (r for r in d["records"] if r["action"] == "check"):  # above the tray and above the drop-off
+        check["width_mm"], check["moved_mm"] = round(check["width_mm"] - 3.5, 4), 3.5  # turned: 3.5 mm narrower
     lines[k] = json.dumps(d)
     (edited / "decisions.jsonl").write_text("\n".join(lines) + "\n")
     code, out, err = run_cli("replay", edited, capsys=capsys)
@@ -257,20 +259,22 @@ def test_a_part_that_slips_out_on_the_lift_is_caught_before_the_carry_and_replay
     assert code == 1 and "CAN id 0x205" in err, err
 
 
-def test_replay_checks_the_grip_as_the_recording_did(recorded, tmp_path, capsys):
-    """meta.lift_check is what the replay does: taken away, the replay (as of a recording made before the
-    check) sends no check grip and diverges from this session; not a boolean, it is refused."""
+@pytest.mark.parametrize("flag", ["lift_check", "transit_check"])
+def test_replay_checks_the_grip_as_the_recording_did(recorded, tmp_path, capsys, flag):
+    """meta.lift_check (meta.transit_check: the check above the drop-off) is what the replay does: taken away, the
+    replay (as of a recording made before the check) sends no such check grip and diverges from this session; not
+    a boolean, it is refused."""
     import shutil
 
     rec, _ = recorded
-    for value, code_wanted, says in [(None, 1, "items recorded"), ("yes", 2, "meta.lift_check must be true or false")]:
-        bad = tmp_path / f"lift_check_{value}"
+    for value, code_wanted, says in [(None, 1, "items recorded"), ("yes", 2, f"meta.{flag} must be true or false")]:
+        bad = tmp_path / f"{flag}_{value}"
         shutil.copytree(rec, bad)
         manifest = json.loads((bad / "manifest.json").read_text())
         if value is None:
-            del manifest["meta"]["lift_check"]
+            del manifest["meta"][flag]
         else:
-            manifest["meta"]["lift_check"] = value
+            manifest["meta"][flag] = value
         (bad / "manifest.json").write_text(json.dumps(manifest))
         code, out, err = run_cli("replay", bad, "--json", capsys=capsys)
         assert code == code_wanted and says in err and "Traceback" not in err, err
@@ -302,9 +306,13 @@ def test_a_recording_without_the_vision_flags_replays_with_the_segmentation_it_r
 
 
 def test_a_part_that_falls_on_the_carry_is_noticed_on_the_next_frame(short_assembly):
+    # it falls back onto the tray: the grip checked above the drop-off finds the jaws empty (nothing is let go
+    # there), and the next frame shows it on the tray
     s = run_session(RunConfig(assembly=short_assembly, seed=3, faults=WorldFaults(dropped={"nut"})))
-    assert s["status"] == "stopped" and "nut did not leave the tray" in s["stopped"]
+    assert s["status"] == "stopped"
+    assert "nut did not leave the tray: it fell out of the jaws on the way to the drop-off" in s["stopped"]
     assert s["parts_removed"] == 0  # the nut is not counted as removed
+    assert not any(e.startswith("dropped nut") for e in s["sim_events"])
 
 
 def test_no_feasible_grasp_stops_or_skips(tmp_path):

@@ -294,11 +294,12 @@ def test_when_the_nearest_drop_off_way_hits_the_pick_and_the_carry_off_take_the_
     with pytest.raises(LinksWouldHit, match="on the way to 'carry' the arm's links would hit column_a"):
         low_loop._check_links("nut", pick_commands(grasp.joints, 20.0, low_cell, safe_z, usual), "")
     pick = low_loop._clear_pick("nut", grasp)
-    assert pick[7].label == "lower" and pick[7].joints in others and pick[7].joints.elbow == "right"
+    lower = next(c for c in pick if c.label == "lower")
+    assert lower.joints in others and lower.joints.elbow == "right"
     low_loop._check_links("nut", pick, "")  # its whole way is clear
     off = low_loop._clear_carry_off("nut", grasp)  # the same, for a part in the jaws after a fault
     assert [c.label for c in off[:2]] == ["lift", "check"]  # the jaws grip again once up (the stop ended their push)
-    assert off[3].label == "lower" and off[3].joints.elbow == "right"
+    assert [c.label for c in off[2:5]] == ["carry", "check at drop-off", "lower"] and off[4].joints.elbow == "right"
     low_loop._check_links("nut", off, "")
 
 

@@ -12,6 +12,9 @@ Failures, as an operator wants them handled (each is logged with its reason):
   they lifted it (the check grip after the lift closed past it): open, lift, look again (a new frame),
   retry once with the best grasp there other than the one that missed, then stop and ask;
 - a part that did not leave the tray (seen again where it was picked): stop and ask;
+- a part that fell out of the jaws on the way to the drop-off (the check above it closed past it): not removed;
+  the arm goes up and opens there, and the next frame says where it is (back on the tray: picked again after the
+  operator's reset; not on the tray: the operator is asked to find it); either way, stop and ask;
 - a drive fault: the arm has stopped every axis; stop until the operator resets;
 - a missing or unreadable frame: retry, then stop and ask.
 "Stop and ask" waits for the operator at the station; without an operator (plain `cell run`)
@@ -40,6 +43,7 @@ from cell.kinematics import Joints
 from cell.runtime.control import Faulted, RunControl, Stopped
 from cell.runtime.matching import Region, axis_deg_eigh, locate, locate_anywhere, unexplained
 from cell.runtime.motion import (
+    TRANSIT_CHECK,
     above,
     carry_off_commands,
     pick_commands,
@@ -112,13 +116,18 @@ class LoopOptions:
     # (`SegmentParams.crisp_edge`); off in recordings made before: frames detected at 1 / 2 (960 px wide and more)
     # asked it for the sharp edge per full-resolution px, and grey parts lighter than 0.65 of the tray were lost.
     crisp_edges: bool = True
+    # The grip checked again above the drop-off, before the lowering (`motion.TRANSIT_CHECK`): a part that fell out
+    # on the way is "lost", not removed, and the run stops and says whether the next frame shows it back on the
+    # tray. Off in recordings made before: a nut dropped off the tray on the carry counted as removed.
+    transit_check: bool = True
 
 
 @dataclass
 class PartReport:
     part: str
-    outcome: str  # removed | skipped; in the summary also stopped (the part the run stopped on) and carried (let
-    # go at the drop-off, the run stopped before a frame showed it gone)
+    outcome: str  # removed | skipped | lost (fell out of the jaws on the way to the drop-off); in the summary also
+    # stopped (the part the run stopped on) and carried (let go at the drop-off, the run stopped before a frame
+    # showed it gone)
     attempts: int = 0
     motion_s: float = 0.0  # on the arm's clock (simulated seconds in simulation)
     planning_s: float = 0.0  # wall time of perception and planning
@@ -196,6 +205,7 @@ class CellLoop:
         # a part whose jaws the carry-off after a fault found empty: let go at the drop-off, or fallen back onto the
         # tray; the next frame says which (seen again: planned again, no stop)
         self._found_empty: str | None = None
+        self._lost: str | None = None  # fell out of the jaws on the way to the drop-off (`_lost_in_transit`)
         self._examples_lock = threading.Lock()
         self._taught: list[GraspExample] = []  # taught on the station, not yet learned by the loop
         # where the loop finds taught examples at each plan: the station's (default), or a replay's
@@ -359,6 +369,9 @@ class CellLoop:
             report.motion_s += records[-1]["t_end_s"] - records[0]["t_start_s"]
             if records[-1].get("holding") is not False:
                 break
+            if records[-1]["label"] == TRANSIT_CHECK:
+                self._lost_in_transit({"part": part_id, "report": report}, grasp, records)
+                return
             self.control.log("miss", _missed(part_id, grasp, records), part=part_id)
             t3 = self.arm.clock.now()
             self._retreat(grasp)
@@ -415,6 +428,7 @@ class CellLoop:
         pid = self._last_picked[0]
         self._last_picked = None
         fell, self._found_empty = self._found_empty == pid, None
+        lost, self._lost = self._lost == pid, None
         report = next(r for r in self.reports if r.part == pid)
         if pid in located:  # still on the tray, near where it was picked (perhaps it slipped)
             self.remaining.insert(0, pid)
@@ -427,7 +441,15 @@ class CellLoop:
                 self.control.log("again", f"{pid} fell out of the jaws while the arm stood and lies on the tray: "
                                  "it is picked again", part=pid)
             else:
-                self._stop_and_ask("cell", f"{pid} did not leave the tray")
+                self._stop_and_ask("cell", f"{pid} did not leave the tray" + (
+                    ": it fell out of the jaws on the way to the drop-off; after the reset it is picked again from "
+                    "where the next frame shows it" if lost else ""))
+            return False
+        if lost:  # neither at the drop-off nor on the tray: the floor, the arm's way, where a person must look
+            self._unfinished = None  # (the stop is about this part, not the next one's)
+            self._stop_and_ask("gripper", f"{pid} fell out of the jaws on the way to the drop-off and is not on the "
+                               "tray: find it (the floor, the arm's way to the drop-off), then reset; it stays "
+                               "counted as lost, not removed")
             return False
         self.control.log("removed", f"{pid} removed in {report.cycle_s:.2f} s (gone from the next frame)", part=pid)
         return True
@@ -669,7 +691,7 @@ class CellLoop:
         safe_z = self._safe_z_mm(part_id, grasp.grasp_z_mm)
         return self._clear_way(part_id, grasp, f"{part_id}: ", lambda drop: pick_commands(
             grasp.joints, grasp.opening_mm, self.cell, safe_z_mm=safe_z, drop=drop,
-            check_grip=self.options.lift_check))
+            check_grip=self.options.lift_check, check_in_transit=self.options.transit_check))
 
     def _clear_carry_off(self, part_id: str, grasp: Grasp, held_mm: float | None = None) -> list:
         """Carry-off commands from where the arm is, by way of the first drop-off configuration
@@ -677,9 +699,11 @@ class CellLoop:
         where the jaws held the part (default: the grasp's opening)."""
         safe_z, here = self._safe_z_mm(part_id, grasp.grasp_z_mm), self.arm.joints()
         # (the grip again also pushes again: the quick stop ended the jaws' push)
-        check = (grasp.opening_mm if held_mm is None else held_mm) if self.options.lift_check else None
+        width = grasp.opening_mm if held_mm is None else held_mm
+        check = width if self.options.lift_check else None
+        transit = width if self.options.transit_check else None
         return self._clear_way(part_id, grasp, "", lambda drop: carry_off_commands(
-            here, grasp.joints, self.cell, safe_z, drop, check_width_mm=check))
+            here, grasp.joints, self.cell, safe_z, drop, check_width_mm=check, transit_width_mm=transit))
 
     def _clear_way(self, part_id: str, grasp: Grasp, why: str, commands_to) -> list:
         """`commands_to(drop)` by the first drop-off whose way keeps the links clear of the parts on the tray
@@ -728,6 +752,9 @@ class CellLoop:
         records = self._execute(grasp, pid, pick["attempt"], commands, after_fault=True)
         self._pick = None
         pick["report"].motion_s += records[-1]["t_end_s"] - records[0]["t_start_s"]
+        if records[-1].get("holding") is False and records[-1]["label"] == TRANSIT_CHECK:
+            self._lost_in_transit(pick, grasp, records)
+            return True
         if records[-1].get("holding") is False:  # the check after the lift: the jaws are empty
             self.control.log("miss", _missed(pid, grasp, records), part=pid)
             self._retreat(grasp)
@@ -764,8 +791,23 @@ class CellLoop:
         self._unfinished = None
         # (the record keeps its "removed": recordings are replayed record by record; `_last_pick_left` confirms it)
         self.sink.write_decision({"type": "outcome", **report.to_json()})
+        if report.outcome == "lost":
+            self.control.log("lost", f"{pid} lost on the way to the drop-off ({reason}); the next frame checks "
+                             "whether it fell back onto the tray", part=pid)
+            return
         self.control.log("carried", f"{pid} carried off in {report.cycle_s:.2f} s" + (f" ({reason})" if reason else "")
                          + "; the next frame checks that it left the tray", part=pid)
+
+    def _lost_in_transit(self, pick: dict, grasp: Grasp, records: list[dict]) -> None:
+        """The check above the drop-off found the jaws empty (`records`: the pick's, up to it): the part fell out on
+        the way. The jaws open there, out of the tray's way; the part is not removed ("lost"), and the next frame
+        says whether it fell back onto the tray (`_last_pick_left`)."""
+        report = pick["report"]
+        t0 = self.arm.clock.now()
+        self._retreat(grasp)
+        report.motion_s += self.arm.clock.now() - t0
+        report.outcome, self._lost = "lost", pick["part"]
+        self._picked(pick, _missed(pick["part"], grasp, records))
 
     def _retreat_z_mm(self) -> float:
         """How high the empty jaws go up after a miss or a fault: the safe height, or above the tallest part
@@ -823,7 +865,8 @@ class CellLoop:
         if self._last_picked is not None:
             pid = self._last_picked[0]
             why = f"carried off; the run stopped before a frame showed it gone ({self._stop_reason or 'stopped'})"
-            reports = [replace(r, outcome="carried", reason=why) if r.part == pid else r for r in reports]
+            reports = [replace(r, outcome="carried", reason=why) if r.part == pid and r.outcome == "removed" else r
+                       for r in reports]
         if self._unfinished is None:
             return reports
         stopped = replace(self._unfinished, outcome="stopped", reason=self._unfinished.reason or "the run was stopped")
@@ -875,6 +918,9 @@ class CellLoop:
 def _missed(part_id: str, grasp: Grasp, records: list[dict]) -> str:
     """What the operator reads of a pick that ended on a grip not holding (`records`: the pick's, up to it)."""
     last = records[-1]
+    if last["label"] == TRANSIT_CHECK:
+        return (f"{part_id} fell out of the jaws on the way to the drop-off: they closed to {last['width_mm']:.1f} mm "
+                "when checked above it")
     if last["action"] == "check":
         gripped = next((r["width_mm"] for r in records if r["action"] == "grip"), None)
         if gripped is None:  # the carry-off after a fault: the grip was in the pick before it

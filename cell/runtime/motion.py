@@ -43,6 +43,15 @@ class Command:
         return d
 
 
+TRANSIT_CHECK = "check at drop-off"  # the label of the grip checked above the drop-off, before the lowering
+
+
+def _check(label: str, width_mm: float, cell: Cell) -> Command:
+    """The grip again under the grip's force limit (`drivers.execute`: against the width the list gripped at,
+    else `width_mm`)."""
+    return Command("check", label, width_mm=width_mm, force_n=cell.gripper.grip_force_n)
+
+
 def above(j: Joints, z_mm: float) -> Joints:
     return Joints(j.j1_deg, j.j2_deg, z_mm, j.j4_deg)
 
@@ -78,16 +87,19 @@ def dropoff_joints(cell: Cell, near: Joints) -> Joints:
 
 
 def pick_commands(grasp_joints: Joints, opening_mm: float, cell: Cell, safe_z_mm: float | None = None,
-                  drop: Joints | None = None, *, check_grip: bool = True) -> list[Command]:
+                  drop: Joints | None = None, *, check_grip: bool = True,
+                  check_in_transit: bool = False) -> list[Command]:
     """Commands of one pick; `grasp_joints` is the configuration at the grasp (J3 = grasp z);
     travel at `safe_z_mm` (default: the cell's safe height), which must be above the grasp; let
     go at `drop` (default: the drop-off configuration nearest to the grasp's). `check_grip`: the
-    grip again after the lift (off: as the loop picked before 2026-12-04; recordings replay so)."""
+    grip again after the lift (off: as the loop picked before 2026-12-04; recordings replay so);
+    `check_in_transit`: and above the drop-off (`carry_off_commands`)."""
     safe = cell.motion.safe_z_mm if safe_z_mm is None else safe_z_mm
     return [
         *_take(grasp_joints, opening_mm, cell, safe),
         *carry_off_commands(grasp_joints, grasp_joints, cell, safe, drop,
-                            check_width_mm=opening_mm if check_grip else None),
+                            check_width_mm=opening_mm if check_grip else None,
+                            transit_width_mm=opening_mm if check_in_transit else None),
     ]
 
 
@@ -138,18 +150,23 @@ def retreat_opening_mm(opening_mm: float, standing_mm: float | None, cell: Cell)
 
 
 def carry_off_commands(from_joints: Joints, grasp_joints: Joints, cell: Cell, safe_z_mm: float,
-                       drop: Joints | None = None, *, check_width_mm: float | None = None) -> list[Command]:
+                       drop: Joints | None = None, *, check_width_mm: float | None = None,
+                       transit_width_mm: float | None = None) -> list[Command]:
     """A held part from where the arm is (`from_joints`) to the drop-off: straight up to the travel
     height, (with `check_width_mm`, the part's expected width: the grip checked there, against the width the
-    jaws held it at when this list gripped it), across, down,
-    let go, up; at `drop` (default: the drop-off configuration nearest to `grasp_joints`)."""
+    jaws held it at when this list gripped it), across, (with `transit_width_mm`, the same: checked again above
+    the drop-off, `TRANSIT_CHECK`), down, let go, up; at `drop` (default: the drop-off configuration nearest to
+    `grasp_joints`)."""
     drop = drop or dropoff_joints(cell, grasp_joints)
-    check = [] if check_width_mm is None else [
-        Command("check", "check", width_mm=check_width_mm, force_n=cell.gripper.grip_force_n)]
+    check = [] if check_width_mm is None else [_check("check", check_width_mm, cell)]
+    # a part lost on the way (off the tray: the floor) is not let go at the drop-off; without this check it
+    # counted as removed once the next frame showed it gone. Before the lowering: what falls there is off anyway
+    in_transit = [] if transit_width_mm is None else [_check(TRANSIT_CHECK, transit_width_mm, cell)]
     return [
         Command("move", "lift", above(from_joints, safe_z_mm)),
         *check,
         Command("move", "carry", above(drop, safe_z_mm)),
+        *in_transit,
         Command("move", "lower", drop),
         Command("open", "release", width_mm=cell.gripper.opening_mm[1]),
         Command("move", "retreat", above(drop, safe_z_mm)),

@@ -594,6 +594,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     lift_rest_overlap = _meta_flag(meta, "lift_rest_overlap", directory)
     walls_beyond = _meta_flag(meta, "walls_beyond", directory)
     crisp_edges = _meta_flag(meta, "crisp_edges", directory)
+    transit_check = _meta_flag(meta, "transit_check", directory)
     planner = meta.get("planner")  # absent (or null) in recordings made before it was kept; [] is no planner
     planner_params = planner_from_meta({} if planner is None else planner, f"recording {directory}")
     recorded = [d for d in rec.decisions if d.get("type") != "summary" and d.get("type") not in NOT_COMPARED]
@@ -643,6 +644,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
                                                 removal_checks=removal_checks, axis_closed_form=axis_closed_form,
                                                 lift_rest_overlap=lift_rest_overlap, walls_beyond=walls_beyond,
                                                 crisp_edges=crisp_edges,
+                                                transit_check=transit_check,
                                                 interactive=True),
                             planner_params=planner_params, taught=sink.examples_taught_here)
             go_to(arm, home_joints(cell))

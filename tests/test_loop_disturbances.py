@@ -60,7 +60,8 @@ def lose_off_the_tray(part_id: str):
 
 
 # ---------------------------------------------------------------- A: a part lost on the way to the drop-off
-def test_a_part_lost_off_the_tray_on_the_carry_is_lost_not_removed(short_assembly, monkeypatch, tmp_path):
+def test_a_part_lost_off_the_tray_on_the_carry_is_lost_not_removed_and_replays(short_assembly, monkeypatch, tmp_path,
+                                                                             capsys):
     """The nut falls out of the jaws past the tray's edge. It counted as removed (the next frame showed it gone);
     the grip checked above the drop-off finds the jaws empty: nothing is lowered or let go there, the nut is
     "lost", and the run stops telling the operator to find it."""
@@ -76,6 +77,7 @@ def test_a_part_lost_off_the_tray_on_the_carry_is_lost_not_removed(short_assembl
     assert RecordingReader(tmp_path / "r").manifest["meta"]["transit_check"] is True
     records = next(d["records"] for d in decisions if d["type"] == "executed")
     assert [x["label"] for x in records][-2:] == ["carry", "check at drop-off"] and not records[-1]["holding"]
+    replays(tmp_path / "r", capsys)  # the replay's jaws find nothing above the drop-off, as the recording did
 
 
 def test_a_part_lost_on_the_carry_goes_on_after_the_operator_s_reset(short_assembly):

@@ -334,33 +334,48 @@ class Comparison:
         wider (a neighbour, a chip on a pad), in a pick that ran to its end or one a fault cut short. With
         other examples a pick the recording holds too (`same_pick`: the same commands) closes on the recorded
         width as well; another pick closes on its planned opening. A pick with a grip and a check after the
-        lift: the grip's width at the grasp, the check's above it (nothing where the part slipped out)."""
+        lift: the grip's width at the grasp, the check's above it (nothing where the part slipped out), and the
+        check above the drop-off's there (nothing where the part was lost on the way)."""
+        from cell.runtime.motion import TRANSIT_CHECK
+
         width, fn = None, None
         if self.strict or same_pick:
             steps = (self._recorded_pick() or {}).get("records", [])
             grip = next((r for r in steps if r.get("action") == "grip"), None)
-            check = next((r for r in steps if r.get("action") == "check"), None)
+            check = next((r for r in steps if r.get("action") == "check" and r.get("label") != TRANSIT_CHECK), None)
+            transit = next((r for r in steps if r.get("label") == TRANSIT_CHECK), None)
             # jaws that stopped on something (a check's "holding" is just that); a carry-off after a fault: its check
             stopped = [r for r in (grip, check) if r is not None and (r.get("holding") or r.get("blocked"))]
             width = stopped[0]["width_mm"] if stopped else None
             if grip is not None and grip.get("holding") and check is not None:
-                fn = self._on_lift(record, grip["width_mm"], check["width_mm"] if check.get("holding") else None)
+                fn = self._on_lift(record, grip["width_mm"], check["width_mm"] if check.get("holding") else None,
+                                   transit)
         else:
             grips = [c for c in record["commands"] if c["action"] == "grip"]
             width = grips[0]["width_mm"] if grips else None
         self.drives.gripper_object_width_mm = width
         self.drives.drives["gripper"].object_width_fn = fn
 
-    def _on_lift(self, record: dict, grip_mm: float, check_mm: float | None):
+    def _on_lift(self, record: dict, grip_mm: float, check_mm: float | None, transit: dict | None = None):
         """What lies between the jaws as the recorded pick found it (as the simulated world decides it,
         `SimWorld`, by the height): closing at the grasp, the part at its grip width; closing above it, at its
-        check width (pressed further, turned between the jaws), or nothing (it slipped out on the lift)."""
+        check width (pressed further, turned between the jaws), or nothing (it slipped out on the lift); above
+        the drop-off (J1 and J2 at the lowering's), as the recorded check there (`transit`) found it."""
         from cell.runtime.simworld import LIFTED_MM
 
         grasp_z = next(c["joints"]["j3_mm"] for c in record["commands"] if c["label"] == "descend")
+        drop = next((c["joints"] for c in record["commands"] if c["label"] == "lower"), None)
+
+        def at_drop() -> bool:
+            at = self.drives.positions()
+            return abs(at["j1"] - drop["j1_deg"]) < 0.5 and abs(at["j2"] - drop["j2_deg"]) < 0.5
 
         def between_jaws() -> float | None:
-            return grip_mm if self.drives.positions()["j3"] <= grasp_z + LIFTED_MM else check_mm
+            if self.drives.positions()["j3"] <= grasp_z + LIFTED_MM:
+                return grip_mm
+            if transit is not None and drop is not None and at_drop():
+                return transit["width_mm"] if transit.get("holding") else None
+            return check_mm
 
         return between_jaws
 

@@ -611,7 +611,7 @@ def interrupt_reason(e: KeyboardInterrupt) -> str:
     return "interrupted by SIGTERM" if e.args == ("SIGTERM",) else "interrupted at the terminal"
 
 
-PROGRESS_EVENTS = ("start", "carried", "removed", "skip", "miss", "fault", "ask", "example", "vision", "frame")
+PROGRESS_EVENTS = ("start", "carried", "lost", "removed", "skip", "miss", "fault", "ask", "example", "vision", "frame")
 
 
 def _progress(control: RunControl, say) -> None:

@@ -3,7 +3,9 @@ drives on the virtual bus): a part lost on the way to the drop-off, a knocked ca
 Each is noticed by the loop and told to the operator, and the session replays."""
 
 import json
+import shutil
 
+import numpy as np
 import pytest
 from conftest import run_cli
 from test_cell_loop import DEFAULT, interactive_run
@@ -91,3 +93,113 @@ def test_a_part_lost_on_the_carry_goes_on_after_the_operator_s_reset(short_assem
                                                                ("pcb", "removed")]
     assert (s["parts_total"], s["parts_removed"]) == (3, 2)
     assert not any(e.startswith("dropped nut") for e in world.events)
+
+
+# ---------------------------------------------------------------- B: a knocked camera
+def knocked_after_the_first_frame(monkeypatch, dx_px: float = 0.0, dy_px: float = 0.0, turn_deg: float = 0.0):
+    """Every frame after the first is shifted by (dx_px, dy_px) and turned by `turn_deg` about the image centre
+    (the camera knocked once the run began; the calibration stays), the table seen round the edges."""
+    import cv2
+
+    sources = session._simulated_sources
+
+    def knocked(*a, **kw):
+        arm, camera, world = sources(*a, **kw)
+        read, frames = camera.read, []
+
+        def read_knocked():
+            frame = read()
+            frames.append(1)
+            if frame is None or len(frames) == 1:
+                return frame
+            h, w = frame.shape[:2]
+            m = cv2.getRotationMatrix2D((w / 2, h / 2), turn_deg, 1.0)
+            m[:, 2] += (dx_px, dy_px)
+            return cv2.warpAffine(frame, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+
+        camera.read = read_knocked
+        return arm, camera, world
+
+    monkeypatch.setattr(session, "_simulated_sources", knocked)
+
+
+@pytest.mark.parametrize("dx_px,dy_px,turn_deg,says", [
+    (0.0, 20.0, 0.0, "moved alike, by (9.8, 0.1) mm / 0.0 deg since the last frame"),  # image v is base x
+    (0.0, 0.0, 4.0, "mm / 4.0 deg since the last frame"),
+])
+def test_a_knocked_camera_stops_the_run_before_a_plan_on_its_frame_and_replays(monkeypatch, tmp_path, capsys,
+                                                                              dx_px, dy_px, turn_deg, says):
+    """The camera knocked after the first frame: every part left on the tray moved alike by 10 mm (20 px), or
+    turned 4 degrees. The loop planned on it and the fingers came down on the pulley's rim (and at 4 degrees on
+    the housing), ending in "pulley: missed 2 times"; now the frame is refused before a plan, and the operator
+    is told why."""
+    knocked_after_the_first_frame(monkeypatch, dx_px, dy_px, turn_deg)
+    s = run_session(RunConfig(assembly=DEFAULT, seed=0, record=tmp_path / "r"))
+    monkeypatch.undo()
+    assert s["status"] == "stopped" and s["stopped"].startswith("camera: every part seen in both frames")
+    assert says in s["stopped"] and "was the camera or the tray moved? check the calibration" in s["stopped"]
+    assert s["parts_removed"] == 0 and [r["outcome"] for r in s["parts"]] == ["carried", "stopped"]
+    decisions = RecordingReader(tmp_path / "r").decisions
+    assert [d["part"] for d in decisions if d["type"] == "commands"] == ["nut"]  # nothing sent after the knock
+    knock = [d for d in decisions if d["type"] == "perception"][1]["common_motion"]
+    assert len(knock["parts"]) >= 4 and "nut" not in knock["parts"]
+    assert RecordingReader(tmp_path / "r").manifest["meta"]["common_motion_check"] is True
+    replays(tmp_path / "r", capsys)
+    # as a recording made before the check (no meta.common_motion_check): the replay plans on the knocked frame
+    shutil.copytree(tmp_path / "r", tmp_path / "old")
+    manifest = json.loads((tmp_path / "old" / "manifest.json").read_text())
+    del manifest["meta"]["common_motion_check"]
+    (tmp_path / "old" / "manifest.json").write_text(json.dumps(manifest))
+    code, _, err = run_cli("replay", tmp_path / "old", capsys=capsys)
+    assert code == 1 and "divergence" in err, err
+
+
+def test_common_motion_is_told_from_a_pushed_neighbour_and_from_noise():
+    from cell.runtime.loop import KNOCK_MM, common_motion
+
+    before = {"a": (300.0, -100.0), "b": (420.0, 0.0), "c": (350.0, 150.0), "d": (250.0, 60.0)}
+
+    def moved(by, turn_deg=0.0, about=(350.0, 0.0)):
+        c, s = np.cos(np.radians(turn_deg)), np.sin(np.radians(turn_deg))
+        return {k: (about[0] + c * (x - about[0]) - s * (y - about[1]) + by[0],
+                    about[1] + s * (x - about[0]) + c * (y - about[1]) + by[1]) for k, (x, y) in before.items()}
+
+    assert common_motion(before, moved((0.0, 10.0))).dy_mm == pytest.approx(10.0)
+    assert common_motion(before, moved((0.0, 0.0), 2.0)).turn_deg == pytest.approx(2.0)
+    pushed = {**moved((0.0, 10.0)), "c": (358.0, 150.0)}  # one part pushed otherwise: the rest still moved alike
+    assert common_motion(before, pushed).parts == ("a", "b", "d")
+    assert common_motion(before, moved((0.2, -0.15), 0.1)) is None  # noise
+    assert common_motion(before, moved((KNOCK_MM * 0.8, 0.0))) is None  # too little to matter
+    # one part pushed and nothing else moved: no common motion
+    assert common_motion(before, {**before, "a": (310.0, -100.0)}) is None
+    # of two parts only a shift counts: one pushed 10 mm across the line between them keeps their distance
+    two = {"a": before["a"], "b": before["b"]}
+    assert common_motion(two, {"a": before["a"], "b": (420.0 + 6.0, -8.0)}) is None
+    assert common_motion(two, {k: (x + 5.0, y) for k, (x, y) in two.items()}).dx_mm == pytest.approx(5.0)
+
+
+def test_after_the_reset_the_camera_put_back_the_run_goes_on(short_assembly):
+    """At the station: the knock (10 mm) stops the loop; the operator puts the camera back and resets, and the run
+    goes on from the poses of the frame before the knock, all three parts removed."""
+    import cv2
+
+    camera = {"frames": 0, "put back": False}
+
+    def arrange(loop, arm, drives, world):
+        read = loop.camera.read
+
+        def read_knocked():
+            frame = read()
+            camera["frames"] += 1
+            if camera["frames"] > 1 and not camera["put back"]:
+                frame = cv2.warpAffine(frame, np.float32([[1, 0, 0], [0, 1, 20]]), frame.shape[1::-1],
+                                       borderMode=cv2.BORDER_REFLECT)
+            return frame
+
+        loop.camera.read = read_knocked
+
+    asked = []
+    s, world = interactive_run(short_assembly, arrange,
+                               lambda loop, w, fault: asked.append(fault) or camera.update({"put back": True}))
+    assert asked[0]["source"] == "camera" and "moved alike" in asked[0]["why"]
+    assert (s["parts_total"], s["parts_removed"]) == (3, 3)

@@ -888,7 +888,9 @@ def test_a_tool_left_on_the_tray_is_an_obstacle_as_tall_as_the_tallest_part(tmp_
     first = next(json.loads(line) for line in (tmp_path / "r" / "decisions.jsonl").read_text().splitlines()
                  if json.loads(line).get("type") == "perception")
     tall = [u for u in first["unexplained"] if u["z_top_mm"] == 40.0]
-    assert tall and abs(sum(u["area_mm2"] for u in tall) - 128) < 30  # the 16 x 8 mm block
+    # the 16 x 8 mm block, and where else it may stand, its height unknown: its image mapped from the table up to
+    # 40 mm (`loop.swept_outline`; 226 mm2: its walls' image too)
+    assert tall and 118 < sum(u["area_mm2"] for u in tall) < 2 * 128
 
 
 def test_a_self_crossing_region_keeps_all_its_area():

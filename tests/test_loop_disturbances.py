@@ -13,6 +13,7 @@ from test_cell_loop import DEFAULT, interactive_run
 from cell.recording import RecordingReader
 from cell.runtime import session
 from cell.runtime.session import RunConfig, run_session
+from cell.runtime.simworld import WorldFaults
 
 
 @pytest.fixture(scope="module")
@@ -32,12 +33,12 @@ def replays(rec, capsys) -> None:
 
 
 def with_world(monkeypatch, arrange) -> None:
-    """`run_session`'s simulated sources, with `arrange(arm, world)` run once the world is made."""
+    """`run_session`'s simulated sources, with `arrange(arm, camera, world)` run once they are made."""
     sources = session._simulated_sources
 
     def arranged(*a, **kw):
         arm, camera, world = sources(*a, **kw)
-        arrange(arm, world)
+        arrange(arm, camera, world)
         return arm, camera, world
 
     monkeypatch.setattr(session, "_simulated_sources", arranged)
@@ -47,7 +48,7 @@ def lose_off_the_tray(part_id: str):
     """`arrange` for `with_world`: `part_id` falls out of the jaws once they carry it past the tray's edge (onto the
     floor: it leaves the world)."""
 
-    def arrange(arm, world):
+    def arrange(arm, camera, world):
         def tick():
             tool, _ = world._pose()
             with world._lock:
@@ -86,7 +87,8 @@ def test_a_part_lost_on_the_carry_goes_on_after_the_operator_s_reset(short_assem
     """At the station the stop is a question: after the reset the run goes on with the next parts, and the
     summary keeps the nut lost."""
     asked = []
-    s, world = interactive_run(short_assembly, lambda loop, arm, drives, w: lose_off_the_tray("nut")(arm, w),
+    lose_the_nut = lose_off_the_tray("nut")
+    s, world = interactive_run(short_assembly, lambda loop, arm, drives, w: lose_the_nut(arm, loop.camera, w),
                                lambda loop, w, fault: asked.append(fault))
     assert asked[0]["asking"] and "nut fell out of the jaws on the way to the drop-off" in asked[0]["why"]
     assert [(r["part"], r["outcome"]) for r in s["parts"]] == [("nut", "lost"), ("washer", "removed"),
@@ -96,31 +98,33 @@ def test_a_part_lost_on_the_carry_goes_on_after_the_operator_s_reset(short_assem
 
 
 # ---------------------------------------------------------------- B: a knocked camera
-def knocked_after_the_first_frame(monkeypatch, dx_px: float = 0.0, dy_px: float = 0.0, turn_deg: float = 0.0):
-    """Every frame after the first is shifted by (dx_px, dy_px) and turned by `turn_deg` about the image centre
-    (the camera knocked once the run began; the calibration stays), the table seen round the edges."""
-    import cv2
-
-    sources = session._simulated_sources
-
-    def knocked(*a, **kw):
-        arm, camera, world = sources(*a, **kw)
+def frames_after_the_first(monkeypatch, change) -> None:
+    """`run_session`'s camera gives every frame after the first as `change(frame)` returns it."""
+    def arrange(arm, camera, world):
         read, frames = camera.read, []
 
-        def read_knocked():
+        def read_changed():
             frame = read()
             frames.append(1)
-            if frame is None or len(frames) == 1:
-                return frame
-            h, w = frame.shape[:2]
-            m = cv2.getRotationMatrix2D((w / 2, h / 2), turn_deg, 1.0)
-            m[:, 2] += (dx_px, dy_px)
-            return cv2.warpAffine(frame, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+            return frame if frame is None or len(frames) == 1 else change(frame)
 
-        camera.read = read_knocked
-        return arm, camera, world
+        camera.read = read_changed
 
-    monkeypatch.setattr(session, "_simulated_sources", knocked)
+    with_world(monkeypatch, arrange)
+
+
+def knocked(dx_px: float = 0.0, dy_px: float = 0.0, turn_deg: float = 0.0):
+    """A frame as the camera knocked gives it: shifted by (dx_px, dy_px) and turned by `turn_deg` about the image
+    centre (the calibration stays), the table seen round the edges."""
+    import cv2
+
+    def change(frame):
+        h, w = frame.shape[:2]
+        m = cv2.getRotationMatrix2D((w / 2, h / 2), turn_deg, 1.0)
+        m[:, 2] += (dx_px, dy_px)
+        return cv2.warpAffine(frame, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+
+    return change
 
 
 @pytest.mark.parametrize("dx_px,dy_px,turn_deg,says", [
@@ -133,7 +137,7 @@ def test_a_knocked_camera_stops_the_run_before_a_plan_on_its_frame_and_replays(m
     turned 4 degrees. The loop planned on it and the fingers came down on the pulley's rim (and at 4 degrees on
     the housing), ending in "pulley: missed 2 times"; now the frame is refused before a plan, and the operator
     is told why."""
-    knocked_after_the_first_frame(monkeypatch, dx_px, dy_px, turn_deg)
+    frames_after_the_first(monkeypatch, knocked(dx_px, dy_px, turn_deg))  # the camera knocked after the first frame
     s = run_session(RunConfig(assembly=DEFAULT, seed=0, record=tmp_path / "r"))
     monkeypatch.undo()
     assert s["status"] == "stopped" and s["stopped"].startswith("camera: every part seen in both frames")
@@ -181,20 +185,14 @@ def test_common_motion_is_told_from_a_pushed_neighbour_and_from_noise():
 def test_after_the_reset_the_camera_put_back_the_run_goes_on(short_assembly):
     """At the station: the knock (10 mm) stops the loop; the operator puts the camera back and resets, and the run
     goes on from the poses of the frame before the knock, all three parts removed."""
-    import cv2
-
     camera = {"frames": 0, "put back": False}
 
     def arrange(loop, arm, drives, world):
-        read = loop.camera.read
+        read, knock = loop.camera.read, knocked(dy_px=20.0)
 
         def read_knocked():
-            frame = read()
             camera["frames"] += 1
-            if camera["frames"] > 1 and not camera["put back"]:
-                frame = cv2.warpAffine(frame, np.float32([[1, 0, 0], [0, 1, 20]]), frame.shape[1::-1],
-                                       borderMode=cv2.BORDER_REFLECT)
-            return frame
+            return read() if camera["frames"] == 1 or camera["put back"] else knock(read())
 
         loop.camera.read = read_knocked
 
@@ -203,3 +201,50 @@ def test_after_the_reset_the_camera_put_back_the_run_goes_on(short_assembly):
                                lambda loop, w, fault: asked.append(fault) or camera.update({"put back": True}))
     assert asked[0]["source"] == "camera" and "moved alike" in asked[0]["why"]
     assert (s["parts_total"], s["parts_removed"]) == (3, 3)
+
+
+# ---------------------------------------------------------------- C: something reaching in
+def arm_reaching_in(frame):
+    """The frame with a person's hand on the tray beside the parts (about 160 x 100 px) and the arm reaching it from
+    the frame's bottom edge (90 px wide): 16,800 mm2 touching no part."""
+    import cv2
+
+    frame, skin = frame.copy(), (120, 150, 205)
+    cv2.ellipse(frame, (330, 330), (80, 50), 20, 0, 360, skin, -1, cv2.LINE_AA)
+    cv2.line(frame, (330, 330), (530, frame.shape[0] - 1), skin, 90, cv2.LINE_AA)
+    return frame
+
+
+def test_an_arm_reaching_in_across_the_frame_s_edge_stops_the_run_and_replays(monkeypatch, tmp_path, capsys):
+    """It was kept as an obstacle, the arm kept moving, and all six parts were picked under it."""
+    frames_after_the_first(monkeypatch, arm_reaching_in)
+    s = run_session(RunConfig(assembly=DEFAULT, seed=0, record=tmp_path / "r"))
+    monkeypatch.undo()
+    assert s["status"] == "stopped" and s["stopped"].startswith("vision: something no part explains reaches into")
+    assert "across the frame's edge" in s["stopped"] and "Nothing may reach in while the arm moves" in s["stopped"]
+    decisions = RecordingReader(tmp_path / "r").decisions
+    assert [d["part"] for d in decisions if d["type"] == "commands"] == ["nut"]  # nothing sent after it came in
+    assert "reaching_in" in [d for d in decisions if d["type"] == "perception"][1]
+    assert RecordingReader(tmp_path / "r").manifest["meta"]["stranger_checks"] is True
+    replays(tmp_path / "r", capsys)
+
+
+def test_a_cable_across_the_tray_s_edge_stops_the_run_before_anything_moves():
+    from cell.scene import parse_part
+
+    cable = parse_part({"id": "cable", "outline": [[160, -200], [260, -200], [260, -194], [160, -194]], "z_top": 6.0})
+    s = run_session(RunConfig(assembly=DEFAULT, seed=0, faults=WorldFaults(extra=(cable,))))
+    assert s["status"] == "stopped" and "across the tray's edge" in s["stopped"] and s["grasps"] == 0
+
+
+def test_a_tool_left_on_the_tray_stays_as_tall_as_the_assembly_s_tallest_part_as_parts_leave(tmp_path):
+    """An 8 mm block nobody modelled in the tray's corner: an obstacle as tall as the tallest part (40 mm, the
+    housing), also once the housing is gone (it fell to 12, 4, 3 mm with the parts left)."""
+    from cell.scene import parse_part
+
+    tool = parse_part({"id": "tool", "outline": [[210, -240], [226, -240], [226, -228], [210, -228]], "z_top": 8.0})
+    s = run_session(RunConfig(assembly=DEFAULT, seed=0, faults=WorldFaults(extra=(tool,)), record=tmp_path / "r"))
+    assert s["status"] == "complete" and s["parts_removed"] == 6
+    heights = [[u["z_top_mm"] for u in d.get("unexplained", [])] for d in RecordingReader(tmp_path / "r").decisions
+               if d["type"] == "perception"]
+    assert all(h == [40.0] for h in heights[:-1]), heights  # (the last frame: no part left to plan for)

@@ -30,7 +30,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
-from shapely.geometry import Polygon
+from shapely.geometry import Polygon, box
 
 from cell.cellconfig import Cell
 from cell.disassembly import lift_blocked_reason, parts_on_top
@@ -66,6 +66,10 @@ KNOCK_MM = 3.0  # a common motion moving the parts this far on average (2 mm kep
 KNOCK_DEG = 1.5  # ... or turning them this far (1 degree kept the fingers clear, 2 degrees did not)
 ALIKE_MM = 1.0  # moved alike: each part within this of the common motion, plus ALIKE_SHARE of its own shift (a
 ALIKE_SHARE = 0.1  # shifted image moves a 40 mm tall part's top 5 % less in mm than a flat part)
+# A region no part explains reaches in across the tray's edge when, mapped at the table, it lies on the tray and
+# beyond this band round it (a 40 mm tall thing on the tray's edge, 250 mm off the camera's axis, maps 12.5 mm out)
+REACH_IN_BAND_MM = 15.0
+SWEEP_STEP_MM = 5.0  # a region of unknown height is mapped on planes this far apart (`swept_outline`)
 
 
 @dataclass(frozen=True)
@@ -108,6 +112,20 @@ def _fitted_turn_deg(a: np.ndarray, b: np.ndarray) -> float:
     """The turn of the least-squares rigid fit of the points `a` onto `b` (2D Kabsch)."""
     h = (a - a.mean(axis=0)).T @ (b - b.mean(axis=0))
     return float(np.degrees(np.arctan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])))
+
+
+def swept_outline(polygon_at):
+    """`Region.polygon_at` for a region nothing was located in (its height unknown): the outline mapped on planes
+    every SWEEP_STEP_MM from the table up to the top, together (each of its pixels may lie at any of those heights):
+    where the thing may stand, however tall up to the top. (Mapped as a prism that tall with its walls taken out,
+    an 8 mm block assumed 40 mm tall crossed itself and kept a quarter of its area, or none.)"""
+    import shapely
+
+    def at(z_top_mm: float, z_bottom_mm: float) -> Polygon:
+        planes = max(2, int(np.ceil(z_top_mm / SWEEP_STEP_MM)) + 1)
+        return shapely.union_all([polygon_at(z, z) for z in np.linspace(0.0, z_top_mm, planes)])
+
+    return at
 
 
 def valid_area(poly: Polygon):
@@ -175,6 +193,11 @@ class LoopOptions:
     # (`common_motion`): the camera or the tray was moved; stop and ask, not plan on it. Off in recordings made
     # before: a knocked camera's frames were planned on, and fingers came down on a pulley's rim.
     common_motion_check: bool = True
+    # A region no part explains that reaches in across the frame's edge or the tray's (a person's arm, a cable) stops
+    # the loop and asks; one wholly on the tray stays an obstacle, as tall as the assembly's tallest part (not the
+    # tallest left). Off in recordings made before: an arm reaching in was an obstacle whose height fell from 40 to
+    # 3 mm as parts left, and the arm kept moving.
+    stranger_checks: bool = True
 
 
 @dataclass
@@ -590,6 +613,7 @@ class CellLoop:
                 seen[part.id] = part.moved(loc.dx_mm, loc.dy_mm, loc.dtheta_deg, about=base.polygon.centroid.coords[0])
                 carried[part.id] = carrier
         moved = self._camera_moved(found)
+        reaching = self._reaching_in(segments, regions, strangers)
         for pid, part in seen.items():
             if pid in self.poses and moved is None:  # (knocked: the poses stay as the last frame measured them)
                 self.poses[pid] = part
@@ -610,7 +634,8 @@ class CellLoop:
                                  "z_top_mm": u.z_top_mm} for u in self.unexplained]} if self.unexplained else {}),
             **({"common_motion": {"parts": list(moved.parts), "dx_mm": round(moved.dx_mm, 3),
                                   "dy_mm": round(moved.dy_mm, 3), "turn_deg": round(moved.turn_deg, 3)}}
-               if moved else {})})
+               if moved else {}),
+            **({"reaching_in": reaching} if reaching else {})})
         if strangers:
             self.control.log("vision", f"{len(strangers)} region(s) match no part of the assembly",
                              regions=strangers)
@@ -623,7 +648,30 @@ class CellLoop:
                   "parts are taken where the next frame shows them"
             self._stop_and_ask("camera", why, fault=True)
             raise Faulted(why)
+        if reaching:
+            self._stop_and_ask("vision", reaching)
+            raise Faulted(reaching)
         return seen
+
+    def _reaching_in(self, segments, regions: list[Region], strangers: list[int]) -> str:
+        """What the operator reads of the regions no part explains (`strangers`) that reach in across the frame's
+        edge or the tray's (`REACH_IN_BAND_MM`): nothing may reach in while the arm moves; "" when none does."""
+        if not self.options.stranger_checks:
+            return ""
+        t = self.cell.tray
+        tray = box(t.x_mm[0], t.y_mm[0], t.x_mm[1], t.y_mm[1])
+        reaching = []
+        for i in strangers:
+            at_table = regions[i].polygon_at(0.0, 0.0)
+            across = "the frame's edge" if segments[i].cut_off else (
+                "the tray's edge" if at_table.intersects(tray) and not at_table.within(tray.buffer(REACH_IN_BAND_MM))
+                else "")
+            if across:
+                reaching.append(f"region {i} ({at_table.area:.0f} mm2 at the table) across {across}")
+        if not reaching:
+            return ""
+        return (f"something no part explains reaches into the cell: {'; '.join(reaching)}. A person's arm, a cable? "
+                "Nothing may reach in while the arm moves: clear it, then reset")
 
     def _camera_moved(self, found: dict) -> CommonMotion | None:
         """The common motion (`common_motion`) of the parts located by registration in this frame and the last,
@@ -649,6 +697,10 @@ class CellLoop:
         if not (missing or strangers or covered) or not self.poses:
             return []
         tallest = max(p.z_top_mm for p in self.poses.values())
+        if self.options.stranger_checks:  # an unknown thing does not get lower as parts leave; where it may stand
+            tallest = max(p.z_top_mm for p in self.assembly.parts)
+            regions = [replace(r, polygon_at=swept_outline(r.polygon_at)) if r.index in strangers else r
+                       for r in regions]
         # leftovers beside located parts: most likely a part not found; a region nothing was located
         # in may be anything (a tool left on the tray): at least as tall as the tallest part
         return unexplained(regions, seen, found, max((p.z_top_mm for p in missing), default=tallest), tallest,

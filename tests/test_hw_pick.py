@@ -75,6 +75,35 @@ def test_a_part_that_slips_out_on_the_lift_opens_the_jaws_and_goes_up(cell_cfg):
         assert "carry" not in [r["label"] for r in records]
 
 
+def test_a_part_lost_on_the_way_to_the_drop_off_is_lost_not_let_go_there(cell_cfg):
+    """The part falls out of the jaws during the carry: the check above the drop-off finds the jaws empty, so
+    nothing is lowered or let go there; the outcome is "lost" (it said held: the pick ran to its release)."""
+    from cell.commands.hw_pick import _carry_out, _outcome, _text
+    from cell.runtime.motion import TRANSIT_CHECK
+    from drivers import simulated_cell
+
+    _, _, home, first_clear = _planned(cell_cfg)
+    with simulated_cell(cell_cfg) as (arm, drives):
+        grasp, commands = first_clear(arm)
+        assert TRANSIT_CHECK in [c.label for c in commands]
+        carry = next(c.joints for c in commands if c.label == "carry")
+        held = [True]
+
+        def in_jaws():
+            at = drives.positions()
+            if abs(at["j1"] - carry.j1_deg) < 1.0 and abs(at["j2"] - carry.j2_deg) < 1.0:
+                held[0] = False  # it fell out on the way
+            return grasp.opening_mm if held[0] else None
+
+        drives.drives["gripper"].object_width_fn = in_jaws
+        records = _carry_out(arm, cell_cfg, grasp, commands, home, False)
+        labels = [r["label"] for r in records]
+        assert _outcome(records) == "lost" and labels[-1] == TRANSIT_CHECK, labels
+        assert "lower" not in labels and "release" not in labels
+        assert drives.positions()["gripper"] == pytest.approx(80.0, abs=0.01)  # opened once up, as after a slip
+        assert "LOST on the way to the drop-off" in _text("nut", grasp, "lost", records, 1.0)
+
+
 def _watch_opening(arm) -> list[tuple[float, float]]:
     """Every width the jaws are opened to after this (fully: the stroke's top), with the height (J3 mm) they
     stand at then."""

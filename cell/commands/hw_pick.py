@@ -122,7 +122,7 @@ def _first_clear(arm, cell, scene, ranked, place_back: bool, home, planner):
                 return grasp, clear_commands(arm, cell, others, place_back_commands(
                     grasp.joints, grasp.opening_mm, cell, safe_z), "", start=home)
             return grasp, clear_way(arm, cell, others, grasp.joints, "", lambda drop, g=grasp, z=safe_z: pick_commands(
-                g.joints, g.opening_mm, cell, safe_z_mm=z, drop=drop), start=home)
+                g.joints, g.opening_mm, cell, safe_z_mm=z, drop=drop, check_in_transit=True), start=home)
         except LinksWouldHit as e:
             first = first or e
     raise first or LinksWouldHit(f"none of the best {min(len(ranked), MAX_GRASPS_TRIED)} grasps has a "
@@ -163,12 +163,15 @@ def _moved(records: list[dict]) -> float | None:
 
 
 def _outcome(records: list[dict], place_back: bool = False) -> str:
-    """held, missed (closed past the part), blocked (stopped wider than it), slipped (lost on the lift), or
-    moved (put back: still held at the travel height, not set down)."""
+    """held, missed (closed past the part), blocked (stopped wider than it), slipped (lost on the lift), lost (on
+    the way to the drop-off: not let go there), or moved (put back: still held at the travel height, not set
+    down)."""
+    from cell.runtime.motion import TRANSIT_CHECK
+
     last = records[-1] if records else {}
     if last.get("holding") is False:
         if last.get("action") == "check":
-            return "slipped"
+            return "lost" if last.get("label") == TRANSIT_CHECK else "slipped"
         return "blocked" if last.get("blocked") else "missed"
     if place_back and last.get("action") == "check":
         return "moved"
@@ -195,6 +198,7 @@ def _text(target, grasp, outcome, records, time_s) -> str:
     else:
         verdict = {"held": "held through the check", "missed": "MISSED: the jaws closed past it",
                    "blocked": "BLOCKED: the jaws stopped wider than the part",
-                   "slipped": "SLIPPED out of the jaws on the lift"}[outcome]
+                   "slipped": "SLIPPED out of the jaws on the lift",
+                   "lost": "LOST on the way to the drop-off (the jaws were empty above it): find it"}[outcome]
     lines.append(f"{target}: {verdict} ({time_s:.2f} s)")
     return "\n".join(lines)

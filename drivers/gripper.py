@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from cell.cellconfig import GRIPPER_ACCEL_FACTOR, grip_force_units
+from drivers.arm_moves import POSITION_TOLERANCE_COUNTS
 from drivers.eds import GRIP_FORCE_INDEX
 from drivers.errors import DriveFault, LimitError
 from drivers.limits import gripper_violations
@@ -89,8 +90,6 @@ class Gripper:
         arrival (a grip closes on the part that way). An opening is to reach its width: jaws of the pre-open
         stopped at 60 mm of 50 went down 10 mm wider than the planner cleared. More than the arrival tolerance
         (`POSITION_TOLERANCE_COUNTS`, 0.002 mm on the shipped cell) off is a fault."""
-        from drivers.arm import POSITION_TOLERANCE_COUNTS  # (drivers.arm imports this module)
-
         ax = self._arm.axes["gripper"]
         if abs(ax.status.position_counts - ax.to_counts(width_mm)) <= POSITION_TOLERANCE_COUNTS:  # as `Arm._arrived`
             return

@@ -9,7 +9,7 @@
     execute.run_commands(arm, commands) -> records        a pick's command list on the arm
 
 Data flow: joint command -> limits (drivers.limits) -> counts (codec) -> RPDO / SDO frames
-(drivers.axis) -> bus; TPDO / EMCY / heartbeat frames -> codec -> supervision (drivers.arm).
+(drivers.axis) -> bus; TPDO / EMCY / heartbeat frames -> codec -> supervision (drivers.arm_supervision).
 """
 
 from drivers.arm import Arm

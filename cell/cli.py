@@ -4,13 +4,15 @@ Each module in `cell.commands` defines `add_arguments(parser)` and `run(args) ->
 Heavy imports (cv2, sklearn, canopen, rerun) belong inside `run`, so `cell --help` is fast.
 Errors of the `CellError` family become a message on stderr and their exit code
 (2 for bad input); no traceback reaches the user for anything the user can fix. An OSError (a path or
-device that cannot be used) is bad input too; any other exception is a bug, reported in one line with
-exit 1 (CELL_TRACEBACK=1 lets the traceback through).
+device that cannot be used) is bad input too, named by its file, except a full or failing disk (ENOSPC,
+EDQUOT, EIO: exit 1); any other exception is a bug, reported in one line with exit 1 (CELL_TRACEBACK=1 lets
+the traceback through).
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import importlib.util
 import logging
@@ -156,6 +158,17 @@ class _CellFormatter(logging.Formatter):
         return f"cell: {record.levelname.lower()}: {record.getMessage()}"
 
 
+# a full disk or a failing one: the machine's state, not bad input (exit 1, as a run that stopped)
+DISK_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EIO)
+
+
+def _os_error_text(e: OSError) -> str:
+    """"/x/out.png: No space left on device", not "[Errno 28] No space left on device"."""
+    if e.filename is not None and e.strerror:
+        return f"{e.filename}{'' if e.filename2 is None else f' -> {e.filename2}'}: {e.strerror}"
+    return e.strerror or str(e)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     warnings_to_stderr()
@@ -178,10 +191,8 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:
         return 0
     except OSError as e:  # a path or device the user named cannot be used (permissions, a full disk, ...)
-        named = (f"{e.filename}{'' if e.filename2 is None else f' -> {e.filename2}'}: {e.strerror}"
-                 if e.filename is not None and e.strerror else str(e))
-        print(f"cell: error: {named}", file=sys.stderr)  # "/x/out.png: No space left on device", not "[Errno 28] ..."
-        return 2
+        print(f"cell: error: {_os_error_text(e)}", file=sys.stderr)
+        return 1 if e.errno in DISK_ERRNOS else 2
     except Exception as e:  # a bug: one line, not a traceback; CELL_TRACEBACK=1 shows where it happened
         if os.environ.get("CELL_TRACEBACK"):
             raise

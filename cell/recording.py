@@ -28,8 +28,10 @@ file and line.
 from __future__ import annotations
 
 import contextlib
+import errno
 import io
 import json
+import logging
 import math
 import os
 import platform
@@ -69,6 +71,61 @@ RRD = "session.rrd"
 STATUSES = ("recording", "complete", "incomplete")
 _FRAME_RE = re.compile(r"^(\d{6,})\.png$")
 _SHA256_RE = re.compile(r"[0-9a-fA-F]{64}")
+
+log = logging.getLogger(__name__)
+
+# What a recording needs on its disk (measured on the default cell, 1280 x 1024 px: rec of 6 parts, 13.8 MB):
+# a frame is a PNG of the camera's noisy pixels, ~1.4 bytes a pixel (1.78 MB); each pick adds ~0.25 MB of
+# CAN log (67 kB), rerun recording (128 kB) and decision lines (4 kB); a run takes one frame more than picks.
+PNG_BYTES_PER_PX = 1.4
+OTHER_MB_PER_PICK = 0.25
+# Kept free: a recording stops (and the run with it) before a frame would leave less than this, so that the
+# manifest (~40 kB), the last decisions and the CAN log of the arm's stop and shutdown still fit.
+CLOSE_RESERVE_MB = 1.0
+LOW_SPACE_PICKS = 3  # warn when the disk holds fewer picks than this beyond the reserve
+_MB = 1 << 20
+
+
+class RecordingFailed(OSError):
+    """A write into the recording failed (a full disk, an I/O error) or would leave less than the close
+    reserve: the session cannot be recorded on. An OSError naming the file; not a CellError, so the loop does
+    not hold for the operator over it: the session stops (cell.runtime.session)."""
+
+    @property
+    def reason(self) -> str:
+        return f"{self.filename}: {self.strerror}" if self.filename else str(self.strerror or self)
+
+
+def as_recording_failed(e: OSError, path) -> RecordingFailed:
+    """`e` (raised writing `path`) as a RecordingFailed naming the file (a full disk's fsync names none)."""
+    return RecordingFailed(e.errno, e.strerror or str(e), str(e.filename or path))
+
+
+def mb_per_pick(width_px: int, height_px: int) -> float:
+    """What one pick is likely to add to a recording (MB): its frame and the rest (see PNG_BYTES_PER_PX)."""
+    return width_px * height_px * PNG_BYTES_PER_PX / _MB + OTHER_MB_PER_PICK
+
+
+def free_mb(folder) -> float:
+    """Free space (MB) on the disk of `folder`, or of the nearest of its parents that exists."""
+    for d in (Path(folder), *Path(os.path.abspath(folder)).parents):
+        if d.exists():
+            return shutil.disk_usage(d).free / _MB
+    return math.inf
+
+
+def require_space_for(folder, parts: int, width_px: int, height_px: int) -> None:
+    """Refuse (BadInput) a recording into `folder` whose disk has less free than the run is likely to need:
+    a frame and a pick's other files for each part, one frame more, and the close reserve."""
+    per_pick = mb_per_pick(width_px, height_px)
+    frame_mb = per_pick - OTHER_MB_PER_PICK
+    need = parts * per_pick + frame_mb + CLOSE_RESERVE_MB
+    have = free_mb(folder)
+    if have < need:
+        raise BadInput(f"--record {folder}: its disk has {have:.1f} MB free; a run of {parts} parts is likely to "
+                       f"need {need:.1f} MB ({per_pick:.1f} MB a pick: a {width_px} x {height_px} px frame and the "
+                       f"CAN log, rerun and decisions; {CLOSE_RESERVE_MB:g} MB kept to close it): free some space "
+                       "or record elsewhere")
 
 
 def _now_iso() -> str:
@@ -222,7 +279,10 @@ class RecordingWriter:
                 "meta": to_jsonable(meta or {}),
             }
             write_json_atomic(self.dir / MANIFEST, self.manifest)
-            self._decisions = open(self.dir / DECISIONS, "x", encoding="utf-8")  # noqa: SIM115 - held open
+            # unbuffered: a line a full disk cut short is cut off again (`_append_decision`), none is left buffered
+            self._decisions = open(self.dir / DECISIONS, "xb", buffering=0)  # noqa: SIM115 - held open
+            self._decisions_bytes = 0
+            self._low_space_warned = False
         except BaseException as e:  # a full disk, Ctrl-C, SIGTERM: no half-made folder that blocks the name
             self._take_away(made, examples_copy)
             if isinstance(e, OSError):
@@ -268,7 +328,11 @@ class RecordingWriter:
         if not ok:
             raise ValueError("frame could not be encoded as PNG")
         rel = f"{FRAMES_DIR}/{int(index):06d}.png"
-        write_atomic(self.dir / rel, png.tobytes())
+        self._require_room(self.dir / rel, png.nbytes)
+        try:
+            write_atomic(self.dir / rel, png.tobytes())
+        except OSError as e:
+            raise as_recording_failed(e, self.dir / rel) from None
         with self._lock:
             self._frame_indices.add(int(index))
         return rel
@@ -281,11 +345,40 @@ class RecordingWriter:
         with self._lock:
             if self._closed:
                 raise RuntimeError("recording is closed")
-            self._decisions.write(line + "\n")
-            self._decisions.flush()
-            os.fsync(self._decisions.fileno())
+            self._append_decision((line + "\n").encode("utf-8"))
             self._n_decisions += 1
             self.last_decision = record
+
+    def _append_decision(self, data: bytes) -> None:
+        """Write `data` at the end of decisions.jsonl and fsync it; on a failure (a full disk) cut the file
+        back to its last whole line, so that the recording stays readable, and raise RecordingFailed."""
+        fd, start = self._decisions.fileno(), self._decisions_bytes
+        try:
+            done = 0
+            while done < len(data):  # a nearly full disk takes part of a write before it refuses the rest
+                done += os.write(fd, data[done:])
+            os.fsync(fd)
+        except OSError as e:
+            with contextlib.suppress(OSError):
+                os.ftruncate(fd, start)
+                os.lseek(fd, start, os.SEEK_SET)
+            raise as_recording_failed(e, self.dir / DECISIONS) from None
+        self._decisions_bytes = start + len(data)
+
+    def _require_room(self, path: Path, nbytes: int) -> None:
+        """Before a frame: refuse it (RecordingFailed, ENOSPC) when it would leave less than the close reserve
+        on the disk; warn once when fewer than LOW_SPACE_PICKS picks' worth are left."""
+        left_mb = free_mb(self.dir) - nbytes / _MB
+        if left_mb < CLOSE_RESERVE_MB:
+            raise RecordingFailed(errno.ENOSPC, f"the disk is full: {left_mb + nbytes / _MB:.1f} MB free, the "
+                                  f"frame needs {nbytes / _MB:.1f} MB and {CLOSE_RESERVE_MB:g} MB are kept to close "
+                                  "the recording", str(path))
+        per_pick = nbytes / _MB + OTHER_MB_PER_PICK
+        if not self._low_space_warned and left_mb < CLOSE_RESERVE_MB + LOW_SPACE_PICKS * per_pick:
+            self._low_space_warned = True
+            log.warning("recording %s: only %.1f MB left on its disk, about %d more picks (%.1f MB each); the run "
+                        "stops when it is full", self.dir, left_mb, max(0, int((left_mb - CLOSE_RESERVE_MB)
+                                                                                 // per_pick)), per_pick)
 
     def attach_can_logger(self, bus=None, *, notifier=None) -> Callable[[], None]:
         """Log every frame seen on the bus into can_log_path (candump format).
@@ -353,7 +446,10 @@ class RecordingWriter:
                         lambda: f.read(1 << 20), b""))
             if not self.rrd_path.exists():
                 self.manifest["files"]["rrd"] = None
-        write_json_atomic(self.dir / MANIFEST, self.manifest)
+        try:
+            write_json_atomic(self.dir / MANIFEST, self.manifest)
+        except OSError as e:  # it still says "recording": read back as incomplete, a crash's
+            raise as_recording_failed(e, self.dir / MANIFEST) from None
 
     def _counts_at_close(self) -> dict:
         """The counts the manifest states: what was written, and what an interrupt kept from being counted.

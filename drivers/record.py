@@ -7,6 +7,7 @@ hears every participant (the host and the drives) without touching their buses.
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import can
@@ -17,6 +18,7 @@ from drivers.clock import Clock
 from drivers.pump import BusPump
 
 SUFFIXES = (".asc", ".log", ".blf")
+log = logging.getLogger(__name__)
 
 
 class BusRecorder:
@@ -45,6 +47,7 @@ class BusRecorder:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.clock = clock
         self.frames = 0
+        self.error: OSError | None = None  # the write that failed (a full disk); nothing is written after it
         self._writer = can.Logger(str(self.path))
         self._pump = BusPump(bus, [self._on_message], name="can-recorder")
         if clock is not None:
@@ -58,8 +61,21 @@ class BusRecorder:
             # a candump line is split at spaces: a channel named with one ("--channel 'test bus'") made the
             # recording's can.log unreadable (this bus is the recorder's own: nobody else sees the change)
             msg.channel = "_".join(msg.channel.split())
-        self._writer.on_message_received(msg)
+        if self.error is not None:
+            return  # the log stopped at its first failed write: the file keeps whole lines only
+        try:
+            self._writer.on_message_received(msg)
+        except OSError as e:  # a full disk: said once, here, with why (was "listener failed" for every frame)
+            self._failed(e)
+            return
         self.frames += 1
+
+    def _failed(self, e: OSError) -> None:
+        from cell.recording import as_recording_failed
+
+        self.error = as_recording_failed(e, self.path)
+        log.warning("CAN log %s: the frames after the first %d are not written: %s", self.path, self.frames,
+                    self.error.strerror)
 
     def stop(self) -> int:
         """Write out what was heard so far and close the file; returns the number of frames."""
@@ -69,14 +85,22 @@ class BusRecorder:
             if self.clock is not None:
                 self.clock.remove_settler(self._pump.settle)
             self._pump.stop()
-            self._writer.stop()
+            try:
+                self._writer.stop()
+            except OSError as e:  # its last lines could not be written out
+                if self.error is None:
+                    self._failed(e)
         return self.frames
 
     def __enter__(self) -> BusRecorder:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, exc_type, exc, tb) -> None:
+        """Stops; a log a write failure cut short is then an error (RecordingFailed, naming the file), unless
+        another one is already on its way."""
         self.stop()
+        if self.error is not None and exc_type is None:
+            raise self.error
 
 
 def read_log(path: str | Path) -> list[can.Message]:

@@ -33,10 +33,10 @@ def test_an_os_error_is_bad_input(monkeypatch, capsys):
     monkeypatch.setattr(rules_command, "run", _fails_with(PermissionError(13, "Permission denied", "/x/examples")))
     code, out, err = run_cli("rules", capsys=capsys)
     assert code == 2 and err.strip() == "cell: error: /x/examples: Permission denied"
-    # a full disk's write names the file too (write_atomic adds it; it said "[Errno 28] No space left on device")
+    # a full disk is no bad input (exit 1); one that names no file still says what is wrong, not "[Errno 28] ..."
     monkeypatch.setattr(rules_command, "run", _fails_with(OSError(28, "No space left on device")))
     code, out, err = run_cli("rules", capsys=capsys)
-    assert code == 2 and err.strip() == "cell: error: [Errno 28] No space left on device"
+    assert code == 1 and err.strip() == "cell: error: No space left on device"
     monkeypatch.setattr(rules_command, "run", _fails_with(OSError(18, "Invalid cross-device link", "/a", None, "/b")))
     code, out, err = run_cli("rules", capsys=capsys)
     assert code == 2 and err.strip() == "cell: error: /a -> /b: Invalid cross-device link"

@@ -392,7 +392,7 @@ def test_replay_refuses_a_complete_recording_that_lost_its_rrd(tmp_path, capsys,
 
 
 def test_a_run_that_fails_mid_way_is_recorded_as_failed_and_replays_as_incomplete(tmp_path, capsys, monkeypatch):
-    # a full disk after the first part (seen on a 3 MB tmpfs): the run ends with exit 2, and its
+    # a full disk after the first part (seen on a 3 MB tmpfs): the run ends with exit 1 (not bad input), and its
     # recording used to be closed as "complete", which replay then called a divergence (exit 1)
     import errno
 
@@ -417,7 +417,7 @@ def test_a_run_that_fails_mid_way_is_recorded_as_failed_and_replays_as_incomplet
     (tmp_path / "two.json").write_text(json.dumps(two))
     d = tmp_path / "rec"
     code, _, err = run_cli("run", tmp_path / "two.json", "--record", d, "--json", capsys=capsys)
-    assert code == 2 and "No space left on device" in err
+    assert code == 1 and "No space left on device" in err
     m = json.loads((d / "manifest.json").read_text())
     assert m["status"] == "incomplete" and m["summary"]["status"] == "failed"
     assert m["summary"]["parts_removed"] == 1 and "No space left" in m["summary"]["error"]

@@ -6,7 +6,9 @@ python-can's virtual bus). With no arguments: the shipped default assembly. With
 `--interface I [--channel C] --camera SPEC` the real cell instead: the drives on that CAN bus,
 frames from that camera (asks before the arm moves, or `--yes`).
 Exit 0 when the whole sequence was removed, 1 when the run stopped or skipped a part (the summary's
-status is then "stopped", or "complete" with `parts_skipped`), 2 on bad input, 130 on Ctrl-C or SIGTERM.
+status is then "stopped", or "complete" with `parts_skipped`; also when the recording's disk is full:
+docs/station.md), 2 on bad input (a --record disk too small for the run, refused before anything moves),
+130 on Ctrl-C or SIGTERM.
 """
 
 from __future__ import annotations
@@ -220,6 +222,6 @@ def _print_summary(s: dict, out) -> None:
         print(f"  host: {looks['late']} of {looks['looks']} looks at the drives during moves came later than "
               f"{looks['allowed_gap_ms']:g} ms after the one before (worst {looks['worst_gap_ms']:g} ms): the way "
               "check's stop model (can.stop_lag_ms) did not hold then", file=out)
-    for k in ("recording", "rrd", "stopped"):
+    for k in ("recording", "rrd", "stopped", "recording_not_closed", "can_log_failed"):
         if k in s:
             print(f"  {k}: {s[k]}", file=out)

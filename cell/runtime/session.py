@@ -21,6 +21,7 @@ import numpy as np
 from cell.cellconfig import load_cell
 from cell.examples import default_examples_path
 from cell.fileio import check_writable, json_text, make_folder
+from cell.recording import RecordingFailed
 from cell.runtime.control import RunControl, Stopped
 from cell.runtime.loop import CellLoop, LoopOptions, StopRun
 from cell.runtime.simworld import SimWorld, WorldFaults
@@ -268,6 +269,10 @@ def _run_session(cfg: RunConfig, say) -> dict:
     if cfg.station:  # its rejects and teaching are written there: a read-only file stopped the run at the first
         check_writable(examples_out or examples_path, "the run's example file" if examples_out else "--examples")
 
+    if cfg.record:  # a disk that cannot hold the run is found before anything moves (cell.recording)
+        from cell.recording import require_space_for
+
+        require_space_for(cfg.record, len(assembly.parts), cal.width_px, cal.height_px)
     if cfg.save_rrd:  # before the recording is made: a run that cannot start leaves no recording behind
         from cell.cellconfig import default_cell_path
 
@@ -319,6 +324,8 @@ def _run_session(cfg: RunConfig, say) -> dict:
     control = RunControl(require_approval=cfg.require_approval)
     status, summary = None, None
     with HeldInterrupts() as interrupts, contextlib.ExitStack() as stack:
+        # the CAN log's write failure, raised as the drives shut down: said, not raised (the summary is reported)
+        stack.push(lambda _t, e, _tb: _can_log_failed(e, summary, say))
         can_log = recorder.can_log_path if recorder else None
         try:
             if cfg.real_cell is not None:
@@ -373,7 +380,11 @@ def _run_session(cfg: RunConfig, say) -> dict:
             why = f"operator: {e}" if isinstance(e, Stopped) else str(e)  # a StopRun names its source
             summary = {**loop.summary(), "stopped": why}
             say(f"stopped: {why}")
-        except BaseException as e:  # a fault, a full disk, a bug: the session did not complete
+        except RecordingFailed as e:  # a full disk: stopped as a stop to ask with nobody there is
+            interrupts.hold()
+            status = "stopped"
+            summary = _stop_on_recording_failure(e, loop, arm, say)
+        except BaseException as e:  # a fault, a bug: the session did not complete
             interrupts.hold()
             status = "failed"
             summary = {**loop.summary(), "error": f"{type(e).__name__}: {e}"}
@@ -398,14 +409,46 @@ def _run_session(cfg: RunConfig, say) -> dict:
             if interrupted is not None:
                 interrupted.summary = summary
             if recorder is not None:
-                try:
-                    recorder.close("complete" if status == "complete" else "incomplete", summary)
-                except OSError:
-                    if status == "complete":
-                        raise
-                    # (a full disk: the manifest keeps "recording", which reads as incomplete too; the
-                    # error that ended the run is the one to report)
+                _close_recording(recorder, status, summary, say)
     return summary
+
+
+def _stop_on_recording_failure(e, loop: CellLoop, arm, say) -> dict:
+    """The recording cannot go on (a full disk, an I/O error): the arm stops as at the operator's stop (it
+    stands between moves: the loop writes between them) and the run ends stopped, naming the file. No stop
+    decision is written (the disk is full): the recording's end is missing, as `cell replay` reads it."""
+    why = f"recording: {e.reason}"
+    try:
+        arm.stop()
+    finally:
+        loop.stopped_on(why)  # the part worked on says so too
+    say(f"stopped: {why}")
+    return {**loop.summary(), "stopped": why, "recording_failed": e.reason}
+
+
+def _can_log_failed(e, summary: dict | None, say) -> bool:
+    """True (suppressed) for the recording's CAN log's RecordingFailed once the run has its summary."""
+    if not isinstance(e, RecordingFailed) or summary is None:
+        return False
+    summary["can_log_failed"] = e.reason
+    say(f"the recording's CAN log is cut short: {e.reason}")
+    return True
+
+
+def _close_recording(recorder, status: str, summary: dict, say) -> None:
+    """Close the recording with the run's summary. One a write failure ended closes with the summary's status
+    "failed" (its end is not recorded: replay calls it incomplete, exit 2). A manifest the disk cannot take is
+    said (it keeps "recording", read back as incomplete), unless the run completed: then it is the run's error."""
+    recorded = summary if "recording_failed" not in summary else {**summary, "status": "failed",
+                                                                   "error": summary["stopped"]}
+    try:
+        recorder.close("complete" if status == "complete" else "incomplete", recorded)
+    except OSError as e:
+        if status == "complete":
+            raise
+        reason = e.reason if isinstance(e, RecordingFailed) else str(e)
+        summary["recording_not_closed"] = reason
+        say(f"the recording could not be closed ({reason}): its manifest still says 'recording'")
 
 
 class _WaitEnded(Exception):  # noqa: N818 - not an error: a signal ended HeldInterrupts.linger's wait

@@ -38,6 +38,7 @@ class BusPump:
         self._stop = threading.Event()
         self._last_rx = time.monotonic()
         self.errors: list[BaseException] = []
+        self._said: set = set()  # (listener, error type) already logged
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
 
@@ -71,11 +72,22 @@ class BusPump:
                     try:
                         fn(msg)
                     except Exception as e:  # one listener's bug must not starve the others
-                        self.errors.append(e)
-                        log.exception("listener failed on %s", self._thread.name)
+                        self._listener_failed(fn, e)
             finally:
                 if self._queue is not None:
                     self._queue.task_done()
+
+    def _listener_failed(self, fn, e: Exception) -> None:
+        """Say why a listener failed, once for each listener and kind of error (a full disk failed every frame:
+        "listener failed on can-recorder" over and over, without the reason); the traceback at debug level."""
+        self.errors.append(e)
+        key = (getattr(fn, "__qualname__", repr(fn)), type(e))
+        if key in self._said:
+            return
+        self._said.add(key)
+        log.error("listener %s failed on %s: %s: %s (said once; later failures are counted in errors)",
+                  key[0], self._thread.name, type(e).__name__, e)
+        log.debug("listener %s failed", key[0], exc_info=e)
 
     def settle(self, timeout_s: float = 2.0) -> bool:
         """Return once every frame already on its way to this bus has been handled."""

@@ -96,6 +96,22 @@ def test_replay_of_a_session_killed_mid_way_says_incomplete_not_divergence(tmp_p
     assert "incomplete" in err and "7 recorded decisions match" in err and "divergence" not in err
 
 
+def test_replay_json_of_a_session_killed_mid_way_says_how_far_it_matched_on_stdout(tmp_path, capsys):
+    # the verdict was on stderr only, stdout empty: a script could not tell "7 matched, then killed" from a
+    # corrupt folder
+    d = _copy_of_shipped(tmp_path)
+    _cut_off_mid_session(d)
+    code, out, err = run_cli("replay", d, "--json", capsys=capsys)
+    verdict = json.loads(out.strip().splitlines()[-1])
+    assert code == 2 and "7 recorded decisions match" in err
+    assert verdict["incomplete"] is True and verdict["matched"] == 7 and verdict["match"] is None
+    assert "is torn" in " ".join(verdict["problems"]) and verdict["session"]["recording"] == "recording"
+    (d / "manifest.json").write_text("{")  # a corrupt folder says so: nothing matched, not incomplete
+    code, out, _ = run_cli("replay", d, "--json", capsys=capsys)
+    verdict = json.loads(out.strip().splitlines()[-1])
+    assert code == 2 and verdict["incomplete"] is False and verdict["matched"] is None and verdict["error"]
+
+
 def test_replay_of_a_killed_session_still_names_a_divergence_within_what_was_recorded(tmp_path, capsys):
     d = _copy_of_shipped(tmp_path)
     _cut_off_mid_session(d)

@@ -3,16 +3,21 @@
 Re-runs perception and planning on a recorded session's frames with the simulated drives and
 checks that every decision and command matches the recording. Exit 0 when all match, 1 at
 the first divergence (named on stderr), 2 on a missing or corrupt recording, or on one whose end
-was never recorded (killed, or failed). A stopped session was recorded up to its stop: it can match
-(exit 0), and the output says that it was stopped, after how many parts and why; a stop on a drive or bus fault
-is re-created, or taken from the recording where it cannot be, and a note says which. With
-`--examples FILE` (other teaching examples) the differences are listed instead (exit 0).
+was never recorded (killed, or failed: a full disk); with --json then too a JSON line on stdout:
+`incomplete`, how many recorded decisions `matched` before the end, `error`, `session`, `problems` (`match`
+null). A stopped session was recorded up to its stop: it can match (exit 0), and the output says that it was
+stopped, after how many parts and why; a stop on a drive or bus fault is re-created, or taken from the
+recording where it cannot be, and a note says which. With `--examples FILE` (other teaching examples) the
+differences are listed instead (exit 0).
 """
 
 from __future__ import annotations
 
 import json
+import re
 import sys
+
+from cell.errors import BadInput
 
 
 def add_arguments(p):
@@ -27,6 +32,10 @@ def run(args) -> int:
     try:
         result = replay(args.recording, args.examples,
                         progress=lambda s: print(s, file=sys.stderr if args.json else sys.stdout, flush=True))
+    except BadInput as e:
+        if args.json:  # exit 2 all the same; a script tells a session cut short from a corrupt folder by it
+            print(json.dumps(_refused_verdict(args.recording, str(e))), flush=True)
+        raise
     except Divergence as e:
         from cell.numerics import numeric_platform, platform_difference
         from cell.recording import RecordingReader
@@ -60,6 +69,27 @@ def run(args) -> int:
             print(f"  note: {note}")
         _say_how_it_ended(result["session"])
     return 0
+
+
+_MATCHED_RE = re.compile(r"its (\d+) recorded decisions match the replay")
+
+
+def _refused_verdict(directory, why: str) -> dict:
+    """--json's answer for a recording replay refused (exit 2): `incomplete` (its end was never recorded: killed,
+    failed, a full disk) with how many recorded decisions `matched` before it, and how the session ended as far
+    as the manifest says (`session`, `problems`); or not (a missing or corrupt recording: `matched` null)."""
+    from cell.recording import RecordingReader
+    from cell.runtime.replay import recorded_end
+
+    out = {"match": None, "incomplete": False, "matched": None, "error": why, "session": None, "problems": []}
+    try:
+        rec = RecordingReader(directory)
+    except (BadInput, OSError):
+        return out
+    found = _MATCHED_RE.search(why)
+    out.update(incomplete=not rec.complete, matched=int(found.group(1)) if found else None,
+               session=recorded_end(rec), problems=rec.problems)
+    return out
 
 
 def _say_how_it_ended(end: dict) -> None:

@@ -7,26 +7,16 @@ import logging
 import os
 import shutil
 from collections import namedtuple
-from importlib import resources
 
 import numpy as np
 import pytest
 from conftest import run_cli
+from test_recording_interrupts import _two_parts  # the default assembly's first two parts
 
 from cell.recording import CLOSE_RESERVE_MB, RecordingFailed, RecordingReader, RecordingWriter
 
 MB = 1 << 20
 _Usage = namedtuple("_Usage", "total used free")
-
-
-def _two_parts(tmp_path):
-    """The default assembly's first two parts (the fewer parts, the sooner the run)."""
-    two = json.loads((resources.files("cell") / "data" / "assemblies" / "default.json").read_text())
-    two["parts"] = [p for p in two["parts"] if p["id"] in two["sequence"][:2]]
-    two["sequence"] = two["sequence"][:2]
-    path = tmp_path / "two.json"
-    path.write_text(json.dumps(two))
-    return path
 
 
 def _fail_writes_to(name: str, after_bytes: int, monkeypatch):

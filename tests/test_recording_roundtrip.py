@@ -106,7 +106,7 @@ CRASHING_SESSION = textwrap.dedent("""
     for i in range(3):
         w.write_frame(i, np.full((8, 8, 3), i, np.uint8))
         w.write_decision({"frame": i, "kind": "grasp"})
-    w._decisions.write('{"frame": 3, "kind": "gra')   # the crash comes in the middle of a line
+    w._decisions.write(b'{"frame": 3, "kind": "gra')  # the crash comes in the middle of a line (the file is raw)
     w._decisions.flush()
     os._exit(9)                                       # no close, no atexit, no finally
 """)

@@ -48,6 +48,8 @@ COMMANDS: list[tuple[tuple[str, ...], str, str]] = [
     (("bench", "vision"), "cell.commands.bench_vision", "benchmark segmentation accuracy and speed"),
     (("bench", "stability"), "cell.commands.bench_stability", "share of stable grasps over the parts library"),
     (("bench", "can"), "cell.commands.bench_can", "benchmark CAN round trip and bus load per pick"),
+    (("bench", "perception"), "cell.commands.bench_perception",
+     "time the loop's perception of a frame at 6, 28 and 60 parts, matching the old way and the new"),
 ]
 
 

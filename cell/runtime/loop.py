@@ -584,7 +584,9 @@ class CellLoop:
                 if not poly.is_valid:  # a wall-corrected outline may cross itself at a corner
                     poly = valid_area(poly)
                 return poly
-            return polygon_at
+            from cell.runtime.matching import RegionOutline  # (mapped once per heights, far parts ruled out)
+
+            return RegionOutline(polygon_at, [seg.outline_px, *seg.holes_px], self.cal)
 
         regions = [Region(i, mapper(s), s.merged, s.cut_off) for i, s in enumerate(segments)]
         expected = list(self.poses.values())

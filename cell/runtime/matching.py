@@ -27,12 +27,114 @@ from cell.scene import Part
 @dataclass(frozen=True)
 class Region:
     """An observed region; `polygon_at(z_top_mm, z_bottom_mm)` maps its outline to mm for a
-    part with those heights (the top face's plane, walls at the bottom where they show)."""
+    part with those heights (the top face's plane, walls at the bottom where they show). A
+    `RegionOutline` there maps each pair of heights once and can rule a part out without mapping."""
 
     index: int
     polygon_at: Callable[[float, float], Polygon]
     merged: bool = False
     cut_off: bool = False
+
+    def surely_farther(self, part: Part, limit_mm: float) -> bool:
+        """Is this region's outline at the part's heights surely more than limit_mm from the part's outline?
+        Told from boxes, without mapping the region; False when it cannot be told that way."""
+        box = getattr(self.polygon_at, "box_mm", None)
+        reach = None if box is None else box(part.z_top_mm, part.z_bottom_mm)
+        return reach is not None and box_gap_mm(reach, part.polygon.bounds) > limit_mm
+
+
+FACE_MARGIN_PX = 4.0  # how far outside the box of a silhouette's rings a top face's rings can lie (see box_mm)
+
+
+class RegionOutline:
+    """A region's outline in mm as `Region.polygon_at` gives it, with what makes matching scale with the parts.
+
+    `to_mm(z_top_mm, z_bottom_mm)` (segment_to_mm: a top face search and a wall test, ms each) is called once per
+    pair of heights: `locate` asks every region at every part's heights, and `unexplained` again. `box_mm` bounds
+    that outline without mapping it: `locate` rules out the regions far from a part (most of them on a full tray)
+    by it, so a frame of n parts maps about the few regions near each part instead of all n + 1 at every part's
+    heights. `rings_px` are the silhouette's outline and holes (pixels); `cal` its calibration."""
+
+    def __init__(self, to_mm: Callable[[float, float], Polygon], rings_px: Sequence[np.ndarray], cal):
+        self._to_mm = to_mm
+        self._mapped: dict[tuple[float, float], Polygon] = {}
+        self._rings_px, self._cal = rings_px, cal
+        self._reach: tuple[float, tuple[float, float, float, float]] | None = None  # (z_ref, box there)
+
+    def __call__(self, z_top_mm: float, z_bottom_mm: float) -> Polygon:
+        key = (float(z_top_mm), float(z_bottom_mm))
+        if key not in self._mapped:
+            self._mapped[key] = self._to_mm(z_top_mm, z_bottom_mm)
+        return self._mapped[key]
+
+    def box_mm(self, z_top_mm: float, z_bottom_mm: float) -> tuple[float, float, float, float] | None:
+        """(min x, min y, max x, max y), mm: a box holding every point of `self(z_top_mm, z_bottom_mm)`; None
+        without a camera pose or where the box's pixels do not map.
+
+        Why it holds. (1) segment_to_mm maps pixels q of the silhouette's rings, or of the top face's, each at
+        z_top or z_bottom; a valid-area fix adds only crossings of its edges: the outline lies in the hull of
+        those points. The face's rings lie within FACE_MARGIN_PX of the box of the silhouette's (topface.py:
+        the centres of face pixels inside the silhouette's raster, at most a pixel out, then moved at most
+        2 px along their normal by refine_rings, or 0.5 px out): every q is in the pixel box B grown by that.
+        (2) With a pose, px_to_mm(q, z) = t + s r(q) with s = (z - t_z) / r_z(q) (t the optical centre, r(q)
+        the pixel's ray), so px_to_mm(q, z) - t_xy = k(z) (px_to_mm(q, z_ref) - t_xy), k(z) = (z - t_z) /
+        (z_ref - t_z) > 0: every pixel's point at z is its point at z_ref scaled by the same k about the
+        camera's foot, and a box holding B's points at z_ref, scaled so, holds them at z. (3) The mapping at
+        z_ref is continuous and one to one (the calibration checks that its lens undistorts back), so B's
+        image lies inside the image of B's border, sampled every pixel: the samples' box grown by the
+        largest step between neighbouring samples holds it (a border point is within half a step of one)."""
+        cal = self._cal
+        if not getattr(cal, "has_pose", False):
+            return None
+        if self._reach is None:
+            self._reach = self._reach_at(float(z_top_mm))
+        z_ref, box = self._reach
+        if box is None:
+            return None
+        foot_x, foot_y, cam_z = (float(v) for v in cal.cam2base[:3, 3])
+        corners = []
+        for z in (z_top_mm, z_bottom_mm):
+            k = (z - cam_z) / (z_ref - cam_z)
+            if not k > 0:  # a plane on the camera's other side: the mapping refuses it, and so does no box
+                return None
+            corners += [(foot_x + k * (box[0] - foot_x), foot_y + k * (box[1] - foot_y)),
+                        (foot_x + k * (box[2] - foot_x), foot_y + k * (box[3] - foot_y))]
+        xs, ys = [c[0] for c in corners], [c[1] for c in corners]
+        return min(xs), min(ys), max(xs), max(ys)
+
+    def _reach_at(self, z_ref: float) -> tuple[float, tuple[float, float, float, float] | None]:
+        """(z_ref, the box at z_ref holding every point segment_to_mm can map the region's pixels to)."""
+        from cell.errors import BadInput
+
+        pts = np.vstack([np.asarray(r, float).reshape(-1, 2) for r in self._rings_px])
+        u0, v0 = pts.min(axis=0) - FACE_MARGIN_PX
+        u1, v1 = pts.max(axis=0) + FACE_MARGIN_PX
+        border = _box_border_px(u0, v0, u1, v1)
+        try:
+            mm = self._cal.px_to_mm(border, z_ref)
+        except BadInput:  # part of the grown box beyond the plane's horizon: rule nothing out
+            return z_ref, None
+        step = float(np.max(np.hypot(*np.diff(mm, axis=0, append=mm[:1]).T)))
+        lo, hi = mm.min(axis=0) - step, mm.max(axis=0) + step
+        return z_ref, (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+
+
+def _box_border_px(u0: float, v0: float, u1: float, v1: float) -> np.ndarray:
+    """Points around the border of the pixel box, in order, no more than a pixel apart."""
+    nu, nv = max(int(math.ceil(u1 - u0)), 1), max(int(math.ceil(v1 - v0)), 1)
+    us, vs = np.linspace(u0, u1, nu + 1), np.linspace(v0, v1, nv + 1)
+    return np.vstack([np.column_stack([us, np.full(nu + 1, v0)])[:-1],
+                      np.column_stack([np.full(nv + 1, u1), vs])[:-1],
+                      np.column_stack([us[::-1], np.full(nu + 1, v1)])[:-1],
+                      np.column_stack([np.full(nv + 1, u0), vs[::-1]])[:-1]])
+
+
+def box_gap_mm(a: Sequence[float], b: Sequence[float]) -> float:
+    """The distance between two boxes (min x, min y, max x, max y), 0 when they meet: no point of one lies
+    nearer than that to a point of the other."""
+    dx = max(a[0] - b[2], b[0] - a[2], 0.0)
+    dy = max(a[1] - b[3], b[1] - a[3], 0.0)
+    return math.hypot(dx, dy)
 
 
 @dataclass(frozen=True)
@@ -154,7 +256,7 @@ def locate(parts: Sequence[Part], regions: Sequence[Region], axis=None) -> tuple
     candidates: list[Located] = []
     for part in parts:
         for r in regions:
-            if r.merged:
+            if r.merged or r.surely_farther(part, MAX_SHIFT_MM):  # (the test below would say so too)
                 continue
             poly = r.polygon_at(part.z_top_mm, part.z_bottom_mm)
             if poly.is_empty or poly.distance(part.polygon) > MAX_SHIFT_MM:
@@ -175,7 +277,7 @@ def locate(parts: Sequence[Part], regions: Sequence[Region], axis=None) -> tuple
             continue
         best = None
         for r in regions:
-            if r.index in own:
+            if r.index in own or r.surely_farther(part, MAX_MERGED_SHIFT_MM):  # (taking pieces out only moves it off)
                 continue
             poly = r.polygon_at(part.z_top_mm, part.z_bottom_mm)
             if not r.merged and not (MIN_UNFLAGGED_RATIO * part.polygon.area <= poly.area
@@ -228,6 +330,8 @@ def _in_pieces(part: Part, free: Sequence[Region], axis=None) -> tuple[Located |
 
     near = []
     for r in free:
+        if r.surely_farther(part, MAX_MERGED_SHIFT_MM):
+            continue
         poly = r.polygon_at(part.z_top_mm, part.z_bottom_mm)
         if not poly.is_empty and poly.area < MIN_UNFLAGGED_RATIO * part.polygon.area \
                 and poly.distance(part.polygon) <= MAX_MERGED_SHIFT_MM:

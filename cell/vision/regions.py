@@ -8,6 +8,8 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
+from cell.vision.work_boxes import merged_boxes
+
 if TYPE_CHECKING:
     from cell.vision.segment import SegmentParams
 
@@ -57,18 +59,4 @@ def label_regions(mask: np.ndarray, boxes, min_area: float, margin_px: int = 0
 def _touching_groups(boxes) -> list[tuple[int, int, int, int]]:
     """Bounding boxes of groups of boxes (x0, y0, x1, y1) that overlap or touch (also at a
     corner): 8-connected regions of a mask that is 0 outside the boxes never cross groups."""
-    groups = [list(b) for b in boxes]
-    merged = True
-    while merged:
-        merged = False
-        out: list[list[int]] = []
-        for bx in groups:
-            for o in out:
-                if bx[0] <= o[2] and o[0] <= bx[2] and bx[1] <= o[3] and o[1] <= bx[3]:
-                    o[:] = [min(o[0], bx[0]), min(o[1], bx[1]), max(o[2], bx[2]), max(o[3], bx[3])]
-                    merged = True
-                    break
-            else:
-                out.append(bx)
-        groups = out
-    return [tuple(g) for g in groups]
+    return [tuple(g) for g in merged_boxes(boxes, touching=True)]

@@ -41,19 +41,31 @@ def work_boxes(coarse, bg_coarse, p: SegmentParams, det_hw: tuple[int, int]) -> 
     boxes = [[max(sl[1].start * w // cw - m, 0), max(sl[0].start * h // ch - m, 0),
               min(sl[1].stop * w // cw + m, w), min(sl[0].stop * h // ch + m, h)]
              for sl in ndimage.find_objects(lab) if sl is not None]
+    boxes = merged_boxes(boxes)  # overlapping boxes become one, so that no box cuts through a cluster
+    if sum((b[2] - b[0]) * (b[3] - b[1]) for b in boxes) > BOX_FULL_FRAME * w * h:
+        return [(0, 0, w, h)]
+    return [tuple(b) for b in boxes]
+
+
+def merged_boxes(boxes, touching: bool = False) -> list[list[int]]:
+    """Boxes (x0, y0, x1, y1) that overlap merged into their bounding box until none overlaps; with `touching`,
+    boxes that only touch (also at a corner) too."""
+    groups = [list(b) for b in boxes]
     merged = True
-    while merged:  # overlapping boxes become one, so that no box cuts through a cluster
+    while merged:
         merged = False
         out: list[list[int]] = []
-        for bx in boxes:
+        for bx in groups:
             for o in out:
-                if bx[0] < o[2] and o[0] < bx[2] and bx[1] < o[3] and o[1] < bx[3]:
+                if touching:
+                    meet = bx[0] <= o[2] and o[0] <= bx[2] and bx[1] <= o[3] and o[1] <= bx[3]
+                else:
+                    meet = bx[0] < o[2] and o[0] < bx[2] and bx[1] < o[3] and o[1] < bx[3]
+                if meet:
                     o[:] = [min(o[0], bx[0]), min(o[1], bx[1]), max(o[2], bx[2]), max(o[3], bx[3])]
                     merged = True
                     break
             else:
                 out.append(bx)
-        boxes = out
-    if sum((b[2] - b[0]) * (b[3] - b[1]) for b in boxes) > BOX_FULL_FRAME * w * h:
-        return [(0, 0, w, h)]
-    return [tuple(b) for b in boxes]
+        groups = out
+    return groups

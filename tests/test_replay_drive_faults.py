@@ -99,6 +99,20 @@ def test_a_session_stopped_by_a_drive_or_bus_fault_mid_carry_replays_to_its_stop
     assert "re-created" in out and "taken from the recording" not in out, out
 
 
+def test_a_loop_that_no_longer_stops_on_the_re_created_fault_diverges(tmp_path, monkeypatch, capsys,
+                                                                       short_assembly):  # noqa: F811
+    """The replay sends the recorded reboot again but the loop goes on (here: the fault never reaches the drive, as
+    a loop that ignored it would behave): the pick runs to its end, which is a divergence (exit 1), not a match
+    with a note (it was: "5 of 5 decisions match", exit 0)."""
+    from cell.runtime import replay
+
+    rec, _ = record(tmp_path, monkeypatch, short_assembly, lambda d: reboot(d, "j2"))
+    monkeypatch.setattr(replay, "inject_again", lambda drives, fault: None)
+    code, out, err = run_cli("replay", rec, capsys=capsys)
+    assert code == 1, out
+    assert "did not stop on the re-created fault" in err + out and "its next decision: executed" in err + out
+
+
 def test_an_sdo_answer_lost_replays_to_its_stop(tmp_path, monkeypatch, capsys, short_assembly):  # noqa: F811
     # lost from the lift on: J1's next SDO request is the carry's first
     rec, s = record(tmp_path, monkeypatch, short_assembly, lambda d: d.inject_fault("drop_sdo", "j1"),

@@ -296,7 +296,8 @@ class Comparison:
 
     def _hardware_stop(self, record: dict, diff: list[str] | None) -> None:
         """The replay is at a stop a drive or bus fault made: re-created (the replay stopped the same way), or
-        taken from the recording: said, and the replay ends there (the arm of the replay stands elsewhere)."""
+        taken from the recording: said, and the replay ends there (the arm of the replay stands elsewhere). A fault
+        re-created that did not stop the replay at all is a divergence: the loop no longer stops on it."""
         from cell.runtime.loop import StopRun
 
         at, stop = self.position, self.recorded[self.position]
@@ -307,6 +308,10 @@ class Comparison:
                 self.notes.append(f"{said}: a hardware fault, re-created: {self.fault.what}")
             return
         self.faulted_again = True  # the replay's pick went on otherwise: its frames on the bus are others
+        if self.fault is not None and record.get("type") != "stop":
+            # the fault was sent again and the loop went on: the loop no longer stops on it (a regression)
+            self._diverged(f"decision #{at} (stop): the replay did not stop on the re-created fault "
+                           f"({self.fault.what}; its next decision: {record.get('type')})")
         if self.fault is None:
             why = "the replay cannot re-create it from what the recording holds"
         elif record.get("type") == "stop":

@@ -172,6 +172,10 @@ def test_common_motion_is_told_from_a_pushed_neighbour_and_from_noise():
     assert common_motion(before, moved((0.0, 0.0), 2.0)).turn_deg == pytest.approx(2.0)
     pushed = {**moved((0.0, 10.0)), "c": (358.0, 150.0)}  # one part pushed otherwise: the rest still moved alike
     assert common_motion(before, pushed).parts == ("a", "b", "d")
+    assert "every part seen in both frames but c (a, b, d) moved alike" in common_motion(before, pushed).text()
+    # of three, two moved together (one resting on the other, pushed by a missed grip): no knock (it stopped)
+    three = {k: before[k] for k in "abc"}
+    assert common_motion(three, {**three, "a": (304.0, -100.0), "b": (424.0, 0.0)}) is None
     assert common_motion(before, moved((0.2, -0.15), 0.1)) is None  # noise
     assert common_motion(before, moved((KNOCK_MM * 0.8, 0.0))) is None  # too little to matter
     # one part pushed and nothing else moved: no common motion

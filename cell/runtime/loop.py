@@ -80,19 +80,22 @@ class CommonMotion:
     dx_mm: float
     dy_mm: float
     turn_deg: float
+    left_out: str | None = None  # the one part seen in both frames that moved otherwise (a pushed neighbour)
 
     def text(self) -> str:
-        return (f"every part seen in both frames ({', '.join(self.parts)}) moved alike, by ({self.dx_mm:.1f}, "
+        but = "" if self.left_out is None else f" but {self.left_out}"
+        return (f"every part seen in both frames{but} ({', '.join(self.parts)}) moved alike, by ({self.dx_mm:.1f}, "
                 f"{self.dy_mm:.1f}) mm / {self.turn_deg:.1f} deg since the last frame")
 
 
 def common_motion(before_mm: dict[str, tuple[float, float]], after_mm: dict[str, tuple[float, float]]
                   ) -> CommonMotion | None:
-    """The rigid motion taking every part's centroid `before_mm` to `after_mm` (all parts, or all but one: a
-    neighbour the pick pushed), when it moves them more than KNOCK_MM on average or turns them more than
-    KNOCK_DEG; else None. Two parts fit a turn whenever their distance stayed: of two, only a shift counts."""
+    """The rigid motion taking every part's centroid `before_mm` to `after_mm` (all parts, or all but one of four
+    or more: a neighbour the pick pushed), when it moves them more than KNOCK_MM on average or turns them more
+    than KNOCK_DEG; else None. Two parts fit a turn whenever their distance stayed: of two, only a shift counts.
+    (All but one of three is two: a part resting on another, pushed together, is no knock.)"""
     ids = sorted(before_mm)
-    subsets = [ids] + ([[i for i in ids if i != out] for out in ids] if len(ids) >= 3 else [])
+    subsets = [ids] + ([[i for i in ids if i != out] for out in ids] if len(ids) >= 4 else [])
     for subset in (s for s in subsets if len(s) >= 2):
         a = np.array([before_mm[i] for i in subset])
         b = np.array([after_mm[i] for i in subset])
@@ -104,7 +107,8 @@ def common_motion(before_mm: dict[str, tuple[float, float]], after_mm: dict[str,
             continue
         if shifts.mean() > KNOCK_MM or abs(turn_deg) > KNOCK_DEG:
             dx, dy = (b - a).mean(axis=0)
-            return CommonMotion(tuple(subset), float(dx), float(dy), float(turn_deg))
+            left_out = next((i for i in ids if i not in subset), None)
+            return CommonMotion(tuple(subset), float(dx), float(dy), float(turn_deg), left_out)
     return None
 
 

@@ -63,7 +63,8 @@ class Setup:
             log.warning("%s", warning)
         ax.sdo_write(0x1017, 0, c.can.heartbeat_ms)
         deadline_ms = round(HEARTBEAT_DEADLINE_FACTOR * c.can.host_heartbeat_ms)
-        ax.sdo_write(0x1016, 1, codec.consumer_heartbeat_entry(HOST_NODE_ID, deadline_ms))
+        ax.host_watch_entry = codec.consumer_heartbeat_entry(HOST_NODE_ID, deadline_ms)
+        ax.sdo_write(0x1016, 1, ax.host_watch_entry)
         if ax.name == "gripper":
             lo, hi = c.gripper.opening_mm
             velocity, accel = c.gripper.speed_mm_s, GRIPPER_ACCEL_FACTOR * c.gripper.speed_mm_s
@@ -87,7 +88,8 @@ class Setup:
         """A node that lost its setup (`Axis.lost_setup`): all of it again, as connect does, then NMT start. Its
         power-on values need not be the cell's (its host-heartbeat watch was 0: J2 ran its move on when the host
         died); the host's record of what it wrote (profile velocity, grip force) is rewritten with it."""
-        log.warning("%s: set up again (%s)", ax.name, ax.lost_setup())
+        log.warning("%s: set up again (%s)", ax.name, ax.lost_setup() or "its host-heartbeat watch 0x1016 was not "
+                    "the host's: a reboot whose boot-up message was lost")
         ax.forget_status()  # from before the reboot: the first after NMT start is the one to go by
         self._configure(ax)
         self._send_host_heartbeat()  # its host watch starts at the first heartbeat it hears (CiA 301)

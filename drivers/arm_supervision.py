@@ -380,7 +380,8 @@ class Supervision:
                     raise
         try:
             for ax in self.axes.values():
-                if ax.lost_setup() is not None:
+                # read back too: a drive that rebooted and started itself, its boot-up message lost, looks set up
+                if ax.lost_setup() is not None or ax.sdo_read(0x1016, 1) != ax.host_watch_entry:
                     self._set_up_again(ax)
             for ax in self.axes.values():
                 ax.fault_reset()

@@ -83,6 +83,7 @@ class Axis:
         # whether the host then set it OPERATIONAL (`Arm._start`)
         self.boots_at_setup = 0
         self.started = False
+        self.host_watch_entry: int | None = None  # what the host wrote to 0x1016:1 (read back at a reset)
         self.last_emcy: codec.Emcy | None = None
         self.emcy_seq = 0
         self.controlword = 0

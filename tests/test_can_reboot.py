@@ -98,6 +98,24 @@ def test_reset_after_a_reboot_sets_the_node_up_again_before_enabling_it(arm, sim
     assert sim_drives.drives["j2"].state == "FAULT" and sim_drives.drives["j2"].error_code == 0x8130
 
 
+def test_a_reboot_whose_boot_up_was_lost_is_set_up_again_at_the_reset(arm, sim_drives):
+    """J2 rebooted and started itself, and its boot-up message was lost (a bus may lose one frame): its heartbeat
+    says OPERATIONAL, so nothing tells the host its setup is gone. The reset reads the host-heartbeat watch back
+    and sets it up again; before, it enabled J2 with 0x1016 = 0 (no stop on a host crash)."""
+    drive = sim_drives.drives["j2"]
+    with drive._lock:  # the reboot without its boot-up frame: resets, then OPERATIONAL as an auto-start drive is
+        drive._reset_application()
+        drive._reset_communication()
+        drive.state, drive.nmt = "SWITCH_ON_DISABLED", 0x05
+    arm.clock.sleep(0.1)
+    with contextlib.suppress(DriveFault):  # (the host may see the drive leave OPERATION ENABLED)
+        arm.move_joints(arm.joints())
+    assert drive._get(0x1016, 1) == 0
+    arm.reset_faults()
+    assert drive._get(0x1016, 1) == arm.axes["j2"].host_watch_entry != 0
+    assert drive.state == "OPERATION_ENABLED"
+
+
 def test_the_grippers_force_is_written_again_after_it_rebooted(arm, sim_drives, open_test_bus):
     sim_drives.gripper_object_width_mm = 30.0
     force_n = arm.cell.gripper.grip_force_n / 2

@@ -228,8 +228,11 @@ class Supervision:
             what = (f"its setup is lost, back at its power-on values (the host-heartbeat watch 0x1016, the software "
                     f"limits 0x607D, the option codes, the profile values{force}), and it no longer drives its axis")
         else:
-            what = ("it takes no set-point and sends no status (another master's NMT command, or a reboot whose "
-                    "boot-up message was lost)")
+            e = ax.last_emcy  # a drive may leave OPERATIONAL on its own at a communication error (0x1029): say which
+            told = (f"; its EMCY before: 0x{e.code:04X} {e.text}" if e is not None and e.code != 0
+                    and ax.emcy_seq != self._emcy_seen.get(ax.name, 0) else "")
+            what = ("it takes no set-point and sends no status (its own reaction to a communication error, object "
+                    "0x1029, another master's NMT command, or a reboot whose boot-up message was lost)" + told)
         return NodeRebooted(f"{why}: {what}; reset sets it up again as connect did{self._held_part_note()}",
                             node=ax.name, node_id=ax.node_id)
 

@@ -116,6 +116,20 @@ def test_a_reboot_whose_boot_up_was_lost_is_set_up_again_at_the_reset(arm, sim_d
     assert drive.state == "OPERATION_ENABLED"
 
 
+def test_a_drive_that_leaves_operational_on_a_communication_error_is_told_with_its_emcy(arm, sim_drives):
+    """CiA 301's default reaction to a communication error (0x1029) takes a drive to PRE-OPERATIONAL after its
+    EMCY: the fault names that EMCY, not only "another master's NMT command, or a lost boot-up" (the EMCY was
+    marked seen and dropped from the message)."""
+    drive = sim_drives.drives["j2"]
+    with drive._lock:  # its host-heartbeat watch timed out (as it saw it), and it went PRE-OPERATIONAL at once
+        drive.nmt = 0x7F
+        drive._report(0x8130)
+        drive.network.send_message(codec.HEARTBEAT_BASE + drive.node_id, codec.pack_heartbeat(0x7F))
+    arm.clock.sleep(0.1)
+    with pytest.raises((DriveFault, FaultLatched), match=r"reports PRE.OPERATIONAL.*0x1029.*its EMCY before: 0x8130"):
+        arm.move_joints(arm.joints())
+
+
 def test_the_grippers_force_is_written_again_after_it_rebooted(arm, sim_drives, open_test_bus):
     sim_drives.gripper_object_width_mm = 30.0
     force_n = arm.cell.gripper.grip_force_n / 2

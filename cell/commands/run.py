@@ -35,6 +35,10 @@ def add_arguments(p):
                    help="when a part has no feasible grasp: stop and ask (default) or skip it")
     p.add_argument("--approve", "--approve-each", dest="approve", action="store_true",
                    help="ask the operator to approve each grasp (station)")
+    p.add_argument("--no-stranger-check", dest="stranger_check", action="store_false",
+                   help="a region no part explains that reaches in across the frame's or the tray's edge (an arm, "
+                        "a cable) does not stop the run: it is an obstacle (default: it stops, but what the first "
+                        "frame shows there is taken as a fixture; README, Recordings)")
     p.add_argument("--station", action="store_true", help="serve the operator station on 127.0.0.1")
     p.add_argument("--port", type=int, default=8765, help="station port (default 8765)")
     p.add_argument("--token", help="station token, at least 8 characters (default: a random one, printed)")
@@ -109,6 +113,7 @@ def _run(args) -> int:
                     record=args.record, rerun=args.rerun, save_rrd=args.save, seed=args.seed,
                     shift_mm=args.shift_mm, on_no_grasp=args.on_no_grasp, require_approval=args.approve,
                     station=args.station, station_port=args.port, station_token=args.token,
+                    stranger_checks=args.stranger_check,
                     faults=WorldFaults(miss=miss, stuck=set(args.sim_stuck), dropped=set(args.sim_drop),
                                        bad_frames=args.sim_bad_frames),
                     progress=lambda s: print(s, file=out, flush=True), real_cell=real_cell)

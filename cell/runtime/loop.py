@@ -69,6 +69,7 @@ ALIKE_SHARE = 0.1  # shifted image moves a 40 mm tall part's top 5 % less in mm 
 # A region no part explains reaches in across the tray's edge when, mapped at the table, it lies on the tray and
 # beyond this band round it (a 40 mm tall thing on the tray's edge, 250 mm off the camera's axis, maps 12.5 mm out)
 REACH_IN_BAND_MM = 15.0
+STATIC_SHARE = 0.5  # a region lying this much of its area (at the table) on a fixture of the first frame is it
 SWEEP_STEP_MM = 5.0  # a region of unknown height is mapped on planes this far apart (`swept_outline`)
 
 
@@ -155,6 +156,19 @@ class StopRun(CellError):
 class HandWork(CellError):
     """The operator must do something by hand before the loop can go on (take a part out of the jaws):
     nothing failed, the loop asks."""
+
+
+def across_edge(at_table: Polygon, cut_off: bool, tray: Polygon) -> str:
+    """What a region no part explains reaches in across ("the frame's edge", "the tray's edge"), "" when nothing:
+    `at_table` its outline mapped at the table, `cut_off` whether the frame's edge cuts it, `tray` the tray's box.
+    Cut by the frame's edge, it reaches in only when it reaches onto the tray's box (a bin or the tray's wall beside
+    it does not); else across the tray's edge when it lies on the box and beyond it by more than
+    `REACH_IN_BAND_MM` (the box is a configured work area, not the tray's physical edge)."""
+    if not at_table.intersects(tray):
+        return ""
+    if cut_off:
+        return "the frame's edge"
+    return "" if at_table.within(tray.buffer(REACH_IN_BAND_MM)) else "the tray's edge"
 
 
 @dataclass
@@ -289,6 +303,7 @@ class CellLoop:
         self._found_empty: str | None = None
         self._lost: str | None = None  # fell out of the jaws on the way to the drop-off (`_lost_in_transit`)
         self._located_last: set[str] = set()  # parts the last frame located by registration (`_camera_moved`)
+        self._static: list[Polygon] | None = None  # fixtures at the table (`_reaching_in`); None: no frame yet
         self._touched: str | None = None  # the part the last pick was sent for (it may have moved: not compared)
         self._examples_lock = threading.Lock()
         self._taught: list[GraspExample] = []  # taught on the station, not yet learned by the loop
@@ -619,7 +634,7 @@ class CellLoop:
                 seen[part.id] = part.moved(loc.dx_mm, loc.dy_mm, loc.dtheta_deg, about=base.polygon.centroid.coords[0])
                 carried[part.id] = carrier
         moved = self._camera_moved(found)
-        reaching = self._reaching_in(segments, regions, strangers)
+        reaching, static = self._reaching_in(segments, regions, strangers)
         for pid, part in seen.items():
             if pid in self.poses and moved is None:  # (knocked: the poses stay as the last frame measured them)
                 self.poses[pid] = part
@@ -641,7 +656,7 @@ class CellLoop:
             **({"common_motion": {"parts": list(moved.parts), "dx_mm": round(moved.dx_mm, 3),
                                   "dy_mm": round(moved.dy_mm, 3), "turn_deg": round(moved.turn_deg, 3)}}
                if moved else {}),
-            **({"reaching_in": reaching} if reaching else {})})
+            **({"static": static} if static else {}), **({"reaching_in": reaching} if reaching else {})})
         if strangers:
             self.control.log("vision", f"{len(strangers)} region(s) match no part of the assembly",
                              regions=strangers)
@@ -659,25 +674,37 @@ class CellLoop:
             raise Faulted(reaching)
         return seen
 
-    def _reaching_in(self, segments, regions: list[Region], strangers: list[int]) -> str:
-        """What the operator reads of the regions no part explains (`strangers`) that reach in across the frame's
-        edge or the tray's (`REACH_IN_BAND_MM`): nothing may reach in while the arm moves; "" when none does."""
+    def _reaching_in(self, segments, regions: list[Region], strangers: list[int]) -> tuple[str, list[int]]:
+        """(what the operator reads of the regions no part explains (`strangers`) that reach in across the frame's
+        edge onto the tray or across the tray's edge (`across_edge`): "" when none does; the regions of the first
+        frame that do, taken as fixtures). Nothing may reach in while the arm moves; what the first frame shows
+        reaching in is a fixture (a tray's wall, a clamp, a bin: nothing the operator could clear), remembered by
+        its outline at the table, and a later region lying mostly on one is that fixture (`STATIC_SHARE`)."""
         if not self.options.stranger_checks:
-            return ""
+            return "", []
         t = self.cell.tray
         tray = box(t.x_mm[0], t.y_mm[0], t.x_mm[1], t.y_mm[1])
-        reaching = []
+        first, reaching, fixed = self._static is None, [], []
+        if first:
+            self._static = []
         for i in strangers:
             at_table = regions[i].polygon_at(0.0, 0.0)
-            across = "the frame's edge" if segments[i].cut_off else (
-                "the tray's edge" if at_table.intersects(tray) and not at_table.within(tray.buffer(REACH_IN_BAND_MM))
-                else "")
-            if across:
+            across = across_edge(at_table, segments[i].cut_off, tray)
+            if not across:
+                continue
+            if first:
+                self._static.append(at_table)
+                fixed.append(i)
+            elif not any(at_table.intersection(s).area >= STATIC_SHARE * at_table.area for s in self._static):
                 reaching.append(f"region {i} ({at_table.area:.0f} mm2 at the table) across {across}")
+        if fixed:
+            self.control.log("vision", f"{len(fixed)} region(s) no part explains reach in across the frame's or "
+                             "the tray's edge in the first frame: taken as fixtures (a tray's wall, a clamp, a bin), "
+                             "they do not stop the run; anything else reaching in does", regions=fixed)
         if not reaching:
-            return ""
+            return "", fixed
         return (f"something no part explains reaches into the cell: {'; '.join(reaching)}. A person's arm, a cable? "
-                "Nothing may reach in while the arm moves: clear it, then reset")
+                "Nothing may reach in while the arm moves: clear it, then reset"), fixed
 
     def _camera_moved(self, found: dict) -> CommonMotion | None:
         """The common motion (`common_motion`) of the parts located by registration in this frame and the last,

@@ -67,6 +67,8 @@ class RunConfig:
     station_token: str | None = None
     faults: WorldFaults = field(default_factory=WorldFaults)
     real_cell: RealCell | None = None  # None: the simulated cell
+    # a region no part explains reaching in stops the run (LoopOptions.stranger_checks; `cell run --no-stranger-check`)
+    stranger_checks: bool = True
     drive_fault: tuple | None = None  # (node, kind, {kw}) injected into the simulated drives at the start
     progress: object = None  # callable(str) for progress lines
 
@@ -278,7 +280,7 @@ def _run_session(cfg: RunConfig, say) -> dict:
 
         _check_rrd_path(Path(cfg.save_rrd), [assembly_path, cell_path or default_cell_path(), cal_path, examples_path])
     recorder = None
-    options = LoopOptions(on_no_grasp=cfg.on_no_grasp, interactive=cfg.station)
+    options = LoopOptions(on_no_grasp=cfg.on_no_grasp, interactive=cfg.station, stranger_checks=cfg.stranger_checks)
     if cfg.record:
         from cell.recording import RecordingWriter
         from cell.runtime.loop import loop_planner_params

@@ -4,9 +4,10 @@ Each module in `cell.commands` defines `add_arguments(parser)` and `run(args) ->
 Heavy imports (cv2, sklearn, canopen, rerun) belong inside `run`, so `cell --help` is fast.
 Errors of the `CellError` family become a message on stderr and their exit code
 (2 for bad input); no traceback reaches the user for anything the user can fix. An OSError (a path or
-device that cannot be used) is bad input too, named by its file, except a full or failing disk (ENOSPC,
-EDQUOT, EIO: exit 1); any other exception is a bug, reported in one line with exit 1 (CELL_TRACEBACK=1 lets
-the traceback through).
+device that cannot be used, a full or failing disk too) is bad input too, named by its file, except a
+recording a full or failing disk stopped (RecordingFailed: cell run, cell hw --record) and a full or failing
+disk (ENOSPC, EDQUOT, EIO) in cell run or cell hw: exit 1, as a run that stopped; any other exception is a
+bug, reported in one line with exit 1 (CELL_TRACEBACK=1 lets the traceback through).
 """
 
 from __future__ import annotations
@@ -160,10 +161,6 @@ class _CellFormatter(logging.Formatter):
         return f"cell: {record.levelname.lower()}: {record.getMessage()}"
 
 
-# a full disk or a failing one: the machine's state, not bad input (exit 1, as a run that stopped)
-DISK_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EIO)
-
-
 def _os_error_text(e: OSError) -> str:
     """"/x/out.png: No space left on device", not "[Errno 28] No space left on device"."""
     if e.filename is not None and e.strerror:
@@ -171,9 +168,16 @@ def _os_error_text(e: OSError) -> str:
     return e.strerror or str(e)
 
 
+# the commands that run the cell: a full or failing disk mid-session is the machine's state, not bad input (exit
+# 1, as a run that stopped); in every other command it is an unusable file (2, as CONTRACT says)
+MACHINE_COMMANDS = ("cell.commands.run", "cell.commands.hw")
+DISK_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EIO)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     warnings_to_stderr()
+    args = None
     try:
         parser = build_parser()
         args = parser.parse_args(argv)
@@ -193,8 +197,14 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:
         return 0
     except OSError as e:  # a path or device the user named cannot be used (permissions, a full disk, ...)
+        from cell.recording import RecordingFailed
+
         print(f"cell: error: {_os_error_text(e)}", file=sys.stderr)
-        return 1 if e.errno in DISK_ERRNOS else 2
+        # a recording the disk stopped (cell run, cell hw --record) ends as a stopped run (1), as does a full
+        # disk in a session of the cell; any other unusable file, full or failing disks too, is what CONTRACT
+        # says of it (2)
+        machine = getattr(args, "_module", None) in MACHINE_COMMANDS
+        return 1 if isinstance(e, RecordingFailed) or (machine and e.errno in DISK_ERRNOS) else 2
     except Exception as e:  # a bug: one line, not a traceback; CELL_TRACEBACK=1 shows where it happened
         if os.environ.get("CELL_TRACEBACK"):
             raise

@@ -451,6 +451,21 @@ class RecordingWriter:
         except OSError as e:  # it still says "recording": read back as incomplete, a crash's
             raise as_recording_failed(e, self.dir / MANIFEST) from None
 
+    def restate_end(self, status: str, summary: dict) -> None:
+        """Closed already: rewrite the manifest's status and summary (a CAN log, heard until the drives shut
+        down, that failed after the close). RecordingFailed when the disk cannot take it (the old one stays)."""
+        if status not in ("complete", "incomplete"):
+            raise ValueError(f"status must be 'complete' or 'incomplete', not {status!r}")
+        with self._lock:
+            if not self._closed:
+                raise RuntimeError("restate_end: the recording is not closed")
+            self.manifest.update(status=status)
+            self.manifest["summary"] = to_jsonable(summary)
+        try:
+            write_json_atomic(self.dir / MANIFEST, self.manifest)
+        except OSError as e:
+            raise as_recording_failed(e, self.dir / MANIFEST) from None
+
     def _counts_at_close(self) -> dict:
         """The counts the manifest states: what was written, and what an interrupt kept from being counted.
         Ctrl-C between a decision's fsync and its count (or a frame's rename and its index) left a file

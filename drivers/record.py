@@ -33,9 +33,12 @@ class BusRecorder:
     clock : Clock, optional
         Stamp frames with this clock's time (simulated time in a simulated session) instead of
         the wall time of reception.
+    on_failed : callable, optional
+        Called once with the RecordingFailed of the first write that failed (from the bus's thread, or
+        from `stop`): a session learns of it before it closes its recording, not only when this exits.
     """
 
-    def __init__(self, bus: can.BusABC, path: str | Path, clock: Clock | None = None):
+    def __init__(self, bus: can.BusABC, path: str | Path, clock: Clock | None = None, on_failed=None):
         self.path = Path(path)
         if self.path.suffix.lower() not in SUFFIXES:
             raise BadInput(f"CAN log {self.path}: use one of {', '.join(SUFFIXES)} (python-can's formats)")
@@ -48,6 +51,7 @@ class BusRecorder:
         self.clock = clock
         self.frames = 0
         self.error: OSError | None = None  # the write that failed (a full disk); nothing is written after it
+        self._on_failed = on_failed
         self._writer = can.Logger(str(self.path))
         self._pump = BusPump(bus, [self._on_message], name="can-recorder")
         if clock is not None:
@@ -76,6 +80,8 @@ class BusRecorder:
         self.error = as_recording_failed(e, self.path)
         log.warning("CAN log %s: the frames after the first %d are not written: %s", self.path, self.frames,
                     self.error.strerror)
+        if self._on_failed is not None:
+            self._on_failed(self.error)
 
     def stop(self) -> int:
         """Write out what was heard so far and close the file; returns the number of frames."""

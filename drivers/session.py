@@ -29,6 +29,7 @@ def simulated_cell(
     *,
     channel: str | None = None,
     record=None,
+    on_record_failed=None,
     enable: bool = True,
     **arm_kw,
 ):
@@ -44,6 +45,8 @@ def simulated_cell(
         Virtual channel name (default: unique per session).
     record : path, optional
         Record all CAN traffic to this python-can log (.asc, .log, .blf).
+    on_record_failed : callable, optional
+        Called with the log's RecordingFailed when a write into it fails (`BusRecorder`'s on_failed).
     Yields (arm, sim_handle).
     """
     clock = clock if clock is not None else SimClock()
@@ -58,7 +61,8 @@ def simulated_cell(
     try:
         with contextlib.ExitStack() as stack:
             if record is not None:
-                stack.enter_context(BusRecorder(_bus(), record, clock=clock if clock.simulated else None))
+                stack.enter_context(BusRecorder(_bus(), record, clock=clock if clock.simulated else None,
+                                                 on_failed=on_record_failed))
             drives = stack.enter_context(sim.serve(_bus(), cell, clock=clock))
             arm = Arm(_bus(), drives.cell, clock=clock, **arm_kw)
             arm.connect(enable=enable)
@@ -70,8 +74,10 @@ def simulated_cell(
 
 
 @contextlib.contextmanager
-def real_cell(interface: str, channel: str, cell=None, *, record=None, enable: bool = True, **arm_kw):
-    """A connected arm on a real bus (bitrate from the cell file). Yields the arm."""
+def real_cell(interface: str, channel: str, cell=None, *, record=None, on_record_failed=None, enable: bool = True,
+              **arm_kw):
+    """A connected arm on a real bus (bitrate from the cell file). Yields the arm. `record`, `on_record_failed`:
+    as `simulated_cell`'s."""
     if cell is None:
         from cell.cellconfig import default_cell
 
@@ -83,7 +89,7 @@ def real_cell(interface: str, channel: str, cell=None, *, record=None, enable: b
             if record is not None:
                 tap = open_bus(interface, channel, cell.can.bitrate)
                 buses.append(tap)
-                stack.enter_context(BusRecorder(tap, record))
+                stack.enter_context(BusRecorder(tap, record, on_failed=on_record_failed))
             arm = Arm(bus, cell, **arm_kw)
             arm.connect(enable=enable)
             stack.callback(arm.disconnect)

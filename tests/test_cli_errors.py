@@ -1,7 +1,7 @@
 """The CLI's last line of defence: whatever goes wrong, one line on stderr and an exit code, never a traceback."""
 
 import pytest
-from conftest import run_cli
+from conftest import ROOT, run_cli
 
 import cell.commands.rules as rules_command
 
@@ -33,10 +33,11 @@ def test_an_os_error_is_bad_input(monkeypatch, capsys):
     monkeypatch.setattr(rules_command, "run", _fails_with(PermissionError(13, "Permission denied", "/x/examples")))
     code, out, err = run_cli("rules", capsys=capsys)
     assert code == 2 and err.strip() == "cell: error: /x/examples: Permission denied"
-    # a full disk is no bad input (exit 1); one that names no file still says what is wrong, not "[Errno 28] ..."
+    # one that names no file still says what is wrong, not "[Errno 28] ..." (a full disk outside a recording is
+    # an output that cannot be written: exit 2, as CONTRACT says)
     monkeypatch.setattr(rules_command, "run", _fails_with(OSError(28, "No space left on device")))
     code, out, err = run_cli("rules", capsys=capsys)
-    assert code == 1 and err.strip() == "cell: error: No space left on device"
+    assert code == 2 and err.strip() == "cell: error: No space left on device"
     monkeypatch.setattr(rules_command, "run", _fails_with(OSError(18, "Invalid cross-device link", "/a", None, "/b")))
     code, out, err = run_cli("rules", capsys=capsys)
     assert code == 2 and err.strip() == "cell: error: /a -> /b: Invalid cross-device link"
@@ -75,3 +76,70 @@ def test_the_cli_leaves_an_existing_logging_set_up_alone():
         assert logger.handlers == [mine]
     finally:
         logger.handlers.clear()
+
+
+def test_only_a_failed_recording_is_exit_1_other_disk_errors_are_bad_input(monkeypatch, capsys):
+    """CONTRACT keeps 1 for a run that stopped, a replay's divergence: a full or failing disk is exit 1 only where
+    it stops a recording (RecordingFailed: cell run, cell hw --record); elsewhere it is what CONTRACT says of an
+    unusable file (2)."""
+    import errno
+
+    from cell.recording import RecordingFailed
+
+    monkeypatch.setattr(rules_command, "run", _fails_with(RecordingFailed(errno.ENOSPC, "No space left on device",
+                                                                          "/r/decisions.jsonl")))
+    code, out, err = run_cli("rules", capsys=capsys)
+    assert code == 1 and err.strip() == "cell: error: /r/decisions.jsonl: No space left on device"
+    for e in (OSError(errno.ENOSPC, "No space left on device"), OSError(errno.EIO, "Input/output error", "/x")):
+        monkeypatch.setattr(rules_command, "run", _fails_with(e))
+        code, out, err = run_cli("rules", capsys=capsys)
+        assert code == 2, (e, err)
+
+
+def test_a_segment_image_that_fails_to_read_is_exit_2(monkeypatch, capsys, tmp_path):
+    import errno
+
+    import cell.vision.sources as sources
+
+    img = tmp_path / "frame.png"
+    img.write_bytes(b"\x89PNG")
+
+    def eio(path, what):
+        raise OSError(errno.EIO, "Input/output error", str(path))
+
+    monkeypatch.setattr(sources, "check_readable", eio)
+    code, out, err = run_cli("segment", img, "--json", capsys=capsys)
+    assert code == 2 and f"{img}: Input/output error" in err, err
+
+
+def test_a_replay_whose_recording_cannot_be_read_is_exit_2_not_a_divergence(monkeypatch, capsys):
+    import errno
+    import json
+
+    from cell.recording import RecordingReader
+
+    def eio(self, directory):
+        raise OSError(errno.EIO, "Input/output error", f"{directory}/decisions.jsonl")
+
+    monkeypatch.setattr(RecordingReader, "__init__", eio)
+    code, out, err = run_cli("replay", ROOT / "recordings" / "shipped", "--json", capsys=capsys)
+    assert code == 2 and "decisions.jsonl: Input/output error" in err, err
+    assert "divergence" not in err
+    verdict = json.loads(out.strip().splitlines()[-1])
+    assert verdict["match"] is None and "Input/output error" in verdict["error"]
+
+
+def test_a_replay_whose_own_can_log_cannot_be_written_is_exit_2_not_a_divergence(monkeypatch, capsys):
+    """The replay's own CAN log (in the temporary folder) on a full disk: RecordingFailed, but no recording of
+    the user's was stopped, and nothing diverged: exit 2 (was 1)."""
+    import errno
+
+    from drivers.record import BusRecorder
+
+    def full(self, msg):
+        if self.error is None:
+            self._failed(OSError(errno.ENOSPC, "No space left on device"))
+
+    monkeypatch.setattr(BusRecorder, "_on_message", full)
+    code, out, err = run_cli("replay", ROOT / "recordings" / "shipped", capsys=capsys)
+    assert code == 2 and "No space left on device" in err and "divergence" not in err, err

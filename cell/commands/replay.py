@@ -30,8 +30,14 @@ def run(args) -> int:
     from cell.runtime.replay import Divergence, replay
 
     try:
-        result = replay(args.recording, args.examples,
-                        progress=lambda s: print(s, file=sys.stderr if args.json else sys.stdout, flush=True))
+        try:
+            result = replay(args.recording, args.examples,
+                            progress=lambda s: print(s, file=sys.stderr if args.json else sys.stdout, flush=True))
+        except OSError as e:  # the recording cannot be read (EIO), the replay's own CAN log cannot be written
+            # (a full /tmp; a RecordingFailed): no divergence (1), a recording replay cannot check (2)
+            from cell.cli import _os_error_text
+
+            raise BadInput(_os_error_text(e)) from None
     except BadInput as e:
         if args.json:  # exit 2 all the same; a script tells a session cut short from a corrupt folder by it
             print(json.dumps(_refused_verdict(args.recording, str(e))), flush=True)

@@ -776,11 +776,13 @@ def _meta_flag(meta: dict, key: str, directory) -> bool:
 def _cut_short(rec) -> bool:
     """A recording whose end is missing: its writer was never closed (the session crashed or was
     killed), the session failed (an error ended it, e.g. a full disk: closed as incomplete with
-    status "failed", no decision says where), or its last decision line was torn off."""
+    status "failed", no decision says where), its CAN log was cut short (`can_log_failed`: the frames after it
+    are missing, not different), or its last decision line was torn off."""
     from cell.recording import DECISIONS
 
     summary = rec.manifest.get("summary") or {}
-    failed = rec.manifest.get("status") == "incomplete" and summary.get("status") == "failed"
+    failed = rec.manifest.get("status") == "incomplete" and (summary.get("status") == "failed"
+                                                              or bool(summary.get("can_log_failed")))
     return rec.manifest.get("status") == "recording" or failed or any(
         p.startswith(f"{DECISIONS} line") and "is torn" in p for p in rec.problems)
 

@@ -326,14 +326,17 @@ def _run_session(cfg: RunConfig, say) -> dict:
     control = RunControl(require_approval=cfg.require_approval)
     status, summary = None, None
     with HeldInterrupts() as interrupts, contextlib.ExitStack() as stack:
-        # the CAN log's write failure, raised as the drives shut down: said, not raised (the summary is reported)
-        stack.push(lambda _t, e, _tb: _can_log_failed(e, summary, say))
+        # the CAN log's write failures (on_failed): one before the recording is closed closes it as failed; one
+        # as the drives shut down (after the close) is written into its manifest then; raised by the log as the
+        # drives shut down, it is said, not raised (the summary is reported)
+        can_failed: list[RecordingFailed] = []
+        stack.push(lambda _t, e, _tb: _can_log_failed(e, can_failed, summary, recorder, say))
         can_log = recorder.can_log_path if recorder else None
         try:
             if cfg.real_cell is not None:
-                arm, camera, world = _real_sources(cfg.real_cell, cell, cal, can_log, stack)
+                arm, camera, world = _real_sources(cfg.real_cell, cell, cal, can_log, stack, can_failed.append)
             else:
-                arm, camera, world = _simulated_sources(cfg, cell, cal, assembly, can_log, stack)
+                arm, camera, world = _simulated_sources(cfg, cell, cal, assembly, can_log, stack, can_failed.append)
             loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=camera, arm=arm, control=control,
                             examples_path=examples_path, examples_out=examples_out, sink=recorder, viz=viz,
                             options=options)
@@ -410,6 +413,8 @@ def _run_session(cfg: RunConfig, say) -> dict:
                 summary["rrd"] = json_text(str(rrd))
             if interrupted is not None:
                 interrupted.summary = summary
+            if can_failed:  # the CAN log stopped at a write the disk refused: the recording is cut short
+                status = _can_log_cut_short(summary, can_failed[0], say)
             if recorder is not None:
                 _close_recording(recorder, status, summary, say)
     return summary
@@ -428,23 +433,49 @@ def _stop_on_recording_failure(e, loop: CellLoop, arm, say) -> dict:
     return {**loop.summary(), "stopped": why, "recording_failed": e.reason}
 
 
-def _can_log_failed(e, summary: dict | None, say) -> bool:
-    """True (suppressed) for the recording's CAN log's RecordingFailed once the run has its summary."""
-    if not isinstance(e, RecordingFailed) or summary is None:
+def _can_log_cut_short(summary: dict, e: RecordingFailed, say) -> str:
+    """The recording's CAN log stopped at a write the disk refused: the summary says so (`can_log_failed`); a run
+    that completed is stopped on it (exit 1) as on any failed write into the recording. Returns the status."""
+    if "can_log_failed" not in summary:
+        summary["can_log_failed"] = e.reason
+        say(f"the recording's CAN log is cut short: {e.reason}")
+    if summary["status"] == "complete":
+        summary.update(status="stopped", stopped=f"recording: {e.reason}")
+    return summary["status"]
+
+
+def _can_log_failed(e, can_failed: list, summary: dict | None, recorder, say) -> bool:
+    """As the drives have shut down: a CAN log that failed after the recording was closed (its last frames, the
+    drives' shutdown) makes the manifest say so, closed as failed. True (suppressed) for the CAN log's
+    RecordingFailed once the run has its summary."""
+    if summary is None:
         return False
-    summary["can_log_failed"] = e.reason
-    say(f"the recording's CAN log is cut short: {e.reason}")
-    return True
+    if can_failed and "can_log_failed" not in summary:
+        _can_log_cut_short(summary, can_failed[0], say)
+        if recorder is not None and "recording_not_closed" not in summary:
+            try:
+                recorder.restate_end("incomplete", _recorded_summary(summary))
+            except RecordingFailed as failed:
+                summary["recording_not_closed"] = failed.reason
+                say(f"the recording's manifest could not say that its CAN log is cut short ({failed.reason})")
+    return isinstance(e, RecordingFailed) and bool(can_failed) and e is can_failed[0]
+
+
+def _recorded_summary(summary: dict) -> dict:
+    """The summary as the manifest keeps it: one a write failure ended (the recording's or its CAN log's) is
+    "failed", with the error (its end is not recorded: replay calls it incomplete, exit 2)."""
+    why = summary.get("recording_failed") or summary.get("can_log_failed")
+    if why is None:
+        return summary
+    return {**summary, "status": "failed", "error": summary.get("error") or f"recording: {why}"}
 
 
 def _close_recording(recorder, status: str, summary: dict, say) -> None:
     """Close the recording with the run's summary. One a write failure ended closes with the summary's status
     "failed" (its end is not recorded: replay calls it incomplete, exit 2). A manifest the disk cannot take is
     said (it keeps "recording", read back as incomplete), unless the run completed: then it is the run's error."""
-    recorded = summary if "recording_failed" not in summary else {**summary, "status": "failed",
-                                                                   "error": summary["stopped"]}
     try:
-        recorder.close("complete" if status == "complete" else "incomplete", recorded)
+        recorder.close("complete" if status == "complete" else "incomplete", _recorded_summary(summary))
     except OSError as e:
         if status == "complete":
             raise
@@ -620,11 +651,12 @@ def _check_rrd_path(path: Path, inputs) -> None:
     make_folder(path.parent, f"--save {path}")
 
 
-def _simulated_sources(cfg: RunConfig, cell, cal, assembly: Assembly, can_log, stack: contextlib.ExitStack):
+def _simulated_sources(cfg: RunConfig, cell, cal, assembly: Assembly, can_log, stack: contextlib.ExitStack,
+                       can_log_failed=None):
     """The simulated drives on the virtual bus, the simulated world and its camera."""
     from drivers import simulated_cell
 
-    arm, drives = stack.enter_context(simulated_cell(cell, record=can_log))
+    arm, drives = stack.enter_context(simulated_cell(cell, record=can_log, on_record_failed=can_log_failed))
     world = SimWorld(displaced(assembly, cfg.shift_mm, cfg.seed), cell, drives, seed=cfg.seed, faults=cfg.faults)
     stack.callback(world.close)
     if cfg.drive_fault is not None:
@@ -633,7 +665,7 @@ def _simulated_sources(cfg: RunConfig, cell, cal, assembly: Assembly, can_log, s
     return arm, SimCameraSource(world, cal, cfg.seed), world
 
 
-def _real_sources(real: RealCell, cell, cal, can_log, stack: contextlib.ExitStack):
+def _real_sources(real: RealCell, cell, cal, can_log, stack: contextlib.ExitStack, can_log_failed=None):
     """The drives on the cell's CAN bus and its camera: no world, what the camera shows is the truth.
     The camera is checked (it delivers frames of the calibration's size) before the bus is opened."""
     from cell.vision.sources import open_camera
@@ -641,7 +673,8 @@ def _real_sources(real: RealCell, cell, cal, can_log, stack: contextlib.ExitStac
 
     camera = stack.enter_context(open_camera(real.camera, (cal.width_px, cal.height_px)))
     cal.check_frame(camera.peek(), f"the first frame of camera {real.camera!r}")
-    arm = stack.enter_context(real_cell(real.interface, real.channel, cell, record=can_log))
+    arm = stack.enter_context(real_cell(real.interface, real.channel, cell, record=can_log,
+                                             on_record_failed=can_log_failed))
     arm.gripper.require_open()  # a part left between the jaws would be dropped by the first pre-open
     return arm, camera, None
 

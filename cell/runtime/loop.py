@@ -303,6 +303,7 @@ class CellLoop:
         self._found_empty: str | None = None
         self._lost: str | None = None  # fell out of the jaws on the way to the drop-off (`_lost_in_transit`)
         self._located_last: set[str] = set()  # parts the last frame located by registration (`_camera_moved`)
+        self._knocks = 0  # frames in a row that read every part moved alike (`_camera_moved`): stops said so
         self._static: list[Polygon] | None = None  # fixtures at the table (`_reaching_in`); None: no frame yet
         self._touched: str | None = None  # the part the last pick was sent for (it may have moved: not compared)
         self._examples_lock = threading.Lock()
@@ -665,8 +666,11 @@ class CellLoop:
             self.viz.parts([p.outline_mm for p in seen.values()], [p.z_top_mm for p in seen.values()],
                            list(seen))
         if moved is not None:
-            why = f"{moved.text()}: was the camera or the tray moved? check the calibration; after the reset the " \
-                  "parts are taken where the next frame shows them"
+            why = (f"{moved.text()}: was the camera or the tray moved? check the calibration; after the reset the "
+                   "next frame is compared with the parts as they were" if self._knocks == 1 else
+                   f"still {moved.text()} (before the last stop): if the camera was knocked, put it back or "
+                   "recalibrate it (cell calibrate plane); if the tray was moved on purpose, reset again and the "
+                   "parts are taken where the next frame shows them")
             self._stop_and_ask("camera", why, fault=True)
             raise Faulted(why)
         if reaching:
@@ -717,8 +721,14 @@ class CellLoop:
         before = {pid: self.poses[pid].polygon.centroid.coords[0] for pid in compared}
         after = {pid: tuple(np.add(before[pid], (found[pid].dx_mm, found[pid].dy_mm))) for pid in compared}
         moved = common_motion(before, after)
-        if moved is not None:  # the reset takes the parts where the next frame shows them
-            self._located_last = set()
+        # the poses stay as they were before the first stop, so after a reset the next frame is compared with them
+        # again: the camera put back reads nothing moved; still moved stops a second time, saying so; a third frame
+        # still moved (reset twice: the tray was moved on purpose) is taken as it shows the parts
+        self._knocks = 0 if moved is None else self._knocks + 1
+        if self._knocks > 2:
+            self._knocks = 0
+            self.control.log("camera", f"{moved.text()}, reset twice: taken as the tray moved on purpose")
+            return None
         return moved
 
     def _unexplained(self, regions, seen: dict, found: dict, strangers: list) -> list[Part]:

@@ -132,8 +132,9 @@ class Phases:
         return self._state_at(t_s)[0]
 
     def velocity_at(self, t_s: float) -> float:
-        if t_s >= self.duration_s:
+        if t_s >= self.duration_s > 0.0:
             return 0.0
+        # (no phase at all: a speed so small that every ramp's time is 0 in floats, 5e-324 mm/s; it is what it is)
         return self._state_at(t_s)[1]
 
 

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from cell.cellconfig import default_cell
@@ -120,6 +120,7 @@ def test_real_clock_can_be_reused_after_close():
 
 
 @given(distance=st.floats(-5000, 5000), v0=st.floats(-300, 300), v_max=pos, accel=pos, decel=pos)
+@example(distance=5e-324, v0=5e-324, v_max=1.0, accel=0.5, decel=0.5)  # every ramp's time 0: it said 0, not v0
 def test_a_profile_from_speed_starts_at_it_and_ends_at_rest_on_the_target_within_the_ramps(distance, v0, v_max,
                                                                                             accel, decel):
     """`from_speed` (change immediately): from `v0`, never faster than it or `v_max`, every phase on a ramp,

@@ -17,6 +17,13 @@ from drivers.limits import JOINT_FIELDS, command_violations
 from drivers.profile import coordinated_move_s, coordinated_path, velocity_for_duration
 
 POSITION_TOLERANCE_COUNTS = 2
+
+
+def at_counts(status, counts: int) -> bool:
+    """The drive's reported position is `counts`, within the arrival tolerance (POSITION_TOLERANCE_COUNTS)."""
+    return abs(status.position_counts - counts) <= POSITION_TOLERANCE_COUNTS
+
+
 # wall time an axis gets to show it started at the halt's release (its answer takes ms; meanwhile the axes
 # released before it run)
 START_CONFIRM_S = 0.2
@@ -194,9 +201,7 @@ class Moves:
         for name in targets:
             err = self._left_operation(self.axes[name], when, self._move_seqs.get(name))
             if err is not None:
-                self._latch(err)
-                self._stop_all()
-                raise err
+                self._stop_on(err)
 
     def _confirm_started(self, targets: dict[str, int], seqs: dict[str, int]) -> None:
         """Every released axis must show within START_CONFIRM_S (wall time) that it started, or all are
@@ -248,9 +253,7 @@ class Moves:
                             node=late[0],
                             node_id=self.axes[late[0]].node_id,
                         )
-                        self._latch(err)
-                        self._stop_all()
-                        raise err
+                        self._stop_on(err)
                     self.clock.sleep(self.poll_s)
         finally:
             self._pending = ({}, 0.0)
@@ -266,8 +269,7 @@ class Moves:
         """The move ended at the target (a count or two short of it is no arrival after a quick stop: `_ended`).
         The gripper's jaws stopped on a part (internal limit active) have arrived where the part is."""
         st = ax.status
-        return cls._ended(st) and (abs(st.position_counts - counts) <= POSITION_TOLERANCE_COUNTS
-                                   or (ax.name == "gripper" and st.internal_limit))
+        return cls._ended(st) and (at_counts(st, counts) or (ax.name == "gripper" and st.internal_limit))
 
     def _stop_if_stopped_short(self, targets: dict[str, int]) -> None:
         """An arm axis whose drive reports its move ended with internal limit active, away from the target: a
@@ -283,6 +285,4 @@ class Moves:
                              f"{ax.from_counts(counts):g} {ax.unit}: the drive reports an internal limit (a limit "
                              "switch, a torque or current limit, or its own position limits)", node=name,
                              node_id=ax.node_id)
-            self._latch(err)
-            self._stop_all()
-            raise err
+            self._stop_on(err)

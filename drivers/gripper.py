@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from cell.cellconfig import GRIPPER_ACCEL_FACTOR, grip_force_units
-from drivers.arm_moves import POSITION_TOLERANCE_COUNTS
+from drivers.arm_moves import at_counts
 from drivers.eds import GRIP_FORCE_INDEX
 from drivers.errors import DriveFault, LimitError
 from drivers.limits import gripper_violations
@@ -91,7 +91,7 @@ class Gripper:
         stopped at 60 mm of 50 went down 10 mm wider than the planner cleared. More than the arrival tolerance
         (`POSITION_TOLERANCE_COUNTS`, 0.002 mm on the shipped cell) off is a fault."""
         ax = self._arm.axes["gripper"]
-        if abs(ax.status.position_counts - ax.to_counts(width_mm)) <= POSITION_TOLERANCE_COUNTS:  # as `Arm._arrived`
+        if at_counts(ax.status, ax.to_counts(width_mm)):  # as `Arm._arrived`
             return
         self._arm._stop_on(DriveFault(
             f"gripper (node {ax.node_id}): the jaws stopped at {ax.position:.1f} mm opening to {width_mm:.1f} mm: "

@@ -491,7 +491,7 @@ def _bus_fault(reason: str, frames: list) -> RecordedFault | None:
 def inject_again(drives, fault: RecordedFault) -> None:
     """Bring `fault` on the replay's simulated drives."""
     if fault.kind == "reboot":
-        _reboot(drives, fault.node)
+        reboot_node(drives, fault.node)
     elif fault.kind == "error_frames":
         drives.inject_fault("error_frames", error_class=fault.error_class, count=fault.count)
     elif fault.kind == "emcy":
@@ -500,7 +500,7 @@ def inject_again(drives, fault: RecordedFault) -> None:
         drives.inject_fault(fault.kind, fault.node)
 
 
-def _reboot(drives, node: str) -> None:
+def reboot_node(drives, node: str) -> None:
     """The node resets and boots, as on a power glitch: an NMT Reset Node from a device of its own on the bus
     (the drive's own reset: power-on values, the boot-up message, PRE-OPERATIONAL)."""
     import can

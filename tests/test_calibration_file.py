@@ -258,10 +258,13 @@ def test_map_refuses_pixels_at_or_beyond_the_homography_horizon(tmp_path, capsys
 
 
 def test_map_puts_a_plane_the_calibration_cannot_map_on_no_pixel(tmp_path, capsys):
-    """A --z the homography has no mapping for fails at every pixel: the message names no pixel."""
+    """A --z the homography has no mapping for fails at every pixel: the message names no pixel. (A --z off its
+    plane is mapped through the camera it implies, tests/test_calibration_homography_heights.py; one above that
+    camera, 800 mm up by the default cell, is not.)"""
     path = _homography_file(tmp_path, np.diag([1.0, -1.0, 1.0]).tolist())
-    code, out, err = run_cli("map", path, "--px", "320,240", "--z", "5", "--json", capsys=capsys)
-    assert code == 2 and err.startswith(f"cell: error: calibration file {path} is a homography for the plane z = 0")
+    code, out, err = run_cli("map", path, "--px", "320,240", "--z", "900", "--json", capsys=capsys)
+    assert code == 2 and err.startswith(f"cell: error: calibration file {path}: the plane z = 900 mm is not below "
+                                        "the camera the homography implies"), err
 
 
 @pytest.mark.parametrize("dist", [[1e10, 0, 0, 0, 0], [0, 0, 0, 0, -1e6]])

@@ -60,8 +60,10 @@ class Board:
         path.write_text(json.dumps({"dictionary": "DICT_4X4_50", "markers": markers}))
         return path
 
-    def render(self, path, scale: int = 2):
-        """The board on a dark table through PINHOLE: warped at `scale` x the frame's size, then averaged down."""
+    def render(self, path, scale: int = 2, camera=None):
+        """The board on a dark table through `camera` (a pinhole Calibration; default PINHOLE): warped at `scale` x
+        the frame's size, then averaged down."""
+        camera = camera or PINHOLE
         h_b, w_b = int(BOARD_MM[0] * PX_PER_MM), int(BOARD_MM[1] * PX_PER_MM)
         texture = np.full((h_b, w_b), 235, np.uint8)
         dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
@@ -71,10 +73,11 @@ class Board:
             texture[r0:r0 + side, c0:c0 + side] = cv2.aruco.generateImageMarker(dictionary, i, side)
         # texture edge coordinates (col, row) -> board mm (a = row, b = col) -> base -> camera -> image edges
         to_ab = np.array([[0, 1 / PX_PER_MM, 0], [1 / PX_PER_MM, 0, 0], [0, 0, 1.0]])
-        base2cam = np.linalg.inv(PINHOLE.cam2base)
+        base2cam = np.linalg.inv(camera.cam2base)
         plane_to_cam = np.column_stack([base2cam[:3, :3] @ self.r[:, 0], base2cam[:3, :3] @ self.r[:, 1],
                                         base2cam[:3, :3] @ self.o + base2cam[:3, 3]])
-        k_edges = np.diag([scale, scale, 1.0]) @ (K + np.array([[0, 0, HALF_PX], [0, 0, HALF_PX], [0, 0, 0]]))
+        k_edges = np.diag([scale, scale, 1.0]) @ (camera.camera_matrix
+                                                  + np.array([[0, 0, HALF_PX], [0, 0, HALF_PX], [0, 0, 0]]))
         warp = _shift(-0.5) @ k_edges @ plane_to_cam @ to_ab @ _shift(0.5)  # OpenCV's pixel centres both ends
         big = cv2.warpPerspective(texture, warp, (SIZE[0] * scale, SIZE[1] * scale), flags=cv2.INTER_LINEAR,
                                   borderValue=70)

@@ -12,8 +12,9 @@ of a given width or closes fully when there is none.
 
 Fault injection (`SimHandle.inject_fault`) covers: a silent node, an EMCY during a move, a
 following error, dropped SDO answers, error frames on the bus (of a given class, as SocketCAN
-presents them), and a drive leaving OPERATION ENABLED without a fault (its own quick stop,
-STO). Faults latch in the drive until a fault reset (controlword bit 7 rising edge), as on a real drive.
+presents them), a drive leaving OPERATION ENABLED without a fault (its own quick stop,
+STO), and a drive that reboots (a power glitch). Faults latch in the drive until a fault reset (controlword
+bit 7 rising edge), as on a real drive.
 """
 
 from __future__ import annotations
@@ -156,7 +157,9 @@ class SimHandle:
             'quick_stop' (the drive quick-stops on its own, as by its quick stop input: transition
             11 as 0x605A says, no fault), 'disable' (STO: the drive function off at once, SWITCH
             ON DISABLED, the axis coasts, no fault), 'internal_limit' (the move ends where the axis
-            is, with statusword bits 10 and 11, as on a limit switch or a torque limit, no fault); all,
+            is, with statusword bits 10 and 11, as on a limit switch or a torque limit, no fault), 'reboot'
+            (a power glitch: the drive's own reset to its power-on values, its boot-up message, PRE-OPERATIONAL,
+            the axis no longer driven; `auto_start=True`: it then starts itself, NMT OPERATIONAL); all,
             like 'emcy', at once or `after_s` into the next move,
             'drop_sdo' (the next `count` SDO answers are lost; default all, until `heal`),
             'error_frames' (`count` error frames on the bus, default 3, of `error_class`, default 'bus_error':

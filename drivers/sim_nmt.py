@@ -37,9 +37,10 @@ class NetworkManagement:
                 self.nmt = NMT_STOPPED
             elif cmd == codec.NMT_PREOP:
                 self.nmt = NMT_PREOP
-            elif cmd in (codec.NMT_RESET_NODE, codec.NMT_RESET_COMM):
-                if cmd == codec.NMT_RESET_NODE:
-                    self._reset_application()
+            elif cmd == codec.NMT_RESET_NODE:
+                self._reset_node()
+                return
+            elif cmd == codec.NMT_RESET_COMM:
                 self._reset_communication()
                 self.boot()
                 return
@@ -81,6 +82,13 @@ class NetworkManagement:
         if not self.silent and self.nmt != NMT_STOPPED:
             self.network.send_message(codec.EMCY_BASE + self.node_id,
                                       codec.pack_emcy(codec.Emcy(code, self.error_register)))
+
+    def _reset_node(self) -> None:
+        """The drive's own reset, as NMT Reset Node or a power glitch brings it: power-on values, the boot-up
+        message, PRE-OPERATIONAL."""
+        self._reset_application()
+        self._reset_communication()
+        self.boot()
 
     def _reset_application(self) -> None:
         """NMT Reset Node: the application and profile area (0x2000-0xFFFF) to power-on values;

@@ -5,8 +5,8 @@ it. Before, the host only watched that heartbeats came: J1 and J4 ran their whol
 the way check accepted took the tool 284 mm out of the workspace), the error was a MoveTimeout a second later, and
 the reset enabled J2 with its host-heartbeat watch (0x1016) gone: on a host crash it ran its move to the end.
 
-The reboot is brought about on the bus as the host sees a power glitch: an NMT Reset Node from another master (the
-drive then does what it does at power-on), and, for drives that start themselves after boot, an NMT Start."""
+The reboot is the simulated drive's own (`inject_fault("reboot")`, as on a power glitch: its power-on values, the
+boot-up message, PRE-OPERATIONAL), and, for drives that start themselves after boot, then NMT OPERATIONAL."""
 
 from __future__ import annotations
 
@@ -23,31 +23,20 @@ from drivers import DriveFault, FaultLatched, NodeRebooted, NodeSilent, codec
 pytestmark = needs_sim
 
 
-def _reboot(open_test_bus, node_id: int, *, auto_start: bool = False) -> None:
-    """The node resets (application and communication), sends its boot-up message and goes PRE-OPERATIONAL;
-    with `auto_start` it then starts itself (NMT OPERATIONAL, still SWITCH ON DISABLED), as many drives do."""
-    other_master = open_test_bus()
-    commands = [codec.NMT_RESET_NODE] + ([codec.NMT_START] if auto_start else [])
-    for command in commands:
-        other_master.send(can.Message(arbitration_id=codec.NMT_COB, data=codec.pack_nmt(command, node_id),
-                                      is_extended_id=False))
-
-
 def _long_move(arm):
     s = arm.joints()
     return Joints(s.j1_deg - 40.0, s.j2_deg - 30.0, s.j3_mm, s.j4_deg + 30.0)
 
 
 @pytest.mark.parametrize("auto_start", [False, True])
-def test_a_drive_rebooting_mid_move_stops_every_axis_at_once_and_says_it_rebooted(arm, sim_drives, open_test_bus,
-                                                                                 auto_start):
+def test_a_drive_rebooting_mid_move_stops_every_axis_at_once_and_says_it_rebooted(arm, sim_drives, auto_start):
     target = _long_move(arm)
     j1_states = []  # (time, state) of J1's drive, every 10 ms
     job = arm.clock.every(0.01, lambda: j1_states.append((arm.clock.now(), sim_drives.drives["j1"].state)))
     arm.move_joints(target, wait=False)
     arm.clock.sleep(0.25)
     rebooted_s = arm.clock.now()
-    _reboot(open_test_bus, 2, auto_start=auto_start)
+    sim_drives.inject_fault("reboot", "j2", auto_start=auto_start)
     with pytest.raises(NodeRebooted, match=r"^j2 \(node 2\) rebooted \(boot-up message\): its setup is lost") as e:
         arm.wait_idle()
     job.cancel()
@@ -60,9 +49,36 @@ def test_a_drive_rebooting_mid_move_stops_every_axis_at_once_and_says_it_reboote
         arm.move_joints(arm.joints())
 
 
-def test_a_reboot_while_the_arm_stands_is_latched_and_the_status_no_longer_shown_as_enabled(arm, sim_drives,
-                                                                                           open_test_bus):
-    _reboot(open_test_bus, 2)
+def test_a_reboot_after_s_into_the_next_move_is_the_drives_own_reset(arm, sim_drives, open_test_bus):
+    """The fault kind: `after_s` into the next move the drive resets itself as on a power glitch (nothing on the
+    bus asks it to): its boot-up frame, PRE-OPERATIONAL, SWITCH ON DISABLED, its power-on values back (the host's
+    0x1016 watch and profile velocity gone), its axis coasting on from where it was."""
+    tap = open_test_bus()
+    drive = sim_drives.drives["j2"]
+    power_on_velocity = drive._power_on[0x6081][0]
+    sim_drives.inject_fault("reboot", "j2", after_s=0.2)
+    arm.clock.sleep(0.3)
+    assert drive.nmt == 0x05  # armed for the next move, not at once
+    nmt_states = []  # (time, NMT state of J2's drive), every 10 ms
+    job = arm.clock.every(0.01, lambda: nmt_states.append((arm.clock.now(), drive.nmt)))
+    started_s = arm.clock.now()
+    with pytest.raises(NodeRebooted, match=r"^j2 \(node 2\) rebooted"):
+        arm.move_joints(_long_move(arm))
+    job.cancel()
+    rebooted_s = next(t for t, nmt in nmt_states if nmt != 0x05)
+    assert 0.2 <= rebooted_s - started_s <= 0.2 + 0.02 + 1e-9
+    frames = []
+    while (m := tap.recv(timeout=0)) is not None:
+        frames.append((m.arbitration_id, bytes(m.data)))
+    assert (codec.HEARTBEAT_BASE + 2, b"\x00") in frames  # its boot-up message
+    assert not any(cob == codec.NMT_COB for cob, _ in frames)  # no NMT command brought it
+    assert (drive.nmt, drive.state, drive.mode) == (0x7F, "SWITCH_ON_DISABLED", 0)
+    assert drive._get(0x1016, 1) == 0 and drive.node.data_store[0x6081][0] == power_on_velocity
+    assert drive.motion is None or drive.motion.coasting
+
+
+def test_a_reboot_while_the_arm_stands_is_latched_and_the_status_no_longer_shown_as_enabled(arm, sim_drives):
+    sim_drives.inject_fault("reboot", "j2")
     arm.clock.sleep(0.15)  # a heartbeat (100 ms) after the boot-up message
     assert "rebooted" in arm.faults.get("j2", "")
     row = arm.state()["j2"]
@@ -73,7 +89,7 @@ def test_a_reboot_while_the_arm_stands_is_latched_and_the_status_no_longer_shown
 
 
 @pytest.mark.parametrize("auto_start", [False, True])
-def test_reset_after_a_reboot_sets_the_node_up_again_before_enabling_it(arm, sim_drives, open_test_bus, auto_start):
+def test_reset_after_a_reboot_sets_the_node_up_again_before_enabling_it(arm, sim_drives, auto_start):
     """After the reset the drive watches the host again (0x1016) and stops on a host crash, and its profile
     velocity is what the host believes (the host's cache of what it wrote skipped writing a velocity the
     drive no longer held: J2 ran the next coordinated move at its power-on speed, off the checked path)."""
@@ -81,7 +97,7 @@ def test_reset_after_a_reboot_sets_the_node_up_again_before_enabling_it(arm, sim
     arm.move_joints(there)
     j2 = arm.axes["j2"]
     velocity_counts = j2.sdo_read(0x6081)
-    _reboot(open_test_bus, 2, auto_start=auto_start)
+    sim_drives.inject_fault("reboot", "j2", auto_start=auto_start)
     arm.clock.sleep(0.05)
     arm.reset_faults()
     assert arm.faults == {}
@@ -130,12 +146,12 @@ def test_a_drive_that_leaves_operational_on_a_communication_error_is_told_with_i
         arm.move_joints(arm.joints())
 
 
-def test_the_grippers_force_is_written_again_after_it_rebooted(arm, sim_drives, open_test_bus):
+def test_the_grippers_force_is_written_again_after_it_rebooted(arm, sim_drives):
     sim_drives.gripper_object_width_mm = 30.0
     force_n = arm.cell.gripper.grip_force_n / 2
     arm.gripper.grip(30.0, force_n)
     arm.gripper.open()
-    _reboot(open_test_bus, 5)  # back to its power-on force
+    sim_drives.inject_fault("reboot", "gripper")  # back to its power-on force
     arm.clock.sleep(0.05)
     arm.reset_faults()
     arm.gripper.grip(30.0, force_n)
@@ -159,11 +175,10 @@ def test_a_node_left_pre_operational_by_another_master_is_a_fault_and_reset_star
 
 
 def test_a_handshake_with_a_node_not_operational_names_its_nmt_state_not_the_coordinated_start(arm, sim_drives,
-                                                                                             open_test_bus,
                                                                                              monkeypatch):
     """The axis alone (without the arm's gate, which refuses it once the reboot is latched): the handshake's
     timeout said to set can.coordinated_start false, where the node took no PDO at all."""
-    _reboot(open_test_bus, 2)
+    sim_drives.inject_fault("reboot", "j2")
     arm.clock.sleep(0.15)
     j2 = arm.axes["j2"]
     monkeypatch.setattr(j2, "move_gate", contextlib.nullcontext)
@@ -172,10 +187,10 @@ def test_a_handshake_with_a_node_not_operational_names_its_nmt_state_not_the_coo
     assert "coordinated_start" not in str(e.value)
 
 
-def test_a_node_lost_while_the_jaws_hold_a_part_says_so_and_where_the_arm_stood(arm, sim_drives, open_test_bus):
+def test_a_node_lost_while_the_jaws_hold_a_part_says_so_and_where_the_arm_stood(arm, sim_drives):
     sim_drives.gripper_object_width_mm = 30.0
     assert arm.gripper.grip(30.0).holding
-    _reboot(open_test_bus, 2)
+    sim_drives.inject_fault("reboot", "j2")
     arm.clock.sleep(0.05)
     assert arm.faults["j2"].endswith("; a part may still be in the jaws (they closed on something at 30.0 mm); "
                                      "the arm stood at j1 0.0 deg, j2 90.0 deg, j3 200.0 mm, j4 0.0 deg "

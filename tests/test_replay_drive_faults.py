@@ -12,7 +12,7 @@ import pytest
 from conftest import run_cli
 from test_cell_loop import short_assembly  # noqa: F401 - the fixture: a nut, a washer and the PCB
 
-from cell.runtime.replay import at_clock, reboot_node
+from cell.runtime.replay import at_clock
 from cell.runtime.session import RunConfig, run_session
 
 CARRY_S = 0.15  # how far into the carry the fault comes (after the check's closing of the jaws)
@@ -59,8 +59,9 @@ FAULTS = {  # what the hardware did mid-carry, and what the stop says of it
     "bus-off": (lambda d: d.inject_fault("error_frames", error_class="bus_off", count=1), "cell", "bus-off"),
     "STO": (lambda d: d.inject_fault("disable", "j2"), "j2", "now in SWITCH_ON_DISABLED"),
     "quick stop input": (lambda d: d.inject_fault("quick_stop", "j2"), "j2", "left OPERATION ENABLED"),
-    "reboot mid-move": (lambda d: reboot_node(d, "j2"), "j2", "j2 (node 2) rebooted (boot-up message)"),
-    "gripper reboot": (lambda d: reboot_node(d, "gripper"), "gripper", "gripper (node 5) rebooted (boot-up message)"),
+    "reboot mid-move": (lambda d: d.inject_fault("reboot", "j2"), "j2", "j2 (node 2) rebooted (boot-up message)"),
+    "gripper reboot": (lambda d: d.inject_fault("reboot", "gripper"), "gripper",
+                       "gripper (node 5) rebooted (boot-up message)"),
     "EMCY": (lambda d: d.inject_fault("emcy", "j4", code=0x4310), "j4", "EMCY 0x4310"),
 }
 
@@ -89,7 +90,7 @@ def test_a_loop_that_no_longer_stops_on_the_re_created_fault_diverges(tmp_path, 
     with a note (it was: "5 of 5 decisions match", exit 0)."""
     from cell.runtime import replay
 
-    rec, _ = record(tmp_path, monkeypatch, short_assembly, lambda d: reboot_node(d, "j2"))
+    rec, _ = record(tmp_path, monkeypatch, short_assembly, lambda d: d.inject_fault("reboot", "j2"))
     monkeypatch.setattr(replay, "inject_again", lambda drives, fault: None)
     code, out, err = run_cli("replay", rec, capsys=capsys)
     assert code == 1, out
@@ -113,7 +114,7 @@ def test_a_stop_the_replay_cannot_re_create_is_taken_from_the_recording_and_said
     whose stop said "target not reached in time", and the node's boot-up frame cut out of the log as a real
     bus may lose it): the replay compares up to the stop and says the stop itself was a hardware fault taken
     from the recording, not re-run; no planning divergence."""
-    rec, _ = record(tmp_path, monkeypatch, short_assembly, lambda d: reboot_node(d, "j2"))
+    rec, _ = record(tmp_path, monkeypatch, short_assembly, lambda d: d.inject_fault("reboot", "j2"))
     lines = (rec / "decisions.jsonl").read_text().splitlines()
     stop = json.loads(lines[-1])
     assert stop["type"] == "stop" and "j2 (node 2) rebooted" in stop["reason"], stop

@@ -419,7 +419,7 @@ def _interrupted_before(decisions: list[dict]) -> dict[int, dict]:
 @dataclass(frozen=True)
 class RecordedFault:
     """A drive or bus fault a recorded pick stopped on, as the replay brings it again: `kind` one of
-    `SimHandle.inject_fault`'s, or "reboot" (the node resets and boots: an NMT Reset Node sent to it). When:
+    `SimHandle.inject_fault`'s ("reboot": the node resets and boots, as on a power glitch). When:
     `times_s` on the recording's clock (what the CAN log shows), else the step it cut short, just before it
     (`before_step`: a lost answer, for the step's first request) or just into it."""
 
@@ -490,26 +490,12 @@ def _bus_fault(reason: str, frames: list) -> RecordedFault | None:
 
 def inject_again(drives, fault: RecordedFault) -> None:
     """Bring `fault` on the replay's simulated drives."""
-    if fault.kind == "reboot":
-        reboot_node(drives, fault.node)
-    elif fault.kind == "error_frames":
+    if fault.kind == "error_frames":
         drives.inject_fault("error_frames", error_class=fault.error_class, count=fault.count)
     elif fault.kind == "emcy":
         drives.inject_fault("emcy", fault.node, code=fault.code)
     else:
         drives.inject_fault(fault.kind, fault.node)
-
-
-def reboot_node(drives, node: str) -> None:
-    """The node resets and boots, as on a power glitch: an NMT Reset Node from a device of its own on the bus
-    (the drive's own reset: power-on values, the boot-up message, PRE-OPERATIONAL)."""
-    import can
-
-    from drivers import codec
-
-    with can.Bus(interface="virtual", channel=drives.bus.channel_id) as bus:
-        bus.send(can.Message(arbitration_id=codec.NMT_COB, is_extended_id=False,
-                             data=codec.pack_nmt(codec.NMT_RESET_NODE, drives.drives[node].node_id)))
 
 
 def at_clock(clock, t_s: float, fn) -> None:

@@ -22,6 +22,7 @@ TPDO_EVENT_TIMER_MS = 50  # status at least every 50 ms when nothing changes (th
 # mm or deg: a drive at rest this far past a joint limit (a home at the limit, settled a few counts past it) is
 # enabled holding the limit; further out it is not enabled
 SETTLED_PAST_LIMIT = 0.5
+SETUPS_MAX = 3  # set-ups of a node that boots again before NMT start (`Setup._set_up_after_boot`)
 
 
 class Setup:
@@ -32,13 +33,28 @@ class Setup:
 
     def _start(self, axes: list[Axis]) -> None:
         """NMT start, then wait for each node's first status and a heartbeat saying OPERATIONAL: from then on a
-        heartbeat saying anything else is a fault (`Axis.lost_setup`)."""
+        heartbeat saying anything else is a fault (`Axis.lost_setup`). A boot-up message before the start is
+        ordinary (`_set_up_after_boot`); one after it is a reboot, latched as one by the enable or the watchdog."""
         for ax in axes:
+            self._set_up_after_boot(ax)
             ax.nmt(codec.NMT_START)
         for ax in axes:
-            ax.wait_status(lambda s: True, None, "first TPDO after NMT start")
-            ax.wait_nmt(self.clock, codec.NMT_OPERATIONAL, self.boot_timeout_s, self.poll_s)
+            if not ax.wait_started(self.clock, self.boot_timeout_s, self.poll_s):
+                log.warning("%s after its NMT start", ax.lost_setup())
             ax.started = True
+
+    def _set_up_after_boot(self, ax: Axis) -> None:
+        """A boot-up message after the node's setup but before the host started it (its power came up while the
+        host connected; a drive that boots twice) is no fault: the node is set up again. Latched as a reboot, it
+        stayed so until a reset. A node still booting after SETUPS_MAX setups is started as it is and latched."""
+        for _ in range(SETUPS_MAX):
+            if ax.boot_count == ax.boots_at_setup:
+                return
+            log.warning("%s (node %d) booted again after its setup, before NMT start: set up again", ax.name,
+                        ax.node_id)
+            ax.forget_status()  # from before the boot-up
+            self._configure(ax)
+            self._send_host_heartbeat()  # its host watch starts at the first heartbeat it hears (CiA 301)
 
     def _configure(self, ax: Axis) -> None:
         """Everything the host sets up in a node (SDO), and the host's record of what it wrote there."""

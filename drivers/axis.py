@@ -366,19 +366,24 @@ class Axis:
                 )
             clock.sleep(step_s)
 
-    def wait_nmt(self, clock: Clock, nmt_state: int, timeout_s: float, step_s: float) -> None:
-        """Wait (on the shared clock) for a heartbeat reporting `nmt_state`."""
+    def wait_started(self, clock: Clock, timeout_s: float, step_s: float) -> bool:
+        """After NMT start, on the shared clock: its first status and a heartbeat reporting OPERATIONAL (True), or
+        a boot-up message since its setup (False: it rebooted, as `lost_setup` says; waiting on would only end in
+        "did not report OPERATIONAL")."""
         start = clock.now()
-        while self.nmt_state != nmt_state:
+        while self.boot_count == self.boots_at_setup:
+            if self.status is not None and self.nmt_state == codec.NMT_OPERATIONAL:
+                return True
             if clock.now() - start >= timeout_s:
-                got = codec.NMT_STATE_NAMES.get(self.nmt_state, "nothing")
-                raise NodeSilent(
-                    f"{self.name} (node {self.node_id}): heartbeat did not report "
-                    f"{codec.NMT_STATE_NAMES.get(nmt_state)} within {timeout_s:g} s (last: {got})",
-                    node=self.name,
-                    node_id=self.node_id,
-                )
+                if self.status is None:
+                    what = f"no status (first TPDO after NMT start{self._nmt_note()})"
+                else:
+                    what = (f"heartbeat did not report OPERATIONAL (last: "
+                            f"{codec.NMT_STATE_NAMES.get(self.nmt_state, 'nothing')})")
+                raise NodeSilent(f"{self.name} (node {self.node_id}): {what} within {timeout_s:g} s",
+                                 node=self.name, node_id=self.node_id)
             clock.sleep(step_s)
+        return False
 
     # --- CiA 402 state machine -------------------------------------------------------------
     def enable(self, quick_stop_timeout_s: float = QUICK_STOP_END_TIMEOUT_S, step_s: float = 0.01,

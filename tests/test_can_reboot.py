@@ -200,3 +200,92 @@ def test_a_node_lost_while_the_jaws_hold_a_part_says_so_and_where_the_arm_stood(
     sim_drives.inject_fault("silent", "j4")
     arm.clock.sleep(0.5)
     assert arm.faults["j4"].endswith("(deadline 0.3 s)")
+
+
+def _connect_with_a_reboot(monkeypatch, sim_drives, open_test_bus, sim_clock, cell_cfg, node: str, when):
+    """The real connect with `node` rebooting (its own reset, a power glitch) at the point `when(name, what)` picks:
+    what is ('setup', axis being set up), ('write', index) of the node's own SDO writes, or ('start', None) just
+    after the node took its NMT start. Returns the arm, connected."""
+    from drivers import Arm
+    from drivers.axis import Axis
+
+    booted = []
+
+    def reboot_if(name, what):
+        if not booted and when(name, what):
+            booted.append(what)
+            sim_drives.inject_fault("reboot", node)
+            sim_clock.settle()  # the host has heard its boot-up message
+
+    configure, sdo_write, nmt = Arm._configure, Axis.sdo_write, Axis.nmt
+
+    def configure_watched(self, ax):
+        reboot_if(ax.name, ("setup", ax.name))
+        configure(self, ax)
+
+    def sdo_write_watched(self, index, subindex, value):
+        reboot_if(self.name, ("write", index))
+        sdo_write(self, index, subindex, value)
+
+    def nmt_watched(self, command):
+        nmt(self, command)
+        if command == codec.NMT_START:
+            sim_clock.settle()  # the node took it: OPERATIONAL
+            reboot_if(self.name, ("start", None))
+
+    monkeypatch.setattr(Arm, "_configure", configure_watched)
+    monkeypatch.setattr(Axis, "sdo_write", sdo_write_watched)
+    monkeypatch.setattr(Axis, "nmt", nmt_watched)
+    arm = Arm(open_test_bus(), cell_cfg, clock=sim_clock, sdo_timeout_s=1.0)
+    arm.connect()
+    assert booted, "the reboot never came"
+    return arm
+
+
+def _assert_set_up_as_connect_does(arm, sim_drives, node: str):
+    drive, ax = sim_drives.drives[node], arm.axes[node]
+    lo, hi = arm.cell.scara.limits(node)
+    assert drive._get(0x1016, 1) == ax.host_watch_entry != 0
+    assert (drive._get(0x607D, 1), drive._get(0x607D, 2)) == (ax.to_counts(lo), ax.to_counts(hi))
+    assert (drive.nmt, drive.state) == (0x05, "OPERATION_ENABLED")
+    there = Joints(-10.0, 80.0, 190.0, 10.0)
+    arm.move_joints(there)
+    assert sim_drives.positions()[node] == pytest.approx(there.j2_deg, abs=1e-3)
+
+
+@pytest.mark.parametrize("when", [
+    ("before its setup", lambda name, what: what == ("setup", "j1")),
+    ("within its setup", lambda name, what: name == "j2" and what == ("write", 0x607D)),
+    ("after its setup", lambda name, what: what == ("setup", "j3")),
+], ids=lambda w: w[0])
+def test_a_boot_up_during_connect_before_the_nmt_start_is_no_fault(monkeypatch, sim_drives, open_test_bus, sim_clock,
+                                                                    cell_cfg, when):
+    """A drive that boots again while the host connects (its power came up meanwhile; a drive that boots twice)
+    before the host started it: no fault; where the boot-up came after some of its setup, it is set up again.
+    Before, a boot-up after its first SDO write was latched "rebooted" until a reset."""
+    arm = _connect_with_a_reboot(monkeypatch, sim_drives, open_test_bus, sim_clock, cell_cfg, "j2", when[1])
+    try:
+        assert arm.faults == {}
+        assert arm.axes["j2"].boot_count == 1  # the one during connect (the first was before the host listened)
+        _assert_set_up_as_connect_does(arm, sim_drives, "j2")
+    finally:
+        arm.disconnect()
+
+
+def test_a_reboot_after_the_nmt_start_during_connect_says_it_rebooted(monkeypatch, sim_drives, open_test_bus,
+                                                                      sim_clock, cell_cfg):
+    """After the host started it, a boot-up is a reboot: latched as one, at once (not NodeSilent "heartbeat did
+    not report OPERATIONAL within 1 s (last: PRE-OPERATIONAL)" a second later, connect failed), and the reset
+    sets it up again."""
+    arm = _connect_with_a_reboot(monkeypatch, sim_drives, open_test_bus, sim_clock, cell_cfg, "j2",
+                                 lambda name, what: name == "j2" and what == ("start", None))
+    try:
+        assert sim_clock.now() < 0.5
+        assert set(arm.faults) == {"j2"}
+        assert arm.faults["j2"].startswith("j2 (node 2) rebooted (boot-up message): its setup is lost")
+        assert sim_drives.drives["j2"].nmt == 0x7F  # it lost the start too
+        arm.reset_faults()
+        assert arm.faults == {}
+        _assert_set_up_as_connect_does(arm, sim_drives, "j2")
+    finally:
+        arm.disconnect()

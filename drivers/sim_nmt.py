@@ -10,6 +10,27 @@ from drivers import codec
 NMT_OPERATIONAL, NMT_PREOP, NMT_STOPPED, NMT_INIT = 0x05, 0x7F, 0x04, 0x00
 
 
+def error_register_bits(code: int) -> int:
+    """The error register (0x1001) bits an error of EMCY `code` sets (CiA 301; 0: no error): bit 0 (generic) for
+    every error, and its class: current 2xxx bit 1, voltage 3xxx bit 2, temperature 4xxx bit 3, communication
+    81xx and protocol 82xx bit 4 (both communication errors, as lely's and CANopenNode's stacks have them), the
+    device profile's monitoring codes 83xx-8Fxx (CiA 402: following error 0x8611, position limit 0x8612) bit 5,
+    manufacturer specific FFxx bit 7. Other codes (hardware 5xxx, software 6xxx, ...) set bit 0 alone."""
+    if not code:
+        return 0
+    group = code >> 12
+    bits = 0x01
+    if group in (2, 3, 4):
+        bits |= 1 << (group - 1)
+    elif 0x8100 <= code <= 0x82FF:
+        bits |= 0x10
+    elif 0x8300 <= code <= 0x8FFF:
+        bits |= 0x20
+    elif code >> 8 == 0xFF:
+        bits |= 0x80
+    return bits
+
+
 def next_phase(last_s: float, period_s: float, now_s: float) -> float:
     """When a periodic frame due at `last_s + period_s` goes out at `now_s` (on the next
     tick): keep the phase, so the period holds on average; start afresh when far behind."""
@@ -53,9 +74,8 @@ class NetworkManagement:
 
     @property
     def error_register(self) -> int:
-        """0x1001, as in the EMCY: generic error, plus manufacturer-specific for monitoring codes."""
-        code = self.error_code
-        return 0 if not code else 0x01 | (0x80 if code >> 12 == 8 else 0)
+        """0x1001: the bits of the fault the drive holds (`error_register_bits`); 0 without one."""
+        return error_register_bits(self.error_code)
 
     def _abort_connection(self) -> None:
         """The host's heartbeat missed (life guarding, CiA 301): as 0x6007 says; a drive without the object
@@ -76,12 +96,15 @@ class NetworkManagement:
         self._publish()
 
     def _report(self, code: int) -> None:
-        """An EMCY of `code` with the error register as it stands (logged; not sent while silent, nor in NMT
-        STOPPED, where CiA 301 leaves a node NMT and error control (heartbeat) only)."""
+        """An EMCY of `code` (0: error reset) with the error register in its byte 2 as it stands with that error
+        (CiA 301): the fault's bits and `code`'s. An error without a fault (a PDO of the wrong length, a bad mode
+        by PDO, the host's heartbeat missed where 0x6007 says no fault) is over with its report: 0x1001 keeps the
+        fault's bits alone. Logged; not sent while silent, nor in NMT STOPPED, where CiA 301 leaves a node NMT
+        and error control (heartbeat) only."""
         self.emcy_log.append(code)
         if not self.silent and self.nmt != NMT_STOPPED:
-            self.network.send_message(codec.EMCY_BASE + self.node_id,
-                                      codec.pack_emcy(codec.Emcy(code, self.error_register)))
+            register = self.error_register | error_register_bits(code)
+            self.network.send_message(codec.EMCY_BASE + self.node_id, codec.pack_emcy(codec.Emcy(code, register)))
 
     def _reset_node(self) -> None:
         """The drive's own reset, as NMT Reset Node or a power glitch brings it: power-on values, the boot-up

@@ -91,7 +91,9 @@ class ObjectDictionary:
     def _on_write(self, index, subindex, od, data):
         with self._lock:
             value = od.decode_raw(data)
-            if (0x1400 <= index <= 0x1403 or TPDO_COMM_FIRST <= index <= TPDO_COMM_LAST) and subindex in (1, 3):
+            # (an RPDO's inhibit time, sub 3, is not used, CiA 301: taken at any time, as the same value again was)
+            if (0x1400 <= index <= 0x1403 and subindex == 1) or (
+                    TPDO_COMM_FIRST <= index <= TPDO_COMM_LAST and subindex in (1, 3)):
                 self._check_pdo_comm_write(index, subindex, value)
             if index == 0x6040:
                 self._on_controlword(value)
@@ -110,7 +112,9 @@ class ObjectDictionary:
             elif 0x1800 <= index <= 0x1803 and subindex == 2 and 240 < value < 254:
                 raise SdoAbortedError(0x06090030)
             elif index == 0x1005:
-                if value & 0xFFFFF800:  # bit 30: produce SYNC (these drives do not); bit 29: a 29-bit id
+                # bit 30: produce SYNC (these drives do not), bit 29: a 29-bit id, refused as CiA 301 says (abort
+                # 0x06090030); bit 31 is "do not care" there: taken (it was refused)
+                if value & 0x7FFFF800:
                     raise SdoAbortedError(0x06090030)
                 self._subscribe_sync(value)
             elif index in self._rpdo_handlers and subindex == 1:

@@ -16,6 +16,7 @@ log = logging.getLogger("drivers.simdrive")  # the simulated drive's one logger,
 
 TPDO_EVENT_MS = 50  # TPDO1 is also sent at least this often (canopen's BaseNode402 waits 0.2 s)
 EMCY_PDO_LENGTH = 0x8210  # an RPDO shorter than its mapping: not processed (CiA 301)
+EMCY_PARAMETER = 0x6320  # a value a PDO wrote that the drive does not take (CiA 402: parameter error)
 TPDO_COMM_FIRST, TPDO_COMM_LAST = 0x1800, 0x1803  # the TPDO communication parameters
 PDO_NO_RTR = 1 << 30  # COB-ID bit 30 of a TPDO: no RTR allowed (these drives answer none)
 
@@ -41,7 +42,7 @@ class Pdos:
         self.network.subscribe(self._sync_cob, self._on_sync)
 
     def _check_pdo_comm_write(self, index: int, subindex: int, value: int) -> None:
-        """CiA 301: while a PDO is valid (COB-ID bit 31 clear) its COB-ID (bits 0-29) and its inhibit time
+        """CiA 301: while a PDO is valid (COB-ID bit 31 clear) its COB-ID (bits 0-29), and a TPDO's inhibit time,
         stay as they are: make it invalid first. A 29-bit COB-ID (bit 29) is refused: these drives send and
         take standard frames only. Both with abort 0x06090030 (value range of parameter exceeded)."""
         cob = int(self._get(index, 1))
@@ -86,12 +87,15 @@ class Pdos:
                 self._store(0x607A, 0, codec.unpack_target(data))
 
     def _on_rpdo3(self, can_id, data, timestamp) -> None:
+        """A mode of operation this drive does not have keeps the mode it has: by SDO the write is aborted, a PDO
+        cannot be, so the drive reports it by EMCY 0x6320 (parameter error; no fault, as for 0x8210)."""
         with self._lock:
             if (data := self._rpdo(data, 1)) is not None:
                 try:
                     self._set_mode(codec.unpack_mode(data))
                 except SdoAbortedError:
-                    log.warning("%s: bad RPDO3 %s", self.name, data.hex())
+                    log.warning("%s: RPDO3 mode %s refused: EMCY 0x%04X", self.name, data.hex(), EMCY_PARAMETER)
+                    self._emcy(EMCY_PARAMETER)
 
     def _tpdo1_data(self) -> bytes:
         return codec.pack_tpdo1(codec.DriveStatus(self.statusword, round(self.position_counts), self.mode))

@@ -6,7 +6,6 @@ OPERATION ENABLED.
 from __future__ import annotations
 
 from drivers import codec
-from drivers.sim_nmt import NMT_STOPPED
 
 # CiA 402 option codes (CiA 402-2 / IEC 61800-7-201): how the drive stops when it leaves OPERATION
 # ENABLED. Per value: the deceleration object of the ramp, or None for "disable drive function"
@@ -203,5 +202,4 @@ class StateMachine:
         self.error_code = 0
         self.following_error = False
         self._armed = [f for f in self._armed if f["kind"] not in ("emcy", "following_error")]
-        if not self.silent and self.nmt != NMT_STOPPED:
-            self.network.send_message(codec.EMCY_BASE + self.node_id, codec.pack_emcy(codec.Emcy(0, 0)))
+        self._report(0)  # error reset (CiA 301), logged like every EMCY (it went unlogged)

@@ -195,17 +195,22 @@ def _abort(fn):
 @pytest.mark.parametrize(("comm", "cob"), [(0x1800, 0x40000183), (0x1400, 0x203)], ids=["TPDO1", "RPDO1"])
 def test_a_valid_pdo_keeps_its_cob_id_and_inhibit_time_and_29_bit_ids_are_refused(open_test_bus, sim_clock, comm,
                                                                                    cob):
-    """CiA 301: the COB-ID (bits 0-29) and the inhibit time of a valid PDO (bit 31 clear) cannot change (abort
-    0x06090030): a master makes it invalid first. These drives have no 29-bit frames: bit 29 is refused too.
-    The drive took every such write."""
+    """CiA 301: the COB-ID (bits 0-29) and a TPDO's inhibit time of a valid PDO (bit 31 clear) cannot change
+    (abort 0x06090030): a master makes it invalid first. These drives have no 29-bit frames: bit 29 is refused
+    too. The drive took every such write. An RPDO's inhibit time is not used (CiA 301): taken at any time (it was
+    refused while the RPDO was valid)."""
     with sim.serve(open_test_bus(), clock=sim_clock) as drives, _master(open_test_bus, drives, "j3") as (_, node):
         rec = node.sdo[comm]
         assert rec[1].raw == cob
         for write in (lambda: setattr(rec[1], "raw", cob + 0x100),  # another id, still valid
-                      lambda: setattr(rec[3], "raw", 100),  # inhibit time
                       lambda: setattr(rec[1], "raw", cob | 0x20000000),  # 29-bit id
                       lambda: setattr(rec[1], "raw", cob | 0x00000800)):  # past 11 bits
             assert _abort(write) == 0x06090030
+        if comm >= 0x1800:
+            assert _abort(lambda: setattr(rec[3], "raw", 100)) == 0x06090030
+        else:
+            assert _abort(lambda: setattr(rec[3], "raw", 50)) is None and rec[3].raw == 50
+            rec[3].raw = 0
         assert rec[1].raw == cob and rec[3].raw == 0
         assert _abort(lambda: setattr(rec[1], "raw", cob | 0x80000000)) is None  # invalid, same id
         assert _abort(lambda: setattr(rec[1], "raw", cob | 0xA0000000)) == 0x06090030  # 29-bit, invalid
@@ -259,11 +264,13 @@ def test_a_stopped_node_sends_no_emcy(open_test_bus, sim_clock):
 def test_the_sync_the_drives_consume_is_in_their_object_dictionary(open_test_bus, sim_clock):
     """Synchronous TPDO1 types work, so 0x1005 (COB-ID SYNC, 0x80) is in the EDS and the drive (it was
     missing); it can move, and the drive consumes SYNC there. Producing SYNC (bit 30) or a 29-bit id is
-    refused."""
+    refused (abort 0x06090030, as CiA 301 says for a device that cannot); bit 31 is "do not care": taken (it was
+    refused)."""
     with sim.serve(open_test_bus(), clock=sim_clock) as drives, _master(open_test_bus, drives, "j3") as (net, node):
         assert node.object_dictionary[0x1005].default == 0x80 and node.sdo[0x1005].raw == 0x80
         assert _abort(lambda: setattr(node.sdo[0x1005], "raw", 0x40000080)) == 0x06090030
         assert _abort(lambda: setattr(node.sdo[0x1005], "raw", 0x20000080)) == 0x06090030
+        assert _abort(lambda: setattr(node.sdo[0x1005], "raw", 0x80000080)) is None
         node.sdo[0x1800][1].raw = 0xC0000183
         node.sdo[0x1800][2].raw = 1  # on every SYNC
         node.sdo[0x1800][1].raw = 0x40000183
@@ -385,3 +392,45 @@ def test_the_host_heartbeat_watch_takes_node_ids_1_to_127_only(open_test_bus, si
         for entry in (codec.consumer_heartbeat_entry(0x7F, 100), 100):  # node 0: unused
             assert _abort(lambda e=entry: setattr(node.sdo[0x1016][1], "raw", e)) is None
             assert node.sdo[0x1016][1].raw == entry
+
+
+_CLASSES = [(0x2310, 0x03), (0x3210, 0x05), (0x4310, 0x09), (0x8130, 0x11), (0x8611, 0x21), (0xFF01, 0x81),
+            (0x5000, 0x01)]
+
+
+@pytest.mark.parametrize(("code", "register"), _CLASSES, ids=[f"0x{code:04X}" for code, _ in _CLASSES])
+def test_the_error_register_has_the_class_bits_of_the_fault(open_test_bus, sim_clock, code, register):
+    """CiA 301: 0x1001 sets bit 0 for any error and the bit of its class (current, voltage, temperature,
+    communication, device profile, manufacturer), and the EMCY carries it in byte 2; the fault reset's EMCY
+    (0x0000) with 0, logged like the others. Bits 0 and 7 were all it set (7 for every 8xxx code), and the
+    reset's EMCY was missing from `emcy_log`."""
+    with sim.serve(open_test_bus(), clock=sim_clock) as drives, _master(open_test_bus, drives, "j2") as (_, node):
+        take = _tap(open_test_bus, sim_clock)
+        node.nmt.state = "OPERATIONAL"
+        drives.inject_fault("emcy", "j2", code=code)
+        sim_clock.sleep(0.02)
+        assert node.sdo[0x1001].raw == register
+        node.sdo[0x6040].raw = 0x80  # fault reset
+        sim_clock.sleep(0.02)
+        assert node.sdo[0x1001].raw == 0
+        emcy = [codec.unpack_emcy(m.data) for _, m in take() if m.arbitration_id == 0x82]
+        assert [(e.code, e.register) for e in emcy] == [(code, register), (0, 0)]
+        assert drives.drives["j2"].emcy_log == [code, 0]
+
+
+def test_errors_without_a_fault_carry_their_bits_in_the_emcy(open_test_bus, sim_clock):
+    """An RPDO one byte short (EMCY 0x8210, a communication error) and a mode of operation the drive does not
+    have written by RPDO3 (EMCY 0x6320 parameter error: an SDO write is aborted, a PDO cannot be; it was dropped
+    with a log line alone): no fault, the drive keeps its state and mode, and each EMCY's register has its class
+    bits (it said 0, "no error"); 0x1001 stays 0 (no fault held)."""
+    with sim.serve(open_test_bus(), clock=sim_clock) as drives, _master(open_test_bus, drives, "j1") as (net, node):
+        j1 = drives.drives["j1"]
+        _enable_pp(node, sim_clock)
+        take = _tap(open_test_bus, sim_clock)
+        net.send_message(0x401, bytes([6]))  # homing: a mode these drives do not have
+        net.send_message(0x201, b"\x0f")  # a controlword one byte short
+        sim_clock.sleep(0.02)
+        assert (j1.state, j1.mode, node.sdo[0x6061].raw) == ("OPERATION_ENABLED", codec.PP_MODE, codec.PP_MODE)
+        emcy = [codec.unpack_emcy(m.data) for _, m in take() if m.arbitration_id == 0x81]
+        assert [(e.code, e.register) for e in emcy] == [(0x6320, 0x01), (0x8210, 0x11)]
+        assert j1.emcy_log == [0x6320, 0x8210] and node.sdo[0x1001].raw == 0

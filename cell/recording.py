@@ -89,7 +89,10 @@ _MB = 1 << 20
 class RecordingFailed(OSError):
     """A write into the recording failed (a full disk, an I/O error) or would leave less than the close
     reserve: the session cannot be recorded on. An OSError naming the file; not a CellError, so the loop does
-    not hold for the operator over it: the session stops (cell.runtime.session)."""
+    not hold for the operator over it: the session stops (cell.runtime.session). `decision`: the decision it
+    could not write (None for other files): a stop's tells the session why the run was stopping."""
+
+    decision: dict | None = None
 
     @property
     def reason(self) -> str:
@@ -283,6 +286,7 @@ class RecordingWriter:
             self._decisions = open(self.dir / DECISIONS, "xb", buffering=0)  # noqa: SIM115 - held open
             self._decisions_bytes = 0
             self._low_space_warned = False
+            self.failed: RecordingFailed | None = None  # the first frame or decision the disk did not take
         except BaseException as e:  # a full disk, Ctrl-C, SIGTERM: no half-made folder that blocks the name
             self._take_away(made, examples_copy)
             if isinstance(e, OSError):
@@ -328,11 +332,15 @@ class RecordingWriter:
         if not ok:
             raise ValueError("frame could not be encoded as PNG")
         rel = f"{FRAMES_DIR}/{int(index):06d}.png"
-        self._require_room(self.dir / rel, png.nbytes)
         try:
-            write_atomic(self.dir / rel, png.tobytes())
-        except OSError as e:
-            raise as_recording_failed(e, self.dir / rel) from None
+            self._require_room(self.dir / rel, png.nbytes)
+            try:
+                write_atomic(self.dir / rel, png.tobytes())
+            except OSError as e:
+                raise as_recording_failed(e, self.dir / rel) from None
+        except RecordingFailed as e:
+            self._failed(e)
+            raise
         with self._lock:
             self._frame_indices.add(int(index))
         return rel
@@ -345,9 +353,20 @@ class RecordingWriter:
         with self._lock:
             if self._closed:
                 raise RuntimeError("recording is closed")
-            self._append_decision((line + "\n").encode("utf-8"))
+            try:
+                self._append_decision((line + "\n").encode("utf-8"))
+            except RecordingFailed as e:
+                e.decision = record
+                self._failed(e)
+                raise
             self._n_decisions += 1
             self.last_decision = record
+
+    def _failed(self, e: RecordingFailed) -> None:
+        """Keep the first write that failed: a caller that goes on past one (a fault already ending a pick stays the
+        run's cause) leaves the recording a line short all the same; the session says so at the end."""
+        if self.failed is None:
+            self.failed = e
 
     def _append_decision(self, data: bytes) -> None:
         """Write `data` at the end of decisions.jsonl and fsync it; on a failure (a full disk) cut the file

@@ -40,6 +40,7 @@ from cell.fileio import write_atomic
 from cell.grasp.params import SynthesisParams
 from cell.grasp.synthesis import Grasp, GraspPlanner
 from cell.kinematics import Joints
+from cell.recording import RecordingFailed
 from cell.runtime.control import Faulted, RunControl, Stopped
 from cell.runtime.matching import Region, axis_deg_eigh, locate, locate_anywhere, unexplained
 from cell.runtime.motion import (
@@ -851,8 +852,11 @@ class CellLoop:
         except BaseException as e:  # a fault, a stop, Ctrl-C: what the arm did up to it is kept, and its time
             if self._pick is not None:
                 self._pick["report"].motion_s += self.arm.clock.now() - t0
-            self.sink.write_decision({"type": "interrupted", "part": part_id, "attempt": attempt, **record,
-                                      "records": done, "by": str(e) or type(e).__name__})
+            try:
+                self.sink.write_decision({"type": "interrupted", "part": part_id, "attempt": attempt, **record,
+                                          "records": done, "by": str(e) or type(e).__name__})
+            except RecordingFailed:  # (a full disk) `e` stays the cause; the writer keeps the failure, said beside it
+                pass
             raise
         self.sink.write_decision({"type": "executed", "part": part_id, "attempt": attempt, **record,
                                   "records": records})

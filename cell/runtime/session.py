@@ -24,6 +24,7 @@ from cell.fileio import check_writable, json_text, make_folder
 from cell.recording import RecordingFailed
 from cell.runtime.control import RunControl, Stopped
 from cell.runtime.loop import CellLoop, LoopOptions, StopRun
+from cell.runtime.recording_end import RecordingEnd
 from cell.runtime.simworld import SimWorld, WorldFaults
 from cell.scene import Assembly, Part, load_assembly, parse_assembly
 
@@ -326,17 +327,15 @@ def _run_session(cfg: RunConfig, say) -> dict:
     control = RunControl(require_approval=cfg.require_approval)
     status, summary = None, None
     with HeldInterrupts() as interrupts, contextlib.ExitStack() as stack:
-        # the CAN log's write failures (on_failed): one before the recording is closed closes it as failed; one
-        # as the drives shut down (after the close) is written into its manifest then; raised by the log as the
-        # drives shut down, it is said, not raised (the summary is reported)
-        can_failed: list[RecordingFailed] = []
-        stack.push(lambda _t, e, _tb: _can_log_failed(e, can_failed, summary, recorder, say))
+        ending = RecordingEnd(recorder, say)  # the recording's write failures, from here to the drives' shutdown
+        stack.push(lambda _t, e, _tb: ending.after_shutdown(e))
         can_log = recorder.can_log_path if recorder else None
         try:
             if cfg.real_cell is not None:
-                arm, camera, world = _real_sources(cfg.real_cell, cell, cal, can_log, stack, can_failed.append)
+                arm, camera, world = _real_sources(cfg.real_cell, cell, cal, can_log, stack, ending.can_log_failed)
             else:
-                arm, camera, world = _simulated_sources(cfg, cell, cal, assembly, can_log, stack, can_failed.append)
+                arm, camera, world = _simulated_sources(cfg, cell, cal, assembly, can_log, stack,
+                                                        ending.can_log_failed)
             loop = CellLoop(cell=cell, calibration=cal, assembly=assembly, camera=camera, arm=arm, control=control,
                             examples_path=examples_path, examples_out=examples_out, sink=recorder, viz=viz,
                             options=options)
@@ -374,8 +373,10 @@ def _run_session(cfg: RunConfig, say) -> dict:
             finally:
                 if recorder is not None and (recorder.last_decision or {}).get("type") not in ("stop", "summary"):
                     # where the operator stopped it: replay ends there too instead of diverging (after the
-                    # summary the session was over: replay ends there by itself)
-                    recorder.write_decision({"type": "stop", "source": "operator", "reason": why})
+                    # summary the session was over: replay ends there by itself). A full disk: the stop stays the
+                    # cause (exit 130), the writer keeps the failure, said beside it (RecordingEnd.settle)
+                    with contextlib.suppress(RecordingFailed):
+                        recorder.write_decision({"type": "stop", "source": "operator", "reason": why})
             loop.stopped_on(f"operator: {why}")  # the part worked on says so too
             summary = {**loop.summary(), "stopped": f"operator: {why}"}  # (the arm stopped first)
             raise
@@ -388,7 +389,7 @@ def _run_session(cfg: RunConfig, say) -> dict:
         except RecordingFailed as e:  # a full disk: stopped as a stop to ask with nobody there is
             interrupts.hold()
             status = "stopped"
-            summary = _stop_on_recording_failure(e, loop, arm, say)
+            summary = ending.stopped_by(e, loop, arm)
         except BaseException as e:  # a fault, a bug: the session did not complete
             interrupts.hold()
             status = "failed"
@@ -413,75 +414,10 @@ def _run_session(cfg: RunConfig, say) -> dict:
                 summary["rrd"] = json_text(str(rrd))
             if interrupted is not None:
                 interrupted.summary = summary
-            if can_failed:  # the CAN log stopped at a write the disk refused: the recording is cut short
-                status = _can_log_cut_short(summary, can_failed[0], say)
+            status = ending.settle(summary)  # a CAN log or a decision the disk refused: the recording is cut short
             if recorder is not None:
-                _close_recording(recorder, status, summary, say)
+                ending.close(status, summary)
     return summary
-
-
-def _stop_on_recording_failure(e, loop: CellLoop, arm, say) -> dict:
-    """The recording cannot go on (a full disk, an I/O error): the arm stops as at the operator's stop (it
-    stands between moves: the loop writes between them) and the run ends stopped, naming the file. No stop
-    decision is written (the disk is full): the recording's end is missing, as `cell replay` reads it."""
-    why = f"recording: {e.reason}"
-    try:
-        arm.stop()
-    finally:
-        loop.stopped_on(why)  # the part worked on says so too
-    say(f"stopped: {why}")
-    return {**loop.summary(), "stopped": why, "recording_failed": e.reason}
-
-
-def _can_log_cut_short(summary: dict, e: RecordingFailed, say) -> str:
-    """The recording's CAN log stopped at a write the disk refused: the summary says so (`can_log_failed`); a run
-    that completed is stopped on it (exit 1) as on any failed write into the recording. Returns the status."""
-    if "can_log_failed" not in summary:
-        summary["can_log_failed"] = e.reason
-        say(f"the recording's CAN log is cut short: {e.reason}")
-    if summary["status"] == "complete":
-        summary.update(status="stopped", stopped=f"recording: {e.reason}")
-    return summary["status"]
-
-
-def _can_log_failed(e, can_failed: list, summary: dict | None, recorder, say) -> bool:
-    """As the drives have shut down: a CAN log that failed after the recording was closed (its last frames, the
-    drives' shutdown) makes the manifest say so, closed as failed. True (suppressed) for the CAN log's
-    RecordingFailed once the run has its summary."""
-    if summary is None:
-        return False
-    if can_failed and "can_log_failed" not in summary:
-        _can_log_cut_short(summary, can_failed[0], say)
-        if recorder is not None and "recording_not_closed" not in summary:
-            try:
-                recorder.restate_end("incomplete", _recorded_summary(summary))
-            except RecordingFailed as failed:
-                summary["recording_not_closed"] = failed.reason
-                say(f"the recording's manifest could not say that its CAN log is cut short ({failed.reason})")
-    return isinstance(e, RecordingFailed) and bool(can_failed) and e is can_failed[0]
-
-
-def _recorded_summary(summary: dict) -> dict:
-    """The summary as the manifest keeps it: one a write failure ended (the recording's or its CAN log's) is
-    "failed", with the error (its end is not recorded: replay calls it incomplete, exit 2)."""
-    why = summary.get("recording_failed") or summary.get("can_log_failed")
-    if why is None:
-        return summary
-    return {**summary, "status": "failed", "error": summary.get("error") or f"recording: {why}"}
-
-
-def _close_recording(recorder, status: str, summary: dict, say) -> None:
-    """Close the recording with the run's summary. One a write failure ended closes with the summary's status
-    "failed" (its end is not recorded: replay calls it incomplete, exit 2). A manifest the disk cannot take is
-    said (it keeps "recording", read back as incomplete), unless the run completed: then it is the run's error."""
-    try:
-        recorder.close("complete" if status == "complete" else "incomplete", _recorded_summary(summary))
-    except OSError as e:
-        if status == "complete":
-            raise
-        reason = e.reason if isinstance(e, RecordingFailed) else str(e)
-        summary["recording_not_closed"] = reason
-        say(f"the recording could not be closed ({reason}): its manifest still says 'recording'")
 
 
 class _WaitEnded(Exception):  # noqa: N818 - not an error: a signal ended HeldInterrupts.linger's wait

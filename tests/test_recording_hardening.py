@@ -112,6 +112,22 @@ def test_replay_json_of_a_session_killed_mid_way_says_how_far_it_matched_on_stdo
     assert code == 2 and verdict["incomplete"] is False and verdict["matched"] is None and verdict["error"]
 
 
+def test_replay_json_takes_how_far_it_matched_from_the_error_not_its_wording(tmp_path, capsys, monkeypatch):
+    """`matched` was read back from the message with a regex: reworded, it said null. The error carries it."""
+    from cell.runtime import replay as replay_module
+
+    d = _copy_of_shipped(tmp_path)
+    _cut_off_mid_session(d)
+
+    def reworded(*a, **kw):
+        raise replay_module.RecordingIncomplete("the end of this recording is missing (seven matched)", matched=7)
+
+    monkeypatch.setattr(replay_module, "replay", reworded)
+    code, out, _ = run_cli("replay", d, "--json", capsys=capsys)
+    verdict = json.loads(out.strip().splitlines()[-1])
+    assert code == 2 and verdict["incomplete"] is True and verdict["matched"] == 7
+
+
 def test_replay_of_a_killed_session_still_names_a_divergence_within_what_was_recorded(tmp_path, capsys):
     d = _copy_of_shipped(tmp_path)
     _cut_off_mid_session(d)

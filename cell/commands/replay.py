@@ -14,7 +14,6 @@ differences are listed instead (exit 0).
 from __future__ import annotations
 
 import json
-import re
 import sys
 
 from cell.errors import BadInput
@@ -40,7 +39,7 @@ def run(args) -> int:
             raise BadInput(_os_error_text(e)) from None
     except BadInput as e:
         if args.json:  # exit 2 all the same; a script tells a session cut short from a corrupt folder by it
-            print(json.dumps(_refused_verdict(args.recording, str(e))), flush=True)
+            print(json.dumps(_refused_verdict(args.recording, e)), flush=True)
         raise
     except Divergence as e:
         from cell.numerics import numeric_platform, platform_difference
@@ -77,23 +76,19 @@ def run(args) -> int:
     return 0
 
 
-_MATCHED_RE = re.compile(r"its (\d+) recorded decisions match the replay")
-
-
-def _refused_verdict(directory, why: str) -> dict:
+def _refused_verdict(directory, e: BadInput) -> dict:
     """--json's answer for a recording replay refused (exit 2): `incomplete` (its end was never recorded: killed,
     failed, a full disk) with how many recorded decisions `matched` before it, and how the session ended as far
     as the manifest says (`session`, `problems`); or not (a missing or corrupt recording: `matched` null)."""
     from cell.recording import RecordingReader
     from cell.runtime.replay import recorded_end
 
-    out = {"match": None, "incomplete": False, "matched": None, "error": why, "session": None, "problems": []}
+    out = {"match": None, "incomplete": False, "matched": None, "error": str(e), "session": None, "problems": []}
     try:
         rec = RecordingReader(directory)
     except (BadInput, OSError):
         return out
-    found = _MATCHED_RE.search(why)
-    out.update(incomplete=not rec.complete, matched=int(found.group(1)) if found else None,
+    out.update(incomplete=not rec.complete, matched=getattr(e, "matched", None),  # (RecordingIncomplete's)
                session=recorded_end(rec), problems=rec.problems)
     return out
 

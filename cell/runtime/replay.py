@@ -41,6 +41,15 @@ class Divergence(Exception):  # noqa: N818 - not a CellError: the loop must not 
     """Replay made another decision than the recording (exit 1)."""
 
 
+class RecordingIncomplete(BadInput):
+    """The recording's end was never recorded (killed, failed: a full disk), and its first `matched` recorded
+    decisions match the replay (exit 2: replay cannot say how the session went on)."""
+
+    def __init__(self, message: str, matched: int):
+        super().__init__(message)
+        self.matched = matched
+
+
 class RecordingEnds(Exception):  # noqa: N818 - not a CellError, like Divergence
     """The replay went on past the last decision of a recording that was never closed."""
 
@@ -675,8 +684,9 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
                           if simulated and _host_frames_repeat(rec, recorded, sink) and rec.can_log_path is not None
                           else None)
     if sink.cut_short and not sink.found:
-        raise BadInput(f"recording {directory} is incomplete ({'; '.join(rec.problems)}): its {sink.position} "
-                       f"recorded decisions match the replay, but how the session went on is not recorded")
+        raise RecordingIncomplete(f"recording {directory} is incomplete ({'; '.join(rec.problems)}): its "
+                                  f"{sink.position} recorded decisions match the replay, but how the session went "
+                                  "on is not recorded", matched=sink.position)
     if sink.position < len(recorded):
         sink._diverged(f"the replay ended after {sink.position} of {len(recorded)} recorded decisions; next: "
                        f"{recorded[sink.position].get('type')}")

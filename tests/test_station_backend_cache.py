@@ -64,3 +64,19 @@ def test_each_frame_is_encoded_and_projected_once_for_every_poll(loop, monkeypat
     assert backend.frame_png() != first[0] and len(encoded) == 2
     moved = backend.snapshot()["parts"]
     assert len(projected) == 2 * n_rings and moved != snaps[0]["parts"]
+
+
+def test_the_outline_cache_holds_only_the_parts_of_the_current_frame_however_many_frames(loop):
+    """A shift at the station: parts leave and come back over many frames; the cache keeps what the current
+    frame shows, no more (it kept every part ever seen, with its last pose)."""
+    backend, parts = LoopBackend(loop), list(loop.assembly.parts)
+    sizes = []
+    for i in range(300):
+        shown = parts[: i % (len(parts) + 1)]  # all, then fewer, none, all again ...
+        loop.state.frame_index = i
+        loop.state.seen = {p.id: p.moved(0.01 * i, 0.0, 0.0) for p in shown}
+        snap = backend.snapshot()
+        assert [q["id"] for q in snap["parts"]] == [p.id for p in shown]
+        sizes.append(len(backend._outlines))
+        assert backend._outlines.keys() == loop.state.seen.keys()
+    assert max(sizes) == len(parts) and min(sizes) == 0

@@ -36,7 +36,11 @@ class LoopBackend:
 
     def snapshot(self) -> dict:
         lp, st = self.loop, self.loop.state
-        parts = [{"id": pid, **self._outline_px(pid, p)} for pid, p in dict(st.seen).items()]
+        seen = dict(st.seen)
+        parts = [{"id": pid, **self._outline_px(pid, p)} for pid, p in seen.items()]
+        with self._outline_lock:  # only what this frame shows: a part that has left is not held on to
+            for pid in self._outlines.keys() - seen.keys():
+                del self._outlines[pid]
         return {"frame": {"index": st.frame_index, "width_px": lp.cal.width_px, "height_px": lp.cal.height_px},
                 "parts": parts, "proposal_px": st.proposal,
                 "examples": _examples_info(lp),

@@ -155,11 +155,19 @@ class Viz:
         self.rec.log("gripper/width", rr.SeriesLines(names="opening (mm)"), static=True)
         self.frame_index: int | None = None
         self._viewer_gone = False
+        self._viewer = spawn
+        self.failed = None  # RecordingFailed: rerun stopped writing save_path (a full disk); the rest is not in it
 
     # -- per frame
     def frame(self, i: int, frame_bgr: np.ndarray) -> None:
-        """Start frame i (timeline "frame") and log the camera image, BGR uint8 (h, w, 3) or (h, w)."""
+        """Start frame i (timeline "frame") and log the camera image, BGR uint8 (h, w, 3) or (h, w).
+        Without a viewer, what was logged so far is first flushed to save_path: a file rerun stopped writing is
+        a RecordingFailed here (a few ms a frame), not found only at the close."""
         rr = self._rr
+        if self.save_path is not None and not self._viewer:
+            self.flush()
+            if self.failed is not None:
+                raise self.failed
         self.frame_index = int(i)
         self.rec.set_time("frame", sequence=int(i))
         a = np.asarray(frame_bgr)
@@ -254,15 +262,32 @@ class Viz:
         self.rec.log("log/events", self._rr.TextLog(str(text), level=level))
 
     # -- end
+    def _file_failed(self, e: RuntimeError):
+        """rerun's file writer stopped (its thread logs why on stderr; Python hears "File-writer thread shut down
+        prematurely"): a RecordingFailed naming the file, ENOSPC when its disk is full."""
+        import errno
+
+        from cell.recording import CLOSE_RESERVE_MB, RecordingFailed, free_mb
+
+        free = free_mb(self.save_path.parent)
+        full = free < CLOSE_RESERVE_MB
+        self.failed = RecordingFailed(errno.ENOSPC if full else errno.EIO,
+                                      f"rerun stopped writing it ({e}); {free:.1f} MB free on its disk"
+                                      + (": the disk is full" if full else ""), str(self.save_path))
+        return self.failed
+
     def flush(self) -> None:
         """Push what was logged to the sinks. A viewer that never came up (no display) or went away does
         not hold the run: the flush gives up after FLUSH_TIMEOUT_S, says so once on stderr, and the
-        later ones do not wait again."""
-        if self._viewer_gone:
+        later ones do not wait again. A file rerun stopped writing is kept in `failed` (the session says so)."""
+        if self._viewer_gone or self.failed is not None:
             return
         try:
             self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
-        except RuntimeError as e:  # rerun's "Flush timed out"
+        except RuntimeError as e:  # rerun's "Flush timed out", or its file writer gone
+            if self.save_path is not None and "file" in str(e).lower():  # (the viewer's: "Flush timed out")
+                self._file_failed(e)
+                return
             import sys
 
             self._viewer_gone = True

@@ -7,7 +7,8 @@ In the order a run meets them (cell.runtime.session):
   stays the run's (its message; the exit code follows), the recording's failure said beside it (`recording_failed`);
 - failures that do not end the run where they happen: a decision the loop could not write while a fault or a stop
   was cutting a pick short (the fault goes on; the writer keeps the failure, `RecordingWriter.failed`), the CAN
-  log's first failed write (the drives' logger thread: `can_log_failed`).
+  log's first failed write (the drives' logger thread: `can_log_failed`), the rerun file's (`Viz.failed`: found at
+  a frame it stops the run as above; found at the close, after the loop ended, only `rrd_failed` says so).
   `settle`, as the run ends and before the close, puts each into the summary; a run that completed is stopped on
   it (exit 1), as on any failed write into the recording;
 - `close`: the manifest closed with the summary; one a write failure cut short says status "failed" with the error
@@ -49,7 +50,7 @@ class RecordingEnd:
             self.say(f"the recording failed too, its stop is not written: {e.reason}")
         return {**loop.summary(), "stopped": why, "recording_failed": e.reason}
 
-    def settle(self, summary: dict) -> str:
+    def settle(self, summary: dict, viz=None) -> str:
         """The failures that did not end the run, into its `summary` (said once each); returns the run's status."""
         self.summary = summary
         if self.can_log is not None:
@@ -57,6 +58,9 @@ class RecordingEnd:
         unwritten = None if self.recorder is None else self.recorder.failed
         if unwritten is not None and "recording_failed" not in summary:
             _cut_short(summary, "recording_failed", unwritten, "the recording is a decision short", self.say)
+        rrd = None if viz is None else viz.failed  # (during the run it stopped the run: recording_failed too)
+        if rrd is not None:
+            _cut_short(summary, "rrd_failed", rrd, "the rerun recording is cut short", self.say)
         return summary["status"]
 
     def close(self, status: str, summary: dict) -> None:
@@ -91,7 +95,8 @@ class RecordingEnd:
 
 def recorded_summary(summary: dict) -> dict:
     """The summary as the manifest keeps it: one a write failure cut short (the recording's or its CAN log's) is
-    "failed", with the error (its end is not recorded: replay calls it incomplete, exit 2)."""
+    "failed", with the error (its end is not recorded: replay calls it incomplete, exit 2). A rerun file cut short
+    at the close alone is not: replay does not read it, and the decisions and CAN log are whole (`rrd_failed`)."""
     why = summary.get("recording_failed") or summary.get("can_log_failed")
     if why is None:
         return summary

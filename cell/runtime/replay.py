@@ -852,6 +852,8 @@ def _check_rrd(rec, directory) -> None:
     name = (rec.manifest.get("files") or {}).get("rrd")
     if not name or rec.manifest.get("status") == "recording":
         return  # none was written, or the writer never got to say
+    if (rec.manifest.get("summary") or {}).get("rrd_failed"):
+        return  # rerun stopped writing it (a full disk), as the manifest says: replay does not read it
     path = rec.dir / RRD
     try:
         with open(path, "rb") as f:

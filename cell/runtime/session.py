@@ -414,7 +414,7 @@ def _run_session(cfg: RunConfig, say) -> dict:
                 summary["rrd"] = json_text(str(rrd))
             if interrupted is not None:
                 interrupted.summary = summary
-            status = ending.settle(summary)  # a CAN log or a decision the disk refused: the recording is cut short
+            status = ending.settle(summary, viz)  # a CAN log, a decision or the .rrd the disk refused: cut short
             if recorder is not None:
                 ending.close(status, summary)
     return summary

@@ -58,3 +58,31 @@ def test_a_rerun_file_cut_short_stops_the_run_and_the_recording_says_so(tmp_path
     verdict = json.loads(out.strip().splitlines()[-1])
     assert code == 2 and "is incomplete" in err and verdict["incomplete"] is True, err
     assert verdict["matched"] == len([d for d in decisions if d["type"] != "interrupted"])
+
+
+def test_a_rerun_file_cut_short_only_at_the_close_leaves_a_recording_that_replays(tmp_path, monkeypatch, capsys):
+    """rerun's last writes (after the loop ended) fail: the decisions and CAN log are whole, replay does not need
+    the .rrd: the run is stopped on it (exit 1), the manifest says rrd_failed, and the recording replays (exit 0)."""
+    import errno
+
+    from cell.recording import RecordingFailed
+
+    close = cell.viz.Viz.close
+
+    def failing_close(self):
+        close(self)
+        self.failed = RecordingFailed(errno.ENOSPC, "rerun stopped writing it (File-writer thread shut down "
+                                      "prematurely); 0.0 MB free on its disk: the disk is full", str(self.save_path))
+
+    monkeypatch.setattr(cell.viz.Viz, "close", failing_close)
+    rec = tmp_path / "rec"
+    s = run_session(RunConfig(assembly=_two_parts(tmp_path), seed=3, record=rec))
+    monkeypatch.undo()
+    assert s["parts_removed"] == 2 and s["status"] == "stopped" and "recording_failed" not in s
+    assert s["stopped"] == f"recording: {s['rrd_failed']}" and "session.rrd" in s["rrd_failed"]
+    m = json.loads((rec / "manifest.json").read_text())
+    assert m["status"] == "incomplete" and m["summary"]["status"] == "stopped" and m["summary"]["rrd_failed"]
+    (rec / "session.rrd").write_bytes((rec / "session.rrd").read_bytes()[:100])  # cut short, as rerun left it
+    code, out, err = run_cli("replay", rec, capsys=capsys)
+    assert code == 0, err
+    assert "the recorded session was stopped" in out and "session.rrd" in out

@@ -730,6 +730,8 @@ def recorded_end(rec) -> dict:
     stops = [d for d in rec.decisions if d.get("type") == "stop"]
     if stops and end["status"] != "complete":
         end["stopped"] = f"{stops[-1].get('source')}: {stops[-1].get('reason')}"
+    elif end["status"] == "stopped" and isinstance(summary.get("stopped"), str):
+        end["stopped"] = summary["stopped"]  # stopped after its last decision (its .rrd cut short at the close)
     return end
 
 

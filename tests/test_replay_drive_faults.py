@@ -150,3 +150,44 @@ def test_a_grip_whose_jaws_stopped_wider_than_expected_replays(tmp_path, monkeyp
     assert s["status"] == "stopped" and "missed" in s["stopped"], s
     code, out, err = run_cli("replay", rec, capsys=capsys)
     assert code == 0, err
+
+
+@pytest.mark.parametrize("kind", ["emcy", "disable", "silent"])
+def test_a_fault_on_the_way_up_after_a_miss_is_re_created_by_the_replay(kind, tmp_path, monkeypatch, capsys):
+    """J3 faults as the empty jaws go up after a missed grip (the retreat, after the pick's `executed`). Was: the
+    replay went on to the next frame and diverged ('decision #5 (stop): reason: recorded ..., replayed no readable
+    frame ...', exit 1); the fault is now brought again at the replay's next move, and said so."""
+    from cell.runtime import session
+    from cell.runtime.simworld import WorldFaults
+
+    sources = session._simulated_sources
+
+    def faulting(*a, **kw):
+        arm, camera, world = sources(*a, **kw)
+        opened, calls = arm.gripper.open, []
+
+        def open_then_fault(*oa, **ok):
+            result = opened(*oa, **ok)
+            calls.append(1)
+            if len(calls) == 2:  # the pre-open, then the retreat's: j3 faults 50 ms into the way up
+                d = world.drives
+                if kind == "emcy":
+                    d.inject_fault("emcy", "j3", after_s=0.05)
+                else:
+                    at_clock(d.clock, d.clock.now() + 0.05, lambda: d.inject_fault(kind, "j3"))
+            return result
+
+        arm.gripper.open = open_then_fault
+        return arm, camera, world
+
+    monkeypatch.setattr(session, "_simulated_sources", faulting)
+    rec = tmp_path / "rec"
+    from test_recording_interrupts import _two_parts
+
+    s = run_session(RunConfig(assembly=_two_parts(tmp_path), record=rec, seed=3, faults=WorldFaults(miss={"nut": 1})))
+    monkeypatch.undo()
+    kinds = [d["type"] for d in decisions(rec)]
+    assert s["stopped"].startswith("j3: ") and kinds[-3:] == ["commands", "executed", "stop"], (s["stopped"], kinds)
+    code, out, err = run_cli("replay", rec, capsys=capsys)
+    assert code == 0, err
+    assert "a hardware fault, re-created" in out and "after the pick ended (the way up after a miss)" in out, out

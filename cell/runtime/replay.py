@@ -5,8 +5,9 @@ The loop runs as it ran: frames come from the recording (a file camera), the dri
 simulated CANopen nodes on a fresh virtual bus, the operator's approvals are the recorded
 ones, and the gripper closes to the recorded width (the recording is the world). A drive or
 bus fault the session stopped on mid-pick comes again (`RecordedFault`), in the step it cut
-short or when the CAN log shows it; one that cannot be re-created is taken from the recording,
-and the replay says so (`notes`). Each decision the loop makes is compared with the recorded
+short or when the CAN log shows it, and one on the way up after a miss (the retreat) at the replay's
+next move; one that cannot be re-created is taken from the recording, and the replay says so (`notes`),
+as it says of one on the way home before the first frame (nothing is re-run there). Each decision the loop makes is compared with the recorded
 one as it is made; the first divergence stops the replay and is named. With other examples
 (`--examples`), the replay does not stop at differences but lists them: the gripper then holds
 whatever the new plan grips, so the sequence goes on.
@@ -24,6 +25,7 @@ from cell.errors import BadInput, CellError
 from cell.fileio import as_written, short_repr
 from cell.grasp.params import MAX_FINER_STEPS, SynthesisParams
 from cell.runtime.control import Decision, RunControl
+from drivers.sim_fault_injection import TIMED_EVENTS
 
 REPLAY_SDO_TIMEOUT_S = 2.0
 # A step's set-points and SDO requests go out at its first instant: a recorded fault is injected again this far
@@ -211,6 +213,8 @@ class Comparison:
                            + (f" (+{len(diff) - 1} more)" if len(diff) > 1 else ""))
             if not self.strict and expected.get("type") != record.get("type"):
                 self._resync(record)
+        elif self.strict and record.get("type") == "executed":
+            self._fault_after_the_pick(record)
 
     def examples_taught_here(self) -> list:
         """The examples the recorded session learned before the plan the replay is at (its
@@ -279,6 +283,37 @@ class Comparison:
                 at_clock(self.drives.clock, now + t_s - pick_start_s, lambda: inject_again(self.drives, fault))
         self.fault, self.faulted_again = fault, fault is not None
 
+    def _fault_after_the_pick(self, executed: dict) -> None:
+        """The recording shows a drive or bus fault right after this pick ran to its end: on the way up after a
+        miss (the retreat). The same fault again at the replay's next move: an EMCY at its node's next set-point,
+        STO or a quick stop just into its next move, one the CAN log times at that time after the pick's end,
+        another at once (the retreat follows at once). One
+        that cannot be re-created is taken from the recording and said so (`_hardware_stop`)."""
+        stop = self.next_recorded()
+        if stop is None or stop.get("type") != "stop" or not self._by_hardware(stop):
+            return
+        steps = executed.get("records") or []
+        end_s = steps[-1]["t_end_s"] if steps else self.drives.clock.now()  # on the recording's clock
+        frames = [] if self.can_log is None else [m for m in self.can_log() if m.timestamp >= end_s - 1e-9]
+        fault = recorded_fault(stop, {n: d.node_id for n, d in self.drives.drives.items()}, frames)
+        if fault is not None:
+            fault = replace(fault, what=f"{fault.what}, after the pick ended (the way up after a miss)")
+            if fault.kind == "emcy":
+                self.drives.inject_fault("emcy", fault.node, code=fault.code, after_s=0.0)
+            elif fault.kind in TIMED_EVENTS:  # (STO, a quick stop: "during a move", as recorded, not "while idle")
+                self.drives.inject_fault(fault.kind, fault.node, after_s=INJECT_AT_STEP_S)
+            elif fault.times_s:
+                now = self.drives.clock.now()
+                for t_s in fault.times_s:
+                    at_clock(self.drives.clock, now + t_s - end_s, lambda: inject_again(self.drives, fault))
+            else:
+                inject_again(self.drives, fault)
+        self.fault_stop_at, self.fault, self.faulted_again = self.position, fault, True
+
+    def _by_hardware(self, stop: dict) -> bool:
+        """A recorded stop a drive (its source) or the bus made."""
+        return stop.get("source") in self.drives.drives or str(stop.get("reason", "")).startswith("bus: ")
+
     def _in_the_step_cut_short(self, fault: RecordedFault, steps: list[dict], pick_start_s: float,
                                known: bool) -> RecordedFault:
         """`fault` just before or just into the step the recorded pick was cut short in (after its `steps` done),
@@ -299,8 +334,7 @@ class Comparison:
             if rec.get("type") == "executed":
                 return None
             if rec.get("type") == "stop":
-                hardware = rec.get("source") in self.drives.drives or str(rec.get("reason", "")).startswith("bus: ")
-                return i if hardware else None
+                return i if self._by_hardware(rec) else None
         return None
 
     def _hardware_stop(self, record: dict, diff: list[str] | None) -> None:
@@ -618,9 +652,15 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     frames = [rec.frame_path(i) for i in rec.frame_indices]
     if not frames:
         if recorded and all(d.get("type") == "stop" for d in recorded) and not _cut_short(rec):
-            # stopped before the camera gave a frame (the operator, or no readable frame): nothing to re-run
+            # stopped before the camera gave a frame (the operator, no readable frame, a fault on the way home):
+            # nothing to re-run
             say("the session stopped before its first frame")
-            return {"decisions": len(recorded), "matched": len(recorded), "differences": [], "notes": [],
+            from drivers.eds import NODE_NAMES
+
+            notes = [f"decision #{i} (stop, {d.get('source')}: {d.get('reason')}): a hardware fault before the first "
+                     "frame (on the way home), taken from the recording, not re-run" for i, d in enumerate(recorded)
+                     if d.get("source") in NODE_NAMES or str(d.get("reason", "")).startswith("bus: ")]
+            return {"decisions": len(recorded), "matched": len(recorded), "differences": [], "notes": notes,
                     "session": recorded_end(rec)}
         summary = rec.manifest.get("summary") or {}
         if not recorded and rec.manifest.get("status") == "incomplete" and summary.get("status") == "not started":

@@ -7,10 +7,10 @@ ones, and the gripper closes to the recorded width (the recording is the world).
 bus fault the session stopped on mid-pick comes again (`RecordedFault`), in the step it cut
 short or when the CAN log shows it, and one on the way up after a miss (the retreat) at the replay's
 next move; one that cannot be re-created is taken from the recording, and the replay says so (`notes`),
-as it says of one on the way home before the first frame (nothing is re-run there). Each decision the loop makes is compared with the recorded
-one as it is made; the first divergence stops the replay and is named. With other examples
-(`--examples`), the replay does not stop at differences but lists them: the gripper then holds
-whatever the new plan grips, so the sequence goes on.
+as it says of one on the way home before the first frame (nothing is re-run there). Each decision the
+loop makes is compared with the recorded one as it is made; the first divergence stops the replay and is
+named. With other examples (`--examples`), the replay does not stop at differences but lists them: the
+gripper then holds whatever the new plan grips, so the sequence goes on.
 """
 
 from __future__ import annotations
@@ -291,6 +291,9 @@ class Comparison:
         that cannot be re-created is taken from the recording and said so (`_hardware_stop`)."""
         stop = self.next_recorded()
         if stop is None or stop.get("type") != "stop" or not self._by_hardware(stop):
+            return
+        if stop.get("source") in self.drives.drives and not str(stop.get("reason", "")).startswith(
+                f"{stop['source']} (node "):  # the loop's own ("gripper": "nut: missed 2 times"), no drive's error
             return
         steps = executed.get("records") or []
         end_s = steps[-1]["t_end_s"] if steps else self.drives.clock.now()  # on the recording's clock

@@ -16,13 +16,19 @@ A line (keys marked * are required):
                  "by": "...", "at": "2026-11-23T10:00:00Z", "note": "why"}}
 
 Files are appended atomically (`append_examples`) and validated line by line on read
-(`load_examples`): a bad line is refused with its line number, never skipped silently.
+(`load_examples`): a bad line is refused with its line number, never skipped silently. Refused too,
+as no grasp: contacts closer than MIN_CONTACT_SEPARATION_MM, an accepted grasp with a contact marked
+bad, a configuration with a revolute joint past MAX_JOINT_TURN_DEG or finger tips below the table.
+Doubtful lines are read, and named in warnings (`example_doubts`): a configuration whose jaws are not
+along the contacts' line (its configuration is not used), the same grasp on two lines.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import sys
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -40,7 +46,7 @@ from cell.fileio import (
     refuse_lone_surrogates,
     short_repr,
 )
-from cell.kinematics import Joints
+from cell.kinematics import Joints, normalize_axis_deg
 from cell.scene import MAX_COORD_MM, Part, parse_part
 
 JOINT_KEYS = ("j1_deg", "j2_deg", "j3_mm", "j4_deg")
@@ -50,6 +56,16 @@ VERSION = 1
 SOURCE_KINDS = ("simulated-operator", "station-teach", "station-reject", "manual")
 # A contact further than this from the part's outline is not a contact on that part.
 MAX_CONTACT_OFFSET_MM = 5.0
+# Contacts closer than this are one point: the jaws would not open, no grasp of a two-jaw gripper (the
+# simulated operator's smallest opening over the library is 3 mm, the shipped file's 6 mm).
+MIN_CONTACT_SEPARATION_MM = 1.0
+# The reader does not know the cell (`cell grasp` takes it per scene, after reading the examples): an example's
+# configuration is checked against what no arm does, a shoulder, elbow or wrist past a full turn either way.
+MAX_JOINT_TURN_DEG = 360.0
+# The jaws close along J1 + J2 + J4 (mod 180) whatever the link lengths: an example's configuration further
+# than this from its contacts' line is not that grasp's (the planner's contacts lie within 3 degrees of it).
+MAX_CONFIGURATION_SKEW_DEG = 5.0
+MAX_WARNINGS = 20  # per file read: the rest are counted, not listed
 GRASP_Z_DECIMALS = 4  # grasp_z_mm as a line holds it (to_json); the part's z_bottom is written unrounded
 
 
@@ -90,7 +106,9 @@ class GraspExample:
         return d
 
 
-def parse_example(raw, where: str = "example") -> GraspExample:
+def parse_example(raw, where: str = "example", doubts: list[str] | None = None) -> GraspExample:
+    """One line's example (BadInput, naming `where`, when it is no example); what is doubtful about it but
+    read goes to `doubts`, when given."""
     if not isinstance(raw, dict):
         raise BadInput(f"{where}: must be a JSON object")
     version = raw.get("version", VERSION)
@@ -115,6 +133,7 @@ def parse_example(raw, where: str = "example") -> GraspExample:
         raise BadInput(f"{where}: 'contacts' must be a list of [x, y]") from None
     if c.ndim != 2 or c.shape[1] != 2 or len(c) < 2 or not np.all(np.isfinite(c)):
         raise BadInput(f"{where}: 'contacts' must be at least two finite [x, y] points")
+    _refuse_one_point(c, where)
     boundary = part.polygon.boundary
     from shapely.geometry import Point
 
@@ -131,6 +150,9 @@ def parse_example(raw, where: str = "example") -> GraspExample:
         if not (isinstance(cv, list) and len(cv) == len(c) and all(isinstance(v, bool) for v in cv)):
             raise BadInput(f"{where}: 'contact_valid' must be one true/false per contact")
         cv = tuple(cv)
+        if valid and not all(cv):  # tree 1 would learn the contacts bad and tree 2 the set good
+            raise BadInput(f"{where}: an accepted grasp ('valid': true) with a contact marked bad ('contact_valid' "
+                           f"{json.dumps(list(cv))}) contradicts itself: reject the grasp or mark its contacts good")
     obstacles = raw.get("obstacles", [])
     if not isinstance(obstacles, list):
         raise BadInput(f"{where}: 'obstacles' must be a list of parts")
@@ -163,35 +185,82 @@ def parse_example(raw, where: str = "example") -> GraspExample:
             raise BadInput(f"{where}: 'joints' must be finite")
         if max(abs(v) for v in joints.as_array()) > MAX_COORD_MM:  # 1e308 deg overflowed step 5's distances
             raise BadInput(f"{where}: 'joints' must be within {MAX_COORD_MM:g} (deg, mm)")
+        _refuse_no_arm(joints, where)
     source = raw.get("source")
     if not isinstance(source, dict) or source.get("kind") not in SOURCE_KINDS:
         raise BadInput(f"{where}: 'source' must be an object with 'kind' one of {', '.join(SOURCE_KINDS)}")
     known = {"format", "version", "id", "part", "contacts", "valid", "contact_valid", "obstacles",
              "grasp_z_mm", "joints", "source"}
     extra = {k: v for k, v in raw.items() if k not in known}
+    if joints is not None and len(c) == 2:
+        skew = _configuration_skew_deg(c, joints)
+        if skew > MAX_CONFIGURATION_SKEW_DEG:
+            if doubts is not None:
+                axis_deg = normalize_axis_deg(joints.j1_deg + joints.j2_deg + joints.j4_deg)
+                doubts.append(f"'joints' close the jaws along {axis_deg:.1f} deg (J1 + J2 + J4), {skew:.1f} deg "
+                              f"off the contacts' line (at most {MAX_CONFIGURATION_SKEW_DEG:g}): not this grasp's "
+                              "configuration; step 5 does not use it")
+            extra["joints"], joints = raw["joints"], None  # kept as written: to_json gives the line back
     return GraspExample(eid, part, c, valid, dict(source), cv, obs,
                         None if gz is None else float(gz), joints, extra)
 
 
-def load_examples(path: str | Path | None = None, *, allow_empty: bool = False) -> list[GraspExample]:
-    """Read and validate an example file (None: the shipped default)."""
-    path = Path(path) if path is not None else default_examples_path()
-    return _parse_examples(read_text(path, "example file"), path, allow_empty)
+def _refuse_one_point(c: np.ndarray, where: str) -> None:
+    gaps = np.linalg.norm(c[:, None, :] - c[None, :, :], axis=2) + np.diag(np.full(len(c), np.inf))
+    i, j = np.unravel_index(int(np.argmin(gaps)), gaps.shape)
+    if gaps[i, j] < MIN_CONTACT_SEPARATION_MM:
+        raise BadInput(f"{where}: contacts #{min(i, j)} and #{max(i, j)} are {gaps[i, j]:.2f} mm apart (at least "
+                       f"{MIN_CONTACT_SEPARATION_MM:g} mm): one point, the jaws would not open; no grasp")
 
 
-def load_planner_examples(path: str | Path | None = None) -> list[GraspExample]:
-    """`load_examples` for a planner: refused, naming the file, without an accepted grasp (the planner
-    refuses them too, but knows no file to name)."""
+def _refuse_no_arm(j: Joints, where: str) -> None:
+    turned = [f"{k} = {v:g}" for k, v in (("j1_deg", j.j1_deg), ("j2_deg", j.j2_deg), ("j4_deg", j.j4_deg))
+              if abs(v) > MAX_JOINT_TURN_DEG]
+    if turned:
+        raise BadInput(f"{where}: 'joints' {', '.join(turned)}: no arm turns a joint past {MAX_JOINT_TURN_DEG:g} deg "
+                       "either way")
+    if j.j3_mm < 0:
+        raise BadInput(f"{where}: 'joints' j3_mm = {j.j3_mm:g} puts the finger tips below the table (z = 0)")
+
+
+def _configuration_skew_deg(c: np.ndarray, j: Joints) -> float:
+    """Degrees between the jaws' closing axis in `j` and the line through the two contacts (mod 180)."""
+    line_deg = math.degrees(math.atan2(c[1, 1] - c[0, 1], c[1, 0] - c[0, 0]))
+    return abs((j.j1_deg + j.j2_deg + j.j4_deg - line_deg + 90.0) % 180.0 - 90.0)
+
+
+def print_warning(message: str) -> None:
+    print(f"cell: warning: {message}", file=sys.stderr)
+
+
+def load_examples(path: str | Path | None = None, *, allow_empty: bool = False,
+                  warn: Callable[[str], None] | None = None) -> list[GraspExample]:
+    """Read and validate an example file (None: the shipped default); its doubtful lines to `warn`, when given."""
     path = Path(path) if path is not None else default_examples_path()
-    examples = load_examples(path)
+    doubts: list[str] | None = [] if warn else None
+    examples = _parse_examples(read_text(path, "example file"), path, allow_empty, doubts)
+    for message in (doubts or ())[:MAX_WARNINGS]:
+        warn(message)
+    if doubts and len(doubts) > MAX_WARNINGS:
+        warn(f"example file {path}: {len(doubts) - MAX_WARNINGS} more doubtful lines like these (not listed)")
+    return examples
+
+
+def load_planner_examples(path: str | Path | None = None,
+                          warn: Callable[[str], None] | None = print_warning) -> list[GraspExample]:
+    """`load_examples` for a planner, its warnings on stderr: refused, naming the file, without an accepted
+    grasp (the planner refuses them too, but knows no file to name)."""
+    path = Path(path) if path is not None else default_examples_path()
+    examples = load_examples(path, warn=warn)
     if not any(ex.valid for ex in examples):
         raise BadInput(f"example file {path} holds no accepted grasp (all {len(examples)} were rejected): the "
                        "planner needs at least one to imitate")
     return examples
 
 
-def _parse_examples(text: str, path: Path, allow_empty: bool) -> list[GraspExample]:
+def _parse_examples(text: str, path: Path, allow_empty: bool, doubts: list[str] | None = None) -> list[GraspExample]:
     out: list[GraspExample] = []
+    lines: list[int] = []
     seen: set[str] = set()
     # split at newlines only: str.splitlines() also splits at U+2028, U+0085, ..., which a JSON string may hold
     for lineno, line in enumerate(text.split("\n"), 1):
@@ -206,13 +275,21 @@ def _parse_examples(text: str, path: Path, allow_empty: bool) -> list[GraspExamp
         except RecursionError:  # json's decoder recurses per nesting level: [[[[...]]]] 100000 deep
             raise BadInput(f"example file {path} line {lineno}: not valid JSON (nested too deeply)") from None
         refuse_lone_surrogates(line, raw, f"example file {path} line {lineno}")
-        ex = parse_example(raw, f"example file {path} line {lineno}")
+        where, line_doubts = f"example file {path} line {lineno}", []
+        ex = parse_example(raw, where, line_doubts)
         if ex.id in seen:
             raise BadInput(f"example file {path} line {lineno}: duplicate example id {ex.id!r}")
         seen.add(ex.id)
         out.append(ex)
+        lines.append(lineno)
+        if doubts is not None:
+            doubts.extend(f"{where} ({ex.id}): {d}" for d in line_doubts)
     if not out and not allow_empty:
         raise BadInput(f"example file {path} holds no examples: the planner learns only from examples")
+    if doubts is not None:
+        from cell.example_doubts import same_grasp_doubts
+
+        doubts.extend(same_grasp_doubts(out, lines, f"example file {path}"))
     return out
 
 

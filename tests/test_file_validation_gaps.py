@@ -196,6 +196,23 @@ EXAMPLE_CASES = [
      " (b): 'joints' must be finite"),
     ("joints-1e308", _edit(joints={"j1_deg": 0, "j2_deg": 0, "j3_mm": 0, "j4_deg": 1e308}),
      " (b): 'joints' must be within 1e+06 (deg, mm)"),
+    # lines that contradict themselves or are no grasp of two jaws: were read and taught (an accepted grasp with
+    # both contacts bad made tree 1 refuse every point; two contacts at one point taught a zero opening)
+    ("accepted-with-a-bad-contact", _edit(contact_valid=[True, False]),
+     " (b): an accepted grasp ('valid': true) with a contact marked bad ('contact_valid' [true, false]) "
+     "contradicts itself"),
+    ("contacts-at-one-point", _edit(contacts=[[300, 20], [300, 20]]),
+     " (b): contacts #0 and #1 are 0.00 mm apart (at least 1 mm): one point, the jaws would not open"),
+    ("contacts-0.9-mm-apart", _edit(contacts=[[300, 20], [300, 20.9]]), " (b): contacts #0 and #1 are 0.90 mm apart"),
+    ("contacts-three-two-at-one-point", _edit(contacts=[[300, 20], [340, 20], [340.5, 20]]),
+     " (b): contacts #1 and #2 are 0.50 mm apart"),
+    # configurations no arm takes (the reader does not know the cell: a full turn either way is the bound)
+    ("joints-past-a-turn", _edit(joints={"j1_deg": 900, "j2_deg": -700, "j3_mm": 5, "j4_deg": 3000}),
+     " (b): 'joints' j1_deg = 900, j2_deg = -700, j4_deg = 3000: no arm turns a joint past 360 deg either way"),
+    ("joints-j4-360.5", _edit(joints={"j1_deg": 0, "j2_deg": 0, "j3_mm": 5, "j4_deg": -360.5}),
+     " (b): 'joints' j4_deg = -360.5: no arm"),
+    ("joints-tips-below-the-table", _edit(joints={"j1_deg": 0, "j2_deg": 0, "j3_mm": -0.1, "j4_deg": 0}),
+     " (b): 'joints' j3_mm = -0.1 puts the finger tips below the table (z = 0)"),
     # finger tips no grasp can have: were accepted and taught
     ("grasp_z-below-the-table", _edit(grasp_z_mm=-0.5),
      " (b): 'grasp_z_mm' -0.5 mm puts the finger tips below the table (z = 0 in the base frame)"),

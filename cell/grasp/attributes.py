@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import shapely
 
 from cell.grasp.outline import Ring, centre_of_gravity, reference_radius_mm
 from cell.scene import Part
@@ -123,3 +124,28 @@ def global_attributes(contacts, chord_normals, part: Part, outer_disc: bool = Tr
         ang = np.degrees(np.arccos(np.clip(dot, -1.0, 1.0)))
     per_scale = np.stack([ang.max(axis=1), ang.mean(axis=1)], -1).reshape(len(contacts), -1)
     return np.column_stack([off, off / reference_radius_mm(part, outer_disc, slit_mm), per_scale])
+
+
+PART_NAMES = ["part_log_elongation", "part_solidity"]
+
+
+def part_attributes(part: Part) -> np.ndarray:
+    """(2,) what kind of part it is, whatever its pose and size: ln of its elongation (the square root of the
+    ratio of its principal second moments of area, holes out: 0 for a disc, a square or a hexagon; a bar 6
+    times as long as wide ln 6), and its solidity (area / convex hull area: 1 for a convex plate, about 0.2
+    for an open clip). Both are integrals over the area, so an outline's noise (a segmented edge) barely moves
+    them, unlike the perimeter. The choice of a grasp compares them with the examples' parts
+    (learning.nearest_example): a part is grasped as the operator grasped parts of its kind."""
+    poly = shapely.geometry.polygon.orient(part.polygon, 1.0)  # outer CCW, holes CW: the sums add up signed
+    c = np.asarray(poly.centroid.coords[0], float)
+    m = np.zeros(3)  # integrals of x^2, y^2, x y over the area, about the centroid
+    for ring in (poly.exterior, *poly.interiors):
+        xy = np.asarray(ring.coords, float)[:-1] - c
+        x, y = xy[:, 0], xy[:, 1]
+        x1, y1 = np.roll(x, -1), np.roll(y, -1)
+        cr = x * y1 - x1 * y
+        m += [(cr * (x * x + x * x1 + x1 * x1)).sum() / 12, (cr * (y * y + y * y1 + y1 * y1)).sum() / 12,
+              (cr * (x * y1 + 2 * x * y + 2 * x1 * y1 + x1 * y)).sum() / 24]
+    low, high = np.linalg.eigvalsh(np.array([[m[0], m[2]], [m[2], m[1]]]))
+    elongation = np.sqrt(high / max(low, 1e-12 * high, 1e-300))
+    return np.array([np.log(elongation), poly.area / poly.convex_hull.area])

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from cell.grasp.attributes import part_attributes
 from cell.grasp.cascade import STAGES
+from cell.grasp.learning import part_distances
 
 STAGE_WHY = {
     "stroke": "contact distance outside the jaw stroke",
@@ -30,11 +32,21 @@ def explain(result, planner, n_samples: int = 3, seed: int = 0) -> list[str]:
         lines.append(f"chosen contact {np.round(c, 2).tolist()}: tree 1 {pt.rule_for(result.candidate_attributes[ci])}")
     lines.append(f"chosen set: tree 2 {st.rule_for(g.global_attributes)}")
     lines.append(f"chosen set: nearest accepted example {g.nearest_example} at distance "
-                 f"{g.distance_to_example:.3f} (normalised global attributes)")
+                 f"{g.distance_to_example:.3f} (normalised global attributes){_part_share(result, planner)}")
     made = {k: getattr(result, k) for k in ("outline", "free", "candidates", "candidate_attributes", "point_valid",
                                             "pairs", "cascade", "reachable_pairs", "reachable_attributes",
                                             "set_valid")}
     return lines + rejections(made, planner, n_samples, seed)
+
+
+def _part_share(result, planner) -> str:
+    """How much of the distance is the parts' shape (SynthesisParams.part_shape_weight), when the choice looks at it."""
+    dp = part_distances(planner.model, part_attributes(result.context.target))
+    if dp is None:
+        return ""
+    ex = planner.model.example_ids.index(result.grasp.nearest_example)
+    return (f" and part shape (weight {planner.model.part_weight:g}; the parts' shapes differ by {dp[ex]:.3f}, "
+            f"the nearest example part's by {dp.min():.3f})")
 
 
 def explain_failure(partial: dict, planner, n_samples: int = 3, seed: int = 0) -> list[str]:

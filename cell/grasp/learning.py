@@ -15,7 +15,9 @@ How an example teaches (paper: the operator grasps parts in a simulation environ
   those of a good set (a centred, antipodal grasp across the wrong faces looks, globally,
   exactly like the centred grasp across the right ones; as a negative set it would
   contradict the accepted example and cancel it).
-- Selection uses the accepted examples' own (unaugmented) global attributes.
+- Selection uses the accepted examples' own (unaugmented) global attributes and, weighted by
+  `SynthesisParams.part_shape_weight`, their parts' shape (attributes.part_attributes): a set is
+  compared with the examples taken on parts of its part's kind first (nearest_example).
 Trees are rebuilt from the example file on every start (milliseconds): no pickles.
 """
 
@@ -35,6 +37,7 @@ from cell.grasp.attributes import (
     global_names,
     local_attributes,
     local_names,
+    part_attributes,
 )
 from cell.grasp.outline import part_rings, project_to_outline, resample
 from cell.grasp.params import SynthesisParams
@@ -219,6 +222,9 @@ class LearnedModel:
     example_ids: list[str]
     scale: np.ndarray  # (G,) normalisation of the global-attribute space
     counts: dict
+    example_parts: np.ndarray | None = None  # (e, P) accepted examples' parts' shape (attributes.part_attributes)
+    part_scale: np.ndarray | None = None  # (P,) normalisation of the part-shape space
+    part_weight: float = 0.0  # SynthesisParams.part_shape_weight
 
 
 def fit_model(examples: list[GraspExample], params: SynthesisParams, half_pad_mm: float) -> LearnedModel:
@@ -250,20 +256,43 @@ def fit_model(examples: list[GraspExample], params: SynthesisParams, half_pad_mm
     st = AttributeTree(global_names(params.scales_mm), params.tree_max_depth, params.tree_min_samples_leaf).fit(Xs, ys)
     counts = {"examples": len(examples), "valid_examples": len(valid), "point_rows": len(yp),
               "point_rows_valid": int(yp.sum()), "set_rows": len(ys), "set_rows_valid": int(ys.sum())}
-    return LearnedModel(pt, st, ex_attrs, [ex.id for ex in valid], scale, counts)
+    parts = np.vstack([part_attributes(ex.part) for ex in valid])
+    part_scale = np.maximum(parts.std(axis=0), PART_SCALE_FLOOR)
+    return LearnedModel(pt, st, ex_attrs, [ex.id for ex in valid], scale, counts, parts, part_scale,
+                        params.part_shape_weight)
+
+
+# The part-shape space's normalisation (the accepted examples' standard deviation) is at least this: examples all
+# on parts of one kind do not make a part 5 % longer for its width a stranger (ln elongation, solidity)
+PART_SCALE_FLOOR = np.array([0.1, 0.05])
 
 
 NEAREST_ROWS_PER_BLOCK = 32
 
 
-def nearest_example(model: LearnedModel, G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def part_distances(model: LearnedModel, part_attrs: np.ndarray | None) -> np.ndarray | None:
+    """(e,) weighted distance of a part's shape to each accepted example's part (normalised part-shape space),
+    None when the choice does not look at the part (part_shape_weight 0)."""
+    if model.part_weight <= 0 or part_attrs is None or model.example_parts is None:
+        return None
+    return model.part_weight * np.linalg.norm((part_attrs - model.example_parts) / model.part_scale, axis=-1)
+
+
+def nearest_example(model: LearnedModel, G: np.ndarray, part_attrs: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """Distance (k,) of each set to its nearest accepted example in the normalised global-attribute
-    space (paper Eq. 8), and that example's index (k,)."""
+    space (paper Eq. 8), and that example's index (k,). With part_attrs (the target's part_attributes) and a
+    part_shape_weight, the space also holds the parts' shape, weighted: the global attributes say how a set
+    lies on its part (centred, square to it), not what part it is, so a centred set of a lever matched a
+    centred example of a box exactly and a lever taught to be held at an end was held in the middle."""
     # in blocks of rows: one (k, examples, attributes) difference for hundreds of sets is megabytes,
     # fresh memory at every plan (the same values, at half the time)
     E, rows = model.example_attrs, NEAREST_ROWS_PER_BLOCK
+    dp = part_distances(model, part_attrs)
     dist, which = np.empty(len(G)), np.empty(len(G), int)
     for a in range(0, len(G), rows):
         d = np.linalg.norm((G[a:a + rows, None, :] - E[None, :, :]) / model.scale, axis=-1)
+        if dp is not None:
+            d = np.sqrt(d * d + dp * dp)
         dist[a:a + rows], which[a:a + rows] = d.min(axis=1), d.argmin(axis=1)
     return dist, which

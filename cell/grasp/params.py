@@ -10,6 +10,7 @@ from cell.errors import BadInput
 MIN_STEP_MM = 0.5
 MAX_STEP_MM = 20.0  # coarser, a 20 mm washer has three candidate points: no grasp (exit 3) for an absurd step
 MAX_FINER_STEPS = 4  # halvings of the step tried where none gave a grasp (finer_steps); MIN_STEP_MM bounds them too
+PART_SHAPE_WEIGHT = 1.0  # SynthesisParams.part_shape_weight (docs/grasp.md: step 4)
 
 
 @dataclass(frozen=True)
@@ -115,6 +116,12 @@ class SynthesisParams:
     # 4, not 2: a leaf of 2 rows (one heatsink grasp's contacts) let square corners through (docs/grasp.md)
     tree_min_samples_leaf: int = 4
     augment_shift_steps: int = 1  # each example set is augmented by its neighbours +- this many steps
+    # The choice (nearest accepted example) also compares the parts' shape (ln elongation, solidity; attributes.
+    # part_attributes), normalised like the global attributes and weighted by this: a set is compared with the
+    # examples on parts of its kind first. 0: the global attributes alone, as recordings made before it
+    # existed have it (cell.runtime.replay): a centred set of a lever matched a centred box example exactly,
+    # and 8 examples holding levers at an end among 40 centred ones left levers held in the middle.
+    part_shape_weight: float = PART_SHAPE_WEIGHT
     # A contact labels only the outline its pad touches (not the roots between teeth under it);
     # off, every point within half a pad width along the outline, as older recordings have it
     label_touched_only: bool = True

@@ -22,7 +22,7 @@ import numpy as np
 from cell.cellconfig import Cell
 from cell.errors import BadInput, NoFeasibleGrasp
 from cell.examples import GraspExample
-from cell.grasp.attributes import OutlinePoints, global_attributes, global_names, local_attributes
+from cell.grasp.attributes import OutlinePoints, global_attributes, global_names, local_attributes, part_attributes
 from cell.grasp.bands import PAD_COMPLIANCE_MM
 from cell.grasp.candidates import candidate_points
 from cell.grasp.cascade import STAGES, CascadeResult, Context, Pairs, joints_of, run_cascade
@@ -396,7 +396,7 @@ class GraspPlanner:
 
         t0 = time.perf_counter()
         sel = np.flatnonzero(set_valid)
-        dist, ex_idx = nearest_example(self.model, G[sel])
+        dist, ex_idx = nearest_example(self.model, G[sel], part_attributes(target))
         # sets alike up to a symmetric part's symmetry lie at one distance up to float noise: rounded, the tie goes
         # to the first in outline order (from each ring's own first vertex: the same whichever vertex a file
         # lists first)

@@ -67,6 +67,7 @@ class RecordingEnds(Exception):  # noqa: N818 - not a CellError, like Divergence
 RECORDED_PLANNER = {"slanted_faces": False, "tree_min_samples_leaf": 2, "obstacle_margin_mm": 0.0,
                     "contacts_on_material": False, "label_touched_only": False, "max_contact_skew_deg": 90.0,
                     "stroke_at_pad_lines": False, "grasp_z_within_j3": False, "pads_at_grasp_centre": False,
+                    "part_shape_weight": 0.0,
                     "finer_steps": 0, "grasp_z_over_neighbours": False, "cog_radius_outer_disc": False,
                     "min_touch_width_mm": 0.0, "closed_slit_mm": 0.0, "touch_within_compliance": False,
                     "contacts_on_closing_line": False, "roll_bound_pad_overlap": False,

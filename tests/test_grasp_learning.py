@@ -121,6 +121,28 @@ def test_a_constant_tree_counts_its_training_rows_not_examples():
         "ALWAYS valid  (no labelled training rows)"]
 
 
+def test_a_leaf_does_not_overturn_a_clear_majority_of_the_operator_s_labels():
+    """Balanced class weights made one rejected point weigh 18 accepted ones (500 examples of the shipped
+    operator): a leaf of 329 accepted and 58 rejected gear-tip points voted invalid and the spur gears had no
+    grasp. The rarer class weighs at most tree_minority_weight_max (4) in a leaf's vote; the rules count rows."""
+    from cell.grasp.learning import AttributeTree
+
+    x = np.r_[np.zeros(5500), np.ones(329 + 58), np.full(250, 2.0)]
+    y = np.r_[np.ones(5500 - 30, bool), np.zeros(30, bool), np.ones(329, bool), np.zeros(58 + 250, bool)]
+    bounded = AttributeTree(["x"], 2, 4, PARAMS.tree_minority_weight_max).fit(x, y)
+    balanced = AttributeTree(["x"], 2, 4, 0.0).fit(x, y)
+    assert bounded.predict([0.0, 1.0, 2.0]).tolist() == [True, True, False]
+    assert balanced.predict([0.0, 1.0, 2.0]).tolist() == [True, False, False]  # as before, for old recordings
+    assert "387 training rows: 58 invalid / 329 valid" in bounded.rule_for([1.0])
+    assert bounded.rule_for([1.0]).split(" THEN ")[1].startswith("valid")
+    # a fifth of a leaf's rows rejected is still a rejection
+    y2 = np.r_[np.ones(5500, bool), np.ones(300, bool), np.zeros(80 + 250, bool)]
+    x2 = np.r_[np.zeros(5500), np.ones(380), np.full(250, 2.0)]
+    assert AttributeTree(["x"], 2, 4, 4.0).fit(x2, y2).predict([1.0]).tolist() == [False]
+    with pytest.raises(BadInput, match="tree_minority_weight_max"):
+        SynthesisParams(tree_minority_weight_max=0.5)
+
+
 def test_trees_are_rebuilt_identically_from_the_example_file(tmp_path):
     path = tmp_path / "ex.jsonl"
     append_examples(path, faces_examples())

@@ -114,10 +114,12 @@ class AttributeTree:
     """A decision tree over named attributes, printable as if-then rules (scikit-learn style:
     hyperparameters in __init__, learned state ends in _)."""
 
-    def __init__(self, names: list[str], max_depth: int = 4, min_samples_leaf: int = 2):
+    def __init__(self, names: list[str], max_depth: int = 4, min_samples_leaf: int = 2,
+                 minority_weight_max: float = 0.0):
         self.names = names
         self.max_depth = max_depth
         self.min_samples_leaf = min_samples_leaf
+        self.minority_weight_max = minority_weight_max  # SynthesisParams.tree_minority_weight_max (0: unbounded)
 
     def fit(self, X, y) -> AttributeTree:
         X = np.asarray(X, float).reshape(-1, len(self.names))
@@ -133,6 +135,21 @@ class AttributeTree:
         self.constant_ = None
         self.tree_ = DecisionTreeClassifier(max_depth=self.max_depth, min_samples_leaf=self.min_samples_leaf,
                                             class_weight="balanced", random_state=0).fit(X, y)
+        # the training rows of each class (classes_ order) under each node, counted: what the rules say
+        t = self.tree_.tree_
+        rows = np.zeros((t.node_count, 2))
+        np.add.at(rows, (t.apply(np.ascontiguousarray(X, np.float32)), y.astype(int)), 1)
+        for node in range(t.node_count - 1, -1, -1):  # children come after their parent
+            if t.children_left[node] != -1:
+                rows[node] = rows[t.children_left[node]] + rows[t.children_right[node]]
+        self.rows_ = rows
+        # each class's weight in a leaf's vote: balanced (a rejection weighs n_valid / n_invalid accepted rows),
+        # with the rarer class's weight bounded by minority_weight_max
+        n = rows[0]
+        w = n.sum() / np.maximum(2 * n, 1)
+        if self.minority_weight_max > 0:
+            w = np.minimum(w / w.min(), self.minority_weight_max)
+        self.vote_weight_ = w
         return self
 
     def predict(self, X) -> np.ndarray:
@@ -143,18 +160,25 @@ class AttributeTree:
         # validation, which costs 25 times the look-up on a few hundred rows): float32 rows, as it takes them
         return self._leaf_class()[self.tree_.tree_.apply(np.ascontiguousarray(X, np.float32))]
 
+    def _weights(self) -> np.ndarray:
+        """(nodes, 2) each node's weight per class in its vote: balanced (sklearn's own), or from the counted
+        rows with the rarer class's weight bounded (minority_weight_max)."""
+        if self.minority_weight_max > 0:
+            return self.rows_ * self.vote_weight_
+        return self.tree_.tree_.value[:, 0, :]
+
     def _leaf_class(self) -> np.ndarray:
-        t = self.tree_
-        cls = t.classes_[np.argmax(t.tree_.value[:, 0, :], axis=1)]
-        return cls.astype(bool)
+        return self.tree_.classes_[np.argmax(self._weights(), axis=1)].astype(bool)
 
     def _path_rules(self):
-        """[(leaf nodes, [condition strings], verdict, n_samples, share of the verdict)], one per rule.
+        """[(leaf nodes, [condition strings], verdict, (invalid rows, valid rows), share of the verdict's
+        weight)], one per rule.
 
         Sibling subtrees whose leaves all give the same verdict are merged into one rule (the
         split does not change the decision, only the purity), so every printed rule decides."""
         t = self.tree_.tree_
         cls = self._leaf_class()
+        weights = self._weights()
 
         def verdicts(node):
             if t.children_left[node] == -1:
@@ -172,10 +196,11 @@ class AttributeTree:
             v = verdicts(node)
             if len(v) == 1:
                 ls = leaves(node)
-                n = int(t.n_node_samples[node])
-                w = t.value[node, 0]
+                w = weights[node]
                 k = int(np.flatnonzero(self.tree_.classes_ == next(iter(v)))[0])
-                out.append((ls, conds, next(iter(v)), n, float(w[k] / max(w.sum(), 1e-12))))
+                rows = dict(zip(self.tree_.classes_.tolist(), self.rows_[node].tolist(), strict=True))
+                out.append((ls, conds, next(iter(v)), (int(rows.get(False, 0)), int(rows.get(True, 0))),
+                            float(w[k] / max(w.sum(), 1e-12))))
                 return
             name, thr = self.names[t.feature[node]], t.threshold[node]
             walk(t.children_left[node], conds + [f"{name} <= {thr:.3f}"])
@@ -189,20 +214,20 @@ class AttributeTree:
             # training rows (labelled points or sets), as in the other rules: not the examples
             why = "no labelled training rows" if self.n_samples_ == 0 else f"all {self.n_samples_} training rows agree"
             return [f"ALWAYS {'valid' if self.constant_ else 'invalid'}  ({why})"]
-        return [self._format(c, v, n, share) for _, c, v, n, share in self._path_rules()]
+        return [self._format(c, v, rows, share) for _, c, v, rows, share in self._path_rules()]
 
     def rule_for(self, x) -> str:
         """The rule (leaf path) that decides one attribute row."""
         if self.tree_ is None:
             return self.rules()[0]
         leaf = int(self.tree_.apply(np.asarray(x, np.float32).reshape(1, -1))[0])
-        for nodes, c, v, n, share in self._path_rules():
+        for nodes, c, v, rows, share in self._path_rules():
             if leaf in nodes:
-                return self._format(c, v, n, share)
+                return self._format(c, v, rows, share)
         raise AssertionError("leaf not found")
 
     @staticmethod
-    def _format(conds, verdict, n, share) -> str:
+    def _format(conds, verdict, rows, share) -> str:
         # one bound per attribute and side: the tightest along the path
         bounds: dict = {}
         for c in conds:
@@ -211,7 +236,9 @@ class AttributeTree:
             bounds[key] = thr if key not in bounds else (min if op == "<=" else max)(bounds[key], thr)
         conds = [f"{name} {op} {thr:.3f}" for (name, op), thr in bounds.items()]
         head = "IF " + " AND ".join(conds) if conds else "ALWAYS"
-        return f"{head} THEN {'valid' if verdict else 'invalid'}  ({n} training rows, {share:.0%} of their weight)"
+        invalid, valid = rows
+        return (f"{head} THEN {'valid' if verdict else 'invalid'}  ({invalid + valid} training rows: "
+                f"{invalid} invalid / {valid} valid, {share:.0%} of their weight)")
 
 
 @dataclass
@@ -252,8 +279,10 @@ def fit_model(examples: list[GraspExample], params: SynthesisParams, half_pad_mm
     ex_attrs = np.vstack([set_attributes_of_example(ex, params) for ex in valid])
     scale = Xs.std(axis=0)
     scale[scale < 1e-9] = 1.0
-    pt = AttributeTree(local_names(params.scales_mm), params.tree_max_depth, params.tree_min_samples_leaf).fit(Xp, yp)
-    st = AttributeTree(global_names(params.scales_mm), params.tree_max_depth, params.tree_min_samples_leaf).fit(Xs, ys)
+    pt = AttributeTree(local_names(params.scales_mm), params.tree_max_depth, params.tree_min_samples_leaf,
+                       params.tree_minority_weight_max).fit(Xp, yp)
+    st = AttributeTree(global_names(params.scales_mm), params.tree_max_depth, params.tree_min_samples_leaf,
+                       params.tree_minority_weight_max).fit(Xs, ys)
     counts = {"examples": len(examples), "valid_examples": len(valid), "point_rows": len(yp),
               "point_rows_valid": int(yp.sum()), "set_rows": len(ys), "set_rows_valid": int(ys.sum())}
     parts = np.vstack([part_attributes(ex.part) for ex in valid])

@@ -115,6 +115,13 @@ class SynthesisParams:
     tree_max_depth: int = 4
     # 4, not 2: a leaf of 2 rows (one heatsink grasp's contacts) let square corners through (docs/grasp.md)
     tree_min_samples_leaf: int = 4
+    # The trees grow with balanced class weights (a rejected contact or set weighs n_accepted / n_rejected
+    # accepted ones: the operator's rejections are rare and each is meant), but in a leaf's vote the rarer class
+    # weighs at most this many of the other: a leaf says invalid only where rejections are more than a fifth of
+    # its rows. Unbounded (0, as recordings made before it have it: cell.runtime.replay), 500 examples of the
+    # shipped operator gave rejected points an 18-fold weight, and a leaf of 329 accepted and 58 rejected points
+    # (dist_cog_mm 16.4-36.6, convexity_6mm > 0.277: gear tips) voted invalid: the spur gears had no grasp.
+    tree_minority_weight_max: float = 4.0
     augment_shift_steps: int = 1  # each example set is augmented by its neighbours +- this many steps
     # The choice (nearest accepted example) also compares the parts' shape (ln elongation, solidity; attributes.
     # part_attributes), normalised like the global attributes and weighted by this: a set is compared with the
@@ -152,6 +159,9 @@ class SynthesisParams:
         for flag in ("grasp_z_over_neighbours", "grasp_z_top_fallback"):
             if not isinstance(getattr(self, flag), bool):
                 raise BadInput(f"synthesis parameter {flag} must be true or false, got {getattr(self, flag)!r}")
+        if 0 < self.tree_minority_weight_max < 1:
+            raise BadInput("synthesis parameter tree_minority_weight_max must be 0 (unbounded) or at least 1, got "
+                           f"{self.tree_minority_weight_max:g}")
         if self.n_contacts != 2:
             raise BadInput(f"this cell's gripper has two jaws: n_contacts must be 2, got {self.n_contacts}")
 

@@ -285,6 +285,18 @@ def test_a_step_5_hook_that_refuses_a_grasp_gets_the_next_best():
         GraspPlanner(CELL, faces_examples(), choose=lambda *a: None).plan(Scene((RECT,), "r"))
 
 
+@pytest.mark.parametrize("out_mm", [0.5, 1.5, 4.0])
+def test_a_contact_off_the_outline_labels_the_points_it_projects_onto(out_mm):
+    """The reader takes contacts up to 5 mm off the outline; compared with the raw contact, the pad's face lay
+    more than 1 mm in front of every point and a contact 1.5 mm out labelled nothing, silently."""
+    on = point_training(ex("a", [[350, 15], [350, -15]], True), PARAMS, 6.0)
+    off = ex("b", [[350, 15 + out_mm], [350, -15 - out_mm]], True)
+    X, y = point_training(off, PARAMS, 6.0)
+    assert np.array_equal(X, on[0]) and np.array_equal(y, on[1]) and len(y) == 12
+    raw = point_training(off, dataclasses.replace(PARAMS, label_from_outline=False), 6.0)[1]
+    assert len(raw) == (12 if out_mm <= 1.0 else 0)  # as recordings made before it have it
+
+
 def test_a_contact_labels_only_the_outline_its_pad_touches():
     """On a gear the operator's pad rests on the tooth tips: those points take the contact's label,
     the roots and flanks under the same pad get none (they used to be labelled valid too). On a

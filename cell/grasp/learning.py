@@ -3,9 +3,10 @@
 How an example teaches (paper: the operator grasps parts in a simulation environment):
 - Tree 1 (points). The example's part outline is resampled at the planner's step; the
   candidate points on the same ring within half a pad width (along the outline) of a
-  contact take that contact's label: `contact_valid[i]` when given, else true for an
-  accepted grasp; a rejected grasp without `contact_valid` says nothing about its points
-  (the operator may have rejected it for a reason that is not the contact's shape).
+  contact (projected onto the outline) that its pad touches take that contact's label:
+  `contact_valid[i]` when given, else true for an accepted grasp; a rejected grasp without
+  `contact_valid` says nothing about its points (the operator may have rejected it for a
+  reason that is not the contact's shape).
 - Tree 2 (sets). Each example is one set, labelled by `valid`, with its global attributes
   measured at the contacts projected onto the outline; it is augmented with its
   neighbouring sets (each contact shifted by -k..k steps along the outline, all
@@ -56,10 +57,15 @@ def point_training(ex: GraspExample, params: SynthesisParams, half_pad_mm: float
     rows, labels = [], []
     op = None
     contacts = np.asarray(ex.contacts_mm, float)
-    for c, lab in zip(contacts, contact_labels(ex), strict=True):
+    proj = [project_to_outline(rings, c) for c in contacts]
+    if params.label_from_outline:
+        # a contact given off the outline (the reader takes up to MAX_CONTACT_OFFSET_MM) touches the outline where
+        # it projects: compared raw, a contact 1.5 mm out was more than TOUCH_DEPTH_MM from every point and
+        # labelled none
+        contacts = np.array([rings[r].at(s) for r, s, _ in proj])
+    for c, lab, (r, s, _) in zip(contacts, contact_labels(ex), proj, strict=True):
         if lab is None:
             continue
-        r, s, _ = project_to_outline(rings, c)
         L = rings[r].length_mm
         d = np.abs((arc - s + L / 2) % L - L / 2)  # periodic arc distance
         sel = (ring_idx == r) & (d <= half_pad_mm)

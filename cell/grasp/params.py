@@ -132,6 +132,11 @@ class SynthesisParams:
     # A contact labels only the outline its pad touches (not the roots between teeth under it);
     # off, every point within half a pad width along the outline, as older recordings have it
     label_touched_only: bool = True
+    # ... the outline its pad touches seated at the contact projected onto the outline (as tree 2's attributes
+    # take it): off, at the contact as given, as recordings made before it have it (cell.runtime.replay); the
+    # reader takes contacts up to 5 mm off the outline, and the shipped examples' points moved 1 mm outward
+    # labelled 339 points instead of 725, 1.5 mm 80, 4 mm none, silently.
+    label_from_outline: bool = True
 
     def __post_init__(self):
         for f in fields(self):
@@ -156,7 +161,7 @@ class SynthesisParams:
                 self.finer_steps > MAX_FINER_STEPS:
             raise BadInput(f"synthesis parameter finer_steps must be a whole number from 0 to {MAX_FINER_STEPS}, "
                            f"got {self.finer_steps!r}")
-        for flag in ("grasp_z_over_neighbours", "grasp_z_top_fallback"):
+        for flag in ("grasp_z_over_neighbours", "grasp_z_top_fallback", "label_from_outline"):
             if not isinstance(getattr(self, flag), bool):
                 raise BadInput(f"synthesis parameter {flag} must be true or false, got {getattr(self, flag)!r}")
         if 0 < self.tree_minority_weight_max < 1:

@@ -70,6 +70,7 @@ RECORDED_PLANNER = {"slanted_faces": False, "tree_min_samples_leaf": 2, "obstacl
                     "part_shape_weight": 0.0,
                     "finer_steps": 0, "grasp_z_over_neighbours": False, "cog_radius_outer_disc": False,
                     "min_touch_width_mm": 0.0, "closed_slit_mm": 0.0, "touch_within_compliance": False,
+                    "label_from_outline": False,
                     "contacts_on_closing_line": False, "roll_bound_pad_overlap": False,
                     "tree_minority_weight_max": 0.0,
                     "grasp_z_top_fallback": False, "vertex_order_free": False}

@@ -143,6 +143,15 @@ def test_a_leaf_does_not_overturn_a_clear_majority_of_the_operator_s_labels():
         SynthesisParams(tree_minority_weight_max=0.5)
 
 
+@pytest.mark.parametrize("key, value", [("part_shape_weight", "one"), ("part_shape_weight", True),
+                                        ("part_shape_weight", -1.0), ("tree_minority_weight_max", None),
+                                        ("label_from_outline", 1)])
+def test_the_learning_parameters_a_recording_keeps_are_checked(key, value):
+    """A recording's manifest gives them (cell.runtime.replay): a wrong one is bad input, not a traceback."""
+    with pytest.raises(BadInput, match=key):
+        SynthesisParams(**{key: value})
+
+
 def test_trees_are_rebuilt_identically_from_the_example_file(tmp_path):
     path = tmp_path / "ex.jsonl"
     append_examples(path, faces_examples())

@@ -164,6 +164,10 @@ class SynthesisParams:
         for flag in ("grasp_z_over_neighbours", "grasp_z_top_fallback", "label_from_outline"):
             if not isinstance(getattr(self, flag), bool):
                 raise BadInput(f"synthesis parameter {flag} must be true or false, got {getattr(self, flag)!r}")
+        for key in ("part_shape_weight", "tree_minority_weight_max"):  # (a recording's manifest gives them too)
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise BadInput(f"synthesis parameter {key} must be a number, got {v!r}")
         if 0 < self.tree_minority_weight_max < 1:
             raise BadInput("synthesis parameter tree_minority_weight_max must be 0 (unbounded) or at least 1, got "
                            f"{self.tree_minority_weight_max:g}")

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cell.cellgeometry import check_cell_geometry
 from cell.errors import BadInput
 from cell.fileio import is_finite_number, read_json, short_repr, short_text
 
@@ -281,7 +282,7 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
         **{k: r.pos(g, k, "gripper") for k in (
             "pad_width_mm", "pad_thickness_mm", "pad_height_mm", "finger_length_mm", "palm_length_mm",
             "palm_width_mm", "palm_offset_mm", "grip_force_n", "max_force_n", "speed_mm_s")},
-        approach_clearance_mm=r.nonneg(g, "approach_clearance_mm", "gripper"),
+        approach_clearance_mm=r.num(g, "approach_clearance_mm", "gripper"),  # > 0: cellgeometry says why
     )
     if gripper.opening_mm[0] < 0:
         raise BadInput(f"cell file {source}: gripper.opening_mm must not be negative")
@@ -337,8 +338,11 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
         weights = {j: r.nonneg(w, j, "configuration.joint_weights") for j in JOINTS}
         if not any(weights.values()):
             raise BadInput(f"cell file {source}: configuration.joint_weights must not all be zero")
+    check_cell_geometry(source, scara, gripper, tray, ws, motion, camera)
     name = raw.get("name", Path(source).stem)
-    return Cell(str(name), scara, gripper, tray, ws, motion, camera, can, weights, source=source)
+    if not isinstance(name, str) or not name.strip():
+        raise BadInput(f"cell file {source}: 'name' must be a non-empty text, got {short_repr(name)}")
+    return Cell(name, scara, gripper, tray, ws, motion, camera, can, weights, source=source)
 
 
 def _check_heartbeat_ms(can: CanConfig, source: str) -> None:

@@ -110,6 +110,8 @@ def test_a_nan_inside_a_range_names_its_place(tmp_path, scene, capsys):
 def test_a_dropoff_out_of_reach_is_bad_input_before_anything_moves(tmp_path, capsys, l1_l2, dropoff, says):
     def mutate(d):
         d["scara"]["l1_mm"], d["scara"]["l2_mm"] = l1_l2
+        if sum(l1_l2) < 600:  # a tray the shorter arm reaches whole (the default's corners lie 559 mm out)
+            d["tray"] = {"x_mm": [200.0, 380.0], "y_mm": [-200.0, 200.0]}
         if dropoff is not None:
             d["motion"]["dropoff_mm"] = dropoff
 

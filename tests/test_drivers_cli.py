@@ -82,6 +82,7 @@ def test_hw_jog_refuses_large_steps(capsys, argv, says):
 def test_hw_jog_past_a_joint_limit_is_refused(capsys, tmp_path):
     cell = json.loads((ROOT / "cell" / "data" / "default_cell.json").read_text())
     cell["scara"]["j1_deg"] = [-132.0, 1.0]
+    cell["tray"]["y_mm"] = [-250.0, -50.0]  # where J1 up to 1 deg reaches (the cell file's reach check)
     path = tmp_path / "cell.json"
     path.write_text(json.dumps(cell))
     code, out, err = run_cli("hw", "jog", "j1", "2", "--simulated-time", "--cell", path, capsys=capsys)

@@ -3,13 +3,15 @@
 Among the joint solutions that reach the chosen grasp (both elbows, J4 and J4 + k * 180 for
 the symmetric jaws, all inside the joint limits) the cell keeps those whose links clear
 every part taller than the link's underside, then takes the one nearest to a configuration
-of the operator's valid examples, in a weighted joint-space distance where joints nearer
+of the operator's valid examples (those this cell's arm could have taken: within its joint limits, reaching
+their own grasp centre; `configurations_for_cell`), in a weighted joint-space distance where joints nearer
 the contacts weigh more (weights from the cell file, `configuration.joint_weights`).
 Without any example configuration the choice falls back to the smallest wrist turn.
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterable, Sequence
 
 import numpy as np
@@ -17,14 +19,74 @@ from shapely.geometry import LineString
 
 from cell.cellconfig import JOINTS, Cell
 from cell.examples import GraspExample
-from cell.kinematics import Joints, elbow_points
+from cell.kinematics import Joints, elbow_points, tool_xy
 from cell.scene import Part
 
+log = logging.getLogger(__name__)
+# An example's configuration is this arm's when its forward kinematics land within this of the example's grasp
+# centre: the shipped examples land within 0.001 mm with the default cell, ones taught on an arm of other link
+# lengths tens of mm off
+MAX_CONFIGURATION_MISS_MM = 3.0
+LIMIT_TOL = 1e-6  # deg, mm: an example's joints as written (4 decimals) on a limit are within it
+_TOLD: set = set()  # (cell, set-aside example ids) already told: once per cell and set of examples
+_LAST: tuple | None = None  # (cell, examples, their configurations): the last answer of example_configurations
 
-def example_configurations(examples: Iterable[GraspExample]) -> np.ndarray:
-    """The joint vectors of the valid examples that carry one, shape (k, 4)."""
-    rows = [e.joints.as_array() for e in examples if e.valid and e.joints is not None]
-    return np.array(rows, float).reshape(-1, 4)
+
+def example_configurations(examples: Iterable[GraspExample], cell: Cell | None = None) -> np.ndarray:
+    """The joint vectors of the valid examples that carry one, shape (k, 4); with `cell`, only those this cell's
+    arm could have taken (`configurations_for_cell`)."""
+    global _LAST
+    chosen = tuple(e for e in examples if e.valid and e.joints is not None)
+    last = _LAST  # one read: another thread may set it meanwhile
+    if last is not None and last[0] is cell and len(last[1]) == len(chosen) and all(
+            a is b for a, b in zip(last[1], chosen)):
+        return last[2]  # every plan asks again with the same examples and cell: worked out once (0.9 ms)
+    kept = configurations_for_cell(chosen, cell) if cell is not None else chosen
+    configs = np.array([e.joints.as_array() for e in kept], float).reshape(-1, 4)
+    configs.flags.writeable = False
+    _LAST = (cell, chosen, configs)  # holds the examples: their ids stay theirs
+    return configs
+
+
+def configurations_for_cell(examples: Sequence[GraspExample], cell: Cell) -> list[GraspExample]:
+    """The examples (each with joints) whose configuration this cell's arm can take: within its joint limits, and
+    whose forward kinematics with its links put the tool within MAX_CONFIGURATION_MISS_MM of the example's own
+    grasp centre (the two contacts' midpoint). Examples taught on another arm (other links, other limits) would
+    otherwise steer step 5 towards configurations that do not belong to their grasps. The set-aside ones are told
+    once per cell and set of examples (a warning, the rest are used)."""
+    if not examples:
+        return []
+    s = cell.scara
+    q = np.array([e.joints.as_array() for e in examples], float)
+    lo, hi = (np.array([s.limits(j)[k] for j in JOINTS]) for k in (0, 1))
+    outside = np.any((q < lo - LIMIT_TOL) | (q > hi + LIMIT_TOL), axis=1)
+    x, y = tool_xy(q, s)
+    centre = np.array([e.contacts_mm[:2].mean(axis=0) if e.n_contacts == 2 else (np.nan, np.nan) for e in examples])
+    miss = np.hypot(x - centre[:, 0], y - centre[:, 1])  # nan (not checked) for another number of contacts
+    missed = ~outside & (miss > MAX_CONFIGURATION_MISS_MM)
+    if outside.any() or missed.any():
+        _tell_set_aside(examples, cell, outside, missed, miss)
+    return [e for e, bad in zip(examples, outside | missed) if not bad]
+
+
+def _tell_set_aside(examples, cell: Cell, outside: np.ndarray, missed: np.ndarray, miss: np.ndarray) -> None:
+    key = (cell.source, cell.name, tuple(e.id for e, bad in zip(examples, outside | missed) if bad))
+    if key in _TOLD:
+        return
+    _TOLD.add(key)
+    s, why = cell.scara, []
+    if outside.any():
+        limits = ", ".join(f"{j.upper()} [{s.limits(j)[0]:g}, {s.limits(j)[1]:g}]" for j in JOINTS)
+        why.append(f"{int(outside.sum())} outside its joint limits ({limits})")
+    if missed.any():
+        why.append(f"{int(missed.sum())} whose joint angles put this arm's tool (L1 {s.l1_mm:g}, L2 {s.l2_mm:g} mm) "
+                   f"more than {MAX_CONFIGURATION_MISS_MM:g} mm from their own grasp centre (up to "
+                   f"{np.nanmax(miss[missed]):.1f} mm)")
+    kept = len(examples) - int((outside | missed).sum())
+    log.warning(f"step 5 (arm configuration): {len(examples) - kept} of {len(examples)} accepted examples' "
+                f"configurations set aside for the cell {cell.name!r} ({cell.source}), taught for another arm: "
+                f"{'; '.join(why)}. "
+                + (f"Step 5 uses the other {kept}" if kept else "Step 5 takes the smallest wrist turn instead"))
 
 
 def _fold180(a: np.ndarray) -> np.ndarray:
@@ -103,7 +165,7 @@ def choose_configuration(options: Sequence[Joints], examples: Iterable[GraspExam
     free = [q for q in options if not link_collisions(q, cell, parts)]
     if not free:
         return None
-    configs = example_configurations(examples)
+    configs = example_configurations(examples, cell)
     arr = np.array([q.as_array() for q in free])
     if len(configs):
         score = weighted_distance(arr, configs, cell.joint_weights)

@@ -154,3 +154,103 @@ def test_the_coordinated_path_is_where_the_simulated_drives_are():
         k = min(len(path) - 1, max(0, round(t / duration * len(path)) - 1))
         near = min(abs(p.j1_deg - j.j1_deg) + abs(p.j2_deg - j.j2_deg) for p in path[max(0, k - 2):k + 3])
         assert near < 2.5, (t, j)
+
+
+# --- examples taught for another arm (cell-dependent: the reader does not know the cell) ------------------------
+def _cell_with(path, **edits):
+    """The default cell file with each edit (`scara__l1_mm=400`), written to `path` and read back."""
+    import json
+
+    from cell.cellconfig import default_cell_path, load_cell
+
+    raw = json.loads(default_cell_path().read_text())
+    for dotted, value in edits.items():
+        d = raw
+        *keys, key = dotted.split("__")
+        for k in keys:
+            d = d[k]
+        d[key] = value
+    path.write_text(json.dumps(raw))
+    return load_cell(path)
+
+
+def _taught_on(cell, elbow_for):
+    """`training`, taught on `cell`'s arm."""
+    out = []
+    for x in (250, 350, 450):
+        for y in (-200, -80, 80, 200):
+            q = min((q for q in inverse(x, y, 5.0, 0.0, cell.scara) if q.elbow == elbow_for(y)),
+                    key=lambda q: abs(q.j4_deg))
+            out.append(GraspExample(f"ex-{x}-{y}", square_at(x, y), np.array([[x - 15, y], [x + 15, y]]), True,
+                                    {"kind": "manual"}, joints=q))
+    return out
+
+
+def test_configurations_taught_on_another_arm_are_set_aside_and_told_once(tmp_path, caplog):
+    from cell.configuration import example_configurations
+
+    other = _cell_with(tmp_path / "l400.json", scara__l1_mm=400.0, scara__l2_mm=250.0, tray__x_mm=[225.0, 500.0])
+    ex = training(left_below_right_above)  # taught on the default arm: 70 to 93 mm off on this one
+    with caplog.at_level("WARNING", logger="cell.configuration"):
+        assert example_configurations(ex, other).shape == (0, 4)
+        q = choose_configuration(inverse(300, -150, 5.0, 30.0, other.scara), ex, other)
+        choose_configuration(inverse(420, 40, 5.0, 0.0, other.scara), ex, other)
+    told = [r.getMessage() for r in caplog.records]
+    assert len(told) == 1, told
+    assert told[0].startswith("step 5 (arm configuration): 12 of 12 accepted examples' configurations set aside for "
+                              f"the cell 'default SCARA cell (CONTRACT.md)' ({tmp_path / 'l400.json'})"), told
+    assert "12 whose joint angles put this arm's tool (L1 400, L2 250 mm) more than 3 mm from their own" in told[0]
+    assert told[0].endswith("Step 5 takes the smallest wrist turn instead")
+    assert q == min(inverse(300, -150, 5.0, 30.0, other.scara), key=lambda j: abs(j.j4_deg))
+    # the same habit taught on this arm is kept and followed
+    for pattern in (left_below_right_above, right_below_left_above):
+        mine = _taught_on(other, pattern)
+        assert example_configurations(mine, other).shape == (12, 4)
+        for x, y in ((300, -150), (420, 40)):
+            assert choose_configuration(inverse(x, y, 5.0, 30.0, other.scara), mine, other).elbow == pattern(y)
+    assert len(caplog.records) == 1
+
+
+def test_configurations_outside_the_cells_joint_limits_are_set_aside_the_rest_used(tmp_path, caplog):
+    from cell.configuration import example_configurations
+
+    narrow = _cell_with(tmp_path / "j2.json", scara__j2_deg=[-150.0, 100.0])
+    ex = training(right_below_left_above)
+    within = [e for e in ex if e.joints.j2_deg <= 100.0]
+    assert 0 < len(within) < len(ex)
+    with caplog.at_level("WARNING", logger="cell.configuration"):
+        configs = example_configurations(ex, narrow)
+    assert np.array_equal(configs, np.array([e.joints.as_array() for e in within]))
+    assert len(caplog.records) == 1 and (
+        f"{len(ex) - len(within)} of {len(ex)} accepted examples' configurations set aside" in caplog.text)
+    assert "outside its joint limits (J1 [-132, 132], J2 [-150, 100], J3 [0, 200], J4 [-360, 360])" in caplog.text
+    assert f"Step 5 uses the other {len(within)}" in caplog.text
+
+
+def test_the_shipped_examples_are_all_this_default_cells(caplog):
+    from cell.configuration import example_configurations
+    from cell.examples import load_examples
+
+    shipped = load_examples(None)
+    with caplog.at_level("WARNING", logger="cell.configuration"):
+        configs = example_configurations(shipped, CELL)
+    assert len(configs) == sum(e.valid and e.joints is not None for e in shipped) == 60
+    assert not caplog.records
+
+
+def test_cell_grasp_says_once_on_stderr_how_many_were_set_aside(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    _cell_with(tmp_path / "l400.json", scara__l1_mm=400.0, scara__l2_mm=250.0, tray__x_mm=[225.0, 500.0])
+    scenes = []
+    for i, x in enumerate((300, 400)):
+        scenes.append(tmp_path / f"s{i}.json")
+        scenes[-1].write_text(json.dumps({"units": "mm", "target": "bar", "parts": [
+            {"id": "bar", "outline": [[x - 10, -30], [x + 10, -30], [x + 10, 30], [x - 10, 30]], "z_top": 12}]}))
+    r = subprocess.run([sys.executable, "-m", "cell", "grasp", *map(str, scenes), "--json", "--cell",
+                        str(tmp_path / "l400.json")], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and len(r.stdout.splitlines()) == 2, r.stderr
+    assert r.stderr.count("\n") == 1 and r.stderr.startswith("cell: warning: step 5 (arm configuration): 60 of 60 "
+                                                             "accepted examples' configurations set aside"), r.stderr

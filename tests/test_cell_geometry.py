@@ -170,5 +170,22 @@ def test_the_cli_refuses_such_a_cell_file_with_one_line_and_exit_2(tmp_path, cap
     assert err.startswith(f"cell: error: cell file {path}: gripper.approach_clearance_mm = 0"), err
 
 
+def test_bench_grasp_plans_with_the_given_cell(tmp_path, capsys):
+    """`cell bench grasp --cell F`: the ring (60 mm across) is planned with the default jaws, not with 40 mm ones."""
+    path = tmp_path / "stroke40.json"
+    path.write_text(json.dumps(_raw(gripper__opening_mm=[0, 40])))
+    rows = {}
+    for cell in (None, path):
+        code, out, err = run_cli("bench", "grasp", "--repeat", "1", "--json", "--scenes", "ring-with-hole",
+                                 *(["--cell", cell] if cell else []), capsys=capsys)
+        assert code == 0, err
+        rows[cell] = [json.loads(x) for x in out.splitlines()]
+    assert rows[None][-1]["cell"] == str(default_cell_path()) and rows[None][0]["error"] is None
+    assert rows[path][-1]["cell"] == str(path) and rows[path][-1]["planned"] == 0
+    assert "opening 40 mm minus 2 x 5 mm approach clearance" in rows[path][0]["error"]
+    code, out, err = run_cli("bench", "grasp", "--cell", tmp_path / "none.json", capsys=capsys)
+    assert code == 2 and "none.json" in err and "Traceback" not in err
+
+
 def test_the_default_cell_is_unchanged():
     assert default_cell().gripper.approach_clearance_mm == 5.0 and np.isclose(default_cell().camera.height_mm, 800)

@@ -1,4 +1,4 @@
-"""`cell bench grasp [--repeat N] [--examples FILE] [--json]`: synthesis speed per stage, and the
+"""`cell bench grasp [--repeat N] [--examples FILE] [--cell FILE] [--json]`: synthesis speed per stage, and the
 cascade against the brute force (every pair through every exact check) on the same scenes in
 the same run: time ratio, number of exact checks, and whether both keep the same pairs."""
 
@@ -16,6 +16,8 @@ def add_arguments(p):
     p.add_argument("--repeat", type=int, default=15, help="plans per scene for the median time (default 15)")
     p.add_argument("--examples", metavar="FILE",
                    help="teaching-example file (default: the shipped one, else the hand-made examples)")
+    p.add_argument("--cell", metavar="FILE", help="cell file (default: the shipped default cell); the scenes lie "
+                   "in the default cell's tray")
     p.add_argument("--json", action="store_true", help="print one JSON object per scene, then a summary")
     p.add_argument("--scenes", metavar="TEXT", help="only the scenes whose name contains TEXT")
     p.add_argument("--library", action="store_true",
@@ -112,7 +114,7 @@ def side_by_side(ctx, fresh_pairs, rounds: int = ROUNDS):
 def run(args) -> int:
     import numpy as np
 
-    from cell.cellconfig import default_cell
+    from cell.cellconfig import load_cell
     from cell.commands._vision_args import count
     from cell.errors import BadInput, NoFeasibleGrasp
     from cell.examples import default_examples_path, load_examples
@@ -127,7 +129,7 @@ def run(args) -> int:
         examples, source = load_examples(None), str(default_examples_path())
     else:
         examples, source = hand_made_examples(), "hand-made examples (cell.grasp.shapes)"
-    cell = default_cell()
+    cell = load_cell(args.cell)  # None: the default cell
     t0 = time.perf_counter()
     planner = GraspPlanner(cell, examples)
     fit_ms = (time.perf_counter() - t0) * 1e3
@@ -175,7 +177,7 @@ def run(args) -> int:
                        same_pairs=same)  # the same pairs kept, with the same contacts bit for bit
         rows.append(row)
     ok = [r for r in rows if "speedup" in r]
-    summary = {"examples": source, "n_examples": len(examples), "fit_ms": round(fit_ms, 2),
+    summary = {"cell": cell.source, "examples": source, "n_examples": len(examples), "fit_ms": round(fit_ms, 2),
                "median_synthesis_ms": round(statistics.median(r["median_ms"] for r in rows), 3),
                "median_speedup": round(statistics.median(r["speedup"] for r in ok), 1) if ok else None,
                "median_speedup_of_medians": (round(statistics.median(r["speedup_median"] for r in ok), 1)
@@ -192,7 +194,8 @@ def run(args) -> int:
             print(json.dumps(r))
         print(json.dumps(summary))
         return 0
-    print(f"grasp synthesis benchmark: {len(examples)} examples from {source}; trees fitted in {fit_ms:.1f} ms")
+    print(f"grasp synthesis benchmark: {len(examples)} examples from {source}; trees fitted in {fit_ms:.1f} ms"
+          + ("" if args.cell is None else f"; cell {cell.source}"))
     for r in rows:
         if "counts" not in r:
             print(f"\n{r['scene']}: no grasp ({r['error']}), median {r['median_ms']:.2f} ms")

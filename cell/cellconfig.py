@@ -338,7 +338,7 @@ def parse_cell(raw, source: str = "<dict>") -> Cell:
         weights = {j: r.nonneg(w, j, "configuration.joint_weights") for j in JOINTS}
         if not any(weights.values()):
             raise BadInput(f"cell file {source}: configuration.joint_weights must not all be zero")
-    check_cell_geometry(source, scara, gripper, tray, ws, motion, camera)
+    check_cell_geometry(source, scara, gripper, camera)
     name = raw.get("name", Path(source).stem)
     if not isinstance(name, str) or not name.strip():
         raise BadInput(f"cell file {source}: 'name' must be a non-empty text, got {short_repr(name)}")

@@ -1,9 +1,11 @@
-"""The cell file's parts checked against each other as one machine, when the file is read.
+"""The cell file's parts checked against each other as one machine.
 
-Each value may be fine alone and the cell still make no sense: a tray partly beyond the arm's reach (a part put
-there stopped the run part-way), a home outside the workspace (the first move home refused), jaws that cannot
-open around anything, a camera under the arm. `cellconfig.parse_cell` calls `check_cell_geometry`; every
-refusal is a `BadInput` naming the file and the key.
+Each value may be fine alone and the cell still make no sense: jaws that cannot open around anything, a pad taller
+than its finger, a camera under the arm (`check_cell_geometry`, called by `cellconfig.parse_cell` when the file is
+read). A home outside the workspace (the first move home refused) or a tray partly beyond the arm's reach (a part put
+there stopped the run part-way) only matter where the arm moves: `require_cell_can_move`, called by `cell run` and
+the `cell hw` commands, so that planning with such a cell (`cell grasp`, `cell plan`: a target out of reach has no
+grasp, exit 3) still works. Every refusal is a `BadInput` naming the file and the key.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import numpy as np
 from cell.errors import BadInput
 
 if TYPE_CHECKING:
-    from cell.cellconfig import Box2D, Camera, Gripper, Motion, Scara
+    from cell.cellconfig import Box2D, Camera, Cell, Gripper, Motion, Scara
 
 # The tray is sampled on a grid of at most this many points a side (the corners and edges included) for the
 # reach check: 2.5 mm apart on the default 300 x 500 mm tray, a few ms at load
@@ -25,13 +27,17 @@ TRAY_SAMPLE_STEP_MM = 2.5
 JOINT_TOL_DEG = 1e-9  # as kinematics.limit_violations
 
 
-def check_cell_geometry(source: str, scara: Scara, gripper: Gripper, tray: Box2D, workspace: Box2D, motion: Motion,
-                        camera: Camera) -> None:
+def check_cell_geometry(source: str, scara: Scara, gripper: Gripper, camera: Camera) -> None:
     where = f"cell file {source}"
     _check_jaws(where, gripper)
     _check_arm_heights(where, scara, gripper, camera)
-    _check_home_in_workspace(where, scara, motion, workspace)
-    _check_tray_reachable(where, scara, tray)
+
+
+def require_cell_can_move(cell: Cell) -> None:
+    """Before the arm moves: home inside the workspace, every point of the tray within reach."""
+    where = f"cell file {cell.source}"
+    _check_home_in_workspace(where, cell.scara, cell.motion, cell.workspace)
+    _check_tray_reachable(where, cell.scara, cell.tray)
 
 
 def _check_jaws(where: str, g: Gripper) -> None:

@@ -1,7 +1,8 @@
-"""A cell file whose parts do not fit together as one machine is refused when it is read (exit 2, the key named):
-jaws with no approach clearance or no room for a grasp, a pad taller than its finger, a camera under the arm, a home
-outside the workspace, a tray partly beyond the arm's reach, a name that is not text. Each of these used to load and
-fail later (every grasp missed, `cell hw corner` found no way home, the run stopped part-way)."""
+"""A cell file whose parts do not fit together as one machine is refused (exit 2, the key named): when it is read,
+jaws with no approach clearance or no room for a grasp, a pad taller than its finger, a camera under the arm, a name
+that is not text; where the arm moves (`cell run`, `cell hw`), a home outside the workspace and a tray partly beyond
+the arm's reach (planning with such a cell still works: a target out of reach has no grasp). Each of these used to
+load and fail later (every grasp missed, `cell hw corner` found no way home, the run stopped part-way)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import pytest
 from conftest import ROOT, run_cli
 
 from cell.cellconfig import default_cell, default_cell_path, load_cell, parse_cell
+from cell.cellgeometry import require_cell_can_move
 from cell.errors import BadInput
 
 
@@ -35,6 +37,15 @@ def _cell(**edits):
 def _refused(message: str, **edits) -> str:
     with pytest.raises(BadInput) as e:
         _cell(**edits)
+    assert str(e.value).startswith("cell file cell.json: ") and message in str(e.value), str(e.value)
+    return str(e.value)
+
+
+def _refused_to_move(message: str, **edits) -> str:
+    """Read (planning takes it), refused before the arm moves."""
+    cell = _cell(**edits)
+    with pytest.raises(BadInput) as e:
+        require_cell_can_move(cell)
     assert str(e.value).startswith("cell file cell.json: ") and message in str(e.value), str(e.value)
     return str(e.value)
 
@@ -105,11 +116,12 @@ def test_a_link_in_the_table_or_over_the_palm_is_refused():
 
 
 # --- home and tray against the arm ------------------------------------------------------------------------------
-def test_a_home_outside_the_workspace_is_refused():
-    _refused("motion.home_joints (j1_deg 0, j2_deg 0) put the tool at (600.0, 0.0) mm, outside the workspace "
+def test_a_home_outside_the_workspace_is_refused_before_the_arm_moves():
+    _refused_to_move("motion.home_joints (j1_deg 0, j2_deg 0) put the tool at (600.0, 0.0) mm, outside the workspace "
              "(x -50 to 560", motion__home_joints={"j1_deg": 0, "j2_deg": 0, "j3_mm": 200, "j4_deg": 0})
     # on the workspace's edge: taken
     cell = _cell(workspace={"x_mm": [-50, 560], "y_mm": [-450, 275]})
+    require_cell_can_move(cell)
     assert cell.workspace.y_mm == (-450, 275)
 
 
@@ -129,8 +141,8 @@ def test_a_home_outside_the_workspace_is_refused():
     ({"scara__l1_mm": 200, "scara__l2_mm": 200, "motion__dropoff_mm": [100, 300, 120]},
      "the arm cannot reach 42.8 % of the tray"),
 ])
-def test_a_tray_partly_beyond_the_arms_reach_is_refused(edits, says):
-    msg = _refused(says, **edits)
+def test_a_tray_partly_beyond_the_arms_reach_is_refused_before_the_arm_moves(edits, says):
+    msg = _refused_to_move(says, **edits)
     assert msg.endswith("a part put there could never be picked; make tray.x_mm and tray.y_mm the area the arm "
                         "reaches")
 
@@ -139,11 +151,12 @@ def test_a_tray_the_arm_reaches_whole_is_taken_and_its_corners_are_reached():
     from cell.kinematics import inverse
 
     cell = _cell(scara__l1_mm=400, scara__l2_mm=250, tray__x_mm=[225, 500])
+    require_cell_can_move(cell)
     for x in cell.tray.x_mm:
         for y in cell.tray.y_mm:
             assert inverse(x, y, 5.0, 0.0, cell.scara)
     with pytest.raises(BadInput):  # 5 mm closer to the base: refused
-        _cell(scara__l1_mm=400, scara__l2_mm=250, tray__x_mm=[215, 500])
+        require_cell_can_move(_cell(scara__l1_mm=400, scara__l2_mm=250, tray__x_mm=[215, 500]))
 
 
 # --- name -------------------------------------------------------------------------------------------------------
@@ -168,6 +181,27 @@ def test_the_cli_refuses_such_a_cell_file_with_one_line_and_exit_2(tmp_path, cap
     code, out, err = run_cli("grasp", scene, "--json", "--cell", path, capsys=capsys)
     assert code == 2 and out == "" and err.count("\n") == 1, err
     assert err.startswith(f"cell: error: cell file {path}: gripper.approach_clearance_mm = 0"), err
+
+
+def test_a_cell_whose_tray_the_arm_cannot_reach_whole_plans_but_does_not_run(tmp_path, capsys):
+    """A 400 / 250 arm under the default tray (its corners near the base need J2 past 150 deg): `cell grasp` plans
+    a part it reaches (exit 0) and says why one it does not has no grasp (exit 3); `cell run` and `cell hw home`
+    refuse the cell before anything moves (exit 2, one line)."""
+    path = tmp_path / "long_arm.json"
+    path.write_text(json.dumps(_raw(scara__l1_mm=400, scara__l2_mm=250)))
+    scenes = {}
+    for name, x in (("reached", 400), ("near_base", 205)):
+        scenes[name] = tmp_path / f"{name}.json"
+        scenes[name].write_text(json.dumps({"units": "mm", "target": "bar", "parts": [
+            {"id": "bar", "outline": [[x - 10, -20], [x + 10, -20], [x + 10, 20], [x - 10, 20]], "z_top": 12}]}))
+    code, out, err = run_cli("grasp", scenes["reached"], "--json", "--cell", path, capsys=capsys)
+    assert code == 0 and json.loads(out)["target"] == "bar", err
+    code, out, err = run_cli("grasp", scenes["near_base"], "--json", "--cell", path, capsys=capsys)
+    assert code == 3 and json.loads(out)["error"] == "no_feasible_grasp", out
+    for argv in (("run", "--cell", path), ("hw", "home", "--cell", path, "--yes")):
+        code, out, err = run_cli(*argv, capsys=capsys)
+        assert code == 2 and err.count("\n") == 1, (argv, err)
+        assert "the arm cannot reach" in err and "make tray.x_mm and tray.y_mm the area the arm reaches" in err, err
 
 
 def test_bench_grasp_plans_with_the_given_cell(tmp_path, capsys):

@@ -76,6 +76,7 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from cell.cellconfig import load_cell
+    from cell.cellgeometry import require_cell_can_move
 
     _check_times(args)
     if getattr(args, "simulated_time", False) and not _simulated(args):  # was ignored: the real bus runs in real time
@@ -85,6 +86,8 @@ def run(args) -> int:
     cell = load_cell(args.cell)
     if args._words[1] == "sim":
         return _serve(args, cell)
+    if args._words[1] != "status":  # every other hw command moves the arm, or may
+        require_cell_can_move(cell)
     from cell.commands.run import sigterm_as_interrupt
 
     # SIGTERM (`timeout`, systemd, kill) ends the command as Ctrl-C does: a move is quick-stopped (exit 130); it

@@ -39,8 +39,10 @@ def run_pick(args, cell, session, confirm_and_enable, stop_on_interrupt, emit) -
     scene = load_scene(args.scene)
     if getattr(args, "cell", None) is None and scene.cell_path:  # as `cell grasp`: the scene's own cell
         from cell.cellconfig import load_cell
+        from cell.cellgeometry import require_cell_can_move
 
         cell = load_cell(scene.cell_path)
+        require_cell_can_move(cell)
     _require_on_tray(scene, cell)
     planner = GraspPlanner(cell, load_planner_inputs(args.examples), loop_planner_params())
     try:

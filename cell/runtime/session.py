@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from cell.cellconfig import load_cell
+from cell.cellgeometry import require_cell_can_move
 from cell.examples import default_examples_path
 from cell.fileio import check_writable, json_text, make_folder
 from cell.recording import RecordingFailed
@@ -243,6 +244,7 @@ def _run_session(cfg: RunConfig, say) -> dict:
                            f"(parts: {', '.join(sorted(ids))})")
     cell_path = cfg.cell or assembly.cell_path
     cell = load_cell(cell_path)
+    require_cell_can_move(cell)
     _require_dropoff_reachable(cell, cell_path)
     _require_dropoff_off_tray(cell, cell_path)
     cal_path, cal = _calibration(cfg, cell)

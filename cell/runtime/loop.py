@@ -217,6 +217,10 @@ class LoopOptions:
     # tallest left). Off in recordings made before: an arm reaching in was an obstacle whose height fell from 40 to
     # 3 mm as parts left, and the arm kept moving.
     stranger_checks: bool = True
+    # A pick's move that none of the few simple ways round takes (a longer arm's elbow flip, whose stretched arm leaves
+    # the workspace at every J1 tried) goes the grid's way (`ways._grid_way`), each step with the links checked too.
+    # Off in recordings made before: only a home searched the grid, and such a pick had no way (the grasp refused).
+    grid_ways: bool = True
 
 
 @dataclass
@@ -890,7 +894,7 @@ class CellLoop:
         """`commands_to(drop)` by the first drop-off whose way keeps the links clear of the parts on the tray
         (`pickway.clear_way`); LinksWouldHit when none does."""
         return clear_way(self.arm, self.cell, self._on_tray(but=part_id), grasp.joints, why, commands_to,
-                         lambda commands: self._check_links(part_id, commands, why))
+                         lambda commands: self._check_links(part_id, commands, why), grid=self.options.grid_ways)
 
     def _check_links(self, part_id: str, commands, why: str) -> None:
         """The links along every move of `commands`, from where the arm is, against the parts on the

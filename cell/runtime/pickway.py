@@ -50,23 +50,30 @@ def check_links(arm, cell: Cell, others: list[Part], commands, why: str, start: 
 
 def links_clear(arm, cell: Cell, others: list[Part]) -> Callable[[Joints, Joints], list[str]]:
     """A move's reasons against it (`ways.LegCheck`): the links on the drives' path hitting `others`."""
+    s = cell.scara
+    tall = [p for p in others if p.z_top_mm > min(s.link1_bottom_z_mm, s.link2_bottom_z_mm)]
+
     def reasons(a: Joints, b: Joints) -> list[str]:
-        hit = path_link_collisions(arm.path(a, b), cell, others)
+        hit = path_link_collisions(arm.path(a, b), cell, tall) if tall else []  # (none: no path to sample)
         return [f"the arm's links would hit {', '.join(hit)}"] if hit else []
 
+    # what its answers depend on (`ways._pick_grid_way` keeps the poses a search reached without a way): the parts,
+    # and the arm's profiles (`Arm.path`), not the arm (kept, it would keep its bus)
+    reasons.key = (repr(arm.cell.scara), tuple((p.id, p.z_top_mm, p.polygon.wkb) for p in tall)) if tall else ()
     return reasons
 
 
 def clear_commands(arm, cell: Cell, others: list[Part], commands: list[Command], why: str,
                    start: Joints | None = None, *, check: Callable[[list[Command]], None] | None = None,
-                   known: dict | None = None) -> list[Command]:
+                   known: dict | None = None, grid: bool = True) -> list[Command]:
     """`commands` from where the arm is (or `start`), ways the drivers refuse gone round (`ways.routed`, the
-    ways found kept in `known`), the links clear of `others` all along (`check`: how the whole list is
-    checked, by default `check_links`); LinksWouldHit when they are not."""
+    ways found kept in `known`; `grid`: the grid's ways too, each step with the links checked), the links clear
+    of `others` all along (`check`: how the whole list is checked, by default `check_links`); LinksWouldHit
+    when they are not."""
     start = arm.joints() if start is None else start
     check = check or (lambda listed: check_links(arm, cell, others, listed, why, start))
     try:
-        routed_commands = routed(commands, start, cell, links_clear(arm, cell, others), known)
+        routed_commands = routed(commands, start, cell, links_clear(arm, cell, others), known, grid=grid)
         check(routed_commands)
     except LinksWouldHit:
         raise
@@ -77,16 +84,18 @@ def clear_commands(arm, cell: Cell, others: list[Part], commands: list[Command],
 
 def clear_way(arm, cell: Cell, others: list[Part], grasp_joints: Joints, why: str,
               commands_to: Callable[[Joints], list[Command]],
-              check: Callable[[list[Command]], None] | None = None, start: Joints | None = None) -> list[Command]:
+              check: Callable[[list[Command]], None] | None = None, start: Joints | None = None, *,
+              grid: bool = True) -> list[Command]:
     """`commands_to(drop)` for the first drop-off configuration (nearest to the grasp's first: the other
-    elbow, the J4 turns) whose moves keep the links clear of `others` (`clear_commands`), from where the arm
-    is (or `start`); LinksWouldHit (the first one's reason) when none does."""
+    elbow, the J4 turns) whose moves keep the links clear of `others` (`clear_commands`, with `grid`), from where
+    the arm is (or `start`); LinksWouldHit (the first one's reason) when none does."""
     first = None
     start = arm.joints() if start is None else start  # (read once: every drop-off's way starts there)
     known: dict = {}  # the ways round, found once for every drop-off (the way to the grasp is the same)
     for drop in dropoff_options(cell, grasp_joints):
         try:
-            return clear_commands(arm, cell, others, commands_to(drop), why, start, check=check, known=known)
+            return clear_commands(arm, cell, others, commands_to(drop), why, start, check=check, known=known,
+                                  grid=grid)
         except LinksWouldHit as e:
             first = first or e
         except CellError as e:  # commands_to's own (a travel height not above the grasp)

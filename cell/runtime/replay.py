@@ -652,6 +652,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
     transit_check = _meta_flag(meta, "transit_check", directory)
     common_motion_check = _meta_flag(meta, "common_motion_check", directory)
     stranger_checks = _meta_flag(meta, "stranger_checks", directory)
+    grid_ways = _meta_flag(meta, "grid_ways", directory)
     planner = meta.get("planner")  # absent (or null) in recordings made before it was kept; [] is no planner
     planner_params = planner_from_meta({} if planner is None else planner, f"recording {directory}")
     recorded = [d for d in rec.decisions if d.get("type") != "summary" and d.get("type") not in NOT_COMPARED]
@@ -709,7 +710,7 @@ def replay(directory: str | Path, examples: str | Path | None = None, progress=N
                                                 crisp_edges=crisp_edges,
                                                 transit_check=transit_check,
                                                 common_motion_check=common_motion_check,
-                                                stranger_checks=stranger_checks,
+                                                stranger_checks=stranger_checks, grid_ways=grid_ways,
                                                 interactive=True),
                             planner_params=planner_params, taught=sink.examples_taught_here)
             go_to(arm, home_joints(cell))

@@ -305,6 +305,7 @@ def _run_session(cfg: RunConfig, say) -> dict:
                                          "transit_check": options.transit_check,
                                          "common_motion_check": options.common_motion_check,
                                          "stranger_checks": options.stranger_checks,
+                                         "grid_ways": options.grid_ways,
                                          "real_cell": None if cfg.real_cell is None else vars(cfg.real_cell),
                                          "planner": planner_meta(loop_planner_params())},
                                    # the examples as they were at the start: replay needs them even after this

@@ -156,13 +156,50 @@ def _overlap_excess(part: Part, placed: list[Part], nominal: dict[str, Part]) ->
 
 def _calibration(cfg: RunConfig, cell):
     """(file, calibration): --calibration, else the shipped one of the default camera over the default
-    tray (always for the real cell); the simulated cell of a cell file with another camera or tray
-    gets a nominal camera of its own (file None), so the frames have the cell's size and show its tray."""
+    tray; the simulated cell of a cell file with another camera or tray gets a nominal camera of its own
+    (file None), so the frames have the cell's size and show its tray. The real cell of such a cell file is
+    refused without --calibration (the shipped one took a camera at 1200 mm for one at 800 mm: every part
+    placed wrongly)."""
     from calibration import default_calibration_path, load_calibration
+    from cell.cellconfig import default_cell
+    from cell.errors import BadInput
 
+    default = default_cell()
     if cfg.real_cell is not None and not cfg.calibration:
+        if (cell.camera, cell.tray) != (default.camera, default.tray):
+            raise BadInput(f"cell file {cell.source}: its camera or tray is not the default cell's, and the shipped "
+                           "calibration is of the default camera over the default tray: calibrate this cell's camera "
+                           "(`cell calibrate plane IMAGE --markers FILE --out FILE`) and pass --calibration FILE; "
+                           "nothing moved")
         return default_calibration_path(), load_calibration(default_calibration_path())
     return camera_calibration(cell, cfg.calibration)
+
+
+TRAY_EDGE_POINTS = 25  # looked at along each side of the tray (lens distortion bends its image)
+
+
+def _require_tray_in_view(cal, cell) -> None:
+    """The tray's outline, on the calibration's plane, lies in the image: a part on a piece the camera
+    does not see is never found (the run ends with it left, or stops on it as "not found"), and one
+    half seen is cut off. Refused (exit 2), not warned: the cell file's tray is where the arm picks. For
+    any run, after the calibration's own checks (its size; the parts at their heights)."""
+    from cell.errors import BadInput
+
+    (x0, x1), (y0, y1) = cell.tray.x_mm, cell.tray.y_mm
+    t = np.linspace(0.0, 1.0, TRAY_EDGE_POINTS)
+    xy = np.vstack([np.column_stack([x0 + (x1 - x0) * t, np.full_like(t, y)]) for y in (y0, y1)]
+                   + [np.column_stack([np.full_like(t, x), y0 + (y1 - y0) * t]) for x in (x0, x1)])
+    try:
+        px = cal.mm_to_px(xy)
+    except BadInput as e:
+        raise BadInput(f"{cal.label} cannot show the cell's tray: {e}") from None
+    out = ~((px >= 0).all(axis=1) & (px[:, 0] <= cal.width_px) & (px[:, 1] <= cal.height_px))
+    if out.any():
+        (x, y), (u, v) = xy[out][0], px[out][0]
+        raise BadInput(f"{cal.label} does not show all of the cell's tray (x {x0:g} to {x1:g}, y {y0:g} to "
+                       f"{y1:g} mm): ({x:.0f}, {y:.0f}) mm is at pixel ({u:.0f}, {v:.0f}), outside its "
+                       f"{cal.width_px} x {cal.height_px} px image; pass the calibration of this cell's camera, or "
+                       "give the cell file the tray the camera sees")
 
 
 def camera_calibration(cell, path=None):
@@ -260,6 +297,7 @@ def _run_session(cfg: RunConfig, say) -> dict:
     if cfg.real_cell is None:  # the simulated world lays the parts out as the assembly says
         _require_parts_in_view(assembly, cal, assembly_path)
         _require_parts_on_tray(assembly, cell, assembly_path)
+    _require_tray_in_view(cal, cell)
     examples_path = Path(cfg.examples) if cfg.examples else default_examples_path()
     from cell.examples import load_planner_examples
 

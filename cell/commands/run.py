@@ -30,7 +30,8 @@ def add_arguments(p):
     p.add_argument("--examples", metavar="FILE", help="teaching-example file (default: the shipped one)")
     p.add_argument("--cell", metavar="FILE", help="cell file (default: the assembly's or the embedded default)")
     p.add_argument("--calibration", metavar="FILE", help="camera calibration (default: the default cell's; "
-                   "the simulated cell of a cell file with another camera or tray: a nominal camera of its own)")
+                   "the simulated cell of a cell file with another camera or tray: a nominal camera of its own; "
+                   "a real camera or bus with such a cell file: required); its view must cover the tray")
     p.add_argument("--on-no-grasp", choices=("stop", "skip"), default="stop",
                    help="when a part has no feasible grasp: stop and ask (default) or skip it")
     p.add_argument("--approve", "--approve-each", dest="approve", action="store_true",

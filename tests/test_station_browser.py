@@ -94,7 +94,7 @@ def test_operator_runs_approves_teaches_and_rejects_in_a_real_browser(browser, s
     d.get(server.url)
     wait.until(lambda _: badge() == "idle")
     assert "#token" not in d.current_url  # the token is taken from the URL and hidden
-    wait.until(lambda _: d.execute_script("return document.getElementById('frame').naturalWidth") == 640)
+    wait.until(lambda _: d.execute_script("return document.getElementById('frame').naturalWidth") == cell.view.width_px)
     assert len(d.find_elements(By.CSS_SELECTOR, "#parts polygon")) == 4
 
     # Step: one checkpoint passes, then the loop holds
@@ -715,7 +715,7 @@ def test_after_the_station_restarts_the_page_shows_the_new_frame(browser, statio
     wait = WebDriverWait(d, T, poll_frequency=0.05)
     open_page(d, server, "idle")
     wait.until(lambda _: d.execute_script("return document.getElementById('frame').complete "
-                                          "&& document.getElementById('frame').naturalWidth") == 640)
+                                          "&& document.getElementById('frame').naturalWidth") == cell.view.width_px)
     d.execute_script("window.__loads = 0; document.getElementById('frame').addEventListener('load', "
                      "() => window.__loads++)")
     port = server.port

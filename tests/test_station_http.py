@@ -171,7 +171,7 @@ def test_teach_appends_a_valid_example_and_the_next_proposal_uses_it(station, tm
                         ({"part": "board", "p1_px": [5, 5], "p2_px": p2}, "from the outline"),
                         # far off the frame: was refused as if the calibration were wrong
                         ({"part": "board", "p1_px": [1e15, 3], "p2_px": p2},
-                         "clicked point 1 (1e+15, 3) px is not on the 640 x 512 px frame"),
+                         "clicked point 1 (1e+15, 3) px is not on the 1280 x 1024 px frame"),
                         ({"part": "board", "p1_px": p1, "p2_px": [-1, 3]}, "clicked point 2 (-1, 3) px is not on"),
                         # two taps on one edge: a pad there would push along it (was taught as valid)
                         ({"part": "board", "p1_px": mm_to_px(o[0] + (o[1] - o[0]) * 0.2).tolist(),

@@ -2,17 +2,21 @@
 
 The cell loop (`cell run --station`, the lead's) serves the same page for the real cell; this
 command serves it for `cell.station.demo.DemoCell`, a small simulated tray, so the page can
-be tried and shown without the rest of the cell.
+be tried and shown without the rest of the cell. `--cell F` puts the demo in that cell (its tray,
+camera frame, gripper, arm and home joints), as every other command takes it.
 """
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 MAX_MOTION_S = 600.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--cell", metavar="FILE", help="cell file (default: the shipped default cell): the demo's tray, "
+                                                  "camera frame, jaws, arm and home joints")
     p.add_argument("--host", default="127.0.0.1", help="interface to bind (default 127.0.0.1: this PC only)")
     p.add_argument("--port", type=int, default=8765, help="TCP port (default 8765; 0 = any free port)")
     p.add_argument("--token", help="session token for commands, at least 8 characters (default: a random one, printed)")
@@ -31,6 +35,7 @@ def run(args) -> int:
     import threading
     import time
 
+    from cell.cellconfig import load_cell
     from cell.commands._vision_args import seconds
     from cell.commands.run import sigterm_as_interrupt
     from cell.errors import BadInput
@@ -48,9 +53,13 @@ def run(args) -> int:
     if args.host not in LOOPBACK_HOSTS and not args.allow_remote:  # (the server's own refusal names no flag)
         raise BadInput(f"--host {args.host} would let anyone on the network reach the arm; give --allow-remote "
                        "too (the session token then guards it), or keep the default 127.0.0.1")
+    config = load_cell(args.cell)  # a bad file: BadInput, exit 2, before anything is served or written
+    if args.cell is not None and Path(args.examples).resolve() == Path(args.cell).resolve():
+        raise BadInput(f"--examples {args.examples} is the cell file: taught grasps would be appended to it; "
+                       "name another file")
     check_writable(args.examples, "--examples")  # a path under a file failed only at the first taught grasp
     control = RunControl(require_approval=args.approve_each)
-    cell = DemoCell(control, args.examples, motion_s=args.motion_s)
+    cell = DemoCell(control, args.examples, cell=config, motion_s=args.motion_s)
     server = StationServer(cell, control, host=args.host, port=args.port, token=args.token,
                            allow_remote=args.allow_remote)
     with server, sigterm_as_interrupt():  # SIGTERM (a service manager, kill) ends it as Ctrl-C does
@@ -61,6 +70,7 @@ def run(args) -> int:
             print(f"served on every interface: from another machine, this machine's address, port {server.port}, "
                   "with the token", flush=True)
         print(f"token: {server.token}", flush=True)
+        print(f"cell: {config.name} ({config.source})", flush=True)
         print(f"examples: {args.examples}", flush=True)
         try:
             if args.for_s is not None:  # at most TIMEOUT_MAX (292 years): 1e300 was an OverflowError

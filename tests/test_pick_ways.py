@@ -143,7 +143,8 @@ def test_a_move_the_links_refuse_refuses_the_list_before_a_later_way_is_searched
 def test_a_long_arm_run_removes_every_part_and_replays(tmp_path, capsys):
     from conftest import run_cli
 
-    cell = _cell(tmp_path, "long_arm", scara={"l1_mm": 400.0, "l2_mm": 250.0})
+    # the tray from x 225: its corners nearer the base need J2 past 150 deg on this arm (refused before a run)
+    cell = _cell(tmp_path, "long_arm", scara={"l1_mm": 400.0, "l2_mm": 250.0}, tray={"x_mm": [225.0, 500.0]})
     del cell
     rec = tmp_path / "rec"
     code, out, err = run_cli("run", "--cell", tmp_path / "long_arm.json", "--record", rec, "--json", capsys=capsys)

@@ -40,7 +40,7 @@ def _real_run(capsys, tmp_path, frame, *argv):
 
 
 @pytest.mark.parametrize("section, values", [("camera", {"height_mm": 1200.0}),
-                                             ("tray", {"y_mm": [-400.0, -50.0]})])
+                                             ("tray", {"x_mm": [200.0, 420.0], "y_mm": [-400.0, -50.0]})])
 def test_a_real_cell_of_another_camera_or_tray_needs_its_calibration(tmp_path, capsys, frame, section, values):
     cell = _cell_file(tmp_path, "other", **{section: values})
     code, err, rec = _real_run(capsys, tmp_path, frame, "--cell", cell)
@@ -50,8 +50,9 @@ def test_a_real_cell_of_another_camera_or_tray_needs_its_calibration(tmp_path, c
 
 
 def test_a_calibration_that_does_not_show_the_whole_tray_is_refused(tmp_path, capsys, frame):
-    """The shipped calibration sees x 200..500, y -250..250; a tray at y -400..-50 lies partly beyond its image."""
-    cell = _cell_file(tmp_path, "negy", tray={"y_mm": [-400.0, -50.0]})
+    """The shipped calibration sees x 200..500, y -250..250; a tray at y -400..-50 lies partly beyond its image (x to
+    420 mm: the arm reaches all of it)."""
+    cell = _cell_file(tmp_path, "negy", tray={"x_mm": [200.0, 420.0], "y_mm": [-400.0, -50.0]})
     for argv in (["--cell", cell, "--calibration", default_calibration_path()],):  # the real cell
         code, err, rec = _real_run(capsys, tmp_path, frame, *argv)
         assert code == 2 and "does not show all of the cell's tray" in err and "(200, -400) mm" in err, err

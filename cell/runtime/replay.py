@@ -88,7 +88,7 @@ def planner_from_meta(planner, where: str) -> SynthesisParams:
     for flag in ("slanted_faces", "contacts_on_material", "label_touched_only", "stroke_at_pad_lines",
                  "grasp_z_within_j3", "pads_at_grasp_centre", "grasp_z_over_neighbours", "cog_radius_outer_disc",
                  "touch_within_compliance", "contacts_on_closing_line", "roll_bound_pad_overlap",
-                 "grasp_z_top_fallback", "vertex_order_free"):
+                 "grasp_z_top_fallback", "vertex_order_free", "label_from_outline"):
         if not isinstance(values[flag], bool):
             raise BadInput(f"{where}: manifest meta.planner.{flag} must be true or false")
     leaf = values["tree_min_samples_leaf"]
@@ -102,6 +102,10 @@ def planner_from_meta(planner, where: str) -> SynthesisParams:
     if isinstance(finer, bool) or not isinstance(finer, int) or not 0 <= finer <= MAX_FINER_STEPS:
         raise BadInput(f"{where}: manifest meta.planner.finer_steps must be a whole number from 0 to "
                        f"{MAX_FINER_STEPS}")
+    for key in ("part_shape_weight", "tree_minority_weight_max"):  # 0: off (as before they were recorded)
+        w = values[key]
+        if isinstance(w, bool) or not isinstance(w, (int, float)) or not 0 <= w < math.inf:
+            raise BadInput(f"{where}: manifest meta.planner.{key} must be a number >= 0")
     skew = values["max_contact_skew_deg"]
     if isinstance(skew, bool) or not isinstance(skew, (int, float)) or not 0 < skew <= 90:
         raise BadInput(f"{where}: manifest meta.planner.max_contact_skew_deg must be a number of degrees in (0, 90]")

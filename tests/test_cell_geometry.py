@@ -11,23 +11,14 @@ import json
 
 import numpy as np
 import pytest
+from cell_files import edited_cell
 from conftest import ROOT, run_cli
 
 from cell.cellconfig import default_cell, default_cell_path, load_cell, parse_cell
 from cell.cellgeometry import require_cell_can_move
 from cell.errors import BadInput
 
-
-def _raw(**edits) -> dict:
-    """The default cell file's JSON with each edit set: `gripper__opening_mm=[0, 8]` sets gripper.opening_mm."""
-    raw = json.loads(default_cell_path().read_text())
-    for dotted, value in edits.items():
-        d = raw
-        *path, key = dotted.split("__")
-        for k in path:
-            d = d[k]
-        d[key] = value
-    return raw
+_raw = edited_cell  # the default cell file's JSON with each edit set: `gripper__opening_mm=[0, 8]`
 
 
 def _cell(**edits):

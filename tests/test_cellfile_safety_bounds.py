@@ -7,23 +7,14 @@ from __future__ import annotations
 import json
 
 import pytest
+from cell_files import edited_cell
 from conftest import run_cli
 from drivers_fixtures import needs_sim
 
-from cell.cellconfig import HEARTBEAT_FRAME_BITS, default_cell_path, parse_cell
+from cell.cellconfig import HEARTBEAT_FRAME_BITS, parse_cell
 from cell.errors import BadInput
 
-
-def _raw(**edits) -> dict:
-    """The default cell file's JSON with each edit set: `can__heartbeat_ms=5` sets can.heartbeat_ms."""
-    raw = json.loads(default_cell_path().read_text())
-    for dotted, value in edits.items():
-        d = raw
-        *path, key = dotted.split("__")
-        for k in path:
-            d = d[k]
-        d[key] = value
-    return raw
+_raw = edited_cell  # the default cell file's JSON with each edit set: `can__heartbeat_ms=5`
 
 
 def _cell(**edits):

@@ -161,16 +161,11 @@ def _cell_with(path, **edits):
     """The default cell file with each edit (`scara__l1_mm=400`), written to `path` and read back."""
     import json
 
-    from cell.cellconfig import default_cell_path, load_cell
+    from cell_files import edited_cell
 
-    raw = json.loads(default_cell_path().read_text())
-    for dotted, value in edits.items():
-        d = raw
-        *keys, key = dotted.split("__")
-        for k in keys:
-            d = d[k]
-        d[key] = value
-    path.write_text(json.dumps(raw))
+    from cell.cellconfig import load_cell
+
+    path.write_text(json.dumps(edited_cell(**edits)))
     return load_cell(path)
 
 

@@ -8,8 +8,9 @@ import json
 
 import numpy as np
 import pytest
+from cell_files import cell_file_with
 
-from cell.cellconfig import default_cell_path, load_cell
+from cell.cellconfig import load_cell
 from cell.errors import CellError
 from cell.kinematics import Joints
 from cell.runtime.motion import Command, dropoff_options
@@ -18,12 +19,7 @@ from drivers.limits import command_violations
 
 
 def _cell(tmp_path, name, **sections):
-    raw = json.loads(default_cell_path().read_text())
-    for section, values in sections.items():
-        raw[section].update(values)
-    path = tmp_path / f"{name}.json"
-    path.write_text(json.dumps(raw))
-    return load_cell(path)
+    return load_cell(cell_file_with(tmp_path / f"{name}.json", **sections))
 
 
 @pytest.fixture(scope="module")

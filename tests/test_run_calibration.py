@@ -4,25 +4,19 @@ calibration must show the whole tray."""
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
+from cell_files import cell_file_with
 from conftest import run_cli
 
 from calibration import default_calibration_path
-from cell.cellconfig import default_cell_path, load_cell
+from cell.cellconfig import load_cell
 from cell.runtime.session import RealCell, RunConfig, _calibration
 from cell.vision.sources import write_image
 
 
 def _cell_file(tmp_path, name, **sections):
-    raw = json.loads(default_cell_path().read_text())
-    for section, values in sections.items():
-        raw[section].update(values)
-    path = tmp_path / f"{name}.json"
-    path.write_text(json.dumps(raw))
-    return path
+    return cell_file_with(tmp_path / f"{name}.json", **sections)
 
 
 @pytest.fixture

@@ -23,6 +23,11 @@ from the contacts alone, and `cell.physics.check_grasp` stays the independent ju
   demand the judge may still refuse a heavy part's grasp (a patch narrower than the pad; pads carrying
   the load unequally). Recordings made before the bound took the pad's height and shares into account
   (`roll_bound_pad_overlap` off) took each patch the whole pad and no friction spent on the load.
+* Since `load_at_pad_patches` the planner works out where the pads stop and the patches they touch
+  (`cell.grasp.pad_patches`, exact clipping of the outline) and keeps only the sets whose `judged_demands`,
+  the judge's two demands taken at their worst over float rounding and over where the judge's jaw line
+  runs, are both at most 1: the judge finds those holding (docs/grasp.md, "The part's weight"). The lower
+  bounds above stay for recordings made before it.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ import numpy as np
 from cell.cellconfig import Cell
 from cell.grasp.bands import PAD_COMPLIANCE_MM
 from cell.grasp.outline import centre_of_gravity
+from cell.grasp.pad_patches import EPS_MM, pad_patches
 from cell.physics import G_M_S2, MU, SAFETY, pad_load, part_mass_g, part_weight_n
 from cell.scene import Part
 
@@ -98,12 +104,56 @@ def roll_demand(part: Part, contacts_mm: np.ndarray, cell: Cell, grasp_z_mm: flo
     return load * (d + np.sqrt(d * d + 4.0 * rho * rho)) / (4.0 * rho)
 
 
+def judged_demands(part: Part, contacts_mm: np.ndarray, axes: np.ndarray, cell: Cell,
+                   grasp_z_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """(k,) slip, (k,) roll: for grasps with contacts (k, 2, 2) closing along `axes` (k, 2) at `grasp_z_mm`,
+    the judge's demands for slipping and for rolling about the jaw line taken at their worst over what the
+    planner cannot know to the last float (`cell.grasp.pad_patches`) and over where the judge moves each patch's
+    middle onto the outline. Both <= 1: the judge finds the grasp holding. Its condition for rolling,
+    L d <= sum_k rho_k (1 - (L s_k)^2) (L the load in friction budgets, s_k each pad's share of it), only gets
+    harder with a longer distance d, smaller radii rho_k and larger shares while L s_k <= 1 (the slip): this
+    takes d at its longest, rho_k at their least and the shares at their largest (docs/grasp.md, "The part's
+    weight"). inf: the pads close on nothing."""
+    g = cell.gripper
+    pp = pad_patches(part, contacts_mm, axes, g.pad_width_mm, g.approach_clearance_mm)
+    load = pad_load(part_weight_n(part), g.grip_force_n)
+    cog = centre_of_gravity(part)
+    cog_x = np.einsum("kj,kj->k", cog - pp.centre, pp.u)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # the couple's share e / d (e the centre of gravity's offset from the faces' midpoint, d their distance)
+        # at the four corners of the faces' intervals: it is monotone in each face
+        couple = np.array([(cog_x - 0.5 * (xl + xr)) / (xr - xl) for xl in pp.x_left for xr in pp.x_right])
+        lo, hi = couple.min(axis=0) - EPS_MM, couple.max(axis=0) + EPS_MM  # (the centroid's rounding: d >= 1 mm)
+        share = np.stack([np.maximum(np.abs(0.5 - lo), np.abs(0.5 - hi)),
+                          np.maximum(np.abs(0.5 + lo), np.abs(0.5 + hi))], axis=1)  # (k, 2) |f_k| / W at most
+        slip = load * share.max(axis=1)
+        h = max(min(grasp_z_mm + g.pad_height_mm, part.z_top_mm) - max(grasp_z_mm, part.z_bottom_mm), 0.0)
+        rho = np.hypot(np.maximum(pp.width_least, 1.0), h) / 4.0  # the judge's radii, at the least
+        # the jaw line runs through the points of the outline nearest each patch's middle: each lies within
+        # its distance from the outline (and twice the middle's rounding) of it
+        reach = pp.reach
+        z0, z1 = pp.middle[:, 0], pp.middle[:, 1]
+        line = z1 - z0
+        t = np.einsum("kj,kj->k", cog - z0, line) / np.einsum("kj,kj->k", line, line)
+        foot = z0 + t[:, None] * line
+        d = np.hypot(*(cog - foot).T) + np.abs(1.0 - t) * reach[:, 0] + np.abs(t) * reach[:, 1] + EPS_MM
+        r_sum, a2 = rho.sum(axis=1), (rho * share * share).sum(axis=1)
+        roll = load * (d + np.sqrt(d * d + 4.0 * a2 * r_sum)) / (2.0 * r_sum)
+    unknown = ~(np.isfinite(slip) & np.isfinite(roll))
+    return np.where(unknown, np.inf, slip), np.where(unknown, np.inf, roll)
+
+
 def holding(part: Part, contacts_mm: np.ndarray, axes: np.ndarray, cell: Cell,
-            grasp_z_mm: float | None = None) -> tuple[np.ndarray, str | None]:
-    """(k,) which of the sets with contacts (k, 2, 2) closing along `axes` (k, 2) do not surely slip or roll
-    (`slip_demand`, `roll_demand` at `grasp_z_mm`), and, where none does, why (None: some hold)."""
-    slip = slip_demand(part, contacts_mm, axes, cell)
-    roll = roll_demand(part, contacts_mm, cell, grasp_z_mm)
+            grasp_z_mm: float | None = None, judged_at_z_mm: float | None = None) -> tuple[np.ndarray, str | None]:
+    """(k,) which of the sets with contacts (k, 2, 2) closing along `axes` (k, 2) the planner keeps, and, where
+    none, why (None: some do). With `judged_at_z_mm`: those the judge finds holding at that grasp z
+    (`judged_demands`); without, those that do not surely slip or roll (`slip_demand`, `roll_demand` at
+    `grasp_z_mm`), as recordings made before it have it."""
+    if judged_at_z_mm is not None:
+        slip, roll = judged_demands(part, contacts_mm, axes, cell, judged_at_z_mm)
+    else:
+        slip = slip_demand(part, contacts_mm, axes, cell)
+        roll = roll_demand(part, contacts_mm, cell, grasp_z_mm)
     holds = (slip <= 1.0) & (roll <= 1.0)
     if holds.any() or not len(holds):
         return holds, None

@@ -70,6 +70,12 @@ class SynthesisParams:
     # friction spent on the load (a 176 g bar 8 mm tall was held 41 mm off its centre of gravity, which the
     # physical check says rolls out), as recordings made before it existed have it (cell.runtime.replay).
     roll_bound_pad_overlap: bool = True
+    # The weight check keeps only the sets the judge finds holding: its demands for slipping and rolling at their
+    # worst over where the pads stop and the patches they touch there, worked out from the outline
+    # (cell.grasp.load.judged_demands). Off, the lower bounds above, under which the judge still refused the
+    # grasps chosen on conrod_m, l_bracket_m and lever_m at their own mass (roll 1.04-1.21: patches narrower than
+    # the pad, pads carrying the load unequally), as recordings made before it have it (cell.runtime.replay).
+    load_at_pad_patches: bool = True
     # Contacts on a face square to the closing axis all along the pad are reported on the closing line through
     # the grasp centre (cell.grasp.closing_line): sampled a step apart, a pair on parallel faces lay up to half
     # a step either side of it, and the contacts' line up to 3 degrees off the reported axis. Off, as recordings
@@ -161,7 +167,7 @@ class SynthesisParams:
                 self.finer_steps > MAX_FINER_STEPS:
             raise BadInput(f"synthesis parameter finer_steps must be a whole number from 0 to {MAX_FINER_STEPS}, "
                            f"got {self.finer_steps!r}")
-        for flag in ("grasp_z_over_neighbours", "grasp_z_top_fallback", "label_from_outline"):
+        for flag in ("grasp_z_over_neighbours", "grasp_z_top_fallback", "label_from_outline", "load_at_pad_patches"):
             if not isinstance(getattr(self, flag), bool):
                 raise BadInput(f"synthesis parameter {flag} must be true or false, got {getattr(self, flag)!r}")
         for key in ("part_shape_weight", "tree_minority_weight_max"):  # (a recording's manifest gives them too)

@@ -401,10 +401,10 @@ class GraspPlanner:
         # to the first in outline order (from each ring's own first vertex: the same whichever vertex a file
         # lists first)
         order = np.argsort(np.round(dist, 9) if p.vertex_order_free else dist, kind="stable")
-        # Sets that surely slip or roll out of the jaws are dropped, not ranked lower (cell/grasp/load.py: lower
-        # bounds of the judge's demands): ranking by the load would move the learned choice on light parts too
+        # Sets that slip or roll out of the jaws are dropped, not ranked lower (cell/grasp/load.py: the judge's
+        # demands at their worst): ranking by the load would move the learned choice on light parts too
         holds, why = holding(target, contacts[sel[order]], P.u[k[sel[order]]], cell,
-                             gz if p.roll_bound_pad_overlap else None)
+                             gz if p.roll_bound_pad_overlap else None, gz if p.load_at_pad_patches else None)
         if not holds.all():
             counts["load_refused"] = int((~holds).sum())
             if why:

@@ -73,7 +73,7 @@ RECORDED_PLANNER = {"slanted_faces": False, "tree_min_samples_leaf": 2, "obstacl
                     "label_from_outline": False,
                     "contacts_on_closing_line": False, "roll_bound_pad_overlap": False,
                     "tree_minority_weight_max": 0.0,
-                    "grasp_z_top_fallback": False, "vertex_order_free": False}
+                    "grasp_z_top_fallback": False, "vertex_order_free": False, "load_at_pad_patches": False}
 
 
 def planner_meta(params: SynthesisParams) -> dict:
@@ -88,7 +88,7 @@ def planner_from_meta(planner, where: str) -> SynthesisParams:
     for flag in ("slanted_faces", "contacts_on_material", "label_touched_only", "stroke_at_pad_lines",
                  "grasp_z_within_j3", "pads_at_grasp_centre", "grasp_z_over_neighbours", "cog_radius_outer_disc",
                  "touch_within_compliance", "contacts_on_closing_line", "roll_bound_pad_overlap",
-                 "grasp_z_top_fallback", "vertex_order_free", "label_from_outline"):
+                 "grasp_z_top_fallback", "vertex_order_free", "label_from_outline", "load_at_pad_patches"):
         if not isinstance(values[flag], bool):
             raise BadInput(f"{where}: manifest meta.planner.{flag} must be true or false")
     leaf = values["tree_min_samples_leaf"]

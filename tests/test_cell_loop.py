@@ -140,7 +140,7 @@ def test_a_recording_keeps_the_planner_it_ran_and_replays_with_it(recorded, tmp_
         min_touch_width_mm=0.0, closed_slit_mm=0.0, touch_within_compliance=False,
         contacts_on_closing_line=False, roll_bound_pad_overlap=False, grasp_z_top_fallback=False,
         vertex_order_free=False, part_shape_weight=0.0, tree_minority_weight_max=0.0,
-        label_from_outline=False)
+        label_from_outline=False, load_at_pad_patches=False)
     assert loop_planner_params().pads_at_grasp_centre  # recorded (the first assertion), so replayed on
     assert loop_planner_params().finer_steps == 2
     assert loop_planner_params().grasp_z_over_neighbours

@@ -146,14 +146,15 @@ def judged_demands(part: Part, contacts_mm: np.ndarray, axes: np.ndarray, cell: 
 def holding(part: Part, contacts_mm: np.ndarray, axes: np.ndarray, cell: Cell,
             grasp_z_mm: float | None = None, judged_at_z_mm: float | None = None) -> tuple[np.ndarray, str | None]:
     """(k,) which of the sets with contacts (k, 2, 2) closing along `axes` (k, 2) the planner keeps, and, where
-    none, why (None: some do). With `judged_at_z_mm`: those the judge finds holding at that grasp z
-    (`judged_demands`); without, those that do not surely slip or roll (`slip_demand`, `roll_demand` at
-    `grasp_z_mm`), as recordings made before it have it."""
-    if judged_at_z_mm is not None:
-        slip, roll = judged_demands(part, contacts_mm, axes, cell, judged_at_z_mm)
-    else:
-        slip = slip_demand(part, contacts_mm, axes, cell)
-        roll = roll_demand(part, contacts_mm, cell, grasp_z_mm)
+    none, why (None: some do): those that do not surely slip or roll (`slip_demand`, `roll_demand` at
+    `grasp_z_mm`) and, with `judged_at_z_mm`, of those the ones the judge finds holding at that grasp z
+    (`judged_demands`; recordings made before it have only the first)."""
+    slip = slip_demand(part, contacts_mm, axes, cell)
+    roll = roll_demand(part, contacts_mm, cell, grasp_z_mm)
+    maybe = np.flatnonzero((slip <= 1.0) & (roll <= 1.0))
+    if judged_at_z_mm is not None and len(maybe):  # (those the lower bounds drop are dropped as before, cheaply)
+        c, a = np.asarray(contacts_mm, float).reshape(-1, 2, 2), np.asarray(axes, float).reshape(-1, 2)
+        slip[maybe], roll[maybe] = judged_demands(part, c[maybe], a[maybe], cell, judged_at_z_mm)
     holds = (slip <= 1.0) & (roll <= 1.0)
     if holds.any() or not len(holds):
         return holds, None

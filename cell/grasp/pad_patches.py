@@ -23,6 +23,7 @@ from cell.physics import PATCH_DEPTH_MM
 from cell.scene import Part
 
 EPS_MM = 1e-6  # far above the judge's float rounding (1e-12 mm), far below anything that matters to a grasp
+WINDOW_MM = 2 * PATCH_DEPTH_MM  # each pad is looked at up to this far past its contact
 
 
 @dataclass
@@ -52,40 +53,57 @@ def pad_patches(part: Part, contacts_mm: np.ndarray, axes: np.ndarray, pad_width
     u = np.where(along[:, None] < 0, -u, u)  # as the judge turns it: the first contact's pad at -x
     along = np.abs(along)
     centre = 0.5 * (c[:, 0] + c[:, 1])
-    v = np.stack([-u[:, 1], u[:, 0]], axis=1)
+    n = len(c)
+    # Both pads at once, each in a frame of its own where it closes towards +x: the first pad's is the grasp's,
+    # the second's the grasp's turned half a turn (its x is minus the grasp's)
+    sides_u = np.concatenate([u, -u])
+    sides_v = np.stack([-sides_u[:, 1], sides_u[:, 0]], axis=1)
+    sides_c = np.concatenate([centre, centre])
     # the approach opening: the judge's is the reported contacts' distance, which lies between the distance
     # along the axis (contacts moved onto the closing line) and the contacts' own
     half_w = pad_width_mm / 2
-    s_in = along / 2 + approach_clearance_mm - EPS_MM
-    s_out = np.linalg.norm(gap, axis=1) / 2 + approach_clearance_mm + EPS_MM
-    pieces = _Pieces.clip(part, centre, u, v, s_out, half_w + EPS_MM)  # every box below lies in this one
-    lo_in, hi_in, _, _ = pieces.extent(-s_in, s_in, half_w - EPS_MM)
-    lo_out, hi_out, _, _ = pieces.extent(-s_out, s_out, half_w + EPS_MM)
-    x_left, x_right = (lo_out, lo_in), (hi_in, hi_out)
-    width = np.zeros((len(c), 2))
-    middle = np.zeros((len(c), 2, 2))
-    reach = np.zeros((len(c), 2))
-    for k, (face, deeper) in enumerate(((x_left, 1.0), (x_right, -1.0))):
-        f0, f1 = face  # the judge's face lies in [f0, f1]; its box runs from it PATCH_DEPTH_MM into the part
-        # a box inside the judge's whichever the face, and one holding it (empty, x_lo > x_hi, where rounding
-        # could move the face by more than the depth)
-        if deeper > 0:
-            small, large = (f1 + EPS_MM, f0 + PATCH_DEPTH_MM - EPS_MM), (f0 - EPS_MM, f1 + PATCH_DEPTH_MM + EPS_MM)
-        else:
-            small, large = (f1 - PATCH_DEPTH_MM + EPS_MM, f0 - EPS_MM), (f0 - PATCH_DEPTH_MM - EPS_MM, f1 + EPS_MM)
-        near = pieces.within(*large, half_w + EPS_MM)  # (the few pieces there: the small box lies in the large)
-        _, _, ys_lo, ys_hi = near.extent(*small, half_w - EPS_MM)
-        _, _, yl_lo, yl_hi = near.extent(*large, half_w + EPS_MM)
-        width[:, k] = np.where(ys_hi >= ys_lo, ys_hi - ys_lo, 0.0)
-        # the middle lies between these (its ends each between the small box's and the large one's)
-        m_lo = 0.5 * (yl_lo + np.where(np.isfinite(ys_hi), ys_hi, yl_lo))
-        m_hi = 0.5 * (np.where(np.isfinite(ys_lo), ys_lo, yl_hi) + yl_hi)
-        none = ~np.isfinite(ys_lo)  # the judge's patch may be empty: it takes the middle of the pad then
-        m_lo, m_hi = np.where(none, np.minimum(m_lo, 0.0), m_lo), np.where(none, np.maximum(m_hi, 0.0), m_hi)
-        y_mid, x_mid = 0.5 * (m_lo + m_hi), 0.5 * (f0 + f1)
-        middle[:, k] = centre + x_mid[:, None] * u + y_mid[:, None] * v
-        slack = 0.5 * (m_hi - m_lo) + 0.5 * (f1 - f0) + EPS_MM
-        reach[:, k] = near.distance(x_mid, y_mid) + 2.0 * slack
+    s_in = np.tile(along / 2 + approach_clearance_mm - EPS_MM, 2)
+    s_out = np.tile(np.linalg.norm(gap, axis=1) / 2 + approach_clearance_mm + EPS_MM, 2)
+    # Each pad only from the opening to WINDOW_MM past its contact: where material lies in there, the pad stops
+    # in there and its patch is in there too (checked below); the rest of the band (a ring's far side, a hole)
+    # is not looked at
+    w_lo, w_hi = -s_out, np.tile(-along / 2 + WINDOW_MM, 2)
+    pieces = _Pieces.clip(part, sides_c, sides_u, sides_v, w_lo, w_hi, half_w + EPS_MM)
+    # Where the pad stops: the least x of the material in the band, which lies on an edge clipped to the box or
+    # on a corner of the box inside the part. On the far corners only where nothing in the window is nearer
+    # (not known then: the window check below); on the near ones, at the opening, only where the finger lands
+    # on the part there, which an edge across the opening or the opening's middle inside the part tells.
+    f0, _, _, _ = pieces.extent(w_lo, w_hi, half_w + EPS_MM, clipped=True)
+    f1, _, _, _ = pieces.extent(-s_in, np.minimum(w_hi, s_in), half_w - EPS_MM)
+    opening = sides_c - s_out[:, None] * sides_u
+    lands = (f0 <= w_lo + EPS_MM) | shapely.contains_xy(part.polygon, opening[:, 0], opening[:, 1])
+    # (f1, from the edges only, is at least the least x in the narrower band: [f0, f1] holds the judge's face)
+    # The judge's face lies in [f0, f1]; its patch box runs from it PATCH_DEPTH_MM into the part. The material of
+    # a box from f0 (no material in the band before the judge's face) to f0 + PATCH_DEPTH_MM, in the narrower
+    # band, is in the judge's patch whichever the face; a box to f1 + PATCH_DEPTH_MM in the wider band holds
+    # the judge's. Their corners at the face are not inside the part (no material nearer in the band), so their
+    # material's extent across the pad is their edges'.
+    small = (f0 - EPS_MM, f0 + PATCH_DEPTH_MM - EPS_MM)
+    large = (f0 - EPS_MM, f1 + PATCH_DEPTH_MM + EPS_MM)
+    # (a face further in than the window, or none: not known here, and the set is not kept)
+    known = (large[1] <= w_hi) & ~lands
+    near = pieces.within(*large, half_w + EPS_MM)  # (the few pieces there: the small box lies in the large)
+    _, _, ys_lo, ys_hi = near.extent(*small, half_w - EPS_MM)
+    _, _, yl_lo, yl_hi = near.extent(*large, half_w + EPS_MM, clipped=True)
+    width = np.where(ys_hi >= ys_lo, ys_hi - ys_lo, 0.0)
+    # the middle lies between these (its ends each between the small box's and the large one's)
+    m_lo = 0.5 * (yl_lo + np.where(np.isfinite(ys_hi), ys_hi, yl_lo))
+    m_hi = 0.5 * (np.where(np.isfinite(ys_lo), ys_lo, yl_hi) + yl_hi)
+    none = ~np.isfinite(ys_lo)  # the judge's patch may be empty: it takes the middle of the pad then
+    m_lo, m_hi = np.where(none, np.minimum(m_lo, 0.0), m_lo), np.where(none, np.maximum(m_hi, 0.0), m_hi)
+    y_mid, x_mid = 0.5 * (m_lo + m_hi), 0.5 * (f0 + f1)
+    middle = sides_c + x_mid[:, None] * sides_u + y_mid[:, None] * sides_v
+    slack = 0.5 * (m_hi - m_lo) + 0.5 * (f1 - f0) + EPS_MM
+    reach = np.where(known, near.distance(x_mid, y_mid) + 2.0 * slack, np.inf)
+    f0, f1 = np.where(known, f0, np.inf), np.where(known, f1, np.inf)
+    x_left, x_right = (f0[:n], f1[:n]), (-f1[n:], -f0[n:])  # (the second pad's, in the grasp's frame)
+    width, reach = np.stack([width[:n], width[n:]], axis=1), np.stack([reach[:n], reach[n:]], axis=1)
+    middle = np.stack([middle[:n], middle[n:]], axis=1)
     return PadPatches(centre, u, x_left, x_right, width, middle, reach)
 
 
@@ -119,20 +137,23 @@ class _Pieces:
     s1: np.ndarray
 
     @classmethod
-    def clip(cls, part: Part, centre, u, v, s, hw) -> _Pieces:
+    def clip(cls, part: Part, centre, u, v, x_lo, x_hi, hw) -> _Pieces:
+        """The part's edges clipped to each grasp's box [x_lo, x_hi] x [-hw, hw] (x_lo, x_hi (k,))."""
         starts, steps = _edges(part)
-        # across the axis first (matrix products): of a band across the part, few edges reach it
-        y0 = starts @ v.T - np.einsum("kj,kj->k", centre, v)[None]  # (n, k)
-        y1 = y0 + steps @ v.T
-        e, of = np.nonzero((np.minimum(y0, y1) <= hw) & (np.maximum(y0, y1) >= -hw))
-        order = np.argsort(of, kind="stable")  # in grasp order
-        e, of = e[order], of[order]
-        uo = u[of]
-        x = np.einsum("ij,ij->i", starts[e] - centre[of], uo)
-        dx = np.einsum("ij,ij->i", steps[e], uo)
-        y = y0[e, of]
-        p = cls(part, centre, u, v, of, x, y, dx, y1[e, of] - y, np.zeros(len(e)), np.ones(len(e)))
-        return p.within(-s, s, hw)
+        ends = starts + steps
+        # only the (grasp, edge) pairs whose bounding boxes overlap, in the base frame
+        mid, half = centre + (0.5 * (x_lo + x_hi))[:, None] * u, 0.5 * (x_hi - x_lo)
+        rx, ry = np.abs(u[:, 0]) * half + np.abs(v[:, 0]) * hw, np.abs(u[:, 1]) * half + np.abs(v[:, 1]) * hw
+        of, e = np.nonzero((np.minimum(starts[:, 0], ends[:, 0])[None] <= (mid[:, 0] + rx)[:, None])
+                           & (np.maximum(starts[:, 0], ends[:, 0])[None] >= (mid[:, 0] - rx)[:, None])
+                           & (np.minimum(starts[:, 1], ends[:, 1])[None] <= (mid[:, 1] + ry)[:, None])
+                           & (np.maximum(starts[:, 1], ends[:, 1])[None] >= (mid[:, 1] - ry)[:, None]))
+        rel = starts[e] - centre[of]
+        uo, vo = u[of], v[of]
+        x, y = np.einsum("ij,ij->i", rel, uo), np.einsum("ij,ij->i", rel, vo)
+        dx, dy = np.einsum("ij,ij->i", steps[e], uo), np.einsum("ij,ij->i", steps[e], vo)
+        p = cls(part, centre, u, v, of, x, y, dx, dy, np.zeros(len(e)), np.ones(len(e)))
+        return p.within(x_lo, x_hi, hw)
 
     def within(self, x_lo, x_hi, hw) -> _Pieces:
         """These pieces clipped to each grasp's box [x_lo, x_hi] x [-hw, hw] (x_lo, x_hi (k,)), the empty left out."""
@@ -160,30 +181,28 @@ class _Pieces:
         ll = self.dx * self.dx + self.dy * self.dy
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.clip(np.where(ll > 0, (qx * self.dx + qy * self.dy) / ll, self.s0), self.s0, self.s1)
-        out = np.full(len(self.centre), np.inf)
-        np.minimum.at(out, self.of, np.hypot(qx - t * self.dx, qy - t * self.dy))
-        return out
+        return _per_grasp(np.hypot(qx - t * self.dx, qy - t * self.dy), self.of, len(self.centre), np.minimum, np.inf)
 
-    def extent(self, x_lo, x_hi, hw):
-        """(least x, greatest x, least y, greatest y), each (k,), of the part's material in each grasp's box
-        [x_lo, x_hi] x [-hw, hw] (x_lo, x_hi (k,)): inf, -inf where there is none."""
+    def extent(self, x_lo, x_hi, hw, clipped: bool = False):
+        """(least x, greatest x, least y, greatest y), each (k,), of these pieces in each grasp's box
+        [x_lo, x_hi] x [-hw, hw] (x_lo, x_hi (k,)): inf, -inf where there are none. `clipped`: they are clipped
+        to that box already. The material's extent is this but where a corner of the box lies inside the part
+        (`pad_patches` says where that cannot matter)."""
         k = len(self.centre)
-        p = self.within(x_lo, x_hi, hw)
-        ends_x = np.concatenate([p.x + p.s0 * p.dx, p.x + p.s1 * p.dx])
-        ends_y = np.concatenate([p.y + p.s0 * p.dy, p.y + p.s1 * p.dy])
-        of2 = np.concatenate([p.of, p.of])
-        out = [np.full(k, np.inf), np.full(k, -np.inf), np.full(k, np.inf), np.full(k, -np.inf)]
-        np.minimum.at(out[0], of2, ends_x)
-        np.maximum.at(out[1], of2, ends_x)
-        np.minimum.at(out[2], of2, ends_y)
-        np.maximum.at(out[3], of2, ends_y)
-        # the box's corners inside the part
-        cx = np.stack([x_lo, x_lo, x_hi, x_hi], axis=1)
-        cy = np.broadcast_to(np.array([-hw, hw, -hw, hw]), cx.shape)
-        base = self.centre[:, None] + cx[..., None] * self.u[:, None] + cy[..., None] * self.v[:, None]
-        inside = shapely.contains_xy(self.part.polygon, base[..., 0], base[..., 1]) & (x_lo <= x_hi)[:, None]
-        out[0] = np.minimum(out[0], np.where(inside, cx, np.inf).min(axis=1))
-        out[1] = np.maximum(out[1], np.where(inside, cx, -np.inf).max(axis=1))
-        out[2] = np.minimum(out[2], np.where(inside, cy, np.inf).min(axis=1))
-        out[3] = np.maximum(out[3], np.where(inside, cy, -np.inf).max(axis=1))
+        p = self if clipped else self.within(x_lo, x_hi, hw)
+        xa, xb = p.x + p.s0 * p.dx, p.x + p.s1 * p.dx
+        ya, yb = p.y + p.s0 * p.dy, p.y + p.s1 * p.dy
+        out = [_per_grasp(np.minimum(xa, xb), p.of, k, np.minimum, np.inf),
+               _per_grasp(np.maximum(xa, xb), p.of, k, np.maximum, -np.inf),
+               _per_grasp(np.minimum(ya, yb), p.of, k, np.minimum, np.inf),
+               _per_grasp(np.maximum(ya, yb), p.of, k, np.maximum, -np.inf)]
         return tuple(out)
+
+
+def _per_grasp(values: np.ndarray, of: np.ndarray, k: int, ufunc, empty: float) -> np.ndarray:
+    """(k,) `values` of pieces in grasp order (`of`, sorted) reduced per grasp by `ufunc` (`empty` for none)."""
+    out = np.full(k, empty)
+    if len(of):
+        starts = np.flatnonzero(np.concatenate([[True], of[1:] != of[:-1]]))
+        out[of[starts]] = ufunc.reduceat(values, starts)
+    return out

@@ -119,3 +119,20 @@ def test_recordings_made_before_it_plan_with_the_lower_bounds():
     assert planner_from_meta({}, "m").load_at_pad_patches is False
     with pytest.raises(BadInput, match="load_at_pad_patches must be true or false"):
         planner_from_meta({"load_at_pad_patches": "yes"}, "m")
+
+
+def test_a_set_whose_pads_would_stop_elsewhere_than_at_its_contacts_is_not_kept():
+    # contacts 2 mm short of a 30 mm bar's faces (the pads stop 2 mm further in than they say), and a bar joined
+    # to a frame whose wall lies 3 mm off it, where the open fingers come down: the load is not worked out, the
+    # set not kept
+    bar = parse_part({"id": "bar", "outline": [[0, 0], [40, 0], [40, 30], [0, 30]], "z_top": 10.0})
+    up = np.array([[0.0, 1.0]])
+    slip, roll = judged_demands(bar, np.array([[[20.0, -2.0], [20.0, 32.0]]]), up, CELL, 1.0)
+    assert np.isinf(slip[0]) and np.isinf(roll[0])
+    slip, roll = judged_demands(bar, np.array([[[20.0, 0.0], [20.0, 30.0]]]), up, CELL, 1.0)
+    assert max(slip[0], roll[0]) < 0.2  # (a 32 g aluminium bar held across its middle)
+    framed = parse_part({"id": "framed", "outline": [[-20, -8], [60, -8], [60, 38], [-20, 38]],
+                         "holes": [[[0, -3], [0, 0], [40, 0], [40, 30], [0, 30], [0, 33], [58, 33], [58, -3]]],
+                         "z_top": 10.0})
+    slip, roll = judged_demands(framed, np.array([[[20.0, 0.0], [20.0, 30.0]]]), up, CELL, 1.0)
+    assert np.isinf(roll[0])

@@ -6,10 +6,11 @@ the second, y across) the pads close along x inside a band as wide as the pad. T
 of the part inside the approach opening: its least and greatest x there (`x_left`, `x_right`). Each pad's
 patch is the material within PATCH_DEPTH_MM of where it stops; the judge takes its width across the pad and
 its middle. The extent of the part's material in an axis-aligned box is attained at a vertex of their
-intersection: an edge of the part clipped to the box (Liang-Barsky), or a corner of the box inside the part.
-That is exact, so the only differences from the judge's shapely are of float rounding: every quantity is
-given as an interval (the box taken EPS_MM smaller and larger), and what the rounding could decide
-(material on the band's side, a step just at the patch depth) shows as a wide interval, not a wrong value.
+intersection: an edge of the part clipped to the box (Liang-Barsky), or a corner of the box inside the part
+(which, for the boxes here, only happens where the set is not kept: `pad_patches`). That is exact, so the only
+differences from the judge's shapely are of float rounding: every quantity is given as an interval (the box
+taken EPS_MM smaller and larger), and what the rounding could decide (material on the band's side, a step just
+at the patch depth) shows as a wide interval, not a wrong value.
 """
 
 from __future__ import annotations
@@ -97,9 +98,10 @@ def pad_patches(part: Part, contacts_mm: np.ndarray, axes: np.ndarray, pad_width
     none = ~np.isfinite(ys_lo)  # the judge's patch may be empty: it takes the middle of the pad then
     m_lo, m_hi = np.where(none, np.minimum(m_lo, 0.0), m_lo), np.where(none, np.maximum(m_hi, 0.0), m_hi)
     y_mid, x_mid = 0.5 * (m_lo + m_hi), 0.5 * (f0 + f1)
-    middle = sides_c + x_mid[:, None] * sides_u + y_mid[:, None] * sides_v
-    slack = 0.5 * (m_hi - m_lo) + 0.5 * (f1 - f0) + EPS_MM
-    reach = np.where(known, near.distance(x_mid, y_mid) + 2.0 * slack, np.inf)
+    with np.errstate(invalid="ignore"):  # (no face: nan, and not kept)
+        middle = sides_c + x_mid[:, None] * sides_u + y_mid[:, None] * sides_v
+        slack = 0.5 * (m_hi - m_lo) + 0.5 * (f1 - f0) + EPS_MM
+        reach = np.where(known, near.distance(x_mid, y_mid) + 2.0 * slack, np.inf)
     f0, f1 = np.where(known, f0, np.inf), np.where(known, f1, np.inf)
     x_left, x_right = (f0[:n], f1[:n]), (-f1[n:], -f0[n:])  # (the second pad's, in the grasp's frame)
     width, reach = np.stack([width[:n], width[n:]], axis=1), np.stack([reach[:n], reach[n:]], axis=1)
@@ -119,10 +121,9 @@ def _edges(part: Part) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass
 class _Pieces:
-    """The part's edges clipped to one box per grasp (its frame's [-s, s] x [-hw, hw]): piece i is the stretch
-    [s0, s1] of the edge starting at (x, y) and running (dx, dy) in grasp `of[i]`'s frame, pieces in grasp order.
-    Every smaller box's material is found from them (a box's edges inside a larger box are the larger box's
-    pieces clipped again) and its corners inside the part."""
+    """The part's edges clipped to one box per grasp (its frame's [x_lo, x_hi] x [-hw, hw]): piece i is the
+    stretch [s0, s1] of the edge starting at (x, y) and running (dx, dy) in grasp `of[i]`'s frame, pieces in
+    grasp order. A smaller box's edges are these clipped again (`within`)."""
 
     part: Part
     centre: np.ndarray

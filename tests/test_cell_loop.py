@@ -167,6 +167,7 @@ def test_a_recording_keeps_the_planner_it_ran_and_replays_with_it(recorded, tmp_
                               "grasp_z_over_neighbours must be true or false"),
                              ("cog_radius_outer_disc", "yes", "cog_radius_outer_disc must be true or false"),
                              ("label_from_outline", 1, "label_from_outline must be true or false"),
+                             ("load_at_pad_patches", "yes", "load_at_pad_patches must be true or false"),
                              ("part_shape_weight", "one", "part_shape_weight must be a number"),
                              ("part_shape_weight", -0.5, "part_shape_weight must be a number"),
                              ("tree_minority_weight_max", True, "tree_minority_weight_max must be a number"),

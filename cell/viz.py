@@ -295,9 +295,18 @@ class Viz:
                   + (f", {self.save_path} is written" if self.save_path is not None else ""), file=sys.stderr)
 
     def close(self) -> None:
-        """Flush and close the sinks (the .rrd file gets its footer)."""
+        """Flush and close the sinks (the .rrd file gets its footer). rerun's disconnect waits on its file writer,
+        and once that writer died (a reader gone from a pipe, a failing disk) it waited for ever now and then (a
+        CI run hung in test_recording_rrd_failure): it runs in a thread of its own, and one that has not returned
+        within FLUSH_TIMEOUT_S is given up, the file counted as failed."""
+        import threading
+
         self.flush()
-        self.rec.disconnect()
+        done = threading.Thread(target=self.rec.disconnect, name="rerun-disconnect", daemon=True)
+        done.start()
+        done.join(FLUSH_TIMEOUT_S)
+        if done.is_alive() and self.save_path is not None and self.failed is None:
+            self._file_failed(RuntimeError(f"its close did not return within {FLUSH_TIMEOUT_S:g} s"))
 
     def __enter__(self) -> Viz:
         return self
